@@ -1,0 +1,297 @@
+//! Cameras and the conventions of shared/DESIGN.md.
+//!
+//! - NDC `x ∈ [−1,1]` left→right, `y ∈ [−1,1]` bottom→top; the pixel centre of column `i`, row `j`
+//!   is `x = (2i+1)/W − 1`, `y = 1 − (2j+1)/H` (row 0 at the top).
+//! - Reversed depth `Z ∈ [0,1]`: 1 at the near plane, 0 at the (finite) far plane.
+//! - Matrices are row-major 4×4 acting on column vectors: `clip = P · [x, y, z, 1]ᵀ`.
+//!
+//! Matrices arrive in `f64` (the API's precision), are combined and inverted in `f64`, and only
+//! then rounded to `f32` for the kernels, so that the inverse is as exact as the data allows.
+
+use crate::error::{ReprojError, Result};
+
+/// Largest image side the kernels accept. Splat keys store a linear pixel index in 32 bits, and
+/// anything larger than this is certainly a corrupted header rather than a real camera.
+pub const MAX_SIDE: usize = 16384;
+
+/// A row-major 4×4 matrix in `f64`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mat4(pub [[f64; 4]; 4]);
+
+impl Mat4 {
+    /// The identity.
+    pub const IDENTITY: Mat4 = Mat4([
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ]);
+
+    /// Builds a matrix from 16 row-major values.
+    pub fn from_row_major(v: &[f64; 16]) -> Mat4 {
+        let mut m = [[0.0; 4]; 4];
+        for r in 0..4 {
+            for c in 0..4 {
+                m[r][c] = v[r * 4 + c];
+            }
+        }
+        Mat4(m)
+    }
+
+    /// `self · other`.
+    pub fn mul(&self, other: &Mat4) -> Mat4 {
+        let mut m = [[0.0; 4]; 4];
+        for (r, row) in m.iter_mut().enumerate() {
+            for (c, out) in row.iter_mut().enumerate() {
+                *out = (0..4).map(|k| self.0[r][k] * other.0[k][c]).sum();
+            }
+        }
+        Mat4(m)
+    }
+
+    /// `self · v` for a column vector.
+    pub fn mul_vec(&self, v: [f64; 4]) -> [f64; 4] {
+        let mut o = [0.0; 4];
+        for (r, out) in o.iter_mut().enumerate() {
+            *out = (0..4).map(|k| self.0[r][k] * v[k]).sum();
+        }
+        o
+    }
+
+    /// The inverse by Gauss–Jordan elimination with partial pivoting, or `None` if the matrix is
+    /// singular (pivot below `1e-12` relative to the largest entry) or holds non-finite values.
+    pub fn inverse(&self) -> Option<Mat4> {
+        let scale = self.0.iter().flatten().fold(0.0f64, |a, &b| a.max(b.abs()));
+        if !scale.is_finite() || scale == 0.0 {
+            return None;
+        }
+        let mut a = self.0;
+        let mut inv = Mat4::IDENTITY.0;
+        for col in 0..4 {
+            let pivot = (col..4)
+                .max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))
+                .unwrap_or(col);
+            if a[pivot][col].abs() <= 1e-12 * scale {
+                return None;
+            }
+            a.swap(col, pivot);
+            inv.swap(col, pivot);
+            let d = a[col][col];
+            for k in 0..4 {
+                a[col][k] /= d;
+                inv[col][k] /= d;
+            }
+            for r in 0..4 {
+                if r != col {
+                    let f = a[r][col];
+                    if f != 0.0 {
+                        for k in 0..4 {
+                            a[r][k] -= f * a[col][k];
+                            inv[r][k] -= f * inv[col][k];
+                        }
+                    }
+                }
+            }
+        }
+        let out = Mat4(inv);
+        out.0.iter().flatten().all(|v| v.is_finite()).then_some(out)
+    }
+
+    /// The matrix rounded to `f32`, row-major.
+    pub fn to_f32(&self) -> M4 {
+        let mut m = [0.0f32; 16];
+        for r in 0..4 {
+            for c in 0..4 {
+                m[r * 4 + c] = self.0[r][c] as f32;
+            }
+        }
+        M4(m)
+    }
+}
+
+/// A row-major 4×4 matrix in `f32`, as the kernels use it (and as the WGSL twin will).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct M4(pub [f32; 16]);
+
+impl M4 {
+    /// `self · (x, y, z, 1)ᵀ`, the full homogeneous result.
+    #[inline(always)]
+    pub fn apply(&self, p: [f32; 3]) -> [f32; 4] {
+        let m = &self.0;
+        [
+            m[0] * p[0] + m[1] * p[1] + m[2] * p[2] + m[3],
+            m[4] * p[0] + m[5] * p[1] + m[6] * p[2] + m[7],
+            m[8] * p[0] + m[9] * p[1] + m[10] * p[2] + m[11],
+            m[12] * p[0] + m[13] * p[1] + m[14] * p[2] + m[15],
+        ]
+    }
+
+    /// `self · (x, y, z, 1)ᵀ` followed by the perspective division. The result is NaN-free only
+    /// when `w ≠ 0`; callers that need to reject points behind the camera use [`M4::apply`].
+    #[inline(always)]
+    pub fn project(&self, p: [f32; 3]) -> [f32; 3] {
+        let h = self.apply(p);
+        let iw = 1.0 / h[3];
+        [h[0] * iw, h[1] * iw, h[2] * iw]
+    }
+}
+
+/// A pinhole camera: world→camera `view`, camera→clip `proj` (reversed depth), and image size.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// World → camera (the camera looks along its −z).
+    pub view: Mat4,
+    /// Camera → clip, reversed depth in `[0,1]`.
+    pub proj: Mat4,
+    /// Image width in pixels.
+    pub width: usize,
+    /// Image height in pixels.
+    pub height: usize,
+}
+
+impl Camera {
+    /// Creates a camera, checking the size.
+    ///
+    /// # Errors
+    /// [`ReprojError::BadSize`] when a side is zero or above [`MAX_SIDE`].
+    pub fn new(view: Mat4, proj: Mat4, width: usize, height: usize, what: &str) -> Result<Camera> {
+        if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
+            return Err(ReprojError::BadSize {
+                what: what.to_string(),
+                width,
+                height,
+                max: MAX_SIDE,
+            });
+        }
+        Ok(Camera {
+            view,
+            proj,
+            width,
+            height,
+        })
+    }
+
+    /// `P = proj · view` in `f64`.
+    pub fn view_proj(&self) -> Mat4 {
+        self.proj.mul(&self.view)
+    }
+
+    /// The kernel-side form of this camera: `P` and `P⁻¹` in `f32`.
+    ///
+    /// # Errors
+    /// [`ReprojError::SingularMatrix`] when `P` cannot be inverted.
+    pub fn projector(&self, what: &str) -> Result<Projector> {
+        let vp = self.view_proj();
+        let inv = vp.inverse().ok_or_else(|| ReprojError::SingularMatrix {
+            what: what.to_string(),
+        })?;
+        Ok(Projector {
+            vp: vp.to_f32(),
+            inv_vp: inv.to_f32(),
+            width: self.width,
+            height: self.height,
+        })
+    }
+}
+
+/// A camera ready for the kernels: `P` and `P⁻¹` in `f32` plus its pixel grid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Projector {
+    /// `P = proj · view`.
+    pub vp: M4,
+    /// `P⁻¹`.
+    pub inv_vp: M4,
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+}
+
+impl Projector {
+    /// NDC of the centre of pixel `(i, j)`: `x = (2i+1)/W − 1`, `y = 1 − (2j+1)/H`.
+    #[inline(always)]
+    pub fn ndc_of_pixel(&self, i: usize, j: usize) -> [f32; 2] {
+        ndc_of_pixel(i, j, self.width, self.height)
+    }
+
+    /// The pixel containing NDC point `(x, y)`, or `None` outside the image (or for NaN).
+    #[inline(always)]
+    pub fn pixel_of_ndc(&self, x: f32, y: f32) -> Option<(usize, usize)> {
+        pixel_of_ndc(x, y, self.width, self.height)
+    }
+
+    /// World point of NDC `(x, y, Z)`: `P⁻¹(p̄)` with the perspective division.
+    #[inline(always)]
+    pub fn unproject(&self, ndc: [f32; 3]) -> [f32; 3] {
+        self.inv_vp.project(ndc)
+    }
+}
+
+/// NDC of the centre of pixel `(i, j)` in a `w × h` image.
+#[inline(always)]
+pub fn ndc_of_pixel(i: usize, j: usize, w: usize, h: usize) -> [f32; 2] {
+    [
+        (2 * i + 1) as f32 / w as f32 - 1.0,
+        1.0 - (2 * j + 1) as f32 / h as f32,
+    ]
+}
+
+/// The pixel of a `w × h` image that contains NDC `(x, y)`: `i = ⌊(x+1)·W/2⌋`,
+/// `j = ⌊(1−y)·H/2⌋`; `None` outside the image or for NaN.
+#[inline(always)]
+pub fn pixel_of_ndc(x: f32, y: f32, w: usize, h: usize) -> Option<(usize, usize)> {
+    let fx = ((x + 1.0) * 0.5 * w as f32).floor();
+    let fy = ((1.0 - y) * 0.5 * h as f32).floor();
+    // NaN fails both comparisons, so it is rejected here too.
+    if fx >= 0.0 && fy >= 0.0 && fx < w as f32 && fy < h as f32 {
+        Some((fx as usize, fy as usize))
+    } else {
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn inverse_of_product_is_identity() {
+        let a = Mat4([
+            [2.0, 0.5, 0.0, 1.0],
+            [0.0, 1.5, 0.3, -2.0],
+            [0.1, 0.0, 1.0, 0.5],
+            [0.0, 0.0, -1.0, 0.0],
+        ]);
+        let i = a.mul(&a.inverse().unwrap());
+        for r in 0..4 {
+            for c in 0..4 {
+                let e = if r == c { 1.0 } else { 0.0 };
+                assert!((i.0[r][c] - e).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn singular_matrix_has_no_inverse() {
+        let mut a = Mat4::IDENTITY;
+        a.0[2] = [0.0; 4];
+        assert!(a.inverse().is_none());
+        a.0[2][2] = f64::NAN;
+        assert!(a.inverse().is_none());
+    }
+
+    #[test]
+    fn pixel_ndc_round_trip() {
+        for (w, h) in [(1, 1), (7, 5), (640, 360)] {
+            for j in 0..h {
+                for i in 0..w {
+                    let [x, y] = ndc_of_pixel(i, j, w, h);
+                    assert_eq!(pixel_of_ndc(x, y, w, h), Some((i, j)));
+                }
+            }
+        }
+        assert_eq!(pixel_of_ndc(f32::NAN, 0.0, 4, 4), None);
+        assert_eq!(pixel_of_ndc(1.0, 0.0, 4, 4), None);
+        assert_eq!(pixel_of_ndc(-1.0, 1.0, 4, 4), Some((0, 0)));
+    }
+}

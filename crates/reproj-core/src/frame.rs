@@ -1,0 +1,100 @@
+//! Borrowed views of what the client holds of one server frame, and of the client's request.
+
+use crate::camera::Camera;
+use crate::error::{ReprojError, Result};
+
+/// The dynamic-shadow buffers of one source image (seeds/000 §3.3): for every pixel a bitfield
+/// with 2 bits per subframe (subframe `j` in bits `2j, 2j+1`, subframe 0 the key frame itself) and
+/// the colours `S_min`/`S_max` at the minimum/maximum level. Bitfield 0 means "no dynamic shadow".
+#[derive(Debug, Clone, Copy)]
+pub struct ShadowView<'a> {
+    /// `H·W` bitfields.
+    pub bits: &'a [u32],
+    /// `H·W·3` RGB8 colour at the minimum level (0 where that level is the key frame's).
+    pub s_min: &'a [u8],
+    /// `H·W·3` RGB8 colour at the maximum level (0 where that level is the key frame's).
+    pub s_max: &'a [u8],
+}
+
+/// One camera of one server frame, with the directional buffers for the role it plays in a pair:
+/// for the older frame `F_t` the forward motion `O_{t→t+1}` and forward shadows; for the newer
+/// frame `F_{t+1}` the backward motion `O_{t+1→t}` and backward shadows.
+#[derive(Debug, Clone, Copy)]
+pub struct CameraView<'a> {
+    /// The server camera `C` at this frame's time.
+    pub camera: Camera,
+    /// `H·W·3` RGB8 colour `I`.
+    pub color: &'a [u8],
+    /// `H·W` reversed depth `Z`. NaN or infinite marks a pixel invalid.
+    pub depth: &'a [f32],
+    /// `H·W·3` object motion in this camera's NDC (DESIGN.md). `None` means static (all zero).
+    pub motion: Option<&'a [f32]>,
+    /// Dynamic-shadow buffers of this direction; `None` disables shadow application for it.
+    pub shadow: Option<ShadowView<'a>>,
+}
+
+/// The cameras of one server frame: the main camera and the auxiliary cameras, in rig order.
+#[derive(Debug, Clone)]
+pub struct FrameView<'a> {
+    /// The main camera.
+    pub main: CameraView<'a>,
+    /// The auxiliary cameras (empty when the frame has none).
+    pub aux: Vec<CameraView<'a>>,
+}
+
+fn check_len(what: &str, actual: usize, expected: usize, detail: String) -> Result<()> {
+    if actual != expected {
+        return Err(ReprojError::BufferSize {
+            what: what.to_string(),
+            expected,
+            actual,
+            detail,
+        });
+    }
+    Ok(())
+}
+
+impl CameraView<'_> {
+    /// Checks every buffer against the camera's size.
+    ///
+    /// # Errors
+    /// [`ReprojError::BufferSize`] naming the first buffer whose length is wrong.
+    pub fn validate(&self, what: &str) -> Result<()> {
+        let (w, h) = (self.camera.width, self.camera.height);
+        let n = w * h;
+        check_len(&format!("{what}.color"), self.color.len(), n * 3, format!("{h}x{w}x3"))?;
+        check_len(&format!("{what}.depth"), self.depth.len(), n, format!("{h}x{w}"))?;
+        if let Some(m) = self.motion {
+            check_len(&format!("{what}.motion"), m.len(), n * 3, format!("{h}x{w}x3"))?;
+        }
+        if let Some(s) = &self.shadow {
+            check_len(&format!("{what}.shadow.bits"), s.bits.len(), n, format!("{h}x{w}"))?;
+            check_len(&format!("{what}.shadow.s_min"), s.s_min.len(), n * 3, format!("{h}x{w}x3"))?;
+            check_len(&format!("{what}.shadow.s_max"), s.s_max.len(), n * 3, format!("{h}x{w}x3"))?;
+        }
+        Ok(())
+    }
+
+    /// The motion of pixel `idx`, zero when the frame carries none.
+    #[inline(always)]
+    pub fn motion_at(&self, idx: usize) -> [f32; 3] {
+        match self.motion {
+            Some(m) => [m[3 * idx], m[3 * idx + 1], m[3 * idx + 2]],
+            None => [0.0; 3],
+        }
+    }
+}
+
+impl FrameView<'_> {
+    /// Checks every camera's buffers.
+    ///
+    /// # Errors
+    /// The first [`ReprojError::BufferSize`] found.
+    pub fn validate(&self, what: &str) -> Result<()> {
+        self.main.validate(&format!("{what}.main"))?;
+        for (i, a) in self.aux.iter().enumerate() {
+            a.validate(&format!("{what}.aux[{i}]"))?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,31 @@
+//! # reproj-core
+//!
+//! The CPU kernels of splitrender: client-side image-based spatio-temporal reprojection for split
+//! rendering, after Steiner et al. 2025 ("Image-Based Spatio-Temporal Interpolation for Split
+//! Rendering", seeds/000), with the comparison methods of its evaluation.
+//!
+//! Conventions (coordinates, reversed depth, motion, shadow bits, timing) are those of
+//! shared/DESIGN.md and are documented in [`camera`]. The crate knows nothing of Python; the
+//! bindings live in `reproj-py`.
+//!
+//! Entry point: [`reproject`], which writes one client frame into a caller-owned buffer holding the
+//! previous client frame (pixels without a match keep that colour, seeds/000 §3.5 rule 3).
+
+#![warn(missing_docs)]
+
+pub mod backward_bidir;
+pub mod camera;
+pub mod error;
+pub mod frame;
+pub mod method;
+pub mod params;
+pub mod reproject;
+pub mod shadow;
+pub mod timewarp;
+
+pub use backward_bidir::BidirHistory;
+pub use camera::{Camera, Mat4, Projector, M4, MAX_SIDE};
+pub use error::{ReprojError, Result};
+pub use frame::{CameraView, FrameView, ShadowView};
+pub use method::{reproject, Diagnostics, Method, Request};
+pub use params::{Params, TILE};

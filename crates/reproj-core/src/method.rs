@@ -1,0 +1,241 @@
+//! Method selection by name and the single entry point [`reproject`].
+
+use std::fmt;
+use std::str::FromStr;
+
+use crate::backward_bidir::{self, BidirHistory};
+use crate::camera::Camera;
+use crate::error::{ReprojError, Result};
+use crate::frame::FrameView;
+use crate::params::Params;
+use crate::{reproject as ours, timewarp};
+
+/// The reprojection methods of shared/DESIGN.md "Methods".
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// seeds/000: splat-initialised bidirectional FPI at the client pose, Algorithms 1–2 with the
+    /// motion-cancel check, auxiliary cameras, shadow application; extrapolates when `α ≥ 1`.
+    Ours,
+    /// `Ours` from the newest frame alone (unidirectional extrapolation, `α ≥ 1`).
+    OursExtrapolate,
+    /// Depth-aware point splatting and a 3×3 nearest search, no FPI (seeds/000 §4.2); from the
+    /// newest frame unless [`Params::splat_bidirectional`].
+    ForwardSplat,
+    /// Planar reprojection of the current frame at its average depth.
+    Timewarp,
+    /// seeds/001: image-space bidirectional reprojection interpolating between the two server NDC
+    /// spaces (ignores the client pose).
+    BackwardBidir,
+}
+
+impl Method {
+    /// Every method, in the order of the paper's tables.
+    pub const ALL: [Method; 5] = [
+        Method::Ours,
+        Method::OursExtrapolate,
+        Method::ForwardSplat,
+        Method::Timewarp,
+        Method::BackwardBidir,
+    ];
+
+    /// The method's name as used everywhere (CLI, Python, results files).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Method::Ours => "ours",
+            Method::OursExtrapolate => "ours_extrapolate",
+            Method::ForwardSplat => "forward_splat",
+            Method::Timewarp => "timewarp",
+            Method::BackwardBidir => "backward_bidir",
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Method {
+    type Err = ReprojError;
+    fn from_str(s: &str) -> Result<Method> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| ReprojError::UnknownMethod(s.to_string()))
+    }
+}
+
+/// What the client asks for: its actual camera at display time and `α`, the display time relative
+/// to the pair: `α = (t − t_k)/(t_{k+1} − t_k)`. `α ∈ [0,1)` interpolates, `α ≥ 1` extrapolates
+/// from the newer frame (seeds/000 §3.5).
+#[derive(Debug, Clone, Copy)]
+pub struct Request {
+    /// The client camera `P_{t+α}`; its size is the output size.
+    pub client: Camera,
+    /// `α`.
+    pub alpha: f32,
+}
+
+/// Largest `α` accepted: extrapolating more than two server intervals is never meaningful.
+pub const MAX_ALPHA: f32 = 3.0;
+
+/// Per-output-pixel diagnostics.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Diagnostics {
+    /// Which source coloured the pixel: [`Diagnostics::NONE`] (kept the previous frame),
+    /// [`Diagnostics::MAIN_OLDER`], [`Diagnostics::MAIN_NEWER`], or `AUX_BASE + 2·i (+1 for the
+    /// newer frame)` for auxiliary camera `i`; [`Diagnostics::BLENDED`] is or-ed in when Algorithm 2
+    /// blended the other frame's colour in.
+    pub source: Vec<u8>,
+    /// Reprojection error of the chosen match (NDC, aspect-scaled); NaN where none.
+    pub error: Vec<f32>,
+}
+
+impl Diagnostics {
+    /// No match: the previous client frame's colour was kept.
+    pub const NONE: u8 = 0;
+    /// The main camera of the older frame.
+    pub const MAIN_OLDER: u8 = 1;
+    /// The main camera of the newer frame.
+    pub const MAIN_NEWER: u8 = 2;
+    /// First auxiliary code: auxiliary camera `i` of the older frame is `AUX_BASE + 2i`.
+    pub const AUX_BASE: u8 = 3;
+    /// Flag: Algorithm 2 blended the other frame in.
+    pub const BLENDED: u8 = 0x80;
+
+    /// Diagnostics for `n` pixels, all "no match".
+    pub fn new(n: usize) -> Diagnostics {
+        Diagnostics {
+            source: vec![Self::NONE; n],
+            error: vec![f32::NAN; n],
+        }
+    }
+}
+
+/// Synthesises one client frame with `method` into `out`.
+///
+/// `out` (`H·W·3` RGB8 at the client camera's size) holds the previous client frame on entry;
+/// pixels without a match keep it. `older` is `F_t` (with its forward motion and shadows), `newer`
+/// is `F_{t+1}` (with its backward motion and shadows). Unidirectional methods (ours_extrapolate,
+/// forward_splat, timewarp) use `newer` alone when `α ≥ 1` or `older` is `None`; timewarp uses
+/// `older` when `α < 1`.
+///
+/// `history` is read and updated by `backward_bidir` only (seeds/001 latest-frame initialisation);
+/// the caller resets it when the frame pair changes.
+///
+/// # Errors
+/// Any [`ReprojError`] about the inputs; nothing is written to `out` or `diag` then.
+pub fn reproject(
+    method: Method,
+    older: Option<&FrameView>,
+    newer: &FrameView,
+    request: &Request,
+    params: &Params,
+    out: &mut [u8],
+    diag: Option<&mut Diagnostics>,
+    history: Option<&mut BidirHistory>,
+) -> Result<()> {
+    params.validate()?;
+    let client = &request.client;
+    client.projector("client camera")?;
+    let n = client.width * client.height;
+    if out.len() != n * 3 {
+        return Err(ReprojError::BufferSize {
+            what: "previous client frame".into(),
+            expected: n * 3,
+            actual: out.len(),
+            detail: format!("{}x{}x3", client.height, client.width),
+        });
+    }
+    if let Some(d) = diag.as_deref() {
+        if d.source.len() != n || d.error.len() != n {
+            return Err(ReprojError::BufferSize {
+                what: "diagnostics".into(),
+                expected: n,
+                actual: d.source.len().min(d.error.len()),
+                detail: format!("{}x{}", client.height, client.width),
+            });
+        }
+    }
+    let alpha = request.alpha;
+    let range_err = |range: &str| ReprojError::AlphaRange {
+        alpha,
+        method: method.name().into(),
+        range: range.into(),
+    };
+    if !(alpha.is_finite() && (0.0..=MAX_ALPHA).contains(&alpha)) {
+        return Err(range_err("[0, 3]"));
+    }
+    newer.validate("newer")?;
+    if let Some(o) = older {
+        o.validate("older")?;
+        if o.aux.len() != newer.aux.len() {
+            return Err(ReprojError::CameraMismatch(format!(
+                "older frame has {} auxiliary cameras, newer has {}",
+                o.aux.len(),
+                newer.aux.len()
+            )));
+        }
+    }
+    match method {
+        Method::Ours => {
+            if older.is_none() && alpha < 1.0 {
+                return Err(ReprojError::MissingFrame(
+                    "method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame".into(),
+                ));
+            }
+            ours::run(ours::Mode::Ours, older, newer, request, params, out, diag)
+        }
+        Method::OursExtrapolate => {
+            if alpha < 1.0 {
+                return Err(range_err("[1, 3] (extrapolation from the newest frame, given as `newer`)"));
+            }
+            ours::run(ours::Mode::Ours, None, newer, request, params, out, diag)
+        }
+        Method::ForwardSplat => {
+            if params.splat_bidirectional {
+                if older.is_none() && alpha < 1.0 {
+                    return Err(ReprojError::MissingFrame(
+                        "bidirectional forward_splat with alpha < 1 needs the older frame".into(),
+                    ));
+                }
+                ours::run(ours::Mode::ForwardSplat, older, newer, request, params, out, diag)
+            } else {
+                if alpha < 1.0 {
+                    return Err(range_err("[1, 3] (unidirectional splatting from the newest frame, given as `newer`)"));
+                }
+                ours::run(ours::Mode::ForwardSplat, None, newer, request, params, out, diag)
+            }
+        }
+        Method::Timewarp => {
+            let frame = match older {
+                Some(o) if alpha < 1.0 => o,
+                _ => newer,
+            };
+            timewarp::run(frame, request, params, out, diag)
+        }
+        Method::BackwardBidir => {
+            let older = older.ok_or_else(|| {
+                ReprojError::MissingFrame("method 'backward_bidir' needs both frames".into())
+            })?;
+            if alpha > 1.0 {
+                return Err(range_err("[0, 1] (backward_bidir only interpolates)"));
+            }
+            backward_bidir::run(older, newer, request, params, out, diag, history)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip() {
+        for m in Method::ALL {
+            assert_eq!(m.name().parse::<Method>().unwrap(), m);
+        }
+        assert!(matches!("nope".parse::<Method>(), Err(ReprojError::UnknownMethod(_))));
+    }
+}

@@ -1,0 +1,598 @@
+//! `ours` (seeds/000 §3.5) and `forward_splat`: splat-initialised fixed-point search at the client
+//! pose, best-match selection (Algorithm 1), second-chance blending (Algorithm 2), auxiliary
+//! cameras, dynamic shadows and extrapolation.
+//!
+//! One client frame runs in two passes:
+//! 1. **Scene flow and splatting**, per source image (main and auxiliary cameras of the older and
+//!    newer frame): every source pixel `p` is moved linearly in world space by its object motion,
+//!    `X(w) = X + w·(P⁻¹(p̄ + O[p]) − P⁻¹(p̄))`, and projected into the client camera, giving the
+//!    camera flow `M_cam[p] = P_{t+α}(X(w)) − p̄` (eqs. 1, 12, 13; `w = α` for the older and `1−α`
+//!    for the newer frame). The point is splatted into a grid over the client image at the source's
+//!    resolution with a 64-bit atomic minimum of `(depth, source pixel)`, so the nearest point wins.
+//! 2. **Resolve**, per output pixel over 16×16 tiles: the nearest splat in a 3×3 window initialises
+//!    the fixed-point iteration `p ← pix(T − M_cam[p])` (eq. 5 with eqs. 12/13), then the
+//!    reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary cameras
+//!    are merged (§3.5 rules 1–3), and Algorithm 2 blends in the other frame.
+//!
+//! Where we differ from the reference implementation on purpose (REFERENCE.md §8):
+//! - colours are rounded, not truncated;
+//! - points behind the client camera (`w ≤ 0`) are never splatted;
+//! - auxiliary grids may have any resolution ratio to the output (cells are found from NDC, not
+//!   by integer division), and their error is measured against the output pixel centre the FPI
+//!   aims at, not the auxiliary pixel centre;
+//! - "visible in main" (§3.5 rule 2) tests the main camera's frustum *and* its depth buffer, at the
+//!   source's time and (when both frames are present) at the other frame's time, as the paper says;
+//! - `ε_e` keeps its pixel size across resolutions (see [`Params::eps_e`]);
+//! - blending happens for every `α < 1`, not only while `round(12α) < 12`.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use rayon::prelude::*;
+
+use crate::camera::{pixel_of_ndc, Projector};
+use crate::error::Result;
+use crate::frame::{CameraView, FrameView};
+use crate::method::{Diagnostics, Request};
+use crate::params::{Params, TILE};
+use crate::shadow::{round_rgb, shadow_color, Role};
+
+/// Which pipeline [`run`] executes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Mode {
+    /// The full method.
+    Ours,
+    /// Splat + window search only: no FPI, no shadows, no blending.
+    ForwardSplat,
+}
+
+/// Short side of the paper's main camera (2560×1440). `ε_e` is given at this resolution.
+pub const REFERENCE_SHORT_SIDE: f32 = 1440.0;
+
+/// An empty splat cell: larger than every real key.
+pub const EMPTY_SPLAT: u64 = u64::MAX;
+
+/// The splat key of a point at client reversed depth `z` (`0 < z ≤ 1`) from source pixel `idx`.
+///
+/// Positive IEEE floats order like their bit patterns, and reversed depth is larger for nearer
+/// points, so `!bits` makes the nearest point the smallest key; ties go to the smaller source
+/// index, which keeps the result independent of thread scheduling.
+#[inline(always)]
+pub fn splat_key(z: f32, idx: u32) -> u64 {
+    (u64::from(!z.to_bits()) << 32) | u64::from(idx)
+}
+
+/// The source pixel index stored in a splat key.
+#[inline(always)]
+pub fn splat_index(key: u64) -> u32 {
+    key as u32
+}
+
+/// Everything the kernels need of one source image.
+struct Src<'a> {
+    view: CameraView<'a>,
+    proj: Projector,
+    /// The same camera in the other frame of the pair, for Algorithm 2.
+    other: Option<(CameraView<'a>, Projector)>,
+    role: Role,
+    /// `0` for main, `1 + i` for auxiliary camera `i`.
+    camera: usize,
+    /// `M_cam`: xyz = NDC flow to the client, w = visible-in-main flag (1 or 0); NaN = invalid.
+    flow: Vec<[f32; 4]>,
+    splat: Vec<AtomicU64>,
+}
+
+/// The outcome of the search in one source image for one output pixel.
+#[derive(Debug, Clone, Copy)]
+struct Match {
+    /// Source pixel index.
+    p: u32,
+    /// Reprojection error (eq. 7), aspect-scaled NDC; `INFINITY` when invalid.
+    e: f32,
+    /// Client reversed depth (eq. 8).
+    z: f32,
+    /// Visible in the main camera (only meaningful for auxiliary sources).
+    vis: bool,
+}
+
+/// A per-camera decision of Algorithm 1: which source (index into the source list) and its match,
+/// plus the other side's match when both correspond to the same point.
+#[derive(Debug, Clone, Copy)]
+struct Choice {
+    src: usize,
+    m: Match,
+    visible_in_main: bool,
+}
+
+/// Runs `ours` or `forward_splat`. `older = None` (or `α ≥ 1`) means unidirectional from `newer`.
+pub(crate) fn run<'a>(
+    mode: Mode,
+    older: Option<&FrameView<'a>>,
+    newer: &FrameView<'a>,
+    request: &Request,
+    params: &Params,
+    out: &mut [u8],
+    diag: Option<&mut Diagnostics>,
+) -> Result<()> {
+    let alpha = request.alpha;
+    let client = request.client.projector("client camera")?;
+    let older = if alpha < 1.0 { older } else { None };
+    let bidirectional = older.is_some();
+    let use_aux = params.use_aux;
+
+    // Projectors of every camera first, so that a singular matrix is reported before any work.
+    let mut sources: Vec<Src> = Vec::new();
+    let n_aux = if use_aux { newer.aux.len() } else { 0 };
+    for cam in 0..=n_aux {
+        let pick = |f: &FrameView<'a>| -> CameraView<'a> {
+            if cam == 0 {
+                f.main
+            } else {
+                f.aux[cam - 1]
+            }
+        };
+        let name = |which: &str| {
+            if cam == 0 {
+                format!("{which}.main")
+            } else {
+                format!("{which}.aux[{}]", cam - 1)
+            }
+        };
+        let nv = pick(newer);
+        let np = nv.camera.projector(&name("newer"))?;
+        if let Some(o) = older {
+            let ov = pick(o);
+            let op = ov.camera.projector(&name("older"))?;
+            sources.push(Src::new(ov, op, Some((nv, np)), Role::Older, cam));
+            sources.push(Src::new(nv, np, Some((ov, op)), Role::Newer, cam));
+        } else {
+            sources.push(Src::new(nv, np, None, Role::Newer, cam));
+        }
+    }
+
+    // Pass 1: scene flow and splatting. Visibility in main is needed for auxiliary sources only;
+    // main sources are 0 and (if bidirectional) 1.
+    let n_main = if bidirectional { 2 } else { 1 };
+    let mains: Vec<(CameraView, Projector, Role)> = sources[..n_main]
+        .iter()
+        .map(|s| (s.view, s.proj, s.role))
+        .collect();
+    let eps_z_aux = params.eps_z * params.aux_threshold_scale;
+    for src in sources.iter_mut() {
+        let w = match src.role {
+            Role::Older => alpha,
+            Role::Newer => 1.0 - alpha,
+        };
+        let vis_ctx = (src.camera > 0).then(|| VisCtx {
+            same: mains.iter().find(|m| m.2 == src.role).map(|m| (m.0, m.1)),
+            other: mains.iter().find(|m| m.2 != src.role).map(|m| (m.0, m.1)),
+            eps_z: eps_z_aux,
+        });
+        scene_flow_and_splat(src, &client, w, vis_ctx.as_ref());
+    }
+
+    // Pass 2: resolve per output tile.
+    let (cw, ch) = (request.client.width, request.client.height);
+    let eps_scale = REFERENCE_SHORT_SIDE / cw.min(ch) as f32;
+    let ctx = Resolve {
+        mode,
+        params,
+        alpha,
+        client_w: cw,
+        client_h: ch,
+        sources: &sources,
+        n_cams: 1 + n_aux,
+        bidirectional,
+        eps_e: params.eps_e * eps_scale,
+        eps_e_aux: params.eps_e * eps_scale * params.aux_threshold_scale,
+        eps_z: params.eps_z,
+        eps_z_aux,
+        iterations: if mode == Mode::Ours { params.fpi_iterations } else { 0 },
+    };
+    let rows_per_task = TILE;
+    match diag {
+        Some(d) => out
+            .par_chunks_mut(rows_per_task * cw * 3)
+            .zip(d.source.par_chunks_mut(rows_per_task * cw))
+            .zip(d.error.par_chunks_mut(rows_per_task * cw))
+            .enumerate()
+            .for_each(|(b, ((o, s), e))| ctx.resolve_rows(b * rows_per_task, o, Some((s, e)))),
+        None => out
+            .par_chunks_mut(rows_per_task * cw * 3)
+            .enumerate()
+            .for_each(|(b, o)| ctx.resolve_rows(b * rows_per_task, o, None)),
+    }
+    Ok(())
+}
+
+impl<'a> Src<'a> {
+    fn new(
+        view: CameraView<'a>,
+        proj: Projector,
+        other: Option<(CameraView<'a>, Projector)>,
+        role: Role,
+        camera: usize,
+    ) -> Self {
+        let n = view.camera.width * view.camera.height;
+        Src {
+            view,
+            proj,
+            other,
+            role,
+            camera,
+            flow: vec![[f32::NAN; 4]; n],
+            splat: (0..n).map(|_| AtomicU64::new(EMPTY_SPLAT)).collect(),
+        }
+    }
+}
+
+/// What "visible in main" is tested against for an auxiliary source.
+struct VisCtx<'a> {
+    same: Option<(CameraView<'a>, Projector)>,
+    other: Option<(CameraView<'a>, Projector)>,
+    eps_z: f32,
+}
+
+/// Whether world point `x` is inside the main camera's frustum (strictly inside ±0.999, as the
+/// reference) and not behind its depth buffer by more than `eps_z` (NDC units).
+#[inline]
+fn visible_in(main: &(CameraView, Projector), x: [f32; 3], eps_z: f32) -> bool {
+    let (view, proj) = main;
+    let h = proj.vp.apply(x);
+    if h[3] <= 0.0 {
+        return false;
+    }
+    let c = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
+    const LIM: f32 = 0.999;
+    if !(c[0].abs() < LIM && c[1].abs() < LIM && c[2] > 0.0 && c[2] < 1.0) {
+        return false;
+    }
+    match pixel_of_ndc(c[0], c[1], proj.width, proj.height) {
+        Some((i, j)) => {
+            let zm = view.depth[j * proj.width + i];
+            // Occluded when main saw something nearer (larger reversed depth) at that pixel.
+            !(2.0 * (zm - c[2]) > eps_z)
+        }
+        None => false,
+    }
+}
+
+/// Pass 1 for one source image: `M_cam` (eqs. 1, 12, 13) and the depth-aware splat.
+///
+/// `w` is the fraction of the object motion applied: `α` for the older frame, `1−α` for the newer
+/// one (negative when extrapolating).
+fn scene_flow_and_splat(src: &mut Src, client: &Projector, w: f32, vis: Option<&VisCtx>) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    let view = src.view;
+    let proj = src.proj;
+    let splat = &src.splat;
+    src.flow
+        .par_chunks_mut(TILE * sw)
+        .enumerate()
+        .for_each(|(b, rows)| {
+            let j0 = b * TILE;
+            for (r, row) in rows.chunks_mut(sw).enumerate() {
+                let j = j0 + r;
+                for (i, flow) in row.iter_mut().enumerate() {
+                    let idx = j * sw + i;
+                    *flow = [f32::NAN; 4];
+                    let z = view.depth[idx];
+                    let o = view.motion_at(idx);
+                    // Invalid depth or motion never reaches the output (DESIGN.md).
+                    if !(z.is_finite() && (0.0..=1.0).contains(&z)) || !o.iter().all(|v| v.is_finite()) {
+                        continue;
+                    }
+                    let [x, y] = proj.ndc_of_pixel(i, j);
+                    let c = [x, y, z];
+                    let xw = proj.unproject(c);
+                    let moved = o != [0.0; 3];
+                    let xw2 = if moved {
+                        proj.unproject([x + o[0], y + o[1], z + o[2]])
+                    } else {
+                        xw
+                    };
+                    let xt = if moved {
+                        [
+                            xw[0] + w * (xw2[0] - xw[0]),
+                            xw[1] + w * (xw2[1] - xw[1]),
+                            xw[2] + w * (xw2[2] - xw[2]),
+                        ]
+                    } else {
+                        xw
+                    };
+                    let h = client.vp.apply(xt);
+                    if !(h[3] > 0.0) || !xt.iter().all(|v| v.is_finite()) {
+                        continue; // behind the client camera (or degenerate)
+                    }
+                    let cc = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
+                    let v = match vis {
+                        None => true,
+                        Some(ctx) => {
+                            ctx.same.as_ref().is_some_and(|m| visible_in(m, xw, ctx.eps_z))
+                                || ctx.other.as_ref().is_some_and(|m| visible_in(m, xw2, ctx.eps_z))
+                        }
+                    };
+                    *flow = [cc[0] - x, cc[1] - y, cc[2] - z, if v { 1.0 } else { 0.0 }];
+                    if cc[2] > 0.0 && cc[2] <= 1.0 {
+                        if let Some((qi, qj)) = pixel_of_ndc(cc[0], cc[1], sw, sh) {
+                            splat[qj * sw + qi].fetch_min(splat_key(cc[2], idx as u32), Ordering::Relaxed);
+                        }
+                    }
+                }
+            }
+        });
+}
+
+/// Read-only context of pass 2.
+struct Resolve<'a> {
+    mode: Mode,
+    params: &'a Params,
+    alpha: f32,
+    client_w: usize,
+    client_h: usize,
+    sources: &'a [Src<'a>],
+    n_cams: usize,
+    bidirectional: bool,
+    eps_e: f32,
+    eps_e_aux: f32,
+    eps_z: f32,
+    eps_z_aux: f32,
+    iterations: usize,
+}
+
+impl Resolve<'_> {
+    fn resolve_rows(&self, j0: usize, out: &mut [u8], mut diag: Option<(&mut [u8], &mut [f32])>) {
+        let cw = self.client_w;
+        let rows = out.len() / (3 * cw);
+        // Tiles of 16×16 inside the row block: keeps the splat and flow reads of neighbouring
+        // output pixels close together.
+        for i0 in (0..cw).step_by(TILE) {
+            for r in 0..rows {
+                let j = j0 + r;
+                for i in i0..(i0 + TILE).min(cw) {
+                    let local = r * cw + i;
+                    if let Some((code, rgb, e)) = self.resolve_pixel(i, j) {
+                        out[3 * local..3 * local + 3].copy_from_slice(&rgb);
+                        if let Some((s, err)) = diag.as_mut() {
+                            s[local] = code;
+                            err[local] = e;
+                        }
+                    } else if let Some((s, err)) = diag.as_mut() {
+                        s[local] = Diagnostics::NONE;
+                        err[local] = f32::NAN;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The window search and fixed-point iteration in source `s` for the output pixel at NDC `t`.
+    #[inline]
+    fn search(&self, s: &Src, t: [f32; 2]) -> Option<Match> {
+        let (sw, sh) = (s.proj.width, s.proj.height);
+        let (ci, cj) = pixel_of_ndc(t[0], t[1], sw, sh)?;
+        let wr = self.params.window;
+        let mut best = EMPTY_SPLAT;
+        for qj in cj.saturating_sub(wr)..=(cj + wr).min(sh - 1) {
+            for qi in ci.saturating_sub(wr)..=(ci + wr).min(sw - 1) {
+                best = best.min(s.splat[qj * sw + qi].load(Ordering::Relaxed));
+            }
+        }
+        if best == EMPTY_SPLAT {
+            return None;
+        }
+        let mut p = splat_index(best) as usize;
+        for _ in 0..self.iterations {
+            let m = s.flow[p];
+            if let Some((pi, pj)) = pixel_of_ndc(t[0] - m[0], t[1] - m[1], sw, sh) {
+                p = pj * sw + pi;
+            }
+        }
+        let m = s.flow[p];
+        let [px, py] = s.proj.ndc_of_pixel(p % sw, p / sw);
+        let short = sw.min(sh) as f32;
+        let ex = (px + m[0] - t[0]) * (sw as f32 / short);
+        let ey = (py + m[1] - t[1]) * (sh as f32 / short);
+        let e = (ex * ex + ey * ey).sqrt();
+        let z = s.view.depth[p] + m[2];
+        if !(e.is_finite() && z.is_finite()) {
+            return None;
+        }
+        Some(Match {
+            p: p as u32,
+            e,
+            z,
+            vis: m[3] > 0.0,
+        })
+    }
+
+    /// Algorithm 1 for camera `cam`: the better of its older and newer match, or `None`.
+    #[inline]
+    fn best_match(&self, cam: usize, t: [f32; 2], eps_e: f32, eps_z: f32) -> Option<Choice> {
+        if self.bidirectional {
+            let (fi, bi) = (2 * cam, 2 * cam + 1);
+            let f = self.search(&self.sources[fi], t);
+            let b = self.search(&self.sources[bi], t);
+            let ef = f.map_or(f32::INFINITY, |m| m.e);
+            let eb = b.map_or(f32::INFINITY, |m| m.e);
+            let (f_ok, b_ok) = (ef < eps_e, eb < eps_e);
+            if !f_ok && !b_ok {
+                return None;
+            }
+            let both = f_ok && b_ok;
+            let (zf, zb) = (f.map_or(0.0, |m| m.z), b.map_or(0.0, |m| m.z));
+            let sim = both && 2.0 * (zf - zb).abs() < eps_z;
+            // Both correspond but differ in depth: the nearer (larger reversed depth) occludes.
+            // Otherwise the smaller error (which is the only corresponding one if just one does).
+            let older = (both && !sim && zf > zb) || ((!both || sim) && ef < eb);
+            let (src, m, other) = if older { (fi, f?, b) } else { (bi, b?, f) };
+            let visible_in_main = m.vis || (sim && other.is_some_and(|o| o.vis));
+            Some(Choice {
+                src,
+                m,
+                visible_in_main,
+            })
+        } else {
+            let m = self.search(&self.sources[cam], t)?;
+            (m.e < eps_e).then_some(Choice {
+                src: cam,
+                m,
+                visible_in_main: m.vis,
+            })
+        }
+    }
+
+    /// Colour of source `s` at pixel `p` with its dynamic shadow applied at `α`.
+    #[inline]
+    fn color_of(&self, view: &CameraView, role: Role, p: usize) -> [f32; 3] {
+        let base = [view.color[3 * p], view.color[3 * p + 1], view.color[3 * p + 2]];
+        match (&view.shadow, self.mode == Mode::Ours && self.params.use_shadows) {
+            (Some(sh), true) => {
+                let rgb = |b: &[u8]| [b[3 * p], b[3 * p + 1], b[3 * p + 2]];
+                shadow_color(
+                    base,
+                    sh.bits[p],
+                    rgb(sh.s_min),
+                    rgb(sh.s_max),
+                    self.alpha,
+                    self.params.shadow_subframes,
+                    role,
+                )
+            }
+            _ => base.map(f32::from),
+        }
+    }
+
+    /// Algorithm 2: colour of the chosen match, blended with its correspondence in the other frame
+    /// when forward and backward motion cancel and depths agree. Returns the colour and whether it
+    /// blended.
+    fn second_chance(&self, c: &Choice, eps_z: f32) -> ([f32; 3], bool) {
+        let s = &self.sources[c.src];
+        let p = c.m.p as usize;
+        let base = self.color_of(&s.view, s.role, p);
+        if !(self.bidirectional && self.mode == Mode::Ours && self.params.blend) {
+            return (base, false);
+        }
+        let Some((ov, op)) = &s.other else {
+            return (base, false);
+        };
+        let Some((q, mq_sum, zq, pz)) = correspondence(&s.view, &s.proj, ov, op, p) else {
+            return (base, false);
+        };
+        // ‖M_full_s(p) + M_full_o(q)‖ < ε_O, z in [−1,1]-NDC units (2·ΔZ).
+        let n2 = mq_sum[0] * mq_sum[0] + mq_sum[1] * mq_sum[1] + 4.0 * mq_sum[2] * mq_sum[2];
+        let eps_o = self.params.eps_o;
+        if !(n2 < eps_o * eps_o && 2.0 * (zq - pz).abs() < eps_z) {
+            return (base, false);
+        }
+        let other_role = match s.role {
+            Role::Older => Role::Newer,
+            Role::Newer => Role::Older,
+        };
+        let oc = self.color_of(ov, other_role, q);
+        // ω: the weight of the chosen side's own colour.
+        let omega = match s.role {
+            Role::Older => 1.0 - self.alpha,
+            Role::Newer => self.alpha,
+        };
+        (
+            [
+                omega * base[0] + (1.0 - omega) * oc[0],
+                omega * base[1] + (1.0 - omega) * oc[1],
+                omega * base[2] + (1.0 - omega) * oc[2],
+            ],
+            true,
+        )
+    }
+
+    /// The whole per-pixel decision: `(diagnostic code, colour, error)` or `None` for no match.
+    #[inline]
+    fn resolve_pixel(&self, i: usize, j: usize) -> Option<(u8, [u8; 3], f32)> {
+        let t = crate::camera::ndc_of_pixel(i, j, self.client_w, self.client_h);
+        let main = self.best_match(0, t, self.eps_e, self.eps_z);
+        // Best auxiliary match (§3.5): the nearer if depths differ, else the smaller error.
+        let mut aux: Option<Choice> = None;
+        for cam in 1..self.n_cams {
+            if let Some(c) = self.best_match(cam, t, self.eps_e_aux, self.eps_z_aux) {
+                aux = match aux {
+                    None => Some(c),
+                    Some(b) => {
+                        let sim = 2.0 * (c.m.z - b.m.z).abs() < self.eps_z_aux;
+                        if (!sim && c.m.z > b.m.z) || (sim && c.m.e < b.m.e) {
+                            Some(c)
+                        } else {
+                            Some(b)
+                        }
+                    }
+                };
+            }
+        }
+        let chosen = match (main, aux) {
+            (Some(m), Some(a)) => {
+                let sim = 2.0 * (a.m.z - m.m.z).abs() < self.eps_z_aux;
+                if !a.visible_in_main && !sim && a.m.z > m.m.z {
+                    a
+                } else {
+                    m
+                }
+            }
+            (Some(m), None) => m,
+            (None, Some(a)) => a,
+            (None, None) => return None,
+        };
+        let eps_z = if self.sources[chosen.src].camera == 0 {
+            self.eps_z
+        } else {
+            self.eps_z_aux
+        };
+        let (rgb, blended) = self.second_chance(&chosen, eps_z);
+        let s = &self.sources[chosen.src];
+        let code = if s.camera == 0 {
+            match s.role {
+                Role::Older => Diagnostics::MAIN_OLDER,
+                Role::Newer => Diagnostics::MAIN_NEWER,
+            }
+        } else {
+            Diagnostics::AUX_BASE + 2 * (s.camera as u8 - 1) + u8::from(s.role == Role::Newer)
+        };
+        let code = if blended { code | Diagnostics::BLENDED } else { code };
+        Some((code, round_rgb(rgb), chosen.m.e))
+    }
+}
+
+/// Full scene flow of pixel `p` of `view` into the same camera at the other time (eqs. 2, 3),
+/// then the pixel `q` it lands on there. Returns `q`, `M_full_s(p) + M_full_o(q)`, `Z_o(q)` and the
+/// predicted depth `P.z`; `None` when out of view or invalid.
+#[inline]
+fn correspondence(
+    view: &CameraView,
+    proj: &Projector,
+    other: &CameraView,
+    oproj: &Projector,
+    p: usize,
+) -> Option<(usize, [f32; 3], f32, f32)> {
+    let full_flow = |v: &CameraView, pr: &Projector, to: &Projector, idx: usize| -> Option<[f32; 3]> {
+        let (i, j) = (idx % pr.width, idx / pr.width);
+        let z = v.depth[idx];
+        let o = v.motion_at(idx);
+        let [x, y] = pr.ndc_of_pixel(i, j);
+        let moved = pr.unproject([x + o[0], y + o[1], z + o[2]]);
+        let h = to.vp.apply(moved);
+        if !(h[3] > 0.0) {
+            return None;
+        }
+        let f = [h[0] / h[3] - x, h[1] / h[3] - y, h[2] / h[3] - z];
+        f.iter().all(|v| v.is_finite()).then_some(f)
+    };
+    let ms = full_flow(view, proj, oproj, p)?;
+    let [x, y] = proj.ndc_of_pixel(p % proj.width, p / proj.width);
+    let pz = view.depth[p] + ms[2];
+    let (qi, qj) = pixel_of_ndc(x + ms[0], y + ms[1], oproj.width, oproj.height)?;
+    let q = qj * oproj.width + qi;
+    let zq = other.depth[q];
+    if !zq.is_finite() {
+        return None;
+    }
+    let mo = full_flow(other, oproj, proj, q)?;
+    Some((q, [ms[0] + mo[0], ms[1] + mo[1], ms[2] + mo[2]], zq, pz))
+}
+
