@@ -21,6 +21,7 @@ pub mod method;
 pub mod params;
 pub mod reproject;
 pub mod shadow;
+pub mod synthetic;
 pub mod timewarp;
 
 pub use backward_bidir::BidirHistory;
@@ -29,3 +30,5 @@ pub use error::{ReprojError, Result};
 pub use frame::{CameraView, FrameView, ShadowView};
 pub use method::{reproject, Diagnostics, Method, Request};
 pub use params::{Params, TILE};
+pub use reproject::scene_flow;
+pub use shadow::{apply_shadows, shadow_color, Role};

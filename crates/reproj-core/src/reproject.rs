@@ -29,7 +29,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use rayon::prelude::*;
 
-use crate::camera::{pixel_of_ndc, Projector};
+use crate::camera::{pixel_of_ndc, Camera, Projector};
 use crate::error::Result;
 use crate::frame::{CameraView, FrameView};
 use crate::method::{Diagnostics, Request};
@@ -596,3 +596,21 @@ fn correspondence(
     Some((q, [ms[0] + mo[0], ms[1] + mo[1], ms[2] + mo[2]], zq, pz))
 }
 
+
+/// The camera scene flow `M_cam` of every pixel of one source image to `client` with a fraction
+/// `w` of its object motion applied (eq. 1; eq. 12 with `w = α` for the older frame, eq. 13 with
+/// `w = 1−α` for the newer one): `P_client(X + w·(P⁻¹(p̄ + O[p]) − P⁻¹(p̄))) − p̄`.
+///
+/// Returns `H·W` entries of `[Δx, Δy, ΔZ]`; NaN where the pixel is invalid (non-finite depth or
+/// motion, depth outside `[0,1]`) or the moved point is behind the client camera.
+///
+/// # Errors
+/// Buffer-size errors of `view`, singular matrices.
+pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32; 3]>> {
+    view.validate("source")?;
+    let proj = view.camera.projector("source camera")?;
+    let client = client.projector("client camera")?;
+    let mut src = Src::new(*view, proj, None, Role::Older, 0);
+    scene_flow_and_splat(&mut src, &client, w, None);
+    Ok(src.flow.into_iter().map(|f| [f[0], f[1], f[2]]).collect())
+}

@@ -1,0 +1,1 @@
+//! A small analytic scene for tests, benchmarks and the example. (Being written.)
