@@ -97,6 +97,45 @@ impl Mat4 {
         out.0.iter().flatten().all(|v| v.is_finite()).then_some(out)
     }
 
+    /// A reversed-depth perspective projection with a finite far plane (DESIGN.md): vertical field
+    /// of view `fov_y_deg`, `aspect = W/H`; view-space depth `d = −z` maps to
+    /// `Z = n(f − d) / (d(f − n))`, 1 at the near plane and 0 at the far plane.
+    pub fn perspective(fov_y_deg: f64, aspect: f64, near: f64, far: f64) -> Mat4 {
+        let fy = 1.0 / (fov_y_deg.to_radians() * 0.5).tan();
+        let a = near / (far - near);
+        let b = near * far / (far - near);
+        Mat4([
+            [fy / aspect, 0.0, 0.0, 0.0],
+            [0.0, fy, 0.0, 0.0],
+            [0.0, 0.0, a, b],
+            [0.0, 0.0, -1.0, 0.0],
+        ])
+    }
+
+    /// World→camera matrix of a camera at `eye` looking at `target` (the camera looks along its −z,
+    /// +y up as close to `up` as possible).
+    pub fn look_at(eye: [f64; 3], target: [f64; 3], up: [f64; 3]) -> Mat4 {
+        let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        let cross = |a: [f64; 3], b: [f64; 3]| {
+            [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+        };
+        let norm = |a: [f64; 3]| {
+            let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+            [a[0] / l, a[1] / l, a[2] / l]
+        };
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let f = norm(sub(target, eye));
+        let x = norm(cross(f, up));
+        let y = cross(x, f);
+        let z = [-f[0], -f[1], -f[2]];
+        Mat4([
+            [x[0], x[1], x[2], -dot(x, eye)],
+            [y[0], y[1], y[2], -dot(y, eye)],
+            [z[0], z[1], z[2], -dot(z, eye)],
+            [0.0, 0.0, 0.0, 1.0],
+        ])
+    }
+
     /// The matrix rounded to `f32`, row-major.
     pub fn to_f32(&self) -> M4 {
         let mut m = [0.0f32; 16];
@@ -278,6 +317,26 @@ mod tests {
         assert!(a.inverse().is_none());
         a.0[2][2] = f64::NAN;
         assert!(a.inverse().is_none());
+    }
+
+    #[test]
+    fn perspective_is_reversed_depth() {
+        let p = Mat4::perspective(60.0, 16.0 / 9.0, 0.1, 100.0);
+        let z_at = |d: f64| {
+            let c = p.mul_vec([0.0, 0.0, -d, 1.0]);
+            c[2] / c[3]
+        };
+        assert!((z_at(0.1) - 1.0).abs() < 1e-12);
+        assert!(z_at(100.0).abs() < 1e-12);
+        assert!(z_at(1.0) > z_at(2.0));
+    }
+
+    #[test]
+    fn look_at_puts_target_on_the_axis() {
+        let v = Mat4::look_at([1.0, 2.0, 3.0], [4.0, 2.0, -1.0], [0.0, 1.0, 0.0]);
+        let t = v.mul_vec([4.0, 2.0, -1.0, 1.0]);
+        assert!(t[0].abs() < 1e-12 && t[1].abs() < 1e-12);
+        assert!((t[2] + 5.0).abs() < 1e-12);
     }
 
     #[test]
