@@ -62,15 +62,45 @@ impl CameraView<'_> {
     pub fn validate(&self, what: &str) -> Result<()> {
         let (w, h) = (self.camera.width, self.camera.height);
         let n = w * h;
-        check_len(&format!("{what}.color"), self.color.len(), n * 3, format!("{h}x{w}x3"))?;
-        check_len(&format!("{what}.depth"), self.depth.len(), n, format!("{h}x{w}"))?;
+        check_len(
+            &format!("{what}.color"),
+            self.color.len(),
+            n * 3,
+            format!("{h}x{w}x3"),
+        )?;
+        check_len(
+            &format!("{what}.depth"),
+            self.depth.len(),
+            n,
+            format!("{h}x{w}"),
+        )?;
         if let Some(m) = self.motion {
-            check_len(&format!("{what}.motion"), m.len(), n * 3, format!("{h}x{w}x3"))?;
+            check_len(
+                &format!("{what}.motion"),
+                m.len(),
+                n * 3,
+                format!("{h}x{w}x3"),
+            )?;
         }
         if let Some(s) = &self.shadow {
-            check_len(&format!("{what}.shadow.bits"), s.bits.len(), n, format!("{h}x{w}"))?;
-            check_len(&format!("{what}.shadow.s_min"), s.s_min.len(), n * 3, format!("{h}x{w}x3"))?;
-            check_len(&format!("{what}.shadow.s_max"), s.s_max.len(), n * 3, format!("{h}x{w}x3"))?;
+            check_len(
+                &format!("{what}.shadow.bits"),
+                s.bits.len(),
+                n,
+                format!("{h}x{w}"),
+            )?;
+            check_len(
+                &format!("{what}.shadow.s_min"),
+                s.s_min.len(),
+                n * 3,
+                format!("{h}x{w}x3"),
+            )?;
+            check_len(
+                &format!("{what}.shadow.s_max"),
+                s.s_max.len(),
+                n * 3,
+                format!("{h}x{w}x3"),
+            )?;
         }
         Ok(())
     }

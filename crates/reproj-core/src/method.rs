@@ -189,7 +189,9 @@ pub fn reproject(
         }
         Method::OursExtrapolate => {
             if alpha < 1.0 {
-                return Err(range_err("[1, 3] (extrapolation from the newest frame, given as `newer`)"));
+                return Err(range_err(
+                    "[1, 3] (extrapolation from the newest frame, given as `newer`)",
+                ));
             }
             ours::run(ours::Mode::Ours, None, newer, request, params, out, diag)
         }
@@ -200,12 +202,30 @@ pub fn reproject(
                         "bidirectional forward_splat with alpha < 1 needs the older frame".into(),
                     ));
                 }
-                ours::run(ours::Mode::ForwardSplat, older, newer, request, params, out, diag)
+                ours::run(
+                    ours::Mode::ForwardSplat,
+                    older,
+                    newer,
+                    request,
+                    params,
+                    out,
+                    diag,
+                )
             } else {
                 if alpha < 1.0 {
-                    return Err(range_err("[1, 3] (unidirectional splatting from the newest frame, given as `newer`)"));
+                    return Err(range_err(
+                        "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
+                    ));
                 }
-                ours::run(ours::Mode::ForwardSplat, None, newer, request, params, out, diag)
+                ours::run(
+                    ours::Mode::ForwardSplat,
+                    None,
+                    newer,
+                    request,
+                    params,
+                    out,
+                    diag,
+                )
             }
         }
         Method::Timewarp => {
@@ -236,6 +256,9 @@ mod tests {
         for m in Method::ALL {
             assert_eq!(m.name().parse::<Method>().unwrap(), m);
         }
-        assert!(matches!("nope".parse::<Method>(), Err(ReprojError::UnknownMethod(_))));
+        assert!(matches!(
+            "nope".parse::<Method>(),
+            Err(ReprojError::UnknownMethod(_))
+        ));
     }
 }

@@ -91,13 +91,25 @@ impl Params {
             return Err(bad("window", self.window, "expected 0..=8"));
         }
         if self.fpi_iterations > 32 {
-            return Err(bad("fpi_iterations", self.fpi_iterations, "expected 0..=32"));
+            return Err(bad(
+                "fpi_iterations",
+                self.fpi_iterations,
+                "expected 0..=32",
+            ));
         }
         if self.bidir_iterations > 32 {
-            return Err(bad("bidir_iterations", self.bidir_iterations, "expected 0..=32"));
+            return Err(bad(
+                "bidir_iterations",
+                self.bidir_iterations,
+                "expected 0..=32",
+            ));
         }
         if !(1..=16).contains(&self.shadow_subframes) {
-            return Err(bad("shadow_subframes", self.shadow_subframes, "expected 1..=16"));
+            return Err(bad(
+                "shadow_subframes",
+                self.shadow_subframes,
+                "expected 1..=16",
+            ));
         }
         Ok(())
     }

@@ -186,7 +186,11 @@ pub(crate) fn run<'a>(
         eps_e_aux: params.eps_e * eps_scale * params.aux_threshold_scale,
         eps_z: params.eps_z,
         eps_z_aux,
-        iterations: if mode == Mode::Ours { params.fpi_iterations } else { 0 },
+        iterations: if mode == Mode::Ours {
+            params.fpi_iterations
+        } else {
+            0
+        },
     };
     let rows_per_task = TILE;
     match diag {
@@ -278,7 +282,9 @@ fn scene_flow_and_splat(src: &mut Src, client: &Projector, w: f32, vis: Option<&
                     let z = view.depth[idx];
                     let o = view.motion_at(idx);
                     // Invalid depth or motion never reaches the output (DESIGN.md).
-                    if !(z.is_finite() && (0.0..=1.0).contains(&z)) || !o.iter().all(|v| v.is_finite()) {
+                    if !(z.is_finite() && (0.0..=1.0).contains(&z))
+                        || !o.iter().all(|v| v.is_finite())
+                    {
                         continue;
                     }
                     let [x, y] = proj.ndc_of_pixel(i, j);
@@ -307,14 +313,20 @@ fn scene_flow_and_splat(src: &mut Src, client: &Projector, w: f32, vis: Option<&
                     let v = match vis {
                         None => true,
                         Some(ctx) => {
-                            ctx.same.as_ref().is_some_and(|m| visible_in(m, xw, ctx.eps_z))
-                                || ctx.other.as_ref().is_some_and(|m| visible_in(m, xw2, ctx.eps_z))
+                            ctx.same
+                                .as_ref()
+                                .is_some_and(|m| visible_in(m, xw, ctx.eps_z))
+                                || ctx
+                                    .other
+                                    .as_ref()
+                                    .is_some_and(|m| visible_in(m, xw2, ctx.eps_z))
                         }
                     };
                     *flow = [cc[0] - x, cc[1] - y, cc[2] - z, if v { 1.0 } else { 0.0 }];
                     if cc[2] > 0.0 && cc[2] <= 1.0 {
                         if let Some((qi, qj)) = pixel_of_ndc(cc[0], cc[1], sw, sh) {
-                            splat[qj * sw + qi].fetch_min(splat_key(cc[2], idx as u32), Ordering::Relaxed);
+                            splat[qj * sw + qi]
+                                .fetch_min(splat_key(cc[2], idx as u32), Ordering::Relaxed);
                         }
                     }
                 }
@@ -444,8 +456,15 @@ impl Resolve<'_> {
     /// Colour of source `s` at pixel `p` with its dynamic shadow applied at `α`.
     #[inline]
     fn color_of(&self, view: &CameraView, role: Role, p: usize) -> [f32; 3] {
-        let base = [view.color[3 * p], view.color[3 * p + 1], view.color[3 * p + 2]];
-        match (&view.shadow, self.mode == Mode::Ours && self.params.use_shadows) {
+        let base = [
+            view.color[3 * p],
+            view.color[3 * p + 1],
+            view.color[3 * p + 2],
+        ];
+        match (
+            &view.shadow,
+            self.mode == Mode::Ours && self.params.use_shadows,
+        ) {
             (Some(sh), true) => {
                 let rgb = |b: &[u8]| [b[3 * p], b[3 * p + 1], b[3 * p + 2]];
                 shadow_color(
@@ -554,7 +573,11 @@ impl Resolve<'_> {
         } else {
             Diagnostics::AUX_BASE + 2 * (s.camera as u8 - 1) + u8::from(s.role == Role::Newer)
         };
-        let code = if blended { code | Diagnostics::BLENDED } else { code };
+        let code = if blended {
+            code | Diagnostics::BLENDED
+        } else {
+            code
+        };
         Some((code, round_rgb(rgb), chosen.m.e))
     }
 }
@@ -570,19 +593,20 @@ fn correspondence(
     oproj: &Projector,
     p: usize,
 ) -> Option<(usize, [f32; 3], f32, f32)> {
-    let full_flow = |v: &CameraView, pr: &Projector, to: &Projector, idx: usize| -> Option<[f32; 3]> {
-        let (i, j) = (idx % pr.width, idx / pr.width);
-        let z = v.depth[idx];
-        let o = v.motion_at(idx);
-        let [x, y] = pr.ndc_of_pixel(i, j);
-        let moved = pr.unproject([x + o[0], y + o[1], z + o[2]]);
-        let h = to.vp.apply(moved);
-        if !(h[3] > 0.0) {
-            return None;
-        }
-        let f = [h[0] / h[3] - x, h[1] / h[3] - y, h[2] / h[3] - z];
-        f.iter().all(|v| v.is_finite()).then_some(f)
-    };
+    let full_flow =
+        |v: &CameraView, pr: &Projector, to: &Projector, idx: usize| -> Option<[f32; 3]> {
+            let (i, j) = (idx % pr.width, idx / pr.width);
+            let z = v.depth[idx];
+            let o = v.motion_at(idx);
+            let [x, y] = pr.ndc_of_pixel(i, j);
+            let moved = pr.unproject([x + o[0], y + o[1], z + o[2]]);
+            let h = to.vp.apply(moved);
+            if !(h[3] > 0.0) {
+                return None;
+            }
+            let f = [h[0] / h[3] - x, h[1] / h[3] - y, h[2] / h[3] - z];
+            f.iter().all(|v| v.is_finite()).then_some(f)
+        };
     let ms = full_flow(view, proj, oproj, p)?;
     let [x, y] = proj.ndc_of_pixel(p % proj.width, p / proj.width);
     let pz = view.depth[p] + ms[2];
@@ -595,7 +619,6 @@ fn correspondence(
     let mo = full_flow(other, oproj, proj, q)?;
     Some((q, [ms[0] + mo[0], ms[1] + mo[1], ms[2] + mo[2]], zq, pz))
 }
-
 
 /// The camera scene flow `M_cam` of every pixel of one source image to `client` with a fraction
 /// `w` of its object motion applied (eq. 1; eq. 12 with `w = α` for the older frame, eq. 13 with
@@ -613,4 +636,161 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
     let mut src = Src::new(*view, proj, None, Role::Older, 0);
     scene_flow_and_splat(&mut src, &client, w, None);
     Ok(src.flow.into_iter().map(|f| [f[0], f[1], f[2]]).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Mat4;
+    use crate::frame::FrameView;
+    use crate::method::{reproject, Method};
+
+    /// A fronto-parallel textured plane at view depth `d` seen by `cam` (exact per pixel).
+    fn plane(cam: &Camera, d: f64) -> (Vec<u8>, Vec<f32>) {
+        let vp = cam.view_proj();
+        let inv = vp.inverse().unwrap();
+        let (w, h) = (cam.width, cam.height);
+        let mut color = vec![0u8; w * h * 3];
+        let mut depth = vec![0f32; w * h];
+        // The plane z = -d in world space (cameras below look down −z from z = 0).
+        for j in 0..h {
+            for i in 0..w {
+                let [x, y] = crate::camera::ndc_of_pixel(i, j, w, h);
+                let a = inv.mul_vec([x as f64, y as f64, 1.0, 1.0]);
+                let b = inv.mul_vec([x as f64, y as f64, 0.0, 1.0]);
+                let (a, b) = (
+                    [a[0] / a[3], a[1] / a[3], a[2] / a[3]],
+                    [b[0] / b[3], b[1] / b[3], b[2] / b[3]],
+                );
+                let s = (-d - a[2]) / (b[2] - a[2]);
+                let p = [a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), -d];
+                let c = vp.mul_vec([p[0], p[1], p[2], 1.0]);
+                depth[j * w + i] = (c[2] / c[3]) as f32;
+                // Cells of 0.25 m (≈3 px here) with hashed colours: piecewise constant, so nearest
+                // sampling of a sub-pixel shift reproduces a colour of a neighbouring exact pixel.
+                let (u, v) = ((p[0] * 4.0).floor() as i64, (p[1] * 4.0).floor() as i64);
+                let hsh = (u.wrapping_mul(73_856_093) ^ v.wrapping_mul(19_349_663)) as u64;
+                let (v, u) = ((hsh % 251) as u8, ((hsh >> 8) % 2) as i64);
+                color[3 * (j * w + i)..3 * (j * w + i) + 3].copy_from_slice(&[
+                    v,
+                    (u * 200) as u8 + 20,
+                    255 - v,
+                ]);
+            }
+        }
+        (color, depth)
+    }
+
+    fn cam(x: f64, w: usize, h: usize) -> Camera {
+        Camera::new(
+            Mat4::look_at([x, 0.0, 0.0], [x, 0.0, -1.0], [0.0, 1.0, 0.0]),
+            Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+            w,
+            h,
+            "test",
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn static_identity_reproduces_the_server_image() {
+        let c = cam(0.0, 64, 48);
+        let (color, depth) = plane(&c, 3.0);
+        let view = CameraView {
+            camera: c,
+            color: &color,
+            depth: &depth,
+            motion: None,
+            shadow: None,
+        };
+        let f = FrameView {
+            main: view,
+            aux: vec![],
+        };
+        for alpha in [0.0, 0.3, 0.99] {
+            let mut out = vec![0u8; color.len()];
+            let req = Request { client: c, alpha };
+            reproject(
+                Method::Ours,
+                Some(&f),
+                &f,
+                &req,
+                &Params::default(),
+                &mut out,
+                None,
+                None,
+            )
+            .unwrap();
+            assert_eq!(out, color, "alpha {alpha}");
+        }
+    }
+
+    #[test]
+    fn camera_translation_matches_the_analytic_image() {
+        let (w, h) = (96, 64);
+        let c0 = cam(0.0, w, h);
+        let c1 = cam(0.2, w, h);
+        let ct = cam(0.13, w, h);
+        let (col0, dep0) = plane(&c0, 4.0);
+        let (col1, dep1) = plane(&c1, 4.0);
+        let (gt, _) = plane(&ct, 4.0);
+        let v = |c, col: &'static [u8], dep: &'static [f32]| FrameView {
+            main: CameraView {
+                camera: c,
+                color: col,
+                depth: dep,
+                motion: None,
+                shadow: None,
+            },
+            aux: vec![],
+        };
+        let (col0, dep0, col1, dep1) = (col0.leak(), dep0.leak(), col1.leak(), dep1.leak());
+        let f0 = v(c0, col0, dep0);
+        let f1 = v(c1, col1, dep1);
+        let mut out = vec![0u8; w * h * 3];
+        let mut diag = Diagnostics::new(w * h);
+        let req = Request {
+            client: ct,
+            alpha: 0.4,
+        };
+        let params = Params {
+            blend: false,
+            ..Params::default()
+        };
+        reproject(
+            Method::Ours,
+            Some(&f0),
+            &f1,
+            &req,
+            &params,
+            &mut out,
+            Some(&mut diag),
+            None,
+        )
+        .unwrap();
+        let matched = diag
+            .source
+            .iter()
+            .filter(|&&s| s != Diagnostics::NONE)
+            .count();
+        assert!(matched > w * h * 95 / 100, "matched {matched}");
+        // Within one pixel: the colour equals the exact image at the pixel or one of its
+        // 8 neighbours (nearest sampling of a sub-pixel shift), checked away from the border.
+        let within_one = |k: usize| {
+            let (i, j) = ((k % w) as i64, (k / w) as i64);
+            (-1..=1).any(|dj| {
+                (-1..=1).any(|di| {
+                    let (x, y) = (i + di, j + dj);
+                    x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && {
+                        let q = (y as usize * w + x as usize) * 3;
+                        out[3 * k..3 * k + 3] == gt[q..q + 3]
+                    }
+                })
+            })
+        };
+        let exact = (0..w * h)
+            .filter(|&k| diag.source[k] != Diagnostics::NONE && within_one(k))
+            .count();
+        assert!(exact * 100 >= matched * 97, "exact {exact} of {matched}");
+    }
 }

@@ -33,7 +33,14 @@ pub fn level(bits: u32, j: usize) -> u32 {
 
 /// `C(j)`, the colour of subframe `j` (eq. 10 and the `lerp` inside eq. 11).
 #[inline]
-pub fn subframe_color(base: [f32; 3], bits: u32, s_min: [u8; 3], s_max: [u8; 3], j: usize, s: usize) -> [f32; 3] {
+pub fn subframe_color(
+    base: [f32; 3],
+    bits: u32,
+    s_min: [u8; 3],
+    s_max: [u8; 3],
+    j: usize,
+    s: usize,
+) -> [f32; 3] {
     if j == 0 || j >= s || bits == 0 {
         return base;
     }
@@ -49,8 +56,16 @@ pub fn subframe_color(base: [f32; 3], bits: u32, s_min: [u8; 3], s_max: [u8; 3],
         return base;
     }
     let tau = (level(bits, j) - lmin) as f32 / (lmax - lmin) as f32;
-    let a = if lmin == l0 { base } else { s_min.map(f32::from) };
-    let b = if lmax == l0 { base } else { s_max.map(f32::from) };
+    let a = if lmin == l0 {
+        base
+    } else {
+        s_min.map(f32::from)
+    };
+    let b = if lmax == l0 {
+        base
+    } else {
+        s_max.map(f32::from)
+    };
     [
         a[0] + tau * (b[0] - a[0]),
         a[1] + tau * (b[1] - a[1]),
@@ -126,7 +141,15 @@ pub fn apply_shadows(
         .enumerate()
         .for_each(|(i, (o, c))| {
             let rgb = |b: &[u8]| [b[3 * i], b[3 * i + 1], b[3 * i + 2]];
-            let v = shadow_color([c[0], c[1], c[2]], bits[i], rgb(s_min), rgb(s_max), alpha, s, role);
+            let v = shadow_color(
+                [c[0], c[1], c[2]],
+                bits[i],
+                rgb(s_min),
+                rgb(s_max),
+                alpha,
+                s,
+                role,
+            );
             o.copy_from_slice(&round_rgb(v));
         });
 }
