@@ -282,8 +282,9 @@ fn scene_flow_and_splat(src: &mut Src, client: &Projector, w: f32, vis: Option<&
                     let z = view.depth[idx];
                     let o = view.motion_at(idx);
                     // Invalid depth or motion never reaches the output (DESIGN.md).
-                    if !(z.is_finite() && (0.0..=1.0).contains(&z))
-                        || !o.iter().all(|v| v.is_finite())
+                    if !(z.is_finite()
+                        && (0.0..=1.0).contains(&z)
+                        && o.iter().all(|v| v.is_finite()))
                     {
                         continue;
                     }
