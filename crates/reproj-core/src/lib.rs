@@ -8,7 +8,7 @@
 //! shared/DESIGN.md and are documented in [`camera`]. The crate knows nothing of Python; the
 //! bindings live in `reproj-py`.
 //!
-//! Entry point: [`reproject`], which writes one client frame into a caller-owned buffer holding the
+//! Entry point: [`reproject()`], which writes one client frame into a caller-owned buffer holding the
 //! previous client frame (pixels without a match keep that colour, seeds/000 §3.5 rule 3).
 
 #![warn(missing_docs)]
