@@ -1,1 +1,163 @@
-fn main() {}
+//! Client reprojection, every method, on the analytic scene (`reproj_core::synthetic`): the
+//! DESIGN.md target configuration (main 1280×720 + two 640×360 auxiliary cameras, dynamic scene,
+//! shadows on, S = 4) and a quarter-size one. Server frames at t = 0 and t = 0.1 s; the client at
+//! the head pose of t = 0.05 s (α = 0.5), or of t = 0.15 s (α = 1.5) for the methods that only
+//! extrapolate from the newest frame. `ours_1thread` is the same `ours` call inside a one-thread
+//! rayon pool: the naive baseline the tiled parallel kernels are measured against.
+//!
+//! Throughput is output pixels, so criterion reports pixels per second beside the time per frame.
+//! `cargo bench -p reproj-core` runs in about two minutes on two cores.
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use reproj_core::synthetic::{head_pose, rig, RenderedCamera, SyntheticScene};
+use reproj_core::{
+    reproject, BidirHistory, Camera, CameraView, FrameView, Method, Params, Request, ShadowView,
+};
+
+/// Server frame interval (f_s = 10) and dynamic-shadow subframes (f_d = 40).
+const DT: f64 = 0.1;
+const S: usize = 4;
+
+/// One server frame: every camera of the rig with its buffers.
+struct Frame {
+    cams: Vec<(Camera, RenderedCamera)>,
+}
+
+fn render(scene: &SyntheticScene, t: f64, w: usize, h: usize) -> Frame {
+    let (eye, target) = head_pose(t);
+    let (main, aux) = rig(eye, target, w, h);
+    let cams = [main, aux[0], aux[1]]
+        .into_iter()
+        .map(|c| (c, scene.render_server(&c, t, DT, S)))
+        .collect();
+    Frame { cams }
+}
+
+/// One camera as part of the older (`forward = true`) or newer image of a pair.
+fn camera_view((camera, r): &(Camera, RenderedCamera), forward: bool) -> CameraView<'_> {
+    let (motion, sh) = if forward {
+        (&r.motion_fwd, &r.shadow_fwd)
+    } else {
+        (&r.motion_bwd, &r.shadow_bwd)
+    };
+    CameraView {
+        camera: *camera,
+        color: &r.color,
+        depth: &r.depth,
+        motion: Some(motion),
+        shadow: Some(ShadowView {
+            bits: &sh.bits,
+            s_min: &sh.s_min,
+            s_max: &sh.s_max,
+        }),
+    }
+}
+
+fn view(f: &Frame, forward: bool) -> FrameView<'_> {
+    FrameView {
+        main: camera_view(&f.cams[0], forward),
+        aux: f.cams[1..]
+            .iter()
+            .map(|c| camera_view(c, forward))
+            .collect(),
+    }
+}
+
+/// The α each method is benchmarked at: 0.5 (between the frames) where the method accepts it,
+/// 1.5 (late, extrapolating from the newest frame) for the unidirectional ones that require it.
+fn alpha_of(method: Method) -> f64 {
+    match method {
+        Method::OursExtrapolate | Method::ForwardSplat => 1.5,
+        Method::Ours | Method::Timewarp | Method::BackwardBidir => 0.5,
+    }
+}
+
+fn request(alpha: f64, w: usize, h: usize) -> Request {
+    let (eye, target) = head_pose(alpha * DT);
+    Request {
+        client: rig(eye, target, w, h).0,
+        alpha: alpha as f32,
+    }
+}
+
+fn bench_size(c: &mut Criterion, w: usize, h: usize) {
+    let scene = SyntheticScene::new(true);
+    let (f0, f1) = (render(&scene, 0.0, w, h), render(&scene, DT, w, h));
+    let (older, newer) = (view(&f0, true), view(&f1, false));
+    let params = Params::default();
+    let size = format!("{w}x{h}+2x{}x{}", w / 2, h / 2);
+
+    let mut group = c.benchmark_group("reproject");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3))
+        .throughput(Throughput::Elements((w * h) as u64));
+
+    // The previous client frame: the ground truth at the pair's midpoint.
+    let mut out = scene.render_ground_truth(&request(0.5, w, h).client, 0.05);
+    for method in Method::ALL {
+        let req = request(alpha_of(method), w, h);
+        // Fail loudly here rather than time an error path.
+        reproject(
+            method,
+            Some(&older),
+            &newer,
+            &req,
+            &params,
+            &mut out,
+            None,
+            None,
+        )
+        .unwrap_or_else(|e| panic!("{method}: {e}"));
+        group.bench_function(BenchmarkId::new(method.name(), &size), |b| {
+            b.iter(|| {
+                let mut history = BidirHistory::new();
+                reproject(
+                    method,
+                    black_box(Some(&older)),
+                    black_box(&newer),
+                    black_box(&req),
+                    &params,
+                    black_box(&mut out),
+                    None,
+                    Some(&mut history),
+                )
+            })
+        });
+    }
+
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("one-thread pool");
+    let req = request(0.5, w, h);
+    group.bench_function(BenchmarkId::new("ours_1thread", &size), |b| {
+        b.iter(|| {
+            one.install(|| {
+                reproject(
+                    Method::Ours,
+                    black_box(Some(&older)),
+                    black_box(&newer),
+                    black_box(&req),
+                    &params,
+                    black_box(&mut out),
+                    None,
+                    None,
+                )
+            })
+        })
+    });
+    group.finish();
+}
+
+fn benches(c: &mut Criterion) {
+    bench_size(c, 1280, 720);
+    bench_size(c, 640, 360);
+}
+
+criterion_group!(reproject_benches, benches);
+criterion_main!(reproject_benches);

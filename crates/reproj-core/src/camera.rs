@@ -283,11 +283,12 @@ pub fn ndc_of_pixel(i: usize, j: usize, w: usize, h: usize) -> [f32; 2] {
 /// `j = ⌊(1−y)·H/2⌋`; `None` outside the image or for NaN.
 #[inline(always)]
 pub fn pixel_of_ndc(x: f32, y: f32, w: usize, h: usize) -> Option<(usize, usize)> {
-    let fx = ((x + 1.0) * 0.5 * w as f32).floor();
-    let fy = ((1.0 - y) * 0.5 * h as f32).floor();
-    // NaN fails both comparisons, so it is rejected here too.
+    let fx = (x + 1.0) * 0.5 * w as f32;
+    let fy = (1.0 - y) * 0.5 * h as f32;
+    // NaN fails every comparison, so it is rejected here too. For the non-negative values that
+    // pass, truncation is the floor: this avoids a libm `floorf` call in the innermost loops.
     if fx >= 0.0 && fy >= 0.0 && fx < w as f32 && fy < h as f32 {
-        Some((fx as usize, fy as usize))
+        Some(((fx as usize).min(w - 1), (fy as usize).min(h - 1)))
     } else {
         None
     }

@@ -51,7 +51,7 @@ pub const REFERENCE_SHORT_SIDE: f32 = 1440.0;
 /// An empty splat cell: larger than every real key.
 pub const EMPTY_SPLAT: u64 = u64::MAX;
 
-/// The splat key of a point at client reversed depth `z` (`0 < z ≤ 1`) from source pixel `idx`.
+/// The splat key of a point at client reversed depth `z` (`0 ≤ z ≤ 1`) from source pixel `idx`.
 ///
 /// Positive IEEE floats order like their bit patterns, and reversed depth is larger for nearer
 /// points, so `!bits` makes the nearest point the smallest key; ties go to the smaller source
@@ -334,10 +334,19 @@ fn scene_flow_and_splat(src: &mut Src, client: &Projector, w: f32, vis: Option<&
                         }
                     };
                     *flow = [cc[0] - x, cc[1] - y, cc[2] - z, if v { 1.0 } else { 0.0 }];
-                    if cc[2] > 0.0 && cc[2] <= 1.0 {
+                    // In front of the client (w > 0, checked above) and not nearer than its near
+                    // plane (with a margin for the f32 round trip of points on it). Points at or
+                    // beyond the far plane (the background lies at Z = 0) are kept, their key
+                    // depth clamped to exactly +0 (−0 or negative bits would sort as nearest).
+                    if cc[2] <= 1.0 + 1e-5 {
                         if let Some((qi, qj)) = pixel_of_ndc(cc[0], cc[1], sw, sh) {
-                            splat[qj * sw + qi]
-                                .fetch_min(splat_key(cc[2], idx as u32), Ordering::Relaxed);
+                            splat[qj * sw + qi].fetch_min(
+                                splat_key(
+                                    if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 },
+                                    idx as u32,
+                                ),
+                                Ordering::Relaxed,
+                            );
                         }
                     }
                 }

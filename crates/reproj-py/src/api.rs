@@ -1,0 +1,327 @@
+//! `reproject`, `scene_flow`, `apply_shadows`, the camera helpers and `BidirHistory`.
+
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyArray2, PyArray3, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyTuple;
+use reproj_core::method::MAX_ALPHA;
+use reproj_core::{CameraView, Diagnostics, Mat4, Method, Request, Role};
+
+use crate::convert::{self, array, depth_and_size, slice, Dim, FrameArrays};
+use crate::errors::{invalid, map_reproj_error, SplitRenderError};
+use crate::guarded;
+
+/// An `H×W×3` RGB8 image from a vector of `H·W·3` bytes (no copy).
+pub(crate) fn rgb<'py>(
+    py: Python<'py>,
+    v: Vec<u8>,
+    h: usize,
+    w: usize,
+) -> PyResult<Bound<'py, PyArray3<u8>>> {
+    hw3(py, v, h, w)
+}
+
+/// An `H×W×3` array from a vector of `H·W·3` values (no copy).
+pub(crate) fn hw3<'py, T: numpy::Element>(
+    py: Python<'py>,
+    v: Vec<T>,
+    h: usize,
+    w: usize,
+) -> PyResult<Bound<'py, PyArray3<T>>> {
+    Array3::from_shape_vec((h, w, 3), v)
+        .map(|a| a.into_pyarray(py))
+        .map_err(|e| SplitRenderError::new_err(format!("internal error: output shape: {e}")))
+}
+
+/// An `H×W` array from a vector of `H·W` values (no copy).
+pub(crate) fn hw<'py, T: numpy::Element>(
+    py: Python<'py>,
+    v: Vec<T>,
+    h: usize,
+    w: usize,
+) -> PyResult<Bound<'py, PyArray2<T>>> {
+    Array2::from_shape_vec((h, w), v)
+        .map(|a| a.into_pyarray(py))
+        .map_err(|e| SplitRenderError::new_err(format!("internal error: output shape: {e}")))
+}
+
+/// A 4×4 `float64` array.
+pub(crate) fn mat<'py>(py: Python<'py>, m: &Mat4) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    hw(py, m.0.iter().flatten().copied().collect(), 4, 4)
+}
+
+/// State of `backward_bidir` carried from one client frame to the next (seeds/001's latest-frame
+/// initialisation). Create one per frame pair, or call `reset()` when the pair changes.
+#[pyclass(module = "splitrender._native")]
+#[derive(Debug, Default)]
+pub struct BidirHistory {
+    inner: reproj_core::BidirHistory,
+}
+
+#[pymethods]
+impl BidirHistory {
+    #[new]
+    fn new() -> Self {
+        Self::default()
+    }
+
+    /// Forgets the carried state (call when the frame pair changes).
+    fn reset(&mut self) {
+        self.inner = reproj_core::BidirHistory::new();
+    }
+
+    fn __repr__(&self) -> &'static str {
+        "BidirHistory()"
+    }
+}
+
+/// One client frame by `method`; see `splitrender.reproject_alpha` for the semantics.
+#[pyfunction]
+#[pyo3(signature = (method, older, newer, client, alpha, options=None, previous=None, diagnostics=false, history=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn reproject<'py>(
+    py: Python<'py>,
+    method: &str,
+    older: Option<&Bound<'py, PyAny>>,
+    newer: &Bound<'py, PyAny>,
+    client: &Bound<'py, PyAny>,
+    alpha: f64,
+    options: Option<&Bound<'py, PyAny>>,
+    previous: Option<&Bound<'py, PyAny>>,
+    diagnostics: bool,
+    history: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    guarded("reproject", || {
+        let method: Method = method.parse().map_err(map_reproj_error)?;
+        let params = convert::params(options)?;
+        let client = convert::client(client, "client")?;
+        let older = match older.filter(|o| !o.is_none()) {
+            Some(o) => Some(FrameArrays::extract(o, "older")?),
+            None => None,
+        };
+        let newer = FrameArrays::extract(newer, "newer")?;
+        let (cw, ch) = (client.width, client.height);
+        let n = cw * ch;
+        let mut out = match previous.filter(|p| !p.is_none()) {
+            // Copied, never written in place: the caller's previous frame stays as it was.
+            Some(p) => {
+                let dims = [Dim::Is(ch), Dim::Is(cw), Dim::Is(3)];
+                let prev = array::<u8>(p, "previous", &dims)?;
+                slice(&prev, "previous")?.to_vec()
+            }
+            None => vec![0u8; n * 3],
+        };
+        let mut hist_ref =
+            match history.filter(|h| !h.is_none()) {
+                Some(h) => {
+                    let h = h.cast::<BidirHistory>().map_err(|_| {
+                        invalid(format!(
+                            "history: expected a BidirHistory or None, got {}",
+                            convert::describe(h)
+                        ))
+                    })?;
+                    Some(h.try_borrow_mut().map_err(|_| {
+                        invalid("history: this BidirHistory is in use by another call")
+                    })?)
+                }
+                None => None,
+            };
+        let hist = hist_ref.as_deref_mut().map(|h| &mut h.inner);
+        let mut diag = diagnostics.then(|| Diagnostics::new(n));
+        let older_view = older.as_ref().map(FrameArrays::view).transpose()?;
+        let newer_view = newer.view()?;
+        let request = Request {
+            client,
+            alpha: alpha as f32,
+        };
+        // The kernel only reads the borrowed arrays. As everywhere with numpy, Python code in
+        // another thread that writes to them meanwhile would race with it; we do not copy to
+        // guard against that.
+        py.detach(|| {
+            reproj_core::reproject(
+                method,
+                older_view.as_ref(),
+                &newer_view,
+                &request,
+                &params,
+                &mut out,
+                diag.as_mut(),
+                hist,
+            )
+        })
+        .map_err(map_reproj_error)?;
+        let image = rgb(py, out, ch, cw)?.into_any();
+        match diag {
+            None => Ok(image),
+            Some(d) => {
+                let source = hw(py, d.source, ch, cw)?.into_any();
+                let error = hw(py, d.error, ch, cw)?.into_any();
+                Ok(PyTuple::new(py, [image, source, error])?.into_any())
+            }
+        }
+    })
+}
+
+/// Scene flow of every pixel of one source image to the client camera with a fraction `w` of its
+/// object motion (seeds/000 eqs. 1, 12, 13): `f32[H, W, 3]`, NaN where invalid.
+#[pyfunction]
+#[pyo3(signature = (view, proj, depth, motion, client_view, client_proj, client_width, client_height, w))]
+#[allow(clippy::too_many_arguments)]
+pub fn scene_flow<'py>(
+    py: Python<'py>,
+    view: &Bound<'py, PyAny>,
+    proj: &Bound<'py, PyAny>,
+    depth: &Bound<'py, PyAny>,
+    motion: Option<&Bound<'py, PyAny>>,
+    client_view: &Bound<'py, PyAny>,
+    client_proj: &Bound<'py, PyAny>,
+    client_width: i64,
+    client_height: i64,
+    w: f64,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    guarded("scene_flow", || {
+        let (depth, sw, sh) = depth_and_size(depth, "depth", None)?;
+        let source = convert::camera(view, proj, sw as i64, sh as i64, "source")?;
+        let client = convert::camera(
+            client_view,
+            client_proj,
+            client_width,
+            client_height,
+            "client",
+        )?;
+        let motion = match motion.filter(|m| !m.is_none()) {
+            Some(m) => Some(array::<f32>(
+                m,
+                "motion",
+                &[Dim::Is(sh), Dim::Is(sw), Dim::Is(3)],
+            )?),
+            None => None,
+        };
+        if !w.is_finite() {
+            return Err(invalid(format!("w: expected a finite float, got {w}")));
+        }
+        // The flow does not read colour; the view still wants a buffer of the right size.
+        let color = vec![0u8; sw * sh * 3];
+        let cv = CameraView {
+            camera: source,
+            color: &color,
+            depth: slice(&depth, "depth")?,
+            motion: motion.as_ref().map(|m| slice(m, "motion")).transpose()?,
+            shadow: None,
+        };
+        let flow = py
+            .detach(|| reproj_core::scene_flow(&cv, &client, w as f32))
+            .map_err(map_reproj_error)?;
+        hw3(py, flow.into_flattened(), sh, sw)
+    })
+}
+
+/// One source image with its dynamic shadows applied at `alpha` (seeds/000 eqs. 9–11).
+#[pyfunction]
+#[pyo3(signature = (color, bits, s_min, s_max, alpha, subframes, role))]
+#[allow(clippy::too_many_arguments)]
+pub fn apply_shadows<'py>(
+    py: Python<'py>,
+    color: &Bound<'py, PyAny>,
+    bits: &Bound<'py, PyAny>,
+    s_min: &Bound<'py, PyAny>,
+    s_max: &Bound<'py, PyAny>,
+    alpha: f64,
+    subframes: i64,
+    role: &str,
+) -> PyResult<Bound<'py, PyArray3<u8>>> {
+    guarded("apply_shadows", || {
+        let color = array::<u8>(color, "color", &[Dim::Any("H"), Dim::Any("W"), Dim::Is(3)])?;
+        let (h, w) = (color.shape()[0], color.shape()[1]);
+        let hw2 = [Dim::Is(h), Dim::Is(w)];
+        let hw3d = [Dim::Is(h), Dim::Is(w), Dim::Is(3)];
+        let bits = array::<u32>(bits, "bits", &hw2)?;
+        let s_min = array::<u8>(s_min, "s_min", &hw3d)?;
+        let s_max = array::<u8>(s_max, "s_max", &hw3d)?;
+        if !(alpha.is_finite() && (0.0..=f64::from(MAX_ALPHA)).contains(&alpha)) {
+            return Err(invalid(format!(
+                "alpha = {alpha} is outside the supported range [0, {MAX_ALPHA}]"
+            )));
+        }
+        let s = match usize::try_from(subframes) {
+            Ok(s) if (1..=16).contains(&s) => s,
+            _ => {
+                return Err(invalid(format!(
+                    "subframes: expected 1..=16, got {subframes}"
+                )))
+            }
+        };
+        let role = match role {
+            "older" => Role::Older,
+            "newer" => Role::Newer,
+            other => {
+                return Err(invalid(format!(
+                    "role: expected 'older' or 'newer', got '{other}'"
+                )))
+            }
+        };
+        let (c, b, lo, hi) = (
+            slice(&color, "color")?,
+            slice(&bits, "bits")?,
+            slice(&s_min, "s_min")?,
+            slice(&s_max, "s_max")?,
+        );
+        let mut out = vec![0u8; c.len()];
+        py.detach(|| reproj_core::apply_shadows(c, b, lo, hi, alpha as f32, s, role, &mut out));
+        rgb(py, out, h, w)
+    })
+}
+
+/// A reversed-depth perspective projection (DESIGN.md conventions), `float64[4, 4]`.
+#[pyfunction]
+#[pyo3(signature = (fov_y_deg, aspect, near, far))]
+pub fn perspective(
+    py: Python<'_>,
+    fov_y_deg: f64,
+    aspect: f64,
+    near: f64,
+    far: f64,
+) -> PyResult<Bound<'_, PyArray2<f64>>> {
+    guarded("perspective", || {
+        if !(fov_y_deg.is_finite() && fov_y_deg > 0.0 && fov_y_deg < 180.0) {
+            return Err(invalid(format!(
+                "fov_y_deg: expected a value in (0, 180), got {fov_y_deg}"
+            )));
+        }
+        if !(aspect.is_finite() && aspect > 0.0) {
+            return Err(invalid(format!(
+                "aspect: expected a finite value > 0, got {aspect}"
+            )));
+        }
+        if !(near.is_finite() && far.is_finite() && near > 0.0 && far > near) {
+            return Err(invalid(format!(
+                "near, far: expected 0 < near < far (finite), got near = {near}, far = {far}"
+            )));
+        }
+        mat(py, &Mat4::perspective(fov_y_deg, aspect, near, far))
+    })
+}
+
+/// The world→camera matrix of a camera at `eye` looking at `target`, `float64[4, 4]`;
+/// `up` defaults to `(0, 1, 0)`.
+#[pyfunction]
+#[pyo3(signature = (eye, target, up=None))]
+pub fn look_at(
+    py: Python<'_>,
+    eye: (f64, f64, f64),
+    target: (f64, f64, f64),
+    up: Option<(f64, f64, f64)>,
+) -> PyResult<Bound<'_, PyArray2<f64>>> {
+    guarded("look_at", || {
+        let up = up.unwrap_or((0.0, 1.0, 0.0));
+        let v = |t: (f64, f64, f64)| [t.0, t.1, t.2];
+        let m = Mat4::look_at(v(eye), v(target), v(up));
+        if !m.0.iter().flatten().all(|x| x.is_finite()) {
+            return Err(invalid(format!(
+                "look_at: eye {eye:?}, target {target:?} and up {up:?} must be finite, eye != target, \
+                 and up not parallel to the view direction"
+            )));
+        }
+        mat(py, &m)
+    })
+}

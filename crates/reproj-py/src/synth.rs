@@ -1,0 +1,144 @@
+//! Bindings of `reproj_core::synthetic`, the analytic test scene.
+
+use numpy::PyArray3;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList, PyTuple};
+use reproj_core::synthetic::{self, SyntheticScene};
+use reproj_core::Camera;
+
+use crate::api::{hw, hw3, mat, rgb};
+use crate::convert;
+use crate::errors::invalid;
+use crate::guarded;
+
+fn finite(v: f64, what: &str) -> PyResult<f64> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(invalid(format!("{what}: expected a finite float, got {v}")))
+    }
+}
+
+fn camera_tuple<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyTuple>> {
+    PyTuple::new(
+        py,
+        [
+            mat(py, &c.view)?.into_any(),
+            mat(py, &c.proj)?.into_any(),
+            c.width.into_pyobject(py)?.into_any(),
+            c.height.into_pyobject(py)?.into_any(),
+        ],
+    )
+}
+
+/// Every server buffer of one camera of the synthetic scene at `time`, as a dict of arrays:
+/// `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_fwd_bits`, `shadow_fwd_min`,
+/// `shadow_fwd_max`, `shadow_bwd_bits`, `shadow_bwd_min`, `shadow_bwd_max`.
+#[pyfunction]
+#[pyo3(signature = (dynamic, view, proj, width, height, time, interval, subframes))]
+#[allow(clippy::too_many_arguments)]
+pub fn synthetic_render_server<'py>(
+    py: Python<'py>,
+    dynamic: bool,
+    view: &Bound<'py, PyAny>,
+    proj: &Bound<'py, PyAny>,
+    width: i64,
+    height: i64,
+    time: f64,
+    interval: f64,
+    subframes: i64,
+) -> PyResult<Bound<'py, PyDict>> {
+    guarded("synthetic_render_server", || {
+        let camera = convert::camera(view, proj, width, height, "camera")?;
+        let time = finite(time, "time")?;
+        if !(interval.is_finite() && interval > 0.0) {
+            return Err(invalid(format!(
+                "interval: expected a finite value > 0, got {interval}"
+            )));
+        }
+        let s = match usize::try_from(subframes) {
+            Ok(s) if (1..=16).contains(&s) => s,
+            _ => {
+                return Err(invalid(format!(
+                    "subframes: expected 1..=16, got {subframes}"
+                )))
+            }
+        };
+        let scene = SyntheticScene::new(dynamic);
+        let r = py.detach(|| scene.render_server(&camera, time, interval, s));
+        let (h, w) = (r.height, r.width);
+        let d = PyDict::new(py);
+        d.set_item("color", rgb(py, r.color, h, w)?)?;
+        d.set_item("depth", hw(py, r.depth, h, w)?)?;
+        d.set_item("motion_fwd", hw3(py, r.motion_fwd, h, w)?)?;
+        d.set_item("motion_bwd", hw3(py, r.motion_bwd, h, w)?)?;
+        for (dir, sb) in [("fwd", r.shadow_fwd), ("bwd", r.shadow_bwd)] {
+            d.set_item(format!("shadow_{dir}_bits"), hw(py, sb.bits, h, w)?)?;
+            d.set_item(format!("shadow_{dir}_min"), rgb(py, sb.s_min, h, w)?)?;
+            d.set_item(format!("shadow_{dir}_max"), rgb(py, sb.s_max, h, w)?)?;
+        }
+        Ok(d)
+    })
+}
+
+/// Ground-truth RGB8 image of the synthetic scene at a client camera and `time`.
+#[pyfunction]
+#[pyo3(signature = (dynamic, view, proj, width, height, time))]
+pub fn synthetic_ground_truth<'py>(
+    py: Python<'py>,
+    dynamic: bool,
+    view: &Bound<'py, PyAny>,
+    proj: &Bound<'py, PyAny>,
+    width: i64,
+    height: i64,
+    time: f64,
+) -> PyResult<Bound<'py, PyArray3<u8>>> {
+    guarded("synthetic_ground_truth", || {
+        let camera = convert::camera(view, proj, width, height, "camera")?;
+        let time = finite(time, "time")?;
+        let scene = SyntheticScene::new(dynamic);
+        let img = py.detach(|| scene.render_ground_truth(&camera, time));
+        rgb(py, img, camera.height, camera.width)
+    })
+}
+
+/// The DESIGN.md camera rig at a head pose: `[main, aux_left, aux_right]`, each
+/// `(view, proj, width, height)`.
+#[pyfunction]
+#[pyo3(signature = (eye, target, width, height))]
+pub fn synthetic_rig<'py>(
+    py: Python<'py>,
+    eye: (f64, f64, f64),
+    target: (f64, f64, f64),
+    width: i64,
+    height: i64,
+) -> PyResult<Bound<'py, PyList>> {
+    guarded("synthetic_rig", || {
+        let width = convert::side(width, "width")?;
+        let height = convert::side(height, "height")?;
+        let (eye, target) = ([eye.0, eye.1, eye.2], [target.0, target.1, target.2]);
+        if !eye.iter().chain(&target).all(|v| v.is_finite()) || eye == target {
+            return Err(invalid(format!(
+                "eye {eye:?} and target {target:?} must be finite and distinct"
+            )));
+        }
+        let (main, aux) = synthetic::rig(eye, target, width, height);
+        let cams = [main, aux[0], aux[1]]
+            .iter()
+            .map(|c| camera_tuple(py, c))
+            .collect::<PyResult<Vec<_>>>()?;
+        PyList::new(py, cams)
+    })
+}
+
+/// The deterministic head path of the synthetic scene: `(eye, target)` at time `t`.
+#[pyfunction]
+#[pyo3(signature = (t))]
+#[allow(clippy::type_complexity)]
+pub fn synthetic_head_pose(t: f64) -> PyResult<((f64, f64, f64), (f64, f64, f64))> {
+    guarded("synthetic_head_pose", || {
+        let t = finite(t, "t")?;
+        let (e, g) = synthetic::head_pose(t);
+        Ok(((e[0], e[1], e[2]), (g[0], g[1], g[2])))
+    })
+}

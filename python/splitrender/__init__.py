@@ -1,0 +1,52 @@
+"""splitrender: image-based split rendering.
+
+A server renders sparse frames (colour, depth, object motion, dynamic-shadow data) for a main
+camera and two auxiliary cameras; the client synthesises display-rate frames at its actual pose by
+bidirectional image-based reprojection (Steiner et al. 2025). The kernels are native
+(``splitrender._native``, Rust); this package holds the data model and the Python API.
+
+Conventions: shared/DESIGN.md ("Conventions").
+"""
+
+from splitrender._native import BidirHistory, __version__
+from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
+from splitrender.reproject import (
+    METHODS,
+    apply_shadows,
+    reproject,
+    reproject_alpha,
+    scene_flow,
+)
+from splitrender.synthetic import SyntheticScene
+from splitrender.types import (
+    MAX_SIDE,
+    Camera,
+    CameraFrame,
+    ClientRequest,
+    ReprojectOptions,
+    Reprojection,
+    ServerFrame,
+    ShadowBuffers,
+)
+
+__all__ = [
+    "MAX_SIDE",
+    "METHODS",
+    "BidirHistory",
+    "Camera",
+    "CameraFrame",
+    "ClientRequest",
+    "InvalidInputError",
+    "ReprojectOptions",
+    "Reprojection",
+    "ServerFrame",
+    "ShadowBuffers",
+    "SplitRenderError",
+    "StreamError",
+    "SyntheticScene",
+    "__version__",
+    "apply_shadows",
+    "reproject",
+    "reproject_alpha",
+    "scene_flow",
+]

@@ -1,0 +1,7 @@
+"""``python -m splitrender`` runs the command line."""
+
+import sys
+
+from splitrender.cli import main
+
+sys.exit(main())

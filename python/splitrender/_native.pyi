@@ -1,0 +1,106 @@
+"""Stubs of ``splitrender._native``, the PyO3 bindings of reproj-core (crates/reproj-py).
+
+Array arguments must be C-contiguous numpy arrays of exactly the dtype shown (no casting); a
+camera tuple ``Cam`` is ``(view f64[4,4], proj f64[4,4], color u8[H,W,3], depth f32[H,W],
+motion f32[H,W,3] | None, shadow (bits u32[H,W], s_min u8[H,W,3], s_max u8[H,W,3]) | None)``
+and a frame is ``(main: Cam, aux: list[Cam])``. Every error is a ``SplitRenderError``; invalid
+input raises ``InvalidInputError`` (also a ``ValueError``) naming the offending argument.
+"""
+
+from typing import Any, final
+
+import numpy as np
+import numpy.typing as npt
+
+_F64 = npt.NDArray[np.float64]
+_F32 = npt.NDArray[np.float32]
+_U8 = npt.NDArray[np.uint8]
+_U32 = npt.NDArray[np.uint32]
+_Shadow = tuple[_U32, _U8, _U8]
+_Cam = tuple[_F64, _F64, _U8, _F32, _F32 | None, _Shadow | None]
+_Frame = tuple[_Cam, list[_Cam]] | tuple[_Cam, tuple[_Cam, ...]]
+_Client = tuple[_F64, _F64, int, int]
+_Vec3 = tuple[float, float, float]
+
+__all__ = [
+    "__version__",
+    "METHODS",
+    "SplitRenderError",
+    "InvalidInputError",
+    "StreamError",
+    "BidirHistory",
+    "reproject",
+    "scene_flow",
+    "apply_shadows",
+    "perspective",
+    "look_at",
+    "synthetic_render_server",
+    "synthetic_ground_truth",
+    "synthetic_rig",
+    "synthetic_head_pose",
+    "_panic_for_test",
+]
+
+__version__: str
+METHODS: list[str]
+
+class SplitRenderError(Exception): ...
+class InvalidInputError(SplitRenderError, ValueError): ...
+class StreamError(SplitRenderError): ...
+
+@final
+class BidirHistory:
+    def __new__(cls) -> BidirHistory: ...
+    def reset(self) -> None: ...
+
+def reproject(
+    method: str,
+    older: _Frame | None,
+    newer: _Frame,
+    client: _Client,
+    alpha: float,
+    options: dict[str, Any] | None = None,
+    previous: _U8 | None = None,
+    diagnostics: bool = False,
+    history: BidirHistory | None = None,
+) -> _U8 | tuple[_U8, _U8, _F32]: ...
+def scene_flow(
+    view: _F64,
+    proj: _F64,
+    depth: _F32,
+    motion: _F32 | None,
+    client_view: _F64,
+    client_proj: _F64,
+    client_width: int,
+    client_height: int,
+    w: float,
+) -> _F32: ...
+def apply_shadows(
+    color: _U8,
+    bits: _U32,
+    s_min: _U8,
+    s_max: _U8,
+    alpha: float,
+    subframes: int,
+    role: str,
+) -> _U8: ...
+def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> _F64: ...
+def look_at(eye: _Vec3, target: _Vec3, up: _Vec3 | None = None) -> _F64: ...
+def synthetic_render_server(
+    dynamic: bool,
+    view: _F64,
+    proj: _F64,
+    width: int,
+    height: int,
+    time: float,
+    interval: float,
+    subframes: int,
+) -> dict[str, npt.NDArray[Any]]: ...
+def synthetic_ground_truth(
+    dynamic: bool, view: _F64, proj: _F64, width: int, height: int, time: float
+) -> _U8: ...
+def synthetic_rig(
+    eye: _Vec3, target: _Vec3, width: int, height: int
+) -> list[tuple[_F64, _F64, int, int]]: ...
+def synthetic_head_pose(t: float) -> tuple[_Vec3, _Vec3]: ...
+def _panic_for_test() -> None: ...

@@ -1,0 +1,347 @@
+"""Client-side reprojection: one display frame from the server frames the client holds.
+
+:func:`reproject` works in times (it picks the frames, their directional buffers and ``α``);
+:func:`reproject_alpha` is the core's entry point with an explicit ``α``.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, overload
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender import _native
+from splitrender.errors import InvalidInputError
+from splitrender.types import (
+    Camera,
+    CameraFrame,
+    ClientRequest,
+    ReprojectOptions,
+    Reprojection,
+    ServerFrame,
+    ShadowBuffers,
+)
+
+__all__ = ["METHODS", "apply_shadows", "reproject", "reproject_alpha", "scene_flow"]
+
+#: Every method, by name, in the order of the paper's tables.
+METHODS: tuple[str, ...] = tuple(_native.METHODS)
+
+_Image = npt.NDArray[np.uint8]
+
+
+def _check_method(method: object) -> str:
+    if not isinstance(method, str) or method not in METHODS:
+        raise InvalidInputError(
+            f"unknown method {method!r}; expected one of: {', '.join(METHODS)}"
+        )
+    return method
+
+
+def _check_frame(where: str, frame: object, *, optional: bool = False) -> None:
+    if frame is None and optional:
+        return
+    if not isinstance(frame, ServerFrame):
+        want = "a ServerFrame or None" if optional else "a ServerFrame"
+        raise InvalidInputError(f"{where}: expected {want}, got {type(frame).__name__}")
+
+
+def _options(options: ReprojectOptions | None) -> ReprojectOptions:
+    if options is None:
+        return ReprojectOptions()
+    if not isinstance(options, ReprojectOptions):
+        raise InvalidInputError(
+            f"options: expected ReprojectOptions or None, got {type(options).__name__}"
+        )
+    return options
+
+
+def _result(
+    out: _Image | tuple[_Image, npt.NDArray[np.uint8], npt.NDArray[np.float32]],
+) -> _Image | Reprojection:
+    if isinstance(out, tuple):
+        return Reprojection(*out)
+    return out
+
+
+@overload
+def reproject_alpha(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    camera: Camera,
+    alpha: float,
+    method: str = ...,
+    *,
+    options: ReprojectOptions | None = ...,
+    previous: _Image | None = ...,
+    diagnostics: Literal[False] = ...,
+    history: _native.BidirHistory | None = ...,
+) -> _Image: ...
+@overload
+def reproject_alpha(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    camera: Camera,
+    alpha: float,
+    method: str = ...,
+    *,
+    options: ReprojectOptions | None = ...,
+    previous: _Image | None = ...,
+    diagnostics: Literal[True],
+    history: _native.BidirHistory | None = ...,
+) -> Reprojection: ...
+@overload
+def reproject_alpha(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    camera: Camera,
+    alpha: float,
+    method: str = ...,
+    *,
+    options: ReprojectOptions | None = ...,
+    previous: _Image | None = ...,
+    diagnostics: bool = ...,
+    history: _native.BidirHistory | None = ...,
+) -> _Image | Reprojection: ...
+def reproject_alpha(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    camera: Camera,
+    alpha: float,
+    method: str = "ours",
+    *,
+    options: ReprojectOptions | None = None,
+    previous: _Image | None = None,
+    diagnostics: bool = False,
+    history: _native.BidirHistory | None = None,
+) -> _Image | Reprojection:
+    """One client frame at ``camera`` and an explicit ``alpha``, with the core's pair semantics.
+
+    ``older`` is ``F_t`` and contributes its forward buffers (``motion_fwd``, ``shadow_fwd``);
+    ``newer`` is ``F_{t+1}`` and contributes its backward buffers. ``alpha ∈ [0, 1)``
+    interpolates, ``alpha ∈ [1, 3]`` extrapolates from ``newer`` (seeds/000 §3.5). The
+    unidirectional methods (``ours_extrapolate``, ``forward_splat`` unless
+    ``options.splat_bidirectional``) need ``alpha >= 1`` and use ``newer`` alone; ``timewarp``
+    uses ``older`` when ``alpha < 1`` and ``newer`` otherwise; ``backward_bidir`` needs both and
+    ``alpha <= 1``.
+
+    ``previous`` (``uint8[H, W, 3]`` at the camera's size) is the previous client frame: pixels
+    without a match keep its colour (black when ``None``). It is copied, never modified.
+    ``history`` carries ``backward_bidir``'s state between the client frames of one pair.
+
+    Returns the image (``uint8[H, W, 3]``), or a :class:`Reprojection` with per-pixel
+    diagnostics when ``diagnostics`` is true.
+
+    Raises:
+        InvalidInputError: for any invalid argument (it names the argument or buffer).
+    """
+    method = _check_method(method)
+    _check_frame("older", older, optional=True)
+    _check_frame("newer", newer)
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
+    opts = _options(options)
+    out = _native.reproject(
+        method,
+        None if older is None else older.to_native("fwd"),
+        newer.to_native("bwd"),
+        camera.to_native(),
+        float(alpha),
+        opts.to_native(),
+        previous,
+        bool(diagnostics),
+        history,
+    )
+    return _result(out)
+
+
+def _unidirectional(method: str, opts: ReprojectOptions, older: ServerFrame | None) -> bool:
+    if method in ("ours_extrapolate", "timewarp"):
+        return True
+    if method == "forward_splat" and not opts.splat_bidirectional:
+        return True
+    # `ours` (and bidirectional splatting) without the older frame extrapolate from the newest.
+    return older is None and method in ("ours", "forward_splat")
+
+
+@overload
+def reproject(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    request: ClientRequest,
+    method: str = ...,
+    *,
+    options: ReprojectOptions | None = ...,
+    previous: _Image | None = ...,
+    diagnostics: Literal[False] = ...,
+    history: _native.BidirHistory | None = ...,
+) -> _Image: ...
+@overload
+def reproject(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    request: ClientRequest,
+    method: str = ...,
+    *,
+    options: ReprojectOptions | None = ...,
+    previous: _Image | None = ...,
+    diagnostics: Literal[True],
+    history: _native.BidirHistory | None = ...,
+) -> Reprojection: ...
+@overload
+def reproject(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    request: ClientRequest,
+    method: str = ...,
+    *,
+    options: ReprojectOptions | None = ...,
+    previous: _Image | None = ...,
+    diagnostics: bool = ...,
+    history: _native.BidirHistory | None = ...,
+) -> _Image | Reprojection: ...
+def reproject(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    request: ClientRequest,
+    method: str = "ours",
+    *,
+    options: ReprojectOptions | None = None,
+    previous: _Image | None = None,
+    diagnostics: bool = False,
+    history: _native.BidirHistory | None = None,
+) -> _Image | Reprojection:
+    """One client frame for ``request`` (its camera and display time) from the frames held.
+
+    Bidirectional methods (``ours`` with both frames, ``backward_bidir``, ``forward_splat`` with
+    ``options.splat_bidirectional``) use the pair with
+    ``α = (request.time − older.time) / (newer.time − older.time)``; ``α ≥ 1`` means ``newer``
+    is late and the core extrapolates from it. Unidirectional methods (``ours_extrapolate``,
+    ``forward_splat``, ``timewarp``, and ``ours`` when ``older`` is ``None``) use the newest
+    frame whose time is ``<= request.time``, with its backward buffers, and
+    ``α = 1 + (request.time − frame.time) · options.server_fps``.
+
+    See :func:`reproject_alpha` for ``previous``, ``diagnostics`` and ``history``.
+
+    Raises:
+        InvalidInputError: for any invalid argument, a request before every usable frame, or
+            frames out of order.
+    """
+    method = _check_method(method)
+    _check_frame("older", older, optional=True)
+    _check_frame("newer", newer)
+    if not isinstance(request, ClientRequest):
+        raise InvalidInputError(
+            f"request: expected a ClientRequest, got {type(request).__name__}"
+        )
+    opts = _options(options)
+    t = request.time
+    if older is not None and not newer.time > older.time:
+        raise InvalidInputError(
+            f"frames out of order: newer.time = {newer.time} must be > older.time = {older.time}"
+        )
+    if _unidirectional(method, opts, older):
+        held = [f for f in (newer, older) if f is not None and f.time <= t]
+        if not held:
+            times = ", ".join(f"{f.time}" for f in (older, newer) if f is not None)
+            raise InvalidInputError(
+                f"request.time = {t} is before every frame held (times {times}); "
+                f"method '{method}' extrapolates from a frame at or before the request"
+            )
+        frame = held[0]
+        alpha = 1.0 + (t - frame.time) * opts.server_fps
+        return reproject_alpha(
+            None,
+            frame,
+            request.camera,
+            alpha,
+            method,
+            options=opts,
+            previous=previous,
+            diagnostics=diagnostics,
+            history=history,
+        )
+    if older is None:
+        raise InvalidInputError(f"method '{method}' needs both frames; older is None")
+    alpha = (t - older.time) / (newer.time - older.time)
+    return reproject_alpha(
+        older,
+        newer,
+        request.camera,
+        alpha,
+        method,
+        options=opts,
+        previous=previous,
+        diagnostics=diagnostics,
+        history=history,
+    )
+
+
+def scene_flow(
+    source: CameraFrame,
+    client: Camera,
+    w: float,
+    *,
+    direction: Literal["forward", "backward"] = "forward",
+) -> npt.NDArray[np.float32]:
+    """The scene flow of every pixel of ``source`` to the ``client`` camera with a fraction ``w``
+    of its object motion applied (seeds/000 eq. 1): eq. 12 is ``direction="forward"`` (the older
+    frame's ``motion_fwd``) with ``w = α``, eq. 13 ``direction="backward"`` (the newer frame's
+    ``motion_bwd``) with ``w = 1 − α``.
+
+    Returns ``float32[H, W, 3]`` of ``[Δx, Δy, ΔZ]`` in NDC; NaN where the pixel is invalid or
+    the moved point is behind the client camera.
+    """
+    if not isinstance(source, CameraFrame):
+        raise InvalidInputError(
+            f"source: expected a CameraFrame, got {type(source).__name__}"
+        )
+    if not isinstance(client, Camera):
+        raise InvalidInputError(f"client: expected a Camera, got {type(client).__name__}")
+    if direction == "forward":
+        motion = source.motion_fwd
+    elif direction == "backward":
+        motion = source.motion_bwd
+    else:
+        raise InvalidInputError(
+            f"direction: expected 'forward' or 'backward', got {direction!r}"
+        )
+    c = source.camera
+    return _native.scene_flow(
+        c.view,
+        c.proj,
+        source.depth,
+        motion,
+        client.view,
+        client.proj,
+        client.width,
+        client.height,
+        float(w),
+    )
+
+
+def apply_shadows(
+    frame_color: _Image,
+    shadow: ShadowBuffers,
+    alpha: float,
+    *,
+    subframes: int = 4,
+    role: Literal["older", "newer"] = "older",
+) -> _Image:
+    """``frame_color`` (``uint8[H, W, 3]``) with its dynamic shadows at ``alpha`` applied
+    (seeds/000 eqs. 9–11). ``role="older"`` for forward buffers (subframe ``j`` at
+    ``t + j/S``), ``"newer"`` for backward buffers (at ``t+1 − j/S``)."""
+    if not isinstance(shadow, ShadowBuffers):
+        raise InvalidInputError(
+            f"shadow: expected ShadowBuffers, got {type(shadow).__name__}"
+        )
+    return _native.apply_shadows(
+        frame_color,
+        shadow.bits,
+        shadow.s_min,
+        shadow.s_max,
+        float(alpha),
+        subframes,
+        role,
+    )

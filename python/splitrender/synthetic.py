@@ -1,0 +1,113 @@
+"""The analytic synthetic scene of reproj-core (``reproj_core::synthetic``): a back wall, a floor,
+a moving textured sphere and a bobbing cube under one soft-shadowing light, ray cast exactly, so
+every server buffer is consistent and ground truth exists at any pose and time.
+
+Used by the tests, the benchmarks and ``splitrender example`` until the reference renderer exists.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender import _native
+from splitrender.errors import InvalidInputError
+from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
+
+__all__ = ["SyntheticScene"]
+
+
+def _camera(native: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int, int]) -> Camera:
+    view, proj, width, height = native
+    return Camera(view, proj, width, height)
+
+
+class SyntheticScene:
+    """The scene; ``dynamic=False`` freezes the sphere and the cube at their ``t = 0`` pose."""
+
+    __slots__ = ("dynamic",)
+
+    dynamic: bool
+
+    def __init__(self, dynamic: bool = True) -> None:
+        if not isinstance(dynamic, (bool, np.bool_)):
+            raise InvalidInputError(f"dynamic: expected a bool, got {type(dynamic).__name__}")
+        self.dynamic = bool(dynamic)
+
+    def __repr__(self) -> str:
+        return f"SyntheticScene(dynamic={self.dynamic})"
+
+    @staticmethod
+    def head_pose(t: float) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """The deterministic head path: ``(eye, target)`` at time ``t``."""
+        return _native.synthetic_head_pose(t)
+
+    def rig(self, t: float, width: int, height: int) -> tuple[Camera, tuple[Camera, Camera]]:
+        """The DESIGN.md camera rig at the head pose of time ``t``: the main camera (60°,
+        ``width x height``) and the two auxiliary cameras (80°, half size, 20 cm left/right,
+        yawed 10° outward)."""
+        eye, target = _native.synthetic_head_pose(t)
+        main, left, right = _native.synthetic_rig(eye, target, width, height)
+        return _camera(main), (_camera(left), _camera(right))
+
+    def render(
+        self, camera: Camera, time: float, *, fps: float = 10.0, subframes: int = 4
+    ) -> CameraFrame:
+        """Every server buffer of ``camera`` at ``time``: colour, depth, forward and backward
+        motion (one server interval ``1/fps``) and forward and backward shadow buffers with
+        ``subframes`` subframes."""
+        if not isinstance(camera, Camera):
+            raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
+        if not fps > 0:
+            raise InvalidInputError(f"fps: expected a value > 0, got {fps}")
+        b = _native.synthetic_render_server(
+            self.dynamic,
+            camera.view,
+            camera.proj,
+            camera.width,
+            camera.height,
+            time,
+            1.0 / fps,
+            subframes,
+        )
+        return CameraFrame(
+            camera=camera,
+            color=b["color"],
+            depth=b["depth"],
+            motion_fwd=b["motion_fwd"],
+            motion_bwd=b["motion_bwd"],
+            shadow_fwd=ShadowBuffers(
+                b["shadow_fwd_bits"], b["shadow_fwd_min"], b["shadow_fwd_max"]
+            ),
+            shadow_bwd=ShadowBuffers(
+                b["shadow_bwd_bits"], b["shadow_bwd_min"], b["shadow_bwd_max"]
+            ),
+        )
+
+    def server_frame(
+        self,
+        index: int,
+        time: float,
+        width: int,
+        height: int,
+        *,
+        fps: float = 10.0,
+        subframes: int = 4,
+    ) -> ServerFrame:
+        """Server frame ``index`` at ``time``: the rig at the head pose of ``time`` (main camera
+        ``width x height`` and two auxiliary cameras), every buffer rendered."""
+        main, aux = self.rig(time, width, height)
+        return ServerFrame(
+            index=index,
+            time=time,
+            main=self.render(main, time, fps=fps, subframes=subframes),
+            aux=tuple(self.render(a, time, fps=fps, subframes=subframes) for a in aux),
+        )
+
+    def ground_truth(self, camera: Camera, time: float) -> npt.NDArray[np.uint8]:
+        """The exact image (``uint8[H, W, 3]``) at ``camera`` and ``time``."""
+        if not isinstance(camera, Camera):
+            raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
+        return _native.synthetic_ground_truth(
+            self.dynamic, camera.view, camera.proj, camera.width, camera.height, time
+        )

@@ -1,0 +1,441 @@
+"""The typed values that flow through splitrender: cameras, server frames, requests, options, results.
+
+Conventions (shared/DESIGN.md): world right-handed, +y up, metres; a camera looks along its -z;
+images row-major ``H x W``, row 0 at the top, colour RGB8; reversed depth in ``[0, 1]`` (1 at the
+near plane, 0 at the far plane); matrices 4x4 ``float64`` acting on column vectors,
+``clip = proj @ view @ [x, y, z, 1]``.
+
+Every dataclass checks its fields in ``__post_init__`` and raises
+:class:`~splitrender.errors.InvalidInputError` naming the field, what was expected and what came.
+Arrays are taken as they are (no silent dtype conversion, no copy) and must be C-contiguous;
+only the small camera matrices are converted to read-only ``float64`` copies.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender import _native
+from splitrender.errors import InvalidInputError
+
+__all__ = [
+    "MAX_SIDE",
+    "Camera",
+    "CameraFrame",
+    "ClientRequest",
+    "ReprojectOptions",
+    "Reprojection",
+    "ServerFrame",
+    "ShadowBuffers",
+]
+
+#: Largest image side the kernels accept (``reproj_core::MAX_SIDE``).
+MAX_SIDE = 16384
+
+Shape = tuple[int, ...]
+
+
+def _describe(value: object) -> str:
+    if isinstance(value, np.ndarray):
+        return f"{value.dtype} {tuple(value.shape)}"
+    return type(value).__name__
+
+
+def _check_array(
+    where: str, value: object, dtype: type[np.generic], shape: Shape
+) -> None:
+    """Raises unless ``value`` is a C-contiguous ``dtype`` array of exactly ``shape``."""
+    want = np.dtype(dtype)
+    if (
+        not isinstance(value, np.ndarray)
+        or value.dtype != want
+        or tuple(value.shape) != tuple(shape)
+    ):
+        raise InvalidInputError(
+            f"{where}: expected {want} array of shape {tuple(shape)}, got {_describe(value)}"
+        )
+    if not value.flags.c_contiguous:
+        raise InvalidInputError(
+            f"{where}: expected a C-contiguous array, got a non-contiguous {_describe(value)} "
+            "view (pass numpy.ascontiguousarray(...))"
+        )
+
+
+def _check_int(where: str, value: object, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise InvalidInputError(f"{where}: expected an int, got {_describe(value)}")
+    v = int(value)
+    if not lo <= v <= hi:
+        raise InvalidInputError(f"{where}: expected an int in [{lo}, {hi}], got {v}")
+    return v
+
+
+def _check_float(where: str, value: object, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise InvalidInputError(f"{where}: expected a float, got {_describe(value)}")
+    v = float(value)
+    if not math.isfinite(v) or (positive and v <= 0.0):
+        want = "a finite float > 0" if positive else "a finite float"
+        raise InvalidInputError(f"{where}: expected {want}, got {v}")
+    return v
+
+
+def _check_bool(where: str, value: object) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise InvalidInputError(f"{where}: expected a bool, got {_describe(value)}")
+    return bool(value)
+
+
+def _matrix(where: str, value: object) -> npt.NDArray[np.float64]:
+    try:
+        m = np.array(value, dtype=np.float64, copy=True)
+    except (TypeError, ValueError):
+        raise InvalidInputError(
+            f"{where}: expected a 4x4 matrix of floats, got {_describe(value)}"
+        ) from None
+    if m.shape != (4, 4):
+        raise InvalidInputError(
+            f"{where}: expected float64 array of shape (4, 4), got {_describe(value)}"
+        )
+    if not np.isfinite(m).all():
+        raise InvalidInputError(f"{where}: expected finite values, got {m.tolist()}")
+    m.setflags(write=False)
+    return m
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Camera:
+    """A pinhole camera: world-to-camera ``view``, camera-to-clip ``proj`` (reversed depth) and the
+    image size in pixels. The matrices are stored as read-only ``float64[4, 4]`` copies."""
+
+    view: npt.NDArray[np.float64]
+    proj: npt.NDArray[np.float64]
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "view", _matrix("Camera.view", self.view))
+        object.__setattr__(self, "proj", _matrix("Camera.proj", self.proj))
+        object.__setattr__(self, "width", _check_int("Camera.width", self.width, 1, MAX_SIDE))
+        object.__setattr__(
+            self, "height", _check_int("Camera.height", self.height, 1, MAX_SIDE)
+        )
+
+    @classmethod
+    def look_at(
+        cls,
+        eye: Sequence[float],
+        target: Sequence[float],
+        *,
+        fov_y_deg: float = 60.0,
+        width: int,
+        height: int,
+        near: float = 0.1,
+        far: float = 100.0,
+        up: Sequence[float] = (0.0, 1.0, 0.0),
+    ) -> Camera:
+        """A camera at ``eye`` looking at ``target`` with vertical field of view ``fov_y_deg`` and
+        the reversed-depth projection of DESIGN.md (aspect ``width / height``)."""
+        width = _check_int("width", width, 1, MAX_SIDE)
+        height = _check_int("height", height, 1, MAX_SIDE)
+        view = _native.look_at(_vec3("eye", eye), _vec3("target", target), _vec3("up", up))
+        proj = _native.perspective(fov_y_deg, width / height, near, far)
+        return cls(view, proj, width, height)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(height, width)``."""
+        return (self.height, self.width)
+
+    def to_native(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int, int]:
+        """``(view, proj, width, height)`` as ``splitrender._native`` takes it."""
+        return (self.view, self.proj, self.width, self.height)
+
+
+def _vec3(where: str, v: Sequence[float]) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(c) for c in v)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{where}: expected 3 floats, got {v!r}") from None
+    return (x, y, z)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ShadowBuffers:
+    """Dynamic-shadow buffers of one source image and direction (seeds/000 §3.3): per pixel a
+    bitfield with 2 bits per subframe (subframe ``j`` in bits ``2j, 2j+1``, subframe 0 the key
+    frame) and the RGB8 colours at the minimum/maximum level (0 where that level is the key
+    frame's own)."""
+
+    bits: npt.NDArray[np.uint32]
+    s_min: npt.NDArray[np.uint8]
+    s_max: npt.NDArray[np.uint8]
+
+    def __post_init__(self) -> None:
+        bits = self.bits
+        if not isinstance(bits, np.ndarray) or bits.ndim != 2:
+            raise InvalidInputError(
+                f"ShadowBuffers.bits: expected uint32 array of shape (H, W), got {_describe(bits)}"
+            )
+        h, w = bits.shape
+        _check_array("ShadowBuffers.bits", bits, np.uint32, (h, w))
+        _check_array("ShadowBuffers.s_min", self.s_min, np.uint8, (h, w, 3))
+        _check_array("ShadowBuffers.s_max", self.s_max, np.uint8, (h, w, 3))
+
+    def to_native(
+        self,
+    ) -> tuple[npt.NDArray[np.uint32], npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+        """``(bits, s_min, s_max)`` as ``splitrender._native`` takes it."""
+        return (self.bits, self.s_min, self.s_max)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraFrame:
+    """Everything the client holds of one camera of one server frame.
+
+    ``motion_fwd`` is ``O_{t->t+1}`` and ``motion_bwd`` ``O_{t->t-1}``, both ``float32[H, W, 3]``
+    in this camera's NDC with the camera held fixed (``None``: static, all zero);
+    ``shadow_fwd``/``shadow_bwd`` the dynamic-shadow buffers toward the next/previous frame
+    (``None``: no shadow application). A frame used as the older of a pair contributes its
+    forward buffers, as the newer its backward ones."""
+
+    camera: Camera
+    color: npt.NDArray[np.uint8]
+    depth: npt.NDArray[np.float32]
+    motion_fwd: npt.NDArray[np.float32] | None = None
+    motion_bwd: npt.NDArray[np.float32] | None = None
+    shadow_fwd: ShadowBuffers | None = None
+    shadow_bwd: ShadowBuffers | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.camera, Camera):
+            raise InvalidInputError(
+                f"CameraFrame.camera: expected a Camera, got {_describe(self.camera)}"
+            )
+        h, w = self.camera.height, self.camera.width
+        _check_array("CameraFrame.color", self.color, np.uint8, (h, w, 3))
+        _check_array("CameraFrame.depth", self.depth, np.float32, (h, w))
+        for name in ("motion_fwd", "motion_bwd"):
+            m = getattr(self, name)
+            if m is not None:
+                _check_array(f"CameraFrame.{name}", m, np.float32, (h, w, 3))
+        for name in ("shadow_fwd", "shadow_bwd"):
+            s = getattr(self, name)
+            if s is None:
+                continue
+            if not isinstance(s, ShadowBuffers):
+                raise InvalidInputError(
+                    f"CameraFrame.{name}: expected ShadowBuffers or None, got {_describe(s)}"
+                )
+            if s.bits.shape != (h, w):
+                raise InvalidInputError(
+                    f"CameraFrame.{name}: expected buffers of shape ({h}, {w}), "
+                    f"got {tuple(s.bits.shape)}"
+                )
+
+    def to_native(self, direction: str) -> tuple[Any, ...]:
+        """``(view, proj, color, depth, motion, shadow)`` with the ``"fwd"`` or ``"bwd"``
+        buffers, as ``splitrender._native.reproject`` takes a camera."""
+        if direction == "fwd":
+            motion, shadow = self.motion_fwd, self.shadow_fwd
+        elif direction == "bwd":
+            motion, shadow = self.motion_bwd, self.shadow_bwd
+        else:
+            raise InvalidInputError(f"direction: expected 'fwd' or 'bwd', got {direction!r}")
+        c = self.camera
+        sh = None if shadow is None else shadow.to_native()
+        return (c.view, c.proj, self.color, self.depth, motion, sh)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ServerFrame:
+    """Server frame ``index`` at ``time`` seconds: the main camera and the auxiliary cameras (in
+    rig order; the synthetic scene and the renderer produce two)."""
+
+    index: int
+    time: float
+    main: CameraFrame
+    aux: tuple[CameraFrame, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "index", _check_int("ServerFrame.index", self.index, 0, 2**63 - 1)
+        )
+        object.__setattr__(self, "time", _check_float("ServerFrame.time", self.time))
+        if not isinstance(self.main, CameraFrame):
+            raise InvalidInputError(
+                f"ServerFrame.main: expected a CameraFrame, got {_describe(self.main)}"
+            )
+        if isinstance(self.aux, (str, bytes)) or not isinstance(self.aux, Sequence):
+            raise InvalidInputError(
+                f"ServerFrame.aux: expected a sequence of CameraFrame, got {_describe(self.aux)}"
+            )
+        aux = tuple(self.aux)
+        for i, a in enumerate(aux):
+            if not isinstance(a, CameraFrame):
+                raise InvalidInputError(
+                    f"ServerFrame.aux[{i}]: expected a CameraFrame, got {_describe(a)}"
+                )
+        object.__setattr__(self, "aux", aux)
+
+    def to_native(self, direction: str) -> tuple[Any, list[Any]]:
+        """``(main, [aux...])`` with the ``"fwd"`` or ``"bwd"`` buffers."""
+        return (
+            self.main.to_native(direction),
+            [a.to_native(direction) for a in self.aux],
+        )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ClientRequest:
+    """The client's actual camera at display time ``time`` (seconds)."""
+
+    camera: Camera
+    time: float
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.camera, Camera):
+            raise InvalidInputError(
+                f"ClientRequest.camera: expected a Camera, got {_describe(self.camera)}"
+            )
+        object.__setattr__(self, "time", _check_float("ClientRequest.time", self.time))
+
+
+@dataclass(frozen=True, slots=True)
+class ReprojectOptions:
+    """Options of the reprojection methods, with the defaults of shared/DESIGN.md. Each option
+    names the methods that read it."""
+
+    eps_e: float = 0.002
+    """``ε_e``: reprojection-error threshold of the main camera, in NDC units scaled so that 2.0
+    is the image's short side (REFERENCE.md §2.5). (ours, forward_splat)"""
+
+    eps_z: float = 0.001
+    """``ε_z``: depth-similarity threshold of the main camera in NDC z units. (ours,
+    forward_splat, backward_bidir)"""
+
+    eps_o: float = 0.01
+    """``ε_O``: motion-cancel threshold of Algorithm 2, 3-D NDC norm. (ours)"""
+
+    aux_threshold_scale: float = 4.0
+    """Factor applied to ``eps_e`` and ``eps_z`` for the auxiliary cameras. (ours,
+    forward_splat)"""
+
+    window: int = 1
+    """Half-width ``W`` of the ``(2W+1)^2`` window search around the splat (1: 3x3), 0..8."""
+
+    fpi_iterations: int = 3
+    """Fixed-point iterations after the splat initialisation (ours), 0..32."""
+
+    bidir_iterations: int = 3
+    """Fixed-point iterations of ``backward_bidir`` (seeds/001 uses 3), 0..32."""
+
+    shadow_subframes: int = 4
+    """``S = f_d / f_s``: dynamic-shadow subframes per server interval, 1..16."""
+
+    use_shadows: bool = True
+    """Apply dynamic shadows (seeds/000 eqs. 9-11). (ours, ours_extrapolate)"""
+
+    use_aux: bool = True
+    """Use the auxiliary cameras of the frames. (ours, ours_extrapolate, forward_splat,
+    timewarp)"""
+
+    blend: bool = True
+    """Blend the two frames by Algorithm 2 (second chance). (ours)"""
+
+    splat_bidirectional: bool = False
+    """``forward_splat`` only: splat both frames instead of the newest one alone (the paper's
+    baseline is unidirectional)."""
+
+    server_fps: float = 10.0
+    """``f_s``: server frame rate. Sets ``α = 1 + (t − t_k)·f_s`` when a method extrapolates from
+    the newest frame ``k`` alone (Python side only)."""
+
+    _FLOATS: ClassVar[tuple[str, ...]] = ("eps_e", "eps_z", "eps_o", "aux_threshold_scale")
+    _INTS: ClassVar[dict[str, tuple[int, int]]] = {
+        "window": (0, 8),
+        "fpi_iterations": (0, 32),
+        "bidir_iterations": (0, 32),
+        "shadow_subframes": (1, 16),
+    }
+    _BOOLS: ClassVar[tuple[str, ...]] = (
+        "use_shadows",
+        "use_aux",
+        "blend",
+        "splat_bidirectional",
+    )
+
+    def __post_init__(self) -> None:
+        for name in (*self._FLOATS, "server_fps"):
+            v = _check_float(f"ReprojectOptions.{name}", getattr(self, name), positive=True)
+            object.__setattr__(self, name, v)
+        for name, (lo, hi) in self._INTS.items():
+            v = _check_int(f"ReprojectOptions.{name}", getattr(self, name), lo, hi)
+            object.__setattr__(self, name, v)
+        for name in self._BOOLS:
+            object.__setattr__(
+                self, name, _check_bool(f"ReprojectOptions.{name}", getattr(self, name))
+            )
+
+    def to_native(self) -> dict[str, float | int | bool]:
+        """The options ``splitrender._native.reproject`` takes (all but ``server_fps``)."""
+        return {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if f.name != "server_fps"
+        }
+
+    def replace(self, **changes: Any) -> ReprojectOptions:
+        """A copy with ``changes`` applied (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Reprojection:
+    """One synthesised client frame with per-pixel diagnostics.
+
+    ``image``: ``uint8[H, W, 3]``. ``error``: ``float32[H, W]``, the reprojection error of the
+    chosen match (aspect-scaled NDC), NaN where none. ``source``: ``uint8[H, W]``, which source
+    coloured the pixel:
+
+    - ``SOURCE_NONE`` (0): no match, the previous client frame's colour was kept;
+    - ``SOURCE_MAIN_OLDER`` (1) / ``SOURCE_MAIN_NEWER`` (2): the main camera of the older/newer
+      frame;
+    - ``SOURCE_AUX_BASE + 2*i`` (+1 for the newer frame): auxiliary camera ``i``;
+    - ``SOURCE_BLENDED`` (0x80) is or-ed in when Algorithm 2 blended the other frame in.
+    """
+
+    SOURCE_NONE: ClassVar[int] = 0
+    SOURCE_MAIN_OLDER: ClassVar[int] = 1
+    SOURCE_MAIN_NEWER: ClassVar[int] = 2
+    SOURCE_AUX_BASE: ClassVar[int] = 3
+    SOURCE_BLENDED: ClassVar[int] = 0x80
+
+    image: npt.NDArray[np.uint8]
+    source: npt.NDArray[np.uint8]
+    error: npt.NDArray[np.float32]
+
+    def __post_init__(self) -> None:
+        img = self.image
+        if not isinstance(img, np.ndarray) or img.ndim != 3:
+            raise InvalidInputError(
+                f"Reprojection.image: expected uint8 array of shape (H, W, 3), got {_describe(img)}"
+            )
+        h, w = img.shape[:2]
+        _check_array("Reprojection.image", img, np.uint8, (h, w, 3))
+        _check_array("Reprojection.source", self.source, np.uint8, (h, w))
+        _check_array("Reprojection.error", self.error, np.float32, (h, w))
+
+    @property
+    def matched(self) -> npt.NDArray[np.bool_]:
+        """``bool[H, W]``: pixels that some source coloured."""
+        return np.asarray(self.source != self.SOURCE_NONE)
+

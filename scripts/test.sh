@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Installs splitrender with its test dependencies and runs every test: the Rust tests, the Python
+# tests, and the checks of the typed surface (the `_native` stub against the built module, and
+# mypy --strict on the package). Used by .ci/run after the fmt and clippy gates; run it locally
+# the same way: `bash scripts/test.sh`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+export PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore
+# Builds the extension in release mode (maturin) and installs pytest, hypothesis and mypy.
+python -m pip install --quiet ".[test]"
+
+cargo test --workspace
+
+# From the repository root `import splitrender` resolves to the installed package (the sources
+# live under python/), so the tests exercise what was just built.
+python -m pytest -q
+
+# The stub must match the module: names, signatures, defaults.
+python -m mypy.stubtest splitrender._native
+python -m mypy

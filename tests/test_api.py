@@ -1,0 +1,418 @@
+"""The Python API: data model validation, options, result shapes, and the package surface."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import FPS, Pair
+
+import splitrender as sr
+from splitrender import _native
+from splitrender.cli import main as cli_main
+from splitrender.imageio import encode_png, write_png
+
+EXPECTED_METHODS = ("ours", "ours_extrapolate", "forward_splat", "timewarp", "backward_bidir")
+
+
+def _cam(w: int = 8, h: int = 6) -> sr.Camera:
+    return sr.Camera.look_at((0, 0, 2), (0, 0, 0), width=w, height=h)
+
+
+# ------------------------------------------------------------------------------------------
+# Package surface
+
+
+def test_methods_and_version() -> None:
+    assert sr.METHODS == EXPECTED_METHODS
+    assert tuple(_native.METHODS) == EXPECTED_METHODS
+    assert isinstance(sr.__version__, str) and sr.__version__.count(".") >= 2
+
+
+def test_all_exports_exist() -> None:
+    for name in sr.__all__:
+        assert hasattr(sr, name), name
+
+
+def test_exception_hierarchy() -> None:
+    assert issubclass(sr.InvalidInputError, sr.SplitRenderError)
+    assert issubclass(sr.InvalidInputError, ValueError)
+    assert issubclass(sr.StreamError, sr.SplitRenderError)
+    assert issubclass(sr.SplitRenderError, Exception)
+    assert not issubclass(sr.StreamError, ValueError)
+    for cls in (sr.SplitRenderError, sr.InvalidInputError, sr.StreamError):
+        assert cls.__module__ == "splitrender.errors"
+    from splitrender import errors
+
+    assert errors.InvalidInputError is _native.InvalidInputError
+
+
+def _stub_names() -> set[str]:
+    stub = Path(sr.__file__).with_name("_native.pyi")
+    names: set[str] = set()
+    for node in ast.parse(stub.read_text()).body:
+        if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names.add(node.target.id)
+    return {
+        n for n in names if not n.startswith("_") or n.startswith("__") or n == "_panic_for_test"
+    }
+
+
+def test_stub_matches_module() -> None:
+    """Every public name of ``_native`` is in the stub and vice versa (``mypy.stubtest`` in
+    scripts/test.sh checks the signatures too)."""
+    runtime = set(_native.__all__)
+    assert _stub_names() == runtime
+    assert Path(sr.__file__).with_name("py.typed").exists()
+
+
+# ------------------------------------------------------------------------------------------
+# Data model validation
+
+
+def test_camera_look_at_and_immutability() -> None:
+    c = _cam(8, 6)
+    assert c.view.dtype == np.float64 and c.view.shape == (4, 4)
+    np.testing.assert_array_equal(c.proj, _native.perspective(60.0, 8 / 6, 0.1, 100.0))
+    np.testing.assert_array_equal(c.view, _native.look_at((0, 0, 2), (0, 0, 0)))
+    assert c.shape == (6, 8)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        c.width = 3  # type: ignore[misc]
+    with pytest.raises(ValueError):
+        c.view[0, 0] = 2.0  # read-only copy
+    # Lists are accepted for matrices and copied.
+    m = np.eye(4)
+    c2 = sr.Camera(m.tolist(), m, 4, 4)
+    m[0, 0] = 5.0
+    assert c2.proj[0, 0] == 1.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragment"),
+    [
+        ({"width": 0}, "Camera.width: expected an int in [1, 16384], got 0"),
+        ({"height": 20000}, "Camera.height"),
+        ({"width": 4.0}, "Camera.width: expected an int, got float"),
+        ({"width": True}, "Camera.width: expected an int, got bool"),
+        (
+            {"view": np.eye(3)},
+            "Camera.view: expected float64 array of shape (4, 4), got float64 (3, 3)",
+        ),
+        ({"proj": np.full((4, 4), np.nan)}, "Camera.proj: expected finite values"),
+        ({"view": "abc"}, "Camera.view"),
+    ],
+)
+def test_camera_validation(kwargs: dict[str, object], fragment: str) -> None:
+    args: dict[str, object] = {"view": np.eye(4), "proj": np.eye(4), "width": 4, "height": 4}
+    args.update(kwargs)
+    with pytest.raises(sr.InvalidInputError) as e:
+        sr.Camera(**args)  # type: ignore[arg-type]
+    assert fragment in str(e.value)
+
+
+def test_camera_frame_validation() -> None:
+    c = _cam(8, 6)
+    color = np.zeros((6, 8, 3), np.uint8)
+    depth = np.zeros((6, 8), np.float32)
+    sr.CameraFrame(c, color, depth)
+    with pytest.raises(
+        sr.InvalidInputError,
+        match=r"CameraFrame.color: expected uint8 array of shape \(6, 8, 3\), got float32 \(6, 8, 3\)",
+    ):
+        sr.CameraFrame(c, color.astype(np.float32), depth)  # type: ignore[arg-type]
+    with pytest.raises(
+        sr.InvalidInputError,
+        match=r"CameraFrame.depth: expected float32 array of shape \(6, 8\), got float32 \(8, 6\)",
+    ):
+        sr.CameraFrame(c, color, depth.T.copy())
+    with pytest.raises(
+        sr.InvalidInputError, match="CameraFrame.depth: expected a C-contiguous array"
+    ):
+        sr.CameraFrame(c, color, np.zeros((6, 16), np.float32)[:, ::2])
+    with pytest.raises(sr.InvalidInputError, match="CameraFrame.motion_bwd"):
+        sr.CameraFrame(c, color, depth, motion_bwd=np.zeros((6, 8, 2), np.float32))
+    with pytest.raises(
+        sr.InvalidInputError, match="CameraFrame.color: expected uint8 array of shape .*, got list"
+    ):
+        sr.CameraFrame(c, [[0]], depth)  # type: ignore[arg-type]
+    small = sr.ShadowBuffers(
+        np.zeros((2, 2), np.uint32), np.zeros((2, 2, 3), np.uint8), np.zeros((2, 2, 3), np.uint8)
+    )
+    with pytest.raises(
+        sr.InvalidInputError, match=r"CameraFrame.shadow_fwd: expected buffers of shape \(6, 8\)"
+    ):
+        sr.CameraFrame(c, color, depth, shadow_fwd=small)
+    with pytest.raises(sr.InvalidInputError, match="CameraFrame.camera: expected a Camera"):
+        sr.CameraFrame(None, color, depth)  # type: ignore[arg-type]
+
+
+def test_shadow_buffers_validation() -> None:
+    bits = np.zeros((2, 3), np.uint32)
+    rgb = np.zeros((2, 3, 3), np.uint8)
+    sr.ShadowBuffers(bits, rgb, rgb)
+    with pytest.raises(
+        sr.InvalidInputError,
+        match=r"ShadowBuffers.bits: expected uint32 array of shape \(2, 3\), got int64 \(2, 3\)",
+    ):
+        sr.ShadowBuffers(bits.astype(np.int64), rgb, rgb)  # type: ignore[arg-type]
+    with pytest.raises(
+        sr.InvalidInputError,
+        match=r"ShadowBuffers.s_max: expected uint8 array of shape \(2, 3, 3\)",
+    ):
+        sr.ShadowBuffers(bits, rgb, np.zeros((3, 2, 3), np.uint8))
+
+
+def test_server_frame_and_request_validation(pair: Pair) -> None:
+    f = sr.ServerFrame(3, 0.3, pair.older.main, [pair.older.aux[0]])  # type: ignore[arg-type]
+    assert isinstance(f.aux, tuple) and len(f.aux) == 1
+    with pytest.raises(sr.InvalidInputError, match="ServerFrame.index"):
+        sr.ServerFrame(-1, 0.0, pair.older.main)
+    with pytest.raises(
+        sr.InvalidInputError, match="ServerFrame.time: expected a finite float, got nan"
+    ):
+        sr.ServerFrame(0, float("nan"), pair.older.main)
+    with pytest.raises(sr.InvalidInputError, match=r"ServerFrame.aux\[0\]: expected a CameraFrame"):
+        sr.ServerFrame(0, 0.0, pair.older.main, (None,))  # type: ignore[arg-type]
+    with pytest.raises(sr.InvalidInputError, match="ClientRequest.time"):
+        sr.ClientRequest(pair.request.camera, float("inf"))
+    with pytest.raises(sr.InvalidInputError, match="ClientRequest.camera"):
+        sr.ClientRequest("cam", 0.0)  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------
+# Options
+
+
+def test_options_defaults_match_design() -> None:
+    o = sr.ReprojectOptions()
+    assert (o.eps_e, o.eps_z, o.eps_o, o.aux_threshold_scale) == (0.002, 0.001, 0.01, 4.0)
+    assert (o.window, o.fpi_iterations, o.bidir_iterations, o.shadow_subframes) == (1, 3, 3, 4)
+    assert (o.use_shadows, o.use_aux, o.blend, o.splat_bidirectional) == (True, True, True, False)
+    assert o.server_fps == 10.0
+
+
+def test_options_round_trip() -> None:
+    o = sr.ReprojectOptions(eps_e=0.004, window=2, blend=False, server_fps=20)
+    assert sr.ReprojectOptions(**dataclasses.asdict(o)) == o
+    assert o.replace(window=0) == sr.ReprojectOptions(
+        eps_e=0.004, window=0, blend=False, server_fps=20
+    )
+    assert isinstance(o.server_fps, float)
+    native = o.to_native()
+    assert "server_fps" not in native
+    assert set(native) | {"server_fps"} == {f.name for f in dataclasses.fields(o)}
+    # The native module accepts exactly these keys.
+    with pytest.raises(sr.InvalidInputError) as e:
+        _native.reproject("ours", None, None, None, 1.0, {"x": 1})  # type: ignore[arg-type]
+    assert "valid options: " + ", ".join(native) in str(e.value)
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("eps_e", 0.0),
+        ("eps_z", -1.0),
+        ("eps_o", float("nan")),
+        ("aux_threshold_scale", "4"),
+        ("window", 9),
+        ("window", 1.5),
+        ("fpi_iterations", 33),
+        ("bidir_iterations", -1),
+        ("shadow_subframes", 0),
+        ("shadow_subframes", 17),
+        ("use_shadows", 1),
+        ("blend", None),
+        ("server_fps", 0.0),
+    ],
+)
+def test_options_validation(name: str, value: object) -> None:
+    with pytest.raises(sr.InvalidInputError, match=f"ReprojectOptions.{name}: expected"):
+        sr.ReprojectOptions(**{name: value})  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------
+# Reprojection results
+
+
+@pytest.mark.parametrize("method", EXPECTED_METHODS)
+def test_reproject_shapes(pair: Pair, method: str) -> None:
+    h, w = pair.request.camera.shape
+    img = sr.reproject(pair.older, pair.newer, pair.request, method)
+    assert isinstance(img, np.ndarray)
+    assert img.dtype == np.uint8 and img.shape == (h, w, 3) and img.flags.c_contiguous
+    r = sr.reproject(pair.older, pair.newer, pair.request, method, diagnostics=True)
+    assert isinstance(r, sr.Reprojection)
+    assert r.image.shape == (h, w, 3) and r.image.dtype == np.uint8
+    assert r.source.shape == (h, w) and r.source.dtype == np.uint8
+    assert r.error.shape == (h, w) and r.error.dtype == np.float32
+    assert r.matched.dtype == np.bool_
+    np.testing.assert_array_equal(r.image, img)
+    # Unmatched pixels carry no error.
+    assert np.isnan(r.error[r.source == sr.Reprojection.SOURCE_NONE]).all()
+
+
+def test_reproject_covers_most_pixels(pair: Pair) -> None:
+    r = sr.reproject(pair.older, pair.newer, pair.request, "ours", diagnostics=True)
+    assert r.matched.mean() > 0.9
+
+
+@pytest.mark.parametrize("method", EXPECTED_METHODS)
+def test_previous_is_copied_not_mutated(pair: Pair, method: str) -> None:
+    h, w = pair.request.camera.shape
+    prev = np.random.default_rng(1).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    before = prev.copy()
+    r = sr.reproject(pair.older, pair.newer, pair.request, method, previous=prev, diagnostics=True)
+    np.testing.assert_array_equal(prev, before)
+    assert r.image is not prev
+    keep = r.source == sr.Reprojection.SOURCE_NONE
+    np.testing.assert_array_equal(r.image[keep], prev[keep])
+    # Without a previous frame, unmatched pixels are black.
+    r0 = sr.reproject(pair.older, pair.newer, pair.request, method, diagnostics=True)
+    assert (r0.image[r0.source == 0] == 0).all()
+
+
+def test_reproject_time_to_alpha(pair: Pair) -> None:
+    cam = pair.request.camera
+    a = sr.reproject(pair.older, pair.newer, pair.request, "ours")
+    b = sr.reproject_alpha(pair.older, pair.newer, cam, pair.alpha, "ours")
+    np.testing.assert_array_equal(a, b)
+    # Unidirectional: the newest frame at or before t, alpha = 1 + (t - t_frame) * f_s.
+    uni_alpha = 1.0 + (pair.request.time - pair.older.time) * FPS
+    for method in ("ours_extrapolate", "forward_splat", "timewarp"):
+        a = sr.reproject(pair.older, pair.newer, pair.request, method)
+        b = sr.reproject_alpha(None, pair.older, cam, uni_alpha, method)
+        np.testing.assert_array_equal(a, b, err_msg=method)
+    # `ours` without the older frame extrapolates from the newest frame it has.
+    late = sr.ClientRequest(cam, pair.newer.time + 0.02)
+    a = sr.reproject(None, pair.newer, late, "ours")
+    b = sr.reproject_alpha(None, pair.newer, cam, 1.0 + 0.02 * FPS, "ours")
+    np.testing.assert_array_equal(a, b)
+
+
+def test_reproject_time_errors(pair: Pair) -> None:
+    early = sr.ClientRequest(pair.request.camera, pair.older.time - 0.01)
+    with pytest.raises(sr.InvalidInputError, match="before every frame"):
+        sr.reproject(pair.older, pair.newer, early, "ours_extrapolate")
+    with pytest.raises(sr.InvalidInputError, match="frames out of order"):
+        sr.reproject(pair.newer, pair.older, pair.request, "ours")
+    with pytest.raises(sr.InvalidInputError, match="needs both frames"):
+        sr.reproject(None, pair.newer, pair.request, "backward_bidir")
+    with pytest.raises(sr.InvalidInputError, match="unknown method 'nope'"):
+        sr.reproject(pair.older, pair.newer, pair.request, "nope")
+
+
+def test_bidir_history(pair: Pair) -> None:
+    h = sr.BidirHistory()
+    assert repr(h) == "BidirHistory()"
+    a = sr.reproject(pair.older, pair.newer, pair.request, "backward_bidir", history=h)
+    h.reset()
+    b = sr.reproject(pair.older, pair.newer, pair.request, "backward_bidir", history=h)
+    assert a.shape == b.shape == (*pair.request.camera.shape, 3)
+
+
+def test_scene_flow(pair: Pair) -> None:
+    src = pair.older.main
+    flow = sr.scene_flow(src, src.camera, 0.0)
+    h, w = src.camera.shape
+    assert flow.dtype == np.float32 and flow.shape == (h, w, 3)
+    # To its own camera with no object motion, every valid pixel stays where it is.
+    assert np.nanmax(np.abs(flow)) < 1e-4
+    moved = sr.scene_flow(src, pair.request.camera, 0.5, direction="backward")
+    assert moved.shape == (h, w, 3) and np.isfinite(moved).any()
+    with pytest.raises(sr.InvalidInputError, match="direction"):
+        sr.scene_flow(src, src.camera, 0.0, direction="sideways")  # type: ignore[arg-type]
+
+
+def test_apply_shadows(pair: Pair) -> None:
+    cf = pair.older.main
+    assert cf.shadow_fwd is not None
+    at0 = sr.apply_shadows(cf.color, cf.shadow_fwd, 0.0)
+    np.testing.assert_array_equal(at0, cf.color)
+    mid = sr.apply_shadows(cf.color, cf.shadow_fwd, 0.5, subframes=4, role="older")
+    assert mid.dtype == np.uint8 and mid.shape == cf.color.shape
+    with pytest.raises(sr.InvalidInputError, match="role: expected 'older' or 'newer'"):
+        sr.apply_shadows(cf.color, cf.shadow_fwd, 0.5, role="middle")  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------
+# Synthetic scene
+
+
+def test_synthetic_scene(pair: Pair) -> None:
+    scene = pair.scene
+    main, (left, right) = scene.rig(0.0, 48, 32)
+    assert (main.width, main.height) == (48, 32)
+    assert (left.width, left.height) == (right.width, right.height) == (24, 16)
+    f = pair.older
+    assert f.index == 0 and f.time == 0.0 and len(f.aux) == 2
+    for cf in (f.main, *f.aux):
+        assert cf.motion_fwd is not None and cf.motion_bwd is not None
+        assert cf.shadow_fwd is not None and cf.shadow_bwd is not None
+    # Ground truth at a server camera and time is that camera's colour.
+    np.testing.assert_array_equal(scene.ground_truth(f.main.camera, f.time), f.main.color)
+    eye, target = sr.SyntheticScene.head_pose(0.25)
+    assert len(eye) == len(target) == 3
+    assert repr(sr.SyntheticScene(dynamic=False)) == "SyntheticScene(dynamic=False)"
+    with pytest.raises(sr.InvalidInputError, match="dynamic"):
+        sr.SyntheticScene(dynamic="yes")  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------
+# PNG writer and command line
+
+
+def test_png_encoding(tmp_path: Path) -> None:
+    img = np.random.default_rng(0).integers(0, 256, (5, 7, 3), dtype=np.uint8)
+    data = encode_png(img)
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    w, h, depth, ctype = struct.unpack(">IIBB", data[16:26])
+    assert (w, h, depth, ctype) == (7, 5, 8, 2)
+    idat_len = struct.unpack(">I", data[33:37])[0]
+    assert data[37:41] == b"IDAT"
+    raw = np.frombuffer(zlib.decompress(data[41 : 41 + idat_len]), np.uint8).reshape(5, 1 + 21)
+    assert (raw[:, 0] == 0).all()
+    np.testing.assert_array_equal(raw[:, 1:].reshape(5, 7, 3), img)
+    write_png(tmp_path / "x.png", img[..., 0].copy())
+    assert (tmp_path / "x.png").read_bytes()[25] == 0  # greyscale
+    with pytest.raises(sr.InvalidInputError):
+        encode_png(img.astype(np.float32))  # type: ignore[arg-type]
+
+
+def test_cli_example(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    assert cli_main(["example", "--out", str(out), "--width", "32", "--height", "24"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert names == {"ground_truth.png", "montage.png", *(f"{m}.png" for m in EXPECTED_METHODS)}
+    text = capsys.readouterr().out
+    for m in EXPECTED_METHODS:
+        assert m in text
+    assert "MAE" in text
+
+
+def test_cli_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    for argv in (["example", "--width", "0"], ["example", "--width", "x"], ["frobnicate"], []):
+        with pytest.raises(SystemExit) as e:
+            cli_main(argv)
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("splitrender") and ": error: " in err, err
+
+
+def test_cli_help(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as e:
+        cli_main(["--help"])
+    assert e.value.code == 0
+    text = capsys.readouterr().out
+    assert "example" in text and "ours" in text
+    with pytest.raises(SystemExit):
+        cli_main(["example", "--help"])
+    text = capsys.readouterr().out
+    for opt in ("--out", "--width", "--height"):
+        assert opt in text

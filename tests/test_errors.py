@@ -1,0 +1,460 @@
+"""Errors: every invalid input raises InvalidInputError (a ValueError and a SplitRenderError) with a
+message naming what was expected and what came; invalid pixels never reach the output; no panic
+and no foreign exception type ever crosses into Python."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import Pair
+from hypothesis import given
+from hypothesis import strategies as st
+
+import splitrender as sr
+from splitrender import _native
+
+
+def _native_args(pair: Pair) -> tuple[Any, Any, Any]:
+    return (
+        pair.older.to_native("fwd"),
+        pair.newer.to_native("bwd"),
+        pair.request.camera.to_native(),
+    )
+
+
+def _replace_cam(frame: Any, which: str, index: int, value: Any) -> Any:
+    """A native frame tuple with slot ``index`` of camera ``which`` ("main" or aux number)."""
+    main, aux = frame
+    aux = list(aux)
+    if which == "main":
+        cam = list(main)
+        cam[index] = value
+        return (tuple(cam), aux)
+    k = int(which)
+    cam = list(aux[k])
+    cam[index] = value
+    aux[k] = tuple(cam)
+    return (main, aux)
+
+
+def _raises_invalid(fn: Callable[[], object], *fragments: str) -> str:
+    with pytest.raises(sr.InvalidInputError) as e:
+        fn()
+    assert isinstance(e.value, ValueError)
+    assert isinstance(e.value, sr.SplitRenderError)
+    msg = str(e.value)
+    for f in fragments:
+        assert f in msg, (f, msg)
+    return msg
+
+
+# Camera tuple slots: (view, proj, color, depth, motion, shadow).
+VIEW, PROJ, COLOR, DEPTH, MOTION, SHADOW = range(6)
+
+
+def test_wrong_dtype(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    aux_depth = newer[1][1][DEPTH]
+    bad = _replace_cam(newer, "1", DEPTH, aux_depth.astype(np.float64))
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.aux[1].depth: expected float32 array of shape (16, 24), got float64 (16, 24)",
+    )
+    bad = _replace_cam(older, "main", COLOR, older[0][COLOR].astype(np.int16))
+    _raises_invalid(
+        lambda: _native.reproject("ours", bad, newer, client, 0.5),
+        "older.main.color: expected uint8 array of shape (32, 48, 3), got int16 (32, 48, 3)",
+    )
+    bad = _replace_cam(newer, "main", VIEW, newer[0][VIEW].astype(np.float32))
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.main.view: expected float64 array of shape (4, 4), got float32 (4, 4)",
+    )
+    bits, s_min, s_max = older[0][SHADOW]
+    bad = _replace_cam(older, "main", SHADOW, (bits.astype(np.int32), s_min, s_max))
+    _raises_invalid(
+        lambda: _native.reproject("ours", bad, newer, client, 0.5),
+        "older.main.shadow.bits: expected uint32 array of shape (32, 48), got int32 (32, 48)",
+    )
+
+
+def test_wrong_shape(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    bad = _replace_cam(newer, "main", MOTION, np.zeros((32, 48, 2), np.float32))
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.main.motion: expected float32 array of shape (32, 48, 3), got float32 (32, 48, 2)",
+    )
+    bad = _replace_cam(newer, "0", COLOR, np.zeros((16, 24), np.uint8))
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.aux[0].color: expected uint8 array of shape (16, 24, 3), got uint8 (16, 24)",
+    )
+    prev = np.zeros((31, 48, 3), np.uint8)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, client, 0.5, None, prev),
+        "previous: expected uint8 array of shape (32, 48, 3), got uint8 (31, 48, 3)",
+    )
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, (newer[0],), client, 0.5),
+        "newer: expected a tuple (main, aux)",
+    )
+
+
+def test_non_contiguous(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    wide = np.zeros((32, 96, 3), np.uint8)[:, ::2]
+    bad = _replace_cam(newer, "main", COLOR, wide)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.main.color: expected a C-contiguous array",
+        "non-contiguous uint8 (32, 48, 3)",
+    )
+    fortran = np.asfortranarray(newer[0][DEPTH])
+    bad = _replace_cam(newer, "main", DEPTH, fortran)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.main.depth: expected a C-contiguous array",
+    )
+    # The Python data model rejects it earlier, naming the field.
+    cf = pair.older.main
+    with pytest.raises(sr.InvalidInputError, match="CameraFrame.color: expected a C-contiguous"):
+        sr.CameraFrame(cf.camera, np.zeros((32, 96, 3), np.uint8)[:, ::2], cf.depth)
+
+
+def test_unaligned(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    depth = newer[0][DEPTH]
+    buf = np.zeros(depth.nbytes + 1, np.uint8)
+    unaligned = np.frombuffer(buf.data, np.float32, depth.size, offset=1).reshape(depth.shape)
+    assert not unaligned.flags.aligned
+    bad = _replace_cam(newer, "main", DEPTH, unaligned)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.main.depth: expected an aligned array",
+    )
+
+
+def test_mismatched_camera_sizes(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    # Older frame with one auxiliary camera, newer with two.
+    _raises_invalid(
+        lambda: _native.reproject("ours", (older[0], older[1][:1]), newer, client, 0.5),
+        "older frame has 1 auxiliary cameras, newer has 2",
+    )
+    # Depth sets the size: a colour of another size is named with the expected shape.
+    bad = _replace_cam(newer, "main", DEPTH, np.zeros((16, 24), np.float32))
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "newer.main.color: expected uint8 array of shape (16, 24, 3), got uint8 (32, 48, 3)",
+    )
+    # scene_flow and apply_shadows check their buffers against each other too.
+    cf = pair.older.main
+    _raises_invalid(
+        lambda: _native.scene_flow(
+            cf.camera.view,
+            cf.camera.proj,
+            cf.depth,
+            np.zeros((3, 3, 3), np.float32),
+            cf.camera.view,
+            cf.camera.proj,
+            48,
+            32,
+            0.5,
+        ),
+        "motion: expected float32 array of shape (32, 48, 3), got float32 (3, 3, 3)",
+    )
+    assert cf.shadow_fwd is not None
+    _raises_invalid(
+        lambda: _native.apply_shadows(
+            cf.color,
+            np.zeros((32, 47), np.uint32),
+            cf.shadow_fwd.s_min,
+            cf.shadow_fwd.s_max,
+            0.5,
+            4,
+            "older",
+        ),
+        "bits: expected uint32 array of shape (32, 48), got uint32 (32, 47)",
+    )
+
+
+def test_sizes_checked_before_allocating(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    huge = (client[0], client[1], 2**40, 32)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, huge, 0.5),
+        "client.width: expected an image side in 1..=16384, got 1099511627776",
+    )
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, (client[0], client[1], 48, -1), 0.5),
+        "client.height",
+    )
+    _raises_invalid(
+        lambda: _native.synthetic_ground_truth(True, client[0], client[1], 10**6, 10, 0.0),
+        "camera.width: expected an image side in 1..=16384",
+    )
+    empty = _replace_cam(newer, "main", DEPTH, np.zeros((0, 48), np.float32))
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, empty, client, 0.5),
+        "newer.main.depth: expected each side in 1..=16384, got shape (0, 48)",
+    )
+
+
+def test_non_invertible_matrix(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    singular = np.zeros((4, 4))
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, (singular, client[1], 48, 32), 0.5),
+        "client camera: matrix is not invertible or not finite",
+    )
+    bad = _replace_cam(newer, "0", PROJ, singular)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, bad, client, 0.5),
+        "not invertible",
+    )
+    nan = np.full((4, 4), np.nan)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, (client[0], nan, 48, 32), 0.5),
+        "not invertible or not finite",
+    )
+
+
+@pytest.mark.parametrize("alpha", [-0.1, 3.5, float("nan"), float("inf"), -1e300])
+@pytest.mark.parametrize("method", sr.METHODS)
+def test_alpha_out_of_range(pair: Pair, alpha: float, method: str) -> None:
+    older, newer, client = _native_args(pair)
+    _raises_invalid(
+        lambda: _native.reproject(method, older, newer, client, alpha),
+        "alpha = ",
+        "outside the supported range",
+        f"method '{method}'",
+    )
+    _raises_invalid(
+        lambda: sr.reproject_alpha(pair.older, pair.newer, pair.request.camera, alpha, method),
+        "alpha = ",
+    )
+
+
+def test_alpha_out_of_range_for_method(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    _raises_invalid(
+        lambda: _native.reproject("ours_extrapolate", older, newer, client, 0.5),
+        "alpha = 0.5 is outside the supported range [1, 3]",
+    )
+    _raises_invalid(
+        lambda: _native.reproject("backward_bidir", older, newer, client, 1.5),
+        "[0, 1]",
+    )
+    _raises_invalid(
+        lambda: _native.reproject("ours", None, newer, client, 0.5),
+        "needs the older frame",
+    )
+
+
+def test_unknown_method(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    expected = "expected one of: ours, ours_extrapolate, forward_splat, timewarp, backward_bidir"
+    _raises_invalid(
+        lambda: _native.reproject("Ours", older, newer, client, 0.5),
+        "unknown method 'Ours'",
+        expected,
+    )
+    _raises_invalid(
+        lambda: sr.reproject(pair.older, pair.newer, pair.request, "warp"),
+        "unknown method 'warp'",
+        expected,
+    )
+
+
+def test_unknown_option(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, client, 0.5, {"eps": 0.1}),
+        "unknown option 'eps'; valid options: eps_e, eps_z, eps_o, aux_threshold_scale, window",
+    )
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, client, 0.5, {"window": "3"}),
+        "option window: expected an int, got str",
+    )
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, client, 0.5, {"eps_e": -1.0}),
+        "option eps_e = -1: expected a finite value > 0",
+    )
+    _raises_invalid(
+        lambda: _native.reproject("ours", older, newer, client, 0.5, [("window", 1)]),
+        "options: expected a dict, got list",
+    )
+    with pytest.raises(TypeError):
+        sr.ReprojectOptions(eps=0.1)  # type: ignore[call-arg]
+
+
+def test_bad_history(pair: Pair) -> None:
+    older, newer, client = _native_args(pair)
+    _raises_invalid(
+        lambda: _native.reproject(
+            "backward_bidir", older, newer, client, 0.5, None, None, False, {}
+        ),
+        "history: expected a BidirHistory or None, got dict",
+    )
+
+
+# ------------------------------------------------------------------------------------------
+# Invalid pixels
+
+
+def _frame_with(frame: sr.ServerFrame, **fields: Callable[[sr.CameraFrame], Any]) -> sr.ServerFrame:
+    cams = [
+        dataclasses.replace(cf, **{k: f(cf) for k, f in fields.items()})
+        for cf in (frame.main, *frame.aux)
+    ]
+    return sr.ServerFrame(frame.index, frame.time, cams[0], tuple(cams[1:]))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("method", sr.METHODS)
+def test_invalid_depth_never_matches(pair: Pair, method: str, bad: float) -> None:
+    fill = {"depth": lambda cf: np.full_like(cf.depth, bad)}
+    older, newer = _frame_with(pair.older, **fill), _frame_with(pair.newer, **fill)
+    h, w = pair.request.camera.shape
+    prev = np.random.default_rng(3).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    r = sr.reproject(older, newer, pair.request, method, previous=prev, diagnostics=True)
+    assert r.image.dtype == np.uint8
+    assert (r.source == sr.Reprojection.SOURCE_NONE).all()
+    assert np.isnan(r.error).all()
+    np.testing.assert_array_equal(r.image, prev)
+
+
+# timewarp is planar and reads no object motion, so invalid motion does not concern it.
+@pytest.mark.parametrize("method", [m for m in sr.METHODS if m != "timewarp"])
+def test_invalid_motion_never_matches(pair: Pair, method: str) -> None:
+    fill = {
+        "motion_fwd": lambda cf: np.full_like(cf.motion_fwd, np.nan),
+        "motion_bwd": lambda cf: np.full_like(cf.motion_bwd, np.inf),
+    }
+    older, newer = _frame_with(pair.older, **fill), _frame_with(pair.newer, **fill)
+    h, w = pair.request.camera.shape
+    prev = np.random.default_rng(4).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    r = sr.reproject(older, newer, pair.request, method, previous=prev, diagnostics=True)
+    assert (r.source == sr.Reprojection.SOURCE_NONE).all()
+    np.testing.assert_array_equal(r.image, prev)
+
+
+@pytest.mark.parametrize("method", sr.METHODS)
+def test_partly_invalid_pixels_give_valid_output(pair: Pair, method: str) -> None:
+    rng = np.random.default_rng(5)
+
+    def spoil(a: np.ndarray) -> np.ndarray:
+        out = a.copy()
+        mask = rng.random(out.shape[:2]) < 0.2
+        out[mask] = rng.choice([np.nan, np.inf, -np.inf, 1e30, -5.0])
+        return out
+
+    fill = {
+        "depth": lambda cf: spoil(cf.depth),
+        "motion_fwd": lambda cf: spoil(cf.motion_fwd),
+        "motion_bwd": lambda cf: spoil(cf.motion_bwd),
+    }
+    older, newer = _frame_with(pair.older, **fill), _frame_with(pair.newer, **fill)
+    r = sr.reproject(older, newer, pair.request, method, diagnostics=True)
+    assert r.image.dtype == np.uint8 and r.image.shape == (*pair.request.camera.shape, 3)
+    matched = r.source != sr.Reprojection.SOURCE_NONE
+    assert not np.isnan(r.error[matched]).any() or method == "timewarp"
+
+
+# ------------------------------------------------------------------------------------------
+# Panics and fuzzing
+
+
+def test_panic_becomes_split_render_error() -> None:
+    with pytest.raises(sr.SplitRenderError) as e:
+        _native._panic_for_test()
+    assert type(e.value) is sr.SplitRenderError
+    assert "internal error in _panic_for_test" in str(e.value)
+    assert "please report" in str(e.value)
+
+
+DTYPES = [
+    np.uint8,
+    np.int8,
+    np.uint16,
+    np.int32,
+    np.uint32,
+    np.int64,
+    np.float16,
+    np.float32,
+    np.float64,
+    np.complex64,
+    np.bool_,
+    object,
+]
+
+arrays = st.builds(
+    lambda dtype, shape: np.zeros(shape, dtype=dtype),
+    st.sampled_from(DTYPES),
+    st.lists(st.integers(0, 5), min_size=0, max_size=4).map(tuple),
+)
+junk = st.one_of(
+    arrays,
+    st.none(),
+    st.integers(-3, 3),
+    st.floats(allow_nan=True),
+    st.text(max_size=3),
+    st.lists(st.integers(0, 3), max_size=3),
+    st.tuples(),
+)
+
+
+@given(
+    target=st.sampled_from(["older", "newer", "client", "previous"]),
+    cam=st.sampled_from(["main", "0", "1"]),
+    slot=st.integers(0, 5),
+    value=junk,
+    # A shadow tuple whose entries are junk, and the natural-size arrays of the wrong dtype.
+    shadow_part=st.integers(0, 2),
+    natural=st.booleans(),
+    natural_dtype=st.sampled_from(DTYPES),
+)
+def test_fuzz_only_split_render_errors(
+    pair: Pair,
+    target: str,
+    cam: str,
+    slot: int,
+    value: Any,
+    shadow_part: int,
+    natural: bool,
+    natural_dtype: Any,
+) -> None:
+    older, newer, client = _native_args(pair)
+    previous: Any = None
+    if target in ("older", "newer"):
+        frame = older if target == "older" else newer
+        original = (frame[0] if cam == "main" else frame[1][int(cam)])[slot]
+        if natural and isinstance(original, np.ndarray):
+            value = original.astype(natural_dtype)
+        if slot == SHADOW and not isinstance(value, np.ndarray) and value is not None:
+            parts = list(original)
+            parts[shadow_part] = value
+            value = tuple(parts)
+        frame = _replace_cam(frame, cam, slot, value)
+        if target == "older":
+            older = frame
+        else:
+            newer = frame
+    elif target == "client":
+        c = list(client)
+        c[slot % 4] = value
+        client = tuple(c)
+    else:
+        previous = value
+    try:
+        out = _native.reproject("ours", older, newer, client, 0.5, None, previous)
+    except sr.SplitRenderError:
+        return
+    except BaseException as e:  # noqa: BLE001 - the point of the test
+        pytest.fail(f"{type(e).__name__} escaped: {e}")
+    assert isinstance(out, np.ndarray) and out.dtype == np.uint8
