@@ -18,7 +18,10 @@ fn cv(x: &(Camera, RenderedCamera), fwd: bool) -> CameraView<'_> {
 }
 
 fn main() {
-    let (w, h) = (1280, 720);
+    let (w, h): (usize, usize) = match std::env::args().nth(2) {
+        Some(s) => (s.parse().unwrap(), s.parse::<usize>().unwrap() * 9 / 16),
+        None => (1280, 720),
+    };
     let scene = SyntheticScene::new(true);
     let mk = |t: f64| {
         let (e, tg) = head_pose(t);
@@ -41,7 +44,11 @@ fn main() {
         alpha: 0.5,
     };
     let mut out = vec![0u8; w * h * 3];
-    for method in [Method::Ours, Method::ForwardSplat] {
+    let methods: Vec<Method> = match std::env::args().nth(1) {
+        Some(m) => vec![m.parse().unwrap()],
+        None => vec![Method::Ours, Method::ForwardSplat],
+    };
+    for method in methods {
         for use_aux in [false, true] {
             let p = Params {
                 use_aux,

@@ -270,12 +270,52 @@ impl Projector {
     }
 }
 
+/// The map from one camera's NDC to another camera's clip space, `P_to · P_from⁻¹`, composed in
+/// `f64` and rounded once to `f32`, with the homogeneous `w` of the world point (row 3 of
+/// `P_from⁻¹`) kept apart.
+///
+/// `P_to(P_from⁻¹(c̄))` needs two matrix products and a division in between; the composite needs one
+/// product. The world `w` still matters twice: its sign tells whether the point is in front of
+/// `P_to` (`clip.w / w_world > 0`), and blending two world points (object motion applied linearly in
+/// world space) must weight their clip coordinates by `1 / w_world` each.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NdcTransfer {
+    /// `P_to · P_from⁻¹`.
+    pub m: M4,
+    /// Row 3 of `P_from⁻¹`: the world point's homogeneous `w`.
+    pub w_row: [f32; 4],
+}
+
+impl NdcTransfer {
+    /// The transfer from camera `from` (whose `P⁻¹` is `from_inv`) to the camera with `P = to_vp`.
+    pub fn new(from_inv: &Mat4, to_vp: &Mat4) -> NdcTransfer {
+        let m = to_vp.mul(from_inv).to_f32();
+        let r = from_inv.0[3];
+        NdcTransfer {
+            m,
+            w_row: [r[0] as f32, r[1] as f32, r[2] as f32, r[3] as f32],
+        }
+    }
+
+    /// Clip coordinates in the target camera of the world point `P_from⁻¹(c̄)`, divided by that
+    /// point's homogeneous `w`, i.e. `P_to · X` for the dehomogenised world point `X`.
+    #[inline(always)]
+    pub fn clip(&self, c: [f32; 3]) -> [f32; 4] {
+        let h = self.m.apply(c);
+        let r = &self.w_row;
+        let iw = 1.0 / (r[0] * c[0] + r[1] * c[1] + r[2] * c[2] + r[3]);
+        [h[0] * iw, h[1] * iw, h[2] * iw, h[3] * iw]
+    }
+}
+
 /// NDC of the centre of pixel `(i, j)` in a `w × h` image.
 #[inline(always)]
 pub fn ndc_of_pixel(i: usize, j: usize, w: usize, h: usize) -> [f32; 2] {
+    // Through i32: sides are at most MAX_SIDE, and x86-64 converts i32 ⇄ f32 in one instruction
+    // but u64 ⇄ f32 only in a branchy sequence; this runs several times per pixel.
     [
-        (2 * i + 1) as f32 / w as f32 - 1.0,
-        1.0 - (2 * j + 1) as f32 / h as f32,
+        (2 * i as i32 + 1) as f32 / w as i32 as f32 - 1.0,
+        1.0 - (2 * j as i32 + 1) as f32 / h as i32 as f32,
     ]
 }
 
@@ -283,12 +323,17 @@ pub fn ndc_of_pixel(i: usize, j: usize, w: usize, h: usize) -> [f32; 2] {
 /// `j = ⌊(1−y)·H/2⌋`; `None` outside the image or for NaN.
 #[inline(always)]
 pub fn pixel_of_ndc(x: f32, y: f32, w: usize, h: usize) -> Option<(usize, usize)> {
-    let fx = (x + 1.0) * 0.5 * w as f32;
-    let fy = (1.0 - y) * 0.5 * h as f32;
+    let (wf, hf) = (w as i32 as f32, h as i32 as f32);
+    let fx = (x + 1.0) * 0.5 * wf;
+    let fy = (1.0 - y) * 0.5 * hf;
     // NaN fails every comparison, so it is rejected here too. For the non-negative values that
-    // pass, truncation is the floor: this avoids a libm `floorf` call in the innermost loops.
-    if fx >= 0.0 && fy >= 0.0 && fx < w as f32 && fy < h as f32 {
-        Some(((fx as usize).min(w - 1), (fy as usize).min(h - 1)))
+    // pass, truncation is the floor: no libm `floorf` call in the innermost loops, and i32 (not
+    // usize) conversions, which are single instructions.
+    if fx >= 0.0 && fy >= 0.0 && fx < wf && fy < hf {
+        Some((
+            (fx as i32 as usize).min(w - 1),
+            (fy as i32 as usize).min(h - 1),
+        ))
     } else {
         None
     }

@@ -25,7 +25,7 @@ pub mod synthetic;
 pub mod timewarp;
 
 pub use backward_bidir::BidirHistory;
-pub use camera::{Camera, Mat4, Projector, M4, MAX_SIDE};
+pub use camera::{Camera, Mat4, NdcTransfer, Projector, M4, MAX_SIDE};
 pub use error::{ReprojError, Result};
 pub use frame::{CameraView, FrameView, ShadowView};
 pub use method::{reproject, Diagnostics, Method, Request};

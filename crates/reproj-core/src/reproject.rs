@@ -29,8 +29,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use rayon::prelude::*;
 
-use crate::camera::{pixel_of_ndc, Camera, Projector};
-use crate::error::Result;
+use crate::camera::{pixel_of_ndc, Camera, NdcTransfer, Projector};
+use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
 use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
@@ -72,11 +72,23 @@ struct Src<'a> {
     view: CameraView<'a>,
     proj: Projector,
     /// The same camera in the other frame of the pair, for Algorithm 2.
-    other: Option<(CameraView<'a>, Projector)>,
+    other: Option<Other<'a>>,
     role: Role,
     /// `0` for main, `1 + i` for auxiliary camera `i`.
     camera: usize,
     bufs: Buffers,
+}
+
+/// The same camera in the other frame of the pair, with the NDC transfers both ways (the full scene
+/// flow of eqs. 2 and 3, used by Algorithm 2).
+#[derive(Debug, Clone, Copy)]
+struct Other<'a> {
+    view: CameraView<'a>,
+    proj: Projector,
+    /// This camera's NDC → the other camera's clip space.
+    to_other: NdcTransfer,
+    /// The other camera's NDC → this camera's clip space.
+    from_other: NdcTransfer,
 }
 
 /// The per-source buffers of one client frame, kept between frames (see [`BUFFER_POOL`]).
@@ -132,7 +144,7 @@ pub(crate) fn run<'a>(
     diag: Option<&mut Diagnostics>,
 ) -> Result<()> {
     let alpha = request.alpha;
-    let client = request.client.projector("client camera")?;
+    request.client.projector("client camera")?;
     let older = if alpha < 1.0 { older } else { None };
     let bidirectional = older.is_some();
     let use_aux = params.use_aux;
@@ -162,8 +174,30 @@ pub(crate) fn run<'a>(
         if let Some(o) = older {
             let ov = pick(o);
             let op = ov.camera.projector(&name("older"))?;
-            sources.push(Src::new(ov, op, Some((nv, np)), Role::Older, cam, take()));
-            sources.push(Src::new(nv, np, Some((ov, op)), Role::Newer, cam, take()));
+            let (n_vp, o_vp) = (nv.camera.view_proj(), ov.camera.view_proj());
+            // Both invertible: checked by `projector` above.
+            let (n_inv, o_inv) = (n_vp.inverse(), o_vp.inverse());
+            let (Some(n_inv), Some(o_inv)) = (n_inv, o_inv) else {
+                return Err(ReprojError::SingularMatrix {
+                    what: name("older"),
+                });
+            };
+            let o_to_n = NdcTransfer::new(&o_inv, &n_vp);
+            let n_to_o = NdcTransfer::new(&n_inv, &o_vp);
+            let other_of_o = Other {
+                view: nv,
+                proj: np,
+                to_other: o_to_n,
+                from_other: n_to_o,
+            };
+            let other_of_n = Other {
+                view: ov,
+                proj: op,
+                to_other: n_to_o,
+                from_other: o_to_n,
+            };
+            sources.push(Src::new(ov, op, Some(other_of_o), Role::Older, cam, take()));
+            sources.push(Src::new(nv, np, Some(other_of_n), Role::Newer, cam, take()));
         } else {
             sources.push(Src::new(nv, np, None, Role::Newer, cam, take()));
         }
@@ -177,17 +211,27 @@ pub(crate) fn run<'a>(
         .map(|s| (s.view, s.proj, s.role))
         .collect();
     let eps_z_aux = params.eps_z * params.aux_threshold_scale;
+    let client_vp = request.client.view_proj();
     for src in sources.iter_mut() {
         let w = match src.role {
             Role::Older => alpha,
             Role::Newer => 1.0 - alpha,
         };
+        let Some(inv) = src.view.camera.view_proj().inverse() else {
+            return Err(ReprojError::SingularMatrix {
+                what: "source camera".into(),
+            });
+        };
+        let to_client = NdcTransfer::new(&inv, &client_vp);
+        let to_main = |m: &(CameraView<'a>, Projector, Role)| {
+            (m.0, m.1, NdcTransfer::new(&inv, &m.0.camera.view_proj()))
+        };
         let vis_ctx = (src.camera > 0).then(|| VisCtx {
-            same: mains.iter().find(|m| m.2 == src.role).map(|m| (m.0, m.1)),
-            other: mains.iter().find(|m| m.2 != src.role).map(|m| (m.0, m.1)),
+            same: mains.iter().find(|m| m.2 == src.role).map(to_main),
+            other: mains.iter().find(|m| m.2 != src.role).map(to_main),
             eps_z: eps_z_aux,
         });
-        scene_flow_and_splat(src, &client, w, vis_ctx.as_ref());
+        scene_flow_and_splat(src, &to_client, w, vis_ctx.as_ref());
     }
 
     // Pass 2: resolve per output tile.
@@ -211,6 +255,14 @@ pub(crate) fn run<'a>(
         } else {
             0
         },
+        aux: Vec::new(),
+    };
+    let aux_grids = (1..ctx.n_cams)
+        .map(|cam| ctx.resolve_aux_grid(cam))
+        .collect();
+    let ctx = Resolve {
+        aux: aux_grids,
+        ..ctx
     };
     let rows_per_task = TILE;
     match diag {
@@ -238,7 +290,7 @@ impl<'a> Src<'a> {
     fn new(
         view: CameraView<'a>,
         proj: Projector,
-        other: Option<(CameraView<'a>, Projector)>,
+        other: Option<Other<'a>>,
         role: Role,
         camera: usize,
         mut bufs: Buffers,
@@ -268,18 +320,19 @@ impl<'a> Src<'a> {
 
 /// What "visible in main" is tested against for an auxiliary source.
 struct VisCtx<'a> {
-    same: Option<(CameraView<'a>, Projector)>,
-    other: Option<(CameraView<'a>, Projector)>,
+    /// The main camera at the source's time, and the transfer from the source's NDC to it.
+    same: Option<(CameraView<'a>, Projector, NdcTransfer)>,
+    /// The main camera at the other frame's time (bidirectional only).
+    other: Option<(CameraView<'a>, Projector, NdcTransfer)>,
     eps_z: f32,
 }
 
-/// Whether world point `x` is inside the main camera's frustum (strictly inside ±0.999, as the
-/// reference) and not behind its depth buffer by more than `eps_z` (NDC units).
+/// Whether the point with clip coordinates `h` in the main camera is inside its frustum
+/// (strictly inside ±0.999, as the reference) and not behind its depth buffer by more than `eps_z`
+/// (NDC units).
 #[inline]
-fn visible_in(main: &(CameraView, Projector), x: [f32; 3], eps_z: f32) -> bool {
-    let (view, proj) = main;
-    let h = proj.vp.apply(x);
-    if h[3] <= 0.0 {
+fn visible_in(view: &CameraView, proj: &Projector, h: [f32; 4], eps_z: f32) -> bool {
+    if !(h[3] > 0.0) {
         return false;
     }
     let c = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
@@ -301,7 +354,7 @@ fn visible_in(main: &(CameraView, Projector), x: [f32; 3], eps_z: f32) -> bool {
 ///
 /// `w` is the fraction of the object motion applied: `α` for the older frame, `1−α` for the newer
 /// one (negative when extrapolating).
-fn scene_flow_and_splat(src: &mut Src, client: &Projector, w: f32, vis: Option<&VisCtx>) {
+fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Option<&VisCtx>) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     let view = src.view;
     let proj = src.proj;
@@ -328,37 +381,36 @@ fn scene_flow_and_splat(src: &mut Src, client: &Projector, w: f32, vis: Option<&
                     }
                     let [x, y] = proj.ndc_of_pixel(i, j);
                     let c = [x, y, z];
-                    let xw = proj.unproject(c);
+                    let c2 = [x + o[0], y + o[1], z + o[2]];
                     let moved = o != [0.0; 3];
-                    let xw2 = if moved {
-                        proj.unproject([x + o[0], y + o[1], z + o[2]])
-                    } else {
-                        xw
-                    };
-                    let xt = if moved {
+                    // P_{t+α}(X + w·(X' − X)) = P X + w·(P X' − P X): the world-space blend of
+                    // eq. 1 done on clip coordinates, each already divided by its world w.
+                    let a = to_client.clip(c);
+                    let h = if moved {
+                        let b = to_client.clip(c2);
                         [
-                            xw[0] + w * (xw2[0] - xw[0]),
-                            xw[1] + w * (xw2[1] - xw[1]),
-                            xw[2] + w * (xw2[2] - xw[2]),
+                            a[0] + w * (b[0] - a[0]),
+                            a[1] + w * (b[1] - a[1]),
+                            a[2] + w * (b[2] - a[2]),
+                            a[3] + w * (b[3] - a[3]),
                         ]
                     } else {
-                        xw
+                        a
                     };
-                    let h = client.vp.apply(xt);
-                    if !(h[3] > 0.0) || !xt.iter().all(|v| v.is_finite()) {
+                    if !(h[3] > 0.0) || !h.iter().all(|v| v.is_finite()) {
                         continue; // behind the client camera (or degenerate)
                     }
-                    let cc = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
+                    let iw = 1.0 / h[3];
+                    let cc = [h[0] * iw, h[1] * iw, h[2] * iw];
                     let v = match vis {
                         None => true,
                         Some(ctx) => {
                             ctx.same
                                 .as_ref()
-                                .is_some_and(|m| visible_in(m, xw, ctx.eps_z))
-                                || ctx
-                                    .other
-                                    .as_ref()
-                                    .is_some_and(|m| visible_in(m, xw2, ctx.eps_z))
+                                .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c), ctx.eps_z))
+                                || ctx.other.as_ref().is_some_and(|(mv, mp, t)| {
+                                    visible_in(mv, mp, t.clip(c2), ctx.eps_z)
+                                })
                         }
                     };
                     *flow = [cc[0] - x, cc[1] - y, cc[2] - z, if v { 1.0 } else { 0.0 }];
@@ -397,6 +449,29 @@ struct Resolve<'a> {
     eps_z: f32,
     eps_z_aux: f32,
     iterations: usize,
+    /// Per auxiliary camera, its matches resolved once per cell of its own grid.
+    aux: Vec<AuxGrid>,
+}
+
+/// The auxiliary match of one cell, with its colour after Algorithm 2.
+#[derive(Debug, Clone, Copy)]
+struct AuxCell {
+    choice: Choice,
+    rgb: [f32; 3],
+    code: u8,
+}
+
+/// An auxiliary camera's matches over the client image discretised at that camera's resolution.
+///
+/// The auxiliary cameras have a quarter of the main camera's pixels, so searching them once per
+/// *output* pixel repeats the same window search and FPI for the 2×2 output pixels of each cell.
+/// We resolve each cell once, aiming at the cell centre (which is also where the reference measures
+/// the auxiliary error, REFERENCE.md §2.5), and the output pixels of the cell share the result.
+#[derive(Debug)]
+struct AuxGrid {
+    w: usize,
+    h: usize,
+    cells: Vec<Option<AuxCell>>,
 }
 
 impl Resolve<'_> {
@@ -441,20 +516,22 @@ impl Resolve<'_> {
             return None;
         }
         let mut p = splat_index(best) as usize;
+        let (mut pi, mut pj) = (p % sw, p / sw);
         // Fixed-point iteration p ← pix(T − M_cam[p]) (eq. 5 with the flows of eqs. 12/13). Once
         // p maps to itself every further iteration would too, so stopping there gives the same
         // result as running all of them (most pixels converge after one step).
         let mut m = s.bufs.flow[p];
         for _ in 0..self.iterations {
             match pixel_of_ndc(t[0] - m[0], t[1] - m[1], sw, sh) {
-                Some((pi, pj)) if pj * sw + pi != p => {
+                Some((ni, nj)) if (ni, nj) != (pi, pj) => {
+                    (pi, pj) = (ni, nj);
                     p = pj * sw + pi;
                     m = s.bufs.flow[p];
                 }
                 _ => break,
             }
         }
-        let [px, py] = s.proj.ndc_of_pixel(p % sw, p / sw);
+        let [px, py] = s.proj.ndc_of_pixel(pi, pj);
         let short = sw.min(sh) as f32;
         let ex = (px + m[0] - t[0]) * (sw as f32 / short);
         let ey = (py + m[1] - t[1]) * (sh as f32 / short);
@@ -545,10 +622,11 @@ impl Resolve<'_> {
         if !(self.bidirectional && self.mode == Mode::Ours && self.params.blend) {
             return (base, false);
         }
-        let Some((ov, op)) = &s.other else {
+        let Some(other) = &s.other else {
             return (base, false);
         };
-        let Some((q, mq_sum, zq, pz)) = correspondence(&s.view, &s.proj, ov, op, p) else {
+        let ov = &other.view;
+        let Some((q, mq_sum, zq, pz)) = correspondence(&s.view, &s.proj, other, p) else {
             return (base, false);
         };
         // ‖M_full_s(p) + M_full_o(q)‖ < ε_O, z in [−1,1]-NDC units (2·ΔZ).
@@ -577,48 +655,9 @@ impl Resolve<'_> {
         )
     }
 
-    /// The whole per-pixel decision: `(diagnostic code, colour, error)` or `None` for no match.
-    #[inline]
-    fn resolve_pixel(&self, i: usize, j: usize) -> Option<(u8, [u8; 3], f32)> {
-        let t = crate::camera::ndc_of_pixel(i, j, self.client_w, self.client_h);
-        let main = self.best_match(0, t, self.eps_e, self.eps_z);
-        // Best auxiliary match (§3.5): the nearer if depths differ, else the smaller error.
-        let mut aux: Option<Choice> = None;
-        for cam in 1..self.n_cams {
-            if let Some(c) = self.best_match(cam, t, self.eps_e_aux, self.eps_z_aux) {
-                aux = match aux {
-                    None => Some(c),
-                    Some(b) => {
-                        let sim = 2.0 * (c.m.z - b.m.z).abs() < self.eps_z_aux;
-                        if (!sim && c.m.z > b.m.z) || (sim && c.m.e < b.m.e) {
-                            Some(c)
-                        } else {
-                            Some(b)
-                        }
-                    }
-                };
-            }
-        }
-        let chosen = match (main, aux) {
-            (Some(m), Some(a)) => {
-                let sim = 2.0 * (a.m.z - m.m.z).abs() < self.eps_z_aux;
-                if !a.visible_in_main && !sim && a.m.z > m.m.z {
-                    a
-                } else {
-                    m
-                }
-            }
-            (Some(m), None) => m,
-            (None, Some(a)) => a,
-            (None, None) => return None,
-        };
-        let eps_z = if self.sources[chosen.src].camera == 0 {
-            self.eps_z
-        } else {
-            self.eps_z_aux
-        };
-        let (rgb, blended) = self.second_chance(&chosen, eps_z);
-        let s = &self.sources[chosen.src];
+    /// The diagnostic code of a choice.
+    fn code_of(&self, c: &Choice, blended: bool) -> u8 {
+        let s = &self.sources[c.src];
         let code = if s.camera == 0 {
             match s.role {
                 Role::Older => Diagnostics::MAIN_OLDER,
@@ -627,12 +666,82 @@ impl Resolve<'_> {
         } else {
             Diagnostics::AUX_BASE + 2 * (s.camera as u8 - 1) + u8::from(s.role == Role::Newer)
         };
-        let code = if blended {
+        if blended {
             code | Diagnostics::BLENDED
         } else {
             code
+        }
+    }
+
+    /// Algorithms 1 and 2 for auxiliary camera `cam` once per cell of its grid.
+    fn resolve_aux_grid(&self, cam: usize) -> AuxGrid {
+        // The newer frame's camera is present in both modes; both frames share the rig.
+        let grid_src = if self.bidirectional { 2 * cam + 1 } else { cam };
+        let (w, h) = (
+            self.sources[grid_src].proj.width,
+            self.sources[grid_src].proj.height,
+        );
+        let cells = (0..w * h)
+            .into_par_iter()
+            .with_min_len(TILE * w)
+            .map(|k| {
+                let t = crate::camera::ndc_of_pixel(k % w, k / w, w, h);
+                let choice = self.best_match(cam, t, self.eps_e_aux, self.eps_z_aux)?;
+                let (rgb, blended) = self.second_chance(&choice, self.eps_z_aux);
+                Some(AuxCell {
+                    choice,
+                    rgb,
+                    code: self.code_of(&choice, blended),
+                })
+            })
+            .collect();
+        AuxGrid { w, h, cells }
+    }
+
+    /// The whole per-pixel decision: `(diagnostic code, colour, error)` or `None` for no match.
+    #[inline]
+    fn resolve_pixel(&self, i: usize, j: usize) -> Option<(u8, [u8; 3], f32)> {
+        let t = crate::camera::ndc_of_pixel(i, j, self.client_w, self.client_h);
+        let main = self.best_match(0, t, self.eps_e, self.eps_z);
+        // Best auxiliary match (§3.5): the nearer if depths differ, else the smaller error.
+        let mut aux: Option<AuxCell> = None;
+        for grid in &self.aux {
+            let Some((ai, aj)) = pixel_of_ndc(t[0], t[1], grid.w, grid.h) else {
+                continue;
+            };
+            if let Some(c) = grid.cells[aj * grid.w + ai] {
+                aux = match aux {
+                    None => Some(c),
+                    Some(b) => {
+                        let sim = 2.0 * (c.choice.m.z - b.choice.m.z).abs() < self.eps_z_aux;
+                        if (!sim && c.choice.m.z > b.choice.m.z)
+                            || (sim && c.choice.m.e < b.choice.m.e)
+                        {
+                            Some(c)
+                        } else {
+                            Some(b)
+                        }
+                    }
+                };
+            }
+        }
+        // Merge with main (§3.5 rules 1–3): main wins unless it found nothing, or the auxiliary
+        // point is nearer, at a different depth, and not visible in the main camera.
+        let use_aux = match (&main, &aux) {
+            (Some(m), Some(a)) => {
+                let sim = 2.0 * (a.choice.m.z - m.m.z).abs() < self.eps_z_aux;
+                !a.choice.visible_in_main && !sim && a.choice.m.z > m.m.z
+            }
+            (None, Some(_)) => true,
+            (_, None) => false,
         };
-        Some((code, round_rgb(rgb), chosen.m.e))
+        if use_aux {
+            let a = aux?;
+            return Some((a.code, round_rgb(a.rgb), a.choice.m.e));
+        }
+        let m = main?;
+        let (rgb, blended) = self.second_chance(&m, self.eps_z);
+        Some((self.code_of(&m, blended), round_rgb(rgb), m.m.e))
     }
 }
 
@@ -643,34 +752,34 @@ impl Resolve<'_> {
 fn correspondence(
     view: &CameraView,
     proj: &Projector,
-    other: &CameraView,
-    oproj: &Projector,
+    other: &Other,
     p: usize,
 ) -> Option<(usize, [f32; 3], f32, f32)> {
-    let full_flow =
-        |v: &CameraView, pr: &Projector, to: &Projector, idx: usize| -> Option<[f32; 3]> {
-            let (i, j) = (idx % pr.width, idx / pr.width);
-            let z = v.depth[idx];
-            let o = v.motion_at(idx);
-            let [x, y] = pr.ndc_of_pixel(i, j);
-            let moved = pr.unproject([x + o[0], y + o[1], z + o[2]]);
-            let h = to.vp.apply(moved);
-            if !(h[3] > 0.0) {
-                return None;
-            }
-            let f = [h[0] / h[3] - x, h[1] / h[3] - y, h[2] / h[3] - z];
-            f.iter().all(|v| v.is_finite()).then_some(f)
-        };
-    let ms = full_flow(view, proj, oproj, p)?;
-    let [x, y] = proj.ndc_of_pixel(p % proj.width, p / proj.width);
+    let oproj = &other.proj;
+    let full_flow = |v: &CameraView, pr: &Projector, to: &NdcTransfer, i: usize, j: usize| {
+        let idx = j * pr.width + i;
+        let z = v.depth[idx];
+        let o = v.motion_at(idx);
+        let [x, y] = pr.ndc_of_pixel(i, j);
+        let h = to.clip([x + o[0], y + o[1], z + o[2]]);
+        if !(h[3] > 0.0) {
+            return None;
+        }
+        let iw = 1.0 / h[3];
+        let f = [h[0] * iw - x, h[1] * iw - y, h[2] * iw - z];
+        f.iter().all(|v| v.is_finite()).then_some(f)
+    };
+    let (pi, pj) = (p % proj.width, p / proj.width);
+    let ms = full_flow(view, proj, &other.to_other, pi, pj)?;
+    let [x, y] = proj.ndc_of_pixel(pi, pj);
     let pz = view.depth[p] + ms[2];
     let (qi, qj) = pixel_of_ndc(x + ms[0], y + ms[1], oproj.width, oproj.height)?;
     let q = qj * oproj.width + qi;
-    let zq = other.depth[q];
+    let zq = other.view.depth[q];
     if !zq.is_finite() {
         return None;
     }
-    let mo = full_flow(other, oproj, proj, q)?;
+    let mo = full_flow(&other.view, oproj, &other.from_other, qi, qj)?;
     Some((q, [ms[0] + mo[0], ms[1] + mo[1], ms[2] + mo[2]], zq, pz))
 }
 
@@ -686,9 +795,17 @@ fn correspondence(
 pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32; 3]>> {
     view.validate("source")?;
     let proj = view.camera.projector("source camera")?;
-    let client = client.projector("client camera")?;
+    client.projector("client camera")?;
+    let inv = view
+        .camera
+        .view_proj()
+        .inverse()
+        .ok_or_else(|| ReprojError::SingularMatrix {
+            what: "source camera".into(),
+        })?;
+    let to_client = NdcTransfer::new(&inv, &client.view_proj());
     let mut src = Src::new(*view, proj, None, Role::Older, 0, Buffers::default());
-    scene_flow_and_splat(&mut src, &client, w, None);
+    scene_flow_and_splat(&mut src, &to_client, w, None);
     Ok(src
         .bufs
         .flow

@@ -120,7 +120,9 @@ pub fn shadow_color(
 /// Rounds a colour in `[0,255]` floats to RGB8 (round half away from zero, clamped).
 #[inline(always)]
 pub fn round_rgb(c: [f32; 3]) -> [u8; 3] {
-    c.map(|v| v.round().clamp(0.0, 255.0) as u8)
+    // Half up after clamping to [0, 255] equals round-half-away-from-zero there, without a libm
+    // `roundf` call per channel. NaN clamps to NaN and `as i32` maps it to 0.
+    c.map(|v| (v.clamp(0.0, 255.0) + 0.5) as i32 as u8)
 }
 
 /// Applies the dynamic shadows of a whole image at `α` (eqs. 9–11) into `out` (`H·W·3`). Used by
