@@ -506,10 +506,12 @@ impl Resolve<'_> {
         let (sw, sh) = (s.proj.width, s.proj.height);
         let (ci, cj) = pixel_of_ndc(t[0], t[1], sw, sh)?;
         let wr = self.params.window;
+        let (i0, i1) = (ci.saturating_sub(wr), (ci + wr).min(sw - 1));
         let mut best = EMPTY_SPLAT;
         for qj in cj.saturating_sub(wr)..=(cj + wr).min(sh - 1) {
-            for qi in ci.saturating_sub(wr)..=(ci + wr).min(sw - 1) {
-                best = best.min(s.bufs.splat[qj * sw + qi].load(Ordering::Relaxed));
+            // One bounds check per row of the window, then a plain scan.
+            for cell in &s.bufs.splat[qj * sw + i0..=qj * sw + i1] {
+                best = best.min(cell.load(Ordering::Relaxed));
             }
         }
         if best == EMPTY_SPLAT {
