@@ -146,7 +146,7 @@ pub fn run(
             "backward_bidir: client camera is {cw}x{ch} but the main cameras are {w}x{h}; the method interpolates in the server images' pixel grid and ignores the client pose, so the output size must equal the main camera size"
         )));
     }
-    check_output(out, diag.as_deref(), w, h)?;
+    crate::method::check_output(out, diag.as_deref(), w, h)?;
     let op = ov.camera.projector("older.main camera")?;
     let np = nv.camera.projector("newer.main camera")?;
 
@@ -212,32 +212,6 @@ pub fn run(
             alpha,
             offsets,
         };
-    }
-    Ok(())
-}
-
-/// Checks the output and diagnostics buffers against a `w × h` output. [`crate::reproject()`]
-/// checks them already; repeating the O(1) check keeps this public entry point panic-free when it
-/// is called directly.
-fn check_output(out: &[u8], diag: Option<&Diagnostics>, w: usize, h: usize) -> Result<()> {
-    let n = w * h;
-    if out.len() != n * 3 {
-        return Err(ReprojError::BufferSize {
-            what: "previous client frame".into(),
-            expected: n * 3,
-            actual: out.len(),
-            detail: format!("{h}x{w}x3"),
-        });
-    }
-    if let Some(d) = diag {
-        if d.source.len() != n || d.error.len() != n {
-            return Err(ReprojError::BufferSize {
-                what: "diagnostics".into(),
-                expected: n,
-                actual: d.source.len().min(d.error.len()),
-                detail: format!("{h}x{w}"),
-            });
-        }
     }
     Ok(())
 }

@@ -139,25 +139,7 @@ pub fn reproject(
     params.validate()?;
     let client = &request.client;
     client.projector("client camera")?;
-    let n = client.width * client.height;
-    if out.len() != n * 3 {
-        return Err(ReprojError::BufferSize {
-            what: "previous client frame".into(),
-            expected: n * 3,
-            actual: out.len(),
-            detail: format!("{}x{}x3", client.height, client.width),
-        });
-    }
-    if let Some(d) = diag.as_deref() {
-        if d.source.len() != n || d.error.len() != n {
-            return Err(ReprojError::BufferSize {
-                what: "diagnostics".into(),
-                expected: n,
-                actual: d.source.len().min(d.error.len()),
-                detail: format!("{}x{}", client.height, client.width),
-            });
-        }
-    }
+    check_output(out, diag.as_deref(), client.width, client.height)?;
     let alpha = request.alpha;
     let range_err = |range: &str| ReprojError::AlphaRange {
         alpha,
@@ -245,6 +227,37 @@ pub fn reproject(
             backward_bidir::run(older, newer, request, params, out, diag, history)
         }
     }
+}
+
+/// Checks the output and diagnostics buffers against a `w × h` output. [`reproject`] checks them
+/// for every method; the methods' own public entry points repeat this O(1) check so that they stay
+/// panic-free when called directly.
+pub(crate) fn check_output(
+    out: &[u8],
+    diag: Option<&Diagnostics>,
+    w: usize,
+    h: usize,
+) -> Result<()> {
+    let n = w * h;
+    if out.len() != n * 3 {
+        return Err(ReprojError::BufferSize {
+            what: "previous client frame".into(),
+            expected: n * 3,
+            actual: out.len(),
+            detail: format!("{h}x{w}x3"),
+        });
+    }
+    if let Some(d) = diag {
+        if d.source.len() != n || d.error.len() != n {
+            return Err(ReprojError::BufferSize {
+                what: "diagnostics".into(),
+                expected: n,
+                actual: d.source.len().min(d.error.len()),
+                detail: format!("{h}x{w}"),
+            });
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -73,7 +73,7 @@ pub fn run(
     diag: Option<&mut Diagnostics>,
 ) -> Result<()> {
     frame.validate("frame")?;
-    check_output(
+    crate::method::check_output(
         out,
         diag.as_deref(),
         request.client.width,
@@ -120,32 +120,6 @@ pub fn run(
             .par_chunks_mut(TILE * cw * 3)
             .enumerate()
             .for_each(|(b, o)| warp.warp_rows(b * TILE, o, None)),
-    }
-    Ok(())
-}
-
-/// Checks the output and diagnostics buffers against a `w × h` output. [`crate::reproject()`]
-/// checks them already; repeating the O(1) check keeps this public entry point panic-free when it
-/// is called directly.
-fn check_output(out: &[u8], diag: Option<&Diagnostics>, w: usize, h: usize) -> Result<()> {
-    let n = w * h;
-    if out.len() != n * 3 {
-        return Err(ReprojError::BufferSize {
-            what: "previous client frame".into(),
-            expected: n * 3,
-            actual: out.len(),
-            detail: format!("{h}x{w}x3"),
-        });
-    }
-    if let Some(d) = diag {
-        if d.source.len() != n || d.error.len() != n {
-            return Err(ReprojError::BufferSize {
-                what: "diagnostics".into(),
-                expected: n,
-                actual: d.source.len().min(d.error.len()),
-                detail: format!("{h}x{w}"),
-            });
-        }
     }
     Ok(())
 }
