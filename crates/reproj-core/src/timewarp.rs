@@ -23,9 +23,9 @@
 //!   actually sees the hit (the reference samples it clamped wherever main misses);
 //! - rays that hit the plane behind the client's near plane are not written, like rays parallel to
 //!   the plane (`|ray·N| < 1e-6`);
-//! - a sampled pixel whose depth is invalid (NaN, infinite or outside `[0,1]`) does not colour the
-//!   output: the pixel keeps the previous client frame (DESIGN.md: invalid pixels never reach the
-//!   output). If no main pixel is valid there is no plane and nothing is written.
+//! - a sampled pixel whose depth (NaN, infinite or outside `[0,1]`) or motion (non-finite) is
+//!   invalid does not colour the output: the pixel keeps the previous client frame (DESIGN.md:
+//!   invalid pixels never reach the output). If no main pixel is valid there is no plane and nothing is written.
 //!
 //! No shadows and no object motion are applied: the method warps one image as it is.
 
@@ -277,10 +277,12 @@ impl Warp<'_> {
     }
 }
 
-/// The colour of pixel `idx` of `view`, or `None` when its depth marks it invalid.
+/// The colour of pixel `idx` of `view`, or `None` when its depth or motion marks it invalid
+/// (timewarp does not use the motion, but DESIGN.md makes such a pixel invalid for every method).
 #[inline(always)]
 fn sample(view: &CameraView, idx: usize) -> Option<[u8; 3]> {
-    valid_depth(view.depth[idx]).then(|| {
+    let motion_ok = view.motion_at(idx).iter().all(|v| v.is_finite());
+    (valid_depth(view.depth[idx]) && motion_ok).then(|| {
         [
             view.color[3 * idx],
             view.color[3 * idx + 1],
