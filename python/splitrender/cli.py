@@ -125,7 +125,8 @@ def _example(args: argparse.Namespace) -> int:
     _progress(2, total, f"rendering server frame 1 (t = {1 / fps:.3f} s)")
     f1 = scene.server_frame(1, 1.0 / fps, args.width, args.height, fps=fps)
     _progress(3, total, f"rendering ground truth at the client pose (t = {t:.4f} s)")
-    camera, _ = scene.rig(t, args.width, args.height)
+    # The client's actual head deviates from the path the server rendered (a prediction error).
+    camera = scene.client_camera(t, args.width, args.height)
     truth = scene.ground_truth(camera, t)
     write_png(out / "ground_truth.png", truth)
     request = ClientRequest(camera, t)

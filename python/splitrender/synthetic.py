@@ -50,6 +50,32 @@ class SyntheticScene:
         main, left, right = _native.synthetic_rig(eye, target, width, height)
         return _camera(main), (_camera(left), _camera(right))
 
+    @staticmethod
+    def head_deviation(t: float) -> tuple[float, float, float]:
+        """The actual head's deterministic deviation from the predicted path at time ``t``
+        (metres, a sum of slow sines of a few centimetres, as DESIGN.md's anchor): the server
+        renders at :meth:`head_pose`, the client sees ``head_pose(t) + head_deviation(t)``, so the
+        client never sits exactly on the pose the server predicted."""
+        two_pi = 2.0 * np.pi
+        return (
+            0.05 * np.sin(two_pi * 0.9 * t + 0.3) + 0.02 * np.sin(two_pi * 2.3 * t),
+            0.02 * np.sin(two_pi * 1.3 * t + 1.1),
+            0.03 * np.sin(two_pi * 0.7 * t + 2.0),
+        )
+
+    def client_camera(self, t: float, width: int, height: int) -> Camera:
+        """The client's actual main camera at ``t``: the rig's main camera moved by
+        :meth:`head_deviation` and turned towards a target shifted by twice that (about 1° of
+        extra yaw and pitch)."""
+        eye, target = _native.synthetic_head_pose(t)
+        d = self.head_deviation(t)
+        return Camera.look_at(
+            [e + dv for e, dv in zip(eye, d)],
+            [g + 2.0 * dv for g, dv in zip(target, d)],
+            width=width,
+            height=height,
+        )
+
     def render(
         self, camera: Camera, time: float, *, fps: float = 10.0, subframes: int = 4
     ) -> CameraFrame:
