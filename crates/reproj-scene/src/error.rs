@@ -1,0 +1,59 @@
+//! The crate's error type.
+
+/// Everything that can go wrong when building or rendering a scene.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SceneError {
+    /// A built-in scene name that does not exist.
+    #[error("unknown scene {name:?}; valid scenes: {valid}")]
+    UnknownScene {
+        /// The name asked for.
+        name: String,
+        /// The valid names, comma-separated.
+        valid: String,
+    },
+    /// A variant other than `static` or `dynamic`.
+    #[error("unknown scene variant {name:?}; valid variants: static, dynamic")]
+    UnknownVariant {
+        /// The name asked for.
+        name: String,
+    },
+    /// The number of shadow subframes must fit 2 bits each into a `u32`.
+    #[error("subframes must be in 1..=16, got {subframes}")]
+    BadSubframes {
+        /// The number asked for.
+        subframes: usize,
+    },
+    /// A render scale that gives an empty or oversized image.
+    #[error("scale {scale} gives a {width}×{height} main camera (each side must be in 2..={max})")]
+    BadScale {
+        /// The scale asked for.
+        scale: f64,
+        /// Resulting width.
+        width: usize,
+        /// Resulting height.
+        height: usize,
+        /// Largest side accepted.
+        max: usize,
+    },
+    /// A camera with a zero or oversized side, or matrices that cannot be inverted.
+    #[error("camera {what}: {why}")]
+    BadCamera {
+        /// Which camera.
+        what: String,
+        /// What is wrong with it.
+        why: String,
+    },
+    /// An object whose parent index does not come before it.
+    #[error("object {index} ({name}) has parent {parent}, which is not an earlier object")]
+    BadHierarchy {
+        /// The object's index.
+        index: usize,
+        /// The object's name.
+        name: String,
+        /// Its parent index.
+        parent: usize,
+    },
+}
+
+/// `Result` with [`SceneError`].
+pub type Result<T, E = SceneError> = std::result::Result<T, E>;

@@ -1,0 +1,172 @@
+//! Small `f64` vector and rigid-transform helpers.
+//!
+//! Everything geometric is computed in `f64` so that the buffers agree with each other to far
+//! better than their `f32` storage; only the BVH culling runs in `f32` (with padded boxes).
+
+/// A 3-vector in `f64`.
+pub type V3 = [f64; 3];
+
+#[inline(always)]
+pub(crate) fn add(a: V3, b: V3) -> V3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+#[inline(always)]
+pub(crate) fn sub(a: V3, b: V3) -> V3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline(always)]
+pub(crate) fn scale(a: V3, s: f64) -> V3 {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+#[inline(always)]
+pub(crate) fn mul(a: V3, b: V3) -> V3 {
+    [a[0] * b[0], a[1] * b[1], a[2] * b[2]]
+}
+#[inline(always)]
+pub(crate) fn dot(a: V3, b: V3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline(always)]
+pub(crate) fn cross(a: V3, b: V3) -> V3 {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+#[inline(always)]
+pub(crate) fn length(a: V3) -> f64 {
+    dot(a, a).sqrt()
+}
+#[inline(always)]
+pub(crate) fn normalize(a: V3) -> V3 {
+    scale(a, 1.0 / length(a))
+}
+#[inline(always)]
+pub(crate) fn lerp(a: V3, b: V3, s: f64) -> V3 {
+    add(a, scale(sub(b, a), s))
+}
+
+/// A rigid transform `x ↦ R·x + t` (rotation `R` row-major, no scale), so ray parameters are the
+/// same in object and world space and the inverse is exact up to rounding (`Rᵀ`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rigid {
+    /// Rotation, row-major.
+    pub rot: [[f64; 3]; 3],
+    /// Translation.
+    pub trans: V3,
+}
+
+impl Rigid {
+    /// The identity.
+    pub const IDENTITY: Rigid = Rigid {
+        rot: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        trans: [0.0; 3],
+    };
+
+    /// A pure translation.
+    pub fn translation(t: V3) -> Rigid {
+        Rigid {
+            trans: t,
+            ..Rigid::IDENTITY
+        }
+    }
+
+    /// A rotation by `angle` radians about the (not necessarily unit) `axis` (Rodrigues).
+    pub fn rotation(axis: V3, angle: f64) -> Rigid {
+        let k = normalize(axis);
+        let (s, c) = angle.sin_cos();
+        let v = 1.0 - c;
+        let [x, y, z] = k;
+        Rigid {
+            rot: [
+                [c + x * x * v, x * y * v - z * s, x * z * v + y * s],
+                [y * x * v + z * s, c + y * y * v, y * z * v - x * s],
+                [z * x * v - y * s, z * y * v + x * s, c + z * z * v],
+            ],
+            trans: [0.0; 3],
+        }
+    }
+
+    /// `self ∘ other`: apply `other` first.
+    pub fn then(&self, other: &Rigid) -> Rigid {
+        let mut rot = [[0.0; 3]; 3];
+        for (r, row) in rot.iter_mut().enumerate() {
+            for (c, out) in row.iter_mut().enumerate() {
+                *out = (0..3).map(|k| self.rot[r][k] * other.rot[k][c]).sum();
+            }
+        }
+        Rigid {
+            rot,
+            trans: self.point(other.trans),
+        }
+    }
+
+    /// The inverse transform.
+    pub fn inverse(&self) -> Rigid {
+        let r = &self.rot;
+        let rt = [
+            [r[0][0], r[1][0], r[2][0]],
+            [r[0][1], r[1][1], r[2][1]],
+            [r[0][2], r[1][2], r[2][2]],
+        ];
+        let t = self.trans;
+        let trans = [
+            -(rt[0][0] * t[0] + rt[0][1] * t[1] + rt[0][2] * t[2]),
+            -(rt[1][0] * t[0] + rt[1][1] * t[1] + rt[1][2] * t[2]),
+            -(rt[2][0] * t[0] + rt[2][1] * t[1] + rt[2][2] * t[2]),
+        ];
+        Rigid { rot: rt, trans }
+    }
+
+    /// `R·v` (a direction).
+    #[inline(always)]
+    pub fn vector(&self, v: V3) -> V3 {
+        let r = &self.rot;
+        [
+            r[0][0] * v[0] + r[0][1] * v[1] + r[0][2] * v[2],
+            r[1][0] * v[0] + r[1][1] * v[1] + r[1][2] * v[2],
+            r[2][0] * v[0] + r[2][1] * v[1] + r[2][2] * v[2],
+        ]
+    }
+
+    /// `R·p + t` (a point).
+    #[inline(always)]
+    pub fn point(&self, p: V3) -> V3 {
+        add(self.vector(p), self.trans)
+    }
+}
+
+/// Deterministic hash of two integers and a salt to `[0, 1)` (splitmix64 finaliser), as in
+/// `reproj_core::synthetic`.
+pub(crate) fn hash(a: i64, b: i64, salt: u64) -> f64 {
+    let mut x = (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ salt.wrapping_mul(0x1656_67B1_9E37_79F9);
+    x ^= x >> 30;
+    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 27;
+    x = x.wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^= x >> 31;
+    (x >> 11) as f64 / (1u64 << 53) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rigid_inverse_round_trips() {
+        let m = Rigid::translation([1.0, -2.0, 0.5]).then(&Rigid::rotation([0.3, 1.0, -0.2], 1.1));
+        let p = [0.7, 0.2, -3.0];
+        let q = m.inverse().point(m.point(p));
+        assert!((0..3).all(|k| (q[k] - p[k]).abs() < 1e-14));
+    }
+
+    #[test]
+    fn rotation_turns_x_toward_y_about_z() {
+        let r = Rigid::rotation([0.0, 0.0, 1.0], std::f64::consts::FRAC_PI_2);
+        let v = r.vector([1.0, 0.0, 0.0]);
+        assert!(v[0].abs() < 1e-15 && (v[1] - 1.0).abs() < 1e-15);
+    }
+}

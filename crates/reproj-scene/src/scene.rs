@@ -1,0 +1,476 @@
+//! The scene model: objects (shape, material, place in a parent-child hierarchy, animation), the
+//! main light, and the scene at one instant (world transforms plus a top-level BVH).
+
+use std::f64::consts::PI;
+use std::time::Duration;
+
+use glam::Vec3A;
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::builder::build_bvh2;
+use obvhs::bvh2::Bvh2;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::{Boundable, BvhBuildParams};
+
+use crate::anim::Anim;
+use crate::error::{Result, SceneError};
+use crate::material::Material;
+use crate::math::{add, cross, dot, length, lerp, mul, normalize, scale, sub, Rigid, V3};
+use crate::rig::CameraPath;
+use crate::shape::{Bounds, LocalHit, Shape};
+
+/// Shadow rays per shading point over the light's disc. 32 keeps the penumbra smooth (33
+/// levels) while a fixed spiral keeps it deterministic.
+pub const SHADOW_SAMPLES: usize = 32;
+
+/// One object: a shape with a material, placed in its parent's frame and animated.
+#[derive(Debug, Clone)]
+pub struct Object {
+    /// Name (for errors and debugging).
+    pub name: String,
+    /// Geometry in object space.
+    pub shape: Shape,
+    /// Surface material.
+    pub material: Material,
+    /// Index of the parent object (it must come earlier), or `None` for the world.
+    pub parent: Option<usize>,
+    /// Rest placement in the parent's frame, applied after the animation.
+    pub place: Rigid,
+    /// Elementary motions, `local(t) = place ∘ anims[0](t) ∘ anims[1](t) ∘ …`; empty = still.
+    pub anims: Vec<Anim>,
+    /// Whether it blocks the main light.
+    pub casts_shadow: bool,
+}
+
+impl Object {
+    /// A still, shadow-casting object placed at `place` in the world.
+    pub fn new(name: &str, shape: Shape, material: Material, place: Rigid) -> Object {
+        Object {
+            name: name.to_string(),
+            shape,
+            material,
+            parent: None,
+            place,
+            anims: Vec::new(),
+            casts_shadow: true,
+        }
+    }
+
+    /// The same object with motions appended.
+    pub fn animated(mut self, anims: impl IntoIterator<Item = Anim>) -> Object {
+        self.anims.extend(anims);
+        self
+    }
+
+    /// The same object attached to `parent`.
+    pub fn child_of(mut self, parent: usize) -> Object {
+        self.parent = Some(parent);
+        self
+    }
+}
+
+/// The main directional light, with an angular radius for soft shadows, plus a sky/ground
+/// hemisphere ambient term.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Light {
+    /// Elevation above the horizon (radians).
+    pub elevation: f64,
+    /// Azimuth at `t = 0` (radians; 0 = from +z, π/2 = from +x).
+    pub azimuth: f64,
+    /// Azimuth swing amplitude (radians) in the dynamic variant: `azimuth + swing·sin(rate·t)`.
+    pub swing: f64,
+    /// Swing rate (rad/s).
+    pub swing_rate: f64,
+    /// Elevation swing amplitude (radians), with the same rate (cosine phase).
+    pub elevation_swing: f64,
+    /// Angular radius of the light's disc (radians); sets the width of the penumbrae.
+    pub angular_radius: f64,
+    /// Light colour times intensity.
+    pub color: V3,
+    /// Ambient from above.
+    pub ambient_sky: V3,
+    /// Ambient from below.
+    pub ambient_ground: V3,
+}
+
+impl Light {
+    /// Unit vector toward the light at (effective) time `t`.
+    pub fn direction(&self, t: f64) -> V3 {
+        let az = self.azimuth + self.swing * (self.swing_rate * t).sin();
+        let el = self.elevation + self.elevation_swing * (self.swing_rate * t).cos();
+        [el.cos() * az.sin(), el.sin(), el.cos() * az.cos()]
+    }
+
+    /// The fixed Vogel-spiral sample directions over the light's disc around `l`.
+    fn samples(&self, l: V3) -> [V3; SHADOW_SAMPLES] {
+        let e1 = normalize(if l[1].abs() < 0.99 {
+            cross(l, [0.0, 1.0, 0.0])
+        } else {
+            cross(l, [1.0, 0.0, 0.0])
+        });
+        let e2 = cross(e1, l);
+        let golden = PI * (3.0 - 5f64.sqrt());
+        std::array::from_fn(|k| {
+            let r = self.angular_radius.tan() * ((k as f64 + 0.5) / SHADOW_SAMPLES as f64).sqrt();
+            let (s, c) = (k as f64 * golden).sin_cos();
+            normalize(add(l, add(scale(e1, r * c), scale(e2, r * s))))
+        })
+    }
+}
+
+/// Still or animated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Variant {
+    /// Every object and the light stay at their `t = 0` pose (the camera still moves).
+    Static,
+    /// Objects and light animate.
+    Dynamic,
+}
+
+impl Variant {
+    /// `"static"` or `"dynamic"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Static => "static",
+            Variant::Dynamic => "dynamic",
+        }
+    }
+
+    /// Parses `"static"` or `"dynamic"`.
+    ///
+    /// # Errors
+    /// [`SceneError::UnknownVariant`] for anything else.
+    pub fn parse(name: &str) -> Result<Variant> {
+        match name {
+            "static" => Ok(Variant::Static),
+            "dynamic" => Ok(Variant::Dynamic),
+            _ => Err(SceneError::UnknownVariant {
+                name: name.to_string(),
+            }),
+        }
+    }
+}
+
+/// A renderable, animated scene with its camera path.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// Scene name.
+    pub name: String,
+    /// Static or dynamic.
+    pub variant: Variant,
+    /// Objects, parents before children.
+    pub objects: Vec<Object>,
+    /// The main light.
+    pub light: Light,
+    /// Colour of every pixel where nothing is hit (at `Z = 0`).
+    pub sky: [u8; 3],
+    /// Length of the animation (seconds).
+    pub duration: f64,
+    /// Near plane of every camera (metres).
+    pub near: f64,
+    /// Far plane of every camera (metres); geometry beyond it is not drawn.
+    pub far: f64,
+    /// The head-box path and the anchor's deviation from it.
+    pub path: CameraPath,
+    moves: Vec<bool>,
+}
+
+impl Scene {
+    /// Assembles a scene, checking the hierarchy.
+    ///
+    /// # Errors
+    /// [`SceneError::BadHierarchy`] when a parent does not come before its child.
+    pub fn new(
+        name: &str,
+        variant: Variant,
+        objects: Vec<Object>,
+        light: Light,
+        sky: [u8; 3],
+        duration: f64,
+        (near, far): (f64, f64),
+        path: CameraPath,
+    ) -> Result<Scene> {
+        let mut moves = Vec::with_capacity(objects.len());
+        for (index, o) in objects.iter().enumerate() {
+            let parent_moves = match o.parent {
+                Some(p) if p < index => moves[p],
+                Some(parent) => {
+                    return Err(SceneError::BadHierarchy {
+                        index,
+                        name: o.name.clone(),
+                        parent,
+                    })
+                }
+                None => false,
+            };
+            moves.push(variant == Variant::Dynamic && (parent_moves || !o.anims.is_empty()));
+        }
+        Ok(Scene {
+            name: name.to_string(),
+            variant,
+            objects,
+            light,
+            sky,
+            duration,
+            near,
+            far,
+            path,
+            moves,
+        })
+    }
+
+    /// Whether object `i` moves (never in the static variant). Points on objects that do not
+    /// move have exactly zero motion.
+    pub fn moves(&self, i: usize) -> bool {
+        self.moves[i]
+    }
+
+    /// The time the animation is evaluated at: `t`, or 0 in the static variant.
+    fn anim_time(&self, t: f64) -> f64 {
+        match self.variant {
+            Variant::Static => 0.0,
+            Variant::Dynamic => t,
+        }
+    }
+
+    /// World transform of every object at time `t`.
+    pub fn transforms(&self, t: f64) -> Vec<Rigid> {
+        let te = self.anim_time(t);
+        let mut world: Vec<Rigid> = Vec::with_capacity(self.objects.len());
+        for o in &self.objects {
+            let mut local = o.place;
+            for a in &o.anims {
+                local = local.then(&a.at(te));
+            }
+            let w = match o.parent {
+                Some(p) => world[p].then(&local),
+                None => local,
+            };
+            world.push(w);
+        }
+        world
+    }
+
+    /// The scene frozen at time `t`.
+    pub(crate) fn at(&self, t: f64) -> Snapshot<'_> {
+        Snapshot::new(self, t)
+    }
+}
+
+struct Instance(Aabb);
+
+impl Boundable for Instance {
+    fn aabb(&self) -> Aabb {
+        self.0
+    }
+}
+
+/// The nearest surface along a ray.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Hit {
+    /// Object index.
+    pub obj: usize,
+    /// Ray parameter.
+    pub t: f64,
+    /// The object-space intersection.
+    pub local: LocalHit,
+}
+
+/// A scene at one instant: world transforms, their inverses, bounding spheres, the top-level
+/// BVH over the instances (rebuilt per instant: a few dozen boxes, microseconds) and the light.
+pub(crate) struct Snapshot<'a> {
+    pub scene: &'a Scene,
+    pub world: Vec<Rigid>,
+    pub inv: Vec<Rigid>,
+    spheres: Vec<(V3, f64)>,
+    bvh: Option<Bvh2>,
+    pub light: V3,
+    samples: [V3; SHADOW_SAMPLES],
+}
+
+impl<'a> Snapshot<'a> {
+    fn new(scene: &'a Scene, t: f64) -> Snapshot<'a> {
+        let world = scene.transforms(t);
+        let inv: Vec<Rigid> = world.iter().map(Rigid::inverse).collect();
+        let mut spheres = Vec::with_capacity(world.len());
+        let mut boxes = Vec::with_capacity(world.len());
+        for (o, w) in scene.objects.iter().zip(&world) {
+            let b = o.shape.bounds();
+            let (c, r) = b.sphere();
+            spheres.push((w.point(c), r));
+            boxes.push(Instance(
+                Bounds::around(b.corners().map(|p| w.point(p))).padded_f32(),
+            ));
+        }
+        let bvh = (!boxes.is_empty()).then(|| {
+            build_bvh2(
+                &boxes,
+                BvhBuildParams::fastest_build(),
+                &mut Duration::default(),
+            )
+        });
+        let light = scene.light.direction(scene.anim_time(t));
+        Snapshot {
+            scene,
+            world,
+            inv,
+            spheres,
+            bvh,
+            light,
+            samples: scene.light.samples(light),
+        }
+    }
+
+    fn hit_object(&self, i: usize, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
+        let inv = &self.inv[i];
+        self.scene.objects[i]
+            .shape
+            .intersect(inv.point(o), inv.vector(d), tmin, tmax)
+    }
+
+    /// Whether the ray `x + t·l`, `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
+    /// object-space box.
+    fn cone_may_hit(&self, i: usize, x: V3, l: V3, grow: f64) -> bool {
+        let b = self.scene.objects[i].shape.bounds();
+        let inv = &self.inv[i];
+        let (o, d) = (inv.point(x), inv.vector(l));
+        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+        for k in 0..3 {
+            let (lo, hi) = (b.min[k] - grow, b.max[k] + grow);
+            if d[k] == 0.0 {
+                if o[k] < lo || o[k] > hi {
+                    return false;
+                }
+                continue;
+            }
+            let (mut a, mut c) = ((lo - o[k]) / d[k], (hi - o[k]) / d[k]);
+            if a > c {
+                std::mem::swap(&mut a, &mut c);
+            }
+            t0 = t0.max(a);
+            t1 = t1.min(c);
+        }
+        t0 <= t1
+    }
+
+    fn occludes(&self, i: usize, o: V3, d: V3) -> bool {
+        let inv = &self.inv[i];
+        self.scene.objects[i]
+            .shape
+            .occludes(inv.point(o), inv.vector(d))
+    }
+
+    /// The nearest surface along `o + t·d` with `t ∈ (tmin, tmax)`.
+    pub fn trace(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Hit> {
+        let bvh = self.bvh.as_ref()?;
+        let ray = Ray::new(
+            Vec3A::new(o[0] as f32, o[1] as f32, o[2] as f32),
+            Vec3A::new(d[0] as f32, d[1] as f32, d[2] as f32),
+            0.0,
+            f32::INFINITY,
+        );
+        let mut best: Option<Hit> = None;
+        let mut limit = tmax;
+        let mut rh = RayHit::none();
+        bvh.ray_traverse(ray, &mut rh, |_, id| {
+            let obj = bvh.primitive_indices[id] as usize;
+            match self.hit_object(obj, o, d, tmin, limit) {
+                Some(local) => {
+                    limit = local.t;
+                    best = Some(Hit {
+                        obj,
+                        t: local.t,
+                        local,
+                    });
+                    // Culling bound only: a little above the f64 distance, so the f32 box tests
+                    // never drop a closer instance.
+                    (local.t * (1.0 + 1e-6)) as f32 + 1e-6
+                }
+                None => f32::INFINITY,
+            }
+        });
+        best
+    }
+
+    /// Fraction of the light's disc hidden from the point `x` with unit normal `n` (facing the
+    /// side it is seen from) on object `obj`: 0 lit … 1 fully shadowed.
+    ///
+    /// Directions of the disc below the surface's tangent plane count as hidden (the surface
+    /// itself blocks them), so the shadow is continuous across the terminator. A convex object
+    /// is skipped as an occluder of itself: it cannot block the directions above its own tangent
+    /// plane, and skipping it rules out shadow acne.
+    pub fn shadow(&self, obj: usize, x: V3, n: V3) -> f64 {
+        let l = self.light;
+        let (sin_a, cos_a) = self.scene.light.angular_radius.sin_cos();
+        if dot(n, l) < -sin_a {
+            return 1.0;
+        }
+        // Offset along the normal against acne on meshes, relative to the coordinates' size.
+        let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+        let origin = add(x, scale(n, 1e-5 * ext));
+        let mut candidates = [0usize; 64];
+        let mut nc = 0;
+        let mut overflow: Vec<usize> = Vec::new();
+        for (i, o) in self.scene.objects.iter().enumerate() {
+            if !o.casts_shadow || (i == obj && o.shape.is_convex()) {
+                continue;
+            }
+            let (c, r) = self.spheres[i];
+            let v = sub(c, x);
+            let dist = length(v);
+            if dist > r {
+                // The bounding sphere's angular disc and the light's disc do not overlap.
+                let cos_gamma = dot(v, l) / dist;
+                let sin_b = r / dist;
+                let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
+                if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-9 {
+                    continue;
+                }
+            }
+            // The sphere is loose around long objects (walls, beams): test the light's cone
+            // against the object-space box too, grown by the cone's radius at the far side of the
+            // box, which contains every shadow ray's path through the box.
+            if !self.cone_may_hit(i, x, l, (dist + r) * sin_a / cos_a) {
+                continue;
+            }
+            if nc < candidates.len() {
+                candidates[nc] = i;
+                nc += 1;
+            } else {
+                overflow.push(i);
+            }
+        }
+        let below = self.samples.iter().filter(|&&s| dot(s, n) <= 0.0).count();
+        if nc == 0 && overflow.is_empty() {
+            return below as f64 / SHADOW_SAMPLES as f64;
+        }
+        let blocked = self
+            .samples
+            .iter()
+            .filter(|&&s| {
+                dot(s, n) <= 0.0
+                    || candidates[..nc]
+                        .iter()
+                        .chain(&overflow)
+                        .any(|&i| self.occludes(i, origin, s))
+            })
+            .count();
+        blocked as f64 / SHADOW_SAMPLES as f64
+    }
+
+    /// Shaded colour (RGB8, rounded) of albedo `albedo` with unit normal `n` under shadow
+    /// fraction `f`, seen along the unit direction `view` (from the point toward the eye).
+    pub fn shade(&self, m: &Material, albedo: V3, n: V3, view: V3, f: f64) -> [u8; 3] {
+        let light = &self.scene.light;
+        let l = self.light;
+        let lit = 1.0 - f;
+        let nl = dot(n, l).max(0.0);
+        let amb = lerp(light.ambient_ground, light.ambient_sky, 0.5 + 0.5 * n[1]);
+        let mut c = mul(albedo, add(amb, scale(light.color, lit * nl)));
+        if m.specular > 0.0 && nl > 0.0 {
+            let h = normalize(add(l, view));
+            let s = m.specular * lit * dot(n, h).max(0.0).powf(m.shininess);
+            c = add(c, scale(light.color, s));
+        }
+        c.map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8)
+    }
+}
