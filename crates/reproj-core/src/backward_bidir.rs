@@ -481,7 +481,7 @@ impl Bidir<'_> {
                 };
                 let z = side.view.depth[p0] + side.w * side.flow[p0][2];
                 // NaN depth fails the comparison; ties keep the first in scan order.
-                if z.is_finite() && best.map_or(true, |(bz, _)| z > bz) {
+                if z.is_finite() && best.is_none_or(|(bz, _)| z > bz) {
                     best = Some((z, p0));
                 }
             }
