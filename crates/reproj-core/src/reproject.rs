@@ -109,6 +109,8 @@ thread_local! {
     /// would cost more than the reprojection itself. The pool holds at most one frame's worth of
     /// buffers per calling thread (about 24 bytes per source pixel).
     static BUFFER_POOL: std::cell::RefCell<Vec<Buffers>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// The auxiliary grids' cells, kept for the same reason.
+    static AUX_POOL: std::cell::RefCell<Vec<Vec<Option<AuxCell>>>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// The outcome of the search in one source image for one output pixel.
@@ -257,8 +259,9 @@ pub(crate) fn run<'a>(
         },
         aux: Vec::new(),
     };
+    let mut aux_pool = AUX_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
     let aux_grids = (1..ctx.n_cams)
-        .map(|cam| ctx.resolve_aux_grid(cam))
+        .map(|cam| ctx.resolve_aux_grid(cam, aux_pool.pop().unwrap_or_default()))
         .collect();
     let ctx = Resolve {
         aux: aux_grids,
@@ -277,8 +280,10 @@ pub(crate) fn run<'a>(
             .enumerate()
             .for_each(|(b, o)| ctx.resolve_rows(b * rows_per_task, o, None)),
     }
-    // Back to the pool in reverse, so that the next frame pops them in the same order and each
+    // Back to the pools in reverse, so that the next frame pops them in the same order and each
     // source gets a buffer of its own size again.
+    aux_pool.extend(ctx.aux.into_iter().rev().map(|g| g.cells));
+    AUX_POOL.with(|p| *p.borrow_mut() = aux_pool);
     for src in sources.into_iter().rev() {
         pool.push(src.bufs);
     }
@@ -676,27 +681,35 @@ impl Resolve<'_> {
     }
 
     /// Algorithms 1 and 2 for auxiliary camera `cam` once per cell of its grid.
-    fn resolve_aux_grid(&self, cam: usize) -> AuxGrid {
+    fn resolve_aux_grid(&self, cam: usize, mut cells: Vec<Option<AuxCell>>) -> AuxGrid {
         // The newer frame's camera is present in both modes; both frames share the rig.
         let grid_src = if self.bidirectional { 2 * cam + 1 } else { cam };
         let (w, h) = (
             self.sources[grid_src].proj.width,
             self.sources[grid_src].proj.height,
         );
-        let cells = (0..w * h)
-            .into_par_iter()
-            .with_min_len(TILE * w)
-            .map(|k| {
-                let t = crate::camera::ndc_of_pixel(k % w, k / w, w, h);
-                let choice = self.best_match(cam, t, self.eps_e_aux, self.eps_z_aux)?;
-                let (rgb, blended) = self.second_chance(&choice, self.eps_z_aux);
-                Some(AuxCell {
-                    choice,
-                    rgb,
-                    code: self.code_of(&choice, blended),
-                })
-            })
-            .collect();
+        // Reused from the previous frame when the size matches (see BUFFER_POOL on first-touch
+        // page faults); every cell is rewritten below.
+        cells.resize(w * h, None);
+        cells
+            .par_chunks_mut(TILE * w)
+            .enumerate()
+            .for_each(|(b, rows)| {
+                for (k, cell) in rows.iter_mut().enumerate() {
+                    let (i, j) = (k % w, b * TILE + k / w);
+                    let t = crate::camera::ndc_of_pixel(i, j, w, h);
+                    *cell = self
+                        .best_match(cam, t, self.eps_e_aux, self.eps_z_aux)
+                        .map(|choice| {
+                            let (rgb, blended) = self.second_chance(&choice, self.eps_z_aux);
+                            AuxCell {
+                                choice,
+                                rgb,
+                                code: self.code_of(&choice, blended),
+                            }
+                        });
+                }
+            });
         AuxGrid { w, h, cells }
     }
 
