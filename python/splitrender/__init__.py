@@ -8,8 +8,11 @@ bidirectional image-based reprojection (Steiner et al. 2025). The kernels are na
 Conventions: shared/DESIGN.md ("Conventions").
 """
 
+from splitrender import metrics
 from splitrender._native import BidirHistory, __version__
+from splitrender.client import Client, PlaybackResult, play
 from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
+from splitrender.network import NetworkModel, Schedule
 from splitrender.reproject import (
     METHODS,
     apply_shadows,
@@ -35,10 +38,14 @@ __all__ = [
     "BidirHistory",
     "Camera",
     "CameraFrame",
+    "Client",
     "ClientRequest",
     "InvalidInputError",
+    "NetworkModel",
+    "PlaybackResult",
     "ReprojectOptions",
     "Reprojection",
+    "Schedule",
     "ServerFrame",
     "ShadowBuffers",
     "SplitRenderError",
@@ -46,6 +53,8 @@ __all__ = [
     "SyntheticScene",
     "__version__",
     "apply_shadows",
+    "metrics",
+    "play",
     "reproject",
     "reproject_alpha",
     "scene_flow",

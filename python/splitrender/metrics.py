@@ -1,0 +1,474 @@
+"""Image and video quality metrics of the evaluation protocol (shared/DESIGN.md "Evaluation
+protocol"; REFERENCE.md §6): SSIM, LDR-FLIP, PSNR and VMAF, per frame and averaged over a
+sequence with the first and last ``skip`` client frames excluded.
+
+Images are ``uint8[H, W, 3]`` (divided by 255) or ``float32``/``float64[H, W, 3]`` already in
+``[0, 1]`` (no linearisation: they are sRGB-encoded values, as the reference reads its PNGs).
+The two images of a comparison must have the same shape and dtype.
+
+Settings, and where they differ from the reference (REFERENCE.md §6):
+
+- **PSNR** ``= −10·log10(MSE)`` over every pixel and channel in ``[0, 1]``; identical images give
+  ``inf`` (the mean of a sequence containing an identical frame is then ``inf`` too, as in the
+  reference's plain mean).
+- **SSIM** exactly as the reference ("3DGS-style"): an 11×11 Gaussian window with ``σ = 1.5``
+  applied per channel with *zero* padding of 5 pixels, ``C1 = 0.01²``, ``C2 = 0.03²``, population
+  (not sample) statistics, the mean of the full SSIM map over all pixels and channels.
+  scikit-image's ``structural_similarity(gaussian_weights=True, sigma=1.5,
+  use_sample_covariance=False, data_range=1)`` computes the same map in the interior but pads by
+  reflection and averages only the pixels at least 5 from the border, so it differs slightly; we
+  implement the reference's definition (scipy) and the tests check the interiors agree.
+- **FLIP**: NVIDIA's ``flip-evaluator`` (the reference uses FLIP's PyTorch port of the same
+  algorithm), LDR mode, sRGB inputs clamped to ``[0, 1]``, 67 pixels per degree, the mean of the
+  error map. Argument order is ours: ``flip(test, reference)``.
+- **VMAF**: libvmaf inside the ffmpeg binary of the ``imageio-ffmpeg`` wheel, its default model
+  (``vmaf_v0.6.1``), both sequences at 120 FPS. The reference feeds RGB PNGs and lets ffmpeg
+  convert; we feed raw ``rgb24`` and convert explicitly with ``format=yuv444p`` (swscale's default
+  BT.601 limited-range matrix, the same luma that the implicit conversion produces; VMAF reads
+  luma only). VMAF is computed over the whole sequence (its motion feature needs the preceding
+  frame) and then sliced, as the reference does. Identical sequences score 100 on frames with
+  motion and ≈ 97.4 where the motion feature is 0 (the first frame, static content).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender.errors import InvalidInputError, SplitRenderError
+
+__all__ = [
+    "DEFAULT_METRICS",
+    "FLIP_PPD",
+    "METRICS",
+    "SKIP_FRAMES",
+    "VMAF_FPS",
+    "VMAF_MIN_SIDE",
+    "SequenceMetrics",
+    "evaluate_sequence",
+    "flip",
+    "flip_map",
+    "print_progress",
+    "psnr",
+    "ssim",
+    "ssim_map",
+    "vmaf",
+]
+
+#: Every metric :func:`evaluate_sequence` knows, in table order.
+METRICS: tuple[str, ...] = ("ssim", "flip", "psnr", "vmaf")
+DEFAULT_METRICS = METRICS
+#: Client frames dropped at each end of a sequence (DESIGN.md, REFERENCE.md §6 ``-ff 12 -ft -12``).
+SKIP_FRAMES = 12
+#: FLIP's pixels per degree: 0.7 m from a 0.7 m wide 3840-pixel display (REFERENCE.md §6).
+FLIP_PPD = 67.0
+#: Frame rate both VMAF sequences are declared at (REFERENCE.md §6, ``-r 120``).
+VMAF_FPS = 120.0
+#: Smallest image side accepted by :func:`vmaf`: libvmaf in the imageio-ffmpeg binary crashes
+#: (SIGSEGV) at 16 pixels (its four-scale pyramids run out); 32 keeps a margin.
+VMAF_MIN_SIDE = 32
+
+_SSIM_SIGMA = 1.5
+_SSIM_RADIUS = 5  # 11x11 window
+_SSIM_C1 = 0.01**2
+_SSIM_C2 = 0.03**2
+
+_F64 = npt.NDArray[np.float64]
+Progress = Callable[[str, int, int], None]
+
+
+def _describe(value: object) -> str:
+    if isinstance(value, np.ndarray):
+        return f"{value.dtype} array of shape {tuple(value.shape)}"
+    return type(value).__name__
+
+
+def _check_image(where: str, img: object) -> npt.NDArray[Any]:
+    if not isinstance(img, np.ndarray) or img.ndim != 3 or img.shape[2] != 3:
+        raise InvalidInputError(
+            f"{where}: expected an (H, W, 3) uint8 or float array, got {_describe(img)}"
+        )
+    if img.shape[0] < 1 or img.shape[1] < 1:
+        raise InvalidInputError(f"{where}: expected a non-empty image, got {_describe(img)}")
+    if img.dtype == np.uint8:
+        return img
+    if img.dtype in (np.float32, np.float64):
+        if not np.isfinite(img).all():
+            raise InvalidInputError(f"{where}: expected finite values, got NaN or inf")
+        lo, hi = float(img.min()), float(img.max())
+        if lo < 0.0 or hi > 1.0:
+            raise InvalidInputError(
+                f"{where}: expected float values in [0, 1], got the range [{lo}, {hi}]"
+            )
+        return img
+    raise InvalidInputError(f"{where}: expected dtype uint8, float32 or float64, got {img.dtype}")
+
+
+def _pair(a: object, b: object, names: tuple[str, str]) -> tuple[_F64, _F64]:
+    """Both images as ``float64`` in ``[0, 1]`` after checking they match."""
+    a = _check_image(names[0], a)
+    b = _check_image(names[1], b)
+    if a.shape != b.shape:
+        raise InvalidInputError(
+            f"{names[0]} and {names[1]}: expected the same shape, got {tuple(a.shape)} and "
+            f"{tuple(b.shape)}"
+        )
+    if a.dtype != b.dtype:
+        raise InvalidInputError(
+            f"{names[0]} and {names[1]}: expected the same dtype, got {a.dtype} and {b.dtype}"
+        )
+    return _unit(a), _unit(b)
+
+
+def _unit(img: npt.NDArray[Any]) -> _F64:
+    if img.dtype == np.uint8:
+        return img.astype(np.float64) / 255.0
+    return img.astype(np.float64)
+
+
+def _to_u8(where: str, img: object) -> npt.NDArray[np.uint8]:
+    img = _check_image(where, img)
+    if img.dtype == np.uint8:
+        return np.ascontiguousarray(img)
+    return np.asarray(np.rint(img * 255.0), dtype=np.uint8)
+
+
+def psnr(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
+    """PSNR in dB of two images, ``−10·log10(MSE)`` over all pixels and channels in ``[0, 1]``.
+
+    Returns ``inf`` for identical images.
+
+    Raises:
+        InvalidInputError: unless both are ``(H, W, 3)`` images of the same shape and dtype.
+    """
+    x, y = _pair(a, b, ("a", "b"))
+    mse = float(np.mean((x - y) ** 2))
+    if mse == 0.0:
+        return math.inf
+    return -10.0 * math.log10(mse)
+
+
+def _gauss_taps() -> _F64:
+    x = np.arange(-_SSIM_RADIUS, _SSIM_RADIUS + 1, dtype=np.float64)
+    g = np.exp(-(x**2) / (2.0 * _SSIM_SIGMA**2))
+    return np.asarray(g / g.sum(), dtype=np.float64)
+
+
+def _blur(img: _F64, taps: _F64) -> _F64:
+    """Separable Gaussian over the two image axes with zero padding (the reference's conv2d)."""
+    from scipy.ndimage import correlate1d  # type: ignore[import-untyped,unused-ignore]
+
+    out = correlate1d(img, taps, axis=0, mode="constant", cval=0.0)
+    return np.asarray(correlate1d(out, taps, axis=1, mode="constant", cval=0.0))
+
+
+def ssim_map(a: npt.ArrayLike, b: npt.ArrayLike) -> _F64:
+    """The per-pixel, per-channel SSIM map (``float64[H, W, 3]``) whose mean is :func:`ssim`."""
+    x, y = _pair(a, b, ("a", "b"))
+    taps = _gauss_taps()
+    mu_x, mu_y = _blur(x, taps), _blur(y, taps)
+    var_x = _blur(x * x, taps) - mu_x * mu_x
+    var_y = _blur(y * y, taps) - mu_y * mu_y
+    cov = _blur(x * y, taps) - mu_x * mu_y
+    num = (2.0 * mu_x * mu_y + _SSIM_C1) * (2.0 * cov + _SSIM_C2)
+    den = (mu_x * mu_x + mu_y * mu_y + _SSIM_C1) * (var_x + var_y + _SSIM_C2)
+    return np.asarray(num / den, dtype=np.float64)
+
+
+def ssim(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
+    """SSIM of two images as REFERENCE.md §6 defines it (see the module docs): 11×11 Gaussian,
+    ``σ = 1.5``, zero padding, ``C1 = 0.01²``, ``C2 = 0.03²``, the mean of the map. Symmetric;
+    1.0 for identical images.
+
+    Raises:
+        InvalidInputError: unless both are ``(H, W, 3)`` images of the same shape and dtype.
+    """
+    return float(np.mean(ssim_map(a, b)))
+
+
+def _flip(test: object, reference: object, ppd: float) -> tuple[npt.NDArray[np.float32], float]:
+    import flip_evaluator  # type: ignore[import-untyped,unused-ignore]
+
+    if not (isinstance(ppd, (int, float)) and math.isfinite(ppd) and ppd > 0):
+        raise InvalidInputError(f"ppd: expected a finite float > 0, got {ppd!r}")
+    t, r = _pair(test, reference, ("test", "reference"))
+    # flip_evaluator takes (reference, test); it exits the process on bad arguments, so every
+    # argument is checked above. float32 is its native precision.
+    err, mean, _ = flip_evaluator.evaluate(
+        np.ascontiguousarray(r, dtype=np.float32),
+        np.ascontiguousarray(t, dtype=np.float32),
+        "LDR",
+        inputsRGB=True,
+        applyMagma=False,
+        computeMeanError=True,
+        parameters={"ppd": float(ppd)},
+    )
+    return np.asarray(err[..., 0], dtype=np.float32), float(mean)
+
+
+def flip(test: npt.ArrayLike, reference: npt.ArrayLike, ppd: float = FLIP_PPD) -> float:
+    """Mean LDR-FLIP error (``0`` = identical, up to 1) of ``test`` against ``reference``,
+    both sRGB in ``[0, 1]``, at ``ppd`` pixels per degree.
+
+    Raises:
+        InvalidInputError: unless both are ``(H, W, 3)`` images of the same shape and dtype, or
+            for ``ppd <= 0``.
+    """
+    return _flip(test, reference, ppd)[1]
+
+
+def flip_map(
+    test: npt.ArrayLike, reference: npt.ArrayLike, ppd: float = FLIP_PPD
+) -> npt.NDArray[np.float32]:
+    """The LDR-FLIP error map (``float32[H, W]`` in ``[0, 1]``) for visualisation; its mean is
+    :func:`flip`."""
+    return _flip(test, reference, ppd)[0]
+
+
+def _check_sequence(where: str, frames: object) -> list[npt.NDArray[np.uint8]]:
+    if isinstance(frames, np.ndarray) and frames.ndim == 4:
+        frames = list(frames)
+    if not isinstance(frames, Sequence) or isinstance(frames, (str, bytes)):
+        raise InvalidInputError(
+            f"{where}: expected a sequence of (H, W, 3) images, got {_describe(frames)}"
+        )
+    if len(frames) == 0:
+        raise InvalidInputError(f"{where}: expected at least one frame, got none")
+    out = [_to_u8(f"{where}[{i}]", f) for i, f in enumerate(frames)]
+    shape = out[0].shape
+    for i, f in enumerate(out):
+        if f.shape != shape:
+            raise InvalidInputError(
+                f"{where}[{i}]: expected the shape of frame 0, {tuple(shape)}, got {tuple(f.shape)}"
+            )
+    return out
+
+
+def _ffmpeg() -> str:
+    try:
+        import imageio_ffmpeg  # type: ignore[import-untyped,unused-ignore]
+    except ImportError:
+        raise SplitRenderError(
+            "vmaf needs the imageio-ffmpeg wheel (pip install imageio-ffmpeg)"
+        ) from None
+    return str(imageio_ffmpeg.get_ffmpeg_exe())
+
+
+def vmaf(
+    distorted: Sequence[npt.ArrayLike] | npt.ArrayLike,
+    reference: Sequence[npt.ArrayLike] | npt.ArrayLike,
+    fps: float = VMAF_FPS,
+    *,
+    threads: int | None = None,
+) -> list[float]:
+    """Per-frame VMAF (0–100, default model) of ``distorted`` against ``reference``, two equally
+    long sequences of equally sized ``(H, W, 3)`` images (a list, or one ``(N, H, W, 3)`` array),
+    each side at least :data:`VMAF_MIN_SIDE` pixels.
+
+    Raises:
+        InvalidInputError: for mismatched or invalid sequences.
+        SplitRenderError: when ffmpeg or its libvmaf filter fails (the message holds ffmpeg's
+            last output).
+    """
+    d = _check_sequence("distorted", distorted)
+    r = _check_sequence("reference", reference)
+    if len(d) != len(r):
+        raise InvalidInputError(
+            f"distorted and reference: expected the same number of frames, got {len(d)} and "
+            f"{len(r)}"
+        )
+    if d[0].shape != r[0].shape:
+        raise InvalidInputError(
+            f"distorted and reference: expected the same frame shape, got {tuple(d[0].shape)} "
+            f"and {tuple(r[0].shape)}"
+        )
+    h, w = d[0].shape[:2]
+    if min(h, w) < VMAF_MIN_SIDE:
+        raise InvalidInputError(
+            f"vmaf: expected frames of at least {VMAF_MIN_SIDE}x{VMAF_MIN_SIDE} pixels, got {w}x{h}"
+        )
+    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+        raise InvalidInputError(f"fps: expected a finite float > 0, got {fps!r}")
+    n_threads = threads if threads is not None else (os.cpu_count() or 1)
+    with tempfile.TemporaryDirectory(prefix="splitrender-vmaf-") as tmp:
+        log = os.path.join(tmp, "vmaf.json")
+        paths = {name: os.path.join(tmp, f"{name}.rgb") for name in ("distorted", "reference")}
+        cmd = [_ffmpeg(), "-hide_banner", "-nostdin", "-v", "error"]
+        for name in ("distorted", "reference"):  # libvmaf: input 0 distorted, 1 reference
+            cmd += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps}"]
+            cmd += ["-i", paths[name]]
+        # The log path sits in a directory we created; ':' and '\' would need filter escaping.
+        graph = (
+            "[0:v]format=yuv444p[d];[1:v]format=yuv444p[r];"
+            f"[d][r]libvmaf=log_fmt=json:log_path={_filter_escape(log)}:n_threads={n_threads}"
+        )
+        cmd += ["-lavfi", graph, "-f", "null", "-"]
+        proc = _run_streaming(cmd, {paths["distorted"]: d, paths["reference"]: r})
+        if proc.returncode != 0 or not os.path.exists(log):
+            tail = proc.stderr.strip()[-800:]
+            raise SplitRenderError(
+                f"vmaf: ffmpeg exited with status {proc.returncode} on {len(d)} frames of "
+                f"{w}x{h}: {tail or '(no output)'}"
+            )
+        with open(log, encoding="utf-8") as f:
+            data = json.load(f)
+    frames = data.get("frames", [])
+    if len(frames) != len(d):
+        raise SplitRenderError(
+            f"vmaf: expected {len(d)} frames in libvmaf's log, got {len(frames)}"
+        )
+    frames = sorted(frames, key=lambda fr: int(fr["frameNum"]))
+    return [float(fr["metrics"]["vmaf"]) for fr in frames]
+
+
+def _run_streaming(
+    cmd: list[str], inputs: dict[str, list[npt.NDArray[np.uint8]]]
+) -> subprocess.CompletedProcess[str]:
+    """Runs ``cmd`` with each ``inputs`` path filled with the raw bytes of its frames.
+
+    On POSIX the paths are FIFOs fed by one writer thread each, so a long 1280x720 sequence
+    (2.7 MB per frame and side) never lands on disk; elsewhere they are written as files first.
+    """
+    if not hasattr(os, "mkfifo"):
+        for path, seq in inputs.items():
+            with open(path, "wb") as f:
+                f.writelines(frame.tobytes() for frame in seq)
+        return subprocess.run(cmd, capture_output=True, text=True, check=False)
+
+    def feed(path: str, seq: list[npt.NDArray[np.uint8]]) -> None:
+        try:
+            with open(path, "wb") as f:  # blocks until ffmpeg opens its end
+                f.writelines(frame.tobytes() for frame in seq)
+        except BrokenPipeError:  # ffmpeg stopped reading (it failed; its status says why)
+            pass
+
+    threads = []
+    for path, seq in inputs.items():
+        os.mkfifo(path)
+        threads.append(threading.Thread(target=feed, args=(path, seq), daemon=True))
+    for t in threads:
+        t.start()
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    finally:
+        for path, t in zip(inputs, threads):
+            if t.is_alive():
+                # ffmpeg never opened this FIFO (or stopped reading it): open and close the
+                # read end so the writer's open returns and its next write fails.
+                fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+                os.close(fd)
+            t.join()
+    return proc
+
+
+def _filter_escape(path: str) -> str:
+    return path.replace("\\", "\\\\").replace(":", "\\:").replace("'", "\\'")
+
+
+@dataclass
+class SequenceMetrics:
+    """The metrics of one rendered sequence against ground truth.
+
+    ``frames`` are the indices of the evaluated frames (the first and last ``skip`` excluded);
+    ``per_frame[i]`` maps each metric to its value for frame ``frames[i]``; ``mean`` is the plain
+    arithmetic mean of each metric over those frames."""
+
+    frames: list[int]
+    per_frame: list[dict[str, float]]
+    mean: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (``inf`` PSNR becomes the string ``"inf"``)."""
+
+        def enc(v: float) -> float | str:
+            return v if math.isfinite(v) else str(v)
+
+        return {
+            "frames": list(self.frames),
+            "per_frame": [{k: enc(v) for k, v in d.items()} for d in self.per_frame],
+            "mean": {k: enc(v) for k, v in self.mean.items()},
+        }
+
+
+def print_progress(stage: str, done: int, total: int) -> None:
+    """A progress callback for :func:`evaluate_sequence` that writes one line to stderr."""
+    end = "\n" if done == total else ""
+    print(f"\r{stage}: {done}/{total}", end=end, file=sys.stderr, flush=True)
+
+
+def evaluate_sequence(
+    rendered: Sequence[npt.ArrayLike],
+    truth: Sequence[npt.ArrayLike],
+    skip: int = SKIP_FRAMES,
+    metrics: Sequence[str] = DEFAULT_METRICS,
+    *,
+    fps: float = VMAF_FPS,
+    ppd: float = FLIP_PPD,
+    progress: Progress | None = None,
+) -> SequenceMetrics:
+    """Every metric in ``metrics`` for each client frame of ``rendered`` against ``truth`` (the
+    ground truth at the client pose), excluding the first and last ``skip`` frames, and the
+    means. ``progress(stage, done, total)`` is called after each frame of each metric (see
+    :func:`print_progress`); FLIP costs seconds per 1280×720 frame.
+
+    Raises:
+        InvalidInputError: for unknown metrics, sequences of different lengths or shapes, or
+            fewer than ``2·skip + 1`` frames.
+        SplitRenderError: when VMAF's ffmpeg fails.
+    """
+    if isinstance(metrics, str):
+        metrics = (metrics,)
+    unknown = [m for m in metrics if m not in METRICS]
+    if unknown or not metrics:
+        raise InvalidInputError(
+            f"metrics: expected a non-empty subset of {', '.join(METRICS)}, got {list(metrics)!r}"
+        )
+    if isinstance(skip, bool) or not isinstance(skip, int) or skip < 0:
+        raise InvalidInputError(f"skip: expected an int >= 0, got {skip!r}")
+    r = _check_sequence("rendered", rendered)
+    g = _check_sequence("truth", truth)
+    if len(r) != len(g):
+        raise InvalidInputError(
+            f"rendered and truth: expected the same number of frames, got {len(r)} and {len(g)}"
+        )
+    if r[0].shape != g[0].shape:
+        raise InvalidInputError(
+            f"rendered and truth: expected the same frame shape, got {tuple(r[0].shape)} and "
+            f"{tuple(g[0].shape)}"
+        )
+    n = len(r)
+    if n <= 2 * skip:
+        raise InvalidInputError(f"rendered: expected more than 2*skip = {2 * skip} frames, got {n}")
+    kept = list(range(skip, n - skip))
+    per_frame: list[dict[str, float]] = [{} for _ in kept]
+    funcs: dict[str, Callable[[Any, Any], float]] = {
+        "ssim": ssim,
+        "flip": lambda t, ref: flip(t, ref, ppd),
+        "psnr": psnr,
+    }
+    ordered = [m for m in METRICS if m in metrics]
+    for m in ordered:
+        if m == "vmaf":
+            scores = vmaf(r, g, fps)  # whole sequence: the motion feature needs context
+            for row, i in zip(per_frame, kept):
+                row["vmaf"] = scores[i]
+            if progress is not None:
+                progress("vmaf", 1, 1)
+            continue
+        for j, i in enumerate(kept):
+            per_frame[j][m] = funcs[m](r[i], g[i])
+            if progress is not None:
+                progress(m, j + 1, len(kept))
+    mean = {m: float(np.mean([row[m] for row in per_frame])) for m in ordered}
+    return SequenceMetrics(frames=kept, per_frame=per_frame, mean=mean)

@@ -1,0 +1,214 @@
+"""splitrender.metrics against cases with known answers (REFERENCE.md §6 settings)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from splitrender import metrics as M
+from splitrender.errors import InvalidInputError, SplitRenderError
+
+
+def textured(h: int = 64, w: int = 64, seed: int = 0) -> np.ndarray:
+    """A smooth-ish random texture (blocks of 4x4), uint8."""
+    rng = np.random.default_rng(seed)
+    base = rng.random((h // 4 + 1, w // 4 + 1, 3)) * 200 + 20
+    return np.asarray(np.kron(base, np.ones((4, 4, 1)))[:h, :w], dtype=np.uint8)
+
+
+def moving_sequence(n: int = 6, h: int = 64, w: int = 64) -> list[np.ndarray]:
+    """A texture translating 2 px per frame (so VMAF's motion feature is non-zero)."""
+    big = textured(h, w + 2 * n, seed=3)
+    return [np.ascontiguousarray(big[:, 2 * i : 2 * i + w]) for i in range(n)]
+
+
+def box_blur(img: np.ndarray, r: int = 2) -> np.ndarray:
+    x = img.astype(np.float64)
+    pad = np.pad(x, ((r, r), (r, r), (0, 0)), mode="edge")
+    out = np.zeros_like(x)
+    for dy in range(2 * r + 1):
+        for dx in range(2 * r + 1):
+            out += pad[dy : dy + x.shape[0], dx : dx + x.shape[1]]
+    return np.asarray(np.rint(out / (2 * r + 1) ** 2), dtype=np.uint8)
+
+
+def test_identical_images_have_perfect_scores() -> None:
+    a = textured(40, 56)
+    assert M.ssim(a, a) == pytest.approx(1.0, abs=1e-12)
+    assert M.psnr(a, a) == math.inf
+    assert M.flip(a, a) == 0.0
+    assert float(M.flip_map(a, a).max()) == 0.0
+
+
+def test_psnr_of_a_uniform_offset() -> None:
+    a = np.full((16, 24, 3), 100, np.uint8)
+    b = a + np.uint8(10)
+    assert M.psnr(a, b) == pytest.approx(20 * math.log10(255 / 10), abs=1e-9)
+    # float input in [0, 1] gives the same value
+    assert M.psnr(a / 255.0, b / 255.0) == pytest.approx(M.psnr(a, b), abs=1e-9)
+
+
+def _coverage(n: int) -> np.ndarray:
+    """Sum of the 11-tap Gaussian's weights inside an image of n pixels, per position."""
+    x = np.arange(-5, 6, dtype=np.float64)
+    g = np.exp(-(x**2) / (2 * 1.5**2))
+    g /= g.sum()
+    return np.array([sum(g[k + 5] for k in range(-5, 6) if 0 <= i + k < n) for i in range(n)])
+
+
+def test_ssim_of_a_constant_shift_follows_the_formula_with_zero_padding() -> None:
+    h, w, va, vb = 20, 30, 100, 140
+    a, b = np.full((h, w, 3), va, np.uint8), np.full((h, w, 3), vb, np.uint8)
+    x, y = va / 255, vb / 255
+    c1, c2 = 0.01**2, 0.03**2
+    # Interior: no variance, so SSIM = luminance term.
+    smap = M.ssim_map(a, b)
+    assert smap[10, 15, 0] == pytest.approx((2 * x * y + c1) / (x * x + y * y + c1), abs=1e-12)
+    # Everywhere: zero padding scales the means by the window coverage c and adds variance
+    # v^2 c (1 - c) (the reference's conv2d with padding 5).
+    cov = np.outer(_coverage(h), _coverage(w))
+    mx, my = cov * x, cov * y
+    sxy = x * y * cov * (1 - cov)
+    sxx, syy = x * x * cov * (1 - cov), y * y * cov * (1 - cov)
+    expect = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sxx + syy + c2))
+    np.testing.assert_allclose(smap[..., 1], expect, rtol=0, atol=1e-12)
+    assert M.ssim(a, b) == pytest.approx(float(expect.mean()), abs=1e-12)
+
+
+def test_ssim_interior_matches_scikit_image() -> None:
+    skm = pytest.importorskip("skimage.metrics")
+    a = textured(48, 64, seed=1)
+    rng = np.random.default_rng(2)
+    b = np.clip(a.astype(int) + rng.integers(-25, 26, a.shape), 0, 255).astype(np.uint8)
+    _, full = skm.structural_similarity(
+        a / 255.0,
+        b / 255.0,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1.0,
+        channel_axis=2,
+        full=True,
+    )
+    ours = M.ssim_map(a, b)
+    np.testing.assert_allclose(ours[5:-5, 5:-5], full[5:-5, 5:-5], rtol=0, atol=1e-10)
+    assert M.ssim(a, b) == pytest.approx(M.ssim(b, a), abs=1e-12)
+
+
+def test_distortion_orders_ssim_psnr_and_flip() -> None:
+    a = textured(64, 64, seed=4)
+    rng = np.random.default_rng(5)
+    noise = rng.standard_normal(a.shape)
+    scores = []
+    for amp in (2.0, 8.0, 24.0, 64.0):
+        b = np.clip(np.rint(a + amp * noise), 0, 255).astype(np.uint8)
+        scores.append((M.ssim(a, b), M.psnr(a, b), M.flip(b, a)))
+    ssims, psnrs, flips = zip(*scores)
+    assert all(x > y for x, y in itertools.pairwise(ssims))
+    assert all(x > y for x, y in itertools.pairwise(psnrs))
+    assert all(x < y for x, y in itertools.pairwise(flips))
+    assert 0.0 < flips[0] and flips[-1] < 1.0
+
+
+def test_flip_map_mean_is_flip() -> None:
+    a = textured(32, 48, seed=6)
+    b = box_blur(a)
+    fmap = M.flip_map(b, a)
+    assert fmap.shape == (32, 48) and fmap.dtype == np.float32
+    assert float(fmap.mean()) == pytest.approx(M.flip(b, a), rel=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "match"),
+    [
+        (np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8), "same shape"),
+        (np.zeros((8, 8, 3), np.uint8), np.zeros((8, 8, 3), np.float32), "same dtype"),
+        (np.zeros((8, 8), np.uint8), np.zeros((8, 8), np.uint8), r"\(H, W, 3\)"),
+        (np.zeros((8, 8, 3), np.int16), np.zeros((8, 8, 3), np.int16), "dtype uint8"),
+        (np.full((8, 8, 3), 2.0), np.zeros((8, 8, 3)), r"\[0, 1\]"),
+        (np.full((8, 8, 3), np.nan), np.zeros((8, 8, 3)), "finite"),
+    ],
+)
+def test_invalid_images_are_refused(a: np.ndarray, b: np.ndarray, match: str) -> None:
+    for f in (M.ssim, M.psnr, M.flip):
+        with pytest.raises(InvalidInputError, match=match):
+            f(a, b)
+
+
+def test_vmaf_of_identical_sequences_is_about_100() -> None:
+    seq = moving_sequence(6)
+    scores = M.vmaf(seq, seq)
+    assert len(scores) == 6
+    # libvmaf's motion feature is 0 on the first frame, which costs it ~2.6 points.
+    assert scores[0] == pytest.approx(100.0, abs=3.0)
+    assert all(s == pytest.approx(100.0, abs=0.01) for s in scores[1:])
+
+
+def test_vmaf_is_lower_for_a_blurred_sequence() -> None:
+    seq = moving_sequence(6)
+    mild = [box_blur(f, 1) for f in seq]
+    strong = [box_blur(f, 3) for f in seq]
+    v_id = np.mean(M.vmaf(seq, seq))
+    v_mild = np.mean(M.vmaf(mild, seq))
+    v_strong = np.mean(M.vmaf(strong, seq))
+    assert v_id > v_mild > v_strong
+    assert v_id - v_strong > 10.0
+
+
+def test_vmaf_refuses_bad_sequences() -> None:
+    seq = moving_sequence(3)
+    with pytest.raises(InvalidInputError, match="same number of frames"):
+        M.vmaf(seq, seq[:2])
+    tiny = [np.zeros((16, 64, 3), np.uint8)] * 2
+    with pytest.raises(InvalidInputError, match="at least 32x32"):
+        M.vmaf(tiny, tiny)
+    with pytest.raises(InvalidInputError, match=r"reference\[1\]"):
+        M.vmaf(seq, [seq[0], np.zeros((8, 8, 3), np.uint8), seq[2]])
+
+
+def test_evaluate_sequence_skips_the_first_and_last_frames() -> None:
+    n, skip = 30, 12
+    truth = moving_sequence(n)
+    # Garbage only in the skipped frames: the means must be perfect.
+    rendered = [f.copy() for f in truth]
+    for i in list(range(skip)) + list(range(n - skip, n)):
+        rendered[i] = 255 - truth[i]
+    seen: list[tuple[str, int, int]] = []
+    res = M.evaluate_sequence(
+        rendered, truth, skip=skip, progress=lambda s, d, t: seen.append((s, d, t))
+    )
+    assert res.frames == list(range(skip, n - skip))
+    assert len(res.per_frame) == n - 2 * skip
+    assert res.mean["ssim"] == pytest.approx(1.0, abs=1e-12)
+    assert res.mean["flip"] == 0.0
+    assert res.mean["psnr"] == math.inf
+    assert res.mean["vmaf"] == pytest.approx(100.0, abs=0.01)
+    assert ("psnr", n - 2 * skip, n - 2 * skip) in seen and ("vmaf", 1, 1) in seen
+    assert res.to_dict()["mean"]["psnr"] == "inf"
+
+
+def test_evaluate_sequence_per_frame_values_and_errors() -> None:
+    truth = [textured(32, 32, seed=i) for i in range(7)]
+    rendered = [np.clip(t.astype(int) + i, 0, 255).astype(np.uint8) for i, t in enumerate(truth)]
+    res = M.evaluate_sequence(rendered, truth, skip=2, metrics=("psnr", "ssim"))
+    assert res.frames == [2, 3, 4]
+    for row, i in zip(res.per_frame, res.frames):
+        assert set(row) == {"ssim", "psnr"}
+        assert row["psnr"] == pytest.approx(M.psnr(rendered[i], truth[i]))
+    assert res.mean["psnr"] == pytest.approx(np.mean([r["psnr"] for r in res.per_frame]))
+    with pytest.raises(InvalidInputError, match="more than 2\\*skip"):
+        M.evaluate_sequence(rendered, truth, skip=4)
+    with pytest.raises(InvalidInputError, match="metrics"):
+        M.evaluate_sequence(rendered, truth, skip=2, metrics=("lpips",))
+    with pytest.raises(InvalidInputError, match="same number of frames"):
+        M.evaluate_sequence(rendered, truth[:-1], skip=2)
+
+
+def test_vmaf_reports_an_ffmpeg_failure(monkeypatch: pytest.MonkeyPatch) -> None:
+    # A binary that exits at once without reading its inputs: the writers must not hang.
+    monkeypatch.setattr(M, "_ffmpeg", lambda: "false")
+    seq = moving_sequence(3)
+    with pytest.raises(SplitRenderError, match="ffmpeg exited with status 1"):
+        M.vmaf(seq, seq)
