@@ -1,11 +1,14 @@
 //! Rigid animation: elementary motions composed into an object's transform relative to its
 //! parent, `local(t) = place ∘ anim₁(t) ∘ anim₂(t) ∘ …`.
 
+use std::sync::Arc;
+
+use crate::gltf::NodeTrack;
 use crate::math::{cross, normalize, scale, Rigid, V3};
 
 /// One elementary rigid motion as a function of time (seconds). Each one is the identity at
 /// `t = 0` except where its phase or offset says otherwise.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Anim {
     /// Translation `v·t + ½·a·t²` (linear when `acceleration` is zero, accelerating otherwise).
     Translate {
@@ -69,12 +72,15 @@ pub enum Anim {
         /// Starting angle (rad).
         phase: f64,
     },
+    /// The keyframed rigid motion of a glTF node (see [`crate::gltf`]).
+    Keyframes(Arc<NodeTrack>),
 }
 
 impl Anim {
     /// The transform at time `t`.
     pub fn at(&self, t: f64) -> Rigid {
         match *self {
+            Anim::Keyframes(ref track) => track.at(t),
             Anim::Translate {
                 velocity,
                 acceleration,

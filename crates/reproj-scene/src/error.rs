@@ -53,6 +53,23 @@ pub enum SceneError {
         /// Its parent index.
         parent: usize,
     },
+    /// A glTF file that cannot be read or is malformed (bad JSON, a missing buffer or texture
+    /// file, an out-of-range index, inconsistent data).
+    #[error("glTF {path}: {problem}")]
+    Gltf {
+        /// The file.
+        path: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// A glTF file using a feature the renderer does not implement.
+    #[error("glTF {path}: unsupported: {what}")]
+    GltfUnsupported {
+        /// The file.
+        path: String,
+        /// The feature.
+        what: String,
+    },
 }
 
 /// `Result` with [`SceneError`].

@@ -55,6 +55,7 @@
 
 pub mod anim;
 pub mod error;
+pub mod gltf;
 pub mod material;
 pub mod math;
 pub mod meshes;
@@ -66,6 +67,7 @@ pub mod shape;
 
 pub use anim::Anim;
 pub use error::{Result, SceneError};
+pub use gltf::{load_gltf_scene, place_gltf, GltfModel, Placement};
 pub use material::{Material, Pattern};
 pub use math::{Rigid, V3};
 pub use render::{

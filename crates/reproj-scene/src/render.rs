@@ -16,6 +16,7 @@ use crate::error::{Result, SceneError};
 use crate::material::Material;
 use crate::math::{add, normalize, scale, sub, V3};
 use crate::scene::{Scene, Snapshot, Variant};
+use crate::shape::Shape;
 
 /// Rows per rayon task. Whole rows keep each task's writes contiguous; a server pixel casts up to
 /// `(2S − 1)·32` shadow rays, so 16 rows are ample work per task, and the blocks are concatenated
@@ -126,8 +127,8 @@ impl Rays {
 pub(crate) struct Sample {
     /// Object index; `None` for the sky.
     pub obj: Option<usize>,
-    /// Face or triangle of the object (the tests use it to skip creases).
-    #[cfg_attr(not(test), allow(dead_code))]
+    /// Face or triangle of the object (deforming meshes track material points by it; the tests
+    /// use it to skip creases).
     pub face: u32,
     /// World hit point.
     pub x: V3,
@@ -185,7 +186,10 @@ pub(crate) fn sample(
         n_obj,
         normal,
         view: normalize(scale(d, -1.0)),
-        albedo: o.material.albedo(hit.local.uv),
+        albedo: o
+            .shape
+            .own_albedo(hit.local.face, hit.local.uv)
+            .unwrap_or_else(|| o.material.albedo(hit.local.uv)),
         shadow,
     }
 }
@@ -201,13 +205,29 @@ fn key_color(snap: &Snapshot<'_>, s: &Sample) -> [u8; 3] {
     }
 }
 
-/// Where the material point `x` (seen on `obj` in `key`) is in snapshot `to`, with its normal.
-/// A still object returns `x` and `n` themselves, so its motion is exactly zero.
-fn carry(key: &Snapshot<'_>, to: &Snapshot<'_>, obj: usize, x: V3, n_obj: V3, n: V3) -> (V3, V3) {
+/// Where the material point `x` (seen on `obj`, triangle or face `face`, in `key`) is in
+/// snapshot `to`, with its normal. A still object returns `x` and `n` themselves, so its motion
+/// is exactly zero. On a deforming mesh the material point is (triangle, barycentrics), carried to
+/// the mesh posed at `to`'s time.
+fn carry(
+    key: &Snapshot<'_>,
+    to: &Snapshot<'_>,
+    obj: usize,
+    face: u32,
+    x: V3,
+    n_obj: V3,
+    n: V3,
+) -> (V3, V3) {
     if !key.scene.moves(obj) {
         return (x, n);
     }
     let local = key.inv[obj].point(x);
+    if let (Shape::Mesh(from), Shape::Mesh(dest)) = (key.shape(obj), to.shape(obj)) {
+        if key.scene.objects[obj].shape.deforms() {
+            let (p, nl) = crate::gltf::carry_on_mesh(from, dest, face, local, n_obj);
+            return (to.world[obj].point(p), normalize(to.world[obj].vector(nl)));
+        }
+    }
     (
         to.world[obj].point(local),
         normalize(to.world[obj].vector(n_obj)),
@@ -227,7 +247,7 @@ fn shadow_field(key: &Snapshot<'_>, subs: &[Snapshot<'_>], s: &Sample) -> (u32, 
     let l0 = quantise(s.shadow);
     let (mut bits, mut lmin, mut lmax) = (l0, l0, l0);
     for (j, sub) in subs.iter().enumerate() {
-        let (xj, nj) = carry(key, sub, obj, s.x, s.n_obj, s.normal);
+        let (xj, nj) = carry(key, sub, obj, s.face, s.x, s.n_obj, s.normal);
         let level = quantise(sub.shadow(obj, xj, nj));
         bits |= level << (2 * (j + 1));
         lmin = lmin.min(level);
@@ -289,8 +309,10 @@ pub fn render_server(
                         continue; // Nothing moves and the light is still: all zero.
                     }
                     if scene.moves(obj) {
-                        let pf = rays.project(carry(&key, &next, obj, s.x, s.n_obj, s.normal).0);
-                        let pb = rays.project(carry(&key, &prev, obj, s.x, s.n_obj, s.normal).0);
+                        let pf =
+                            rays.project(carry(&key, &next, obj, s.face, s.x, s.n_obj, s.normal).0);
+                        let pb =
+                            rays.project(carry(&key, &prev, obj, s.face, s.x, s.n_obj, s.normal).0);
                         for c in 0..3 {
                             blk.motion_fwd[3 * k + c] = (pf[c] - p[c]) as f32;
                             blk.motion_bwd[3 * k + c] = (pb[c] - p[c]) as f32;

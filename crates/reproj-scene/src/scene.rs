@@ -189,21 +189,7 @@ impl Scene {
         (near, far): (f64, f64),
         path: CameraPath,
     ) -> Result<Scene> {
-        let mut moves = Vec::with_capacity(objects.len());
-        for (index, o) in objects.iter().enumerate() {
-            let parent_moves = match o.parent {
-                Some(p) if p < index => moves[p],
-                Some(parent) => {
-                    return Err(SceneError::BadHierarchy {
-                        index,
-                        name: o.name.clone(),
-                        parent,
-                    })
-                }
-                None => false,
-            };
-            moves.push(variant == Variant::Dynamic && (parent_moves || !o.anims.is_empty()));
-        }
+        let moves = compute_moves(&objects, variant)?;
         Ok(Scene {
             name: name.to_string(),
             variant,
@@ -216,6 +202,16 @@ impl Scene {
             path,
             moves,
         })
+    }
+
+    /// Re-derives which objects move after `objects` was changed in place (e.g. by
+    /// [`crate::gltf::place_gltf`], or motions appended to an object).
+    ///
+    /// # Errors
+    /// [`SceneError::BadHierarchy`] as [`Scene::new`].
+    pub fn refresh(&mut self) -> Result<()> {
+        self.moves = compute_moves(&self.objects, self.variant)?;
+        Ok(())
     }
 
     /// Whether object `i` moves (never in the static variant). Points on objects that do not
@@ -256,6 +252,30 @@ impl Scene {
     }
 }
 
+/// Which objects move: animated, deforming, or children of moving ones (never in the static
+/// variant); checks that parents come first.
+fn compute_moves(objects: &[Object], variant: Variant) -> Result<Vec<bool>> {
+    let mut moves = Vec::with_capacity(objects.len());
+    for (index, o) in objects.iter().enumerate() {
+        let parent_moves = match o.parent {
+            Some(p) if p < index => moves[p],
+            Some(parent) => {
+                return Err(SceneError::BadHierarchy {
+                    index,
+                    name: o.name.clone(),
+                    parent,
+                })
+            }
+            None => false,
+        };
+        moves.push(
+            variant == Variant::Dynamic
+                && (parent_moves || !o.anims.is_empty() || o.shape.deforms()),
+        );
+    }
+    Ok(moves)
+}
+
 struct Instance(Aabb);
 
 impl Boundable for Instance {
@@ -283,6 +303,9 @@ pub(crate) struct Snapshot<'a> {
     pub inv: Vec<Rigid>,
     spheres: Vec<(V3, f64)>,
     bvh: Option<Bvh2>,
+    /// Deforming shapes posed at this instant (meshes with their BVH, built once per snapshot);
+    /// `None` where the object's own shape applies.
+    posed: Vec<Option<Shape>>,
     pub light: V3,
     samples: [V3; SHADOW_SAMPLES],
 }
@@ -291,10 +314,25 @@ impl<'a> Snapshot<'a> {
     fn new(scene: &'a Scene, t: f64) -> Snapshot<'a> {
         let world = scene.transforms(t);
         let inv: Vec<Rigid> = world.iter().map(Rigid::inverse).collect();
+        let te = scene.anim_time(t);
+        let posed: Vec<Option<Shape>> = scene
+            .objects
+            .iter()
+            .enumerate()
+            .map(|(i, o)| match &o.shape {
+                Shape::Gltf(g) if scene.moves(i) && g.deforms() => {
+                    Some(Shape::Mesh(std::sync::Arc::new(g.posed(te))))
+                }
+                _ => None,
+            })
+            .collect();
         let mut spheres = Vec::with_capacity(world.len());
         let mut boxes = Vec::with_capacity(world.len());
-        for (o, w) in scene.objects.iter().zip(&world) {
-            let b = o.shape.bounds();
+        for (i, w) in world.iter().enumerate() {
+            let b = posed[i]
+                .as_ref()
+                .unwrap_or(&scene.objects[i].shape)
+                .bounds();
             let (c, r) = b.sphere();
             spheres.push((w.point(c), r));
             boxes.push(Instance(
@@ -315,22 +353,29 @@ impl<'a> Snapshot<'a> {
             inv,
             spheres,
             bvh,
+            posed,
             light,
             samples: scene.light.samples(light),
         }
     }
 
+    /// Object `i`'s shape at this instant.
+    pub fn shape(&self, i: usize) -> &Shape {
+        self.posed[i]
+            .as_ref()
+            .unwrap_or(&self.scene.objects[i].shape)
+    }
+
     fn hit_object(&self, i: usize, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
         let inv = &self.inv[i];
-        self.scene.objects[i]
-            .shape
+        self.shape(i)
             .intersect(inv.point(o), inv.vector(d), tmin, tmax)
     }
 
     /// Whether the ray `x + t·l`, `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
     /// object-space box.
     fn cone_may_hit(&self, i: usize, x: V3, l: V3, grow: f64) -> bool {
-        let b = self.scene.objects[i].shape.bounds();
+        let b = self.shape(i).bounds();
         let inv = &self.inv[i];
         let (o, d) = (inv.point(x), inv.vector(l));
         let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
@@ -354,9 +399,7 @@ impl<'a> Snapshot<'a> {
 
     fn occludes(&self, i: usize, o: V3, d: V3) -> bool {
         let inv = &self.inv[i];
-        self.scene.objects[i]
-            .shape
-            .occludes(inv.point(o), inv.vector(d))
+        self.shape(i).occludes(inv.point(o), inv.vector(d))
     }
 
     /// The nearest surface along `o + t·d` with `t ∈ (tmin, tmax)`.

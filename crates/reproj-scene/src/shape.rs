@@ -166,7 +166,7 @@ impl Mesh {
         self.bounds
     }
 
-    fn intersect(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
+    pub(crate) fn intersect(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
         if self.triangles.is_empty() {
             return None;
         }
@@ -212,7 +212,7 @@ impl Mesh {
     }
 
     /// Whether anything blocks `o + t·d` for `t > 0` (any hit, stops at the first).
-    fn occludes(&self, o: V3, d: V3) -> bool {
+    pub(crate) fn occludes(&self, o: V3, d: V3) -> bool {
         if self.triangles.is_empty() {
             return false;
         }
@@ -318,6 +318,9 @@ pub enum Shape {
     },
     /// A triangle mesh (shared between instances).
     Mesh(Arc<Mesh>),
+    /// A mesh node of a glTF model: textured, possibly skinned (its geometry may change with
+    /// time; a scene snapshot poses it, see [`crate::gltf`]).
+    Gltf(Arc<crate::gltf::GltfShape>),
 }
 
 impl Shape {
@@ -344,19 +347,36 @@ impl Shape {
                 max: [half[0], 0.0, half[1]],
             },
             Shape::Mesh(m) => m.bounds(),
+            Shape::Gltf(g) => g.rest().bounds(),
         }
     }
 
     /// Whether the shape is convex, so it can never shadow itself where it faces the light (its
     /// shadow rays then skip it, which also rules out self-shadowing acne).
     pub fn is_convex(&self) -> bool {
-        !matches!(self, Shape::Mesh(_))
+        !matches!(self, Shape::Mesh(_) | Shape::Gltf(_))
+    }
+
+    /// Whether the geometry itself changes with time (a skinned or non-rigidly animated glTF
+    /// node), so snapshots must pose it.
+    pub fn deforms(&self) -> bool {
+        matches!(self, Shape::Gltf(g) if g.deforms())
+    }
+
+    /// The albedo the shape carries itself (glTF textures), for triangle or face `face` at `uv`;
+    /// `None` where the object's [`crate::Material`] applies.
+    pub(crate) fn own_albedo(&self, face: u32, uv: [f64; 2]) -> Option<V3> {
+        match self {
+            Shape::Gltf(g) => Some(g.albedo(face, uv)),
+            _ => None,
+        }
     }
 
     /// Whether the shape blocks `o + t·d` for any `t > 0` (shadow rays).
     pub(crate) fn occludes(&self, o: V3, d: V3) -> bool {
         match self {
             Shape::Mesh(m) => m.occludes(o, d),
+            Shape::Gltf(g) => g.rest().occludes(o, d),
             _ => self.intersect(o, d, 0.0, f64::INFINITY).is_some(),
         }
     }
@@ -384,6 +404,7 @@ impl Shape {
                 )
             }
             Shape::Mesh(m) => m.intersect(o, d, tmin, tmax),
+            Shape::Gltf(g) => g.rest().intersect(o, d, tmin, tmax),
         };
         hit.filter(|h| h.t > tmin && h.t < tmax)
     }
