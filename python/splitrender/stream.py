@@ -1,0 +1,782 @@
+"""The splitrender stream: a versioned packet per server frame and a container file of packets.
+
+Everything here treats its input as untrusted: every count and size read from the wire is checked
+against a fixed limit *and* against the bytes that remain before anything is allocated, both CRCs
+are verified, and every failure is a :class:`~splitrender.errors.StreamError` whose message names
+the frame and, where there is one, the buffer (``"frame 12, main.depth: ..."``). The codecs that
+fill and read the payloads live in :mod:`splitrender.codec`. The format is also described in
+``docs/stream-format.md``.
+
+Packet (version 1), all integers little-endian::
+
+    offset  size  field
+    0       4     magic b"SRPK"
+    4       2     version (u16) = 1
+    6       2     flags (u16): bit 0 key frame (every HEVC stream starts with an IDR and its
+                  parameter sets, so decoding may start here), bit 1 uncompressed; others 0
+    8       8     frame index (u64)
+    16      8     time in seconds (f64, finite)
+    24      1     number of cameras C (u8, 1..MAX_CAMERAS); camera 0 is the main camera,
+                  camera i >= 1 auxiliary camera i-1
+    25      1     reserved, 0
+    26      2     number of buffers B (u16, 0..MAX_BUFFERS)
+    28      4     CRC32 of bytes 0..28 followed by the camera records and the buffer table
+    32      264*C camera records: u32 width, u32 height (1..MAX_SIDE), f64[16] view,
+                  f64[16] proj (row-major, column-vector convention, finite)
+    ..      ...   buffer table, one entry per buffer (16 + 16*P bytes):
+                    u8 camera, u8 kind (BufferKind), u8 codec (Codec), u8 P (0..3, the
+                    number of (scale, offset) pairs), u16 width, u16 height (equal to the
+                    camera's), u32 payload length, u32 payload CRC32,
+                    P x (f64 scale, f64 offset): per channel, value = code * scale + offset
+                    (finite)
+    ..      ...   payloads, back to back, in table order; the packet ends exactly after the
+                  last payload
+
+Container file (version 1)::
+
+    b"SRSTREAM", u16 version = 1, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
+    records: u32 packet length, packet bytes                                     (repeated)
+    index:   b"SRIX", u32 N, N x (u64 frame index, u64 record offset, u8 key, 7 x pad),
+             u32 CRC32 of the N entries
+    trailer: u64 index offset, b"SRSTREND"                                       (16 bytes)
+
+The index lets a reader start at any key frame without scanning; a file without a valid trailer
+(a writer that did not finish, a truncated copy) is still read sequentially, and a record that
+runs past the end of the file raises :class:`StreamError`.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import os
+import struct
+import zlib
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import TYPE_CHECKING, BinaryIO
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender.errors import StreamError
+
+if TYPE_CHECKING:
+    from typing_extensions import Self  # annotations only (Python 3.10)
+
+__all__ = [
+    "MAX_BUFFERS",
+    "MAX_CAMERAS",
+    "MAX_PAYLOAD",
+    "MAX_PIXELS",
+    "MAX_SIDE",
+    "PACKET_VERSION",
+    "STREAM_VERSION",
+    "BufferEntry",
+    "BufferKind",
+    "CameraRecord",
+    "Codec",
+    "IndexEntry",
+    "Packet",
+    "StreamFile",
+    "StreamStats",
+    "StreamWriter",
+    "buffer_name",
+    "camera_name",
+    "pack_packet",
+    "read_stream",
+    "stream_stats",
+    "unpack_packet",
+    "write_stream",
+]
+
+PACKET_VERSION = 1
+STREAM_VERSION = 1
+
+#: Largest image side (as ``splitrender.types.MAX_SIDE``).
+MAX_SIDE = 16384
+#: Largest number of pixels of one camera (8192 x 4096); bounds every decoded allocation.
+MAX_PIXELS = 1 << 25
+MAX_CAMERAS = 16
+MAX_BUFFERS = 512
+#: Largest payload of one buffer (a raw float32 x 3 image of MAX_PIXELS pixels).
+MAX_PAYLOAD = MAX_PIXELS * 12
+#: Largest packet a container record may hold.
+MAX_PACKET = 1 << 31
+
+_MAGIC = b"SRPK"
+_FIXED = struct.Struct("<4sHHQdBBHI")  # 32 bytes
+_CAMERA = struct.Struct("<II16d16d")  # 264 bytes
+_ENTRY = struct.Struct("<BBBBHHII")  # 16 bytes, then P x _PARAM
+_PARAM = struct.Struct("<dd")
+FLAG_KEY = 1
+FLAG_UNCOMPRESSED = 2
+_KNOWN_FLAGS = FLAG_KEY | FLAG_UNCOMPRESSED
+
+_FILE_MAGIC = b"SRSTREAM"
+_FILE_HEADER = struct.Struct("<8sHHId")  # 24 bytes
+_RECORD = struct.Struct("<I")
+_INDEX_MAGIC = b"SRIX"
+_INDEX_HEAD = struct.Struct("<4sI")
+_INDEX_ENTRY = struct.Struct("<QQB7x")  # 24 bytes
+_TRAILER = struct.Struct("<Q8s")
+_TRAILER_MAGIC = b"SRSTREND"
+
+
+class BufferKind(enum.IntEnum):
+    """What a buffer holds. The ``*_STATIC`` and ``*_INVALID`` kinds are lossless one-bit masks
+    that travel beside a lossy depth or motion buffer: pixels whose motion is exactly zero, and
+    pixels whose value is NaN or infinite (DESIGN.md: invalid)."""
+
+    COLOR = 0
+    DEPTH = 1
+    MOTION_FWD = 2
+    MOTION_BWD = 3
+    SHADOW_FWD_BITS = 4
+    SHADOW_FWD_MIN = 5
+    SHADOW_FWD_MAX = 6
+    SHADOW_BWD_BITS = 7
+    SHADOW_BWD_MIN = 8
+    SHADOW_BWD_MAX = 9
+    DEPTH_INVALID = 10
+    MOTION_FWD_STATIC = 11
+    MOTION_BWD_STATIC = 12
+    MOTION_FWD_INVALID = 13
+    MOTION_BWD_INVALID = 14
+
+
+#: Channels of each kind (masks and bitfields count as one channel).
+KIND_CHANNELS: dict[BufferKind, int] = {
+    BufferKind.COLOR: 3,
+    BufferKind.DEPTH: 1,
+    BufferKind.MOTION_FWD: 3,
+    BufferKind.MOTION_BWD: 3,
+    BufferKind.SHADOW_FWD_BITS: 1,
+    BufferKind.SHADOW_FWD_MIN: 3,
+    BufferKind.SHADOW_FWD_MAX: 3,
+    BufferKind.SHADOW_BWD_BITS: 1,
+    BufferKind.SHADOW_BWD_MIN: 3,
+    BufferKind.SHADOW_BWD_MAX: 3,
+    BufferKind.DEPTH_INVALID: 1,
+    BufferKind.MOTION_FWD_STATIC: 1,
+    BufferKind.MOTION_BWD_STATIC: 1,
+    BufferKind.MOTION_FWD_INVALID: 1,
+    BufferKind.MOTION_BWD_INVALID: 1,
+}
+
+_KIND_NAMES: dict[BufferKind, str] = {
+    BufferKind.COLOR: "color",
+    BufferKind.DEPTH: "depth",
+    BufferKind.MOTION_FWD: "motion_fwd",
+    BufferKind.MOTION_BWD: "motion_bwd",
+    BufferKind.SHADOW_FWD_BITS: "shadow_fwd.bits",
+    BufferKind.SHADOW_FWD_MIN: "shadow_fwd.s_min",
+    BufferKind.SHADOW_FWD_MAX: "shadow_fwd.s_max",
+    BufferKind.SHADOW_BWD_BITS: "shadow_bwd.bits",
+    BufferKind.SHADOW_BWD_MIN: "shadow_bwd.s_min",
+    BufferKind.SHADOW_BWD_MAX: "shadow_bwd.s_max",
+    BufferKind.DEPTH_INVALID: "depth.invalid",
+    BufferKind.MOTION_FWD_STATIC: "motion_fwd.static",
+    BufferKind.MOTION_BWD_STATIC: "motion_bwd.static",
+    BufferKind.MOTION_FWD_INVALID: "motion_fwd.invalid",
+    BufferKind.MOTION_BWD_INVALID: "motion_bwd.invalid",
+}
+
+
+_QUANTISED = (BufferKind.DEPTH, BufferKind.MOTION_FWD, BufferKind.MOTION_BWD)
+
+
+class Codec(enum.IntEnum):
+    """How a payload is coded.
+
+    - ``RAW``: the array's bytes, C order, little-endian (uint8 colour, float32 depth/motion,
+      uint32 bitfields, uint8 masks one byte per pixel).
+    - ``HEVC``: one HEVC access unit of that buffer's stream (8-bit colour; 12-bit depth/motion
+      codes, ``value = code * scale + offset`` per channel).
+    - ``ZSTD``: a zstd frame (shadow bitfields of the non-zero pixels, or a bit-packed mask).
+    - ``ZERO``: no payload; every value is zero (a mask: no pixel set).
+    """
+
+    RAW = 0
+    HEVC = 1
+    ZSTD = 2
+    ZERO = 3
+
+
+def camera_name(camera: int) -> str:
+    """``"main"`` for camera 0, ``"aux{i}"`` for camera ``i + 1``."""
+    return "main" if camera == 0 else f"aux{camera - 1}"
+
+
+def buffer_name(camera: int, kind: int) -> str:
+    """``"main.depth"``, ``"aux1.shadow_fwd.bits"``, ..."""
+    try:
+        k = _KIND_NAMES[BufferKind(kind)]
+    except ValueError:
+        k = f"kind{kind}"
+    return f"{camera_name(camera)}.{k}"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraRecord:
+    """A camera of a packet: its matrices (``float64[4, 4]``) and image size."""
+
+    view: npt.NDArray[np.float64]
+    proj: npt.NDArray[np.float64]
+    width: int
+    height: int
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class BufferEntry:
+    """One buffer of a packet: its table entry and payload."""
+
+    camera: int
+    kind: BufferKind
+    codec: Codec
+    channels: int
+    width: int
+    height: int
+    payload: bytes | memoryview
+    scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def name(self) -> str:
+        return buffer_name(self.camera, self.kind)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Packet:
+    """One server frame on the wire."""
+
+    index: int
+    time: float
+    key: bool
+    uncompressed: bool
+    cameras: tuple[CameraRecord, ...]
+    buffers: tuple[BufferEntry, ...]
+    version: int = PACKET_VERSION
+
+
+def _where(index: int | None, name: str | None = None) -> str:
+    frame = "frame ?" if index is None else f"frame {index}"
+    return frame if name is None else f"{frame}, {name}"
+
+
+def _n_params(b: BufferEntry) -> int:
+    """The (scale, offset) pairs an entry carries: its channels for quantised HEVC buffers."""
+    return b.channels if b.codec == Codec.HEVC and b.kind in _QUANTISED else 0
+
+
+def pack_packet(packet: Packet) -> bytes:
+    """The bytes of ``packet`` (format in the module docstring).
+
+    # Errors
+    :class:`StreamError` when a field does not fit the format's limits."""
+    where = _where(packet.index)
+    if not 1 <= len(packet.cameras) <= MAX_CAMERAS:
+        raise StreamError(
+            f"{where}: {len(packet.cameras)} cameras (1..{MAX_CAMERAS} allowed)"
+        )
+    if len(packet.buffers) > MAX_BUFFERS:
+        raise StreamError(
+            f"{where}: {len(packet.buffers)} buffers (at most {MAX_BUFFERS})"
+        )
+    flags = (FLAG_KEY if packet.key else 0) | (
+        FLAG_UNCOMPRESSED if packet.uncompressed else 0
+    )
+    cams = bytearray()
+    for c in packet.cameras:
+        cams += _CAMERA.pack(
+            c.width,
+            c.height,
+            *np.asarray(c.view, np.float64).ravel(),
+            *np.asarray(c.proj, np.float64).ravel(),
+        )
+    table = bytearray()
+    for b in packet.buffers:
+        if len(b.payload) > MAX_PAYLOAD:
+            raise StreamError(
+                f"{_where(packet.index, b.name)}: payload of {len(b.payload)} bytes exceeds "
+                f"{MAX_PAYLOAD}"
+            )
+        n_par = _n_params(b)
+        table += _ENTRY.pack(
+            b.camera,
+            int(b.kind),
+            int(b.codec),
+            n_par,
+            b.width,
+            b.height,
+            len(b.payload),
+            zlib.crc32(b.payload),
+        )
+        for i in range(n_par):
+            table += _PARAM.pack(b.scale[i], b.offset[i])
+    head = _FIXED.pack(
+        _MAGIC,
+        PACKET_VERSION,
+        flags,
+        packet.index,
+        packet.time,
+        len(packet.cameras),
+        0,
+        len(packet.buffers),
+        0,
+    )
+    crc = zlib.crc32(bytes(cams) + bytes(table), zlib.crc32(head[:28]))
+    head = head[:28] + struct.pack("<I", crc)
+    return b"".join(
+        [head, bytes(cams), bytes(table), *(bytes(b.payload) for b in packet.buffers)]
+    )
+
+
+def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
+    """``(frame index, key)`` of a packet from its fixed header alone (no CRC check).
+
+    # Errors
+    :class:`StreamError` when the bytes do not start with a version-1 packet header."""
+    if len(data) < _FIXED.size:
+        raise StreamError(
+            f"frame ?: packet of {len(data)} bytes is shorter than the {_FIXED.size}-byte header"
+        )
+    magic, version, flags, index, *_ = _FIXED.unpack_from(data, 0)
+    if magic != _MAGIC:
+        raise StreamError(f"frame ?: not a splitrender packet (magic {bytes(magic)!r})")
+    if version != PACKET_VERSION:
+        raise StreamError(
+            f"frame {index}: unsupported packet version {version} (this reader knows "
+            f"{PACKET_VERSION})"
+        )
+    return int(index), bool(flags & FLAG_KEY)
+
+
+def unpack_packet(data: bytes | memoryview) -> Packet:
+    """Parses and verifies one packet; payloads are views into ``data``.
+
+    # Errors
+    :class:`StreamError` naming the frame (and buffer) for: a short or over-long packet, wrong
+    magic or version, unknown flags, counts or sizes beyond the limits or beyond the bytes that
+    remain, a header or payload CRC mismatch, non-finite matrices, scales or time."""
+    mv = memoryview(data).cast("B")
+    index, _ = peek_header(mv)
+    _, _, flags, _, time, n_cam, reserved, n_buf, crc = _FIXED.unpack_from(mv, 0)
+    where = _where(index)
+    if flags & ~_KNOWN_FLAGS or reserved != 0:
+        raise StreamError(
+            f"{where}: unknown header flags 0x{flags:04x} / reserved {reserved}"
+        )
+    if not 1 <= n_cam <= MAX_CAMERAS:
+        raise StreamError(
+            f"{where}: {n_cam} cameras in the header (1..{MAX_CAMERAS} allowed)"
+        )
+    if n_buf > MAX_BUFFERS:
+        raise StreamError(
+            f"{where}: {n_buf} buffers in the header (at most {MAX_BUFFERS})"
+        )
+    base = _FIXED.size + n_cam * _CAMERA.size
+    # Walk the variable-length table first (bounded: n_buf entries of at most 64 bytes).
+    entry_at = []
+    table_end = base
+    for i in range(n_buf):
+        if table_end + _ENTRY.size > len(mv):
+            table_end += _ENTRY.size
+            break
+        entry_at.append(table_end)
+        table_end += _ENTRY.size + _PARAM.size * min(mv[table_end + 3], 3)
+    if table_end > len(mv):
+        raise StreamError(
+            f"{where}: packet of {len(mv)} bytes is truncated inside its header and tables "
+            f"({n_cam} cameras, {n_buf} buffers)"
+        )
+    want = zlib.crc32(mv[_FIXED.size : table_end], zlib.crc32(mv[:28]))
+    if want != crc:
+        raise StreamError(
+            f"{where}: header CRC mismatch (stored {crc:08x}, computed {want:08x})"
+        )
+    if not math.isfinite(time):
+        raise StreamError(f"{where}: time is not finite ({time})")
+    cameras = []
+    for i in range(n_cam):
+        vals = _CAMERA.unpack_from(mv, _FIXED.size + i * _CAMERA.size)
+        w, h = vals[0], vals[1]
+        if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE and w * h <= MAX_PIXELS):
+            raise StreamError(
+                f"{where}, {camera_name(i)}: camera size {w}x{h} beyond the limits "
+                f"(side <= {MAX_SIDE}, pixels <= {MAX_PIXELS})"
+            )
+        m = np.array(vals[2:], dtype=np.float64)
+        if not np.isfinite(m).all():
+            raise StreamError(
+                f"{where}, {camera_name(i)}: camera matrices are not finite"
+            )
+        cameras.append(CameraRecord(m[:16].reshape(4, 4), m[16:].reshape(4, 4), w, h))
+    buffers = []
+    pos = table_end
+    for at in entry_at:
+        cam, kind, codec, n_par, w, h, length, pcrc = _ENTRY.unpack_from(mv, at)
+        name = buffer_name(cam, kind)
+        bwhere = _where(index, name)
+        if cam >= n_cam:
+            raise StreamError(f"{bwhere}: camera {cam} of {n_cam}")
+        try:
+            k = BufferKind(kind)
+            c = Codec(codec)
+        except ValueError:
+            raise StreamError(
+                f"{bwhere}: unknown kind {kind} or codec {codec}"
+            ) from None
+        ch = KIND_CHANNELS[k]
+        want_par = ch if c == Codec.HEVC and k in _QUANTISED else 0
+        if n_par != want_par:
+            raise StreamError(
+                f"{bwhere}: {n_par} scale/offset pairs (expected {want_par})"
+            )
+        if (w, h) != (cameras[cam].width, cameras[cam].height):
+            raise StreamError(
+                f"{bwhere}: size {w}x{h} differs from the camera's "
+                f"{cameras[cam].width}x{cameras[cam].height}"
+            )
+        if length > MAX_PAYLOAD or length > len(mv) - pos:
+            raise StreamError(
+                f"{bwhere}: payload of {length} bytes but {len(mv) - pos} bytes remain "
+                f"(limit {MAX_PAYLOAD})"
+            )
+        if c == Codec.ZERO and length != 0:
+            raise StreamError(f"{bwhere}: a ZERO buffer with a {length}-byte payload")
+        pairs = [
+            _PARAM.unpack_from(mv, at + _ENTRY.size + j * _PARAM.size)
+            for j in range(n_par)
+        ]
+        params = [x for pr in pairs for x in pr]
+        if not all(math.isfinite(x) for x in params):
+            raise StreamError(f"{bwhere}: scale/offset not finite")
+        scale = tuple(pr[0] for pr in pairs) + (0.0,) * (3 - n_par)
+        offset = tuple(pr[1] for pr in pairs) + (0.0,) * (3 - n_par)
+        payload = mv[pos : pos + length]
+        if zlib.crc32(payload) != pcrc:
+            raise StreamError(f"{bwhere}: payload CRC mismatch ({length} bytes)")
+        pos += length
+        buffers.append(
+            BufferEntry(cam, k, c, ch, w, h, payload, scale, offset)
+        )
+    if pos != len(mv):
+        raise StreamError(
+            f"{where}: {len(mv) - pos} trailing bytes after the last payload"
+        )
+    return Packet(
+        index=index,
+        time=time,
+        key=bool(flags & FLAG_KEY),
+        uncompressed=bool(flags & FLAG_UNCOMPRESSED),
+        cameras=tuple(cameras),
+        buffers=tuple(buffers),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Container
+
+
+@dataclass(frozen=True, slots=True)
+class IndexEntry:
+    """Where a frame's record lies in a container file."""
+
+    frame: int
+    offset: int
+    key: bool
+
+
+class StreamWriter:
+    """Writes packets to a container file, then the key-frame index on :meth:`close`.
+
+    Use as a context manager; the index and trailer are only written by a clean close."""
+
+    def __init__(self, path: str | os.PathLike[str], fps: float = 10.0) -> None:
+        if not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps: expected a finite value > 0, got {fps}")
+        self._file: BinaryIO = open(path, "wb")  # noqa: SIM115 - closed by close()
+        self._file.write(_FILE_HEADER.pack(_FILE_MAGIC, STREAM_VERSION, 0, 0, fps))
+        self._index: list[IndexEntry] = []
+        self.fps = fps
+
+    def write(self, packet: bytes) -> None:
+        """Appends one packet (as :func:`pack_packet` or ``StreamEncoder.encode`` made it)."""
+        frame, key = peek_header(packet)
+        if len(packet) > MAX_PACKET:
+            raise StreamError(
+                f"frame {frame}: packet of {len(packet)} bytes is too large"
+            )
+        self._index.append(IndexEntry(frame, self._file.tell(), key))
+        self._file.write(_RECORD.pack(len(packet)))
+        self._file.write(packet)
+
+    def close(self) -> None:
+        if self._file.closed:
+            return
+        offset = self._file.tell()
+        entries = b"".join(
+            _INDEX_ENTRY.pack(e.frame, e.offset, e.key) for e in self._index
+        )
+        self._file.write(_INDEX_HEAD.pack(_INDEX_MAGIC, len(self._index)))
+        self._file.write(entries)
+        self._file.write(struct.pack("<I", zlib.crc32(entries)))
+        self._file.write(_TRAILER.pack(offset, _TRAILER_MAGIC))
+        self._file.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def write_stream(
+    path: str | os.PathLike[str], packets: Iterable[bytes], fps: float = 10.0
+) -> None:
+    """Writes ``packets`` to a container file at ``path`` with its key-frame index."""
+    with StreamWriter(path, fps) as w:
+        for p in packets:
+            w.write(p)
+
+
+class StreamFile:
+    """A container file opened for reading.
+
+    ``index`` lists every record (from the file's index, or from a sequential scan when the file
+    has none); :meth:`packets` yields packet bytes from the start or from a key frame.
+
+    # Errors
+    :class:`StreamError` for a file that is not a stream, has an unknown version, or whose index
+    or records are truncated or inconsistent."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = os.fspath(path)
+        self._name = os.path.basename(self.path)
+        with open(self.path, "rb") as f:
+            self._size = os.fstat(f.fileno()).st_size
+            head = f.read(_FILE_HEADER.size)
+            if len(head) < _FILE_HEADER.size:
+                raise StreamError(
+                    f"{self._name}: file of {self._size} bytes has no header"
+                )
+            magic, version, _, _, fps = _FILE_HEADER.unpack(head)
+            if magic != _FILE_MAGIC:
+                raise StreamError(
+                    f"{self._name}: not a splitrender stream ({bytes(magic)!r})"
+                )
+            if version != STREAM_VERSION:
+                raise StreamError(
+                    f"{self._name}: unsupported stream version {version} (this reader knows "
+                    f"{STREAM_VERSION})"
+                )
+            if not (math.isfinite(fps) and fps > 0):
+                raise StreamError(f"{self._name}: invalid fps {fps}")
+            self.fps = float(fps)
+            self._end = self._size
+            self._end, self.index = self._read_index(f)
+
+    def _read_index(self, f: BinaryIO) -> tuple[int, list[IndexEntry]]:
+        """``(end of records, index)``; falls back to a scan of the record lengths."""
+        if self._size >= _FILE_HEADER.size + _INDEX_HEAD.size + 4 + _TRAILER.size:
+            f.seek(self._size - _TRAILER.size)
+            offset, magic = _TRAILER.unpack(f.read(_TRAILER.size))
+            if magic == _TRAILER_MAGIC:
+                return offset, self._parse_index(f, offset)
+        return self._size, self._scan(f)
+
+    def _parse_index(self, f: BinaryIO, offset: int) -> list[IndexEntry]:
+        room = self._size - _TRAILER.size - offset
+        if not _FILE_HEADER.size <= offset or room < _INDEX_HEAD.size + 4:
+            raise StreamError(f"{self._name}: index offset {offset} outside the file")
+        f.seek(offset)
+        magic, n = _INDEX_HEAD.unpack(f.read(_INDEX_HEAD.size))
+        if (
+            magic != _INDEX_MAGIC
+            or n * _INDEX_ENTRY.size + _INDEX_HEAD.size + 4 != room
+        ):
+            raise StreamError(
+                f"{self._name}: corrupt index ({n} entries in {room} bytes)"
+            )
+        raw = f.read(n * _INDEX_ENTRY.size)
+        (crc,) = struct.unpack("<I", f.read(4))
+        if zlib.crc32(raw) != crc:
+            raise StreamError(f"{self._name}: index CRC mismatch")
+        out = []
+        for i in range(n):
+            frame, off, key = _INDEX_ENTRY.unpack_from(raw, i * _INDEX_ENTRY.size)
+            if not _FILE_HEADER.size <= off < offset:
+                raise StreamError(
+                    f"{self._name}: index entry for frame {frame} points outside"
+                )
+            out.append(IndexEntry(frame, off, bool(key)))
+        return out
+
+    def _scan(self, f: BinaryIO) -> list[IndexEntry]:
+        out: list[IndexEntry] = []
+        pos = _FILE_HEADER.size
+        while pos < self._size:
+            f.seek(pos)
+            packet, n = self._read_record(
+                f, pos, out[-1].frame if out else None, peek=True
+            )
+            frame, key = peek_header(packet)
+            out.append(IndexEntry(frame, pos, key))
+            pos += _RECORD.size + n
+        return out
+
+    def _read_record(
+        self, f: BinaryIO, pos: int, prev: int | None, *, peek: bool = False
+    ) -> tuple[bytes, int]:
+        """``(bytes, record length)``: the packet (only its fixed header with ``peek``)."""
+        after = "the start" if prev is None else f"frame {prev}"
+        head = f.read(_RECORD.size)
+        if len(head) < _RECORD.size:
+            raise StreamError(
+                f"{self._name}: frame after {after}: record at byte {pos} is truncated"
+            )
+        (n,) = _RECORD.unpack(head)
+        remain = self._end - pos - _RECORD.size
+        if n > MAX_PACKET or n > remain:
+            raise StreamError(
+                f"{self._name}: frame after {after}: record at byte {pos} claims {n} bytes but "
+                f"{remain} remain (truncated file?)"
+            )
+        want = min(n, _FIXED.size) if peek else n
+        data = f.read(want)
+        if len(data) < want:
+            raise StreamError(f"{self._name}: frame after {after}: record is truncated")
+        return data, n
+
+    @property
+    def key_frames(self) -> list[int]:
+        """Frame indices at which decoding may start."""
+        return [e.frame for e in self.index if e.key]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def packets(self, start: int | None = None) -> Iterator[bytes]:
+        """Packet bytes in file order, from the first record or from key frame ``start``.
+
+        # Errors
+        :class:`StreamError` when ``start`` is not a key frame of the file, or a record is
+        truncated."""
+        first = 0
+        if start is not None:
+            hits = [i for i, e in enumerate(self.index) if e.frame == start and e.key]
+            if not hits:
+                raise StreamError(
+                    f"{self._name}: frame {start} is not a key frame (key frames: "
+                    f"{self.key_frames[:20]})"
+                )
+            first = hits[0]
+        with open(self.path, "rb") as f:
+            prev = self.index[first - 1].frame if first > 0 else None
+            for e in self.index[first:]:
+                f.seek(e.offset)
+                data, _ = self._read_record(f, e.offset, prev)
+                frame, _ = peek_header(data)
+                if frame != e.frame:
+                    raise StreamError(
+                        f"{self._name}: frame {e.frame}: the record holds frame {frame}"
+                    )
+                prev = frame
+                yield data
+
+
+def read_stream(
+    path: str | os.PathLike[str], start: int | None = None
+) -> Iterator[bytes]:
+    """The packets of the container file at ``path``, from the start or from key frame
+    ``start`` (see :class:`StreamFile`)."""
+    yield from StreamFile(path).packets(start)
+
+
+# --------------------------------------------------------------------------------------------
+# Byte accounting
+
+
+@dataclass
+class StreamStats:
+    """Bytes per buffer over a run of packets, and the rates they make at ``fps``.
+
+    Buffer keys are names such as ``"main.color"`` or ``"aux0.shadow_fwd.bits"``; the packet
+    headers, camera records and tables are counted as ``"<camera>.header"``-less ``"header"``."""
+
+    fps: float
+    frames: int = 0
+    bytes_by_buffer: dict[str, int] = field(default_factory=dict)
+    header_bytes: int = 0
+
+    def add(self, packet: bytes | memoryview | Packet) -> None:
+        p = packet if isinstance(packet, Packet) else unpack_packet(packet)
+        self.frames += 1
+        payload = 0
+        for b in p.buffers:
+            self.bytes_by_buffer[b.name] = self.bytes_by_buffer.get(b.name, 0) + len(
+                b.payload
+            )
+            payload += len(b.payload)
+        self.header_bytes += (
+            _FIXED.size
+            + len(p.cameras) * _CAMERA.size
+            + sum(_ENTRY.size + _PARAM.size * _n_params(b) for b in p.buffers)
+        )
+
+    @property
+    def seconds(self) -> float:
+        return self.frames / self.fps
+
+    def _mbps(self, n: int) -> float:
+        return n * 8 / 1e6 / self.seconds if self.frames else 0.0
+
+    @property
+    def total_bytes(self) -> int:
+        return sum(self.bytes_by_buffer.values()) + self.header_bytes
+
+    def mbps_by_buffer(self) -> dict[str, float]:
+        """Mb/s of each buffer."""
+        return {k: self._mbps(v) for k, v in sorted(self.bytes_by_buffer.items())}
+
+    def mbps_by_camera(self) -> dict[str, float]:
+        """Mb/s of each camera (all its buffers), plus ``"header"``."""
+        out: dict[str, int] = {}
+        for k, v in self.bytes_by_buffer.items():
+            cam = k.split(".", 1)[0]
+            out[cam] = out.get(cam, 0) + v
+        res = {k: self._mbps(v) for k, v in sorted(out.items())}
+        res["header"] = self._mbps(self.header_bytes)
+        return res
+
+    def mbps_total(self) -> float:
+        """Mb/s of the whole stream (payloads and headers)."""
+        return self._mbps(self.total_bytes)
+
+    def format(self) -> str:
+        """A plain-text table of the rates."""
+        lines = [
+            f"{self.frames} frames at {self.fps:g} FPS: {self.mbps_total():.3f} Mb/s total"
+        ]
+        for k, v in self.mbps_by_camera().items():
+            lines.append(f"  {k:<8} {v:9.3f} Mb/s")
+        for k, v in self.mbps_by_buffer().items():
+            lines.append(f"    {k:<22} {v:9.3f} Mb/s")
+        return "\n".join(lines)
+
+
+def stream_stats(
+    packets: Iterable[bytes | memoryview | Packet], fps: float = 10.0
+) -> StreamStats:
+    """The :class:`StreamStats` of ``packets`` at ``fps`` server frames per second."""
+    s = StreamStats(fps=fps)
+    for p in packets:
+        s.add(p)
+    return s

@@ -1,0 +1,334 @@
+"""The codec (splitrender.codec): lossless parts bit-exact, lossy parts within stated bounds, exact
+zero motion on static pixels, rate control within ±10 %, random access, untrusted payloads, and
+`ours` on decoded frames close to `ours` on the uncompressed ones.
+
+Bounds are stated where they are asserted; the figures they come from are printed by
+``python -m splitrender.bench_codec``."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import splitrender as sr
+from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.errors import InvalidInputError, StreamError
+from splitrender.stream import (
+    BufferKind,
+    Codec,
+    pack_packet,
+    stream_stats,
+    unpack_packet,
+)
+
+W, H = 160, 90  # main camera; the auxiliary cameras are 80 x 45
+N = 12  # frames: two GOPs of 10 would need 20; gop=6 gives key frames 0 and 6
+BITRATE = (
+    2.0  # Mb/s for the 160x90 rig (tiny images: fixed costs weigh more than at 720p)
+)
+
+
+def _cams(f: sr.ServerFrame) -> list[sr.CameraFrame]:
+    return [f.main, *f.aux]
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[sr.ServerFrame]:
+    scene = sr.SyntheticScene(dynamic=True)
+    return [scene.server_frame(i, i / 10, W, H) for i in range(N)]
+
+
+@pytest.fixture(scope="module")
+def coded(frames: list[sr.ServerFrame]) -> tuple[list[bytes], list[sr.ServerFrame]]:
+    with (
+        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE, gop=6)) as enc,
+        StreamDecoder() as dec,
+    ):
+        packets = [enc.encode(f) for f in frames]
+        return packets, [dec.decode(p) for p in packets]
+
+
+def test_decoded_frames_keep_layout(
+    frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]]
+) -> None:
+    _, decoded = coded
+    for f, d in zip(frames, decoded):
+        assert (d.index, d.time) == (f.index, f.time)
+        for a, b in zip(_cams(f), _cams(d)):
+            assert np.array_equal(a.camera.view, b.camera.view)
+            assert np.array_equal(a.camera.proj, b.camera.proj)
+            assert b.color.shape == a.color.shape and b.depth.dtype == np.float32
+            assert b.motion_fwd is not None and b.shadow_bwd is not None
+
+
+def test_shadow_bits_bit_exact(
+    frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]]
+) -> None:
+    _, decoded = coded
+    for f, d in zip(frames, decoded):
+        for a, b in zip(_cams(f), _cams(d)):
+            for sa, sb in ((a.shadow_fwd, b.shadow_fwd), (a.shadow_bwd, b.shadow_bwd)):
+                assert sa is not None and sb is not None
+                assert sb.bits.dtype == np.uint32 and np.array_equal(sa.bits, sb.bits)
+                # Colours are never read where the bitfield is 0: they decode to exactly 0.
+                assert (
+                    not sb.s_min[sb.bits == 0].any()
+                    and not sb.s_max[sb.bits == 0].any()
+                )
+
+
+def test_shadow_bits_beyond_8_bits_survive() -> None:
+    """REFERENCE.md §5 loses every bit above 8; every one of the 32 bits must survive here."""
+    scene = sr.SyntheticScene(dynamic=True)
+    f = scene.server_frame(0, 0.0, W, H, subframes=16)
+    rng = np.random.default_rng(1)
+    bits = rng.integers(0, 2**32, (H, W), dtype=np.uint64).astype(np.uint32)
+    bits[rng.random((H, W)) < 0.9] = 0
+    sh = f.main.shadow_fwd
+    assert sh is not None
+    main = dataclasses.replace(
+        f.main, shadow_fwd=sr.ShadowBuffers(bits, sh.s_min, sh.s_max)
+    )
+    f = dataclasses.replace(f, main=main)
+    with (
+        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
+        StreamDecoder() as dec,
+    ):
+        out = dec.decode(enc.encode(f))
+    assert out.main.shadow_fwd is not None
+    assert np.array_equal(out.main.shadow_fwd.bits, bits)
+
+
+def test_depth_and_motion_error_bounds(
+    frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]]
+) -> None:
+    """At 1 Mb/s for the 160x90 rig: mean |depth error| <= 2 % of the frame's depth range
+    (the error concentrates on silhouettes), the median <= 0.3 %; mean |motion error| per
+    channel <= 3 % of the channel's range."""
+    _, decoded = coded
+    for f, d in zip(frames, decoded):
+        for a, b in zip(_cams(f), _cams(d)):
+            rng = float(a.depth.max() - a.depth.min())
+            err = np.abs(a.depth - b.depth)
+            assert err.mean() <= 0.02 * rng, (f.index, err.mean() / rng)
+            assert np.median(err) <= 0.003 * rng
+            for ma, mb in ((a.motion_fwd, b.motion_fwd), (a.motion_bwd, b.motion_bwd)):
+                assert ma is not None and mb is not None
+                span = np.ptp(ma.reshape(-1, 3), axis=0) + 1e-9
+                merr = np.abs(ma - mb).reshape(-1, 3).mean(axis=0)
+                assert (merr <= 0.03 * span).all(), (f.index, merr / span)
+
+
+def test_static_motion_decodes_to_exact_zero(
+    frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]]
+) -> None:
+    _, decoded = coded
+    for f, d in zip(frames, decoded):
+        for a, b in zip(_cams(f), _cams(d)):
+            for ma, mb in ((a.motion_fwd, b.motion_fwd), (a.motion_bwd, b.motion_bwd)):
+                assert ma is not None and mb is not None
+                static = (ma == 0).all(axis=2)
+                assert static.any() and (mb[static] == 0.0).all()
+
+
+def test_static_scene_motion_costs_nothing() -> None:
+    scene = sr.SyntheticScene(dynamic=False)
+    f = scene.server_frame(0, 0.0, W, H)
+    with (
+        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
+        StreamDecoder() as dec,
+    ):
+        packet = enc.encode(f)
+        out = dec.decode(packet)
+    kinds = {b.kind: b.codec for b in unpack_packet(packet).buffers if b.camera == 0}
+    assert kinds[BufferKind.MOTION_FWD] == Codec.ZERO
+    assert out.main.motion_fwd is not None and not out.main.motion_fwd.any()
+
+
+def test_invalid_depth_and_motion_stay_invalid(frames: list[sr.ServerFrame]) -> None:
+    f = frames[0]
+    depth = f.main.depth.copy()
+    depth[3, 4] = np.nan
+    depth[5, 6] = np.inf
+    motion = f.main.motion_fwd.copy()  # type: ignore[union-attr]
+    motion[7, 8, 1] = np.nan
+    main = dataclasses.replace(f.main, depth=depth, motion_fwd=motion)
+    g = dataclasses.replace(f, main=main)
+    with (
+        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
+        StreamDecoder() as dec,
+    ):
+        out = dec.decode(enc.encode(g))
+    assert np.array_equal(np.isfinite(out.main.depth), np.isfinite(depth))
+    assert out.main.motion_fwd is not None
+    assert np.array_equal(
+        np.isfinite(out.main.motion_fwd).all(axis=2), np.isfinite(motion).all(axis=2)
+    )
+
+
+def test_uncompressed_mode_round_trips_exactly(frames: list[sr.ServerFrame]) -> None:
+    f = frames[3]
+    depth = f.main.depth.copy()
+    depth[0, 0] = np.nan
+    f = dataclasses.replace(
+        f, main=dataclasses.replace(f.main, depth=depth, motion_bwd=None)
+    )
+    with StreamEncoder(CodecConfig(uncompressed=True)) as enc, StreamDecoder() as dec:
+        out = dec.decode(enc.encode(f))
+    for a, b in zip(_cams(f), _cams(out)):
+        assert np.array_equal(a.color, b.color)
+        assert np.array_equal(a.depth, b.depth, equal_nan=True)
+        for name in ("motion_fwd", "motion_bwd"):
+            ma, mb = getattr(a, name), getattr(b, name)
+            assert (ma is None) == (mb is None)
+            if ma is not None:
+                assert np.array_equal(ma, mb)
+        for name in ("shadow_fwd", "shadow_bwd"):
+            sa, sb = getattr(a, name), getattr(b, name)
+            for x in ("bits", "s_min", "s_max"):
+                assert np.array_equal(getattr(sa, x), getattr(sb, x))
+
+
+def test_decoding_starts_at_any_key_frame(
+    coded: tuple[list[bytes], list[sr.ServerFrame]],
+) -> None:
+    packets, decoded = coded
+    assert [unpack_packet(p).key for p in packets] == [i % 6 == 0 for i in range(N)]
+    with StreamDecoder() as dec:
+        late = [dec.decode(p) for p in packets[6:]]
+    for a, b in zip(decoded[6:], late):
+        assert np.array_equal(a.main.color, b.main.color)
+        assert np.array_equal(a.aux[1].motion_bwd, b.aux[1].motion_bwd)  # type: ignore[arg-type]
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match="frame 7: not a key frame"),
+    ):
+        dec.decode(packets[7])
+    with StreamDecoder() as dec:
+        dec.decode(packets[0])
+        with pytest.raises(StreamError, match="frame 2: not a key frame"):
+            dec.decode(packets[2])  # frame 1 was skipped
+
+
+def _replace_payload(packet: bytes, name: str, payload: bytes) -> bytes:
+    p = unpack_packet(packet)
+    bufs = tuple(
+        dataclasses.replace(b, payload=payload) if b.name == name else b
+        for b in p.buffers
+    )
+    assert any(b.name == name for b in p.buffers)
+    return pack_packet(dataclasses.replace(p, buffers=bufs))  # CRCs made consistent
+
+
+@pytest.mark.parametrize(
+    ("name", "payload", "message"),
+    [
+        (
+            "main.color",
+            b"\x00\x00\x01garbage" * 20,
+            "main.color: HEVC payload of 200 bytes",
+        ),
+        ("aux0.depth", b"", "aux0.depth: HEVC payload of 0 bytes"),
+        (
+            "main.shadow_fwd.bits",
+            b"not zstd at all",
+            "main.shadow_fwd.bits: zstd payload",
+        ),
+        (
+            "aux1.motion_bwd.static",
+            b"\x28\xb5\x2f\xfd" + b"\xff" * 12,
+            "aux1.motion_bwd.static: zstd",
+        ),
+    ],
+)
+def test_undecodable_payloads_raise_stream_error(
+    coded: tuple[list[bytes], list[sr.ServerFrame]],
+    name: str,
+    payload: bytes,
+    message: str,
+) -> None:
+    packets, _ = coded
+    bad = _replace_payload(packets[0], name, payload)
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match=f"frame 0, {message}"),
+    ):
+        dec.decode(bad)
+
+
+def test_zstd_bomb_rejected(coded: tuple[list[bytes], list[sr.ServerFrame]]) -> None:
+    import zstandard
+
+    packets, _ = coded
+    bomb = zstandard.ZstdCompressor(level=3).compress(b"\0" * (1 << 24))
+    bad = _replace_payload(packets[0], "main.shadow_fwd.bits", bomb)
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match="main.shadow_fwd.bits: zstd payload declares"),
+    ):
+        dec.decode(bad)
+
+
+def test_truncated_packet_raises(
+    coded: tuple[list[bytes], list[sr.ServerFrame]],
+) -> None:
+    packets, _ = coded
+    with StreamDecoder() as dec:
+        for cut in (0, 31, 500, len(packets[0]) - 1):
+            with pytest.raises(StreamError):
+                dec.decode(packets[0][:cut])
+
+
+def test_layout_change_is_invalid_input(frames: list[sr.ServerFrame]) -> None:
+    scene = sr.SyntheticScene(dynamic=True)
+    with StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc:
+        enc.encode(frames[0])
+        with pytest.raises(InvalidInputError, match="camera sizes"):
+            enc.encode(scene.server_frame(1, 0.1, W * 2, H * 2))
+    with pytest.raises(InvalidInputError):
+        CodecConfig(color_share=0.9)
+    with pytest.raises(InvalidInputError):
+        CodecConfig(chroma="422")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("paper_mbps", [20.0, 40.0, 80.0])
+def test_bitrate_within_ten_percent(paper_mbps: float) -> None:
+    """20 frames at 640x360 (two GOPs), the paper's 20/40/80 Mb/s scaled by pixel count
+    (1.25/2.5/5 Mb/s): the whole stream, headers included, within ±10 % of the target.
+    (Measured: +7.1 %, +2.9 %, -0.4 %. At 320x180 and 0.31 Mb/s the fixed costs of 24 HEVC streams and the
+    lossless parts already overshoot by ~13 %.)"""
+    w, h = 640, 360
+    scene = sr.SyntheticScene(dynamic=True)
+    cfg = CodecConfig.scaled(w, h, paper_mbps)
+    with StreamEncoder(cfg) as enc:
+        packets = [enc.encode(scene.server_frame(i, i / 10, w, h)) for i in range(20)]
+    got = stream_stats(packets, cfg.fps).mbps_total()
+    assert abs(got / cfg.bitrate_mbps - 1) <= 0.10, (got, cfg.bitrate_mbps)
+
+
+def test_ours_on_decoded_close_to_uncompressed() -> None:
+    """`ours` at client time 7/120 s between frames 0 and 1 of the dynamic scene, 320x180, at
+    the default bitrate (the paper's 40 Mb/s scaled by pixel count: 0.625 Mb/s). Mean absolute
+    error against ground truth (0..255), measured: uncompressed 5.9, decoded 17.0; the codec's
+    own colour error at this rate is 16.5 (the synthetic scene's fine procedural texture is hard
+    to code at 0.2 bit per pixel); at 4x the rate: 5.9 vs 9.3. Asserted: decoded <= 20 and
+    <= uncompressed + 13."""
+    w, h = 320, 180
+    scene = sr.SyntheticScene(dynamic=True)
+    src = [scene.server_frame(i, i / 10, w, h) for i in range(2)]
+    with StreamEncoder(CodecConfig.scaled(w, h)) as enc, StreamDecoder() as dec:
+        dec_frames = [dec.decode(enc.encode(f)) for f in src]
+    t = 7 / 120
+    camera, _ = scene.rig(t, w, h)
+    req = sr.ClientRequest(camera, t)
+    gt = scene.ground_truth(camera, t).astype(np.float64)
+    mae_raw = np.abs(sr.reproject(src[0], src[1], req, "ours") - gt).mean()
+    mae_dec = np.abs(
+        sr.reproject(dec_frames[0], dec_frames[1], req, "ours") - gt
+    ).mean()
+    print(
+        f"ours MAE vs ground truth: uncompressed {mae_raw:.2f}, decoded {mae_dec:.2f}"
+    )
+    assert mae_dec <= 20 and mae_dec <= mae_raw + 13
