@@ -13,6 +13,13 @@ from splitrender._native import BidirHistory, __version__
 from splitrender.client import Client, PlaybackResult, play
 from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
 from splitrender.network import NetworkModel, Schedule
+from splitrender.recording import (
+    ClientFrame,
+    Recording,
+    RecordingError,
+    load_recording,
+    write_recording,
+)
 from splitrender.reproject import (
     METHODS,
     apply_shadows,
@@ -20,14 +27,15 @@ from splitrender.reproject import (
     reproject_alpha,
     scene_flow,
 )
+from splitrender.scenes import SCENE_NAMES, Scene, Trace, TraceError, load_trace
 from splitrender.synthetic import SyntheticScene
 from splitrender.types import (
     MAX_SIDE,
     Camera,
     CameraFrame,
     ClientRequest,
-    ReprojectOptions,
     Reprojection,
+    ReprojectOptions,
     ServerFrame,
     ShadowBuffers,
 )
@@ -35,27 +43,37 @@ from splitrender.types import (
 __all__ = [
     "MAX_SIDE",
     "METHODS",
+    "SCENE_NAMES",
     "BidirHistory",
     "Camera",
     "CameraFrame",
     "Client",
+    "ClientFrame",
     "ClientRequest",
     "InvalidInputError",
     "NetworkModel",
     "PlaybackResult",
+    "Recording",
+    "RecordingError",
     "ReprojectOptions",
     "Reprojection",
+    "Scene",
     "Schedule",
     "ServerFrame",
     "ShadowBuffers",
     "SplitRenderError",
     "StreamError",
     "SyntheticScene",
+    "Trace",
+    "TraceError",
     "__version__",
     "apply_shadows",
+    "load_recording",
+    "load_trace",
     "metrics",
     "play",
     "reproject",
     "reproject_alpha",
     "scene_flow",
+    "write_recording",
 ]

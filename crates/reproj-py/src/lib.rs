@@ -13,6 +13,7 @@ use pyo3::prelude::*;
 mod api;
 mod convert;
 mod errors;
+mod scene;
 mod synth;
 
 use errors::{invalid_input_type, SplitRenderError, StreamError};
@@ -69,6 +70,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synth::synthetic_ground_truth, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_rig, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_head_pose, m)?)?;
+    m.add_class::<scene::Scene>()?;
+    m.add_function(wrap_pyfunction!(scene::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(_panic_for_test, m)?)?;
     Ok(())
 }

@@ -1,0 +1,619 @@
+"""Recordings: every server buffer of every camera and the ground-truth client frames of a scene,
+on disk (format ``splitrender-recording``, version 1; docs/recording-format.md).
+
+Layout of a recording directory::
+
+    DIR/
+      manifest.json              # written last: its presence marks a complete recording
+      server/000000.npz ...      # one per server frame k = 0..K
+      client/000000.npz ...      # one per client frame n = 0..N-1
+
+``manifest.json`` holds ``format`` (``"splitrender-recording"``), ``version`` (1), ``generator``,
+``scene``, ``variant``, ``scale``, ``fs``, ``fc``, ``subframes`` (S), ``seconds``, ``stereo``,
+``near``/``far``, ``cameras`` (``main``/``aux``/``client`` as ``[width, height]``, ``eyes``),
+``client_motion`` (``{"source": "path"}`` or ``{"source": "trace", "file", "sha256",
+"translation_scale"}``, both with ``prediction_delay``), and ``server_frames``/``client_frames``:
+lists of ``{"index", "time", "file", "bytes", "sha256"}``.
+
+Each ``.npz`` is an uncompressed zip of ``.npy`` members (numpy format 1.0, no pickles), written
+in a fixed order with fixed dates, so rendering the same inputs twice gives identical bytes; it
+loads with ``numpy.load``. A server frame holds ``pose`` (camera-to-world ``float64[4,4]`` of the
+predicted head) and, per camera ``c`` in ``main``, ``aux0``, ``aux1``: ``c.view``, ``c.proj``
+(``float64[4,4]``), ``c.color`` (``uint8[H,W,3]``), ``c.depth`` (``float32[H,W]``),
+``c.motion_fwd``, ``c.motion_bwd`` (``float32[H,W,3]``), ``c.shadow_{fwd,bwd}_bits``
+(``uint32[H,W]``), ``c.shadow_{fwd,bwd}_{min,max}`` (``uint8[H,W,3]``). A client frame holds
+``pose`` (the client's actual head) and per eye ``e`` in ``eye0`` (mono, or left) and ``eye1``
+(right, stereo): ``e.view``, ``e.proj`` and ``e.color`` (the ground truth).
+
+:func:`write_recording` renders into ``DIR.partial-<pid>`` next to ``DIR`` and renames it at the
+end; on an exception (Ctrl-C included) the partial directory is removed, and one left by a killed
+process is refused by :func:`load_recording`. Loading checks everything it reads against the
+manifest (format and version, sizes, file sizes before reading, SHA-256, member names, dtypes and
+shapes before allocating) and raises :class:`RecordingError` naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import os
+import re
+import shutil
+import zipfile
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Generic, TypeVar, overload
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender import __version__
+from splitrender.errors import SplitRenderError
+from splitrender.scenes import ClientMotion, PathMotion, Scene, Trace, TraceMotion
+from splitrender.types import (
+    MAX_SIDE,
+    Camera,
+    CameraFrame,
+    ClientRequest,
+    ServerFrame,
+    ShadowBuffers,
+)
+
+__all__ = [
+    "FORMAT",
+    "VERSION",
+    "ClientFrame",
+    "Recording",
+    "RecordingError",
+    "load_recording",
+    "plan",
+    "write_recording",
+]
+
+FORMAT = "splitrender-recording"
+VERSION = 1
+_MANIFEST = "manifest.json"
+_MAX_MANIFEST_BYTES = 64 * 1024 * 1024
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+# Per-member allowance over the array data: zip local header + central directory + npy header.
+_MEMBER_OVERHEAD = 512
+_PARTIAL = re.compile(r"\.partial-\d+$")
+_CAMERAS = ("main", "aux0", "aux1")
+_SERVER_ARRAYS: tuple[tuple[str, type[np.generic], int], ...] = (
+    # (name, dtype, channels: 0 = [H, W], 3 = [H, W, 3], -1 = [4, 4])
+    ("view", np.float64, -1),
+    ("proj", np.float64, -1),
+    ("color", np.uint8, 3),
+    ("depth", np.float32, 0),
+    ("motion_fwd", np.float32, 3),
+    ("motion_bwd", np.float32, 3),
+    ("shadow_fwd_bits", np.uint32, 0),
+    ("shadow_fwd_min", np.uint8, 3),
+    ("shadow_fwd_max", np.uint8, 3),
+    ("shadow_bwd_bits", np.uint32, 0),
+    ("shadow_bwd_min", np.uint8, 3),
+    ("shadow_bwd_max", np.uint8, 3),
+)
+
+Progress = Callable[[int, int], None]
+Spec = dict[str, tuple[np.dtype[Any], tuple[int, ...]]]
+
+
+class RecordingError(SplitRenderError):
+    """A recording that cannot be written or read: missing, unfinished, corrupted or of another
+    format version. The message names the file and the problem."""
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _npz_bytes(arrays: Sequence[tuple[str, npt.NDArray[Any]]]) -> bytes:
+    """An uncompressed ``.npz`` with members in the given order and fixed metadata."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+        for name, a in arrays:
+            member = io.BytesIO()
+            np.lib.format.write_array(
+                member, np.ascontiguousarray(a), version=(1, 0), allow_pickle=False
+            )
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE)
+            info.compress_type = zipfile.ZIP_STORED
+            info.external_attr = 0o644 << 16
+            info.create_system = 3
+            zf.writestr(info, member.getvalue())
+    return buf.getvalue()
+
+
+def _server_arrays(pose: npt.NDArray[np.float64], f: ServerFrame) -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = [("pose", pose)]
+    for cam, cf in zip(_CAMERAS, (f.main, *f.aux)):
+        sf, sb = cf.shadow_fwd, cf.shadow_bwd
+        assert sf is not None and sb is not None and cf.motion_fwd is not None
+        assert cf.motion_bwd is not None
+        values = {
+            "view": cf.camera.view,
+            "proj": cf.camera.proj,
+            "color": cf.color,
+            "depth": cf.depth,
+            "motion_fwd": cf.motion_fwd,
+            "motion_bwd": cf.motion_bwd,
+            "shadow_fwd_bits": sf.bits,
+            "shadow_fwd_min": sf.s_min,
+            "shadow_fwd_max": sf.s_max,
+            "shadow_bwd_bits": sb.bits,
+            "shadow_bwd_min": sb.s_min,
+            "shadow_bwd_max": sb.s_max,
+        }
+        out.extend((f"{cam}.{name}", values[name]) for name, _, _ in _SERVER_ARRAYS)
+    return out
+
+
+def plan(seconds: float, fs: float, fc: float) -> tuple[int, int]:
+    """``(server frames, client frames)`` of a recording: client frames ``n = 0..N-1`` with
+    ``N = round(seconds·fc)``, server frames ``k = 0..K`` with ``K = ceil(t_{N-1}·fs)`` so that
+    every client time lies between two recorded server frames."""
+    n = max(1, round(seconds * fc))
+    k = math.ceil(round((n - 1) / fc * fs, 9))
+    return k + 1, n
+
+
+def _check_positive(what: str, v: float) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise RecordingError(f"{what}: expected a finite number > 0, got {v!r}")
+    return float(v)
+
+
+def write_recording(
+    out: str | os.PathLike[str],
+    scene: str | Scene,
+    *,
+    variant: str = "dynamic",
+    seconds: float = 2.0,
+    scale: float = 0.125,
+    fs: float = 10.0,
+    fc: float = 120.0,
+    subframes: int = 4,
+    stereo: bool = False,
+    trace: Trace | None = None,
+    translation_scale: float = 1.0,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+) -> Path:
+    """Renders a recording of ``scene`` into directory ``out`` and returns its path.
+
+    ``progress(done, total)`` is called after every rendered frame (server and client). Raises
+    :class:`RecordingError` when ``out`` exists (unless ``overwrite``) or ``seconds`` exceeds
+    the scene's or trace's duration, ``InvalidInputError`` for bad scene arguments."""
+    out = Path(out)
+    sc = scene if isinstance(scene, Scene) else Scene(scene, variant)
+    seconds = _check_positive("seconds", seconds)
+    fs = _check_positive("fs", fs)
+    fc = _check_positive("fc", fc)
+    if seconds > sc.duration + 1e-9:
+        raise RecordingError(
+            f"seconds: scene {sc.name!r} lasts {sc.duration:g} s, asked for {seconds:g} s"
+        )
+    if trace is not None and seconds > trace.duration + 1e-9:
+        raise RecordingError(
+            f"{trace.name}: trace lasts {trace.duration:.3f} s, asked for {seconds:g} s"
+        )
+    if out.exists() and not overwrite:
+        raise RecordingError(f"{out}: already exists (choose another --out or pass --force)")
+    motion: ClientMotion = (
+        PathMotion(sc) if trace is None else TraceMotion(sc, trace, translation_scale)
+    )
+    width, height = sc.main_size(scale)
+    n_server, n_client = plan(seconds, fs, fc)
+    total = n_server + n_client
+    tmp = out.with_name(f"{out.name}.partial-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    try:
+        (tmp / "server").mkdir(parents=True)
+        (tmp / "client").mkdir()
+        done = 0
+
+        def entry(kind: str, index: int, time: float, data: bytes) -> dict[str, Any]:
+            rel = f"{kind}/{index:06d}.npz"
+            (tmp / rel).write_bytes(data)
+            return {
+                "index": index,
+                "time": time,
+                "file": rel,
+                "bytes": len(data),
+                "sha256": hashlib.sha256(data).hexdigest(),
+            }
+
+        server: list[dict[str, Any]] = []
+        aux_size: list[list[int]] = []
+        for k in range(n_server):
+            pose = motion.server_pose(k, fs)
+            f = sc.server_frame(k, scale, fs, subframes, pose=pose)
+            aux_size = [[a.camera.width, a.camera.height] for a in f.aux]
+            server.append(entry("server", k, f.time, _npz_bytes(_server_arrays(pose, f))))
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        client: list[dict[str, Any]] = []
+        for n in range(n_client):
+            t = n / fc
+            pose = motion.client_pose(t)
+            eyes = sc.client_frames(n, scale, fc, stereo, pose=pose)
+            arrays: list[tuple[str, Any]] = [("pose", pose)]
+            for e, (cam, img) in enumerate(eyes):
+                arrays += [(f"eye{e}.view", cam.view), (f"eye{e}.proj", cam.proj)]
+                arrays.append((f"eye{e}.color", img))
+            client.append(entry("client", n, t, _npz_bytes(arrays)))
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        manifest = {
+            "format": FORMAT,
+            "version": VERSION,
+            "generator": f"splitrender {__version__}",
+            "scene": sc.name,
+            "variant": sc.variant,
+            "scale": float(scale),
+            "fs": fs,
+            "fc": fc,
+            "subframes": subframes,
+            "seconds": seconds,
+            "stereo": bool(stereo),
+            "near": sc.near,
+            "far": sc.far,
+            "cameras": {
+                "main": [width, height],
+                "aux": aux_size,
+                "client": [width, height],
+                "eyes": 2 if stereo else 1,
+            },
+            "client_motion": motion.describe(),
+            "server_frames": server,
+            "client_frames": client,
+        }
+        text = json.dumps(manifest, indent=1, sort_keys=False) + "\n"
+        (tmp / _MANIFEST).write_text(text, encoding="utf-8")
+        if out.exists():  # overwrite: move the old one aside first, remove it after the rename
+            old = out.with_name(f"{out.name}.old-{os.getpid()}")
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old)
+        else:
+            tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def _fail(where: Path | str, problem: str) -> RecordingError:
+    return RecordingError(f"{where}: {problem}")
+
+
+def _get(m: dict[str, Any], key: str, kind: type | tuple[type, ...], where: Path) -> Any:
+    if key not in m:
+        raise _fail(where, f"missing field {key!r}")
+    v = m[key]
+    if isinstance(v, bool) and kind is not bool:
+        raise _fail(where, f"field {key!r}: expected {kind}, got {v!r}")
+    if not isinstance(v, kind):
+        raise _fail(where, f"field {key!r}: expected {kind}, got {type(v).__name__}")
+    return v
+
+
+def _size(v: Any, what: str, where: Path) -> tuple[int, int]:
+    if (
+        not isinstance(v, list)
+        or len(v) != 2
+        or not all(isinstance(x, int) and not isinstance(x, bool) for x in v)
+        or not all(1 <= x <= MAX_SIDE for x in v)
+    ):
+        raise _fail(
+            where,
+            f"cameras.{what}: expected [width, height] in 1..{MAX_SIDE}, got {v!r}",
+        )
+    return (v[0], v[1])
+
+
+def _read_npz(root: Path, entry: dict[str, Any], spec: Spec) -> dict[str, npt.NDArray[Any]]:
+    """Reads one frame file, checking size, checksum, members, dtypes and shapes (each array's
+    header is checked before its data is read)."""
+    path = root / entry["file"]
+    limit = sum(int(np.prod(shape)) * dt.itemsize + _MEMBER_OVERHEAD for dt, shape in spec.values())
+    if entry["bytes"] > limit:
+        raise _fail(
+            path,
+            f"manifest says {entry['bytes']} bytes, more than {limit} for its arrays",
+        )
+    try:
+        size = path.stat().st_size
+        if size != entry["bytes"]:
+            raise _fail(path, f"file is {size} bytes, the manifest says {entry['bytes']}")
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise _fail(path, "missing file") from None
+    except OSError as e:
+        raise _fail(path, f"cannot read: {e.strerror or e}") from None
+    if hashlib.sha256(data).hexdigest() != entry["sha256"]:
+        raise _fail(path, "SHA-256 does not match the manifest (corrupted file)")
+    out: dict[str, npt.NDArray[Any]] = {}
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            names = zf.namelist()
+            want = [f"{k}.npy" for k in spec]
+            if sorted(names) != sorted(want):
+                raise _fail(path, f"members {sorted(names)}, expected {sorted(want)}")
+            for key, (dtype, shape) in spec.items():
+                with zf.open(f"{key}.npy") as fh:
+                    version = np.lib.format.read_magic(fh)
+                    if version != (1, 0):
+                        raise _fail(path, f"{key}: npy format {version}, expected (1, 0)")
+                    shp, fortran, dt = np.lib.format.read_array_header_1_0(fh)
+                    if dt != dtype or tuple(shp) != shape or fortran:
+                        raise _fail(
+                            path,
+                            f"{key}: {dt} {tuple(shp)}{' (Fortran order)' if fortran else ''}, "
+                            f"expected {dtype} {shape}",
+                        )
+                    raw = fh.read(int(np.prod(shape)) * dtype.itemsize)
+                    a = np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
+                    out[key] = a
+    except (zipfile.BadZipFile, ValueError, EOFError) as e:
+        raise _fail(path, f"not a valid npz: {e}") from None
+    return out
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ClientFrame:
+    """Client frame ``index`` at ``time``: the client's actual head ``pose`` (camera-to-world),
+    one camera and ground-truth image per eye (mono: one)."""
+
+    index: int
+    time: float
+    pose: npt.NDArray[np.float64]
+    cameras: tuple[Camera, ...]
+    ground_truths: tuple[npt.NDArray[np.uint8], ...]
+
+    @property
+    def camera(self) -> Camera:
+        """The (first / left) eye's camera."""
+        return self.cameras[0]
+
+    @property
+    def ground_truth(self) -> npt.NDArray[np.uint8]:
+        """The (first / left) eye's ground truth."""
+        return self.ground_truths[0]
+
+    @property
+    def request(self) -> ClientRequest:
+        """The request the client makes for this frame (first / left eye)."""
+        return ClientRequest(self.cameras[0], self.time)
+
+    @property
+    def requests(self) -> tuple[ClientRequest, ...]:
+        return tuple(ClientRequest(c, self.time) for c in self.cameras)
+
+
+T = TypeVar("T")
+
+
+class _Frames(Sequence[T], Generic[T]):
+    """Frames loaded from disk on access (each access reads and checks the file again)."""
+
+    __slots__ = ("_load", "_n")
+
+    def __init__(self, n: int, load: Callable[[int], T]) -> None:
+        self._n, self._load = n, load
+
+    def __len__(self) -> int:
+        return self._n
+
+    @overload
+    def __getitem__(self, i: int) -> T: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[T]: ...
+    def __getitem__(self, i: int | slice) -> T | list[T]:
+        if isinstance(i, slice):
+            return [self._load(j) for j in range(*i.indices(self._n))]
+        if not -self._n <= i < self._n:
+            raise IndexError(f"frame {i} out of range (0..{self._n - 1})")
+        return self._load(i % self._n)
+
+    def __iter__(self) -> Iterator[T]:
+        return (self._load(j) for j in range(self._n))
+
+
+class Recording:
+    """A recording opened by :func:`load_recording`; frames load lazily."""
+
+    __slots__ = (
+        "_eyes",
+        "_sizes",
+        "client_frames",
+        "manifest",
+        "path",
+        "server_frames",
+    )
+
+    def __init__(self, path: Path, manifest: dict[str, Any]) -> None:
+        self.path = path
+        self.manifest = manifest
+        cams = manifest["cameras"]
+        self._sizes = [tuple(cams["main"]), *(tuple(a) for a in cams["aux"])]
+        self._eyes = int(cams["eyes"])
+        self.server_frames: Sequence[ServerFrame] = _Frames(
+            len(manifest["server_frames"]), self._server
+        )
+        self.client_frames: Sequence[ClientFrame] = _Frames(
+            len(manifest["client_frames"]), self._client
+        )
+
+    def __repr__(self) -> str:
+        m = self.manifest
+        return (
+            f"Recording({str(self.path)!r}, scene={m['scene']!r}, variant={m['variant']!r}, "
+            f"{len(self.server_frames)} server / {len(self.client_frames)} client frames)"
+        )
+
+    scene = property(lambda self: str(self.manifest["scene"]), doc="Scene name.")
+    variant = property(lambda self: str(self.manifest["variant"]), doc="Scene variant.")
+    fs = property(lambda self: float(self.manifest["fs"]), doc="Server frame rate.")
+    fc = property(lambda self: float(self.manifest["fc"]), doc="Client frame rate.")
+    subframes = property(lambda self: int(self.manifest["subframes"]), doc="Shadow subframes S.")
+    stereo = property(lambda self: bool(self.manifest["stereo"]), doc="Two eyes per frame.")
+
+    def server_pose(self, k: int) -> npt.NDArray[np.float64]:
+        """The (predicted) head pose server frame ``k`` was rendered at."""
+        entry = self.manifest["server_frames"][k]
+        return _read_npz(self.path, entry, self._server_spec())["pose"]
+
+    def _server_spec(self) -> Spec:
+        spec: Spec = {"pose": (np.dtype(np.float64), (4, 4))}
+        for cam, (w, h) in zip(_CAMERAS, self._sizes):
+            for name, dt, ch in _SERVER_ARRAYS:
+                shape = (4, 4) if ch < 0 else (h, w) if ch == 0 else (h, w, 3)
+                spec[f"{cam}.{name}"] = (np.dtype(dt), shape)
+        return spec
+
+    def _server(self, k: int) -> ServerFrame:
+        entry = self.manifest["server_frames"][k]
+        a = _read_npz(self.path, entry, self._server_spec())
+        frames = []
+        try:
+            for cam in _CAMERAS:
+                g = {name: a[f"{cam}.{name}"] for name, _, _ in _SERVER_ARRAYS}
+                h, w = g["depth"].shape
+                frames.append(
+                    CameraFrame(
+                        Camera(g["view"], g["proj"], w, h),
+                        g["color"],
+                        g["depth"],
+                        g["motion_fwd"],
+                        g["motion_bwd"],
+                        ShadowBuffers(
+                            g["shadow_fwd_bits"],
+                            g["shadow_fwd_min"],
+                            g["shadow_fwd_max"],
+                        ),
+                        ShadowBuffers(
+                            g["shadow_bwd_bits"],
+                            g["shadow_bwd_min"],
+                            g["shadow_bwd_max"],
+                        ),
+                    )
+                )
+        except SplitRenderError as e:
+            raise _fail(self.path / entry["file"], str(e)) from None
+        return ServerFrame(entry["index"], entry["time"], frames[0], tuple(frames[1:]))
+
+    def _client(self, n: int) -> ClientFrame:
+        entry = self.manifest["client_frames"][n]
+        w, h = self.manifest["cameras"]["client"]
+        m44 = (np.dtype(np.float64), (4, 4))
+        spec: Spec = {"pose": m44}
+        for e in range(self._eyes):
+            spec[f"eye{e}.view"] = m44
+            spec[f"eye{e}.proj"] = m44
+            spec[f"eye{e}.color"] = (np.dtype(np.uint8), (h, w, 3))
+        a = _read_npz(self.path, entry, spec)
+        try:
+            cams = tuple(
+                Camera(a[f"eye{e}.view"], a[f"eye{e}.proj"], w, h) for e in range(self._eyes)
+            )
+        except SplitRenderError as e:
+            raise _fail(self.path / entry["file"], str(e)) from None
+        imgs = tuple(a[f"eye{e}.color"] for e in range(self._eyes))
+        return ClientFrame(entry["index"], entry["time"], a["pose"], cams, imgs)
+
+    def verify(self) -> None:
+        """Reads and checks every frame file; raises :class:`RecordingError` on the first bad
+        one."""
+        for _ in self.server_frames:
+            pass
+        for _ in self.client_frames:
+            pass
+
+
+def _check_frames(m: dict[str, Any], key: str, rate: float, where: Path) -> None:
+    frames = _get(m, key, list, where)
+    if not frames:
+        raise _fail(where, f"{key}: empty")
+    for i, e in enumerate(frames):
+        w = f"{key}[{i}]"
+        if not isinstance(e, dict):
+            raise _fail(where, f"{w}: expected an object")
+        for field, kind in (("index", int), ("time", (int, float)), ("file", str)):
+            _get(e, field, kind, where)
+        b = _get(e, "bytes", int, where)
+        s = _get(e, "sha256", str, where)
+        if e["index"] != i or not math.isclose(e["time"], i / rate, abs_tol=1e-9):
+            raise _fail(where, f"{w}: index/time {e['index']}/{e['time']} out of sequence")
+        if e["file"] != f"{key.split('_')[0]}/{i:06d}.npz":
+            raise _fail(where, f"{w}: unexpected file name {e['file']!r}")
+        if b < 0 or not re.fullmatch(r"[0-9a-f]{64}", s):
+            raise _fail(where, f"{w}: bad bytes or sha256")
+
+
+def load_recording(path: str | os.PathLike[str]) -> Recording:
+    """Opens the recording in directory ``path``, validating its manifest; frame files are read
+    and checked on access (:meth:`Recording.verify` reads them all).
+
+    Raises :class:`RecordingError` naming the file and the problem."""
+    root = Path(path)
+    if _PARTIAL.search(root.name):
+        raise _fail(
+            root,
+            "an unfinished recording (its render was interrupted); render it again",
+        )
+    if not root.is_dir():
+        raise _fail(root, "no such recording directory")
+    mpath = root / _MANIFEST
+    try:
+        size = mpath.stat().st_size
+        if size > _MAX_MANIFEST_BYTES:
+            raise _fail(mpath, f"{size} bytes, more than {_MAX_MANIFEST_BYTES}")
+        m = json.loads(mpath.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise _fail(mpath, "missing: not a recording, or an unfinished one") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise _fail(mpath, f"cannot read: {e}") from None
+    if not isinstance(m, dict):
+        raise _fail(mpath, "expected a JSON object")
+    if m.get("format") != FORMAT:
+        raise _fail(mpath, f"format {m.get('format')!r}, expected {FORMAT!r}")
+    if m.get("version") != VERSION:
+        raise _fail(
+            mpath,
+            f"format version {m.get('version')!r}, this splitrender reads version {VERSION}",
+        )
+    for key in ("scene", "variant"):
+        _get(m, key, str, mpath)
+    for key in ("scale", "fs", "fc", "seconds", "near", "far"):
+        v = _get(m, key, (int, float), mpath)
+        if not (math.isfinite(v) and v > 0):
+            raise _fail(mpath, f"field {key!r}: expected a finite number > 0, got {v!r}")
+    sub = _get(m, "subframes", int, mpath)
+    if not 1 <= sub <= 16:
+        raise _fail(mpath, f"field 'subframes': expected 1..16, got {sub}")
+    stereo = _get(m, "stereo", bool, mpath)
+    cams = _get(m, "cameras", dict, mpath)
+    main = _size(cams.get("main"), "main", mpath)
+    aux = cams.get("aux")
+    if not isinstance(aux, list) or len(aux) != 2:
+        raise _fail(mpath, f"cameras.aux: expected two [width, height], got {aux!r}")
+    for i, a in enumerate(aux):
+        _size(a, f"aux[{i}]", mpath)
+    if _size(cams.get("client"), "client", mpath) != main:
+        raise _fail(mpath, "cameras.client: expected the main camera's size")
+    if cams.get("eyes") != (2 if stereo else 1):
+        raise _fail(mpath, f"cameras.eyes: {cams.get('eyes')!r} does not match stereo={stereo}")
+    _get(m, "client_motion", dict, mpath)
+    _check_frames(m, "server_frames", float(m["fs"]), mpath)
+    _check_frames(m, "client_frames", float(m["fc"]), mpath)
+    return Recording(root, m)

@@ -1,0 +1,355 @@
+"""The built-in scenes of the reference renderer (crates/reproj-scene) and client motion.
+
+:class:`Scene` wraps ``splitrender._native.Scene`` and returns the dataclasses the client
+consumes (:class:`~splitrender.types.ServerFrame`, :class:`~splitrender.types.Camera`).
+
+Client motion (shared/DESIGN.md "Prediction error") comes from one of two sources, both giving
+camera-to-world ``float64[4, 4]`` head poses (the camera looks along its -z):
+
+- :class:`PathMotion`: the scene's head-box path plus the anchor's deterministic deviation; the
+  client sees the anchor at ``t``, the server renders frame ``k`` at the head box of ``t_k`` with
+  the deviation of ``t_k - 0.1 s``;
+- :class:`TraceMotion`: a recorded head trace (:func:`load_trace`, format in
+  shared/traces/README.md) re-anchored at the scene's head box at ``t = 0``: the client sees
+  ``A · T(0)^-1 · T(t)`` (translation optionally scaled), and the server renders frame ``k`` at the
+  trace pose ``PREDICTION_DELAY`` earlier (clamped at the trace's start), an imperfect prediction.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender import _native
+from splitrender.errors import InvalidInputError
+from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
+
+__all__ = [
+    "PREDICTION_DELAY",
+    "SCENE_NAMES",
+    "ClientMotion",
+    "PathMotion",
+    "Scene",
+    "Trace",
+    "TraceError",
+    "TraceMotion",
+    "load_trace",
+]
+
+#: Names of the built-in scenes.
+SCENE_NAMES: tuple[str, ...] = tuple(_native.scene_names())
+#: How much older the pose the server predicts with is than the client's actual one (seconds).
+PREDICTION_DELAY = 0.1
+#: Largest trace file read (bytes): 25 s at 60 Hz is about 60 KB.
+MAX_TRACE_BYTES = 64 * 1024 * 1024
+
+F64 = npt.NDArray[np.float64]
+
+
+class TraceError(InvalidInputError):
+    """A head-trace file that cannot be read or is malformed; the message names file and line."""
+
+
+def _camera_frame(d: dict[str, Any]) -> CameraFrame:
+    camera = Camera(d["view"], d["proj"], d["width"], d["height"])
+    return CameraFrame(
+        camera,
+        d["color"],
+        d["depth"],
+        d["motion_fwd"],
+        d["motion_bwd"],
+        ShadowBuffers(d["shadow_fwd_bits"], d["shadow_fwd_min"], d["shadow_fwd_max"]),
+        ShadowBuffers(d["shadow_bwd_bits"], d["shadow_bwd_min"], d["shadow_bwd_max"]),
+    )
+
+
+class Scene:
+    """A built-in scene (:data:`SCENE_NAMES`), ``"static"`` or ``"dynamic"``, built once.
+
+    Raises :class:`~splitrender.errors.InvalidInputError` for an unknown name or variant, listing
+    the valid ones."""
+
+    __slots__ = ("_native",)
+
+    def __init__(self, name: str, variant: str = "dynamic") -> None:
+        if not isinstance(name, str) or not isinstance(variant, str):
+            raise InvalidInputError(
+                f"Scene: expected name and variant as str, got {name!r}, {variant!r}"
+            )
+        self._native = _native.Scene(name, variant)
+
+    def __repr__(self) -> str:
+        return f"Scene({self.name!r}, {self.variant!r})"
+
+    @property
+    def name(self) -> str:
+        return self._native.name
+
+    @property
+    def variant(self) -> str:
+        return self._native.variant
+
+    @property
+    def duration(self) -> float:
+        """Length of the animation and of the head-box path (seconds)."""
+        return self._native.duration
+
+    @property
+    def near(self) -> float:
+        return self._native.near
+
+    @property
+    def far(self) -> float:
+        return self._native.far
+
+    def main_size(self, scale: float) -> tuple[int, int]:
+        """Main camera ``(width, height)`` at ``scale``: ``round(2560·scale) x round(1440·scale)``."""
+        return self._native.main_size(scale)
+
+    def head_box(self, t: float) -> F64:
+        """The head box's camera-to-world pose at ``t`` (no deviation)."""
+        return self._native.head_box(t)
+
+    def client_pose(self, t: float) -> F64:
+        """The client's actual camera-to-world pose at ``t`` on the scene's path."""
+        return self._native.client_pose(t)
+
+    def server_pose(self, k: int, fps: float = 10.0) -> F64:
+        """The predicted pose the server renders frame ``k`` at on the scene's path."""
+        return self._native.server_pose(k, fps)
+
+    def server_frame(
+        self,
+        k: int,
+        scale: float,
+        fps: float = 10.0,
+        subframes: int = 4,
+        *,
+        pose: F64 | None = None,
+    ) -> ServerFrame:
+        """Server frame ``k`` (time ``k / fps``): every buffer of the main and both auxiliary
+        cameras, rendered at ``pose`` (camera-to-world) or the scene's predicted pose."""
+        d = self._native.render_server_frame(k, scale, fps, subframes, pose)
+        return ServerFrame(
+            d["index"],
+            d["time"],
+            _camera_frame(d["main"]),
+            tuple(_camera_frame(a) for a in d["aux"]),
+        )
+
+    def client_frames(
+        self,
+        n: int,
+        scale: float,
+        fc: float = 120.0,
+        stereo: bool = False,
+        *,
+        pose: F64 | None = None,
+    ) -> list[tuple[Camera, npt.NDArray[np.uint8]]]:
+        """Ground truth of client frame ``n`` (time ``n / fc``), one ``(camera, image)`` per eye
+        (``[left, right]`` when ``stereo``), at ``pose`` or the client's actual pose."""
+        eyes = self._native.render_client_frame(n, scale, fc, stereo, pose)
+        return [(Camera(v, p, w, h), img) for v, p, w, h, img in eyes]
+
+    def ground_truth(self, camera: Camera, t: float) -> npt.NDArray[np.uint8]:
+        """Ground-truth RGB8 image at any ``camera`` and time ``t``."""
+        return self._native.render_ground_truth(*camera.to_native(), t)
+
+    def path_motion(self) -> PathMotion:
+        return PathMotion(self)
+
+
+class ClientMotion(Protocol):
+    """A source of head poses (camera-to-world ``float64[4, 4]``)."""
+
+    def client_pose(self, t: float) -> F64: ...
+    def server_pose(self, k: int, fs: float) -> F64: ...
+    def describe(self) -> dict[str, Any]: ...
+
+
+class PathMotion:
+    """The scene's head-box path with the deterministic anchor deviation (DESIGN.md)."""
+
+    __slots__ = ("scene",)
+
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+
+    def client_pose(self, t: float) -> F64:
+        return self.scene.client_pose(t)
+
+    def server_pose(self, k: int, fs: float) -> F64:
+        return self.scene.server_pose(k, fs)
+
+    def describe(self) -> dict[str, Any]:
+        return {"source": "path", "prediction_delay": PREDICTION_DELAY}
+
+
+def _quat_from_euler(pitch: F64, yaw: F64, roll: F64) -> F64:
+    """``(w, x, y, z)`` of glm's ``quat(vec3(pitch, yaw, roll))`` (radians): ``Rz(roll)·Ry(yaw)·
+    Rx(pitch)``, which is how the recording code builds its orientation."""
+    cx, sx = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    cz, sz = np.cos(roll / 2), np.sin(roll / 2)
+    return np.stack(
+        [
+            cx * cy * cz + sx * sy * sz,
+            sx * cy * cz - cx * sy * sz,
+            cx * sy * cz + sx * cy * sz,
+            cx * cy * sz - sx * sy * cz,
+        ],
+        axis=-1,
+    )
+
+
+def _quat_matrix(q: F64) -> F64:
+    w, x, y, z = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Trace:
+    """A recorded head trace: ``times`` (seconds from the first line), ``positions``
+    ``float64[N, 3]`` (metres) and unit quaternions ``rotations`` ``float64[N, 4]`` (w, x, y, z)."""
+
+    name: str
+    sha256: str
+    times: F64
+    positions: F64
+    rotations: F64
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+    def pose(self, t: float) -> F64:
+        """Camera-to-world pose at ``t`` seconds (clamped to the trace): positions interpolated
+        linearly, orientations by normalised quaternion interpolation."""
+        ts = self.times
+        t = min(max(float(t), 0.0), float(ts[-1]))
+        i = int(np.searchsorted(ts, t, side="right")) - 1
+        i = min(max(i, 0), len(ts) - 1)
+        j = min(i + 1, len(ts) - 1)
+        s = 0.0 if j == i else (t - ts[i]) / (ts[j] - ts[i])
+        p = (1 - s) * self.positions[i] + s * self.positions[j]
+        qa, qb = self.rotations[i], self.rotations[j]
+        if float(np.dot(qa, qb)) < 0.0:
+            qb = -qb
+        q = (1 - s) * qa + s * qb
+        m = np.eye(4)
+        m[:3, :3] = _quat_matrix(q / np.linalg.norm(q))
+        m[:3, 3] = p
+        return m
+
+
+def load_trace(path: str | os.PathLike[str]) -> Trace:
+    """Reads a head trace: one pose per line, ``px py pz pitch yaw roll t_ms`` (metres, degrees,
+    milliseconds, strictly increasing times); blank lines are skipped.
+
+    Raises :class:`TraceError` naming the file (and ``file:line`` for a bad line) and the
+    problem."""
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        if size > MAX_TRACE_BYTES:
+            raise TraceError(f"{p}: trace file is {size} bytes, more than {MAX_TRACE_BYTES}")
+        data = p.read_bytes()
+    except OSError as e:
+        raise TraceError(f"{p}: cannot read trace: {e.strerror or e}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise TraceError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    rows: list[list[float]] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        where = f"{p}:{lineno}"
+        if len(fields) != 7:
+            raise TraceError(
+                f"{where}: expected 7 numbers 'px py pz pitch yaw roll t_ms', got {len(fields)}"
+            )
+        try:
+            row = [float(f) for f in fields]
+        except ValueError:
+            bad = next(f for f in fields if not _is_float(f))
+            raise TraceError(f"{where}: not a number: {bad!r}") from None
+        if not all(math.isfinite(v) for v in row):
+            raise TraceError(f"{where}: non-finite value in {line.strip()!r}")
+        if rows and row[6] <= rows[-1][6]:
+            raise TraceError(
+                f"{where}: time {row[6]} ms is not after the previous line's {rows[-1][6]} ms"
+            )
+        rows.append(row)
+    if not rows:
+        raise TraceError(f"{p}: empty trace (no pose lines)")
+    a = np.array(rows, dtype=np.float64)
+    q = _quat_from_euler(*np.radians(a[:, 3:6]).T)
+    return Trace(
+        name=p.name,
+        sha256=hashlib.sha256(data).hexdigest(),
+        times=(a[:, 6] - a[0, 6]) / 1000.0,
+        positions=a[:, 0:3].copy(),
+        rotations=q,
+    )
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+class TraceMotion:
+    """A head trace re-anchored at the scene's head box at ``t = 0``; ``translation_scale``
+    scales the trace's motion (e.g. < 1 for a scene smaller than the one it was recorded in)."""
+
+    __slots__ = ("_anchor", "_inv0", "trace", "translation_scale")
+
+    def __init__(self, scene: Scene, trace: Trace, translation_scale: float = 1.0) -> None:
+        if not (math.isfinite(translation_scale) and translation_scale >= 0.0):
+            raise InvalidInputError(
+                f"translation_scale: expected a finite float >= 0, got {translation_scale}"
+            )
+        self.trace = trace
+        self.translation_scale = float(translation_scale)
+        self._anchor = scene.head_box(0.0)
+        self._inv0 = np.linalg.inv(trace.pose(0.0))
+
+    def client_pose(self, t: float) -> F64:
+        rel = self._inv0 @ self.trace.pose(t)
+        rel[:3, 3] *= self.translation_scale
+        out: F64 = self._anchor @ rel
+        # Re-orthonormalise the rotation so the renderer's rigidity check holds after products.
+        u, _, vt = np.linalg.svd(out[:3, :3])
+        out[:3, :3] = u @ vt
+        out[3] = (0.0, 0.0, 0.0, 1.0)
+        return out
+
+    def server_pose(self, k: int, fs: float) -> F64:
+        return self.client_pose(k / fs - PREDICTION_DELAY)
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "source": "trace",
+            "file": self.trace.name,
+            "sha256": self.trace.sha256,
+            "translation_scale": self.translation_scale,
+            "prediction_delay": PREDICTION_DELAY,
+        }

@@ -1,0 +1,255 @@
+"""Recordings (splitrender.recording) and ``splitrender render``."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import splitrender as sr
+from splitrender.cli import main
+from splitrender.recording import (
+    ClientFrame,
+    RecordingError,
+    load_recording,
+    plan,
+    write_recording,
+)
+from splitrender.scenes import Scene, load_trace
+
+SCALE, SECONDS = 0.04, 0.3  # 102 x 58; 4 server and 36 client frames
+TRACES = Path(__file__).resolve().parents[2] / "shared" / "traces"
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("rec") / "lab"
+    write_recording(out, "lab", seconds=SECONDS, scale=SCALE)
+    return out
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()
+    }
+
+
+def test_plan() -> None:
+    assert plan(0.3, 10, 120) == (4, 36)
+    assert plan(2.0, 10, 120) == (21, 240)
+
+
+def test_round_trip(recorded: Path) -> None:
+    rec = load_recording(recorded)
+    assert rec.scene == "lab" and rec.variant == "dynamic" and not rec.stereo
+    assert (len(rec.server_frames), len(rec.client_frames)) == (4, 36)
+    scene = Scene("lab")
+    for k in (0, 3):
+        want = scene.server_frame(k, SCALE)
+        got = rec.server_frames[k]
+        assert isinstance(got, sr.ServerFrame) and got.index == k
+        assert got.time == want.time
+        for a, b in zip((got.main, *got.aux), (want.main, *want.aux)):
+            assert np.array_equal(a.camera.view, b.camera.view)
+            assert np.array_equal(a.camera.proj, b.camera.proj)
+            for name in ("color", "depth", "motion_fwd", "motion_bwd"):
+                assert np.array_equal(getattr(a, name), getattr(b, name)), name
+            for d in ("shadow_fwd", "shadow_bwd"):
+                sa, sb = getattr(a, d), getattr(b, d)
+                for f in ("bits", "s_min", "s_max"):
+                    assert np.array_equal(getattr(sa, f), getattr(sb, f))
+    assert np.array_equal(rec.server_pose(2), scene.server_pose(2, 10.0))
+    c = rec.client_frames[-1]
+    assert isinstance(c, ClientFrame) and c.index == 35 and c.time == 35 / 120
+    ((cam, img),) = scene.client_frames(35, SCALE)
+    assert np.array_equal(c.ground_truth, img) and np.array_equal(c.camera.view, cam.view)
+    assert np.array_equal(c.pose, scene.client_pose(35 / 120))
+    req = c.request
+    assert isinstance(req, sr.ClientRequest) and req.time == c.time
+    assert len(rec.client_frames[1:4]) == 3 and sum(1 for _ in rec.server_frames) == 4
+    rec.verify()
+    # Plain numpy reads the frame files too.
+    with np.load(recorded / "server" / "000001.npz") as z:
+        assert z["main.color"].shape == (58, 102, 3)
+
+
+def test_deterministic(recorded: Path, tmp_path: Path) -> None:
+    again = write_recording(tmp_path / "again", "lab", seconds=SECONDS, scale=SCALE)
+    assert _files(again) == _files(recorded)
+
+
+def test_stereo_and_trace(tmp_path: Path) -> None:
+    lines = [f"0 0 {-t:.5f} 0 {20 * t:.5f} 0 {t * 1000:.4f}" for t in np.arange(0, 0.6, 1 / 60)]
+    tp = tmp_path / "walk.txt"
+    tp.write_text("\n".join(lines) + "\n")
+    out = write_recording(
+        tmp_path / "r",
+        "courtyard",
+        variant="static",
+        seconds=0.1,
+        scale=SCALE,
+        stereo=True,
+        trace=load_trace(tp),
+    )
+    rec = load_recording(out)
+    assert rec.manifest["client_motion"]["file"] == "walk.txt"
+    c = rec.client_frames[6]
+    assert len(c.cameras) == 2 and len(c.requests) == 2
+    f = rec.server_frames[1]
+    assert not f.main.motion_fwd.any()  # type: ignore[union-attr]
+    with pytest.raises(RecordingError, match="trace lasts"):
+        write_recording(tmp_path / "long", "lab", seconds=1.0, scale=SCALE, trace=load_trace(tp))
+
+
+def test_interrupted_render_leaves_nothing_complete(tmp_path: Path) -> None:
+    out = tmp_path / "cut"
+
+    def stop(done: int, total: int) -> None:
+        if done == total // 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_recording(out, "lab", seconds=SECONDS, scale=SCALE, progress=stop)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_partial_and_incomplete_are_refused(recorded: Path, tmp_path: Path) -> None:
+    partial = tmp_path / "lab.partial-1234"
+    shutil.copytree(recorded, partial)
+    with pytest.raises(RecordingError, match="unfinished recording"):
+        load_recording(partial)
+    incomplete = tmp_path / "incomplete"
+    shutil.copytree(recorded, incomplete)
+    (incomplete / "manifest.json").unlink()
+    with pytest.raises(RecordingError, match=r"manifest.json: missing"):
+        load_recording(incomplete)
+    with pytest.raises(RecordingError, match="no such recording"):
+        load_recording(tmp_path / "nothing")
+
+
+def test_existing_output_needs_overwrite(recorded: Path) -> None:
+    with pytest.raises(RecordingError, match="already exists"):
+        write_recording(recorded, "lab", seconds=SECONDS, scale=SCALE)
+
+
+@pytest.fixture
+def copy(recorded: Path, tmp_path: Path) -> Path:
+    return Path(shutil.copytree(recorded, tmp_path / "copy"))
+
+
+def _edit_manifest(root: Path, **changes: object) -> None:
+    p = root / "manifest.json"
+    m = json.loads(p.read_text())
+    m.update(changes)
+    p.write_text(json.dumps(m))
+
+
+@pytest.mark.parametrize(
+    ("changes", "problem"),
+    [
+        ({"version": 2}, "format version 2"),
+        ({"format": "other"}, "format 'other'"),
+        ({"subframes": 0}, "subframes"),
+        ({"cameras": {"main": [0, 5]}}, "cameras.main"),
+        ({"server_frames": []}, "server_frames: empty"),
+    ],
+)
+def test_bad_manifest(copy: Path, changes: dict[str, object], problem: str) -> None:
+    _edit_manifest(copy, **changes)
+    with pytest.raises(RecordingError, match=problem) as e:
+        load_recording(copy)
+    assert "manifest.json" in str(e.value)
+
+
+def test_missing_corrupted_and_oversized_files(copy: Path) -> None:
+    f1 = copy / "server" / "000001.npz"
+    f1.unlink()
+    rec = load_recording(copy)
+    with pytest.raises(RecordingError, match="000001.npz: missing file"):
+        rec.server_frames[1]
+    c2 = copy / "client" / "000002.npz"
+    data = bytearray(c2.read_bytes())
+    data[-100] ^= 0xFF
+    c2.write_bytes(bytes(data))
+    with pytest.raises(RecordingError, match="000002.npz: SHA-256"):
+        rec.client_frames[2]
+    c3 = copy / "client" / "000003.npz"
+    c3.write_bytes(c3.read_bytes() + b"x" * 10)
+    with pytest.raises(RecordingError, match="000003.npz: file is"):
+        rec.client_frames[3]
+    rec.server_frames[0]  # untouched files still load
+
+
+def test_wrong_shape_is_rejected_before_reading(copy: Path) -> None:
+    # A well-formed npz with a consistent manifest entry but a different array shape.
+    import hashlib
+
+    from splitrender.recording import _npz_bytes
+
+    p = copy / "client" / "000004.npz"
+    with np.load(p) as z:
+        arrays = [(k, z[k]) for k in ("pose", "eye0.view", "eye0.proj")]
+    arrays.append(("eye0.color", np.zeros((10, 10, 3), np.uint8)))
+    data = _npz_bytes(arrays)
+    p.write_bytes(data)
+    m = json.loads((copy / "manifest.json").read_text())
+    m["client_frames"][4].update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+    (copy / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(RecordingError, match=r"eye0.color: uint8 \(10, 10, 3\), expected"):
+        load_recording(copy).client_frames[4]
+    with zipfile.ZipFile(p) as zf:
+        assert zf.infolist()[0].date_time == (1980, 1, 1, 0, 0, 0)
+
+
+def test_cli_help(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(["render", "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "--trace" in out and "--stereo" in out and "per server frame" in out
+
+
+def test_cli_unknown_scene(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["render", "atrium", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert 'unknown scene "atrium"' in err and "courtyard" in err
+
+
+def test_cli_bad_trace(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tp = tmp_path / "t.txt"
+    tp.write_text("1 2 3\n")
+    assert main(["render", "lab", "--out", str(tmp_path / "x"), "--trace", str(tp)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"{tp}:1: expected 7 numbers" in err
+
+
+def test_cli_render(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "r"
+    args = [
+        "render",
+        "colonnade",
+        "--out",
+        str(out),
+        "--seconds",
+        "0.05",
+        "--scale",
+        "0.04",
+    ]
+    assert main([*args, "--variant", "static"]) == 0
+    err = capsys.readouterr().err
+    assert "8/8 frames" in err
+    assert load_recording(out).variant == "static"
+
+
+def test_cli_render_shared_trace(tmp_path: Path) -> None:
+    trace = TRACES / "robot_lab_path.txt"
+    if not trace.is_file():
+        pytest.skip(f"{trace} not present")
+    out = tmp_path / "r"
+    args = ["render", "lab", "--out", str(out), "--seconds", "0.05", "--scale", "0.04"]
+    assert main([*args, "--trace", str(trace), "--trace-scale", "0.5", "--quiet"]) == 0
+    assert load_recording(out).manifest["client_motion"]["translation_scale"] == 0.5

@@ -1,0 +1,130 @@
+"""The reference renderer's bindings (splitrender.scenes) and head traces."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import splitrender as sr
+from splitrender.scenes import (
+    SCENE_NAMES,
+    PathMotion,
+    Scene,
+    TraceError,
+    TraceMotion,
+    load_trace,
+)
+
+SCALE = 0.04  # 102 x 58
+TRACES = Path(__file__).resolve().parents[2] / "shared" / "traces"
+
+
+@pytest.fixture(scope="module")
+def lab() -> Scene:
+    return Scene("lab", "dynamic")
+
+
+def test_names_and_metadata(lab: Scene) -> None:
+    assert set(SCENE_NAMES) == {"courtyard", "colonnade", "lab"}
+    assert lab.name == "lab" and lab.variant == "dynamic"
+    assert lab.duration > 0 and 0 < lab.near < lab.far
+    assert lab.main_size(SCALE) == (102, 58)
+    assert repr(lab) == "Scene('lab', 'dynamic')"
+
+
+def test_unknown_scene_lists_valid_names() -> None:
+    with pytest.raises(sr.InvalidInputError, match="valid scenes: courtyard, colonnade, lab"):
+        Scene("atrium")
+    with pytest.raises(ValueError, match="static, dynamic"):
+        Scene("lab", "moving")
+
+
+def test_server_frame_is_the_client_dataclass(lab: Scene) -> None:
+    f = lab.server_frame(1, SCALE)
+    assert isinstance(f, sr.ServerFrame) and f.index == 1 and f.time == pytest.approx(0.1)
+    assert f.main.color.shape == (58, 102, 3) and len(f.aux) == 2
+    assert f.aux[0].camera.shape == (29, 51)
+    assert f.main.shadow_fwd is not None and f.main.shadow_fwd.bits.dtype == np.uint32
+    # The default pose is the scene's predicted pose.
+    g = lab.server_frame(1, SCALE, pose=lab.server_pose(1, 10.0))
+    assert np.array_equal(f.main.color, g.main.color)
+    # The ground truth at a server camera and time equals that camera's colour.
+    gt = lab.ground_truth(f.main.camera, f.time)
+    assert np.array_equal(gt, f.main.color)
+
+
+def test_client_frames_mono_and_stereo(lab: Scene) -> None:
+    ((cam, img),) = lab.client_frames(3, SCALE)
+    assert img.shape == (58, 102, 3) and isinstance(cam, sr.Camera)
+    eyes = lab.client_frames(3, SCALE, stereo=True)
+    assert len(eyes) == 2 and not np.array_equal(eyes[0][0].view, eyes[1][0].view)
+
+
+def test_bad_arguments(lab: Scene) -> None:
+    with pytest.raises(sr.InvalidInputError, match="subframes"):
+        lab.server_frame(0, SCALE, subframes=0)
+    with pytest.raises(sr.InvalidInputError, match="scale"):
+        lab.server_frame(0, 1e-6)
+    with pytest.raises(sr.InvalidInputError, match="k"):
+        lab.server_frame(-1, SCALE)
+    with pytest.raises(sr.InvalidInputError, match="rigid"):
+        lab.server_frame(0, SCALE, pose=np.diag([2.0, 1.0, 1.0, 1.0]))
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "trace.txt"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "problem"),
+    [
+        ("0 0 0 0 0 0 0\n0 0 0 0 0 0\n", 2, "expected 7 numbers"),
+        ("0 0 0 0 0 0 0\n0 0 x 0 0 0 16\n", 2, "not a number: 'x'"),
+        ("0 0 0 0 0 0 0\n\n0 0 0 0 0 0 0\n", 3, "not after"),
+        ("0 0 nan 0 0 0 0\n", 1, "non-finite"),
+    ],
+)
+def test_trace_errors_name_file_and_line(
+    tmp_path: Path, text: str, line: int, problem: str
+) -> None:
+    p = _write(tmp_path, text)
+    with pytest.raises(TraceError, match=problem) as e:
+        load_trace(p)
+    assert f"{p}:{line}:" in str(e.value)
+    assert isinstance(e.value, sr.InvalidInputError)
+
+
+def test_trace_missing_and_empty(tmp_path: Path) -> None:
+    with pytest.raises(TraceError, match="cannot read trace"):
+        load_trace(tmp_path / "nope.txt")
+    with pytest.raises(TraceError, match="empty trace"):
+        load_trace(_write(tmp_path, "\n\n"))
+
+
+def test_trace_motion_reanchors_and_delays(tmp_path: Path, lab: Scene) -> None:
+    # 1 m/s along the trace camera's own -z (forward) after a 90° yaw: forward in world is -x.
+    lines = [f"{-t:.6f} 0 0 0 90 0 {t * 1000:.4f}" for t in np.arange(0, 1.01, 1 / 60)]
+    trace = load_trace(_write(tmp_path, "\n".join(lines)))
+    assert trace.duration == pytest.approx(1.0, abs=1e-3)
+    m = TraceMotion(lab, trace, translation_scale=0.5)
+    a0 = lab.head_box(0.0)
+    np.testing.assert_allclose(m.client_pose(0.0), a0, atol=1e-9)
+    p = m.client_pose(0.5)
+    # Moved 0.5 s * 1 m/s * 0.5 along the anchor's forward (-z) axis, orientation unchanged.
+    np.testing.assert_allclose(p[:3, 3], a0[:3, 3] - 0.25 * a0[:3, 2], atol=1e-6)
+    np.testing.assert_allclose(p[:3, :3], a0[:3, :3], atol=1e-9)
+    np.testing.assert_allclose(m.server_pose(5, 10.0), m.client_pose(0.4), atol=1e-12)
+    assert m.describe()["source"] == "trace"
+    assert PathMotion(lab).describe()["source"] == "path"
+
+
+def test_shared_traces_load() -> None:
+    if not TRACES.is_dir():
+        pytest.skip(f"{TRACES} not present")
+    for name in ("robot_lab_path.txt", "no_moving.txt"):
+        tr = load_trace(TRACES / name)
+        assert len(tr.times) > 100
+        assert np.allclose(np.linalg.norm(tr.rotations, axis=1), 1.0)
