@@ -11,6 +11,7 @@ Conventions: shared/DESIGN.md ("Conventions").
 from splitrender import metrics
 from splitrender._native import BidirHistory, __version__
 from splitrender.client import Client, PlaybackResult, play
+from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
 from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
 from splitrender.network import NetworkModel, Schedule
 from splitrender.recording import (
@@ -28,6 +29,7 @@ from splitrender.reproject import (
     scene_flow,
 )
 from splitrender.scenes import SCENE_NAMES, Scene, Trace, TraceError, load_trace
+from splitrender.stream import StreamStats, read_stream, stream_stats, write_stream
 from splitrender.synthetic import SyntheticScene
 from splitrender.types import (
     MAX_SIDE,
@@ -50,19 +52,23 @@ __all__ = [
     "Client",
     "ClientFrame",
     "ClientRequest",
+    "CodecConfig",
     "InvalidInputError",
     "NetworkModel",
     "PlaybackResult",
     "Recording",
     "RecordingError",
-    "ReprojectOptions",
     "Reprojection",
+    "ReprojectOptions",
     "Scene",
     "Schedule",
     "ServerFrame",
     "ShadowBuffers",
     "SplitRenderError",
+    "StreamDecoder",
+    "StreamEncoder",
     "StreamError",
+    "StreamStats",
     "SyntheticScene",
     "Trace",
     "TraceError",
@@ -72,8 +78,11 @@ __all__ = [
     "load_trace",
     "metrics",
     "play",
+    "read_stream",
     "reproject",
     "reproject_alpha",
     "scene_flow",
+    "stream_stats",
     "write_recording",
+    "write_stream",
 ]
