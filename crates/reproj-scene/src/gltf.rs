@@ -1329,12 +1329,18 @@ mod tests {
         [(i / 2) as f32 * 0.25, (i % 2) as f32 * 0.2, 0.0]
     }
 
+    /// Where the tests write their models: under the workspace's `target/`, so that repeated
+    /// runs do not litter the system's temporary directory and `cargo clean` removes them.
+    fn test_dir() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/test-tmp")
+    }
+
     /// Writes the test model into a fresh directory: a textured quad (2×2 texture: red, green /
     /// blue, white) translated at 1 m/s along x by a LINEAR channel, and a strip skinned to two
     /// joints, the second rotating about z by 22.5°/s around the strip's middle, (1, 0, 0).
     /// `bad_index` puts an out-of-range vertex index into the quad; `texture` names its image.
     fn write_model(name: &str, texture: &str, bad_index: bool) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("reproj-gltf-{}-{name}", std::process::id()));
+        let dir = test_dir().join(format!("reproj-gltf-{}-{name}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let img = image::RgbImage::from_fn(2, 2, |x, y| {
             image::Rgb(match (x, y) {
@@ -1639,7 +1645,7 @@ mod tests {
 
     #[test]
     fn bad_files_give_errors_naming_file_and_problem() {
-        let dir = std::env::temp_dir().join(format!("reproj-gltf-{}-bad", std::process::id()));
+        let dir = test_dir().join(format!("reproj-gltf-{}-bad", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let check = |path: &Path, needle: &str| {
             let e = GltfModel::load(path).unwrap_err().to_string();
