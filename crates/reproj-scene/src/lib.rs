@@ -12,7 +12,11 @@
 //!   [`render_client_frame`]);
 //! - the built-in scenes `courtyard`, `colonnade` and `lab`, each static or dynamic, with their
 //!   head-box paths and the deterministic prediction error of DESIGN.md ([`builtin`],
-//!   [`CameraPath`]).
+//!   [`CameraPath`]);
+//! - glTF 2.0 models ([`gltf`]): meshes, node hierarchy, base-colour textures, node animation and
+//!   linear blend skinning, loaded on their own ([`load_gltf_scene`]) or placed into a built-in
+//!   scene ([`place_gltf`]); skinned material points are (triangle, barycentrics), so non-rigid
+//!   motion is exact too.
 //!
 //! The scene model is two-level: every object has a shape in object space (analytic sphere,
 //! box, capsule, quad, or a triangle mesh with its own BVH built once) and a rigid world
@@ -41,8 +45,8 @@
 //! licence. Its one drawback, `f32` only, does not touch exactness: the BVH only culls, every
 //! intersection is computed in `f64` by this crate, and all boxes are padded outward so `f32`
 //! rounding can never cull a primitive the `f64` test would hit (checked against brute force in
-//! the tests). Both crates are edition 2024 (rustc ≥ 1.85; bvh declares 1.90), above the
-//! workspace's declared 1.80.
+//! the tests). Both crates are edition 2024 (rustc ≥ 1.85; bvh declares 1.90), so the workspace
+//! declares `rust-version = 1.85`.
 //!
 //! ## Shading
 //!
