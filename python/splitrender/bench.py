@@ -1,0 +1,244 @@
+"""``splitrender bench``: times client decoding and reprojection on a built-in recording.
+
+A recording of two server frames (and the client frames between them) of the scene's dynamic
+variant is rendered once per (scene, scale, version) into the temporary directory and reused.
+The two server frames are encoded at the paper's 40 Mb/s scaled by pixel count and decoded
+``repeats`` times with a fresh :class:`~splitrender.codec.StreamDecoder`: the decode figure is the
+median seconds per server frame (all cameras, all buffers; key and non-key frame together).
+Each method then reprojects client frames between the two *decoded* server frames at their
+client poses (:func:`~splitrender.reproject.reproject`, no previous frame): one warm-up call, then
+``frames`` timed calls cycling through the client frames; the figure is the median.
+
+``ns_per_pixel`` divides it by the output pixels (main camera). The effective GB/s is an
+estimate: bytes touched = every source buffer the method reads (its ``nbytes``) + the output
+image written (``W·H·3``), divided by the median time. The buffers read per method:
+
+- ``ours``: every camera (main + 2 auxiliary) of both frames: colour, depth, the older frame's
+  forward and the newer frame's backward motion and shadow buffers (bits, min, max);
+- ``ours_extrapolate``: every camera of the newer frame: colour, depth, backward motion and
+  shadows;
+- ``forward_splat``: the newer frame's main camera: colour, depth, backward motion;
+- ``timewarp``: the newer frame's main camera: colour, depth;
+- ``backward_bidir``: the main camera of both frames: colour, depth, the directional motion.
+
+Intermediate buffers (splat grids, history) are not counted, so it is a lower bound of the
+traffic.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from splitrender.errors import InvalidInputError
+from splitrender.reproject import METHODS
+from splitrender.types import CameraFrame, ServerFrame, ShadowBuffers
+
+__all__ = ["BENCH_KEYS", "BenchArgumentError", "BenchRow", "bytes_touched", "run_bench"]
+
+#: Keys of each JSON row, in order.
+BENCH_KEYS: tuple[str, ...] = (
+    "method",
+    "backend",
+    "width",
+    "height",
+    "ms_per_frame",
+    "ns_per_pixel",
+    "decode_ms_per_server_frame",
+)
+
+
+class BenchArgumentError(InvalidInputError):
+    """A bench argument that cannot work."""
+
+
+@dataclass(frozen=True)
+class BenchRow:
+    method: str
+    backend: str
+    width: int
+    height: int
+    ms_per_frame: float
+    ns_per_pixel: float
+    decode_ms_per_server_frame: float
+    gb_per_s: float
+    mb_touched: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in BENCH_KEYS}
+
+
+def _nbytes(cf: CameraFrame, direction: str, *, motion: bool, shadows: bool) -> int:
+    n = int(cf.color.nbytes + cf.depth.nbytes)
+    if motion:
+        m = cf.motion_fwd if direction == "fwd" else cf.motion_bwd
+        n += 0 if m is None else int(m.nbytes)
+    if shadows:
+        s: ShadowBuffers | None = cf.shadow_fwd if direction == "fwd" else cf.shadow_bwd
+        if s is not None:
+            n += int(s.bits.nbytes + s.s_min.nbytes + s.s_max.nbytes)
+    return n
+
+
+def bytes_touched(method: str, older: ServerFrame, newer: ServerFrame) -> int:
+    """The estimate of bytes one client frame of ``method`` reads and writes (module docstring)."""
+    out = newer.main.color.nbytes
+    if method == "ours":
+        src = sum(_nbytes(c, "fwd", motion=True, shadows=True) for c in (older.main, *older.aux))
+        src += sum(_nbytes(c, "bwd", motion=True, shadows=True) for c in (newer.main, *newer.aux))
+    elif method == "ours_extrapolate":
+        src = sum(_nbytes(c, "bwd", motion=True, shadows=True) for c in (newer.main, *newer.aux))
+    elif method == "forward_splat":
+        src = _nbytes(newer.main, "bwd", motion=True, shadows=False)
+    elif method == "timewarp":
+        src = _nbytes(newer.main, "bwd", motion=False, shadows=False)
+    else:  # backward_bidir
+        src = _nbytes(older.main, "fwd", motion=True, shadows=False)
+        src += _nbytes(newer.main, "bwd", motion=True, shadows=False)
+    return int(src + out)
+
+
+def _cache_dir(scene: str, scale: float) -> Path:
+    from splitrender import __version__
+
+    return Path(tempfile.gettempdir()) / f"splitrender-bench-{scene}-{scale:g}-{__version__}"
+
+
+def _recording(scene: str, scale: float, log: Any) -> Any:
+    from splitrender.recording import RecordingError, load_recording, write_recording
+
+    path = _cache_dir(scene, scale)
+    try:
+        rec = load_recording(path)
+        if len(rec.server_frames) >= 2 and len(rec.client_frames) >= 2:
+            log(f"reusing the cached recording {path}")
+            return rec
+    except RecordingError:
+        pass
+    log(f"rendering 2 server frames of {scene} at scale {scale:g} into {path} (cached)")
+    t0 = time.perf_counter()
+    # 0.1 s at 120 FPS: client frames 0..11, server frames 0 and 1.
+    write_recording(path, scene, seconds=0.1, scale=scale, overwrite=True)
+    log(f"rendered in {time.perf_counter() - t0:.1f} s")
+    return load_recording(path)
+
+
+def check_args(scene: str, methods: Sequence[str], scale: float, frames: int) -> None:
+    from splitrender.scenes import SCENE_NAMES, Scene
+
+    if scene not in SCENE_NAMES:
+        raise BenchArgumentError(
+            f"unknown scene {scene!r}; expected one of: {', '.join(SCENE_NAMES)}"
+        )
+    if not methods:
+        raise BenchArgumentError("--methods: expected at least one method")
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise BenchArgumentError(
+            f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(METHODS)}"
+        )
+    if frames < 1:
+        raise BenchArgumentError(f"--frames: expected an integer >= 1, got {frames}")
+    w, h = Scene(scene).main_size(scale)
+    if min(w, h) < 16 or max(w, h) > 4096:
+        raise BenchArgumentError(
+            f"--scale: {scale:g} gives a {w}x{h} main camera; expected 16..4096 pixels a side"
+        )
+
+
+def run_bench(
+    scene: str = "courtyard",
+    methods: Sequence[str] = METHODS,
+    scale: float = 0.5,
+    frames: int = 5,
+    repeats: int = 3,
+    progress: bool = True,
+) -> list[BenchRow]:
+    """Runs the benchmark (module docstring) and returns one row per method."""
+    from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
+    from splitrender.reproject import reproject
+
+    check_args(scene, methods, scale, frames)
+
+    def log(text: str) -> None:
+        if progress:
+            print(text, file=sys.stderr, flush=True)
+
+    rec = _recording(scene, scale, log)
+    f0, f1 = rec.server_frames[0], rec.server_frames[1]
+    w, h = f0.main.camera.width, f0.main.camera.height
+    cfg = CodecConfig.scaled(w, h)
+    log(f"encoding 2 server frames at {w}x{h} + aux at {cfg.bitrate_mbps:.3g} Mb/s")
+    with StreamEncoder(cfg) as enc:
+        packets = [enc.encode(f0), enc.encode(f1)]
+    times: list[float] = []
+    decoded: list[ServerFrame] = []
+    for _ in range(repeats):
+        with StreamDecoder() as dec:
+            t0 = time.perf_counter()
+            decoded = [dec.decode(p) for p in packets]
+            times.append((time.perf_counter() - t0) / len(packets))
+    decode_ms = statistics.median(times) * 1e3
+    log(f"decode: {decode_ms:.1f} ms per server frame (median of {repeats})")
+    older, newer = decoded
+    # Client frames strictly between the two server frames (t in (0, 0.1)).
+    requests = [c.request for c in rec.client_frames if 0.0 < c.time < newer.time]
+    if not requests:
+        requests = [rec.client_frames[len(rec.client_frames) // 2].request]
+    rows: list[BenchRow] = []
+    for method in methods:
+        reproject(older, newer, requests[0], method)  # warm-up (allocations, thread pool)
+        samples = []
+        for i in range(frames):
+            req = requests[i % len(requests)]
+            t0 = time.perf_counter()
+            reproject(older, newer, req, method)
+            samples.append(time.perf_counter() - t0)
+        sec = statistics.median(samples)
+        touched = bytes_touched(method, older, newer)
+        row = BenchRow(
+            method=method,
+            backend="cpu",
+            width=w,
+            height=h,
+            ms_per_frame=sec * 1e3,
+            ns_per_pixel=sec * 1e9 / (w * h),
+            decode_ms_per_server_frame=decode_ms,
+            gb_per_s=touched / sec / 1e9,
+            mb_touched=touched / 1e6,
+        )
+        rows.append(row)
+        log(f"{method}: {row.ms_per_frame:.2f} ms per client frame (median of {frames})")
+    return rows
+
+
+def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
+    """A plain-text table of the rows."""
+    cpus = cpus if cpus is not None else (os.cpu_count() or 1)
+    if not rows:
+        return "(no rows)"
+    r0 = rows[0]
+    lines = [
+        (
+            f"backend cpu ({cpus} cores), client {r0.width}x{r0.height}; decode "
+            f"{r0.decode_ms_per_server_frame:.1f} ms per server frame"
+        ),
+        (
+            f"{'method':<18} {'ms/frame':>9} {'FPS':>7} {'ns/pixel':>9} {'MB touched':>11} "
+            f"{'GB/s':>7}"
+        ),
+    ]
+    for r in rows:
+        fps = 1e3 / r.ms_per_frame if r.ms_per_frame > 0 else float("inf")
+        lines.append(
+            f"{r.method:<18} {r.ms_per_frame:9.2f} {fps:7.1f} {r.ns_per_pixel:9.2f} "
+            f"{r.mb_touched:11.2f} {r.gb_per_s:7.2f}"
+        )
+    return "\n".join(lines)

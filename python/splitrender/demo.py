@@ -1,0 +1,469 @@
+"""``splitrender demo``: the whole pipeline on a built-in dynamic scene, end to end.
+
+Stages (progress on stderr, the summary table on stdout at the end):
+
+1. render the server frames (10 FPS, main + two auxiliary cameras, every buffer, at the scene's
+   predicted pose) and the ground-truth client frames (120 FPS, at the client's actual pose);
+2. encode every server frame with :class:`~splitrender.codec.StreamEncoder` at the bitrate
+   (default: the paper's 40 Mb/s scaled by pixel count, :meth:`CodecConfig.scaled`) and decode it
+   with :class:`~splitrender.codec.StreamDecoder`; the client only sees the decoded frames;
+3. per method: :func:`~splitrender.client.play` through the network model (default: ideal link,
+   ``l = 0``, no loss; the packets' real sizes), then
+   :func:`~splitrender.metrics.evaluate_sequence` against the ground truth (first and last 12
+   client frames excluded);
+4. write ``video.mp4`` (ground truth | ``ours`` | FLIP error map of ``ours``), still PNGs,
+   ``summary.md`` and ``summary.json``.
+
+Only one method's client frames are held at a time (plus the video's and the stills'), so memory
+stays at a few sequences whatever the number of methods.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender.errors import InvalidInputError
+from splitrender.imageio import write_png
+from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE, evaluate_sequence, flip_map
+from splitrender.reproject import METHODS
+
+__all__ = [
+    "DEFAULT_METHODS",
+    "DemoArgumentError",
+    "DemoConfig",
+    "DemoResult",
+    "Stages",
+    "colormap",
+    "format_table",
+    "run_demo",
+]
+
+DEFAULT_METHODS: tuple[str, ...] = (
+    "ours",
+    "ours_extrapolate",
+    "forward_splat",
+    "timewarp",
+    "backward_bidir",
+)
+#: Server and client frame rates of the demo (DESIGN.md).
+FS, FC = 10.0, 120.0
+#: Columns of the summary rows, in order.
+ROW_KEYS: tuple[str, ...] = ("method", "ssim", "flip", "psnr", "vmaf", "mbps", "frames")
+
+_Image = npt.NDArray[np.uint8]
+
+# Magma (matplotlib's) sampled at 9 points: enough for a smooth error-map colouring.
+_MAGMA = np.array(
+    [
+        [0, 0, 4],
+        [28, 16, 68],
+        [79, 18, 123],
+        [129, 37, 129],
+        [181, 54, 122],
+        [229, 80, 100],
+        [251, 135, 97],
+        [254, 194, 135],
+        [252, 253, 191],
+    ],
+    dtype=np.float64,
+)
+
+
+class DemoArgumentError(InvalidInputError):
+    """An argument of the demo that cannot work (too short, too small, unknown method ...)."""
+
+
+def colormap(err: npt.NDArray[np.floating[Any]]) -> _Image:
+    """``uint8[H, W, 3]`` magma colouring of an error map in ``[0, 1]`` (0 black, 1 pale)."""
+    x = np.clip(np.nan_to_num(err.astype(np.float64)), 0.0, 1.0) * (len(_MAGMA) - 1)
+    i = np.minimum(x.astype(np.int64), len(_MAGMA) - 2)
+    f = (x - i)[..., None]
+    rgb = _MAGMA[i] * (1 - f) + _MAGMA[i + 1] * f
+    out: _Image = np.rint(rgb).astype(np.uint8)
+    return out
+
+
+class Stages:
+    """Progress on a stream (stderr): ``[k/N] text`` per stage and a one-line bar for loops."""
+
+    def __init__(self, total: int, enabled: bool = True, stream: Any = None) -> None:
+        self.total = total
+        self.step = 0
+        self.enabled = enabled
+        self.stream = stream if stream is not None else sys.stderr
+        self.start = time.perf_counter()
+        self._bar_start = self.start
+
+    def stage(self, text: str) -> None:
+        self.step += 1
+        self._bar_start = time.perf_counter()
+        if self.enabled:
+            elapsed = self._bar_start - self.start
+            print(f"[{self.step}/{self.total}] {text}  ({elapsed:.1f} s)", file=self.stream)
+            self.stream.flush()
+
+    def bar(self, done: int, total: int, label: str = "") -> None:
+        if not self.enabled or total <= 0:
+            return
+        elapsed = time.perf_counter() - self._bar_start
+        eta = elapsed / done * (total - done) if done else 0.0
+        width = 30
+        fill = width * done // total
+        text = "#" * fill + "-" * (width - fill)
+        end = "\n" if done == total else ""
+        self.stream.write(
+            f"\r      [{text}] {done}/{total} {label} {elapsed:5.1f} s  ETA {eta:5.1f} s{end}"
+        )
+        self.stream.flush()
+
+
+@dataclass
+class DemoConfig:
+    scene: str = "courtyard"
+    out: Path = Path("splitrender-demo")
+    scale: float = 0.1
+    seconds: float = 1.0
+    bitrate_mbps: float | None = None
+    methods: tuple[str, ...] = DEFAULT_METHODS
+    vmaf: bool = True
+    delay_frames: int = 0
+    video_fps: float = 30.0
+    stills: int = 3
+    progress: bool = True
+
+
+@dataclass
+class DemoResult:
+    width: int
+    height: int
+    server_frames: int
+    client_frames: int
+    bitrate_mbps: float
+    mbps: float
+    rows: list[dict[str, Any]]
+    files: list[Path] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def _json_number(v: float | None) -> float | str | None:
+    if v is None:
+        return None
+    return v if math.isfinite(v) else str(v)
+
+
+def format_table(rows: Sequence[dict[str, Any]], markdown: bool = False) -> str:
+    """The summary rows as a plain-text (or Markdown) table."""
+    head = ["method", "SSIM ↑", "FLIP ↓", "PSNR ↑", "VMAF ↑", "Mb/s", "frames"]
+
+    def cell(v: Any, fmt: str) -> str:
+        if v is None:
+            return "–"
+        if isinstance(v, str):
+            return v
+        return format(v, fmt)
+
+    body = [
+        [
+            str(r["method"]),
+            cell(r["ssim"], ".4f"),
+            cell(r["flip"], ".4f"),
+            cell(r["psnr"], ".2f"),
+            cell(r["vmaf"], ".2f"),
+            cell(r["mbps"], ".3f"),
+            str(r["frames"]),
+        ]
+        for r in rows
+    ]
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += ["| " + " | ".join(b) + " |" for b in body]
+        return "\n".join(lines)
+    widths = [max(len(h), *(len(b[i]) for b in body)) for i, h in enumerate(head)]
+    fmt = [f"{{:<{widths[0]}}}"] + [f"{{:>{w}}}" for w in widths[1:]]
+    lines = ["  ".join(f.format(h) for f, h in zip(fmt, head))]
+    lines += ["  ".join(f.format(c) for f, c in zip(fmt, b)) for b in body]
+    return "\n".join(lines)
+
+
+def _even(a: int) -> int:
+    return a + (a & 1)
+
+
+def _side_by_side(tiles: Sequence[_Image], gap: int = 4) -> _Image:
+    """Tiles in a row with white gaps, padded (black) to even sides for yuv420p."""
+    h, w = tiles[0].shape[:2]
+    width = len(tiles) * w + (len(tiles) - 1) * gap
+    out = np.zeros((_even(h), _even(width), 3), np.uint8)
+    out[:h, :width] = 255
+    for k, t in enumerate(tiles):
+        out[:h, k * (w + gap) : k * (w + gap) + w] = t
+    return out
+
+
+class _Video:
+    """An H.264 (or MPEG-4 Part 2 when libx264 is missing) ``yuv420p`` video written by PyAV."""
+
+    def __init__(self, path: Path, width: int, height: int, fps: float) -> None:
+        from fractions import Fraction
+
+        import av
+
+        self._av = av
+        self.container = av.open(str(path), mode="w")
+        rate = Fraction(fps).limit_denominator(1001)
+        codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
+        stream: Any = self.container.add_stream(codec, rate=rate)
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        if codec == "libx264":
+            stream.options = {"crf": "18", "preset": "veryfast"}
+        else:
+            stream.bit_rate = max(1_000_000, width * height * 8)
+        self.stream = stream
+        self.frames = 0
+
+    def write(self, rgb: _Image) -> None:
+        frame = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
+        for packet in self.stream.encode(frame):
+            self.container.mux(packet)
+        self.frames += 1
+
+    def close(self) -> None:
+        for packet in self.stream.encode():
+            self.container.mux(packet)
+        self.container.close()
+
+
+def check_config(cfg: DemoConfig) -> None:
+    """Raises :class:`DemoArgumentError` (one line) for a configuration that cannot run."""
+    from splitrender.scenes import SCENE_NAMES, Scene
+
+    if cfg.scene not in SCENE_NAMES:
+        raise DemoArgumentError(
+            f"unknown scene {cfg.scene!r}; expected one of: {', '.join(SCENE_NAMES)}"
+        )
+    if not cfg.methods:
+        raise DemoArgumentError("--methods: expected at least one method")
+    bad = [m for m in cfg.methods if m not in METHODS]
+    if bad:
+        raise DemoArgumentError(
+            f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(METHODS)}"
+        )
+    if len(set(cfg.methods)) != len(cfg.methods):
+        raise DemoArgumentError("--methods: a method is listed twice")
+    duration = Scene(cfg.scene).duration
+    if cfg.seconds > duration + 1e-9:
+        raise DemoArgumentError(
+            f"--seconds: scene {cfg.scene!r} lasts {duration:g} s, asked for {cfg.seconds:g} s"
+        )
+    n_client = max(1, round(cfg.seconds * FC))
+    if n_client <= 2 * SKIP_FRAMES:
+        need = (2 * SKIP_FRAMES + 1) / FC
+        raise DemoArgumentError(
+            f"--seconds: {cfg.seconds:g} s is {n_client} client frames at {FC:g} FPS; the "
+            f"evaluation skips {SKIP_FRAMES} at each end, so at least {need:.3f} s is needed"
+        )
+    w, h = Scene(cfg.scene).main_size(cfg.scale)
+    if min(w, h) < 16 or max(w, h) > 4096:
+        raise DemoArgumentError(
+            f"--scale: {cfg.scale:g} gives a {w}x{h} main camera; expected 16..4096 pixels a side"
+        )
+
+
+def run_demo(cfg: DemoConfig) -> DemoResult:
+    """Runs the demo (see the module docstring) and writes its files to ``cfg.out``."""
+    from splitrender.client import play
+    from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
+    from splitrender.network import NetworkModel
+    from splitrender.recording import plan
+    from splitrender.scenes import Scene
+    from splitrender.stream import stream_stats
+    from splitrender.types import ServerFrame
+
+    check_config(cfg)
+    scene = Scene(cfg.scene, "dynamic")
+    w, h = scene.main_size(cfg.scale)
+    n_server, n_client = plan(cfg.seconds, FS, FC)
+    use_vmaf = cfg.vmaf
+    stages = Stages(3 + len(cfg.methods), cfg.progress)
+    if use_vmaf and min(w, h) < VMAF_MIN_SIDE:
+        use_vmaf = False
+        if cfg.progress:
+            print(
+                f"note: {w}x{h} is below VMAF's {VMAF_MIN_SIDE} pixels a side; VMAF skipped",
+                file=sys.stderr,
+            )
+    out = cfg.out
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stills").mkdir(exist_ok=True)
+    files: list[Path] = []
+    t0 = time.perf_counter()
+
+    # 1. render
+    stages.stage(
+        f"rendering {scene.name} (dynamic) at {w}x{h}: {n_server} server frames at {FS:g} FPS, "
+        f"{n_client} ground-truth client frames at {FC:g} FPS"
+    )
+    total = n_server + n_client
+    server: list[ServerFrame] = []
+    for k in range(n_server):
+        server.append(scene.server_frame(k, cfg.scale, FS))
+        stages.bar(k + 1, total, "frames")
+    cameras = []
+    truth: list[_Image] = []
+    for n in range(n_client):
+        cam, img = scene.client_frames(n, cfg.scale, FC)[0]
+        cameras.append(cam)
+        truth.append(img)
+        stages.bar(n_server + n + 1, total, "frames")
+
+    # 2. encode + decode
+    codec_cfg = (
+        CodecConfig.scaled(w, h)
+        if cfg.bitrate_mbps is None
+        else CodecConfig(bitrate_mbps=cfg.bitrate_mbps)
+    )
+    stages.stage(
+        f"encoding {n_server} server frames at {codec_cfg.bitrate_mbps:.3g} Mb/s and decoding them"
+    )
+    packets: list[bytes] = []
+    decoded: list[ServerFrame] = []
+    with StreamEncoder(codec_cfg) as enc, StreamDecoder() as dec:
+        for k, f in enumerate(server):
+            p = enc.encode(f)
+            packets.append(p)
+            decoded.append(dec.decode(p))
+            stages.bar(k + 1, n_server, "server frames")
+    del server
+    mbps = stream_stats(packets, FS).mbps_total()
+    sizes = [len(p) for p in packets]
+    network = NetworkModel(extra_delay_frames=cfg.delay_frames, client_fps=FC)
+
+    metrics = ("ssim", "flip", "psnr", "vmaf") if use_vmaf else ("ssim", "flip", "psnr")
+    lo, hi = SKIP_FRAMES, n_client - SKIP_FRAMES - 1
+    still_idx = sorted({round(lo + (hi - lo) * (i + 1) / (cfg.stills + 1)) for i in range(cfg.stills)})
+    video_method = "ours" if "ours" in cfg.methods else cfg.methods[0]
+    video_frames: list[_Image] = []
+    rows: list[dict[str, Any]] = []
+
+    # 3. per method: play + evaluate
+    for method in cfg.methods:
+        stages.stage(f"{method}: playing {n_client} client frames, then {', '.join(metrics)}")
+
+        def on_frame(n: int, image: _Image, info: Any) -> None:
+            stages.bar(n + 1, n_client, "client frames")
+
+        res = play(
+            decoded,
+            cameras,
+            network,
+            FC,
+            method,
+            frame_sizes=sizes,
+            on_frame=on_frame,
+        )
+        def progress(metric: str, done: int, total: int) -> None:
+            stages.bar(done, total, metric)
+
+        sm = evaluate_sequence(res.images, truth, SKIP_FRAMES, metrics, fps=FC, progress=progress)
+        row: dict[str, Any] = {
+            "method": method,
+            "ssim": sm.mean["ssim"],
+            "flip": sm.mean["flip"],
+            "psnr": sm.mean["psnr"],
+            "vmaf": sm.mean.get("vmaf"),
+            "mbps": mbps,
+            "frames": len(sm.frames),
+            "modes": res.summary(),
+        }
+        rows.append(row)
+        for n in still_idx:
+            still = out / "stills" / f"frame{n:04d}_{method}.png"
+            write_png(still, res.images[n])
+            files.append(still)
+        if method == video_method:
+            video_frames = res.images
+        del res
+
+    # 4. video + stills + summary
+    stages.stage(f"writing video.mp4 (ground truth | {video_method} | FLIP map), stills, summary")
+    vw, vh = _side_by_side([truth[0]] * 3).shape[1::-1]
+    video_path = out / "video.mp4"
+    video = _Video(video_path, vw, vh, cfg.video_fps)
+    try:
+        for n in range(n_client):
+            err = colormap(flip_map(video_frames[n], truth[n]))
+            video.write(_side_by_side([truth[n], video_frames[n], err]))
+            if n in still_idx:
+                for name, img in (("ground_truth", truth[n]), (f"flip_{video_method}", err)):
+                    still = out / "stills" / f"frame{n:04d}_{name}.png"
+                    write_png(still, img)
+                    files.append(still)
+                still = out / "stills" / f"frame{n:04d}_side_by_side.png"
+                write_png(still, _side_by_side([truth[n], video_frames[n], err]))
+                files.append(still)
+            stages.bar(n + 1, n_client, "video frames")
+    finally:
+        video.close()
+    files.insert(0, video_path)
+    elapsed = time.perf_counter() - t0
+    result = DemoResult(w, h, n_server, n_client, codec_cfg.bitrate_mbps, mbps, rows, files, elapsed)
+    summary = {
+        "scene": scene.name,
+        "variant": scene.variant,
+        "scale": cfg.scale,
+        "width": w,
+        "height": h,
+        "seconds": cfg.seconds,
+        "server_fps": FS,
+        "client_fps": FC,
+        "server_frames": n_server,
+        "client_frames": n_client,
+        "skip": SKIP_FRAMES,
+        "bitrate_target_mbps": codec_cfg.bitrate_mbps,
+        "mbps": mbps,
+        "network": {"extra_delay_frames": cfg.delay_frames, "loss": 0.0},
+        "video": {"file": "video.mp4", "frames": n_client, "fps": cfg.video_fps,
+                  "tiles": ["ground_truth", video_method, f"flip_{video_method}"]},
+        "stills": still_idx,
+        "runtime_s": elapsed,
+        "rows": [
+            {k: (_json_number(r[k]) if k not in ("method", "frames") else r[k]) for k in ROW_KEYS}
+            | {"modes": r["modes"]}
+            for r in rows
+        ],
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    md = [
+        f"# splitrender demo: {scene.name} (dynamic), {w}x{h}",
+        "",
+        (
+            f"{cfg.seconds:g} s: {n_server} server frames at {FS:g} FPS encoded at "
+            f"{codec_cfg.bitrate_mbps:.3g} Mb/s (achieved {mbps:.3f} Mb/s), {n_client} client "
+            f"frames at {FC:g} FPS played through the network model (l = {cfg.delay_frames}, no "
+            f"loss). Metrics are per-frame means against the ground truth at the client pose, "
+            f"first and last {SKIP_FRAMES} client frames excluded."
+        ),
+        "",
+        format_table(rows, markdown=True),
+        "",
+        (
+            f"`video.mp4`: ground truth | {video_method} | FLIP error map of {video_method} "
+            f"(magma, black = no error), {n_client} frames at {cfg.video_fps:g} FPS "
+            f"({FC / cfg.video_fps:g}x slow motion). Stills of client frames "
+            f"{', '.join(map(str, still_idx))} are in `stills/`."
+        ),
+        "",
+    ]
+    (out / "summary.md").write_text("\n".join(md), encoding="utf-8")
+    files += [out / "summary.md", out / "summary.json"]
+    return result

@@ -1,0 +1,119 @@
+"""``splitrender demo`` and ``splitrender bench`` end to end, at a tiny scale (a few seconds)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from splitrender.bench import BENCH_KEYS
+from splitrender.cli import main
+from splitrender.demo import DEFAULT_METHODS, ROW_KEYS, colormap
+
+av = pytest.importorskip("av")
+
+TINY = ["--scale", "0.04", "--seconds", "0.3", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def demo_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("demo") / "out"
+    assert main(["demo", *TINY, "--no-vmaf", "--out", str(out)]) == 0
+    return out
+
+
+def test_demo_writes_a_decodable_video_with_one_frame_per_client_frame(demo_out: Path) -> None:
+    with av.open(str(demo_out / "video.mp4")) as c:
+        stream = c.streams.video[0]
+        frames = [f.to_ndarray(format="rgb24") for f in c.decode(stream)]
+    assert len(frames) == round(0.3 * 120)
+    h, w = frames[0].shape[:2]
+    assert h % 2 == 0 and w % 2 == 0
+    assert w >= 3 * 102 and h >= 58  # three 102x58 tiles side by side
+
+
+def test_demo_writes_stills_and_a_summary_with_every_method(demo_out: Path) -> None:
+    pngs = sorted((demo_out / "stills").glob("*.png"))
+    names = {p.name.split("_", 1)[1] for p in pngs}
+    assert {f"{m}.png" for m in DEFAULT_METHODS} | {"ground_truth.png", "flip_ours.png"} <= names
+    for p in pngs:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = json.loads((demo_out / "summary.json").read_text())
+    rows = summary["rows"]
+    assert [r["method"] for r in rows] == list(DEFAULT_METHODS)
+    for r in rows:
+        assert set(ROW_KEYS) <= set(r)
+        assert 0 < r["ssim"] <= 1 and 0 <= r["flip"] <= 1 and r["psnr"] > 0
+        assert r["vmaf"] is None  # --no-vmaf
+        assert r["mbps"] > 0 and r["frames"] == 36 - 24
+    md = (demo_out / "summary.md").read_text()
+    assert all(m in md for m in DEFAULT_METHODS)
+
+
+def test_demo_prints_the_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["demo", *TINY, "--methods", "timewarp", "--out", str(tmp_path / "o")]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "SSIM" in out and "timewarp" in out and "VMAF" in out
+
+
+def test_bench_json_rows_have_exactly_the_keys(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the recording cache
+    path = tmp_path / "bench.json"
+    args = ["bench", "--scale", "0.04", "--frames", "2", "--methods", "ours,timewarp"]
+    assert main([*args, "--quiet", "--json", str(path)]) == 0
+    rows = json.loads(path.read_text())
+    assert [r["method"] for r in rows] == ["ours", "timewarp"]
+    for r in rows:
+        assert list(r) == list(BENCH_KEYS)
+        assert r["backend"] == "cpu" and (r["width"], r["height"]) == (102, 58)
+        assert r["ms_per_frame"] > 0 and r["ns_per_pixel"] > 0
+        assert r["decode_ms_per_server_frame"] > 0
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["demo", "--scale", "0"],
+        ["demo", "--seconds", "abc"],
+        ["demo", "--seconds", "0.1"],
+        ["demo", "--seconds", "9"],
+        ["demo", "--methods", "ours,nope"],
+        ["demo", "--scene", "moon"],
+        ["demo", "--bogus"],
+        ["bench", "--frames", "0"],
+        ["bench", "--methods", ""],
+        ["bench", "--scene", "moon"],
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as e:
+        code = main([*argv, *(["--out", str(tmp_path / "o")] if argv[0] == "demo" else [])])
+        raise SystemExit(code)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("splitrender") and " error: " in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_help_of_demo_and_bench(capsys: pytest.CaptureFixture[str]) -> None:
+    for cmd in ("demo", "bench"):
+        with pytest.raises(SystemExit) as e:
+            main([cmd, "--help"])
+        assert e.value.code == 0
+        text = capsys.readouterr().out
+        assert "--scale" in text and "--methods" in text
+
+
+def test_colormap_is_dark_for_no_error_and_bright_for_full_error() -> None:
+    import numpy as np
+
+    c = colormap(np.array([[0.0, 0.5, 1.0, np.nan]], np.float32))
+    assert c.dtype == np.uint8 and c.shape == (1, 4, 3)
+    assert c[0, 0].sum() < 20 and c[0, 2].sum() > 600 and (c[0, 3] == c[0, 0]).all()

@@ -1,0 +1,68 @@
+"""`splitrender encode`: a recording of a built-in scene into a stream file and back."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import splitrender as sr
+from splitrender.cli import main
+from splitrender.codec import decode_packets
+from splitrender.encode import encode_recording
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("rec") / "courtyard"
+    return sr.write_recording(out, "courtyard", seconds=0.25, scale=0.04)
+
+
+def test_encode_round_trip_gives_every_frame_in_order(recording: Path, tmp_path: Path) -> None:
+    out = tmp_path / "courtyard.srs"
+    seen: list[int] = []
+    stats = encode_recording(recording, out, bitrate_mbps=0.5, progress=lambda d, n: seen.append(d))
+    rec = sr.load_recording(recording)
+    n = len(rec.server_frames)
+    assert seen == list(range(1, n + 1))
+    assert stats.frames == n and out.is_file()
+    assert not list(tmp_path.glob("*.partial-*"))
+    frames = decode_packets(list(sr.read_stream(out)))
+    assert [f.index for f in frames] == [f.index for f in rec.server_frames]
+    for got, want in zip(frames, rec.server_frames):
+        assert got.main.color.shape == want.main.color.shape
+        assert len(got.aux) == len(want.aux)
+        # Lossless parts survive exactly.
+        assert got.main.shadow_fwd is not None and want.main.shadow_fwd is not None
+        np.testing.assert_array_equal(got.main.shadow_fwd.bits, want.main.shadow_fwd.bits)
+    assert "main.color" in stats.mbps_by_buffer()
+    assert stats.mbps_total() > 0
+
+
+def test_encode_failure_leaves_no_stream(recording: Path, tmp_path: Path) -> None:
+    out = tmp_path / "broken.srs"
+
+    def boom(done: int, total: int) -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        encode_recording(recording, out, progress=boom)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_encode_cli(recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "s.srs"
+    assert main(["encode", str(recording), "--bitrate", "0.5", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "total" in text and "main.color" in text
+    assert out.is_file()
+
+
+def test_encode_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["encode", str(tmp_path / "missing"), "--out", str(tmp_path / "x.srs")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("splitrender: error:") and "\n" not in err
+    with pytest.raises(SystemExit) as e:
+        main(["encode", str(tmp_path), "--bitrate", "-3", "--out", str(tmp_path / "x.srs")])
+    assert e.value.code == 2
