@@ -12,6 +12,7 @@ from splitrender import metrics
 from splitrender._native import BidirHistory, __version__
 from splitrender.client import Client, PlaybackResult, play
 from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.dataset import DatasetError, export_dataset, import_dataset
 from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
 from splitrender.network import NetworkModel, Schedule
 from splitrender.recording import (
@@ -28,7 +29,7 @@ from splitrender.reproject import (
     reproject_alpha,
     scene_flow,
 )
-from splitrender.scenes import SCENE_NAMES, Scene, Trace, TraceError, load_trace
+from splitrender.scenes import SCENE_NAMES, ModelPlacement, Scene, Trace, TraceError, load_trace
 from splitrender.stream import StreamStats, read_stream, stream_stats, write_stream
 from splitrender.synthetic import SyntheticScene
 from splitrender.types import (
@@ -53,7 +54,9 @@ __all__ = [
     "ClientFrame",
     "ClientRequest",
     "CodecConfig",
+    "DatasetError",
     "InvalidInputError",
+    "ModelPlacement",
     "NetworkModel",
     "PlaybackResult",
     "Recording",
@@ -74,6 +77,8 @@ __all__ = [
     "TraceError",
     "__version__",
     "apply_shadows",
+    "export_dataset",
+    "import_dataset",
     "load_recording",
     "load_trace",
     "metrics",

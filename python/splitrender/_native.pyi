@@ -110,7 +110,25 @@ def scene_names() -> list[str]: ...
 class Scene:
     """A built-in scene of the reference renderer (reproj-scene), built once."""
 
-    def __new__(cls, name: str, variant: str = "dynamic") -> Scene: ...
+    def __new__(
+        cls,
+        name: str,
+        variant: str = "dynamic",
+        models: (
+            list[
+                tuple[
+                    str,
+                    tuple[float, float, float],
+                    float,
+                    float,
+                    int | None,
+                    float,
+                    float,
+                ]
+            ]
+            | None
+        ) = None,
+    ) -> Scene: ...
     @property
     def name(self) -> str: ...
     @property

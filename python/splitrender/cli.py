@@ -124,7 +124,12 @@ def _add_render(sub: Any) -> None:
             "(320x180), about 4x that at 0.25 (640x360); the defaults take about 30 s."
         ),
     )
-    re.add_argument("scene", metavar="SCENE", help="built-in scene: courtyard, colonnade, lab")
+    re.add_argument(
+        "scene",
+        metavar="SCENE",
+        help="built-in scene (courtyard, colonnade, lab), or a JSON scene description (*.json) that "
+        "places glTF models into one; see splitrender.scenes.Scene.from_description",
+    )
     re.add_argument("--out", type=Path, required=True, metavar="DIR", help="recording directory")
     re.add_argument(
         "--variant",
@@ -192,7 +197,11 @@ def _render(args: argparse.Namespace) -> int:
     from splitrender.scenes import Scene, load_trace
 
     try:
-        scene = Scene(args.scene, args.variant)
+        scene = (
+            Scene.from_description(args.scene)
+            if args.scene.endswith(".json")
+            else Scene(args.scene, args.variant)
+        )
         trace = None if args.trace is None else load_trace(args.trace)
         n_server, n_client = plan(args.seconds, 10.0, 120.0)
         w, h = scene.main_size(args.scale)

@@ -18,10 +18,12 @@ camera-to-world ``float64[4, 4]`` head poses (the camera looks along its -z):
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -32,6 +34,7 @@ from splitrender.errors import InvalidInputError
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 
 __all__ = [
+    "ModelPlacement",
     "PREDICTION_DELAY",
     "SCENE_NAMES",
     "ClientMotion",
@@ -70,20 +73,125 @@ def _camera_frame(d: dict[str, Any]) -> CameraFrame:
     )
 
 
+@dataclass(frozen=True)
+class ModelPlacement:
+    """A glTF 2.0 model placed into a built-in scene: scaled by ``scale``, turned by ``yaw_deg``
+    about +y, moved to ``position`` (metres); ``animation`` is the index of the glTF animation to
+    play (``None``: the rest pose), starting at ``time_offset`` seconds of model time and running
+    at ``speed`` model seconds per scene second."""
+
+    path: str
+    position: tuple[float, float, float]
+    yaw_deg: float = 0.0
+    scale: float = 1.0
+    animation: int | None = 0
+    time_offset: float = 0.0
+    speed: float = 1.0
+
+    def __post_init__(self) -> None:
+        if len(self.position) != 3 or not all(math.isfinite(v) for v in self.position):
+            raise InvalidInputError(f"{self.path}: position must be 3 finite numbers, got {self.position}")
+        for name in ("yaw_deg", "time_offset"):
+            if not math.isfinite(getattr(self, name)):
+                raise InvalidInputError(f"{self.path}: {name} must be finite")
+        for name in ("scale", "speed"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InvalidInputError(f"{self.path}: {name} must be a finite value > 0, got {v}")
+        if self.animation is not None and self.animation < 0:
+            raise InvalidInputError(f"{self.path}: animation must be >= 0 or None, got {self.animation}")
+
+    def to_native(
+        self,
+    ) -> tuple[str, tuple[float, float, float], float, float, int | None, float, float]:
+        return (
+            self.path,
+            (float(self.position[0]), float(self.position[1]), float(self.position[2])),
+            self.yaw_deg,
+            self.scale,
+            self.animation,
+            self.time_offset,
+            self.speed,
+        )
+
+
 class Scene:
     """A built-in scene (:data:`SCENE_NAMES`), ``"static"`` or ``"dynamic"``, built once.
 
     Raises :class:`~splitrender.errors.InvalidInputError` for an unknown name or variant, listing
     the valid ones."""
 
-    __slots__ = ("_native",)
+    __slots__ = ("_native", "models")
 
-    def __init__(self, name: str, variant: str = "dynamic") -> None:
+    def __init__(
+        self, name: str, variant: str = "dynamic", models: Sequence[ModelPlacement] = ()
+    ) -> None:
         if not isinstance(name, str) or not isinstance(variant, str):
             raise InvalidInputError(
                 f"Scene: expected name and variant as str, got {name!r}, {variant!r}"
             )
-        self._native = _native.Scene(name, variant)
+        for i, m in enumerate(models):
+            if not isinstance(m, ModelPlacement):
+                raise InvalidInputError(
+                    f"Scene: models[{i}]: expected a ModelPlacement, got {type(m).__name__}"
+                )
+        self.models = tuple(models)
+        self._native = _native.Scene(
+            name, variant, [m.to_native() for m in self.models] if self.models else None
+        )
+
+    @classmethod
+    def from_description(cls, path: str | os.PathLike[str]) -> Scene:
+        """A scene from a JSON description: a built-in environment and glTF models placed in it::
+
+            {"scene": "courtyard", "variant": "dynamic",
+             "models": [{"path": "Fox.glb", "position": [1, 0, -3], "yaw_deg": 90,
+                         "scale": 0.02, "animation": 2, "time_offset": 0, "speed": 1}]}
+
+        Model paths are relative to the description's folder. Every key of a model but ``path``
+        and ``position`` is optional (defaults as :class:`ModelPlacement`).
+
+        Raises:
+            InvalidInputError: naming the file and the problem (unreadable, not JSON, unknown or
+                missing keys, bad values, a glTF model that does not load).
+        """
+        p = Path(path)
+        try:
+            doc = json.loads(p.read_text(encoding="utf-8"))
+        except OSError as e:
+            raise InvalidInputError(f"{p}: cannot read the scene description: {e}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise InvalidInputError(f"{p}: not a JSON scene description: {e}") from None
+        if not isinstance(doc, dict) or not isinstance(doc.get("scene"), str):
+            raise InvalidInputError(f"{p}: expected an object with a \"scene\" name")
+        unknown = set(doc) - {"scene", "variant", "models"}
+        if unknown:
+            raise InvalidInputError(f"{p}: unknown keys {sorted(unknown)}")
+        models = []
+        for i, m in enumerate(doc.get("models", [])):
+            if not isinstance(m, dict) or "path" not in m or "position" not in m:
+                raise InvalidInputError(f"{p}: models[{i}]: expected an object with path and position")
+            extra = set(m) - {"path", "position", "yaw_deg", "scale", "animation", "time_offset", "speed"}
+            if extra:
+                raise InvalidInputError(f"{p}: models[{i}]: unknown keys {sorted(extra)}")
+            try:
+                models.append(
+                    ModelPlacement(
+                        path=str(p.parent / str(m["path"])),
+                        position=tuple(float(v) for v in m["position"]),  # type: ignore[arg-type]
+                        yaw_deg=float(m.get("yaw_deg", 0.0)),
+                        scale=float(m.get("scale", 1.0)),
+                        animation=None if m.get("animation", 0) is None else int(m.get("animation", 0)),
+                        time_offset=float(m.get("time_offset", 0.0)),
+                        speed=float(m.get("speed", 1.0)),
+                    )
+                )
+            except (TypeError, ValueError) as e:
+                raise InvalidInputError(f"{p}: models[{i}]: {e}") from None
+        try:
+            return cls(doc["scene"], str(doc.get("variant", "dynamic")), models)
+        except InvalidInputError as e:
+            raise InvalidInputError(f"{p}: {e}") from None
 
     def __repr__(self) -> str:
         return f"Scene({self.name!r}, {self.variant!r})"

@@ -151,6 +151,9 @@ pub fn scene_names() -> Vec<&'static str> {
     rs::SCENE_NAMES.to_vec()
 }
 
+/// One glTF placement: `(path, position, yaw_deg, scale, animation, time_offset, speed)`.
+type ModelSpec = (String, [f64; 3], f64, f64, Option<usize>, f64, f64);
+
 /// A built-in scene of the reference renderer, built once (meshes and their BVHs) and rendered
 /// by its methods with the GIL released.
 #[pyclass(module = "splitrender._native", frozen)]
@@ -173,13 +176,54 @@ impl Scene {
 impl Scene {
     /// Builds the built-in scene `name` (`scene_names()`) in `variant` (`"static"` or
     /// `"dynamic"`).
+    ///
+    /// `models` places glTF 2.0 models into it, each as `(path, position, yaw_deg, scale,
+    /// animation, time_offset, speed)`: the model is scaled, turned by `yaw_deg` about +y and
+    /// moved to `position`; `animation` is the index of the glTF animation to play (`None`: rest
+    /// pose), starting at `time_offset` seconds of model time and running at `speed`.
     #[new]
-    #[pyo3(signature = (name, variant = "dynamic"))]
-    fn new(py: Python<'_>, name: &str, variant: &str) -> PyResult<Scene> {
+    #[pyo3(signature = (name, variant = "dynamic", models = None))]
+    fn new(
+        py: Python<'_>,
+        name: &str,
+        variant: &str,
+        models: Option<Vec<ModelSpec>>,
+    ) -> PyResult<Scene> {
         guarded("Scene", || {
             let variant = Variant::parse(variant).map_err(map_scene_error)?;
+            let models = models.unwrap_or_default();
+            for (i, m) in models.iter().enumerate() {
+                let what = format!("models[{i}]");
+                for v in [m.1[0], m.1[1], m.1[2], m.2, m.5, m.6] {
+                    finite(v, &what)?;
+                }
+                if !(m.3 > 0.0 && m.3.is_finite()) {
+                    return Err(invalid(format!(
+                        "{what}: scale must be a finite value > 0, got {}",
+                        m.3
+                    )));
+                }
+                if !(m.6 > 0.0) {
+                    return Err(invalid(format!("{what}: speed must be > 0, got {}", m.6)));
+                }
+            }
             let inner = py
-                .detach(|| rs::builtin(name, variant))
+                .detach(|| {
+                    let mut scene = rs::builtin(name, variant)?;
+                    for (path, position, yaw_deg, scale, animation, time_offset, speed) in &models {
+                        let place = Rigid::translation(*position)
+                            .then(&Rigid::rotation([0.0, 1.0, 0.0], yaw_deg.to_radians()));
+                        let placement = rs::Placement {
+                            place,
+                            scale: *scale,
+                            animation: *animation,
+                            time_offset: *time_offset,
+                            speed: *speed,
+                        };
+                        rs::place_gltf(&mut scene, path, placement)?;
+                    }
+                    Ok(scene)
+                })
                 .map_err(map_scene_error)?;
             Ok(Scene { inner })
         })

@@ -1,0 +1,561 @@
+"""Import and export of the authors' dataset layout (shared/REFERENCE.md §1; docs/dataset-format.md).
+
+Layout (one directory per camera, files ``NNNN.png`` / ``NNNN.exr`` numbered by ``frames[k].idx``)::
+
+    OUT/main/   cam.json, color/, depth/, forwardFlowField/, backwardFlowField/,
+                forwardShadowInfo/, forwardShadowColorA/, forwardShadowColorB/,
+                backwardShadowInfo/, backwardShadowColorA/, backwardShadowColorB/
+    OUT/left/   the same for our auxiliary camera 0
+    OUT/right/  the same for our auxiliary camera 1
+    OUT/client_ol/  cam.json (+ color/NNNN.png: the ground truth)
+
+Conventions, theirs → ours (derived in docs/dataset-format.md):
+
+- Matrices: ``w2c`` is our ``view`` and the stored ``proj`` our ``proj``, unchanged. Both are
+  reversed-Z ``[0, 1]``, right-handed, y up; the reference normalises ``P = F_y·D·Z·P_stored`` and
+  maps NDC ``y_n = −1`` to image row 0, i.e. stored ``y = +1`` is row 0 (the top), which is our
+  convention (row 0 at the top, y up). ``eRC`` is row ``R``, column ``C``.
+- Depth: their ``d`` is the reversed-Z device depth of ``P_stored``, which is our ``Z``.
+- Motion: theirs is ``(Δx, Δy_n, Δz_n)`` in the normalised NDC, with ``y_n = −y`` and
+  ``z_n = 1 − 2Z``; so ours is ``(Δx, −Δy_n, −Δz_n / 2)``.
+- Pairing (§1.5/§1.6): ``forward*/[idx_k]`` are frame ``k``'s forward buffers (toward ``k+1``),
+  ``backward*/[idx_k]`` frame ``k+1``'s backward buffers (toward ``k``). The export also writes
+  the last frame's forward buffers under its own idx (never read by the reference); the first
+  frame's backward buffers (toward ``k = −1``) have no slot and are not exported.
+- Shadows: ``Φ = (R≪16)|(G≪8)|B`` is our bitfield, ColorA our ``s_min``, ColorB our ``s_max``
+  (alpha written 255, ignored on import).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+import OpenEXR  # type: ignore[import-not-found]  # compiled module, no stubs
+from PIL import Image
+
+from splitrender.errors import SplitRenderError
+from splitrender.recording import Recording, load_recording
+from splitrender.types import (
+    MAX_SIDE,
+    Camera,
+    CameraFrame,
+    ClientRequest,
+    ServerFrame,
+    ShadowBuffers,
+)
+
+__all__ = [
+    "DatasetError",
+    "DatasetInfo",
+    "ImportedDataset",
+    "dataset_info",
+    "export_dataset",
+    "import_dataset",
+]
+
+_MAX_JSON_BYTES = 64 * 1024 * 1024
+_KEYS = [f"e{r}{c}" for r in range(4) for c in range(4)]
+_EXR_HEADER = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+_FLOW = {"fwd": "forwardFlowField", "bwd": "backwardFlowField"}
+_SHADOW = {
+    d: (f"{p}ShadowInfo", f"{p}ShadowColorA", f"{p}ShadowColorB")
+    for d, p in (("fwd", "forward"), ("bwd", "backward"))
+}
+
+_U8 = npt.NDArray[np.uint8]
+_F32 = npt.NDArray[np.float32]
+
+
+class DatasetError(SplitRenderError):
+    """A dataset in the authors' layout that cannot be read or written; the message names the
+    file and the problem."""
+
+
+def _fail(where: Path | str, problem: str) -> DatasetError:
+    return DatasetError(f"{where}: {problem}")
+
+
+# --------------------------------------------------------------------------------------------
+# Conversions (pure functions, exported for tests and tools)
+
+
+def matrix_to_unity(m: npt.NDArray[np.float64]) -> dict[str, float]:
+    """A 4x4 matrix as a Unity ``Matrix4x4`` object (``eRC`` = row ``R``, column ``C``)."""
+    return {f"e{r}{c}": float(m[r, c]) for r in range(4) for c in range(4)}
+
+
+def matrix_from_unity(obj: object, where: Path | str = "matrix") -> npt.NDArray[np.float64]:
+    """The inverse of :func:`matrix_to_unity`; raises :class:`DatasetError` naming ``where``."""
+    if not isinstance(obj, dict):
+        raise _fail(where, f"expected an object with keys e00..e33, got {type(obj).__name__}")
+    m = np.empty((4, 4), np.float64)
+    for r in range(4):
+        for c in range(4):
+            v = obj.get(f"e{r}{c}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise _fail(where, f"e{r}{c}: expected a finite number, got {v!r}")
+            m[r, c] = float(v)
+    return m
+
+
+def motion_to_theirs(motion: _F32) -> _F32:
+    """Our motion ``(Δx, Δy, ΔZ)`` (y up, reversed depth Z) → theirs ``(Δx, Δy_n, Δz_n)`` in the
+    normalised NDC (``y_n = −y``, ``z_n = 1 − 2Z``)."""
+    out = np.array(motion, dtype=np.float32, copy=True)
+    out[..., 1] *= -1.0
+    out[..., 2] *= -2.0
+    return out
+
+
+def motion_from_theirs(motion: _F32) -> _F32:
+    """The inverse of :func:`motion_to_theirs`."""
+    out = np.array(motion, dtype=np.float32, copy=True)
+    out[..., 1] *= -1.0
+    out[..., 2] *= -0.5
+    return out
+
+
+def bits_to_rgba(bits: npt.NDArray[np.uint32]) -> _U8:
+    """Shadow bitfield → RGBA8 with ``Φ = (R≪16)|(G≪8)|B`` and alpha 255."""
+    if bits.size and int(bits.max()) >= 1 << 24:
+        raise DatasetError("shadow bitfield: values above 24 bits do not fit the RGB8 PNG")
+    h, w = bits.shape
+    out = np.empty((h, w, 4), np.uint8)
+    out[..., 0] = (bits >> 16) & 0xFF
+    out[..., 1] = (bits >> 8) & 0xFF
+    out[..., 2] = bits & 0xFF
+    out[..., 3] = 255
+    return out
+
+
+def bits_from_rgba(rgba: _U8) -> npt.NDArray[np.uint32]:
+    """The inverse of :func:`bits_to_rgba` (alpha ignored)."""
+    c = rgba.astype(np.uint32)
+    return np.ascontiguousarray((c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2])
+
+
+# --------------------------------------------------------------------------------------------
+# File I/O
+
+
+def _name(idx: int, ext: str) -> str:
+    return f"{idx:04d}.{ext}"
+
+
+def _write_png(path: Path, img: _U8) -> None:
+    mode = {3: "RGB", 4: "RGBA"}[img.shape[2]]
+    Image.fromarray(np.ascontiguousarray(img), mode).save(path, compress_level=1)
+
+
+def _write_exr(path: Path, channels: dict[str, npt.NDArray[Any]]) -> None:
+    half = {k: np.ascontiguousarray(v.astype(np.float16)) for k, v in channels.items()}
+    OpenEXR.File(dict(_EXR_HEADER), half).write(str(path))
+
+
+def _read_png(path: Path, size: tuple[int, int]) -> _U8:
+    """RGBA8 of the PNG at ``path``, which must be ``size = (w, h)`` (checked before decoding)."""
+    if not path.is_file():
+        raise _fail(path, "missing file")
+    try:
+        with Image.open(path) as im:
+            if im.size != size:
+                raise _fail(
+                    path,
+                    f"resolution {im.size[0]}x{im.size[1]} does not match cam.json's "
+                    f"{size[0]}x{size[1]}",
+                )
+            if im.mode not in ("RGB", "RGBA"):
+                im = im.convert("RGBA")
+            a = np.asarray(im)
+    except DatasetError:
+        raise
+    except (OSError, ValueError, Image.DecompressionBombError) as e:
+        raise _fail(path, f"cannot read PNG: {e}") from None
+    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] not in (3, 4):
+        raise _fail(path, f"expected an 8-bit RGB(A) PNG, got {a.dtype} {a.shape}")
+    if a.shape[2] == 3:
+        a = np.concatenate([a, np.full(a.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    return np.ascontiguousarray(a)
+
+
+def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
+    """``want="depth"``: the single channel as ``float32[H, W]``; ``want="flow"``: R, G, B as
+    ``float32[H, W, 3]``. The size is checked from the header before the pixels are read."""
+    if not path.is_file():
+        raise _fail(path, "missing file")
+    try:
+        hdr = OpenEXR.File(str(path), header_only=True).header()
+        lo, hi = (np.asarray(v) for v in hdr["dataWindow"])
+        w, h = int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+        names = [c.name for c in hdr["channels"]]
+    except (RuntimeError, OSError, KeyError, TypeError, ValueError) as e:
+        raise _fail(path, f"cannot read EXR: {e}") from None
+    if (w, h) != size:
+        raise _fail(
+            path, f"resolution {w}x{h} does not match cam.json's {size[0]}x{size[1]}"
+        )
+    if want == "depth" and len(names) != 1:
+        raise _fail(path, f"expected a single-channel depth EXR, got channels {names}")
+    if want == "flow" and not {"R", "G", "B"} <= set(names):
+        raise _fail(path, f"expected channels R, G, B (A optional), got {names}")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            ch = f.channels()
+            keys = names if want == "depth" else ["R", "G", "B"]
+            planes = [np.asarray(ch[k].pixels) for k in keys]
+    except (RuntimeError, OSError, KeyError, TypeError, ValueError) as e:
+        raise _fail(path, f"cannot read EXR: {e}") from None
+    for p in planes:
+        if p.shape != (h, w):
+            raise _fail(path, f"channel of shape {p.shape}, expected {(h, w)}")
+    if want == "depth":
+        return np.ascontiguousarray(planes[0], dtype=np.float32)
+    return np.ascontiguousarray(np.stack(planes, axis=-1), dtype=np.float32)
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise _fail(path, "missing file") from None
+    except OSError as e:
+        raise _fail(path, f"cannot read: {e}") from None
+    if size > _MAX_JSON_BYTES:
+        raise _fail(path, f"{size} bytes, more than {_MAX_JSON_BYTES}")
+    try:
+        m = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise _fail(path, f"cannot read: {e}") from None
+    if not isinstance(m, dict):
+        raise _fail(path, "expected a JSON object")
+    return m
+
+
+def _number(m: dict[str, Any], key: str, default: float, path: Path) -> float:
+    v = m.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+        raise _fail(path, f"{key}: expected a number > 0, got {v!r}")
+    return float(v)
+
+
+@dataclass(frozen=True, slots=True)
+class _Cam:
+    """One parsed ``cam.json``."""
+
+    path: Path
+    width: int
+    height: int
+    frames: list[tuple[int, npt.NDArray[np.float64], npt.NDArray[np.float64]]]
+    raw: dict[str, Any]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (self.width, self.height)
+
+
+def _read_cam(path: Path, *, need_resolution: bool = True) -> _Cam:
+    m = _read_json(path)
+    res = m.get("resolution")
+    w = h = 0
+    if res is not None or need_resolution:
+        if not isinstance(res, dict):
+            raise _fail(path, f"resolution: expected {{x, y}}, got {res!r}")
+        x, y = res.get("x"), res.get("y")
+        for v in (x, y):
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_SIDE:
+                raise _fail(path, f"resolution: expected ints in 1..{MAX_SIDE}, got {res!r}")
+        w, h = int(x), int(y)  # type: ignore[arg-type]
+    frames = m.get("frames")
+    if not isinstance(frames, list) or not frames:
+        raise _fail(path, "frames: expected a non-empty array")
+    out = []
+    for i, fr in enumerate(frames):
+        if not isinstance(fr, dict):
+            raise _fail(path, f"frames[{i}]: expected an object")
+        idx = fr.get("idx")
+        if isinstance(idx, bool) or not isinstance(idx, int) or idx < 0:
+            raise _fail(path, f"frames[{i}].idx: expected an int >= 0, got {idx!r}")
+        out.append(
+            (
+                idx,
+                matrix_from_unity(fr.get("w2c"), f"{path}: frames[{i}].w2c"),
+                matrix_from_unity(fr.get("proj"), f"{path}: frames[{i}].proj"),
+            )
+        )
+    return _Cam(path, w, h, out, m)
+
+
+# --------------------------------------------------------------------------------------------
+# Export
+
+
+def _cam_json(
+    cams: Sequence[Camera], idxs: Sequence[int], fs: float, shadow_fps: float, fc: float
+) -> dict[str, Any]:
+    return {
+        "frames": [
+            {"idx": i, "w2c": matrix_to_unity(c.view), "proj": matrix_to_unity(c.proj)}
+            for i, c in zip(idxs, cams)
+        ],
+        "resolution": {"x": cams[0].width, "y": cams[0].height},
+        "serverFps": fs,
+        "shadowFps": shadow_fps,
+        "clientFps": fc,
+        "objectMotion": True,
+        "shadowGradients": True,
+    }
+
+
+def export_dataset(
+    recording: Recording | str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    aux_names: Sequence[str] = ("left", "right"),
+    client: str = "client_ol",
+) -> Path:
+    """Writes ``recording`` (a :class:`Recording` or its directory) in the authors' layout
+    under ``out_dir`` (created; it must not exist or be empty) and returns its path.
+
+    Our auxiliary camera ``i`` goes to ``aux_names[i]``; the client's (first eye's) cameras and
+    ground truth to ``client``. Depth and motion are written as half floats.
+
+    Raises:
+        DatasetError: ``out_dir`` is not empty, or the recording has more auxiliary cameras
+            than ``aux_names``.
+        RecordingError: the recording cannot be read.
+    """
+    rec = recording if isinstance(recording, Recording) else load_recording(recording)
+    out = Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise _fail(out, "exists and is not an empty directory")
+    frames = list(rec.server_frames)
+    n_aux = len(frames[0].aux)
+    if n_aux > len(aux_names):
+        raise _fail(out, f"{n_aux} auxiliary cameras but only {len(aux_names)} aux_names")
+    names = ["main", *aux_names[:n_aux]]
+    if len(set(names)) != len(names) or client in names:
+        raise _fail(out, f"camera directory names must differ, got {[*names, client]}")
+    fs, fc = rec.fs, rec.fc
+    shadow_fps = fs * rec.subframes
+    idxs = [f.index for f in frames]
+    for ci, name in enumerate(names):
+        cam_frames = [f.main if ci == 0 else f.aux[ci - 1] for f in frames]
+        d = out / name
+        for sub in ("color", "depth", *_FLOW.values(), *_SHADOW["fwd"], *_SHADOW["bwd"]):
+            (d / sub).mkdir(parents=True, exist_ok=True)
+        (d / "cam.json").write_text(
+            json.dumps(_cam_json([c.camera for c in cam_frames], idxs, fs, shadow_fps, fc)),
+            encoding="utf-8",
+        )
+        for k, (idx, cf) in enumerate(zip(idxs, cam_frames)):
+            h, w = cf.camera.height, cf.camera.width
+            _write_png(d / "color" / _name(idx, "png"), cf.color)
+            _write_exr(d / "depth" / _name(idx, "exr"), {"Y": cf.depth})
+            # Pair (k, k+1) is numbered by the older frame's idx: frame k's forward buffers and
+            # frame k+1's backward buffers. The last frame's forward buffers go under its idx.
+            nxt = cam_frames[k + 1] if k + 1 < len(cam_frames) else None
+            for direction, src in (("fwd", cf), ("bwd", nxt)):
+                if src is None:
+                    continue
+                mot = src.motion_fwd if direction == "fwd" else src.motion_bwd
+                if mot is None:
+                    mot = np.zeros((h, w, 3), np.float32)
+                theirs = motion_to_theirs(mot)
+                _write_exr(
+                    d / _FLOW[direction] / _name(idx, "exr"),
+                    {"R": theirs[..., 0], "G": theirs[..., 1], "B": theirs[..., 2]},
+                )
+                sh = src.shadow_fwd if direction == "fwd" else src.shadow_bwd
+                if sh is None:
+                    z3 = np.zeros((h, w, 3), np.uint8)
+                    sh = ShadowBuffers(np.zeros((h, w), np.uint32), z3, z3)
+                info, col_a, col_b = _SHADOW[direction]
+                alpha = np.full((h, w, 1), 255, np.uint8)
+                _write_png(d / info / _name(idx, "png"), bits_to_rgba(sh.bits))
+                _write_png(d / col_a / _name(idx, "png"), np.concatenate([sh.s_min, alpha], 2))
+                _write_png(d / col_b / _name(idx, "png"), np.concatenate([sh.s_max, alpha], 2))
+    cd = out / client
+    (cd / "color").mkdir(parents=True, exist_ok=True)
+    cframes = list(rec.client_frames)
+    (cd / "cam.json").write_text(
+        json.dumps(
+            _cam_json([c.camera for c in cframes], [c.index for c in cframes], fs, shadow_fps, fc)
+        ),
+        encoding="utf-8",
+    )
+    for c in cframes:
+        _write_png(cd / "color" / _name(c.index, "png"), c.ground_truth)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Import
+
+
+@dataclass(frozen=True, slots=True)
+class DatasetInfo:
+    """The rates and sizes of a dataset (main ``cam.json``; client rate from the client's)."""
+
+    server_fps: float
+    shadow_fps: float
+    client_fps: float
+    width: int
+    height: int
+
+    @property
+    def subframes(self) -> int:
+        """``S = ⌊shadowFps / serverFps⌋`` (REFERENCE.md §1.6), at least 1."""
+        return max(1, int(math.floor(self.shadow_fps / self.server_fps + 1e-9)))
+
+
+def dataset_info(in_dir: str | os.PathLike[str], client: str | None = "client_ol") -> DatasetInfo:
+    """The :class:`DatasetInfo` of the dataset in ``in_dir``."""
+    root = Path(in_dir)
+    main = _read_cam(root / "main" / "cam.json")
+    fc_src = main.raw
+    if client is not None:
+        fc_src = _read_json(root / client / "cam.json")
+    return DatasetInfo(
+        _number(main.raw, "serverFps", 10.0, main.path),
+        _number(main.raw, "shadowFps", 60.0, main.path),
+        _number(fc_src, "clientFps", 60.0, root / (client or "main") / "cam.json"),
+        main.width,
+        main.height,
+    )
+
+
+class ImportedDataset(NamedTuple):
+    """What :func:`import_dataset` returns: the server frames, one client request (camera and
+    time ``n / clientFps``) per client frame, and the ground truth per client frame (``None``
+    where the client directory has no ``color/``)."""
+
+    server_frames: list[ServerFrame]
+    client_requests: list[ClientRequest]
+    ground_truth: list[_U8 | None]
+
+
+def _import_camera(d: Path, cam: _Cam) -> list[CameraFrame]:
+    size = cam.size
+    w, h = size
+    n = len(cam.frames)
+    flows = {k: (d / v).is_dir() for k, v in _FLOW.items()}
+    shadows = {k: (d / v[0]).is_dir() and (d / v[1]).is_dir() for k, v in _SHADOW.items()}
+    colors: list[_U8] = []
+    depths: list[_F32] = []
+    for idx, _, _ in cam.frames:
+        colors.append(np.ascontiguousarray(_read_png(d / "color" / _name(idx, "png"), size)[..., :3]))
+        depths.append(_read_exr(d / "depth" / _name(idx, "exr"), size, "depth"))
+    motion: dict[str, list[_F32 | None]] = {"fwd": [None] * n, "bwd": [None] * n}
+    shadow: dict[str, list[ShadowBuffers | None]] = {"fwd": [None] * n, "bwd": [None] * n}
+    for k, (idx, _, _) in enumerate(cam.frames):
+        # The pair (k, k+1) numbered idx_k: forward → frame k, backward → frame k+1. The forward
+        # file of the last frame is optional (the reference never reads it).
+        for direction, target in (("fwd", k), ("bwd", k + 1)):
+            last = k + 1 >= n
+            if target >= n:
+                continue
+            if flows[direction]:
+                p = d / _FLOW[direction] / _name(idx, "exr")
+                if not (last and not p.is_file()):
+                    motion[direction][target] = motion_from_theirs(_read_exr(p, size, "flow"))
+            if shadows[direction]:
+                info, col_a, col_b = _SHADOW[direction]
+                p = d / info / _name(idx, "png")
+                if last and not p.is_file():
+                    continue
+                bits = bits_from_rgba(_read_png(p, size))
+                s_min = _read_png(d / col_a / _name(idx, "png"), size)[..., :3]
+                if (d / col_b).is_dir():
+                    s_max = _read_png(d / col_b / _name(idx, "png"), size)[..., :3]
+                else:  # REFERENCE.md §1.6: ColorB missing → the base colour is used
+                    s_max = colors[target]
+                shadow[direction][target] = ShadowBuffers(
+                    bits, np.ascontiguousarray(s_min), np.ascontiguousarray(s_max)
+                )
+    out = []
+    for k, (_, view, proj) in enumerate(cam.frames):
+        try:
+            out.append(
+                CameraFrame(
+                    Camera(view, proj, w, h),
+                    colors[k],
+                    depths[k],
+                    motion["fwd"][k],
+                    motion["bwd"][k],
+                    shadow["fwd"][k],
+                    shadow["bwd"][k],
+                )
+            )
+        except SplitRenderError as e:
+            raise _fail(cam.path, f"frames[{k}]: {e}") from None
+    return out
+
+
+def import_dataset(
+    in_dir: str | os.PathLike[str],
+    aux: Sequence[str] = ("left", "right"),
+    client: str | os.PathLike[str] | None = "client_ol",
+) -> ImportedDataset:
+    """Reads the dataset in the authors' layout under ``in_dir``: the ``main`` camera, the
+    auxiliary cameras ``aux`` (in rig order) and the client directory ``client`` (relative to
+    ``in_dir`` or absolute; ``None``: no client) and converts it to our conventions (see the
+    module docstring). Server frame ``k`` gets index ``k`` and time ``k / serverFps``; client
+    frame ``n`` time ``n / clientFps`` and the client ``cam.json``'s resolution (the main
+    camera's when it has none).
+
+    Raises:
+        DatasetError: naming the file, for a missing directory, ``cam.json`` or buffer file, a
+            file whose resolution differs from its ``cam.json``, malformed JSON or matrices,
+            aux frame lists of another length than main's, or unreadable images.
+    """
+    root = Path(in_dir)
+    if not root.is_dir():
+        raise _fail(root, "no such dataset directory")
+    info_main = _read_cam(root / "main" / "cam.json")
+    fs = _number(info_main.raw, "serverFps", 10.0, info_main.path)
+    cams = [("main", info_main)]
+    for name in aux:
+        d = root / name
+        if not d.is_dir():
+            raise _fail(d, "missing auxiliary camera directory")
+        c = _read_cam(d / "cam.json")
+        if len(c.frames) != len(info_main.frames):
+            raise _fail(
+                c.path,
+                f"{len(c.frames)} frames, but main/cam.json has {len(info_main.frames)}",
+            )
+        cams.append((name, c))
+    per_cam = [_import_camera(root / name, c) for name, c in cams]
+    server = [
+        ServerFrame(k, k / fs, per_cam[0][k], tuple(p[k] for p in per_cam[1:]))
+        for k in range(len(info_main.frames))
+    ]
+    requests: list[ClientRequest] = []
+    truth: list[_U8 | None] = []
+    if client is not None:
+        cd = root / client
+        if not cd.is_dir():
+            raise _fail(cd, "missing client directory")
+        cc = _read_cam(cd / "cam.json", need_resolution=False)
+        fc = _number(cc.raw, "clientFps", 60.0, cc.path)
+        w, h = cc.size if cc.width else info_main.size
+        has_gt = (cd / "color").is_dir()
+        for n, (idx, view, proj) in enumerate(cc.frames):
+            try:
+                requests.append(ClientRequest(Camera(view, proj, w, h), n / fc))
+            except SplitRenderError as e:
+                raise _fail(cc.path, f"frames[{n}]: {e}") from None
+            truth.append(
+                np.ascontiguousarray(_read_png(cd / "color" / _name(idx, "png"), (w, h))[..., :3])
+                if has_gt
+                else None
+            )
+    return ImportedDataset(server, requests, truth)

@@ -1,0 +1,308 @@
+"""Import/export of the authors' dataset layout (splitrender.dataset; REFERENCE.md §1)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+from PIL import Image
+
+import splitrender as sr
+from splitrender import _native
+from splitrender.dataset import (
+    DatasetError,
+    bits_from_rgba,
+    bits_to_rgba,
+    dataset_info,
+    matrix_to_unity,
+    motion_from_theirs,
+    motion_to_theirs,
+)
+
+_HALF_REL = 2.0**-11  # half float: 11 significant bits, round to nearest
+_HALF_ABS = 2.0**-24  # subnormal spacing
+
+
+def _half_ok(a: np.ndarray, b: np.ndarray) -> bool:
+    """|a − b| within the half-float rounding bound of ``a``."""
+    return bool(np.all(np.abs(a - b) <= np.abs(a) * _HALF_REL + _HALF_ABS))
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> sr.Recording:
+    d = tmp_path_factory.mktemp("rec")
+    return sr.load_recording(sr.write_recording(d / "r", "courtyard", seconds=0.25, scale=0.04))
+
+
+@pytest.fixture(scope="module")
+def exported(recording: sr.Recording, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return sr.export_dataset(recording, tmp_path_factory.mktemp("ds") / "out")
+
+
+def test_layout(recording: sr.Recording, exported: Path) -> None:
+    for cam in ("main", "left", "right"):
+        d = exported / cam
+        cj = json.loads((d / "cam.json").read_text())
+        assert len(cj["frames"]) == len(recording.server_frames)
+        assert set(cj["frames"][0]["w2c"]) == {f"e{r}{c}" for r in range(4) for c in range(4)}
+        assert cj["serverFps"] == recording.fs and cj["clientFps"] == recording.fc
+        assert cj["shadowFps"] == recording.fs * recording.subframes
+        for sub in ("color", "depth", "forwardFlowField", "backwardFlowField",
+                    "forwardShadowInfo", "forwardShadowColorA", "forwardShadowColorB",
+                    "backwardShadowInfo", "backwardShadowColorA", "backwardShadowColorB"):
+            assert (d / sub).is_dir(), sub
+        assert (d / "color" / "0000.png").is_file()
+        hdr = OpenEXR.File(str(d / "depth" / "0000.exr"), header_only=True).header()
+        assert len(hdr["channels"]) == 1
+        with OpenEXR.File(str(d / "forwardFlowField" / "0000.exr"), separate_channels=True) as f:
+            ch = f.channels()
+            assert set(ch) == {"R", "G", "B"} and ch["R"].pixels.dtype == np.float16
+        # Backward buffers are numbered by the older frame: none for the last frame's idx.
+        last = len(recording.server_frames) - 1
+        assert not (d / "backwardFlowField" / f"{last:04d}.exr").exists()
+        with Image.open(d / "forwardShadowInfo" / "0000.png") as im:
+            assert im.mode == "RGBA"
+    assert len(json.loads((exported / "client_ol" / "cam.json").read_text())["frames"]) == len(
+        recording.client_frames
+    )
+
+
+def test_round_trip(recording: sr.Recording, exported: Path) -> None:
+    imp = sr.import_dataset(exported)
+    orig = list(recording.server_frames)
+    assert len(imp.server_frames) == len(orig)
+    for k, (a, b) in enumerate(zip(orig, imp.server_frames)):
+        assert b.index == a.index and b.time == pytest.approx(a.time)
+        assert len(b.aux) == len(a.aux) == 2
+        for ca, cb in zip((a.main, *a.aux), (b.main, *b.aux)):
+            assert cb.camera.shape == ca.camera.shape
+            np.testing.assert_allclose(cb.camera.view, ca.camera.view, atol=1e-6, rtol=0)
+            np.testing.assert_allclose(cb.camera.proj, ca.camera.proj, atol=1e-6, rtol=0)
+            np.testing.assert_array_equal(cb.color, ca.color)
+            assert _half_ok(ca.depth, cb.depth), f"depth of frame {k}"
+            assert ca.motion_fwd is not None and cb.motion_fwd is not None
+            assert _half_ok(ca.motion_fwd, cb.motion_fwd), f"motion_fwd of frame {k}"
+            assert ca.shadow_fwd is not None and cb.shadow_fwd is not None
+            for x, y in zip(ca.shadow_fwd.to_native(), cb.shadow_fwd.to_native()):
+                np.testing.assert_array_equal(x, y)
+            if k == 0:  # toward frame -1: no slot in the layout
+                assert cb.motion_bwd is None and cb.shadow_bwd is None
+                continue
+            assert ca.motion_bwd is not None and cb.motion_bwd is not None
+            assert _half_ok(ca.motion_bwd, cb.motion_bwd), f"motion_bwd of frame {k}"
+            assert ca.shadow_bwd is not None and cb.shadow_bwd is not None
+            for x, y in zip(ca.shadow_bwd.to_native(), cb.shadow_bwd.to_native()):
+                np.testing.assert_array_equal(x, y)
+    cf = list(recording.client_frames)
+    assert len(imp.client_requests) == len(cf) == len(imp.ground_truth)
+    for c, r, g in zip(cf, imp.client_requests, imp.ground_truth):
+        assert r.time == pytest.approx(c.time)
+        np.testing.assert_allclose(r.camera.view, c.camera.view, atol=1e-6, rtol=0)
+        np.testing.assert_allclose(r.camera.proj, c.camera.proj, atol=1e-6, rtol=0)
+        assert g is not None
+        np.testing.assert_array_equal(g, c.ground_truth)
+    info = dataset_info(exported)
+    assert info.server_fps == recording.fs and info.client_fps == recording.fc
+    assert info.subframes == recording.subframes
+
+
+def _half_depth(f: sr.ServerFrame) -> sr.ServerFrame:
+    def cam(c: sr.CameraFrame) -> sr.CameraFrame:
+        return dataclasses.replace(c, depth=c.depth.astype(np.float16).astype(np.float32))
+
+    return sr.ServerFrame(f.index, f.time, cam(f.main), tuple(cam(a) for a in f.aux))
+
+
+def test_imported_frames_reproject_alike(recording: sr.Recording, exported: Path) -> None:
+    imp = sr.import_dataset(exported)
+    cams = [c.camera for c in recording.client_frames]
+    opts = sr.ReprojectOptions(shadow_subframes=recording.subframes, server_fps=recording.fs)
+    orig = list(recording.server_frames)
+    a = sr.play(orig, cams, fps=recording.fc, options=opts)
+    b = sr.play(imp.server_frames, [r.camera for r in imp.client_requests], fps=recording.fc,
+                options=opts)
+    same = [float(np.mean(np.all(x == y, axis=-1))) for x, y in zip(a.images, b.images)]
+    # Half-float depth moves a few depth-test decisions at edges (eps_z = 0.001 vs a half ulp of
+    # 2^-11 near Z = 1): on this recording 99.55 % of pixels are identical on average and at
+    # least 98.99 % in every frame.
+    assert np.mean(same) >= 0.99, f"only {np.mean(same):.2%} of pixels identical on average"
+    assert min(same) >= 0.98, f"client frame {int(np.argmin(same))}: only {min(same):.2%}"
+    # ... and that is all of it: the originals with their depth rounded to half reproject to
+    # exactly the imported frames' images (motion rounding changes no pixel here).
+    c = sr.play([_half_depth(f) for f in orig], cams, fps=recording.fc, options=opts)
+    for n, (x, y) in enumerate(zip(c.images, b.images)):
+        np.testing.assert_array_equal(x, y, err_msg=f"client frame {n}")
+
+
+def test_export_refuses_non_empty(recording: sr.Recording, exported: Path) -> None:
+    with pytest.raises(DatasetError, match="not an empty directory"):
+        sr.export_dataset(recording, exported)
+
+
+# ----------------------------------------------------------------------------------------------
+# A hand-written dataset: a 4x4 camera at the origin looking down -z at the plane z = -2.
+
+N, F = 1.0, 3.0
+A, B = N / (F - N), F * N / (F - N)
+# Unity 2022.3 style: right-handed view (looks along -z), reversed-Z [0, 1] projection, y up.
+PROJ = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, A, B], [0, 0, -1.0, 0]])  # 90° fov
+VIEW = np.eye(4)
+D_PLANE = (-2.0 * A + B) / 2.0  # reversed device depth of z_view = -2: 0.25
+
+
+def _write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {k: v.astype(np.float16) for k, v in channels.items()}).write(str(path))
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(img).save(path)
+
+
+def _their_normalised(proj: np.ndarray) -> np.ndarray:
+    """REFERENCE.md §1.3: P = F_y · D · Z · P_stored."""
+    z = np.diag([1.0, 1, -1, 1])
+    z[2, 3] = 1.0  # z -> w - z
+    d = np.diag([1.0, 1, 2, 1])
+    d[2, 3] = -1.0  # z -> 2z - w
+    fy = np.diag([1.0, -1, 1, 1])
+    return fy @ d @ z @ proj
+
+
+@pytest.fixture()
+def handmade(tmp_path: Path) -> Path:
+    root = tmp_path / "ds"
+    frames = [{"idx": i, "w2c": matrix_to_unity(VIEW), "proj": matrix_to_unity(PROJ)} for i in (7, 8)]
+    for cam in ("main",):
+        d = root / cam
+        d.mkdir(parents=True)
+        (d / "cam.json").write_text(json.dumps(
+            {"frames": frames, "resolution": {"x": 4, "y": 4}, "serverFps": 10, "shadowFps": 40}))
+        for idx in (7, 8):
+            color = np.zeros((4, 4, 3), np.uint8)
+            color[0] = (255, 0, 0)  # first stored row: red
+            color[:, 0] = (0, 0, 255)  # first column: blue
+            _write_png(d / "color" / f"{idx:04d}.png", color)
+            _write_exr(d / "depth" / f"{idx:04d}.exr", {"Z": np.full((4, 4), D_PLANE)})
+        flow = np.broadcast_to(np.array([0.5, 0.5, -0.2]), (4, 4, 3))
+        for kind in ("forwardFlowField", "backwardFlowField"):
+            _write_exr(d / kind / "0007.exr", {c: flow[..., i] for i, c in enumerate("RGB")})
+        info = np.zeros((4, 4, 4), np.uint8)
+        info[..., :3] = (0x12, 0x34, 0x56)
+        info[..., 3] = 7  # ignored
+        _write_png(d / "forwardShadowInfo" / "0007.png", info)
+        _write_png(d / "forwardShadowColorA" / "0007.png", np.full((4, 4, 4), 9, np.uint8))
+        _write_png(d / "forwardShadowColorB" / "0007.png", np.full((4, 4, 4), 200, np.uint8))
+    c = root / "client_ol"
+    c.mkdir()
+    (c / "cam.json").write_text(json.dumps({"frames": [frames[0]], "clientFps": 120}))
+    return root
+
+
+def test_handmade_conventions(handmade: Path) -> None:
+    # Our projection is the same Unity-style matrix.
+    np.testing.assert_allclose(_native.perspective(90.0, 1.0, N, F), PROJ, atol=1e-12)
+    imp = sr.import_dataset(handmade, aux=())
+    assert len(imp.server_frames) == 2 and imp.server_frames[1].time == pytest.approx(0.1)
+    f0, f1 = imp.server_frames[0].main, imp.server_frames[1].main
+    np.testing.assert_array_equal(f0.camera.proj, PROJ)
+    np.testing.assert_array_equal(f0.camera.view, VIEW)
+    np.testing.assert_array_equal(f0.depth, np.float32(D_PLANE))  # depth unchanged
+    assert tuple(f0.color[0, 1]) == (255, 0, 0) and tuple(f0.color[1, 0]) == (0, 0, 255)
+
+    inv = np.linalg.inv(f0.camera.proj @ f0.camera.view)
+    theirs = _their_normalised(PROJ) @ VIEW
+    theirs_inv = np.linalg.inv(theirs)
+    assert f0.motion_fwd is not None and f1.motion_bwd is not None
+    assert f0.motion_bwd is None and f1.motion_fwd is None
+    np.testing.assert_allclose(f0.motion_fwd, f1.motion_bwd)
+    np.testing.assert_allclose(f0.motion_fwd[0, 0], [0.5, -0.5, 0.1], atol=1e-3)
+    for j in range(4):
+        for i in range(4):
+            # Our pixel centre (y up, row 0 at the top) and reversed depth.
+            p = np.array([(2 * i + 1) / 4 - 1, 1 - (2 * j + 1) / 4, f0.depth[j, i], 1.0])
+            x = inv @ p
+            x /= x[3]
+            # On the plane z = -2, 90° fov: world (2x, 2y, -2); row 0 (red) is the top (y > 0).
+            np.testing.assert_allclose(x[:3], [2 * p[0], 2 * p[1], -2.0], atol=1e-6)
+            if j == 0:
+                assert x[1] > 0
+            # The reference's normalised NDC of that point: x, y_n = -y (row j), z_n = 1 - 2d.
+            c = theirs @ x
+            c /= c[3]
+            np.testing.assert_allclose(
+                c[:3], [2 * (i + 0.5) / 4 - 1, 2 * (j + 0.5) / 4 - 1, 1 - 2 * D_PLANE], atol=1e-6
+            )
+            # Motion: adding theirs in their NDC and ours in ours gives the same world point.
+            t = theirs_inv @ np.append(c[:3] + [0.5, 0.5, -0.2], 1.0)
+            o = inv @ np.append(p[:3] + f0.motion_fwd[j, i], 1.0)
+            np.testing.assert_allclose(t[:3] / t[3], o[:3] / o[3], rtol=2e-3, atol=2e-3)
+    assert f0.shadow_fwd is not None and f1.shadow_bwd is None
+    assert int(f0.shadow_fwd.bits[2, 3]) == 0x123456
+    assert np.all(f0.shadow_fwd.s_min == 9) and np.all(f0.shadow_fwd.s_max == 200)
+    (r,) = imp.client_requests
+    assert r.camera.shape == (4, 4) and r.time == 0.0
+    assert imp.ground_truth == [None]
+
+
+def test_handmade_colorb_missing_uses_base(handmade: Path) -> None:
+    shutil.rmtree(handmade / "main" / "forwardShadowColorB")
+    f0 = sr.import_dataset(handmade, aux=()).server_frames[0].main
+    assert f0.shadow_fwd is not None
+    np.testing.assert_array_equal(f0.shadow_fwd.s_max, f0.color)
+
+
+def test_conversions_invert() -> None:
+    rng = np.random.default_rng(1)
+    m = rng.normal(size=(5, 6, 3)).astype(np.float32)
+    np.testing.assert_array_equal(motion_from_theirs(motion_to_theirs(m)), m)
+    bits = rng.integers(0, 1 << 24, size=(5, 6), dtype=np.uint32)
+    np.testing.assert_array_equal(bits_from_rgba(bits_to_rgba(bits)), bits)
+    with pytest.raises(DatasetError):
+        bits_to_rgba(np.full((1, 1), 1 << 24, np.uint32))
+
+
+def test_error_missing_cam_json(handmade: Path) -> None:
+    (handmade / "main" / "cam.json").unlink()
+    with pytest.raises(DatasetError, match=r"main[/\\]cam\.json: missing file"):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_error_missing_file(handmade: Path) -> None:
+    (handmade / "main" / "depth" / "0008.exr").unlink()
+    with pytest.raises(DatasetError, match=r"depth[/\\]0008\.exr: missing file"):
+        sr.import_dataset(handmade, aux=())
+    with pytest.raises(DatasetError, match=r"left: missing auxiliary camera directory"):
+        sr.import_dataset(handmade)
+
+
+def test_error_wrong_resolution(handmade: Path) -> None:
+    _write_png(handmade / "main" / "color" / "0007.png", np.zeros((4, 5, 3), np.uint8))
+    with pytest.raises(DatasetError, match=r"color[/\\]0007\.png: resolution 5x4 .* 4x4"):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_error_wrong_exr_resolution_and_channels(handmade: Path) -> None:
+    _write_exr(handmade / "main" / "depth" / "0007.exr", {"Z": np.zeros((3, 4))})
+    with pytest.raises(DatasetError, match=r"depth[/\\]0007\.exr: resolution 4x3"):
+        sr.import_dataset(handmade, aux=())
+    _write_exr(handmade / "main" / "depth" / "0007.exr",
+               {"R": np.zeros((4, 4)), "G": np.zeros((4, 4))})
+    with pytest.raises(DatasetError, match=r"0007\.exr: expected a single-channel depth EXR"):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_error_bad_matrix(handmade: Path) -> None:
+    p = handmade / "main" / "cam.json"
+    cj = json.loads(p.read_text())
+    del cj["frames"][1]["proj"]["e23"]
+    p.write_text(json.dumps(cj))
+    with pytest.raises(DatasetError, match=r"cam\.json: frames\[1\]\.proj: e23"):
+        sr.import_dataset(handmade, aux=())

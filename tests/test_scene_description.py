@@ -1,0 +1,105 @@
+"""glTF models placed into a built-in scene from a JSON description (issue 3)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import splitrender as sr
+from splitrender.cli import main
+
+
+def _write_quad(folder: Path) -> Path:
+    """A 2 m × 2 m vertical quad facing +z, untextured, white base colour: a big, visible
+    model written by hand so the test needs no asset."""
+    pos = [-1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 2.0, 0.0, -1.0, 2.0, 0.0]
+    idx = [0, 1, 2, 0, 2, 3]
+    blob = struct.pack("<12f", *pos) + struct.pack("<6H", *idx)
+    gltf = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1]}}],
+        "buffers": [
+            {
+                "byteLength": len(blob),
+                "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode(),
+            }
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 48, "byteLength": 12},
+        ],
+        "accessors": [
+            {
+                "bufferView": 0,
+                "componentType": 5126,
+                "count": 4,
+                "type": "VEC3",
+                "min": [-1, 0, 0],
+                "max": [1, 2, 0],
+            },
+            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"},
+        ],
+    }
+    path = folder / "quad.gltf"
+    path.write_text(json.dumps(gltf))
+    return path
+
+
+def _describe(folder: Path, **model: object) -> Path:
+    desc = folder / "scene.json"
+    entry = {"path": "quad.gltf", "position": [0.0, 0.0, 0.0], "animation": None, **model}
+    desc.write_text(json.dumps({"scene": "courtyard", "variant": "static", "models": [entry]}))
+    return desc
+
+
+def test_placed_model_is_rendered(tmp_path: Path) -> None:
+    _write_quad(tmp_path)
+    plain = sr.Scene("courtyard", "static")
+    # In front of the first server camera, so it must cover part of the image.
+    pose = np.asarray(plain._native.server_pose(0, 10.0))
+    eye, forward = pose[:3, 3], -pose[:3, 2]
+    spot = eye + 3.0 * forward
+    desc = _describe(tmp_path, position=[float(spot[0]), float(spot[1]) - 1.0, float(spot[2])])
+    placed = sr.Scene.from_description(desc)
+    assert len(placed.models) == 1
+    a = plain.server_frame(0, 0.04).main
+    b = placed.server_frame(0, 0.04).main
+    changed = (np.abs(a.color.astype(int) - b.color.astype(int)).sum(axis=2) > 0).mean()
+    assert changed > 0.05, f"the model covers only {changed:.1%} of the image"
+    # Nearer than the courtyard behind it where it shows.
+    assert (b.depth >= a.depth - 1e-7).all()
+
+
+def test_description_errors_name_the_file(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text("{ not json")
+    with pytest.raises(sr.InvalidInputError, match="bad.json"):
+        sr.Scene.from_description(bad)
+    desc = _describe(tmp_path)  # the glTF file is missing
+    with pytest.raises(sr.InvalidInputError, match="quad.gltf"):
+        sr.Scene.from_description(desc)
+    _write_quad(tmp_path)
+    desc = _describe(tmp_path, scale=-1.0)
+    with pytest.raises(sr.InvalidInputError, match="scale"):
+        sr.Scene.from_description(desc)
+    desc.write_text(json.dumps({"scene": "courtyard", "oops": 1}))
+    with pytest.raises(sr.InvalidInputError, match="unknown keys"):
+        sr.Scene.from_description(desc)
+
+
+def test_render_cli_accepts_a_description(tmp_path: Path) -> None:
+    _write_quad(tmp_path)
+    desc = _describe(tmp_path)
+    out = tmp_path / "rec"
+    args = ["render", str(desc), "--out", str(out), "--seconds", "0.1", "--scale", "0.03", "--quiet"]
+    assert main(args) == 0
+    assert sr.load_recording(out).scene == "courtyard"
