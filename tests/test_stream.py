@@ -217,3 +217,25 @@ def test_stream_stats() -> None:
     assert s.mbps_by_buffer()["main.color"] == pytest.approx(96 * 10 * 8 / 1e6)
     assert sum(s.mbps_by_camera().values()) == pytest.approx(s.mbps_total())
     assert "main.color" in s.format()
+
+
+def test_hevc_decoder_refuses_a_picture_larger_than_declared() -> None:
+    """A payload whose SPS declares a larger picture than the buffer table must fail inside FFmpeg
+    before the picture is allocated (`max_pixels`), not after decoding it."""
+    from fractions import Fraction
+
+    import av
+
+    from splitrender.codec import _hevc_decoder
+
+    enc = av.CodecContext.create("libx265", "w")
+    enc.width, enc.height, enc.pix_fmt = 256, 256, "yuv420p"
+    enc.time_base = Fraction(1, 10)
+    enc.options = {"x265-params": "log-level=none:bframes=0", "tune": "zerolatency"}
+    frame = av.VideoFrame.from_ndarray(np.zeros((256, 256, 3), np.uint8), format="rgb24")
+    frame = frame.reformat(format="yuv420p")
+    frame.pts = 0
+    data = b"".join(bytes(p) for p in [*enc.encode(frame), *enc.encode(None)])
+    assert len(_hevc_decoder(256, 256).decode(av.Packet(data))) == 1
+    with pytest.raises(av.error.FFmpegError):
+        _hevc_decoder(100, 100).decode(av.Packet(data))

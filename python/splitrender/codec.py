@@ -829,6 +829,20 @@ class StreamEncoder:
 # Decoder
 
 
+def _hevc_decoder(width: int, height: int) -> Any:
+    """An HEVC decoder that refuses pictures larger than ``width x height`` pixels.
+
+    The payload is untrusted: its sequence parameter set could declare a picture far larger than
+    the buffer table says, and FFmpeg would allocate it before we could compare sizes. FFmpeg's
+    ``max_pixels`` limit makes it reject such a picture before allocating. The limit allows each
+    side to be rounded up to a whole 64-pixel coding tree unit, since the coded size of a picture
+    (which FFmpeg checks) may exceed its cropped size by that much."""
+    ctx = av.CodecContext.create("hevc", "r")
+    ctx.thread_count = 1
+    ctx.options = {"max_pixels": str((-(-width // 64) * 64) * (-(-height // 64) * 64))}
+    return ctx
+
+
 class StreamDecoder:
     """Decodes packets into :class:`~splitrender.types.ServerFrame` values, in order.
 
@@ -925,8 +939,7 @@ class StreamDecoder:
         key = (b.camera, b.kind)
         ctx = self._decoders.get(key)
         if ctx is None:
-            ctx = av.CodecContext.create("hevc", "r")
-            ctx.thread_count = 1
+            ctx = _hevc_decoder(*_padded(b.width, b.height))
             self._decoders[key] = ctx
         try:
             frames = ctx.decode(av.Packet(bytes(b.payload)))
