@@ -45,6 +45,38 @@ pub(crate) fn hw<'py, T: numpy::Element>(
         .map_err(|e| SplitRenderError::new_err(format!("internal error: output shape: {e}")))
 }
 
+/// The server buffers of one camera as dict items (`color`, `depth`, `motion_fwd`, `motion_bwd`,
+/// `shadow_{fwd,bwd}_{bits,min,max}`), shared by the synthetic scene and the renderer bindings.
+pub(crate) struct ServerArrays {
+    pub width: usize,
+    pub height: usize,
+    pub color: Vec<u8>,
+    pub depth: Vec<f32>,
+    pub motion_fwd: Vec<f32>,
+    pub motion_bwd: Vec<f32>,
+    /// `(bits, s_min, s_max)` forward, then backward.
+    pub shadows: [(Vec<u32>, Vec<u8>, Vec<u8>); 2],
+}
+
+impl ServerArrays {
+    /// Moves the buffers into `d` as numpy arrays (no copies).
+    pub(crate) fn put(self, py: Python<'_>, d: &Bound<'_, pyo3::types::PyDict>) -> PyResult<()> {
+        let (h, w) = (self.height, self.width);
+        d.set_item("width", w)?;
+        d.set_item("height", h)?;
+        d.set_item("color", rgb(py, self.color, h, w)?)?;
+        d.set_item("depth", hw(py, self.depth, h, w)?)?;
+        d.set_item("motion_fwd", hw3(py, self.motion_fwd, h, w)?)?;
+        d.set_item("motion_bwd", hw3(py, self.motion_bwd, h, w)?)?;
+        for (dir, (bits, s_min, s_max)) in ["fwd", "bwd"].into_iter().zip(self.shadows) {
+            d.set_item(format!("shadow_{dir}_bits"), hw(py, bits, h, w)?)?;
+            d.set_item(format!("shadow_{dir}_min"), rgb(py, s_min, h, w)?)?;
+            d.set_item(format!("shadow_{dir}_max"), rgb(py, s_max, h, w)?)?;
+        }
+        Ok(())
+    }
+}
+
 /// A 4×4 `float64` array.
 pub(crate) fn mat<'py>(py: Python<'py>, m: &Mat4) -> PyResult<Bound<'py, PyArray2<f64>>> {
     hw(py, m.0.iter().flatten().copied().collect(), 4, 4)

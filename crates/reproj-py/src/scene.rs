@@ -12,7 +12,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 use reproj_core::{Camera, Mat4};
 use reproj_scene::{self as rs, HeadPose, Rigid, SceneError, ServerBuffers, Variant};
 
-use crate::api::{hw, hw3, mat, rgb};
+use crate::api::{mat, rgb, ServerArrays};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
@@ -127,21 +127,22 @@ fn head_pose(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<HeadPose> {
 
 /// One camera's buffers as the dict documented on [`Scene::render_server_frame`].
 fn buffers_dict(py: Python<'_>, b: ServerBuffers) -> PyResult<Bound<'_, PyDict>> {
-    let (h, w) = (b.height, b.width);
     let d = PyDict::new(py);
     d.set_item("view", mat(py, &b.view)?)?;
     d.set_item("proj", mat(py, &b.proj)?)?;
-    d.set_item("width", w)?;
-    d.set_item("height", h)?;
-    d.set_item("color", rgb(py, b.color, h, w)?)?;
-    d.set_item("depth", hw(py, b.depth, h, w)?)?;
-    d.set_item("motion_fwd", hw3(py, b.motion_fwd, h, w)?)?;
-    d.set_item("motion_bwd", hw3(py, b.motion_bwd, h, w)?)?;
-    for (dir, sb) in [("fwd", b.shadow_fwd), ("bwd", b.shadow_bwd)] {
-        d.set_item(format!("shadow_{dir}_bits"), hw(py, sb.bits, h, w)?)?;
-        d.set_item(format!("shadow_{dir}_min"), rgb(py, sb.s_min, h, w)?)?;
-        d.set_item(format!("shadow_{dir}_max"), rgb(py, sb.s_max, h, w)?)?;
+    ServerArrays {
+        width: b.width,
+        height: b.height,
+        color: b.color,
+        depth: b.depth,
+        motion_fwd: b.motion_fwd,
+        motion_bwd: b.motion_bwd,
+        shadows: [
+            (b.shadow_fwd.bits, b.shadow_fwd.s_min, b.shadow_fwd.s_max),
+            (b.shadow_bwd.bits, b.shadow_bwd.s_min, b.shadow_bwd.s_max),
+        ],
     }
+    .put(py, &d)?;
     Ok(d)
 }
 

@@ -6,7 +6,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 use reproj_core::synthetic::{self, SyntheticScene};
 use reproj_core::Camera;
 
-use crate::api::{hw, hw3, mat, rgb};
+use crate::api::{mat, rgb, ServerArrays};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
@@ -66,17 +66,20 @@ pub fn synthetic_render_server<'py>(
         };
         let scene = SyntheticScene::new(dynamic);
         let r = py.detach(|| scene.render_server(&camera, time, interval, s));
-        let (h, w) = (r.height, r.width);
         let d = PyDict::new(py);
-        d.set_item("color", rgb(py, r.color, h, w)?)?;
-        d.set_item("depth", hw(py, r.depth, h, w)?)?;
-        d.set_item("motion_fwd", hw3(py, r.motion_fwd, h, w)?)?;
-        d.set_item("motion_bwd", hw3(py, r.motion_bwd, h, w)?)?;
-        for (dir, sb) in [("fwd", r.shadow_fwd), ("bwd", r.shadow_bwd)] {
-            d.set_item(format!("shadow_{dir}_bits"), hw(py, sb.bits, h, w)?)?;
-            d.set_item(format!("shadow_{dir}_min"), rgb(py, sb.s_min, h, w)?)?;
-            d.set_item(format!("shadow_{dir}_max"), rgb(py, sb.s_max, h, w)?)?;
+        ServerArrays {
+            width: r.width,
+            height: r.height,
+            color: r.color,
+            depth: r.depth,
+            motion_fwd: r.motion_fwd,
+            motion_bwd: r.motion_bwd,
+            shadows: [
+                (r.shadow_fwd.bits, r.shadow_fwd.s_min, r.shadow_fwd.s_max),
+                (r.shadow_bwd.bits, r.shadow_bwd.s_min, r.shadow_bwd.s_max),
+            ],
         }
+        .put(py, &d)?;
         Ok(d)
     })
 }
