@@ -8,6 +8,7 @@ each method's mean absolute error against the ground truth.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -94,6 +95,8 @@ def _build_parser() -> argparse.ArgumentParser:
     _add_render(sub)
     _add_encode(sub)
     _add_demo(sub)
+    _add_play(sub)
+    _add_eval(sub)
     _add_bench(sub)
     return parser
 
@@ -441,6 +444,261 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _names(text: str) -> tuple[str, ...]:
+    names = tuple(m.strip() for m in text.split(",") if m.strip())
+    if not names:
+        raise argparse.ArgumentTypeError("expected a comma-separated list")
+    return names
+
+
+def _bitrates(text: str) -> tuple[float, ...]:
+    return tuple(_positive(t) for t in _names(text))
+
+
+def _delays(text: str) -> tuple[int, ...]:
+    return tuple(_frames_delay(t) for t in _names(text))
+
+
+def _add_play(sub: Any) -> None:
+    pl = sub.add_parser(
+        "play",
+        help="play a recording or stream file through the network model and the client",
+        description=(
+            "Play SOURCE through the network model (ideal link, --delay extra client frames, no "
+            "loss) and the client with --method, and score the client frames against the "
+            "ground truth (SSIM, FLIP, PSNR, VMAF; first and last 12 client frames excluded). "
+            "SOURCE is a recording directory (`splitrender render`; its server frames are played "
+            "uncompressed, or encoded and decoded at --bitrate), a stream file (`splitrender "
+            "encode`; --recording gives the recording it was encoded from, for the client poses "
+            "and the ground truth), or a built-in scene name (rendered at --scale/--seconds into "
+            "OUT/recording first). Writes OUT/frames/NNNN.png per client frame (or OUT/client.mp4 "
+            "with --video) and OUT/play.json; prints the per-frame mode counts (interpolate, "
+            "extrapolate, hold) and the metrics. A stereo recording plays its left eye."
+        ),
+    )
+    pl.add_argument("source", metavar="SOURCE", help="recording directory, stream file or scene")
+    pl.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    pl.add_argument("--recording", type=Path, metavar="REC",
+                    help="the recording a stream file was encoded from (needed for a stream)")
+    pl.add_argument("--method", default="ours", choices=METHODS, metavar="M",
+                    help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
+    pl.add_argument("--delay", type=_frames_delay, default=0, metavar="L",
+                    help="extra network delay in client frames, l (default: %(default)s)")
+    pl.add_argument("--bitrate", type=_positive, default=None, metavar="MBPS",
+                    help="encode and decode a recording's server frames at this total bitrate "
+                    "first (default: uncompressed; a stream file is always decoded as is)")
+    pl.add_argument("--scale", type=_positive, default=None, metavar="X",
+                    help="scale of a scene rendered from its name (default 0.1); for a recording "
+                    "it must match the recording's")
+    pl.add_argument("--seconds", type=_positive, default=None, metavar="S",
+                    help="play only the first S seconds (default: all; 1.0 for a scene name)")
+    pl.add_argument("--video", action="store_true", help="write OUT/client.mp4 instead of PNGs")
+    pl.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
+    pl.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def _play(args: argparse.Namespace) -> int:
+    import json
+
+    from splitrender.codec import CodecConfig, StreamDecoder
+    from splitrender.demo import FC, Stages, _json_number, _Video, format_table
+    from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
+    from splitrender.network import NetworkModel
+    from splitrender.pipeline import encode_decode, play_and_score, raw_mbps
+    from splitrender.recording import load_recording, plan, write_recording
+    from splitrender.scenes import SCENE_NAMES, Scene
+    from splitrender.stream import StreamFile, stream_stats
+
+    def fail(msg: str) -> int:
+        print(f"{PROG}: error: {msg}", file=sys.stderr)
+        return 2
+
+    src = Path(args.source)
+    out: Path = args.out
+    stages = Stages(3 if args.source in SCENE_NAMES else 2, not args.quiet)
+    try:
+        stream_path: Path | None = None
+        if src.is_dir():
+            rec_path = src
+        elif src.is_file():
+            if args.recording is None:
+                return fail(f"{src} is a stream file; --recording REC must give its recording")
+            if args.bitrate is not None:
+                return fail("--bitrate: a stream file is played as encoded")
+            stream_path, rec_path = src, args.recording
+        elif args.source in SCENE_NAMES:
+            scale = 0.1 if args.scale is None else args.scale
+            seconds = 1.0 if args.seconds is None else args.seconds
+            rec_path = out / "recording"
+            if round(seconds * FC) <= 2 * SKIP_FRAMES:
+                return fail(f"--seconds: {seconds:g} s is {round(seconds * FC)} client frames; at "
+                            f"least {2 * SKIP_FRAMES + 1} are needed ({SKIP_FRAMES} skipped at "
+                            "each end)")
+            try:
+                sw, sh = Scene(args.source).main_size(scale)
+            except SplitRenderError as e:
+                return fail(f"--scale: {e}")
+            if min(sw, sh) < 16 or max(sw, sh) > 4096:
+                return fail(f"--scale: {scale:g} gives a {sw}x{sh} main camera; expected "
+                            "16..4096 pixels a side")
+            stages.stage(f"rendering {args.source} (dynamic) at scale {scale:g} into {rec_path}")
+            write_recording(rec_path, Scene(args.source, "dynamic"), seconds=seconds,
+                            scale=scale, overwrite=True,
+                            progress=lambda d, t: stages.bar(d, t, "frames"))
+        else:
+            return fail(f"{src}: no such recording or stream file, nor a built-in scene "
+                        f"({', '.join(SCENE_NAMES)})")
+        rec = load_recording(rec_path)
+        if args.scale is not None and not math.isclose(rec.manifest["scale"], args.scale):
+            return fail(f"--scale: {rec_path} was rendered at scale {rec.manifest['scale']:g}, "
+                        f"not {args.scale:g}")
+        seconds = rec.manifest["seconds"] if args.seconds is None else args.seconds
+        if seconds > rec.manifest["seconds"] + 1e-9:
+            return fail(f"--seconds: {rec_path} lasts {rec.manifest['seconds']:g} s")
+        n_server, n_client = plan(seconds, rec.fs, rec.fc)
+        if n_client <= 2 * SKIP_FRAMES:
+            return fail(f"--seconds: {seconds:g} s is {n_client} client frames; at least "
+                        f"{2 * SKIP_FRAMES + 1} are needed ({SKIP_FRAMES} skipped at each end)")
+        clients = rec.client_frames[:n_client]
+        cams = [c.camera for c in clients]
+        truth = [c.ground_truth for c in clients]
+        w, h = cams[0].width, cams[0].height
+        sizes: list[int] | None
+        if stream_path is not None:
+            stages.stage(f"decoding {stream_path}")
+            sf = StreamFile(stream_path)
+            packets = list(sf.packets())[:n_server]
+            with StreamDecoder() as dec:
+                server = []
+                for k, p in enumerate(packets):
+                    server.append(dec.decode(p))
+                    stages.bar(k + 1, len(packets), "server frames")
+            sizes = [len(p) for p in packets]
+            mbps, bitrate = stream_stats(packets, rec.fs).mbps_total(), None
+        else:
+            server = list(rec.server_frames[:n_server])
+            if args.bitrate is not None:
+                stages.stage(f"encoding and decoding at {args.bitrate:g} Mb/s")
+                server, sizes, mbps = encode_decode(
+                    server, CodecConfig(bitrate_mbps=args.bitrate), rec.fs, stages.bar,
+                    len(server))
+            else:
+                stages.stage("uncompressed server frames")
+                sizes, mbps = None, raw_mbps(server, rec.fs)
+            bitrate = args.bitrate
+        use_vmaf = not args.no_vmaf and min(w, h) >= VMAF_MIN_SIDE
+        metrics = ("ssim", "flip", "psnr", "vmaf") if use_vmaf else ("ssim", "flip", "psnr")
+        out.mkdir(parents=True, exist_ok=True)
+        video = _Video(out / "client.mp4", w + (w & 1), h + (h & 1), 30.0) if args.video else None
+        if not args.video:
+            (out / "frames").mkdir(exist_ok=True)
+
+        def on_frame(n: int, image: npt.NDArray[np.uint8], info: Any) -> None:
+            if video is not None:
+                pad = np.zeros((h + (h & 1), w + (w & 1), 3), np.uint8)
+                pad[:h, :w] = image
+                video.write(pad)
+            else:
+                write_png(out / "frames" / f"{n:04d}.png", image)
+
+        stages.stage(f"{args.method}: playing {n_client} client frames (l = {args.delay}), "
+                     f"then {', '.join(metrics)}")
+        try:
+            scored = play_and_score(
+                server, cams, truth, args.method,
+                NetworkModel(extra_delay_frames=args.delay, client_fps=rec.fc), rec.fc, metrics,
+                frame_sizes=sizes, bar=stages.bar, on_frame=on_frame)
+        finally:
+            if video is not None:
+                video.close()
+    except SplitRenderError as e:
+        return fail(str(e))
+    modes = scored.playback.summary()
+    row = {"method": args.method, **scored.row(), "mbps": mbps}
+    data = {
+        "source": str(src), "recording": str(rec_path), "method": args.method,
+        "delay": args.delay, "bitrate_mbps": bitrate, "width": w, "height": h,
+        "client_frames": n_client, "server_frames": len(server), "modes": modes,
+        "mode_per_frame": scored.playback.modes(),
+        **{k: _json_number(row[k]) for k in ("ssim", "flip", "psnr", "vmaf", "mbps")},
+        "frames": row["frames"],
+    }
+    (out / "play.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    where = "client.mp4" if args.video else f"frames/ ({n_client} PNGs)"
+    print(f"wrote {out}/: {where}, play.json")
+    print("modes: " + ", ".join(f"{m} {c}" for m, c in modes.items()))
+    print(format_table([row]))
+    return 0
+
+
+def _add_eval(sub: Any) -> None:
+    from splitrender.demo import DEFAULT_METHODS
+    from splitrender.evaluate import DEFAULT_DELAYS, DEFAULT_SCENES
+
+    ev = sub.add_parser(
+        "eval",
+        help="the paper's experiments (Tables 1-3, Fig. 6) on the built-in scenes: JSON, "
+        "Markdown, plots",
+        description=(
+            "Table 1: every --methods x --scenes x static/dynamic on uncompressed server frames "
+            "(ideal link, l = 0). Table 2: ours on the dynamic scenes with --delays extra client "
+            "frames, compressed at --bitrate, plus ours_extrapolate (l = 0). Table 3 (--stereo): "
+            "every method, mono vs stereo, compressed. Figure 6 (--bitrates): every method at "
+            "each bitrate plus 'video_streaming' (the ground truth as one 120 FPS HEVC video; "
+            "the timewarp 30/60 FPS lines are not built). Recordings are rendered once per "
+            "(scene, variant) into OUT/recordings/ and reused. Writes OUT/results.json (a list "
+            "of rows with the keys scene, variant, method, bitrate_mbps (null: uncompressed), "
+            "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames), OUT/tables.md and "
+            "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 2 minutes on 2 "
+            "CPU cores (about 45 s per scene)."
+        ),
+    )
+    ev.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    ev.add_argument("--scenes", type=_names, default=DEFAULT_SCENES, metavar="LIST",
+                    help=f"comma-separated scenes (default: {','.join(DEFAULT_SCENES)})")
+    ev.add_argument("--methods", type=_methods, default=DEFAULT_METHODS, metavar="LIST",
+                    help=f"Table 1/3 methods (default: {','.join(DEFAULT_METHODS)})")
+    ev.add_argument("--delays", type=_delays, default=DEFAULT_DELAYS, metavar="LIST",
+                    help=f"Table 2 delays l (default: {','.join(map(str, DEFAULT_DELAYS))})")
+    ev.add_argument("--bitrate", type=_positive, default=None, metavar="MBPS",
+                    help="bitrate of the compressed experiments (default: the paper's 40 Mb/s "
+                    "scaled by pixel count)")
+    ev.add_argument("--scale", type=_positive, default=0.05, metavar="X",
+                    help="main camera size round(2560X) x round(1440X) (default: %(default)s)")
+    ev.add_argument("--seconds", type=_positive, default=1.0, metavar="S",
+                    help="length per scene (default: %(default)s)")
+    ev.add_argument("--bitrates", type=_bitrates, default=(), metavar="LIST",
+                    help="also Figure 6 (rate-distortion) at these paper-equivalent Mb/s (at "
+                    "2560x1440, scaled by pixel count), e.g. 10,20,40,60,100; plus the 'video "
+                    "streaming' reference; writes OUT/rate_distortion.png")
+    ev.add_argument("--stereo", action="store_true", help="also Table 3 (mono vs stereo)")
+    ev.add_argument("--trace", type=Path, default=None, metavar="FILE",
+                    help="head trace 'px py pz pitch yaw roll t_ms' per line as client motion")
+    ev.add_argument("--trace-scale", type=float, default=1.0, metavar="F",
+                    help="scale of the trace's translation (default: %(default)s)")
+    ev.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
+    ev.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from splitrender.evaluate import EvalArgumentError, EvalConfig, run_eval
+
+    cfg = EvalConfig(
+        out=args.out, scenes=tuple(args.scenes), methods=tuple(args.methods),
+        delays=tuple(args.delays), scale=args.scale, seconds=args.seconds,
+        bitrate_mbps=args.bitrate, bitrates=tuple(args.bitrates), stereo=args.stereo, vmaf=not args.no_vmaf,
+        trace=args.trace, trace_scale=args.trace_scale, progress=not args.quiet,
+    )
+    try:
+        res = run_eval(cfg)
+    except EvalArgumentError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    print(f"{len(res.rows)} rows at {res.width}x{res.height}; wrote "
+          + ", ".join(str(p) for p in res.files))
+    return 0
+
+
 def _bench(args: argparse.Namespace) -> int:
     import json
 
@@ -535,6 +793,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _demo(args)
         if args.command == "bench":
             return _bench(args)
+        if args.command == "play":
+            return _play(args)
+        if args.command == "eval":
+            return _eval(args)
     except SplitRenderError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 1

@@ -34,7 +34,7 @@ import numpy.typing as npt
 
 from splitrender.errors import InvalidInputError
 from splitrender.imageio import write_png
-from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE, evaluate_sequence, flip_map
+from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE, flip_map
 from splitrender.reproject import METHODS
 
 __all__ = [
@@ -281,12 +281,11 @@ def check_config(cfg: DemoConfig) -> None:
 
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Runs the demo (see the module docstring) and writes its files to ``cfg.out``."""
-    from splitrender.client import play
-    from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
+    from splitrender.codec import CodecConfig
     from splitrender.network import NetworkModel
+    from splitrender.pipeline import encode_decode, play_and_score
     from splitrender.recording import plan
     from splitrender.scenes import Scene
-    from splitrender.stream import stream_stats
     from splitrender.types import ServerFrame
 
     check_config(cfg)
@@ -335,17 +334,8 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     stages.stage(
         f"encoding {n_server} server frames at {codec_cfg.bitrate_mbps:.3g} Mb/s and decoding them"
     )
-    packets: list[bytes] = []
-    decoded: list[ServerFrame] = []
-    with StreamEncoder(codec_cfg) as enc, StreamDecoder() as dec:
-        for k, f in enumerate(server):
-            p = enc.encode(f)
-            packets.append(p)
-            decoded.append(dec.decode(p))
-            stages.bar(k + 1, n_server, "server frames")
+    decoded, sizes, mbps = encode_decode(server, codec_cfg, FS, stages.bar, n_server)
     del server
-    mbps = stream_stats(packets, FS).mbps_total()
-    sizes = [len(p) for p in packets]
     network = NetworkModel(extra_delay_frames=cfg.delay_frames, client_fps=FC)
 
     metrics = ("ssim", "flip", "psnr", "vmaf") if use_vmaf else ("ssim", "flip", "psnr")
@@ -359,32 +349,13 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     for method in cfg.methods:
         stages.stage(f"{method}: playing {n_client} client frames, then {', '.join(metrics)}")
 
-        def on_frame(n: int, image: _Image, info: Any) -> None:
-            stages.bar(n + 1, n_client, "client frames")
-
-        res = play(
-            decoded,
-            cameras,
-            network,
-            FC,
-            method,
-            frame_sizes=sizes,
-            on_frame=on_frame,
+        scored = play_and_score(
+            decoded, cameras, truth, method, network, FC, metrics, frame_sizes=sizes,
+            bar=stages.bar,
         )
-        def progress(metric: str, done: int, total: int) -> None:
-            stages.bar(done, total, metric)
-
-        sm = evaluate_sequence(res.images, truth, SKIP_FRAMES, metrics, fps=FC, progress=progress)
-        row: dict[str, Any] = {
-            "method": method,
-            "ssim": sm.mean["ssim"],
-            "flip": sm.mean["flip"],
-            "psnr": sm.mean["psnr"],
-            "vmaf": sm.mean.get("vmaf"),
-            "mbps": mbps,
-            "frames": len(sm.frames),
-            "modes": res.summary(),
-        }
+        res = scored.playback
+        row: dict[str, Any] = {"method": method, **scored.row(), "mbps": mbps}
+        row = {k: row[k] for k in ROW_KEYS} | {"modes": res.summary()}
         rows.append(row)
         for n in still_idx:
             still = out / "stills" / f"frame{n:04d}_{method}.png"

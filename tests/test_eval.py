@@ -1,0 +1,116 @@
+"""``splitrender eval`` and ``splitrender play`` end to end, at a tiny scale (seconds)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from splitrender.cli import main
+from splitrender.evaluate import ROW_KEYS
+
+pytest.importorskip("av")
+
+TINY = ["--scale", "0.03", "--seconds", "0.3", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def eval_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("eval") / "out"
+    args = ["eval", *TINY, "--scenes", "courtyard", "--methods", "ours,timewarp",
+            "--delays", "0,12", "--bitrates", "40", "--stereo", "--no-vmaf", "--out", str(out)]
+    assert main(args) == 0
+    return out
+
+
+def test_eval_rows_have_exactly_the_keys_and_types(eval_out: Path) -> None:
+    rows = json.loads((eval_out / "results.json").read_text())
+    assert isinstance(rows, list) and rows
+    for r in rows:
+        assert list(r) == list(ROW_KEYS)
+        assert r["scene"] == "courtyard" and r["variant"] in ("static", "dynamic")
+        assert isinstance(r["method"], str)
+        assert r["bitrate_mbps"] is None or isinstance(r["bitrate_mbps"], float)
+        assert isinstance(r["delay"], int) and isinstance(r["stereo"], bool)
+        assert all(isinstance(r[k], float) for k in ("ssim", "flip", "psnr", "mbps"))
+        assert r["vmaf"] is None  # --no-vmaf
+        assert r["frames"] == 36 - 24
+    keys = [(r["variant"], r["method"], r["bitrate_mbps"] is None, r["delay"], r["stereo"])
+            for r in rows]
+    assert len(set(keys)) == len(keys)  # a row shared by two experiments is written once
+    assert set(keys) == {
+        # Table 1: uncompressed, both variants
+        *((v, m, True, 0, False) for v in ("static", "dynamic") for m in ("ours", "timewarp")),
+        # Table 2: delays (ours at l = 0 also serves Table 3 and Figure 6)
+        ("dynamic", "ours", False, 0, False), ("dynamic", "ours", False, 12, False),
+        ("dynamic", "ours_extrapolate", False, 0, False),
+        # Table 3: mono vs stereo (timewarp mono also serves Figure 6)
+        ("dynamic", "timewarp", False, 0, False),
+        ("dynamic", "ours", False, 0, True), ("dynamic", "timewarp", False, 0, True),
+        # Figure 6: the video-streaming reference
+        ("dynamic", "video_streaming", False, 0, False),
+    }
+
+def test_eval_writes_tables_and_plot_and_reuses_recordings(eval_out: Path) -> None:
+    md = (eval_out / "tables.md").read_text()
+    assert md.count("## Table") == 3 and md.count("## Figure 6") == 1 and "timewarp" in md
+    for png in ("delays.png", "rate_distortion.png"):
+        assert (eval_out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in (eval_out / "recordings").iterdir()) == [
+        "courtyard-dynamic", "courtyard-dynamic-stereo", "courtyard-static",
+    ]
+
+
+def test_play_writes_frames_and_prints_modes(
+    eval_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rec = eval_out / "recordings" / "courtyard-dynamic"
+    out = tmp_path / "play"
+    assert main(["play", str(rec), "--method", "ours", "--delay", "2", "--no-vmaf", "--quiet",
+                 "--out", str(out)]) == 0
+    pngs = sorted((out / "frames").glob("*.png"))
+    assert len(pngs) == 36 and pngs[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    printed = capsys.readouterr().out
+    assert "interpolate" in printed and "SSIM" in printed
+    data = json.loads((out / "play.json").read_text())
+    assert sum(data["modes"].values()) == 36 and data["delay"] == 2
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["eval", "--scenes", "nowhere", "--out", "x"],
+        ["eval", "--methods", "ours,bogus", "--out", "x"],
+        ["eval", "--delays", "0,-1", "--out", "x"],
+        ["eval", "--bitrates", "10,0", "--out", "x"],
+        ["eval", "--seconds", "0.1", "--out", "x"],
+        ["eval", "--scale", "0.001", "--out", "x"],
+        ["play", "does-not-exist", "--out", "x"],
+        ["play", "courtyard", "--method", "bogus", "--out", "x"],
+        ["play", "courtyard", "--seconds", "0.1", "--out", "x"],
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        raise SystemExit(main([*argv, "--quiet"]))
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("splitrender") and " error: " in err
+
+
+def test_eval_reuses_matching_recordings(
+    eval_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import shutil
+
+    out = tmp_path / "again"
+    shutil.copytree(eval_out / "recordings", out / "recordings")
+    args = ["eval", "--scale", "0.03", "--seconds", "0.3", "--scenes", "courtyard",
+            "--methods", "timewarp", "--delays", "0", "--no-vmaf", "--out", str(out)]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "reusing" in err and "rendering" not in err
