@@ -353,7 +353,8 @@ def _add_demo(sub: Any) -> None:
     de.add_argument(
         "--bitrate", type=_positive, default=None, metavar="MBPS",
         help="target bitrate of the whole stream in Mb/s (default: the paper's 40 Mb/s at "
-        "2560x1440 scaled by pixel count, e.g. 0.4 at 256x144)",
+        "2560x1440 scaled by pixel count, at least 1.6: headers and lossless parts cost ~0.3 "
+        "Mb/s at any size)",
     )
     de.add_argument(
         "--methods", type=_methods, default=DEFAULT_METHODS, metavar="LIST",
