@@ -12,59 +12,12 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use reproj_core::synthetic::{head_pose, rig, RenderedCamera, SyntheticScene};
-use reproj_core::{
-    reproject, BidirHistory, Camera, CameraView, FrameView, Method, Params, Request, ShadowView,
-};
+use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+use reproj_core::{reproject, BidirHistory, Method, Params, Request};
 
 /// Server frame interval (f_s = 10) and dynamic-shadow subframes (f_d = 40).
 const DT: f64 = 0.1;
 const S: usize = 4;
-
-/// One server frame: every camera of the rig with its buffers.
-struct Frame {
-    cams: Vec<(Camera, RenderedCamera)>,
-}
-
-fn render(scene: &SyntheticScene, t: f64, w: usize, h: usize) -> Frame {
-    let (eye, target) = head_pose(t);
-    let (main, aux) = rig(eye, target, w, h);
-    let cams = [main, aux[0], aux[1]]
-        .into_iter()
-        .map(|c| (c, scene.render_server(&c, t, DT, S)))
-        .collect();
-    Frame { cams }
-}
-
-/// One camera as part of the older (`forward = true`) or newer image of a pair.
-fn camera_view((camera, r): &(Camera, RenderedCamera), forward: bool) -> CameraView<'_> {
-    let (motion, sh) = if forward {
-        (&r.motion_fwd, &r.shadow_fwd)
-    } else {
-        (&r.motion_bwd, &r.shadow_bwd)
-    };
-    CameraView {
-        camera: *camera,
-        color: &r.color,
-        depth: &r.depth,
-        motion: Some(motion),
-        shadow: Some(ShadowView {
-            bits: &sh.bits,
-            s_min: &sh.s_min,
-            s_max: &sh.s_max,
-        }),
-    }
-}
-
-fn view(f: &Frame, forward: bool) -> FrameView<'_> {
-    FrameView {
-        main: camera_view(&f.cams[0], forward),
-        aux: f.cams[1..]
-            .iter()
-            .map(|c| camera_view(c, forward))
-            .collect(),
-    }
-}
 
 /// The α each method is benchmarked at: 0.5 (between the frames) where the method accepts it,
 /// 1.5 (late, extrapolating from the newest frame) for the unidirectional ones that require it.
@@ -85,8 +38,11 @@ fn request(alpha: f64, w: usize, h: usize) -> Request {
 
 fn bench_size(c: &mut Criterion, w: usize, h: usize) {
     let scene = SyntheticScene::new(true);
-    let (f0, f1) = (render(&scene, 0.0, w, h), render(&scene, DT, w, h));
-    let (older, newer) = (view(&f0, true), view(&f1, false));
+    let (f0, f1) = (
+        SyntheticFrame::render(&scene, 0.0, w, h, DT, S),
+        SyntheticFrame::render(&scene, DT, w, h, DT, S),
+    );
+    let (older, newer) = (f0.view(true), f1.view(false));
     let params = Params::default();
     let size = format!("{w}x{h}+2x{}x{}", w / 2, h / 2);
 

@@ -29,6 +29,7 @@ use std::sync::OnceLock;
 use rayon::prelude::*;
 
 use crate::camera::{Camera, Mat4};
+use crate::frame::{CameraView, FrameView, ShadowView};
 
 /// Near plane of every camera of the rig (metres).
 pub const NEAR: f64 = 0.1;
@@ -818,6 +819,65 @@ pub fn head_pose(t: f64) -> ([f64; 3], [f64; 3]) {
     ];
     let target = [0.2 * (0.9 * t).sin(), -0.3, -3.0];
     (eye, target)
+}
+
+/// One server frame of the scene: every camera of the [`rig`] at the [`head_pose`] of its time,
+/// with its buffers. The fixture the benchmarks, property tests and examples reproject from.
+#[derive(Debug, Clone)]
+pub struct SyntheticFrame {
+    /// Main camera first, then the auxiliary cameras, each with its buffers.
+    pub cams: Vec<(Camera, RenderedCamera)>,
+}
+
+impl SyntheticFrame {
+    /// Renders the frame at time `t` (main camera `width × height`), motion over `interval`
+    /// seconds and `subframes` shadow subframes.
+    pub fn render(
+        scene: &SyntheticScene,
+        t: f64,
+        width: usize,
+        height: usize,
+        interval: f64,
+        subframes: usize,
+    ) -> SyntheticFrame {
+        let (eye, target) = head_pose(t);
+        let (main, aux) = rig(eye, target, width, height);
+        let cams = [main, aux[0], aux[1]]
+            .into_iter()
+            .map(|c| (c, scene.render_server(&c, t, interval, subframes)))
+            .collect();
+        SyntheticFrame { cams }
+    }
+
+    /// The frame as the older (`forward = true`: forward motion and shadows) or the newer image
+    /// of a pair (backward ones).
+    pub fn view(&self, forward: bool) -> FrameView<'_> {
+        fn camera_view((camera, r): &(Camera, RenderedCamera), forward: bool) -> CameraView<'_> {
+            let (motion, sh) = if forward {
+                (&r.motion_fwd, &r.shadow_fwd)
+            } else {
+                (&r.motion_bwd, &r.shadow_bwd)
+            };
+            CameraView {
+                camera: *camera,
+                color: &r.color,
+                depth: &r.depth,
+                motion: Some(motion),
+                shadow: Some(ShadowView {
+                    bits: &sh.bits,
+                    s_min: &sh.s_min,
+                    s_max: &sh.s_max,
+                }),
+            }
+        }
+        FrameView {
+            main: camera_view(&self.cams[0], forward),
+            aux: self.cams[1..]
+                .iter()
+                .map(|c| camera_view(c, forward))
+                .collect(),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -4,11 +4,8 @@
 //! scheduling dependence (a data race or an order-dependent reduction).
 
 use proptest::prelude::*;
-use reproj_core::synthetic::{head_pose, rig, RenderedCamera, SyntheticScene};
-use reproj_core::{
-    reproject, BidirHistory, Camera, CameraView, Diagnostics, FrameView, Method, Params, Request,
-    ShadowView,
-};
+use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+use reproj_core::{reproject, BidirHistory, Diagnostics, FrameView, Method, Params, Request};
 
 /// Main camera size: small enough to keep the property fast in debug builds, and neither side a
 /// multiple of the 16-pixel tile, so partial tiles and row blocks are exercised too.
@@ -16,52 +13,6 @@ const W: usize = 40;
 const H: usize = 28;
 const DT: f64 = 0.1;
 const S: usize = 4;
-
-/// One server frame: every camera of the rig with its buffers.
-struct Frame {
-    cams: Vec<(Camera, RenderedCamera)>,
-}
-
-fn render(scene: &SyntheticScene, t: f64) -> Frame {
-    let (eye, target) = head_pose(t);
-    let (main, aux) = rig(eye, target, W, H);
-    let cams = [main, aux[0], aux[1]]
-        .into_iter()
-        .map(|c| (c, scene.render_server(&c, t, DT, S)))
-        .collect();
-    Frame { cams }
-}
-
-/// One camera as part of the older (`forward = true`) or newer image of a pair.
-fn camera_view((camera, r): &(Camera, RenderedCamera), forward: bool) -> CameraView<'_> {
-    let (motion, sh) = if forward {
-        (&r.motion_fwd, &r.shadow_fwd)
-    } else {
-        (&r.motion_bwd, &r.shadow_bwd)
-    };
-    CameraView {
-        camera: *camera,
-        color: &r.color,
-        depth: &r.depth,
-        motion: Some(motion),
-        shadow: Some(ShadowView {
-            bits: &sh.bits,
-            s_min: &sh.s_min,
-            s_max: &sh.s_max,
-        }),
-    }
-}
-
-/// The frame as the older (`forward = true`) or newer image of a pair.
-fn view(f: &Frame, forward: bool) -> FrameView<'_> {
-    FrameView {
-        main: camera_view(&f.cams[0], forward),
-        aux: f.cams[1..]
-            .iter()
-            .map(|c| camera_view(c, forward))
-            .collect(),
-    }
-}
 
 /// `α` for `method` from a uniform `u ∈ [0, 1)`, inside the range the method accepts.
 fn alpha_for(method: Method, u: f64, params: &Params) -> f64 {
@@ -129,8 +80,11 @@ proptest! {
         splat_bidirectional in any::<bool>(),
     ) {
         let scene = SyntheticScene::new(true);
-        let (f0, f1) = (render(&scene, t0), render(&scene, t0 + DT));
-        let (older, newer) = (view(&f0, true), view(&f1, false));
+        let (f0, f1) = (
+            SyntheticFrame::render(&scene, t0, W, H, DT, S),
+            SyntheticFrame::render(&scene, t0 + DT, W, H, DT, S),
+        );
+        let (older, newer) = (f0.view(true), f1.view(false));
         let params = Params {
             use_shadows: shadows,
             blend,
