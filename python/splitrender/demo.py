@@ -246,39 +246,52 @@ class _Video:
 
 def check_config(cfg: DemoConfig) -> None:
     """Raises :class:`DemoArgumentError` (one line) for a configuration that cannot run."""
-    from splitrender.scenes import SCENE_NAMES, Scene
+    from splitrender.scenes import SCENE_NAMES
 
     if cfg.scene not in SCENE_NAMES:
         raise DemoArgumentError(
             f"unknown scene {cfg.scene!r}; expected one of: {', '.join(SCENE_NAMES)}"
         )
-    if not cfg.methods:
-        raise DemoArgumentError("--methods: expected at least one method")
-    bad = [m for m in cfg.methods if m not in METHODS]
+    check_run_args([cfg.scene], cfg.methods, cfg.seconds, cfg.scale, DemoArgumentError)
+
+
+def check_run_args(
+    scenes: Sequence[str],
+    methods: Sequence[str],
+    seconds: float,
+    scale: float,
+    error: type[DemoArgumentError],
+) -> None:
+    """The checks ``demo`` and ``eval`` share: the methods, a length every scene has and that
+    leaves frames after the evaluation's skipped ends, and a usable image size. Raises ``error``
+    (one line) naming the option."""
+    from splitrender.errors import SplitRenderError
+    from splitrender.scenes import Scene
+
+    if not methods:
+        raise error("--methods: expected at least one method")
+    bad = [m for m in methods if m not in METHODS]
     if bad:
-        raise DemoArgumentError(
-            f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(METHODS)}"
-        )
-    if len(set(cfg.methods)) != len(cfg.methods):
-        raise DemoArgumentError("--methods: a method is listed twice")
-    duration = Scene(cfg.scene).duration
-    if cfg.seconds > duration + 1e-9:
-        raise DemoArgumentError(
-            f"--seconds: scene {cfg.scene!r} lasts {duration:g} s, asked for {cfg.seconds:g} s"
-        )
-    n_client = max(1, round(cfg.seconds * FC))
+        raise error(f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(METHODS)}")
+    if len(set(methods)) != len(methods):
+        raise error("--methods: a method is listed twice")
+    for name in scenes:
+        duration = Scene(name).duration
+        if seconds > duration + 1e-9:
+            raise error(f"--seconds: scene {name!r} lasts {duration:g} s, asked for {seconds:g} s")
+    n_client = max(1, round(seconds * FC))
     if n_client <= 2 * SKIP_FRAMES:
         need = (2 * SKIP_FRAMES + 1) / FC
-        raise DemoArgumentError(
-            f"--seconds: {cfg.seconds:g} s is {n_client} client frames at {FC:g} FPS; the "
+        raise error(
+            f"--seconds: {seconds:g} s is {n_client} client frames at {FC:g} FPS; the "
             f"evaluation skips {SKIP_FRAMES} at each end, so at least {need:.3f} s is needed"
         )
-    w, h = Scene(cfg.scene).main_size(cfg.scale)
+    try:
+        w, h = Scene(scenes[0]).main_size(scale)
+    except SplitRenderError as e:
+        raise error(f"--scale: {e}") from None
     if min(w, h) < 16 or max(w, h) > 4096:
-        raise DemoArgumentError(
-            f"--scale: {cfg.scale:g} gives a {w}x{h} main camera; expected 16..4096 pixels a side"
-        )
-
+        raise error(f"--scale: {scale:g} gives a {w}x{h} main camera; expected 16..4096 pixels a side")
 
 
 #: The demo's bitrate floor (Mb/s). Packet headers and the lossless parts (shadow bitfields,

@@ -35,10 +35,17 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from splitrender.demo import DEFAULT_METHODS, FC, FS, DemoArgumentError, Stages, _json_number
+from splitrender.demo import (
+    DEFAULT_METHODS,
+    FC,
+    FS,
+    DemoArgumentError,
+    Stages,
+    _json_number,
+    check_run_args,
+)
 from splitrender.errors import SplitRenderError
 from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
-from splitrender.reproject import METHODS
 
 __all__ = [
     "DEFAULT_DELAYS",
@@ -96,7 +103,7 @@ class EvalResult:
 
 def check_config(cfg: EvalConfig) -> None:
     """Raises :class:`EvalArgumentError` (one line) for a configuration that cannot run."""
-    from splitrender.scenes import SCENE_NAMES, Scene
+    from splitrender.scenes import SCENE_NAMES
 
     if not cfg.scenes:
         raise EvalArgumentError("--scenes: expected at least one scene")
@@ -107,38 +114,9 @@ def check_config(cfg: EvalConfig) -> None:
             )
     if len(set(cfg.scenes)) != len(cfg.scenes):
         raise EvalArgumentError("--scenes: a scene is listed twice")
-    if not cfg.methods:
-        raise EvalArgumentError("--methods: expected at least one method")
-    bad = [m for m in cfg.methods if m not in METHODS]
-    if bad:
-        raise EvalArgumentError(
-            f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(METHODS)}"
-        )
-    if len(set(cfg.methods)) != len(cfg.methods):
-        raise EvalArgumentError("--methods: a method is listed twice")
     if any(d < 0 for d in cfg.delays) or len(set(cfg.delays)) != len(cfg.delays):
         raise EvalArgumentError("--delays: expected distinct integers >= 0")
-    for s in cfg.scenes:
-        duration = Scene(s).duration
-        if cfg.seconds > duration + 1e-9:
-            raise EvalArgumentError(
-                f"--seconds: scene {s!r} lasts {duration:g} s, asked for {cfg.seconds:g} s"
-            )
-    n_client = max(1, round(cfg.seconds * FC))
-    if n_client <= 2 * SKIP_FRAMES:
-        need = (2 * SKIP_FRAMES + 1) / FC
-        raise EvalArgumentError(
-            f"--seconds: {cfg.seconds:g} s is {n_client} client frames at {FC:g} FPS; the "
-            f"evaluation skips {SKIP_FRAMES} at each end, so at least {need:.3f} s is needed"
-        )
-    try:
-        w, h = Scene(cfg.scenes[0]).main_size(cfg.scale)
-    except SplitRenderError as e:
-        raise EvalArgumentError(f"--scale: {e}") from None
-    if min(w, h) < 16 or max(w, h) > 4096:
-        raise EvalArgumentError(
-            f"--scale: {cfg.scale:g} gives a {w}x{h} main camera; expected 16..4096 pixels a side"
-        )
+    check_run_args(cfg.scenes, cfg.methods, cfg.seconds, cfg.scale, EvalArgumentError)
     if any(not (b > 0 and math.isfinite(b)) for b in cfg.bitrates):
         raise EvalArgumentError("--bitrates: expected finite numbers > 0")
     if len(set(cfg.bitrates)) != len(cfg.bitrates):
