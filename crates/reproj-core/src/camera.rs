@@ -330,10 +330,11 @@ pub fn pixel_of_ndc(x: f32, y: f32, w: usize, h: usize) -> Option<(usize, usize)
     // pass, truncation is the floor: no libm `floorf` call in the innermost loops, and i32 (not
     // usize) conversions, which are single instructions.
     if fx >= 0.0 && fy >= 0.0 && fx < wf && fy < hf {
-        Some((
-            (fx as i32 as usize).min(w - 1),
-            (fy as i32 as usize).min(h - 1),
-        ))
+        // SAFETY: `0 ≤ fx < wf ≤ 2³¹` (and the same for `fy`), so both are finite and truncate
+        // into i32's range; this skips the NaN and overflow handling of a saturating `as` cast.
+        // The truncation is at most `w − 1` because `fx < wf` and `wf` is an integer.
+        let (ix, iy) = unsafe { (fx.to_int_unchecked::<i32>(), fy.to_int_unchecked::<i32>()) };
+        Some((ix as usize, iy as usize))
     } else {
         None
     }

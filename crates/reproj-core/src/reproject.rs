@@ -9,10 +9,17 @@
 //!    camera flow `M_cam[p] = P_{t+α}(X(w)) − p̄` (eqs. 1, 12, 13; `w = α` for the older and `1−α`
 //!    for the newer frame). The point is splatted into a grid over the client image at the source's
 //!    resolution with a 64-bit atomic minimum of `(depth, source pixel)`, so the nearest point wins.
-//! 2. **Resolve**, per output pixel over 16×16 tiles: the nearest splat in a 3×3 window initialises
-//!    the fixed-point iteration `p ← pix(T − M_cam[p])` (eq. 5 with eqs. 12/13), then the
-//!    reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary cameras
-//!    are merged (§3.5 rules 1–3), and Algorithm 2 blends in the other frame.
+//!    The 3×3 window search is then done for every cell at once, as a separable minimum filter
+//!    over the splat grid ([`window_min`]).
+//! 2. **Resolve**, per output pixel over blocks of 16 rows: the nearest splat in the window
+//!    initialises the fixed-point iteration `p ← pix(T − M_cam[p])` (eq. 5 with eqs. 12/13), then
+//!    the reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary
+//!    cameras (searched once per cell of their own grid) are merged (§3.5 rules 1–3), and
+//!    Algorithm 2 blends in the other frame for the match that was kept.
+//!
+//! The row loops of pass 1 and of the window filter are written without data-dependent branches
+//! and run in an AVX2 build on processors that have it (no FMA contraction, so the output bytes do
+//! not depend on the processor).
 //!
 //! Where we differ from the reference implementation on purpose (REFERENCE.md §8):
 //! - colours are rounded, not truncated;
@@ -51,17 +58,34 @@ pub const REFERENCE_SHORT_SIDE: f32 = 1440.0;
 /// An empty splat cell: larger than every real key.
 pub const EMPTY_SPLAT: u64 = u64::MAX;
 
-/// The splat key of a point at client reversed depth `z` (`0 ≤ z ≤ 1`) from source pixel `idx`.
+/// No splat in the window of a cell (see [`Buffers::init`]).
+pub const NO_SPLAT: u32 = u32::MAX;
+
+/// A source pixel `(i, j)` packed as `j << 16 | i` (sides are at most 16384). Packed pixels order
+/// like row-major indices, and unpacking needs no division (the splat keys carry them).
+#[inline(always)]
+pub fn pack_pixel(i: usize, j: usize) -> u32 {
+    ((j as u32) << 16) | i as u32
+}
+
+/// The `(i, j)` of a pixel packed by [`pack_pixel`].
+#[inline(always)]
+pub fn unpack_pixel(pk: u32) -> (usize, usize) {
+    ((pk & 0xFFFF) as usize, (pk >> 16) as usize)
+}
+
+/// The splat key of a point at client reversed depth `z` (`0 ≤ z ≤ 1`) from the source pixel
+/// packed as `pk` ([`pack_pixel`]).
 ///
 /// Positive IEEE floats order like their bit patterns, and reversed depth is larger for nearer
 /// points, so `!bits` makes the nearest point the smallest key; ties go to the smaller source
-/// index, which keeps the result independent of thread scheduling.
+/// pixel in row-major order, which keeps the result independent of thread scheduling.
 #[inline(always)]
-pub fn splat_key(z: f32, idx: u32) -> u64 {
-    (u64::from(!z.to_bits()) << 32) | u64::from(idx)
+pub fn splat_key(z: f32, pk: u32) -> u64 {
+    (u64::from(!z.to_bits()) << 32) | u64::from(pk)
 }
 
-/// The source pixel index stored in a splat key.
+/// The packed source pixel stored in a splat key.
 #[inline(always)]
 pub fn splat_index(key: u64) -> u32 {
     key as u32
@@ -76,6 +100,9 @@ struct Src<'a> {
     role: Role,
     /// `0` for main, `1 + i` for auxiliary camera `i`.
     camera: usize,
+    /// `(W, H) / min(W, H)`: NDC differences times these are in units where 2 is the short side
+    /// (the error of eq. 7, REFERENCE.md §2.5).
+    aspect: [f32; 2],
     bufs: Buffers,
 }
 
@@ -94,11 +121,17 @@ struct Other<'a> {
 /// The per-source buffers of one client frame, kept between frames (see [`BUFFER_POOL`]).
 #[derive(Debug, Default)]
 struct Buffers {
-    /// `M_cam`: xyz = NDC flow to the client, w = visible-in-main flag (1 or 0); NaN = invalid.
+    /// `M_cam` and more: x, y = the NDC flow to the client, z = the client's reversed depth of the
+    /// point (eq. 8; the source depth plus the z flow, kept whole so that the search needs no
+    /// second read), w = visible-in-main flag (1 or 0); NaN = invalid.
     /// Every entry is rewritten by the splatting pass, so it needs no reset.
     flow: Vec<[f32; 4]>,
     /// Splat keys ([`splat_key`]), reset to [`EMPTY_SPLAT`] every frame.
     splat: Vec<AtomicU64>,
+    /// The window search done for every cell at once ([`window_min`]): the packed source pixel
+    /// of the smallest splat key in the `(2W+1)²` window around the cell, or [`NO_SPLAT`].
+    /// Every entry is rewritten each frame.
+    init: Vec<u32>,
 }
 
 thread_local! {
@@ -118,12 +151,23 @@ thread_local! {
 struct Match {
     /// Source pixel index.
     p: u32,
+    /// The same pixel packed ([`pack_pixel`]).
+    pk: u32,
     /// Reprojection error (eq. 7), aspect-scaled NDC; `INFINITY` when invalid.
     e: f32,
     /// Client reversed depth (eq. 8).
     z: f32,
     /// Visible in the main camera (only meaningful for auxiliary sources).
     vis: bool,
+}
+
+/// Output cell `(i, j)` of a `gw × gh` grid that a search aims at.
+#[derive(Debug, Clone, Copy)]
+struct Cell {
+    i: usize,
+    j: usize,
+    gw: usize,
+    gh: usize,
 }
 
 /// A per-camera decision of Algorithm 1: which source (index into the source list) and its match,
@@ -234,6 +278,7 @@ pub(crate) fn run<'a>(
             eps_z: eps_z_aux,
         });
         scene_flow_and_splat(src, &to_client, w, vis_ctx.as_ref());
+        window_min(src, params.window);
     }
 
     // Pass 2: resolve per output tile.
@@ -306,18 +351,25 @@ impl<'a> Src<'a> {
             bufs.flow.resize(n, [f32::NAN; 4]);
             bufs.splat = Vec::new();
             bufs.splat.resize_with(n, || AtomicU64::new(EMPTY_SPLAT));
+            bufs.init = Vec::new();
+            bufs.init.resize(n, NO_SPLAT);
         } else {
             bufs.splat
                 .par_iter()
                 .with_min_len(1 << 14)
                 .for_each(|k| k.store(EMPTY_SPLAT, Ordering::Relaxed));
         }
+        let short = view.camera.width.min(view.camera.height) as f32;
         Src {
             view,
             proj,
             other,
             role,
             camera,
+            aspect: [
+                view.camera.width as f32 / short,
+                view.camera.height as f32 / short,
+            ],
             bufs,
         }
     }
@@ -369,74 +421,336 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
         .par_chunks_mut(TILE * sw)
         .enumerate()
         .for_each(|(b, rows)| {
-            let j0 = b * TILE;
-            for (r, row) in rows.chunks_mut(sw).enumerate() {
-                let j = j0 + r;
-                for (i, flow) in row.iter_mut().enumerate() {
-                    let idx = j * sw + i;
-                    *flow = [f32::NAN; 4];
-                    let z = view.depth[idx];
-                    let o = view.motion_at(idx);
-                    // Invalid depth or motion never reaches the output (DESIGN.md).
-                    if !(z.is_finite()
-                        && (0.0..=1.0).contains(&z)
-                        && o.iter().all(|v| v.is_finite()))
-                    {
-                        continue;
-                    }
-                    let [x, y] = proj.ndc_of_pixel(i, j);
-                    let c = [x, y, z];
-                    let c2 = [x + o[0], y + o[1], z + o[2]];
-                    let moved = o != [0.0; 3];
-                    // P_{t+α}(X + w·(X' − X)) = P X + w·(P X' − P X): the world-space blend of
-                    // eq. 1 done on clip coordinates, each already divided by its world w.
-                    let a = to_client.clip(c);
-                    let h = if moved {
-                        let b = to_client.clip(c2);
-                        [
-                            a[0] + w * (b[0] - a[0]),
-                            a[1] + w * (b[1] - a[1]),
-                            a[2] + w * (b[2] - a[2]),
-                            a[3] + w * (b[3] - a[3]),
-                        ]
-                    } else {
-                        a
-                    };
-                    if !(h[3] > 0.0) || !h.iter().all(|v| v.is_finite()) {
-                        continue; // behind the client camera (or degenerate)
-                    }
-                    let iw = 1.0 / h[3];
-                    let cc = [h[0] * iw, h[1] * iw, h[2] * iw];
-                    let v = match vis {
-                        None => true,
-                        Some(ctx) => {
-                            ctx.same
-                                .as_ref()
-                                .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c), ctx.eps_z))
-                                || ctx.other.as_ref().is_some_and(|(mv, mp, t)| {
-                                    visible_in(mv, mp, t.clip(c2), ctx.eps_z)
-                                })
+            ROW_SCRATCH.with(|cell| {
+                let mut scratch = cell.borrow_mut();
+                scratch.resize(sw, (0, 0.0));
+                for (r, row) in rows.chunks_mut(sw).enumerate() {
+                    let j = b * TILE + r;
+                    let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
+                    flow_row(
+                        FlowRow {
+                            j,
+                            sw,
+                            sh,
+                            depth: &view.depth[j * sw..(j + 1) * sw],
+                            motion,
+                            to_client,
+                            w,
+                        },
+                        row,
+                        &mut scratch,
+                    );
+                    if let Some(ctx) = vis {
+                        // Auxiliary sources: is the point visible in the main camera (§3.5 rule
+                        // 2)? Tested at the source's time and at the other frame's time.
+                        for (i, flow) in row.iter_mut().enumerate() {
+                            if flow[3].is_nan() {
+                                continue;
+                            }
+                            let idx = j * sw + i;
+                            let [x, y] = proj.ndc_of_pixel(i, j);
+                            let z = view.depth[idx];
+                            let o = view.motion_at(idx);
+                            let c = [x, y, z];
+                            let c2 = [x + o[0], y + o[1], z + o[2]];
+                            let v = ctx.same.as_ref().is_some_and(|(mv, mp, t)| {
+                                visible_in(mv, mp, t.clip(c), ctx.eps_z)
+                            }) || ctx.other.as_ref().is_some_and(|(mv, mp, t)| {
+                                visible_in(mv, mp, t.clip(c2), ctx.eps_z)
+                            });
+                            flow[3] = if v { 1.0 } else { 0.0 };
                         }
-                    };
-                    *flow = [cc[0] - x, cc[1] - y, cc[2] - z, if v { 1.0 } else { 0.0 }];
-                    // In front of the client (w > 0, checked above) and not nearer than its near
-                    // plane (with a margin for the f32 round trip of points on it). Points at or
-                    // beyond the far plane (the background lies at Z = 0) are kept, their key
-                    // depth clamped to exactly +0 (−0 or negative bits would sort as nearest).
-                    if cc[2] <= 1.0 + 1e-5 {
-                        if let Some((qi, qj)) = pixel_of_ndc(cc[0], cc[1], sw, sh) {
-                            splat[qj * sw + qi].fetch_min(
-                                splat_key(
-                                    if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 },
-                                    idx as u32,
-                                ),
-                                Ordering::Relaxed,
-                            );
+                    }
+                    for (i, &(tgt, z)) in scratch.iter().enumerate() {
+                        if tgt != NO_SPLAT {
+                            let (qi, qj) = unpack_pixel(tgt);
+                            splat[qj * sw + qi]
+                                .fetch_min(splat_key(z, pack_pixel(i, j)), Ordering::Relaxed);
                         }
                     }
                 }
-            }
+            });
         });
+}
+
+thread_local! {
+    /// Splat targets of one source row (packed pixel or [`NO_SPLAT`], key depth), reused.
+    static ROW_SCRATCH: std::cell::RefCell<Vec<(u32, f32)>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The inputs of [`flow_row`]: one row `j` of a `sw × sh` source image.
+struct FlowRow<'a> {
+    j: usize,
+    sw: usize,
+    sh: usize,
+    depth: &'a [f32],
+    /// The row's object motion, `3·sw` values, or `None` for a static frame.
+    motion: Option<&'a [f32]>,
+    to_client: &'a NdcTransfer,
+    w: f32,
+}
+
+/// `M_cam` of one source row (eqs. 1, 12, 13) and where each point splats.
+///
+/// Written without branches on the data so that the compiler vectorises it; on x86-64 it runs
+/// in an AVX2 build where the processor has AVX2 (the same IEEE operations, no FMA contraction, so
+/// the bytes do not depend on the processor).
+#[inline]
+fn flow_row(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor supports AVX2 (checked just above).
+            unsafe { flow_row_avx2(row, flow, splat) };
+            return;
+        }
+    }
+    flow_row_impl(row, flow, splat);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn flow_row_avx2(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) {
+    flow_row_impl(row, flow, splat);
+}
+
+#[inline(always)]
+fn flow_row_impl(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) {
+    let FlowRow {
+        j,
+        sw,
+        sh,
+        depth,
+        motion,
+        to_client,
+        w,
+    } = row;
+    let k = PointCtx {
+        y: crate::camera::ndc_of_pixel(0, j, sw, sh)[1],
+        wf: sw as i32 as f32,
+        hf: sh as i32 as f32,
+        m: to_client.m.0,
+        r: to_client.w_row,
+        w,
+    };
+    match motion {
+        Some(mo) => {
+            for (i, ((f, s), (z, o))) in flow
+                .iter_mut()
+                .zip(splat.iter_mut())
+                .zip(depth.iter().zip(mo.chunks_exact(3)))
+                .enumerate()
+            {
+                (*f, *s) = flow_point(&k, i, *z, [o[0], o[1], o[2]]);
+            }
+        }
+        None => {
+            for (i, ((f, s), z)) in flow.iter_mut().zip(splat.iter_mut()).zip(depth).enumerate() {
+                (*f, *s) = flow_point(&k, i, *z, [0.0; 3]);
+            }
+        }
+    }
+}
+
+/// What [`flow_point`] needs of its row.
+struct PointCtx {
+    /// NDC y of the row.
+    y: f32,
+    /// Source width and height as floats.
+    wf: f32,
+    hf: f32,
+    /// The source → client NDC transfer ([`NdcTransfer`]).
+    m: [f32; 16],
+    r: [f32; 4],
+    /// The fraction of the object motion applied.
+    w: f32,
+}
+
+/// `M_cam` of source pixel `(i, y)` with depth `z` and object motion `o` (eqs. 1, 12, 13), with
+/// its splat target (packed cell or [`NO_SPLAT`]) and key depth.
+#[inline(always)]
+fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 4], (u32, f32)) {
+    let (m, r, y, w) = (&k.m, &k.r, k.y, k.w);
+    let clip = |c: [f32; 3]| {
+        let iw = 1.0 / (r[0] * c[0] + r[1] * c[1] + r[2] * c[2] + r[3]);
+        [
+            (m[0] * c[0] + m[1] * c[1] + m[2] * c[2] + m[3]) * iw,
+            (m[4] * c[0] + m[5] * c[1] + m[6] * c[2] + m[7]) * iw,
+            (m[8] * c[0] + m[9] * c[1] + m[10] * c[2] + m[11]) * iw,
+            (m[12] * c[0] + m[13] * c[1] + m[14] * c[2] + m[15]) * iw,
+        ]
+    };
+    let x = (2 * i as i32 + 1) as f32 / k.wf - 1.0;
+    // P_{t+α}(X + w·(X' − X)) = P X + w·(P X' − P X): the world-space blend of eq. 1 done on
+    // clip coordinates, each already divided by its world w ([`NdcTransfer::clip`]).
+    let a = clip([x, y, z]);
+    let b = clip([x + o[0], y + o[1], z + o[2]]);
+    let h = [
+        a[0] + w * (b[0] - a[0]),
+        a[1] + w * (b[1] - a[1]),
+        a[2] + w * (b[2] - a[2]),
+        a[3] + w * (b[3] - a[3]),
+    ];
+    let iw = 1.0 / h[3];
+    let cc = [h[0] * iw, h[1] * iw, h[2] * iw];
+    // Invalid depth or motion never reaches the output (DESIGN.md): NaN or infinite inputs make
+    // `cc` or the sum of the motion non-finite (finite motions too large to add up are rejected
+    // as well; they lie far outside NDC). Points behind the client camera (or degenerate) have `h.w ≤ 0`.
+    let ok = (0.0..=1.0).contains(&z)
+        && h[3] > 0.0
+        && h[3] < f32::INFINITY
+        && cc[0].is_finite()
+        && cc[1].is_finite()
+        && cc[2].is_finite()
+        && (o[0] + o[1] + o[2]).is_finite();
+    let f = if ok {
+        [cc[0] - x, cc[1] - y, cc[2], 1.0]
+    } else {
+        [f32::NAN; 4]
+    };
+    // In front of the client and not nearer than its near plane (with a margin for the f32 round
+    // trip of points on it). Points at or beyond the far plane (the background lies at Z = 0) are
+    // kept, their key depth clamped to exactly +0 (−0 or negative bits would sort as nearest).
+    // The target cell is `pixel_of_ndc` without branches.
+    let fx = (cc[0] + 1.0) * 0.5 * k.wf;
+    let fy = (1.0 - cc[1]) * 0.5 * k.hf;
+    let inside = fx >= 0.0 && fy >= 0.0 && fx < k.wf && fy < k.hf;
+    let qi = (fx as i32).min(k.wf as i32 - 1);
+    let qj = (fy as i32).min(k.hf as i32 - 1);
+    let s = if ok && inside && cc[2] <= 1.0 + 1e-5 {
+        (
+            ((qj as u32) << 16) | qi as u32,
+            if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 },
+        )
+    } else {
+        (NO_SPLAT, 0.0)
+    };
+    (f, s)
+}
+
+thread_local! {
+    /// Row minima of one block of [`window_min`], reused across blocks and frames.
+    static ROW_MIN: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The window search of every cell at once: `init[c]` = the packed source pixel of the smallest
+/// splat key in the `(2W+1)²` window around cell `c` (clipped to the grid), or [`NO_SPLAT`].
+///
+/// Searching per output pixel reads nine keys for each of the two frames; the minimum is
+/// separable, so a row pass and a column pass give every cell's answer with about `4W+2`
+/// comparisons on sequential memory, and the resolve pass then reads one `u32` per search.
+fn window_min(src: &mut Src, wr: usize) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    // SAFETY: `AtomicU64` has the size, alignment and bit validity of `u64`, and the splatting
+    // pass that wrote these atomics has finished (rayon's join orders it before this point), so
+    // nothing writes them while this shared view exists. Plain loads let the minima vectorise.
+    let splat: &[u64] = unsafe {
+        std::slice::from_raw_parts(src.bufs.splat.as_ptr().cast::<u64>(), src.bufs.splat.len())
+    };
+    src.bufs
+        .init
+        .par_chunks_mut(TILE * sw)
+        .enumerate()
+        .for_each(|(b, out)| {
+            ROW_MIN
+                .with(|cell| window_block(splat, sw, sh, wr, b * TILE, out, &mut cell.borrow_mut()))
+        });
+}
+
+/// [`window_min`] for the output rows starting at `j0`; `scratch` holds row minima.
+#[inline]
+fn window_block(
+    splat: &[u64],
+    sw: usize,
+    sh: usize,
+    wr: usize,
+    j0: usize,
+    out: &mut [u32],
+    scratch: &mut Vec<u64>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor supports AVX2 (checked just above).
+            unsafe { window_block_avx2(splat, sw, sh, wr, j0, out, scratch) };
+            return;
+        }
+    }
+    window_block_impl(splat, sw, sh, wr, j0, out, scratch);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn window_block_avx2(
+    splat: &[u64],
+    sw: usize,
+    sh: usize,
+    wr: usize,
+    j0: usize,
+    out: &mut [u32],
+    scratch: &mut Vec<u64>,
+) {
+    window_block_impl(splat, sw, sh, wr, j0, out, scratch);
+}
+
+#[inline(always)]
+fn window_block_impl(
+    splat: &[u64],
+    sw: usize,
+    sh: usize,
+    wr: usize,
+    j0: usize,
+    out: &mut [u32],
+    scratch: &mut Vec<u64>,
+) {
+    let j1 = j0 + out.len() / sw;
+    let (lo, hi) = (j0.saturating_sub(wr), (j1 + wr).min(sh));
+    // Layout: the horizontal minima of rows lo..hi, then two rows of working space.
+    scratch.clear();
+    scratch.resize((hi - lo + 2) * sw, EMPTY_SPLAT);
+    let (rows, work) = scratch.split_at_mut((hi - lo) * sw);
+    let (acc, tmp) = work.split_at_mut(sw);
+    for (r, dst) in rows.chunks_mut(sw).enumerate() {
+        dst.copy_from_slice(&splat[(lo + r) * sw..(lo + r + 1) * sw]);
+        // Each step widens the minimum by one pixel on both sides.
+        for _ in 0..wr {
+            tmp.copy_from_slice(dst);
+            min3(tmp, dst);
+        }
+    }
+    for (r, o) in out.chunks_mut(sw).enumerate() {
+        let j = j0 + r;
+        let (a, z) = (j.saturating_sub(wr) - lo, (j + wr).min(sh - 1) - lo);
+        acc.copy_from_slice(&rows[a * sw..(a + 1) * sw]);
+        for q in a + 1..=z {
+            for (m, v) in acc.iter_mut().zip(&rows[q * sw..(q + 1) * sw]) {
+                *m = (*m).min(*v);
+            }
+        }
+        // The low half of a key is its packed pixel, and that of EMPTY_SPLAT is NO_SPLAT (packed
+        // pixels stay below 2³⁰).
+        for (d, m) in o.iter_mut().zip(acc.iter()) {
+            *d = splat_index(*m);
+        }
+    }
+}
+
+/// `dst[i] = min(src[i−1], src[i], src[i+1])`, clipped at the ends.
+#[inline(always)]
+fn min3(src: &[u64], dst: &mut [u64]) {
+    let n = src.len();
+    if n < 2 {
+        dst.copy_from_slice(src);
+        return;
+    }
+    dst[0] = src[0].min(src[1]);
+    dst[n - 1] = src[n - 2].min(src[n - 1]);
+    for (d, ((a, b), c)) in dst[1..n - 1]
+        .iter_mut()
+        .zip(src[..n - 2].iter().zip(&src[1..n - 1]).zip(&src[2..]))
+    {
+        *d = (*a).min(*b).min(*c);
+    }
 }
 
 /// Read-only context of pass 2.
@@ -458,12 +772,11 @@ struct Resolve<'a> {
     aux: Vec<AuxGrid>,
 }
 
-/// The auxiliary match of one cell, with its colour after Algorithm 2.
+/// The auxiliary match of one cell. Its colour (Algorithm 2) is found only where an output pixel
+/// takes it: most cells lose to the main camera (§3.5 rule 2).
 #[derive(Debug, Clone, Copy)]
 struct AuxCell {
     choice: Choice,
-    rgb: [f32; 3],
-    code: u8,
 }
 
 /// An auxiliary camera's matches over the client image discretised at that camera's resolution.
@@ -475,20 +788,25 @@ struct AuxCell {
 #[derive(Debug)]
 struct AuxGrid {
     w: usize,
-    h: usize,
     cells: Vec<Option<AuxCell>>,
+    /// The grid column of each client column (`pixel_of_ndc` is separable), or `u32::MAX`
+    /// outside the grid.
+    col_of: Vec<u32>,
+    /// The grid row of each client row, or `u32::MAX`.
+    row_of: Vec<u32>,
 }
 
 impl Resolve<'_> {
     fn resolve_rows(&self, j0: usize, out: &mut [u8], mut diag: Option<(&mut [u8], &mut [f32])>) {
         let cw = self.client_w;
         let rows = out.len() / (3 * cw);
-        // Tiles of 16×16 inside the row block: keeps the splat and flow reads of neighbouring
-        // output pixels close together.
-        for i0 in (0..cw).step_by(TILE) {
+        // Scanlines inside the block of 16 rows: the reads of `init`, `flow` and the colours then
+        // run along rows of the sources, a few sequential streams that the hardware prefetcher
+        // follows, where a 16×16 tile order starts 16 new rows every 16 pixels.
+        {
             for r in 0..rows {
                 let j = j0 + r;
-                for i in i0..(i0 + TILE).min(cw) {
+                for i in 0..cw {
                     let local = r * cw + i;
                     if let Some((code, rgb, e)) = self.resolve_pixel(i, j) {
                         out[3 * local..3 * local + 3].copy_from_slice(&rgb);
@@ -505,25 +823,25 @@ impl Resolve<'_> {
         }
     }
 
-    /// The window search and fixed-point iteration in source `s` for the output pixel at NDC `t`.
-    #[inline]
-    fn search(&self, s: &Src, t: [f32; 2]) -> Option<Match> {
+    /// The window search and fixed-point iteration in source `s` for the output pixel at NDC `t`,
+    /// which is cell `cell = (i, j)` of a `gw × gh` grid (the client image or an auxiliary grid).
+    #[inline(always)]
+    fn search(&self, s: &Src, t: [f32; 2], cell: Cell) -> Option<Match> {
         let (sw, sh) = (s.proj.width, s.proj.height);
-        let (ci, cj) = pixel_of_ndc(t[0], t[1], sw, sh)?;
-        let wr = self.params.window;
-        let (i0, i1) = (ci.saturating_sub(wr), (ci + wr).min(sw - 1));
-        let mut best = EMPTY_SPLAT;
-        for qj in cj.saturating_sub(wr)..=(cj + wr).min(sh - 1) {
-            // One bounds check per row of the window, then a plain scan.
-            for cell in &s.bufs.splat[qj * sw + i0..=qj * sw + i1] {
-                best = best.min(cell.load(Ordering::Relaxed));
-            }
-        }
-        if best == EMPTY_SPLAT {
+        // The source cell containing `t`: the same cell when the grids agree (the usual case, and
+        // exact: a pixel centre lies inside its pixel), else found from NDC.
+        let (ci, cj) = if (cell.gw, cell.gh) == (sw, sh) {
+            (cell.i, cell.j)
+        } else {
+            pixel_of_ndc(t[0], t[1], sw, sh)?
+        };
+        // The nearest splat in the window around the cell (precomputed by `window_min`).
+        let pk = s.bufs.init[cj * sw + ci];
+        if pk == NO_SPLAT {
             return None;
         }
-        let mut p = splat_index(best) as usize;
-        let (mut pi, mut pj) = (p % sw, p / sw);
+        let (mut pi, mut pj) = unpack_pixel(pk);
+        let mut p = pj * sw + pi;
         // Fixed-point iteration p ← pix(T − M_cam[p]) (eq. 5 with the flows of eqs. 12/13). Once
         // p maps to itself every further iteration would too, so stopping there gives the same
         // result as running all of them (most pixels converge after one step).
@@ -539,16 +857,16 @@ impl Resolve<'_> {
             }
         }
         let [px, py] = s.proj.ndc_of_pixel(pi, pj);
-        let short = sw.min(sh) as f32;
-        let ex = (px + m[0] - t[0]) * (sw as f32 / short);
-        let ey = (py + m[1] - t[1]) * (sh as f32 / short);
+        let ex = (px + m[0] - t[0]) * s.aspect[0];
+        let ey = (py + m[1] - t[1]) * s.aspect[1];
         let e = (ex * ex + ey * ey).sqrt();
-        let z = s.view.depth[p] + m[2];
+        let z = m[2];
         if !(e.is_finite() && z.is_finite()) {
             return None;
         }
         Some(Match {
             p: p as u32,
+            pk: pack_pixel(pi, pj),
             e,
             z,
             vis: m[3] > 0.0,
@@ -557,11 +875,18 @@ impl Resolve<'_> {
 
     /// Algorithm 1 for camera `cam`: the better of its older and newer match, or `None`.
     #[inline]
-    fn best_match(&self, cam: usize, t: [f32; 2], eps_e: f32, eps_z: f32) -> Option<Choice> {
+    fn best_match(
+        &self,
+        cam: usize,
+        t: [f32; 2],
+        cell: Cell,
+        eps_e: f32,
+        eps_z: f32,
+    ) -> Option<Choice> {
         if self.bidirectional {
             let (fi, bi) = (2 * cam, 2 * cam + 1);
-            let f = self.search(&self.sources[fi], t);
-            let b = self.search(&self.sources[bi], t);
+            let f = self.search(&self.sources[fi], t, cell);
+            let b = self.search(&self.sources[bi], t, cell);
             let ef = f.map_or(f32::INFINITY, |m| m.e);
             let eb = b.map_or(f32::INFINITY, |m| m.e);
             let (f_ok, b_ok) = (ef < eps_e, eb < eps_e);
@@ -582,7 +907,7 @@ impl Resolve<'_> {
                 visible_in_main,
             })
         } else {
-            let m = self.search(&self.sources[cam], t)?;
+            let m = self.search(&self.sources[cam], t, cell)?;
             (m.e < eps_e).then_some(Choice {
                 src: cam,
                 m,
@@ -633,7 +958,7 @@ impl Resolve<'_> {
             return (base, false);
         };
         let ov = &other.view;
-        let Some((q, mq_sum, zq, pz)) = correspondence(&s.view, &s.proj, other, p) else {
+        let Some((q, mq_sum, zq, pz)) = correspondence(&s.view, &s.proj, other, c.m.pk) else {
             return (base, false);
         };
         // ‖M_full_s(p) + M_full_o(q)‖ < ε_O, z in [−1,1]-NDC units (2·ΔZ).
@@ -680,7 +1005,7 @@ impl Resolve<'_> {
         }
     }
 
-    /// Algorithms 1 and 2 for auxiliary camera `cam` once per cell of its grid.
+    /// Algorithm 1 for auxiliary camera `cam` once per cell of its grid.
     fn resolve_aux_grid(&self, cam: usize, mut cells: Vec<Option<AuxCell>>) -> AuxGrid {
         // The newer frame's camera is present in both modes; both frames share the rig.
         let grid_src = if self.bidirectional { 2 * cam + 1 } else { cam };
@@ -699,32 +1024,56 @@ impl Resolve<'_> {
                     let (i, j) = (k % w, b * TILE + k / w);
                     let t = crate::camera::ndc_of_pixel(i, j, w, h);
                     *cell = self
-                        .best_match(cam, t, self.eps_e_aux, self.eps_z_aux)
-                        .map(|choice| {
-                            let (rgb, blended) = self.second_chance(&choice, self.eps_z_aux);
-                            AuxCell {
-                                choice,
-                                rgb,
-                                code: self.code_of(&choice, blended),
-                            }
-                        });
+                        .best_match(
+                            cam,
+                            t,
+                            Cell { i, j, gw: w, gh: h },
+                            self.eps_e_aux,
+                            self.eps_z_aux,
+                        )
+                        .map(|choice| AuxCell { choice });
                 }
             });
-        AuxGrid { w, h, cells }
+        let (cw, ch) = (self.client_w, self.client_h);
+        let lookup = |n: usize, f: &dyn Fn(usize) -> Option<usize>| -> Vec<u32> {
+            (0..n)
+                .map(|k| f(k).map_or(u32::MAX, |v| v as u32))
+                .collect()
+        };
+        // NDC x of a client pixel centre depends on its column only, y on its row only.
+        let col_of = lookup(cw, &|i| {
+            pixel_of_ndc(crate::camera::ndc_of_pixel(i, 0, cw, ch)[0], 0.0, w, h).map(|c| c.0)
+        });
+        let row_of = lookup(ch, &|j| {
+            pixel_of_ndc(0.0, crate::camera::ndc_of_pixel(0, j, cw, ch)[1], w, h).map(|c| c.1)
+        });
+        AuxGrid {
+            w,
+            cells,
+            col_of,
+            row_of,
+        }
     }
 
     /// The whole per-pixel decision: `(diagnostic code, colour, error)` or `None` for no match.
     #[inline]
     fn resolve_pixel(&self, i: usize, j: usize) -> Option<(u8, [u8; 3], f32)> {
         let t = crate::camera::ndc_of_pixel(i, j, self.client_w, self.client_h);
-        let main = self.best_match(0, t, self.eps_e, self.eps_z);
+        let cell = Cell {
+            i,
+            j,
+            gw: self.client_w,
+            gh: self.client_h,
+        };
+        let main = self.best_match(0, t, cell, self.eps_e, self.eps_z);
         // Best auxiliary match (§3.5): the nearer if depths differ, else the smaller error.
         let mut aux: Option<AuxCell> = None;
         for grid in &self.aux {
-            let Some((ai, aj)) = pixel_of_ndc(t[0], t[1], grid.w, grid.h) else {
+            let (ai, aj) = (grid.col_of[i], grid.row_of[j]);
+            if ai == u32::MAX || aj == u32::MAX {
                 continue;
-            };
-            if let Some(c) = grid.cells[aj * grid.w + ai] {
+            }
+            if let Some(c) = grid.cells[aj as usize * grid.w + ai as usize] {
                 aux = match aux {
                     None => Some(c),
                     Some(b) => {
@@ -751,8 +1100,9 @@ impl Resolve<'_> {
             (_, None) => false,
         };
         if use_aux {
-            let a = aux?;
-            return Some((a.code, round_rgb(a.rgb), a.choice.m.e));
+            let a = aux?.choice;
+            let (rgb, blended) = self.second_chance(&a, self.eps_z_aux);
+            return Some((self.code_of(&a, blended), round_rgb(rgb), a.m.e));
         }
         let m = main?;
         let (rgb, blended) = self.second_chance(&m, self.eps_z);
@@ -768,7 +1118,7 @@ fn correspondence(
     view: &CameraView,
     proj: &Projector,
     other: &Other,
-    p: usize,
+    pk: u32,
 ) -> Option<(usize, [f32; 3], f32, f32)> {
     let oproj = &other.proj;
     let full_flow = |v: &CameraView, pr: &Projector, to: &NdcTransfer, i: usize, j: usize| {
@@ -784,7 +1134,8 @@ fn correspondence(
         let f = [h[0] * iw - x, h[1] * iw - y, h[2] * iw - z];
         f.iter().all(|v| v.is_finite()).then_some(f)
     };
-    let (pi, pj) = (p % proj.width, p / proj.width);
+    let (pi, pj) = unpack_pixel(pk);
+    let p = pj * proj.width + pi;
     let ms = full_flow(view, proj, &other.to_other, pi, pj)?;
     let [x, y] = proj.ndc_of_pixel(pi, pj);
     let pz = view.depth[p] + ms[2];
@@ -825,7 +1176,8 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
         .bufs
         .flow
         .into_iter()
-        .map(|f| [f[0], f[1], f[2]])
+        .zip(view.depth)
+        .map(|(f, z)| [f[0], f[1], f[2] - z])
         .collect())
 }
 
