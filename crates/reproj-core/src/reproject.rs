@@ -9,8 +9,10 @@
 //!    camera flow `M_cam[p] = P_{t+α}(X(w)) − p̄` (eqs. 1, 12, 13; `w = α` for the older and `1−α`
 //!    for the newer frame). The point is splatted into a grid over the client image at the source's
 //!    resolution with a 64-bit atomic minimum of `(depth, source pixel)`, so the nearest point wins.
-//!    The 3×3 window search is then done for every cell at once, as a separable minimum filter
-//!    over the splat grid ([`window_min`]).
+//!    When the two frames are blended, the same pass gives every pixel its full scene flow into
+//!    the other frame (eqs. 2, 3) for Algorithm 2 ([`full_flow_row`]). The 3×3 window search is
+//!    then done for every cell at once, as a separable minimum filter over the splat grid
+//!    ([`window_min`]).
 //! 2. **Resolve**, per output pixel over blocks of 16 rows: the nearest splat in the window
 //!    initialises the fixed-point iteration `p ← pix(T − M_cam[p])` (eq. 5 with eqs. 12/13), then
 //!    the reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary
@@ -106,7 +108,7 @@ struct Src<'a> {
     bufs: Buffers,
 }
 
-/// The same camera in the other frame of the pair, with the NDC transfers both ways (the full scene
+/// The same camera in the other frame of the pair, with the NDC transfer to it (the full scene
 /// flow of eqs. 2 and 3, used by Algorithm 2).
 #[derive(Debug, Clone, Copy)]
 struct Other<'a> {
@@ -114,8 +116,6 @@ struct Other<'a> {
     proj: Projector,
     /// This camera's NDC → the other camera's clip space.
     to_other: NdcTransfer,
-    /// The other camera's NDC → this camera's clip space.
-    from_other: NdcTransfer,
 }
 
 /// The per-source buffers of one client frame, kept between frames (see [`BUFFER_POOL`]).
@@ -132,6 +132,9 @@ struct Buffers {
     /// of the smallest splat key in the `(2W+1)²` window around the cell, or [`NO_SPLAT`].
     /// Every entry is rewritten each frame.
     init: Vec<u32>,
+    /// The full scene flow to the other frame ([`full_flow_row`]), for Algorithm 2; empty when
+    /// the frame does not blend.
+    full: Vec<[f32; 4]>,
 }
 
 thread_local! {
@@ -151,8 +154,6 @@ thread_local! {
 struct Match {
     /// Source pixel index.
     p: u32,
-    /// The same pixel packed ([`pack_pixel`]).
-    pk: u32,
     /// Reprojection error (eq. 7), aspect-scaled NDC; `INFINITY` when invalid.
     e: f32,
     /// Client reversed depth (eq. 8).
@@ -234,13 +235,11 @@ pub(crate) fn run<'a>(
                 view: nv,
                 proj: np,
                 to_other: o_to_n,
-                from_other: n_to_o,
             };
             let other_of_n = Other {
                 view: ov,
                 proj: op,
                 to_other: n_to_o,
-                from_other: o_to_n,
             };
             sources.push(Src::new(ov, op, Some(other_of_o), Role::Older, cam, take()));
             sources.push(Src::new(nv, np, Some(other_of_n), Role::Newer, cam, take()));
@@ -277,7 +276,14 @@ pub(crate) fn run<'a>(
             other: mains.iter().find(|m| m.2 != src.role).map(to_main),
             eps_z: eps_z_aux,
         });
-        scene_flow_and_splat(src, &to_client, w, vis_ctx.as_ref());
+        // Algorithm 2 reads the full scene flow of the chosen pixel and of its correspondence.
+        let blends = mode == Mode::Ours && params.blend;
+        let full_ctx = src.other.as_ref().filter(|_| blends).map(|o| FullCtx {
+            to_other: o.to_other,
+            ow: o.proj.width,
+            oh: o.proj.height,
+        });
+        scene_flow_and_splat(src, &to_client, w, vis_ctx.as_ref(), full_ctx.as_ref());
         window_min(src, params.window);
     }
 
@@ -411,66 +417,220 @@ fn visible_in(view: &CameraView, proj: &Projector, h: [f32; 4], eps_z: f32) -> b
 ///
 /// `w` is the fraction of the object motion applied: `α` for the older frame, `1−α` for the newer
 /// one (negative when extrapolating).
-fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Option<&VisCtx>) {
+fn scene_flow_and_splat(
+    src: &mut Src,
+    to_client: &NdcTransfer,
+    w: f32,
+    vis: Option<&VisCtx>,
+    full: Option<&FullCtx>,
+) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     let view = src.view;
     let proj = src.proj;
     let splat = &src.bufs.splat;
-    src.bufs
-        .flow
-        .par_chunks_mut(TILE * sw)
-        .enumerate()
-        .for_each(|(b, rows)| {
-            ROW_SCRATCH.with(|cell| {
-                let mut scratch = cell.borrow_mut();
-                scratch.resize(sw, (0, 0.0));
-                for (r, row) in rows.chunks_mut(sw).enumerate() {
-                    let j = b * TILE + r;
-                    let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
-                    flow_row(
-                        FlowRow {
-                            j,
-                            sw,
-                            sh,
-                            depth: &view.depth[j * sw..(j + 1) * sw],
-                            motion,
-                            to_client,
-                            w,
-                        },
-                        row,
-                        &mut scratch,
-                    );
-                    if let Some(ctx) = vis {
-                        // Auxiliary sources: is the point visible in the main camera (§3.5 rule
-                        // 2)? Tested at the source's time and at the other frame's time.
-                        for (i, flow) in row.iter_mut().enumerate() {
-                            if flow[3].is_nan() {
-                                continue;
-                            }
-                            let idx = j * sw + i;
-                            let [x, y] = proj.ndc_of_pixel(i, j);
-                            let z = view.depth[idx];
-                            let o = view.motion_at(idx);
-                            let c = [x, y, z];
-                            let c2 = [x + o[0], y + o[1], z + o[2]];
-                            let v = ctx.same.as_ref().is_some_and(|(mv, mp, t)| {
+    let block = |b: usize, rows: &mut [[f32; 4]], full_rows: Option<&mut [[f32; 4]]>| {
+        ROW_SCRATCH.with(|cell| {
+            let mut scratch = cell.borrow_mut();
+            scratch.resize(sw, (0, 0.0));
+            let mut full_rows = full_rows;
+            for (r, row) in rows.chunks_mut(sw).enumerate() {
+                let j = b * TILE + r;
+                let depth = &view.depth[j * sw..(j + 1) * sw];
+                let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
+                flow_row(
+                    FlowRow {
+                        j,
+                        sw,
+                        sh,
+                        depth,
+                        motion,
+                        to_client,
+                        w,
+                    },
+                    row,
+                    &mut scratch,
+                );
+                if let (Some(ctx), Some(fr)) = (full, full_rows.as_deref_mut()) {
+                    full_flow_row(j, sw, sh, depth, motion, ctx, &mut fr[r * sw..(r + 1) * sw]);
+                }
+                if let Some(ctx) = vis {
+                    // Auxiliary sources: is the point visible in the main camera (§3.5 rule
+                    // 2)? Tested at the source's time and at the other frame's time.
+                    for (i, flow) in row.iter_mut().enumerate() {
+                        if flow[3].is_nan() {
+                            continue;
+                        }
+                        let idx = j * sw + i;
+                        let [x, y] = proj.ndc_of_pixel(i, j);
+                        let z = view.depth[idx];
+                        let o = view.motion_at(idx);
+                        let c = [x, y, z];
+                        let c2 = [x + o[0], y + o[1], z + o[2]];
+                        let v =
+                            ctx.same.as_ref().is_some_and(|(mv, mp, t)| {
                                 visible_in(mv, mp, t.clip(c), ctx.eps_z)
                             }) || ctx.other.as_ref().is_some_and(|(mv, mp, t)| {
                                 visible_in(mv, mp, t.clip(c2), ctx.eps_z)
                             });
-                            flow[3] = if v { 1.0 } else { 0.0 };
-                        }
-                    }
-                    for (i, &(tgt, z)) in scratch.iter().enumerate() {
-                        if tgt != NO_SPLAT {
-                            let (qi, qj) = unpack_pixel(tgt);
-                            splat[qj * sw + qi]
-                                .fetch_min(splat_key(z, pack_pixel(i, j)), Ordering::Relaxed);
-                        }
+                        flow[3] = if v { 1.0 } else { 0.0 };
                     }
                 }
-            });
-        });
+                for (i, &(tgt, z)) in scratch.iter().enumerate() {
+                    if tgt != NO_SPLAT {
+                        let (qi, qj) = unpack_pixel(tgt);
+                        splat[qj * sw + qi]
+                            .fetch_min(splat_key(z, pack_pixel(i, j)), Ordering::Relaxed);
+                    }
+                }
+            }
+        })
+    };
+    let n = sw * sh;
+    if full.is_some() {
+        if src.bufs.full.len() != n {
+            src.bufs.full = vec![[f32::NAN; 4]; n];
+        }
+        src.bufs
+            .flow
+            .par_chunks_mut(TILE * sw)
+            .zip(src.bufs.full.par_chunks_mut(TILE * sw))
+            .enumerate()
+            .for_each(|(b, (rows, fr))| block(b, rows, Some(fr)));
+    } else {
+        src.bufs
+            .flow
+            .par_chunks_mut(TILE * sw)
+            .enumerate()
+            .for_each(|(b, rows)| block(b, rows, None));
+    }
+}
+
+/// The full scene flow of a source into the same camera at the other frame's time (eqs. 2, 3),
+/// for Algorithm 2: the transfer and the other camera's size.
+struct FullCtx {
+    to_other: NdcTransfer,
+    ow: usize,
+    oh: usize,
+}
+
+/// The full scene flow of one source row (eqs. 2, 3): `[Δx, Δy, ΔZ, q]` with `q` the packed pixel
+/// ([`pack_pixel`]) it lands on in the other camera, stored as `f32` bits ([`NO_SPLAT`] outside
+/// the image); NaN flow where invalid. The same arithmetic as [`correspondence`] did per match,
+/// done for every pixel with vector instructions.
+#[inline]
+fn full_flow_row(
+    j: usize,
+    sw: usize,
+    sh: usize,
+    depth: &[f32],
+    motion: Option<&[f32]>,
+    ctx: &FullCtx,
+    out: &mut [[f32; 4]],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor supports AVX2 (checked just above).
+            unsafe { full_flow_row_avx2(j, sw, sh, depth, motion, ctx, out) };
+            return;
+        }
+    }
+    full_flow_row_impl(j, sw, sh, depth, motion, ctx, out);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn full_flow_row_avx2(
+    j: usize,
+    sw: usize,
+    sh: usize,
+    depth: &[f32],
+    motion: Option<&[f32]>,
+    ctx: &FullCtx,
+    out: &mut [[f32; 4]],
+) {
+    full_flow_row_impl(j, sw, sh, depth, motion, ctx, out);
+}
+
+#[inline(always)]
+fn full_flow_row_impl(
+    j: usize,
+    sw: usize,
+    sh: usize,
+    depth: &[f32],
+    motion: Option<&[f32]>,
+    ctx: &FullCtx,
+    out: &mut [[f32; 4]],
+) {
+    let y = crate::camera::ndc_of_pixel(0, j, sw, sh)[1];
+    let k = FullRow {
+        y,
+        wf: sw as i32 as f32,
+        owf: ctx.ow as i32 as f32,
+        ohf: ctx.oh as i32 as f32,
+        m: ctx.to_other.m.0,
+        r: ctx.to_other.w_row,
+    };
+    match motion {
+        Some(mo) => {
+            for (i, (d, (z, o))) in out
+                .iter_mut()
+                .zip(depth.iter().zip(mo.chunks_exact(3)))
+                .enumerate()
+            {
+                *d = full_point(&k, i, *z, [o[0], o[1], o[2]]);
+            }
+        }
+        None => {
+            for (i, (d, z)) in out.iter_mut().zip(depth).enumerate() {
+                *d = full_point(&k, i, *z, [0.0; 3]);
+            }
+        }
+    }
+}
+
+/// What [`full_point`] needs of its row: the row's NDC y, the source width and the other camera's
+/// size as floats, and the transfer to the other camera.
+struct FullRow {
+    y: f32,
+    wf: f32,
+    owf: f32,
+    ohf: f32,
+    m: [f32; 16],
+    r: [f32; 4],
+}
+
+/// One entry of [`full_flow_row`].
+#[inline(always)]
+fn full_point(k: &FullRow, i: usize, z: f32, o: [f32; 3]) -> [f32; 4] {
+    let (y, wf, owf, ohf, m, r) = (k.y, k.wf, k.owf, k.ohf, &k.m, &k.r);
+    let x = (2 * i as i32 + 1) as f32 / wf - 1.0;
+    let c = [x + o[0], y + o[1], z + o[2]];
+    let iw = 1.0 / (r[0] * c[0] + r[1] * c[1] + r[2] * c[2] + r[3]);
+    let h = [
+        (m[0] * c[0] + m[1] * c[1] + m[2] * c[2] + m[3]) * iw,
+        (m[4] * c[0] + m[5] * c[1] + m[6] * c[2] + m[7]) * iw,
+        (m[8] * c[0] + m[9] * c[1] + m[10] * c[2] + m[11]) * iw,
+        (m[12] * c[0] + m[13] * c[1] + m[14] * c[2] + m[15]) * iw,
+    ];
+    let iw = 1.0 / h[3];
+    let f = [h[0] * iw - x, h[1] * iw - y, h[2] * iw - z];
+    let ok = h[3] > 0.0 && f[0].is_finite() && f[1].is_finite() && f[2].is_finite();
+    // The pixel the point lands on in the other camera (`pixel_of_ndc` without branches).
+    let fx = (x + f[0] + 1.0) * 0.5 * owf;
+    let fy = (1.0 - (y + f[1])) * 0.5 * ohf;
+    let inside = fx >= 0.0 && fy >= 0.0 && fx < owf && fy < ohf;
+    let q = ((fy as i32 as u32) << 16) | fx as i32 as u32;
+    if ok {
+        [
+            f[0],
+            f[1],
+            f[2],
+            f32::from_bits(if inside { q } else { NO_SPLAT }),
+        ]
+    } else {
+        [f32::NAN, f32::NAN, f32::NAN, f32::from_bits(NO_SPLAT)]
+    }
 }
 
 thread_local! {
@@ -866,7 +1026,6 @@ impl Resolve<'_> {
         }
         Some(Match {
             p: p as u32,
-            pk: pack_pixel(pi, pj),
             e,
             z,
             vis: m[3] > 0.0,
@@ -958,7 +1117,9 @@ impl Resolve<'_> {
             return (base, false);
         };
         let ov = &other.view;
-        let Some((q, mq_sum, zq, pz)) = correspondence(&s.view, &s.proj, other, c.m.pk) else {
+        // The other frame's source of the same camera: sources come in (older, newer) pairs.
+        let Some((q, mq_sum, zq, pz)) = correspondence(s, &self.sources[c.src ^ 1], c.m.p as usize)
+        else {
             return (base, false);
         };
         // ‖M_full_s(p) + M_full_o(q)‖ < ε_O, z in [−1,1]-NDC units (2·ΔZ).
@@ -1110,42 +1271,26 @@ impl Resolve<'_> {
     }
 }
 
-/// Full scene flow of pixel `p` of `view` into the same camera at the other time (eqs. 2, 3),
-/// then the pixel `q` it lands on there. Returns `q`, `M_full_s(p) + M_full_o(q)`, `Z_o(q)` and the
-/// predicted depth `P.z`; `None` when out of view or invalid.
+/// The correspondence of pixel `p` of source `s` in the other frame's source `o` (Algorithm 2):
+/// the full scene flow of `p` (eqs. 2, 3, from [`full_flow_row`]) lands on pixel `q` of `o`.
+/// Returns `q`, `M_full_s(p) + M_full_o(q)`, `Z_o(q)` and the predicted depth `P.z`; `None` when
+/// out of view or invalid.
 #[inline]
-fn correspondence(
-    view: &CameraView,
-    proj: &Projector,
-    other: &Other,
-    pk: u32,
-) -> Option<(usize, [f32; 3], f32, f32)> {
-    let oproj = &other.proj;
-    let full_flow = |v: &CameraView, pr: &Projector, to: &NdcTransfer, i: usize, j: usize| {
-        let idx = j * pr.width + i;
-        let z = v.depth[idx];
-        let o = v.motion_at(idx);
-        let [x, y] = pr.ndc_of_pixel(i, j);
-        let h = to.clip([x + o[0], y + o[1], z + o[2]]);
-        if !(h[3] > 0.0) {
-            return None;
-        }
-        let iw = 1.0 / h[3];
-        let f = [h[0] * iw - x, h[1] * iw - y, h[2] * iw - z];
-        f.iter().all(|v| v.is_finite()).then_some(f)
-    };
-    let (pi, pj) = unpack_pixel(pk);
-    let p = pj * proj.width + pi;
-    let ms = full_flow(view, proj, &other.to_other, pi, pj)?;
-    let [x, y] = proj.ndc_of_pixel(pi, pj);
-    let pz = view.depth[p] + ms[2];
-    let (qi, qj) = pixel_of_ndc(x + ms[0], y + ms[1], oproj.width, oproj.height)?;
-    let q = qj * oproj.width + qi;
-    let zq = other.view.depth[q];
-    if !zq.is_finite() {
+fn correspondence(s: &Src, o: &Src, p: usize) -> Option<(usize, [f32; 3], f32, f32)> {
+    let ms = s.bufs.full[p];
+    let qk = ms[3].to_bits();
+    if qk == NO_SPLAT {
         return None;
     }
-    let mo = full_flow(&other.view, oproj, &other.from_other, qi, qj)?;
+    let (qi, qj) = unpack_pixel(qk);
+    let q = qj * o.proj.width + qi;
+    let zq = o.view.depth[q];
+    let mo = o.bufs.full[q];
+    // NaN in `mo` (an invalid point) fails the caller's threshold test, as `None` would.
+    if !(zq.is_finite() && mo[0].is_finite()) {
+        return None;
+    }
+    let pz = s.view.depth[p] + ms[2];
     Some((q, [ms[0] + mo[0], ms[1] + mo[1], ms[2] + mo[2]], zq, pz))
 }
 
@@ -1171,7 +1316,7 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
         })?;
     let to_client = NdcTransfer::new(&inv, &client.view_proj());
     let mut src = Src::new(*view, proj, None, Role::Older, 0, Buffers::default());
-    scene_flow_and_splat(&mut src, &to_client, w, None);
+    scene_flow_and_splat(&mut src, &to_client, w, None, None);
     Ok(src
         .bufs
         .flow
