@@ -10,6 +10,16 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore
 # Builds the extension in release mode (maturin) and installs pytest, hypothesis and mypy.
 python -m pip install --quiet ".[test]"
 
+# The GPU tests (crates/reproj-wgpu, tests/test_wgpu.py) need a wgpu adapter and skip with a
+# message without one. Mesa's software Vulkan driver (lavapipe) gives one on any machine: install
+# it when missing and we are root on Debian/Ubuntu (.ci/run also sets REPROJ_WGPU_REQUIRE_ADAPTER=1
+# so that there they cannot skip).
+if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ] \
+    && ! dpkg-query -W -f='${Status}' mesa-vulkan-drivers 2>/dev/null | grep -q "ok installed"; then
+    apt-get update -q
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends mesa-vulkan-drivers
+fi
+
 cargo test --workspace
 
 # From the repository root `import splitrender` resolves to the installed package (the sources

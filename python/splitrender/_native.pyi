@@ -28,6 +28,7 @@ __all__ = [
     "SplitRenderError",
     "InvalidInputError",
     "StreamError",
+    "GpuUnavailableError",
     "BidirHistory",
     "reproject",
     "scene_flow",
@@ -40,6 +41,8 @@ __all__ = [
     "synthetic_head_pose",
     "Scene",
     "scene_names",
+    "WgpuReprojector",
+    "wgpu_adapter",
     "_panic_for_test",
 ]
 
@@ -49,6 +52,7 @@ METHODS: list[str]
 class SplitRenderError(Exception): ...
 class InvalidInputError(SplitRenderError, ValueError): ...
 class StreamError(SplitRenderError): ...
+class GpuUnavailableError(SplitRenderError): ...
 
 @final
 class BidirHistory:
@@ -162,5 +166,30 @@ class Scene:
     def render_ground_truth(
         self, view: _F64, proj: _F64, width: int, height: int, t: float
     ) -> _U8: ...
+
+def wgpu_adapter() -> str: ...
+@final
+class WgpuReprojector:
+    """The client reprojection on the GPU (reproj-wgpu), server frames kept on the device."""
+
+    def __new__(cls, force_32bit_atomics: bool = False) -> WgpuReprojector: ...
+    @property
+    def adapter(self) -> str: ...
+    @property
+    def atomics(self) -> str: ...
+    def load(self, older: _Frame | None, newer: _Frame) -> None: ...
+    def render(
+        self,
+        method: str,
+        client: _Client,
+        alpha: float,
+        options: dict[str, Any] | None = None,
+        previous: _U8 | None = None,
+        keep: bool = False,
+        slot: int = 0,
+        diagnostics: bool = False,
+        download: bool = True,
+    ) -> _U8 | tuple[_U8, _U8, _F32] | None: ...
+    def unload(self) -> None: ...
 
 def _panic_for_test() -> None: ...

@@ -9,6 +9,10 @@ Each method then reprojects client frames between the two *decoded* server frame
 client poses (:func:`~splitrender.reproject.reproject`, no previous frame): one warm-up call, then
 ``frames`` timed calls cycling through the client frames; the figure is the median.
 
+With ``backend="wgpu"`` (:mod:`splitrender.gpu`) the pair a method uses is uploaded to the device
+once, and each timed call uploads the client pose, runs the frame and downloads the image (the
+previous output stays on the device): the device-resident client, not the per-call API.
+
 ``ns_per_pixel`` divides it by the output pixels (main camera). The effective GB/s is an
 estimate: bytes touched = every source buffer the method reads (its ``nbytes``) + the output
 image written (``W·H·3``), divided by the median time. The buffers read per method:
@@ -130,8 +134,19 @@ def _recording(scene: str, scale: float, log: Any) -> Any:
     return load_recording(path)
 
 
-def check_args(scene: str, methods: Sequence[str], scale: float, frames: int) -> None:
+def check_args(
+    scene: str, methods: Sequence[str], scale: float, frames: int, backend: str = "cpu"
+) -> None:
+    from splitrender.gpu import check_backend
     from splitrender.scenes import SCENE_NAMES, Scene
+
+    try:
+        check_backend(backend)
+        for m in methods:
+            if m in METHODS:
+                check_backend(backend, m)
+    except InvalidInputError as e:
+        raise BenchArgumentError(f"--backend: {e}") from None
 
     if scene not in SCENE_NAMES:
         raise BenchArgumentError(
@@ -160,12 +175,20 @@ def run_bench(
     frames: int = 5,
     repeats: int = 3,
     progress: bool = True,
+    backend: str = "cpu",
 ) -> list[BenchRow]:
-    """Runs the benchmark (module docstring) and returns one row per method."""
+    """Runs the benchmark (module docstring) and returns one row per method.
+
+    Raises:
+        BenchArgumentError: for arguments that cannot work (including a method the backend
+            cannot run).
+        GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
+    """
     from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
     from splitrender.reproject import reproject
 
-    check_args(scene, methods, scale, frames)
+    check_args(scene, methods, scale, frames, backend)
+    gpu_run = _GpuRun() if backend == "wgpu" else None
 
     def log(text: str) -> None:
         if progress:
@@ -194,18 +217,21 @@ def run_bench(
         requests = [rec.client_frames[len(rec.client_frames) // 2].request]
     rows: list[BenchRow] = []
     for method in methods:
-        reproject(older, newer, requests[0], method)  # warm-up (allocations, thread pool)
-        samples = []
-        for i in range(frames):
-            req = requests[i % len(requests)]
-            t0 = time.perf_counter()
-            reproject(older, newer, req, method)
-            samples.append(time.perf_counter() - t0)
+        if gpu_run is not None:
+            samples = gpu_run.time(method, older, newer, requests, frames)
+        else:
+            reproject(older, newer, requests[0], method)  # warm-up (allocations, thread pool)
+            samples = []
+            for i in range(frames):
+                req = requests[i % len(requests)]
+                t0 = time.perf_counter()
+                reproject(older, newer, req, method)
+                samples.append(time.perf_counter() - t0)
         sec = statistics.median(samples)
         touched = bytes_touched(method, older, newer)
         row = BenchRow(
             method=method,
-            backend="cpu",
+            backend=backend,
             width=w,
             height=h,
             ms_per_frame=sec * 1e3,
@@ -219,6 +245,51 @@ def run_bench(
     return rows
 
 
+class _GpuRun:
+    """Times the wgpu backend as a client runs it: the pair uploaded once per method, then per
+    client frame the pose up and the image down (the previous output stays on the device)."""
+
+    def __init__(self) -> None:
+        from splitrender.gpu import GpuReprojector
+
+        self.gpu = GpuReprojector()
+
+    def time(
+        self,
+        method: str,
+        older: ServerFrame,
+        newer: ServerFrame,
+        requests: Sequence[Any],
+        frames: int,
+    ) -> list[float]:
+        # The frames and α that splitrender.reproject picks (its module docs): `ours` between
+        # the pair; the unidirectional methods extrapolate from the newest frame at or before t.
+        fs = 1.0 / (newer.time - older.time)
+        if method == "ours":
+            self.gpu.load(older, newer)
+
+            def alpha(t: float) -> float:
+                return (t - older.time) * fs
+
+        else:
+            self.gpu.load(None, older)
+
+            def alpha(t: float) -> float:
+                return 1.0 + (t - older.time) * fs
+
+        def one(req: Any) -> None:
+            self.gpu.render(req.camera, alpha(req.time), method, previous="keep")
+
+        one(requests[0])  # warm-up (pipelines, first-use allocations)
+        samples = []
+        for i in range(frames):
+            req = requests[i % len(requests)]
+            t0 = time.perf_counter()
+            one(req)
+            samples.append(time.perf_counter() - t0)
+        return samples
+
+
 def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
     """A plain-text table of the rows."""
     cpus = cpus if cpus is not None else (os.cpu_count() or 1)
@@ -227,7 +298,8 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
     r0 = rows[0]
     lines = [
         (
-            f"backend cpu ({cpus} cores), client {r0.width}x{r0.height}; decode "
+            f"backend {r0.backend} ({_backend_detail(r0.backend, cpus)}), client "
+            f"{r0.width}x{r0.height}; decode "
             f"{r0.decode_ms_per_server_frame:.1f} ms per server frame"
         ),
         (
@@ -242,3 +314,11 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
             f"{r.mb_touched:11.2f} {r.gb_per_s:7.2f}"
         )
     return "\n".join(lines)
+
+
+def _backend_detail(backend: str, cpus: int) -> str:
+    if backend == "wgpu":
+        from splitrender.gpu import adapter
+
+        return adapter()
+    return f"{cpus} cores"

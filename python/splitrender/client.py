@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from splitrender import _native
 from splitrender.errors import InvalidInputError
+from splitrender.gpu import GpuReprojector, check_backend
 from splitrender.network import (
     TIME_EPS,
     ClientFrameInfo,
@@ -48,9 +49,14 @@ class Client:
     pair changes. ``server_fps`` (default ``options.server_fps``, else 10) sets ``α`` when
     extrapolating.
 
+    ``backend="wgpu"`` reprojects on the GPU (:mod:`splitrender.gpu`): the pair is uploaded once
+    when it changes, each client frame uploads only its pose, and the previous output of each eye
+    stays on the device for hole filling.
+
     Raises:
-        InvalidInputError: for an unknown method, invalid options, or a ``server_fps`` that
-            contradicts ``options.server_fps``.
+        InvalidInputError: for an unknown method, invalid options, a ``server_fps`` that
+            contradicts ``options.server_fps``, or a method the backend cannot run.
+        GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
 
     def __init__(
@@ -60,11 +66,13 @@ class Client:
         server_fps: float | None = None,
         *,
         capacity: int = 4,
+        backend: str = "cpu",
     ) -> None:
         if not isinstance(method, str) or method not in METHODS:
             raise InvalidInputError(
                 f"unknown method {method!r}; expected one of: {', '.join(METHODS)}"
             )
+        self.backend = check_backend(backend, method)
         if options is None:
             options = (
                 ReprojectOptions()
@@ -88,9 +96,11 @@ class Client:
         self._history: dict[int, tuple[tuple[int, int] | None, _native.BidirHistory]] = {}
         self.last_info: ClientFrameInfo | None = None
         """How the last rendered frame was made (frames used, ``α``, mode)."""
+        self._gpu = GpuReprojector() if self.backend == "wgpu" else None
+        self._gpu_pair: tuple[int | None, int] | None = None
 
     def __repr__(self) -> str:
-        return f"Client(method={self.method!r}, held={self.held})"
+        return f"Client(method={self.method!r}, backend={self.backend!r}, held={self.held})"
 
     @property
     def server_fps(self) -> float:
@@ -156,22 +166,52 @@ class Client:
                     history.reset()
                 self._history[eye] = (pair, history)
             assert info.alpha is not None
-            image = reproject_alpha(
-                older,
-                self._frames[info.newer],
-                camera,
-                info.alpha,
-                self.method,
-                options=self.options,
-                previous=prev,
-                history=history,
-            )
+            if self._gpu is not None:
+                image = self._render_gpu(older, info.older, info.newer, camera, info.alpha, prev, eye)
+            else:
+                image = reproject_alpha(
+                    older,
+                    self._frames[info.newer],
+                    camera,
+                    info.alpha,
+                    self.method,
+                    options=self.options,
+                    previous=prev,
+                    history=history,
+                )
         self._previous[eye] = image
         self._buffer.prune(float(time))
         for j in [j for j in self._frames if j not in self._buffer.times]:
             del self._frames[j]
         self.last_info = info
         return image
+
+    def _render_gpu(
+        self,
+        older: ServerFrame | None,
+        older_index: int | None,
+        newer_index: int,
+        camera: Camera,
+        alpha: float,
+        prev: _Image | None,
+        eye: int,
+    ) -> _Image:
+        assert self._gpu is not None
+        pair = (older_index, newer_index)
+        if pair != self._gpu_pair:
+            self._gpu_pair = None
+            self._gpu.load(older, self._frames[newer_index])
+            self._gpu_pair = pair
+        # The eye's output slot on the device holds exactly `prev` (the last frame returned for
+        # this eye at this size), so nothing needs to go up but the pose.
+        return self._gpu.render(
+            camera,
+            alpha,
+            self.method,
+            options=self.options,
+            previous="keep" if prev is not None else None,
+            slot=eye,
+        )
 
     def reset(self) -> None:
         """Forgets every frame, previous output and history (a new session)."""
@@ -180,6 +220,7 @@ class Client:
         self._previous.clear()
         self._history.clear()
         self.last_info = None
+        self._gpu_pair = None
 
 
 def frame_nbytes(frame: ServerFrame) -> int:
@@ -234,6 +275,7 @@ def play(
     lead: float | None = None,
     keep_images: bool = True,
     on_frame: Callable[[int, _Image, ClientFrameInfo], None] | None = None,
+    backend: str = "cpu",
 ) -> PlaybackResult:
     """Plays a session: server ``frames`` (in index order; consumed lazily, so a recording can be
     streamed) are sent ``lead`` seconds (default ``1 / options.server_fps``) before their time
@@ -242,13 +284,14 @@ def play(
     :class:`Client` renders client frame ``n`` at ``cameras[n]`` and time ``n / fps``.
 
     ``on_frame(n, image, info)`` is called for every client frame (e.g. to write it out); with
-    ``keep_images=False`` the result holds no images.
+    ``keep_images=False`` the result holds no images. ``backend`` is ``"cpu"`` or ``"wgpu"``
+    (see :class:`Client`).
 
     Raises:
         InvalidInputError: for invalid arguments, a network whose ``client_fps`` is not ``fps``,
             or frames out of order.
     """
-    client = Client(method, options)
+    client = Client(method, options, backend=backend)
     fs = client.server_fps
     net = network if network is not None else NetworkModel(client_fps=fps)
     if not isinstance(net, NetworkModel):

@@ -5,13 +5,19 @@
     Exception
     └── SplitRenderError
         ├── InvalidInputError   (also a ValueError)
-        └── StreamError
+        ├── StreamError
+        └── GpuUnavailableError (backend="wgpu" without a GPU adapter)
 
 The classes are defined by the native module (so that the Rust code raises them directly) and
 re-exported here; their ``__module__`` is ``splitrender.errors``. A Rust panic never reaches
 Python as such: it is raised as ``SplitRenderError("internal error in ... (please report)")``.
 """
 
-from splitrender._native import InvalidInputError, SplitRenderError, StreamError
+from splitrender._native import (
+    GpuUnavailableError,
+    InvalidInputError,
+    SplitRenderError,
+    StreamError,
+)
 
-__all__ = ["InvalidInputError", "SplitRenderError", "StreamError"]
+__all__ = ["GpuUnavailableError", "InvalidInputError", "SplitRenderError", "StreamError"]

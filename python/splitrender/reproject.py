@@ -11,7 +11,7 @@ from typing import Literal, overload
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import _native
+from splitrender import _native, gpu
 from splitrender.errors import InvalidInputError
 from splitrender.types import (
     Camera,
@@ -77,6 +77,7 @@ def reproject_alpha(
     previous: _Image | None = ...,
     diagnostics: Literal[False] = ...,
     history: _native.BidirHistory | None = ...,
+    backend: str = ...,
 ) -> _Image: ...
 @overload
 def reproject_alpha(
@@ -90,6 +91,7 @@ def reproject_alpha(
     previous: _Image | None = ...,
     diagnostics: Literal[True],
     history: _native.BidirHistory | None = ...,
+    backend: str = ...,
 ) -> Reprojection: ...
 @overload
 def reproject_alpha(
@@ -103,6 +105,7 @@ def reproject_alpha(
     previous: _Image | None = ...,
     diagnostics: bool = ...,
     history: _native.BidirHistory | None = ...,
+    backend: str = ...,
 ) -> _Image | Reprojection: ...
 def reproject_alpha(
     older: ServerFrame | None,
@@ -115,6 +118,7 @@ def reproject_alpha(
     previous: _Image | None = None,
     diagnostics: bool = False,
     history: _native.BidirHistory | None = None,
+    backend: str = "cpu",
 ) -> _Image | Reprojection:
     """One client frame at ``camera`` and an explicit ``alpha``, with the core's pair semantics.
 
@@ -129,19 +133,37 @@ def reproject_alpha(
     ``previous`` (``uint8[H, W, 3]`` at the camera's size) is the previous client frame: pixels
     without a match keep its colour (black when ``None``). It is copied, never modified.
     ``history`` carries ``backward_bidir``'s state between the client frames of one pair.
+    ``backend`` is ``"cpu"`` (reproj-core) or ``"wgpu"`` (the GPU path, :mod:`splitrender.gpu`:
+    ``ours``, ``ours_extrapolate`` and ``forward_splat``, the same images; this per-call form
+    uploads the frames every time, :class:`splitrender.gpu.GpuReprojector` keeps them on the
+    device).
 
     Returns the image (``uint8[H, W, 3]``), or a :class:`Reprojection` with per-pixel
     diagnostics when ``diagnostics`` is true.
 
     Raises:
-        InvalidInputError: for any invalid argument (it names the argument or buffer).
+        InvalidInputError: for any invalid argument (it names the argument or buffer), or a
+            method the backend cannot run.
+        GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
     method = _check_method(method)
+    backend = gpu.check_backend(backend, method)
     _check_frame("older", older, optional=True)
     _check_frame("newer", newer)
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
     opts = _options(options)
+    if backend == "wgpu":
+        return gpu.shared().reproject(
+            older,
+            newer,
+            camera,
+            float(alpha),
+            method,
+            options=opts,
+            previous=previous,
+            diagnostics=bool(diagnostics),
+        )
     out = _native.reproject(
         method,
         None if older is None else older.to_native("fwd"),
@@ -176,6 +198,7 @@ def reproject(
     previous: _Image | None = ...,
     diagnostics: Literal[False] = ...,
     history: _native.BidirHistory | None = ...,
+    backend: str = ...,
 ) -> _Image: ...
 @overload
 def reproject(
@@ -188,6 +211,7 @@ def reproject(
     previous: _Image | None = ...,
     diagnostics: Literal[True],
     history: _native.BidirHistory | None = ...,
+    backend: str = ...,
 ) -> Reprojection: ...
 @overload
 def reproject(
@@ -200,6 +224,7 @@ def reproject(
     previous: _Image | None = ...,
     diagnostics: bool = ...,
     history: _native.BidirHistory | None = ...,
+    backend: str = ...,
 ) -> _Image | Reprojection: ...
 def reproject(
     older: ServerFrame | None,
@@ -211,6 +236,7 @@ def reproject(
     previous: _Image | None = None,
     diagnostics: bool = False,
     history: _native.BidirHistory | None = None,
+    backend: str = "cpu",
 ) -> _Image | Reprojection:
     """One client frame for ``request`` (its camera and display time) from the frames held.
 
@@ -222,13 +248,15 @@ def reproject(
     frame whose time is ``<= request.time``, with its backward buffers, and
     ``α = 1 + (request.time − frame.time) · options.server_fps``.
 
-    See :func:`reproject_alpha` for ``previous``, ``diagnostics`` and ``history``.
+    See :func:`reproject_alpha` for ``previous``, ``diagnostics``, ``history`` and ``backend``.
 
     Raises:
         InvalidInputError: for any invalid argument, a request before every usable frame, or
             frames out of order.
+        GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
     method = _check_method(method)
+    backend = gpu.check_backend(backend, method)
     _check_frame("older", older, optional=True)
     _check_frame("newer", newer)
     if not isinstance(request, ClientRequest):
@@ -261,6 +289,7 @@ def reproject(
             previous=previous,
             diagnostics=diagnostics,
             history=history,
+            backend=backend,
         )
     if older is None:
         raise InvalidInputError(f"method '{method}' needs both frames; older is None")
@@ -275,6 +304,7 @@ def reproject(
         previous=previous,
         diagnostics=diagnostics,
         history=history,
+        backend=backend,
     )
 
 

@@ -13,6 +13,7 @@ use pyo3::prelude::*;
 mod api;
 mod convert;
 mod errors;
+mod gpu;
 mod scene;
 mod synth;
 
@@ -60,6 +61,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SplitRenderError", py.get_type::<SplitRenderError>())?;
     m.add("InvalidInputError", invalid_input_type(py)?)?;
     m.add("StreamError", py.get_type::<StreamError>())?;
+    m.add(
+        "GpuUnavailableError",
+        py.get_type::<gpu::GpuUnavailableError>(),
+    )?;
+    m.add_class::<gpu::WgpuReprojector>()?;
+    m.add_function(wrap_pyfunction!(gpu::wgpu_adapter, m)?)?;
     m.add_class::<api::BidirHistory>()?;
     m.add_function(wrap_pyfunction!(api::reproject, m)?)?;
     m.add_function(wrap_pyfunction!(api::scene_flow, m)?)?;

@@ -1,0 +1,226 @@
+//! `WgpuReprojector` and `wgpu_adapter`: the bindings of reproj-wgpu (the GPU path).
+//!
+//! Thin as the rest: inputs are checked by the same conversions as `reproject` (`convert.rs`),
+//! every device call runs with the GIL released, and every [`GpuError`] maps onto the exception
+//! hierarchy: input problems and methods without a GPU kernel are `InvalidInputError`, a missing
+//! adapter is `GpuUnavailableError` (with how to get one), device failures `SplitRenderError`.
+//!
+//! One device per process ([`context`]), created on first use and shared by every reprojector:
+//! creating a device costs far more than a client frame (pipelines compile per reprojector).
+
+use std::sync::{Mutex, OnceLock};
+
+use pyo3::prelude::*;
+use pyo3::types::PyTuple;
+use reproj_core::{Diagnostics, Method, Request};
+use reproj_wgpu::{
+    ContextOptions, GpuContext, GpuError, Previous, Reprojector, ReprojectorOptions, MAX_OUTPUTS,
+};
+
+use crate::api::{hw, rgb};
+use crate::convert::{self, array, slice, Dim, FrameArrays};
+use crate::errors::{invalid, map_reproj_error, SplitRenderError};
+use crate::guarded;
+
+pyo3::create_exception!(
+    splitrender.errors,
+    GpuUnavailableError,
+    SplitRenderError,
+    "The wgpu backend was asked for, but no GPU adapter (or device) is available; the message \
+says how to install one (Mesa's lavapipe needs no GPU)."
+);
+
+/// Maps a GPU-path error onto the hierarchy; every variant explicitly.
+fn map_gpu_error(e: GpuError) -> PyErr {
+    match e {
+        GpuError::Input(e) => map_reproj_error(e),
+        GpuError::Unsupported(msg) => invalid(msg),
+        GpuError::NoAdapter(_) => GpuUnavailableError::new_err(e.to_string()),
+        GpuError::Device(_) | GpuError::State(_) => SplitRenderError::new_err(e.to_string()),
+    }
+}
+
+/// The process-wide device, created on first use (the outcome, failure included, is kept).
+fn context(py: Python<'_>) -> PyResult<&'static GpuContext> {
+    static CONTEXT: OnceLock<Result<GpuContext, GpuError>> = OnceLock::new();
+    let ctx = py.detach(|| CONTEXT.get_or_init(|| GpuContext::new(&ContextOptions::default())));
+    ctx.as_ref().map_err(|e| map_gpu_error(e.clone()))
+}
+
+/// The wgpu adapter in words (e.g. `llvmpipe (...) (Vulkan, Cpu, Mesa ...)`); raises
+/// `GpuUnavailableError` when there is none.
+#[pyfunction]
+pub fn wgpu_adapter(py: Python<'_>) -> PyResult<String> {
+    guarded("wgpu_adapter", || Ok(context(py)?.describe()))
+}
+
+/// The client reprojection on the GPU with the server frames kept on the device: `load` a pair
+/// once, then `render` client frames from a pose and `alpha`.
+#[pyclass(module = "splitrender._native")]
+#[derive(Debug)]
+pub struct WgpuReprojector {
+    inner: Mutex<Reprojector>,
+    adapter: String,
+}
+
+#[pymethods]
+impl WgpuReprojector {
+    #[new]
+    #[pyo3(signature = (force_32bit_atomics=false))]
+    fn new(py: Python<'_>, force_32bit_atomics: bool) -> PyResult<Self> {
+        guarded("WgpuReprojector", || {
+            let ctx = context(py)?;
+            let options = ReprojectorOptions {
+                force_32bit_atomics,
+            };
+            let inner = py
+                .detach(|| Reprojector::new(ctx, &options))
+                .map_err(map_gpu_error)?;
+            Ok(WgpuReprojector {
+                inner: Mutex::new(inner),
+                adapter: ctx.describe(),
+            })
+        })
+    }
+
+    /// The adapter in words.
+    #[getter]
+    fn adapter(&self) -> String {
+        self.adapter.clone()
+    }
+
+    /// `"int64"` (one 64-bit atomic max per splat) or `"int32"` (two 32-bit passes).
+    #[getter]
+    fn atomics(&self) -> PyResult<&'static str> {
+        guarded("WgpuReprojector.atomics", || {
+            Ok(self.lock()?.atomics().name())
+        })
+    }
+
+    /// Uploads a pair: `older` (forward buffers) may be None, `newer` (backward buffers).
+    #[pyo3(signature = (older, newer))]
+    fn load<'py>(
+        &self,
+        py: Python<'py>,
+        older: Option<&Bound<'py, PyAny>>,
+        newer: &Bound<'py, PyAny>,
+    ) -> PyResult<()> {
+        guarded("WgpuReprojector.load", || {
+            let older = match older.filter(|o| !o.is_none()) {
+                Some(o) => Some(FrameArrays::extract(o, "older")?),
+                None => None,
+            };
+            let newer = FrameArrays::extract(newer, "newer")?;
+            let older_view = older.as_ref().map(FrameArrays::view).transpose()?;
+            let newer_view = newer.view()?;
+            py.detach(|| self.lock_detached()?.load(older_view.as_ref(), &newer_view))
+                .map_err(map_gpu_error)
+        })
+    }
+
+    /// One client frame into output slot `slot`; see `splitrender.gpu.GpuReprojector.render`.
+    #[pyo3(signature = (method, client, alpha, options=None, previous=None, keep=false, slot=0, diagnostics=false, download=true))]
+    #[allow(clippy::too_many_arguments)]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        method: &str,
+        client: &Bound<'py, PyAny>,
+        alpha: f64,
+        options: Option<&Bound<'py, PyAny>>,
+        previous: Option<&Bound<'py, PyAny>>,
+        keep: bool,
+        slot: i64,
+        diagnostics: bool,
+        download: bool,
+    ) -> PyResult<Option<Bound<'py, PyAny>>> {
+        guarded("WgpuReprojector.render", || {
+            let method: Method = method.parse().map_err(map_reproj_error)?;
+            let params = convert::params(options)?;
+            let client = convert::client(client, "client")?;
+            let slot = match usize::try_from(slot) {
+                Ok(s) if s < MAX_OUTPUTS => s,
+                _ => {
+                    return Err(invalid(format!(
+                        "slot: expected 0..{MAX_OUTPUTS}, got {slot}"
+                    )))
+                }
+            };
+            let (cw, ch) = (client.width, client.height);
+            let n = cw * ch;
+            let prev = match previous.filter(|p| !p.is_none()) {
+                Some(p) => {
+                    if keep {
+                        return Err(invalid("previous: pass either an image or keep=True"));
+                    }
+                    let dims = [Dim::Is(ch), Dim::Is(cw), Dim::Is(3)];
+                    Some(array::<u8>(p, "previous", &dims)?)
+                }
+                None => None,
+            };
+            let prev_slice = prev.as_ref().map(|p| slice(p, "previous")).transpose()?;
+            let previous = match (prev_slice, keep) {
+                (Some(p), _) => Previous::Image(p),
+                (None, true) => Previous::Keep,
+                (None, false) => Previous::Black,
+            };
+            let request = Request {
+                client,
+                alpha: alpha as f32,
+            };
+            let mut out = download.then(|| vec![0u8; n * 3]);
+            let mut diag = diagnostics.then(|| Diagnostics::new(n));
+            py.detach(|| {
+                self.lock_detached()?.render(
+                    slot,
+                    method,
+                    &request,
+                    &params,
+                    previous,
+                    out.as_deref_mut(),
+                    diag.as_mut(),
+                )
+            })
+            .map_err(map_gpu_error)?;
+            let image = match out {
+                Some(o) => rgb(py, o, ch, cw)?.into_any(),
+                None => return Ok(None),
+            };
+            match diag {
+                None => Ok(Some(image)),
+                Some(d) => {
+                    let source = hw(py, d.source, ch, cw)?.into_any();
+                    let error = hw(py, d.error, ch, cw)?.into_any();
+                    Ok(Some(PyTuple::new(py, [image, source, error])?.into_any()))
+                }
+            }
+        })
+    }
+
+    /// Frees the pair and the output slots on the device.
+    fn unload(&self) -> PyResult<()> {
+        guarded("WgpuReprojector.unload", || {
+            self.lock()?.unload();
+            Ok(())
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        format!("WgpuReprojector(adapter={:?})", self.adapter)
+    }
+}
+
+impl WgpuReprojector {
+    fn lock(&self) -> PyResult<std::sync::MutexGuard<'_, Reprojector>> {
+        self.inner.lock().map_err(|_| {
+            SplitRenderError::new_err("WgpuReprojector: poisoned by an earlier internal error")
+        })
+    }
+
+    /// The lock taken without the GIL (a second thread waits for the first one's frame).
+    fn lock_detached(&self) -> Result<std::sync::MutexGuard<'_, Reprojector>, GpuError> {
+        self.inner.lock().map_err(|_| {
+            GpuError::State("WgpuReprojector: poisoned by an earlier internal error".into())
+        })
+    }
+}

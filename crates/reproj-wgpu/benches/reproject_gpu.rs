@@ -1,0 +1,156 @@
+//! Milliseconds per client frame of the GPU path on the dynamic `courtyard` at 640×360 and
+//! 1280×720 (main camera; plus two half-size auxiliary cameras, shadows on): the pair is loaded
+//! once, then every iteration uploads the client pose and `α` and runs the frame,
+//!
+//! - `ours/<atomics>/download`: and downloads the image (what `splitrender bench --backend wgpu`
+//!   times);
+//! - `ours/<atomics>/on_device`: and leaves it on the device (a presenting caller), waiting for
+//!   the GPU to finish;
+//!
+//! with the 64-bit splat where the adapter has it and the 32-bit fallback; `ours_cpu` is
+//! reproj-core on the same frames for comparison (the naive baseline beside the fast one).
+//!
+//! `cargo bench -p reproj-wgpu --bench reproject_gpu` (needs an adapter; on a machine without a
+//! GPU, Mesa's lavapipe: `apt-get install mesa-vulkan-drivers`).
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use reproj_core::{CameraView, FrameView, Method, Params, Request, ShadowView};
+use reproj_scene::{builtin, mono, render_server_frame, ServerBuffers, ServerFrame, Variant};
+use reproj_wgpu::{ContextOptions, GpuContext, Previous, Reprojector, ReprojectorOptions};
+
+fn view(b: &ServerBuffers, forward: bool) -> CameraView<'_> {
+    let (motion, shadow) = if forward {
+        (&b.motion_fwd, &b.shadow_fwd)
+    } else {
+        (&b.motion_bwd, &b.shadow_bwd)
+    };
+    CameraView {
+        camera: reproj_core::Camera {
+            view: b.view,
+            proj: b.proj,
+            width: b.width,
+            height: b.height,
+        },
+        color: &b.color,
+        depth: &b.depth,
+        motion: Some(motion),
+        shadow: Some(ShadowView {
+            bits: &shadow.bits,
+            s_min: &shadow.s_min,
+            s_max: &shadow.s_max,
+        }),
+    }
+}
+
+fn frame_view(f: &ServerFrame, older: bool) -> FrameView<'_> {
+    FrameView {
+        main: view(&f.main, older),
+        aux: f.aux.iter().map(|a| view(a, older)).collect(),
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let ctx = match GpuContext::new(&ContextOptions::default()) {
+        Ok(ctx) => ctx,
+        Err(e) => {
+            eprintln!("no GPU benchmark: {e}");
+            return;
+        }
+    };
+    eprintln!("adapter: {}", ctx.describe());
+    let scene = builtin("courtyard", Variant::Dynamic).expect("built-in scene");
+    let mut g = c.benchmark_group("reproject_gpu");
+    g.sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(4));
+    let params = Params::default();
+    for scale in [0.25, 0.5] {
+        let f0 = render_server_frame(&scene, 2, scale, 10.0, 4).expect("render");
+        let f1 = render_server_frame(&scene, 3, scale, 10.0, 4).expect("render");
+        let (w, h) = (f0.main.width, f0.main.height);
+        let size = format!("{w}x{h}");
+        let (older, newer) = (frame_view(&f0, true), frame_view(&f1, false));
+        let alpha = 5.0 / 12.0;
+        let client = mono(
+            &scene.path.client_pose(0.2 + f64::from(alpha) / 10.0),
+            w,
+            h,
+            scene.near,
+            scene.far,
+        );
+        let request = Request { client, alpha };
+        g.throughput(Throughput::Elements((w * h) as u64));
+        let mut out = vec![0u8; w * h * 3];
+        for force in [false, true] {
+            if force && !ctx.int64_atomics() {
+                continue; // the default already is the fallback
+            }
+            let mut gpu = Reprojector::new(
+                &ctx,
+                &ReprojectorOptions {
+                    force_32bit_atomics: force,
+                },
+            )
+            .expect("pipelines");
+            gpu.load(Some(&older), &newer).expect("load");
+            let name = gpu.atomics().name();
+            g.bench_function(
+                BenchmarkId::new(format!("ours/{name}/download"), &size),
+                |b| {
+                    b.iter(|| {
+                        gpu.render(
+                            0,
+                            Method::Ours,
+                            black_box(&request),
+                            &params,
+                            Previous::Keep,
+                            Some(&mut out),
+                            None,
+                        )
+                        .expect("render")
+                    })
+                },
+            );
+            g.bench_function(
+                BenchmarkId::new(format!("ours/{name}/on_device"), &size),
+                |b| {
+                    b.iter(|| {
+                        gpu.render(
+                            0,
+                            Method::Ours,
+                            black_box(&request),
+                            &params,
+                            Previous::Keep,
+                            None,
+                            None,
+                        )
+                        .expect("render");
+                        ctx.device.poll(wgpu::PollType::Wait).expect("device poll")
+                    })
+                },
+            );
+        }
+        g.bench_function(BenchmarkId::new("ours_cpu", &size), |b| {
+            b.iter(|| {
+                reproj_core::reproject(
+                    Method::Ours,
+                    Some(&older),
+                    &newer,
+                    black_box(&request),
+                    &params,
+                    &mut out,
+                    None,
+                    None,
+                )
+                .expect("cpu")
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

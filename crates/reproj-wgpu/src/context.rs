@@ -1,0 +1,118 @@
+//! Device creation, kept apart from the kernels so that callers (and tests) can bring their own
+//! `wgpu::Device` (see [`crate::Reprojector::with_device`]).
+
+use crate::error::{GpuError, Result};
+
+/// How [`GpuContext::new`] picks its device.
+#[derive(Debug, Clone)]
+pub struct ContextOptions {
+    /// Request 64-bit atomic min/max (`SHADER_INT64` + `SHADER_INT64_ATOMIC_MIN_MAX`) when the
+    /// adapter offers them. Default true; without them the splat uses the 32-bit two-pass variant.
+    pub int64_atomics: bool,
+    /// The power preference passed to the adapter request. Default high performance.
+    pub power_preference: wgpu::PowerPreference,
+}
+
+impl Default for ContextOptions {
+    fn default() -> Self {
+        ContextOptions {
+            int64_atomics: true,
+            power_preference: wgpu::PowerPreference::HighPerformance,
+        }
+    }
+}
+
+/// A wgpu device and queue with the adapter's description.
+#[derive(Debug, Clone)]
+pub struct GpuContext {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter it was created from.
+    pub info: wgpu::AdapterInfo,
+}
+
+/// The features the 64-bit splat needs.
+pub fn int64_atomic_features() -> wgpu::Features {
+    wgpu::Features::SHADER_INT64 | wgpu::Features::SHADER_INT64_ATOMIC_MIN_MAX
+}
+
+impl GpuContext {
+    /// Creates a device on the best adapter: native backends (Vulkan, Metal, DX12; `WGPU_BACKEND`
+    /// overrides), the adapter's own limits (large images need storage bindings above the WebGPU
+    /// defaults), and 64-bit atomic min/max when offered and asked for.
+    ///
+    /// Validation errors of the device are captured by error scopes around every operation of
+    /// [`crate::Reprojector`]; any that escape are written to stderr, never turned into a panic.
+    ///
+    /// # Errors
+    /// [`GpuError::NoAdapter`] when no adapter exists or the device cannot be created.
+    pub fn new(options: &ContextOptions) -> Result<GpuContext> {
+        pollster::block_on(Self::new_async(options))
+    }
+
+    async fn new_async(options: &ContextOptions) -> Result<GpuContext> {
+        let mut desc = wgpu::InstanceDescriptor::from_env_or_default();
+        if std::env::var_os("WGPU_BACKEND").is_none() {
+            desc.backends = wgpu::Backends::PRIMARY;
+        }
+        let instance = wgpu::Instance::new(&desc);
+        let adapter = instance
+            .request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: options.power_preference,
+                force_fallback_adapter: false,
+                compatible_surface: None,
+            })
+            .await
+            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let wanted = int64_atomic_features();
+        let features = if options.int64_atomics && adapter.features().contains(wanted) {
+            wanted
+        } else {
+            wgpu::Features::empty()
+        };
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("reproj-wgpu"),
+                required_features: features,
+                required_limits: adapter.limits(),
+                memory_hints: wgpu::MemoryHints::Performance,
+                trace: wgpu::Trace::Off,
+            })
+            .await
+            .map_err(|e| {
+                GpuError::NoAdapter(format!("adapter '{}' gave no device: {e}", info.name))
+            })?;
+        device.on_uncaptured_error(Box::new(|e| {
+            eprintln!("reproj-wgpu: uncaptured wgpu error: {e}");
+        }));
+        Ok(GpuContext {
+            device,
+            queue,
+            info,
+        })
+    }
+
+    /// Whether the device has 64-bit atomic min/max.
+    pub fn int64_atomics(&self) -> bool {
+        self.device.features().contains(int64_atomic_features())
+    }
+
+    /// The adapter in words, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu, Mesa 22.3.6)`.
+    pub fn describe(&self) -> String {
+        describe(&self.info)
+    }
+}
+
+/// An adapter in words.
+pub fn describe(info: &wgpu::AdapterInfo) -> String {
+    let mut s = format!("{} ({:?}, {:?}", info.name, info.backend, info.device_type);
+    if !info.driver_info.is_empty() {
+        s.push_str(", ");
+        s.push_str(&info.driver_info);
+    }
+    s.push(')');
+    s
+}

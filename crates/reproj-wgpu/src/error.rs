@@ -1,0 +1,27 @@
+//! Errors of the GPU path.
+
+use reproj_core::ReprojError;
+use thiserror::Error;
+
+/// Everything that can go wrong on the GPU path.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum GpuError {
+    /// An input problem, with exactly the message the CPU path gives for it.
+    #[error(transparent)]
+    Input(#[from] ReprojError),
+    /// No GPU adapter (or no usable device) could be found.
+    #[error("no wgpu adapter: {0}. Install a Vulkan driver; without a GPU, Mesa's software rasteriser lavapipe works (Debian/Ubuntu: apt-get install mesa-vulkan-drivers)")]
+    NoAdapter(String),
+    /// The method or configuration has no GPU kernel.
+    #[error("{0}")]
+    Unsupported(String),
+    /// The device reported an error (out of memory, a lost device, a limit exceeded).
+    #[error("wgpu device error: {0}")]
+    Device(String),
+    /// A call out of order (e.g. rendering before any frames were loaded).
+    #[error("{0}")]
+    State(String),
+}
+
+/// Result alias of the GPU path.
+pub type Result<T> = std::result::Result<T, GpuError>;

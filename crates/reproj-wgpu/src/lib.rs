@@ -1,0 +1,44 @@
+//! # reproj-wgpu
+//!
+//! The GPU twin of `reproj-core`: the client reprojection of splitrender (Steiner et al. 2025,
+//! seeds/000 §3.5) for `ours`, `ours_extrapolate` and `forward_splat` as WGSL compute shaders run
+//! by wgpu, with the same semantics and error messages as the CPU path.
+//!
+//! - `shaders/shared/*.wgsl`: bindings and types, camera maths (`camera.rs`), shadows
+//!   (`shadow.rs`, eqs. 9–11), the scene flow of pass 1 (eqs. 1, 12, 13); `shaders/splat64.wgsl` and
+//!   `shaders/splat32.wgsl`: the splat with a 64-bit atomic maximum, or with 32-bit atomics in two
+//!   dispatches where the adapter lacks `SHADER_INT64_ATOMIC_MIN_MAX`; `shaders/resolve.wgsl`:
+//!   window search, fixed-point iteration (eq. 5), Algorithms 1 and 2, auxiliary merge. Each
+//!   function names the reproj-core function it mirrors, so the two read side by side.
+//! - [`GpuContext`]: device creation, apart from the kernels ([`Reprojector::with_device`] takes a
+//!   caller's device).
+//! - [`Reprojector`]: loads a pair of server frames onto the device once
+//!   ([`Reprojector::load`]), then renders client frames from a pose and `α`
+//!   ([`Reprojector::render`]), downloading the image or leaving it on the device.
+//!
+//! ```no_run
+//! # fn main() -> Result<(), reproj_wgpu::GpuError> {
+//! # let (older, newer, request): (reproj_core::FrameView, reproj_core::FrameView, reproj_core::Request) = todo!();
+//! use reproj_wgpu::{ContextOptions, GpuContext, Previous, Reprojector, ReprojectorOptions};
+//! let ctx = GpuContext::new(&ContextOptions::default())?;
+//! let mut gpu = Reprojector::new(&ctx, &ReprojectorOptions::default())?;
+//! gpu.load(Some(&older), &newer)?;
+//! let mut image = vec![0u8; request.client.width * request.client.height * 3];
+//! gpu.render(0, reproj_core::Method::Ours, &request, &Default::default(), Previous::Keep,
+//!            Some(&mut image), None)?;
+//! # Ok(()) }
+//! ```
+
+#![warn(missing_docs)]
+
+pub mod context;
+pub mod error;
+mod layout;
+pub mod reprojector;
+pub mod shaders;
+
+pub use context::{ContextOptions, GpuContext};
+pub use error::{GpuError, Result};
+pub use reprojector::{
+    Atomics, Previous, Reprojector, ReprojectorOptions, MAX_CAMERAS, MAX_OUTPUTS,
+};

@@ -1,0 +1,388 @@
+//! GPU against CPU on the built-in dynamic scenes (`courtyard`, `colonnade`, `lab`, rendered by
+//! reproj-scene at 160×90 with two 80×45 auxiliary cameras, every buffer, S = 4): for `ours`
+//! (interpolating and extrapolating), `ours_extrapolate` and `forward_splat` (unidirectional and
+//! bidirectional), the wgpu output equals reproj-core's on at least 99.5 % of the pixels and the
+//! mean absolute difference is below 0.5/255. The 64-bit and the 32-bit splat give identical
+//! images.
+//!
+//! Without an adapter the tests print why and pass, unless `REPROJ_WGPU_REQUIRE_ADAPTER=1` (set by
+//! CI, which installs lavapipe) makes that a failure.
+
+use std::sync::OnceLock;
+
+use reproj_core::{CameraView, Diagnostics, FrameView, Method, Params, Request, ShadowView};
+use reproj_scene::{builtin, mono, render_server_frame, ServerBuffers, ServerFrame, Variant};
+use reproj_wgpu::{
+    Atomics, ContextOptions, GpuContext, GpuError, Previous, Reprojector, ReprojectorOptions,
+};
+
+/// 2560·0.0625 × 1440·0.0625 = 160×90.
+const SCALE: f64 = 0.0625;
+const FS: f64 = 10.0;
+const SUBFRAMES: usize = 4;
+/// Least share of pixels that must be identical.
+const MIN_EQUAL: f64 = 0.995;
+/// Largest mean absolute difference, in 8-bit units (0.5/255 of the range).
+const MAX_MAD: f64 = 0.5;
+
+fn context() -> Option<&'static GpuContext> {
+    static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
+    CTX.get_or_init(|| match GpuContext::new(&ContextOptions::default()) {
+        Ok(c) => {
+            eprintln!("wgpu adapter: {}", c.describe());
+            Some(c)
+        }
+        Err(e) => {
+            if std::env::var_os("REPROJ_WGPU_REQUIRE_ADAPTER").is_some_and(|v| v == "1") {
+                panic!("REPROJ_WGPU_REQUIRE_ADAPTER=1 but {e}");
+            }
+            eprintln!("skipping the GPU parity tests: {e}");
+            None
+        }
+    })
+    .as_ref()
+}
+
+fn view(b: &ServerBuffers, forward: bool) -> CameraView<'_> {
+    let (motion, shadow) = if forward {
+        (&b.motion_fwd, &b.shadow_fwd)
+    } else {
+        (&b.motion_bwd, &b.shadow_bwd)
+    };
+    CameraView {
+        camera: reproj_core::Camera {
+            view: b.view,
+            proj: b.proj,
+            width: b.width,
+            height: b.height,
+        },
+        color: &b.color,
+        depth: &b.depth,
+        motion: Some(motion),
+        shadow: Some(ShadowView {
+            bits: &shadow.bits,
+            s_min: &shadow.s_min,
+            s_max: &shadow.s_max,
+        }),
+    }
+}
+
+/// `older` with its forward buffers, or `newer` with its backward ones.
+fn frame_view(f: &ServerFrame, older: bool) -> FrameView<'_> {
+    FrameView {
+        main: view(&f.main, older),
+        aux: f.aux.iter().map(|a| view(a, older)).collect(),
+    }
+}
+
+struct Case {
+    name: &'static str,
+    method: Method,
+    alpha: f32,
+    params: Params,
+    /// Give the GPU and the CPU the older frame.
+    with_older: bool,
+}
+
+fn cases() -> Vec<Case> {
+    let p = Params::default();
+    let bi = Params {
+        splat_bidirectional: true,
+        ..p
+    };
+    vec![
+        Case {
+            name: "ours interpolating",
+            method: Method::Ours,
+            alpha: 5.0 / 12.0,
+            params: p,
+            with_older: true,
+        },
+        Case {
+            name: "ours extrapolating",
+            method: Method::Ours,
+            alpha: 1.25,
+            params: p,
+            with_older: true,
+        },
+        Case {
+            name: "ours_extrapolate",
+            method: Method::OursExtrapolate,
+            alpha: 1.5,
+            params: p,
+            with_older: false,
+        },
+        Case {
+            name: "forward_splat",
+            method: Method::ForwardSplat,
+            alpha: 1.25,
+            params: p,
+            with_older: false,
+        },
+        Case {
+            name: "forward_splat bidirectional",
+            method: Method::ForwardSplat,
+            alpha: 7.0 / 12.0,
+            params: bi,
+            with_older: true,
+        },
+    ]
+}
+
+/// Share of identical pixels and mean absolute difference (8-bit units, over channels).
+fn compare(a: &[u8], b: &[u8]) -> (f64, f64) {
+    let n = a.len() / 3;
+    let equal = a
+        .chunks_exact(3)
+        .zip(b.chunks_exact(3))
+        .filter(|(x, y)| x == y)
+        .count();
+    let sad: u64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| u64::from(x.abs_diff(y)))
+        .sum();
+    (equal as f64 / n as f64, sad as f64 / a.len() as f64)
+}
+
+fn check_scene(name: &str) {
+    let Some(ctx) = context() else { return };
+    let scene = builtin(name, Variant::Dynamic).expect("built-in scene");
+    let k = 2;
+    let f0 = render_server_frame(&scene, k, SCALE, FS, SUBFRAMES).expect("render");
+    let f1 = render_server_frame(&scene, k + 1, SCALE, FS, SUBFRAMES).expect("render");
+    let (w, h) = (f0.main.width, f0.main.height);
+    let older = frame_view(&f0, true);
+    let newer = frame_view(&f1, false);
+    let mut gpus: Vec<Reprojector> = vec![Reprojector::new(
+        ctx,
+        &ReprojectorOptions {
+            force_32bit_atomics: true,
+        },
+    )
+    .expect("pipelines")];
+    let native = Reprojector::new(ctx, &ReprojectorOptions::default()).expect("pipelines");
+    if native.atomics() == Atomics::Int64 {
+        gpus.push(native);
+    } else {
+        eprintln!(
+            "{name}: the adapter has no 64-bit atomic min/max; testing the 32-bit splat only"
+        );
+    }
+    // A previous frame that is not black, so that "unmatched pixels keep it" is compared too.
+    let previous: Vec<u8> = (0..w * h * 3).map(|i| (i * 7 % 251) as u8).collect();
+    let mut failures = Vec::new();
+    for case in cases() {
+        let t = (k as f64 + f64::from(case.alpha)) / FS;
+        let client = mono(&scene.path.client_pose(t), w, h, scene.near, scene.far);
+        let request = Request {
+            client,
+            alpha: case.alpha,
+        };
+        let older_arg = case.with_older.then_some(&older);
+        let mut cpu = previous.clone();
+        let mut cpu_diag = Diagnostics::new(w * h);
+        reproj_core::reproject(
+            case.method,
+            older_arg,
+            &newer,
+            &request,
+            &case.params,
+            &mut cpu,
+            Some(&mut cpu_diag),
+            None,
+        )
+        .expect("cpu");
+        let mut images = Vec::new();
+        for gpu in gpus.iter_mut() {
+            gpu.load(older_arg, &newer).expect("load");
+            let mut img = vec![0u8; w * h * 3];
+            let mut diag = Diagnostics::new(w * h);
+            gpu.render(
+                0,
+                case.method,
+                &request,
+                &case.params,
+                Previous::Image(&previous),
+                Some(&mut img),
+                Some(&mut diag),
+            )
+            .expect("gpu");
+            let (eq, mad) = compare(&img, &cpu);
+            let codes = diag
+                .source
+                .iter()
+                .zip(&cpu_diag.source)
+                .filter(|(a, b)| a == b)
+                .count() as f64
+                / (w * h) as f64;
+            let matched =
+                cpu_diag.source.iter().filter(|&&s| s != 0).count() as f64 / (w * h) as f64;
+            eprintln!(
+                "{name} {} ({}): {:.3} % equal, MAD {:.4}/255, {:.3} % same source, {:.1} % matched",
+                case.name,
+                gpu.atomics().name(),
+                100.0 * eq,
+                mad,
+                100.0 * codes,
+                100.0 * matched
+            );
+            if eq < MIN_EQUAL || mad >= MAX_MAD {
+                failures.push(format!(
+                    "{name} {} ({}): {:.3} % equal (need {:.1} %), MAD {mad:.4} (need < {MAX_MAD})",
+                    case.name,
+                    gpu.atomics().name(),
+                    100.0 * eq,
+                    100.0 * MIN_EQUAL
+                ));
+            }
+            // A scene where nothing matches would make the comparison vacuous.
+            assert!(
+                matched > 0.5,
+                "{name} {}: only {matched} matched",
+                case.name
+            );
+            images.push(img);
+        }
+        if images.len() == 2 {
+            assert!(
+                images[0] == images[1],
+                "{name} {}: the 32-bit and 64-bit splats differ",
+                case.name
+            );
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn courtyard_matches_the_cpu() {
+    check_scene("courtyard");
+}
+
+#[test]
+fn colonnade_matches_the_cpu() {
+    check_scene("colonnade");
+}
+
+#[test]
+fn lab_matches_the_cpu() {
+    check_scene("lab");
+}
+
+/// The device keeps the previous frame: rendering twice into one slot with `Previous::Keep`
+/// equals the CPU fed its own previous output, and the errors of the CPU path come through.
+#[test]
+fn device_resident_frames_and_errors() {
+    let Some(ctx) = context() else { return };
+    let scene = builtin("courtyard", Variant::Dynamic).expect("built-in scene");
+    let f0 = render_server_frame(&scene, 1, SCALE, FS, SUBFRAMES).expect("render");
+    let f1 = render_server_frame(&scene, 2, SCALE, FS, SUBFRAMES).expect("render");
+    let (w, h) = (f0.main.width, f0.main.height);
+    let older = frame_view(&f0, true);
+    let newer = frame_view(&f1, false);
+    let mut gpu = Reprojector::new(ctx, &ReprojectorOptions::default()).expect("pipelines");
+    let p = Params::default();
+    let request = |n: usize| {
+        let alpha = n as f32 / 12.0;
+        let t = 0.1 + f64::from(alpha) / FS;
+        Request {
+            client: mono(&scene.path.client_pose(t), w, h, scene.near, scene.far),
+            alpha,
+        }
+    };
+    // Before load: a state error, not a panic.
+    let mut img = vec![0u8; w * h * 3];
+    assert!(matches!(
+        gpu.render(
+            0,
+            Method::Ours,
+            &request(3),
+            &p,
+            Previous::Black,
+            Some(&mut img),
+            None
+        ),
+        Err(GpuError::State(_))
+    ));
+    gpu.load(Some(&older), &newer).expect("load");
+    let mut cpu = vec![0u8; w * h * 3];
+    for n in [3, 4, 9] {
+        reproj_core::reproject(
+            Method::Ours,
+            Some(&older),
+            &newer,
+            &request(n),
+            &p,
+            &mut cpu,
+            None,
+            None,
+        )
+        .expect("cpu");
+        let prev = if n == 3 {
+            Previous::Black
+        } else {
+            Previous::Keep
+        };
+        gpu.render(0, Method::Ours, &request(n), &p, prev, Some(&mut img), None)
+            .expect("gpu");
+        let (eq, mad) = compare(&img, &cpu);
+        assert!(
+            eq >= MIN_EQUAL && mad < MAX_MAD,
+            "frame {n}: {eq} equal, MAD {mad}"
+        );
+    }
+    // The frame stays on the device for a presenter.
+    let (buf, bw, bh) = gpu.output_buffer(0).expect("output");
+    assert_eq!((bw, bh), (w, h));
+    assert_eq!(buf.size(), (w * h * 4) as u64);
+    // Input errors carry the CPU path's messages.
+    let cpu_err = reproj_core::reproject(
+        Method::OursExtrapolate,
+        Some(&older),
+        &newer,
+        &request(3),
+        &p,
+        &mut cpu,
+        None,
+        None,
+    )
+    .expect_err("alpha < 1");
+    let gpu_err = gpu
+        .render(
+            0,
+            Method::OursExtrapolate,
+            &request(3),
+            &p,
+            Previous::Keep,
+            Some(&mut img),
+            None,
+        )
+        .expect_err("alpha < 1");
+    assert_eq!(gpu_err, GpuError::Input(cpu_err));
+    assert!(matches!(
+        gpu.render(
+            0,
+            Method::Timewarp,
+            &request(3),
+            &p,
+            Previous::Keep,
+            Some(&mut img),
+            None
+        ),
+        Err(GpuError::Unsupported(_))
+    ));
+    let mut short = vec![0u8; 5];
+    assert!(matches!(
+        gpu.render(
+            0,
+            Method::Ours,
+            &request(3),
+            &p,
+            Previous::Keep,
+            Some(&mut short),
+            None
+        ),
+        Err(GpuError::Input(reproj_core::ReprojError::BufferSize { .. }))
+    ));
+}

@@ -1,0 +1,258 @@
+"""The GPU path: the client reprojection as WGSL compute shaders run by wgpu (crates/reproj-wgpu).
+
+``backend="wgpu"`` (in :func:`splitrender.reproject`, :class:`splitrender.Client`, the command
+line) runs ``ours``, ``ours_extrapolate`` and ``forward_splat`` on the GPU with the CPU path's
+semantics (the parity tests compare them pixel for pixel). :class:`GpuReprojector` is the
+device-resident form: :meth:`~GpuReprojector.load` uploads a pair of server frames once, then each
+:meth:`~GpuReprojector.render` uploads only the client pose and ``α`` and downloads the image (or
+leaves it on the device).
+
+Without a GPU, Mesa's software Vulkan driver lavapipe works (Debian/Ubuntu:
+``apt-get install mesa-vulkan-drivers``); without any adapter, asking for the wgpu backend raises
+:class:`~splitrender.errors.GpuUnavailableError`.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Literal, overload
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender import _native
+from splitrender.errors import GpuUnavailableError, InvalidInputError
+from splitrender.types import Camera, Reprojection, ReprojectOptions, ServerFrame
+
+__all__ = [
+    "BACKENDS",
+    "GPU_METHODS",
+    "GpuReprojector",
+    "GpuUnavailableError",
+    "adapter",
+    "available",
+    "backend_for",
+    "check_backend",
+]
+
+#: The backends every method entry point accepts.
+BACKENDS: tuple[str, ...] = ("cpu", "wgpu")
+#: The methods the wgpu backend runs (``timewarp`` and ``backward_bidir`` are CPU only).
+GPU_METHODS: tuple[str, ...] = ("ours", "ours_extrapolate", "forward_splat")
+
+_Image = npt.NDArray[np.uint8]
+
+
+def check_backend(backend: object, method: str | None = None) -> str:
+    """``backend`` if it is one of :data:`BACKENDS` (and, for ``"wgpu"``, ``method`` has a GPU
+    kernel).
+
+    Raises:
+        InvalidInputError: for an unknown backend or a method the backend cannot run.
+    """
+    if not isinstance(backend, str) or backend not in BACKENDS:
+        raise InvalidInputError(
+            f"unknown backend {backend!r}; expected one of: {', '.join(BACKENDS)}"
+        )
+    if backend == "wgpu" and method is not None and method not in GPU_METHODS:
+        raise InvalidInputError(
+            f"method {method!r} has no wgpu kernel (the wgpu backend runs "
+            f"{', '.join(GPU_METHODS)}); use backend='cpu' for it"
+        )
+    return backend
+
+
+def backend_for(method: str, backend: str) -> str:
+    """The backend ``method`` runs on when ``backend`` is chosen for a whole run (``demo``,
+    ``eval``, ``play``): ``"wgpu"`` for the methods with a GPU kernel (:data:`GPU_METHODS`), the
+    CPU for the baselines that have none (``timewarp``, ``backward_bidir``)."""
+    return "wgpu" if check_backend(backend) == "wgpu" and method in GPU_METHODS else "cpu"
+
+
+def adapter() -> str:
+    """The wgpu adapter in words, e.g. ``llvmpipe (...) (Vulkan, Cpu, Mesa 22.3.6 ...)``.
+
+    Raises:
+        GpuUnavailableError: when there is no adapter (the message says how to install one).
+    """
+    return _native.wgpu_adapter()
+
+
+def available() -> bool:
+    """Whether the wgpu backend can run here (an adapter and a device exist)."""
+    try:
+        adapter()
+    except GpuUnavailableError:
+        return False
+    return True
+
+
+class GpuReprojector:
+    """The client reprojection on the GPU, with the server frames kept on the device.
+
+    ``force_32bit_atomics`` selects the 32-bit splat even where the adapter has 64-bit atomic
+    min/max (both give the same images; the option exists for tests and comparisons).
+
+    Raises:
+        GpuUnavailableError: when there is no wgpu adapter.
+    """
+
+    def __init__(self, *, force_32bit_atomics: bool = False) -> None:
+        self._native = _native.WgpuReprojector(bool(force_32bit_atomics))
+        self._lock = threading.RLock()
+
+    def __repr__(self) -> str:
+        return f"GpuReprojector(adapter={self.adapter!r}, atomics={self.atomics!r})"
+
+    @property
+    def adapter(self) -> str:
+        """The adapter in words."""
+        return self._native.adapter
+
+    @property
+    def atomics(self) -> str:
+        """``"int64"`` (one 64-bit atomic maximum per splatted point) or ``"int32"`` (two
+        32-bit passes)."""
+        return self._native.atomics
+
+    def load(self, older: ServerFrame | None, newer: ServerFrame) -> None:
+        """Uploads a pair: ``older`` (``F_t``, its forward buffers; ``None`` to extrapolate only)
+        and ``newer`` (``F_{t+1}``, its backward buffers), as :func:`splitrender.reproject_alpha`
+        uses them.
+
+        Raises:
+            InvalidInputError: for invalid frames (naming the buffer).
+        """
+        if older is not None and not isinstance(older, ServerFrame):
+            raise InvalidInputError(
+                f"older: expected a ServerFrame or None, got {type(older).__name__}"
+            )
+        if not isinstance(newer, ServerFrame):
+            raise InvalidInputError(f"newer: expected a ServerFrame, got {type(newer).__name__}")
+        with self._lock:
+            self._native.load(
+                None if older is None else older.to_native("fwd"), newer.to_native("bwd")
+            )
+
+    @overload
+    def render(
+        self,
+        camera: Camera,
+        alpha: float,
+        method: str = ...,
+        *,
+        options: ReprojectOptions | None = ...,
+        previous: _Image | Literal["keep"] | None = ...,
+        slot: int = ...,
+        diagnostics: Literal[False] = ...,
+    ) -> _Image: ...
+    @overload
+    def render(
+        self,
+        camera: Camera,
+        alpha: float,
+        method: str = ...,
+        *,
+        options: ReprojectOptions | None = ...,
+        previous: _Image | Literal["keep"] | None = ...,
+        slot: int = ...,
+        diagnostics: Literal[True],
+    ) -> Reprojection: ...
+    def render(
+        self,
+        camera: Camera,
+        alpha: float,
+        method: str = "ours",
+        *,
+        options: ReprojectOptions | None = None,
+        previous: _Image | Literal["keep"] | None = None,
+        slot: int = 0,
+        diagnostics: bool = False,
+    ) -> _Image | Reprojection:
+        """One client frame at ``camera`` and ``alpha`` from the loaded pair (the semantics of
+        :func:`splitrender.reproject_alpha`) into output ``slot`` (0–7, e.g. one per eye).
+
+        ``previous`` is what unmatched pixels keep: an image (uploaded), ``"keep"`` (the slot's
+        last frame, already on the device; black for a new slot or a new size) or ``None``
+        (black).
+
+        Raises:
+            InvalidInputError: for invalid arguments, or a method without a GPU kernel.
+            SplitRenderError: when no pair is loaded, or for a device error.
+        """
+        if not isinstance(camera, Camera):
+            raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
+        opts = ReprojectOptions() if options is None else options
+        if not isinstance(opts, ReprojectOptions):
+            raise InvalidInputError(
+                f"options: expected ReprojectOptions or None, got {type(opts).__name__}"
+            )
+        keep = isinstance(previous, str)
+        if keep and previous != "keep":
+            raise InvalidInputError(
+                f"previous: expected an image, 'keep' or None, got {previous!r}"
+            )
+        image = None if isinstance(previous, str) else previous
+        with self._lock:
+            out = self._native.render(
+                method,
+                camera.to_native(),
+                float(alpha),
+                opts.to_native(),
+                image,
+                keep,
+                slot,
+                bool(diagnostics),
+                True,
+            )
+        assert out is not None
+        if isinstance(out, tuple):
+            return Reprojection(*out)
+        return out
+
+    def reproject(
+        self,
+        older: ServerFrame | None,
+        newer: ServerFrame,
+        camera: Camera,
+        alpha: float,
+        method: str = "ours",
+        *,
+        options: ReprojectOptions | None = None,
+        previous: _Image | None = None,
+        diagnostics: bool = False,
+    ) -> _Image | Reprojection:
+        """:meth:`load` then :meth:`render` (slot 0) as one step, safe against other threads
+        using this reprojector: what :func:`splitrender.reproject_alpha` runs for
+        ``backend="wgpu"``. Uploads the pair every call; a caller that renders several client
+        frames from one pair should :meth:`load` once instead."""
+        with self._lock:
+            self.load(older, newer)
+            if diagnostics:
+                return self.render(
+                    camera, alpha, method, options=options, previous=previous, diagnostics=True
+                )
+            return self.render(camera, alpha, method, options=options, previous=previous)
+
+    def unload(self) -> None:
+        """Frees the pair and the output slots on the device."""
+        with self._lock:
+            self._native.unload()
+
+
+_shared: GpuReprojector | None = None
+_shared_lock = threading.Lock()
+
+
+def shared() -> GpuReprojector:
+    """The process-wide :class:`GpuReprojector` that the per-call API
+    (:func:`splitrender.reproject` with ``backend="wgpu"``) uses; created on first use.
+
+    Raises:
+        GpuUnavailableError: when there is no wgpu adapter.
+    """
+    global _shared
+    with _shared_lock:
+        if _shared is None:
+            _shared = GpuReprojector()
+        return _shared

@@ -1,0 +1,220 @@
+"""The wgpu backend (issue 6) against the CPU path on the built-in dynamic scenes.
+
+The GPU tests skip with a message when no wgpu adapter exists (install ``mesa-vulkan-drivers``
+for lavapipe); CI installs lavapipe and sets ``REPROJ_WGPU_REQUIRE_ADAPTER=1``, which turns a
+missing adapter into a failure. The error path (no adapter) is tested in a subprocess that hides
+every adapter, so it runs everywhere.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+import splitrender as sr
+from splitrender import gpu
+from splitrender.errors import GpuUnavailableError, InvalidInputError, SplitRenderError
+
+HAVE_GPU = gpu.available()
+needs_gpu = pytest.mark.skipif(
+    not HAVE_GPU,
+    reason="no wgpu adapter (apt-get install mesa-vulkan-drivers gives Mesa's lavapipe)",
+)
+
+#: 2560·0.0625 × 1440·0.0625 = 160×90 main camera, 80×45 auxiliary cameras.
+SCALE = 0.0625
+#: Least share of identical pixels and largest mean absolute difference (8-bit units).
+MIN_EQUAL = 0.995
+MAX_MAD = 0.5
+
+Pair = tuple[sr.Scene, sr.ServerFrame, sr.ServerFrame]
+
+
+def _agreement(a: npt.NDArray[np.uint8], b: npt.NDArray[np.uint8]) -> tuple[float, float]:
+    equal = float(np.all(a == b, axis=2).mean())
+    mad = float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean())
+    return equal, mad
+
+
+def test_adapter_present_where_required() -> None:
+    if os.environ.get("REPROJ_WGPU_REQUIRE_ADAPTER") != "1":
+        pytest.skip("REPROJ_WGPU_REQUIRE_ADAPTER is not 1 (CI sets it after installing lavapipe)")
+    assert HAVE_GPU, "REPROJ_WGPU_REQUIRE_ADAPTER=1 but no wgpu adapter was found"
+
+
+@pytest.fixture(scope="module", params=["courtyard", "colonnade", "lab"])
+def pair(request: pytest.FixtureRequest) -> Pair:
+    if not HAVE_GPU:
+        pytest.skip("no wgpu adapter (apt-get install mesa-vulkan-drivers gives lavapipe)")
+    scene = sr.Scene(request.param)
+    return scene, scene.server_frame(2, SCALE), scene.server_frame(3, SCALE)
+
+
+@needs_gpu
+@pytest.mark.parametrize(
+    ("method", "n"),
+    [("ours", 29), ("ours", 39), ("ours_extrapolate", 39), ("forward_splat", 38)],
+    ids=["ours-interpolate", "ours-extrapolate", "ours_extrapolate", "forward_splat"],
+)
+def test_wgpu_matches_cpu_on_builtin_scenes(pair: Pair, method: str, n: int) -> None:
+    scene, f0, f1 = pair
+    # Client frame n at 120 FPS: 29 is α = 5/12 between frames 2 and 3, 38/39 extrapolate.
+    camera, _ = scene.client_frames(n, SCALE)[0]
+    request = sr.ClientRequest(camera, n / 120)
+    previous = np.full((camera.height, camera.width, 3), 77, np.uint8)
+    cpu = sr.reproject(f0, f1, request, method, previous=previous, diagnostics=True)
+    wgpu = sr.reproject(
+        f0, f1, request, method, previous=previous, diagnostics=True, backend="wgpu"
+    )
+    equal, mad = _agreement(wgpu.image, cpu.image)
+    assert equal >= MIN_EQUAL and mad < MAX_MAD, (
+        f"{scene.name} {method}: {100 * equal:.3f} % equal, MAD {mad:.4f}"
+    )
+    assert float((wgpu.source == cpu.source).mean()) >= MIN_EQUAL
+    # Not vacuous: most pixels found a match on the CPU.
+    assert float((cpu.source != 0).mean()) > 0.5
+
+
+@needs_gpu
+def test_fallback_splat_equals_int64(pair: Pair) -> None:
+    scene, f0, f1 = pair
+    camera, _ = scene.client_frames(29, SCALE)[0]
+    alpha = 5 / 12
+    fallback = gpu.GpuReprojector(force_32bit_atomics=True)
+    assert fallback.atomics == "int32"
+    native = gpu.GpuReprojector()
+    images = [g.reproject(f0, f1, camera, alpha, "ours") for g in (fallback, native)]
+    cpu = sr.reproject_alpha(f0, f1, camera, alpha, "ours")
+    equal, mad = _agreement(images[0], cpu)
+    assert equal >= MIN_EQUAL and mad < MAX_MAD
+    if native.atomics == "int64":
+        np.testing.assert_array_equal(images[0], images[1])
+
+
+@needs_gpu
+def test_client_on_wgpu_plays_like_cpu() -> None:
+    """A short session through :func:`splitrender.play`: pairs change, frames extrapolate when
+    late, and the previous output stays on the device between client frames."""
+    scene = sr.Scene("courtyard")
+    frames = [scene.server_frame(k, SCALE) for k in range(4)]
+    cams = [scene.client_frames(n, SCALE, fc=40.0)[0][0] for n in range(11)]
+    # Sent 100 ms ahead of their time: 60 ms of latency makes the client extrapolate, then
+    # interpolate once the next frame is in; 140 ms makes it hold first.
+    modes: set[str] = set()
+    for latency in (60.0, 140.0):
+        net = sr.NetworkModel(client_fps=40.0, latency_ms=latency)
+        runs = {
+            b: sr.play(frames, cams, net, fps=40.0, method="ours", backend=b)
+            for b in ("cpu", "wgpu")
+        }
+        assert runs["cpu"].modes() == runs["wgpu"].modes()
+        modes |= set(runs["cpu"].modes())
+        for n, (a, b) in enumerate(zip(runs["wgpu"].images, runs["cpu"].images, strict=True)):
+            equal, mad = _agreement(a, b)
+            assert equal >= MIN_EQUAL and mad < MAX_MAD, f"{latency} ms, frame {n}: {equal}, {mad}"
+    assert modes == {"hold", "extrapolate", "interpolate"}
+
+
+@needs_gpu
+def test_gpu_reprojector_keeps_frames_on_the_device(pair: Pair) -> None:
+    scene, f0, f1 = pair
+    g = gpu.GpuReprojector()
+    with pytest.raises(SplitRenderError, match="load"):
+        g.render(scene.client_frames(29, SCALE)[0][0], 0.4)
+    g.load(f0, f1)
+    prev: npt.NDArray[np.uint8] | None = None
+    for n in (25, 26, 30):
+        camera, _ = scene.client_frames(n, SCALE)[0]
+        alpha = (n - 24) / 12
+        cpu = sr.reproject_alpha(f0, f1, camera, alpha, "ours", previous=prev)
+        img = g.render(camera, alpha, "ours", previous="keep", slot=1)
+        equal, mad = _agreement(img, cpu)
+        assert equal >= MIN_EQUAL and mad < MAX_MAD
+        prev = cpu
+    assert "GpuReprojector(adapter=" in repr(g)
+
+
+def test_backend_choice_is_checked(pair_synthetic: tuple[sr.ServerFrame, sr.ServerFrame]) -> None:
+    f0, f1 = pair_synthetic
+    camera = f1.main.camera
+    with pytest.raises(InvalidInputError, match="unknown backend 'vulkan'"):
+        sr.reproject_alpha(f0, f1, camera, 0.5, "ours", backend="vulkan")
+    with pytest.raises(InvalidInputError, match="no wgpu kernel"):
+        sr.reproject_alpha(f0, f1, camera, 0.5, "timewarp", backend="wgpu")
+    with pytest.raises(InvalidInputError, match="no wgpu kernel"):
+        sr.Client("backward_bidir", backend="wgpu")
+
+
+@needs_gpu
+def test_wgpu_errors_are_the_cpu_errors(
+    pair_synthetic: tuple[sr.ServerFrame, sr.ServerFrame],
+) -> None:
+    f0, f1 = pair_synthetic
+    camera = f1.main.camera
+    messages = []
+    for backend in ("cpu", "wgpu"):
+        with pytest.raises(InvalidInputError, match=r"outside the supported range \[1, 3\]") as e:
+            sr.reproject_alpha(f0, f1, camera, 0.5, "ours_extrapolate", backend=backend)
+        messages.append(str(e.value))
+    assert messages[0] == messages[1]
+    g = gpu.GpuReprojector()
+    g.load(f0, f1)
+    with pytest.raises(InvalidInputError, match="unknown option 'nope'"):
+        g._native.render("ours", camera.to_native(), 0.5, {"nope": 1})
+    with pytest.raises(InvalidInputError, match=r"previous: expected uint8 array of shape \(32, 48, 3\)"):
+        g.render(camera, 0.5, previous=np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(InvalidInputError, match="slot"):
+        g.render(camera, 0.5, slot=8)
+
+
+@pytest.fixture(scope="module")
+def pair_synthetic() -> tuple[sr.ServerFrame, sr.ServerFrame]:
+    scene = sr.SyntheticScene(dynamic=True)
+    return scene.server_frame(0, 0.0, 48, 32), scene.server_frame(1, 0.1, 48, 32)
+
+
+def test_no_adapter_raises_a_clear_error() -> None:
+    """With every adapter hidden (WGPU_BACKEND names a backend this platform lacks), asking for
+    wgpu raises GpuUnavailableError saying how to get one; the CPU path is unaffected."""
+    code = textwrap.dedent(
+        """
+        import splitrender as sr
+        from splitrender import gpu
+        from splitrender.errors import GpuUnavailableError, SplitRenderError
+        scene = sr.SyntheticScene(dynamic=True)
+        f0 = scene.server_frame(0, 0.0, 24, 16)
+        f1 = scene.server_frame(1, 0.1, 24, 16)
+        assert not gpu.available()
+        sr.reproject_alpha(f0, f1, f1.main.camera, 0.5, "ours")
+        for make in (lambda: sr.reproject_alpha(f0, f1, f1.main.camera, 0.5, "ours", backend="wgpu"),
+                     lambda: sr.Client("ours", backend="wgpu")):
+            try:
+                make()
+            except GpuUnavailableError as e:
+                assert isinstance(e, SplitRenderError)
+                assert "mesa-vulkan-drivers" in str(e), str(e)
+            else:
+                raise AssertionError("no error")
+        print("ok")
+        """
+    )
+    env = dict(os.environ, WGPU_BACKEND="metal" if sys.platform != "darwin" else "dx12")
+    r = subprocess.run(
+        [sys.executable, "-c", code],
+        check=False,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_gpu_unavailable_error_is_in_the_hierarchy() -> None:
+    assert issubclass(GpuUnavailableError, SplitRenderError)
+    assert GpuUnavailableError.__module__ == "splitrender.errors"
