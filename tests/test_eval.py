@@ -17,7 +17,7 @@ TINY = ["--scale", "0.03", "--seconds", "0.3", "--quiet"]
 @pytest.fixture(scope="module")
 def eval_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("eval") / "out"
-    args = ["eval", *TINY, "--scenes", "courtyard", "--methods", "ours,timewarp",
+    args = ["eval", *TINY, "--scenes", "courtyard", "--methods", "ours,timewarp,video_interp",
             "--delays", "0,12", "--bitrates", "40", "--stereo", "--no-vmaf", "--out", str(out)]
     assert main(args) == 0
     return out
@@ -40,16 +40,22 @@ def test_eval_rows_have_exactly_the_keys_and_types(eval_out: Path) -> None:
     assert len(set(keys)) == len(keys)  # a row shared by two experiments is written once
     assert set(keys) == {
         # Table 1: uncompressed, both variants
-        *((v, m, True, 0, False) for v in ("static", "dynamic") for m in ("ours", "timewarp")),
+        *((v, m, True, 0, False) for v in ("static", "dynamic")
+          for m in ("ours", "timewarp", "video_interp")),
         # Table 2: delays (ours at l = 0 also serves Table 3 and Figure 6)
         ("dynamic", "ours", False, 0, False), ("dynamic", "ours", False, 12, False),
         ("dynamic", "ours_extrapolate", False, 0, False),
         # Table 3: mono vs stereo (timewarp mono also serves Figure 6)
         ("dynamic", "timewarp", False, 0, False),
         ("dynamic", "ours", False, 0, True), ("dynamic", "timewarp", False, 0, True),
-        # Figure 6: the video-streaming reference
+        # Figure 6: video_interp and the references (video streaming, timewarp at 10/30/60 FPS)
+        ("dynamic", "video_interp", False, 0, False),
         ("dynamic", "video_streaming", False, 0, False),
+        *(("dynamic", f"timewarp_{f}fps", False, 0, False) for f in (10, 30, 60)),
     }
+    # Table 3 has no video_interp row: it cannot make a stereo pair.
+    assert not any(r["method"] == "video_interp" and r["stereo"] for r in rows)
+
 
 def test_eval_writes_tables_and_plot_and_reuses_recordings(eval_out: Path) -> None:
     md = (eval_out / "tables.md").read_text()
@@ -83,6 +89,10 @@ def test_play_writes_frames_and_prints_modes(
         ["eval", "--methods", "ours,bogus", "--out", "x"],
         ["eval", "--delays", "0,-1", "--out", "x"],
         ["eval", "--bitrates", "10,0", "--out", "x"],
+        ["eval", "--methods", "video_interp,video_interp", "--out", "x"],
+        ["eval", "--variants", "moving", "--out", "x"],
+        ["eval", "--scenes", "lab", "--rd-scenes", "courtyard", "--bitrates", "10",
+         "--out", "x"],
         ["eval", "--seconds", "0.1", "--out", "x"],
         ["eval", "--scale", "0.001", "--out", "x"],
         ["play", "does-not-exist", "--out", "x"],
@@ -114,3 +124,37 @@ def test_eval_reuses_matching_recordings(
     assert main(args) == 0
     err = capsys.readouterr().err
     assert "reusing" in err and "rendering" not in err
+
+
+def test_minterpolate_output_n_is_client_frame_n() -> None:
+    """Output frame n of video_interp is at time n / f_c: where that is a server frame's time
+    (n = 12 k) it reproduces server frame k, the last one included; between them it differs
+    from both neighbours (it interpolates)."""
+    import numpy as np
+    from splitrender.evaluate import minterpolate
+
+    yy, xx = np.mgrid[0:72, 0:128]
+    frames = []
+    for k in range(4):  # a smooth pattern moving 3 px to the right per server frame
+        v = 127.5 + 100 * np.sin((xx - 3 * k) / 7.0) * np.cos(yy / 9.0)
+        frames.append(np.repeat(v[..., None], 3, axis=2).round().astype(np.uint8))
+    out = minterpolate(frames, 10.0, 120.0, 37)
+    assert len(out) == 37 and out[0].shape == (72, 128, 3) and out[0].dtype == np.uint8
+
+    def err(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.abs(a.astype(int) - b.astype(int)).mean())
+
+    for k in range(4):
+        assert err(out[12 * k], frames[k]) < 1.0, k
+    assert err(out[6], frames[0]) > 3 and err(out[6], frames[1]) > 3
+
+
+def test_vmaf_crossings_interpolate_between_measured_points() -> None:
+    from splitrender.evaluate import vmaf_crossings
+
+    rows = [{"mbps": 2.0, "vmaf": 70.0}, {"mbps": 1.0, "vmaf": 50.0},
+            {"mbps": 4.0, "vmaf": 79.0}]
+    got = vmaf_crossings(rows, (40.0, 60.0, 80.0))
+    assert got[40.0] == 1.0  # already reached at the lowest rate
+    assert got[60.0] == pytest.approx(1.5)
+    assert got[80.0] is None

@@ -128,3 +128,26 @@ def test_shared_traces_load() -> None:
         tr = load_trace(TRACES / name)
         assert len(tr.times) > 100
         assert np.allclose(np.linalg.norm(tr.rotations, axis=1), 1.0)
+
+
+def test_path_motion_prediction_delay() -> None:
+    """The server's prediction window: 100 ms reproduces the renderer's own server pose, 0 ms is
+    the client's actual pose, and a shorter window predicts a pose closer to the client's."""
+    scene = Scene("courtyard")
+    fs = 30.0
+    for k in (0, 5, 17):
+        t = k / fs
+        assert np.allclose(PathMotion(scene, 0.1).server_pose(k, fs), scene.server_pose(k, fs),
+                           atol=1e-9)
+        assert np.allclose(PathMotion(scene, 0.0).server_pose(k, fs), scene.client_pose(t),
+                           atol=1e-9)
+    client = np.array([scene.client_pose(k / fs) for k in range(3, 30)])
+    errors = [
+        float(np.abs(np.array([PathMotion(scene, d).server_pose(k, fs) for k in range(3, 30)])
+                     - client).mean())
+        for d in (0.1, 1 / 30, 1 / 60)
+    ]
+    assert errors[0] > errors[1] > errors[2] > 0
+    assert PathMotion(scene, 1 / 60).describe()["prediction_delay"] == 1 / 60
+    with pytest.raises(sr.InvalidInputError, match="prediction_delay"):
+        PathMotion(scene, -0.1)

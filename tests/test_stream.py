@@ -11,10 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zstandard
 from hypothesis import given
 from hypothesis import strategies as st
 from splitrender.errors import StreamError
 from splitrender.stream import (
+    MAX_HEADER,
     MAX_PAYLOAD,
     BufferEntry,
     BufferKind,
@@ -54,16 +56,32 @@ def _packet(index: int = 7, key: bool = True) -> Packet:
     )
 
 
+def _split(data: bytes) -> tuple[bytes, bytearray, bytes]:
+    """``(fixed header, decompressed header block, payloads)`` of a packet."""
+    m = struct.unpack_from("<I", data, 24)[0]
+    block = zstandard.ZstdDecompressor().decompress(data[32 : 32 + m])
+    return data[:32], bytearray(block), data[32 + m :]
+
+
+def _join(head: bytes, block: bytes, payloads: bytes) -> bytes:
+    """A packet from its parts with a consistent length and CRC (a hostile producer writes
+    consistent CRCs)."""
+    packed = zstandard.ZstdCompressor(write_content_size=True).compress(bytes(block))
+    head = head[:24] + struct.pack("<I", len(packed))
+    crc = zlib.crc32(payloads, zlib.crc32(packed, zlib.crc32(head)))
+    return head + struct.pack("<I", crc) + packed + payloads
+
+
 def _refresh_crc(data: bytes) -> bytes:
-    """Recomputes the header CRC (a hostile producer writes consistent CRCs)."""
-    n_cam, n_buf = data[24], struct.unpack_from("<H", data, 26)[0]
-    end = 32 + 264 * n_cam
-    for _ in range(n_buf):
-        if end + 16 > len(data):
-            break
-        end += 16 + 16 * min(data[end + 3], 3)
-    crc = zlib.crc32(data[32:end], zlib.crc32(data[:28]))
+    """Recomputes the packet CRC."""
+    crc = zlib.crc32(data[32:], zlib.crc32(data[:28]))
     return data[:28] + struct.pack("<I", crc) + data[32:]
+
+
+# Offsets inside the decompressed header block of _packet(): 4-byte head, 2 cameras of 264
+# bytes, then the entries (8 bytes + 8 per scale/offset pair).
+_CAMS = 4
+_ENTRIES = 4 + 2 * 264
 
 
 def test_packet_round_trip() -> None:
@@ -74,6 +92,7 @@ def test_packet_round_trip() -> None:
     assert [(b.camera, b.kind, b.codec, bytes(b.payload)) for b in q.buffers] == [
         (b.camera, b.kind, b.codec, bytes(b.payload)) for b in p.buffers
     ]
+    assert [(b.width, b.height) for b in q.buffers] == [(8, 4), (8, 4), (4, 2), (4, 2)]
     assert q.buffers[1].scale == (0.5, 0.0, 0.0) and q.buffers[1].offset == (
         0.25,
         0.0,
@@ -82,24 +101,68 @@ def test_packet_round_trip() -> None:
     assert q.buffers[3].name == "aux0.shadow_fwd.bits"
 
 
+def test_header_is_compact() -> None:
+    """Version 2's fixed costs: a three-camera, 37-buffer frame (the server's layout) spends
+    well under the ~1.7 kB of version 1's plain header."""
+    rng = np.random.default_rng(0)
+    cams = tuple(
+        CameraRecord(
+            np.vstack([rng.normal(size=(3, 4)), [0, 0, 0, 1]]), np.diag([1.7, 3.0, 0, 0]),
+            w, h,
+        )
+        for w, h in ((320, 180), (160, 90), (160, 90))
+    )
+    kinds = [k for k in BufferKind][:13]
+    bufs = []
+    for c in range(3):
+        w, h = cams[c].width, cams[c].height
+        for k in kinds:
+            q = k in (BufferKind.DEPTH, BufferKind.MOTION_FWD, BufferKind.MOTION_BWD)
+            n = 1 if k == BufferKind.DEPTH else 3
+            sc = tuple(float(np.float32(v)) for v in rng.uniform(1e-4, 1e-2, 3))
+            bufs.append(
+                BufferEntry(
+                    c, k, Codec.HEVC if q else Codec.ZSTD, n if q else 1, w, h,
+                    bytes(int(rng.integers(1, 3000))),
+                    sc if q else (0.0, 0.0, 0.0), sc if q else (0.0, 0.0, 0.0),
+                )
+            )
+    p = Packet(index=5, time=0.5, key=False, uncompressed=False, cameras=cams,
+               buffers=tuple(bufs))
+    data = pack_packet(p)
+    header = len(data) - sum(len(b.payload) for b in bufs)
+    assert header < 900, header
+    assert stream_stats([data]).header_bytes == header
+
+
+def test_scales_must_be_float32_values() -> None:
+    p = _packet()
+    bad = dataclasses.replace(p.buffers[1], scale=(0.1, 0.0, 0.0))
+    with pytest.raises(StreamError, match="frame 7, main.depth: scale/offset"):
+        pack_packet(dataclasses.replace(p, buffers=(p.buffers[0], bad)))
+
+
 def test_every_truncation_raises() -> None:
     data = pack_packet(_packet())
     for n in range(len(data)):
         with pytest.raises(StreamError):
             unpack_packet(data[:n])
     with pytest.raises(StreamError, match="trailing"):
-        unpack_packet(data + b"\0")
+        unpack_packet(_refresh_crc(data + b"\0"))
 
 
-def test_corrupted_payload_names_frame_and_buffer() -> None:
+def test_corrupted_packet_names_the_frame() -> None:
     data = bytearray(pack_packet(_packet()))
-    data[-3] ^= 0x40  # inside aux0.shadow_fwd.bits's payload... or the one before
-    with pytest.raises(StreamError, match=r"frame 7, (main|aux0)\.\w+"):
+    data[-3] ^= 0x40  # inside a payload
+    with pytest.raises(StreamError, match="frame 7: packet CRC mismatch"):
         unpack_packet(bytes(data))
     data = bytearray(pack_packet(_packet()))
-    data[40] ^= 1  # a camera matrix: header CRC
-    with pytest.raises(StreamError, match="frame 7: header CRC"):
+    data[40] ^= 1  # inside the compressed header block
+    with pytest.raises(StreamError, match="frame 7: packet CRC mismatch"):
         unpack_packet(bytes(data))
+    head, block, payloads = _split(pack_packet(_packet()))
+    with pytest.raises(StreamError, match="frame 7: the header block is not a zstd frame"):
+        unpack_packet(_refresh_crc(head + bytes(block) + payloads))
 
 
 def test_wrong_version_and_magic() -> None:
@@ -112,34 +175,40 @@ def test_wrong_version_and_magic() -> None:
 
 
 def test_absurd_sizes_rejected_before_allocation() -> None:
-    data = bytearray(pack_packet(_packet()))
-    data[32:40] = struct.pack("<II", 60000, 60000)  # main camera 60000 x 60000
+    head, block, payloads = _split(pack_packet(_packet()))
+    b = bytearray(block)
+    b[_CAMS : _CAMS + 8] = struct.pack("<II", 60000, 60000)  # main camera 60000 x 60000
     with pytest.raises(StreamError, match="frame 7, main: camera size 60000x60000"):
-        unpack_packet(_refresh_crc(bytes(data)))
-    # main.depth's payload length (entry 2, at 32 + 2*264 + 16 + 3*16 + 8... computed below)
-    data = bytearray(pack_packet(_packet()))
-    entry1 = 32 + 2 * 264 + 16  # second table entry (after the colour entry)
-    data[entry1 + 8 : entry1 + 12] = struct.pack("<I", 0xFFFFFFF0)
+        unpack_packet(_join(head, b, payloads))
+    b = bytearray(block)
+    entry1 = _ENTRIES + 8  # second entry (main.depth), after the colour entry
+    b[entry1 + 4 : entry1 + 8] = struct.pack("<I", 0xFFFFFFF0)
     with pytest.raises(
         StreamError, match=rf"frame 7, main.depth: payload of {0xFFFFFFF0} bytes"
     ):
-        unpack_packet(_refresh_crc(bytes(data)))
+        unpack_packet(_join(head, b, payloads))
     assert MAX_PAYLOAD < 0xFFFFFFF0
-    data = bytearray(pack_packet(_packet()))
-    data[26:28] = struct.pack("<H", 60000)  # buffer count
+    b = bytearray(block)
+    b[2:4] = struct.pack("<H", 60000)  # buffer count
     with pytest.raises(StreamError, match="frame 7: 60000 buffers"):
-        unpack_packet(_refresh_crc(bytes(data)))
+        unpack_packet(_join(head, b, payloads))
+    # A header block that declares more than MAX_HEADER bytes is refused before decompressing.
+    huge = zstandard.ZstdCompressor(write_content_size=True).compress(bytes(MAX_HEADER + 1))
+    h = head[:24] + struct.pack("<I", len(huge))
+    crc = zlib.crc32(payloads, zlib.crc32(huge, zlib.crc32(h)))
+    with pytest.raises(StreamError, match=f"frame 7: header block of {MAX_HEADER + 1} bytes"):
+        unpack_packet(h + struct.pack("<I", crc) + huge + payloads)
 
 
 def test_unknown_kind_and_wrong_size() -> None:
     p = _packet()
     bad = dataclasses.replace(p.buffers[0], width=9)
     with pytest.raises(StreamError, match="frame 7, main.color: size 9x4"):
-        unpack_packet(pack_packet(dataclasses.replace(p, buffers=(bad,))))
-    data = bytearray(pack_packet(p))
-    data[32 + 2 * 264 + 1] = 200  # kind of the first entry
+        pack_packet(dataclasses.replace(p, buffers=(bad,)))
+    head, block, payloads = _split(pack_packet(p))
+    block[_ENTRIES + 1] = 200  # kind of the first entry
     with pytest.raises(StreamError, match="frame 7, main.kind200: unknown kind"):
-        unpack_packet(_refresh_crc(bytes(data)))
+        unpack_packet(_join(head, block, payloads))
 
 
 _VALID = pack_packet(_packet())
@@ -167,7 +236,7 @@ def test_fuzz_mutated_packet(
     for pos, val in edits:
         data[pos] = val
     data = data[:cut]
-    if fix_crc and len(data) >= 32 and data[:4] == b"SRPK":
+    if fix_crc and len(data) >= 32 and data[:4] == b"SRPK":  # the header block may still be bad
         data = bytearray(_refresh_crc(bytes(data)))
     try:
         p = unpack_packet(bytes(data))
@@ -201,8 +270,8 @@ def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
     with pytest.raises(StreamError, match="after frame 1"):
         list(read_stream(cut))
     bad = tmp_path / "v.srs"
-    bad.write_bytes(raw[:8] + struct.pack("<H", 2) + raw[10:])
-    with pytest.raises(StreamError, match="unsupported stream version 2"):
+    bad.write_bytes(raw[:8] + struct.pack("<H", 9) + raw[10:])
+    with pytest.raises(StreamError, match="unsupported stream version 9"):
         StreamFile(bad)
     bad.write_bytes(b"nonsense")
     with pytest.raises(StreamError):

@@ -311,6 +311,15 @@ def _frames_delay(text: str) -> int:
     return v
 
 
+def _add_backend(p: Any, scope: str) -> None:
+    p.add_argument(
+        "--backend", choices=("cpu", "wgpu"), default="cpu",
+        help=f"where the reprojection runs: cpu (reproj-core) or wgpu (GPU compute shaders; "
+        f"{scope}; without a GPU, Mesa's lavapipe: apt-get install mesa-vulkan-drivers) "
+        "(default: %(default)s)",
+    )
+
+
 def _add_demo(sub: Any) -> None:
     from splitrender.demo import DEFAULT_METHODS
 
@@ -353,8 +362,8 @@ def _add_demo(sub: Any) -> None:
     de.add_argument(
         "--bitrate", type=_positive, default=None, metavar="MBPS",
         help="target bitrate of the whole stream in Mb/s (default: the paper's 40 Mb/s at "
-        "2560x1440 scaled by pixel count, at least 1.6: headers and lossless parts cost ~0.3 "
-        "Mb/s at any size)",
+        "2560x1440 scaled by pixel count, at least 1.6: headers and lossless parts cost a "
+        "fixed ~0.15 Mb/s at 256x144)",
     )
     de.add_argument(
         "--methods", type=_methods, default=DEFAULT_METHODS, metavar="LIST",
@@ -369,6 +378,7 @@ def _add_demo(sub: Any) -> None:
         help="frame rate of video.mp4; every client frame is one video frame, so 30 plays the "
         "120 FPS session 4x slowed down (default: %(default)s)",
     )
+    _add_backend(de, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
     de.add_argument("--no-vmaf", action="store_true", help="skip VMAF (its column shows '-')")
     de.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -385,7 +395,8 @@ def _add_bench(sub: Any) -> None:
             "Prints per method: ms per client frame, FPS, ns per output pixel, MB touched and "
             "effective GB/s, where bytes touched = the source buffers the method reads (ours: "
             "colour, depth, one motion and one shadow direction of every camera of both frames) "
-            "+ the output written (W*H*3), intermediates not counted. The CPU backend only. "
+            "+ the output written (W*H*3), intermediates not counted. With --backend wgpu the "
+        "pair is uploaded once and each client frame uploads its pose and downloads the image. "
             "Time on 2 cores at the default scale 0.5 (1280x720, the Targets' size): about "
             "30 s the first time (rendering), about 15 s with the cache."
         ),
@@ -411,6 +422,7 @@ def _add_bench(sub: Any) -> None:
         help="also write a JSON list of rows with the keys method, backend, width, height, "
         "ms_per_frame, ns_per_pixel, decode_ms_per_server_frame",
     )
+    _add_backend(be, "ours, ours_extrapolate and forward_splat only")
     be.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -428,6 +440,7 @@ def _demo(args: argparse.Namespace) -> int:
         delay_frames=args.delay,
         video_fps=args.video_fps,
         progress=not args.quiet,
+        backend=args.backend,
     )
     try:
         res = run_demo(cfg)
@@ -494,6 +507,7 @@ def _add_play(sub: Any) -> None:
     pl.add_argument("--seconds", type=_positive, default=None, metavar="S",
                     help="play only the first S seconds (default: all; 1.0 for a scene name)")
     pl.add_argument("--video", action="store_true", help="write OUT/client.mp4 instead of PNGs")
+    _add_backend(pl, "ours, ours_extrapolate and forward_splat")
     pl.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
     pl.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -514,6 +528,12 @@ def _play(args: argparse.Namespace) -> int:
         print(f"{PROG}: error: {msg}", file=sys.stderr)
         return 2
 
+    from splitrender.gpu import check_backend
+
+    try:
+        check_backend(args.backend, args.method)
+    except SplitRenderError as e:
+        return fail(f"--backend: {e}")
     src = Path(args.source)
     out: Path = args.out
     stages = Stages(3 if args.source in SCENE_NAMES else 2, not args.quiet)
@@ -608,7 +628,7 @@ def _play(args: argparse.Namespace) -> int:
             scored = play_and_score(
                 server, cams, truth, args.method,
                 NetworkModel(extra_delay_frames=args.delay, client_fps=rec.fc), rec.fc, metrics,
-                frame_sizes=sizes, bar=stages.bar, on_frame=on_frame)
+                frame_sizes=sizes, bar=stages.bar, on_frame=on_frame, backend=args.backend)
         finally:
             if video is not None:
                 video.close()
@@ -632,21 +652,40 @@ def _play(args: argparse.Namespace) -> int:
     return 0
 
 
+def _eval_methods(text: str) -> tuple[str, ...]:
+    from splitrender.evaluate import VIDEO_INTERP
+
+    names = tuple(m.strip() for m in text.split(",") if m.strip())
+    if not names:
+        raise argparse.ArgumentTypeError("expected a comma-separated list of methods")
+    for m in names:
+        if m not in METHODS and m != VIDEO_INTERP:
+            raise argparse.ArgumentTypeError(
+                f"unknown method {m!r}; expected some of: {','.join((*METHODS, VIDEO_INTERP))}"
+            )
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"a method is listed twice in {text!r}")
+    return names
+
+
 def _add_eval(sub: Any) -> None:
-    from splitrender.demo import DEFAULT_METHODS
-    from splitrender.evaluate import DEFAULT_DELAYS, DEFAULT_SCENES
+    from splitrender.evaluate import DEFAULT_DELAYS, DEFAULT_EVAL_METHODS, DEFAULT_SCENES
 
     ev = sub.add_parser(
         "eval",
         help="the paper's experiments (Tables 1-3, Fig. 6) on the built-in scenes: JSON, "
         "Markdown, plots",
         description=(
-            "Table 1: every --methods x --scenes x static/dynamic on uncompressed server frames "
+            "Table 1: every --methods x --scenes x --variants on uncompressed server frames "
             "(ideal link, l = 0). Table 2: ours on the dynamic scenes with --delays extra client "
             "frames, compressed at --bitrate, plus ours_extrapolate (l = 0). Table 3 (--stereo): "
-            "every method, mono vs stereo, compressed. Figure 6 (--bitrates): every method at "
-            "each bitrate plus 'video_streaming' (the ground truth as one 120 FPS HEVC video; "
-            "the timewarp 30/60 FPS lines are not built). Recordings are rendered once per "
+            "every method, mono vs stereo, compressed. Figure 6 (--bitrates, on --rd-scenes): "
+            "every method at each bitrate plus the references 'video_streaming' (the ground "
+            "truth as one 120 FPS HEVC video) and 'timewarp_10fps/_30fps/_60fps' (main colour "
+            "and depth rendered at 10/30/60 FPS with 100/33.3/16.7 ms prediction, timewarped); "
+            "prints the bitrates at which ours reaches VMAF 60 and 80. 'video_interp' (a "
+            "--methods entry, not in Tables 2-3) is FFmpeg's minterpolate of the server colour "
+            "video from 10 to 120 FPS. Recordings are rendered once per "
             "(scene, variant) into OUT/recordings/ and reused. Writes OUT/results.json (a list "
             "of rows with the keys scene, variant, method, bitrate_mbps (null: uncompressed), "
             "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames), OUT/tables.md and "
@@ -657,8 +696,10 @@ def _add_eval(sub: Any) -> None:
     ev.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     ev.add_argument("--scenes", type=_names, default=DEFAULT_SCENES, metavar="LIST",
                     help=f"comma-separated scenes (default: {','.join(DEFAULT_SCENES)})")
-    ev.add_argument("--methods", type=_methods, default=DEFAULT_METHODS, metavar="LIST",
-                    help=f"Table 1/3 methods (default: {','.join(DEFAULT_METHODS)})")
+    ev.add_argument("--methods", type=_eval_methods, default=DEFAULT_EVAL_METHODS,
+                    metavar="LIST",
+                    help=f"Table 1/3 and Figure 6 methods (default: "
+                    f"{','.join(DEFAULT_EVAL_METHODS)})")
     ev.add_argument("--delays", type=_delays, default=DEFAULT_DELAYS, metavar="LIST",
                     help=f"Table 2 delays l (default: {','.join(map(str, DEFAULT_DELAYS))})")
     ev.add_argument("--bitrate", type=_positive, default=None, metavar="MBPS",
@@ -671,12 +712,18 @@ def _add_eval(sub: Any) -> None:
     ev.add_argument("--bitrates", type=_bitrates, default=(), metavar="LIST",
                     help="also Figure 6 (rate-distortion) at these paper-equivalent Mb/s (at "
                     "2560x1440, scaled by pixel count), e.g. 10,20,40,60,100; plus the 'video "
-                    "streaming' reference; writes OUT/rate_distortion.png")
+                    "streaming' and timewarp references; writes OUT/rate_distortion.png")
+    ev.add_argument("--variants", type=_names, default=("static", "dynamic"), metavar="LIST",
+                    help="Table 1's scene variants (default: static,dynamic; Tables 2-3 and "
+                    "Figure 6 use dynamic)")
+    ev.add_argument("--rd-scenes", type=_names, default=None, metavar="LIST",
+                    help="Figure 6 on these of the --scenes only (default: all --scenes)")
     ev.add_argument("--stereo", action="store_true", help="also Table 3 (mono vs stereo)")
     ev.add_argument("--trace", type=Path, default=None, metavar="FILE",
                     help="head trace 'px py pz pitch yaw roll t_ms' per line as client motion")
     ev.add_argument("--trace-scale", type=float, default=1.0, metavar="F",
                     help="scale of the trace's translation (default: %(default)s)")
+    _add_backend(ev, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
     ev.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
     ev.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -688,13 +735,18 @@ def _eval(args: argparse.Namespace) -> int:
         out=args.out, scenes=tuple(args.scenes), methods=tuple(args.methods),
         delays=tuple(args.delays), scale=args.scale, seconds=args.seconds,
         bitrate_mbps=args.bitrate, bitrates=tuple(args.bitrates), stereo=args.stereo, vmaf=not args.no_vmaf,
+        rd_scenes=None if args.rd_scenes is None else tuple(args.rd_scenes),
+        variants=tuple(args.variants),
         trace=args.trace, trace_scale=args.trace_scale, progress=not args.quiet,
+        backend=args.backend,
     )
     try:
         res = run_eval(cfg)
     except EvalArgumentError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
+    for line in res.summary:
+        print(line)
     print(f"{len(res.rows)} rows at {res.width}x{res.height}; wrote "
           + ", ".join(str(p) for p in res.files))
     return 0
@@ -707,7 +759,8 @@ def _bench(args: argparse.Namespace) -> int:
 
     try:
         rows = run_bench(
-            args.scene, tuple(args.methods), args.scale, args.frames, progress=not args.quiet
+            args.scene, tuple(args.methods), args.scale, args.frames, progress=not args.quiet,
+            backend=args.backend,
         )
     except BenchArgumentError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)

@@ -680,8 +680,9 @@ class StreamEncoder:
                 ratio = min(max(wanted / achieved_bps, 1 / 3), 3.0)
                 self._gain = min(max(self._gain * ratio, 0.25), 8.0)
         elif not self._streams:
-            # First frame: this frame's lossless bytes plus an estimate of the packet headers.
-            self._lossless_bps = 8 * (lossless + 64 * len(jobs) + 600) * cfg.fps
+            # First frame: this frame's lossless bytes plus an estimate of the packet header
+            # (stream format version 2: about 10 bytes per buffer and 250 for the cameras).
+            self._lossless_bps = 8 * (lossless + 10 * len(jobs) + 250) * cfg.fps
         budget = max(total - self._lossless_bps, 0.05 * total) * self._gain
         shares = cfg.shares()
         targets: dict[tuple[int, BufferKind], float] = {}

@@ -141,6 +141,8 @@ class DemoConfig:
     video_fps: float = 30.0
     stills: int = 3
     progress: bool = True
+    #: ``"cpu"`` or ``"wgpu"`` (the methods with a GPU kernel; see ``gpu.backend_for``).
+    backend: str = "cpu"
 
 
 @dataclass
@@ -261,18 +263,20 @@ def check_run_args(
     seconds: float,
     scale: float,
     error: type[DemoArgumentError],
+    extra_methods: Sequence[str] = (),
 ) -> None:
-    """The checks ``demo`` and ``eval`` share: the methods, a length every scene has and that
-    leaves frames after the evaluation's skipped ends, and a usable image size. Raises ``error``
-    (one line) naming the option."""
+    """The checks ``demo`` and ``eval`` share: the methods (the reprojection methods plus
+    ``extra_methods``), a length every scene has and that leaves frames after the evaluation's
+    skipped ends, and a usable image size. Raises ``error`` (one line) naming the option."""
     from splitrender.errors import SplitRenderError
     from splitrender.scenes import Scene
 
     if not methods:
         raise error("--methods: expected at least one method")
-    bad = [m for m in methods if m not in METHODS]
+    known = (*METHODS, *extra_methods)
+    bad = [m for m in methods if m not in known]
     if bad:
-        raise error(f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(METHODS)}")
+        raise error(f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(known)}")
     if len(set(methods)) != len(methods):
         raise error("--methods: a method is listed twice")
     for name in scenes:
@@ -295,10 +299,11 @@ def check_run_args(
 
 
 #: The demo's bitrate floor (Mb/s). Packet headers and the lossless parts (shadow bitfields,
-#: static-motion masks) cost about 0.3 Mb/s whatever the image size, so at the demo's small
-#: default size the paper's rate scaled by pixel count (0.4 Mb/s at 256x144) leaves the video
-#: streams almost nothing and blurs every decoded image (measured: ours SSIM 0.549 at 0.4 Mb/s,
-#: 0.652 at 1.6 Mb/s, courtyard 256x144).
+#: static-motion masks) cost a fixed amount (about 0.3 Mb/s with stream format 1; with format 2's
+#: compressed header about 0.04 Mb/s of header plus ~0.1 Mb/s of lossless parts at 256x144), so
+#: at the demo's small default size the paper's rate scaled by pixel count (0.4 Mb/s at 256x144)
+#: leaves the video streams little and blurs every decoded image (measured with format 1: ours
+#: SSIM 0.549 at 0.4 Mb/s, 0.652 at 1.6 Mb/s, courtyard 256x144).
 MIN_DEMO_BITRATE_MBPS = 1.6
 
 
@@ -315,12 +320,18 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     """Runs the demo (see the module docstring) and writes its files to ``cfg.out``."""
     from splitrender.codec import CodecConfig
     from splitrender.network import NetworkModel
+    from splitrender.gpu import backend_for
     from splitrender.pipeline import encode_decode, play_and_score
     from splitrender.recording import plan
     from splitrender.scenes import Scene
     from splitrender.types import ServerFrame
 
     check_config(cfg)
+    if cfg.backend != "cpu":
+        from splitrender.gpu import adapter, check_backend
+
+        check_backend(cfg.backend)
+        adapter()  # no adapter: GpuUnavailableError now, not after rendering
     scene = Scene(cfg.scene, "dynamic")
     w, h = scene.main_size(cfg.scale)
     n_server, n_client = plan(cfg.seconds, FS, FC)
@@ -383,7 +394,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
 
         scored = play_and_score(
             decoded, cameras, truth, method, network, FC, metrics, frame_sizes=sizes,
-            bar=stages.bar,
+            bar=stages.bar, backend=backend_for(method, cfg.backend),
         )
         res = scored.playback
         row: dict[str, Any] = {"method": method, **scored.row(), "mbps": mbps}

@@ -14,18 +14,34 @@ while their scale, length and client motion match. Every result is a row with ex
 ``tables.md`` (one Markdown table per experiment) and ``delays.png`` (metrics against ``l``) are
 written to ``OUT``.
 
-* Figure 6 (``bitrates``): every method on the dynamic scenes at each paper-equivalent bitrate
-  (scaled by pixel count), plus ``video_streaming`` (the ground truth encoded as one 120 FPS
-  HEVC video at the same bitrate), plotted as ``rate_distortion.png`` (VMAF, or SSIM without
-  VMAF, against the achieved Mb/s; the uncompressed Table 1 values dotted). The paper's
-  "timewarp at 30/60 FPS" reference lines are not built: they need server frames at 30/60 FPS
-  with 33/17 ms prediction delays, and the scenes' prediction delay is fixed at 100 ms.
+* Figure 6 (``bitrates``): every method on the dynamic scenes of ``rd_scenes`` (default: all)
+  at each paper-equivalent bitrate (scaled by pixel count), plus the reference lines of
+  seeds/000 Fig. 6: ``video_streaming`` (the ground truth encoded as one 120 FPS HEVC video at
+  the same bitrate: perfect prediction, zero latency) and ``timewarp_10fps``/``_30fps``/
+  ``_60fps`` (a traditional streaming setup: the server renders the main camera's colour and
+  depth at 10/30/60 FPS with a prediction window of one frame, 100/33.3/16.7 ms, streamed at
+  the same bitrate, and the client timewarps the newest frame), plotted as
+  ``rate_distortion.png`` (VMAF, or SSIM without VMAF, against the achieved Mb/s; the
+  uncompressed Table 1 values dotted). The bitrates at which ``ours`` reaches VMAF 60 and 80
+  (linear interpolation between measured points) are in ``tables.md`` and
+  :attr:`EvalResult.summary`.
+
+``video_interp`` (a method of Tables 1 and Fig. 6, not a reprojection method) is FFmpeg's
+``minterpolate`` (motion-compensated frame interpolation) of the server's main-camera colour
+video from f_s to f_c: it cannot use the client's pose, so it shows what plain video frame
+interpolation gives. Alignment: the server frames enter at their times ``k / f_s`` (frame 0
+at 0), ``minterpolate`` emits frames at ``n / f_c``, so output ``n`` is client frame ``n``
+(output ``12 k`` reproduces server frame ``k``; tested); the last server frame is repeated once
+so that the filter, which needs a successor, emits the frames up to its time. Like ``ours`` it
+needs the next server frame, so it belongs to the same timing (l = 0). In Fig. 6 the colour
+video alone is HEVC-coded at the bitrate (at f_s) before interpolation.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import subprocess
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -49,12 +65,17 @@ from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
 
 __all__ = [
     "DEFAULT_DELAYS",
+    "DEFAULT_EVAL_METHODS",
     "DEFAULT_SCENES",
     "ROW_KEYS",
     "EvalArgumentError",
     "EvalConfig",
+    "TIMEWARP_LINES",
+    "VIDEO_INTERP",
     "format_rows",
+    "minterpolate",
     "run_eval",
+    "vmaf_crossings",
 ]
 
 ROW_KEYS: tuple[str, ...] = (
@@ -63,6 +84,13 @@ ROW_KEYS: tuple[str, ...] = (
 )
 DEFAULT_SCENES: tuple[str, ...] = ("courtyard", "colonnade", "lab")
 DEFAULT_DELAYS: tuple[int, ...] = (0, 1, 2, 4, 8, 12)
+#: FFmpeg's minterpolate of the server colour video (an extra method of eval).
+VIDEO_INTERP = "video_interp"
+DEFAULT_EVAL_METHODS: tuple[str, ...] = (*DEFAULT_METHODS, VIDEO_INTERP)
+#: Figure 6's timewarp reference lines: (server FPS, prediction delay in seconds).
+TIMEWARP_LINES: tuple[tuple[int, float], ...] = ((10, 0.1), (30, 1 / 30), (60, 1 / 60))
+#: The VMAF levels whose bitrates Figure 6 reports for ``ours``.
+VMAF_LEVELS: tuple[float, ...] = (60.0, 80.0)
 _METRIC_HEAD = (("ssim", "SSIM ↑", ".4f", max), ("flip", "FLIP ↓", ".4f", min),
                 ("psnr", "PSNR ↑", ".2f", max), ("vmaf", "VMAF ↑", ".2f", max))
 
@@ -78,18 +106,24 @@ class EvalArgumentError(DemoArgumentError):
 class EvalConfig:
     out: Path = Path("splitrender-eval")
     scenes: tuple[str, ...] = DEFAULT_SCENES
-    methods: tuple[str, ...] = DEFAULT_METHODS
+    methods: tuple[str, ...] = DEFAULT_EVAL_METHODS
     delays: tuple[int, ...] = DEFAULT_DELAYS
     scale: float = 0.05
     seconds: float = 1.0
     bitrate_mbps: float | None = None
     #: Figure 6: paper-equivalent bitrates (Mb/s at 2560x1440, scaled by pixel count); empty: none.
     bitrates: tuple[float, ...] = ()
+    #: Table 1's variants (``"static"``, ``"dynamic"``).
+    variants: tuple[str, ...] = ("static", "dynamic")
+    #: Figure 6's scenes (a subset of ``scenes``); ``None``: all of them.
+    rd_scenes: tuple[str, ...] | None = None
     stereo: bool = False
     vmaf: bool = True
     trace: Path | None = None
     trace_scale: float = 1.0
     progress: bool = True
+    #: ``"cpu"`` or ``"wgpu"`` (the methods with a GPU kernel; see ``gpu.backend_for``).
+    backend: str = "cpu"
 
 
 @dataclass
@@ -99,6 +133,8 @@ class EvalResult:
     width: int = 0
     height: int = 0
     bitrate_mbps: float = 0.0
+    #: Lines worth printing (Figure 6: the bitrates at which ``ours`` reaches VMAF 60 and 80).
+    summary: list[str] = field(default_factory=list)
 
 
 def check_config(cfg: EvalConfig) -> None:
@@ -116,7 +152,19 @@ def check_config(cfg: EvalConfig) -> None:
         raise EvalArgumentError("--scenes: a scene is listed twice")
     if any(d < 0 for d in cfg.delays) or len(set(cfg.delays)) != len(cfg.delays):
         raise EvalArgumentError("--delays: expected distinct integers >= 0")
-    check_run_args(cfg.scenes, cfg.methods, cfg.seconds, cfg.scale, EvalArgumentError)
+    check_run_args(cfg.scenes, cfg.methods, cfg.seconds, cfg.scale, EvalArgumentError,
+                   extra_methods=(VIDEO_INTERP,))
+    if not cfg.variants or any(v not in ("static", "dynamic") for v in cfg.variants) or len(
+        set(cfg.variants)
+    ) != len(cfg.variants):
+        raise EvalArgumentError("--variants: expected static, dynamic or both, each once")
+    if cfg.rd_scenes is not None:
+        if not cfg.rd_scenes or any(s not in cfg.scenes for s in cfg.rd_scenes):
+            raise EvalArgumentError(
+                f"--rd-scenes: expected some of the --scenes ({', '.join(cfg.scenes)})"
+            )
+        if len(set(cfg.rd_scenes)) != len(cfg.rd_scenes):
+            raise EvalArgumentError("--rd-scenes: a scene is listed twice")
     if any(not (b > 0 and math.isfinite(b)) for b in cfg.bitrates):
         raise EvalArgumentError("--bitrates: expected finite numbers > 0")
     if len(set(cfg.bitrates)) != len(cfg.bitrates):
@@ -160,12 +208,19 @@ def format_rows(rows: Sequence[Row], keys: Sequence[str], group: Sequence[str] =
 
 
 def _plan_stages(cfg: EvalConfig) -> int:
-    n = len(cfg.scenes) * 2  # recordings
-    n += len(cfg.scenes) * 2 * len(cfg.methods)  # Table 1
+    core = len([m for m in cfg.methods if m != VIDEO_INTERP])
+    nv = len(set(cfg.variants) | {"dynamic"})
+    n = len(cfg.scenes) * nv  # recordings
+    n += len(cfg.scenes) * len(cfg.variants) * len(cfg.methods)  # Table 1
     n += len(cfg.scenes) * (1 + len(cfg.delays) + 1)  # Table 2: encode, delays, extrapolate
     if cfg.stereo:
-        n += len(cfg.scenes) * (1 + 1 + 2 * len(cfg.methods))  # recording, encode, mono/stereo
-    n += len(cfg.scenes) * len(cfg.bitrates) * (2 + len(cfg.methods))  # Figure 6
+        n += len(cfg.scenes) * (1 + 1 + 2 * core)  # recording, encode, mono/stereo
+    if cfg.bitrates:
+        rd = len(cfg.scenes if cfg.rd_scenes is None else cfg.rd_scenes)
+        lines = len(TIMEWARP_LINES)
+        # Per scene: the timewarp servers at 30/60 FPS; per bitrate: encode, the methods,
+        # video streaming, each timewarp line.
+        n += rd * ((lines - 1) + len(cfg.bitrates) * (2 + len(cfg.methods) + lines))
     return n
 
 
@@ -173,11 +228,18 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     """Runs the experiments (see the module docstring) and writes their files to ``cfg.out``."""
     from splitrender.codec import CodecConfig
     from splitrender.network import NetworkModel
+    from splitrender.gpu import backend_for
     from splitrender.pipeline import encode_decode, play_and_score, raw_mbps
     from splitrender.recording import Recording, load_recording, plan, write_recording
-    from splitrender.scenes import Scene, Trace, load_trace
+    from splitrender.scenes import PREDICTION_DELAY, Scene, Trace, load_trace
+    from splitrender.types import ReprojectOptions, ServerFrame
 
     check_config(cfg)
+    if cfg.backend != "cpu":
+        from splitrender.gpu import adapter, check_backend
+
+        check_backend(cfg.backend)
+        adapter()  # no adapter: GpuUnavailableError now, not after rendering
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
     (out / "recordings").mkdir(exist_ok=True)
@@ -238,7 +300,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     def score(
         scene: str, variant: str, method: str, server: Sequence[Any], sizes: list[int] | None,
         br: float | None, mbps: float, delay: int, cams: Sequence[Sequence[Any]],
-        truth: Sequence[Sequence[_Image]],
+        truth: Sequence[Sequence[_Image]], which: Sequence[str] | None = None,
     ) -> Row:
         stereo = len(cams) > 1
         key = (scene, variant, method, br, delay, stereo)
@@ -247,11 +309,13 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         net = NetworkModel(extra_delay_frames=delay, client_fps=FC)
         means: dict[str, list[float]] = {}
         frames = 0
+        use = metrics if which is None else which
         for eye_cams, eye_truth in zip(cams, truth):
-            s = play_and_score(server, eye_cams, eye_truth, method, net, FC, metrics,
-                               frame_sizes=sizes, bar=stages.bar)
+            s = play_and_score(server, eye_cams, eye_truth, method, net, FC, use,
+                               frame_sizes=sizes, bar=stages.bar,
+                               backend=backend_for(method, cfg.backend))
             r = s.row()
-            for m in metrics:
+            for m in use:
                 means.setdefault(m, []).append(float(r[m]))
             frames = int(r["frames"])
         row: Row = {
@@ -265,6 +329,17 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         rows.append(row)
         return row
 
+    def interp(
+        scene: str, variant: str, colours: Sequence[_Image], mbps: float, br: float | None,
+        truth: Sequence[_Image], which: Sequence[str] = metrics,
+    ) -> Row:
+        frames = minterpolate(colours, FS, FC, len(truth))
+        row = _score_frames(scene, variant, VIDEO_INTERP, br, frames, truth, mbps, which,
+                            stages.bar)
+        rows.append(row)
+        return row
+
+    core_methods = [m for m in cfg.methods if m != VIDEO_INTERP]
     loaded: dict[tuple[str, str, bool], tuple[list[Any], list[list[Any]], list[list[_Image]]]]
     loaded = {}
 
@@ -294,11 +369,16 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     # Table 1: uncompressed, scenes x variants x methods.
     t1: list[Row] = []
     for scene in cfg.scenes:
-        for variant in ("static", "dynamic"):
+        for variant in cfg.variants:
             server, cams, truth = load(scene, variant, False)
             mbps = raw_mbps(server, FS)
             for method in cfg.methods:
                 stages.stage(f"table 1: {scene} ({variant}), {method}, uncompressed")
+                if method == VIDEO_INTERP:
+                    colours = [f.main.color for f in server]
+                    raw = colours[0].nbytes * 8 * FS / 1e6
+                    t1.append(interp(scene, variant, colours, raw, None, truth[0]))
+                    continue
                 t1.append(score(scene, variant, method, server, None, None, mbps, 0, cams, truth))
     tables.append((
         "Table 1: methods × scenes × static/dynamic, uncompressed",
@@ -340,7 +420,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
             dec, sizes, mbps = encode_decode(server, codec_cfg, FS, stages.bar, len(server))
             mdec, msizes, mmbps = decoded_mono[scene]
             _, mcams, mtruth = load(scene, "dynamic", False)
-            for method in cfg.methods:
+            for method in core_methods:
                 stages.stage(f"table 3: {scene}, {method}, mono")
                 t3.append(score(scene, "dynamic", method, mdec, msizes, bitrate, mmbps, 0,
                                 mcams, mtruth))
@@ -357,9 +437,22 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
 
     # Figure 6: rate-distortion on the dynamic scenes.
     f6: list[Row] = []
+    summary: list[str] = []
+    rd_scenes = cfg.scenes if cfg.rd_scenes is None else cfg.rd_scenes
+    # Figure 6 plots VMAF; FLIP (three quarters of the evaluation time) is skipped there when
+    # VMAF is computed.
+    rd_metrics = tuple(m for m in metrics if m != "flip") if "vmaf" in metrics else metrics
     if cfg.bitrates:
-        for scene in cfg.scenes:
+        for scene in rd_scenes:
             server, cams, truth = load(scene, "dynamic", False)
+            tw_servers: dict[int, list[ServerFrame]] = {}
+            for fps, delay in TIMEWARP_LINES:
+                if fps == FS and delay == PREDICTION_DELAY and trace is None:
+                    tw_servers[fps] = [_main_colour_depth(f) for f in server]
+                    continue
+                stages.stage(f"figure 6: {scene}: rendering the main camera at {fps} FPS "
+                             f"(prediction {1000 * delay:.1f} ms) for the timewarp line")
+                tw_servers[fps] = _timewarp_server(scene, fps, delay, cfg, trace, stages.bar)
             for paper in sorted(cfg.bitrates):
                 cc = CodecConfig.scaled(w, h, paper_mbps=paper)
                 br = cc.bitrate_mbps
@@ -368,19 +461,64 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                 dec, sizes, mbps = encode_decode(server, cc, FS, stages.bar, len(server))
                 for method in cfg.methods:
                     stages.stage(f"figure 6: {scene}, {method}, {br:.3g} Mb/s")
+                    if method == VIDEO_INTERP:
+                        coded, cmbps = _video_streaming([f.main.color for f in server], br, FS)
+                        f6.append(interp(scene, "dynamic", coded, cmbps, br, truth[0],
+                                         rd_metrics))
+                        continue
                     f6.append(score(scene, "dynamic", method, dec, sizes, br, mbps, 0, cams,
-                                    truth))
+                                    truth, rd_metrics))
                 stages.stage(f"figure 6: {scene}, video streaming of the ground truth at "
                              f"{br:.3g} Mb/s")
-                f6.append(_video_streaming_row(scene, truth[0], br, metrics, stages.bar))
+                f6.append(_video_streaming_row(scene, truth[0], br, rd_metrics, stages.bar))
                 rows.append(f6[-1])
+                for fps, delay in TIMEWARP_LINES:
+                    stages.stage(f"figure 6: {scene}, timewarp at {fps} FPS, {br:.3g} Mb/s")
+                    twc = CodecConfig(bitrate_mbps=br, camera_shares=(1.0,), fps=float(fps),
+                                      gop=fps)
+                    tdec, tsizes, tmbps = encode_decode(tw_servers[fps], twc, float(fps))
+                    sc = play_and_score(
+                        tdec, cams[0], truth[0], "timewarp", NetworkModel(client_fps=FC), FC,
+                        rd_metrics, frame_sizes=tsizes, bar=stages.bar,
+                        options=ReprojectOptions(server_fps=float(fps)),
+                    )
+                    f6.append({
+                        "scene": scene, "variant": "dynamic", "method": f"timewarp_{fps}fps",
+                        "bitrate_mbps": br, "delay": 0, "stereo": False,
+                        **{k: sc.metrics.mean.get(k) for k in ("ssim", "flip", "psnr", "vmaf")},
+                        "mbps": tmbps, "frames": sc.row()["frames"],
+                    })
+                    rows.append(f6[-1])
+                write_results()
+            if "vmaf" in metrics:
+                ours = [r for r in f6 if r["scene"] == scene and r["method"] == "ours"]
+                for level, at in vmaf_crossings(ours, VMAF_LEVELS).items():
+                    paper_scale = 2560 * 1440 / (w * h)
+                    if at is not None:
+                        summary.append(
+                            f"{scene}: ours reaches VMAF {level:g} at {at:.3g} Mb/s "
+                            f"({at * paper_scale:.3g} Mb/s at 2560x1440)"
+                        )
+                    else:
+                        best = max(ours, key=lambda r: float(r["vmaf"]))
+                        summary.append(
+                            f"{scene}: ours does not reach VMAF {level:g} at the measured "
+                            f"bitrates (best {best['vmaf']:.2f} at {best['mbps']:.3g} Mb/s)"
+                        )
         tables.append((
             "Figure 6: rate-distortion, dynamic scenes",
             "Every method at each bitrate (l = 0; the paper-equivalent bitrate scaled by pixel "
-            "count), and `video_streaming`: the ground-truth client frames themselves encoded "
-            f"as one {FC:g} FPS HEVC video at the same bitrate (zero latency, perfect "
-            "prediction). Plotted in `rate_distortion.png` with the uncompressed Table 1 values "
-            "as dotted lines. Bold: the best per scene and bitrate.",
+            "count); `video_interp`: the main colour video alone, HEVC at the bitrate at "
+            f"{FS:g} FPS, then FFmpeg minterpolate to {FC:g} FPS; `video_streaming`: the "
+            f"ground-truth client frames themselves encoded as one {FC:g} FPS HEVC video at "
+            "the same bitrate (zero latency, perfect prediction); `timewarp_Nfps`: the main "
+            "camera's colour and depth rendered at N FPS with a prediction window of one frame "
+            "(100/33.3/16.7 ms at 10/30/60 FPS), streamed at the bitrate, timewarped by the "
+            "client. Plotted in `rate_distortion.png` with the uncompressed Table 1 values "
+            "as dotted lines. Bold: the best per scene and bitrate."
+            + (" FLIP is not computed here (the figure is VMAF; FLIP is most of the "
+               "evaluation time)." if rd_metrics != metrics else "")
+            + ("\n\n" + "\n".join(f"* {line}" for line in summary) if summary else ""),
             f6, ("scene", "bitrate_mbps", "method"), ("scene", "bitrate_mbps"),
         ))
         write_results()
@@ -407,7 +545,122 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         png = _plot_rate_distortion(out / "rate_distortion.png", f6, t1, metrics)
         if png is not None:
             files.append(png)
-    return EvalResult(rows, files, w, h, bitrate)
+    return EvalResult(rows, files, w, h, bitrate, summary)
+
+
+def _score_frames(
+    scene: str, variant: str, method: str, br: float | None, frames: Sequence[_Image],
+    truth: Sequence[_Image], mbps: float, metrics: Sequence[str],
+    bar: Callable[[int, int, str], None],
+) -> Row:
+    from splitrender.metrics import evaluate_sequence
+
+    sm = evaluate_sequence(frames, truth, SKIP_FRAMES, metrics, fps=FC,
+                           progress=lambda m, d, t: bar(d, t, m))
+    return {
+        "scene": scene, "variant": variant, "method": method, "bitrate_mbps": br, "delay": 0,
+        "stereo": False, **{m: sm.mean.get(m) for m in ("ssim", "flip", "psnr", "vmaf")},
+        "mbps": mbps, "frames": len(sm.frames),
+    }
+
+
+def _rate(v: float) -> str:
+    from fractions import Fraction
+
+    f = Fraction(v).limit_denominator(1001)
+    return f"{f.numerator}/{f.denominator}"
+
+
+def minterpolate(
+    frames: Sequence[_Image], fs: float, fc: float, n_out: int
+) -> list[_Image]:
+    """FFmpeg's motion-compensated interpolation (``minterpolate``, ``mi_mode=mci``,
+    ``mc_mode=aobmc``, ``me_mode=bidir``, ``vsbmc=1``, no scene-change fallback) of ``frames``
+    (RGB8, frame ``k`` at time ``k / fs``) to ``fc``; returns ``n_out`` frames, frame ``n`` at
+    time ``n / fc`` (output ``n`` with ``n·fs/fc`` an integer ``k`` reproduces input ``k`` up to
+    the filter's 8-bit YCbCr 4:4:4 round trip). The last frame is repeated once: the filter
+    needs a successor to emit the frames up to its time.
+
+    Raises:
+        SplitRenderError: when ffmpeg fails or emits fewer than ``n_out`` frames.
+    """
+    from splitrender.metrics import _ffmpeg
+
+    if not frames:
+        raise SplitRenderError("minterpolate: no frames")
+    h, w = frames[0].shape[:2]
+    data = b"".join(np.ascontiguousarray(f, dtype=np.uint8).tobytes()
+                    for f in [*frames, frames[-1]])
+    cmd = [
+        _ffmpeg(), "-nostdin", "-hide_banner", "-loglevel", "error",
+        "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", _rate(fs), "-i", "-",
+        "-vf", f"format=yuv444p,minterpolate=fps={_rate(fc)}:mi_mode=mci:mc_mode=aobmc"
+        ":me_mode=bidir:vsbmc=1:scd=none,format=rgb24",
+        "-f", "rawvideo", "-pix_fmt", "rgb24", "-",
+    ]
+    proc = subprocess.run(cmd, input=data, capture_output=True, check=False)
+    if proc.returncode != 0:
+        tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["?"]
+        raise SplitRenderError(f"minterpolate: ffmpeg exited with status {proc.returncode}: "
+                               f"{tail[0]}")
+    n = len(proc.stdout) // (w * h * 3)
+    if n < n_out:
+        raise SplitRenderError(f"minterpolate: ffmpeg emitted {n} frames, expected {n_out}")
+    out = np.frombuffer(proc.stdout, np.uint8, count=n_out * h * w * 3).reshape(n_out, h, w, 3)
+    return [out[i].copy() for i in range(n_out)]
+
+
+def _main_colour_depth(f: Any) -> Any:
+    """``f`` reduced to what timewarp streams: the main camera's colour and depth."""
+    from splitrender.types import CameraFrame, ServerFrame
+
+    return ServerFrame(f.index, f.time, CameraFrame(f.main.camera, f.main.color, f.main.depth))
+
+
+def _timewarp_server(
+    scene: str, fps: int, delay: float, cfg: EvalConfig, trace: Any,
+    bar: Callable[[int, int, str], None],
+) -> list[Any]:
+    """The main camera's colour and depth at ``fps`` FPS, rendered at poses predicted
+    ``delay`` seconds ahead (a traditional streaming server for the timewarp lines)."""
+    from splitrender.recording import plan
+    from splitrender.scenes import ClientMotion, PathMotion, Scene, TraceMotion
+
+    sc = Scene(scene, "dynamic")
+    motion: ClientMotion = (
+        PathMotion(sc, delay) if trace is None
+        else TraceMotion(sc, trace, cfg.trace_scale, delay)
+    )
+    n_server, _ = plan(cfg.seconds, float(fps), FC)
+    out = []
+    for k in range(n_server):
+        f = sc.server_frame(k, cfg.scale, float(fps), 1, pose=motion.server_pose(k, float(fps)))
+        out.append(_main_colour_depth(f))
+        bar(k + 1, n_server, "server frames")
+    return out
+
+
+def vmaf_crossings(
+    rows: Sequence[Row], levels: Sequence[float] = VMAF_LEVELS
+) -> dict[float, float | None]:
+    """Per VMAF level, the achieved Mb/s at which ``rows`` (one method's rate-distortion points)
+    first reach it, interpolated linearly between the two measured points around it; the lowest
+    rate if even that reaches it; ``None`` if no point does."""
+    pts = sorted((float(r["mbps"]), float(r["vmaf"])) for r in rows
+                 if isinstance(r.get("vmaf"), (int, float)) and math.isfinite(r["vmaf"]))
+    out: dict[float, float | None] = {}
+    for level in levels:
+        at: float | None = None
+        for i, (m, v) in enumerate(pts):
+            if v >= level:
+                if i == 0:
+                    at = m
+                else:
+                    m0, v0 = pts[i - 1]
+                    at = m0 + (level - v0) * (m - m0) / (v - v0)
+                break
+        out[level] = at
+    return out
 
 
 def _plot_delays(path: Path, rows: Sequence[Row], metrics: Sequence[str]) -> Path | None:
@@ -526,25 +779,37 @@ def _plot_rate_distortion(
     metric = "vmaf" if "vmaf" in metrics else "ssim"
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
-    fig, axes = plt.subplots(1, len(scenes), figsize=(4.4 * len(scenes), 3.6), squeeze=False)
-    colors: Callable[[int], Any] = plt.get_cmap("tab10")
+    fig, axes = plt.subplots(1, len(scenes), figsize=(6.4 * len(scenes), 4.6), squeeze=False)
+    palette: Callable[[int], Any] = plt.get_cmap("tab10")
+    grey = {"timewarp_10fps": "0.65", "timewarp_30fps": "0.45", "timewarp_60fps": "0.2"}
+    marker = {"timewarp_10fps": "v", "timewarp_30fps": "^", "timewarp_60fps": "D"}
     for ax, scene in zip(axes[0], scenes):
-        for i, method in enumerate(methods):
+        for i, method in enumerate(m for m in methods if m not in grey):
             pts = sorted((r["mbps"], r[metric]) for r in rows
                          if r["scene"] == scene and r["method"] == method)
             style = "s--" if method == "video_streaming" else "o-"
-            ax.plot([p for p, _ in pts], [v for _, v in pts], style, color=colors(i),
-                    label=method)
+            width = 2.2 if method == "ours" else 1.3
+            ax.plot([p for p, _ in pts], [v for _, v in pts], style, color=palette(i),
+                    label=method, linewidth=width, markersize=4)
             ref = [r[metric] for r in uncompressed if r["scene"] == scene
                    and r["variant"] == "dynamic" and r["method"] == method]
             if ref:
-                ax.axhline(ref[0], color=colors(i), linestyle=":", linewidth=1)
+                ax.axhline(ref[0], color=palette(i), linestyle=":", linewidth=1)
+        for method in (m for m in methods if m in grey):
+            pts = sorted((r["mbps"], r[metric]) for r in rows
+                         if r["scene"] == scene and r["method"] == method)
+            ax.plot([p for p, _ in pts], [v for _, v in pts], "-.", marker=marker[method],
+                    color=grey[method], label=method, linewidth=1.3, markersize=4)
+        if metric == "vmaf":
+            for level in VMAF_LEVELS:
+                ax.axhline(level, color="0.85", linewidth=0.8, zorder=0)
         ax.set_title(scene, fontsize=10)
         ax.set_xlabel("achieved Mb/s")
         ax.set_ylabel(f"{metric.upper()} ↑")
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle("Figure 6: rate-distortion (dotted: uncompressed)", fontsize=10)
+    axes[0][-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+    fig.suptitle("Figure 6: rate-distortion\n(dotted: uncompressed; grey: timewarp at 10/30/60 "
+                 "FPS with one-frame prediction)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

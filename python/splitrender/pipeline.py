@@ -20,7 +20,7 @@ from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
 from splitrender.metrics import SKIP_FRAMES, SequenceMetrics, evaluate_sequence
 from splitrender.network import NetworkModel
 from splitrender.stream import stream_stats
-from splitrender.types import Camera, ServerFrame
+from splitrender.types import Camera, ReprojectOptions, ServerFrame
 
 __all__ = ["Scored", "encode_decode", "play_and_score", "raw_mbps"]
 
@@ -62,12 +62,13 @@ class Scored:
     metrics: SequenceMetrics
 
     def row(self) -> dict[str, Any]:
-        """``ssim``, ``flip``, ``psnr``, ``vmaf`` (``None`` when not computed) and ``frames``."""
+        """``ssim``, ``flip``, ``psnr``, ``vmaf`` (each ``None`` when not computed) and
+        ``frames``."""
         m = self.metrics.mean
         return {
-            "ssim": m["ssim"],
-            "flip": m["flip"],
-            "psnr": m["psnr"],
+            "ssim": m.get("ssim"),
+            "flip": m.get("flip"),
+            "psnr": m.get("psnr"),
             "vmaf": m.get("vmaf"),
             "frames": len(self.metrics.frames),
         }
@@ -85,10 +86,13 @@ def play_and_score(
     frame_sizes: Sequence[int] | None = None,
     bar: Bar | None = None,
     on_frame: Callable[[int, _Image, Any], None] | None = None,
+    options: ReprojectOptions | None = None,
+    backend: str = "cpu",
 ) -> Scored:
     """Plays ``frames`` with ``method`` through ``network`` at the client ``cameras`` (``fc``
     FPS) and scores the client frames against ``truth`` (first and last ``SKIP_FRAMES``
-    excluded)."""
+    excluded). ``options`` go to the client (e.g. ``server_fps`` for a server at another rate
+    than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"`` (:class:`~splitrender.Client`)."""
     n_client = len(cameras)
 
     def frame_done(n: int, image: _Image, info: Any) -> None:
@@ -97,7 +101,8 @@ def play_and_score(
         if on_frame is not None:
             on_frame(n, image, info)
 
-    res = play(frames, cameras, network, fc, method, frame_sizes=frame_sizes, on_frame=frame_done)
+    res = play(frames, cameras, network, fc, method, frame_sizes=frame_sizes, on_frame=frame_done,
+               options=options, backend=backend)
 
     def progress(metric: str, done: int, total: int) -> None:
         if bar is not None:

@@ -8,11 +8,12 @@ camera-to-world ``float64[4, 4]`` head poses (the camera looks along its -z):
 
 - :class:`PathMotion`: the scene's head-box path plus the anchor's deterministic deviation; the
   client sees the anchor at ``t``, the server renders frame ``k`` at the head box of ``t_k`` with
-  the deviation of ``t_k - 0.1 s``;
+  the deviation of ``t_k - d`` (``d`` = ``prediction_delay``, 0.1 s by default);
 - :class:`TraceMotion`: a recorded head trace (:func:`load_trace`, format in
   shared/traces/README.md) re-anchored at the scene's head box at ``t = 0``: the client sees
   ``A · T(0)^-1 · T(t)`` (translation optionally scaled), and the server renders frame ``k`` at the
-  trace pose ``PREDICTION_DELAY`` earlier (clamped at the trace's start), an imperfect prediction.
+  trace pose ``prediction_delay`` (default :data:`PREDICTION_DELAY`) earlier (clamped at the
+  trace's start), an imperfect prediction.
 """
 
 from __future__ import annotations
@@ -270,8 +271,8 @@ class Scene:
         """Ground-truth RGB8 image at any ``camera`` and time ``t``."""
         return self._native.render_ground_truth(*camera.to_native(), t)
 
-    def path_motion(self) -> PathMotion:
-        return PathMotion(self)
+    def path_motion(self, prediction_delay: float = PREDICTION_DELAY) -> PathMotion:
+        return PathMotion(self, prediction_delay)
 
 
 class ClientMotion(Protocol):
@@ -282,22 +283,54 @@ class ClientMotion(Protocol):
     def describe(self) -> dict[str, Any]: ...
 
 
+def _check_delay(prediction_delay: float) -> float:
+    d = prediction_delay
+    if isinstance(d, bool) or not isinstance(d, (int, float)) or not (math.isfinite(d) and d >= 0):
+        raise InvalidInputError(
+            f"prediction_delay: expected a finite number of seconds >= 0, got {d!r}"
+        )
+    return float(d)
+
+
 class PathMotion:
-    """The scene's head-box path with the deterministic anchor deviation (DESIGN.md)."""
+    """The scene's head-box path with the deterministic anchor deviation (DESIGN.md).
 
-    __slots__ = ("scene",)
+    The server predicts with the deviation ``prediction_delay`` seconds old (default
+    :data:`PREDICTION_DELAY`, the renderer's own :meth:`Scene.server_pose`); other delays model
+    a server at a higher rate with a shorter prediction window (seeds/000 Fig. 6: 30 FPS with
+    33.3 ms, 60 FPS with 16.7 ms). The deviation at ``t`` is ``head_box(t)^-1 · client_pose(t)``,
+    so the server pose is ``head_box(t_k) · head_box(t_k - d)^-1 · client_pose(t_k - d)``."""
 
-    def __init__(self, scene: Scene) -> None:
+    __slots__ = ("prediction_delay", "scene")
+
+    def __init__(self, scene: Scene, prediction_delay: float = PREDICTION_DELAY) -> None:
         self.scene = scene
+        self.prediction_delay = _check_delay(prediction_delay)
 
     def client_pose(self, t: float) -> F64:
         return self.scene.client_pose(t)
 
     def server_pose(self, k: int, fs: float) -> F64:
-        return self.scene.server_pose(k, fs)
+        if self.prediction_delay == PREDICTION_DELAY:
+            return self.scene.server_pose(k, fs)
+        t = k / fs
+        back = t - self.prediction_delay
+        deviation = np.linalg.inv(self.scene.head_box(back)) @ self.scene.client_pose(back)
+        out: F64 = self.scene.head_box(t) @ deviation
+        return _rigid(out)
 
     def describe(self) -> dict[str, Any]:
-        return {"source": "path", "prediction_delay": PREDICTION_DELAY}
+        return {"source": "path", "prediction_delay": self.prediction_delay}
+
+
+def _rigid(m: F64) -> F64:
+    """``m`` with its rotation re-orthonormalised and its last row exactly ``0 0 0 1`` (the
+    renderer checks rigidity; products of poses drift by rounding)."""
+    out = np.array(m, dtype=np.float64)
+    u, _, vt = np.linalg.svd(out[:3, :3])
+    out[:3, :3] = u @ vt
+    out[3] = (0.0, 0.0, 0.0, 1.0)
+    return out
 
 
 def _quat_from_euler(pitch: F64, yaw: F64, roll: F64) -> F64:
@@ -428,30 +461,33 @@ class TraceMotion:
     """A head trace re-anchored at the scene's head box at ``t = 0``; ``translation_scale``
     scales the trace's motion (e.g. < 1 for a scene smaller than the one it was recorded in)."""
 
-    __slots__ = ("_anchor", "_inv0", "trace", "translation_scale")
+    __slots__ = ("_anchor", "_inv0", "prediction_delay", "trace", "translation_scale")
 
-    def __init__(self, scene: Scene, trace: Trace, translation_scale: float = 1.0) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        trace: Trace,
+        translation_scale: float = 1.0,
+        prediction_delay: float = PREDICTION_DELAY,
+    ) -> None:
         if not (math.isfinite(translation_scale) and translation_scale >= 0.0):
             raise InvalidInputError(
                 f"translation_scale: expected a finite float >= 0, got {translation_scale}"
             )
         self.trace = trace
         self.translation_scale = float(translation_scale)
+        self.prediction_delay = _check_delay(prediction_delay)
         self._anchor = scene.head_box(0.0)
         self._inv0 = np.linalg.inv(trace.pose(0.0))
 
     def client_pose(self, t: float) -> F64:
         rel = self._inv0 @ self.trace.pose(t)
         rel[:3, 3] *= self.translation_scale
-        out: F64 = self._anchor @ rel
         # Re-orthonormalise the rotation so the renderer's rigidity check holds after products.
-        u, _, vt = np.linalg.svd(out[:3, :3])
-        out[:3, :3] = u @ vt
-        out[3] = (0.0, 0.0, 0.0, 1.0)
-        return out
+        return _rigid(self._anchor @ rel)
 
     def server_pose(self, k: int, fs: float) -> F64:
-        return self.client_pose(k / fs - PREDICTION_DELAY)
+        return self.client_pose(k / fs - self.prediction_delay)
 
     def describe(self) -> dict[str, Any]:
         return {
@@ -459,5 +495,5 @@ class TraceMotion:
             "file": self.trace.name,
             "sha256": self.trace.sha256,
             "translation_scale": self.translation_scale,
-            "prediction_delay": PREDICTION_DELAY,
+            "prediction_delay": self.prediction_delay,
         }

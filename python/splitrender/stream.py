@@ -7,34 +7,39 @@ the frame and, where there is one, the buffer (``"frame 12, main.depth: ..."``).
 fill and read the payloads live in :mod:`splitrender.codec`. The format is also described in
 ``docs/stream-format.md``.
 
-Packet (version 1), all integers little-endian::
+Packet (version 2), all integers little-endian::
 
     offset  size  field
     0       4     magic b"SRPK"
-    4       2     version (u16) = 1
+    4       2     version (u16) = 2
     6       2     flags (u16): bit 0 key frame (every HEVC stream starts with an IDR and its
                   parameter sets, so decoding may start here), bit 1 uncompressed; others 0
     8       8     frame index (u64)
     16      8     time in seconds (f64, finite)
-    24      1     number of cameras C (u8, 1..MAX_CAMERAS); camera 0 is the main camera,
-                  camera i >= 1 auxiliary camera i-1
-    25      1     reserved, 0
-    26      2     number of buffers B (u16, 0..MAX_BUFFERS)
-    28      4     CRC32 of bytes 0..28 followed by the camera records and the buffer table
-    32      264*C camera records: u32 width, u32 height (1..MAX_SIDE), f64[16] view,
-                  f64[16] proj (row-major, column-vector convention, finite)
-    ..      ...   buffer table, one entry per buffer (16 + 16*P bytes):
-                    u8 camera, u8 kind (BufferKind), u8 codec (Codec), u8 P (0..3, the
-                    number of (scale, offset) pairs), u16 width, u16 height (equal to the
-                    camera's), u32 payload length, u32 payload CRC32,
-                    P x (f64 scale, f64 offset): per channel, value = code * scale + offset
-                    (finite)
-    ..      ...   payloads, back to back, in table order; the packet ends exactly after the
+    24      4     M: length of the compressed header block (u32, 1..MAX_HEADER_ZSTD)
+    28      4     CRC32 of the whole packet but these four bytes (bytes 0..28, then 32..end)
+    32      M     the header block as one zstd frame that declares its content size
+                  (at most MAX_HEADER bytes), laid out as:
+                    u8 C cameras (1..MAX_CAMERAS; camera 0 is the main camera, camera i >= 1
+                    auxiliary camera i-1), u8 reserved = 0, u16 B buffers (0..MAX_BUFFERS);
+                    C x camera record (264 bytes): u32 width, u32 height (1..MAX_SIDE),
+                    f64[16] view, f64[16] proj (row-major, column-vector convention, finite);
+                    B x buffer entry (8 + 8*P bytes): u8 camera, u8 kind (BufferKind),
+                    u8 codec (Codec), u8 P (the number of (scale, offset) pairs: the channels
+                    of a quantised HEVC buffer, else 0), u32 payload length,
+                    P x (f32 scale, f32 offset): per channel, value = code * scale + offset
+                    (finite); every buffer has its camera's size
+    32+M    ...   payloads, back to back, in table order; the packet ends exactly after the
                   last payload
 
-Container file (version 1)::
+Version 1 spent ~1.7 kB per frame on a plain header (f64 scale/offset pairs, a size and a CRC
+per buffer); version 2 compresses the header block with zstd, stores the scales as the float32
+values they are, and covers the whole packet with one CRC: about 0.6 kB per frame for three
+cameras (docs/stream-format.md).
 
-    b"SRSTREAM", u16 version = 1, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
+Container file (version 2; it holds version-2 packets)::
+
+    b"SRSTREAM", u16 version = 2, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
     records: u32 packet length, packet bytes                                     (repeated)
     index:   b"SRIX", u32 N, N x (u64 frame index, u64 record offset, u8 key, 7 x pad),
              u32 CRC32 of the N entries
@@ -59,6 +64,7 @@ from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 import numpy.typing as npt
+import zstandard
 
 from splitrender.errors import StreamError
 
@@ -68,6 +74,7 @@ if TYPE_CHECKING:
 __all__ = [
     "MAX_BUFFERS",
     "MAX_CAMERAS",
+    "MAX_HEADER",
     "MAX_PAYLOAD",
     "MAX_PIXELS",
     "MAX_SIDE",
@@ -91,8 +98,8 @@ __all__ = [
     "write_stream",
 ]
 
-PACKET_VERSION = 1
-STREAM_VERSION = 1
+PACKET_VERSION = 2
+STREAM_VERSION = 2
 
 #: Largest image side (as ``splitrender.types.MAX_SIDE``).
 MAX_SIDE = 16384
@@ -106,10 +113,18 @@ MAX_PAYLOAD = MAX_PIXELS * 12
 MAX_PACKET = 1 << 31
 
 _MAGIC = b"SRPK"
-_FIXED = struct.Struct("<4sHHQdBBHI")  # 32 bytes
+_FIXED = struct.Struct("<4sHHQdII")  # 32 bytes
+_BLOCK_HEAD = struct.Struct("<BBH")  # 4 bytes
 _CAMERA = struct.Struct("<II16d16d")  # 264 bytes
-_ENTRY = struct.Struct("<BBBBHHII")  # 16 bytes, then P x _PARAM
-_PARAM = struct.Struct("<dd")
+_ENTRY = struct.Struct("<BBBBI")  # 8 bytes, then P x _PARAM
+_PARAM = struct.Struct("<ff")
+#: Largest header block (decompressed): every camera and buffer at the limits, 3 pairs each.
+MAX_HEADER = _BLOCK_HEAD.size + MAX_CAMERAS * _CAMERA.size + MAX_BUFFERS * (
+    _ENTRY.size + 3 * _PARAM.size
+)
+#: Largest compressed header block accepted (zstd never needs more than this for MAX_HEADER).
+MAX_HEADER_ZSTD = MAX_HEADER + 1024
+_HEADER_LEVEL = 19
 FLAG_KEY = 1
 FLAG_UNCOMPRESSED = 2
 _KNOWN_FLAGS = FLAG_KEY | FLAG_UNCOMPRESSED
@@ -270,11 +285,17 @@ def _n_params(b: BufferEntry) -> int:
     return b.channels if b.codec == Codec.HEVC and b.kind in _QUANTISED else 0
 
 
+def _f32(v: float) -> bool:
+    return math.isfinite(v) and float(np.float32(v)) == v
+
+
 def pack_packet(packet: Packet) -> bytes:
     """The bytes of ``packet`` (format in the module docstring).
 
     # Errors
-    :class:`StreamError` when a field does not fit the format's limits."""
+    :class:`StreamError` when a field does not fit the format's limits: camera and buffer counts,
+    a payload over :data:`MAX_PAYLOAD`, a buffer whose size is not its camera's, or a scale or
+    offset that is not a finite float32 value."""
     where = _where(packet.index)
     if not 1 <= len(packet.cameras) <= MAX_CAMERAS:
         raise StreamError(
@@ -287,49 +308,51 @@ def pack_packet(packet: Packet) -> bytes:
     flags = (FLAG_KEY if packet.key else 0) | (
         FLAG_UNCOMPRESSED if packet.uncompressed else 0
     )
-    cams = bytearray()
+    block = bytearray(_BLOCK_HEAD.pack(len(packet.cameras), 0, len(packet.buffers)))
     for c in packet.cameras:
-        cams += _CAMERA.pack(
+        block += _CAMERA.pack(
             c.width,
             c.height,
             *np.asarray(c.view, np.float64).ravel(),
             *np.asarray(c.proj, np.float64).ravel(),
         )
-    table = bytearray()
     for b in packet.buffers:
+        bwhere = _where(packet.index, b.name)
         if len(b.payload) > MAX_PAYLOAD:
             raise StreamError(
-                f"{_where(packet.index, b.name)}: payload of {len(b.payload)} bytes exceeds "
-                f"{MAX_PAYLOAD}"
+                f"{bwhere}: payload of {len(b.payload)} bytes exceeds {MAX_PAYLOAD}"
+            )
+        if not 0 <= b.camera < len(packet.cameras):
+            raise StreamError(f"{bwhere}: camera {b.camera} of {len(packet.cameras)}")
+        cam = packet.cameras[b.camera]
+        if (b.width, b.height) != (cam.width, cam.height):
+            raise StreamError(
+                f"{bwhere}: size {b.width}x{b.height} differs from the camera's "
+                f"{cam.width}x{cam.height}"
             )
         n_par = _n_params(b)
-        table += _ENTRY.pack(
-            b.camera,
-            int(b.kind),
-            int(b.codec),
-            n_par,
-            b.width,
-            b.height,
-            len(b.payload),
-            zlib.crc32(b.payload),
-        )
+        block += _ENTRY.pack(b.camera, int(b.kind), int(b.codec), n_par, len(b.payload))
         for i in range(n_par):
-            table += _PARAM.pack(b.scale[i], b.offset[i])
+            if not (_f32(b.scale[i]) and _f32(b.offset[i])):
+                raise StreamError(
+                    f"{bwhere}: scale/offset ({b.scale[i]}, {b.offset[i]}) are not finite "
+                    "float32 values"
+                )
+            block += _PARAM.pack(b.scale[i], b.offset[i])
+    packed = _zstd_header().compress(bytes(block))
     head = _FIXED.pack(
-        _MAGIC,
-        PACKET_VERSION,
-        flags,
-        packet.index,
-        packet.time,
-        len(packet.cameras),
-        0,
-        len(packet.buffers),
-        0,
+        _MAGIC, PACKET_VERSION, flags, packet.index, packet.time, len(packed), 0
     )
-    crc = zlib.crc32(bytes(cams) + bytes(table), zlib.crc32(head[:28]))
-    head = head[:28] + struct.pack("<I", crc)
-    return b"".join(
-        [head, bytes(cams), bytes(table), *(bytes(b.payload) for b in packet.buffers)]
+    payloads = [bytes(b.payload) for b in packet.buffers]
+    crc = zlib.crc32(head[:28])
+    for part in (packed, *payloads):
+        crc = zlib.crc32(part, crc)
+    return b"".join([head[:28], struct.pack("<I", crc), packed, *payloads])
+
+
+def _zstd_header() -> zstandard.ZstdCompressor:
+    return zstandard.ZstdCompressor(
+        level=_HEADER_LEVEL, write_content_size=True, write_checksum=False
     )
 
 
@@ -337,7 +360,7 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
     """``(frame index, key)`` of a packet from its fixed header alone (no CRC check).
 
     # Errors
-    :class:`StreamError` when the bytes do not start with a version-1 packet header."""
+    :class:`StreamError` when the bytes do not start with a version-2 packet header."""
     if len(data) < _FIXED.size:
         raise StreamError(
             f"frame ?: packet of {len(data)} bytes is shorter than the {_FIXED.size}-byte header"
@@ -353,21 +376,62 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
     return int(index), bool(flags & FLAG_KEY)
 
 
+def _header_block(where: str, packed: memoryview) -> bytes:
+    """The decompressed header block, its declared size checked against :data:`MAX_HEADER`
+    before anything is allocated."""
+    try:
+        size = zstandard.frame_content_size(packed)
+    except zstandard.ZstdError:
+        raise StreamError(f"{where}: the header block is not a zstd frame") from None
+    if size < 0:
+        raise StreamError(f"{where}: the header block does not declare its size")
+    if size > MAX_HEADER:
+        raise StreamError(
+            f"{where}: header block of {size} bytes (at most {MAX_HEADER})"
+        )
+    try:
+        block = zstandard.ZstdDecompressor().decompress(packed, max_output_size=size)
+    except zstandard.ZstdError as e:
+        raise StreamError(f"{where}: the header block does not decompress: {e}") from None
+    if len(block) != size:
+        raise StreamError(
+            f"{where}: the header block holds {len(block)} bytes, declared {size}"
+        )
+    return block
+
+
 def unpack_packet(data: bytes | memoryview) -> Packet:
     """Parses and verifies one packet; payloads are views into ``data``.
 
     # Errors
     :class:`StreamError` naming the frame (and buffer) for: a short or over-long packet, wrong
-    magic or version, unknown flags, counts or sizes beyond the limits or beyond the bytes that
-    remain, a header or payload CRC mismatch, non-finite matrices, scales or time."""
+    magic or version, unknown flags, a CRC mismatch, a header block that does not decompress or
+    declares more than :data:`MAX_HEADER` bytes, counts or sizes beyond the limits or beyond the
+    bytes that remain, non-finite matrices, scales or time."""
     mv = memoryview(data).cast("B")
     index, _ = peek_header(mv)
-    _, _, flags, _, time, n_cam, reserved, n_buf, crc = _FIXED.unpack_from(mv, 0)
+    _, _, flags, _, time, m, crc = _FIXED.unpack_from(mv, 0)
     where = _where(index)
-    if flags & ~_KNOWN_FLAGS or reserved != 0:
+    if flags & ~_KNOWN_FLAGS:
+        raise StreamError(f"{where}: unknown header flags 0x{flags:04x}")
+    if not 1 <= m <= min(MAX_HEADER_ZSTD, len(mv) - _FIXED.size):
         raise StreamError(
-            f"{where}: unknown header flags 0x{flags:04x} / reserved {reserved}"
+            f"{where}: header block of {m} bytes, but {len(mv) - _FIXED.size} bytes remain "
+            f"(limit {MAX_HEADER_ZSTD})"
         )
+    want = zlib.crc32(mv[_FIXED.size :], zlib.crc32(mv[:28]))
+    if want != crc:
+        raise StreamError(
+            f"{where}: packet CRC mismatch (stored {crc:08x}, computed {want:08x})"
+        )
+    if not math.isfinite(time):
+        raise StreamError(f"{where}: time is not finite ({time})")
+    block = _header_block(where, mv[_FIXED.size : _FIXED.size + m])
+    if len(block) < _BLOCK_HEAD.size:
+        raise StreamError(f"{where}: header block of {len(block)} bytes is too short")
+    n_cam, reserved, n_buf = _BLOCK_HEAD.unpack_from(block, 0)
+    if reserved != 0:
+        raise StreamError(f"{where}: reserved header byte is {reserved}, expected 0")
     if not 1 <= n_cam <= MAX_CAMERAS:
         raise StreamError(
             f"{where}: {n_cam} cameras in the header (1..{MAX_CAMERAS} allowed)"
@@ -376,49 +440,38 @@ def unpack_packet(data: bytes | memoryview) -> Packet:
         raise StreamError(
             f"{where}: {n_buf} buffers in the header (at most {MAX_BUFFERS})"
         )
-    base = _FIXED.size + n_cam * _CAMERA.size
-    # Walk the variable-length table first (bounded: n_buf entries of at most 64 bytes).
-    entry_at = []
-    table_end = base
-    for i in range(n_buf):
-        if table_end + _ENTRY.size > len(mv):
-            table_end += _ENTRY.size
-            break
-        entry_at.append(table_end)
-        table_end += _ENTRY.size + _PARAM.size * min(mv[table_end + 3], 3)
-    if table_end > len(mv):
+    pos = _BLOCK_HEAD.size
+    if pos + n_cam * _CAMERA.size > len(block):
         raise StreamError(
-            f"{where}: packet of {len(mv)} bytes is truncated inside its header and tables "
-            f"({n_cam} cameras, {n_buf} buffers)"
+            f"{where}: header block of {len(block)} bytes is too short for {n_cam} cameras"
         )
-    want = zlib.crc32(mv[_FIXED.size : table_end], zlib.crc32(mv[:28]))
-    if want != crc:
-        raise StreamError(
-            f"{where}: header CRC mismatch (stored {crc:08x}, computed {want:08x})"
-        )
-    if not math.isfinite(time):
-        raise StreamError(f"{where}: time is not finite ({time})")
     cameras = []
     for i in range(n_cam):
-        vals = _CAMERA.unpack_from(mv, _FIXED.size + i * _CAMERA.size)
+        vals = _CAMERA.unpack_from(block, pos)
+        pos += _CAMERA.size
         w, h = vals[0], vals[1]
         if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE and w * h <= MAX_PIXELS):
             raise StreamError(
                 f"{where}, {camera_name(i)}: camera size {w}x{h} beyond the limits "
                 f"(side <= {MAX_SIDE}, pixels <= {MAX_PIXELS})"
             )
-        m = np.array(vals[2:], dtype=np.float64)
-        if not np.isfinite(m).all():
+        mat = np.array(vals[2:], dtype=np.float64)
+        if not np.isfinite(mat).all():
             raise StreamError(
                 f"{where}, {camera_name(i)}: camera matrices are not finite"
             )
-        cameras.append(CameraRecord(m[:16].reshape(4, 4), m[16:].reshape(4, 4), w, h))
+        cameras.append(CameraRecord(mat[:16].reshape(4, 4), mat[16:].reshape(4, 4), w, h))
     buffers = []
-    pos = table_end
-    for at in entry_at:
-        cam, kind, codec, n_par, w, h, length, pcrc = _ENTRY.unpack_from(mv, at)
-        name = buffer_name(cam, kind)
-        bwhere = _where(index, name)
+    at = _FIXED.size + m
+    for i in range(n_buf):
+        if pos + _ENTRY.size > len(block):
+            raise StreamError(
+                f"{where}: header block of {len(block)} bytes ends inside buffer entry {i} "
+                f"of {n_buf}"
+            )
+        cam, kind, codec, n_par, length = _ENTRY.unpack_from(block, pos)
+        pos += _ENTRY.size
+        bwhere = _where(index, buffer_name(cam, kind))
         if cam >= n_cam:
             raise StreamError(f"{bwhere}: camera {cam} of {n_cam}")
         try:
@@ -434,37 +487,33 @@ def unpack_packet(data: bytes | memoryview) -> Packet:
             raise StreamError(
                 f"{bwhere}: {n_par} scale/offset pairs (expected {want_par})"
             )
-        if (w, h) != (cameras[cam].width, cameras[cam].height):
+        if pos + n_par * _PARAM.size > len(block):
+            raise StreamError(f"{bwhere}: the header block ends inside its scale/offset pairs")
+        pairs = [_PARAM.unpack_from(block, pos + j * _PARAM.size) for j in range(n_par)]
+        pos += n_par * _PARAM.size
+        if not all(math.isfinite(x) for pr in pairs for x in pr):
+            raise StreamError(f"{bwhere}: scale/offset not finite")
+        if length > MAX_PAYLOAD or length > len(mv) - at:
             raise StreamError(
-                f"{bwhere}: size {w}x{h} differs from the camera's "
-                f"{cameras[cam].width}x{cameras[cam].height}"
-            )
-        if length > MAX_PAYLOAD or length > len(mv) - pos:
-            raise StreamError(
-                f"{bwhere}: payload of {length} bytes but {len(mv) - pos} bytes remain "
+                f"{bwhere}: payload of {length} bytes but {len(mv) - at} bytes remain "
                 f"(limit {MAX_PAYLOAD})"
             )
         if c == Codec.ZERO and length != 0:
             raise StreamError(f"{bwhere}: a ZERO buffer with a {length}-byte payload")
-        pairs = [
-            _PARAM.unpack_from(mv, at + _ENTRY.size + j * _PARAM.size)
-            for j in range(n_par)
-        ]
-        params = [x for pr in pairs for x in pr]
-        if not all(math.isfinite(x) for x in params):
-            raise StreamError(f"{bwhere}: scale/offset not finite")
-        scale = tuple(pr[0] for pr in pairs) + (0.0,) * (3 - n_par)
-        offset = tuple(pr[1] for pr in pairs) + (0.0,) * (3 - n_par)
-        payload = mv[pos : pos + length]
-        if zlib.crc32(payload) != pcrc:
-            raise StreamError(f"{bwhere}: payload CRC mismatch ({length} bytes)")
-        pos += length
+        scale = tuple(float(pr[0]) for pr in pairs) + (0.0,) * (3 - n_par)
+        offset = tuple(float(pr[1]) for pr in pairs) + (0.0,) * (3 - n_par)
+        w, h = cameras[cam].width, cameras[cam].height
         buffers.append(
-            BufferEntry(cam, k, c, ch, w, h, payload, scale, offset)
+            BufferEntry(cam, k, c, ch, w, h, mv[at : at + length], scale, offset)
         )
-    if pos != len(mv):
+        at += length
+    if pos != len(block):
         raise StreamError(
-            f"{where}: {len(mv) - pos} trailing bytes after the last payload"
+            f"{where}: {len(block) - pos} trailing bytes in the header block"
+        )
+    if at != len(mv):
+        raise StreamError(
+            f"{where}: {len(mv) - at} trailing bytes after the last payload"
         )
     return Packet(
         index=index,
@@ -725,11 +774,8 @@ class StreamStats:
                 b.payload
             )
             payload += len(b.payload)
-        self.header_bytes += (
-            _FIXED.size
-            + len(p.cameras) * _CAMERA.size
-            + sum(_ENTRY.size + _PARAM.size * _n_params(b) for b in p.buffers)
-        )
+        size = len(packet) if not isinstance(packet, Packet) else len(pack_packet(p))
+        self.header_bytes += size - payload
 
     @property
     def seconds(self) -> float:
