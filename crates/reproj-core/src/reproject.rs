@@ -45,6 +45,34 @@ use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
 use crate::shadow::{round_rgb, shadow_color, Role};
 
+/// Defines `$name`, which runs the `#[inline(always)]` function `$imp` compiled for AVX2 (as
+/// `$avx`) where the processor has it and for the baseline otherwise. The body is written once;
+/// the AVX2 build lets the compiler use 256-bit vectors for its row loops. Neither build contracts
+/// multiplies and adds into FMA, so both give the same bytes.
+macro_rules! avx2_dispatch {
+    ($(#[$doc:meta])* fn $name:ident / $avx:ident => $imp:ident($($arg:ident: $ty:ty),* $(,)?)) => {
+        $(#[$doc])*
+        #[inline]
+        fn $name($($arg: $ty),*) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the processor supports AVX2 (checked just above).
+                    unsafe { $avx($($arg),*) };
+                    return;
+                }
+            }
+            $imp($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        fn $avx($($arg: $ty),*) {
+            $imp($($arg),*)
+        }
+    };
+}
+
 /// Which pipeline [`run`] executes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Mode {
@@ -513,43 +541,21 @@ struct FullCtx {
     oh: usize,
 }
 
-/// The full scene flow of one source row (eqs. 2, 3): `[Δx, Δy, ΔZ, q]` with `q` the packed pixel
-/// ([`pack_pixel`]) it lands on in the other camera, stored as `f32` bits ([`NO_SPLAT`] outside
-/// the image); NaN flow where invalid. The same arithmetic as [`correspondence`] did per match,
-/// done for every pixel with vector instructions.
-#[inline]
-fn full_flow_row(
-    j: usize,
-    sw: usize,
-    sh: usize,
-    depth: &[f32],
-    motion: Option<&[f32]>,
-    ctx: &FullCtx,
-    out: &mut [[f32; 4]],
-) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor supports AVX2 (checked just above).
-            unsafe { full_flow_row_avx2(j, sw, sh, depth, motion, ctx, out) };
-            return;
-        }
-    }
-    full_flow_row_impl(j, sw, sh, depth, motion, ctx, out);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn full_flow_row_avx2(
-    j: usize,
-    sw: usize,
-    sh: usize,
-    depth: &[f32],
-    motion: Option<&[f32]>,
-    ctx: &FullCtx,
-    out: &mut [[f32; 4]],
-) {
-    full_flow_row_impl(j, sw, sh, depth, motion, ctx, out);
+avx2_dispatch! {
+    /// The full scene flow of one source row (eqs. 2, 3): `[Δx, Δy, ΔZ, q]` with `q` the packed
+    /// pixel ([`pack_pixel`]) it lands on in the other camera, stored as `f32` bits
+    /// ([`NO_SPLAT`] outside the image); NaN flow where invalid. [`correspondence`] reads it for
+    /// the chosen match; computing every pixel with vector instructions is cheaper than two
+    /// scalar evaluations per match.
+    fn full_flow_row / full_flow_row_avx2 => full_flow_row_impl(
+        j: usize,
+        sw: usize,
+        sh: usize,
+        depth: &[f32],
+        motion: Option<&[f32]>,
+        ctx: &FullCtx,
+        out: &mut [[f32; 4]],
+    )
 }
 
 #[inline(always)]
@@ -650,28 +656,17 @@ struct FlowRow<'a> {
     w: f32,
 }
 
-/// `M_cam` of one source row (eqs. 1, 12, 13) and where each point splats.
-///
-/// Written without branches on the data so that the compiler vectorises it; on x86-64 it runs
-/// in an AVX2 build where the processor has AVX2 (the same IEEE operations, no FMA contraction, so
-/// the bytes do not depend on the processor).
-#[inline]
-fn flow_row(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor supports AVX2 (checked just above).
-            unsafe { flow_row_avx2(row, flow, splat) };
-            return;
-        }
-    }
-    flow_row_impl(row, flow, splat);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn flow_row_avx2(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) {
-    flow_row_impl(row, flow, splat);
+avx2_dispatch! {
+    /// `M_cam` of one source row (eqs. 1, 12, 13) and where each point splats.
+    ///
+    /// Written without branches on the data so that the compiler vectorises it; on x86-64 it
+    /// runs in an AVX2 build where the processor has AVX2 (the same IEEE operations, no FMA
+    /// contraction, so the bytes do not depend on the processor).
+    fn flow_row / flow_row_avx2 => flow_row_impl(
+        row: FlowRow,
+        flow: &mut [[f32; 4]],
+        splat: &mut [(u32, f32)],
+    )
 }
 
 #[inline(always)]
@@ -817,40 +812,17 @@ fn window_min(src: &mut Src, wr: usize) {
         });
 }
 
-/// [`window_min`] for the output rows starting at `j0`; `scratch` holds row minima.
-#[inline]
-fn window_block(
-    splat: &[u64],
-    sw: usize,
-    sh: usize,
-    wr: usize,
-    j0: usize,
-    out: &mut [u32],
-    scratch: &mut Vec<u64>,
-) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor supports AVX2 (checked just above).
-            unsafe { window_block_avx2(splat, sw, sh, wr, j0, out, scratch) };
-            return;
-        }
-    }
-    window_block_impl(splat, sw, sh, wr, j0, out, scratch);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn window_block_avx2(
-    splat: &[u64],
-    sw: usize,
-    sh: usize,
-    wr: usize,
-    j0: usize,
-    out: &mut [u32],
-    scratch: &mut Vec<u64>,
-) {
-    window_block_impl(splat, sw, sh, wr, j0, out, scratch);
+avx2_dispatch! {
+    /// [`window_min`] for the output rows starting at `j0`; `scratch` holds row minima.
+    fn window_block / window_block_avx2 => window_block_impl(
+        splat: &[u64],
+        sw: usize,
+        sh: usize,
+        wr: usize,
+        j0: usize,
+        out: &mut [u32],
+        scratch: &mut Vec<u64>,
+    )
 }
 
 #[inline(always)]
