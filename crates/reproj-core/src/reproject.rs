@@ -574,8 +574,7 @@ fn full_flow_row_impl(
         wf: sw as i32 as f32,
         owf: ctx.ow as i32 as f32,
         ohf: ctx.oh as i32 as f32,
-        m: ctx.to_other.m.0,
-        r: ctx.to_other.w_row,
+        to_other: ctx.to_other,
     };
     match motion {
         Some(mo) => {
@@ -602,23 +601,16 @@ struct FullRow {
     wf: f32,
     owf: f32,
     ohf: f32,
-    m: [f32; 16],
-    r: [f32; 4],
+    to_other: NdcTransfer,
 }
 
 /// One entry of [`full_flow_row`].
 #[inline(always)]
 fn full_point(k: &FullRow, i: usize, z: f32, o: [f32; 3]) -> [f32; 4] {
-    let (y, wf, owf, ohf, m, r) = (k.y, k.wf, k.owf, k.ohf, &k.m, &k.r);
+    let (y, wf, owf, ohf) = (k.y, k.wf, k.owf, k.ohf);
     let x = (2 * i as i32 + 1) as f32 / wf - 1.0;
     let c = [x + o[0], y + o[1], z + o[2]];
-    let iw = 1.0 / (r[0] * c[0] + r[1] * c[1] + r[2] * c[2] + r[3]);
-    let h = [
-        (m[0] * c[0] + m[1] * c[1] + m[2] * c[2] + m[3]) * iw,
-        (m[4] * c[0] + m[5] * c[1] + m[6] * c[2] + m[7]) * iw,
-        (m[8] * c[0] + m[9] * c[1] + m[10] * c[2] + m[11]) * iw,
-        (m[12] * c[0] + m[13] * c[1] + m[14] * c[2] + m[15]) * iw,
-    ];
+    let h = k.to_other.clip(c);
     let iw = 1.0 / h[3];
     let f = [h[0] * iw - x, h[1] * iw - y, h[2] * iw - z];
     let ok = h[3] > 0.0 && f[0].is_finite() && f[1].is_finite() && f[2].is_finite();
@@ -684,8 +676,7 @@ fn flow_row_impl(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) 
         y: crate::camera::ndc_of_pixel(0, j, sw, sh)[1],
         wf: sw as i32 as f32,
         hf: sh as i32 as f32,
-        m: to_client.m.0,
-        r: to_client.w_row,
+        to_client: *to_client,
         w,
     };
     match motion {
@@ -714,9 +705,8 @@ struct PointCtx {
     /// Source width and height as floats.
     wf: f32,
     hf: f32,
-    /// The source → client NDC transfer ([`NdcTransfer`]).
-    m: [f32; 16],
-    r: [f32; 4],
+    /// The source → client NDC transfer.
+    to_client: NdcTransfer,
     /// The fraction of the object motion applied.
     w: f32,
 }
@@ -725,16 +715,8 @@ struct PointCtx {
 /// its splat target (packed cell or [`NO_SPLAT`]) and key depth.
 #[inline(always)]
 fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 4], (u32, f32)) {
-    let (m, r, y, w) = (&k.m, &k.r, k.y, k.w);
-    let clip = |c: [f32; 3]| {
-        let iw = 1.0 / (r[0] * c[0] + r[1] * c[1] + r[2] * c[2] + r[3]);
-        [
-            (m[0] * c[0] + m[1] * c[1] + m[2] * c[2] + m[3]) * iw,
-            (m[4] * c[0] + m[5] * c[1] + m[6] * c[2] + m[7]) * iw,
-            (m[8] * c[0] + m[9] * c[1] + m[10] * c[2] + m[11]) * iw,
-            (m[12] * c[0] + m[13] * c[1] + m[14] * c[2] + m[15]) * iw,
-        ]
-    };
+    let (y, w) = (k.y, k.w);
+    let clip = |c: [f32; 3]| k.to_client.clip(c);
     let x = (2 * i as i32 + 1) as f32 / k.wf - 1.0;
     // P_{t+α}(X + w·(X' − X)) = P X + w·(P X' − P X): the world-space blend of eq. 1 done on
     // clip coordinates, each already divided by its world w ([`NdcTransfer::clip`]).
