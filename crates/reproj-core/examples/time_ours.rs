@@ -5,6 +5,12 @@
 //! `ITERS` (timed calls, default 6), `SHADOWS=1` (keep the dynamic shadows, as the bench does),
 //! `NOBLEND=1` (no Algorithm 2), `AUX_ONLY=1` (skip the run without auxiliary cameras). For instruction counts that do not depend on the machine's load:
 //! `ITERS=4` and `ITERS=0` under `valgrind --tool=callgrind`, and the difference over 4.
+//!
+//! Besides the wall-clock time it prints the process CPU time per call (Linux only: from
+//! `/proc/self/stat`), which moves much less than wall-clock time when other jobs share the
+//! machine (run with `RAYON_NUM_THREADS=1` for a per-core figure), and a digest (FNV-1a) of the
+//! output colour and diagnostics, so that a change meant to be exact can be checked to give the
+//! same bytes (`ALPHA` sets α, default 0.5).
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
 use reproj_core::*;
 
@@ -28,7 +34,7 @@ fn main() {
     let (e, tg) = head_pose(0.05);
     let req = Request {
         client: rig(e, tg, w, h).0,
-        alpha: 0.5,
+        alpha: std::env::var("ALPHA").map_or(0.5, |s| s.parse().unwrap()),
     };
     let mut out = vec![0u8; w * h * 3];
     let iters: usize = std::env::var("ITERS").map_or(6, |s| s.parse().unwrap());
@@ -47,15 +53,60 @@ fn main() {
                 blend: std::env::var_os("NOBLEND").is_none(),
                 ..Params::default()
             };
-            reproject(method, Some(&older), &newer, &req, &p, &mut out, None, None).unwrap();
+            let mut diag = Diagnostics::new(w * h);
+            out.fill(0);
+            reproject(
+                method,
+                Some(&older),
+                &newer,
+                &req,
+                &p,
+                &mut out,
+                Some(&mut diag),
+                None,
+            )
+            .unwrap();
+            let digest = fnv1a(
+                out.iter()
+                    .chain(&diag.source)
+                    .copied()
+                    .chain(diag.error.iter().flat_map(|e| e.to_bits().to_le_bytes())),
+            );
+            let cpu0 = cpu_seconds();
             let t = std::time::Instant::now();
             for _ in 0..iters {
                 reproject(method, Some(&older), &newer, &req, &p, &mut out, None, None).unwrap();
             }
+            let n = iters.max(1) as f64;
             println!(
-                "{method} aux={use_aux}: {:.1} ms",
-                t.elapsed().as_secs_f64() * 1000.0 / iters as f64
+                "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU per call; digest {digest:016x}",
+                t.elapsed().as_secs_f64() * 1000.0 / n,
+                (cpu_seconds() - cpu0) * 1000.0 / n
             );
         }
     }
+}
+
+/// FNV-1a over a byte stream.
+fn fnv1a(bytes: impl Iterator<Item = u8>) -> u64 {
+    bytes.fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// User + system CPU time of this process in seconds (Linux `/proc/self/stat`, clock ticks of
+/// 1/100 s), or NaN where that file does not exist.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')').map_or(0, |k| k + 2)..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |k: usize| {
+        f.get(k)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    (ticks(11) + ticks(12)) / 100.0
 }

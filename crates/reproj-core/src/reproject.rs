@@ -34,7 +34,7 @@
 //! - `ε_e` keeps its pixel size across resolutions (see [`Params::eps_e`]);
 //! - blending happens for every `α < 1`, not only while `round(12α) < 12`.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 
 use rayon::prelude::*;
 
@@ -163,6 +163,10 @@ struct Buffers {
     /// The full scene flow to the other frame ([`full_flow_row`]), for Algorithm 2; empty when
     /// the frame does not blend.
     full: Vec<[f32; 4]>,
+    /// Auxiliary sources only: 1 where a point that is *not* visible in the main camera lands in
+    /// the client grid (its splat cell), else 0; reset every frame. An auxiliary match can only
+    /// override a main match near such a cell (see [`AuxGrid::maybe`]).
+    invisible: Vec<AtomicU8>,
 }
 
 thread_local! {
@@ -173,8 +177,10 @@ thread_local! {
     /// would cost more than the reprojection itself. The pool holds at most one frame's worth of
     /// buffers per calling thread (about 24 bytes per source pixel).
     static BUFFER_POOL: std::cell::RefCell<Vec<Buffers>> = const { std::cell::RefCell::new(Vec::new()) };
-    /// The auxiliary grids' cells, kept for the same reason.
-    static AUX_POOL: std::cell::RefCell<Vec<Vec<Option<AuxCell>>>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// The auxiliary grids' "may override main" flags, kept for the same reason.
+    static AUX_POOL: std::cell::RefCell<Vec<Vec<u8>>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// The auxiliary cells resolved by one block of output rows ([`AuxBlock`]), one per camera.
+    static AUX_BLOCKS: std::cell::RefCell<Vec<AuxBlock>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// The outcome of the search in one source image for one output pixel.
@@ -340,7 +346,7 @@ pub(crate) fn run<'a>(
     };
     let mut aux_pool = AUX_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
     let aux_grids = (1..ctx.n_cams)
-        .map(|cam| ctx.resolve_aux_grid(cam, aux_pool.pop().unwrap_or_default()))
+        .map(|cam| ctx.aux_grid(cam, aux_pool.pop().unwrap_or_default()))
         .collect();
     let ctx = Resolve {
         aux: aux_grids,
@@ -361,7 +367,7 @@ pub(crate) fn run<'a>(
     }
     // Back to the pools in reverse, so that the next frame pops them in the same order and each
     // source gets a buffer of its own size again.
-    aux_pool.extend(ctx.aux.into_iter().rev().map(|g| g.cells));
+    aux_pool.extend(ctx.aux.into_iter().rev().map(|g| g.maybe));
     AUX_POOL.with(|p| *p.borrow_mut() = aux_pool);
     for src in sources.into_iter().rev() {
         pool.push(src.bufs);
@@ -392,6 +398,17 @@ impl<'a> Src<'a> {
                 .par_iter()
                 .with_min_len(1 << 14)
                 .for_each(|k| k.store(EMPTY_SPLAT, Ordering::Relaxed));
+        }
+        if camera > 0 {
+            if bufs.invisible.len() != n {
+                bufs.invisible = Vec::new();
+                bufs.invisible.resize_with(n, || AtomicU8::new(0));
+            } else {
+                bufs.invisible
+                    .par_iter()
+                    .with_min_len(1 << 16)
+                    .for_each(|k| k.store(0, Ordering::Relaxed));
+            }
         }
         let short = view.camera.width.min(view.camera.height) as f32;
         Src {
@@ -456,6 +473,7 @@ fn scene_flow_and_splat(
     let view = src.view;
     let proj = src.proj;
     let splat = &src.bufs.splat;
+    let invisible = &src.bufs.invisible;
     let block = |b: usize, rows: &mut [[f32; 4]], full_rows: Option<&mut [[f32; 4]]>| {
         ROW_SCRATCH.with(|cell| {
             let mut scratch = cell.borrow_mut();
@@ -501,6 +519,16 @@ fn scene_flow_and_splat(
                                 visible_in(mv, mp, t.clip(c2), ctx.eps_z)
                             });
                         flow[3] = if v { 1.0 } else { 0.0 };
+                        // Where the point lands in the client grid, whether or not it was
+                        // splatted (the FPI can reach points that are not, e.g. nearer than the
+                        // client's near plane). Points just outside the grid need no flag: the
+                        // cells along the grid's border are always searched.
+                        if !v {
+                            if let Some((qi, qj)) = pixel_of_ndc(x + flow[0], y + flow[1], sw, sh) {
+                                // A plain store on x86-64: setting a flag needs no read-modify-write.
+                                invisible[qj * sw + qi].store(1, Ordering::Relaxed);
+                            }
+                        }
                     }
                 }
                 for (i, &(tgt, z)) in scratch.iter().enumerate() {
@@ -618,7 +646,7 @@ fn full_point(k: &FullRow, i: usize, z: f32, o: [f32; 3]) -> [f32; 4] {
     let fx = (x + f[0] + 1.0) * 0.5 * owf;
     let fy = (1.0 - (y + f[1])) * 0.5 * ohf;
     let inside = fx >= 0.0 && fy >= 0.0 && fx < owf && fy < ohf;
-    let q = ((fy as i32 as u32) << 16) | fx as i32 as u32;
+    let q = packed_cell(inside, fx, fy);
     if ok {
         [
             f[0],
@@ -752,17 +780,28 @@ fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 4], (u32, f
     let fx = (cc[0] + 1.0) * 0.5 * k.wf;
     let fy = (1.0 - cc[1]) * 0.5 * k.hf;
     let inside = fx >= 0.0 && fy >= 0.0 && fx < k.wf && fy < k.hf;
-    let qi = (fx as i32).min(k.wf as i32 - 1);
-    let qj = (fy as i32).min(k.hf as i32 - 1);
     let s = if ok && inside && cc[2] <= 1.0 + 1e-5 {
         (
-            ((qj as u32) << 16) | qi as u32,
+            packed_cell(inside, fx, fy),
             if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 },
         )
     } else {
         (NO_SPLAT, 0.0)
     };
     (f, s)
+}
+
+/// The packed cell ([`pack_pixel`]) `(⌊fx⌋, ⌊fy⌋)` when `inside` (`0 ≤ fx < W`, `0 ≤ fy < H`),
+/// else an unspecified value the caller discards.
+///
+/// A saturating `f32 as i32` costs a compare and a blend per lane for NaN and overflow; selecting
+/// an in-range value first lets the truncation be the single conversion instruction.
+#[inline(always)]
+fn packed_cell(inside: bool, fx: f32, fy: f32) -> u32 {
+    let (fx, fy) = if inside { (fx, fy) } else { (0.0, 0.0) };
+    // SAFETY: both are in `[0, 2¹⁶)` here (sides are at most 16384), so finite and in i32 range.
+    let (qi, qj) = unsafe { (fx.to_int_unchecked::<i32>(), fy.to_int_unchecked::<i32>()) };
+    ((qj as u32) << 16) | qi as u32
 }
 
 thread_local! {
@@ -893,16 +932,26 @@ struct AuxCell {
     choice: Choice,
 }
 
-/// An auxiliary camera's matches over the client image discretised at that camera's resolution.
+/// An auxiliary camera's view of the client image discretised at that camera's resolution.
 ///
 /// The auxiliary cameras have a quarter of the main camera's pixels, so searching them once per
-/// *output* pixel repeats the same window search and FPI for the 2×2 output pixels of each cell.
-/// We resolve each cell once, aiming at the cell centre (which is also where the reference measures
-/// the auxiliary error, REFERENCE.md §2.5), and the output pixels of the cell share the result.
+/// *output* pixel would repeat the same window search and FPI for the 2×2 output pixels of each
+/// cell. A cell is resolved once, aiming at the cell centre (which is also where the reference
+/// measures the auxiliary error, REFERENCE.md §2.5), and the output pixels of the cell share it.
+///
+/// A cell is resolved only where its result can reach the output: where the main camera found no
+/// match for one of its pixels, or where [`AuxGrid::maybe`] says it may override a main match. By
+/// §3.5 an auxiliary match replaces a main one only when it is not visible in the main camera; its
+/// reprojection error is below `ε_e·4`, so the point lies within `R` cells of the cell it matched
+/// (see [`Resolve::aux_grid`]), and `maybe` is the grid of cells within `R` of a point that is not
+/// visible in main. Elsewhere the search could not change a pixel, and skipping it gives the same
+/// bytes as searching every cell.
 #[derive(Debug)]
 struct AuxGrid {
     w: usize,
-    cells: Vec<Option<AuxCell>>,
+    h: usize,
+    /// 1 where the cell may override a main match, else 0 (see above).
+    maybe: Vec<u8>,
     /// The grid column of each client column (`pixel_of_ndc` is separable), or `u32::MAX`
     /// outside the grid.
     col_of: Vec<u32>,
@@ -910,31 +959,67 @@ struct AuxGrid {
     row_of: Vec<u32>,
 }
 
+/// The auxiliary cells resolved while one block of output rows is resolved, for the grid rows
+/// `row0..row0 + rows` that the block covers. Blocks resolve their cells independently (a cell on
+/// the boundary of two blocks may be searched twice, with the same result), so the output does
+/// not depend on how rayon schedules them.
+#[derive(Debug, Default)]
+struct AuxBlock {
+    row0: usize,
+    rows: usize,
+    /// 0: not searched yet; 1: searched, see `cells`.
+    done: Vec<u8>,
+    cells: Vec<Option<AuxCell>>,
+}
+
+impl AuxBlock {
+    /// Prepares for the grid rows that output rows `j0..j1` fall on.
+    fn reset(&mut self, grid: &AuxGrid, j0: usize, j1: usize) {
+        let rows = grid.row_of[j0..j1].iter().filter(|&&r| r != u32::MAX);
+        let (lo, hi) = rows.fold((u32::MAX, 0), |(lo, hi), &r| (lo.min(r), hi.max(r)));
+        (self.row0, self.rows) = if lo <= hi {
+            (lo as usize, (hi - lo + 1) as usize)
+        } else {
+            (0, 0)
+        };
+        let n = self.rows * grid.w;
+        self.done.clear();
+        self.done.resize(n, 0);
+        if self.cells.len() < n {
+            self.cells.resize(n, None);
+        }
+    }
+}
+
 impl Resolve<'_> {
     fn resolve_rows(&self, j0: usize, out: &mut [u8], mut diag: Option<(&mut [u8], &mut [f32])>) {
         let cw = self.client_w;
         let rows = out.len() / (3 * cw);
+        let mut blocks = AUX_BLOCKS.with(|b| std::mem::take(&mut *b.borrow_mut()));
+        blocks.resize_with(self.aux.len(), AuxBlock::default);
+        for (b, grid) in blocks.iter_mut().zip(&self.aux) {
+            b.reset(grid, j0, j0 + rows);
+        }
         // Scanlines inside the block of 16 rows: the reads of `init`, `flow` and the colours then
         // run along rows of the sources, a few sequential streams that the hardware prefetcher
         // follows, where a 16×16 tile order starts 16 new rows every 16 pixels.
-        {
-            for r in 0..rows {
-                let j = j0 + r;
-                for i in 0..cw {
-                    let local = r * cw + i;
-                    if let Some((code, rgb, e)) = self.resolve_pixel(i, j) {
-                        out[3 * local..3 * local + 3].copy_from_slice(&rgb);
-                        if let Some((s, err)) = diag.as_mut() {
-                            s[local] = code;
-                            err[local] = e;
-                        }
-                    } else if let Some((s, err)) = diag.as_mut() {
-                        s[local] = Diagnostics::NONE;
-                        err[local] = f32::NAN;
+        for r in 0..rows {
+            let j = j0 + r;
+            for i in 0..cw {
+                let local = r * cw + i;
+                if let Some((code, rgb, e)) = self.resolve_pixel(i, j, &mut blocks) {
+                    out[3 * local..3 * local + 3].copy_from_slice(&rgb);
+                    if let Some((s, err)) = diag.as_mut() {
+                        s[local] = code;
+                        err[local] = e;
                     }
+                } else if let Some((s, err)) = diag.as_mut() {
+                    s[local] = Diagnostics::NONE;
+                    err[local] = f32::NAN;
                 }
             }
         }
+        AUX_BLOCKS.with(|b| *b.borrow_mut() = blocks);
     }
 
     /// The window search and fixed-point iteration in source `s` for the output pixel at NDC `t`,
@@ -1041,7 +1126,8 @@ impl Resolve<'_> {
             &view.shadow,
             self.mode == Mode::Ours && self.params.use_shadows,
         ) {
-            (Some(sh), true) => {
+            // Most pixels carry no dynamic shadow: skip the six shadow-colour loads for them.
+            (Some(sh), true) if sh.bits[p] != 0 => {
                 let rgb = |b: &[u8]| [b[3 * p], b[3 * p + 1], b[3 * p + 2]];
                 shadow_color(
                     base,
@@ -1120,35 +1206,37 @@ impl Resolve<'_> {
         }
     }
 
-    /// Algorithm 1 for auxiliary camera `cam` once per cell of its grid.
-    fn resolve_aux_grid(&self, cam: usize, mut cells: Vec<Option<AuxCell>>) -> AuxGrid {
+    /// The grid of auxiliary camera `cam` over the client image, with the cells whose match may
+    /// override a main match ([`AuxGrid`]); `maybe` is a buffer to reuse.
+    fn aux_grid(&self, cam: usize, mut maybe: Vec<u8>) -> AuxGrid {
         // The newer frame's camera is present in both modes; both frames share the rig.
         let grid_src = if self.bidirectional { 2 * cam + 1 } else { cam };
         let (w, h) = (
             self.sources[grid_src].proj.width,
             self.sources[grid_src].proj.height,
         );
-        // Reused from the previous frame when the size matches (see BUFFER_POOL on first-touch
-        // page faults); every cell is rewritten below.
-        cells.resize(w * h, None);
-        cells
-            .par_chunks_mut(TILE * w)
-            .enumerate()
-            .for_each(|(b, rows)| {
-                for (k, cell) in rows.iter_mut().enumerate() {
-                    let (i, j) = (k % w, b * TILE + k / w);
-                    let t = crate::camera::ndc_of_pixel(i, j, w, h);
-                    *cell = self
-                        .best_match(
-                            cam,
-                            t,
-                            Cell { i, j, gw: w, gh: h },
-                            self.eps_e_aux,
-                            self.eps_z_aux,
-                        )
-                        .map(|choice| AuxCell { choice });
-                }
-            });
+        let srcs: &[Src] = if self.bidirectional {
+            &self.sources[2 * cam..2 * cam + 2]
+        } else {
+            &self.sources[cam..cam + 1]
+        };
+        // An accepted auxiliary match has error e < ε_e·4 (aspect-scaled NDC, eq. 7), so each of
+        // its pixel offsets from the cell centre is below r = ε_e·4·min(W, H)/2 source pixels and
+        // its point lands within ⌈r⌉ cells of the cell; one more absorbs rounding.
+        let same_grid = srcs.iter().all(|s| (s.proj.width, s.proj.height) == (w, h));
+        let r = srcs
+            .iter()
+            .map(|s| self.eps_e_aux * s.proj.width.min(s.proj.height) as f32 / 2.0)
+            .fold(0.0f32, f32::max);
+        let reach = r.ceil() as usize + 1;
+        maybe.clear();
+        if !same_grid || !r.is_finite() || reach >= w.min(h) / 2 || eager_aux() {
+            // The bound does not apply (or covers everything): search every cell.
+            maybe.resize(w * h, 1);
+        } else {
+            maybe.resize(w * h, 0);
+            dilate_flags(srcs, w, h, reach, &mut maybe);
+        }
         let (cw, ch) = (self.client_w, self.client_h);
         let lookup = |n: usize, f: &dyn Fn(usize) -> Option<usize>| -> Vec<u32> {
             (0..n)
@@ -1164,15 +1252,49 @@ impl Resolve<'_> {
         });
         AuxGrid {
             w,
-            cells,
+            h,
+            maybe,
             col_of,
             row_of,
         }
     }
 
+    /// Algorithm 1 for auxiliary camera `cam` (`1 + grid index`) at cell `(ai, aj)` of its grid,
+    /// searched on first use within the block.
+    #[inline]
+    fn aux_cell(
+        &self,
+        cam: usize,
+        grid: &AuxGrid,
+        block: &mut AuxBlock,
+        ai: usize,
+        aj: usize,
+    ) -> Option<AuxCell> {
+        let k = (aj - block.row0) * grid.w + ai;
+        if block.done[k] == 0 {
+            let t = crate::camera::ndc_of_pixel(ai, aj, grid.w, grid.h);
+            let cell = Cell {
+                i: ai,
+                j: aj,
+                gw: grid.w,
+                gh: grid.h,
+            };
+            block.cells[k] = self
+                .best_match(cam, t, cell, self.eps_e_aux, self.eps_z_aux)
+                .map(|choice| AuxCell { choice });
+            block.done[k] = 1;
+        }
+        block.cells[k]
+    }
+
     /// The whole per-pixel decision: `(diagnostic code, colour, error)` or `None` for no match.
     #[inline]
-    fn resolve_pixel(&self, i: usize, j: usize) -> Option<(u8, [u8; 3], f32)> {
+    fn resolve_pixel(
+        &self,
+        i: usize,
+        j: usize,
+        blocks: &mut [AuxBlock],
+    ) -> Option<(u8, [u8; 3], f32)> {
         let t = crate::camera::ndc_of_pixel(i, j, self.client_w, self.client_h);
         let cell = Cell {
             i,
@@ -1183,12 +1305,17 @@ impl Resolve<'_> {
         let main = self.best_match(0, t, cell, self.eps_e, self.eps_z);
         // Best auxiliary match (§3.5): the nearer if depths differ, else the smaller error.
         let mut aux: Option<AuxCell> = None;
-        for grid in &self.aux {
+        for (g, (grid, block)) in self.aux.iter().zip(blocks.iter_mut()).enumerate() {
             let (ai, aj) = (grid.col_of[i], grid.row_of[j]);
             if ai == u32::MAX || aj == u32::MAX {
                 continue;
             }
-            if let Some(c) = grid.cells[aj as usize * grid.w + ai as usize] {
+            let (ai, aj) = (ai as usize, aj as usize);
+            // Where main found a match, only a cell that may override it is searched.
+            if main.is_some() && grid.maybe[aj * grid.w + ai] == 0 {
+                continue;
+            }
+            if let Some(c) = self.aux_cell(1 + g, grid, block, ai, aj) {
                 aux = match aux {
                     None => Some(c),
                     Some(b) => {
@@ -1223,6 +1350,84 @@ impl Resolve<'_> {
         let (rgb, blended) = self.second_chance(&m, self.eps_z);
         Some((self.code_of(&m, blended), round_rgb(rgb), m.m.e))
     }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Tests set this to search every auxiliary cell, the reference the lazy search must equal.
+    static EAGER_AUX: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether every auxiliary cell is to be searched (tests only).
+#[inline]
+fn eager_aux() -> bool {
+    #[cfg(test)]
+    {
+        EAGER_AUX.with(|e| e.get())
+    }
+    #[cfg(not(test))]
+    {
+        false
+    }
+}
+
+/// `maybe[c] = 1` for every cell `c` of the `w × h` grid within `reach` cells (Chebyshev distance)
+/// of a cell flagged in any source's `invisible` buffer, or within `reach` of the grid's border
+/// (points just outside the grid are not flagged); `maybe` arrives zeroed.
+fn dilate_flags(srcs: &[Src], w: usize, h: usize, reach: usize, maybe: &mut [u8]) {
+    // Row pass: the flagged cells of each row, widened by `reach` on both sides.
+    maybe
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(16)
+        .for_each(|(j, row)| {
+            let flagged = |i: usize| {
+                srcs.iter()
+                    .any(|s| s.bufs.invisible[j * w + i].load(Ordering::Relaxed) != 0)
+            };
+            // Cells since the last flagged one, saturating.
+            let mut last: Option<usize> = None;
+            for i in 0..w + reach {
+                if i < w && flagged(i) {
+                    last = Some(i);
+                }
+                if let Some(l) = last {
+                    if i >= reach && i - l <= 2 * reach {
+                        row[i - reach] = 1;
+                    }
+                }
+            }
+        });
+    // Column pass over the row-widened flags, then the border ring. The copy lives in a pooled
+    // buffer (first-touch page faults, see BUFFER_POOL).
+    DILATE_SCRATCH.with(|cell| {
+        let mut widened = cell.borrow_mut();
+        widened.clear();
+        widened.extend_from_slice(maybe);
+        column_pass(&widened, w, h, reach, maybe);
+    });
+}
+
+thread_local! {
+    /// The row-widened flags of [`dilate_flags`], reused.
+    static DILATE_SCRATCH: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The column half of [`dilate_flags`]: `maybe[c]` = any `widened` flag within `reach` rows, or
+/// `c` within `reach` of the border.
+fn column_pass(widened: &[u8], w: usize, h: usize, reach: usize, maybe: &mut [u8]) {
+    maybe
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(16)
+        .for_each(|(j, row)| {
+            let (lo, hi) = (j.saturating_sub(reach), (j + reach).min(h - 1));
+            let border_row = j < reach || j + reach >= h;
+            for (i, m) in row.iter_mut().enumerate() {
+                let border = border_row || i < reach || i + reach >= w;
+                *m = u8::from(border || (lo..=hi).any(|q| widened[q * w + i] != 0));
+            }
+        });
 }
 
 /// The correspondence of pixel `p` of source `s` in the other frame's source `o` (Algorithm 2):
@@ -1548,6 +1753,63 @@ mod tests {
                 assert_eq!(out, color, "{m} alpha {alpha}");
             }
         }
+    }
+
+    /// The lazy auxiliary search ([`AuxGrid`]) skips cells whose match cannot reach the output;
+    /// it must give the same bytes as searching every cell, with and without the older frame.
+    #[test]
+    fn lazy_auxiliary_search_equals_searching_every_cell() {
+        use crate::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+        let (w, h) = (192, 108);
+        let scene = SyntheticScene::new(true);
+        let f0 = SyntheticFrame::render(&scene, 0.0, w, h, 0.1, 4);
+        let f1 = SyntheticFrame::render(&scene, 0.1, w, h, 0.1, 4);
+        let (older, newer) = (f0.view(true), f1.view(false));
+        let mut aux_pixels = 0;
+        for (alpha, pair) in [(0.35f32, true), (0.8, true), (1.4, false)] {
+            // Off the server path, so that the client sees what the main camera did not.
+            let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
+            e[0] += 0.25;
+            e[1] -= 0.1;
+            let req = Request {
+                client: rig(e, tg, w, h).0,
+                alpha,
+            };
+            let run = |eager: bool| {
+                EAGER_AUX.with(|x| x.set(eager));
+                let mut out = vec![9u8; w * h * 3];
+                let mut diag = Diagnostics::new(w * h);
+                let older = pair.then_some(&older);
+                let p = Params::default();
+                reproject(
+                    Method::Ours,
+                    older,
+                    &newer,
+                    &req,
+                    &p,
+                    &mut out,
+                    Some(&mut diag),
+                    None,
+                )
+                .unwrap();
+                EAGER_AUX.with(|x| x.set(false));
+                (out, diag)
+            };
+            let (lazy, eager) = (run(false), run(true));
+            assert_eq!(lazy.0, eager.0, "colour, alpha {alpha}");
+            assert_eq!(lazy.1.source, eager.1.source, "sources, alpha {alpha}");
+            aux_pixels += eager
+                .1
+                .source
+                .iter()
+                .filter(|&&c| c & !Diagnostics::BLENDED >= Diagnostics::AUX_BASE)
+                .count();
+        }
+        // The scene must exercise the auxiliary cameras for the comparison to mean anything.
+        assert!(
+            aux_pixels > 100,
+            "only {aux_pixels} pixels from auxiliary cameras"
+        );
     }
 
     #[test]
