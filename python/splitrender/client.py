@@ -158,13 +158,13 @@ class Client:
             image = prev.copy() if prev is not None else np.zeros((*camera.shape, 3), np.uint8)
         else:
             older = None if info.older is None else self._frames[info.older]
-            history = None
-            if self.method == "backward_bidir":
-                pair = (info.older, info.newer) if info.older is not None else None
-                last_pair, history = self._history.get(eye, (None, _native.BidirHistory()))
-                if pair != last_pair:
-                    history.reset()
-                self._history[eye] = (pair, history)
+            # One history per eye and server-frame pair: backward_bidir's previous B-frame, and the
+            # pair-level work of ours (done once per pair instead of once per client frame).
+            pair = (info.older, info.newer) if info.older is not None else None
+            last_pair, history = self._history.get(eye, (None, _native.BidirHistory()))
+            if pair != last_pair:
+                history.reset()
+            self._history[eye] = (pair, history)
             assert info.alpha is not None
             if self._gpu is not None:
                 image = self._render_gpu(older, info.older, info.newer, camera, info.alpha, prev, eye)

@@ -132,7 +132,13 @@ def reproject_alpha(
 
     ``previous`` (``uint8[H, W, 3]`` at the camera's size) is the previous client frame: pixels
     without a match keep its colour (black when ``None``). It is copied, never modified.
-    ``history`` carries ``backward_bidir``'s state between the client frames of one pair.
+    ``history`` (a :class:`BidirHistory`, one per server-frame pair, ``reset()`` when the pair
+    changes) carries state between the client frames of one pair: ``backward_bidir``'s previous
+    B-frame, and for ``ours``, ``ours_extrapolate`` and ``forward_splat`` the work that does not
+    depend on the client pose (Algorithm 2's correspondences, the auxiliary cameras' visibility in
+    main), which is then done once per pair instead of once per call. The images are the same
+    with or without it; without it each call does that work again. Do not modify a frame's
+    arrays in place while a history holds its pair.
     ``backend`` is ``"cpu"`` (reproj-core) or ``"wgpu"`` (the GPU path, :mod:`splitrender.gpu`:
     ``ours``, ``ours_extrapolate`` and ``forward_splat``, the same images; this per-call form
     uploads the frames every time, :class:`splitrender.gpu.GpuReprojector` keeps them on the

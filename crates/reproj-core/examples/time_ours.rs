@@ -3,7 +3,9 @@
 //!
 //! `cargo run --release -p reproj-core --example time_ours [METHOD] [WIDTH]`; environment:
 //! `ITERS` (timed calls, default 6), `SHADOWS=1` (keep the dynamic shadows, as the bench does),
-//! `NOBLEND=1` (no Algorithm 2), `AUX_ONLY=1` (skip the run without auxiliary cameras). For instruction counts that do not depend on the machine's load:
+//! `NOBLEND=1` (no Algorithm 2), `AUX_ONLY=1` (skip the run without auxiliary cameras),
+//! `PAIR=1` (keep one `BidirHistory` across the calls, as a client does within a server-frame
+//! pair, so the pair-level work is done once instead of per call). For instruction counts that do not depend on the machine's load:
 //! `ITERS=4` and `ITERS=0` under `valgrind --tool=callgrind`, and the difference over 4.
 //!
 //! Besides the wall-clock time it prints the process CPU time per call (Linux only: from
@@ -53,8 +55,11 @@ fn main() {
                 blend: std::env::var_os("NOBLEND").is_none(),
                 ..Params::default()
             };
+            let mut history = BidirHistory::new();
+            let keep = std::env::var_os("PAIR").is_some();
             let mut diag = Diagnostics::new(w * h);
             out.fill(0);
+            let h = keep.then_some(&mut history);
             reproject(
                 method,
                 Some(&older),
@@ -63,7 +68,7 @@ fn main() {
                 &p,
                 &mut out,
                 Some(&mut diag),
-                None,
+                h,
             )
             .unwrap();
             let digest = fnv1a(
@@ -72,11 +77,18 @@ fn main() {
                     .copied()
                     .chain(diag.error.iter().flat_map(|e| e.to_bits().to_le_bytes())),
             );
+            let first = out.clone();
             let cpu0 = cpu_seconds();
             let t = std::time::Instant::now();
             for _ in 0..iters {
-                reproject(method, Some(&older), &newer, &req, &p, &mut out, None, None).unwrap();
+                let h = keep.then_some(&mut history);
+                reproject(method, Some(&older), &newer, &req, &p, &mut out, None, h).unwrap();
             }
+            // The same request again (with the pair state warm when PAIR is set): the same bytes.
+            assert!(
+                iters == 0 || out == first,
+                "repeated call changed the output"
+            );
             let n = iters.max(1) as f64;
             println!(
                 "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU per call; digest {digest:016x}",

@@ -45,6 +45,7 @@ use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
 use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
+use crate::reproject::PairCache;
 use crate::shadow::round_rgb;
 
 /// State carried from one client frame (B-frame) to the next for seeds/001's latest-frame
@@ -55,6 +56,9 @@ use crate::shadow::round_rgb;
 /// The offsets only make sense within one server-frame pair: the caller must reset the history
 /// ([`BidirHistory::reset`] or a fresh [`BidirHistory::new`]) whenever the pair changes. Within a
 /// pair it is used only when the new `α` is larger than `α₀` and the output size is unchanged.
+///
+/// The same object carries `ours`' pair-level work ([`PairCache`]): despite the name (kept for
+/// the API), it is the client's history for one server-frame pair, whatever the method.
 #[derive(Debug, Clone, Default)]
 pub struct BidirHistory {
     width: usize,
@@ -62,6 +66,8 @@ pub struct BidirHistory {
     alpha: f32,
     /// Per output pixel: `dᶠ.x, dᶠ.y, dᵇ.x, dᵇ.y` (NDC); NaN where that search found nothing.
     offsets: Vec<[f32; 4]>,
+    /// `ours`' per-pair state.
+    ours: PairCache,
 }
 
 impl BidirHistory {
@@ -70,9 +76,20 @@ impl BidirHistory {
         Self::default()
     }
 
-    /// Forgets the stored offsets; call it when the server-frame pair changes.
+    /// Forgets the stored offsets and pair state; call it when the server-frame pair changes.
+    /// (The pair state's buffers are kept: first touches of fresh memory are slow.)
     pub fn reset(&mut self) {
-        *self = Self::default();
+        let mut ours = std::mem::take(&mut self.ours);
+        ours.reset();
+        *self = Self {
+            ours,
+            ..Self::default()
+        };
+    }
+
+    /// `ours`' pair-level state.
+    pub(crate) fn pair_cache(&mut self) -> &mut PairCache {
+        &mut self.ours
     }
 
     /// `α₀` of the stored B-frame, or `None` when the history is empty.
@@ -206,11 +223,13 @@ pub fn run(
         }
     }
     if let Some(hist) = history {
+        let ours = std::mem::take(&mut hist.ours);
         *hist = BidirHistory {
             width: w,
             height: h,
             alpha,
             offsets,
+            ours,
         };
     }
     Ok(())

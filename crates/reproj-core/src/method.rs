@@ -121,8 +121,11 @@ impl Diagnostics {
 /// forward_splat, timewarp) use `newer` alone when `α ≥ 1` or `older` is `None`; timewarp uses
 /// `older` when `α < 1`.
 ///
-/// `history` is read and updated by `backward_bidir` only (seeds/001 latest-frame initialisation);
-/// the caller resets it when the frame pair changes.
+/// `history` is the client's state for the current server-frame pair: `backward_bidir` reads and
+/// updates its previous B-frame (seeds/001 latest-frame initialisation), and `ours`,
+/// `ours_extrapolate` and `forward_splat` keep the work that does not depend on the client pose
+/// there ([`crate::reproject::PairCache`]), so that it is done once per pair instead of once per
+/// client frame. The caller resets it when the frame pair changes; `None` gives the same output.
 ///
 /// # Errors
 /// Any [`ReprojError`] about the inputs; nothing is written to `out` or `diag` then.
@@ -167,7 +170,16 @@ pub fn reproject(
                     "method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame".into(),
                 ));
             }
-            ours::run(ours::Mode::Ours, older, newer, request, params, out, diag)
+            ours::run(
+                ours::Mode::Ours,
+                older,
+                newer,
+                request,
+                params,
+                out,
+                diag,
+                pair(history),
+            )
         }
         Method::OursExtrapolate => {
             if alpha < 1.0 {
@@ -175,7 +187,16 @@ pub fn reproject(
                     "[1, 3] (extrapolation from the newest frame, given as `newer`)",
                 ));
             }
-            ours::run(ours::Mode::Ours, None, newer, request, params, out, diag)
+            ours::run(
+                ours::Mode::Ours,
+                None,
+                newer,
+                request,
+                params,
+                out,
+                diag,
+                pair(history),
+            )
         }
         Method::ForwardSplat => {
             if params.splat_bidirectional {
@@ -192,6 +213,7 @@ pub fn reproject(
                     params,
                     out,
                     diag,
+                    pair(history),
                 )
             } else {
                 if alpha < 1.0 {
@@ -207,6 +229,7 @@ pub fn reproject(
                     params,
                     out,
                     diag,
+                    pair(history),
                 )
             }
         }
@@ -227,6 +250,11 @@ pub fn reproject(
             backward_bidir::run(older, newer, request, params, out, diag, history)
         }
     }
+}
+
+/// The pair-level cache of `ours` inside the caller's history.
+fn pair(history: Option<&mut BidirHistory>) -> Option<&mut ours::PairCache> {
+    history.map(BidirHistory::pair_cache)
 }
 
 /// Checks the output and diagnostics buffers against a `w × h` output. [`reproject`] checks them

@@ -133,7 +133,35 @@ struct Src<'a> {
     /// `(W, H) / min(W, H)`: NDC differences times these are in units where 2 is the short side
     /// (the error of eq. 7, REFERENCE.md §2.5).
     aspect: [f32; 2],
+    /// NDC of the pixel centres.
+    ndc: NdcTable,
     bufs: Buffers,
+}
+
+/// The NDC of every pixel centre of a `W × H` image, by column (x) and by row (y): the same values
+/// as [`crate::camera::ndc_of_pixel`], looked up instead of divided for each search.
+#[derive(Debug, Clone, Default)]
+struct NdcTable {
+    x: Vec<f32>,
+    y: Vec<f32>,
+}
+
+impl NdcTable {
+    fn new(w: usize, h: usize) -> NdcTable {
+        NdcTable {
+            x: (0..w)
+                .map(|i| crate::camera::ndc_of_pixel(i, 0, w, h)[0])
+                .collect(),
+            y: (0..h)
+                .map(|j| crate::camera::ndc_of_pixel(0, j, w, h)[1])
+                .collect(),
+        }
+    }
+
+    #[inline(always)]
+    fn at(&self, i: usize, j: usize) -> [f32; 2] {
+        [self.x[i], self.y[j]]
+    }
 }
 
 /// The same camera in the other frame of the pair, with the NDC transfer to it (the full scene
@@ -160,9 +188,6 @@ struct Buffers {
     /// of the smallest splat key in the `(2W+1)²` window around the cell, or [`NO_SPLAT`].
     /// Every entry is rewritten each frame.
     init: Vec<u32>,
-    /// The full scene flow to the other frame ([`full_flow_row`]), for Algorithm 2; empty when
-    /// the frame does not blend.
-    full: Vec<[f32; 4]>,
     /// Auxiliary sources only: 1 where a point that is *not* visible in the main camera lands in
     /// the client grid (its splat cell), else 0; reset every frame. An auxiliary match can only
     /// override a main match near such a cell (see [`AuxGrid::maybe`]).
@@ -223,6 +248,7 @@ pub(crate) fn run<'a>(
     params: &Params,
     out: &mut [u8],
     diag: Option<&mut Diagnostics>,
+    pair: Option<&mut PairCache>,
 ) -> Result<()> {
     let alpha = request.alpha;
     request.client.projector("client camera")?;
@@ -291,35 +317,66 @@ pub(crate) fn run<'a>(
         .collect();
     let eps_z_aux = params.eps_z * params.aux_threshold_scale;
     let client_vp = request.client.view_proj();
-    for src in sources.iter_mut() {
-        let w = match src.role {
-            Role::Older => alpha,
-            Role::Newer => 1.0 - alpha,
-        };
+    let mut inverses = Vec::with_capacity(sources.len());
+    for src in &sources {
         let Some(inv) = src.view.camera.view_proj().inverse() else {
             return Err(ReprojError::SingularMatrix {
                 what: "source camera".into(),
             });
         };
-        let to_client = NdcTransfer::new(&inv, &client_vp);
-        let to_main = |m: &(CameraView<'a>, Projector, Role)| {
-            (m.0, m.1, NdcTransfer::new(&inv, &m.0.camera.view_proj()))
+        inverses.push(inv);
+    }
+
+    // What does not depend on the client pose or α: computed once per server-frame pair when the
+    // caller keeps a `PairCache` for the pair, else for this frame alone.
+    let blends = mode == Mode::Ours && params.blend && bidirectional;
+    let mut own_pair = None;
+    let pair: &mut PairCache = match pair {
+        Some(p) => p,
+        None => own_pair.insert(PAIR_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()))),
+    };
+    let key = PairKey::of(&sources, mode, params, blends);
+    if pair.key.as_ref() != Some(&key) {
+        pair.key = None;
+        let to_main = |k: usize, m: &(CameraView<'a>, Projector, Role)| {
+            (
+                m.0,
+                m.1,
+                NdcTransfer::new(&inverses[k], &m.0.camera.view_proj()),
+            )
         };
-        let vis_ctx = (src.camera > 0).then(|| VisCtx {
-            same: mains.iter().find(|m| m.2 == src.role).map(to_main),
-            other: mains.iter().find(|m| m.2 != src.role).map(to_main),
-            eps_z: eps_z_aux,
-        });
-        // Algorithm 2 reads the full scene flow of the chosen pixel and of its correspondence.
-        let blends = mode == Mode::Ours && params.blend;
-        let full_ctx = src.other.as_ref().filter(|_| blends).map(|o| FullCtx {
-            to_other: o.to_other,
-            ow: o.proj.width,
-            oh: o.proj.height,
-        });
-        scene_flow_and_splat(src, &to_client, w, vis_ctx.as_ref(), full_ctx.as_ref());
+        let vis_ctx: Vec<Option<VisCtx>> = sources
+            .iter()
+            .enumerate()
+            .map(|(k, src)| {
+                (src.camera > 0).then(|| VisCtx {
+                    same: mains
+                        .iter()
+                        .find(|m| m.2 == src.role)
+                        .map(|m| to_main(k, m)),
+                    other: mains
+                        .iter()
+                        .find(|m| m.2 != src.role)
+                        .map(|m| to_main(k, m)),
+                    eps_z: eps_z_aux,
+                })
+            })
+            .collect();
+        pair.compute(&sources, &vis_ctx, blends, params);
+        pair.key = Some(key);
+    }
+
+    for (k, src) in sources.iter_mut().enumerate() {
+        let w = match src.role {
+            Role::Older => alpha,
+            Role::Newer => 1.0 - alpha,
+        };
+        let to_client = NdcTransfer::new(&inverses[k], &client_vp);
+        let vis = (src.camera > 0).then(|| pair.sources[k].vis.as_slice());
+        scene_flow_and_splat(src, &to_client, w, vis);
         window_min(src, params.window);
     }
+    let pair: &PairCache = pair;
 
     // Pass 2: resolve per output tile.
     let (cw, ch) = (request.client.width, request.client.height);
@@ -343,6 +400,8 @@ pub(crate) fn run<'a>(
             0
         },
         aux: Vec::new(),
+        client_ndc: NdcTable::new(cw, ch),
+        pair,
     };
     let mut aux_pool = AUX_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
     let aux_grids = (1..ctx.n_cams)
@@ -373,6 +432,12 @@ pub(crate) fn run<'a>(
         pool.push(src.bufs);
     }
     BUFFER_POOL.with(|p| *p.borrow_mut() = pool);
+    if let Some(mut own) = own_pair {
+        // Kept for its buffers only: without a caller's cache nothing says the next call's
+        // frames are the same.
+        own.key = None;
+        PAIR_POOL.with(|p| *p.borrow_mut() = own);
+    }
     Ok(())
 }
 
@@ -421,9 +486,208 @@ impl<'a> Src<'a> {
                 view.camera.width as f32 / short,
                 view.camera.height as f32 / short,
             ],
+            ndc: NdcTable::new(view.camera.width, view.camera.height),
             bufs,
         }
     }
+}
+
+/// What `ours` computes once per server-frame pair and reuses for every client frame between the
+/// two server frames (12 at 120/10 Hz): none of it depends on the client pose or `α`.
+///
+/// Per source image (main and auxiliary cameras of both frames):
+/// - Algorithm 2's correspondence: the pixel `q` of the same camera in the other frame that the
+///   full scene flow (eqs. 2, 3) of each pixel `p` lands on, kept only where the motions cancel
+///   (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`) and the depths agree (`< ε_z`, `ε_z·4` for the
+///   auxiliary cameras);
+/// - for the auxiliary cameras, whether each point is visible in the main camera (§3.5 rule 2).
+///
+/// The cache recomputes itself when the cameras, the buffers (by address and length) or the
+/// parameters it depends on change, so a new pair is never served stale data. A caller that
+/// rewrites the *same* buffers in place with a new frame must reset it
+/// ([`crate::BidirHistory::reset`]).
+#[derive(Debug, Default, Clone)]
+pub struct PairCache {
+    key: Option<PairKey>,
+    sources: Vec<PairSource>,
+}
+
+/// The pair-level state of one source image ([`PairCache`]).
+#[derive(Debug, Default, Clone)]
+struct PairSource {
+    /// Packed pixel index `q` in the other frame, or [`NO_SPLAT`]; empty when nothing blends.
+    partner: Vec<u32>,
+    /// Auxiliary sources: 1 where the point is visible in main, else 0; empty for main sources.
+    vis: Vec<u8>,
+}
+
+/// What a [`PairCache`]'s contents depend on.
+#[derive(Debug, Clone, PartialEq)]
+struct PairKey {
+    mode: Mode,
+    blends: bool,
+    /// `ε_z`, `ε_O`, the auxiliary threshold scale, as bits.
+    eps: [u32; 3],
+    /// Per source.
+    sources: Vec<SourceKey>,
+}
+
+/// What a [`PairKey`] records of one source: its camera matrix, size, and the depth and motion
+/// buffers' addresses and lengths.
+#[derive(Debug, Clone, PartialEq)]
+struct SourceKey {
+    view_proj: [[f64; 4]; 4],
+    size: [usize; 2],
+    buffers: [usize; 4],
+}
+
+impl PairKey {
+    fn of(sources: &[Src], mode: Mode, params: &Params, blends: bool) -> PairKey {
+        PairKey {
+            mode,
+            blends,
+            eps: [
+                params.eps_z.to_bits(),
+                params.eps_o.to_bits(),
+                params.aux_threshold_scale.to_bits(),
+            ],
+            sources: sources
+                .iter()
+                .map(|s| {
+                    let v = &s.view;
+                    let (mp, ml) = v.motion.map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
+                    SourceKey {
+                        view_proj: v.camera.view_proj().0,
+                        size: [s.proj.width, s.proj.height],
+                        buffers: [v.depth.as_ptr() as usize, v.depth.len(), mp, ml],
+                    }
+                })
+                .collect(),
+        }
+    }
+}
+
+thread_local! {
+    /// The buffers of a [`PairCache`] for calls without one (see BUFFER_POOL on page faults).
+    static PAIR_POOL: std::cell::RefCell<PairCache> = std::cell::RefCell::new(PairCache::default());
+    /// Full scene flows while a [`PairCache`] is computed, reused.
+    static FULL_POOL: std::cell::RefCell<Vec<Vec<[f32; 4]>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl PairCache {
+    /// An empty cache.
+    pub fn new() -> PairCache {
+        PairCache::default()
+    }
+
+    /// Forgets the pair (its buffers are kept for the next one).
+    pub fn reset(&mut self) {
+        self.key = None;
+    }
+
+    /// Fills the cache for `sources` (in the order of [`run`]: (older, newer) per camera when
+    /// `blends`); `vis_ctx[k]` is set for the auxiliary sources.
+    fn compute(
+        &mut self,
+        sources: &[Src],
+        vis_ctx: &[Option<VisCtx>],
+        blends: bool,
+        params: &Params,
+    ) {
+        self.sources.resize_with(sources.len(), PairSource::default);
+        for ((src, ctx), ps) in sources.iter().zip(vis_ctx).zip(&mut self.sources) {
+            match ctx {
+                Some(ctx) => visible_in_main_flags(src, ctx, &mut ps.vis),
+                None => ps.vis.clear(),
+            }
+        }
+        if !blends {
+            self.sources.iter_mut().for_each(|ps| ps.partner.clear());
+            return;
+        }
+        let mut fulls = FULL_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
+        fulls.resize_with(sources.len(), Vec::new);
+        for (src, full) in sources.iter().zip(fulls.iter_mut()) {
+            let other = src.other.as_ref().expect("blending sources come in pairs");
+            let ctx = FullCtx {
+                to_other: other.to_other,
+                ow: other.proj.width,
+                oh: other.proj.height,
+            };
+            full_flows(src, &ctx, full);
+        }
+        let eps_o2 = params.eps_o * params.eps_o;
+        for (k, ps) in self.sources.iter_mut().enumerate() {
+            let (s, o) = (&sources[k], &sources[k ^ 1]);
+            let (s_full, o_full) = (&fulls[k], &fulls[k ^ 1]);
+            let eps_z = if s.camera == 0 {
+                params.eps_z
+            } else {
+                params.eps_z * params.aux_threshold_scale
+            };
+            let n = s.proj.width * s.proj.height;
+            ps.partner.resize(n, NO_SPLAT);
+            ps.partner
+                .par_chunks_mut(TILE * s.proj.width)
+                .enumerate()
+                .for_each(|(b, chunk)| {
+                    let p0 = b * TILE * s.proj.width;
+                    for (d, out) in chunk.iter_mut().enumerate() {
+                        let p = p0 + d;
+                        *out = match correspondence(s, s_full, o, o_full, p) {
+                            // ‖M_full_s(p) + M_full_o(q)‖ < ε_O, z in [−1,1]-NDC units (2·ΔZ).
+                            Some((q, m, zq, pz))
+                                if m[0] * m[0] + m[1] * m[1] + 4.0 * m[2] * m[2] < eps_o2
+                                    && 2.0 * (zq - pz).abs() < eps_z =>
+                            {
+                                q as u32
+                            }
+                            _ => NO_SPLAT,
+                        };
+                    }
+                });
+        }
+        FULL_POOL.with(|p| *p.borrow_mut() = fulls);
+    }
+}
+
+/// The full scene flow of every pixel of `src` into the other frame ([`full_flow_row`]).
+fn full_flows(src: &Src, ctx: &FullCtx, full: &mut Vec<[f32; 4]>) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    full.resize(sw * sh, [f32::NAN; 4]);
+    let view = src.view;
+    full.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
+        let depth = &view.depth[j * sw..(j + 1) * sw];
+        let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
+        full_flow_row(j, sw, sh, depth, motion, ctx, row);
+    });
+}
+
+/// Whether each point of auxiliary source `src` is visible in the main camera (§3.5 rule 2),
+/// tested at the source's time and at the other frame's time: 1 or 0 per pixel.
+fn visible_in_main_flags(src: &Src, ctx: &VisCtx, vis: &mut Vec<u8>) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    vis.resize(sw * sh, 0);
+    let view = src.view;
+    vis.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
+        for (i, v) in row.iter_mut().enumerate() {
+            let idx = j * sw + i;
+            let [x, y] = src.ndc.at(i, j);
+            let z = view.depth[idx];
+            let o = view.motion_at(idx);
+            let c = [x, y, z];
+            let c2 = [x + o[0], y + o[1], z + o[2]];
+            let visible = ctx
+                .same
+                .as_ref()
+                .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c), ctx.eps_z))
+                || ctx
+                    .other
+                    .as_ref()
+                    .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c2), ctx.eps_z));
+            *v = u8::from(visible);
+        }
+    });
 }
 
 /// What "visible in main" is tested against for an auxiliary source.
@@ -462,23 +726,16 @@ fn visible_in(view: &CameraView, proj: &Projector, h: [f32; 4], eps_z: f32) -> b
 ///
 /// `w` is the fraction of the object motion applied: `α` for the older frame, `1−α` for the newer
 /// one (negative when extrapolating).
-fn scene_flow_and_splat(
-    src: &mut Src,
-    to_client: &NdcTransfer,
-    w: f32,
-    vis: Option<&VisCtx>,
-    full: Option<&FullCtx>,
-) {
+fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Option<&[u8]>) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     let view = src.view;
-    let proj = src.proj;
     let splat = &src.bufs.splat;
     let invisible = &src.bufs.invisible;
-    let block = |b: usize, rows: &mut [[f32; 4]], full_rows: Option<&mut [[f32; 4]]>| {
+    let ndc = &src.ndc;
+    let block = |b: usize, rows: &mut [[f32; 4]]| {
         ROW_SCRATCH.with(|cell| {
             let mut scratch = cell.borrow_mut();
             scratch.resize(sw, (0, 0.0));
-            let mut full_rows = full_rows;
             for (r, row) in rows.chunks_mut(sw).enumerate() {
                 let j = b * TILE + r;
                 let depth = &view.depth[j * sw..(j + 1) * sw];
@@ -496,28 +753,14 @@ fn scene_flow_and_splat(
                     row,
                     &mut scratch,
                 );
-                if let (Some(ctx), Some(fr)) = (full, full_rows.as_deref_mut()) {
-                    full_flow_row(j, sw, sh, depth, motion, ctx, &mut fr[r * sw..(r + 1) * sw]);
-                }
-                if let Some(ctx) = vis {
-                    // Auxiliary sources: is the point visible in the main camera (§3.5 rule
-                    // 2)? Tested at the source's time and at the other frame's time.
+                if let Some(vis) = vis {
+                    // Auxiliary sources: visible in the main camera (§3.5 rule 2), from the pair.
                     for (i, flow) in row.iter_mut().enumerate() {
                         if flow[3].is_nan() {
                             continue;
                         }
-                        let idx = j * sw + i;
-                        let [x, y] = proj.ndc_of_pixel(i, j);
-                        let z = view.depth[idx];
-                        let o = view.motion_at(idx);
-                        let c = [x, y, z];
-                        let c2 = [x + o[0], y + o[1], z + o[2]];
-                        let v =
-                            ctx.same.as_ref().is_some_and(|(mv, mp, t)| {
-                                visible_in(mv, mp, t.clip(c), ctx.eps_z)
-                            }) || ctx.other.as_ref().is_some_and(|(mv, mp, t)| {
-                                visible_in(mv, mp, t.clip(c2), ctx.eps_z)
-                            });
+                        let v = vis[j * sw + i] != 0;
+                        let [x, y] = ndc.at(i, j);
                         flow[3] = if v { 1.0 } else { 0.0 };
                         // Where the point lands in the client grid, whether or not it was
                         // splatted (the FPI can reach points that are not, e.g. nearer than the
@@ -541,24 +784,11 @@ fn scene_flow_and_splat(
             }
         })
     };
-    let n = sw * sh;
-    if full.is_some() {
-        if src.bufs.full.len() != n {
-            src.bufs.full = vec![[f32::NAN; 4]; n];
-        }
-        src.bufs
-            .flow
-            .par_chunks_mut(TILE * sw)
-            .zip(src.bufs.full.par_chunks_mut(TILE * sw))
-            .enumerate()
-            .for_each(|(b, (rows, fr))| block(b, rows, Some(fr)));
-    } else {
-        src.bufs
-            .flow
-            .par_chunks_mut(TILE * sw)
-            .enumerate()
-            .for_each(|(b, rows)| block(b, rows, None));
-    }
+    src.bufs
+        .flow
+        .par_chunks_mut(TILE * sw)
+        .enumerate()
+        .for_each(|(b, rows)| block(b, rows));
 }
 
 /// The full scene flow of a source into the same camera at the other frame's time (eqs. 2, 3),
@@ -921,8 +1151,12 @@ struct Resolve<'a> {
     eps_z: f32,
     eps_z_aux: f32,
     iterations: usize,
-    /// Per auxiliary camera, its matches resolved once per cell of its own grid.
+    /// Per auxiliary camera, its grid over the client image.
     aux: Vec<AuxGrid>,
+    /// NDC of the client's pixel centres.
+    client_ndc: NdcTable,
+    /// The pair-level state (Algorithm 2's correspondences).
+    pair: &'a PairCache,
 }
 
 /// The auxiliary match of one cell. Its colour (Algorithm 2) is found only where an output pixel
@@ -957,6 +1191,8 @@ struct AuxGrid {
     col_of: Vec<u32>,
     /// The grid row of each client row, or `u32::MAX`.
     row_of: Vec<u32>,
+    /// NDC of the cell centres.
+    ndc: NdcTable,
 }
 
 /// The auxiliary cells resolved while one block of output rows is resolved, for the grid rows
@@ -1055,7 +1291,7 @@ impl Resolve<'_> {
                 _ => break,
             }
         }
-        let [px, py] = s.proj.ndc_of_pixel(pi, pj);
+        let [px, py] = s.ndc.at(pi, pj);
         let ex = (px + m[0] - t[0]) * s.aspect[0];
         let ey = (py + m[1] - t[1]) * s.aspect[1];
         let e = (ex * ex + ey * ey).sqrt();
@@ -1146,7 +1382,7 @@ impl Resolve<'_> {
     /// Algorithm 2: colour of the chosen match, blended with its correspondence in the other frame
     /// when forward and backward motion cancel and depths agree. Returns the colour and whether it
     /// blended.
-    fn second_chance(&self, c: &Choice, eps_z: f32) -> ([f32; 3], bool) {
+    fn second_chance(&self, c: &Choice) -> ([f32; 3], bool) {
         let s = &self.sources[c.src];
         let p = c.m.p as usize;
         let base = self.color_of(&s.view, s.role, p);
@@ -1157,17 +1393,12 @@ impl Resolve<'_> {
             return (base, false);
         };
         let ov = &other.view;
-        // The other frame's source of the same camera: sources come in (older, newer) pairs.
-        let Some((q, mq_sum, zq, pz)) = correspondence(s, &self.sources[c.src ^ 1], c.m.p as usize)
-        else {
-            return (base, false);
+        // The correspondence in the other frame's source of the same camera when motion cancels
+        // and depth agrees (precomputed for the pair, see [`PairCache`]).
+        let q = match self.pair.sources[c.src].partner.get(p) {
+            Some(&q) if q != NO_SPLAT => q as usize,
+            _ => return (base, false),
         };
-        // ‖M_full_s(p) + M_full_o(q)‖ < ε_O, z in [−1,1]-NDC units (2·ΔZ).
-        let n2 = mq_sum[0] * mq_sum[0] + mq_sum[1] * mq_sum[1] + 4.0 * mq_sum[2] * mq_sum[2];
-        let eps_o = self.params.eps_o;
-        if !(n2 < eps_o * eps_o && 2.0 * (zq - pz).abs() < eps_z) {
-            return (base, false);
-        }
         let other_role = match s.role {
             Role::Older => Role::Newer,
             Role::Newer => Role::Older,
@@ -1256,6 +1487,7 @@ impl Resolve<'_> {
             maybe,
             col_of,
             row_of,
+            ndc: NdcTable::new(w, h),
         }
     }
 
@@ -1272,7 +1504,7 @@ impl Resolve<'_> {
     ) -> Option<AuxCell> {
         let k = (aj - block.row0) * grid.w + ai;
         if block.done[k] == 0 {
-            let t = crate::camera::ndc_of_pixel(ai, aj, grid.w, grid.h);
+            let t = grid.ndc.at(ai, aj);
             let cell = Cell {
                 i: ai,
                 j: aj,
@@ -1295,7 +1527,7 @@ impl Resolve<'_> {
         j: usize,
         blocks: &mut [AuxBlock],
     ) -> Option<(u8, [u8; 3], f32)> {
-        let t = crate::camera::ndc_of_pixel(i, j, self.client_w, self.client_h);
+        let t = self.client_ndc.at(i, j);
         let cell = Cell {
             i,
             j,
@@ -1343,11 +1575,11 @@ impl Resolve<'_> {
         };
         if use_aux {
             let a = aux?.choice;
-            let (rgb, blended) = self.second_chance(&a, self.eps_z_aux);
+            let (rgb, blended) = self.second_chance(&a);
             return Some((self.code_of(&a, blended), round_rgb(rgb), a.m.e));
         }
         let m = main?;
-        let (rgb, blended) = self.second_chance(&m, self.eps_z);
+        let (rgb, blended) = self.second_chance(&m);
         Some((self.code_of(&m, blended), round_rgb(rgb), m.m.e))
     }
 }
@@ -1435,8 +1667,14 @@ fn column_pass(widened: &[u8], w: usize, h: usize, reach: usize, maybe: &mut [u8
 /// Returns `q`, `M_full_s(p) + M_full_o(q)`, `Z_o(q)` and the predicted depth `P.z`; `None` when
 /// out of view or invalid.
 #[inline]
-fn correspondence(s: &Src, o: &Src, p: usize) -> Option<(usize, [f32; 3], f32, f32)> {
-    let ms = s.bufs.full[p];
+fn correspondence(
+    s: &Src,
+    s_full: &[[f32; 4]],
+    o: &Src,
+    o_full: &[[f32; 4]],
+    p: usize,
+) -> Option<(usize, [f32; 3], f32, f32)> {
+    let ms = s_full[p];
     let qk = ms[3].to_bits();
     if qk == NO_SPLAT {
         return None;
@@ -1444,7 +1682,7 @@ fn correspondence(s: &Src, o: &Src, p: usize) -> Option<(usize, [f32; 3], f32, f
     let (qi, qj) = unpack_pixel(qk);
     let q = qj * o.proj.width + qi;
     let zq = o.view.depth[q];
-    let mo = o.bufs.full[q];
+    let mo = o_full[q];
     // NaN in `mo` (an invalid point) fails the caller's threshold test, as `None` would.
     if !(zq.is_finite() && mo[0].is_finite()) {
         return None;
@@ -1475,7 +1713,7 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
         })?;
     let to_client = NdcTransfer::new(&inv, &client.view_proj());
     let mut src = Src::new(*view, proj, None, Role::Older, 0, Buffers::default());
-    scene_flow_and_splat(&mut src, &to_client, w, None, None);
+    scene_flow_and_splat(&mut src, &to_client, w, None);
     Ok(src
         .bufs
         .flow
@@ -1810,6 +2048,53 @@ mod tests {
             aux_pixels > 100,
             "only {aux_pixels} pixels from auxiliary cameras"
         );
+    }
+
+    /// A client keeps one history per server-frame pair: with it, `ours` computes the pair-level
+    /// state once; the bytes must equal those of calls without it, for every α of the pair, and a
+    /// different pair in the same history must not be served the old pair's state.
+    #[test]
+    fn pair_cache_gives_the_same_bytes_and_follows_the_pair() {
+        use crate::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+        use crate::BidirHistory;
+        let (w, h) = (96, 54);
+        let scene = SyntheticScene::new(true);
+        let frames: Vec<SyntheticFrame> = (0..3)
+            .map(|k| SyntheticFrame::render(&scene, 0.1 * k as f64, w, h, 0.1, 4))
+            .collect();
+        let mut history = BidirHistory::new();
+        for pair in 0..2 {
+            let (older, newer) = (frames[pair].view(true), frames[pair + 1].view(false));
+            for (n, alpha) in [0.0f32, 0.25, 0.5, 0.75, 0.95, 1.3].into_iter().enumerate() {
+                let (mut e, tg) = head_pose(0.1 * (pair as f64 + f64::from(alpha)));
+                e[0] += 0.05 * n as f64;
+                let req = Request {
+                    client: rig(e, tg, w, h).0,
+                    alpha,
+                };
+                let run = |hist: Option<&mut BidirHistory>| {
+                    let mut out = vec![3u8; w * h * 3];
+                    let mut diag = Diagnostics::new(w * h);
+                    let p = Params::default();
+                    reproject(
+                        Method::Ours,
+                        Some(&older),
+                        &newer,
+                        &req,
+                        &p,
+                        &mut out,
+                        Some(&mut diag),
+                        hist,
+                    )
+                    .unwrap();
+                    (out, diag.source)
+                };
+                // Deliberately no reset between the pairs: the cache must notice by itself.
+                let cached = run(Some(&mut history));
+                let fresh = run(None);
+                assert_eq!(cached, fresh, "pair {pair}, alpha {alpha}");
+            }
+        }
     }
 
     #[test]

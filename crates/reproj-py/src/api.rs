@@ -82,8 +82,11 @@ pub(crate) fn mat<'py>(py: Python<'py>, m: &Mat4) -> PyResult<Bound<'py, PyArray
     hw(py, m.0.iter().flatten().copied().collect(), 4, 4)
 }
 
-/// State of `backward_bidir` carried from one client frame to the next (seeds/001's latest-frame
-/// initialisation). Create one per frame pair, or call `reset()` when the pair changes.
+/// The client's state for one server-frame pair, carried from one client frame to the next:
+/// `backward_bidir`'s previous B-frame (seeds/001's latest-frame initialisation) and the work of
+/// `ours`, `ours_extrapolate` and `forward_splat` that does not depend on the client pose (done
+/// once per pair instead of per frame). Create one per frame pair, or call `reset()` when the pair
+/// changes. (The name predates its use by `ours`.)
 #[pyclass(module = "splitrender._native")]
 #[derive(Debug, Default)]
 pub struct BidirHistory {
@@ -97,9 +100,10 @@ impl BidirHistory {
         Self::default()
     }
 
-    /// Forgets the carried state (call when the frame pair changes).
+    /// Forgets the carried state (call when the frame pair changes). Its buffers are kept for
+    /// the next pair.
     fn reset(&mut self) {
-        self.inner = reproj_core::BidirHistory::new();
+        self.inner.reset();
     }
 
     fn __repr__(&self) -> &'static str {
