@@ -6,8 +6,11 @@ The two server frames are encoded at the paper's 40 Mb/s scaled by pixel count a
 ``repeats`` times with a fresh :class:`~splitrender.codec.StreamDecoder`: the decode figure is the
 median seconds per server frame (all cameras, all buffers; key and non-key frame together).
 Each method then reprojects client frames between the two *decoded* server frames at their
-client poses (:func:`~splitrender.reproject.reproject`, no previous frame): one warm-up call, then
-``frames`` timed calls cycling through the client frames; the figure is the median.
+client poses (:func:`~splitrender.reproject.reproject`, no previous frame) with one
+:class:`~splitrender.BidirHistory` kept for the pair, as :class:`~splitrender.Client` does: one
+warm-up call (which also does the pair-level work of ``ours``, done once per server-frame pair),
+then ``frames`` timed calls cycling through the client frames; the figure is the median, i.e.
+the cost of a client frame inside a pair.
 
 With ``backend="wgpu"`` (:mod:`splitrender.gpu`) the pair a method uses is uploaded to the device
 once, and each timed call uploads the client pose, runs the frame and downloads the image (the
@@ -184,6 +187,7 @@ def run_bench(
             cannot run).
         GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
+    from splitrender._native import BidirHistory
     from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
     from splitrender.reproject import reproject
 
@@ -220,12 +224,14 @@ def run_bench(
         if gpu_run is not None:
             samples = gpu_run.time(method, older, newer, requests, frames)
         else:
-            reproject(older, newer, requests[0], method)  # warm-up (allocations, thread pool)
+            history = BidirHistory()
+            # Warm-up: allocations, the thread pool, the pair-level work kept in `history`.
+            reproject(older, newer, requests[0], method, history=history)
             samples = []
             for i in range(frames):
                 req = requests[i % len(requests)]
                 t0 = time.perf_counter()
-                reproject(older, newer, req, method)
+                reproject(older, newer, req, method, history=history)
                 samples.append(time.perf_counter() - t0)
         sec = statistics.median(samples)
         touched = bytes_touched(method, older, newer)

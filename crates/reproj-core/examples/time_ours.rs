@@ -78,7 +78,7 @@ fn main() {
                     .chain(diag.error.iter().flat_map(|e| e.to_bits().to_le_bytes())),
             );
             let first = out.clone();
-            let cpu0 = cpu_seconds();
+            let (cpu0, faults0) = (cpu_seconds(), minor_faults());
             let t = std::time::Instant::now();
             for _ in 0..iters {
                 let h = keep.then_some(&mut history);
@@ -91,9 +91,10 @@ fn main() {
             );
             let n = iters.max(1) as f64;
             println!(
-                "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU per call; digest {digest:016x}",
+                "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU, {:.0} page faults per call; digest {digest:016x}",
                 t.elapsed().as_secs_f64() * 1000.0 / n,
-                (cpu_seconds() - cpu0) * 1000.0 / n
+                (cpu_seconds() - cpu0) * 1000.0 / n,
+                (minor_faults() - faults0) / n
             );
         }
     }
@@ -106,15 +107,25 @@ fn fnv1a(bytes: impl Iterator<Item = u8>) -> u64 {
     })
 }
 
+/// Minor page faults of this process so far (Linux `/proc/self/stat`), or NaN.
+fn minor_faults() -> f64 {
+    stat_fields().get(7).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN)
+}
+
+/// The fields of `/proc/self/stat` after the parenthesised command name (empty elsewhere).
+fn stat_fields() -> Vec<String> {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return Vec::new();
+    };
+    let rest = &stat[stat.rfind(')').map_or(0, |k| k + 2)..];
+    rest.split_whitespace().map(str::to_owned).collect()
+}
+
 /// User + system CPU time of this process in seconds (Linux `/proc/self/stat`, clock ticks of
 /// 1/100 s), or NaN where that file does not exist.
 fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
-        return f64::NAN;
-    };
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = &stat[stat.rfind(')').map_or(0, |k| k + 2)..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the file.
+    let f = stat_fields();
     let ticks = |k: usize| {
         f.get(k)
             .and_then(|v| v.parse::<f64>().ok())
