@@ -109,7 +109,10 @@ fn fnv1a(bytes: impl Iterator<Item = u8>) -> u64 {
 
 /// Minor page faults of this process so far (Linux `/proc/self/stat`), or NaN.
 fn minor_faults() -> f64 {
-    stat_fields().get(7).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN)
+    stat_fields()
+        .get(7)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(f64::NAN)
 }
 
 /// The fields of `/proc/self/stat` after the parenthesised command name (empty elsewhere).

@@ -192,6 +192,9 @@ struct Buffers {
     /// the client grid (its splat cell), else 0; reset every frame. An auxiliary match can only
     /// override a main match near such a cell (see [`AuxGrid::maybe`]).
     invisible: Vec<AtomicU8>,
+    /// Per block of 16 source rows, the splats that land outside the block's own rows
+    /// (see [`scene_flow_and_splat`]).
+    spill: Vec<Vec<(u32, u64)>>,
 }
 
 thread_local! {
@@ -732,7 +735,13 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
     let splat = &src.bufs.splat;
     let invisible = &src.bufs.invisible;
     let ndc = &src.ndc;
-    let block = |b: usize, rows: &mut [[f32; 4]]| {
+    // The splat is a minimum per cell, so the order of the updates does not matter. Each task owns
+    // the splat cells of its own 16 rows (its band) and updates them with a plain load and store;
+    // a point that lands in another band (a few per cent: flows are mostly smaller than the band)
+    // is kept aside and applied after the parallel pass. A `lock cmpxchg` per point would cost
+    // more than the point's whole scene flow.
+    let block = |b: usize, rows: &mut [[f32; 4]], spill: &mut Vec<(u32, u64)>| {
+        spill.clear();
         ROW_SCRATCH.with(|cell| {
             let mut scratch = cell.borrow_mut();
             scratch.resize(sw, (0, 0.0));
@@ -777,18 +786,37 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
                 for (i, &(tgt, z)) in scratch.iter().enumerate() {
                     if tgt != NO_SPLAT {
                         let (qi, qj) = unpack_pixel(tgt);
-                        splat[qj * sw + qi]
-                            .fetch_min(splat_key(z, pack_pixel(i, j)), Ordering::Relaxed);
+                        let (c, key) = (qj * sw + qi, splat_key(z, pack_pixel(i, j)));
+                        if qj / TILE == b {
+                            // Only this task writes this band during the parallel pass.
+                            if key < splat[c].load(Ordering::Relaxed) {
+                                splat[c].store(key, Ordering::Relaxed);
+                            }
+                        } else {
+                            spill.push((c as u32, key));
+                        }
                     }
                 }
             }
-        })
+        });
     };
+    // One spill list per block, kept with the buffers (see BUFFER_POOL on page faults).
+    let mut spills = std::mem::take(&mut src.bufs.spill);
+    spills.resize_with(sh.div_ceil(TILE), Vec::new);
     src.bufs
         .flow
         .par_chunks_mut(TILE * sw)
+        .zip(spills.par_iter_mut())
         .enumerate()
-        .for_each(|(b, rows)| block(b, rows));
+        .for_each(|(b, (rows, spill))| block(b, rows, spill));
+    // The parallel pass has finished: nothing else writes the grid now.
+    for &(c, key) in spills.iter().flatten() {
+        let cell = &splat[c as usize];
+        if key < cell.load(Ordering::Relaxed) {
+            cell.store(key, Ordering::Relaxed);
+        }
+    }
+    src.bufs.spill = spills;
 }
 
 /// The full scene flow of a source into the same camera at the other frame's time (eqs. 2, 3),
