@@ -317,6 +317,27 @@ def test_bidir_history(pair: Pair) -> None:
     assert a.shape == b.shape == (*pair.request.camera.shape, 3)
 
 
+@pytest.mark.parametrize("method", ["ours", "ours_extrapolate", "forward_splat"])
+def test_history_keeps_the_pair_state_without_changing_the_images(pair: Pair, method: str) -> None:
+    # One history through the client frames of a pair (as the Client keeps it), then through the
+    # next pair without a reset: every image equals the call without a history, so the pair
+    # state is reused within a pair and never served to another one.
+    w, h = pair.request.camera.width, pair.request.camera.height
+    frames = [pair.older, pair.newer, pair.scene.server_frame(2, 2 / FPS, w, h, fps=FPS)]
+    history = sr.BidirHistory()
+    for k in range(2):
+        older, newer = frames[k], frames[k + 1]
+        # `ours` interpolates between the pair; the others extrapolate from its newer frame.
+        t0 = older.time if method == "ours" else newer.time
+        for n in [1, 4, 7, 11]:
+            t = t0 + n / 120
+            camera, _ = pair.scene.rig(t, w, h)
+            req = sr.ClientRequest(camera, t)
+            kept = sr.reproject(older, newer, req, method, history=history)
+            fresh = sr.reproject(older, newer, req, method)
+            assert np.array_equal(kept, fresh), (method, k, n)
+
+
 def test_scene_flow(pair: Pair) -> None:
     src = pair.older.main
     flow = sr.scene_flow(src, src.camera, 0.0)
