@@ -8,16 +8,19 @@
 //!    `X(w) = X + w·(P⁻¹(p̄ + O[p]) − P⁻¹(p̄))`, and projected into the client camera, giving the
 //!    camera flow `M_cam[p] = P_{t+α}(X(w)) − p̄` (eqs. 1, 12, 13; `w = α` for the older and `1−α`
 //!    for the newer frame). The point is splatted into a grid over the client image at the source's
-//!    resolution with a 64-bit atomic minimum of `(depth, source pixel)`, so the nearest point wins.
-//!    When the two frames are blended, the same pass gives every pixel its full scene flow into
-//!    the other frame (eqs. 2, 3) for Algorithm 2 ([`full_flow_row`]). The 3×3 window search is
-//!    then done for every cell at once, as a separable minimum filter over the splat grid
-//!    ([`window_min`]).
+//!    resolution with a minimum of the 64-bit key `(depth, source pixel)`, so the nearest point
+//!    wins. The 3×3 window search is then done for every cell at once, as a separable minimum
+//!    filter over the splat grid ([`window_min`]).
 //! 2. **Resolve**, per output pixel over blocks of 16 rows: the nearest splat in the window
 //!    initialises the fixed-point iteration `p ← pix(T − M_cam[p])` (eq. 5 with eqs. 12/13), then
 //!    the reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary
-//!    cameras (searched once per cell of their own grid) are merged (§3.5 rules 1–3), and
-//!    Algorithm 2 blends in the other frame for the match that was kept.
+//!    cameras (searched once per cell of their own grid, and only where the result can reach the
+//!    output, see [`AuxGrid`]) are merged (§3.5 rules 1–3), and Algorithm 2 blends in the other
+//!    frame for the match that was kept.
+//!
+//! What does not depend on the client pose or α — Algorithm 2's correspondences from the full
+//! scene flows (eqs. 2, 3) with the motion-cancel check, and the auxiliary points' visibility in
+//! main — is computed once per server-frame pair ([`PairCache`], kept in the client's history).
 //!
 //! The row loops of pass 1 and of the window filter are written without data-dependent branches
 //! and run in an AVX2 build on processors that have it (no FMA contraction, so the output bytes do
