@@ -180,11 +180,13 @@ struct Other<'a> {
 /// The per-source buffers of one client frame, kept between frames (see [`BUFFER_POOL`]).
 #[derive(Debug, Default)]
 struct Buffers {
-    /// `M_cam` and more: x, y = the NDC flow to the client, z = the client's reversed depth of the
-    /// point (eq. 8; the source depth plus the z flow, kept whole so that the search needs no
-    /// second read), w = visible-in-main flag (1 or 0); NaN = invalid.
-    /// Every entry is rewritten by the splatting pass, so it needs no reset.
-    flow: Vec<[f32; 4]>,
+    /// `M_cam`: x, y = the NDC flow to the client; NaN = invalid. Every entry is rewritten by the
+    /// splatting pass, so it needs no reset. Kept apart from `zc` so that the fixed-point steps,
+    /// which read only the flow, touch half the cache lines.
+    flow: Vec<[f32; 2]>,
+    /// The client's reversed depth of each point (eq. 8; the source depth plus the z flow, kept
+    /// whole); NaN = invalid. Rewritten every frame.
+    zc: Vec<f32>,
     /// Splat keys ([`splat_key`]), reset to [`EMPTY_SPLAT`] every frame.
     splat: Vec<AtomicU64>,
     /// The window search done for every cell at once ([`window_min`]): the packed source pixel
@@ -459,7 +461,9 @@ impl<'a> Src<'a> {
         let n = view.camera.width * view.camera.height;
         if bufs.flow.len() != n {
             bufs.flow = Vec::new();
-            bufs.flow.resize(n, [f32::NAN; 4]);
+            bufs.flow.resize(n, [f32::NAN; 2]);
+            bufs.zc = Vec::new();
+            bufs.zc.resize(n, f32::NAN);
             bufs.splat = Vec::new();
             bufs.splat.resize_with(n, || AtomicU64::new(EMPTY_SPLAT));
             bufs.init = Vec::new();
@@ -743,12 +747,15 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
     // a point that lands in another band (a few per cent: flows are mostly smaller than the band)
     // is kept aside and applied after the parallel pass. A `lock cmpxchg` per point would cost
     // more than the point's whole scene flow.
-    let block = |b: usize, rows: &mut [[f32; 4]], spill: &mut Vec<(u32, u64)>| {
+    let block = |b: usize,
+                 rows: &mut [[f32; 2]],
+                 zrows: &mut [f32],
+                 spill: &mut Vec<(u32, u64)>| {
         spill.clear();
         ROW_SCRATCH.with(|cell| {
             let mut scratch = cell.borrow_mut();
             scratch.resize(sw, (0, 0.0));
-            for (r, row) in rows.chunks_mut(sw).enumerate() {
+            for (r, (row, zrow)) in rows.chunks_mut(sw).zip(zrows.chunks_mut(sw)).enumerate() {
                 let j = b * TILE + r;
                 let depth = &view.depth[j * sw..(j + 1) * sw];
                 let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
@@ -763,17 +770,17 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
                         w,
                     },
                     row,
+                    zrow,
                     &mut scratch,
                 );
                 if let Some(vis) = vis {
                     // Auxiliary sources: visible in the main camera (§3.5 rule 2), from the pair.
-                    for (i, flow) in row.iter_mut().enumerate() {
-                        if flow[3].is_nan() {
+                    for (i, flow) in row.iter().enumerate() {
+                        if flow[0].is_nan() {
                             continue;
                         }
                         let v = vis[j * sw + i] != 0;
                         let [x, y] = ndc.at(i, j);
-                        flow[3] = if v { 1.0 } else { 0.0 };
                         // Where the point lands in the client grid, whether or not it was
                         // splatted (the FPI can reach points that are not, e.g. nearer than the
                         // client's near plane). Points just outside the grid need no flag: the
@@ -809,9 +816,10 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
     src.bufs
         .flow
         .par_chunks_mut(TILE * sw)
+        .zip(src.bufs.zc.par_chunks_mut(TILE * sw))
         .zip(spills.par_iter_mut())
         .enumerate()
-        .for_each(|(b, (rows, spill))| block(b, rows, spill));
+        .for_each(|(b, ((rows, zrows), spill))| block(b, rows, zrows, spill));
     // The parallel pass has finished: nothing else writes the grid now.
     for &(c, key) in spills.iter().flatten() {
         let cell = &splat[c as usize];
@@ -945,13 +953,14 @@ avx2_dispatch! {
     /// contraction, so the bytes do not depend on the processor).
     fn flow_row / flow_row_avx2 => flow_row_impl(
         row: FlowRow,
-        flow: &mut [[f32; 4]],
+        flow: &mut [[f32; 2]],
+        zc: &mut [f32],
         splat: &mut [(u32, f32)],
     )
 }
 
 #[inline(always)]
-fn flow_row_impl(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) {
+fn flow_row_impl(row: FlowRow, flow: &mut [[f32; 2]], zc: &mut [f32], splat: &mut [(u32, f32)]) {
     let FlowRow {
         j,
         sw,
@@ -970,18 +979,25 @@ fn flow_row_impl(row: FlowRow, flow: &mut [[f32; 4]], splat: &mut [(u32, f32)]) 
     };
     match motion {
         Some(mo) => {
-            for (i, ((f, s), (z, o))) in flow
+            for (i, (((f, zo), s), (z, o))) in flow
                 .iter_mut()
+                .zip(zc.iter_mut())
                 .zip(splat.iter_mut())
                 .zip(depth.iter().zip(mo.chunks_exact(3)))
                 .enumerate()
             {
-                (*f, *s) = flow_point(&k, i, *z, [o[0], o[1], o[2]]);
+                (*f, *zo, *s) = flow_point(&k, i, *z, [o[0], o[1], o[2]]);
             }
         }
         None => {
-            for (i, ((f, s), z)) in flow.iter_mut().zip(splat.iter_mut()).zip(depth).enumerate() {
-                (*f, *s) = flow_point(&k, i, *z, [0.0; 3]);
+            for (i, (((f, zo), s), z)) in flow
+                .iter_mut()
+                .zip(zc.iter_mut())
+                .zip(splat.iter_mut())
+                .zip(depth)
+                .enumerate()
+            {
+                (*f, *zo, *s) = flow_point(&k, i, *z, [0.0; 3]);
             }
         }
     }
@@ -1000,10 +1016,11 @@ struct PointCtx {
     w: f32,
 }
 
-/// `M_cam` of source pixel `(i, y)` with depth `z` and object motion `o` (eqs. 1, 12, 13), with
-/// its splat target (packed cell or [`NO_SPLAT`]) and key depth.
+/// `M_cam` of source pixel `(i, y)` with depth `z` and object motion `o` (eqs. 1, 12, 13), the
+/// client's reversed depth of the point (eq. 8), and its splat target (packed cell or
+/// [`NO_SPLAT`]) and key depth.
 #[inline(always)]
-fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 4], (u32, f32)) {
+fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 2], f32, (u32, f32)) {
     let (y, w) = (k.y, k.w);
     let clip = |c: [f32; 3]| k.to_client.clip(c);
     let x = (2 * i as i32 + 1) as f32 / k.wf - 1.0;
@@ -1029,10 +1046,10 @@ fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 4], (u32, f
         && cc[1].is_finite()
         && cc[2].is_finite()
         && (o[0] + o[1] + o[2]).is_finite();
-    let f = if ok {
-        [cc[0] - x, cc[1] - y, cc[2], 1.0]
+    let (f, zc) = if ok {
+        ([cc[0] - x, cc[1] - y], cc[2])
     } else {
-        [f32::NAN; 4]
+        ([f32::NAN; 2], f32::NAN)
     };
     // In front of the client and not nearer than its near plane (with a margin for the f32 round
     // trip of points on it). Points at or beyond the far plane (the background lies at Z = 0) are
@@ -1049,7 +1066,7 @@ fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 4], (u32, f
     } else {
         (NO_SPLAT, 0.0)
     };
-    (f, s)
+    (f, zc, s)
 }
 
 /// The packed cell ([`pack_pixel`]) `(⌊fx⌋, ⌊fy⌋)` when `inside` (`0 ≤ fx < W`, `0 ≤ fy < H`),
@@ -1292,7 +1309,8 @@ impl Resolve<'_> {
     /// The window search and fixed-point iteration in source `s` for the output pixel at NDC `t`,
     /// which is cell `cell = (i, j)` of a `gw × gh` grid (the client image or an auxiliary grid).
     #[inline(always)]
-    fn search(&self, s: &Src, t: [f32; 2], cell: Cell) -> Option<Match> {
+    fn search(&self, k: usize, t: [f32; 2], cell: Cell) -> Option<Match> {
+        let s = &self.sources[k];
         let (sw, sh) = (s.proj.width, s.proj.height);
         // The source cell containing `t`: the same cell when the grids agree (the usual case, and
         // exact: a pixel centre lies inside its pixel), else found from NDC.
@@ -1326,15 +1344,17 @@ impl Resolve<'_> {
         let ex = (px + m[0] - t[0]) * s.aspect[0];
         let ey = (py + m[1] - t[1]) * s.aspect[1];
         let e = (ex * ex + ey * ey).sqrt();
-        let z = m[2];
+        let z = s.bufs.zc[p];
         if !(e.is_finite() && z.is_finite()) {
             return None;
         }
+        // Visibility in main matters for the auxiliary sources only (from the pair state).
+        let vis = self.pair.sources[k].vis.get(p).is_none_or(|&v| v != 0);
         Some(Match {
             p: p as u32,
             e,
             z,
-            vis: m[3] > 0.0,
+            vis,
         })
     }
 
@@ -1350,8 +1370,8 @@ impl Resolve<'_> {
     ) -> Option<Choice> {
         if self.bidirectional {
             let (fi, bi) = (2 * cam, 2 * cam + 1);
-            let f = self.search(&self.sources[fi], t, cell);
-            let b = self.search(&self.sources[bi], t, cell);
+            let f = self.search(fi, t, cell);
+            let b = self.search(bi, t, cell);
             let ef = f.map_or(f32::INFINITY, |m| m.e);
             let eb = b.map_or(f32::INFINITY, |m| m.e);
             let (f_ok, b_ok) = (ef < eps_e, eb < eps_e);
@@ -1372,7 +1392,7 @@ impl Resolve<'_> {
                 visible_in_main,
             })
         } else {
-            let m = self.search(&self.sources[cam], t, cell)?;
+            let m = self.search(cam, t, cell)?;
             (m.e < eps_e).then_some(Choice {
                 src: cam,
                 m,
@@ -1749,8 +1769,9 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
         .bufs
         .flow
         .into_iter()
+        .zip(src.bufs.zc)
         .zip(view.depth)
-        .map(|(f, z)| [f[0], f[1], f[2] - z])
+        .map(|((f, zc), z)| [f[0], f[1], zc - z])
         .collect())
 }
 
