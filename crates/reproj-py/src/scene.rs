@@ -168,6 +168,13 @@ pub fn scene_names() -> Vec<&'static str> {
     rs::SCENE_NAMES.to_vec()
 }
 
+/// The renderer's default colour sub-samples per pixel side for a `width×height` camera (3 up to
+/// 640×360 pixels, 2 above).
+#[pyfunction]
+pub fn default_samples(width: usize, height: usize) -> usize {
+    rs::default_samples(width, height)
+}
+
 /// One glTF placement: `(path, position, yaw_deg, scale, animation, time_offset, speed)`.
 type ModelSpec = (String, [f64; 3], f64, f64, Option<usize>, f64, f64);
 
