@@ -359,7 +359,7 @@ def _add_demo(sub: Any) -> None:
             "| ours | FLIP error map of ours, side by side, at --video-fps), stills/*.png "
             "(three client frames: ground truth, every method, the FLIP map, the side-by-side), "
             "summary.md and summary.json (per method: ssim, flip, psnr, vmaf, mbps, frames), "
-            "and prints the table. The defaults (courtyard at 256x144, 1 s) take about a minute "
+            "and prints the table. The defaults (courtyard at 256x144, 1 s) take about 1.5 minutes "
             "on 2 CPU cores; time grows with scale^2 x seconds."
         ),
     )
@@ -711,8 +711,8 @@ def _add_eval(sub: Any) -> None:
             "(scene, variant) into OUT/recordings/ and reused. Writes OUT/results.json (a list "
             "of rows with the keys scene, variant, method, bitrate_mbps (null: uncompressed), "
             "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames), OUT/tables.md and "
-            "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 2 minutes on 2 "
-            "CPU cores (about 45 s per scene)."
+            "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 3 minutes on 2 "
+            "CPU cores (about 1 minute per scene)."
         ),
     )
     ev.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
