@@ -19,7 +19,7 @@
 //! (docs/quality-breakdown.md: a half-pixel shift of a perfect static view scored 24.8 dB).
 //! Colour is therefore the mean of `n×n` sub-samples on an ordered grid inside the pixel (a box
 //! filter; for odd `n` the middle one is the pixel centre), averaged on the RGB8 scale and rounded
-//! once. Only colour is filtered: depth, motion and the shadow bits describe the one surface
+//! once; `n = 1` is byte for byte the point-sampled renderer of recording format 1. Only colour is filtered: depth, motion and the shadow bits describe the one surface
 //! point at the pixel centre, and an average of two surfaces' depths or motions is a point on
 //! neither.
 //!
