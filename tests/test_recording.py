@@ -45,6 +45,7 @@ def test_plan() -> None:
 def test_round_trip(recorded: Path) -> None:
     rec = load_recording(recorded)
     assert rec.scene == "lab" and rec.variant == "dynamic" and not rec.stereo
+    assert rec.samples == {"main": 3, "aux": 3, "client": 3}
     assert (len(rec.server_frames), len(rec.client_frames)) == (4, 36)
     scene = Scene("lab")
     for k in (0, 3):
@@ -150,7 +151,10 @@ def _edit_manifest(root: Path, **changes: object) -> None:
 @pytest.mark.parametrize(
     ("changes", "problem"),
     [
-        ({"version": 2}, "format version 2"),
+        # Version 1 recordings were point-sampled: refused, naming both versions.
+        ({"version": 1}, "format version 1, this splitrender reads version 2"),
+        ({"version": 3}, "format version 3"),
+        ({"samples": {"main": 0, "aux": 3, "client": 3}}, "samples.main"),
         ({"format": "other"}, "format 'other'"),
         ({"subframes": 0}, "subframes"),
         ({"cameras": {"main": [0, 5]}}, "cameras.main"),
@@ -239,10 +243,14 @@ def test_cli_render(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         "--scale",
         "0.04",
     ]
-    assert main([*args, "--variant", "static"]) == 0
+    assert main([*args, "--variant", "static", "--samples", "2"]) == 0
     err = capsys.readouterr().err
     assert "8/8 frames" in err
-    assert load_recording(out).variant == "static"
+    rec = load_recording(out)
+    assert rec.variant == "static" and rec.samples == {"main": 2, "aux": 2, "client": 2}
+    with pytest.raises(SystemExit) as e:
+        main([*args, "--force", "--samples", "9"])
+    assert e.value.code == 2 and "--samples: expected 1..8" in capsys.readouterr().err
 
 
 def test_cli_render_shared_trace(tmp_path: Path) -> None:

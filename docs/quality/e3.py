@@ -3,7 +3,7 @@ import dataclasses, sys
 SS = 3
 def ss_img(sc, cam, t):
     big = Camera(cam.view, cam.proj, cam.width*SS, cam.height*SS)
-    g = sc.ground_truth(big, t).astype(np.float64)
+    g = sc.ground_truth(big, t, samples=1).astype(np.float64)
     return np.round(g.reshape(cam.height, SS, cam.width, SS, 3).mean((1, 3))).astype(np.uint8)
 name, scale = "courtyard", 0.125
 for variant, delay in (("dynamic", 0.1), ("static", 0.0)):
@@ -25,5 +25,5 @@ for dx in (0.25, 0.5, 1.0):
     P = np.array(cam.proj); S = np.eye(4); S[0, 3] = 2 * dx / cam.width  # NDC shift of dx pixels
     c2 = Camera(cam.view, S @ P, cam.width, cam.height)
     out = reproject_alpha(fr[0], fr[1], c2, 0.0, "ours")
-    g = sc.ground_truth(c2, 0.0)
+    g = sc.ground_truth(c2, 0.0, samples=1)
     print(f"static, alpha=0, camera shifted {dx} px: ours vs GT psnr {psnr(out, g):.2f} ssim {ssim(out, g):.4f}", flush=True)

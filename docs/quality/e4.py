@@ -3,7 +3,7 @@ import dataclasses
 SS = 3
 def ss_img(sc, cam, t):
     big = Camera(cam.view, cam.proj, cam.width*SS, cam.height*SS)
-    g = sc.ground_truth(big, t).astype(np.float64)
+    g = sc.ground_truth(big, t, samples=1).astype(np.float64)
     return np.round(g.reshape(cam.height, SS, cam.width, SS, 3).mean((1, 3))).astype(np.uint8)
 name, scale, variant, delay = "courtyard", 0.125, "dynamic", 0.1
 sc = scene(name, variant)

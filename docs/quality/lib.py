@@ -15,16 +15,16 @@ def scene(name, variant="dynamic"):
 
 def server_frames(name, variant, scale, delay=0.1, n=11, subframes=4):
     sc = scene(name, variant); m = PathMotion(sc, delay)
-    return [sc.server_frame(k, scale, FS, subframes, pose=m.server_pose(k, FS)) for k in range(n)]
+    return [sc.server_frame(k, scale, FS, subframes, pose=m.server_pose(k, FS), samples=1) for k in range(n)]
 
 def gt(name, variant, scale, n_client=120, toff=0.0, delay=0.1):
     sc = scene(name, variant); m = PathMotion(sc, delay)
     cams, imgs = [], []
     for n in range(n_client):
         t = n / FC
-        (cam, img), = sc.client_frames(n, scale, FC, pose=m.client_pose(t))
+        (cam, img), = sc.client_frames(n, scale, FC, pose=m.client_pose(t), samples=1)
         if toff != 0.0:
-            img = sc.ground_truth(cam, t + toff)
+            img = sc.ground_truth(cam, t + toff, samples=1)
         cams.append(cam); imgs.append(img)
     return cams, imgs
 

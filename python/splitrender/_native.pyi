@@ -41,6 +41,8 @@ __all__ = [
     "synthetic_head_pose",
     "Scene",
     "scene_names",
+    "default_samples",
+    "MAX_SAMPLES",
     "WgpuReprojector",
     "wgpu_adapter",
     "_panic_for_test",
@@ -48,6 +50,7 @@ __all__ = [
 
 __version__: str
 METHODS: list[str]
+MAX_SAMPLES: int
 
 class SplitRenderError(Exception): ...
 class InvalidInputError(SplitRenderError, ValueError): ...
@@ -110,6 +113,7 @@ def synthetic_rig(
 ) -> list[tuple[_F64, _F64, int, int]]: ...
 def synthetic_head_pose(t: float) -> tuple[_Vec3, _Vec3]: ...
 def scene_names() -> list[str]: ...
+def default_samples(width: int, height: int) -> int: ...
 @final
 class Scene:
     """A built-in scene of the reference renderer (reproj-scene), built once."""
@@ -154,6 +158,7 @@ class Scene:
         fs: float = 10.0,
         subframes: int = 4,
         pose: _F64 | None = None,
+        samples: int | None = None,
     ) -> dict[str, Any]: ...
     def render_client_frame(
         self,
@@ -162,9 +167,16 @@ class Scene:
         fc: float = 120.0,
         stereo: bool = False,
         pose: _F64 | None = None,
+        samples: int | None = None,
     ) -> list[tuple[_F64, _F64, int, int, _U8]]: ...
     def render_ground_truth(
-        self, view: _F64, proj: _F64, width: int, height: int, t: float
+        self,
+        view: _F64,
+        proj: _F64,
+        width: int,
+        height: int,
+        t: float,
+        samples: int | None = None,
     ) -> _U8: ...
 
 def wgpu_adapter() -> str: ...

@@ -101,6 +101,25 @@ def _build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _samples(text: str) -> int:
+    from splitrender.scenes import MAX_SAMPLES
+
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 1 <= v <= MAX_SAMPLES:
+        raise argparse.ArgumentTypeError(f"expected 1..{MAX_SAMPLES} per pixel side, got {v}")
+    return v
+
+
+_SAMPLES_HELP = (
+    "colour sub-samples per pixel side N: server colour, shadow colours and ground truth are "
+    "the mean of N x N samples (depth, motion and shadow bits stay at the pixel centre); "
+    "default: 3 up to 640x360 pixels per camera, 2 above"
+)
+
+
 def _positive(text: str) -> float:
     try:
         v = float(text)
@@ -123,8 +142,9 @@ def _add_render(sub: Any) -> None:
             "predicting with a 100 ms delay; or a recorded head trace (--trace), re-anchored at "
             "the path's start. The recording is written to DIR.partial-<pid> and renamed to DIR "
             "when complete. Rendering the same arguments twice gives identical bytes. Time: on 2 "
-            "CPU cores about 0.5 s per server frame and 0.08 s per client frame at scale 0.125 "
-            "(320x180), about 4x that at 0.25 (640x360); the defaults take about 30 s."
+            "CPU cores about 0.8 s per server frame and 0.23 s per client frame at scale 0.125 "
+            "(320x180, 3x3 colour samples), about 4x that at 0.25 (640x360); the defaults take "
+            "about 70 s."
         ),
     )
     re.add_argument(
@@ -168,6 +188,7 @@ def _add_render(sub: Any) -> None:
         help="scale of the trace's translation (default: %(default)s)",
     )
     re.add_argument("--stereo", action="store_true", help="two eyes (IPD 7 cm) per client frame")
+    re.add_argument("--samples", type=_samples, default=None, metavar="N", help=_SAMPLES_HELP)
     re.add_argument("--force", action="store_true", help="replace DIR if it exists")
     re.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -223,6 +244,7 @@ def _render(args: argparse.Namespace) -> int:
             stereo=args.stereo,
             trace=trace,
             translation_scale=args.trace_scale,
+            samples=args.samples,
             overwrite=args.force,
             progress=bar,
         )
@@ -337,7 +359,7 @@ def _add_demo(sub: Any) -> None:
             "| ours | FLIP error map of ours, side by side, at --video-fps), stills/*.png "
             "(three client frames: ground truth, every method, the FLIP map, the side-by-side), "
             "summary.md and summary.json (per method: ssim, flip, psnr, vmaf, mbps, frames), "
-            "and prints the table. The defaults (courtyard at 256x144, 1 s) take about a minute "
+            "and prints the table. The defaults (courtyard at 256x144, 1 s) take about 1.5 minutes "
             "on 2 CPU cores; time grows with scale^2 x seconds."
         ),
     )
@@ -689,8 +711,8 @@ def _add_eval(sub: Any) -> None:
             "(scene, variant) into OUT/recordings/ and reused. Writes OUT/results.json (a list "
             "of rows with the keys scene, variant, method, bitrate_mbps (null: uncompressed), "
             "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames), OUT/tables.md and "
-            "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 2 minutes on 2 "
-            "CPU cores (about 45 s per scene)."
+            "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 3 minutes on 2 "
+            "CPU cores (about 1 minute per scene)."
         ),
     )
     ev.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
@@ -723,6 +745,8 @@ def _add_eval(sub: Any) -> None:
                     help="head trace 'px py pz pitch yaw roll t_ms' per line as client motion")
     ev.add_argument("--trace-scale", type=float, default=1.0, metavar="F",
                     help="scale of the trace's translation (default: %(default)s)")
+    ev.add_argument("--samples", type=_samples, default=None, metavar="N",
+                    help=_SAMPLES_HELP + " (every render: recordings and the timewarp lines)")
     _add_backend(ev, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
     ev.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
     ev.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -738,7 +762,7 @@ def _eval(args: argparse.Namespace) -> int:
         rd_scenes=None if args.rd_scenes is None else tuple(args.rd_scenes),
         variants=tuple(args.variants),
         trace=args.trace, trace_scale=args.trace_scale, progress=not args.quiet,
-        backend=args.backend,
+        backend=args.backend, samples=args.samples,
     )
     try:
         res = run_eval(cfg)

@@ -9,7 +9,7 @@
   the mono recording) vs stereo (both eyes, IPD 7 cm; the metrics are the means over both eyes).
 
 Recordings are rendered once per (scene, variant[, stereo]) into ``OUT/recordings/`` and reused
-while their scale, length and client motion match. Every result is a row with exactly the keys
+while their format version, scale, length, colour sub-samples and client motion match. Every result is a row with exactly the keys
 :data:`ROW_KEYS`; ``results.json`` (the list of rows, rewritten after each experiment),
 ``tables.md`` (one Markdown table per experiment) and ``delays.png`` (metrics against ``l``) are
 written to ``OUT``.
@@ -124,6 +124,9 @@ class EvalConfig:
     progress: bool = True
     #: ``"cpu"`` or ``"wgpu"`` (the methods with a GPU kernel; see ``gpu.backend_for``).
     backend: str = "cpu"
+    #: Colour sub-samples per pixel side of every render (server, ground truth, the timewarp
+    #: lines' servers); ``None``: ``scenes.default_samples`` of each camera's size.
+    samples: int | None = None
 
 
 @dataclass
@@ -143,6 +146,10 @@ def check_config(cfg: EvalConfig) -> None:
 
     if not cfg.scenes:
         raise EvalArgumentError("--scenes: expected at least one scene")
+    from splitrender.scenes import MAX_SAMPLES
+
+    if cfg.samples is not None and not 1 <= cfg.samples <= MAX_SAMPLES:
+        raise EvalArgumentError(f"--samples: expected 1..{MAX_SAMPLES}, got {cfg.samples}")
     for s in cfg.scenes:
         if s not in SCENE_NAMES:
             raise EvalArgumentError(
@@ -231,7 +238,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     from splitrender.gpu import backend_for
     from splitrender.pipeline import encode_decode, play_and_score, raw_mbps
     from splitrender.recording import Recording, load_recording, plan, write_recording
-    from splitrender.scenes import PREDICTION_DELAY, Scene, Trace, load_trace
+    from splitrender.scenes import PREDICTION_DELAY, Scene, Trace, default_samples, load_trace
     from splitrender.types import ReprojectOptions, ServerFrame
 
     check_config(cfg)
@@ -264,6 +271,8 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     cache: dict[tuple[Any, ...], Row] = {}
     tables: list[tuple[str, str, list[Row], tuple[str, ...], tuple[str, ...]]] = []
 
+    main_samples = default_samples(w, h) if cfg.samples is None else cfg.samples
+
     def recording(scene: str, variant: str, stereo: bool) -> Recording:
         path = out / "recordings" / f"{scene}-{variant}{'-stereo' if stereo else ''}"
         if (path / "manifest.json").is_file():
@@ -280,6 +289,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                 if (
                     m["scale"] == cfg.scale
                     and m["seconds"] == cfg.seconds
+                    and m["samples"]["main"] == main_samples
                     and bool(m["stereo"]) == stereo
                     and same_motion
                 ):
@@ -292,7 +302,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         )
         write_recording(
             path, Scene(scene, variant), seconds=cfg.seconds, scale=cfg.scale, stereo=stereo,
-            trace=trace, translation_scale=cfg.trace_scale, overwrite=True,
+            trace=trace, translation_scale=cfg.trace_scale, samples=cfg.samples, overwrite=True,
             progress=lambda d, t: stages.bar(d, t, "frames"),
         )
         return load_recording(path)
@@ -634,7 +644,8 @@ def _timewarp_server(
     n_server, _ = plan(cfg.seconds, float(fps), FC)
     out = []
     for k in range(n_server):
-        f = sc.server_frame(k, cfg.scale, float(fps), 1, pose=motion.server_pose(k, float(fps)))
+        f = sc.server_frame(k, cfg.scale, float(fps), 1, pose=motion.server_pose(k, float(fps)),
+                            samples=cfg.samples)
         out.append(_main_colour_depth(f))
         bar(k + 1, n_server, "server frames")
     return out

@@ -1,5 +1,5 @@
 """Recordings: every server buffer of every camera and the ground-truth client frames of a scene,
-on disk (format ``splitrender-recording``, version 1; docs/recording-format.md).
+on disk (format ``splitrender-recording``, version 2; docs/recording-format.md).
 
 Layout of a recording directory::
 
@@ -8,8 +8,9 @@ Layout of a recording directory::
       server/000000.npz ...      # one per server frame k = 0..K
       client/000000.npz ...      # one per client frame n = 0..N-1
 
-``manifest.json`` holds ``format`` (``"splitrender-recording"``), ``version`` (1), ``generator``,
+``manifest.json`` holds ``format`` (``"splitrender-recording"``), ``version`` (2), ``generator``,
 ``scene``, ``variant``, ``scale``, ``fs``, ``fc``, ``subframes`` (S), ``seconds``, ``stereo``,
+``samples`` (colour sub-samples per pixel side, ``{"main", "aux", "client"}``),
 ``near``/``far``, ``cameras`` (``main``/``aux``/``client`` as ``[width, height]``, ``eyes``),
 ``client_motion`` (``{"source": "path"}`` or ``{"source": "trace", "file", "sha256",
 "translation_scale"}``, both with ``prediction_delay``), and ``server_frames``/``client_frames``:
@@ -52,7 +53,15 @@ import numpy.typing as npt
 
 from splitrender import __version__
 from splitrender.errors import SplitRenderError
-from splitrender.scenes import ClientMotion, PathMotion, Scene, Trace, TraceMotion
+from splitrender.scenes import (
+    MAX_SAMPLES,
+    ClientMotion,
+    PathMotion,
+    Scene,
+    Trace,
+    TraceMotion,
+    default_samples,
+)
 from splitrender.types import (
     MAX_SIDE,
     Camera,
@@ -74,7 +83,9 @@ __all__ = [
 ]
 
 FORMAT = "splitrender-recording"
-VERSION = 1
+#: 2: colour and ground truth are supersampled (``samples``); version 1 recordings were point
+#: sampled, so their colours differ and they are refused rather than mixed with new ones.
+VERSION = 2
 _MANIFEST = "manifest.json"
 _MAX_MANIFEST_BYTES = 64 * 1024 * 1024
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
@@ -179,10 +190,15 @@ def write_recording(
     stereo: bool = False,
     trace: Trace | None = None,
     translation_scale: float = 1.0,
+    samples: int | None = None,
     overwrite: bool = False,
     progress: Progress | None = None,
 ) -> Path:
     """Renders a recording of ``scene`` into directory ``out`` and returns its path.
+
+    Colour (server and ground truth) is the mean of ``samples x samples`` sub-samples per pixel;
+    ``None`` takes :func:`~splitrender.scenes.default_samples` of each camera's size. The counts
+    used are written to the manifest.
 
     ``progress(done, total)`` is called after every rendered frame (server and client). Raises
     :class:`RecordingError` when ``out`` exists (unless ``overwrite``) or ``seconds`` exceeds
@@ -206,6 +222,10 @@ def write_recording(
         PathMotion(sc) if trace is None else TraceMotion(sc, trace, translation_scale)
     )
     width, height = sc.main_size(scale)
+    if samples is not None and (
+        isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= MAX_SAMPLES
+    ):
+        raise RecordingError(f"samples: expected an int in 1..{MAX_SAMPLES} or None, got {samples!r}")
     n_server, n_client = plan(seconds, fs, fc)
     total = n_server + n_client
     tmp = out.with_name(f"{out.name}.partial-{os.getpid()}")
@@ -231,7 +251,7 @@ def write_recording(
         aux_size: list[list[int]] = []
         for k in range(n_server):
             pose = motion.server_pose(k, fs)
-            f = sc.server_frame(k, scale, fs, subframes, pose=pose)
+            f = sc.server_frame(k, scale, fs, subframes, pose=pose, samples=samples)
             aux_size = [[a.camera.width, a.camera.height] for a in f.aux]
             server.append(entry("server", k, f.time, _npz_bytes(_server_arrays(pose, f))))
             done += 1
@@ -241,7 +261,7 @@ def write_recording(
         for n in range(n_client):
             t = n / fc
             pose = motion.client_pose(t)
-            eyes = sc.client_frames(n, scale, fc, stereo, pose=pose)
+            eyes = sc.client_frames(n, scale, fc, stereo, pose=pose, samples=samples)
             arrays: list[tuple[str, Any]] = [("pose", pose)]
             for e, (cam, img) in enumerate(eyes):
                 arrays += [(f"eye{e}.view", cam.view), (f"eye{e}.proj", cam.proj)]
@@ -250,6 +270,9 @@ def write_recording(
             done += 1
             if progress is not None:
                 progress(done, total)
+        def used_samples(w: int, h: int) -> int:
+            return samples if samples is not None else default_samples(w, h)
+
         manifest = {
             "format": FORMAT,
             "version": VERSION,
@@ -262,6 +285,11 @@ def write_recording(
             "subframes": subframes,
             "seconds": seconds,
             "stereo": bool(stereo),
+            "samples": {
+                "main": used_samples(width, height),
+                "aux": used_samples(*aux_size[0]),
+                "client": used_samples(width, height),
+            },
             "near": sc.near,
             "far": sc.far,
             "cameras": {
@@ -467,6 +495,10 @@ class Recording:
     fc = property(lambda self: float(self.manifest["fc"]), doc="Client frame rate.")
     subframes = property(lambda self: int(self.manifest["subframes"]), doc="Shadow subframes S.")
     stereo = property(lambda self: bool(self.manifest["stereo"]), doc="Two eyes per frame.")
+    samples = property(
+        lambda self: dict(self.manifest["samples"]),
+        doc="Colour sub-samples per pixel side: ``{'main', 'aux', 'client'}``.",
+    )
 
     def server_pose(self, k: int) -> npt.NDArray[np.float64]:
         """The (predicted) head pose server frame ``k`` was rendered at."""
@@ -602,6 +634,11 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
     if not 1 <= sub <= 16:
         raise _fail(mpath, f"field 'subframes': expected 1..16, got {sub}")
     stereo = _get(m, "stereo", bool, mpath)
+    samples = _get(m, "samples", dict, mpath)
+    for key in ("main", "aux", "client"):
+        n = samples.get(key)
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_SAMPLES:
+            raise _fail(mpath, f"samples.{key}: expected an int in 1..{MAX_SAMPLES}, got {n!r}")
     cams = _get(m, "cameras", dict, mpath)
     main = _size(cams.get("main"), "main", mpath)
     aux = cams.get("aux")

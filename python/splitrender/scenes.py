@@ -35,6 +35,7 @@ from splitrender.errors import InvalidInputError
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 
 __all__ = [
+    "MAX_SAMPLES",
     "ModelPlacement",
     "PREDICTION_DELAY",
     "SCENE_NAMES",
@@ -44,17 +45,40 @@ __all__ = [
     "Trace",
     "TraceError",
     "TraceMotion",
+    "default_samples",
     "load_trace",
 ]
 
 #: Names of the built-in scenes.
 SCENE_NAMES: tuple[str, ...] = tuple(_native.scene_names())
+#: Largest number of colour sub-samples per pixel side the renderer takes.
+MAX_SAMPLES: int = _native.MAX_SAMPLES
 #: How much older the pose the server predicts with is than the client's actual one (seconds).
 PREDICTION_DELAY = 0.1
 #: Largest trace file read (bytes): 25 s at 60 Hz is about 60 KB.
 MAX_TRACE_BYTES = 64 * 1024 * 1024
 
 F64 = npt.NDArray[np.float64]
+
+
+def default_samples(width: int, height: int) -> int:
+    """The renderer's default colour sub-samples per pixel side for a ``width x height`` camera:
+    3 (9 per pixel) up to 640x360 pixels, 2 (4 per pixel) above.
+
+    Colour (server colour, ``S_min``/``S_max``, ground truth) is the box-filtered mean of an
+    ``n x n`` ordered grid of sub-samples per pixel; depth, motion and the shadow bits stay at the
+    pixel centre (crates/reproj-scene/src/render.rs, "Colour supersampling")."""
+    return _native.default_samples(width, height)
+
+
+def _check_samples(samples: int | None) -> int | None:
+    if samples is None:
+        return None
+    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= MAX_SAMPLES:
+        raise InvalidInputError(
+            f"samples: expected an int in 1..{MAX_SAMPLES} per pixel side or None, got {samples!r}"
+        )
+    return samples
 
 
 class TraceError(InvalidInputError):
@@ -242,10 +266,15 @@ class Scene:
         subframes: int = 4,
         *,
         pose: F64 | None = None,
+        samples: int | None = None,
     ) -> ServerFrame:
         """Server frame ``k`` (time ``k / fps``): every buffer of the main and both auxiliary
-        cameras, rendered at ``pose`` (camera-to-world) or the scene's predicted pose."""
-        d = self._native.render_server_frame(k, scale, fps, subframes, pose)
+        cameras, rendered at ``pose`` (camera-to-world) or the scene's predicted pose, colour
+        from ``samples x samples`` sub-samples per pixel (``None``: :func:`default_samples` of
+        each camera's size)."""
+        d = self._native.render_server_frame(
+            k, scale, fps, subframes, pose, _check_samples(samples)
+        )
         return ServerFrame(
             d["index"],
             d["time"],
@@ -261,15 +290,22 @@ class Scene:
         stereo: bool = False,
         *,
         pose: F64 | None = None,
+        samples: int | None = None,
     ) -> list[tuple[Camera, npt.NDArray[np.uint8]]]:
         """Ground truth of client frame ``n`` (time ``n / fc``), one ``(camera, image)`` per eye
-        (``[left, right]`` when ``stereo``), at ``pose`` or the client's actual pose."""
-        eyes = self._native.render_client_frame(n, scale, fc, stereo, pose)
+        (``[left, right]`` when ``stereo``), at ``pose`` or the client's actual pose, with the
+        same colour filter as :meth:`server_frame`'s main camera for the same ``samples``."""
+        eyes = self._native.render_client_frame(
+            n, scale, fc, stereo, pose, _check_samples(samples)
+        )
         return [(Camera(v, p, w, h), img) for v, p, w, h, img in eyes]
 
-    def ground_truth(self, camera: Camera, t: float) -> npt.NDArray[np.uint8]:
-        """Ground-truth RGB8 image at any ``camera`` and time ``t``."""
-        return self._native.render_ground_truth(*camera.to_native(), t)
+    def ground_truth(
+        self, camera: Camera, t: float, *, samples: int | None = None
+    ) -> npt.NDArray[np.uint8]:
+        """Ground-truth RGB8 image at any ``camera`` and time ``t``, colour from ``samples x
+        samples`` sub-samples per pixel (``None``: :func:`default_samples` of its size)."""
+        return self._native.render_ground_truth(*camera.to_native(), t, _check_samples(samples))
 
     def path_motion(self, prediction_delay: float = PREDICTION_DELAY) -> PathMotion:
         return PathMotion(self, prediction_delay)

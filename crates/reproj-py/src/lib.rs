@@ -79,6 +79,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synth::synthetic_head_pose, m)?)?;
     m.add_class::<scene::Scene>()?;
     m.add_function(wrap_pyfunction!(scene::scene_names, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::default_samples, m)?)?;
+    m.add("MAX_SAMPLES", reproj_scene::MAX_SAMPLES)?;
     m.add_function(wrap_pyfunction!(_panic_for_test, m)?)?;
     Ok(())
 }

@@ -26,6 +26,7 @@ fn map_scene_error(e: SceneError) -> PyErr {
         SceneError::UnknownScene { .. }
         | SceneError::UnknownVariant { .. }
         | SceneError::BadSubframes { .. }
+        | SceneError::BadSamples { .. }
         | SceneError::BadScale { .. }
         | SceneError::BadCamera { .. }
         | SceneError::BadHierarchy { .. }
@@ -66,6 +67,21 @@ fn subframes(v: i64) -> PyResult<usize> {
     match usize::try_from(v) {
         Ok(s) if (1..=16).contains(&s) => Ok(s),
         _ => Err(invalid(format!("subframes: expected 1..=16, got {v}"))),
+    }
+}
+
+/// Colour sub-samples per pixel side for a `width×height` camera: `v`, checked, or the renderer's
+/// default for that size when `None`.
+fn samples(v: Option<i64>, width: usize, height: usize) -> PyResult<usize> {
+    match v {
+        None => Ok(rs::default_samples(width, height)),
+        Some(n) => match usize::try_from(n) {
+            Ok(s) if (1..=rs::MAX_SAMPLES).contains(&s) => Ok(s),
+            _ => Err(invalid(format!(
+                "samples: expected 1..={} per pixel side or None, got {n}",
+                rs::MAX_SAMPLES
+            ))),
+        },
     }
 }
 
@@ -150,6 +166,13 @@ fn buffers_dict(py: Python<'_>, b: ServerBuffers) -> PyResult<Bound<'_, PyDict>>
 #[pyfunction]
 pub fn scene_names() -> Vec<&'static str> {
     rs::SCENE_NAMES.to_vec()
+}
+
+/// The renderer's default colour sub-samples per pixel side for a `width×height` camera (3 up to
+/// 640×360 pixels, 2 above).
+#[pyfunction]
+pub fn default_samples(width: usize, height: usize) -> usize {
+    rs::default_samples(width, height)
 }
 
 /// One glTF placement: `(path, position, yaw_deg, scale, animation, time_offset, speed)`.
@@ -300,10 +323,13 @@ impl Scene {
 
     /// Every buffer of server frame `k` (time `k / fs`) at `scale`, with `subframes` shadow
     /// subframes, rendered at `pose` (camera-to-world 4×4) or, when `None`, at the scene's own
-    /// predicted pose. Returns `{"index", "time", "pose", "main", "aux": [left, right]}`, each
-    /// camera a dict with `view`, `proj`, `width`, `height`, `color`, `depth`, `motion_fwd`,
-    /// `motion_bwd`, `shadow_{fwd,bwd}_{bits,min,max}`.
-    #[pyo3(signature = (k, scale, fs = 10.0, subframes = 4, pose = None))]
+    /// predicted pose. Colour (and `S_min`/`S_max`) is the mean of `samples × samples`
+    /// sub-samples per pixel, `None` = the renderer's default for each camera's size (3 up to
+    /// 640×360, 2 above); geometry is sampled at the pixel centre. Returns `{"index", "time",
+    /// "pose", "main", "aux": [left, right]}`, each camera a dict with `view`, `proj`, `width`,
+    /// `height`, `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_{fwd,bwd}_{bits,min,max}`.
+    #[pyo3(signature = (k, scale, fs = 10.0, subframes = 4, pose = None, samples = None))]
+    #[allow(clippy::too_many_arguments)]
     fn render_server_frame<'py>(
         &self,
         py: Python<'py>,
@@ -312,6 +338,7 @@ impl Scene {
         fs: f64,
         subframes: i64,
         pose: Option<&Bound<'py, PyAny>>,
+        samples: Option<i64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         guarded("Scene.render_server_frame", || {
             let k = index(k, "k")?;
@@ -322,10 +349,15 @@ impl Scene {
             let pose = self.pose_or(pose, scene.path.server_pose(k, fs))?;
             let t = k as f64 / fs;
             let rig = rs::rig(&pose, w, h, scene.near, scene.far);
+            let n_main = self::samples(samples, rig.main.width, rig.main.height)?;
+            let n_aux = self::samples(samples, rig.aux[0].width, rig.aux[0].height)?;
             let (main, aux) = py
                 .detach(|| -> rs::Result<_> {
-                    let one = |c: &Camera| rs::render_server(scene, c, t, 1.0 / fs, s);
-                    Ok((one(&rig.main)?, [one(&rig.aux[0])?, one(&rig.aux[1])?]))
+                    let one = |c: &Camera, n| rs::render_server(scene, c, t, 1.0 / fs, s, n);
+                    Ok((
+                        one(&rig.main, n_main)?,
+                        [one(&rig.aux[0], n_aux)?, one(&rig.aux[1], n_aux)?],
+                    ))
                 })
                 .map_err(map_scene_error)?;
             let d = PyDict::new(py);
@@ -342,8 +374,10 @@ impl Scene {
 
     /// Ground truth of client frame `n` (time `n / fc`) at the main camera's size for `scale`:
     /// one `(view, proj, width, height, color)` per eye (`[left, right]` when `stereo`, IPD 7 cm),
-    /// at `pose` (camera-to-world 4×4) or, when `None`, at the client's actual pose.
-    #[pyo3(signature = (n, scale, fc = 120.0, stereo = false, pose = None))]
+    /// at `pose` (camera-to-world 4×4) or, when `None`, at the client's actual pose; colour from
+    /// `samples × samples` sub-samples per pixel as [`Scene::render_server_frame`]'s main camera.
+    #[pyo3(signature = (n, scale, fc = 120.0, stereo = false, pose = None, samples = None))]
+    #[allow(clippy::too_many_arguments)]
     fn render_client_frame<'py>(
         &self,
         py: Python<'py>,
@@ -352,11 +386,13 @@ impl Scene {
         fc: f64,
         stereo: bool,
         pose: Option<&Bound<'py, PyAny>>,
+        samples: Option<i64>,
     ) -> PyResult<Bound<'py, PyList>> {
         guarded("Scene.render_client_frame", || {
             let n = index(n, "n")?;
             let fc = rate(fc, "fc")?;
             let (w, h) = rs::main_size(scale).map_err(map_scene_error)?;
+            let ns = self::samples(samples, w, h)?;
             let scene = &self.inner;
             let t = n as f64 / fc;
             let pose = self.pose_or(pose, scene.path.client_pose(t))?;
@@ -368,7 +404,7 @@ impl Scene {
             let images = py
                 .detach(|| {
                     cams.iter()
-                        .map(|c| rs::render_ground_truth(scene, c, t))
+                        .map(|c| rs::render_ground_truth(scene, c, t, ns))
                         .collect::<rs::Result<Vec<_>>>()
                 })
                 .map_err(map_scene_error)?;
@@ -392,8 +428,10 @@ impl Scene {
         })
     }
 
-    /// Ground-truth RGB8 image at any client camera and time `t`.
-    #[pyo3(signature = (view, proj, width, height, t))]
+    /// Ground-truth RGB8 image at any client camera and time `t`, colour from `samples ×
+    /// samples` sub-samples per pixel (`None`: the default for the camera's size).
+    #[pyo3(signature = (view, proj, width, height, t, samples = None))]
+    #[allow(clippy::too_many_arguments)]
     fn render_ground_truth<'py>(
         &self,
         py: Python<'py>,
@@ -402,13 +440,15 @@ impl Scene {
         width: i64,
         height: i64,
         t: f64,
+        samples: Option<i64>,
     ) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
         guarded("Scene.render_ground_truth", || {
             let camera = convert::camera(view, proj, width, height, "camera")?;
             let t = finite(t, "t")?;
+            let n = self::samples(samples, camera.width, camera.height)?;
             let scene = &self.inner;
             let img = py
-                .detach(|| rs::render_ground_truth(scene, &camera, t))
+                .detach(|| rs::render_ground_truth(scene, &camera, t, n))
                 .map_err(map_scene_error)?;
             rgb(py, img, camera.height, camera.width)
         })

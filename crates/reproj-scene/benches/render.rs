@@ -1,7 +1,8 @@
 //! One server frame (main + two auxiliary cameras, every buffer, S = 4) and one ground-truth
-//! client frame of the dynamic `courtyard` at 640×360 and 1280×720 (main camera size). One scene
-//! only, with criterion's minimum of 10 samples, to keep the whole bench under 3 minutes; the
-//! `preview` example times all three scenes.
+//! client frame of the dynamic `courtyard` at 640×360 and 1280×720 (main camera size), colour
+//! with the default sub-samples (3×3 and 2×2). One scene only, with criterion's minimum of 10
+//! samples, to keep the whole bench near 4 minutes (the 1280×720 server frame alone takes about
+//! 2); the `preview` example times all three scenes, `render_time` is a quicker check.
 //!
 //! `cargo bench -p reproj-scene --bench render`
 

@@ -23,6 +23,14 @@ pub enum SceneError {
         /// The number asked for.
         subframes: usize,
     },
+    /// A colour sample count per pixel side outside `1..=MAX_SAMPLES`.
+    #[error("samples must be in 1..={max} per pixel side, got {samples}")]
+    BadSamples {
+        /// The number asked for.
+        samples: usize,
+        /// Largest accepted ([`crate::render::MAX_SAMPLES`]).
+        max: usize,
+    },
     /// A render scale that gives an empty or oversized image.
     #[error("scale {scale} gives a {width}×{height} main camera (each side must be in 2..={max})")]
     BadScale {

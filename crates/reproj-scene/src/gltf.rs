@@ -1523,7 +1523,7 @@ mod tests {
         let cam = camera();
         let rays = Rays::new(&cam, "t").unwrap();
         let snap = scene.at(0.0);
-        let image = render_ground_truth(&scene, &cam, 0.0).unwrap();
+        let image = render_ground_truth(&scene, &cam, 0.0, 1).unwrap();
         // Quad centre at (0, 1, 0); uv (0.25, 0.25) is the top-left texel (red), and so on.
         for (x, want) in [
             ([-0.25, 1.25, 0.0], 0),
@@ -1560,7 +1560,7 @@ mod tests {
         let cam = camera();
         let rays = Rays::new(&cam, "t").unwrap();
         let t = 1.0;
-        let r = render_server(&scene, &cam, t, DT, 4).unwrap();
+        let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap();
         let snap = scene.at(t);
         let mut n = 0;
         for j in 0..cam.height {
@@ -1590,7 +1590,7 @@ mod tests {
         let cam = camera();
         let rays = Rays::new(&cam, "t").unwrap();
         let t = 1.0;
-        let r = render_server(&scene, &cam, t, DT, 4).unwrap();
+        let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap();
         let inv_vp = cam.view_proj().inverse().unwrap();
         let theta = |t: f64| 0.5 * PI * t / 4.0;
         let pivot = [1.0, 0.0, 0.0];

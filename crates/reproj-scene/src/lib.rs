@@ -8,6 +8,8 @@
 //!   object motion forward and backward in the camera's NDC (exactly zero on still objects),
 //!   dynamic-shadow bitfields and `S_min`/`S_max` colours forward and backward, and the view and
 //!   projection matrices ([`render_server`], [`render_server_frame`]);
+//! - colour (server, `S_min`/`S_max`, ground truth) box-filtered over `n×n` sub-samples per
+//!   pixel ([`default_samples`]; see [`render`]), geometry at the pixel centre;
 //! - ground truth at the client's actual pose, mono or stereo ([`render_ground_truth`],
 //!   [`render_client_frame`]);
 //! - the built-in scenes `courtyard`, `colonnade` and `lab`, each static or dynamic, with their
@@ -75,7 +77,8 @@ pub use gltf::{load_gltf_scene, place_gltf, GltfModel, Placement};
 pub use material::{Material, Pattern};
 pub use math::{Rigid, V3};
 pub use render::{
-    render_ground_truth, render_server, render_shadow_fraction, ServerBuffers, ShadowBuffers,
+    default_samples, render_ground_truth, render_server, render_shadow_fraction, ServerBuffers,
+    ShadowBuffers, MAX_SAMPLES,
 };
 pub use rig::{main_size, mono, rig, stereo, CameraPath, HeadPose, Rig, PREDICTION_DELAY};
 pub use scene::{Light, Object, Scene, Variant};
@@ -105,7 +108,8 @@ pub struct ServerFrame {
 }
 
 /// Renders server frame `k` of `scene` at `scale` (main camera `round(2560·scale) ×
-/// round(1440·scale)`), server rate `fs` and `subframes` shadow subframes per server interval.
+/// round(1440·scale)`), server rate `fs` and `subframes` shadow subframes per server interval,
+/// each camera's colour with [`default_samples`] for its size.
 ///
 /// # Errors
 /// [`SceneError::BadScale`] for a scale that gives an empty or oversized image,
@@ -121,7 +125,16 @@ pub fn render_server_frame(
     let pose = scene.path.server_pose(k, fs);
     let r = rig(&pose, w, h, scene.near, scene.far);
     let t = k as f64 / fs;
-    let one = |c| render_server(scene, c, t, 1.0 / fs, subframes);
+    let one = |c: &reproj_core::Camera| {
+        render_server(
+            scene,
+            c,
+            t,
+            1.0 / fs,
+            subframes,
+            default_samples(c.width, c.height),
+        )
+    };
     Ok(ServerFrame {
         index: k,
         time: t,
@@ -132,7 +145,8 @@ pub fn render_server_frame(
 }
 
 /// Ground truth of client frame `n` (time `n / fc`) at the client's actual pose: one RGB8 image
-/// (mono) or two, `[left, right]` (stereo, IPD 7 cm), at the main camera's size for `scale`.
+/// (mono) or two, `[left, right]` (stereo, IPD 7 cm), at the main camera's size for `scale`, with
+/// [`default_samples`] (so it matches [`render_server_frame`]'s main colour at a server pose).
 ///
 /// # Errors
 /// [`SceneError::BadScale`] as [`render_server_frame`].
@@ -152,6 +166,6 @@ pub fn render_client_frame(
         vec![mono(&pose, w, h, scene.near, scene.far)]
     };
     cams.iter()
-        .map(|c| render_ground_truth(scene, c, t))
+        .map(|c| render_ground_truth(scene, c, t, default_samples(w, h)))
         .collect()
 }

@@ -1,13 +1,37 @@
 //! Rendering: every server buffer of one camera at one time, and ground-truth client frames.
 //!
-//! One ray through each pixel centre, everything in `f64`, following `reproj_core::synthetic`'s
-//! rules so every buffer agrees with every other:
+//! Geometry is sampled by one ray through each pixel centre, everything in `f64`, following
+//! `reproj_core::synthetic`'s rules so every buffer agrees with every other:
+//! - colour (server colour, `S_min`/`S_max`, ground truth): the box-filtered mean of an `n×n`
+//!   ordered grid of sub-samples per pixel ([`default_samples`]), see "Colour supersampling";
 //! - depth: reversed `Z` of the hit point `X_t` in this camera; `Z = 0` (far plane) for the sky;
 //! - motion: the material point (object, object-space point) moved to `t ± Δ` by its object's
 //!   transform and projected with this camera held fixed; exactly 0.0 on objects that do not move;
 //! - shadow: the main light's shadow fraction of the material point at `t ± jΔ/S`, with the light
 //!   and the occluders at that time, quantised to `round(3·f)`; `S_min`/`S_max` re-shade the key
 //!   sample (albedo, normal, view and light direction of the key frame) at the extreme levels.
+//!
+//! ## Colour supersampling
+//!
+//! The procedural textures carry detail far below a pixel at the evaluation sizes (stripes of
+//! 1/8 cell, speckle of 1/64 cell, thin mortar and grout lines), so one point sample per pixel is
+//! an aliased, nearly uncorrelated signal that no reprojection can predict at a sub-pixel offset
+//! (docs/quality-breakdown.md: a half-pixel shift of a perfect static view scored 24.8 dB).
+//! Colour is therefore the mean of `n×n` sub-samples on an ordered grid inside the pixel (a box
+//! filter; for odd `n` the middle one is the pixel centre), averaged on the RGB8 scale and rounded
+//! once; `n = 1` is byte for byte the point-sampled renderer of recording format 1. Only colour is filtered: depth, motion and the shadow bits describe the one surface
+//! point at the pixel centre, and an average of two surfaces' depths or motions is a point on
+//! neither.
+//!
+//! Shadow rays are most of the render time (32 per shadow evaluation, `2S − 1` evaluations per
+//! server pixel), and a soft shadow varies slowly across one pixel, so sub-samples do not shoot
+//! their own: a sub-sample on the centre's surface (same object, normal within ~25°) takes the
+//! centre's shadow fraction, and the quantised levels of `S_min`/`S_max` are applied to exactly
+//! those sub-samples. A sub-sample on another surface (a silhouette, a box edge) takes the
+//! shadow of the first sub-sample on that surface, computed once at that sub-sample; its
+//! contribution to `S_min`/`S_max` is its key colour, since the bitfield follows only the centre's
+//! material point. So the added cost is `n² − 1` primary rays and texture look-ups per pixel plus
+//! a few shadow evaluations at edges, not `n²` times the shadow rays.
 
 use rayon::prelude::*;
 use reproj_core::{Camera, Mat4};
@@ -17,6 +41,40 @@ use crate::material::Material;
 use crate::math::{add, normalize, scale, sub, V3};
 use crate::scene::{Scene, Snapshot, Variant};
 use crate::shape::Shape;
+
+/// Largest number of colour sub-samples per pixel side (64 per pixel).
+pub const MAX_SAMPLES: usize = 8;
+
+/// Two samples lie on one surface (and share a shadow fraction) when they hit the same object
+/// with normals within ~25° (cos 25° ≈ 0.9): box faces, mesh creases and sharp folds count as
+/// different surfaces, a sphere or a smooth mesh across one pixel as the same.
+const SAME_SURFACE_COS: f64 = 0.9;
+
+/// The default colour sub-samples per pixel side for a `width×height` camera: 3 (9 per pixel)
+/// up to 640×360 pixels, 2 (4 per pixel) above.
+///
+/// At 320×180 and 640×360 a texture's finest detail (1/64 of a cell) is several per pixel, and
+/// 3×3 is what lifted `ours` from VMAF 65 to 81 in docs/quality-breakdown.md; from 1280×720 up a
+/// pixel covers a quarter of the area, so 2×2 spans a similar footprint at less than half the
+/// primary rays, and rendering time grows with the pixel count.
+pub fn default_samples(width: usize, height: usize) -> usize {
+    if width * height <= 640 * 360 {
+        3
+    } else {
+        2
+    }
+}
+
+fn check_samples(samples: usize) -> Result<usize> {
+    if (1..=MAX_SAMPLES).contains(&samples) {
+        Ok(samples)
+    } else {
+        Err(SceneError::BadSamples {
+            samples,
+            max: MAX_SAMPLES,
+        })
+    }
+}
 
 /// Rows per rayon task. Whole rows keep each task's writes contiguous; a server pixel casts up to
 /// `(2S − 1)·32` shadow rays, so 16 rows are ample work per task, and the blocks are concatenated
@@ -104,8 +162,15 @@ impl Rays {
 
     /// The ray through the centre of pixel `(i, j)`, scaled so that `s = 1` is the near plane.
     pub(crate) fn ray(&self, i: usize, j: usize) -> V3 {
-        let x = (2 * i + 1) as f64 / self.width as f64 - 1.0;
-        let y = 1.0 - (2 * j + 1) as f64 / self.height as f64;
+        self.sub_ray(i, j, 0, 0, 1)
+    }
+
+    /// The ray through sub-sample `(a, b)` of the `n×n` ordered grid of pixel `(i, j)`, at
+    /// `(i + (a + ½)/n, j + (b + ½)/n)` pixels. Numerator and denominator are integers, so the
+    /// middle sub-sample of an odd grid is the pixel-centre ray bit for bit.
+    pub(crate) fn sub_ray(&self, i: usize, j: usize, a: usize, b: usize, n: usize) -> V3 {
+        let x = (2 * n * i + 2 * a + 1) as f64 / (n * self.width) as f64 - 1.0;
+        let y = 1.0 - (2 * n * j + 2 * b + 1) as f64 / (n * self.height) as f64;
         let h = self.inv_vp.mul_vec([x, y, 1.0, 1.0]);
         sub([h[0] / h[3], h[1] / h[3], h[2] / h[3]], self.origin)
     }
@@ -123,7 +188,8 @@ impl Rays {
     }
 }
 
-/// What one pixel sees at the key time.
+/// What one pixel (or colour sub-sample) sees at the key time.
+#[derive(Clone, Copy)]
 pub(crate) struct Sample {
     /// Object index; `None` for the sky.
     pub obj: Option<usize>,
@@ -150,7 +216,11 @@ pub(crate) fn sample(
     j: usize,
     with_shadow: bool,
 ) -> Sample {
-    let d = rays.ray(i, j);
+    sample_ray(snap, rays, rays.ray(i, j), with_shadow)
+}
+
+/// What the ray `d` from the camera centre sees.
+fn sample_ray(snap: &Snapshot<'_>, rays: &Rays, d: V3, with_shadow: bool) -> Sample {
     let sky = Sample {
         obj: None,
         face: 0,
@@ -198,11 +268,83 @@ fn material<'s>(snap: &Snapshot<'s>, s: &Sample) -> Option<&'s Material> {
     s.obj.map(|o| &snap.scene.objects[o].material)
 }
 
-fn key_color(snap: &Snapshot<'_>, s: &Sample) -> [u8; 3] {
+/// A sample's colour at the key time on the RGB8 scale (unrounded).
+fn key_color(snap: &Snapshot<'_>, s: &Sample) -> V3 {
     match material(snap, s) {
         Some(m) => snap.shade(m, s.albedo, s.normal, s.view, s.shadow),
-        None => snap.scene.sky,
+        None => snap.scene.sky.map(f64::from),
     }
+}
+
+/// Whether `a` and `b` lie on one surface (see [`SAME_SURFACE_COS`]).
+fn same_surface(a: &Sample, b: &Sample) -> bool {
+    a.obj.is_some() && a.obj == b.obj && crate::math::dot(a.normal, b.normal) >= SAME_SURFACE_COS
+}
+
+/// One colour sub-sample of a pixel.
+struct SubSample {
+    s: Sample,
+    /// On the pixel centre's surface: it took the centre's shadow, and the shadow levels of the
+    /// centre's bitfield apply to it.
+    on_centre: bool,
+    /// Its colour at the key time.
+    key: V3,
+}
+
+/// The `n×n` colour sub-samples of pixel `(i, j)` whose centre sample (with its shadow) is
+/// `centre`, into `out` (cleared first), in a fixed order. Shadows are shared as the module
+/// documentation says: the centre's on its own surface, the first sub-sample's on any other.
+fn footprint(
+    snap: &Snapshot<'_>,
+    rays: &Rays,
+    (i, j): (usize, usize),
+    n: usize,
+    centre: &Sample,
+    out: &mut Vec<SubSample>,
+) {
+    out.clear();
+    for b in 0..n {
+        for a in 0..n {
+            if n % 2 == 1 && a == n / 2 && b == n / 2 {
+                out.push(SubSample {
+                    s: *centre,
+                    on_centre: centre.obj.is_some(),
+                    key: key_color(snap, centre),
+                });
+                continue;
+            }
+            let mut s = sample_ray(snap, rays, rays.sub_ray(i, j, a, b, n), false);
+            let on_centre = same_surface(centre, &s);
+            if on_centre {
+                s.shadow = centre.shadow;
+            } else if let Some(obj) = s.obj {
+                s.shadow = match out.iter().find(|p| !p.on_centre && same_surface(&p.s, &s)) {
+                    Some(p) => p.s.shadow,
+                    None => snap.shadow(obj, s.x, s.normal),
+                };
+            }
+            out.push(SubSample {
+                s,
+                on_centre,
+                key: key_color(snap, &s),
+            });
+        }
+    }
+}
+
+/// The box filter: the mean of `colors` on the RGB8 scale, rounded once.
+fn mean_rgb8(colors: impl Iterator<Item = V3>) -> [u8; 3] {
+    let (mut sum, mut count) = ([0.0; 3], 0usize);
+    for c in colors {
+        sum = add(sum, c);
+        count += 1;
+    }
+    sum.map(|v| (v / count as f64).round().clamp(0.0, 255.0) as u8)
+}
+
+/// The colour of a pixel from its sub-samples.
+fn pixel_color(subs: &[SubSample]) -> [u8; 3] {
+    mean_rgb8(subs.iter().map(|p| p.key))
 }
 
 /// Where the material point `x` (seen on `obj`, triangle or face `face`, in `key`) is in
@@ -238,9 +380,15 @@ fn quantise(f: f64) -> u32 {
     (f * 3.0).round().clamp(0.0, 3.0) as u32
 }
 
-/// Bitfield and `S_min`/`S_max` of a sample following its material point over `subs` (the
-/// snapshots at subframes `1..S`; subframe 0 is the key).
-fn shadow_field(key: &Snapshot<'_>, subs: &[Snapshot<'_>], s: &Sample) -> (u32, [u8; 3], [u8; 3]) {
+/// Bitfield and `S_min`/`S_max` of the pixel-centre sample `s` following its material point over
+/// `subs` (the snapshots at subframes `1..S`; subframe 0 is the key); `S_min`/`S_max` re-shade the
+/// pixel's colour sub-samples `fp` on the centre's surface at the extreme levels.
+fn shadow_field(
+    key: &Snapshot<'_>,
+    subs: &[Snapshot<'_>],
+    s: &Sample,
+    fp: &[SubSample],
+) -> (u32, [u8; 3], [u8; 3]) {
     let (Some(obj), Some(m)) = (s.obj, material(key, s)) else {
         return (0, [0; 3], [0; 3]);
     };
@@ -257,28 +405,40 @@ fn shadow_field(key: &Snapshot<'_>, subs: &[Snapshot<'_>], s: &Sample) -> (u32, 
         return (0, [0; 3], [0; 3]);
     }
     // Only the shadow is re-applied (the client's eqs. 9–11 only interpolate the shadow).
-    let at = |l: u32| key.shade(m, s.albedo, s.normal, s.view, l as f64 / 3.0);
+    // Sub-samples on the centre's surface share its object, hence its material `m`.
+    let at = |l: u32| {
+        mean_rgb8(fp.iter().map(|p| {
+            if p.on_centre {
+                key.shade(m, p.s.albedo, p.s.normal, p.s.view, l as f64 / 3.0)
+            } else {
+                p.key
+            }
+        }))
+    };
     let smin = if lmin == l0 { [0; 3] } else { at(lmin) };
     let smax = if lmax == l0 { [0; 3] } else { at(lmax) };
     (bits, smin, smax)
 }
 
 /// Every server buffer of `camera` at time `t` (seconds): `interval` = Δ = 1/f_s, `subframes` =
-/// S = f_d/f_s.
+/// S = f_d/f_s, colour from `samples × samples` sub-samples per pixel ([`default_samples`]).
 ///
 /// # Errors
-/// [`SceneError::BadSubframes`] when `subframes ∉ 1..=16`; [`SceneError::BadCamera`] when the
-/// camera's size is out of range or its matrices cannot be inverted.
+/// [`SceneError::BadSubframes`] when `subframes ∉ 1..=16`; [`SceneError::BadSamples`] when
+/// `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when the camera's size is out of range
+/// or its matrices cannot be inverted.
 pub fn render_server(
     scene: &Scene,
     camera: &Camera,
     t: f64,
     interval: f64,
     subframes: usize,
+    samples: usize,
 ) -> Result<ServerBuffers> {
     if !(1..=16).contains(&subframes) {
         return Err(SceneError::BadSubframes { subframes });
     }
+    let n = check_samples(samples)?;
     let rays = Rays::new(camera, "server")?;
     let (w, h) = (camera.width, camera.height);
     let key = scene.at(t);
@@ -295,11 +455,14 @@ pub fn render_server(
         .map(|b| {
             let rows = BLOCK_ROWS.min(h - b * BLOCK_ROWS);
             let mut blk = Block::new(rows * w);
+            let mut fp = Vec::with_capacity(n * n);
             for r in 0..rows {
                 for i in 0..w {
                     let k = r * w + i;
-                    let s = sample(&key, &rays, i, b * BLOCK_ROWS + r, true);
-                    blk.color[3 * k..3 * k + 3].copy_from_slice(&key_color(&key, &s));
+                    let j = b * BLOCK_ROWS + r;
+                    let s = sample(&key, &rays, i, j, true);
+                    footprint(&key, &rays, (i, j), n, &s, &mut fp);
+                    blk.color[3 * k..3 * k + 3].copy_from_slice(&pixel_color(&fp));
                     let Some(obj) = s.obj else {
                         continue; // Sky: Z = 0, zero motion, no dynamic shadow.
                     };
@@ -332,7 +495,7 @@ pub fn render_server(
                             &mut blk.smax_bwd,
                         ),
                     ] {
-                        let (bf, mn, mx) = shadow_field(&key, subs, &s);
+                        let (bf, mn, mx) = shadow_field(&key, subs, &s, &fp);
                         bits[k] = bf;
                         smin[3 * k..3 * k + 3].copy_from_slice(&mn);
                         smax[3 * k..3 * k + 3].copy_from_slice(&mx);
@@ -392,17 +555,33 @@ fn per_pixel<T: Copy + Default + Send, const C: usize>(
     out
 }
 
-/// Ground-truth colour (`H·W·3` RGB8) at the client `camera` and time `t`: the same shading as
-/// the server colour, so at a server camera and time it equals that colour byte for byte.
+/// Ground-truth colour (`H·W·3` RGB8) at the client `camera` and time `t`, from `samples ×
+/// samples` sub-samples per pixel: the same shading and filter as the server colour, so at a
+/// server camera and time (and the same `samples`) it equals that colour byte for byte.
 ///
 /// # Errors
-/// [`SceneError::BadCamera`] when the camera's size is out of range or its matrices cannot be
-/// inverted.
-pub fn render_ground_truth(scene: &Scene, camera: &Camera, t: f64) -> Result<Vec<u8>> {
+/// [`SceneError::BadSamples`] when `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when
+/// the camera's size is out of range or its matrices cannot be inverted.
+pub fn render_ground_truth(
+    scene: &Scene,
+    camera: &Camera,
+    t: f64,
+    samples: usize,
+) -> Result<Vec<u8>> {
+    let n = check_samples(samples)?;
     let rays = Rays::new(camera, "client")?;
     let snap = scene.at(t);
     Ok(per_pixel(&rays, |i, j| {
-        key_color(&snap, &sample(&snap, &rays, i, j, true))
+        let mut fp = Vec::with_capacity(n * n);
+        footprint(
+            &snap,
+            &rays,
+            (i, j),
+            n,
+            &sample(&snap, &rays, i, j, true),
+            &mut fp,
+        );
+        pixel_color(&fp)
     }))
 }
 
@@ -506,8 +685,8 @@ mod tests {
                 .unwrap();
             pool.install(|| {
                 (
-                    render_server(&scene, &cam, t, DT, S).unwrap(),
-                    render_ground_truth(&scene, &cam, t).unwrap(),
+                    render_server(&scene, &cam, t, DT, S, 3).unwrap(),
+                    render_ground_truth(&scene, &cam, t, 3).unwrap(),
                 )
             })
         };
@@ -532,7 +711,7 @@ mod tests {
         for name in crate::scenes::SCENE_NAMES {
             let scene = builtin(name, Variant::Static).unwrap();
             let cam = camera(&scene, 7, 48, 27);
-            let r = render_server(&scene, &cam, 0.7, DT, S).unwrap();
+            let r = render_server(&scene, &cam, 0.7, DT, S, 2).unwrap();
             assert!(r.motion_fwd.iter().chain(&r.motion_bwd).all(|&m| m == 0.0));
             for sb in [&r.shadow_fwd, &r.shadow_bwd] {
                 assert!(sb.bits.iter().all(|&b| b == 0), "{name}");
@@ -575,8 +754,8 @@ mod tests {
         let (w, h) = (96, 54);
         let cam = camera(&scene, k, w, h);
         let t = k as f64 * DT;
-        let a = render_server(&scene, &cam, t, DT, 1).unwrap();
-        let b = render_server(&scene, &cam, t + DT, DT, 1).unwrap();
+        let a = render_server(&scene, &cam, t, DT, 1, 1).unwrap();
+        let b = render_server(&scene, &cam, t + DT, DT, 1, 1).unwrap();
         let (ia, ib) = (ids(&scene, &cam, t), ids(&scene, &cam, t + DT));
         for (src, dst, ids_src, ids_dst, motion) in [
             (&a, &b, &ia, &ib, &a.motion_fwd),
@@ -636,7 +815,7 @@ mod tests {
         let (w, h) = (96, 54);
         let cam = camera(&scene, 12, w, h);
         let t = 1.2;
-        let r = render_server(&scene, &cam, t, DT, 1).unwrap();
+        let r = render_server(&scene, &cam, t, DT, 1, 1).unwrap();
         let inv_vp = cam.view_proj().inverse().unwrap();
         let unproject = |x: f64, y: f64, z: f64| {
             let q = inv_vp.mul_vec([x, y, z, 1.0]);
@@ -690,7 +869,7 @@ mod tests {
         let (w, h) = (64, 36);
         let cam = camera(&scene, 20, w, h);
         let t = 2.0;
-        let r = render_server(&scene, &cam, t, DT, S).unwrap();
+        let r = render_server(&scene, &cam, t, DT, S, 1).unwrap();
         let key = ids(&scene, &cam, t);
         let q = |f: f32| (f64::from(f) * 3.0).round() as u32;
         let mut changing = 0;
@@ -732,7 +911,7 @@ mod tests {
     fn shadow_colours_follow_the_levels_and_the_sky_is_far_and_still() {
         let scene = builtin("courtyard", Variant::Dynamic).unwrap();
         let cam = camera(&scene, 10, 80, 45);
-        let r = render_server(&scene, &cam, 1.0, DT, S).unwrap();
+        let r = render_server(&scene, &cam, 1.0, DT, S, 3).unwrap();
         let mut with_bits = 0;
         for sb in [&r.shadow_fwd, &r.shadow_bwd] {
             for p in 0..80 * 45 {
@@ -753,6 +932,9 @@ mod tests {
         }
         assert!(with_bits > 10, "{with_bits}");
         let mut sky = 0;
+        // Point-sampled, so that a sky pixel is sky in all of its colour (supersampled, a thin
+        // pole between two pixel centres would tint it).
+        let r = render_server(&scene, &cam, 1.0, DT, S, 1).unwrap();
         for p in 0..80 * 45 {
             if r.depth[p] == 0.0 {
                 sky += 1;
@@ -771,14 +953,126 @@ mod tests {
         let scene = builtin("lab", Variant::Static).unwrap();
         let cam = camera(&scene, 0, 8, 8);
         assert!(matches!(
-            render_server(&scene, &cam, 0.0, DT, 17),
+            render_server(&scene, &cam, 0.0, DT, 17, 1),
             Err(SceneError::BadSubframes { subframes: 17 })
         ));
+        for n in [0, MAX_SAMPLES + 1] {
+            assert!(matches!(
+                render_server(&scene, &cam, 0.0, DT, 4, n),
+                Err(SceneError::BadSamples { samples, .. }) if samples == n
+            ));
+            assert!(matches!(
+                render_ground_truth(&scene, &cam, 0.0, n),
+                Err(SceneError::BadSamples { .. })
+            ));
+        }
         let mut bad = cam;
         bad.view = Mat4([[0.0; 4]; 4]);
         assert!(matches!(
-            render_ground_truth(&scene, &bad, 0.0),
+            render_ground_truth(&scene, &bad, 0.0, 1),
             Err(SceneError::BadCamera { .. })
         ));
+    }
+
+    /// Supersampling filters colour only: for every sample count the ground truth at the server
+    /// camera and time is the server colour byte for byte, and depth, motion and the shadow
+    /// bitfields are bit-identical to the point-sampled render (they stay at the pixel centre).
+    #[test]
+    fn sample_count_keeps_the_identity_and_leaves_geometry_alone() {
+        for (name, k) in [("courtyard", 10), ("lab", 20), ("colonnade", 5)] {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            let cam = camera(&scene, k, 48, 27);
+            let t = k as f64 * DT;
+            let renders: Vec<ServerBuffers> = [1, 2, 3]
+                .iter()
+                .map(|&n| {
+                    let r = render_server(&scene, &cam, t, DT, S, n).unwrap();
+                    assert_eq!(
+                        render_ground_truth(&scene, &cam, t, n).unwrap(),
+                        r.color,
+                        "{name}, {n}×{n}: the ground truth at the server camera is not the colour"
+                    );
+                    r
+                })
+                .collect();
+            let point = &renders[0];
+            for (r, n) in renders[1..].iter().zip(2..) {
+                assert_ne!(r.color, point.color, "{name}: {n}×{n} filters nothing");
+                assert_eq!(f32_bits(&r.depth), f32_bits(&point.depth), "{name} {n}");
+                assert_eq!(
+                    f32_bits(&r.motion_fwd),
+                    f32_bits(&point.motion_fwd),
+                    "{name} {n}"
+                );
+                assert_eq!(
+                    f32_bits(&r.motion_bwd),
+                    f32_bits(&point.motion_bwd),
+                    "{name} {n}"
+                );
+                for (a, b) in [
+                    (&r.shadow_fwd, &point.shadow_fwd),
+                    (&r.shadow_bwd, &point.shadow_bwd),
+                ] {
+                    assert_eq!(a.bits, b.bits, "{name} {n}");
+                    // S_min/S_max are colours (filtered), but present exactly where the bits are.
+                    for p in 0..a.bits.len() {
+                        let (mn, mx) = (&a.s_min[3 * p..3 * p + 3], &a.s_max[3 * p..3 * p + 3]);
+                        let (pmn, pmx) = (&b.s_min[3 * p..3 * p + 3], &b.s_max[3 * p..3 * p + 3]);
+                        assert_eq!(mn == [0; 3], pmn == [0; 3], "{name} {n} pixel {p}");
+                        assert_eq!(mx == [0; 3], pmx == [0; 3], "{name} {n} pixel {p}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Where a pixel's whole footprint lies on one flat, one-colour surface, the supersampled
+    /// colour is the point-sampled one: the filter blurs texture, it does not shift or darken
+    /// colour. Every material is made one colour (`uv_scale` 0 puts every point at uv (0, 0),
+    /// inside a grout line) and matte, the scene static; the pixels compared are those whose
+    /// `n×n` sub-sample rays all hit the same face of the same box or quad.
+    #[test]
+    fn supersampled_flat_colour_equals_the_point_sample() {
+        let mut scene = builtin("courtyard", Variant::Static).unwrap();
+        for o in &mut scene.objects {
+            o.material = Material::matte(
+                crate::material::Pattern::Tiles,
+                [0.2, 0.3, 0.4],
+                [0.55, 0.45, 0.35],
+                0.0,
+                0,
+            );
+        }
+        let (w, h, t) = (64, 36, 0.4);
+        let cam = camera(&scene, 4, w, h);
+        let rays = Rays::new(&cam, "test").unwrap();
+        let snap = scene.at(t);
+        let point = render_ground_truth(&scene, &cam, t, 1).unwrap();
+        let mut flat = 0;
+        for n in [2, 3, 4] {
+            let fine = render_ground_truth(&scene, &cam, t, n).unwrap();
+            for j in 0..h {
+                for i in 0..w {
+                    let c = sample(&snap, &rays, i, j, false);
+                    let Some(o) = c.obj else { continue };
+                    let planar = matches!(
+                        scene.objects[o].shape,
+                        Shape::Cuboid { .. } | Shape::Quad { .. }
+                    );
+                    let one_face = (0..n * n).all(|q| {
+                        let s =
+                            sample_ray(&snap, &rays, rays.sub_ray(i, j, q % n, q / n, n), false);
+                        s.obj == c.obj && s.face == c.face
+                    });
+                    if !planar || !one_face {
+                        continue;
+                    }
+                    flat += 1;
+                    let p = 3 * (j * w + i);
+                    assert_eq!(fine[p..p + 3], point[p..p + 3], "{n}×{n} at pixel {i},{j}");
+                }
+            }
+        }
+        assert!(flat > 1000, "only {flat} flat pixels compared");
     }
 }

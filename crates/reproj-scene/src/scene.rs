@@ -500,9 +500,11 @@ impl<'a> Snapshot<'a> {
         blocked as f64 / SHADOW_SAMPLES as f64
     }
 
-    /// Shaded colour (RGB8, rounded) of albedo `albedo` with unit normal `n` under shadow
-    /// fraction `f`, seen along the unit direction `view` (from the point toward the eye).
-    pub fn shade(&self, m: &Material, albedo: V3, n: V3, view: V3, f: f64) -> [u8; 3] {
+    /// Shaded colour of albedo `albedo` with unit normal `n` under shadow fraction `f`, seen
+    /// along the unit direction `view` (from the point toward the eye), on the RGB8 scale
+    /// (`[0, 255]`, clamped as a display would) but not yet rounded, so that sub-samples can be
+    /// averaged before the one rounding.
+    pub fn shade(&self, m: &Material, albedo: V3, n: V3, view: V3, f: f64) -> V3 {
         let light = &self.scene.light;
         let l = self.light;
         let lit = 1.0 - f;
@@ -514,6 +516,6 @@ impl<'a> Snapshot<'a> {
             let s = m.specular * lit * dot(n, h).max(0.0).powf(m.shininess);
             c = add(c, scale(light.color, s));
         }
-        c.map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8)
+        c.map(|v| (v * 255.0).clamp(0.0, 255.0))
     }
 }
