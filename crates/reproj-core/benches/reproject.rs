@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
-use reproj_core::{reproject, BidirHistory, Method, Params, Request};
+use reproj_core::{reproject, BidirHistory, FrameView, Method, Params, Request};
 
 /// Server frame interval (f_s = 10) and dynamic-shadow subframes (f_d = 40).
 const DT: f64 = 0.1;
@@ -37,6 +37,28 @@ fn request(alpha: f64, w: usize, h: usize) -> Request {
         client: rig(eye, target, w, h).0,
         alpha: alpha as f32,
     }
+}
+
+/// One timed client frame with the pair's history.
+fn client_frame(
+    method: Method,
+    older: &FrameView,
+    newer: &FrameView,
+    req: &Request,
+    params: &Params,
+    out: &mut [u8],
+    history: &mut BidirHistory,
+) -> reproj_core::Result<()> {
+    reproject(
+        method,
+        black_box(Some(older)),
+        black_box(newer),
+        black_box(req),
+        params,
+        black_box(out),
+        None,
+        Some(history),
+    )
 }
 
 fn bench_size(c: &mut Criterion, w: usize, h: usize) {
@@ -78,15 +100,14 @@ fn bench_size(c: &mut Criterion, w: usize, h: usize) {
         .unwrap_or_else(|e| panic!("{method}: {e}"));
         group.bench_function(BenchmarkId::new(method.name(), &size), |b| {
             b.iter(|| {
-                reproject(
+                client_frame(
                     method,
-                    black_box(Some(&older)),
-                    black_box(&newer),
-                    black_box(&req),
+                    &older,
+                    &newer,
+                    &req,
                     &params,
-                    black_box(&mut out),
-                    None,
-                    Some(&mut history),
+                    &mut out,
+                    &mut history,
                 )
             })
         });
@@ -99,15 +120,14 @@ fn bench_size(c: &mut Criterion, w: usize, h: usize) {
         let mut history = BidirHistory::new();
         b.iter(|| {
             history.reset();
-            reproject(
+            client_frame(
                 Method::Ours,
-                black_box(Some(&older)),
-                black_box(&newer),
-                black_box(&req),
+                &older,
+                &newer,
+                &req,
                 &params,
-                black_box(&mut out),
-                None,
-                Some(&mut history),
+                &mut out,
+                &mut history,
             )
         })
     });
@@ -120,15 +140,14 @@ fn bench_size(c: &mut Criterion, w: usize, h: usize) {
     group.bench_function(BenchmarkId::new("ours_1thread", &size), |b| {
         b.iter(|| {
             one.install(|| {
-                reproject(
+                client_frame(
                     Method::Ours,
-                    black_box(Some(&older)),
-                    black_box(&newer),
-                    black_box(&req),
+                    &older,
+                    &newer,
+                    &req,
                     &params,
-                    black_box(&mut out),
-                    None,
-                    Some(&mut history),
+                    &mut out,
+                    &mut history,
                 )
             })
         })

@@ -163,23 +163,16 @@ pub fn reproject(
             )));
         }
     }
-    match method {
+    // The splat-based methods share one kernel; they differ in its mode and whether the older
+    // frame takes part.
+    let (mode, older_used) = match method {
         Method::Ours => {
             if older.is_none() && alpha < 1.0 {
                 return Err(ReprojError::MissingFrame(
                     "method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame".into(),
                 ));
             }
-            ours::run(
-                ours::Mode::Ours,
-                older,
-                newer,
-                request,
-                params,
-                out,
-                diag,
-                pair(history),
-            )
+            (ours::Mode::Ours, older)
         }
         Method::OursExtrapolate => {
             if alpha < 1.0 {
@@ -187,58 +180,30 @@ pub fn reproject(
                     "[1, 3] (extrapolation from the newest frame, given as `newer`)",
                 ));
             }
-            ours::run(
-                ours::Mode::Ours,
-                None,
-                newer,
-                request,
-                params,
-                out,
-                diag,
-                pair(history),
-            )
+            (ours::Mode::Ours, None)
+        }
+        Method::ForwardSplat if params.splat_bidirectional => {
+            if older.is_none() && alpha < 1.0 {
+                return Err(ReprojError::MissingFrame(
+                    "bidirectional forward_splat with alpha < 1 needs the older frame".into(),
+                ));
+            }
+            (ours::Mode::ForwardSplat, older)
         }
         Method::ForwardSplat => {
-            if params.splat_bidirectional {
-                if older.is_none() && alpha < 1.0 {
-                    return Err(ReprojError::MissingFrame(
-                        "bidirectional forward_splat with alpha < 1 needs the older frame".into(),
-                    ));
-                }
-                ours::run(
-                    ours::Mode::ForwardSplat,
-                    older,
-                    newer,
-                    request,
-                    params,
-                    out,
-                    diag,
-                    pair(history),
-                )
-            } else {
-                if alpha < 1.0 {
-                    return Err(range_err(
-                        "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
-                    ));
-                }
-                ours::run(
-                    ours::Mode::ForwardSplat,
-                    None,
-                    newer,
-                    request,
-                    params,
-                    out,
-                    diag,
-                    pair(history),
-                )
+            if alpha < 1.0 {
+                return Err(range_err(
+                    "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
+                ));
             }
+            (ours::Mode::ForwardSplat, None)
         }
         Method::Timewarp => {
             let frame = match older {
                 Some(o) if alpha < 1.0 => o,
                 _ => newer,
             };
-            timewarp::run(frame, request, params, out, diag)
+            return timewarp::run(frame, request, params, out, diag);
         }
         Method::BackwardBidir => {
             let older = older.ok_or_else(|| {
@@ -247,9 +212,19 @@ pub fn reproject(
             if alpha > 1.0 {
                 return Err(range_err("[0, 1] (backward_bidir only interpolates)"));
             }
-            backward_bidir::run(older, newer, request, params, out, diag, history)
+            return backward_bidir::run(older, newer, request, params, out, diag, history);
         }
-    }
+    };
+    ours::run(
+        mode,
+        older_used,
+        newer,
+        request,
+        params,
+        out,
+        diag,
+        pair(history),
+    )
 }
 
 /// The pair-level cache of `ours` inside the caller's history.
