@@ -1275,6 +1275,42 @@ impl AuxBlock {
     }
 }
 
+/// One output row's searches in one main source ([`Resolve::search_row`]), kept between rows.
+#[derive(Debug, Default)]
+struct SearchRow {
+    /// Per pixel: the packed source pixel while searching, then the source index (or
+    /// [`NO_SPLAT`] for no match).
+    pk: Vec<u32>,
+    /// The flow `M_cam` at the current source pixel.
+    m: Vec<[f32; 2]>,
+    /// Reprojection error (eq. 7), `INFINITY` for no match.
+    e: Vec<f32>,
+    /// Client reversed depth (eq. 8).
+    z: Vec<f32>,
+    /// The pixels whose fixed-point iteration is still moving.
+    moving: Vec<u32>,
+}
+
+impl SearchRow {
+    /// The match of pixel `i` as [`Resolve::search`] returns it in a main source.
+    #[inline(always)]
+    fn found(&self, i: usize) -> Option<Match> {
+        let e = self.e[i];
+        (e < f32::INFINITY).then(|| Match {
+            p: self.pk[i],
+            e,
+            z: self.z[i],
+            // Main sources only: visible in main by definition.
+            vis: true,
+        })
+    }
+}
+
+thread_local! {
+    /// The main sources' row searches of [`Resolve::resolve_rows`], reused.
+    static SEARCH_ROWS: std::cell::RefCell<Vec<SearchRow>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
 impl Resolve<'_> {
     fn resolve_rows(&self, j0: usize, out: &mut [u8], mut diag: Option<(&mut [u8], &mut [f32])>) {
         let cw = self.client_w;
@@ -1284,14 +1320,33 @@ impl Resolve<'_> {
         for (b, grid) in blocks.iter_mut().zip(&self.aux) {
             b.reset(grid, j0, j0 + rows);
         }
+        let n_main = if self.bidirectional { 2 } else { 1 };
+        let mut sides = SEARCH_ROWS.with(|b| std::mem::take(&mut *b.borrow_mut()));
+        sides.resize_with(n_main, SearchRow::default);
         // Scanlines inside the block of 16 rows: the reads of `init`, `flow` and the colours then
         // run along rows of the sources, a few sequential streams that the hardware prefetcher
         // follows, where a 16×16 tile order starts 16 new rows every 16 pixels.
         for r in 0..rows {
             let j = j0 + r;
+            // The main camera's searches of the whole row first, stage by stage (see
+            // [`Resolve::search_row`]), then the per-pixel decisions.
+            for (k, side) in sides.iter_mut().enumerate() {
+                self.search_row(k, j, side);
+            }
             for i in 0..cw {
                 let local = r * cw + i;
-                if let Some((code, rgb, e)) = self.resolve_pixel(i, j, &mut blocks) {
+                let main = if self.bidirectional {
+                    self.choose(
+                        0,
+                        sides[0].found(i),
+                        sides[1].found(i),
+                        self.eps_e,
+                        self.eps_z,
+                    )
+                } else {
+                    self.choose(0, sides[0].found(i), None, self.eps_e, self.eps_z)
+                };
+                if let Some((code, rgb, e)) = self.resolve_pixel(i, j, main, &mut blocks) {
                     out[3 * local..3 * local + 3].copy_from_slice(&rgb);
                     if let Some((s, err)) = diag.as_mut() {
                         s[local] = code;
@@ -1303,7 +1358,112 @@ impl Resolve<'_> {
                 }
             }
         }
+        SEARCH_ROWS.with(|b| *b.borrow_mut() = sides);
         AUX_BLOCKS.with(|b| *b.borrow_mut() = blocks);
+    }
+
+    /// [`Resolve::search`] in main source `k` for every pixel of output row `j`, stage by stage:
+    /// the windows' nearest splats and their flows for the whole row, then each fixed-point
+    /// iteration for the pixels still moving, then the errors and depths.
+    ///
+    /// The same arithmetic as one search per pixel, in another order. A search is a chain of
+    /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
+    /// the processor's reorder window holds less than one pixel's work and waits on each load.
+    /// Row by row, every stage is a short loop over independent pixels whose loads overlap.
+    #[inline(never)]
+    fn search_row(&self, k: usize, j: usize, row: &mut SearchRow) {
+        let s = &self.sources[k];
+        let (sw, sh) = (s.proj.width, s.proj.height);
+        let cw = self.client_w;
+        let (tx, ty) = (&self.client_ndc.x[..cw], self.client_ndc.y[j]);
+        let (flow, init) = (&s.bufs.flow[..], &s.bufs.init[..]);
+        // Slices of the row's length, written by position (no pushes: their length checks would
+        // reload the vectors' lengths on every pixel).
+        for v in [&mut row.pk, &mut row.moving] {
+            v.resize(cw, 0);
+        }
+        row.m.resize(cw, [0.0; 2]);
+        row.e.resize(cw, 0.0);
+        row.z.resize(cw, 0.0);
+        let (pks, ms) = (&mut row.pk[..cw], &mut row.m[..cw]);
+        // Stage 1: the nearest splat in the window around each pixel's source cell (the same cell
+        // when the grids agree, else found from NDC) and its flow.
+        let first = |pk: u32| -> (u32, [f32; 2]) {
+            if pk == NO_SPLAT {
+                (NO_SPLAT, [f32::NAN; 2])
+            } else {
+                let (pi, pj) = unpack_pixel(pk);
+                (pk, flow[pj * sw + pi])
+            }
+        };
+        if (cw, self.client_h) == (sw, sh) {
+            let cells = &init[j * sw..(j + 1) * sw];
+            for ((pk, m), &c) in pks.iter_mut().zip(ms.iter_mut()).zip(cells) {
+                (*pk, *m) = first(c);
+            }
+        } else {
+            for ((pk, m), &x) in pks.iter_mut().zip(ms.iter_mut()).zip(tx) {
+                let c = pixel_of_ndc(x, ty, sw, sh).map_or(NO_SPLAT, |(ci, cj)| init[cj * sw + ci]);
+                (*pk, *m) = first(c);
+            }
+        }
+        // Stage 2: the fixed-point iteration p ← pix(T − M_cam[p]) (eq. 5 with the flows of eqs.
+        // 12/13). Once p maps to itself every further iteration would too, so a pixel leaves the
+        // list of moving ones there (most converge after one step).
+        let step = |x: f32, pk: &mut u32, m: &mut [f32; 2]| -> bool {
+            match pixel_of_ndc(x - m[0], ty - m[1], sw, sh) {
+                Some((ni, nj)) if pack_pixel(ni, nj) != *pk => {
+                    *pk = pack_pixel(ni, nj);
+                    *m = flow[nj * sw + ni];
+                    true
+                }
+                _ => false,
+            }
+        };
+        let moving = &mut row.moving[..cw];
+        let mut n = 0;
+        if self.iterations > 0 {
+            for (i, ((pk, m), &x)) in pks.iter_mut().zip(ms.iter_mut()).zip(tx).enumerate() {
+                // Moving pixels are listed in order: the list is written no faster than read.
+                moving[n] = i as u32;
+                n += usize::from(*pk != NO_SPLAT && step(x, pk, m));
+            }
+        }
+        for _ in 1..self.iterations {
+            if n == 0 {
+                break;
+            }
+            let mut kept = 0;
+            for a in 0..n {
+                let i = moving[a] as usize;
+                moving[kept] = i as u32;
+                kept += usize::from(step(tx[i], &mut pks[i], &mut ms[i]));
+            }
+            n = kept;
+        }
+        // Stage 3: the reprojection error and depth (eqs. 7, 8); the packed pixel becomes the
+        // source index.
+        let (es, zs) = (&mut row.e[..cw], &mut row.z[..cw]);
+        for ((((pk, m), &x), e), z) in pks.iter_mut().zip(ms.iter()).zip(tx).zip(es).zip(zs) {
+            (*e, *z, *pk) = if *pk == NO_SPLAT {
+                (f32::INFINITY, f32::NAN, NO_SPLAT)
+            } else {
+                let (pi, pj) = unpack_pixel(*pk);
+                let p = pj * sw + pi;
+                let [px, py] = s.ndc.at(pi, pj);
+                let ex = (px + m[0] - x) * s.aspect[0];
+                let ey = (py + m[1] - ty) * s.aspect[1];
+                let er = (ex * ex + ey * ey).sqrt();
+                let zp = s.bufs.zc[p];
+                if er.is_finite() && zp.is_finite() {
+                    (er, zp, p as u32)
+                } else {
+                    (f32::INFINITY, f32::NAN, NO_SPLAT)
+                }
+            };
+        }
+        // Main sources carry no visibility flags (every match is visible in main).
+        debug_assert!(self.pair.sources[k].vis.is_empty());
     }
 
     /// The window search and fixed-point iteration in source `s` for the output pixel at NDC `t`,
@@ -1369,9 +1529,27 @@ impl Resolve<'_> {
         eps_z: f32,
     ) -> Option<Choice> {
         if self.bidirectional {
+            let f = self.search(2 * cam, t, cell);
+            let b = self.search(2 * cam + 1, t, cell);
+            self.choose(cam, f, b, eps_e, eps_z)
+        } else {
+            self.choose(cam, self.search(cam, t, cell), None, eps_e, eps_z)
+        }
+    }
+
+    /// Algorithm 1 for camera `cam` from its searches: `f` in the older and `b` in the newer
+    /// source when bidirectional, else `f` in the only one.
+    #[inline(always)]
+    fn choose(
+        &self,
+        cam: usize,
+        f: Option<Match>,
+        b: Option<Match>,
+        eps_e: f32,
+        eps_z: f32,
+    ) -> Option<Choice> {
+        if self.bidirectional {
             let (fi, bi) = (2 * cam, 2 * cam + 1);
-            let f = self.search(fi, t, cell);
-            let b = self.search(bi, t, cell);
             let ef = f.map_or(f32::INFINITY, |m| m.e);
             let eb = b.map_or(f32::INFINITY, |m| m.e);
             let (f_ok, b_ok) = (ef < eps_e, eb < eps_e);
@@ -1392,7 +1570,7 @@ impl Resolve<'_> {
                 visible_in_main,
             })
         } else {
-            let m = self.search(cam, t, cell)?;
+            let m = f?;
             (m.e < eps_e).then_some(Choice {
                 src: cam,
                 m,
@@ -1544,7 +1722,7 @@ impl Resolve<'_> {
 
     /// Algorithm 1 for auxiliary camera `cam` (`1 + grid index`) at cell `(ai, aj)` of its grid,
     /// searched on first use within the block.
-    #[inline]
+    #[inline(never)]
     fn aux_cell(
         &self,
         cam: usize,
@@ -1572,20 +1750,14 @@ impl Resolve<'_> {
 
     /// The whole per-pixel decision: `(diagnostic code, colour, error)` or `None` for no match.
     #[inline]
+    /// `main` is Algorithm 1's choice for the main camera ([`Resolve::search_row`]).
     fn resolve_pixel(
         &self,
         i: usize,
         j: usize,
+        main: Option<Choice>,
         blocks: &mut [AuxBlock],
     ) -> Option<(u8, [u8; 3], f32)> {
-        let t = self.client_ndc.at(i, j);
-        let cell = Cell {
-            i,
-            j,
-            gw: self.client_w,
-            gh: self.client_h,
-        };
-        let main = self.best_match(0, t, cell, self.eps_e, self.eps_z);
         // Best auxiliary match (§3.5): the nearer if depths differ, else the smaller error.
         let mut aux: Option<AuxCell> = None;
         for (g, (grid, block)) in self.aux.iter().zip(blocks.iter_mut()).enumerate() {
