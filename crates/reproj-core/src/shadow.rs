@@ -122,7 +122,15 @@ pub fn shadow_color(
 pub fn round_rgb(c: [f32; 3]) -> [u8; 3] {
     // Half up after clamping to [0, 255] equals round-half-away-from-zero there, without a libm
     // `roundf` call per channel. NaN clamps to NaN and `as i32` maps it to 0.
-    c.map(|v| (v.clamp(0.0, 255.0) + 0.5) as i32 as u8)
+    c.map(|v| {
+        // The clamp as two selects that map NaN to 0 (as the saturating cast of a clamped NaN
+        // did): single `maxss`/`minss` instructions, where `f32::clamp` keeps NaN and the cast
+        // then needs its NaN and range fix-ups.
+        let v = if v > 0.0 { v } else { 0.0 };
+        let v = if v < 255.0 { v } else { 255.0 };
+        // SAFETY: 0.5 ≤ v + 0.5 ≤ 255.5, finite and in i32's range.
+        unsafe { (v + 0.5).to_int_unchecked::<i32>() as u8 }
+    })
 }
 
 /// Applies the dynamic shadows of a whole image at `α` (eqs. 9–11) into `out` (`H·W·3`). Used by
