@@ -115,12 +115,24 @@ impl CameraView<'_> {
     }
 }
 
+/// The most auxiliary cameras a frame may have (their diagnostic codes fit below
+/// [`crate::Diagnostics::BLENDED`]).
+pub const MAX_AUX: usize = 62;
+
 impl FrameView<'_> {
     /// Checks every camera's buffers.
     ///
     /// # Errors
     /// The first [`ReprojError::BufferSize`] found.
     pub fn validate(&self, what: &str) -> Result<()> {
+        if self.aux.len() > MAX_AUX {
+            // Each auxiliary camera of each frame has its own diagnostic code below the BLENDED
+            // flag (`Diagnostics::AUX_BASE + 2i + 1 < 0x80`).
+            return Err(ReprojError::CameraMismatch(format!(
+                "{what}: {} auxiliary cameras; at most {MAX_AUX} are supported",
+                self.aux.len()
+            )));
+        }
         self.main.validate(&format!("{what}.main"))?;
         for (i, a) in self.aux.iter().enumerate() {
             a.validate(&format!("{what}.aux[{i}]"))?;

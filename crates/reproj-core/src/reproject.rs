@@ -43,7 +43,7 @@ use rayon::prelude::*;
 
 use crate::camera::{pixel_of_ndc, Camera, NdcTransfer, Projector};
 use crate::error::{ReprojError, Result};
-use crate::frame::{CameraView, FrameView};
+use crate::frame::{CameraView, FrameView, ShadowView};
 use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
 use crate::shadow::{round_rgb, shadow_color, Role};
@@ -129,7 +129,7 @@ struct Src<'a> {
     view: CameraView<'a>,
     proj: Projector,
     /// The same camera in the other frame of the pair, for Algorithm 2.
-    other: Option<Other<'a>>,
+    other: Option<Other>,
     role: Role,
     /// `0` for main, `1 + i` for auxiliary camera `i`.
     camera: usize,
@@ -170,8 +170,7 @@ impl NdcTable {
 /// The same camera in the other frame of the pair, with the NDC transfer to it (the full scene
 /// flow of eqs. 2 and 3, used by Algorithm 2).
 #[derive(Debug, Clone, Copy)]
-struct Other<'a> {
-    view: CameraView<'a>,
+struct Other {
     proj: Projector,
     /// This camera's NDC → the other camera's clip space.
     to_other: NdcTransfer,
@@ -300,12 +299,10 @@ pub(crate) fn run<'a>(
             let o_to_n = NdcTransfer::new(&o_inv, &n_vp);
             let n_to_o = NdcTransfer::new(&n_inv, &o_vp);
             let other_of_o = Other {
-                view: nv,
                 proj: np,
                 to_other: o_to_n,
             };
             let other_of_n = Other {
-                view: ov,
                 proj: op,
                 to_other: n_to_o,
             };
@@ -390,7 +387,6 @@ pub(crate) fn run<'a>(
     let (cw, ch) = (request.client.width, request.client.height);
     let eps_scale = REFERENCE_SHORT_SIDE / cw.min(ch) as f32;
     let ctx = Resolve {
-        mode,
         params,
         alpha,
         client_w: cw,
@@ -410,6 +406,28 @@ pub(crate) fn run<'a>(
         aux: Vec::new(),
         client_ndc: NdcTable::new(cw, ch),
         pair,
+        palettes: sources
+            .iter()
+            .enumerate()
+            .map(|(k, s)| Palette {
+                color: s.view.color,
+                shadow: s
+                    .view
+                    .shadow
+                    .filter(|_| mode == Mode::Ours && params.use_shadows),
+                role: s.role,
+                partner: if blends {
+                    &pair.sources[k].partner
+                } else {
+                    &[]
+                },
+                other: k ^ 1,
+                omega: match s.role {
+                    Role::Older => 1.0 - alpha,
+                    Role::Newer => alpha,
+                },
+            })
+            .collect(),
     };
     let mut aux_pool = AUX_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
     let aux_grids = (1..ctx.n_cams)
@@ -453,7 +471,7 @@ impl<'a> Src<'a> {
     fn new(
         view: CameraView<'a>,
         proj: Projector,
-        other: Option<Other<'a>>,
+        other: Option<Other>,
         role: Role,
         camera: usize,
         mut bufs: Buffers,
@@ -1186,7 +1204,6 @@ fn min3(src: &[u64], dst: &mut [u64]) {
 
 /// Read-only context of pass 2.
 struct Resolve<'a> {
-    mode: Mode,
     params: &'a Params,
     alpha: f32,
     client_w: usize,
@@ -1205,6 +1222,8 @@ struct Resolve<'a> {
     client_ndc: NdcTable,
     /// The pair-level state (Algorithm 2's correspondences).
     pair: &'a PairCache,
+    /// Per source, what its colours need.
+    palettes: Vec<Palette<'a>>,
 }
 
 /// The auxiliary match of one cell. Its colour (Algorithm 2) is found only where an output pixel
@@ -1291,24 +1310,60 @@ struct SearchRow {
     moving: Vec<u32>,
 }
 
-impl SearchRow {
-    /// The match of pixel `i` as [`Resolve::search`] returns it in a main source.
-    #[inline(always)]
-    fn found(&self, i: usize) -> Option<Match> {
-        let e = self.e[i];
-        (e < f32::INFINITY).then(|| Match {
-            p: self.pk[i],
-            e,
-            z: self.z[i],
-            // Main sources only: visible in main by definition.
-            vis: true,
-        })
+/// "No source" in [`Picks::src`].
+const NO_SOURCE: u8 = u8::MAX;
+
+/// The match each pixel of a row keeps: source index (or [`NO_SOURCE`]), source pixel, error and
+/// client depth.
+#[derive(Debug, Default)]
+struct Picks {
+    src: Vec<u8>,
+    p: Vec<u32>,
+    e: Vec<f32>,
+    z: Vec<f32>,
+    /// Scratch of [`Resolve::aux_row`]: which auxiliary grids may matter per pixel, and the list
+    /// of pixels where they do.
+    need: Vec<u8>,
+    list: Vec<u32>,
+}
+
+impl Picks {
+    fn resize(&mut self, n: usize) {
+        self.src.resize(n, NO_SOURCE);
+        self.p.resize(n, 0);
+        self.e.resize(n, 0.0);
+        self.z.resize(n, 0.0);
     }
 }
 
+/// The per-row state of [`Resolve::resolve_rows`], kept between rows and frames.
+#[derive(Debug, Default)]
+struct RowState {
+    /// The searches in each main source.
+    sides: Vec<SearchRow>,
+    picks: Picks,
+}
+
 thread_local! {
-    /// The main sources' row searches of [`Resolve::resolve_rows`], reused.
-    static SEARCH_ROWS: std::cell::RefCell<Vec<SearchRow>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// The row state of [`Resolve::resolve_rows`], reused.
+    static ROW_STATE: std::cell::RefCell<RowState> = std::cell::RefCell::new(RowState::default());
+}
+
+/// What the colour of a match needs of its source (Algorithm 2 and the dynamic shadows), looked
+/// up by source index so that the colour loop does not branch on which source won.
+#[derive(Debug, Clone, Copy)]
+struct Palette<'a> {
+    color: &'a [u8],
+    /// The dynamic shadows to apply (`None` when absent or not applied).
+    shadow: Option<ShadowView<'a>>,
+    role: Role,
+    /// Algorithm 2's correspondence of each pixel in the other frame ([`PairSource::partner`]);
+    /// empty when nothing blends.
+    partner: &'a [u32],
+    /// The source index of the same camera in the other frame (only read through `partner`).
+    other: usize,
+    /// ω: the weight of the source's own colour when blending.
+    omega: f32,
 }
 
 impl Resolve<'_> {
@@ -1321,45 +1376,149 @@ impl Resolve<'_> {
             b.reset(grid, j0, j0 + rows);
         }
         let n_main = if self.bidirectional { 2 } else { 1 };
-        let mut sides = SEARCH_ROWS.with(|b| std::mem::take(&mut *b.borrow_mut()));
+        let mut scratch = ROW_STATE.with(|b| std::mem::take(&mut *b.borrow_mut()));
+        let RowState { sides, picks } = &mut scratch;
         sides.resize_with(n_main, SearchRow::default);
         // Scanlines inside the block of 16 rows: the reads of `init`, `flow` and the colours then
         // run along rows of the sources, a few sequential streams that the hardware prefetcher
         // follows, where a 16×16 tile order starts 16 new rows every 16 pixels.
+        //
+        // Each row goes through stages, each a loop over the row's pixels: the main camera's
+        // searches ([`Resolve::search_row`]), Algorithm 1 for them without branches on the data
+        // ([`Resolve::choose_row`]; which frame wins is close to random from pixel to pixel, so
+        // a branch on it would be mispredicted about half the time), the auxiliary cameras where
+        // they can change the pixel, and the colours (Algorithm 2).
         for r in 0..rows {
             let j = j0 + r;
-            // The main camera's searches of the whole row first, stage by stage (see
-            // [`Resolve::search_row`]), then the per-pixel decisions.
             for (k, side) in sides.iter_mut().enumerate() {
                 self.search_row(k, j, side);
             }
-            for i in 0..cw {
+            self.choose_row(sides, picks);
+            self.aux_row(j, picks, &mut blocks);
+            let row_out = &mut out[3 * r * cw..3 * (r + 1) * cw];
+            for (i, o) in row_out.chunks_exact_mut(3).enumerate() {
+                let src = picks.src[i];
                 let local = r * cw + i;
-                let main = if self.bidirectional {
-                    self.choose(
-                        0,
-                        sides[0].found(i),
-                        sides[1].found(i),
-                        self.eps_e,
-                        self.eps_z,
-                    )
-                } else {
-                    self.choose(0, sides[0].found(i), None, self.eps_e, self.eps_z)
-                };
-                if let Some((code, rgb, e)) = self.resolve_pixel(i, j, main, &mut blocks) {
-                    out[3 * local..3 * local + 3].copy_from_slice(&rgb);
+                if src == NO_SOURCE {
                     if let Some((s, err)) = diag.as_mut() {
-                        s[local] = code;
-                        err[local] = e;
+                        s[local] = Diagnostics::NONE;
+                        err[local] = f32::NAN;
                     }
-                } else if let Some((s, err)) = diag.as_mut() {
-                    s[local] = Diagnostics::NONE;
-                    err[local] = f32::NAN;
+                    continue;
+                }
+                let (rgb, blended) = self.second_chance(usize::from(src), picks.p[i] as usize);
+                o.copy_from_slice(&round_rgb([rgb[0], rgb[1], rgb[2]]));
+                if let Some((s, err)) = diag.as_mut() {
+                    s[local] = self.code_of(usize::from(src), blended);
+                    err[local] = picks.e[i];
                 }
             }
         }
-        SEARCH_ROWS.with(|b| *b.borrow_mut() = sides);
+        ROW_STATE.with(|b| *b.borrow_mut() = scratch);
         AUX_BLOCKS.with(|b| *b.borrow_mut() = blocks);
+    }
+
+    /// Algorithm 1 for the main camera over a row, from the searches of [`Resolve::search_row`]:
+    /// the same decisions as [`Resolve::choose`], written as selects.
+    #[inline(never)]
+    fn choose_row(&self, sides: &[SearchRow], picks: &mut Picks) {
+        let cw = self.client_w;
+        picks.resize(cw);
+        let (eps_e, eps_z) = (self.eps_e, self.eps_z);
+        let Picks { src, p, e, z, .. } = picks;
+        let f = &sides[0];
+        if !self.bidirectional {
+            for i in 0..cw {
+                let ok = f.e[i] < eps_e;
+                src[i] = if ok { 0 } else { NO_SOURCE };
+                (p[i], e[i], z[i]) = (f.pk[i], f.e[i], f.z[i]);
+            }
+            return;
+        }
+        let b = &sides[1];
+        for i in 0..cw {
+            let (ef, eb, zf, zb) = (f.e[i], b.e[i], f.z[i], b.z[i]);
+            let (f_ok, b_ok) = (ef < eps_e, eb < eps_e);
+            let both = f_ok & b_ok;
+            // No match is `e = ∞` (and NaN depth, which only matters where `both` holds).
+            let sim = both & (2.0 * (zf - zb).abs() < eps_z);
+            // Both correspond but differ in depth: the nearer (larger reversed depth) occludes.
+            // Otherwise the smaller error (which is the only corresponding one if just one does:
+            // the other's error is at least ε_e).
+            let older = (both & !sim & (zf > zb)) | ((!both | sim) & (ef < eb));
+            src[i] = if !(f_ok | b_ok) {
+                NO_SOURCE
+            } else if older {
+                0
+            } else {
+                1
+            };
+            p[i] = if older { f.pk[i] } else { b.pk[i] };
+            e[i] = if older { ef } else { eb };
+            z[i] = if older { zf } else { zb };
+        }
+    }
+
+    /// The auxiliary cameras over a row (§3.5): for the pixels where one can change the result
+    /// (main found nothing, or a cell that may override main, see [`AuxGrid`]), the merged
+    /// decision of [`Resolve::decide`] replaces the main camera's in `picks`.
+    #[inline(never)]
+    fn aux_row(&self, j: usize, picks: &mut Picks, blocks: &mut [AuxBlock]) {
+        let cw = self.client_w;
+        // Per pixel, bit 0: some grid covers it; bit 1: some grid's cell may override main there.
+        // Built without branches on the flags, then the pixels that need the auxiliary cameras
+        // are listed (a branch per pixel on the dilated flags was mispredicted at every edge).
+        picks.need.clear();
+        picks.need.resize(cw, 0);
+        for g in &self.aux {
+            let aj = g.row_of[j];
+            if aj == u32::MAX {
+                continue;
+            }
+            let maybe = &g.maybe[aj as usize * g.w..(aj as usize + 1) * g.w];
+            for (n, &ai) in picks.need.iter_mut().zip(&g.col_of[..cw]) {
+                *n |= if ai == u32::MAX {
+                    0
+                } else {
+                    1 | (maybe[ai as usize] << 1)
+                };
+            }
+        }
+        let mut list = std::mem::take(&mut picks.list);
+        list.resize(cw, 0);
+        let mut n = 0;
+        for (i, (&need, &src)) in picks.need.iter().zip(&picks.src[..cw]).enumerate() {
+            list[n] = i as u32;
+            // No main match: any covering grid; else a cell that may override main.
+            let bit = if src == NO_SOURCE { 1 } else { 2 };
+            n += usize::from(need & bit != 0);
+        }
+        for &i in &list[..n] {
+            let i = i as usize;
+            let none = picks.src[i] == NO_SOURCE;
+            let main = (!none).then(|| Choice {
+                src: usize::from(picks.src[i]),
+                m: Match {
+                    p: picks.p[i],
+                    e: picks.e[i],
+                    z: picks.z[i],
+                    vis: true,
+                },
+                // Not read for main choices (only an auxiliary one's decides the merge).
+                visible_in_main: true,
+            });
+            match self.decide(i, j, main, blocks) {
+                Some(c) => {
+                    // Source indices are below 2·(1 + auxiliary cameras) ≤ 255 (checked in `run`).
+                    picks.src[i] = c.src as u8;
+                    picks.p[i] = c.m.p;
+                    picks.e[i] = c.m.e;
+                    picks.z[i] = c.m.z;
+                }
+                None => picks.src[i] = NO_SOURCE,
+            }
+        }
+        picks.list = list;
     }
 
     /// [`Resolve::search`] in main source `k` for every pixel of output row `j`, stage by stage:
@@ -1579,20 +1738,17 @@ impl Resolve<'_> {
         }
     }
 
-    /// Colour of source `s` at pixel `p` with its dynamic shadow applied at `α`.
-    #[inline]
-    fn color_of(&self, view: &CameraView, role: Role, p: usize) -> [f32; 3] {
-        let base = [
-            view.color[3 * p],
-            view.color[3 * p + 1],
-            view.color[3 * p + 2],
-        ];
-        match (
-            &view.shadow,
-            self.mode == Mode::Ours && self.params.use_shadows,
-        ) {
+    /// Colour of the source with palette `pal` at pixel `p`, its dynamic shadow applied at `α`,
+    /// as `[r, g, b, 0]`: four lanes, so that the colour stays in one vector register (three
+    /// `f32`s went through the stack, and reading them back stalled on store forwarding).
+    #[inline(always)]
+    fn color_of(&self, pal: &Palette, p: usize) -> [f32; 4] {
+        let base: [u8; 3] = pal.color[3 * p..3 * p + 3]
+            .try_into()
+            .expect("three channels");
+        let c = match pal.shadow {
             // Most pixels carry no dynamic shadow: skip the six shadow-colour loads for them.
-            (Some(sh), true) if sh.bits[p] != 0 => {
+            Some(sh) if sh.bits[p] != 0 => {
                 let rgb = |b: &[u8]| [b[3 * p], b[3 * p + 1], b[3 * p + 2]];
                 shadow_color(
                     base,
@@ -1601,56 +1757,43 @@ impl Resolve<'_> {
                     rgb(sh.s_max),
                     self.alpha,
                     self.params.shadow_subframes,
-                    role,
+                    pal.role,
                 )
             }
             _ => base.map(f32::from),
-        }
+        };
+        [c[0], c[1], c[2], 0.0]
     }
 
-    /// Algorithm 2: colour of the chosen match, blended with its correspondence in the other frame
-    /// when forward and backward motion cancel and depths agree. Returns the colour and whether it
-    /// blended.
-    fn second_chance(&self, c: &Choice) -> ([f32; 3], bool) {
-        let s = &self.sources[c.src];
-        let p = c.m.p as usize;
-        let base = self.color_of(&s.view, s.role, p);
-        if !(self.bidirectional && self.mode == Mode::Ours && self.params.blend) {
-            return (base, false);
-        }
-        let Some(other) = &s.other else {
-            return (base, false);
-        };
-        let ov = &other.view;
-        // The correspondence in the other frame's source of the same camera when motion cancels
-        // and depth agrees (precomputed for the pair, see [`PairCache`]).
-        let q = match self.pair.sources[c.src].partner.get(p) {
+    /// Algorithm 2: colour of the match at pixel `p` of source `src`, blended with its
+    /// correspondence in the other frame when forward and backward motion cancel and depths
+    /// agree (precomputed for the pair, see [`PairCache`]). Returns the colour (as
+    /// [`Resolve::color_of`]) and whether it blended.
+    #[inline(always)]
+    fn second_chance(&self, src: usize, p: usize) -> ([f32; 4], bool) {
+        let pal = &self.palettes[src];
+        let base = self.color_of(pal, p);
+        // `partner` is empty when nothing blends (unidirectional, forward_splat, blending off).
+        let q = match pal.partner.get(p) {
             Some(&q) if q != NO_SPLAT => q as usize,
             _ => return (base, false),
         };
-        let other_role = match s.role {
-            Role::Older => Role::Newer,
-            Role::Newer => Role::Older,
-        };
-        let oc = self.color_of(ov, other_role, q);
-        // ω: the weight of the chosen side's own colour.
-        let omega = match s.role {
-            Role::Older => 1.0 - self.alpha,
-            Role::Newer => self.alpha,
-        };
+        let oc = self.color_of(&self.palettes[pal.other], q);
+        let (w, v) = (pal.omega, 1.0 - pal.omega);
         (
             [
-                omega * base[0] + (1.0 - omega) * oc[0],
-                omega * base[1] + (1.0 - omega) * oc[1],
-                omega * base[2] + (1.0 - omega) * oc[2],
+                w * base[0] + v * oc[0],
+                w * base[1] + v * oc[1],
+                w * base[2] + v * oc[2],
+                w * base[3] + v * oc[3],
             ],
             true,
         )
     }
 
-    /// The diagnostic code of a choice.
-    fn code_of(&self, c: &Choice, blended: bool) -> u8 {
-        let s = &self.sources[c.src];
+    /// The diagnostic code of a match in source `src`.
+    fn code_of(&self, src: usize, blended: bool) -> u8 {
+        let s = &self.sources[src];
         let code = if s.camera == 0 {
             match s.role {
                 Role::Older => Diagnostics::MAIN_OLDER,
@@ -1748,16 +1891,16 @@ impl Resolve<'_> {
         block.cells[k]
     }
 
-    /// The whole per-pixel decision: `(diagnostic code, colour, error)` or `None` for no match.
+    /// The match an output pixel keeps, or `None` for no match: `main` is Algorithm 1's choice
+    /// for the main camera ([`Resolve::choose_row`]), merged with the auxiliary cameras' (§3.5).
     #[inline]
-    /// `main` is Algorithm 1's choice for the main camera ([`Resolve::search_row`]).
-    fn resolve_pixel(
+    fn decide(
         &self,
         i: usize,
         j: usize,
         main: Option<Choice>,
         blocks: &mut [AuxBlock],
-    ) -> Option<(u8, [u8; 3], f32)> {
+    ) -> Option<Choice> {
         // Best auxiliary match (§3.5): the nearer if depths differ, else the smaller error.
         let mut aux: Option<AuxCell> = None;
         for (g, (grid, block)) in self.aux.iter().zip(blocks.iter_mut()).enumerate() {
@@ -1797,13 +1940,10 @@ impl Resolve<'_> {
             (_, None) => false,
         };
         if use_aux {
-            let a = aux?.choice;
-            let (rgb, blended) = self.second_chance(&a);
-            return Some((self.code_of(&a, blended), round_rgb(rgb), a.m.e));
+            aux.map(|a| a.choice)
+        } else {
+            main
         }
-        let m = main?;
-        let (rgb, blended) = self.second_chance(&m);
-        Some((self.code_of(&m, blended), round_rgb(rgb), m.m.e))
     }
 }
 
