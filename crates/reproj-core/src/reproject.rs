@@ -76,6 +76,32 @@ macro_rules! avx2_dispatch {
     };
 }
 
+/// [`avx2_dispatch`] for a method of [`Resolve`]: `$name` runs the `#[inline(always)]` method
+/// `$imp` compiled for AVX2 (as `$avx`) where the processor has it.
+macro_rules! avx2_method {
+    ($(#[$doc:meta])* fn $name:ident / $avx:ident => $imp:ident(&self, $($arg:ident: $ty:ty),* $(,)?)) => {
+        $(#[$doc])*
+        #[inline(never)]
+        fn $name(&self, $($arg: $ty),*) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the processor supports AVX2 (checked just above).
+                    unsafe { self.$avx($($arg),*) };
+                    return;
+                }
+            }
+            self.$imp($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        fn $avx(&self, $($arg: $ty),*) {
+            self.$imp($($arg),*)
+        }
+    };
+}
+
 /// Which pipeline [`run`] executes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Mode {
@@ -1308,6 +1334,8 @@ struct SearchRow {
     z: Vec<f32>,
     /// The pixels whose fixed-point iteration is still moving.
     moving: Vec<u32>,
+    /// Where the first iteration moves each pixel, or [`NO_SPLAT`] where it stays.
+    next: Vec<u32>,
 }
 
 /// "No source" in [`Picks::src`].
@@ -1418,34 +1446,45 @@ impl Resolve<'_> {
         AUX_BLOCKS.with(|b| *b.borrow_mut() = blocks);
     }
 
-    /// Algorithm 1 for the main camera over a row, from the searches of [`Resolve::search_row`]:
-    /// the same decisions as [`Resolve::choose`], written as selects.
-    #[inline(never)]
-    fn choose_row(&self, sides: &[SearchRow], picks: &mut Picks) {
+    avx2_method! {
+        /// Algorithm 1 for the main camera over a row, from the searches of
+        /// [`Resolve::search_row`]: the same decisions as [`Resolve::choose`], written as selects
+        /// (and vectorised by the compiler).
+        fn choose_row / choose_row_avx2 => choose_row_impl(&self, sides: &[SearchRow], picks: &mut Picks)
+    }
+
+    #[inline(always)]
+    fn choose_row_impl(&self, sides: &[SearchRow], picks: &mut Picks) {
         let cw = self.client_w;
         picks.resize(cw);
         let (eps_e, eps_z) = (self.eps_e, self.eps_z);
-        let Picks { src, p, e, z, .. } = picks;
+        // Every slice cut to the row's length, so that the loops need no bounds checks.
+        let (src, p, e, z) = (
+            &mut picks.src[..cw],
+            &mut picks.p[..cw],
+            &mut picks.e[..cw],
+            &mut picks.z[..cw],
+        );
         let f = &sides[0];
+        let (ef, zf, pf) = (&f.e[..cw], &f.z[..cw], &f.pk[..cw]);
         if !self.bidirectional {
             for i in 0..cw {
-                let ok = f.e[i] < eps_e;
-                src[i] = if ok { 0 } else { NO_SOURCE };
-                (p[i], e[i], z[i]) = (f.pk[i], f.e[i], f.z[i]);
+                src[i] = if ef[i] < eps_e { 0 } else { NO_SOURCE };
+                (p[i], e[i], z[i]) = (pf[i], ef[i], zf[i]);
             }
             return;
         }
         let b = &sides[1];
+        let (eb, zb, pb) = (&b.e[..cw], &b.z[..cw], &b.pk[..cw]);
         for i in 0..cw {
-            let (ef, eb, zf, zb) = (f.e[i], b.e[i], f.z[i], b.z[i]);
-            let (f_ok, b_ok) = (ef < eps_e, eb < eps_e);
+            let (f_ok, b_ok) = (ef[i] < eps_e, eb[i] < eps_e);
             let both = f_ok & b_ok;
             // No match is `e = ∞` (and NaN depth, which only matters where `both` holds).
-            let sim = both & (2.0 * (zf - zb).abs() < eps_z);
+            let sim = both & (2.0 * (zf[i] - zb[i]).abs() < eps_z);
             // Both correspond but differ in depth: the nearer (larger reversed depth) occludes.
             // Otherwise the smaller error (which is the only corresponding one if just one does:
             // the other's error is at least ε_e).
-            let older = (both & !sim & (zf > zb)) | ((!both | sim) & (ef < eb));
+            let older = (both & !sim & (zf[i] > zb[i])) | ((!both | sim) & (ef[i] < eb[i]));
             src[i] = if !(f_ok | b_ok) {
                 NO_SOURCE
             } else if older {
@@ -1453,9 +1492,9 @@ impl Resolve<'_> {
             } else {
                 1
             };
-            p[i] = if older { f.pk[i] } else { b.pk[i] };
-            e[i] = if older { ef } else { eb };
-            z[i] = if older { zf } else { zb };
+            p[i] = if older { pf[i] } else { pb[i] };
+            e[i] = if older { ef[i] } else { eb[i] };
+            z[i] = if older { zf[i] } else { zb[i] };
         }
     }
 
@@ -1521,16 +1560,20 @@ impl Resolve<'_> {
         picks.list = list;
     }
 
-    /// [`Resolve::search`] in main source `k` for every pixel of output row `j`, stage by stage:
-    /// the windows' nearest splats and their flows for the whole row, then each fixed-point
-    /// iteration for the pixels still moving, then the errors and depths.
-    ///
-    /// The same arithmetic as one search per pixel, in another order. A search is a chain of
-    /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
-    /// the processor's reorder window holds less than one pixel's work and waits on each load.
-    /// Row by row, every stage is a short loop over independent pixels whose loads overlap.
-    #[inline(never)]
-    fn search_row(&self, k: usize, j: usize, row: &mut SearchRow) {
+    avx2_method! {
+        /// [`Resolve::search`] in main source `k` for every pixel of output row `j`, stage by stage:
+        /// the windows' nearest splats and their flows for the whole row, then each fixed-point
+        /// iteration for the pixels still moving, then the errors and depths.
+        ///
+        /// The same arithmetic as one search per pixel, in another order. A search is a chain of
+        /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
+        /// the processor's reorder window holds less than one pixel's work and waits on each load.
+        /// Row by row, every stage is a short loop over independent pixels whose loads overlap.
+        fn search_row / search_row_avx2 => search_row_impl(&self, k: usize, j: usize, row: &mut SearchRow)
+    }
+
+    #[inline(always)]
+    fn search_row_impl(&self, k: usize, j: usize, row: &mut SearchRow) {
         let s = &self.sources[k];
         let (sw, sh) = (s.proj.width, s.proj.height);
         let cw = self.client_w;
@@ -1538,7 +1581,7 @@ impl Resolve<'_> {
         let (flow, init) = (&s.bufs.flow[..], &s.bufs.init[..]);
         // Slices of the row's length, written by position (no pushes: their length checks would
         // reload the vectors' lengths on every pixel).
-        for v in [&mut row.pk, &mut row.moving] {
+        for v in [&mut row.pk, &mut row.moving, &mut row.next] {
             v.resize(cw, 0);
         }
         row.m.resize(cw, [0.0; 2]);
@@ -1582,10 +1625,32 @@ impl Resolve<'_> {
         let moving = &mut row.moving[..cw];
         let mut n = 0;
         if self.iterations > 0 {
-            for (i, ((pk, m), &x)) in pks.iter_mut().zip(ms.iter_mut()).zip(tx).enumerate() {
+            // The first iteration for every pixel: the arithmetic as one loop without branches
+            // (vectorised), then the flow loads for the pixels that moved.
+            let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
+            let next = &mut row.next[..cw];
+            for (((q, &pk), m), &x) in next.iter_mut().zip(pks.iter()).zip(ms.iter()).zip(tx) {
+                // `pixel_of_ndc(x − m.x, ty − m.y)` without branches.
+                let fx = (x - m[0] + 1.0) * 0.5 * wf;
+                let fy = (1.0 - (ty - m[1])) * 0.5 * hf;
+                let inside = fx >= 0.0 && fy >= 0.0 && fx < wf && fy < hf;
+                let c = packed_cell(inside, fx, fy);
+                *q = if inside && pk != NO_SPLAT && c != pk {
+                    c
+                } else {
+                    NO_SPLAT
+                };
+            }
+            for (i, &q) in next.iter().enumerate() {
                 // Moving pixels are listed in order: the list is written no faster than read.
                 moving[n] = i as u32;
-                n += usize::from(*pk != NO_SPLAT && step(x, pk, m));
+                n += usize::from(q != NO_SPLAT);
+            }
+            for &i in &moving[..n] {
+                let i = i as usize;
+                let (ni, nj) = unpack_pixel(next[i]);
+                pks[i] = next[i];
+                ms[i] = flow[nj * sw + ni];
             }
         }
         for _ in 1..self.iterations {
@@ -1601,25 +1666,33 @@ impl Resolve<'_> {
             n = kept;
         }
         // Stage 3: the reprojection error and depth (eqs. 7, 8); the packed pixel becomes the
-        // source index.
-        let (es, zs) = (&mut row.e[..cw], &mut row.z[..cw]);
-        for ((((pk, m), &x), e), z) in pks.iter_mut().zip(ms.iter()).zip(tx).zip(es).zip(zs) {
-            (*e, *z, *pk) = if *pk == NO_SPLAT {
-                (f32::INFINITY, f32::NAN, NO_SPLAT)
+        // source index. The depth loads first, then the arithmetic as one loop without branches.
+        let zc = &s.bufs.zc[..];
+        let zs = &mut row.z[..cw];
+        for (z, &pk) in zs.iter_mut().zip(pks.iter()) {
+            let (pi, pj) = unpack_pixel(pk);
+            *z = if pk == NO_SPLAT {
+                f32::NAN
             } else {
-                let (pi, pj) = unpack_pixel(*pk);
-                let p = pj * sw + pi;
-                let [px, py] = s.ndc.at(pi, pj);
-                let ex = (px + m[0] - x) * s.aspect[0];
-                let ey = (py + m[1] - ty) * s.aspect[1];
-                let er = (ex * ex + ey * ey).sqrt();
-                let zp = s.bufs.zc[p];
-                if er.is_finite() && zp.is_finite() {
-                    (er, zp, p as u32)
-                } else {
-                    (f32::INFINITY, f32::NAN, NO_SPLAT)
-                }
+                zc[pj * sw + pi]
             };
+        }
+        let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
+        let [ax, ay] = s.aspect;
+        let es = &mut row.e[..cw];
+        for ((((pk, m), &x), e), z) in pks.iter_mut().zip(ms.iter()).zip(tx).zip(es).zip(zs) {
+            let (pi, pj) = ((*pk & 0xFFFF) as i32, (*pk >> 16) as i32);
+            // The pixel centre's NDC as [`crate::camera::ndc_of_pixel`] computes it.
+            let px = (2 * pi + 1) as f32 / wf - 1.0;
+            let py = 1.0 - (2 * pj + 1) as f32 / hf;
+            let ex = (px + m[0] - x) * ax;
+            let ey = (py + m[1] - ty) * ay;
+            let er = (ex * ex + ey * ey).sqrt();
+            let ok = *pk != NO_SPLAT && er.is_finite() && z.is_finite();
+            let p = pj as u32 * sw as u32 + pi as u32;
+            *e = if ok { er } else { f32::INFINITY };
+            *z = if ok { *z } else { f32::NAN };
+            *pk = if ok { p } else { NO_SPLAT };
         }
         // Main sources carry no visibility flags (every match is visible in main).
         debug_assert!(self.pair.sources[k].vis.is_empty());
