@@ -1323,15 +1323,18 @@ impl AuxBlock {
 /// One output row's searches in one main source ([`Resolve::search_row`]), kept between rows.
 #[derive(Debug, Default)]
 struct SearchRow {
-    /// Per pixel: the packed source pixel while searching, then the source index (or
-    /// [`NO_SPLAT`] for no match).
+    /// Per pixel: the packed source pixel while searching.
     pk: Vec<u32>,
+    /// The source index of the match, or [`NO_SPLAT`] for no match.
+    p: Vec<u32>,
     /// The flow `M_cam` at the current source pixel.
     m: Vec<[f32; 2]>,
     /// Reprojection error (eq. 7), `INFINITY` for no match.
     e: Vec<f32>,
     /// Client reversed depth (eq. 8).
     z: Vec<f32>,
+    /// The client depth at the last source pixel, as loaded.
+    zg: Vec<f32>,
     /// The pixels whose fixed-point iteration is still moving.
     moving: Vec<u32>,
     /// Where the first iteration moves each pixel, or [`NO_SPLAT`] where it stays.
@@ -1466,7 +1469,7 @@ impl Resolve<'_> {
             &mut picks.z[..cw],
         );
         let f = &sides[0];
-        let (ef, zf, pf) = (&f.e[..cw], &f.z[..cw], &f.pk[..cw]);
+        let (ef, zf, pf) = (&f.e[..cw], &f.z[..cw], &f.p[..cw]);
         if !self.bidirectional {
             for i in 0..cw {
                 src[i] = if ef[i] < eps_e { 0 } else { NO_SOURCE };
@@ -1475,7 +1478,7 @@ impl Resolve<'_> {
             return;
         }
         let b = &sides[1];
-        let (eb, zb, pb) = (&b.e[..cw], &b.z[..cw], &b.pk[..cw]);
+        let (eb, zb, pb) = (&b.e[..cw], &b.z[..cw], &b.p[..cw]);
         for i in 0..cw {
             let (f_ok, b_ok) = (ef[i] < eps_e, eb[i] < eps_e);
             let both = f_ok & b_ok;
@@ -1585,8 +1588,10 @@ impl Resolve<'_> {
             v.resize(cw, 0);
         }
         row.m.resize(cw, [0.0; 2]);
+        row.p.resize(cw, 0);
         row.e.resize(cw, 0.0);
         row.z.resize(cw, 0.0);
+        row.zg.resize(cw, 0.0);
         let (pks, ms) = (&mut row.pk[..cw], &mut row.m[..cw]);
         // Stage 1: the nearest splat in the window around each pixel's source cell (the same cell
         // when the grids agree, else found from NDC) and its flow.
@@ -1629,13 +1634,15 @@ impl Resolve<'_> {
             // (vectorised), then the flow loads for the pixels that moved.
             let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
             let next = &mut row.next[..cw];
-            for (((q, &pk), m), &x) in next.iter_mut().zip(pks.iter()).zip(ms.iter()).zip(tx) {
+            let (pks_in, ms_in) = (&pks[..cw], &ms[..cw]);
+            for i in 0..cw {
+                let (pk, m, x) = (pks_in[i], ms_in[i], tx[i]);
                 // `pixel_of_ndc(x − m.x, ty − m.y)` without branches.
                 let fx = (x - m[0] + 1.0) * 0.5 * wf;
                 let fy = (1.0 - (ty - m[1])) * 0.5 * hf;
                 let inside = fx >= 0.0 && fy >= 0.0 && fx < wf && fy < hf;
                 let c = packed_cell(inside, fx, fy);
-                *q = if inside && pk != NO_SPLAT && c != pk {
+                next[i] = if inside & (pk != NO_SPLAT) & (c != pk) {
                     c
                 } else {
                     NO_SPLAT
@@ -1668,8 +1675,8 @@ impl Resolve<'_> {
         // Stage 3: the reprojection error and depth (eqs. 7, 8); the packed pixel becomes the
         // source index. The depth loads first, then the arithmetic as one loop without branches.
         let zc = &s.bufs.zc[..];
-        let zs = &mut row.z[..cw];
-        for (z, &pk) in zs.iter_mut().zip(pks.iter()) {
+        let zg = &mut row.zg[..cw];
+        for (z, &pk) in zg.iter_mut().zip(pks.iter()) {
             let (pi, pj) = unpack_pixel(pk);
             *z = if pk == NO_SPLAT {
                 f32::NAN
@@ -1679,20 +1686,24 @@ impl Resolve<'_> {
         }
         let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
         let [ax, ay] = s.aspect;
-        let es = &mut row.e[..cw];
-        for ((((pk, m), &x), e), z) in pks.iter_mut().zip(ms.iter()).zip(tx).zip(es).zip(zs) {
-            let (pi, pj) = ((*pk & 0xFFFF) as i32, (*pk >> 16) as i32);
+        // Inputs and outputs in different arrays: an output written back over its input became
+        // masked stores, which are slow on some processors.
+        let (pks, ms, zg) = (&pks[..cw], &ms[..cw], &zg[..cw]);
+        let (es, zs, ps) = (&mut row.e[..cw], &mut row.z[..cw], &mut row.p[..cw]);
+        for i in 0..cw {
+            let (pk, m, x, z) = (pks[i], ms[i], tx[i], zg[i]);
+            let (pi, pj) = ((pk & 0xFFFF) as i32, (pk >> 16) as i32);
             // The pixel centre's NDC as [`crate::camera::ndc_of_pixel`] computes it.
             let px = (2 * pi + 1) as f32 / wf - 1.0;
             let py = 1.0 - (2 * pj + 1) as f32 / hf;
             let ex = (px + m[0] - x) * ax;
             let ey = (py + m[1] - ty) * ay;
             let er = (ex * ex + ey * ey).sqrt();
-            let ok = *pk != NO_SPLAT && er.is_finite() && z.is_finite();
+            let ok = (pk != NO_SPLAT) & er.is_finite() & z.is_finite();
             let p = pj as u32 * sw as u32 + pi as u32;
-            *e = if ok { er } else { f32::INFINITY };
-            *z = if ok { *z } else { f32::NAN };
-            *pk = if ok { p } else { NO_SPLAT };
+            es[i] = if ok { er } else { f32::INFINITY };
+            zs[i] = if ok { z } else { f32::NAN };
+            ps[i] = if ok { p } else { NO_SPLAT };
         }
         // Main sources carry no visibility flags (every match is visible in main).
         debug_assert!(self.pair.sources[k].vis.is_empty());
