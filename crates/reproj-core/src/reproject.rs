@@ -1339,6 +1339,33 @@ struct SearchRow {
     moving: Vec<u32>,
     /// Where the first iteration moves each pixel, or [`NO_SPLAT`] where it stays.
     next: Vec<u32>,
+    /// Auxiliary sources: whether each match is visible in main (empty for main sources).
+    vis: Vec<bool>,
+}
+
+impl SearchRow {
+    /// The match of target `n` as [`Resolve::search`] returns it.
+    #[inline(always)]
+    fn found(&self, n: usize) -> Option<Match> {
+        (self.p[n] != NO_SPLAT).then(|| Match {
+            p: self.p[n],
+            e: self.e[n],
+            z: self.z[n],
+            vis: self.vis.get(n).is_none_or(|&v| v),
+        })
+    }
+}
+
+/// The targets of one [`Resolve::search_row`]: points at NDC `(x[n], y)` in cells `(col(n), j)`
+/// of a `gw × gh` grid (the client image or an auxiliary grid).
+struct Targets<'a> {
+    x: &'a [f32],
+    y: f32,
+    j: usize,
+    gw: usize,
+    gh: usize,
+    /// The cell column of each target, or `None` when target `n` is in column `n`.
+    cols: Option<&'a [u32]>,
 }
 
 /// "No source" in [`Picks::src`].
@@ -1373,6 +1400,16 @@ struct RowState {
     /// The searches in each main source.
     sides: Vec<SearchRow>,
     picks: Picks,
+    aux: AuxRow,
+}
+
+/// The auxiliary cells one output row needs searched ([`Resolve::aux_row`]): their grid columns
+/// and NDC x, and the searches in the camera's older and newer source.
+#[derive(Debug, Default)]
+struct AuxRow {
+    cols: Vec<u32>,
+    x: Vec<f32>,
+    sides: [SearchRow; 2],
 }
 
 thread_local! {
@@ -1408,7 +1445,7 @@ impl Resolve<'_> {
         }
         let n_main = if self.bidirectional { 2 } else { 1 };
         let mut scratch = ROW_STATE.with(|b| std::mem::take(&mut *b.borrow_mut()));
-        let RowState { sides, picks } = &mut scratch;
+        let RowState { sides, picks, aux } = &mut scratch;
         sides.resize_with(n_main, SearchRow::default);
         // Scanlines inside the block of 16 rows: the reads of `init`, `flow` and the colours then
         // run along rows of the sources, a few sequential streams that the hardware prefetcher
@@ -1421,11 +1458,19 @@ impl Resolve<'_> {
         // they can change the pixel, and the colours (Algorithm 2).
         for r in 0..rows {
             let j = j0 + r;
+            let targets = Targets {
+                x: &self.client_ndc.x[..cw],
+                y: self.client_ndc.y[j],
+                j,
+                gw: cw,
+                gh: self.client_h,
+                cols: None,
+            };
             for (k, side) in sides.iter_mut().enumerate() {
-                self.search_row(k, j, side);
+                self.search_row(k, &targets, side);
             }
             self.choose_row(sides, picks);
-            self.aux_row(j, picks, &mut blocks);
+            self.aux_row(j, picks, aux, &mut blocks);
             let row_out = &mut out[3 * r * cw..3 * (r + 1) * cw];
             for (i, o) in row_out.chunks_exact_mut(3).enumerate() {
                 let src = picks.src[i];
@@ -1505,7 +1550,7 @@ impl Resolve<'_> {
     /// (main found nothing, or a cell that may override main, see [`AuxGrid`]), the merged
     /// decision of [`Resolve::decide`] replaces the main camera's in `picks`.
     #[inline(never)]
-    fn aux_row(&self, j: usize, picks: &mut Picks, blocks: &mut [AuxBlock]) {
+    fn aux_row(&self, j: usize, picks: &mut Picks, batch: &mut AuxRow, blocks: &mut [AuxBlock]) {
         let cw = self.client_w;
         // Per pixel, bit 0: some grid covers it; bit 1: some grid's cell may override main there.
         // Built without branches on the flags, then the pixels that need the auxiliary cameras
@@ -1534,6 +1579,68 @@ impl Resolve<'_> {
             // No main match: any covering grid; else a cell that may override main.
             let bit = if src == NO_SOURCE { 1 } else { 2 };
             n += usize::from(need & bit != 0);
+        }
+        // The cells these pixels need that the block has not searched yet, searched together
+        // per grid (stage by stage, as the main camera's), so that their loads overlap.
+        for (g, (grid, block)) in self.aux.iter().zip(blocks.iter_mut()).enumerate() {
+            let aj = grid.row_of[j];
+            if aj == u32::MAX {
+                continue;
+            }
+            let aj = aj as usize;
+            let base = (aj - block.row0) * grid.w;
+            batch.cols.clear();
+            for &i in &list[..n] {
+                let ai = grid.col_of[i as usize];
+                if ai == u32::MAX {
+                    continue;
+                }
+                let none = picks.src[i as usize] == NO_SOURCE;
+                let c = ai as usize;
+                if (none || grid.maybe[aj * grid.w + c] != 0) && block.done[base + c] == 0 {
+                    block.done[base + c] = 1;
+                    batch.cols.push(ai);
+                }
+            }
+            if batch.cols.is_empty() {
+                continue;
+            }
+            batch.x.clear();
+            batch
+                .x
+                .extend(batch.cols.iter().map(|&c| grid.ndc.x[c as usize]));
+            let targets = Targets {
+                x: &batch.x,
+                y: grid.ndc.y[aj],
+                j: aj,
+                gw: grid.w,
+                gh: grid.h,
+                cols: Some(&batch.cols),
+            };
+            let cam = 1 + g;
+            let srcs = if self.bidirectional {
+                2 * cam..2 * cam + 2
+            } else {
+                cam..cam + 1
+            };
+            for (k, side) in srcs.zip(batch.sides.iter_mut()) {
+                self.search_row(k, &targets, side);
+            }
+            let [f, b] = &batch.sides;
+            for (nth, &c) in batch.cols.iter().enumerate() {
+                let choice = if self.bidirectional {
+                    self.choose(
+                        cam,
+                        f.found(nth),
+                        b.found(nth),
+                        self.eps_e_aux,
+                        self.eps_z_aux,
+                    )
+                } else {
+                    self.choose(cam, f.found(nth), None, self.eps_e_aux, self.eps_z_aux)
+                };
+                block.cells[base + c as usize] = choice.map(|choice| AuxCell { choice });
+            }
         }
         for &i in &list[..n] {
             let i = i as usize;
@@ -1572,15 +1679,15 @@ impl Resolve<'_> {
         /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
         /// the processor's reorder window holds less than one pixel's work and waits on each load.
         /// Row by row, every stage is a short loop over independent pixels whose loads overlap.
-        fn search_row / search_row_avx2 => search_row_impl(&self, k: usize, j: usize, row: &mut SearchRow)
+        fn search_row / search_row_avx2 => search_row_impl(&self, k: usize, t: &Targets, row: &mut SearchRow)
     }
 
     #[inline(always)]
-    fn search_row_impl(&self, k: usize, j: usize, row: &mut SearchRow) {
+    fn search_row_impl(&self, k: usize, t: &Targets, row: &mut SearchRow) {
         let s = &self.sources[k];
         let (sw, sh) = (s.proj.width, s.proj.height);
-        let cw = self.client_w;
-        let (tx, ty) = (&self.client_ndc.x[..cw], self.client_ndc.y[j]);
+        let cw = t.x.len();
+        let (tx, ty) = (t.x, t.y);
         let (flow, init) = (&s.bufs.flow[..], &s.bufs.init[..]);
         // Slices of the row's length, written by position (no pushes: their length checks would
         // reload the vectors' lengths on every pixel).
@@ -1603,10 +1710,19 @@ impl Resolve<'_> {
                 (pk, flow[pj * sw + pi])
             }
         };
-        if (cw, self.client_h) == (sw, sh) {
-            let cells = &init[j * sw..(j + 1) * sw];
-            for ((pk, m), &c) in pks.iter_mut().zip(ms.iter_mut()).zip(cells) {
-                (*pk, *m) = first(c);
+        if (t.gw, t.gh) == (sw, sh) {
+            let cells = &init[t.j * sw..(t.j + 1) * sw];
+            match t.cols {
+                None => {
+                    for ((pk, m), &c) in pks.iter_mut().zip(ms.iter_mut()).zip(cells) {
+                        (*pk, *m) = first(c);
+                    }
+                }
+                Some(cols) => {
+                    for ((pk, m), &c) in pks.iter_mut().zip(ms.iter_mut()).zip(cols) {
+                        (*pk, *m) = first(cells[c as usize]);
+                    }
+                }
             }
         } else {
             for ((pk, m), &x) in pks.iter_mut().zip(ms.iter_mut()).zip(tx) {
@@ -1705,8 +1821,14 @@ impl Resolve<'_> {
             zs[i] = if ok { z } else { f32::NAN };
             ps[i] = if ok { p } else { NO_SPLAT };
         }
-        // Main sources carry no visibility flags (every match is visible in main).
-        debug_assert!(self.pair.sources[k].vis.is_empty());
+        // Visibility in main (§3.5 rule 2) matters for the auxiliary sources only (from the pair
+        // state); main sources carry no flags.
+        let flags = &self.pair.sources[k].vis;
+        row.vis.clear();
+        if !flags.is_empty() {
+            row.vis
+                .extend(ps.iter().map(|&p| p == NO_SPLAT || flags[p as usize] != 0));
+        }
     }
 
     /// The window search and fixed-point iteration in source `s` for the output pixel at NDC `t`,
