@@ -1337,8 +1337,10 @@ struct SearchRow {
     zg: Vec<f32>,
     /// The pixels whose fixed-point iteration is still moving.
     moving: Vec<u32>,
-    /// Where the first iteration moves each pixel, or [`NO_SPLAT`] where it stays.
+    /// Where an iteration moves each pixel, or [`NO_SPLAT`] where it stays.
     next: Vec<u32>,
+    /// The same for the previous iteration (before the first: the initial pixel).
+    prev: Vec<u32>,
     /// Auxiliary sources: whether each match is visible in main (empty for main sources).
     vis: Vec<bool>,
 }
@@ -1691,7 +1693,7 @@ impl Resolve<'_> {
         let (flow, init) = (&s.bufs.flow[..], &s.bufs.init[..]);
         // Slices of the row's length, written by position (no pushes: their length checks would
         // reload the vectors' lengths on every pixel).
-        for v in [&mut row.pk, &mut row.moving, &mut row.next] {
+        for v in [&mut row.pk, &mut row.moving, &mut row.next, &mut row.prev] {
             v.resize(cw, 0);
         }
         row.m.resize(cw, [0.0; 2]);
@@ -1743,50 +1745,60 @@ impl Resolve<'_> {
                 _ => false,
             }
         };
-        let moving = &mut row.moving[..cw];
-        let mut n = 0;
-        if self.iterations > 0 {
-            // The first iteration for every pixel: the arithmetic as one loop without branches
-            // (vectorised), then the flow loads for the pixels that moved.
-            let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
-            let next = &mut row.next[..cw];
-            let (pks_in, ms_in) = (&pks[..cw], &ms[..cw]);
-            for i in 0..cw {
-                let (pk, m, x) = (pks_in[i], ms_in[i], tx[i]);
-                // `pixel_of_ndc(x − m.x, ty − m.y)` without branches.
-                let fx = (x - m[0] + 1.0) * 0.5 * wf;
-                let fy = (1.0 - (ty - m[1])) * 0.5 * hf;
-                let inside = fx >= 0.0 && fy >= 0.0 && fx < wf && fy < hf;
-                let c = packed_cell(inside, fx, fy);
-                next[i] = if inside & (pk != NO_SPLAT) & (c != pk) {
-                    c
-                } else {
-                    NO_SPLAT
-                };
-            }
-            for (i, &q) in next.iter().enumerate() {
-                // Moving pixels are listed in order: the list is written no faster than read.
-                moving[n] = i as u32;
-                n += usize::from(q != NO_SPLAT);
-            }
-            for &i in &moving[..n] {
-                let i = i as usize;
-                let (ni, nj) = unpack_pixel(next[i]);
-                pks[i] = next[i];
-                ms[i] = flow[nj * sw + ni];
-            }
-        }
-        for _ in 1..self.iterations {
+        // While many pixels still move (nearly all do once: the window's nearest splat is
+        // usually a neighbour of the fixed point), an iteration is one loop of arithmetic over
+        // the whole row without branches (vectorised), then the flow loads for the pixels that
+        // moved. Once few move, the rest is done for those alone. A pixel that stopped never
+        // moves again, so the list only shrinks.
+        let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
+        // `prev[i] != NO_SPLAT`: pixel `i` is still iterating (it has a splat, and moved in the
+        // last iteration).
+        row.prev[..cw].copy_from_slice(pks);
+        let mut n = cw;
+        for _ in 0..self.iterations {
             if n == 0 {
                 break;
             }
-            let mut kept = 0;
-            for a in 0..n {
-                let i = moving[a] as usize;
-                moving[kept] = i as u32;
-                kept += usize::from(step(tx[i], &mut pks[i], &mut ms[i]));
+            if 4 * n > cw {
+                let (next, prev) = (&mut row.next[..cw], &row.prev[..cw]);
+                let (pks_in, ms_in) = (&pks[..cw], &ms[..cw]);
+                for i in 0..cw {
+                    let (pk, m, x) = (pks_in[i], ms_in[i], tx[i]);
+                    // `pixel_of_ndc(x − m.x, ty − m.y)` without branches.
+                    let fx = (x - m[0] + 1.0) * 0.5 * wf;
+                    let fy = (1.0 - (ty - m[1])) * 0.5 * hf;
+                    let inside = fx >= 0.0 && fy >= 0.0 && fx < wf && fy < hf;
+                    let c = packed_cell(inside, fx, fy);
+                    next[i] = if inside & (prev[i] != NO_SPLAT) & (c != pk) {
+                        c
+                    } else {
+                        NO_SPLAT
+                    };
+                }
+                let moving = &mut row.moving[..cw];
+                n = 0;
+                for (i, &q) in next.iter().enumerate() {
+                    // Listed in order: the list is written no faster than read.
+                    moving[n] = i as u32;
+                    n += usize::from(q != NO_SPLAT);
+                }
+                for &i in &moving[..n] {
+                    let i = i as usize;
+                    let (ni, nj) = unpack_pixel(next[i]);
+                    pks[i] = next[i];
+                    ms[i] = flow[nj * sw + ni];
+                }
+                std::mem::swap(&mut row.next, &mut row.prev);
+            } else {
+                let moving = &mut row.moving[..cw];
+                let mut kept = 0;
+                for a in 0..n {
+                    let i = moving[a] as usize;
+                    moving[kept] = i as u32;
+                    kept += usize::from(step(tx[i], &mut pks[i], &mut ms[i]));
+                }
+                n = kept;
             }
-            n = kept;
         }
         // Stage 3: the reprojection error and depth (eqs. 7, 8); the packed pixel becomes the
         // source index. The depth loads first, then the arithmetic as one loop without branches.
