@@ -1136,15 +1136,21 @@ fn window_block_impl(
 ) {
     let j1 = j0 + out.len() / sw;
     let (lo, hi) = (j0.saturating_sub(wr), (j1 + wr).min(sh));
-    // Layout: the horizontal minima of rows lo..hi, then two rows of working space.
-    scratch.clear();
+    // Layout: the horizontal minima of rows lo..hi, then two rows of working space. Every entry
+    // is written before it is read, so the buffer needs no fill.
     scratch.resize((hi - lo + 2) * sw, EMPTY_SPLAT);
     let (rows, work) = scratch.split_at_mut((hi - lo) * sw);
     let (acc, tmp) = work.split_at_mut(sw);
     for (r, dst) in rows.chunks_mut(sw).enumerate() {
-        dst.copy_from_slice(&splat[(lo + r) * sw..(lo + r + 1) * sw]);
-        // Each step widens the minimum by one pixel on both sides.
-        for _ in 0..wr {
+        let src = &splat[(lo + r) * sw..(lo + r + 1) * sw];
+        // Each step widens the minimum by one pixel on both sides; the first reads the grid
+        // directly (the default window, wr = 1, needs no copy).
+        if wr == 0 {
+            dst.copy_from_slice(src);
+        } else {
+            min3(src, dst);
+        }
+        for _ in 1..wr {
             tmp.copy_from_slice(dst);
             min3(tmp, dst);
         }
@@ -1152,18 +1158,37 @@ fn window_block_impl(
     for (r, o) in out.chunks_mut(sw).enumerate() {
         let j = j0 + r;
         let (a, z) = (j.saturating_sub(wr) - lo, (j + wr).min(sh - 1) - lo);
-        acc.copy_from_slice(&rows[a * sw..(a + 1) * sw]);
-        for q in a + 1..=z {
-            for (m, v) in acc.iter_mut().zip(&rows[q * sw..(q + 1) * sw]) {
-                *m = (*m).min(*v);
-            }
-        }
+        let row = |q: usize| &rows[q * sw..(q + 1) * sw];
         // The low half of a key is its packed pixel, and that of EMPTY_SPLAT is NO_SPLAT (packed
         // pixels stay below 2³⁰).
-        for (d, m) in o.iter_mut().zip(acc.iter()) {
-            *d = splat_index(*m);
+        if z == a + 2 {
+            // Three rows (wr = 1 away from the border): one pass, no accumulator.
+            for (d, ((x, y), w)) in o.iter_mut().zip(row(a).iter().zip(row(a + 1)).zip(row(z))) {
+                *d = splat_index(key_min(key_min(*x, *y), *w));
+            }
+        } else {
+            acc.copy_from_slice(row(a));
+            for q in a + 1..=z {
+                for (m, v) in acc.iter_mut().zip(row(q)) {
+                    *m = key_min(*m, *v);
+                }
+            }
+            for (d, m) in o.iter_mut().zip(acc.iter()) {
+                *d = splat_index(*m);
+            }
         }
     }
+}
+
+/// The smaller of two splat keys ([`splat_key`] or [`EMPTY_SPLAT`]).
+///
+/// Every such key has its top bit set (the high half is `!z.to_bits()` with `0 ≤ z ≤ 1`, whose
+/// bits are below 2³¹), and among integers that share the top bit the signed order is the
+/// unsigned one. AVX2 has a signed 64-bit compare but no unsigned one, so comparing as `i64`
+/// saves flipping the sign bit of both operands.
+#[inline(always)]
+fn key_min(a: u64, b: u64) -> u64 {
+    (a as i64).min(b as i64) as u64
 }
 
 /// `dst[i] = min(src[i−1], src[i], src[i+1])`, clipped at the ends.
@@ -1174,13 +1199,13 @@ fn min3(src: &[u64], dst: &mut [u64]) {
         dst.copy_from_slice(src);
         return;
     }
-    dst[0] = src[0].min(src[1]);
-    dst[n - 1] = src[n - 2].min(src[n - 1]);
+    dst[0] = key_min(src[0], src[1]);
+    dst[n - 1] = key_min(src[n - 2], src[n - 1]);
     for (d, ((a, b), c)) in dst[1..n - 1]
         .iter_mut()
         .zip(src[..n - 2].iter().zip(&src[1..n - 1]).zip(&src[2..]))
     {
-        *d = (*a).min(*b).min(*c);
+        *d = key_min(key_min(*a, *b), *c);
     }
 }
 
