@@ -1767,37 +1767,43 @@ fn eager_aux() -> bool {
 /// of a cell flagged in any source's `invisible` buffer, or within `reach` of the grid's border
 /// (points just outside the grid are not flagged); `maybe` arrives zeroed.
 fn dilate_flags(srcs: &[Src], w: usize, h: usize, reach: usize, maybe: &mut [u8]) {
-    // Row pass: the flagged cells of each row, widened by `reach` on both sides.
-    maybe
-        .par_chunks_mut(w)
-        .enumerate()
-        .with_min_len(16)
-        .for_each(|(j, row)| {
-            let flagged = |i: usize| {
-                srcs.iter()
-                    .any(|s| s.bufs.invisible[j * w + i].load(Ordering::Relaxed) != 0)
-            };
-            // Cells since the last flagged one, saturating.
-            let mut last: Option<usize> = None;
-            for i in 0..w + reach {
-                if i < w && flagged(i) {
-                    last = Some(i);
-                }
-                if let Some(l) = last {
-                    if i >= reach && i - l <= 2 * reach {
-                        row[i - reach] = 1;
-                    }
-                }
-            }
-        });
-    // Column pass over the row-widened flags, then the border ring. The copy lives in a pooled
-    // buffer (first-touch page faults, see BUFFER_POOL).
+    // The flags are 0 or 1, so "any" is a bitwise or; both passes are ors of whole rows (shifted
+    // for the row pass), which vectorise, instead of a search per cell.
     DILATE_SCRATCH.with(|cell| {
         let mut widened = cell.borrow_mut();
-        widened.clear();
-        widened.extend_from_slice(maybe);
+        widened.resize(w * h, 0);
+        // Row pass: the flagged cells of each row (into `maybe`, as scratch), widened by `reach`
+        // on both sides (into `widened`).
+        maybe
+            .par_chunks_mut(w)
+            .zip(widened.par_chunks_mut(w))
+            .enumerate()
+            .with_min_len(16)
+            .for_each(|(j, (flags, out))| {
+                for s in srcs {
+                    let inv = &s.bufs.invisible[j * w..(j + 1) * w];
+                    for (f, v) in flags.iter_mut().zip(inv) {
+                        *f |= v.load(Ordering::Relaxed);
+                    }
+                }
+                widen_row(flags, reach, out);
+            });
         column_pass(&widened, w, h, reach, maybe);
     });
+}
+
+/// `out[i]` = the or of `flags` over `i − reach ..= i + reach` (clipped to the row).
+fn widen_row(flags: &[u8], reach: usize, out: &mut [u8]) {
+    let n = flags.len();
+    out.copy_from_slice(flags);
+    for d in 1..=reach.min(n.saturating_sub(1)) {
+        for (o, f) in out[..n - d].iter_mut().zip(&flags[d..]) {
+            *o |= f;
+        }
+        for (o, f) in out[d..].iter_mut().zip(&flags[..n - d]) {
+            *o |= f;
+        }
+    }
 }
 
 thread_local! {
@@ -1814,11 +1820,19 @@ fn column_pass(widened: &[u8], w: usize, h: usize, reach: usize, maybe: &mut [u8
         .with_min_len(16)
         .for_each(|(j, row)| {
             let (lo, hi) = (j.saturating_sub(reach), (j + reach).min(h - 1));
-            let border_row = j < reach || j + reach >= h;
-            for (i, m) in row.iter_mut().enumerate() {
-                let border = border_row || i < reach || i + reach >= w;
-                *m = u8::from(border || (lo..=hi).any(|q| widened[q * w + i] != 0));
+            if j < reach || j + reach >= h {
+                row.fill(1);
+                return;
             }
+            row.copy_from_slice(&widened[lo * w..(lo + 1) * w]);
+            for q in lo + 1..=hi {
+                for (m, v) in row.iter_mut().zip(&widened[q * w..(q + 1) * w]) {
+                    *m |= v;
+                }
+            }
+            let r = reach.min(w);
+            row[..r].fill(1);
+            row[w - r..].fill(1);
         });
 }
 
