@@ -776,18 +776,8 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
                     kz: &mut scratch.kz,
                 };
                 flow_row(input, out);
-                let pk_row = pack_pixel(0, j);
-                for (i, (&c, &kz)) in scratch.cell.iter().zip(&scratch.kz).enumerate() {
-                    let key = splat_key(kz, pk_row | i as u32);
-                    // NO_SPLAT wraps to beyond every band (grids have fewer than 2³¹ cells).
-                    let rel = c.wrapping_sub(base) as usize;
-                    if let Some(s) = band.get_mut(rel) {
-                        // Only this task writes this band during the parallel pass.
-                        *s = key_min(*s, key);
-                    } else if c != NO_SPLAT {
-                        spill.push((c, key));
-                    }
-                }
+                row_keys(&scratch.kz, pack_pixel(0, j), &mut scratch.key);
+                splat_row(&scratch.cell, &scratch.key, base, band, spill);
                 if let Some(vis) = vis {
                     // Auxiliary sources: flag where the points not visible in main land.
                     let v = &vis[j * sw..(j + 1) * sw];
@@ -820,6 +810,40 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
         *s = key_min(*s, key);
     }
     src.bufs.spill = spills;
+}
+
+avx2_dispatch! {
+    /// The splat keys ([`splat_key`]) of one source row from its key depths `kz` and the packed
+    /// pixel of its first point `pk_row` ([`pack_pixel`]). Four keys per vector instruction here,
+    /// against four scalar instructions per key in [`splat_row`].
+    fn row_keys / row_keys_avx2 => row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64])
+}
+
+#[inline(always)]
+fn row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64]) {
+    for (i, (k, z)) in key.iter_mut().zip(kz).enumerate() {
+        *k = splat_key(*z, pk_row | i as u32);
+    }
+}
+
+/// Splats one source row whose points' cells and keys are `cell` and `key` ([`RowScratch`]):
+/// into `band`, the cells `base..` of the grid, or else onto `spill`.
+///
+/// A function of its own, not inlined: inside the closure of [`scene_flow_and_splat`] the
+/// compiler kept the band's pointer, length and base on the stack and reloaded them for every
+/// point.
+#[inline(never)]
+fn splat_row(cell: &[u32], key: &[u64], base: u32, band: &mut [u64], spill: &mut Vec<(u32, u64)>) {
+    for (&c, &key) in cell.iter().zip(key) {
+        // NO_SPLAT wraps to beyond every band (grids have fewer than 2³¹ cells).
+        let rel = c.wrapping_sub(base) as usize;
+        if let Some(s) = band.get_mut(rel) {
+            // Only this task writes this band during the parallel pass.
+            *s = key_min(*s, key);
+        } else if c != NO_SPLAT {
+            spill.push((c, key));
+        }
+    }
 }
 
 /// The full scene flow of a source into the same camera at the other frame's time (eqs. 2, 3),
@@ -923,7 +947,7 @@ fn full_point(k: &FullRow, i: usize, z: f32, o: [f32; 3]) -> [f32; 4] {
 thread_local! {
     /// Splat targets of one source row ([`RowScratch`]), reused.
     static ROW_SCRATCH: std::cell::RefCell<RowScratch> = const {
-        std::cell::RefCell::new(RowScratch { cell: Vec::new(), kz: Vec::new(), inv: Vec::new() })
+        std::cell::RefCell::new(RowScratch { cell: Vec::new(), kz: Vec::new(), key: Vec::new(), inv: Vec::new() })
     };
 }
 
@@ -937,6 +961,8 @@ struct RowScratch {
     /// key itself is put together in the scalar loop: 64-bit lanes would halve the vector
     /// width of [`flow_row`].
     kz: Vec<f32>,
+    /// The splat keys ([`row_keys`]).
+    key: Vec<u64>,
     /// Auxiliary sources: the cell the point lands in when it is valid and not visible in the
     /// main camera (whether or not it splats; see [`Buffers::invisible`]), else [`NO_SPLAT`].
     inv: Vec<u32>,
@@ -946,6 +972,7 @@ impl RowScratch {
     fn resize(&mut self, n: usize) {
         self.cell.resize(n, NO_SPLAT);
         self.kz.resize(n, 0.0);
+        self.key.resize(n, EMPTY_SPLAT);
         self.inv.resize(n, NO_SPLAT);
     }
 }
