@@ -958,8 +958,8 @@ struct RowScratch {
     /// [`NO_SPLAT`].
     cell: Vec<u32>,
     /// Its key depth, the `z` of [`splat_key`] (unspecified where `cell` is [`NO_SPLAT`]). The
-    /// key itself is put together in the scalar loop: 64-bit lanes would halve the vector
-    /// width of [`flow_row`].
+    /// key itself is put together by [`row_keys`]: 64-bit lanes in [`flow_row`] made the
+    /// compiler halve its vector width.
     kz: Vec<f32>,
     /// The splat keys ([`row_keys`]).
     key: Vec<u64>,
