@@ -37,7 +37,7 @@
 //! - `ε_e` keeps its pixel size across resolutions (see [`Params::eps_e`]);
 //! - blending happens for every `α < 1`, not only while `round(12α) < 12`.
 
-use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicU8, Ordering};
 
 use rayon::prelude::*;
 
@@ -212,8 +212,9 @@ struct Buffers {
     /// The client's reversed depth of each point (eq. 8; the source depth plus the z flow, kept
     /// whole); NaN = invalid. Rewritten every frame.
     zc: Vec<f32>,
-    /// Splat keys ([`splat_key`]), reset to [`EMPTY_SPLAT`] every frame.
-    splat: Vec<AtomicU64>,
+    /// Splat keys ([`splat_key`]), reset to [`EMPTY_SPLAT`] every frame (band by band, by the
+    /// task that splats the band, see [`scene_flow_and_splat`]).
+    splat: Vec<u64>,
     /// The window search done for every cell at once ([`window_min`]): the packed source pixel
     /// of the smallest splat key in the `(2W+1)²` window around the cell, or [`NO_SPLAT`].
     /// Every entry is rewritten each frame.
@@ -509,24 +510,19 @@ impl<'a> Src<'a> {
             bufs.zc = Vec::new();
             bufs.zc.resize(n, f32::NAN);
             bufs.splat = Vec::new();
-            bufs.splat.resize_with(n, || AtomicU64::new(EMPTY_SPLAT));
+            bufs.splat.resize(n, EMPTY_SPLAT);
             bufs.init = Vec::new();
             bufs.init.resize(n, NO_SPLAT);
-        } else {
-            bufs.splat
-                .par_iter()
-                .with_min_len(1 << 14)
-                .for_each(|k| k.store(EMPTY_SPLAT, Ordering::Relaxed));
         }
         if camera > 0 {
             if bufs.invisible.len() != n {
                 bufs.invisible = Vec::new();
                 bufs.invisible.resize_with(n, || AtomicU8::new(0));
             } else {
-                bufs.invisible
-                    .par_iter()
-                    .with_min_len(1 << 16)
-                    .for_each(|k| k.store(0, Ordering::Relaxed));
+                // Exclusive access: plain stores, which the compiler turns into a memset (an
+                // atomic store per flag would not vectorise). A quarter of a byte per output
+                // pixel, so one thread.
+                bufs.invisible.iter_mut().for_each(|f| *f.get_mut() = 0);
             }
         }
         let short = view.camera.width.min(view.camera.height) as f32;
@@ -783,71 +779,57 @@ fn visible_in(view: &CameraView, proj: &Projector, h: [f32; 4], eps_z: f32) -> b
 fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Option<&[u8]>) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     let view = src.view;
-    let splat = &src.bufs.splat;
     let invisible = &src.bufs.invisible;
-    let ndc = &src.ndc;
+    let xs = &src.ndc.x;
     // The splat is a minimum per cell, so the order of the updates does not matter. Each task owns
-    // the splat cells of its own 16 rows (its band) and updates them with a plain load and store;
-    // a point that lands in another band (a few per cent: flows are mostly smaller than the band)
-    // is kept aside and applied after the parallel pass. A `lock cmpxchg` per point would cost
-    // more than the point's whole scene flow.
+    // the splat cells of its own 16 rows (its band): it resets them (while they are hot in its
+    // cache, instead of a separate pass over the grid) and updates them with plain loads and
+    // stores. A point that lands in another band (a few per cent: flows are mostly smaller than
+    // the band) is kept aside and applied after the parallel pass, when every band is reset.
+    // A `lock cmpxchg` per point would cost more than the point's whole scene flow.
     let block = |b: usize,
                  rows: &mut [[f32; 2]],
                  zrows: &mut [f32],
+                 band: &mut [u64],
                  spill: &mut Vec<(u32, u64)>| {
+        band.fill(EMPTY_SPLAT);
         spill.clear();
+        // Row-major cell indices order like the packed pixels: the band is one range of them.
+        let base = (b * TILE * sw) as u32;
         ROW_SCRATCH.with(|cell| {
-            let mut scratch = cell.borrow_mut();
-            scratch.resize(sw, (0, 0.0));
+            let scratch = &mut *cell.borrow_mut();
+            scratch.resize(sw);
             for (r, (row, zrow)) in rows.chunks_mut(sw).zip(zrows.chunks_mut(sw)).enumerate() {
                 let j = b * TILE + r;
                 let depth = &view.depth[j * sw..(j + 1) * sw];
-                let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
-                flow_row(
-                    FlowRow {
-                        j,
-                        sw,
-                        sh,
-                        depth,
-                        motion,
-                        to_client,
-                        w,
-                    },
-                    row,
-                    zrow,
-                    &mut scratch,
-                );
+                let motion = view.motion.map(|m| &m[3 * j * sw..(3 * j + 3) * sw]);
+                let input = FlowRow {
+                    j,
+                    sw,
+                    sh,
+                    x: xs,
+                    depth,
+                    motion,
+                    to_client,
+                    w,
+                };
+                let out = RowOut {
+                    flow: row,
+                    zc: zrow,
+                    cell: &mut scratch.cell,
+                    kz: &mut scratch.kz,
+                };
+                flow_row(input, out);
+                row_keys(&scratch.kz, pack_pixel(0, j), &mut scratch.key);
+                splat_row(&scratch.cell, &scratch.key, base, band, spill);
                 if let Some(vis) = vis {
-                    // Auxiliary sources: visible in the main camera (§3.5 rule 2), from the pair.
-                    for (i, flow) in row.iter().enumerate() {
-                        if flow[0].is_nan() {
-                            continue;
-                        }
-                        let v = vis[j * sw + i] != 0;
-                        let [x, y] = ndc.at(i, j);
-                        // Where the point lands in the client grid, whether or not it was
-                        // splatted (the FPI can reach points that are not, e.g. nearer than the
-                        // client's near plane). Points just outside the grid need no flag: the
-                        // cells along the grid's border are always searched.
-                        if !v {
-                            if let Some((qi, qj)) = pixel_of_ndc(x + flow[0], y + flow[1], sw, sh) {
-                                // A plain store on x86-64: setting a flag needs no read-modify-write.
-                                invisible[qj * sw + qi].store(1, Ordering::Relaxed);
-                            }
-                        }
-                    }
-                }
-                for (i, &(tgt, z)) in scratch.iter().enumerate() {
-                    if tgt != NO_SPLAT {
-                        let (qi, qj) = unpack_pixel(tgt);
-                        let (c, key) = (qj * sw + qi, splat_key(z, pack_pixel(i, j)));
-                        if qj / TILE == b {
-                            // Only this task writes this band during the parallel pass.
-                            if key < splat[c].load(Ordering::Relaxed) {
-                                splat[c].store(key, Ordering::Relaxed);
-                            }
-                        } else {
-                            spill.push((c as u32, key));
+                    // Auxiliary sources: flag where the points not visible in main land.
+                    let v = &vis[j * sw..(j + 1) * sw];
+                    landing_row(j, sw, sh, xs, row, v, &mut scratch.inv);
+                    for &c in &scratch.inv {
+                        if c != NO_SPLAT {
+                            // A plain store on x86-64: setting a flag needs no read-modify-write.
+                            invisible[c as usize].store(1, Ordering::Relaxed);
                         }
                     }
                 }
@@ -861,17 +843,51 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
         .flow
         .par_chunks_mut(TILE * sw)
         .zip(src.bufs.zc.par_chunks_mut(TILE * sw))
+        .zip(src.bufs.splat.par_chunks_mut(TILE * sw))
         .zip(spills.par_iter_mut())
         .enumerate()
-        .for_each(|(b, ((rows, zrows), spill))| block(b, rows, zrows, spill));
-    // The parallel pass has finished: nothing else writes the grid now.
+        .for_each(|(b, (((rows, zrows), band), spill))| block(b, rows, zrows, band, spill));
+    // The parallel pass has finished: every band is reset and nothing else writes the grid.
+    let splat = &mut src.bufs.splat;
     for &(c, key) in spills.iter().flatten() {
-        let cell = &splat[c as usize];
-        if key < cell.load(Ordering::Relaxed) {
-            cell.store(key, Ordering::Relaxed);
-        }
+        let s = &mut splat[c as usize];
+        *s = key_min(*s, key);
     }
     src.bufs.spill = spills;
+}
+
+avx2_dispatch! {
+    /// The splat keys ([`splat_key`]) of one source row from its key depths `kz` and the packed
+    /// pixel of its first point `pk_row` ([`pack_pixel`]). Four keys per vector instruction here,
+    /// against four scalar instructions per key in [`splat_row`].
+    fn row_keys / row_keys_avx2 => row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64])
+}
+
+#[inline(always)]
+fn row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64]) {
+    for (i, (k, z)) in key.iter_mut().zip(kz).enumerate() {
+        *k = splat_key(*z, pk_row | i as u32);
+    }
+}
+
+/// Splats one source row whose points' cells and keys are `cell` and `key` ([`RowScratch`]):
+/// into `band`, the cells `base..` of the grid, or else onto `spill`.
+///
+/// A function of its own, not inlined: inside the closure of [`scene_flow_and_splat`] the
+/// compiler kept the band's pointer, length and base on the stack and reloaded them for every
+/// point.
+#[inline(never)]
+fn splat_row(cell: &[u32], key: &[u64], base: u32, band: &mut [u64], spill: &mut Vec<(u32, u64)>) {
+    for (&c, &key) in cell.iter().zip(key) {
+        // NO_SPLAT wraps to beyond every band (grids have fewer than 2³¹ cells).
+        let rel = c.wrapping_sub(base) as usize;
+        if let Some(s) = band.get_mut(rel) {
+            // Only this task writes this band during the parallel pass.
+            *s = key_min(*s, key);
+        } else if c != NO_SPLAT {
+            spill.push((c, key));
+        }
+    }
 }
 
 /// The full scene flow of a source into the same camera at the other frame's time (eqs. 2, 3),
@@ -973,8 +989,36 @@ fn full_point(k: &FullRow, i: usize, z: f32, o: [f32; 3]) -> [f32; 4] {
 }
 
 thread_local! {
-    /// Splat targets of one source row (packed pixel or [`NO_SPLAT`], key depth), reused.
-    static ROW_SCRATCH: std::cell::RefCell<Vec<(u32, f32)>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// Splat targets of one source row ([`RowScratch`]), reused.
+    static ROW_SCRATCH: std::cell::RefCell<RowScratch> = const {
+        std::cell::RefCell::new(RowScratch { cell: Vec::new(), kz: Vec::new(), key: Vec::new(), inv: Vec::new() })
+    };
+}
+
+/// What [`flow_row`] computes per point of a row besides the flow, for the scalar loop that
+/// splats: one array per field, so that the vector loop stores whole registers.
+struct RowScratch {
+    /// The client cell (row-major index in the source-sized grid) the point splats into, or
+    /// [`NO_SPLAT`].
+    cell: Vec<u32>,
+    /// Its key depth, the `z` of [`splat_key`] (unspecified where `cell` is [`NO_SPLAT`]). The
+    /// key itself is put together by [`row_keys`]: 64-bit lanes in [`flow_row`] made the
+    /// compiler halve its vector width.
+    kz: Vec<f32>,
+    /// The splat keys ([`row_keys`]).
+    key: Vec<u64>,
+    /// Auxiliary sources: the cell the point lands in when it is valid and not visible in the
+    /// main camera (whether or not it splats; see [`Buffers::invisible`]), else [`NO_SPLAT`].
+    inv: Vec<u32>,
+}
+
+impl RowScratch {
+    fn resize(&mut self, n: usize) {
+        self.cell.resize(n, NO_SPLAT);
+        self.kz.resize(n, 0.0);
+        self.key.resize(n, EMPTY_SPLAT);
+        self.inv.resize(n, NO_SPLAT);
+    }
 }
 
 /// The inputs of [`flow_row`]: one row `j` of a `sw × sh` source image.
@@ -982,6 +1026,8 @@ struct FlowRow<'a> {
     j: usize,
     sw: usize,
     sh: usize,
+    /// NDC x of the pixel centres ([`NdcTable`]).
+    x: &'a [f32],
     depth: &'a [f32],
     /// The row's object motion, `3·sw` values, or `None` for a static frame.
     motion: Option<&'a [f32]>,
@@ -989,61 +1035,106 @@ struct FlowRow<'a> {
     w: f32,
 }
 
+/// The outputs of [`flow_row`] for one row: `M_cam` and the client depth (written to the
+/// source's buffers), and the splat targets ([`RowScratch`]).
+struct RowOut<'a> {
+    flow: &'a mut [[f32; 2]],
+    zc: &'a mut [f32],
+    cell: &'a mut [u32],
+    kz: &'a mut [f32],
+}
+
 avx2_dispatch! {
     /// `M_cam` of one source row (eqs. 1, 12, 13) and where each point splats.
     ///
     /// Written without branches on the data so that the compiler vectorises it; on x86-64 it
-    /// runs in an AVX2 build where the processor has AVX2 (the same IEEE operations, no FMA
+    /// runs in an AVX2 build where the processor has it (the same IEEE operations, no FMA
     /// contraction, so the bytes do not depend on the processor).
-    fn flow_row / flow_row_avx2 => flow_row_impl(
-        row: FlowRow,
-        flow: &mut [[f32; 2]],
-        zc: &mut [f32],
-        splat: &mut [(u32, f32)],
-    )
+    fn flow_row / flow_row_avx2 => flow_row_impl(row: FlowRow, out: RowOut)
 }
 
 #[inline(always)]
-fn flow_row_impl(row: FlowRow, flow: &mut [[f32; 2]], zc: &mut [f32], splat: &mut [(u32, f32)]) {
+fn flow_row_impl(row: FlowRow, out: RowOut) {
     let FlowRow {
         j,
         sw,
         sh,
+        x,
         depth,
         motion,
         to_client,
         w,
     } = row;
+    let RowOut { flow, zc, cell, kz } = out;
     let k = PointCtx {
         y: crate::camera::ndc_of_pixel(0, j, sw, sh)[1],
         wf: sw as i32 as f32,
         hf: sh as i32 as f32,
+        sw: sw as u32,
         to_client: *to_client,
         w,
     };
+    let outs = flow
+        .iter_mut()
+        .zip(zc.iter_mut())
+        .zip(cell.iter_mut())
+        .zip(kz.iter_mut());
+    let put = |(((f, zo), c), k): (((&mut [f32; 2], &mut f32), &mut u32), &mut f32),
+               p: FlowPoint| {
+        (*f, *zo, *c, *k) = (p.flow, p.zc, p.cell, p.kz);
+    };
     match motion {
         Some(mo) => {
-            for (i, (((f, zo), s), (z, o))) in flow
-                .iter_mut()
-                .zip(zc.iter_mut())
-                .zip(splat.iter_mut())
-                .zip(depth.iter().zip(mo.chunks_exact(3)))
-                .enumerate()
-            {
-                (*f, *zo, *s) = flow_point(&k, i, *z, [o[0], o[1], o[2]]);
+            for (d, (x, (z, o))) in outs.zip(x.iter().zip(depth.iter().zip(mo.chunks_exact(3)))) {
+                put(d, flow_point(&k, *x, *z, [o[0], o[1], o[2]]));
             }
         }
         None => {
-            for (i, (((f, zo), s), z)) in flow
-                .iter_mut()
-                .zip(zc.iter_mut())
-                .zip(splat.iter_mut())
-                .zip(depth)
-                .enumerate()
-            {
-                (*f, *zo, *s) = flow_point(&k, i, *z, [0.0; 3]);
+            for (d, (x, z)) in outs.zip(x.iter().zip(depth)) {
+                put(d, flow_point(&k, *x, *z, [0.0; 3]));
             }
         }
+    }
+}
+
+avx2_dispatch! {
+    /// For an auxiliary source, the cell each point of row `j` lands in as the resolve pass sees
+    /// it, `pixel_of_ndc(x + M_cam)`, where the point is valid and not visible in the main camera
+    /// (`vis`, one byte per pixel, from the pair), else [`NO_SPLAT`] ([`RowScratch::inv`]).
+    /// Whether or not the point splats: the FPI can reach points that do not (e.g. nearer than
+    /// the client's near plane). Points just outside the grid need no flag: the cells along the
+    /// grid's border are always searched.
+    fn landing_row / landing_row_avx2 => landing_row_impl(
+        j: usize,
+        sw: usize,
+        sh: usize,
+        x: &[f32],
+        flow: &[[f32; 2]],
+        vis: &[u8],
+        inv: &mut [u32],
+    )
+}
+
+#[inline(always)]
+fn landing_row_impl(
+    j: usize,
+    sw: usize,
+    sh: usize,
+    x: &[f32],
+    flow: &[[f32; 2]],
+    vis: &[u8],
+    inv: &mut [u32],
+) {
+    let y = crate::camera::ndc_of_pixel(0, j, sw, sh)[1];
+    let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
+    for (d, ((x, f), v)) in inv.iter_mut().zip(x.iter().zip(flow).zip(vis)) {
+        // `pixel_of_ndc` without branches; NaN (invalid) flow fails every comparison.
+        let fx = (x + f[0] + 1.0) * 0.5 * wf;
+        let fy = (1.0 - (y + f[1])) * 0.5 * hf;
+        // `&`, not `&&`: short-circuit branches here keep the loop from vectorising.
+        let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < wf) & (fy < hf);
+        let c = cell_index(inside, fx, fy, sw as u32);
+        *d = if inside & (*v == 0) { c } else { NO_SPLAT };
     }
 }
 
@@ -1054,20 +1145,32 @@ struct PointCtx {
     /// Source width and height as floats.
     wf: f32,
     hf: f32,
+    /// Source width.
+    sw: u32,
     /// The source → client NDC transfer.
     to_client: NdcTransfer,
     /// The fraction of the object motion applied.
     w: f32,
 }
 
-/// `M_cam` of source pixel `(i, y)` with depth `z` and object motion `o` (eqs. 1, 12, 13), the
-/// client's reversed depth of the point (eq. 8), and its splat target (packed cell or
-/// [`NO_SPLAT`]) and key depth.
+/// What [`flow_point`] gives for one source pixel.
+struct FlowPoint {
+    /// `M_cam`, NaN when invalid.
+    flow: [f32; 2],
+    /// The client's reversed depth (eq. 8), NaN when invalid.
+    zc: f32,
+    /// The splat cell (row-major index) or [`NO_SPLAT`].
+    cell: u32,
+    /// The key depth ([`RowScratch::kz`]), unspecified without a cell.
+    kz: f32,
+}
+
+/// `M_cam` of source pixel `(i, y)` (NDC x `x`) with depth `z` and object motion `o` (eqs. 1, 12,
+/// 13), the client's reversed depth of the point (eq. 8), and its splat cell and key.
 #[inline(always)]
-fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 2], f32, (u32, f32)) {
+fn flow_point(k: &PointCtx, x: f32, z: f32, o: [f32; 3]) -> FlowPoint {
     let (y, w) = (k.y, k.w);
     let clip = |c: [f32; 3]| k.to_client.clip(c);
-    let x = (2 * i as i32 + 1) as f32 / k.wf - 1.0;
     // P_{t+α}(X + w·(X' − X)) = P X + w·(P X' − P X): the world-space blend of eq. 1 done on
     // clip coordinates, each already divided by its world w ([`NdcTransfer::clip`]).
     let a = clip([x, y, z]);
@@ -1101,16 +1204,29 @@ fn flow_point(k: &PointCtx, i: usize, z: f32, o: [f32; 3]) -> ([f32; 2], f32, (u
     // The target cell is `pixel_of_ndc` without branches.
     let fx = (cc[0] + 1.0) * 0.5 * k.wf;
     let fy = (1.0 - cc[1]) * 0.5 * k.hf;
-    let inside = fx >= 0.0 && fy >= 0.0 && fx < k.wf && fy < k.hf;
-    let s = if ok && inside && cc[2] <= 1.0 + 1e-5 {
-        (
-            packed_cell(inside, fx, fy),
-            if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 },
-        )
-    } else {
-        (NO_SPLAT, 0.0)
-    };
-    (f, zc, s)
+    let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < k.wf) & (fy < k.hf);
+    let splats = ok & inside & (cc[2] <= 1.0 + 1e-5);
+    let kz = if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 };
+    FlowPoint {
+        flow: f,
+        zc,
+        cell: if splats {
+            cell_index(inside, fx, fy, k.sw)
+        } else {
+            NO_SPLAT
+        },
+        kz,
+    }
+}
+
+/// The row-major index `⌊fy⌋·sw + ⌊fx⌋` when `inside` (`0 ≤ fx < sw`, `0 ≤ fy < H`), else an
+/// unspecified value the caller discards (see [`packed_cell`]).
+#[inline(always)]
+fn cell_index(inside: bool, fx: f32, fy: f32, sw: u32) -> u32 {
+    let (fx, fy) = if inside { (fx, fy) } else { (0.0, 0.0) };
+    // SAFETY: both are in `[0, 2¹⁶)` here (sides are at most 16384), so finite and in i32 range.
+    let (qi, qj) = unsafe { (fx.to_int_unchecked::<i32>(), fy.to_int_unchecked::<i32>()) };
+    qj as u32 * sw + qi as u32
 }
 
 /// The packed cell ([`pack_pixel`]) `(⌊fx⌋, ⌊fy⌋)` when `inside` (`0 ≤ fx < W`, `0 ≤ fy < H`),
@@ -1139,12 +1255,7 @@ thread_local! {
 /// comparisons on sequential memory, and the resolve pass then reads one `u32` per search.
 fn window_min(src: &mut Src, wr: usize) {
     let (sw, sh) = (src.proj.width, src.proj.height);
-    // SAFETY: `AtomicU64` has the size, alignment and bit validity of `u64`, and the splatting
-    // pass that wrote these atomics has finished (rayon's join orders it before this point), so
-    // nothing writes them while this shared view exists. Plain loads let the minima vectorise.
-    let splat: &[u64] = unsafe {
-        std::slice::from_raw_parts(src.bufs.splat.as_ptr().cast::<u64>(), src.bufs.splat.len())
-    };
+    let splat = &src.bufs.splat;
     src.bufs
         .init
         .par_chunks_mut(TILE * sw)
@@ -1180,15 +1291,21 @@ fn window_block_impl(
 ) {
     let j1 = j0 + out.len() / sw;
     let (lo, hi) = (j0.saturating_sub(wr), (j1 + wr).min(sh));
-    // Layout: the horizontal minima of rows lo..hi, then two rows of working space.
-    scratch.clear();
+    // Layout: the horizontal minima of rows lo..hi, then two rows of working space. Every entry
+    // is written before it is read, so the buffer needs no fill.
     scratch.resize((hi - lo + 2) * sw, EMPTY_SPLAT);
     let (rows, work) = scratch.split_at_mut((hi - lo) * sw);
     let (acc, tmp) = work.split_at_mut(sw);
     for (r, dst) in rows.chunks_mut(sw).enumerate() {
-        dst.copy_from_slice(&splat[(lo + r) * sw..(lo + r + 1) * sw]);
-        // Each step widens the minimum by one pixel on both sides.
-        for _ in 0..wr {
+        let src = &splat[(lo + r) * sw..(lo + r + 1) * sw];
+        // Each step widens the minimum by one pixel on both sides; the first reads the grid
+        // directly (the default window, wr = 1, needs no copy).
+        if wr == 0 {
+            dst.copy_from_slice(src);
+        } else {
+            min3(src, dst);
+        }
+        for _ in 1..wr {
             tmp.copy_from_slice(dst);
             min3(tmp, dst);
         }
@@ -1196,18 +1313,37 @@ fn window_block_impl(
     for (r, o) in out.chunks_mut(sw).enumerate() {
         let j = j0 + r;
         let (a, z) = (j.saturating_sub(wr) - lo, (j + wr).min(sh - 1) - lo);
-        acc.copy_from_slice(&rows[a * sw..(a + 1) * sw]);
-        for q in a + 1..=z {
-            for (m, v) in acc.iter_mut().zip(&rows[q * sw..(q + 1) * sw]) {
-                *m = (*m).min(*v);
-            }
-        }
+        let row = |q: usize| &rows[q * sw..(q + 1) * sw];
         // The low half of a key is its packed pixel, and that of EMPTY_SPLAT is NO_SPLAT (packed
         // pixels stay below 2³⁰).
-        for (d, m) in o.iter_mut().zip(acc.iter()) {
-            *d = splat_index(*m);
+        if z == a + 2 {
+            // Three rows (wr = 1 away from the border): one pass, no accumulator.
+            for (d, ((x, y), w)) in o.iter_mut().zip(row(a).iter().zip(row(a + 1)).zip(row(z))) {
+                *d = splat_index(key_min(key_min(*x, *y), *w));
+            }
+        } else {
+            acc.copy_from_slice(row(a));
+            for q in a + 1..=z {
+                for (m, v) in acc.iter_mut().zip(row(q)) {
+                    *m = key_min(*m, *v);
+                }
+            }
+            for (d, m) in o.iter_mut().zip(acc.iter()) {
+                *d = splat_index(*m);
+            }
         }
     }
+}
+
+/// The smaller of two splat keys ([`splat_key`] or [`EMPTY_SPLAT`]).
+///
+/// Every such key has its top bit set (the high half is `!z.to_bits()` with `0 ≤ z ≤ 1`, whose
+/// bits are below 2³¹), and among integers that share the top bit the signed order is the
+/// unsigned one. AVX2 has a signed 64-bit compare but no unsigned one, so comparing as `i64`
+/// saves flipping the sign bit of both operands.
+#[inline(always)]
+fn key_min(a: u64, b: u64) -> u64 {
+    (a as i64).min(b as i64) as u64
 }
 
 /// `dst[i] = min(src[i−1], src[i], src[i+1])`, clipped at the ends.
@@ -1218,13 +1354,13 @@ fn min3(src: &[u64], dst: &mut [u64]) {
         dst.copy_from_slice(src);
         return;
     }
-    dst[0] = src[0].min(src[1]);
-    dst[n - 1] = src[n - 2].min(src[n - 1]);
+    dst[0] = key_min(src[0], src[1]);
+    dst[n - 1] = key_min(src[n - 2], src[n - 1]);
     for (d, ((a, b), c)) in dst[1..n - 1]
         .iter_mut()
         .zip(src[..n - 2].iter().zip(&src[1..n - 1]).zip(&src[2..]))
     {
-        *d = (*a).min(*b).min(*c);
+        *d = key_min(key_min(*a, *b), *c);
     }
 }
 
@@ -2188,37 +2324,43 @@ fn eager_aux() -> bool {
 /// of a cell flagged in any source's `invisible` buffer, or within `reach` of the grid's border
 /// (points just outside the grid are not flagged); `maybe` arrives zeroed.
 fn dilate_flags(srcs: &[Src], w: usize, h: usize, reach: usize, maybe: &mut [u8]) {
-    // Row pass: the flagged cells of each row, widened by `reach` on both sides.
-    maybe
-        .par_chunks_mut(w)
-        .enumerate()
-        .with_min_len(16)
-        .for_each(|(j, row)| {
-            let flagged = |i: usize| {
-                srcs.iter()
-                    .any(|s| s.bufs.invisible[j * w + i].load(Ordering::Relaxed) != 0)
-            };
-            // Cells since the last flagged one, saturating.
-            let mut last: Option<usize> = None;
-            for i in 0..w + reach {
-                if i < w && flagged(i) {
-                    last = Some(i);
-                }
-                if let Some(l) = last {
-                    if i >= reach && i - l <= 2 * reach {
-                        row[i - reach] = 1;
-                    }
-                }
-            }
-        });
-    // Column pass over the row-widened flags, then the border ring. The copy lives in a pooled
-    // buffer (first-touch page faults, see BUFFER_POOL).
+    // The flags are 0 or 1, so "any" is a bitwise or; both passes are ors of whole rows (shifted
+    // for the row pass), which vectorise, instead of a search per cell.
     DILATE_SCRATCH.with(|cell| {
         let mut widened = cell.borrow_mut();
-        widened.clear();
-        widened.extend_from_slice(maybe);
+        widened.resize(w * h, 0);
+        // Row pass: the flagged cells of each row (into `maybe`, as scratch), widened by `reach`
+        // on both sides (into `widened`).
+        maybe
+            .par_chunks_mut(w)
+            .zip(widened.par_chunks_mut(w))
+            .enumerate()
+            .with_min_len(16)
+            .for_each(|(j, (flags, out))| {
+                for s in srcs {
+                    let inv = &s.bufs.invisible[j * w..(j + 1) * w];
+                    for (f, v) in flags.iter_mut().zip(inv) {
+                        *f |= v.load(Ordering::Relaxed);
+                    }
+                }
+                widen_row(flags, reach, out);
+            });
         column_pass(&widened, w, h, reach, maybe);
     });
+}
+
+/// `out[i]` = the or of `flags` over `i − reach ..= i + reach` (clipped to the row).
+fn widen_row(flags: &[u8], reach: usize, out: &mut [u8]) {
+    let n = flags.len();
+    out.copy_from_slice(flags);
+    for d in 1..=reach.min(n.saturating_sub(1)) {
+        for (o, f) in out[..n - d].iter_mut().zip(&flags[d..]) {
+            *o |= f;
+        }
+        for (o, f) in out[d..].iter_mut().zip(&flags[..n - d]) {
+            *o |= f;
+        }
+    }
 }
 
 thread_local! {
@@ -2235,11 +2377,19 @@ fn column_pass(widened: &[u8], w: usize, h: usize, reach: usize, maybe: &mut [u8
         .with_min_len(16)
         .for_each(|(j, row)| {
             let (lo, hi) = (j.saturating_sub(reach), (j + reach).min(h - 1));
-            let border_row = j < reach || j + reach >= h;
-            for (i, m) in row.iter_mut().enumerate() {
-                let border = border_row || i < reach || i + reach >= w;
-                *m = u8::from(border || (lo..=hi).any(|q| widened[q * w + i] != 0));
+            if j < reach || j + reach >= h {
+                row.fill(1);
+                return;
             }
+            row.copy_from_slice(&widened[lo * w..(lo + 1) * w]);
+            for q in lo + 1..=hi {
+                for (m, v) in row.iter_mut().zip(&widened[q * w..(q + 1) * w]) {
+                    *m |= v;
+                }
+            }
+            let r = reach.min(w);
+            row[..r].fill(1);
+            row[w - r..].fill(1);
         });
 }
 
