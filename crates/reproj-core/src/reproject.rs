@@ -46,7 +46,7 @@ use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
 use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
-use crate::shadow::{round_rgb, shadow_color, Role};
+use crate::shadow::{round_rgb4, shadow_color, Role};
 
 /// Defines `$name`, which runs the `#[inline(always)]` function `$imp` compiled for AVX2 (as
 /// `$avx`) where the processor has it and for the baseline otherwise. The body is written once;
@@ -1517,6 +1517,8 @@ struct Picks {
     p: Vec<u32>,
     e: Vec<f32>,
     z: Vec<f32>,
+    /// The colour of each kept match ([`Resolve::second_chance`]).
+    rgb: Vec<[f32; 4]>,
     /// Scratch of [`Resolve::aux_row`]: which auxiliary grids may matter per pixel, and the list
     /// of pixels where they do.
     need: Vec<u8>,
@@ -1609,8 +1611,10 @@ impl Resolve<'_> {
             }
             self.choose_row(sides, picks);
             self.aux_row(j, picks, aux, &mut blocks);
-            let row_out = &mut out[3 * r * cw..3 * (r + 1) * cw];
-            for (i, o) in row_out.chunks_exact_mut(3).enumerate() {
+            // The colours of the row, then their rounding into the output: the float-to-byte
+            // conversions of one pixel no longer wait behind its colour loads.
+            picks.rgb.resize(cw, [0.0; 4]);
+            for i in 0..cw {
                 let src = picks.src[i];
                 let local = r * cw + i;
                 if src == NO_SOURCE {
@@ -1621,10 +1625,21 @@ impl Resolve<'_> {
                     continue;
                 }
                 let (rgb, blended) = self.second_chance(usize::from(src), picks.p[i] as usize);
-                o.copy_from_slice(&round_rgb([rgb[0], rgb[1], rgb[2]]));
+                picks.rgb[i] = rgb;
                 if let Some((s, err)) = diag.as_mut() {
                     s[local] = self.code_of(usize::from(src), blended);
                     err[local] = picks.e[i];
+                }
+            }
+            let row_out = &mut out[3 * r * cw..3 * (r + 1) * cw];
+            for ((o, &src), &rgb) in row_out
+                .chunks_exact_mut(3)
+                .zip(&picks.src[..cw])
+                .zip(&picks.rgb[..cw])
+            {
+                // No match keeps the previous client frame's colour.
+                if src != NO_SOURCE {
+                    o.copy_from_slice(&round_rgb4(rgb)[..3]);
                 }
             }
         }

@@ -120,17 +120,26 @@ pub fn shadow_color(
 /// Rounds a colour in `[0,255]` floats to RGB8 (round half away from zero, clamped).
 #[inline(always)]
 pub fn round_rgb(c: [f32; 3]) -> [u8; 3] {
+    c.map(round_channel)
+}
+
+/// [`round_rgb`] of four lanes (`[r, g, b, x]`), which the compiler does as one vector.
+#[inline(always)]
+pub fn round_rgb4(c: [f32; 4]) -> [u8; 4] {
+    c.map(round_channel)
+}
+
+/// One channel of [`round_rgb`].
+#[inline(always)]
+fn round_channel(v: f32) -> u8 {
     // Half up after clamping to [0, 255] equals round-half-away-from-zero there, without a libm
-    // `roundf` call per channel. NaN clamps to NaN and `as i32` maps it to 0.
-    c.map(|v| {
-        // The clamp as two selects that map NaN to 0 (as the saturating cast of a clamped NaN
-        // did): single `maxss`/`minss` instructions, where `f32::clamp` keeps NaN and the cast
-        // then needs its NaN and range fix-ups.
-        let v = if v > 0.0 { v } else { 0.0 };
-        let v = if v < 255.0 { v } else { 255.0 };
-        // SAFETY: 0.5 ≤ v + 0.5 ≤ 255.5, finite and in i32's range.
-        unsafe { (v + 0.5).to_int_unchecked::<i32>() as u8 }
-    })
+    // `roundf` call. The clamp as two selects that map NaN to 0 (as the saturating cast of a
+    // clamped NaN did): single `maxss`/`minss` instructions, where `f32::clamp` keeps NaN and the
+    // cast then needs its NaN and range fix-ups.
+    let v = if v > 0.0 { v } else { 0.0 };
+    let v = if v < 255.0 { v } else { 255.0 };
+    // SAFETY: 0.5 ≤ v + 0.5 ≤ 255.5, finite and in i32's range.
+    unsafe { (v + 0.5).to_int_unchecked::<i32>() as u8 }
 }
 
 /// Applies the dynamic shadows of a whole image at `α` (eqs. 9–11) into `out` (`H·W·3`). Used by
