@@ -228,6 +228,11 @@ struct Buffers {
     spill: Vec<Vec<(u32, u64)>>,
 }
 
+/// Source rows per task of the splatting pass. Points that land outside their task's rows are
+/// applied after the parallel pass; taller bands leave fewer of them (a vertical flow of `d` rows
+/// spills about `d / SPLAT_BAND` of the points).
+const SPLAT_BAND: usize = 32;
+
 thread_local! {
     /// Buffers of the previous client frame rendered on this thread, reused by the next one.
     ///
@@ -782,11 +787,11 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
     let invisible = &src.bufs.invisible;
     let xs = &src.ndc.x;
     // The splat is a minimum per cell, so the order of the updates does not matter. Each task owns
-    // the splat cells of its own 16 rows (its band): it resets them (while they are hot in its
-    // cache, instead of a separate pass over the grid) and updates them with plain loads and
-    // stores. A point that lands in another band (a few per cent: flows are mostly smaller than
-    // the band) is kept aside and applied after the parallel pass, when every band is reset.
-    // A `lock cmpxchg` per point would cost more than the point's whole scene flow.
+    // the splat cells of its own SPLAT_BAND rows (its band): it resets them (while they are hot
+    // in its cache, instead of a separate pass over the grid) and updates them with plain loads
+    // and stores. A point that lands in another band is kept aside and applied after the parallel
+    // pass, when every band is reset. A `lock cmpxchg` per point would cost more than the point's
+    // whole scene flow.
     let block = |b: usize,
                  rows: &mut [[f32; 2]],
                  zrows: &mut [f32],
@@ -795,12 +800,12 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
         band.fill(EMPTY_SPLAT);
         spill.clear();
         // Row-major cell indices order like the packed pixels: the band is one range of them.
-        let base = (b * TILE * sw) as u32;
+        let base = (b * SPLAT_BAND * sw) as u32;
         ROW_SCRATCH.with(|cell| {
             let scratch = &mut *cell.borrow_mut();
             scratch.resize(sw);
             for (r, (row, zrow)) in rows.chunks_mut(sw).zip(zrows.chunks_mut(sw)).enumerate() {
-                let j = b * TILE + r;
+                let j = b * SPLAT_BAND + r;
                 let depth = &view.depth[j * sw..(j + 1) * sw];
                 let motion = view.motion.map(|m| &m[3 * j * sw..(3 * j + 3) * sw]);
                 let input = FlowRow {
@@ -838,21 +843,32 @@ fn scene_flow_and_splat(src: &mut Src, to_client: &NdcTransfer, w: f32, vis: Opt
     };
     // One spill list per block, kept with the buffers (see BUFFER_POOL on page faults).
     let mut spills = std::mem::take(&mut src.bufs.spill);
-    spills.resize_with(sh.div_ceil(TILE), Vec::new);
+    spills.resize_with(sh.div_ceil(SPLAT_BAND), Vec::new);
     src.bufs
         .flow
-        .par_chunks_mut(TILE * sw)
-        .zip(src.bufs.zc.par_chunks_mut(TILE * sw))
-        .zip(src.bufs.splat.par_chunks_mut(TILE * sw))
+        .par_chunks_mut(SPLAT_BAND * sw)
+        .zip(src.bufs.zc.par_chunks_mut(SPLAT_BAND * sw))
+        .zip(src.bufs.splat.par_chunks_mut(SPLAT_BAND * sw))
         .zip(spills.par_iter_mut())
         .enumerate()
         .for_each(|(b, (((rows, zrows), band), spill))| block(b, rows, zrows, band, spill));
-    // The parallel pass has finished: every band is reset and nothing else writes the grid.
-    let splat = &mut src.bufs.splat;
-    for &(c, key) in spills.iter().flatten() {
-        let s = &mut splat[c as usize];
-        *s = key_min(*s, key);
-    }
+    // The parallel pass has finished: every band is reset. The spilled points are applied by
+    // one task per range of the grid (one per thread), each reading every list and taking the
+    // cells of its own range, so that no two tasks write the same cell.
+    let parts = rayon::current_num_threads().clamp(1, 16);
+    let part = (sw * sh).div_ceil(parts).max(1);
+    src.bufs
+        .splat
+        .par_chunks_mut(part)
+        .enumerate()
+        .for_each(|(q, cells)| {
+            let lo = (q * part) as u32;
+            for &(c, key) in spills.iter().flatten() {
+                if let Some(s) = cells.get_mut(c.wrapping_sub(lo) as usize) {
+                    *s = key_min(*s, key);
+                }
+            }
+        });
     src.bufs.spill = spills;
 }
 
