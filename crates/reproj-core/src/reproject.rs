@@ -1702,13 +1702,9 @@ impl Resolve<'_> {
             // Otherwise the smaller error (which is the only corresponding one if just one does:
             // the other's error is at least ε_e).
             let older = (both & !sim & (zf[i] > zb[i])) | ((!both | sim) & (ef[i] < eb[i]));
-            src[i] = if !(f_ok | b_ok) {
-                NO_SOURCE
-            } else if older {
-                0
-            } else {
-                1
-            };
+            // 0 (older), 1 (newer) or NO_SOURCE (= 0xFF), as arithmetic so that the loop
+            // vectorises (nested `if`s became branches).
+            src[i] = u8::from(!older) | (u8::from(!(f_ok | b_ok)) * NO_SOURCE);
             p[i] = if older { pf[i] } else { pb[i] };
             e[i] = if older { ef[i] } else { eb[i] };
             z[i] = if older { zf[i] } else { zb[i] };
