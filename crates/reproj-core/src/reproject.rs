@@ -2246,7 +2246,7 @@ impl Resolve<'_> {
 
     /// Algorithm 1 for auxiliary camera `cam` (`1 + grid index`) at cell `(ai, aj)` of its grid,
     /// searched on first use within the block.
-    #[inline(never)]
+    #[inline]
     fn aux_cell(
         &self,
         cam: usize,
