@@ -442,7 +442,8 @@ pub(crate) fn run<'a>(
             .iter()
             .enumerate()
             .map(|(k, s)| Palette {
-                color: s.view.color,
+                // Validated: `3·W·H` bytes, so no remainder.
+                color: s.view.color.as_chunks::<3>().0,
                 shadow: s
                     .view
                     .shadow
@@ -1577,7 +1578,8 @@ thread_local! {
 /// up by source index so that the colour loop does not branch on which source won.
 #[derive(Debug, Clone, Copy)]
 struct Palette<'a> {
-    color: &'a [u8],
+    /// RGB8 per pixel.
+    color: &'a [[u8; 3]],
     /// The dynamic shadows to apply (`None` when absent or not applied).
     shadow: Option<ShadowView<'a>>,
     role: Role,
@@ -2124,9 +2126,7 @@ impl Resolve<'_> {
     /// `f32`s went through the stack, and reading them back stalled on store forwarding).
     #[inline(always)]
     fn color_of(&self, pal: &Palette, p: usize) -> [f32; 4] {
-        let base: [u8; 3] = pal.color[3 * p..3 * p + 3]
-            .try_into()
-            .expect("three channels");
+        let base = pal.color[p];
         let c = match pal.shadow {
             // Most pixels carry no dynamic shadow: skip the six shadow-colour loads for them.
             Some(sh) if sh.bits[p] != 0 => {
