@@ -277,4 +277,57 @@ mod tests {
             Err(ReprojError::UnknownMethod(_))
         ));
     }
+
+    #[test]
+    fn more_auxiliary_cameras_than_diagnostic_codes_is_an_error() {
+        use crate::frame::MAX_AUX;
+        use crate::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+        let scene = SyntheticScene::new(false);
+        let (w, h) = (32, 18);
+        let f0 = SyntheticFrame::render(&scene, 0.0, w, h, 0.1, 4);
+        let f1 = SyntheticFrame::render(&scene, 0.1, w, h, 0.1, 4);
+        let (mut older, mut newer) = (f0.view(true), f1.view(false));
+        let (e, t) = head_pose(0.05);
+        let req = Request {
+            client: rig(e, t, w, h).0,
+            alpha: 0.5,
+        };
+        let mut out = vec![0u8; w * h * 3];
+        // At the limit: accepted.
+        for v in [&mut older, &mut newer] {
+            let a = v.aux[0];
+            v.aux = vec![a; MAX_AUX];
+        }
+        let p = Params::default();
+        reproject(
+            Method::Ours,
+            Some(&older),
+            &newer,
+            &req,
+            &p,
+            &mut out,
+            None,
+            None,
+        )
+        .expect("MAX_AUX auxiliary cameras are supported");
+        // One more: the error names the count and the limit.
+        for v in [&mut older, &mut newer] {
+            v.aux.push(v.aux[0]);
+        }
+        let err = reproject(
+            Method::Ours,
+            Some(&older),
+            &newer,
+            &req,
+            &p,
+            &mut out,
+            None,
+            None,
+        )
+        .expect_err("too many auxiliary cameras");
+        assert!(
+            matches!(&err, ReprojError::CameraMismatch(m) if m.contains("63 auxiliary cameras") && m.contains("at most 62")),
+            "{err}"
+        );
+    }
 }
