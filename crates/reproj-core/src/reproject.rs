@@ -442,8 +442,7 @@ pub(crate) fn run<'a>(
             .iter()
             .enumerate()
             .map(|(k, s)| Palette {
-                // Validated: `3·W·H` bytes, so no remainder.
-                color: s.view.color.as_chunks::<3>().0,
+                color: s.view.color,
                 shadow: s
                     .view
                     .shadow
@@ -1578,8 +1577,8 @@ thread_local! {
 /// up by source index so that the colour loop does not branch on which source won.
 #[derive(Debug, Clone, Copy)]
 struct Palette<'a> {
-    /// RGB8 per pixel.
-    color: &'a [[u8; 3]],
+    /// RGB8, `3·W·H` bytes.
+    color: &'a [u8],
     /// The dynamic shadows to apply (`None` when absent or not applied).
     shadow: Option<ShadowView<'a>>,
     role: Role,
@@ -2126,7 +2125,9 @@ impl Resolve<'_> {
     /// `f32`s went through the stack, and reading them back stalled on store forwarding).
     #[inline(always)]
     fn color_of(&self, pal: &Palette, p: usize) -> [f32; 4] {
-        let base = pal.color[p];
+        let base: [u8; 3] = pal.color[3 * p..3 * p + 3]
+            .try_into()
+            .expect("three channels");
         let c = match pal.shadow {
             // Most pixels carry no dynamic shadow: skip the six shadow-colour loads for them.
             Some(sh) if sh.bits[p] != 0 => {
