@@ -16,7 +16,9 @@
 //!    the reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary
 //!    cameras (searched once per cell of their own grid, and only where the result can reach the
 //!    output, see [`AuxGrid`]) are merged (§3.5 rules 1–3), and Algorithm 2 blends in the other
-//!    frame for the match that was kept.
+//!    frame for the match that was kept. Each row goes through these steps as stages, each a
+//!    short loop over the row's pixels ([`Resolve::resolve_rows`]), so that the dependent loads
+//!    of neighbouring pixels overlap and the arithmetic vectorises.
 //!
 //! What does not depend on the client pose or α — Algorithm 2's correspondences from the full
 //! scene flows (eqs. 2, 3) with the motion-cancel check, and the auxiliary points' visibility in
