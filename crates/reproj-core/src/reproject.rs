@@ -1921,7 +1921,9 @@ impl Resolve<'_> {
         // last iteration).
         row.prev[..cw].copy_from_slice(pks);
         let mut n = cw;
-        for _ in 0..self.iterations {
+        // Whether `moving[..n]` lists the pixels that moved in the last iteration.
+        let mut listed = false;
+        for it in 0..self.iterations {
             if n == 0 {
                 break;
             }
@@ -1941,22 +1943,48 @@ impl Resolve<'_> {
                         NO_SPLAT
                     };
                 }
-                let moving = &mut row.moving[..cw];
                 n = 0;
-                for (i, &q) in next.iter().enumerate() {
-                    // Listed in order: the list is written no faster than read.
-                    moving[n] = i as u32;
-                    n += usize::from(q != NO_SPLAT);
-                }
-                for &i in &moving[..n] {
-                    let i = i as usize;
-                    let (ni, nj) = unpack_pixel(next[i]);
-                    pks[i] = next[i];
-                    ms[i] = flow[nj * sw + ni];
+                if it == 0 {
+                    // Nearly every pixel moves in the first iteration: a branch on it is
+                    // predictable, and cheaper than listing them.
+                    for i in 0..cw {
+                        let q = next[i];
+                        if q != NO_SPLAT {
+                            let (ni, nj) = unpack_pixel(q);
+                            pks[i] = q;
+                            ms[i] = flow[nj * sw + ni];
+                            n += 1;
+                        }
+                    }
+                    listed = false;
+                } else {
+                    let moving = &mut row.moving[..cw];
+                    for (i, &q) in next.iter().enumerate() {
+                        // Listed in order: the list is written no faster than read.
+                        moving[n] = i as u32;
+                        n += usize::from(q != NO_SPLAT);
+                    }
+                    for &i in &moving[..n] {
+                        let i = i as usize;
+                        let (ni, nj) = unpack_pixel(next[i]);
+                        pks[i] = next[i];
+                        ms[i] = flow[nj * sw + ni];
+                    }
+                    listed = true;
                 }
                 std::mem::swap(&mut row.next, &mut row.prev);
             } else {
                 let moving = &mut row.moving[..cw];
+                if !listed {
+                    // The pixels that moved in the last whole-row iteration (marked in `prev`).
+                    let mut m = 0;
+                    for (i, &q) in row.prev[..cw].iter().enumerate() {
+                        moving[m] = i as u32;
+                        m += usize::from(q != NO_SPLAT);
+                    }
+                    debug_assert_eq!(m, n);
+                    listed = true;
+                }
                 let mut kept = 0;
                 for a in 0..n {
                     let i = moving[a] as usize;
