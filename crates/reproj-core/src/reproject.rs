@@ -405,7 +405,11 @@ pub(crate) fn run<'a>(
         pair.key = Some(key);
     }
 
-    for (k, src) in sources.iter_mut().enumerate() {
+    let pair: &PairCache = pair;
+    // Every source at once, each with its own parallel bands inside: one wait for the slowest
+    // task per frame instead of two per source (the small auxiliary grids have too few bands to
+    // keep both cores busy on their own).
+    sources.par_iter_mut().enumerate().for_each(|(k, src)| {
         let w = match src.role {
             Role::Older => alpha,
             Role::Newer => 1.0 - alpha,
@@ -414,8 +418,7 @@ pub(crate) fn run<'a>(
         let vis = (src.camera > 0).then(|| pair.sources[k].vis.as_slice());
         scene_flow_and_splat(src, &to_client, w, vis);
         window_min(src, params.window);
-    }
-    let pair: &PairCache = pair;
+    });
 
     // Pass 2: resolve per output tile.
     let (cw, ch) = (request.client.width, request.client.height);
