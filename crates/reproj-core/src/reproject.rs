@@ -655,29 +655,34 @@ impl PairCache {
         params: &Params,
     ) {
         self.sources.resize_with(sources.len(), PairSource::default);
-        for ((src, ctx), ps) in sources.iter().zip(vis_ctx).zip(&mut self.sources) {
-            match ctx {
+        // Every source at once (each with parallel rows inside), as pass 1 of `run`.
+        self.sources
+            .par_iter_mut()
+            .zip(sources.par_iter().zip(vis_ctx.par_iter()))
+            .for_each(|(ps, (src, ctx))| match ctx {
                 Some(ctx) => visible_in_main_flags(src, ctx, &mut ps.vis),
                 None => ps.vis.clear(),
-            }
-        }
+            });
         if !blends {
             self.sources.iter_mut().for_each(|ps| ps.partner.clear());
             return;
         }
         let mut fulls = FULL_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
         fulls.resize_with(sources.len(), Vec::new);
-        for (src, full) in sources.iter().zip(fulls.iter_mut()) {
-            let other = src.other.as_ref().expect("blending sources come in pairs");
-            let ctx = FullCtx {
-                to_other: other.to_other,
-                ow: other.proj.width,
-                oh: other.proj.height,
-            };
-            full_flows(src, &ctx, full);
-        }
+        fulls
+            .par_iter_mut()
+            .zip(sources.par_iter())
+            .for_each(|(full, src)| {
+                let other = src.other.as_ref().expect("blending sources come in pairs");
+                let ctx = FullCtx {
+                    to_other: other.to_other,
+                    ow: other.proj.width,
+                    oh: other.proj.height,
+                };
+                full_flows(src, &ctx, full);
+            });
         let eps_o2 = params.eps_o * params.eps_o;
-        for (k, ps) in self.sources.iter_mut().enumerate() {
+        self.sources.par_iter_mut().enumerate().for_each(|(k, ps)| {
             let (s, o) = (&sources[k], &sources[k ^ 1]);
             let (s_full, o_full) = (&fulls[k], &fulls[k ^ 1]);
             let eps_z = if s.camera == 0 {
@@ -706,7 +711,7 @@ impl PairCache {
                         };
                     }
                 });
-        }
+        });
         FULL_POOL.with(|p| *p.borrow_mut() = fulls);
     }
 }
