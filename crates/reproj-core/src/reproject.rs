@@ -1834,7 +1834,7 @@ impl Resolve<'_> {
             });
             match self.decide(i, j, main, blocks) {
                 Some(c) => {
-                    // Source indices are below 2·(1 + auxiliary cameras) ≤ 255 (checked in `run`).
+                    // Source indices are below 2·(1 + MAX_AUX) < 255 (`FrameView::validate`).
                     picks.src[i] = c.src as u8;
                     picks.p[i] = c.m.p;
                     picks.e[i] = c.m.e;
@@ -1847,9 +1847,10 @@ impl Resolve<'_> {
     }
 
     avx2_method! {
-        /// [`Resolve::search`] in main source `k` for every pixel of output row `j`, stage by stage:
-        /// the windows' nearest splats and their flows for the whole row, then each fixed-point
-        /// iteration for the pixels still moving, then the errors and depths.
+        /// [`Resolve::search`] in source `k` for every target of a row (the pixels of an output
+        /// row for the main camera, the cells an output row needs for an auxiliary one), stage
+        /// by stage: the windows' nearest splats and their flows for the whole row, then each
+        /// fixed-point iteration for the targets still moving, then the errors and depths.
         ///
         /// The same arithmetic as one search per pixel, in another order. A search is a chain of
         /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
