@@ -293,38 +293,30 @@ mod tests {
             alpha: 0.5,
         };
         let mut out = vec![0u8; w * h * 3];
+        let p = Params::default();
+        let mut call = |older: &FrameView, newer: &FrameView| {
+            reproject(
+                Method::Ours,
+                Some(older),
+                newer,
+                &req,
+                &p,
+                &mut out,
+                None,
+                None,
+            )
+        };
         // At the limit: accepted.
         for v in [&mut older, &mut newer] {
             let a = v.aux[0];
             v.aux = vec![a; MAX_AUX];
         }
-        let p = Params::default();
-        reproject(
-            Method::Ours,
-            Some(&older),
-            &newer,
-            &req,
-            &p,
-            &mut out,
-            None,
-            None,
-        )
-        .expect("MAX_AUX auxiliary cameras are supported");
+        call(&older, &newer).expect("MAX_AUX auxiliary cameras are supported");
         // One more: the error names the count and the limit.
         for v in [&mut older, &mut newer] {
             v.aux.push(v.aux[0]);
         }
-        let err = reproject(
-            Method::Ours,
-            Some(&older),
-            &newer,
-            &req,
-            &p,
-            &mut out,
-            None,
-            None,
-        )
-        .expect_err("too many auxiliary cameras");
+        let err = call(&older, &newer).expect_err("too many auxiliary cameras");
         assert!(
             matches!(&err, ReprojError::CameraMismatch(m) if m.contains("63 auxiliary cameras") && m.contains("at most 62")),
             "{err}"
