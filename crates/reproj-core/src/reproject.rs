@@ -1446,6 +1446,11 @@ struct AuxGrid {
     col_of: Vec<u32>,
     /// The grid row of each client row, or `u32::MAX`.
     row_of: Vec<u32>,
+    /// The client columns `start..end` that fall in each grid column (`col_of` is monotonic, so
+    /// they are contiguous; empty where none do).
+    cols_of_cell: Vec<(u32, u32)>,
+    /// The client columns that fall in the grid at all.
+    covered: std::ops::Range<usize>,
     /// NDC of the cell centres.
     ndc: NdcTable,
 }
@@ -1728,23 +1733,27 @@ impl Resolve<'_> {
     #[inline(never)]
     fn aux_row(&self, j: usize, picks: &mut Picks, batch: &mut AuxRow, blocks: &mut [AuxBlock]) {
         let cw = self.client_w;
-        // Per pixel, bit 0: some grid covers it; bit 1: some grid's cell may override main there.
-        // Built without branches on the flags, then the pixels that need the auxiliary cameras
-        // are listed (a branch per pixel on the dilated flags was mispredicted at every edge).
+        // Per pixel, bit 0: some grid covers it; bit 1: some grid's cell may override main there
+        // (set over the client columns of each flagged cell). Then the pixels that need the
+        // auxiliary cameras are listed without branches (a branch per pixel on the dilated flags
+        // was mispredicted at every edge).
         picks.need.clear();
         picks.need.resize(cw, 0);
         for g in &self.aux {
             let aj = g.row_of[j];
-            if aj == u32::MAX {
+            if aj == u32::MAX || g.covered.is_empty() {
                 continue;
             }
+            picks.need[g.covered.clone()]
+                .iter_mut()
+                .for_each(|n| *n |= 1);
             let maybe = &g.maybe[aj as usize * g.w..(aj as usize + 1) * g.w];
-            for (n, &ai) in picks.need.iter_mut().zip(&g.col_of[..cw]) {
-                *n |= if ai == u32::MAX {
-                    0
-                } else {
-                    1 | (maybe[ai as usize] << 1)
-                };
+            for (&m, &(s, e)) in maybe.iter().zip(&g.cols_of_cell) {
+                if m != 0 {
+                    picks.need[s as usize..e as usize]
+                        .iter_mut()
+                        .for_each(|n| *n |= 2);
+                }
             }
         }
         let mut list = std::mem::take(&mut picks.list);
@@ -2274,12 +2283,28 @@ impl Resolve<'_> {
         let row_of = lookup(ch, &|j| {
             pixel_of_ndc(0.0, crate::camera::ndc_of_pixel(0, j, cw, ch)[1], w, h).map(|c| c.1)
         });
+        let mut cols_of_cell = vec![(0u32, 0u32); w];
+        let mut covered = cw..0;
+        for (i, &c) in col_of.iter().enumerate() {
+            if c == u32::MAX {
+                continue;
+            }
+            let r = &mut cols_of_cell[c as usize];
+            *r = if r.0 == r.1 {
+                (i as u32, i as u32 + 1)
+            } else {
+                (r.0, i as u32 + 1)
+            };
+            covered = covered.start.min(i)..covered.end.max(i + 1);
+        }
         AuxGrid {
             w,
             h,
             maybe,
             col_of,
             row_of,
+            cols_of_cell,
+            covered,
             ndc: NdcTable::new(w, h),
         }
     }
