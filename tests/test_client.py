@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import splitrender as sr
 from splitrender import metrics
-from splitrender.client import Client, PlaybackResult, frame_nbytes, play
+from splitrender.client import Client, PlaybackResult
+from splitrender.client.playback import frame_nbytes, play
 from splitrender.errors import InvalidInputError
-from splitrender.network import NetworkModel, Schedule
+from splitrender.net.model import NetworkModel, Schedule
 
 W, H = 96, 54
 FS, FC = 10.0, 120.0

@@ -1,9 +1,9 @@
-"""The codec (splitrender.codec): lossless parts bit-exact, lossy parts within stated bounds, exact
+"""The codec (splitrender.codec.coder): lossless parts bit-exact, lossy parts within stated bounds, exact
 zero motion on static pixels, rate control within ±10 %, random access, untrusted payloads, and
 `ours` on decoded frames close to `ours` on the uncompressed ones.
 
 Bounds are stated where they are asserted; the figures they come from are printed by
-``python -m splitrender.bench_codec``."""
+``python -m splitrender.evaluation.bench_codec``."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import dataclasses
 import numpy as np
 import pytest
 import splitrender as sr
-from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.stream import (
+from splitrender.codec.stream import (
     BufferKind,
     Codec,
     pack_packet,

@@ -18,9 +18,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 import splitrender as sr
-from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
-from splitrender.metrics import psnr, ssim
-from splitrender.stream import stream_stats
+from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.evaluation.metrics import psnr, ssim
+from splitrender.codec.stream import stream_stats
 
 pytestmark = pytest.mark.slow  # ~20-35 s of rendering at 2 cores, then 5-12 s per encode
 

@@ -1,4 +1,4 @@
-"""Import/export of the authors' dataset layout (splitrender.dataset; REFERENCE.md §1)."""
+"""Import/export of the authors' dataset layout (splitrender.scene.dataset; REFERENCE.md §1)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from PIL import Image
 
 import splitrender as sr
 from splitrender import _native
-from splitrender.dataset import (
+from splitrender.scene.dataset import (
     DatasetError,
     bits_from_rgba,
     bits_to_rgba,

@@ -6,9 +6,9 @@ import json
 from pathlib import Path
 
 import pytest
-from splitrender.bench import BENCH_KEYS
+from splitrender.evaluation.bench import BENCH_KEYS
 from splitrender.cli import main
-from splitrender.demo import DEFAULT_METHODS, ROW_KEYS, colormap
+from splitrender.evaluation.demo import DEFAULT_METHODS, ROW_KEYS, colormap
 
 av = pytest.importorskip("av")
 

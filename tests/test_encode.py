@@ -9,8 +9,8 @@ import pytest
 
 import splitrender as sr
 from splitrender.cli import main
-from splitrender.codec import decode_packets
-from splitrender.encode import encode_recording
+from splitrender.codec.coder import decode_packets
+from splitrender.codec.encode import encode_recording
 
 
 @pytest.fixture(scope="module")

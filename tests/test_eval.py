@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 from splitrender.cli import main
-from splitrender.evaluate import ROW_KEYS
+from splitrender.evaluation.experiments import ROW_KEYS
 
 pytest.importorskip("av")
 
@@ -131,7 +131,7 @@ def test_minterpolate_output_n_is_client_frame_n() -> None:
     (n = 12 k) it reproduces server frame k, the last one included; between them it differs
     from both neighbours (it interpolates)."""
     import numpy as np
-    from splitrender.evaluate import minterpolate
+    from splitrender.evaluation.experiments import minterpolate
 
     yy, xx = np.mgrid[0:72, 0:128]
     frames = []
@@ -150,7 +150,7 @@ def test_minterpolate_output_n_is_client_frame_n() -> None:
 
 
 def test_vmaf_crossings_interpolate_between_measured_points() -> None:
-    from splitrender.evaluate import vmaf_crossings
+    from splitrender.evaluation.experiments import vmaf_crossings
 
     rows = [{"mbps": 2.0, "vmaf": 70.0}, {"mbps": 1.0, "vmaf": 50.0},
             {"mbps": 4.0, "vmaf": 79.0}]

@@ -1,4 +1,4 @@
-"""splitrender.metrics against cases with known answers (REFERENCE.md §6 settings)."""
+"""splitrender.evaluation.metrics against cases with known answers (REFERENCE.md §6 settings)."""
 
 from __future__ import annotations
 

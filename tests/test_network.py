@@ -1,4 +1,4 @@
-"""splitrender.network: the link model and the client schedule (REFERENCE.md §2.1)."""
+"""splitrender.net.model: the link model and the client schedule (REFERENCE.md §2.1)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 from splitrender.errors import InvalidInputError
-from splitrender.network import (
+from splitrender.net.model import (
     MAX_ALPHA,
     FrameBuffer,
     NetworkModel,

@@ -1,4 +1,4 @@
-"""Recordings (splitrender.recording) and ``splitrender render``."""
+"""Recordings (splitrender.scene.recording) and ``splitrender render``."""
 
 from __future__ import annotations
 
@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 import splitrender as sr
 from splitrender.cli import main
-from splitrender.recording import (
+from splitrender.scene.recording import (
     ClientFrame,
     RecordingError,
     load_recording,
     plan,
     write_recording,
 )
-from splitrender.scenes import Scene, load_trace
+from splitrender.scene.builtin import Scene, load_trace
 
 SCALE, SECONDS = 0.04, 0.3  # 102 x 58; 4 server and 36 client frames
 TRACES = Path(__file__).resolve().parents[2] / "shared" / "traces"
@@ -191,7 +191,7 @@ def test_wrong_shape_is_rejected_before_reading(copy: Path) -> None:
     # A well-formed npz with a consistent manifest entry but a different array shape.
     import hashlib
 
-    from splitrender.recording import _npz_bytes
+    from splitrender.scene.recording import _npz_bytes
 
     p = copy / "client" / "000004.npz"
     with np.load(p) as z:
@@ -245,7 +245,10 @@ def test_cli_render(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     ]
     assert main([*args, "--variant", "static", "--samples", "2"]) == 0
     err = capsys.readouterr().err
-    assert "8/8 frames" in err
+    # stderr is not a terminal here: one plain line for the one stage, no bar.
+    assert "\r" not in err
+    assert err.splitlines()[0].startswith("[1/1] rendering colonnade (static) at 102x58")
+    assert len(err.splitlines()) == 1
     rec = load_recording(out)
     assert rec.variant == "static" and rec.samples == {"main": 2, "aux": 2, "client": 2}
     with pytest.raises(SystemExit) as e:

@@ -1,4 +1,4 @@
-"""The reference renderer's bindings (splitrender.scenes) and head traces."""
+"""The reference renderer's bindings (splitrender.scene.builtin) and head traces."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import splitrender as sr
-from splitrender.scenes import (
+from splitrender.scene.builtin import (
     MAX_SAMPLES,
     SCENE_NAMES,
     PathMotion,

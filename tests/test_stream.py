@@ -1,4 +1,4 @@
-"""The packet format and the container file (splitrender.stream): round trips, key-frame index,
+"""The packet format and the container file (splitrender.codec.stream): round trips, key-frame index,
 byte accounting, and untrusted input (every malformed packet or file raises StreamError naming
 the frame and buffer; fuzzed with hypothesis)."""
 
@@ -15,7 +15,7 @@ import zstandard
 from hypothesis import given
 from hypothesis import strategies as st
 from splitrender.errors import StreamError
-from splitrender.stream import (
+from splitrender.codec.stream import (
     MAX_HEADER,
     MAX_PAYLOAD,
     BufferEntry,
@@ -295,7 +295,7 @@ def test_hevc_decoder_refuses_a_picture_larger_than_declared() -> None:
 
     import av
 
-    from splitrender.codec import _hevc_decoder
+    from splitrender.codec.coder import _hevc_decoder
 
     enc = av.CodecContext.create("libx265", "w")
     enc.width, enc.height, enc.pix_fmt = 256, 256, "yuv420p"

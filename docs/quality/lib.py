@@ -1,9 +1,9 @@
 import time, json, sys, numpy as np
-from splitrender.scenes import Scene, PathMotion
+from splitrender.scene.builtin import Scene, PathMotion
 from splitrender.client import play
-from splitrender.network import NetworkModel
+from splitrender.net.model import NetworkModel
 from splitrender.types import ReprojectOptions, Camera
-from splitrender.metrics import psnr, ssim, vmaf, evaluate_sequence
+from splitrender.evaluation.metrics import psnr, ssim, vmaf, evaluate_sequence
 from splitrender.reproject import reproject_alpha
 
 FS, FC = 10.0, 120.0

@@ -5,23 +5,29 @@ camera and two auxiliary cameras; the client synthesises display-rate frames at 
 bidirectional image-based reprojection (Steiner et al. 2025). The kernels are native
 (``splitrender._native``, Rust); this package holds the data model and the Python API.
 
+The sub-packages follow the data flow (shared/DESIGN.md, "Package layout"); imports point down it:
+:mod:`~splitrender.types` and :mod:`~splitrender.errors` at the bottom, then
+:mod:`~splitrender.reproject` and :mod:`~splitrender.gpu` (one client frame), :mod:`.scene` (where
+server frames come from), :mod:`.codec` (frames <-> packets), :mod:`.net` (the network),
+:mod:`.client`, and on top :mod:`.evaluation` and :mod:`.cli`.
+
 Conventions: shared/DESIGN.md ("Conventions").
 """
 
-from splitrender import metrics
 from splitrender._native import BidirHistory, __version__
 from splitrender.client import Client, PlaybackResult, play
-from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
-from splitrender.dataset import DatasetError, export_dataset, import_dataset
-from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
-from splitrender.network import NetworkModel, Schedule
-from splitrender.recording import (
-    ClientFrame,
-    Recording,
-    RecordingError,
-    load_recording,
-    write_recording,
+from splitrender.codec import (
+    CodecConfig,
+    StreamDecoder,
+    StreamEncoder,
+    StreamStats,
+    read_stream,
+    stream_stats,
+    write_stream,
 )
+from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
+from splitrender.evaluation import metrics
+from splitrender.net import NetworkModel, Schedule
 from splitrender.reproject import (
     METHODS,
     apply_shadows,
@@ -29,9 +35,23 @@ from splitrender.reproject import (
     reproject_alpha,
     scene_flow,
 )
-from splitrender.scenes import SCENE_NAMES, ModelPlacement, Scene, Trace, TraceError, load_trace
-from splitrender.stream import StreamStats, read_stream, stream_stats, write_stream
-from splitrender.synthetic import SyntheticScene
+from splitrender.scene import (
+    SCENE_NAMES,
+    ClientFrame,
+    DatasetError,
+    ModelPlacement,
+    Recording,
+    RecordingError,
+    Scene,
+    SyntheticScene,
+    Trace,
+    TraceError,
+    export_dataset,
+    import_dataset,
+    load_recording,
+    load_trace,
+    write_recording,
+)
 from splitrender.types import (
     MAX_SIDE,
     Camera,

@@ -1,59 +1,61 @@
-"""A minimal PNG writer (zlib from the standard library; no extra dependency)."""
+"""PNG files of 8-bit images, through Pillow.
+
+Every PNG the package writes (stills, montages, the frames of ``splitrender play``, the colour and
+shadow buffers of the authors' dataset layout) goes through :func:`write_png`, which checks the
+array first (a specific :class:`~splitrender.errors.InvalidInputError` instead of Pillow's) and
+writes atomically: a temporary file in the same folder, renamed over ``path`` when complete.
+"""
 
 from __future__ import annotations
 
+import io
 import os
-import struct
-import zlib
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+from PIL import Image
 
 from splitrender.errors import InvalidInputError
 
 __all__ = ["encode_png", "write_png"]
 
+_MODES = {2: "L", 3: "RGB", 4: "RGBA"}
 
-def _chunk(kind: bytes, data: bytes) -> bytes:
-    crc = zlib.crc32(kind + data) & 0xFFFFFFFF
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", crc)
+
+def _pil_image(image: npt.NDArray[np.uint8]) -> Image.Image:
+    want = "uint8 array of shape (H, W), (H, W, 3) or (H, W, 4)"
+    if not isinstance(image, np.ndarray):
+        raise InvalidInputError(f"image: expected {want}, got {type(image).__name__}")
+    if image.dtype != np.uint8 or image.ndim not in (2, 3) or (
+        image.ndim == 3 and image.shape[2] not in (3, 4)
+    ):
+        raise InvalidInputError(f"image: expected {want}, got {image.dtype} {image.shape}")
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise InvalidInputError(f"image: expected a non-empty image, got shape {image.shape}")
+    mode = _MODES[image.ndim if image.ndim == 2 else image.shape[2]]
+    return Image.fromarray(np.ascontiguousarray(image), mode)
 
 
 def encode_png(image: npt.NDArray[np.uint8], *, level: int = 6) -> bytes:
-    """PNG bytes of an 8-bit image: ``uint8[H, W, 3]`` (RGB) or ``uint8[H, W]`` (grey)."""
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim not in (2, 3):
-        got = (
-            f"{image.dtype} {image.shape}"
-            if isinstance(image, np.ndarray)
-            else type(image).__name__
-        )
-        raise InvalidInputError(
-            f"image: expected uint8 array of shape (H, W, 3) or (H, W), got {got}"
-        )
-    if image.ndim == 3 and image.shape[2] != 3:
-        raise InvalidInputError(
-            f"image: expected uint8 array of shape (H, W, 3) or (H, W), got {image.shape}"
-        )
-    h, w = image.shape[:2]
-    if h == 0 or w == 0:
-        raise InvalidInputError(f"image: expected a non-empty image, got shape {image.shape}")
-    color_type = 2 if image.ndim == 3 else 0
-    rows = np.ascontiguousarray(image).reshape(h, -1)
-    # Filter type 0 (None) on every scanline: a zero byte in front of each row.
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), rows], axis=1).tobytes()
-    header = struct.pack(">IIBBBBB", w, h, 8, color_type, 0, 0, 0)
-    return b"".join(
-        [
-            b"\x89PNG\r\n\x1a\n",
-            _chunk(b"IHDR", header),
-            _chunk(b"IDAT", zlib.compress(raw, level)),
-            _chunk(b"IEND", b""),
-        ]
-    )
+    """PNG bytes of an 8-bit image: ``uint8[H, W]`` (grey), ``[H, W, 3]`` (RGB) or
+    ``[H, W, 4]`` (RGBA), zlib level ``level`` (0-9)."""
+    buf = io.BytesIO()
+    _pil_image(image).save(buf, format="PNG", compress_level=level)
+    return buf.getvalue()
 
 
-def write_png(path: str | os.PathLike[str], image: npt.NDArray[np.uint8]) -> None:
-    """Writes ``image`` (``uint8[H, W, 3]`` or ``uint8[H, W]``) to ``path`` as PNG."""
-    data = encode_png(image)
-    with open(path, "wb") as f:
-        f.write(data)
+def write_png(
+    path: str | os.PathLike[str], image: npt.NDArray[np.uint8], *, level: int = 6
+) -> None:
+    """Writes ``image`` (see :func:`encode_png`) to ``path`` as PNG, atomically."""
+    data = encode_png(image, level=level)
+    dest = Path(path)
+    tmp = dest.with_name(f".{dest.name}.partial-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, dest)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

@@ -1,8 +1,8 @@
 """Encoding a recording into a stream file (``splitrender encode``).
 
-The server side of the wire: every server frame of a recording (:mod:`splitrender.recording`) goes
-through one :class:`~splitrender.codec.StreamEncoder` and into a container file
-(:mod:`splitrender.stream`). The file is written under a temporary name and renamed when complete,
+The server side of the wire: every server frame of a recording (:mod:`splitrender.scene.recording`) goes
+through one :class:`~splitrender.codec.coder.StreamEncoder` and into a container file
+(:mod:`splitrender.codec.stream`). The file is written under a temporary name and renamed when complete,
 so an interrupted encode never leaves a stream that looks finished.
 """
 
@@ -13,10 +13,10 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from splitrender.codec import CodecConfig, StreamEncoder
+from splitrender.codec.coder import CodecConfig, StreamEncoder
 from splitrender.errors import InvalidInputError
-from splitrender.recording import load_recording
-from splitrender.stream import StreamStats, StreamWriter
+from splitrender.scene.recording import load_recording
+from splitrender.codec.stream import StreamStats, StreamWriter
 
 __all__ = ["encode_recording"]
 

@@ -42,7 +42,8 @@ import OpenEXR  # type: ignore[import-not-found]  # compiled module, no stubs
 from PIL import Image
 
 from splitrender.errors import SplitRenderError
-from splitrender.recording import Recording, load_recording
+from splitrender.imageio import write_png
+from splitrender.scene.recording import Recording, load_recording
 from splitrender.types import (
     MAX_SIDE,
     Camera,
@@ -148,11 +149,6 @@ def bits_from_rgba(rgba: _U8) -> npt.NDArray[np.uint32]:
 
 def _name(idx: int, ext: str) -> str:
     return f"{idx:04d}.{ext}"
-
-
-def _write_png(path: Path, img: _U8) -> None:
-    mode = {3: "RGB", 4: "RGBA"}[img.shape[2]]
-    Image.fromarray(np.ascontiguousarray(img), mode).save(path, compress_level=1)
 
 
 def _write_exr(path: Path, channels: dict[str, npt.NDArray[Any]]) -> None:
@@ -357,7 +353,7 @@ def export_dataset(
         )
         for k, (idx, cf) in enumerate(zip(idxs, cam_frames)):
             h, w = cf.camera.height, cf.camera.width
-            _write_png(d / "color" / _name(idx, "png"), cf.color)
+            write_png(d / "color" / _name(idx, "png"), cf.color, level=1)
             _write_exr(d / "depth" / _name(idx, "exr"), {"Y": cf.depth})
             # Pair (k, k+1) is numbered by the older frame's idx: frame k's forward buffers and
             # frame k+1's backward buffers. The last frame's forward buffers go under its idx.
@@ -379,9 +375,9 @@ def export_dataset(
                     sh = ShadowBuffers(np.zeros((h, w), np.uint32), z3, z3)
                 info, col_a, col_b = _SHADOW[direction]
                 alpha = np.full((h, w, 1), 255, np.uint8)
-                _write_png(d / info / _name(idx, "png"), bits_to_rgba(sh.bits))
-                _write_png(d / col_a / _name(idx, "png"), np.concatenate([sh.s_min, alpha], 2))
-                _write_png(d / col_b / _name(idx, "png"), np.concatenate([sh.s_max, alpha], 2))
+                write_png(d / info / _name(idx, "png"), bits_to_rgba(sh.bits), level=1)
+                write_png(d / col_a / _name(idx, "png"), np.concatenate([sh.s_min, alpha], 2), level=1)
+                write_png(d / col_b / _name(idx, "png"), np.concatenate([sh.s_max, alpha], 2), level=1)
     cd = out / client
     (cd / "color").mkdir(parents=True, exist_ok=True)
     cframes = list(rec.client_frames)
@@ -392,7 +388,7 @@ def export_dataset(
         encoding="utf-8",
     )
     for c in cframes:
-        _write_png(cd / "color" / _name(c.index, "png"), c.ground_truth)
+        write_png(cd / "color" / _name(c.index, "png"), c.ground_truth, level=1)
     return out
 
 

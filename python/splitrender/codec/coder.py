@@ -1,7 +1,7 @@
 """Compression of server frames (seeds/000 §3.4, §4.1; DESIGN.md "Wire format and codecs").
 
 :class:`StreamEncoder` turns each :class:`~splitrender.types.ServerFrame` into one packet
-(:mod:`splitrender.stream`); :class:`StreamDecoder` turns packets back into the same dataclasses
+(:mod:`splitrender.codec.stream`); :class:`StreamDecoder` turns packets back into the same dataclasses
 the client consumes. Per camera, these buffers travel (a frame is the older one of one pair and the
 newer one of the next, so the client needs both directions of every frame):
 
@@ -58,7 +58,7 @@ import numpy.typing as npt
 import zstandard
 
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.stream import (
+from splitrender.codec.stream import (
     KIND_CHANNELS,
     MAX_PIXELS,
     BufferEntry,
@@ -577,7 +577,7 @@ class StreamEncoder:
             )
 
     def encode(self, frame: ServerFrame) -> bytes:
-        """One packet holding ``frame`` (see :mod:`splitrender.stream`)."""
+        """One packet holding ``frame`` (see :mod:`splitrender.codec.stream`)."""
         self._check_layout(frame)
         cfg = self.config
         key = self._frames % cfg.gop == 0
@@ -852,7 +852,7 @@ class StreamDecoder:
 
     # Errors
     :class:`~splitrender.errors.StreamError` naming the frame and buffer for anything wrong in a
-    packet (see :func:`splitrender.stream.unpack_packet`), a payload that does not decode or does
+    packet (see :func:`splitrender.codec.stream.unpack_packet`), a payload that does not decode or does
     not match its table entry, a missing buffer, or a non-key packet without its predecessor."""
 
     def __init__(self, threads: int = 0, max_pixels: int = MAX_PIXELS) -> None:

@@ -4,13 +4,13 @@ Stages (progress on stderr, the summary table on stdout at the end):
 
 1. render the server frames (10 FPS, main + two auxiliary cameras, every buffer, at the scene's
    predicted pose) and the ground-truth client frames (120 FPS, at the client's actual pose);
-2. encode every server frame with :class:`~splitrender.codec.StreamEncoder` at the bitrate
+2. encode every server frame with :class:`~splitrender.codec.coder.StreamEncoder` at the bitrate
    (default: the paper's 40 Mb/s scaled by pixel count, :meth:`CodecConfig.scaled`, but at least
    1.6 Mb/s, see :data:`MIN_DEMO_BITRATE_MBPS`) and decode it
-   with :class:`~splitrender.codec.StreamDecoder`; the client only sees the decoded frames;
-3. per method: :func:`~splitrender.client.play` through the network model (default: ideal link,
+   with :class:`~splitrender.codec.coder.StreamDecoder`; the client only sees the decoded frames;
+3. per method: :func:`~splitrender.play` through the network model (default: ideal link,
    ``l = 0``, no loss; the packets' real sizes), then
-   :func:`~splitrender.metrics.evaluate_sequence` against the ground truth (first and last 12
+   :func:`~splitrender.evaluation.metrics.evaluate_sequence` against the ground truth (first and last 12
    client frames excluded);
 4. write ``video.mp4`` (ground truth | ``ours`` | FLIP error map of ``ours``), still PNGs,
    ``summary.md`` and ``summary.json``.
@@ -34,8 +34,9 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.errors import InvalidInputError
+from splitrender.progress import Progress
 from splitrender.imageio import write_png
-from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE, flip_map
+from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE, flip_map
 from splitrender.reproject import METHODS
 
 __all__ = [
@@ -43,7 +44,6 @@ __all__ = [
     "DemoArgumentError",
     "DemoConfig",
     "DemoResult",
-    "Stages",
     "colormap",
     "format_table",
     "run_demo",
@@ -92,40 +92,6 @@ def colormap(err: npt.NDArray[np.floating[Any]]) -> _Image:
     rgb = _MAGMA[i] * (1 - f) + _MAGMA[i + 1] * f
     out: _Image = np.rint(rgb).astype(np.uint8)
     return out
-
-
-class Stages:
-    """Progress on a stream (stderr): ``[k/N] text`` per stage and a one-line bar for loops."""
-
-    def __init__(self, total: int, enabled: bool = True, stream: Any = None) -> None:
-        self.total = total
-        self.step = 0
-        self.enabled = enabled
-        self.stream = stream if stream is not None else sys.stderr
-        self.start = time.perf_counter()
-        self._bar_start = self.start
-
-    def stage(self, text: str) -> None:
-        self.step += 1
-        self._bar_start = time.perf_counter()
-        if self.enabled:
-            elapsed = self._bar_start - self.start
-            print(f"[{self.step}/{self.total}] {text}  ({elapsed:.1f} s)", file=self.stream)
-            self.stream.flush()
-
-    def bar(self, done: int, total: int, label: str = "") -> None:
-        if not self.enabled or total <= 0:
-            return
-        elapsed = time.perf_counter() - self._bar_start
-        eta = elapsed / done * (total - done) if done else 0.0
-        width = 30
-        fill = width * done // total
-        text = "#" * fill + "-" * (width - fill)
-        end = "\n" if done == total else ""
-        self.stream.write(
-            f"\r      [{text}] {done}/{total} {label} {elapsed:5.1f} s  ETA {eta:5.1f} s{end}"
-        )
-        self.stream.flush()
 
 
 @dataclass
@@ -248,7 +214,7 @@ class _Video:
 
 def check_config(cfg: DemoConfig) -> None:
     """Raises :class:`DemoArgumentError` (one line) for a configuration that cannot run."""
-    from splitrender.scenes import SCENE_NAMES
+    from splitrender.scene.builtin import SCENE_NAMES
 
     if cfg.scene not in SCENE_NAMES:
         raise DemoArgumentError(
@@ -269,7 +235,7 @@ def check_run_args(
     ``extra_methods``), a length every scene has and that leaves frames after the evaluation's
     skipped ends, and a usable image size. Raises ``error`` (one line) naming the option."""
     from splitrender.errors import SplitRenderError
-    from splitrender.scenes import Scene
+    from splitrender.scene.builtin import Scene
 
     if not methods:
         raise error("--methods: expected at least one method")
@@ -310,7 +276,7 @@ MIN_DEMO_BITRATE_MBPS = 1.6
 def default_bitrate_mbps(width: int, height: int) -> float:
     """The demo's default target: the paper's 40 Mb/s scaled to ``width x height`` by pixel count
     (:meth:`CodecConfig.scaled`), but at least :data:`MIN_DEMO_BITRATE_MBPS`."""
-    from splitrender.codec import CodecConfig  # imported lazily, like the rest of the demo
+    from splitrender.codec.coder import CodecConfig  # imported lazily, like the rest of the demo
 
     scaled: float = CodecConfig.scaled(width, height).bitrate_mbps
     return max(scaled, MIN_DEMO_BITRATE_MBPS)
@@ -318,12 +284,12 @@ def default_bitrate_mbps(width: int, height: int) -> float:
 
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Runs the demo (see the module docstring) and writes its files to ``cfg.out``."""
-    from splitrender.codec import CodecConfig
-    from splitrender.network import NetworkModel
+    from splitrender.codec.coder import CodecConfig
+    from splitrender.net.model import NetworkModel
     from splitrender.gpu import backend_for
-    from splitrender.pipeline import encode_decode, play_and_score
-    from splitrender.recording import plan
-    from splitrender.scenes import Scene
+    from splitrender.evaluation.pipeline import encode_decode, play_and_score
+    from splitrender.scene.recording import plan
+    from splitrender.scene.builtin import Scene
     from splitrender.types import ServerFrame
 
     check_config(cfg)
@@ -336,7 +302,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     w, h = scene.main_size(cfg.scale)
     n_server, n_client = plan(cfg.seconds, FS, FC)
     use_vmaf = cfg.vmaf
-    stages = Stages(3 + len(cfg.methods), cfg.progress)
+    stages = Progress(3 + len(cfg.methods), cfg.progress)
     if use_vmaf and min(w, h) < VMAF_MIN_SIDE:
         use_vmaf = False
         if cfg.progress:

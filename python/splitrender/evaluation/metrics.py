@@ -36,7 +36,6 @@ import json
 import math
 import os
 import subprocess
-import sys
 import tempfile
 import threading
 from collections.abc import Callable, Sequence
@@ -59,7 +58,6 @@ __all__ = [
     "evaluate_sequence",
     "flip",
     "flip_map",
-    "print_progress",
     "psnr",
     "ssim",
     "ssim_map",
@@ -401,12 +399,6 @@ class SequenceMetrics:
         }
 
 
-def print_progress(stage: str, done: int, total: int) -> None:
-    """A progress callback for :func:`evaluate_sequence` that writes one line to stderr."""
-    end = "\n" if done == total else ""
-    print(f"\r{stage}: {done}/{total}", end=end, file=sys.stderr, flush=True)
-
-
 def evaluate_sequence(
     rendered: Sequence[npt.ArrayLike],
     truth: Sequence[npt.ArrayLike],
@@ -420,7 +412,7 @@ def evaluate_sequence(
     """Every metric in ``metrics`` for each client frame of ``rendered`` against ``truth`` (the
     ground truth at the client pose), excluding the first and last ``skip`` frames, and the
     means. ``progress(stage, done, total)`` is called after each frame of each metric (see
-    :func:`print_progress`); FLIP costs seconds per 1280×720 frame.
+    :meth:`splitrender.progress.Progress.bar`); FLIP costs seconds per 1280×720 frame.
 
     Raises:
         InvalidInputError: for unknown metrics, sequences of different lengths or shapes, or

@@ -1,9 +1,9 @@
 """Pieces of the split-rendering pipeline shared by ``demo``, ``play`` and ``eval``.
 
-:func:`encode_decode` runs server frames through :class:`~splitrender.codec.StreamEncoder` and
-:class:`~splitrender.codec.StreamDecoder` (what the client sees of a compressed stream);
+:func:`encode_decode` runs server frames through :class:`~splitrender.codec.coder.StreamEncoder` and
+:class:`~splitrender.codec.coder.StreamDecoder` (what the client sees of a compressed stream);
 :func:`play_and_score` plays one method through the network model and the client and scores its
-frames against the ground truth with :func:`~splitrender.metrics.evaluate_sequence`.
+frames against the ground truth with :func:`~splitrender.evaluation.metrics.evaluate_sequence`.
 """
 
 from __future__ import annotations
@@ -15,17 +15,17 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from splitrender.client import PlaybackResult, frame_nbytes, play
-from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
-from splitrender.metrics import SKIP_FRAMES, SequenceMetrics, evaluate_sequence
-from splitrender.network import NetworkModel
-from splitrender.stream import stream_stats
+from splitrender.client.playback import PlaybackResult, frame_nbytes, play
+from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.evaluation.metrics import SKIP_FRAMES, SequenceMetrics, evaluate_sequence
+from splitrender.net.model import NetworkModel
+from splitrender.codec.stream import stream_stats
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 
 __all__ = ["Scored", "encode_decode", "play_and_score", "raw_mbps"]
 
 _Image = npt.NDArray[np.uint8]
-#: ``bar(done, total, label)``: one progress bar (e.g. :meth:`splitrender.demo.Stages.bar`).
+#: ``bar(done, total, label)``: one progress bar (e.g. :meth:`splitrender.progress.Progress.bar`).
 Bar = Callable[[int, int, str], None]
 
 

@@ -12,7 +12,7 @@ server frame, client frame ``n = kF + b`` interpolates ``(k, k+1)`` with ``α = 
 and extrapolates from ``F_k`` with ``α = 1 + b/F`` for ``b < l``; ``l ≥ F`` always extrapolates.
 
 Frame choice (:func:`choose_frames`, shared by :class:`Schedule` and
-:class:`splitrender.client.Client`), for the frames the client holds at display time ``t``:
+:class:`splitrender.Client`), for the frames the client holds at display time ``t``:
 
 - ``"interpolate"``: the newest held frame ``k`` with ``t_k ≤ t`` and ``k + 1`` held:
   ``α = (t − t_k) / (t_{k+1} − t_k) ∈ [0, 1)`` (bidirectional methods: ``ours``,
@@ -321,7 +321,7 @@ class Schedule:
     """The per-client-frame plan of a session: ``entries[n]`` for client frame ``n`` (time
     ``n / client_fps``) and ``arrivals[k]`` for server frame ``k`` (``None``: lost).
 
-    Build with :meth:`build`; :func:`splitrender.client.play` follows the same plan with images.
+    Build with :meth:`build`; :func:`splitrender.play` follows the same plan with images.
     """
 
     entries: list[ClientFrameInfo]

@@ -3,7 +3,7 @@
 A recording of two server frames (and the client frames between them) of the scene's dynamic
 variant is rendered once per (scene, scale, version) into the temporary directory and reused.
 The two server frames are encoded at the paper's 40 Mb/s scaled by pixel count and decoded
-``repeats`` times with a fresh :class:`~splitrender.codec.StreamDecoder`: the decode figure is the
+``repeats`` times with a fresh :class:`~splitrender.codec.coder.StreamDecoder`: the decode figure is the
 median seconds per server frame (all cameras, all buffers; key and non-key frame together).
 Each method then reprojects client frames between the two *decoded* server frames at their
 client poses (:func:`~splitrender.reproject.reproject`, no previous frame) with one
@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import os
 import statistics
-import sys
 import tempfile
 import time
 from collections.abc import Sequence
@@ -45,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.errors import InvalidInputError
+from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import CameraFrame, ServerFrame, ShadowBuffers
 
@@ -113,13 +113,13 @@ def bytes_touched(method: str, older: ServerFrame, newer: ServerFrame) -> int:
 
 
 def _cache_dir(scene: str, scale: float) -> Path:
-    from splitrender import __version__
+    from splitrender._native import __version__
 
     return Path(tempfile.gettempdir()) / f"splitrender-bench-{scene}-{scale:g}-{__version__}"
 
 
 def _recording(scene: str, scale: float, log: Any) -> Any:
-    from splitrender.recording import RecordingError, load_recording, write_recording
+    from splitrender.scene.recording import RecordingError, load_recording, write_recording
 
     path = _cache_dir(scene, scale)
     try:
@@ -130,10 +130,8 @@ def _recording(scene: str, scale: float, log: Any) -> Any:
     except RecordingError:
         pass
     log(f"rendering 2 server frames of {scene} at scale {scale:g} into {path} (cached)")
-    t0 = time.perf_counter()
     # 0.1 s at 120 FPS: client frames 0..11, server frames 0 and 1.
     write_recording(path, scene, seconds=0.1, scale=scale, overwrite=True)
-    log(f"rendered in {time.perf_counter() - t0:.1f} s")
     return load_recording(path)
 
 
@@ -141,7 +139,7 @@ def check_args(
     scene: str, methods: Sequence[str], scale: float, frames: int, backend: str = "cpu"
 ) -> None:
     from splitrender.gpu import check_backend
-    from splitrender.scenes import SCENE_NAMES, Scene
+    from splitrender.scene.builtin import SCENE_NAMES, Scene
 
     try:
         check_backend(backend)
@@ -188,21 +186,22 @@ def run_bench(
         GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
     from splitrender._native import BidirHistory
-    from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
+    from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
     from splitrender.reproject import reproject
 
     check_args(scene, methods, scale, frames, backend)
     gpu_run = _GpuRun() if backend == "wgpu" else None
 
-    def log(text: str) -> None:
-        if progress:
-            print(text, file=sys.stderr, flush=True)
-
-    rec = _recording(scene, scale, log)
+    # One stage line each: the recording, the codec, every method.
+    stages = Progress(2 + len(methods), progress)
+    rec = _recording(scene, scale, stages.stage)
     f0, f1 = rec.server_frames[0], rec.server_frames[1]
     w, h = f0.main.camera.width, f0.main.camera.height
     cfg = CodecConfig.scaled(w, h)
-    log(f"encoding 2 server frames at {w}x{h} + aux at {cfg.bitrate_mbps:.3g} Mb/s")
+    stages.stage(
+        f"encoding 2 server frames at {w}x{h} + aux at {cfg.bitrate_mbps:.3g} Mb/s, "
+        f"timing their decoding ({repeats} times)"
+    )
     with StreamEncoder(cfg) as enc:
         packets = [enc.encode(f0), enc.encode(f1)]
     times: list[float] = []
@@ -213,7 +212,6 @@ def run_bench(
             decoded = [dec.decode(p) for p in packets]
             times.append((time.perf_counter() - t0) / len(packets))
     decode_ms = statistics.median(times) * 1e3
-    log(f"decode: {decode_ms:.1f} ms per server frame (median of {repeats})")
     older, newer = decoded
     # Client frames strictly between the two server frames (t in (0, 0.1)).
     requests = [c.request for c in rec.client_frames if 0.0 < c.time < newer.time]
@@ -221,6 +219,7 @@ def run_bench(
         requests = [rec.client_frames[len(rec.client_frames) // 2].request]
     rows: list[BenchRow] = []
     for method in methods:
+        stages.stage(f"timing {method} on {frames} client frames ({backend})")
         if gpu_run is not None:
             samples = gpu_run.time(method, older, newer, requests, frames)
         else:
@@ -247,7 +246,6 @@ def run_bench(
             mb_touched=touched / 1e6,
         )
         rows.append(row)
-        log(f"{method}: {row.ms_per_frame:.2f} ms per client frame (median of {frames})")
     return rows
 
 

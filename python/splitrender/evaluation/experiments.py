@@ -51,17 +51,17 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from splitrender.demo import (
+from splitrender.evaluation.demo import (
     DEFAULT_METHODS,
     FC,
     FS,
     DemoArgumentError,
-    Stages,
     _json_number,
     check_run_args,
 )
 from splitrender.errors import SplitRenderError
-from splitrender.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
+from splitrender.progress import Progress
+from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
 
 __all__ = [
     "DEFAULT_DELAYS",
@@ -142,11 +142,11 @@ class EvalResult:
 
 def check_config(cfg: EvalConfig) -> None:
     """Raises :class:`EvalArgumentError` (one line) for a configuration that cannot run."""
-    from splitrender.scenes import SCENE_NAMES
+    from splitrender.scene.builtin import SCENE_NAMES
 
     if not cfg.scenes:
         raise EvalArgumentError("--scenes: expected at least one scene")
-    from splitrender.scenes import MAX_SAMPLES
+    from splitrender.scene.builtin import MAX_SAMPLES
 
     if cfg.samples is not None and not 1 <= cfg.samples <= MAX_SAMPLES:
         raise EvalArgumentError(f"--samples: expected 1..{MAX_SAMPLES}, got {cfg.samples}")
@@ -233,12 +233,12 @@ def _plan_stages(cfg: EvalConfig) -> int:
 
 def run_eval(cfg: EvalConfig) -> EvalResult:
     """Runs the experiments (see the module docstring) and writes their files to ``cfg.out``."""
-    from splitrender.codec import CodecConfig
-    from splitrender.network import NetworkModel
+    from splitrender.codec.coder import CodecConfig
+    from splitrender.net.model import NetworkModel
     from splitrender.gpu import backend_for
-    from splitrender.pipeline import encode_decode, play_and_score, raw_mbps
-    from splitrender.recording import Recording, load_recording, plan, write_recording
-    from splitrender.scenes import PREDICTION_DELAY, Scene, Trace, default_samples, load_trace
+    from splitrender.evaluation.pipeline import encode_decode, play_and_score, raw_mbps
+    from splitrender.scene.recording import Recording, load_recording, plan, write_recording
+    from splitrender.scene.builtin import PREDICTION_DELAY, Scene, Trace, default_samples, load_trace
     from splitrender.types import ReprojectOptions, ServerFrame
 
     check_config(cfg)
@@ -266,7 +266,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
             print(f"note: {w}x{h} is below VMAF's {VMAF_MIN_SIDE} pixels a side; VMAF skipped",
                   file=sys.stderr)
     metrics = ("ssim", "flip", "psnr", "vmaf") if use_vmaf else ("ssim", "flip", "psnr")
-    stages = Stages(_plan_stages(cfg), cfg.progress)
+    stages = Progress(_plan_stages(cfg), cfg.progress)
     rows: list[Row] = []
     cache: dict[tuple[Any, ...], Row] = {}
     tables: list[tuple[str, str, list[Row], tuple[str, ...], tuple[str, ...]]] = []
@@ -563,7 +563,7 @@ def _score_frames(
     truth: Sequence[_Image], mbps: float, metrics: Sequence[str],
     bar: Callable[[int, int, str], None],
 ) -> Row:
-    from splitrender.metrics import evaluate_sequence
+    from splitrender.evaluation.metrics import evaluate_sequence
 
     sm = evaluate_sequence(frames, truth, SKIP_FRAMES, metrics, fps=FC,
                            progress=lambda m, d, t: bar(d, t, m))
@@ -594,7 +594,7 @@ def minterpolate(
     Raises:
         SplitRenderError: when ffmpeg fails or emits fewer than ``n_out`` frames.
     """
-    from splitrender.metrics import _ffmpeg
+    from splitrender.evaluation.metrics import _ffmpeg
 
     if not frames:
         raise SplitRenderError("minterpolate: no frames")
@@ -633,8 +633,8 @@ def _timewarp_server(
 ) -> list[Any]:
     """The main camera's colour and depth at ``fps`` FPS, rendered at poses predicted
     ``delay`` seconds ahead (a traditional streaming server for the timewarp lines)."""
-    from splitrender.recording import plan
-    from splitrender.scenes import ClientMotion, PathMotion, Scene, TraceMotion
+    from splitrender.scene.recording import plan
+    from splitrender.scene.builtin import ClientMotion, PathMotion, Scene, TraceMotion
 
     sc = Scene(scene, "dynamic")
     motion: ClientMotion = (
@@ -762,7 +762,7 @@ def _video_streaming_row(
     scene: str, truth: Sequence[_Image], mbps: float, metrics: Sequence[str],
     bar: Callable[[int, int, str], None],
 ) -> Row:
-    from splitrender.metrics import evaluate_sequence
+    from splitrender.evaluation.metrics import evaluate_sequence
 
     frames, achieved = _video_streaming(truth, mbps, FC)
     sm = evaluate_sequence(frames, truth, SKIP_FRAMES, metrics, fps=FC,

@@ -1,10 +1,10 @@
 """The client runtime: :class:`Client`, the object a headset integration drives (feed it server
 frames as they arrive and ask for a frame per display refresh), and :func:`play`, the batch path
-the experiments use (a whole session through a :class:`~splitrender.network.NetworkModel`).
+the experiments use (a whole session through a :class:`~splitrender.net.model.NetworkModel`).
 
 Which frames, ``α`` and mode each client frame uses is decided by
-:func:`splitrender.network.choose_frames` (see :mod:`splitrender.network` for the timing rules,
-REFERENCE.md §2.1), so :func:`play` and :meth:`splitrender.network.Schedule.build` agree frame
+:func:`splitrender.net.model.choose_frames` (see :mod:`splitrender.net.model` for the timing rules,
+REFERENCE.md §2.1), so :func:`play` and :meth:`splitrender.net.model.Schedule.build` agree frame
 for frame.
 """
 
@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -21,18 +19,15 @@ import numpy.typing as npt
 from splitrender import _native
 from splitrender.errors import InvalidInputError
 from splitrender.gpu import GpuReprojector, check_backend
-from splitrender.network import (
-    TIME_EPS,
+from splitrender.net.model import (
     ClientFrameInfo,
     FrameBuffer,
-    NetworkModel,
-    Schedule,
     choose_frames,
 )
 from splitrender.reproject import METHODS, reproject_alpha
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 
-__all__ = ["Client", "PlaybackResult", "frame_nbytes", "play"]
+__all__ = ["Client"]
 
 _Image = npt.NDArray[np.uint8]
 
@@ -42,7 +37,7 @@ class Client:
 
     ``receive`` server frames as they arrive, then ``render`` a frame for each display refresh
     at the client's actual camera and display time. The client holds at most ``capacity``
-    server frames (see :class:`~splitrender.network.FrameBuffer`: duplicates, stale frames and
+    server frames (see :class:`~splitrender.net.model.FrameBuffer`: duplicates, stale frames and
     frames beyond capacity are refused), keeps its previous output per ``eye`` for hole filling
     (DESIGN.md: no-match pixels keep the previous client frame's colour) and, for
     ``backward_bidir``, a :class:`~splitrender.BidirHistory` per eye that is reset whenever the
@@ -221,140 +216,3 @@ class Client:
         self._history.clear()
         self.last_info = None
         self._gpu_pair = None
-
-
-def frame_nbytes(frame: ServerFrame) -> int:
-    """Bytes of every buffer of ``frame`` uncompressed: the packet size :func:`play` assumes
-    when no sizes are given."""
-    total = 0
-    for cam in (frame.main, *frame.aux):
-        for name in ("color", "depth", "motion_fwd", "motion_bwd"):
-            a = getattr(cam, name)
-            if a is not None:
-                total += int(a.nbytes)
-        for sh in (cam.shadow_fwd, cam.shadow_bwd):
-            if sh is not None:
-                total += int(sh.bits.nbytes + sh.s_min.nbytes + sh.s_max.nbytes)
-    return total
-
-
-@dataclass
-class PlaybackResult:
-    """The output of :func:`play`: ``images[n]`` and ``info[n]`` per client frame,
-    ``arrivals[k]`` (``None``: lost) and ``sends[k]`` per server frame read (in the order given;
-    :func:`play` stops reading frames once the last client frame is rendered)."""
-
-    images: list[_Image]
-    info: list[ClientFrameInfo]
-    arrivals: list[float | None] = field(default_factory=list)
-    sends: list[float] = field(default_factory=list)
-
-    def modes(self) -> list[str]:
-        return [i.mode for i in self.info]
-
-    def summary(self) -> dict[str, int]:
-        """How many client frames each mode made."""
-        return {
-            m: sum(i.mode == m for i in self.info) for m in ("interpolate", "extrapolate", "hold")
-        }
-
-    def schedule(self) -> Schedule:
-        """The session as a :class:`~splitrender.network.Schedule` (without the images)."""
-        return Schedule(list(self.info), list(self.arrivals), sends=list(self.sends))
-
-
-def play(
-    frames: Iterable[ServerFrame],
-    cameras: Sequence[Camera],
-    network: NetworkModel | None = None,
-    fps: float = 120.0,
-    method: str = "ours",
-    *,
-    options: ReprojectOptions | None = None,
-    frame_sizes: Sequence[int] | None = None,
-    lead: float | None = None,
-    keep_images: bool = True,
-    on_frame: Callable[[int, _Image, ClientFrameInfo], None] | None = None,
-    backend: str = "cpu",
-) -> PlaybackResult:
-    """Plays a session: server ``frames`` (in index order; consumed lazily, so a recording can be
-    streamed) are sent ``lead`` seconds (default ``1 / options.server_fps``) before their time
-    through ``network`` (default: ideal) with ``frame_sizes`` bytes (default: uncompressed,
-    :func:`frame_nbytes`; pass the encoded packet sizes for a compressed stream), and a
-    :class:`Client` renders client frame ``n`` at ``cameras[n]`` and time ``n / fps``.
-
-    ``on_frame(n, image, info)`` is called for every client frame (e.g. to write it out); with
-    ``keep_images=False`` the result holds no images. ``backend`` is ``"cpu"`` or ``"wgpu"``
-    (see :class:`Client`).
-
-    Raises:
-        InvalidInputError: for invalid arguments, a network whose ``client_fps`` is not ``fps``,
-            or frames out of order.
-    """
-    client = Client(method, options, backend=backend)
-    fs = client.server_fps
-    net = network if network is not None else NetworkModel(client_fps=fps)
-    if not isinstance(net, NetworkModel):
-        raise InvalidInputError(f"network: expected a NetworkModel, got {type(net).__name__}")
-    if not np.isclose(net.client_fps, fps):
-        raise InvalidInputError(
-            f"network.client_fps: expected the client's fps = {fps}, got {net.client_fps}"
-        )
-    lead_s = 1.0 / fs if lead is None else float(lead)
-    cams = list(cameras)
-    for n, c in enumerate(cams):
-        if not isinstance(c, Camera):
-            raise InvalidInputError(f"cameras[{n}]: expected a Camera, got {type(c).__name__}")
-    link = net.link()
-    it = iter(frames)
-    sizes = None if frame_sizes is None else list(frame_sizes)
-    arrivals: list[float | None] = []
-    sends: list[float] = []
-    pending: tuple[ServerFrame, float | None] | None = None
-    exhausted = False
-
-    def next_frame() -> tuple[ServerFrame, float | None] | None:
-        k = len(sends)
-        try:
-            f = next(it)
-        except StopIteration:
-            return None
-        if not isinstance(f, ServerFrame):
-            raise InvalidInputError(f"frames[{k}]: expected a ServerFrame, got {type(f).__name__}")
-        if sizes is not None:
-            if k >= len(sizes):
-                raise InvalidInputError(
-                    f"frame_sizes: expected a size for frame {k}, got {len(sizes)} sizes"
-                )
-            size = sizes[k]
-        else:
-            size = frame_nbytes(f)
-        send = f.time - lead_s
-        sends.append(send)
-        a = link.send(send, size)
-        arrivals.append(a)
-        return (f, a)
-
-    result = PlaybackResult([], [], arrivals, sends)
-    for n, cam in enumerate(cams):
-        t = n / fps
-        while not exhausted:
-            if pending is None:
-                pending = next_frame()
-                if pending is None:
-                    exhausted = True
-                    break
-            f, a = pending
-            if a is not None and a > t + TIME_EPS:
-                break
-            if a is not None:
-                client.receive(f, a)
-            pending = None
-        image = client.render(cam, t)
-        assert client.last_info is not None
-        if keep_images:
-            result.images.append(image)
-        result.info.append(client.last_info)
-        if on_frame is not None:
-            on_frame(n, image, client.last_info)
-    return result

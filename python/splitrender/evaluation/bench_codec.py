@@ -1,4 +1,4 @@
-"""Benchmark of the codec: ``python -m splitrender.bench_codec [--frames N] [--sizes 640x360,...]``.
+"""Benchmark of the codec: ``python -m splitrender.evaluation.bench_codec [--frames N] [--sizes 640x360,...]``.
 
 For each main-camera size (two auxiliary cameras at half size, every buffer) it encodes and
 decodes a run of the synthetic dynamic scene at the paper's 40 Mb/s scaled by pixel count and
@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from splitrender.codec import CodecConfig, StreamDecoder, StreamEncoder
-from splitrender.stream import stream_stats
-from splitrender.synthetic import SyntheticScene
+from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.codec.stream import stream_stats
+from splitrender.scene.synthetic import SyntheticScene
 from splitrender.types import CameraFrame, ServerFrame
 
 

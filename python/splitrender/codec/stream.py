@@ -4,7 +4,7 @@ Everything here treats its input as untrusted: every count and size read from th
 against a fixed limit *and* against the bytes that remain before anything is allocated, both CRCs
 are verified, and every failure is a :class:`~splitrender.errors.StreamError` whose message names
 the frame and, where there is one, the buffer (``"frame 12, main.depth: ..."``). The codecs that
-fill and read the payloads live in :mod:`splitrender.codec`. The format is also described in
+fill and read the payloads live in :mod:`splitrender.codec.coder`. The format is also described in
 ``docs/stream-format.md``.
 
 Packet (version 2), all integers little-endian::

@@ -51,9 +51,9 @@ from typing import Any, Generic, TypeVar, overload
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import __version__
+from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
-from splitrender.scenes import (
+from splitrender.scene.builtin import (
     MAX_SAMPLES,
     ClientMotion,
     PathMotion,
@@ -197,7 +197,7 @@ def write_recording(
     """Renders a recording of ``scene`` into directory ``out`` and returns its path.
 
     Colour (server and ground truth) is the mean of ``samples x samples`` sub-samples per pixel;
-    ``None`` takes :func:`~splitrender.scenes.default_samples` of each camera's size. The counts
+    ``None`` takes :func:`~splitrender.scene.builtin.default_samples` of each camera's size. The counts
     used are written to the manifest.
 
     ``progress(done, total)`` is called after every rendered frame (server and client). Raises

@@ -1,0 +1,263 @@
+"""``splitrender demo``, ``eval`` and ``bench``: the whole pipeline with metrics, the paper's experiments, and the timings."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+
+from splitrender.cli.args import PROG, SAMPLES_HELP, add_backend, bitrates, count, delays, eval_methods, frames_delay, methods, names, positive, samples
+from splitrender.reproject import METHODS
+
+
+def add_demo(sub: Any) -> None:
+    from splitrender.evaluation.demo import DEFAULT_METHODS
+
+    de = sub.add_parser(
+        "demo",
+        help="render, encode, stream and reproject a built-in dynamic scene; video + metrics",
+        description=(
+            "The whole pipeline on a built-in dynamic scene: render the server frames (10 FPS, "
+            "main + 2 auxiliary cameras, every buffer) and the ground-truth client frames "
+            "(120 FPS, at the client's actual pose, which deviates from the server's predicted "
+            "one); encode the server frames at --bitrate and decode them; play them through the "
+            "network model (ideal link, no loss, --delay extra client frames) and the client with "
+            "every method; score each method against the ground truth (SSIM, FLIP, PSNR, VMAF; "
+            "first and last 12 client frames excluded). Writes to --out: video.mp4 (ground truth "
+            "| ours | FLIP error map of ours, side by side, at --video-fps), stills/*.png "
+            "(three client frames: ground truth, every method, the FLIP map, the side-by-side), "
+            "summary.md and summary.json (per method: ssim, flip, psnr, vmaf, mbps, frames), "
+            "and prints the table. The defaults (courtyard at 256x144, 1 s) take about 1.5 minutes "
+            "on 2 CPU cores; time grows with scale^2 x seconds."
+        ),
+    )
+    de.set_defaults(run=demo)
+    de.add_argument(
+        "--scene", default="courtyard", metavar="NAME",
+        help="built-in scene: courtyard, colonnade, lab (default: %(default)s)",
+    )
+    de.add_argument(
+        "--out", type=Path, default=Path("splitrender-demo"), metavar="DIR",
+        help="output directory, created if missing; files in it are replaced "
+        "(default: %(default)s)",
+    )
+    de.add_argument(
+        "--scale", type=positive, default=0.1, metavar="X",
+        help="main camera size round(2560X) x round(1440X) (default: %(default)s = 256x144)",
+    )
+    de.add_argument(
+        "--seconds", type=positive, default=1.0, metavar="S",
+        help="length, at least 0.21 s (25 client frames) and at most the scene's 4 s "
+        "(default: %(default)s)",
+    )
+    de.add_argument(
+        "--bitrate", type=positive, default=None, metavar="MBPS",
+        help="target bitrate of the whole stream in Mb/s (default: the paper's 40 Mb/s at "
+        "2560x1440 scaled by pixel count, at least 1.6: headers and lossless parts cost a "
+        "fixed ~0.15 Mb/s at 256x144)",
+    )
+    de.add_argument(
+        "--methods", type=methods, default=DEFAULT_METHODS, metavar="LIST",
+        help=f"comma-separated methods (default: {','.join(DEFAULT_METHODS)})",
+    )
+    de.add_argument(
+        "--delay", type=frames_delay, default=0, metavar="L",
+        help="extra network delay in client frames, l (default: %(default)s)",
+    )
+    de.add_argument(
+        "--video-fps", type=positive, default=30.0, metavar="FPS",
+        help="frame rate of video.mp4; every client frame is one video frame, so 30 plays the "
+        "120 FPS session 4x slowed down (default: %(default)s)",
+    )
+    add_backend(de, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
+    de.add_argument("--no-vmaf", action="store_true", help="skip VMAF (its column shows '-')")
+    de.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def demo(args: argparse.Namespace) -> int:
+    from splitrender.evaluation.demo import DemoArgumentError, DemoConfig, format_table, run_demo
+
+    cfg = DemoConfig(
+        scene=args.scene,
+        out=args.out,
+        scale=args.scale,
+        seconds=args.seconds,
+        bitrate_mbps=args.bitrate,
+        methods=tuple(args.methods),
+        vmaf=not args.no_vmaf,
+        delay_frames=args.delay,
+        video_fps=args.video_fps,
+        progress=not args.quiet,
+        backend=args.backend,
+    )
+    try:
+        res = run_demo(cfg)
+    except DemoArgumentError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    print(
+        f"{cfg.scene} (dynamic) at {res.width}x{res.height}, {res.client_frames} client frames "
+        f"from {res.server_frames} server frames at {res.mbps:.3f} Mb/s "
+        f"(target {res.bitrate_mbps:.3g}); done in {res.seconds:.1f} s"
+    )
+    print(f"wrote {cfg.out}/: video.mp4, stills/ ({sum(p.suffix == '.png' for p in res.files)} "
+          "PNGs), summary.md, summary.json")
+    print(format_table(res.rows))
+    return 0
+
+
+def add_eval(sub: Any) -> None:
+    from splitrender.evaluation.experiments import DEFAULT_DELAYS, DEFAULT_EVAL_METHODS, DEFAULT_SCENES
+
+    ev = sub.add_parser(
+        "eval",
+        help="the paper's experiments (Tables 1-3, Fig. 6) on the built-in scenes: JSON, "
+        "Markdown, plots",
+        description=(
+            "Table 1: every --methods x --scenes x --variants on uncompressed server frames "
+            "(ideal link, l = 0). Table 2: ours on the dynamic scenes with --delays extra client "
+            "frames, compressed at --bitrate, plus ours_extrapolate (l = 0). Table 3 (--stereo): "
+            "every method, mono vs stereo, compressed. Figure 6 (--bitrates, on --rd-scenes): "
+            "every method at each bitrate plus the references 'video_streaming' (the ground "
+            "truth as one 120 FPS HEVC video) and 'timewarp_10fps/_30fps/_60fps' (main colour "
+            "and depth rendered at 10/30/60 FPS with 100/33.3/16.7 ms prediction, timewarped); "
+            "prints the bitrates at which ours reaches VMAF 60 and 80. 'video_interp' (a "
+            "--methods entry, not in Tables 2-3) is FFmpeg's minterpolate of the server colour "
+            "video from 10 to 120 FPS. Recordings are rendered once per "
+            "(scene, variant) into OUT/recordings/ and reused. Writes OUT/results.json (a list "
+            "of rows with the keys scene, variant, method, bitrate_mbps (null: uncompressed), "
+            "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames), OUT/tables.md and "
+            "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 3 minutes on 2 "
+            "CPU cores (about 1 minute per scene)."
+        ),
+    )
+    ev.set_defaults(run=eval_)
+    ev.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    ev.add_argument("--scenes", type=names, default=DEFAULT_SCENES, metavar="LIST",
+                    help=f"comma-separated scenes (default: {','.join(DEFAULT_SCENES)})")
+    ev.add_argument("--methods", type=eval_methods, default=DEFAULT_EVAL_METHODS,
+                    metavar="LIST",
+                    help=f"Table 1/3 and Figure 6 methods (default: "
+                    f"{','.join(DEFAULT_EVAL_METHODS)})")
+    ev.add_argument("--delays", type=delays, default=DEFAULT_DELAYS, metavar="LIST",
+                    help=f"Table 2 delays l (default: {','.join(map(str, DEFAULT_DELAYS))})")
+    ev.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
+                    help="bitrate of the compressed experiments (default: the paper's 40 Mb/s "
+                    "scaled by pixel count)")
+    ev.add_argument("--scale", type=positive, default=0.05, metavar="X",
+                    help="main camera size round(2560X) x round(1440X) (default: %(default)s)")
+    ev.add_argument("--seconds", type=positive, default=1.0, metavar="S",
+                    help="length per scene (default: %(default)s)")
+    ev.add_argument("--bitrates", type=bitrates, default=(), metavar="LIST",
+                    help="also Figure 6 (rate-distortion) at these paper-equivalent Mb/s (at "
+                    "2560x1440, scaled by pixel count), e.g. 10,20,40,60,100; plus the 'video "
+                    "streaming' and timewarp references; writes OUT/rate_distortion.png")
+    ev.add_argument("--variants", type=names, default=("static", "dynamic"), metavar="LIST",
+                    help="Table 1's scene variants (default: static,dynamic; Tables 2-3 and "
+                    "Figure 6 use dynamic)")
+    ev.add_argument("--rd-scenes", type=names, default=None, metavar="LIST",
+                    help="Figure 6 on these of the --scenes only (default: all --scenes)")
+    ev.add_argument("--stereo", action="store_true", help="also Table 3 (mono vs stereo)")
+    ev.add_argument("--trace", type=Path, default=None, metavar="FILE",
+                    help="head trace 'px py pz pitch yaw roll t_ms' per line as client motion")
+    ev.add_argument("--trace-scale", type=float, default=1.0, metavar="F",
+                    help="scale of the trace's translation (default: %(default)s)")
+    ev.add_argument("--samples", type=samples, default=None, metavar="N",
+                    help=SAMPLES_HELP + " (every render: recordings and the timewarp lines)")
+    add_backend(ev, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
+    ev.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
+    ev.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def eval_(args: argparse.Namespace) -> int:
+    from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, run_eval
+
+    cfg = EvalConfig(
+        out=args.out, scenes=tuple(args.scenes), methods=tuple(args.methods),
+        delays=tuple(args.delays), scale=args.scale, seconds=args.seconds,
+        bitrate_mbps=args.bitrate, bitrates=tuple(args.bitrates), stereo=args.stereo, vmaf=not args.no_vmaf,
+        rd_scenes=None if args.rd_scenes is None else tuple(args.rd_scenes),
+        variants=tuple(args.variants),
+        trace=args.trace, trace_scale=args.trace_scale, progress=not args.quiet,
+        backend=args.backend, samples=args.samples,
+    )
+    try:
+        res = run_eval(cfg)
+    except EvalArgumentError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    for line in res.summary:
+        print(line)
+    print(f"{len(res.rows)} rows at {res.width}x{res.height}; wrote "
+          + ", ".join(str(p) for p in res.files))
+    return 0
+
+
+def add_bench(sub: Any) -> None:
+    be = sub.add_parser(
+        "bench",
+        help="time client decoding and reprojection per method on a built-in recording",
+        description=(
+            "Render (once; cached in the temporary directory) two server frames of SCENE at "
+            "--scale, encode them at the paper's 40 Mb/s scaled by pixel count and time their "
+            "decoding (median ms per server frame), then time reproject() between the two "
+            "decoded frames per method on --frames client frames (median, after one warm-up). "
+            "Prints per method: ms per client frame, FPS, ns per output pixel, MB touched and "
+            "effective GB/s, where bytes touched = the source buffers the method reads (ours: "
+            "colour, depth, one motion and one shadow direction of every camera of both frames) "
+            "+ the output written (W*H*3), intermediates not counted. With --backend wgpu the "
+        "pair is uploaded once and each client frame uploads its pose and downloads the image. "
+            "Time on 2 cores at the default scale 0.5 (1280x720, the Targets' size): about "
+            "30 s the first time (rendering), about 15 s with the cache."
+        ),
+    )
+    be.set_defaults(run=bench)
+    be.add_argument(
+        "--scene", default="courtyard", metavar="NAME",
+        help="built-in scene: courtyard, colonnade, lab (default: %(default)s)",
+    )
+    be.add_argument(
+        "--methods", type=methods, default=METHODS, metavar="LIST",
+        help=f"comma-separated methods (default: all: {','.join(METHODS)})",
+    )
+    be.add_argument(
+        "--scale", type=positive, default=0.5, metavar="X",
+        help="main camera size round(2560X) x round(1440X) (default: %(default)s = 1280x720)",
+    )
+    be.add_argument(
+        "--frames", type=count, default=5, metavar="N",
+        help="timed client frames per method (median) (default: %(default)s)",
+    )
+    be.add_argument(
+        "--json", type=Path, default=None, metavar="FILE",
+        help="also write a JSON list of rows with the keys method, backend, width, height, "
+        "ms_per_frame, ns_per_pixel, decode_ms_per_server_frame",
+    )
+    add_backend(be, "ours, ours_extrapolate and forward_splat only")
+    be.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def bench(args: argparse.Namespace) -> int:
+    import json
+
+    from splitrender.evaluation.bench import BenchArgumentError, format_rows, run_bench
+
+    try:
+        rows = run_bench(
+            args.scene, tuple(args.methods), args.scale, args.frames, progress=not args.quiet,
+            backend=args.backend,
+        )
+    except BenchArgumentError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    print(format_rows(rows))
+    if args.json is not None:
+        args.json.write_text(
+            json.dumps([r.to_json() for r in rows], indent=1) + "\n", encoding="utf-8"
+        )
+        print(f"wrote {args.json}")
+    return 0
+
+
