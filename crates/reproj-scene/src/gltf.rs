@@ -29,167 +29,23 @@
 //! panic inside the decoder is turned into an error naming the file.
 
 use std::f64::consts::PI;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use glam::{DMat3, DMat4, DQuat, DVec3};
 
 use crate::anim::Anim;
 use crate::error::{Result, SceneError};
+use crate::gltf_model::{
+    Animation, Channel, Clock, GltfMaterial, Kind, Local, Node, Prim, Property, Skin, Trs,
+};
+pub use crate::gltf_model::{GltfModel, GltfShape, NodeTrack, Texture};
 use crate::material::{Material, Pattern};
-use crate::math::{add, cross, dot, normalize, scale, sub, Rigid, V3};
+use crate::math::{add, scale, Rigid};
+use crate::mesh::Mesh;
 use crate::rig::CameraPath;
 use crate::scene::{Light, Object, Scene, Variant};
-use crate::shape::{Bounds, Mesh, Shape, Vertex};
-
-/// A decoded texture: linear `[0,1]` RGB, row 0 at `v = 0` (glTF's image convention).
-#[derive(Debug, Clone)]
-pub struct Texture {
-    width: usize,
-    height: usize,
-    rgb: Vec<[f32; 3]>,
-}
-
-impl Texture {
-    /// Bilinear sample at `uv` with repeat wrapping (glTF's default sampler).
-    pub fn sample(&self, uv: [f64; 2]) -> V3 {
-        let (w, h) = (self.width as f64, self.height as f64);
-        let x = uv[0] * w - 0.5;
-        let y = uv[1] * h - 0.5;
-        if !(x.is_finite() && y.is_finite()) {
-            return [0.0; 3];
-        }
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let at = |i: f64, j: f64| {
-            let i = (i as i64).rem_euclid(self.width as i64) as usize;
-            let j = (j as i64).rem_euclid(self.height as i64) as usize;
-            self.rgb[j * self.width + i].map(f64::from)
-        };
-        let (a, b, c, d) = (
-            at(x0, y0),
-            at(x0 + 1.0, y0),
-            at(x0, y0 + 1.0),
-            at(x0 + 1.0, y0 + 1.0),
-        );
-        std::array::from_fn(|k| {
-            let top = a[k] + (b[k] - a[k]) * fx;
-            let bot = c[k] + (d[k] - c[k]) * fx;
-            top + (bot - top) * fy
-        })
-    }
-}
-
-/// A glTF material reduced to what the renderer shades: base colour factor and texture.
-#[derive(Debug, Clone)]
-struct GltfMaterial {
-    factor: V3,
-    texture: Option<Arc<Texture>>,
-}
-
-/// A node's rest transform.
-#[derive(Debug, Clone, Copy)]
-struct Trs {
-    t: DVec3,
-    r: DQuat,
-    s: DVec3,
-}
-
-#[derive(Debug, Clone)]
-enum Local {
-    Matrix(DMat4),
-    Trs(Trs),
-}
-
-#[derive(Debug, Clone)]
-struct Node {
-    local: Local,
-    parent: Option<usize>,
-    mesh: Option<usize>,
-    skin: Option<usize>,
-}
-
-/// One triangle primitive, validated.
-#[derive(Debug, Clone)]
-struct Prim {
-    positions: Vec<DVec3>,
-    normals: Option<Vec<DVec3>>,
-    uvs: Option<Vec<[f64; 2]>>,
-    joints: Option<Vec<[u16; 4]>>,
-    weights: Option<Vec<[f64; 4]>>,
-    triangles: Vec<[u32; 3]>,
-    material: Option<usize>,
-}
-
-#[derive(Debug, Clone)]
-struct Skin {
-    joints: Vec<usize>,
-    inverse_bind: Vec<DMat4>,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Property {
-    Translation,
-    Rotation,
-    Scale,
-}
-
-#[derive(Debug, Clone)]
-struct Channel {
-    node: usize,
-    property: Property,
-    step: bool,
-    times: Vec<f64>,
-    values: Vec<[f64; 4]>,
-}
-
-impl Channel {
-    /// The channel's value at model time `tau` (clamped at the ends; slerp for rotations).
-    fn value(&self, tau: f64) -> [f64; 4] {
-        let n = self.times.len();
-        let i = self.times.partition_point(|&k| k <= tau);
-        if i == 0 {
-            return self.values[0];
-        }
-        if i >= n || self.step {
-            return self.values[i - 1];
-        }
-        let (t0, t1) = (self.times[i - 1], self.times[i]);
-        let s = if t1 > t0 { (tau - t0) / (t1 - t0) } else { 0.0 };
-        let (a, b) = (self.values[i - 1], self.values[i]);
-        match self.property {
-            Property::Rotation => {
-                let qa = DQuat::from_array(a).normalize();
-                let qb = DQuat::from_array(b).normalize();
-                qa.slerp(qb, s).to_array()
-            }
-            _ => std::array::from_fn(|k| a[k] + (b[k] - a[k]) * s),
-        }
-    }
-}
-
-/// One animation: its channels and time range.
-#[derive(Debug, Clone)]
-struct Animation {
-    name: String,
-    channels: Vec<Channel>,
-    start: f64,
-    end: f64,
-}
-
-/// A loaded glTF model (the default scene, or the first one).
-#[derive(Debug)]
-pub struct GltfModel {
-    /// The file it came from.
-    pub path: PathBuf,
-    nodes: Vec<Node>,
-    /// Nodes of the scene, parents before children.
-    order: Vec<usize>,
-    meshes: Vec<Vec<Prim>>,
-    materials: Vec<GltfMaterial>,
-    skins: Vec<Skin>,
-    animations: Vec<Animation>,
-}
+use crate::shape::Shape;
 
 fn err(path: &Path, problem: impl Into<String>) -> SceneError {
     SceneError::Gltf {
@@ -218,91 +74,6 @@ impl GltfModel {
         // of the caller.
         std::panic::catch_unwind(|| load_inner(path))
             .unwrap_or_else(|_| Err(err(path, "the glTF decoder panicked on malformed data")))
-    }
-
-    /// Names of the animations, in file order.
-    pub fn animation_names(&self) -> Vec<String> {
-        self.animations.iter().map(|a| a.name.clone()).collect()
-    }
-
-    /// `(start, end)` of animation `a` in model time (seconds).
-    pub fn animation_range(&self, a: usize) -> Option<(f64, f64)> {
-        self.animations.get(a).map(|a| (a.start, a.end))
-    }
-
-    /// Number of triangles over all mesh nodes of the scene.
-    pub fn triangle_count(&self) -> usize {
-        self.order
-            .iter()
-            .filter_map(|&n| self.nodes[n].mesh)
-            .map(|m| {
-                self.meshes[m]
-                    .iter()
-                    .map(|p| p.triangles.len())
-                    .sum::<usize>()
-            })
-            .sum()
-    }
-
-    /// World matrix of every node at model time `tau` under animation `anim`.
-    fn world(&self, anim: Option<usize>, tau: f64) -> Vec<DMat4> {
-        let mut trs: Vec<Local> = self.nodes.iter().map(|n| n.local.clone()).collect();
-        if let Some(a) = anim.and_then(|a| self.animations.get(a)) {
-            for ch in &a.channels {
-                let v = ch.value(tau);
-                if let Local::Trs(x) = &mut trs[ch.node] {
-                    match ch.property {
-                        Property::Translation => x.t = DVec3::new(v[0], v[1], v[2]),
-                        Property::Scale => x.s = DVec3::new(v[0], v[1], v[2]),
-                        Property::Rotation => x.r = DQuat::from_array(v).normalize(),
-                    }
-                }
-            }
-        }
-        let mut world = vec![DMat4::IDENTITY; self.nodes.len()];
-        for &n in &self.order {
-            let local = match &trs[n] {
-                Local::Matrix(m) => *m,
-                Local::Trs(x) => DMat4::from_scale_rotation_translation(x.s, x.r, x.t),
-            };
-            world[n] = match self.nodes[n].parent {
-                Some(p) => world[p] * local,
-                None => local,
-            };
-        }
-        world
-    }
-
-    /// Whether animation `anim` moves node `n` (through itself or an ancestor).
-    fn animated(&self, anim: Option<usize>, n: usize) -> bool {
-        let Some(a) = anim.and_then(|a| self.animations.get(a)) else {
-            return false;
-        };
-        let mut cur = Some(n);
-        while let Some(c) = cur {
-            if a.channels.iter().any(|ch| ch.node == c) {
-                return true;
-            }
-            cur = self.nodes[c].parent;
-        }
-        false
-    }
-
-    /// Bounds of the scene at rest (model space, no animation).
-    pub fn bounds(&self) -> Bounds {
-        let world = self.world(None, 0.0);
-        let mut pts = Vec::new();
-        for &n in &self.order {
-            if let Some(m) = self.nodes[n].mesh {
-                for p in &self.meshes[m] {
-                    pts.extend(p.positions.iter().map(|&v| {
-                        let w = world[n].transform_point3(v);
-                        [w.x, w.y, w.z]
-                    }));
-                }
-            }
-        }
-        Bounds::around(pts)
     }
 }
 
@@ -740,214 +511,6 @@ fn read_primitive(
     })
 }
 
-/// Maps scene time to model time: `τ = offset + speed·t`, looped over the animation's range.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Clock {
-    offset: f64,
-    speed: f64,
-    start: f64,
-    end: f64,
-}
-
-impl Clock {
-    fn tau(&self, t: f64) -> f64 {
-        let tau = self.offset + self.speed * t;
-        let len = self.end - self.start;
-        if len > 0.0 {
-            self.start + (tau - self.start).rem_euclid(len)
-        } else {
-            self.start
-        }
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Kind {
-    Static,
-    Rigid,
-    Deforming,
-}
-
-/// The geometry of one glTF mesh node placed in a scene (see the module docs for the kinds).
-pub struct GltfShape {
-    model: Arc<GltfModel>,
-    node: usize,
-    animation: Option<usize>,
-    clock: Clock,
-    scale: f64,
-    kind: Kind,
-    /// Rigid kind: the linear part of the node's world matrix at the reference time, baked into
-    /// the geometry.
-    reference: DMat3,
-    /// The geometry at the reference time (scene time 0), in object space.
-    rest: Arc<Mesh>,
-    /// Material index per triangle (`usize::MAX`: the glTF default material).
-    tri_material: Vec<usize>,
-}
-
-impl std::fmt::Debug for GltfShape {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("GltfShape")
-            .field("path", &self.model.path)
-            .field("node", &self.node)
-            .field("kind", &self.kind)
-            .field("rest", &self.rest)
-            .finish()
-    }
-}
-
-impl GltfShape {
-    /// The mesh at scene time 0 (what a static snapshot uses).
-    pub fn rest(&self) -> &Arc<Mesh> {
-        &self.rest
-    }
-
-    /// Whether the mesh itself changes with time (skinned or non-rigidly animated).
-    pub fn deforms(&self) -> bool {
-        self.kind == Kind::Deforming
-    }
-
-    /// Whether this is a skinned mesh.
-    pub fn skinned(&self) -> bool {
-        self.model.nodes[self.node].skin.is_some()
-    }
-
-    /// Albedo of triangle `tri` at `uv`: base colour factor times the base-colour texture.
-    pub fn albedo(&self, tri: u32, uv: [f64; 2]) -> V3 {
-        let m = self
-            .tri_material
-            .get(tri as usize)
-            .and_then(|&m| self.model.materials.get(m));
-        match m {
-            Some(m) => match &m.texture {
-                Some(tex) => {
-                    let c = tex.sample(uv);
-                    std::array::from_fn(|k| (c[k] * m.factor[k]).clamp(0.0, 1.0))
-                }
-                None => m.factor.map(|c| c.clamp(0.0, 1.0)),
-            },
-            None => [0.8; 3],
-        }
-    }
-
-    /// The object-space vertices at scene (animation) time `t`.
-    fn vertices(&self, t: f64) -> Vec<Vertex> {
-        let tau = self.clock.tau(t);
-        let world = self.model.world(self.animation, tau);
-        let node = &self.model.nodes[self.node];
-        let prims = &self.model.meshes[node.mesh.expect("mesh node")];
-        let s = self.scale;
-        let mut out = Vec::with_capacity(prims.iter().map(|p| p.positions.len()).sum());
-        let joints: Option<Vec<DMat4>> = node.skin.map(|k| {
-            let skin = &self.model.skins[k];
-            skin.joints
-                .iter()
-                .zip(&skin.inverse_bind)
-                .map(|(&j, ib)| world[j] * *ib)
-                .collect()
-        });
-        for p in prims {
-            for (v, &pos) in p.positions.iter().enumerate() {
-                // The matrix taking this vertex to object space (before the placement scale).
-                let m = match (&joints, &p.joints, &p.weights) {
-                    (Some(js), Some(jv), Some(wv)) => {
-                        let (j, w) = (jv[v], wv[v]);
-                        let sum: f64 = w.iter().sum();
-                        let norm = if sum > 0.0 { 1.0 / sum } else { 0.0 };
-                        let mut acc = DMat4::ZERO;
-                        for k in 0..4 {
-                            if w[k] != 0.0 {
-                                acc += js[j[k] as usize] * (w[k] * norm);
-                            }
-                        }
-                        if sum > 0.0 {
-                            acc
-                        } else {
-                            world[self.node]
-                        }
-                    }
-                    _ => match self.kind {
-                        Kind::Rigid => DMat4::from_mat3(self.reference),
-                        _ => world[self.node],
-                    },
-                };
-                let q = m.transform_point3(pos) * s;
-                let n = p
-                    .normals
-                    .as_ref()
-                    .map(|ns| {
-                        let lin = DMat3::from_mat4(m);
-                        let it = if lin.determinant().abs() > 1e-300 {
-                            lin.inverse().transpose()
-                        } else {
-                            lin
-                        };
-                        it * ns[v]
-                    })
-                    .unwrap_or(DVec3::ZERO);
-                out.push(Vertex {
-                    position: [q.x, q.y, q.z],
-                    normal: [n.x, n.y, n.z],
-                    uv: p.uvs.as_ref().map_or([0.0; 2], |u| u[v]),
-                });
-            }
-        }
-        out
-    }
-
-    fn triangles(&self) -> Vec<[u32; 3]> {
-        let node = &self.model.nodes[self.node];
-        let mut out = Vec::new();
-        let mut base = 0u32;
-        for p in &self.model.meshes[node.mesh.expect("mesh node")] {
-            out.extend(p.triangles.iter().map(|t| t.map(|i| i + base)));
-            base += p.positions.len() as u32;
-        }
-        out
-    }
-
-    /// The mesh posed at scene time `t` with its BVH built (deforming kind only).
-    pub(crate) fn posed(&self, t: f64) -> Mesh {
-        Mesh::new(self.vertices(t), self.triangles())
-    }
-}
-
-/// The rigid motion of a rigid-kind glTF node: its world matrix at model time `τ(t)` relative to
-/// the reference, with the placement scale applied to the translation.
-#[derive(Debug)]
-pub struct NodeTrack {
-    model: Arc<GltfModel>,
-    node: usize,
-    animation: Option<usize>,
-    clock: Clock,
-    scale: f64,
-    inv_reference: DMat3,
-}
-
-impl PartialEq for NodeTrack {
-    fn eq(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.model, &other.model)
-            && self.node == other.node
-            && self.animation == other.animation
-            && self.clock == other.clock
-            && self.scale == other.scale
-    }
-}
-
-impl NodeTrack {
-    /// The transform at scene time `t`.
-    pub fn at(&self, t: f64) -> Rigid {
-        let w = self.model.world(self.animation, self.clock.tau(t))[self.node];
-        let r = DMat3::from_mat4(w) * self.inv_reference;
-        let tr = w.w_axis.truncate() * self.scale;
-        Rigid {
-            // DMat3 is column-major; Rigid is row-major.
-            rot: std::array::from_fn(|i| std::array::from_fn(|j| r.col(j)[i])),
-            trans: [tr.x, tr.y, tr.z],
-        }
-    }
-}
-
 /// Where and how a glTF model is put into a scene.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Placement {
@@ -1139,51 +702,6 @@ fn rigid_over_keys(
         e.to_cols_array().iter().all(|x| x.abs() < 1e-9) && r.determinant() > 0.0
     })
 }
-
-/// Where the material point at `local` (object space, on triangle `tri` of `from`) is on `to`:
-/// the same triangle and barycentrics, with the interpolated normal oriented like `n_from`.
-pub(crate) fn carry_on_mesh(from: &Mesh, to: &Mesh, tri: u32, local: V3, n_from: V3) -> (V3, V3) {
-    let Some(t) = from.triangles.get(tri as usize) else {
-        return (local, n_from);
-    };
-    let [a, b, c] = t.map(|i| from.vertices[i as usize].position);
-    let (u, v) = barycentric(a, b, c, local);
-    let w = 1.0 - u - v;
-    let at = |m: &Mesh| {
-        let [a, b, c] = t.map(|i| m.vertices[i as usize]);
-        let p = add(
-            add(scale(a.position, w), scale(b.position, u)),
-            scale(c.position, v),
-        );
-        let mut n = add(
-            add(scale(a.normal, w), scale(b.normal, u)),
-            scale(c.normal, v),
-        );
-        if dot(n, n) < 1e-30 {
-            n = cross(sub(b.position, a.position), sub(c.position, a.position));
-        }
-        (p, normalize(n))
-    };
-    let (_, nk) = at(from);
-    let (p, n) = at(to);
-    let flip = if dot(nk, n_from) < 0.0 { -1.0 } else { 1.0 };
-    // The offset of the point from the plane of the triangle (rounding only) is carried along.
-    let (pk, _) = at(from);
-    (add(p, sub(local, pk)), scale(n, flip))
-}
-
-/// Barycentrics `(u, v)` of `p` (on the triangle's plane) for `b` and `c`.
-fn barycentric(a: V3, b: V3, c: V3, p: V3) -> (f64, f64) {
-    let (e1, e2, d) = (sub(b, a), sub(c, a), sub(p, a));
-    let (d11, d12, d22) = (dot(e1, e1), dot(e1, e2), dot(e2, e2));
-    let (p1, p2) = (dot(d, e1), dot(d, e2));
-    let den = d11 * d22 - d12 * d12;
-    if den.abs() < 1e-300 {
-        return (0.0, 0.0);
-    }
-    ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
-}
-
 /// A scene holding only the model at `path` (its first animation playing from its start, scaled
 /// to about 1.7 m tall when it is far from human size) on a light ground, under the
 /// courtyard's kind of light, with a camera path circling slowly around the model's bounds.
@@ -1280,9 +798,11 @@ pub fn load_gltf_scene(path: impl AsRef<Path>) -> Result<Scene> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::{sub, V3};
     use crate::render::{render_ground_truth, render_server, sample, Rays};
     use crate::rig::{mono, HeadPose};
     use reproj_core::Camera;
+    use std::path::PathBuf;
 
     const DT: f64 = 0.1;
 

@@ -366,7 +366,7 @@ fn carry(
     let local = key.inv[obj].point(x);
     if let (Shape::Mesh(from), Shape::Mesh(dest)) = (key.shape(obj), to.shape(obj)) {
         if key.scene.objects[obj].shape.deforms() {
-            let (p, nl) = crate::gltf::carry_on_mesh(from, dest, face, local, n_obj);
+            let (p, nl) = crate::mesh::carry_on_mesh(from, dest, face, local, n_obj);
             return (to.world[obj].point(p), normalize(to.world[obj].vector(nl)));
         }
     }

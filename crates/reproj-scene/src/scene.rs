@@ -15,8 +15,9 @@ use crate::anim::Anim;
 use crate::error::{Result, SceneError};
 use crate::material::Material;
 use crate::math::{add, cross, dot, length, lerp, mul, normalize, scale, sub, Rigid, V3};
+use crate::mesh::{Bounds, LocalHit};
 use crate::rig::CameraPath;
-use crate::shape::{Bounds, LocalHit, Shape};
+use crate::shape::Shape;
 
 /// Shadow rays per shading point over the light's disc. 32 keeps the penumbra smooth (33
 /// levels) while a fixed spiral keeps it deterministic.
