@@ -27,6 +27,11 @@
 //! The file is untrusted: every accessor is checked against its buffer by the `gltf` crate's
 //! reader, vertex indices, joint indices and attribute lengths are validated before use, and a
 //! panic inside the decoder is turned into an error naming the file.
+//!
+//! This file holds the error helpers and the public names; `load.rs` walks the document into a
+//! [`GltfModel`] (defined, with [`GltfShape`] and [`NodeTrack`], in the crate's `gltf_model`
+//! module, below the shapes and animations that use them), `read.rs` decodes one image and one
+//! primitive's accessors, `place.rs` puts a model into a scene, `tests.rs` holds the unit tests.
 
 mod load;
 mod place;
