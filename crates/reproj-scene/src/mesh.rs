@@ -170,12 +170,7 @@ impl Mesh {
         if self.triangles.is_empty() {
             return None;
         }
-        let ray = Ray::new(
-            Vec3A::new(o[0] as f32, o[1] as f32, o[2] as f32),
-            Vec3A::new(d[0] as f32, d[1] as f32, d[2] as f32),
-            0.0,
-            f32_above(tmax),
-        );
+        let ray = f32_ray(o, d, f32_above(tmax));
         let mut best: Option<(f64, u32, f64, f64)> = None;
         let mut limit = tmax;
         let mut hit = RayHit::none();
@@ -193,16 +188,9 @@ impl Mesh {
         let (t, tri, u, v) = best?;
         let [a, b, c] = self.triangles[tri as usize].map(|i| &self.vertices[i as usize]);
         let w = 1.0 - u - v;
-        let mut n = add(
-            add(scale(a.normal, w), scale(b.normal, u)),
-            scale(c.normal, v),
-        );
-        if dot(n, n) < 1e-30 {
-            n = cross(sub(b.position, a.position), sub(c.position, a.position));
-        }
         Some(LocalHit {
             t,
-            normal: normalize(n),
+            normal: smooth_normal([a, b, c], w, u, v),
             uv: [
                 a.uv[0] * w + b.uv[0] * u + c.uv[0] * v,
                 a.uv[1] * w + b.uv[1] * u + c.uv[1] * v,
@@ -216,12 +204,7 @@ impl Mesh {
         if self.triangles.is_empty() {
             return false;
         }
-        let ray = Ray::new(
-            Vec3A::new(o[0] as f32, o[1] as f32, o[2] as f32),
-            Vec3A::new(d[0] as f32, d[1] as f32, d[2] as f32),
-            0.0,
-            f32::INFINITY,
-        );
+        let ray = f32_ray(o, d, f32::INFINITY);
         !self.bvh.ray_traverse_miss(ray, |_, id| {
             let tri = self.bvh.primitive_indices[id];
             if self.triangle_hit(tri, o, d, 0.0, f64::INFINITY).is_some() {
@@ -266,6 +249,30 @@ impl Mesh {
     }
 }
 
+/// The `f32` ray `o + t·d`, `t ∈ [0, tmax]`, of a BVH traversal (the BVH only culls; every hit
+/// is computed in `f64`).
+pub(crate) fn f32_ray(o: V3, d: V3, tmax: f32) -> Ray {
+    Ray::new(
+        Vec3A::new(o[0] as f32, o[1] as f32, o[2] as f32),
+        Vec3A::new(d[0] as f32, d[1] as f32, d[2] as f32),
+        0.0,
+        tmax,
+    )
+}
+
+/// The unit normal at barycentric weights `(w, u, v)` of the triangle `a, b, c`: the vertex
+/// normals interpolated, or the face normal where they cancel.
+fn smooth_normal([a, b, c]: [&Vertex; 3], w: f64, u: f64, v: f64) -> V3 {
+    let mut n = add(
+        add(scale(a.normal, w), scale(b.normal, u)),
+        scale(c.normal, v),
+    );
+    if dot(n, n) < 1e-30 {
+        n = cross(sub(b.position, a.position), sub(c.position, a.position));
+    }
+    normalize(n)
+}
+
 /// The smallest `f32` strictly above `t` (for `f32` culling bounds that never cut below an `f64`
 /// distance); infinity stays infinity.
 fn f32_above(t: f64) -> f32 {
@@ -299,14 +306,7 @@ pub(crate) fn carry_on_mesh(from: &Mesh, to: &Mesh, tri: u32, local: V3, n_from:
             add(scale(a.position, w), scale(b.position, u)),
             scale(c.position, v),
         );
-        let mut n = add(
-            add(scale(a.normal, w), scale(b.normal, u)),
-            scale(c.normal, v),
-        );
-        if dot(n, n) < 1e-30 {
-            n = cross(sub(b.position, a.position), sub(c.position, a.position));
-        }
-        (p, normalize(n))
+        (p, smooth_normal([&a, &b, &c], w, u, v))
     };
     let (_, nk) = at(from);
     let (p, n) = at(to);
