@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use crate::gltf::NodeTrack;
+use crate::gltf_model::NodeTrack;
 use crate::math::{cross, normalize, scale, Rigid, V3};
 
 /// One elementary rigid motion as a function of time (seconds). Each one is the identity at

@@ -62,8 +62,10 @@
 pub mod anim;
 pub mod error;
 pub mod gltf;
+mod gltf_model;
 pub mod material;
 pub mod math;
+mod mesh;
 pub mod meshes;
 pub mod render;
 pub mod rig;

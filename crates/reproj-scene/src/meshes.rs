@@ -4,7 +4,8 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 
 use crate::math::{add, cross, dot, normalize, scale, sub, V3};
-use crate::shape::{Mesh, Shape, Vertex};
+use crate::mesh::{Mesh, Vertex};
+use crate::shape::Shape;
 
 /// A closed-or-open parametric surface: `f(u, v) → position` on an `nu × nv` grid of quads over
 /// `[0,1]²`, normals by central differences (so they are smooth across the wrap), UV scaled by
@@ -144,4 +145,35 @@ pub fn gear(radius: f64, thickness: f64, teeth: usize, n_around: usize) -> Shape
         },
         false,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::meshes;
+
+    #[test]
+    fn mesh_bvh_matches_brute_force() {
+        let m = meshes::torus(0.6, 0.2, 24, 12);
+        let Shape::Mesh(mesh) = &m else {
+            unreachable!()
+        };
+        let mut hits = 0;
+        for k in 0..400 {
+            let a = k as f64 * 0.37;
+            let o = [2.0 * a.cos(), 0.3 * (1.3 * a).sin(), 2.0 * a.sin()];
+            let target = [0.5 * (0.7 * a).sin(), 0.1 * (2.1 * a).cos(), 0.4 * a.cos()];
+            let d = sub(target, o);
+            let fast = mesh.intersect(o, d, 0.0, f64::INFINITY).map(|h| h.t);
+            let brute = (0..mesh.triangles.len() as u32)
+                .filter_map(|tri| mesh.triangle_hit(tri, o, d, 0.0, f64::INFINITY))
+                .map(|h| h.0)
+                .fold(None, |acc: Option<f64>, t| {
+                    Some(acc.map_or(t, |a| a.min(t)))
+                });
+            assert_eq!(fast, brute, "ray {k}");
+            hits += usize::from(fast.is_some());
+        }
+        assert!(hits > 100, "{hits}");
+    }
 }

@@ -4,19 +4,19 @@
 use std::f64::consts::PI;
 use std::time::Duration;
 
-use glam::Vec3A;
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::builder::build_bvh2;
 use obvhs::bvh2::Bvh2;
-use obvhs::ray::{Ray, RayHit};
+use obvhs::ray::RayHit;
 use obvhs::{Boundable, BvhBuildParams};
 
 use crate::anim::Anim;
 use crate::error::{Result, SceneError};
 use crate::material::Material;
 use crate::math::{add, cross, dot, length, lerp, mul, normalize, scale, sub, Rigid, V3};
+use crate::mesh::{f32_ray, Bounds, LocalHit};
 use crate::rig::CameraPath;
-use crate::shape::{Bounds, LocalHit, Shape};
+use crate::shape::Shape;
 
 /// Shadow rays per shading point over the light's disc. 32 keeps the penumbra smooth (33
 /// levels) while a fixed spiral keeps it deterministic.
@@ -405,12 +405,7 @@ impl<'a> Snapshot<'a> {
     /// The nearest surface along `o + t·d` with `t ∈ (tmin, tmax)`.
     pub fn trace(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
-        let ray = Ray::new(
-            Vec3A::new(o[0] as f32, o[1] as f32, o[2] as f32),
-            Vec3A::new(d[0] as f32, d[1] as f32, d[2] as f32),
-            0.0,
-            f32::INFINITY,
-        );
+        let ray = f32_ray(o, d, f32::INFINITY);
         let mut best: Option<Hit> = None;
         let mut limit = tmax;
         let mut rh = RayHit::none();

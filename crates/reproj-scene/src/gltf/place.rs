@@ -1,0 +1,305 @@
+//! Putting a loaded model into a scene: [`Placement`], [`place_gltf`] and [`place_model`] (which
+//! choose each mesh node's kind, see [`crate::gltf`]), and a scene of the model's own,
+//! [`load_gltf_scene`].
+
+use std::f64::consts::PI;
+use std::path::Path;
+use std::sync::Arc;
+
+use glam::DMat3;
+
+use super::err;
+use crate::anim::Anim;
+use crate::error::Result;
+use crate::gltf_model::{Clock, GltfModel, GltfShape, Kind, NodeTrack};
+use crate::material::{Material, Pattern};
+use crate::math::{add, scale, Rigid};
+use crate::mesh::Mesh;
+use crate::rig::CameraPath;
+use crate::scene::{Light, Object, Scene, Variant};
+use crate::shape::Shape;
+
+/// Where and how a glTF model is put into a scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Placement {
+    /// Rigid placement of the model's space in the world.
+    pub place: Rigid,
+    /// Uniform scale applied to the model first (glTF is in metres, but many models are not).
+    pub scale: f64,
+    /// Which animation plays (`None`: the rest pose).
+    pub animation: Option<usize>,
+    /// Model time at scene time 0 (seconds).
+    pub time_offset: f64,
+    /// Model seconds per scene second.
+    pub speed: f64,
+}
+
+impl Default for Placement {
+    fn default() -> Self {
+        Placement {
+            place: Rigid::IDENTITY,
+            scale: 1.0,
+            animation: Some(0),
+            time_offset: 0.0,
+            speed: 1.0,
+        }
+    }
+}
+
+/// Loads `path` and adds its mesh nodes to `scene` as objects (see the module docs); returns
+/// their indices. Extra motions can be appended to the returned objects' `anims` (e.g. an
+/// [`Anim::Circle`] to make a walking model go round) before [`Scene::refresh`].
+///
+/// # Errors
+/// As [`GltfModel::load`]; [`SceneError::Gltf`] for an animation index out of range or a
+/// non-positive scale.
+pub fn place_gltf(
+    scene: &mut Scene,
+    path: impl AsRef<Path>,
+    placement: Placement,
+) -> Result<Vec<usize>> {
+    let model = Arc::new(GltfModel::load(path.as_ref())?);
+    place_model(scene, &model, placement)
+}
+
+/// [`place_gltf`] for an already loaded model (several instances share its data).
+///
+/// # Errors
+/// As [`place_gltf`].
+pub fn place_model(
+    scene: &mut Scene,
+    model: &Arc<GltfModel>,
+    placement: Placement,
+) -> Result<Vec<usize>> {
+    let path = &model.path;
+    if !(placement.scale > 0.0 && placement.scale.is_finite()) {
+        return Err(err(
+            path,
+            format!("placement scale {} must be positive", placement.scale),
+        ));
+    }
+    let animation = match placement.animation {
+        Some(a) if a >= model.animations.len() => {
+            if model.animations.is_empty() {
+                None
+            } else {
+                return Err(err(
+                    path,
+                    format!(
+                        "animation {a} out of range ({} animations)",
+                        model.animations.len()
+                    ),
+                ));
+            }
+        }
+        a => a,
+    };
+    let (start, end) = animation.map_or((0.0, 0.0), |a| {
+        (model.animations[a].start, model.animations[a].end)
+    });
+    let clock = Clock {
+        offset: placement.time_offset + start,
+        speed: placement.speed,
+        start,
+        end,
+    };
+    let mut added = Vec::new();
+    let stem = path
+        .file_stem()
+        .map_or("gltf".into(), |s| s.to_string_lossy().to_string());
+    for &n in &model.order {
+        let node = &model.nodes[n];
+        let Some(m) = node.mesh else { continue };
+        if model.meshes[m].iter().all(|p| p.triangles.is_empty()) {
+            continue;
+        }
+        let animated = model.animated(animation, n);
+        let tau0 = clock.tau(0.0);
+        let reference = DMat3::from_mat4(model.world(animation, tau0)[n]);
+        let kind = if let Some(skin) = node.skin {
+            // Skinned: deforms when any joint moves; a rest skin is still posed once.
+            let moving = model.skins[skin]
+                .joints
+                .iter()
+                .any(|&j| model.animated(animation, j));
+            if moving {
+                Kind::Deforming
+            } else {
+                Kind::Static
+            }
+        } else if !animated {
+            Kind::Static
+        } else if rigid_over_keys(model, animation, n, reference) {
+            Kind::Rigid
+        } else {
+            Kind::Deforming
+        };
+        let mut shape = GltfShape {
+            model: model.clone(),
+            node: n,
+            animation,
+            clock,
+            scale: placement.scale,
+            kind,
+            reference,
+            rest: Arc::new(Mesh::new(Vec::new(), Vec::new())),
+            tri_material: Vec::new(),
+        };
+        shape.tri_material = model.meshes[m]
+            .iter()
+            .flat_map(|p| std::iter::repeat_n(p.material.unwrap_or(usize::MAX), p.triangles.len()))
+            .collect();
+        shape.rest = Arc::new(shape.posed(0.0));
+        let mut anims = Vec::new();
+        if kind == Kind::Rigid {
+            let inv = reference.inverse();
+            anims.push(Anim::Keyframes(Arc::new(NodeTrack {
+                model: model.clone(),
+                node: n,
+                animation,
+                clock,
+                scale: placement.scale,
+                inv_reference: inv,
+            })));
+        }
+        let name = format!("{stem}/node{n}");
+        let mut o = Object::new(
+            &name,
+            Shape::Gltf(Arc::new(shape)),
+            Material::matte(Pattern::Checker, [0.8; 3], [0.8; 3], 1.0, 0),
+            placement.place,
+        )
+        .animated(anims);
+        // Rigid and static kinds bake the translation of the node at the reference time into the
+        // track or the geometry respectively; nothing else to do here.
+        o.casts_shadow = true;
+        added.push(scene.objects.len());
+        scene.objects.push(o);
+    }
+    scene.refresh()?;
+    Ok(added)
+}
+
+/// Whether node `n`'s world linear part stays `R(τ)·reference` with `R` a rotation at every key
+/// time of the animation and halfway between.
+fn rigid_over_keys(
+    model: &GltfModel,
+    animation: Option<usize>,
+    n: usize,
+    reference: DMat3,
+) -> bool {
+    if reference.determinant().abs() < 1e-12 {
+        return false;
+    }
+    let inv = reference.inverse();
+    let Some(a) = animation.and_then(|a| model.animations.get(a)) else {
+        return true;
+    };
+    let mut times: Vec<f64> = a
+        .channels
+        .iter()
+        .flat_map(|c| c.times.iter().copied())
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times.dedup();
+    let mids: Vec<f64> = times.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+    times.extend(mids);
+    times.iter().all(|&tau| {
+        let r = DMat3::from_mat4(model.world(animation, tau)[n]) * inv;
+        let e = r.transpose() * r - DMat3::IDENTITY;
+        e.to_cols_array().iter().all(|x| x.abs() < 1e-9) && r.determinant() > 0.0
+    })
+}
+
+/// A scene holding only the model at `path` (its first animation playing from its start, scaled
+/// to about 1.7 m tall when it is far from human size) on a light ground, under the
+/// courtyard's kind of light, with a camera path circling slowly around the model's bounds.
+///
+/// # Errors
+/// As [`place_gltf`].
+pub fn load_gltf_scene(path: impl AsRef<Path>) -> Result<Scene> {
+    let path = path.as_ref();
+    let model = Arc::new(GltfModel::load(path)?);
+    let b = model.bounds();
+    let size = (0..3).map(|k| b.max[k] - b.min[k]).fold(0.0, f64::max);
+    if !(size > 0.0 && size.is_finite()) {
+        return Err(err(path, "the scene has no geometry"));
+    }
+    let s = if !(0.2..=20.0).contains(&size) {
+        1.7 / size
+    } else {
+        1.0
+    };
+    let centre = scale(add(b.min, b.max), 0.5 * s);
+    // Stand the model on the ground at y = 0, centred on the origin.
+    let place = Rigid::translation([-centre[0], -b.min[1] * s, -centre[2]]);
+    let duration = model
+        .animations
+        .first()
+        .map_or(4.0, |a| (a.end - a.start).clamp(1.0, 20.0));
+    let radius = 0.5 * size * s;
+    let light = Light {
+        elevation: 0.8,
+        azimuth: 0.6,
+        swing: 0.0,
+        swing_rate: 0.0,
+        elevation_swing: 0.0,
+        angular_radius: 0.02,
+        color: [1.0, 0.96, 0.9],
+        ambient_sky: [0.32, 0.36, 0.42],
+        ambient_ground: [0.2, 0.18, 0.16],
+    };
+    let look = [0.0, (b.max[1] - b.min[1]) * s * 0.5, 0.0];
+    let dist = 2.4 * radius.max(0.3);
+    let keys = (0..=8)
+        .map(|k| {
+            let a = 0.25 + 0.5 * PI * k as f64 / 8.0;
+            let time = duration * k as f64 / 8.0;
+            (
+                time,
+                [dist * a.sin(), look[1] + 0.4 * dist, dist * a.cos()],
+                look,
+            )
+        })
+        .collect();
+    let path_cam = CameraPath {
+        keys,
+        translation_amplitude: 0.02 * dist,
+        rotation_amplitude: 0.01,
+        seed: 3,
+    };
+    let ground = Object::new(
+        "ground",
+        Shape::Quad {
+            half: [20.0 * radius.max(0.3), 20.0 * radius.max(0.3)],
+        },
+        Material::matte(
+            Pattern::Tiles,
+            [0.7, 0.7, 0.68],
+            [0.45, 0.45, 0.43],
+            4.0,
+            11,
+        ),
+        Rigid::IDENTITY,
+    );
+    let mut scene = Scene::new(
+        &path.display().to_string(),
+        Variant::Dynamic,
+        vec![ground],
+        light,
+        [150, 185, 230],
+        duration,
+        (0.05 * dist.min(1.0), 100.0 * dist),
+        path_cam,
+    )?;
+    place_model(
+        &mut scene,
+        &model,
+        Placement {
+            place,
+            scale: s,
+            ..Placement::default()
+        },
+    )?;
+    Ok(scene)
+}

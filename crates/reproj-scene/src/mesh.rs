@@ -1,0 +1,342 @@
+//! Triangle meshes in object space with their own BVH, the `f64` boxes that bound every shape,
+//! and the carrying of a material point from one pose of a mesh to another (deforming glTF
+//! meshes).
+//!
+//! Every intersection is computed in `f64`. A mesh's BVH (obvhs, `f32`) only culls: its boxes are
+//! padded so that `f32` rounding can never cull a triangle the `f64` test would hit.
+
+use std::fmt;
+use std::time::Duration;
+
+use glam::Vec3A;
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::builder::build_bvh2;
+use obvhs::bvh2::Bvh2;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::{Boundable, BvhBuildParams};
+
+use crate::math::{add, cross, dot, length, normalize, scale, sub, V3};
+
+/// Where a ray meets a shape, in object space.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LocalHit {
+    /// Ray parameter (the ray direction is not normalised; rigid transforms keep it).
+    pub t: f64,
+    /// Unit outward normal in object space.
+    pub normal: V3,
+    /// Texture coordinates.
+    pub uv: [f64; 2],
+    /// Which face or triangle (tests use it to find silhouettes).
+    pub face: u32,
+}
+
+/// An axis-aligned box `[min, max]` in `f64`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bounds {
+    /// Minimum corner.
+    pub min: V3,
+    /// Maximum corner.
+    pub max: V3,
+}
+
+impl Bounds {
+    /// The box around `points`.
+    pub fn around(points: impl IntoIterator<Item = V3>) -> Bounds {
+        let mut b = Bounds {
+            min: [f64::INFINITY; 3],
+            max: [f64::NEG_INFINITY; 3],
+        };
+        for p in points {
+            for (k, &c) in p.iter().enumerate() {
+                b.min[k] = b.min[k].min(c);
+                b.max[k] = b.max[k].max(c);
+            }
+        }
+        b
+    }
+
+    /// The eight corners.
+    pub fn corners(&self) -> [V3; 8] {
+        std::array::from_fn(|i| {
+            [
+                if i & 1 == 0 { self.min[0] } else { self.max[0] },
+                if i & 2 == 0 { self.min[1] } else { self.max[1] },
+                if i & 4 == 0 { self.min[2] } else { self.max[2] },
+            ]
+        })
+    }
+
+    /// The `f32` box for the BVH, padded outward so `f32` rounding (of the box and of the
+    /// `f32` ray–box test) cannot cull what the `f64` intersection would hit.
+    pub(crate) fn padded_f32(&self) -> Aabb {
+        let ext = (0..3)
+            .map(|k| self.min[k].abs().max(self.max[k].abs()))
+            .fold(1.0, f64::max);
+        let pad = 1e-4 * ext;
+        Aabb::new(
+            Vec3A::new(
+                (self.min[0] - pad) as f32,
+                (self.min[1] - pad) as f32,
+                (self.min[2] - pad) as f32,
+            ),
+            Vec3A::new(
+                (self.max[0] + pad) as f32,
+                (self.max[1] + pad) as f32,
+                (self.max[2] + pad) as f32,
+            ),
+        )
+    }
+
+    /// Centre and radius of a sphere that contains the box.
+    pub(crate) fn sphere(&self) -> (V3, f64) {
+        let c = scale(add(self.min, self.max), 0.5);
+        (c, length(sub(self.max, c)))
+    }
+}
+
+/// A vertex of a triangle mesh.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Vertex {
+    /// Object-space position.
+    pub position: V3,
+    /// Object-space normal (need not be unit; interpolated and normalised when shading).
+    pub normal: V3,
+    /// Texture coordinates.
+    pub uv: [f64; 2],
+}
+
+struct Tri(Aabb);
+
+impl Boundable for Tri {
+    fn aabb(&self) -> Aabb {
+        self.0
+    }
+}
+
+/// A triangle mesh with per-vertex normals and UVs and its own BVH in object space. Built once;
+/// rigid animation moves the ray, never the mesh, so it is never rebuilt.
+pub struct Mesh {
+    /// Vertices.
+    pub vertices: Vec<Vertex>,
+    /// Counter-clockwise (seen from outside) index triples.
+    pub triangles: Vec<[u32; 3]>,
+    bounds: Bounds,
+    bvh: Bvh2,
+}
+
+impl fmt::Debug for Mesh {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Mesh")
+            .field("vertices", &self.vertices.len())
+            .field("triangles", &self.triangles.len())
+            .field("bvh_nodes", &self.bvh.nodes.len())
+            .finish()
+    }
+}
+
+impl Mesh {
+    /// Builds the mesh and its BVH. Indices out of range are dropped with their triangle.
+    pub fn new(vertices: Vec<Vertex>, triangles: Vec<[u32; 3]>) -> Mesh {
+        let n = vertices.len() as u32;
+        let triangles: Vec<[u32; 3]> = triangles
+            .into_iter()
+            .filter(|t| t.iter().all(|&i| i < n))
+            .collect();
+        let prims: Vec<Tri> = triangles
+            .iter()
+            .map(|t| Tri(Bounds::around(t.map(|i| vertices[i as usize].position)).padded_f32()))
+            .collect();
+        // medium_build: the meshes are built once per scene, so traversal speed matters more.
+        let bvh = build_bvh2(
+            &prims,
+            BvhBuildParams::medium_build(),
+            &mut Duration::default(),
+        );
+        let bounds = Bounds::around(vertices.iter().map(|v| v.position));
+        Mesh {
+            vertices,
+            triangles,
+            bounds,
+            bvh,
+        }
+    }
+
+    /// Object-space bounds.
+    pub fn bounds(&self) -> Bounds {
+        self.bounds
+    }
+
+    pub(crate) fn intersect(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
+        if self.triangles.is_empty() {
+            return None;
+        }
+        let ray = f32_ray(o, d, f32_above(tmax));
+        let mut best: Option<(f64, u32, f64, f64)> = None;
+        let mut limit = tmax;
+        let mut hit = RayHit::none();
+        self.bvh.ray_traverse(ray, &mut hit, |_, id| {
+            let tri = self.bvh.primitive_indices[id];
+            match self.triangle_hit(tri, o, d, tmin, limit) {
+                Some((t, u, v)) => {
+                    limit = t;
+                    best = Some((t, tri, u, v));
+                    f32_above(t)
+                }
+                None => f32::INFINITY,
+            }
+        });
+        let (t, tri, u, v) = best?;
+        let [a, b, c] = self.triangles[tri as usize].map(|i| &self.vertices[i as usize]);
+        let w = 1.0 - u - v;
+        Some(LocalHit {
+            t,
+            normal: smooth_normal([a, b, c], w, u, v),
+            uv: [
+                a.uv[0] * w + b.uv[0] * u + c.uv[0] * v,
+                a.uv[1] * w + b.uv[1] * u + c.uv[1] * v,
+            ],
+            face: tri,
+        })
+    }
+
+    /// Whether anything blocks `o + t·d` for `t > 0` (any hit, stops at the first).
+    pub(crate) fn occludes(&self, o: V3, d: V3) -> bool {
+        if self.triangles.is_empty() {
+            return false;
+        }
+        let ray = f32_ray(o, d, f32::INFINITY);
+        !self.bvh.ray_traverse_miss(ray, |_, id| {
+            let tri = self.bvh.primitive_indices[id];
+            if self.triangle_hit(tri, o, d, 0.0, f64::INFINITY).is_some() {
+                0.0
+            } else {
+                f32::INFINITY
+            }
+        })
+    }
+
+    /// Möller–Trumbore in `f64`: `(t, u, v)` for `t ∈ (tmin, tmax)`. Both sides count (the meshes
+    /// are closed, and open ones are meant to be seen from both sides).
+    pub(crate) fn triangle_hit(
+        &self,
+        tri: u32,
+        o: V3,
+        d: V3,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<(f64, f64, f64)> {
+        let [a, b, c] = self.triangles[tri as usize].map(|i| self.vertices[i as usize].position);
+        let e1 = sub(b, a);
+        let e2 = sub(c, a);
+        let p = cross(d, e2);
+        let det = dot(e1, p);
+        if det.abs() < 1e-300 {
+            return None;
+        }
+        let inv = 1.0 / det;
+        let s = sub(o, a);
+        let u = dot(s, p) * inv;
+        if !(0.0..=1.0).contains(&u) {
+            return None;
+        }
+        let q = cross(s, e1);
+        let v = dot(d, q) * inv;
+        if v < 0.0 || u + v > 1.0 {
+            return None;
+        }
+        let t = dot(e2, q) * inv;
+        (t > tmin && t < tmax).then_some((t, u, v))
+    }
+}
+
+/// The `f32` ray `o + t·d`, `t ∈ [0, tmax]`, of a BVH traversal (the BVH only culls; every hit
+/// is computed in `f64`).
+pub(crate) fn f32_ray(o: V3, d: V3, tmax: f32) -> Ray {
+    Ray::new(
+        Vec3A::new(o[0] as f32, o[1] as f32, o[2] as f32),
+        Vec3A::new(d[0] as f32, d[1] as f32, d[2] as f32),
+        0.0,
+        tmax,
+    )
+}
+
+/// The unit normal at barycentric weights `(w, u, v)` of the triangle `a, b, c`: the vertex
+/// normals interpolated, or the face normal where they cancel.
+fn smooth_normal([a, b, c]: [&Vertex; 3], w: f64, u: f64, v: f64) -> V3 {
+    let mut n = add(
+        add(scale(a.normal, w), scale(b.normal, u)),
+        scale(c.normal, v),
+    );
+    if dot(n, n) < 1e-30 {
+        n = cross(sub(b.position, a.position), sub(c.position, a.position));
+    }
+    normalize(n)
+}
+
+/// The smallest `f32` strictly above `t` (for `f32` culling bounds that never cut below an `f64`
+/// distance); infinity stays infinity.
+fn f32_above(t: f64) -> f32 {
+    let f = t as f32;
+    if !f.is_finite() {
+        return f32::INFINITY;
+    }
+    let g = if f64::from(f) > t {
+        f
+    } else {
+        f32::from_bits(if f >= 0.0 {
+            f.to_bits() + 1
+        } else {
+            f.to_bits() - 1
+        })
+    };
+    g * (1.0 + 4.0 * f32::EPSILON)
+}
+/// Where the material point at `local` (object space, on triangle `tri` of `from`) is on `to`:
+/// the same triangle and barycentrics, with the interpolated normal oriented like `n_from`.
+pub(crate) fn carry_on_mesh(from: &Mesh, to: &Mesh, tri: u32, local: V3, n_from: V3) -> (V3, V3) {
+    let Some(t) = from.triangles.get(tri as usize) else {
+        return (local, n_from);
+    };
+    let [a, b, c] = t.map(|i| from.vertices[i as usize].position);
+    let (u, v) = barycentric(a, b, c, local);
+    let w = 1.0 - u - v;
+    let at = |m: &Mesh| {
+        let [a, b, c] = t.map(|i| m.vertices[i as usize]);
+        let p = add(
+            add(scale(a.position, w), scale(b.position, u)),
+            scale(c.position, v),
+        );
+        (p, smooth_normal([&a, &b, &c], w, u, v))
+    };
+    let (_, nk) = at(from);
+    let (p, n) = at(to);
+    let flip = if dot(nk, n_from) < 0.0 { -1.0 } else { 1.0 };
+    // The offset of the point from the plane of the triangle (rounding only) is carried along.
+    let (pk, _) = at(from);
+    (add(p, sub(local, pk)), scale(n, flip))
+}
+
+/// Barycentrics `(u, v)` of `p` (on the triangle's plane) for `b` and `c`.
+fn barycentric(a: V3, b: V3, c: V3, p: V3) -> (f64, f64) {
+    let (e1, e2, d) = (sub(b, a), sub(c, a), sub(p, a));
+    let (d11, d12, d22) = (dot(e1, e1), dot(e1, e2), dot(e2, e2));
+    let (p1, p2) = (dot(d, e1), dot(d, e2));
+    let den = d11 * d22 - d12 * d12;
+    if den.abs() < 1e-300 {
+        return (0.0, 0.0);
+    }
+    ((d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn f32_above_is_above() {
+        for t in [0.0, 1e-9, 0.1, 1.0, 3.7, 1e6] {
+            assert!(f64::from(f32_above(t)) > t);
+        }
+        assert_eq!(f32_above(f64::INFINITY), f32::INFINITY);
+    }
+}

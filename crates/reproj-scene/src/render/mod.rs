@@ -1,0 +1,360 @@
+//! Rendering: every server buffer of one camera at one time, and ground-truth client frames.
+//!
+//! Geometry is sampled by one ray through each pixel centre, everything in `f64`, following
+//! `reproj_core::synthetic`'s rules so every buffer agrees with every other:
+//! - colour (server colour, `S_min`/`S_max`, ground truth): the box-filtered mean of an `n×n`
+//!   ordered grid of sub-samples per pixel ([`default_samples`]), see "Colour supersampling";
+//! - depth: reversed `Z` of the hit point `X_t` in this camera; `Z = 0` (far plane) for the sky;
+//! - motion: the material point (object, object-space point) moved to `t ± Δ` by its object's
+//!   transform and projected with this camera held fixed; exactly 0.0 on objects that do not move;
+//! - shadow: the main light's shadow fraction of the material point at `t ± jΔ/S`, with the light
+//!   and the occluders at that time, quantised to `round(3·f)`; `S_min`/`S_max` re-shade the key
+//!   sample (albedo, normal, view and light direction of the key frame) at the extreme levels.
+//!
+//! ## Colour supersampling
+//!
+//! The procedural textures carry detail far below a pixel at the evaluation sizes (stripes of
+//! 1/8 cell, speckle of 1/64 cell, thin mortar and grout lines), so one point sample per pixel is
+//! an aliased, nearly uncorrelated signal that no reprojection can predict at a sub-pixel offset
+//! (docs/quality-breakdown.md: a half-pixel shift of a perfect static view scored 24.8 dB).
+//! Colour is therefore the mean of `n×n` sub-samples on an ordered grid inside the pixel (a box
+//! filter; for odd `n` the middle one is the pixel centre), averaged on the RGB8 scale and rounded
+//! once; `n = 1` is byte for byte the point-sampled renderer of recording format 1. Only colour is filtered: depth, motion and the shadow bits describe the one surface
+//! point at the pixel centre, and an average of two surfaces' depths or motions is a point on
+//! neither.
+//!
+//! Shadow rays are most of the render time (32 per shadow evaluation, `2S − 1` evaluations per
+//! server pixel), and a soft shadow varies slowly across one pixel, so sub-samples do not shoot
+//! their own: a sub-sample on the centre's surface (same object, normal within ~25°) takes the
+//! centre's shadow fraction, and the quantised levels of `S_min`/`S_max` are applied to exactly
+//! those sub-samples. A sub-sample on another surface (a silhouette, a box edge) takes the
+//! shadow of the first sub-sample on that surface, computed once at that sub-sample; its
+//! contribution to `S_min`/`S_max` is its key colour, since the bitfield follows only the centre's
+//! material point. So the added cost is `n² − 1` primary rays and texture look-ups per pixel plus
+//! a few shadow evaluations at edges, not `n²` times the shadow rays.
+//!
+//! ## Files
+//!
+//! This file holds what both passes share: the buffer types, the camera rays, what one pixel or
+//! colour sub-sample sees and the colour filter; `server.rs` the server-buffer pass
+//! ([`render_server`]), `truth.rs` the ground-truth pass ([`render_ground_truth`],
+//! [`render_shadow_fraction`]), `tests.rs` the unit tests.
+
+mod server;
+#[cfg(test)]
+mod tests;
+mod truth;
+
+use reproj_core::{Camera, Mat4};
+
+use crate::error::{Result, SceneError};
+use crate::material::Material;
+use crate::math::{add, normalize, scale, sub, V3};
+use crate::scene::{Scene, Snapshot};
+pub use server::render_server;
+pub use truth::{render_ground_truth, render_shadow_fraction};
+
+/// Largest number of colour sub-samples per pixel side (64 per pixel).
+pub const MAX_SAMPLES: usize = 8;
+
+/// Two samples lie on one surface (and share a shadow fraction) when they hit the same object
+/// with normals within ~25° (cos 25° ≈ 0.9): box faces, mesh creases and sharp folds count as
+/// different surfaces, a sphere or a smooth mesh across one pixel as the same.
+const SAME_SURFACE_COS: f64 = 0.9;
+
+/// The default colour sub-samples per pixel side for a `width×height` camera: 3 (9 per pixel)
+/// up to 640×360 pixels, 2 (4 per pixel) above.
+///
+/// At 320×180 and 640×360 a texture's finest detail (1/64 of a cell) is several per pixel, and
+/// 3×3 is what lifted `ours` from VMAF 65 to 81 in docs/quality-breakdown.md; from 1280×720 up a
+/// pixel covers a quarter of the area, so 2×2 spans a similar footprint at less than half the
+/// primary rays, and rendering time grows with the pixel count.
+pub fn default_samples(width: usize, height: usize) -> usize {
+    if width * height <= 640 * 360 {
+        3
+    } else {
+        2
+    }
+}
+
+fn check_samples(samples: usize) -> Result<usize> {
+    if (1..=MAX_SAMPLES).contains(&samples) {
+        Ok(samples)
+    } else {
+        Err(SceneError::BadSamples {
+            samples,
+            max: MAX_SAMPLES,
+        })
+    }
+}
+
+/// Rows per rayon task. Whole rows keep each task's writes contiguous; a server pixel casts up to
+/// `(2S − 1)·32` shadow rays, so 16 rows are ample work per task, and the blocks are concatenated
+/// in order, so the result does not depend on the thread count.
+const BLOCK_ROWS: usize = 16;
+
+/// The dynamic-shadow buffers of one direction (DESIGN.md "Dynamic shadows").
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShadowBuffers {
+    /// `H·W` bitfields: 2 bits per subframe, subframe `j` in bits `2j, 2j+1`; 0 where the level is
+    /// the same at every subframe.
+    pub bits: Vec<u32>,
+    /// `H·W·3` RGB8 colour at the minimum level; 0 where that level is subframe 0's or bits = 0.
+    pub s_min: Vec<u8>,
+    /// `H·W·3` RGB8 colour at the maximum level; 0 where that level is subframe 0's or bits = 0.
+    pub s_max: Vec<u8>,
+}
+
+/// Every server buffer of one camera at one time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServerBuffers {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// World → camera.
+    pub view: Mat4,
+    /// Camera → clip (reversed depth).
+    pub proj: Mat4,
+    /// `H·W·3` RGB8 colour (continuous soft shadow).
+    pub color: Vec<u8>,
+    /// `H·W` reversed depth; 0 for the sky.
+    pub depth: Vec<f32>,
+    /// `H·W·3` object motion `P(X_{t+Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
+    pub motion_fwd: Vec<f32>,
+    /// `H·W·3` object motion `P(X_{t−Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
+    pub motion_bwd: Vec<f32>,
+    /// Shadow buffers toward `t + Δ`: subframe `j` at `t + jΔ/S`.
+    pub shadow_fwd: ShadowBuffers,
+    /// Shadow buffers toward `t − Δ`: subframe `j` at `t − jΔ/S`.
+    pub shadow_bwd: ShadowBuffers,
+}
+
+/// A camera's rays: its centre and `P⁻¹` for the pixel directions.
+pub(crate) struct Rays {
+    vp: Mat4,
+    inv_vp: Mat4,
+    pub origin: V3,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl Rays {
+    pub(crate) fn new(camera: &Camera, what: &str) -> Result<Rays> {
+        let bad = |why: &str| SceneError::BadCamera {
+            what: what.to_string(),
+            why: why.to_string(),
+        };
+        if camera.width == 0
+            || camera.height == 0
+            || camera.width > reproj_core::MAX_SIDE
+            || camera.height > reproj_core::MAX_SIDE
+        {
+            return Err(bad(&format!(
+                "size {}×{} outside 1..={}",
+                camera.width,
+                camera.height,
+                reproj_core::MAX_SIDE
+            )));
+        }
+        let vp = camera.view_proj();
+        let inv_vp = vp
+            .inverse()
+            .ok_or_else(|| bad("singular view-projection"))?;
+        let iv = camera.view.inverse().ok_or_else(|| bad("singular view"))?;
+        let o = iv.mul_vec([0.0, 0.0, 0.0, 1.0]);
+        Ok(Rays {
+            vp,
+            inv_vp,
+            origin: [o[0] / o[3], o[1] / o[3], o[2] / o[3]],
+            width: camera.width,
+            height: camera.height,
+        })
+    }
+
+    /// The ray through the centre of pixel `(i, j)`, scaled so that `s = 1` is the near plane.
+    pub(crate) fn ray(&self, i: usize, j: usize) -> V3 {
+        self.sub_ray(i, j, 0, 0, 1)
+    }
+
+    /// The ray through sub-sample `(a, b)` of the `n×n` ordered grid of pixel `(i, j)`, at
+    /// `(i + (a + ½)/n, j + (b + ½)/n)` pixels. Numerator and denominator are integers, so the
+    /// middle sub-sample of an odd grid is the pixel-centre ray bit for bit.
+    pub(crate) fn sub_ray(&self, i: usize, j: usize, a: usize, b: usize, n: usize) -> V3 {
+        let x = (2 * n * i + 2 * a + 1) as f64 / (n * self.width) as f64 - 1.0;
+        let y = 1.0 - (2 * n * j + 2 * b + 1) as f64 / (n * self.height) as f64;
+        let h = self.inv_vp.mul_vec([x, y, 1.0, 1.0]);
+        sub([h[0] / h[3], h[1] / h[3], h[2] / h[3]], self.origin)
+    }
+
+    /// The ray parameter of the far plane along `d` (the ray at `s = 1` is on the near plane, and
+    /// view depth is linear in `s`).
+    fn far_param(&self, scene: &Scene) -> f64 {
+        scene.far / scene.near
+    }
+
+    /// `P(X)` with the perspective division.
+    pub(crate) fn project(&self, x: V3) -> V3 {
+        let h = self.vp.mul_vec([x[0], x[1], x[2], 1.0]);
+        [h[0] / h[3], h[1] / h[3], h[2] / h[3]]
+    }
+}
+
+/// What one pixel (or colour sub-sample) sees at the key time.
+#[derive(Clone, Copy)]
+pub(crate) struct Sample {
+    /// Object index; `None` for the sky.
+    pub obj: Option<usize>,
+    /// Face or triangle of the object (deforming meshes track material points by it; the tests
+    /// use it to skip creases).
+    pub face: u32,
+    /// World hit point.
+    pub x: V3,
+    /// Object-space normal (facing the camera).
+    pub n_obj: V3,
+    /// World normal (facing the camera).
+    pub normal: V3,
+    /// Unit direction from the point toward the eye.
+    pub view: V3,
+    pub albedo: V3,
+    /// Continuous shadow fraction at the key time.
+    pub shadow: f64,
+}
+
+pub(crate) fn sample(
+    snap: &Snapshot<'_>,
+    rays: &Rays,
+    i: usize,
+    j: usize,
+    with_shadow: bool,
+) -> Sample {
+    sample_ray(snap, rays, rays.ray(i, j), with_shadow)
+}
+
+/// What the ray `d` from the camera centre sees.
+fn sample_ray(snap: &Snapshot<'_>, rays: &Rays, d: V3, with_shadow: bool) -> Sample {
+    let sky = Sample {
+        obj: None,
+        face: 0,
+        x: [0.0; 3],
+        n_obj: [0.0; 3],
+        normal: [0.0; 3],
+        view: [0.0; 3],
+        albedo: [0.0; 3],
+        shadow: 0.0,
+    };
+    // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0).
+    let Some(hit) = snap.trace(rays.origin, d, 1.0, rays.far_param(snap.scene)) else {
+        return sky;
+    };
+    let x = add(rays.origin, scale(d, hit.t));
+    let o = &snap.scene.objects[hit.obj];
+    let mut n_obj = hit.local.normal;
+    let d_obj = snap.inv[hit.obj].vector(d);
+    // Two-sided: the normal faces the side the point is seen from.
+    if crate::math::dot(n_obj, d_obj) > 0.0 {
+        n_obj = scale(n_obj, -1.0);
+    }
+    let normal = normalize(snap.world[hit.obj].vector(n_obj));
+    let shadow = if with_shadow {
+        snap.shadow(hit.obj, x, normal)
+    } else {
+        0.0
+    };
+    Sample {
+        obj: Some(hit.obj),
+        face: hit.local.face,
+        x,
+        n_obj,
+        normal,
+        view: normalize(scale(d, -1.0)),
+        albedo: o
+            .shape
+            .own_albedo(hit.local.face, hit.local.uv)
+            .unwrap_or_else(|| o.material.albedo(hit.local.uv)),
+        shadow,
+    }
+}
+
+fn material<'s>(snap: &Snapshot<'s>, s: &Sample) -> Option<&'s Material> {
+    s.obj.map(|o| &snap.scene.objects[o].material)
+}
+
+/// A sample's colour at the key time on the RGB8 scale (unrounded).
+fn key_color(snap: &Snapshot<'_>, s: &Sample) -> V3 {
+    match material(snap, s) {
+        Some(m) => snap.shade(m, s.albedo, s.normal, s.view, s.shadow),
+        None => snap.scene.sky.map(f64::from),
+    }
+}
+
+/// Whether `a` and `b` lie on one surface (see [`SAME_SURFACE_COS`]).
+fn same_surface(a: &Sample, b: &Sample) -> bool {
+    a.obj.is_some() && a.obj == b.obj && crate::math::dot(a.normal, b.normal) >= SAME_SURFACE_COS
+}
+
+/// One colour sub-sample of a pixel.
+struct SubSample {
+    s: Sample,
+    /// On the pixel centre's surface: it took the centre's shadow, and the shadow levels of the
+    /// centre's bitfield apply to it.
+    on_centre: bool,
+    /// Its colour at the key time.
+    key: V3,
+}
+
+/// The `n×n` colour sub-samples of pixel `(i, j)` whose centre sample (with its shadow) is
+/// `centre`, into `out` (cleared first), in a fixed order. Shadows are shared as the module
+/// documentation says: the centre's on its own surface, the first sub-sample's on any other.
+fn footprint(
+    snap: &Snapshot<'_>,
+    rays: &Rays,
+    (i, j): (usize, usize),
+    n: usize,
+    centre: &Sample,
+    out: &mut Vec<SubSample>,
+) {
+    out.clear();
+    for b in 0..n {
+        for a in 0..n {
+            if n % 2 == 1 && a == n / 2 && b == n / 2 {
+                out.push(SubSample {
+                    s: *centre,
+                    on_centre: centre.obj.is_some(),
+                    key: key_color(snap, centre),
+                });
+                continue;
+            }
+            let mut s = sample_ray(snap, rays, rays.sub_ray(i, j, a, b, n), false);
+            let on_centre = same_surface(centre, &s);
+            if on_centre {
+                s.shadow = centre.shadow;
+            } else if let Some(obj) = s.obj {
+                s.shadow = match out.iter().find(|p| !p.on_centre && same_surface(&p.s, &s)) {
+                    Some(p) => p.s.shadow,
+                    None => snap.shadow(obj, s.x, s.normal),
+                };
+            }
+            out.push(SubSample {
+                s,
+                on_centre,
+                key: key_color(snap, &s),
+            });
+        }
+    }
+}
+
+/// The box filter: the mean of `colors` on the RGB8 scale, rounded once.
+fn mean_rgb8(colors: impl Iterator<Item = V3>) -> [u8; 3] {
+    let (mut sum, mut count) = ([0.0; 3], 0usize);
+    for c in colors {
+        sum = add(sum, c);
+        count += 1;
+    }
+    sum.map(|v| (v / count as f64).round().clamp(0.0, 255.0) as u8)
+}
+
+/// The colour of a pixel from its sub-samples.
+fn pixel_color(subs: &[SubSample]) -> [u8; 3] {
+    mean_rgb8(subs.iter().map(|p| p.key))
+}

@@ -1,0 +1,236 @@
+//! The server-buffer pass ([`render_server`]): every buffer of one camera at one time, that is
+//! colour, depth, the motion of the material point carried to `t ± Δ`, and the dynamic-shadow
+//! bitfields with their `S_min`/`S_max` colours, rendered in blocks of rows.
+
+use rayon::prelude::*;
+use reproj_core::Camera;
+
+use super::{
+    check_samples, footprint, material, mean_rgb8, pixel_color, sample, Rays, Sample,
+    ServerBuffers, ShadowBuffers, SubSample, BLOCK_ROWS,
+};
+use crate::error::{Result, SceneError};
+use crate::math::{normalize, V3};
+use crate::scene::{Scene, Snapshot, Variant};
+use crate::shape::Shape;
+
+/// Where the material point `x` (seen on `obj`, triangle or face `face`, in `key`) is in
+/// snapshot `to`, with its normal. A still object returns `x` and `n` themselves, so its motion
+/// is exactly zero. On a deforming mesh the material point is (triangle, barycentrics), carried to
+/// the mesh posed at `to`'s time.
+fn carry(
+    key: &Snapshot<'_>,
+    to: &Snapshot<'_>,
+    obj: usize,
+    face: u32,
+    x: V3,
+    n_obj: V3,
+    n: V3,
+) -> (V3, V3) {
+    if !key.scene.moves(obj) {
+        return (x, n);
+    }
+    let local = key.inv[obj].point(x);
+    if let (Shape::Mesh(from), Shape::Mesh(dest)) = (key.shape(obj), to.shape(obj)) {
+        if key.scene.objects[obj].shape.deforms() {
+            let (p, nl) = crate::mesh::carry_on_mesh(from, dest, face, local, n_obj);
+            return (to.world[obj].point(p), normalize(to.world[obj].vector(nl)));
+        }
+    }
+    (
+        to.world[obj].point(local),
+        normalize(to.world[obj].vector(n_obj)),
+    )
+}
+
+fn quantise(f: f64) -> u32 {
+    (f * 3.0).round().clamp(0.0, 3.0) as u32
+}
+
+/// Bitfield and `S_min`/`S_max` of the pixel-centre sample `s` following its material point over
+/// `subs` (the snapshots at subframes `1..S`; subframe 0 is the key); `S_min`/`S_max` re-shade the
+/// pixel's colour sub-samples `fp` on the centre's surface at the extreme levels.
+fn shadow_field(
+    key: &Snapshot<'_>,
+    subs: &[Snapshot<'_>],
+    s: &Sample,
+    fp: &[SubSample],
+) -> (u32, [u8; 3], [u8; 3]) {
+    let (Some(obj), Some(m)) = (s.obj, material(key, s)) else {
+        return (0, [0; 3], [0; 3]);
+    };
+    let l0 = quantise(s.shadow);
+    let (mut bits, mut lmin, mut lmax) = (l0, l0, l0);
+    for (j, sub) in subs.iter().enumerate() {
+        let (xj, nj) = carry(key, sub, obj, s.face, s.x, s.n_obj, s.normal);
+        let level = quantise(sub.shadow(obj, xj, nj));
+        bits |= level << (2 * (j + 1));
+        lmin = lmin.min(level);
+        lmax = lmax.max(level);
+    }
+    if lmin == lmax {
+        return (0, [0; 3], [0; 3]);
+    }
+    // Only the shadow is re-applied (the client's eqs. 9–11 only interpolate the shadow).
+    // Sub-samples on the centre's surface share its object, hence its material `m`.
+    let at = |l: u32| {
+        mean_rgb8(fp.iter().map(|p| {
+            if p.on_centre {
+                key.shade(m, p.s.albedo, p.s.normal, p.s.view, l as f64 / 3.0)
+            } else {
+                p.key
+            }
+        }))
+    };
+    let smin = if lmin == l0 { [0; 3] } else { at(lmin) };
+    let smax = if lmax == l0 { [0; 3] } else { at(lmax) };
+    (bits, smin, smax)
+}
+
+/// Every server buffer of `camera` at time `t` (seconds): `interval` = Δ = 1/f_s, `subframes` =
+/// S = f_d/f_s, colour from `samples × samples` sub-samples per pixel ([`default_samples`]).
+///
+/// # Errors
+/// [`SceneError::BadSubframes`] when `subframes ∉ 1..=16`; [`SceneError::BadSamples`] when
+/// `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when the camera's size is out of range
+/// or its matrices cannot be inverted.
+pub fn render_server(
+    scene: &Scene,
+    camera: &Camera,
+    t: f64,
+    interval: f64,
+    subframes: usize,
+    samples: usize,
+) -> Result<ServerBuffers> {
+    if !(1..=16).contains(&subframes) {
+        return Err(SceneError::BadSubframes { subframes });
+    }
+    let n = check_samples(samples)?;
+    let rays = Rays::new(camera, "server")?;
+    let (w, h) = (camera.width, camera.height);
+    let key = scene.at(t);
+    let (next, prev) = (scene.at(t + interval), scene.at(t - interval));
+    let step = interval / subframes as f64;
+    let fwd: Vec<Snapshot<'_>> = (1..subframes)
+        .map(|j| scene.at(t + step * j as f64))
+        .collect();
+    let bwd: Vec<Snapshot<'_>> = (1..subframes)
+        .map(|j| scene.at(t - step * j as f64))
+        .collect();
+    let blocks: Vec<Block> = (0..h.div_ceil(BLOCK_ROWS))
+        .into_par_iter()
+        .map(|b| {
+            let rows = BLOCK_ROWS.min(h - b * BLOCK_ROWS);
+            let mut blk = Block::new(rows * w);
+            let mut fp = Vec::with_capacity(n * n);
+            for r in 0..rows {
+                for i in 0..w {
+                    let k = r * w + i;
+                    let j = b * BLOCK_ROWS + r;
+                    let s = sample(&key, &rays, i, j, true);
+                    footprint(&key, &rays, (i, j), n, &s, &mut fp);
+                    blk.color[3 * k..3 * k + 3].copy_from_slice(&pixel_color(&fp));
+                    let Some(obj) = s.obj else {
+                        continue; // Sky: Z = 0, zero motion, no dynamic shadow.
+                    };
+                    let p = rays.project(s.x);
+                    blk.depth[k] = p[2] as f32;
+                    if scene.variant == Variant::Static {
+                        continue; // Nothing moves and the light is still: all zero.
+                    }
+                    if scene.moves(obj) {
+                        let pf =
+                            rays.project(carry(&key, &next, obj, s.face, s.x, s.n_obj, s.normal).0);
+                        let pb =
+                            rays.project(carry(&key, &prev, obj, s.face, s.x, s.n_obj, s.normal).0);
+                        for c in 0..3 {
+                            blk.motion_fwd[3 * k + c] = (pf[c] - p[c]) as f32;
+                            blk.motion_bwd[3 * k + c] = (pb[c] - p[c]) as f32;
+                        }
+                    }
+                    for (subs, bits, smin, smax) in [
+                        (
+                            &fwd,
+                            &mut blk.bits_fwd,
+                            &mut blk.smin_fwd,
+                            &mut blk.smax_fwd,
+                        ),
+                        (
+                            &bwd,
+                            &mut blk.bits_bwd,
+                            &mut blk.smin_bwd,
+                            &mut blk.smax_bwd,
+                        ),
+                    ] {
+                        let (bf, mn, mx) = shadow_field(&key, subs, &s, &fp);
+                        bits[k] = bf;
+                        smin[3 * k..3 * k + 3].copy_from_slice(&mn);
+                        smax[3 * k..3 * k + 3].copy_from_slice(&mx);
+                    }
+                }
+            }
+            blk
+        })
+        .collect();
+    let n = w * h;
+    let shadow = || ShadowBuffers {
+        bits: Vec::with_capacity(n),
+        s_min: Vec::with_capacity(3 * n),
+        s_max: Vec::with_capacity(3 * n),
+    };
+    let mut out = ServerBuffers {
+        width: w,
+        height: h,
+        view: camera.view,
+        proj: camera.proj,
+        color: Vec::with_capacity(3 * n),
+        depth: Vec::with_capacity(n),
+        motion_fwd: Vec::with_capacity(3 * n),
+        motion_bwd: Vec::with_capacity(3 * n),
+        shadow_fwd: shadow(),
+        shadow_bwd: shadow(),
+    };
+    for b in blocks {
+        out.color.extend_from_slice(&b.color);
+        out.depth.extend_from_slice(&b.depth);
+        out.motion_fwd.extend_from_slice(&b.motion_fwd);
+        out.motion_bwd.extend_from_slice(&b.motion_bwd);
+        out.shadow_fwd.bits.extend_from_slice(&b.bits_fwd);
+        out.shadow_fwd.s_min.extend_from_slice(&b.smin_fwd);
+        out.shadow_fwd.s_max.extend_from_slice(&b.smax_fwd);
+        out.shadow_bwd.bits.extend_from_slice(&b.bits_bwd);
+        out.shadow_bwd.s_min.extend_from_slice(&b.smin_bwd);
+        out.shadow_bwd.s_max.extend_from_slice(&b.smax_bwd);
+    }
+    Ok(out)
+}
+/// The buffers of one block of rows, concatenated in order afterwards.
+struct Block {
+    color: Vec<u8>,
+    depth: Vec<f32>,
+    motion_fwd: Vec<f32>,
+    motion_bwd: Vec<f32>,
+    bits_fwd: Vec<u32>,
+    smin_fwd: Vec<u8>,
+    smax_fwd: Vec<u8>,
+    bits_bwd: Vec<u32>,
+    smin_bwd: Vec<u8>,
+    smax_bwd: Vec<u8>,
+}
+
+impl Block {
+    fn new(n: usize) -> Self {
+        Block {
+            color: vec![0; 3 * n],
+            depth: vec![0.0; n],
+            motion_fwd: vec![0.0; 3 * n],
+            motion_bwd: vec![0.0; 3 * n],
+            bits_fwd: vec![0; n],
+            smin_fwd: vec![0; 3 * n],
+            smax_fwd: vec![0; 3 * n],
+            bits_bwd: vec![0; n],
+            smin_bwd: vec![0; 3 * n],
+            smax_bwd: vec![0; 3 * n],
+        }
+    }
+}

@@ -1,0 +1,70 @@
+//! The ground-truth pass: colour at a client camera ([`render_ground_truth`], the same shading
+//! and filter as the server colour) and the continuous shadow fraction
+//! ([`render_shadow_fraction`]), mapped per pixel over blocks of rows.
+
+use rayon::prelude::*;
+use reproj_core::Camera;
+
+use super::{check_samples, footprint, pixel_color, sample, Rays, BLOCK_ROWS};
+use crate::error::Result;
+use crate::scene::Scene;
+
+/// Per-pixel map over row blocks in parallel, concatenated in order (thread-count independent).
+fn per_pixel<T: Copy + Default + Send, const C: usize>(
+    rays: &Rays,
+    f: impl Fn(usize, usize) -> [T; C] + Sync,
+) -> Vec<T> {
+    let (w, h) = (rays.width, rays.height);
+    let mut out = vec![T::default(); C * w * h];
+    out.par_chunks_mut(C * w * BLOCK_ROWS)
+        .enumerate()
+        .for_each(|(b, chunk)| {
+            for (k, px) in chunk.chunks_exact_mut(C).enumerate() {
+                px.copy_from_slice(&f(k % w, b * BLOCK_ROWS + k / w));
+            }
+        });
+    out
+}
+
+/// Ground-truth colour (`H·W·3` RGB8) at the client `camera` and time `t`, from `samples ×
+/// samples` sub-samples per pixel: the same shading and filter as the server colour, so at a
+/// server camera and time (and the same `samples`) it equals that colour byte for byte.
+///
+/// # Errors
+/// [`SceneError::BadSamples`] when `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when
+/// the camera's size is out of range or its matrices cannot be inverted.
+pub fn render_ground_truth(
+    scene: &Scene,
+    camera: &Camera,
+    t: f64,
+    samples: usize,
+) -> Result<Vec<u8>> {
+    let n = check_samples(samples)?;
+    let rays = Rays::new(camera, "client")?;
+    let snap = scene.at(t);
+    Ok(per_pixel(&rays, |i, j| {
+        let mut fp = Vec::with_capacity(n * n);
+        footprint(
+            &snap,
+            &rays,
+            (i, j),
+            n,
+            &sample(&snap, &rays, i, j, true),
+            &mut fp,
+        );
+        pixel_color(&fp)
+    }))
+}
+
+/// The continuous main-light shadow fraction (`H·W`, 0 lit … 1 shadowed, 0 for the sky) seen by
+/// `camera` at time `t`: the quantity the shadow bitfields quantise, for evaluation and tests.
+///
+/// # Errors
+/// As [`render_ground_truth`].
+pub fn render_shadow_fraction(scene: &Scene, camera: &Camera, t: f64) -> Result<Vec<f32>> {
+    let rays = Rays::new(camera, "shadow")?;
+    let snap = scene.at(t);
+    Ok(per_pixel(&rays, |i, j| {
+        [sample(&snap, &rays, i, j, true).shadow as f32]
+    }))
+}
