@@ -43,9 +43,9 @@ use rayon::prelude::*;
 use crate::camera::{pixel_of_ndc, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
-use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
 use crate::reproject::PairCache;
+use crate::request::{Diagnostics, Request};
 use crate::shadow::round_rgb;
 
 /// State carried from one client frame (B-frame) to the next for seeds/001's latest-frame
@@ -163,7 +163,7 @@ pub fn run(
             "backward_bidir: client camera is {cw}x{ch} but the main cameras are {w}x{h}; the method interpolates in the server images' pixel grid and ignores the client pose, so the output size must equal the main camera size"
         )));
     }
-    crate::method::check_output(out, diag.as_deref(), w, h)?;
+    crate::request::check_output(out, diag.as_deref(), w, h)?;
     let op = ov.camera.projector("older.main camera")?;
     let np = nv.camera.projector("newer.main camera")?;
 

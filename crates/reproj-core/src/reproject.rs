@@ -46,8 +46,8 @@ use rayon::prelude::*;
 use crate::camera::{pixel_of_ndc, Camera, NdcTransfer, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
-use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
+use crate::request::{Diagnostics, Request};
 use crate::shadow::{round_rgb4, shadow_color, Role};
 
 /// Defines `$name`, which runs the `#[inline(always)]` function `$imp` compiled for AVX2 (as
@@ -2552,7 +2552,7 @@ mod tests {
     use super::*;
     use crate::camera::Mat4;
     use crate::frame::FrameView;
-    use crate::method::{reproject, Method};
+    use crate::{reproject, Method};
 
     /// A fronto-parallel textured plane at view depth `d` seen by `cam` (exact per pixel).
     fn plane(cam: &Camera, d: f64) -> (Vec<u8>, Vec<f32>) {

@@ -34,8 +34,8 @@ use rayon::prelude::*;
 use crate::camera::{pixel_of_ndc, Camera, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
-use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
+use crate::request::{Diagnostics, Request};
 
 /// Rays more parallel to the plane than this (`|ray·N|`, unit vectors) are not written.
 const PARALLEL_EPS: f32 = 1e-6;
@@ -73,7 +73,7 @@ pub fn run(
     diag: Option<&mut Diagnostics>,
 ) -> Result<()> {
     frame.validate("frame")?;
-    crate::method::check_output(
+    crate::request::check_output(
         out,
         diag.as_deref(),
         request.client.width,
