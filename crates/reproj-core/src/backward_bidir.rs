@@ -12,7 +12,7 @@
 //!    `p_{t,i} = T − α·Vᶠ[p_{t,i−1}].xy` (eqs. 4, 5), backward `p_{t+1,i} = T − (1−α)·Vᵇ[p_{t+1,i−1}].xy`
 //!    (eqs. 8–10), `m =` [`Params::bidir_iterations`] steps, nearest-pixel lookups, a step that leaves
 //!    the image keeps the previous point. Depth `zᶠ = Z_t[p] + α·Vᶠ.z` (eq. 6, eq. 11 backward) and
-//!    error `eᶠ = ‖p + α·Vᶠ.xy − T‖` (eq. 7, eq. 12), aspect-scaled like [`mod@crate::reproject`]
+//!    error `eᶠ = ‖p + α·Vᶠ.xy − T‖` (eq. 7, eq. 12), aspect-scaled like [`crate::ours`]
 //!    (2.0 = the image's short side).
 //! 3. **Initialisations** (seeds/001 §5.3), each searched, the smallest error kept per direction
 //!    (except that of two converged results at different depths the nearer is kept, see
@@ -43,8 +43,8 @@ use rayon::prelude::*;
 use crate::camera::{pixel_of_ndc, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
+use crate::ours::PairCache;
 use crate::params::{Params, TILE};
-use crate::reproject::PairCache;
 use crate::request::{Diagnostics, Request};
 use crate::shadow::round_rgb;
 

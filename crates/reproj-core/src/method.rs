@@ -10,7 +10,7 @@ use crate::error::{ReprojError, Result};
 use crate::frame::FrameView;
 use crate::params::Params;
 use crate::request::check_output;
-use crate::{reproject as ours, timewarp};
+use crate::{ours, timewarp};
 
 // The public paths these had when they were defined here.
 pub use crate::request::{Diagnostics, Request, MAX_ALPHA};
@@ -82,7 +82,7 @@ impl FromStr for Method {
 /// `history` is the client's state for the current server-frame pair: `backward_bidir` reads and
 /// updates its previous B-frame (seeds/001 latest-frame initialisation), and `ours`,
 /// `ours_extrapolate` and `forward_splat` keep the work that does not depend on the client pose
-/// there ([`crate::reproject::PairCache`]), so that it is done once per pair instead of once per
+/// there ([`crate::ours::PairCache`]), so that it is done once per pair instead of once per
 /// client frame. The caller resets it when the frame pair changes; `None` gives the same output.
 ///
 /// # Errors
