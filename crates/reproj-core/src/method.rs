@@ -110,52 +110,40 @@ pub fn reproject(
     if !(alpha.is_finite() && (0.0..=MAX_ALPHA).contains(&alpha)) {
         return Err(range_err("[0, 3]"));
     }
-    newer.validate("newer")?;
-    if let Some(o) = older {
-        o.validate("older")?;
-        if o.aux.len() != newer.aux.len() {
-            return Err(ReprojError::CameraMismatch(format!(
-                "older frame has {} auxiliary cameras, newer has {}",
-                o.aux.len(),
-                newer.aux.len()
-            )));
-        }
-    }
+    FrameView::validate_pair(older, newer)?;
     // The splat-based methods share one kernel; they differ in its mode and whether the older
-    // frame takes part.
+    // frame takes part. Interpolating (`α < 1`) needs the older frame; the unidirectional
+    // variants only extrapolate.
+    let interpolating = |missing: &str| match older {
+        None if alpha < 1.0 => Err(ReprojError::MissingFrame(missing.into())),
+        _ => Ok(older),
+    };
+    let extrapolating = |range: &str| {
+        if alpha < 1.0 {
+            Err(range_err(range))
+        } else {
+            Ok(None)
+        }
+    };
     let (mode, older_used) = match method {
-        Method::Ours => {
-            if older.is_none() && alpha < 1.0 {
-                return Err(ReprojError::MissingFrame(
-                    "method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame".into(),
-                ));
-            }
-            (ours::Mode::Ours, older)
-        }
-        Method::OursExtrapolate => {
-            if alpha < 1.0 {
-                return Err(range_err(
-                    "[1, 3] (extrapolation from the newest frame, given as `newer`)",
-                ));
-            }
-            (ours::Mode::Ours, None)
-        }
-        Method::ForwardSplat if params.splat_bidirectional => {
-            if older.is_none() && alpha < 1.0 {
-                return Err(ReprojError::MissingFrame(
-                    "bidirectional forward_splat with alpha < 1 needs the older frame".into(),
-                ));
-            }
-            (ours::Mode::ForwardSplat, older)
-        }
-        Method::ForwardSplat => {
-            if alpha < 1.0 {
-                return Err(range_err(
-                    "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
-                ));
-            }
-            (ours::Mode::ForwardSplat, None)
-        }
+        Method::Ours => (
+            ours::Mode::Ours,
+            interpolating("method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame")?,
+        ),
+        Method::OursExtrapolate => (
+            ours::Mode::Ours,
+            extrapolating("[1, 3] (extrapolation from the newest frame, given as `newer`)")?,
+        ),
+        Method::ForwardSplat if params.splat_bidirectional => (
+            ours::Mode::ForwardSplat,
+            interpolating("bidirectional forward_splat with alpha < 1 needs the older frame")?,
+        ),
+        Method::ForwardSplat => (
+            ours::Mode::ForwardSplat,
+            extrapolating(
+                "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
+            )?,
+        ),
         Method::Timewarp => {
             let frame = match older {
                 Some(o) if alpha < 1.0 => o,
