@@ -3,8 +3,11 @@
 //! methods (`ours`, `backward_bidir`, `timewarp`) and below [`crate::method`], which dispatches to
 //! them: they all import these from here, and none imports from another.
 
+use rayon::prelude::*;
+
 use crate::camera::Camera;
 use crate::error::{ReprojError, Result};
+use crate::params::TILE;
 
 /// What the client asks for: its actual camera at display time and `α`, the display time relative
 /// to the pair: `α = (t − t_k)/(t_{k+1} − t_k)`. `α ∈ [0,1)` interpolates, `α ≥ 1` extrapolates
@@ -81,4 +84,26 @@ pub(crate) fn check_output(
         }
     }
     Ok(())
+}
+
+/// Runs `rows(j0, out, diag)` in parallel for every block of [`TILE`] rows of a `w`-wide output:
+/// `j0` is the block's first row, `out` its RGB8 rows, and `diag` (when diagnostics are asked for)
+/// its rows of [`Diagnostics::source`] and [`Diagnostics::error`]. The buffers' sizes are those
+/// [`check_output`] accepts.
+pub(crate) fn par_row_blocks<F>(out: &mut [u8], diag: Option<&mut Diagnostics>, w: usize, rows: F)
+where
+    F: Fn(usize, &mut [u8], Option<(&mut [u8], &mut [f32])>) + Sync,
+{
+    match diag {
+        Some(d) => out
+            .par_chunks_mut(TILE * w * 3)
+            .zip(d.source.par_chunks_mut(TILE * w))
+            .zip(d.error.par_chunks_mut(TILE * w))
+            .enumerate()
+            .for_each(|(b, ((o, s), e))| rows(b * TILE, o, Some((s, e)))),
+        None => out
+            .par_chunks_mut(TILE * w * 3)
+            .enumerate()
+            .for_each(|(b, o)| rows(b * TILE, o, None)),
+    }
 }

@@ -59,8 +59,8 @@ use rayon::prelude::*;
 use crate::camera::{Camera, NdcTransfer, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
-use crate::params::{Params, TILE};
-use crate::request::{Diagnostics, Request};
+use crate::params::Params;
+use crate::request::{par_row_blocks, Diagnostics, Request};
 use crate::shadow::{round_rgb4, Role};
 
 use auxiliary::{AuxBlock, AuxGrid, AuxRow};
@@ -448,19 +448,7 @@ pub(crate) fn run<'a>(
         aux: aux_grids,
         ..ctx
     };
-    let rows_per_task = TILE;
-    match diag {
-        Some(d) => out
-            .par_chunks_mut(rows_per_task * cw * 3)
-            .zip(d.source.par_chunks_mut(rows_per_task * cw))
-            .zip(d.error.par_chunks_mut(rows_per_task * cw))
-            .enumerate()
-            .for_each(|(b, ((o, s), e))| ctx.resolve_rows(b * rows_per_task, o, Some((s, e)))),
-        None => out
-            .par_chunks_mut(rows_per_task * cw * 3)
-            .enumerate()
-            .for_each(|(b, o)| ctx.resolve_rows(b * rows_per_task, o, None)),
-    }
+    par_row_blocks(out, diag, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
     // Back to the pools in reverse, so that the next frame pops them in the same order and each
     // source gets a buffer of its own size again.
     aux_pool.extend(ctx.aux.into_iter().rev().map(|g| g.maybe));
