@@ -292,20 +292,21 @@ fn backward_bidir_invalid_inputs_never_reach_output() {
 #[test]
 fn backward_bidir_rejects_size_mismatch() {
     let (older, newer) = square_pair();
-    let mut out = vec![0u8; 16 * 12 * 3];
-    let request = Request {
-        client: camera(16, 12),
-        alpha: 0.5,
+    let call = |older: &Img, newer: &Img, client: Camera, out: &mut [u8]| {
+        let request = Request { client, alpha: 0.5 };
+        let params = Params::default();
+        run(
+            &older.frame(),
+            &newer.frame(),
+            &request,
+            &params,
+            out,
+            None,
+            None,
+        )
     };
-    let r = run(
-        &older.frame(),
-        &newer.frame(),
-        &request,
-        &Params::default(),
-        &mut out,
-        None,
-        None,
-    );
+    let mut out = vec![0u8; 16 * 12 * 3];
+    let r = call(&older, &newer, camera(16, 12), &mut out);
     assert!(matches!(r, Err(ReprojError::CameraMismatch(_))));
     assert!(out.iter().all(|&v| v == 0));
     let small = Img {
@@ -314,20 +315,8 @@ fn backward_bidir_rejects_size_mismatch() {
         depth: vec![0.5; 16 * 12],
         motion: vec![0.0; 16 * 12 * 3],
     };
-    let request = Request {
-        client: older.cam,
-        alpha: 0.5,
-    };
     let mut out = vec![0u8; W * H * 3];
-    let r = run(
-        &older.frame(),
-        &small.frame(),
-        &request,
-        &Params::default(),
-        &mut out,
-        None,
-        None,
-    );
+    let r = call(&older, &small, older.cam, &mut out);
     assert!(matches!(r, Err(ReprojError::CameraMismatch(_))));
 }
 

@@ -43,6 +43,18 @@ fn plane(cam: &Camera, d: f64) -> (Vec<u8>, Vec<f32>) {
     (color, depth)
 }
 
+/// [`reproject`] with the default parameters, without diagnostics or history.
+fn reproject_plain(
+    method: Method,
+    older: Option<&FrameView>,
+    newer: &FrameView,
+    req: &Request,
+    out: &mut [u8],
+) {
+    let p = Params::default();
+    reproject(method, older, newer, req, &p, out, None, None).unwrap();
+}
+
 fn cam(x: f64, w: usize, h: usize) -> Camera {
     Camera::new(
         Mat4::look_at([x, 0.0, 0.0], [x, 0.0, -1.0], [0.0, 1.0, 0.0]),
@@ -72,17 +84,7 @@ fn static_identity_reproduces_the_server_image() {
     for alpha in [0.0, 0.3, 0.99] {
         let mut out = vec![0u8; color.len()];
         let req = Request { client: c, alpha };
-        reproject(
-            Method::Ours,
-            Some(&f),
-            &f,
-            &req,
-            &Params::default(),
-            &mut out,
-            None,
-            None,
-        )
-        .unwrap();
+        reproject_plain(Method::Ours, Some(&f), &f, &req, &mut out);
         assert_eq!(out, color, "alpha {alpha}");
     }
 }
@@ -397,17 +399,7 @@ fn moving_object_is_extrapolated_along_its_motion() {
         client: c,
         alpha: 1.5,
     };
-    reproject(
-        Method::OursExtrapolate,
-        None,
-        &f,
-        &req,
-        &Params::default(),
-        &mut out,
-        None,
-        None,
-    )
-    .unwrap();
+    reproject_plain(Method::OursExtrapolate, None, &f, &req, &mut out);
     // 0.2 NDC = 6.4 px: output pixel i shows source pixel i − 6 or i − 7.
     let mut ok = 0;
     let mut total = 0;
