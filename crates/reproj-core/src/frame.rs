@@ -139,4 +139,24 @@ impl FrameView<'_> {
         }
         Ok(())
     }
+
+    /// Checks the frames of a server-frame pair: each frame's buffers ([`FrameView::validate`],
+    /// as "newer" and "older"), and that both have the same number of auxiliary cameras.
+    ///
+    /// # Errors
+    /// The first [`ReprojError::BufferSize`] found, or [`ReprojError::CameraMismatch`].
+    pub fn validate_pair(older: Option<&FrameView>, newer: &FrameView) -> Result<()> {
+        newer.validate("newer")?;
+        if let Some(o) = older {
+            o.validate("older")?;
+            if o.aux.len() != newer.aux.len() {
+                return Err(ReprojError::CameraMismatch(format!(
+                    "older frame has {} auxiliary cameras, newer has {}",
+                    o.aux.len(),
+                    newer.aux.len()
+                )));
+            }
+        }
+        Ok(())
+    }
 }

@@ -1,14 +1,19 @@
-//! Method selection by name and the single entry point [`reproject`].
+//! Method selection by name and the single entry point [`reproject`], which checks the inputs and
+//! dispatches to the methods' modules (it only dispatches: what the methods share lives below them,
+//! in [`crate::request`]).
 
 use std::fmt;
 use std::str::FromStr;
 
 use crate::backward_bidir::{self, BidirHistory};
-use crate::camera::Camera;
 use crate::error::{ReprojError, Result};
 use crate::frame::FrameView;
 use crate::params::Params;
-use crate::{reproject as ours, timewarp};
+use crate::request::check_output;
+use crate::{ours, timewarp};
+
+// The public paths these had when they were defined here.
+pub use crate::request::{Diagnostics, Request, MAX_ALPHA};
 
 /// The reprojection methods of shared/DESIGN.md "Methods".
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -66,53 +71,6 @@ impl FromStr for Method {
     }
 }
 
-/// What the client asks for: its actual camera at display time and `α`, the display time relative
-/// to the pair: `α = (t − t_k)/(t_{k+1} − t_k)`. `α ∈ [0,1)` interpolates, `α ≥ 1` extrapolates
-/// from the newer frame (seeds/000 §3.5).
-#[derive(Debug, Clone, Copy)]
-pub struct Request {
-    /// The client camera `P_{t+α}`; its size is the output size.
-    pub client: Camera,
-    /// `α`.
-    pub alpha: f32,
-}
-
-/// Largest `α` accepted: extrapolating more than two server intervals is never meaningful.
-pub const MAX_ALPHA: f32 = 3.0;
-
-/// Per-output-pixel diagnostics.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Diagnostics {
-    /// Which source coloured the pixel: [`Diagnostics::NONE`] (kept the previous frame),
-    /// [`Diagnostics::MAIN_OLDER`], [`Diagnostics::MAIN_NEWER`], or `AUX_BASE + 2·i (+1 for the
-    /// newer frame)` for auxiliary camera `i`; [`Diagnostics::BLENDED`] is or-ed in when Algorithm 2
-    /// blended the other frame's colour in.
-    pub source: Vec<u8>,
-    /// Reprojection error of the chosen match (NDC, aspect-scaled); NaN where none.
-    pub error: Vec<f32>,
-}
-
-impl Diagnostics {
-    /// No match: the previous client frame's colour was kept.
-    pub const NONE: u8 = 0;
-    /// The main camera of the older frame.
-    pub const MAIN_OLDER: u8 = 1;
-    /// The main camera of the newer frame.
-    pub const MAIN_NEWER: u8 = 2;
-    /// First auxiliary code: auxiliary camera `i` of the older frame is `AUX_BASE + 2i`.
-    pub const AUX_BASE: u8 = 3;
-    /// Flag: Algorithm 2 blended the other frame in.
-    pub const BLENDED: u8 = 0x80;
-
-    /// Diagnostics for `n` pixels, all "no match".
-    pub fn new(n: usize) -> Diagnostics {
-        Diagnostics {
-            source: vec![Self::NONE; n],
-            error: vec![f32::NAN; n],
-        }
-    }
-}
-
 /// Synthesises one client frame with `method` into `out`.
 ///
 /// `out` (`H·W·3` RGB8 at the client camera's size) holds the previous client frame on entry;
@@ -124,7 +82,7 @@ impl Diagnostics {
 /// `history` is the client's state for the current server-frame pair: `backward_bidir` reads and
 /// updates its previous B-frame (seeds/001 latest-frame initialisation), and `ours`,
 /// `ours_extrapolate` and `forward_splat` keep the work that does not depend on the client pose
-/// there ([`crate::reproject::PairCache`]), so that it is done once per pair instead of once per
+/// there ([`crate::ours::PairCache`]), so that it is done once per pair instead of once per
 /// client frame. The caller resets it when the frame pair changes; `None` gives the same output.
 ///
 /// # Errors
@@ -152,52 +110,40 @@ pub fn reproject(
     if !(alpha.is_finite() && (0.0..=MAX_ALPHA).contains(&alpha)) {
         return Err(range_err("[0, 3]"));
     }
-    newer.validate("newer")?;
-    if let Some(o) = older {
-        o.validate("older")?;
-        if o.aux.len() != newer.aux.len() {
-            return Err(ReprojError::CameraMismatch(format!(
-                "older frame has {} auxiliary cameras, newer has {}",
-                o.aux.len(),
-                newer.aux.len()
-            )));
-        }
-    }
+    FrameView::validate_pair(older, newer)?;
     // The splat-based methods share one kernel; they differ in its mode and whether the older
-    // frame takes part.
+    // frame takes part. Interpolating (`α < 1`) needs the older frame; the unidirectional
+    // variants only extrapolate.
+    let interpolating = |missing: &str| match older {
+        None if alpha < 1.0 => Err(ReprojError::MissingFrame(missing.into())),
+        _ => Ok(older),
+    };
+    let extrapolating = |range: &str| {
+        if alpha < 1.0 {
+            Err(range_err(range))
+        } else {
+            Ok(None)
+        }
+    };
     let (mode, older_used) = match method {
-        Method::Ours => {
-            if older.is_none() && alpha < 1.0 {
-                return Err(ReprojError::MissingFrame(
-                    "method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame".into(),
-                ));
-            }
-            (ours::Mode::Ours, older)
-        }
-        Method::OursExtrapolate => {
-            if alpha < 1.0 {
-                return Err(range_err(
-                    "[1, 3] (extrapolation from the newest frame, given as `newer`)",
-                ));
-            }
-            (ours::Mode::Ours, None)
-        }
-        Method::ForwardSplat if params.splat_bidirectional => {
-            if older.is_none() && alpha < 1.0 {
-                return Err(ReprojError::MissingFrame(
-                    "bidirectional forward_splat with alpha < 1 needs the older frame".into(),
-                ));
-            }
-            (ours::Mode::ForwardSplat, older)
-        }
-        Method::ForwardSplat => {
-            if alpha < 1.0 {
-                return Err(range_err(
-                    "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
-                ));
-            }
-            (ours::Mode::ForwardSplat, None)
-        }
+        Method::Ours => (
+            ours::Mode::Ours,
+            interpolating("method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame")?,
+        ),
+        Method::OursExtrapolate => (
+            ours::Mode::Ours,
+            extrapolating("[1, 3] (extrapolation from the newest frame, given as `newer`)")?,
+        ),
+        Method::ForwardSplat if params.splat_bidirectional => (
+            ours::Mode::ForwardSplat,
+            interpolating("bidirectional forward_splat with alpha < 1 needs the older frame")?,
+        ),
+        Method::ForwardSplat => (
+            ours::Mode::ForwardSplat,
+            extrapolating(
+                "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
+            )?,
+        ),
         Method::Timewarp => {
             let frame = match older {
                 Some(o) if alpha < 1.0 => o,
@@ -230,37 +176,6 @@ pub fn reproject(
 /// The pair-level cache of `ours` inside the caller's history.
 fn pair(history: Option<&mut BidirHistory>) -> Option<&mut ours::PairCache> {
     history.map(BidirHistory::pair_cache)
-}
-
-/// Checks the output and diagnostics buffers against a `w × h` output. [`reproject`] checks them
-/// for every method; the methods' own public entry points repeat this O(1) check so that they stay
-/// panic-free when called directly.
-pub(crate) fn check_output(
-    out: &[u8],
-    diag: Option<&Diagnostics>,
-    w: usize,
-    h: usize,
-) -> Result<()> {
-    let n = w * h;
-    if out.len() != n * 3 {
-        return Err(ReprojError::BufferSize {
-            what: "previous client frame".into(),
-            expected: n * 3,
-            actual: out.len(),
-            detail: format!("{h}x{w}x3"),
-        });
-    }
-    if let Some(d) = diag {
-        if d.source.len() != n || d.error.len() != n {
-            return Err(ReprojError::BufferSize {
-                what: "diagnostics".into(),
-                expected: n,
-                actual: d.source.len().min(d.error.len()),
-                detail: format!("{h}x{w}"),
-            });
-        }
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -34,8 +34,8 @@ use rayon::prelude::*;
 use crate::camera::{pixel_of_ndc, Camera, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
-use crate::method::{Diagnostics, Request};
 use crate::params::{Params, TILE};
+use crate::request::{par_row_blocks, Diagnostics, Request};
 
 /// Rays more parallel to the plane than this (`|ray·N|`, unit vectors) are not written.
 const PARALLEL_EPS: f32 = 1e-6;
@@ -73,7 +73,7 @@ pub fn run(
     diag: Option<&mut Diagnostics>,
 ) -> Result<()> {
     frame.validate("frame")?;
-    crate::method::check_output(
+    crate::request::check_output(
         out,
         diag.as_deref(),
         request.client.width,
@@ -109,18 +109,7 @@ pub fn run(
         plane,
     };
     let cw = request.client.width;
-    match diag {
-        Some(d) => out
-            .par_chunks_mut(TILE * cw * 3)
-            .zip(d.source.par_chunks_mut(TILE * cw))
-            .zip(d.error.par_chunks_mut(TILE * cw))
-            .enumerate()
-            .for_each(|(b, ((o, s), e))| warp.warp_rows(b * TILE, o, Some((s, e)))),
-        None => out
-            .par_chunks_mut(TILE * cw * 3)
-            .enumerate()
-            .for_each(|(b, o)| warp.warp_rows(b * TILE, o, None)),
-    }
+    par_row_blocks(out, diag, cw, |j0, o, d| warp.warp_rows(j0, o, d));
     Ok(())
 }
 

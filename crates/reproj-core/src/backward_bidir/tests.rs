@@ -1,0 +1,377 @@
+//! Unit tests of `backward_bidir`.
+
+use super::*;
+use crate::camera::{Camera, Mat4};
+
+const W: usize = 32;
+const H: usize = 24;
+
+fn camera(w: usize, h: usize) -> Camera {
+    Camera::new(
+        Mat4::look_at([0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
+        Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+        w,
+        h,
+        "test",
+    )
+    .unwrap()
+}
+
+/// Reversed depth of view distance `d` for the test projection (near 0.1, far 100).
+fn z_of(d: f64) -> f32 {
+    (0.1 * (100.0 - d) / (d * (100.0 - 0.1))) as f32
+}
+
+/// Owned buffers of one synthetic I-frame.
+#[derive(Clone)]
+struct Img {
+    cam: Camera,
+    color: Vec<u8>,
+    depth: Vec<f32>,
+    motion: Vec<f32>,
+}
+
+impl Img {
+    fn frame(&self) -> FrameView<'_> {
+        FrameView {
+            main: CameraView {
+                camera: self.cam,
+                color: &self.color,
+                depth: &self.depth,
+                motion: Some(&self.motion),
+                shadow: None,
+            },
+            aux: vec![],
+        }
+    }
+}
+
+fn run_bb(
+    older: &Img,
+    newer: &Img,
+    alpha: f32,
+    history: Option<&mut BidirHistory>,
+) -> (Vec<u8>, Diagnostics) {
+    let (w, h) = (older.cam.width, older.cam.height);
+    let mut out = vec![3u8; w * h * 3];
+    let mut diag = Diagnostics::new(w * h);
+    let request = Request {
+        client: older.cam,
+        alpha,
+    };
+    run(
+        &older.frame(),
+        &newer.frame(),
+        &request,
+        &Params::default(),
+        &mut out,
+        Some(&mut diag),
+        history,
+    )
+    .unwrap();
+    (out, diag)
+}
+
+/// Background texture (b = 50) and square texture (b = 200); r, g ≤ 200 so that blends can
+/// never produce the poison colour (255, 0, 255) used for invalid pixels.
+fn bg(i: usize, j: usize) -> [u8; 3] {
+    [(5 * i) as u8, (7 * j) as u8, 50]
+}
+fn sq(u: usize, v: usize) -> [u8; 3] {
+    [(100 + 9 * u) as u8, (110 + 11 * v) as u8, 200]
+}
+
+const SIDE: usize = 8;
+const A: (usize, usize) = (6, 8);
+const SHIFT: (usize, usize) = (6, 4);
+
+/// A static textured background at 10 m and an 8×8 textured square at 5 m with its top-left
+/// pixel at `pos`, moving by `SHIFT` pixels per server frame (motion `sign·SHIFT` in NDC).
+fn square_frame(pos: (usize, usize), sign: f32) -> Img {
+    let cam = camera(W, H);
+    let (mut color, mut depth, mut motion) = (Vec::new(), Vec::new(), Vec::new());
+    let (dx, dy) = (
+        2.0 * SHIFT.0 as f32 / W as f32,
+        -2.0 * SHIFT.1 as f32 / H as f32,
+    );
+    for j in 0..H {
+        for i in 0..W {
+            let inside = (pos.0..pos.0 + SIDE).contains(&i) && (pos.1..pos.1 + SIDE).contains(&j);
+            if inside {
+                color.extend_from_slice(&sq(i - pos.0, j - pos.1));
+                depth.push(z_of(5.0));
+                motion.extend_from_slice(&[sign * dx, sign * dy, 0.0]);
+            } else {
+                color.extend_from_slice(&bg(i, j));
+                depth.push(z_of(10.0));
+                motion.extend_from_slice(&[0.0; 3]);
+            }
+        }
+    }
+    Img {
+        cam,
+        color,
+        depth,
+        motion,
+    }
+}
+
+fn square_pair() -> (Img, Img) {
+    (
+        square_frame(A, 1.0),
+        square_frame((A.0 + SHIFT.0, A.1 + SHIFT.1), -1.0),
+    )
+}
+
+/// Whether output pixel `(i, j)` is covered by the square in `I_t` or in `I_{t+1}`.
+fn seen_by_an_i_frame(i: usize, j: usize) -> bool {
+    let inside = |(x, y): (usize, usize)| (x..x + SIDE).contains(&i) && (y..y + SIDE).contains(&j);
+    inside(A) || inside((A.0 + SHIFT.0, A.1 + SHIFT.1))
+}
+
+/// Asserts that the square sits at the analytic position for `alpha` within 1 px and that its
+/// interior carries the right texture. Unless `all_texels`, texels that neither I-frame's
+/// square covers are not checked: with diagonal motion the corners of the square at `t+α` lie
+/// over background in both I-frames, where the searches from `T` (default and dual
+/// initialisation) converge to the static background, a valid solution of eq. 3 (seeds/001
+/// §5.1 notes such multiple solutions). The latest-frame initialisation repairs them.
+fn assert_square_at(out: &[u8], alpha: f32, all_texels: bool) -> usize {
+    let ex = A.0 as f32 + alpha * SHIFT.0 as f32;
+    let ey = A.1 as f32 + alpha * SHIFT.1 as f32;
+    let (mut min_i, mut max_i, mut min_j, mut max_j) = (W, 0, H, 0);
+    for j in 0..H {
+        for i in 0..W {
+            if out[3 * (j * W + i) + 2] == 200 {
+                min_i = min_i.min(i);
+                max_i = max_i.max(i);
+                min_j = min_j.min(j);
+                max_j = max_j.max(j);
+            }
+        }
+    }
+    assert!(
+        (min_i as f32 - ex).abs() <= 1.0 && (max_i as f32 - (ex + SIDE as f32 - 1.0)).abs() <= 1.0,
+        "x {min_i}..{max_i}, expected {ex}"
+    );
+    assert!(
+        (min_j as f32 - ey).abs() <= 1.0 && (max_j as f32 - (ey + SIDE as f32 - 1.0)).abs() <= 1.0,
+        "y {min_j}..{max_j}, expected {ey}"
+    );
+    let mut unseen_wrong = 0;
+    if ex.fract() == 0.0 && ey.fract() == 0.0 {
+        let (x0, y0) = (ex as usize, ey as usize);
+        for v in 0..SIDE {
+            for u in 0..SIDE {
+                let (i, j) = (x0 + u, y0 + v);
+                let k = j * W + i;
+                if !all_texels && !seen_by_an_i_frame(i, j) {
+                    unseen_wrong += usize::from(out[3 * k..3 * k + 3] != sq(u, v));
+                    continue;
+                }
+                assert_eq!(
+                    out[3 * k..3 * k + 3],
+                    sq(u, v),
+                    "texel ({u},{v}) at alpha {alpha}"
+                );
+            }
+        }
+    }
+    unseen_wrong
+}
+
+#[test]
+fn backward_bidir_endpoints_reproduce_the_i_frames() {
+    let cam = camera(W, H);
+    let depth: Vec<f32> = (0..W * H)
+        .map(|k| z_of(3.0 + (k % 5) as f64 * 0.7))
+        .collect();
+    let older = Img {
+        cam,
+        color: (0..W * H * 3).map(|k| (k % 200) as u8).collect(),
+        depth: depth.clone(),
+        motion: vec![0.0; W * H * 3],
+    };
+    let newer = Img {
+        color: (0..W * H * 3).map(|k| ((k * 7 + 13) % 250) as u8).collect(),
+        ..older.clone()
+    };
+    let (out0, d0) = run_bb(&older, &newer, 0.0, None);
+    assert_eq!(out0, older.color);
+    assert!(d0.source.iter().all(|&s| s != Diagnostics::NONE));
+    let (out1, _) = run_bb(&older, &newer, 1.0, None);
+    assert_eq!(out1, newer.color);
+    // Halfway, a static scene is the plain blend (rounded).
+    let (out5, d5) = run_bb(&older, &newer, 0.5, None);
+    for ((&o, &a), &b) in out5.iter().zip(&older.color).zip(&newer.color) {
+        assert_eq!(o, ((f32::from(a) + f32::from(b)) * 0.5).round() as u8);
+    }
+    assert!(d5.source.iter().all(|&s| s & Diagnostics::BLENDED != 0));
+    assert!(d5.error.iter().all(|e| e.is_finite()));
+}
+
+#[test]
+fn backward_bidir_tracks_translating_square() {
+    let (older, newer) = square_pair();
+    let (out, diag) = run_bb(&older, &newer, 0.5, None);
+    assert_square_at(&out, 0.5, false);
+    assert!(diag.source.iter().all(|&s| s != Diagnostics::NONE));
+    // The endpoints show each I-frame's square, every texel.
+    assert_square_at(&run_bb(&older, &newer, 0.0, None).0, 0.0, true);
+    assert_square_at(&run_bb(&older, &newer, 1.0, None).0, 1.0, true);
+    assert_square_at(&run_bb(&older, &newer, 0.25, None).0, 0.25, false);
+}
+
+#[test]
+fn backward_bidir_latest_frame_history() {
+    let (older, newer) = square_pair();
+    let mut hist = BidirHistory::new();
+    assert_eq!(hist.alpha(), None);
+    // The B-frames of one server interval at a 120/10 FPS ratio, up to α = 5/12.
+    for b in 0..=5 {
+        let alpha = b as f32 / 12.0;
+        let (out, _) = run_bb(&older, &newer, alpha, Some(&mut hist));
+        assert_eq!(hist.alpha(), Some(alpha));
+        assert_square_at(&out, alpha, false);
+    }
+    // The corners that neither I-frame covers were found through the previous offsets...
+    let (with_history, _) = run_bb(&older, &newer, 0.5, Some(&mut hist.clone()));
+    let missed_with = assert_square_at(&with_history, 0.5, false);
+    // ...which the default and dual initialisations alone miss.
+    let missed_without = assert_square_at(&run_bb(&older, &newer, 0.5, None).0, 0.5, false);
+    assert_eq!(
+        (missed_with, missed_without > 0),
+        (0, true),
+        "{missed_with} {missed_without}"
+    );
+    // A smaller α than the stored one ignores the history and then replaces it.
+    let (out, _) = run_bb(&older, &newer, 0.25, Some(&mut hist));
+    assert_square_at(&out, 0.25, false);
+    assert_eq!(hist.alpha(), Some(0.25));
+    hist.reset();
+    assert_eq!(hist.alpha(), None);
+}
+
+#[test]
+fn backward_bidir_invalid_inputs_never_reach_output() {
+    let (mut older, mut newer) = square_pair();
+    let poison = [255u8, 0, 255];
+    let bad = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.25, 2.0];
+    for (n, img) in [&mut older, &mut newer].into_iter().enumerate() {
+        for k in (n..W * H).step_by(7) {
+            img.depth[k] = bad[k % bad.len()];
+            img.color[3 * k..3 * k + 3].copy_from_slice(&poison);
+        }
+        for k in (n + 3..W * H).step_by(11) {
+            img.motion[3 * k + k % 3] = if k % 2 == 0 { f32::NAN } else { f32::INFINITY };
+            img.color[3 * k..3 * k + 3].copy_from_slice(&poison);
+        }
+    }
+    for alpha in [0.0, 0.3, 0.5, 1.0] {
+        let (out, diag) = run_bb(&older, &newer, alpha, None);
+        for k in 0..W * H {
+            let c = &out[3 * k..3 * k + 3];
+            assert_ne!(c, poison, "invalid pixel leaked at {k}, alpha {alpha}");
+            if diag.source[k] == Diagnostics::NONE {
+                assert_eq!(c, [3, 3, 3]);
+                assert!(diag.error[k].is_nan());
+            } else {
+                assert!(diag.error[k].is_finite());
+            }
+        }
+    }
+    // Nothing valid at all: nothing is written.
+    older.depth.fill(f32::NAN);
+    newer.depth.fill(f32::NAN);
+    let mut hist = BidirHistory::new();
+    let (out, diag) = run_bb(&older, &newer, 0.5, Some(&mut hist));
+    assert!(out.iter().all(|&v| v == 3));
+    assert!(diag.source.iter().all(|&s| s == Diagnostics::NONE));
+    assert!(hist.offsets.iter().flatten().all(|v| v.is_nan()));
+}
+
+#[test]
+fn backward_bidir_rejects_size_mismatch() {
+    let (older, newer) = square_pair();
+    let call = |older: &Img, newer: &Img, client: Camera, out: &mut [u8]| {
+        let request = Request { client, alpha: 0.5 };
+        let params = Params::default();
+        run(
+            &older.frame(),
+            &newer.frame(),
+            &request,
+            &params,
+            out,
+            None,
+            None,
+        )
+    };
+    let mut out = vec![0u8; 16 * 12 * 3];
+    let r = call(&older, &newer, camera(16, 12), &mut out);
+    assert!(matches!(r, Err(ReprojError::CameraMismatch(_))));
+    assert!(out.iter().all(|&v| v == 0));
+    let small = Img {
+        cam: camera(16, 12),
+        color: vec![0; 16 * 12 * 3],
+        depth: vec![0.5; 16 * 12],
+        motion: vec![0.0; 16 * 12 * 3],
+    };
+    let mut out = vec![0u8; W * H * 3];
+    let r = call(&older, &small, older.cam, &mut out);
+    assert!(matches!(r, Err(ReprojError::CameraMismatch(_))));
+}
+
+#[test]
+fn backward_bidir_same_result_for_1_and_4_threads() {
+    let (w, h) = (67, 45);
+    let cam = camera(w, h);
+    let mut seed = 0x2545_f491_u32;
+    let mut rnd = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed as f32 / u32::MAX as f32
+    };
+    let mut img = || Img {
+        cam,
+        color: (0..w * h * 3).map(|_| (rnd() * 255.0) as u8).collect(),
+        depth: (0..w * h)
+            .map(|k| {
+                if k % 37 == 0 {
+                    f32::NAN
+                } else {
+                    z_of(2.0 + 8.0 * f64::from(rnd()))
+                }
+            })
+            .collect(),
+        motion: (0..w * h * 3).map(|_| (rnd() - 0.5) * 0.2).collect(),
+    };
+    let (older, newer) = (img(), img());
+    let run_in = |n: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut hist = BidirHistory::new();
+                let first = run_bb(&older, &newer, 0.3, Some(&mut hist));
+                let second = run_bb(&older, &newer, 0.6, Some(&mut hist));
+                (first, second, hist)
+            })
+    };
+    let (a1, a2, ha) = run_in(1);
+    let (b1, b2, hb) = run_in(4);
+    for ((oa, da), (ob, db)) in [(a1, b1), (a2, b2)] {
+        assert_eq!(oa, ob);
+        assert_eq!(da.source, db.source);
+        let bits = |d: &Diagnostics| d.error.iter().map(|e| e.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&da), bits(&db));
+    }
+    let bits = |h: &BidirHistory| {
+        h.offsets
+            .iter()
+            .flatten()
+            .map(|v| v.to_bits())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&ha), bits(&hb));
+}

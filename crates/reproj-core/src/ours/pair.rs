@@ -1,0 +1,376 @@
+//! The pair-level work of `ours` ([`PairCache`]): what does not depend on the client pose or α,
+//! done once per server-frame pair. Algorithm 2's correspondences (seeds/000 §3.1) from the full
+//! scene flows of eqs. 2 and 3, with the motion-cancel and depth checks of §3.5
+//! (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`), and the auxiliary points' visibility in the main camera
+//! (§3.5 rule 2).
+
+use rayon::prelude::*;
+
+use crate::camera::{pixel_of_ndc, NdcTransfer, Projector};
+use crate::frame::CameraView;
+use crate::params::{Params, TILE};
+
+use super::simd::avx2_dispatch;
+use super::{packed_cell, unpack_pixel, Mode, Src, NO_SPLAT};
+
+/// What `ours` computes once per server-frame pair and reuses for every client frame between the
+/// two server frames (12 at 120/10 Hz): none of it depends on the client pose or `α`.
+///
+/// Per source image (main and auxiliary cameras of both frames):
+/// - Algorithm 2's correspondence: the pixel `q` of the same camera in the other frame that the
+///   full scene flow (eqs. 2, 3) of each pixel `p` lands on, kept only where the motions cancel
+///   (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`) and the depths agree (`< ε_z`, `ε_z·4` for the
+///   auxiliary cameras);
+/// - for the auxiliary cameras, whether each point is visible in the main camera (§3.5 rule 2).
+///
+/// The cache recomputes itself when the cameras, the buffers (by address and length) or the
+/// parameters it depends on change, so a new pair is never served stale data. A caller that
+/// rewrites the *same* buffers in place with a new frame must reset it
+/// ([`crate::BidirHistory::reset`]).
+#[derive(Debug, Default, Clone)]
+pub struct PairCache {
+    pub(super) key: Option<PairKey>,
+    pub(super) sources: Vec<PairSource>,
+}
+
+/// The pair-level state of one source image ([`PairCache`]).
+#[derive(Debug, Default, Clone)]
+pub(super) struct PairSource {
+    /// Packed pixel index `q` in the other frame, or [`NO_SPLAT`]; empty when nothing blends.
+    pub(super) partner: Vec<u32>,
+    /// Auxiliary sources: 1 where the point is visible in main, else 0; empty for main sources.
+    pub(super) vis: Vec<u8>,
+}
+
+/// What a [`PairCache`]'s contents depend on.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct PairKey {
+    mode: Mode,
+    blends: bool,
+    /// `ε_z`, `ε_O`, the auxiliary threshold scale, as bits.
+    eps: [u32; 3],
+    /// Per source.
+    sources: Vec<SourceKey>,
+}
+
+/// What a [`PairKey`] records of one source: its camera matrix, size, and the depth and motion
+/// buffers' addresses and lengths.
+#[derive(Debug, Clone, PartialEq)]
+struct SourceKey {
+    view_proj: [[f64; 4]; 4],
+    size: [usize; 2],
+    buffers: [usize; 4],
+}
+
+impl PairKey {
+    pub(super) fn of(sources: &[Src], mode: Mode, params: &Params, blends: bool) -> PairKey {
+        PairKey {
+            mode,
+            blends,
+            eps: [
+                params.eps_z.to_bits(),
+                params.eps_o.to_bits(),
+                params.aux_threshold_scale.to_bits(),
+            ],
+            sources: sources
+                .iter()
+                .map(|s| {
+                    let v = &s.view;
+                    let (mp, ml) = v.motion.map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
+                    SourceKey {
+                        view_proj: v.camera.view_proj().0,
+                        size: [s.proj.width, s.proj.height],
+                        buffers: [v.depth.as_ptr() as usize, v.depth.len(), mp, ml],
+                    }
+                })
+                .collect(),
+        }
+    }
+}
+
+thread_local! {
+    /// The buffers of a [`PairCache`] for calls without one (see BUFFER_POOL on page faults).
+    pub(super) static PAIR_POOL: std::cell::RefCell<PairCache> = std::cell::RefCell::new(PairCache::default());
+    /// Full scene flows while a [`PairCache`] is computed, reused.
+    static FULL_POOL: std::cell::RefCell<Vec<Vec<[f32; 4]>>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl PairCache {
+    /// An empty cache.
+    pub fn new() -> PairCache {
+        PairCache::default()
+    }
+
+    /// Forgets the pair (its buffers are kept for the next one).
+    pub fn reset(&mut self) {
+        self.key = None;
+    }
+
+    /// Fills the cache for `sources` (in the order of [`run`](super::run): (older, newer) per camera when
+    /// `blends`); `vis_ctx[k]` is set for the auxiliary sources.
+    pub(super) fn compute(
+        &mut self,
+        sources: &[Src],
+        vis_ctx: &[Option<VisCtx>],
+        blends: bool,
+        params: &Params,
+    ) {
+        self.sources.resize_with(sources.len(), PairSource::default);
+        // Every source at once (each with parallel rows inside), as pass 1 of `run`.
+        self.sources
+            .par_iter_mut()
+            .zip(sources.par_iter().zip(vis_ctx.par_iter()))
+            .for_each(|(ps, (src, ctx))| match ctx {
+                Some(ctx) => visible_in_main_flags(src, ctx, &mut ps.vis),
+                None => ps.vis.clear(),
+            });
+        if !blends {
+            self.sources.iter_mut().for_each(|ps| ps.partner.clear());
+            return;
+        }
+        let mut fulls = FULL_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
+        fulls.resize_with(sources.len(), Vec::new);
+        fulls
+            .par_iter_mut()
+            .zip(sources.par_iter())
+            .for_each(|(full, src)| {
+                let other = src.other.as_ref().expect("blending sources come in pairs");
+                let ctx = FullCtx {
+                    to_other: other.to_other,
+                    ow: other.proj.width,
+                    oh: other.proj.height,
+                };
+                full_flows(src, &ctx, full);
+            });
+        let eps_o2 = params.eps_o * params.eps_o;
+        self.sources.par_iter_mut().enumerate().for_each(|(k, ps)| {
+            let (s, o) = (&sources[k], &sources[k ^ 1]);
+            let (s_full, o_full) = (&fulls[k], &fulls[k ^ 1]);
+            let eps_z = if s.camera == 0 {
+                params.eps_z
+            } else {
+                params.eps_z * params.aux_threshold_scale
+            };
+            let n = s.proj.width * s.proj.height;
+            ps.partner.resize(n, NO_SPLAT);
+            ps.partner
+                .par_chunks_mut(TILE * s.proj.width)
+                .enumerate()
+                .for_each(|(b, chunk)| {
+                    let p0 = b * TILE * s.proj.width;
+                    for (d, out) in chunk.iter_mut().enumerate() {
+                        let p = p0 + d;
+                        *out = match correspondence(s, s_full, o, o_full, p) {
+                            // ‖M_full_s(p) + M_full_o(q)‖ < ε_O, z in [−1,1]-NDC units (2·ΔZ).
+                            Some((q, m, zq, pz))
+                                if m[0] * m[0] + m[1] * m[1] + 4.0 * m[2] * m[2] < eps_o2
+                                    && 2.0 * (zq - pz).abs() < eps_z =>
+                            {
+                                q as u32
+                            }
+                            _ => NO_SPLAT,
+                        };
+                    }
+                });
+        });
+        FULL_POOL.with(|p| *p.borrow_mut() = fulls);
+    }
+}
+
+/// The full scene flow of every pixel of `src` into the other frame ([`full_flow_row`]).
+fn full_flows(src: &Src, ctx: &FullCtx, full: &mut Vec<[f32; 4]>) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    full.resize(sw * sh, [f32::NAN; 4]);
+    let view = src.view;
+    full.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
+        let depth = &view.depth[j * sw..(j + 1) * sw];
+        let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
+        full_flow_row(j, sw, sh, depth, motion, ctx, row);
+    });
+}
+
+/// Whether each point of auxiliary source `src` is visible in the main camera (§3.5 rule 2),
+/// tested at the source's time and at the other frame's time: 1 or 0 per pixel.
+fn visible_in_main_flags(src: &Src, ctx: &VisCtx, vis: &mut Vec<u8>) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    vis.resize(sw * sh, 0);
+    let view = src.view;
+    vis.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
+        for (i, v) in row.iter_mut().enumerate() {
+            let idx = j * sw + i;
+            let [x, y] = src.ndc.at(i, j);
+            let z = view.depth[idx];
+            let o = view.motion_at(idx);
+            let c = [x, y, z];
+            let c2 = [x + o[0], y + o[1], z + o[2]];
+            let visible = ctx
+                .same
+                .as_ref()
+                .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c), ctx.eps_z))
+                || ctx
+                    .other
+                    .as_ref()
+                    .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c2), ctx.eps_z));
+            *v = u8::from(visible);
+        }
+    });
+}
+
+/// What "visible in main" is tested against for an auxiliary source.
+pub(super) struct VisCtx<'a> {
+    /// The main camera at the source's time, and the transfer from the source's NDC to it.
+    pub(super) same: Option<(CameraView<'a>, Projector, NdcTransfer)>,
+    /// The main camera at the other frame's time (bidirectional only).
+    pub(super) other: Option<(CameraView<'a>, Projector, NdcTransfer)>,
+    pub(super) eps_z: f32,
+}
+
+/// Whether the point with clip coordinates `h` in the main camera is inside its frustum
+/// (strictly inside ±0.999, as the reference) and not behind its depth buffer by more than `eps_z`
+/// (NDC units).
+#[inline]
+fn visible_in(view: &CameraView, proj: &Projector, h: [f32; 4], eps_z: f32) -> bool {
+    if !(h[3] > 0.0) {
+        return false;
+    }
+    let c = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
+    const LIM: f32 = 0.999;
+    if !(c[0].abs() < LIM && c[1].abs() < LIM && c[2] > 0.0 && c[2] < 1.0) {
+        return false;
+    }
+    match pixel_of_ndc(c[0], c[1], proj.width, proj.height) {
+        Some((i, j)) => {
+            let zm = view.depth[j * proj.width + i];
+            // Occluded when main saw something nearer (larger reversed depth) at that pixel.
+            !(2.0 * (zm - c[2]) > eps_z)
+        }
+        None => false,
+    }
+}
+
+/// The full scene flow of a source into the same camera at the other frame's time (eqs. 2, 3),
+/// for Algorithm 2: the transfer and the other camera's size.
+struct FullCtx {
+    to_other: NdcTransfer,
+    ow: usize,
+    oh: usize,
+}
+
+avx2_dispatch! {
+    /// The full scene flow of one source row (eqs. 2, 3): `[Δx, Δy, ΔZ, q]` with `q` the packed
+    /// pixel ([`pack_pixel`](super::pack_pixel)) it lands on in the other camera, stored as `f32` bits
+    /// ([`NO_SPLAT`] outside the image); NaN flow where invalid. [`correspondence`] reads it for
+    /// the chosen match; computing every pixel with vector instructions is cheaper than two
+    /// scalar evaluations per match.
+    fn full_flow_row / full_flow_row_avx2 => full_flow_row_impl(
+        j: usize,
+        sw: usize,
+        sh: usize,
+        depth: &[f32],
+        motion: Option<&[f32]>,
+        ctx: &FullCtx,
+        out: &mut [[f32; 4]],
+    )
+}
+
+#[inline(always)]
+fn full_flow_row_impl(
+    j: usize,
+    sw: usize,
+    sh: usize,
+    depth: &[f32],
+    motion: Option<&[f32]>,
+    ctx: &FullCtx,
+    out: &mut [[f32; 4]],
+) {
+    let y = crate::camera::ndc_of_pixel(0, j, sw, sh)[1];
+    let k = FullRow {
+        y,
+        wf: sw as i32 as f32,
+        owf: ctx.ow as i32 as f32,
+        ohf: ctx.oh as i32 as f32,
+        to_other: ctx.to_other,
+    };
+    match motion {
+        Some(mo) => {
+            for (i, (d, (z, o))) in out
+                .iter_mut()
+                .zip(depth.iter().zip(mo.chunks_exact(3)))
+                .enumerate()
+            {
+                *d = full_point(&k, i, *z, [o[0], o[1], o[2]]);
+            }
+        }
+        None => {
+            for (i, (d, z)) in out.iter_mut().zip(depth).enumerate() {
+                *d = full_point(&k, i, *z, [0.0; 3]);
+            }
+        }
+    }
+}
+
+/// What [`full_point`] needs of its row: the row's NDC y, the source width and the other camera's
+/// size as floats, and the transfer to the other camera.
+struct FullRow {
+    y: f32,
+    wf: f32,
+    owf: f32,
+    ohf: f32,
+    to_other: NdcTransfer,
+}
+
+/// One entry of [`full_flow_row`].
+#[inline(always)]
+fn full_point(k: &FullRow, i: usize, z: f32, o: [f32; 3]) -> [f32; 4] {
+    let (y, wf, owf, ohf) = (k.y, k.wf, k.owf, k.ohf);
+    let x = (2 * i as i32 + 1) as f32 / wf - 1.0;
+    let c = [x + o[0], y + o[1], z + o[2]];
+    let h = k.to_other.clip(c);
+    let iw = 1.0 / h[3];
+    let f = [h[0] * iw - x, h[1] * iw - y, h[2] * iw - z];
+    let ok = h[3] > 0.0 && f[0].is_finite() && f[1].is_finite() && f[2].is_finite();
+    // The pixel the point lands on in the other camera (`pixel_of_ndc` without branches).
+    let fx = (x + f[0] + 1.0) * 0.5 * owf;
+    let fy = (1.0 - (y + f[1])) * 0.5 * ohf;
+    let inside = fx >= 0.0 && fy >= 0.0 && fx < owf && fy < ohf;
+    let q = packed_cell(inside, fx, fy);
+    if ok {
+        [
+            f[0],
+            f[1],
+            f[2],
+            f32::from_bits(if inside { q } else { NO_SPLAT }),
+        ]
+    } else {
+        [f32::NAN, f32::NAN, f32::NAN, f32::from_bits(NO_SPLAT)]
+    }
+}
+
+/// The correspondence of pixel `p` of source `s` in the other frame's source `o` (Algorithm 2):
+/// the full scene flow of `p` (eqs. 2, 3, from [`full_flow_row`]) lands on pixel `q` of `o`.
+/// Returns `q`, `M_full_s(p) + M_full_o(q)`, `Z_o(q)` and the predicted depth `P.z`; `None` when
+/// out of view or invalid.
+#[inline]
+fn correspondence(
+    s: &Src,
+    s_full: &[[f32; 4]],
+    o: &Src,
+    o_full: &[[f32; 4]],
+    p: usize,
+) -> Option<(usize, [f32; 3], f32, f32)> {
+    let ms = s_full[p];
+    let qk = ms[3].to_bits();
+    if qk == NO_SPLAT {
+        return None;
+    }
+    let (qi, qj) = unpack_pixel(qk);
+    let q = qj * o.proj.width + qi;
+    let zq = o.view.depth[q];
+    let mo = o_full[q];
+    // NaN in `mo` (an invalid point) fails the caller's threshold test, as `None` would.
+    if !(zq.is_finite() && mo[0].is_finite()) {
+        return None;
+    }
+    let pz = s.view.depth[p] + ms[2];
+    Some((q, [ms[0] + mo[0], ms[1] + mo[1], ms[2] + mo[2]], zq, pz))
+}

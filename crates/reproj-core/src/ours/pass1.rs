@@ -1,0 +1,520 @@
+//! Pass 1 of `ours` and `forward_splat`, per source image (seeds/000 §3.5: "depth-aware forward
+//! point splatting based on these flow fields, combined with a 3×3 window search"): the camera
+//! scene flow `M_cam` towards the client pose (eq. 1 with `w = α` / `1−α`, i.e. the flows of eqs.
+//! 12 and 13), the client's reversed depth of each point (the `z` of eq. 8, kept whole), the
+//! depth-aware splat of the points into a grid over the client image, and the window search for
+//! every cell at once as a separable minimum filter ([`window_min`]), which initialises the
+//! fixed-point iteration of `search`. For an auxiliary source it also flags the cells where its
+//! points that are not visible in the main camera land (§3.5 rule 2, read by `auxiliary`).
+
+use std::sync::atomic::Ordering;
+
+use rayon::prelude::*;
+
+use crate::camera::NdcTransfer;
+use crate::params::TILE;
+
+use super::simd::avx2_dispatch;
+use super::{pack_pixel, splat_index, splat_key, Src, EMPTY_SPLAT, NO_SPLAT};
+
+/// Source rows per task of the splatting pass. Points that land outside their task's rows are
+/// applied after the parallel pass; taller bands leave fewer of them (a vertical flow of `d` rows
+/// spills about `d / SPLAT_BAND` of the points).
+const SPLAT_BAND: usize = 32;
+
+/// Pass 1 for one source image: `M_cam` (eqs. 1, 12, 13) and the depth-aware splat.
+///
+/// `w` is the fraction of the object motion applied: `α` for the older frame, `1−α` for the newer
+/// one (negative when extrapolating).
+pub(super) fn scene_flow_and_splat(
+    src: &mut Src,
+    to_client: &NdcTransfer,
+    w: f32,
+    vis: Option<&[u8]>,
+) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    let view = src.view;
+    let invisible = &src.bufs.invisible;
+    let xs = &src.ndc.x;
+    // The splat is a minimum per cell, so the order of the updates does not matter. Each task owns
+    // the splat cells of its own SPLAT_BAND rows (its band): it resets them (while they are hot
+    // in its cache, instead of a separate pass over the grid) and updates them with plain loads
+    // and stores. A point that lands in another band is kept aside and applied after the parallel
+    // pass, when every band is reset. A `lock cmpxchg` per point would cost more than the point's
+    // whole scene flow.
+    let block = |b: usize,
+                 rows: &mut [[f32; 2]],
+                 zrows: &mut [f32],
+                 band: &mut [u64],
+                 spill: &mut Vec<(u32, u64)>| {
+        band.fill(EMPTY_SPLAT);
+        spill.clear();
+        // Row-major cell indices order like the packed pixels: the band is one range of them.
+        let base = (b * SPLAT_BAND * sw) as u32;
+        ROW_SCRATCH.with(|cell| {
+            let scratch = &mut *cell.borrow_mut();
+            scratch.resize(sw);
+            for (r, (row, zrow)) in rows.chunks_mut(sw).zip(zrows.chunks_mut(sw)).enumerate() {
+                let j = b * SPLAT_BAND + r;
+                let depth = &view.depth[j * sw..(j + 1) * sw];
+                let motion = view.motion.map(|m| &m[3 * j * sw..(3 * j + 3) * sw]);
+                let input = FlowRow {
+                    j,
+                    sw,
+                    sh,
+                    x: xs,
+                    depth,
+                    motion,
+                    to_client,
+                    w,
+                };
+                let out = RowOut {
+                    flow: row,
+                    zc: zrow,
+                    cell: &mut scratch.cell,
+                    kz: &mut scratch.kz,
+                };
+                flow_row(input, out);
+                row_keys(&scratch.kz, pack_pixel(0, j), &mut scratch.key);
+                splat_row(&scratch.cell, &scratch.key, base, band, spill);
+                if let Some(vis) = vis {
+                    // Auxiliary sources: flag where the points not visible in main land.
+                    let v = &vis[j * sw..(j + 1) * sw];
+                    landing_row(j, sw, sh, xs, row, v, &mut scratch.inv);
+                    for &c in &scratch.inv {
+                        if c != NO_SPLAT {
+                            // A plain store on x86-64: setting a flag needs no read-modify-write.
+                            invisible[c as usize].store(1, Ordering::Relaxed);
+                        }
+                    }
+                }
+            }
+        });
+    };
+    // One spill list per block, kept with the buffers (see BUFFER_POOL on page faults).
+    let mut spills = std::mem::take(&mut src.bufs.spill);
+    spills.resize_with(sh.div_ceil(SPLAT_BAND), Vec::new);
+    src.bufs
+        .flow
+        .par_chunks_mut(SPLAT_BAND * sw)
+        .zip(src.bufs.zc.par_chunks_mut(SPLAT_BAND * sw))
+        .zip(src.bufs.splat.par_chunks_mut(SPLAT_BAND * sw))
+        .zip(spills.par_iter_mut())
+        .enumerate()
+        .for_each(|(b, (((rows, zrows), band), spill))| block(b, rows, zrows, band, spill));
+    // The parallel pass has finished: every band is reset. The spilled points are applied by
+    // one task per range of the grid (one per thread), each reading every list and taking the
+    // cells of its own range, so that no two tasks write the same cell.
+    let parts = rayon::current_num_threads().clamp(1, 16);
+    let part = (sw * sh).div_ceil(parts).max(1);
+    src.bufs
+        .splat
+        .par_chunks_mut(part)
+        .enumerate()
+        .for_each(|(q, cells)| {
+            let lo = (q * part) as u32;
+            for &(c, key) in spills.iter().flatten() {
+                if let Some(s) = cells.get_mut(c.wrapping_sub(lo) as usize) {
+                    *s = key_min(*s, key);
+                }
+            }
+        });
+    src.bufs.spill = spills;
+}
+
+avx2_dispatch! {
+    /// The splat keys ([`splat_key`]) of one source row from its key depths `kz` and the packed
+    /// pixel of its first point `pk_row` ([`pack_pixel`]). Four keys per vector instruction here,
+    /// against four scalar instructions per key in [`splat_row`].
+    fn row_keys / row_keys_avx2 => row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64])
+}
+
+#[inline(always)]
+fn row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64]) {
+    for (i, (k, z)) in key.iter_mut().zip(kz).enumerate() {
+        *k = splat_key(*z, pk_row | i as u32);
+    }
+}
+
+/// Splats one source row whose points' cells and keys are `cell` and `key` ([`RowScratch`]):
+/// into `band`, the cells `base..` of the grid, or else onto `spill`.
+///
+/// A function of its own, not inlined: inside the closure of [`scene_flow_and_splat`] the
+/// compiler kept the band's pointer, length and base on the stack and reloaded them for every
+/// point.
+#[inline(never)]
+fn splat_row(cell: &[u32], key: &[u64], base: u32, band: &mut [u64], spill: &mut Vec<(u32, u64)>) {
+    for (&c, &key) in cell.iter().zip(key) {
+        // NO_SPLAT wraps to beyond every band (grids have fewer than 2³¹ cells).
+        let rel = c.wrapping_sub(base) as usize;
+        if let Some(s) = band.get_mut(rel) {
+            // Only this task writes this band during the parallel pass.
+            *s = key_min(*s, key);
+        } else if c != NO_SPLAT {
+            spill.push((c, key));
+        }
+    }
+}
+
+thread_local! {
+    /// Splat targets of one source row ([`RowScratch`]), reused.
+    static ROW_SCRATCH: std::cell::RefCell<RowScratch> = const {
+        std::cell::RefCell::new(RowScratch { cell: Vec::new(), kz: Vec::new(), key: Vec::new(), inv: Vec::new() })
+    };
+}
+
+/// What [`flow_row`] computes per point of a row besides the flow, for the scalar loop that
+/// splats: one array per field, so that the vector loop stores whole registers.
+struct RowScratch {
+    /// The client cell (row-major index in the source-sized grid) the point splats into, or
+    /// [`NO_SPLAT`].
+    cell: Vec<u32>,
+    /// Its key depth, the `z` of [`splat_key`] (unspecified where `cell` is [`NO_SPLAT`]). The
+    /// key itself is put together by [`row_keys`]: 64-bit lanes in [`flow_row`] made the
+    /// compiler halve its vector width.
+    kz: Vec<f32>,
+    /// The splat keys ([`row_keys`]).
+    key: Vec<u64>,
+    /// Auxiliary sources: the cell the point lands in when it is valid and not visible in the
+    /// main camera (whether or not it splats; see [`Buffers::invisible`](super::Buffers::invisible)), else [`NO_SPLAT`].
+    inv: Vec<u32>,
+}
+
+impl RowScratch {
+    fn resize(&mut self, n: usize) {
+        self.cell.resize(n, NO_SPLAT);
+        self.kz.resize(n, 0.0);
+        self.key.resize(n, EMPTY_SPLAT);
+        self.inv.resize(n, NO_SPLAT);
+    }
+}
+
+/// The inputs of [`flow_row`]: one row `j` of a `sw × sh` source image.
+struct FlowRow<'a> {
+    j: usize,
+    sw: usize,
+    sh: usize,
+    /// NDC x of the pixel centres ([`NdcTable`](super::NdcTable)).
+    x: &'a [f32],
+    depth: &'a [f32],
+    /// The row's object motion, `3·sw` values, or `None` for a static frame.
+    motion: Option<&'a [f32]>,
+    to_client: &'a NdcTransfer,
+    w: f32,
+}
+
+/// The outputs of [`flow_row`] for one row: `M_cam` and the client depth (written to the
+/// source's buffers), and the splat targets ([`RowScratch`]).
+struct RowOut<'a> {
+    flow: &'a mut [[f32; 2]],
+    zc: &'a mut [f32],
+    cell: &'a mut [u32],
+    kz: &'a mut [f32],
+}
+
+avx2_dispatch! {
+    /// `M_cam` of one source row (eqs. 1, 12, 13) and where each point splats.
+    ///
+    /// Written without branches on the data so that the compiler vectorises it; on x86-64 it
+    /// runs in an AVX2 build where the processor has it (the same IEEE operations, no FMA
+    /// contraction, so the bytes do not depend on the processor).
+    fn flow_row / flow_row_avx2 => flow_row_impl(row: FlowRow, out: RowOut)
+}
+
+#[inline(always)]
+fn flow_row_impl(row: FlowRow, out: RowOut) {
+    let FlowRow {
+        j,
+        sw,
+        sh,
+        x,
+        depth,
+        motion,
+        to_client,
+        w,
+    } = row;
+    let RowOut { flow, zc, cell, kz } = out;
+    let k = PointCtx {
+        y: crate::camera::ndc_of_pixel(0, j, sw, sh)[1],
+        wf: sw as i32 as f32,
+        hf: sh as i32 as f32,
+        sw: sw as u32,
+        to_client: *to_client,
+        w,
+    };
+    let outs = flow
+        .iter_mut()
+        .zip(zc.iter_mut())
+        .zip(cell.iter_mut())
+        .zip(kz.iter_mut());
+    let put = |(((f, zo), c), k): (((&mut [f32; 2], &mut f32), &mut u32), &mut f32),
+               p: FlowPoint| {
+        (*f, *zo, *c, *k) = (p.flow, p.zc, p.cell, p.kz);
+    };
+    match motion {
+        Some(mo) => {
+            for (d, (x, (z, o))) in outs.zip(x.iter().zip(depth.iter().zip(mo.chunks_exact(3)))) {
+                put(d, flow_point(&k, *x, *z, [o[0], o[1], o[2]]));
+            }
+        }
+        None => {
+            for (d, (x, z)) in outs.zip(x.iter().zip(depth)) {
+                put(d, flow_point(&k, *x, *z, [0.0; 3]));
+            }
+        }
+    }
+}
+
+avx2_dispatch! {
+    /// For an auxiliary source, the cell each point of row `j` lands in as the resolve pass sees
+    /// it, `pixel_of_ndc(x + M_cam)`, where the point is valid and not visible in the main camera
+    /// (`vis`, one byte per pixel, from the pair), else [`NO_SPLAT`] ([`RowScratch::inv`]).
+    /// Whether or not the point splats: the FPI can reach points that do not (e.g. nearer than
+    /// the client's near plane). Points just outside the grid need no flag: the cells along the
+    /// grid's border are always searched.
+    fn landing_row / landing_row_avx2 => landing_row_impl(
+        j: usize,
+        sw: usize,
+        sh: usize,
+        x: &[f32],
+        flow: &[[f32; 2]],
+        vis: &[u8],
+        inv: &mut [u32],
+    )
+}
+
+#[inline(always)]
+fn landing_row_impl(
+    j: usize,
+    sw: usize,
+    sh: usize,
+    x: &[f32],
+    flow: &[[f32; 2]],
+    vis: &[u8],
+    inv: &mut [u32],
+) {
+    let y = crate::camera::ndc_of_pixel(0, j, sw, sh)[1];
+    let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
+    for (d, ((x, f), v)) in inv.iter_mut().zip(x.iter().zip(flow).zip(vis)) {
+        // `pixel_of_ndc` without branches; NaN (invalid) flow fails every comparison.
+        let fx = (x + f[0] + 1.0) * 0.5 * wf;
+        let fy = (1.0 - (y + f[1])) * 0.5 * hf;
+        // `&`, not `&&`: short-circuit branches here keep the loop from vectorising.
+        let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < wf) & (fy < hf);
+        let c = cell_index(inside, fx, fy, sw as u32);
+        *d = if inside & (*v == 0) { c } else { NO_SPLAT };
+    }
+}
+
+/// What [`flow_point`] needs of its row.
+struct PointCtx {
+    /// NDC y of the row.
+    y: f32,
+    /// Source width and height as floats.
+    wf: f32,
+    hf: f32,
+    /// Source width.
+    sw: u32,
+    /// The source → client NDC transfer.
+    to_client: NdcTransfer,
+    /// The fraction of the object motion applied.
+    w: f32,
+}
+
+/// What [`flow_point`] gives for one source pixel.
+struct FlowPoint {
+    /// `M_cam`, NaN when invalid.
+    flow: [f32; 2],
+    /// The client's reversed depth (eq. 8), NaN when invalid.
+    zc: f32,
+    /// The splat cell (row-major index) or [`NO_SPLAT`].
+    cell: u32,
+    /// The key depth ([`RowScratch::kz`]), unspecified without a cell.
+    kz: f32,
+}
+
+/// `M_cam` of source pixel `(i, y)` (NDC x `x`) with depth `z` and object motion `o` (eqs. 1, 12,
+/// 13), the client's reversed depth of the point (eq. 8), and its splat cell and key.
+#[inline(always)]
+fn flow_point(k: &PointCtx, x: f32, z: f32, o: [f32; 3]) -> FlowPoint {
+    let (y, w) = (k.y, k.w);
+    let clip = |c: [f32; 3]| k.to_client.clip(c);
+    // P_{t+α}(X + w·(X' − X)) = P X + w·(P X' − P X): the world-space blend of eq. 1 done on
+    // clip coordinates, each already divided by its world w ([`NdcTransfer::clip`]).
+    let a = clip([x, y, z]);
+    let b = clip([x + o[0], y + o[1], z + o[2]]);
+    let h = [
+        a[0] + w * (b[0] - a[0]),
+        a[1] + w * (b[1] - a[1]),
+        a[2] + w * (b[2] - a[2]),
+        a[3] + w * (b[3] - a[3]),
+    ];
+    let iw = 1.0 / h[3];
+    let cc = [h[0] * iw, h[1] * iw, h[2] * iw];
+    // Invalid depth or motion never reaches the output (DESIGN.md): NaN or infinite inputs make
+    // `cc` or the sum of the motion non-finite (finite motions too large to add up are rejected
+    // as well; they lie far outside NDC). Points behind the client camera (or degenerate) have `h.w ≤ 0`.
+    let ok = (0.0..=1.0).contains(&z)
+        && h[3] > 0.0
+        && h[3] < f32::INFINITY
+        && cc[0].is_finite()
+        && cc[1].is_finite()
+        && cc[2].is_finite()
+        && (o[0] + o[1] + o[2]).is_finite();
+    let (f, zc) = if ok {
+        ([cc[0] - x, cc[1] - y], cc[2])
+    } else {
+        ([f32::NAN; 2], f32::NAN)
+    };
+    // In front of the client and not nearer than its near plane (with a margin for the f32 round
+    // trip of points on it). Points at or beyond the far plane (the background lies at Z = 0) are
+    // kept, their key depth clamped to exactly +0 (−0 or negative bits would sort as nearest).
+    // The target cell is `pixel_of_ndc` without branches.
+    let fx = (cc[0] + 1.0) * 0.5 * k.wf;
+    let fy = (1.0 - cc[1]) * 0.5 * k.hf;
+    let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < k.wf) & (fy < k.hf);
+    let splats = ok & inside & (cc[2] <= 1.0 + 1e-5);
+    let kz = if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 };
+    FlowPoint {
+        flow: f,
+        zc,
+        cell: if splats {
+            cell_index(inside, fx, fy, k.sw)
+        } else {
+            NO_SPLAT
+        },
+        kz,
+    }
+}
+
+/// The row-major index `⌊fy⌋·sw + ⌊fx⌋` when `inside` (`0 ≤ fx < sw`, `0 ≤ fy < H`), else an
+/// unspecified value the caller discards (see [`packed_cell`](super::packed_cell)).
+#[inline(always)]
+fn cell_index(inside: bool, fx: f32, fy: f32, sw: u32) -> u32 {
+    let (fx, fy) = if inside { (fx, fy) } else { (0.0, 0.0) };
+    // SAFETY: both are in `[0, 2¹⁶)` here (sides are at most 16384), so finite and in i32 range.
+    let (qi, qj) = unsafe { (fx.to_int_unchecked::<i32>(), fy.to_int_unchecked::<i32>()) };
+    qj as u32 * sw + qi as u32
+}
+
+thread_local! {
+    /// Row minima of one block of [`window_min`], reused across blocks and frames.
+    static ROW_MIN: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The window search of every cell at once: `init[c]` = the packed source pixel of the smallest
+/// splat key in the `(2W+1)²` window around cell `c` (clipped to the grid), or [`NO_SPLAT`].
+///
+/// Searching per output pixel reads nine keys for each of the two frames; the minimum is
+/// separable, so a row pass and a column pass give every cell's answer with about `4W+2`
+/// comparisons on sequential memory, and the resolve pass then reads one `u32` per search.
+pub(super) fn window_min(src: &mut Src, wr: usize) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    let splat = &src.bufs.splat;
+    src.bufs
+        .init
+        .par_chunks_mut(TILE * sw)
+        .enumerate()
+        .for_each(|(b, out)| {
+            ROW_MIN
+                .with(|cell| window_block(splat, sw, sh, wr, b * TILE, out, &mut cell.borrow_mut()))
+        });
+}
+
+avx2_dispatch! {
+    /// [`window_min`] for the output rows starting at `j0`; `scratch` holds row minima.
+    fn window_block / window_block_avx2 => window_block_impl(
+        splat: &[u64],
+        sw: usize,
+        sh: usize,
+        wr: usize,
+        j0: usize,
+        out: &mut [u32],
+        scratch: &mut Vec<u64>,
+    )
+}
+
+#[inline(always)]
+fn window_block_impl(
+    splat: &[u64],
+    sw: usize,
+    sh: usize,
+    wr: usize,
+    j0: usize,
+    out: &mut [u32],
+    scratch: &mut Vec<u64>,
+) {
+    let j1 = j0 + out.len() / sw;
+    let (lo, hi) = (j0.saturating_sub(wr), (j1 + wr).min(sh));
+    // Layout: the horizontal minima of rows lo..hi, then two rows of working space. Every entry
+    // is written before it is read, so the buffer needs no fill.
+    scratch.resize((hi - lo + 2) * sw, EMPTY_SPLAT);
+    let (rows, work) = scratch.split_at_mut((hi - lo) * sw);
+    let (acc, tmp) = work.split_at_mut(sw);
+    for (r, dst) in rows.chunks_mut(sw).enumerate() {
+        let src = &splat[(lo + r) * sw..(lo + r + 1) * sw];
+        // Each step widens the minimum by one pixel on both sides; the first reads the grid
+        // directly (the default window, wr = 1, needs no copy).
+        if wr == 0 {
+            dst.copy_from_slice(src);
+        } else {
+            min3(src, dst);
+        }
+        for _ in 1..wr {
+            tmp.copy_from_slice(dst);
+            min3(tmp, dst);
+        }
+    }
+    for (r, o) in out.chunks_mut(sw).enumerate() {
+        let j = j0 + r;
+        let (a, z) = (j.saturating_sub(wr) - lo, (j + wr).min(sh - 1) - lo);
+        let row = |q: usize| &rows[q * sw..(q + 1) * sw];
+        // The low half of a key is its packed pixel, and that of EMPTY_SPLAT is NO_SPLAT (packed
+        // pixels stay below 2³⁰).
+        if z == a + 2 {
+            // Three rows (wr = 1 away from the border): one pass, no accumulator.
+            for (d, ((x, y), w)) in o.iter_mut().zip(row(a).iter().zip(row(a + 1)).zip(row(z))) {
+                *d = splat_index(key_min(key_min(*x, *y), *w));
+            }
+        } else {
+            acc.copy_from_slice(row(a));
+            for q in a + 1..=z {
+                for (m, v) in acc.iter_mut().zip(row(q)) {
+                    *m = key_min(*m, *v);
+                }
+            }
+            for (d, m) in o.iter_mut().zip(acc.iter()) {
+                *d = splat_index(*m);
+            }
+        }
+    }
+}
+
+/// The smaller of two splat keys ([`splat_key`] or [`EMPTY_SPLAT`]).
+///
+/// Every such key has its top bit set (the high half is `!z.to_bits()` with `0 ≤ z ≤ 1`, whose
+/// bits are below 2³¹), and among integers that share the top bit the signed order is the
+/// unsigned one. AVX2 has a signed 64-bit compare but no unsigned one, so comparing as `i64`
+/// saves flipping the sign bit of both operands.
+#[inline(always)]
+fn key_min(a: u64, b: u64) -> u64 {
+    (a as i64).min(b as i64) as u64
+}
+
+/// `dst[i] = min(src[i−1], src[i], src[i+1])`, clipped at the ends.
+#[inline(always)]
+fn min3(src: &[u64], dst: &mut [u64]) {
+    let n = src.len();
+    if n < 2 {
+        dst.copy_from_slice(src);
+        return;
+    }
+    dst[0] = key_min(src[0], src[1]);
+    dst[n - 1] = key_min(src[n - 2], src[n - 1]);
+    for (d, ((a, b), c)) in dst[1..n - 1]
+        .iter_mut()
+        .zip(src[..n - 2].iter().zip(&src[1..n - 1]).zip(&src[2..]))
+    {
+        *d = key_min(key_min(*a, *b), *c);
+    }
+}

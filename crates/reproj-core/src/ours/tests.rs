@@ -1,0 +1,419 @@
+//! Unit tests of `ours` and `forward_splat`: analytic scenes (a textured plane, a moving object)
+//! and the equivalences the optimisations must keep (lazy auxiliary search, pair cache).
+
+use super::auxiliary::EAGER_AUX;
+use super::*;
+use crate::camera::Mat4;
+use crate::frame::FrameView;
+use crate::{reproject, Method};
+
+/// A fronto-parallel textured plane at view depth `d` seen by `cam` (exact per pixel).
+fn plane(cam: &Camera, d: f64) -> (Vec<u8>, Vec<f32>) {
+    let vp = cam.view_proj();
+    let inv = vp.inverse().unwrap();
+    let (w, h) = (cam.width, cam.height);
+    let mut color = vec![0u8; w * h * 3];
+    let mut depth = vec![0f32; w * h];
+    // The plane z = -d in world space (cameras below look down −z from z = 0).
+    for j in 0..h {
+        for i in 0..w {
+            let [x, y] = crate::camera::ndc_of_pixel(i, j, w, h);
+            let a = inv.mul_vec([x as f64, y as f64, 1.0, 1.0]);
+            let b = inv.mul_vec([x as f64, y as f64, 0.0, 1.0]);
+            let (a, b) = (
+                [a[0] / a[3], a[1] / a[3], a[2] / a[3]],
+                [b[0] / b[3], b[1] / b[3], b[2] / b[3]],
+            );
+            let s = (-d - a[2]) / (b[2] - a[2]);
+            let p = [a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), -d];
+            let c = vp.mul_vec([p[0], p[1], p[2], 1.0]);
+            depth[j * w + i] = (c[2] / c[3]) as f32;
+            // Cells of 0.25 m (≈3 px here) with hashed colours: piecewise constant, so nearest
+            // sampling of a sub-pixel shift reproduces a colour of a neighbouring exact pixel.
+            let (u, v) = ((p[0] * 4.0).floor() as i64, (p[1] * 4.0).floor() as i64);
+            let hsh = (u.wrapping_mul(73_856_093) ^ v.wrapping_mul(19_349_663)) as u64;
+            let (v, u) = ((hsh % 251) as u8, ((hsh >> 8) % 2) as i64);
+            color[3 * (j * w + i)..3 * (j * w + i) + 3].copy_from_slice(&[
+                v,
+                (u * 200) as u8 + 20,
+                255 - v,
+            ]);
+        }
+    }
+    (color, depth)
+}
+
+/// [`reproject`] with the default parameters, without diagnostics or history.
+fn reproject_plain(
+    method: Method,
+    older: Option<&FrameView>,
+    newer: &FrameView,
+    req: &Request,
+    out: &mut [u8],
+) {
+    let p = Params::default();
+    reproject(method, older, newer, req, &p, out, None, None).unwrap();
+}
+
+fn cam(x: f64, w: usize, h: usize) -> Camera {
+    Camera::new(
+        Mat4::look_at([x, 0.0, 0.0], [x, 0.0, -1.0], [0.0, 1.0, 0.0]),
+        Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+        w,
+        h,
+        "test",
+    )
+    .unwrap()
+}
+
+#[test]
+fn static_identity_reproduces_the_server_image() {
+    let c = cam(0.0, 64, 48);
+    let (color, depth) = plane(&c, 3.0);
+    let view = CameraView {
+        camera: c,
+        color: &color,
+        depth: &depth,
+        motion: None,
+        shadow: None,
+    };
+    let f = FrameView {
+        main: view,
+        aux: vec![],
+    };
+    for alpha in [0.0, 0.3, 0.99] {
+        let mut out = vec![0u8; color.len()];
+        let req = Request { client: c, alpha };
+        reproject_plain(Method::Ours, Some(&f), &f, &req, &mut out);
+        assert_eq!(out, color, "alpha {alpha}");
+    }
+}
+
+#[test]
+fn camera_translation_matches_the_analytic_image() {
+    let (w, h) = (96, 64);
+    let c0 = cam(0.0, w, h);
+    let c1 = cam(0.2, w, h);
+    let ct = cam(0.13, w, h);
+    let (col0, dep0) = plane(&c0, 4.0);
+    let (col1, dep1) = plane(&c1, 4.0);
+    let (gt, _) = plane(&ct, 4.0);
+    let v = |c, col: &'static [u8], dep: &'static [f32]| FrameView {
+        main: CameraView {
+            camera: c,
+            color: col,
+            depth: dep,
+            motion: None,
+            shadow: None,
+        },
+        aux: vec![],
+    };
+    let (col0, dep0, col1, dep1) = (col0.leak(), dep0.leak(), col1.leak(), dep1.leak());
+    let f0 = v(c0, col0, dep0);
+    let f1 = v(c1, col1, dep1);
+    let mut out = vec![0u8; w * h * 3];
+    let mut diag = Diagnostics::new(w * h);
+    let req = Request {
+        client: ct,
+        alpha: 0.4,
+    };
+    let params = Params {
+        blend: false,
+        ..Params::default()
+    };
+    reproject(
+        Method::Ours,
+        Some(&f0),
+        &f1,
+        &req,
+        &params,
+        &mut out,
+        Some(&mut diag),
+        None,
+    )
+    .unwrap();
+    let matched = diag
+        .source
+        .iter()
+        .filter(|&&s| s != Diagnostics::NONE)
+        .count();
+    assert!(matched > w * h * 95 / 100, "matched {matched}");
+    // Within one pixel: the colour equals the exact image at the pixel or one of its
+    // 8 neighbours (nearest sampling of a sub-pixel shift), checked away from the border.
+    let within_one = |k: usize| {
+        let (i, j) = ((k % w) as i64, (k / w) as i64);
+        (-1..=1).any(|dj| {
+            (-1..=1).any(|di| {
+                let (x, y) = (i + di, j + dj);
+                x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && {
+                    let q = (y as usize * w + x as usize) * 3;
+                    out[3 * k..3 * k + 3] == gt[q..q + 3]
+                }
+            })
+        })
+    };
+    let exact = (0..w * h)
+        .filter(|&k| diag.source[k] != Diagnostics::NONE && within_one(k))
+        .count();
+    assert!(exact * 100 >= matched * 97, "exact {exact} of {matched}");
+}
+
+fn cam_fov(x: f64, fov: f64, w: usize, h: usize) -> Camera {
+    Camera::new(
+        Mat4::look_at([x, 0.0, 0.0], [x, 0.0, -1.0], [0.0, 1.0, 0.0]),
+        Mat4::perspective(fov, w as f64 / h as f64, 0.1, 100.0),
+        w,
+        h,
+        "test",
+    )
+    .unwrap()
+}
+
+#[test]
+fn auxiliary_camera_with_non_integer_ratio_fills_holes() {
+    let (w, h) = (80, 60);
+    let c = cam_fov(0.0, 60.0, w, h);
+    // 37×29: no integer ratio to 80×60, and a wider field of view.
+    let ca = cam_fov(0.0, 80.0, 37, 29);
+    let (color, mut depth) = plane(&c, 3.0);
+    let (acolor, adepth) = plane(&ca, 3.0);
+    // A hole in the main camera: invalid depth must never reach the output.
+    for j in 20..40 {
+        for i in 30..50 {
+            depth[j * w + i] = f32::NAN;
+        }
+    }
+    let main = CameraView {
+        camera: c,
+        color: &color,
+        depth: &depth,
+        motion: None,
+        shadow: None,
+    };
+    let aux = CameraView {
+        camera: ca,
+        color: &acolor,
+        depth: &adepth,
+        motion: None,
+        shadow: None,
+    };
+    let f = FrameView {
+        main,
+        aux: vec![aux],
+    };
+    let mut out = vec![7u8; w * h * 3];
+    let mut diag = Diagnostics::new(w * h);
+    let req = Request {
+        client: c,
+        alpha: 0.5,
+    };
+    reproject(
+        Method::Ours,
+        Some(&f),
+        &f,
+        &req,
+        &Params::default(),
+        &mut out,
+        Some(&mut diag),
+        None,
+    )
+    .unwrap();
+    let mut from_aux = 0;
+    for j in 20..40 {
+        for i in 30..50 {
+            let k = j * w + i;
+            let code = diag.source[k] & !Diagnostics::BLENDED;
+            assert!(
+                code >= Diagnostics::AUX_BASE,
+                "hole pixel ({i},{j}) not from aux: {code}"
+            );
+            from_aux += 1;
+            // The aux sample is the plane's colour somewhere within an aux pixel (≈2.2 output
+            // pixels) of the exact point: equal to an exact main colour within 2 px.
+            let ok = (-2i64..=2).any(|dj| {
+                (-2i64..=2).any(|di| {
+                    let q = ((j as i64 + dj) as usize * w + (i as i64 + di) as usize) * 3;
+                    out[3 * k..3 * k + 3] == color[q..q + 3]
+                })
+            });
+            assert!(ok, "pixel ({i},{j}) colour not from the plane near it");
+        }
+    }
+    assert_eq!(from_aux, 400);
+    // Outside the hole the main camera wins.
+    let code = diag.source[5 * w + 5] & !Diagnostics::BLENDED;
+    assert!(
+        code == Diagnostics::MAIN_OLDER || code == Diagnostics::MAIN_NEWER,
+        "{code}"
+    );
+}
+
+#[test]
+fn extrapolation_of_a_static_scene_is_the_identity() {
+    let c = cam(0.0, 48, 32);
+    let (color, depth) = plane(&c, 2.0);
+    let f = FrameView {
+        main: CameraView {
+            camera: c,
+            color: &color,
+            depth: &depth,
+            motion: None,
+            shadow: None,
+        },
+        aux: vec![],
+    };
+    for alpha in [1.0, 1.5, 2.9] {
+        for m in [Method::Ours, Method::OursExtrapolate] {
+            let mut out = vec![0u8; color.len()];
+            let req = Request { client: c, alpha };
+            reproject(m, None, &f, &req, &Params::default(), &mut out, None, None).unwrap();
+            assert_eq!(out, color, "{m} alpha {alpha}");
+        }
+    }
+}
+
+/// The lazy auxiliary search ([`AuxGrid`]) skips cells whose match cannot reach the output;
+/// it must give the same bytes as searching every cell, with and without the older frame.
+#[test]
+fn lazy_auxiliary_search_equals_searching_every_cell() {
+    use crate::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+    let (w, h) = (192, 108);
+    let scene = SyntheticScene::new(true);
+    let f0 = SyntheticFrame::render(&scene, 0.0, w, h, 0.1, 4);
+    let f1 = SyntheticFrame::render(&scene, 0.1, w, h, 0.1, 4);
+    let (older, newer) = (f0.view(true), f1.view(false));
+    let mut aux_pixels = 0;
+    for (alpha, pair) in [(0.35f32, true), (0.8, true), (1.4, false)] {
+        // Off the server path, so that the client sees what the main camera did not.
+        let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
+        e[0] += 0.25;
+        e[1] -= 0.1;
+        let req = Request {
+            client: rig(e, tg, w, h).0,
+            alpha,
+        };
+        let run = |eager: bool| {
+            EAGER_AUX.with(|x| x.set(eager));
+            let mut out = vec![9u8; w * h * 3];
+            let mut diag = Diagnostics::new(w * h);
+            let older = pair.then_some(&older);
+            let p = Params::default();
+            reproject(
+                Method::Ours,
+                older,
+                &newer,
+                &req,
+                &p,
+                &mut out,
+                Some(&mut diag),
+                None,
+            )
+            .unwrap();
+            EAGER_AUX.with(|x| x.set(false));
+            (out, diag)
+        };
+        let (lazy, eager) = (run(false), run(true));
+        assert_eq!(lazy.0, eager.0, "colour, alpha {alpha}");
+        assert_eq!(lazy.1.source, eager.1.source, "sources, alpha {alpha}");
+        aux_pixels += eager
+            .1
+            .source
+            .iter()
+            .filter(|&&c| c & !Diagnostics::BLENDED >= Diagnostics::AUX_BASE)
+            .count();
+    }
+    // The scene must exercise the auxiliary cameras for the comparison to mean anything.
+    assert!(
+        aux_pixels > 100,
+        "only {aux_pixels} pixels from auxiliary cameras"
+    );
+}
+
+/// A client keeps one history per server-frame pair: with it, `ours` computes the pair-level
+/// state once; the bytes must equal those of calls without it, for every α of the pair, and a
+/// different pair in the same history must not be served the old pair's state.
+#[test]
+fn pair_cache_gives_the_same_bytes_and_follows_the_pair() {
+    use crate::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+    use crate::BidirHistory;
+    let (w, h) = (96, 54);
+    let scene = SyntheticScene::new(true);
+    let frames: Vec<SyntheticFrame> = (0..3)
+        .map(|k| SyntheticFrame::render(&scene, 0.1 * k as f64, w, h, 0.1, 4))
+        .collect();
+    let mut history = BidirHistory::new();
+    for pair in 0..2 {
+        let (older, newer) = (frames[pair].view(true), frames[pair + 1].view(false));
+        for (n, alpha) in [0.0f32, 0.25, 0.5, 0.75, 0.95, 1.3].into_iter().enumerate() {
+            let (mut e, tg) = head_pose(0.1 * (pair as f64 + f64::from(alpha)));
+            e[0] += 0.05 * n as f64;
+            let req = Request {
+                client: rig(e, tg, w, h).0,
+                alpha,
+            };
+            let run = |hist: Option<&mut BidirHistory>| {
+                let mut out = vec![3u8; w * h * 3];
+                let mut diag = Diagnostics::new(w * h);
+                let p = Params::default();
+                reproject(
+                    Method::Ours,
+                    Some(&older),
+                    &newer,
+                    &req,
+                    &p,
+                    &mut out,
+                    Some(&mut diag),
+                    hist,
+                )
+                .unwrap();
+                (out, diag.source)
+            };
+            // Deliberately no reset between the pairs: the cache must notice by itself.
+            let cached = run(Some(&mut history));
+            let fresh = run(None);
+            assert_eq!(cached, fresh, "pair {pair}, alpha {alpha}");
+        }
+    }
+}
+
+#[test]
+fn moving_object_is_extrapolated_along_its_motion() {
+    // The whole plane moves +x by 0.4 NDC per server interval (backward motion of the newer
+    // frame is −0.4). At α = 1.5 the content must appear shifted by +0.2 NDC.
+    let (w, h) = (64, 48);
+    let c = cam(0.0, w, h);
+    let (color, depth) = plane(&c, 2.0);
+    let motion: Vec<f32> = (0..w * h).flat_map(|_| [-0.4f32, 0.0, 0.0]).collect();
+    let f = FrameView {
+        main: CameraView {
+            camera: c,
+            color: &color,
+            depth: &depth,
+            motion: Some(&motion),
+            shadow: None,
+        },
+        aux: vec![],
+    };
+    let mut out = vec![0u8; color.len()];
+    let req = Request {
+        client: c,
+        alpha: 1.5,
+    };
+    reproject_plain(Method::OursExtrapolate, None, &f, &req, &mut out);
+    // 0.2 NDC = 6.4 px: output pixel i shows source pixel i − 6 or i − 7.
+    let mut ok = 0;
+    let mut total = 0;
+    for j in 4..h - 4 {
+        for i in 12..w - 4 {
+            total += 1;
+            let o = &out[3 * (j * w + i)..3 * (j * w + i) + 3];
+            if [6, 7]
+                .iter()
+                .any(|d| o == &color[3 * (j * w + i - d)..3 * (j * w + i - d) + 3])
+            {
+                ok += 1;
+            }
+        }
+    }
+    assert!(ok * 100 >= total * 98, "{ok} of {total}");
+}

@@ -1,0 +1,109 @@
+//! What every method takes and gives besides the frames: the client's [`Request`], the
+//! per-pixel [`Diagnostics`], and the check of the output buffers they share. It sits below the
+//! methods (`ours`, `backward_bidir`, `timewarp`) and below [`crate::method`], which dispatches to
+//! them: they all import these from here, and none imports from another.
+
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::error::{ReprojError, Result};
+use crate::params::TILE;
+
+/// What the client asks for: its actual camera at display time and `α`, the display time relative
+/// to the pair: `α = (t − t_k)/(t_{k+1} − t_k)`. `α ∈ [0,1)` interpolates, `α ≥ 1` extrapolates
+/// from the newer frame (seeds/000 §3.5).
+#[derive(Debug, Clone, Copy)]
+pub struct Request {
+    /// The client camera `P_{t+α}`; its size is the output size.
+    pub client: Camera,
+    /// `α`.
+    pub alpha: f32,
+}
+
+/// Largest `α` accepted: extrapolating more than two server intervals is never meaningful.
+pub const MAX_ALPHA: f32 = 3.0;
+
+/// Per-output-pixel diagnostics.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Diagnostics {
+    /// Which source coloured the pixel: [`Diagnostics::NONE`] (kept the previous frame),
+    /// [`Diagnostics::MAIN_OLDER`], [`Diagnostics::MAIN_NEWER`], or `AUX_BASE + 2·i (+1 for the
+    /// newer frame)` for auxiliary camera `i`; [`Diagnostics::BLENDED`] is or-ed in when Algorithm 2
+    /// blended the other frame's colour in.
+    pub source: Vec<u8>,
+    /// Reprojection error of the chosen match (NDC, aspect-scaled); NaN where none.
+    pub error: Vec<f32>,
+}
+
+impl Diagnostics {
+    /// No match: the previous client frame's colour was kept.
+    pub const NONE: u8 = 0;
+    /// The main camera of the older frame.
+    pub const MAIN_OLDER: u8 = 1;
+    /// The main camera of the newer frame.
+    pub const MAIN_NEWER: u8 = 2;
+    /// First auxiliary code: auxiliary camera `i` of the older frame is `AUX_BASE + 2i`.
+    pub const AUX_BASE: u8 = 3;
+    /// Flag: Algorithm 2 blended the other frame in.
+    pub const BLENDED: u8 = 0x80;
+
+    /// Diagnostics for `n` pixels, all "no match".
+    pub fn new(n: usize) -> Diagnostics {
+        Diagnostics {
+            source: vec![Self::NONE; n],
+            error: vec![f32::NAN; n],
+        }
+    }
+}
+/// Checks the output and diagnostics buffers against a `w × h` output. [`crate::reproject()`] checks them
+/// for every method; the methods' own public entry points repeat this O(1) check so that they stay
+/// panic-free when called directly.
+pub(crate) fn check_output(
+    out: &[u8],
+    diag: Option<&Diagnostics>,
+    w: usize,
+    h: usize,
+) -> Result<()> {
+    let n = w * h;
+    if out.len() != n * 3 {
+        return Err(ReprojError::BufferSize {
+            what: "previous client frame".into(),
+            expected: n * 3,
+            actual: out.len(),
+            detail: format!("{h}x{w}x3"),
+        });
+    }
+    if let Some(d) = diag {
+        if d.source.len() != n || d.error.len() != n {
+            return Err(ReprojError::BufferSize {
+                what: "diagnostics".into(),
+                expected: n,
+                actual: d.source.len().min(d.error.len()),
+                detail: format!("{h}x{w}"),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Runs `rows(j0, out, diag)` in parallel for every block of [`TILE`] rows of a `w`-wide output:
+/// `j0` is the block's first row, `out` its RGB8 rows, and `diag` (when diagnostics are asked for)
+/// its rows of [`Diagnostics::source`] and [`Diagnostics::error`]. The buffers' sizes are those
+/// [`check_output`] accepts.
+pub(crate) fn par_row_blocks<F>(out: &mut [u8], diag: Option<&mut Diagnostics>, w: usize, rows: F)
+where
+    F: Fn(usize, &mut [u8], Option<(&mut [u8], &mut [f32])>) + Sync,
+{
+    match diag {
+        Some(d) => out
+            .par_chunks_mut(TILE * w * 3)
+            .zip(d.source.par_chunks_mut(TILE * w))
+            .zip(d.error.par_chunks_mut(TILE * w))
+            .enumerate()
+            .for_each(|(b, ((o, s), e))| rows(b * TILE, o, Some((s, e)))),
+        None => out
+            .par_chunks_mut(TILE * w * 3)
+            .enumerate()
+            .for_each(|(b, o)| rows(b * TILE, o, None)),
+    }
+}
