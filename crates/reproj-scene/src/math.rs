@@ -137,19 +137,9 @@ impl Rigid {
     }
 }
 
-/// Deterministic hash of two integers and a salt to `[0, 1)` (splitmix64 finaliser), as in
-/// `reproj_core::synthetic`.
-pub(crate) fn hash(a: i64, b: i64, salt: u64) -> f64 {
-    let mut x = (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ salt.wrapping_mul(0x1656_67B1_9E37_79F9);
-    x ^= x >> 30;
-    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    x ^= x >> 27;
-    x = x.wrapping_mul(0x94D0_49BB_1331_11EB);
-    x ^= x >> 31;
-    (x >> 11) as f64 / (1u64 << 53) as f64
-}
+/// Deterministic hash of two integers and a salt to `[0, 1)` (splitmix64 finaliser): the
+/// synthetic scene's, so that the two crates draw the same values.
+pub(crate) use reproj_core::synthetic::hash;
 
 #[cfg(test)]
 mod tests {

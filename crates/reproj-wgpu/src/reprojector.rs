@@ -320,18 +320,7 @@ impl Reprojector {
     /// matrices); [`GpuError::Unsupported`] for more than [`MAX_CAMERAS`] cameras per frame;
     /// [`GpuError::Device`] when the buffers exceed the device's limits or memory.
     pub fn load(&mut self, older: Option<&FrameView>, newer: &FrameView) -> Result<()> {
-        newer.validate("newer")?;
-        if let Some(o) = older {
-            o.validate("older")?;
-            if o.aux.len() != newer.aux.len() {
-                return Err(ReprojError::CameraMismatch(format!(
-                    "older frame has {} auxiliary cameras, newer has {}",
-                    o.aux.len(),
-                    newer.aux.len()
-                ))
-                .into());
-            }
-        }
+        FrameView::validate_pair(older, newer)?;
         let n_cams = 1 + newer.aux.len();
         if n_cams > MAX_CAMERAS {
             return Err(GpuError::Unsupported(format!(
@@ -854,7 +843,7 @@ fn read_buffer(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u32>>
 }
 
 /// Which pipeline `method` runs and whether bidirectionally, with the checks and messages of
-/// [`reproj_core::reproject`] (method.rs) for `α` and missing frames.
+/// [`reproj_core::reproject`] (`method.rs`) for `α` and missing frames.
 fn plan(method: Method, has_older: bool, alpha: f32, params: &Params) -> Result<(Mode, bool)> {
     let range_err = |range: &str| {
         GpuError::Input(ReprojError::AlphaRange {

@@ -114,8 +114,10 @@ fn rotate(v: V3, axis: V3, angle: f64) -> V3 {
     ]
 }
 
-/// Deterministic hash of an integer cell to `[0, 1)` (splitmix64 finaliser).
-fn hash(a: i64, b: i64, salt: u64) -> f64 {
+/// Deterministic hash of an integer cell to `[0, 1)` (splitmix64 finaliser). Public because the
+/// reference renderer (reproj-scene) draws its textures and head-path deviations from the same
+/// values, so that its rig matches this scene's.
+pub fn hash(a: i64, b: i64, salt: u64) -> f64 {
     let mut x = (a as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
         ^ (b as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
         ^ salt.wrapping_mul(0x1656_67B1_9E37_79F9);

@@ -1,6 +1,7 @@
 // Pass 1, scene flow and splat target of one source pixel, line for line after reproj-core
-// `reproject.rs` (`scene_flow_and_splat`, `visible_in`). Used by both splat variants
-// (`splat64.wgsl`, `splat32.wgsl`), which differ only in how the key reaches the grid.
+// `ours/pass1.rs` (`scene_flow_and_splat`) and `ours/pair.rs` (`visible_in`). Used by both
+// splat variants (`splat64.wgsl`, `splat32.wgsl`), which differ only in how the key reaches the
+// grid.
 
 @group(0) @binding(3) var<storage, read_write> flow: array<vec4<f32>>;
 
