@@ -57,7 +57,6 @@ import numpy as np
 import numpy.typing as npt
 import zstandard
 
-from splitrender.errors import InvalidInputError, StreamError
 from splitrender.codec.stream import (
     KIND_CHANNELS,
     MAX_PIXELS,
@@ -70,7 +69,14 @@ from splitrender.codec.stream import (
     pack_packet,
     unpack_packet,
 )
-from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
+from splitrender.errors import InvalidInputError, StreamError
+from splitrender.types import (
+    Camera,
+    CameraFrame,
+    ServerFrame,
+    ShadowBuffers,
+    check_server_frame,
+)
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # annotations only (Python 3.10)
@@ -559,10 +565,8 @@ class StreamEncoder:
         self.close()
 
     def _check_layout(self, frame: ServerFrame) -> None:
-        if not isinstance(frame, ServerFrame):
-            raise InvalidInputError(
-                f"frame: expected a ServerFrame, got {type(frame).__name__}"
-            )
+        # Every buffer as the coder reads it (numpy arrays stay mutable after the frame is made).
+        check_server_frame("frame", frame)
         layout = tuple((c.camera.width, c.camera.height) for c in _cameras_of(frame))
         if self._layout is None:
             if len(layout) != len(self.config.camera_shares):
@@ -577,7 +581,12 @@ class StreamEncoder:
             )
 
     def encode(self, frame: ServerFrame) -> bytes:
-        """One packet holding ``frame`` (see :mod:`splitrender.codec.stream`)."""
+        """One packet holding ``frame`` (see :mod:`splitrender.codec.stream`).
+
+        Raises:
+            InvalidInputError: for a buffer of the wrong dtype or shape (naming it, e.g.
+                ``frame.aux[0].color``) or a frame that does not match the stream's layout.
+        """
         self._check_layout(frame)
         cfg = self.config
         key = self._frames % cfg.gop == 0
