@@ -12,7 +12,13 @@ import numpy.typing as npt
 
 from splitrender.client.client import Client
 from splitrender.errors import InvalidInputError
-from splitrender.net.model import TIME_EPS, ClientFrameInfo, NetworkModel, Schedule
+from splitrender.net.model import (
+    TIME_EPS,
+    ClientFrameInfo,
+    NetworkModel,
+    Schedule,
+    network_for,
+)
 from splitrender.types import Camera, ReprojectOptions, ServerFrame, check_server_frame
 
 __all__ = ["PlaybackResult", "frame_nbytes", "play"]
@@ -89,13 +95,7 @@ def play(
     """
     client = Client(method, options, backend=backend)
     fs = client.server_fps
-    net = network if network is not None else NetworkModel(client_fps=fps)
-    if not isinstance(net, NetworkModel):
-        raise InvalidInputError(f"network: expected a NetworkModel, got {type(net).__name__}")
-    if not np.isclose(net.client_fps, fps):
-        raise InvalidInputError(
-            f"network.client_fps: expected the client's fps = {fps}, got {net.client_fps}"
-        )
+    net = network_for(network, fps, "the client's fps")
     lead_s = 1.0 / fs if lead is None else float(lead)
     cams = list(cameras)
     for n, c in enumerate(cams):
