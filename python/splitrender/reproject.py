@@ -322,6 +322,7 @@ def reproject(
         raise InvalidInputError(
             f"frames out of order: newer.time = {newer.time} must be > older.time = {older.time}"
         )
+    pair: tuple[ServerFrame | None, ServerFrame]
     if _unidirectional(method, opts, older):
         held = [f for f in (newer, older) if f is not None and f.time <= t]
         if not held:
@@ -331,27 +332,19 @@ def reproject(
                 f"method '{method}' extrapolates from a frame at or before the request"
             )
         frame = held[0]
+        pair = (None, frame)
         alpha = 1.0 + (t - frame.time) * opts.server_fps
-        return _reproject_alpha(
-            None,
-            frame,
-            request.camera,
-            alpha,
-            method,
-            options=opts,
-            previous=previous,
-            diagnostics=diagnostics,
-            history=history,
-            backend=backend,
-            paths=("older", "newer" if frame is newer else "older"),
-            camera_path="request.camera",
-        )
-    if older is None:
-        raise InvalidInputError(f"method '{method}' needs both frames; older is None")
-    alpha = (t - older.time) / (newer.time - older.time)
+        # The frame goes to the core as the newer one; messages name it as the caller passed it.
+        paths = ("older", "newer" if frame is newer else "older")
+    else:
+        if older is None:
+            raise InvalidInputError(f"method '{method}' needs both frames; older is None")
+        pair = (older, newer)
+        alpha = (t - older.time) / (newer.time - older.time)
+        paths = ("older", "newer")
     return _reproject_alpha(
-        older,
-        newer,
+        pair[0],
+        pair[1],
         request.camera,
         alpha,
         method,
@@ -360,6 +353,7 @@ def reproject(
         diagnostics=diagnostics,
         history=history,
         backend=backend,
+        paths=paths,
         camera_path="request.camera",
     )
 
