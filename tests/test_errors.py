@@ -10,11 +10,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import Pair
+import splitrender as sr
+from conftest import FPS, SMALL_H, SMALL_W, Pair, make_pair
 from hypothesis import given
 from hypothesis import strategies as st
-
-import splitrender as sr
 from splitrender import _native
 
 
@@ -459,3 +458,336 @@ def test_fuzz_only_split_render_errors(
     except BaseException as e:  # noqa: BLE001 - the point of the test
         pytest.fail(f"{type(e).__name__} escaped: {e}")
     assert isinstance(out, np.ndarray) and out.dtype == np.uint8
+
+
+# ------------------------------------------------------------------------------------------
+# The public API names a bad buffer by the path the caller passed it under (issue 12)
+#
+# numpy arrays stay mutable after a frame is made (``a.dtype = ...``, ``a.shape = ...``) and
+# ``object.__setattr__`` gets past a frozen dataclass, so a frame that was valid when made can
+# reach the kernels with a bad buffer. The message then names the argument, the camera and the
+# field: ``newer.aux[1].motion_bwd``, not the native layer's ``newer.aux[1].motion``.
+
+
+def _fresh() -> Pair:
+    """A pair of its own, for tests that spoil a frame's arrays in place."""
+    return make_pair()
+
+
+def _set(obj: object, name: str, value: object) -> None:
+    object.__setattr__(obj, name, value)
+
+
+def _unaligned(a: np.ndarray) -> np.ndarray:
+    buf = np.zeros(a.nbytes + 1, np.uint8)
+    out = np.frombuffer(buf.data, a.dtype, a.size, offset=1).reshape(a.shape)
+    assert not out.flags.aligned
+    return out
+
+
+def _spoil_aux_depth_dtype(p: Pair) -> None:
+    p.newer.aux[1].depth.dtype = np.int32  # type: ignore[misc]
+
+
+def _spoil_main_depth_shape(p: Pair) -> None:
+    p.older.main.depth.shape = (16, 96)
+
+
+def _spoil_motion_bwd_shape(p: Pair) -> None:
+    assert p.newer.aux[1].motion_bwd is not None
+    p.newer.aux[1].motion_bwd.shape = (16, 72, 1)
+
+
+def _spoil_motion_fwd_dtype(p: Pair) -> None:
+    cf = p.older.aux[0]
+    assert cf.motion_fwd is not None
+    _set(cf, "motion_fwd", cf.motion_fwd.astype(np.float64))
+
+
+def _spoil_shadow_bits(p: Pair) -> None:
+    assert p.newer.aux[1].shadow_bwd is not None
+    p.newer.aux[1].shadow_bwd.bits.dtype = np.int32  # type: ignore[misc]
+
+
+def _spoil_shadow_s_min(p: Pair) -> None:
+    s = p.older.main.shadow_fwd
+    assert s is not None
+    _set(s, "s_min", np.zeros((32, 96, 3), np.uint8)[:, ::2])
+
+
+def _spoil_shadow_size(p: Pair) -> None:
+    small = p.newer.aux[0].shadow_bwd
+    _set(p.newer.main, "shadow_bwd", small)
+
+
+def _spoil_consistent_size(p: Pair) -> None:
+    # Buffers that agree with each other but not with the camera: the native layer, which takes
+    # the size from the depth, cannot see it.
+    cf = p.newer.main
+    _set(cf, "color", np.zeros((16, 24, 3), np.uint8))
+    _set(cf, "depth", np.zeros((16, 24), np.float32))
+    _set(cf, "motion_bwd", None)
+    _set(cf, "shadow_bwd", None)
+
+
+def _spoil_unaligned(p: Pair) -> None:
+    _set(p.newer.main, "depth", _unaligned(p.newer.main.depth))
+
+
+def _spoil_view(p: Pair) -> None:
+    cam = p.newer.aux[0].camera
+    _set(cam, "view", cam.view.astype(np.float32))
+
+
+def _spoil_list(p: Pair) -> None:
+    _set(p.older.aux[1], "color", p.older.aux[1].color.tolist())
+
+
+SPOILS: list[tuple[Callable[[Pair], None], str]] = [
+    (
+        _spoil_aux_depth_dtype,
+        "newer.aux[1].depth: expected float32 array of shape (16, 24), got int32 (16, 24)",
+    ),
+    (
+        _spoil_main_depth_shape,
+        "older.main.depth: expected float32 array of shape (32, 48), got float32 (16, 96)",
+    ),
+    (
+        _spoil_motion_bwd_shape,
+        (
+            "newer.aux[1].motion_bwd: expected float32 array of shape (16, 24, 3), "
+            "got float32 (16, 72, 1)"
+        ),
+    ),
+    (
+        _spoil_motion_fwd_dtype,
+        (
+            "older.aux[0].motion_fwd: expected float32 array of shape (16, 24, 3), "
+            "got float64 (16, 24, 3)"
+        ),
+    ),
+    (
+        _spoil_shadow_bits,
+        (
+            "newer.aux[1].shadow_bwd.bits: expected uint32 array of shape (16, 24), "
+            "got int32 (16, 24)"
+        ),
+    ),
+    (_spoil_shadow_s_min, "older.main.shadow_fwd.s_min: expected a C-contiguous array"),
+    (_spoil_shadow_size, "newer.main.shadow_bwd: expected buffers of shape (32, 48), got (16, 24)"),
+    (
+        _spoil_consistent_size,
+        "newer.main.color: expected uint8 array of shape (32, 48, 3), got uint8 (16, 24, 3)",
+    ),
+    (_spoil_unaligned, "newer.main.depth: expected an aligned array, got an unaligned float32"),
+    (
+        _spoil_view,
+        "newer.aux[0].camera.view: expected float64 array of shape (4, 4), got float32 (4, 4)",
+    ),
+    (_spoil_list, "older.aux[1].color: expected uint8 array of shape (16, 24, 3), got list"),
+]
+
+
+@pytest.mark.parametrize(("spoil", "message"), SPOILS, ids=[s.__name__[7:] for s, _ in SPOILS])
+def test_reproject_names_the_buffer_as_passed(
+    spoil: Callable[[Pair], None], message: str
+) -> None:
+    p = _fresh()
+    spoil(p)
+    _raises_invalid(lambda: sr.reproject(p.older, p.newer, p.request), message)
+    _raises_invalid(
+        lambda: sr.reproject_alpha(p.older, p.newer, p.request.camera, p.alpha), message
+    )
+
+
+def test_unidirectional_names_the_frame_used() -> None:
+    # ours_extrapolate at a time before `newer` extrapolates from `older`, with its backward
+    # buffers: the message names `older` (the native layer sees it as its `newer`).
+    p = _fresh()
+    cf = p.older.aux[1]
+    assert cf.motion_bwd is not None and p.request.time < p.newer.time
+    cf.motion_bwd.shape = (8, 48, 3)
+    _raises_invalid(
+        lambda: sr.reproject(p.older, p.newer, p.request, "ours_extrapolate"),
+        "older.aux[1].motion_bwd: expected float32 array of shape (16, 24, 3), "
+        "got float32 (8, 48, 3)",
+    )
+    # Interpolating, `older` gives its forward buffers: the spoilt backward one is not read.
+    sr.reproject(p.older, p.newer, p.request, "ours")
+
+
+def test_pair_and_argument_errors() -> None:
+    p = _fresh()
+    _raises_invalid(
+        lambda: sr.reproject(p.older, p.newer.main, p.request),  # type: ignore[arg-type]
+        "newer: expected a ServerFrame, got CameraFrame",
+    )
+    _raises_invalid(
+        lambda: sr.reproject_alpha(p.older, p.newer, p.request, 0.5),  # type: ignore[arg-type]
+        "camera: expected a Camera, got ClientRequest",
+    )
+    _raises_invalid(
+        lambda: sr.reproject(
+            p.older, p.newer, p.request, previous=np.zeros((32, 48, 3), np.float32)
+        ),
+        "previous: expected uint8 array of shape (32, 48, 3), got float32 (32, 48, 3)",
+    )
+    cam = p.request.camera
+    _set(cam, "proj", cam.proj.T)  # a transposed view: the native layer takes any strides
+    sr.reproject(p.older, p.newer, p.request)
+    _set(cam, "proj", cam.proj.astype(np.float32))
+    _raises_invalid(
+        lambda: sr.reproject(p.older, p.newer, p.request),
+        "request.camera.proj: expected float64 array of shape (4, 4), got float32 (4, 4)",
+    )
+    _raises_invalid(
+        lambda: sr.reproject_alpha(p.older, p.newer, cam, p.alpha),
+        "camera.proj: expected float64 array of shape (4, 4)",
+    )
+    # Auxiliary cameras that differ between the frames of a pair.
+    q = _fresh()
+    _set(q.older, "aux", q.older.aux[:1])
+    _raises_invalid(
+        lambda: sr.reproject(q.older, q.newer, q.request),
+        "older.aux has 1 cameras but newer.aux has 2; both frames of a pair need the same "
+        "auxiliary cameras",
+    )
+
+
+def test_construction_names_the_field() -> None:
+    p = _fresh()
+    cf = p.newer.aux[1]
+    with pytest.raises(
+        sr.InvalidInputError,
+        match=r"^CameraFrame.depth: expected float32 array of shape \(16, 24\), got float64",
+    ):
+        dataclasses.replace(cf, depth=cf.depth.astype(np.float64))
+    # A ServerFrame checks its cameras again, naming them in the frame.
+    cf.depth.dtype = np.int32  # type: ignore[misc]
+    _raises_invalid(
+        lambda: sr.ServerFrame(5, 0.5, p.newer.main, p.newer.aux),
+        "ServerFrame.aux[1].depth: expected float32 array of shape (16, 24), got int32 (16, 24)",
+    )
+    _set(p.older.main, "shadow_fwd", "shadow")
+    _raises_invalid(
+        lambda: sr.ServerFrame(5, 0.5, p.older.main),
+        "ServerFrame.main.shadow_fwd: expected ShadowBuffers or None, got str",
+    )
+
+
+def test_client_names_the_frame_by_its_index() -> None:
+    p = _fresh()
+    client = sr.Client()
+    bad = _fresh().newer
+    bad.aux[1].depth.dtype = np.int32  # type: ignore[misc]
+    _raises_invalid(
+        lambda: client.receive(bad),
+        "frame.aux[1].depth: expected float32 array of shape (16, 24), got int32 (16, 24)",
+    )
+    assert client.held == ()
+    assert client.receive(p.older) and client.receive(p.newer)
+    client.render(p.request.camera, p.request.time)
+    # Spoilt after it was received: the render names it by its index.
+    assert p.newer.aux[1].motion_bwd is not None
+    p.newer.aux[1].motion_bwd.shape = (16, 72, 1)
+    _raises_invalid(
+        lambda: client.render(p.request.camera, p.request.time),
+        "frame(index=1).aux[1].motion_bwd: expected float32 array of shape (16, 24, 3), "
+        "got float32 (16, 72, 1)",
+    )
+
+
+def _session(n: int) -> tuple[list[sr.ServerFrame], list[sr.Camera]]:
+    scene = sr.SyntheticScene(dynamic=True)
+    frames = [scene.server_frame(k, k / FPS, SMALL_W, SMALL_H, fps=FPS) for k in range(n)]
+    cams = [scene.rig(i / 120, SMALL_W, SMALL_H)[0] for i in range(int((n - 1) * 120 / FPS))]
+    return frames, cams
+
+
+def test_play_names_the_frame_by_its_position() -> None:
+    frames, cams = _session(5)
+    frames[3].aux[0].color.shape = (24, 16, 3)
+    _raises_invalid(
+        lambda: sr.play(frames, cams),
+        "frames[3].aux[0].color: expected uint8 array of shape (16, 24, 3), got uint8 (24, 16, 3)",
+    )
+    frames, cams = _session(3)
+
+    def spoil(n: int, image: object, info: object) -> None:
+        if n == 0:
+            frames[1].main.depth.dtype = np.int32  # type: ignore[misc]
+
+    # Received (checked) before client frame 0, spoilt after it: the render names it.
+    _raises_invalid(
+        lambda: sr.play(frames, cams, on_frame=spoil),
+        "frames[1].main.depth: expected float32 array of shape (32, 48), got int32 (32, 48)",
+    )
+
+
+def test_encode_names_the_buffer() -> None:
+    frames, _ = _session(1)
+    frames[0].aux[0].color.dtype = np.int8  # type: ignore[misc]
+    with sr.StreamEncoder(sr.CodecConfig(uncompressed=True, fps=FPS)) as enc:
+        _raises_invalid(
+            lambda: enc.encode(frames[0]),
+            "frame.aux[0].color: expected uint8 array of shape (16, 24, 3), got int8 (16, 24, 3)",
+        )
+
+
+def test_building_blocks_name_the_buffer() -> None:
+    p = _fresh()
+    cf = p.newer.main
+    assert cf.motion_bwd is not None and cf.shadow_bwd is not None
+    cf.motion_bwd.dtype = np.int32  # type: ignore[misc]
+    _raises_invalid(
+        lambda: sr.scene_flow(cf, p.request.camera, 0.5, direction="backward"),
+        "source.motion_bwd: expected float32 array of shape (32, 48, 3), got int32 (32, 48, 3)",
+    )
+    sr.scene_flow(cf, p.request.camera, 0.5, direction="forward")
+    shadow = cf.shadow_bwd
+    shadow.bits.shape = (16, 96)
+    _raises_invalid(
+        lambda: sr.apply_shadows(cf.color, shadow, 0.5, role="newer"),
+        "shadow.bits: expected uint32 array of shape (32, 48), got uint32 (16, 96)",
+    )
+    _raises_invalid(
+        lambda: sr.apply_shadows(cf.depth, p.older.main.shadow_fwd, 0.5),  # type: ignore[arg-type]
+        "frame_color: expected uint8 array of shape (H, W, 3), got float32 (32, 48)",
+    )
+
+
+@pytest.mark.skipif(not sr.gpu.available(), reason="no wgpu adapter")
+def test_gpu_names_the_buffer_as_passed() -> None:
+    p = _fresh()
+    _spoil_motion_bwd_shape(p)
+    message = (
+        "newer.aux[1].motion_bwd: expected float32 array of shape (16, 24, 3), "
+        "got float32 (16, 72, 1)"
+    )
+    _raises_invalid(lambda: sr.reproject(p.older, p.newer, p.request, backend="wgpu"), message)
+    _raises_invalid(lambda: sr.gpu.GpuReprojector().load(p.older, p.newer), message)
+    q = _fresh()
+    client = sr.Client(backend="wgpu")
+    assert client.receive(q.older) and client.receive(q.newer)
+    _spoil_aux_depth_dtype(q)
+    _raises_invalid(
+        lambda: client.render(q.request.camera, q.request.time),
+        "frame(index=1).aux[1].depth: expected float32 array of shape (16, 24), got int32",
+    )
+
+
+def test_entry_check_costs_little() -> None:
+    """What the hot path adds before the native call (the native layer checks the rest, and the
+    Python checks run only on its errors): a few µs, against ~ms for a reprojection."""
+    import timeit
+
+    from splitrender.types import FrameArgument, precheck_frames
+
+    p = _fresh()
+    args = (
+        FrameArgument("older", "older", p.older, "fwd"),
+        FrameArgument("newer", "newer", p.newer, "bwd"),
+    )
+    n = 2000
+    per_call = min(timeit.repeat(lambda: precheck_frames(args), number=n, repeat=3)) / n
+    assert per_call < 50e-6, per_call

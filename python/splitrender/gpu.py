@@ -22,7 +22,15 @@ import numpy.typing as npt
 
 from splitrender import _native
 from splitrender.errors import GpuUnavailableError, InvalidInputError
-from splitrender.types import Camera, Reprojection, ReprojectOptions, ServerFrame
+from splitrender.types import (
+    Camera,
+    FrameArgument,
+    Reprojection,
+    ReprojectOptions,
+    ServerFrame,
+    native_error,
+    precheck_frames,
+)
 
 __all__ = [
     "BACKENDS",
@@ -123,16 +131,35 @@ class GpuReprojector:
         Raises:
             InvalidInputError: for invalid frames (naming the buffer).
         """
+        self._load(older, newer)
+
+    def _load(
+        self,
+        older: ServerFrame | None,
+        newer: ServerFrame,
+        paths: tuple[str, str] = ("older", "newer"),
+    ) -> None:
+        """:meth:`load`, naming the frames ``paths`` in messages."""
         if older is not None and not isinstance(older, ServerFrame):
             raise InvalidInputError(
-                f"older: expected a ServerFrame or None, got {type(older).__name__}"
+                f"{paths[0]}: expected a ServerFrame or None, got {type(older).__name__}"
             )
         if not isinstance(newer, ServerFrame):
-            raise InvalidInputError(f"newer: expected a ServerFrame, got {type(newer).__name__}")
-        with self._lock:
-            self._native.load(
-                None if older is None else older.to_native("fwd"), newer.to_native("bwd")
+            raise InvalidInputError(
+                f"{paths[1]}: expected a ServerFrame, got {type(newer).__name__}"
             )
+        frames = (
+            FrameArgument("older", paths[0], older, "fwd"),
+            FrameArgument("newer", paths[1], newer, "bwd"),
+        )
+        precheck_frames(frames)
+        with self._lock:
+            try:
+                self._native.load(
+                    None if older is None else older.to_native("fwd"), newer.to_native("bwd")
+                )
+            except InvalidInputError as e:
+                raise native_error(e, frames) from None
 
     @overload
     def render(
@@ -194,17 +221,20 @@ class GpuReprojector:
             )
         image = None if isinstance(previous, str) else previous
         with self._lock:
-            out = self._native.render(
-                method,
-                camera.to_native(),
-                float(alpha),
-                opts.to_native(),
-                image,
-                keep,
-                slot,
-                bool(diagnostics),
-                True,
-            )
+            try:
+                out = self._native.render(
+                    method,
+                    camera.to_native(),
+                    float(alpha),
+                    opts.to_native(),
+                    image,
+                    keep,
+                    slot,
+                    bool(diagnostics),
+                    True,
+                )
+            except InvalidInputError as e:
+                raise native_error(e, (), client="camera") from None
         assert out is not None
         if isinstance(out, tuple):
             return Reprojection(*out)
@@ -221,13 +251,14 @@ class GpuReprojector:
         options: ReprojectOptions | None = None,
         previous: _Image | None = None,
         diagnostics: bool = False,
+        _paths: tuple[str, str] = ("older", "newer"),
     ) -> _Image | Reprojection:
         """:meth:`load` then :meth:`render` (slot 0) as one step, safe against other threads
         using this reprojector: what :func:`splitrender.reproject_alpha` runs for
         ``backend="wgpu"``. Uploads the pair every call; a caller that renders several client
         frames from one pair should :meth:`load` once instead."""
         with self._lock:
-            self.load(older, newer)
+            self._load(older, newer, _paths)
             if diagnostics:
                 return self.render(
                     camera, alpha, method, options=options, previous=previous, diagnostics=True

@@ -17,10 +17,17 @@ from splitrender.types import (
     Camera,
     CameraFrame,
     ClientRequest,
-    ReprojectOptions,
+    FrameArgument,
     Reprojection,
+    ReprojectOptions,
     ServerFrame,
     ShadowBuffers,
+    check_array,
+    check_camera_frame,
+    check_shadow,
+    describe,
+    native_error,
+    precheck_frames,
 )
 
 __all__ = ["METHODS", "apply_shadows", "reproject", "reproject_alpha", "scene_flow"]
@@ -152,12 +159,43 @@ def reproject_alpha(
             method the backend cannot run.
         GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
+    return _reproject_alpha(
+        older,
+        newer,
+        camera,
+        alpha,
+        method,
+        options=options,
+        previous=previous,
+        diagnostics=diagnostics,
+        history=history,
+        backend=backend,
+    )
+
+
+def _reproject_alpha(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    camera: Camera,
+    alpha: float,
+    method: str,
+    *,
+    options: ReprojectOptions | None,
+    previous: _Image | None,
+    diagnostics: bool,
+    history: _native.BidirHistory | None,
+    backend: str,
+    paths: tuple[str, str] = ("older", "newer"),
+    camera_path: str = "camera",
+) -> _Image | Reprojection:
+    """:func:`reproject_alpha` for callers that know the frames by other names: ``paths`` (for
+    ``older`` and ``newer``) and ``camera_path`` start the messages about their buffers."""
     method = _check_method(method)
     backend = gpu.check_backend(backend, method)
-    _check_frame("older", older, optional=True)
-    _check_frame("newer", newer)
+    _check_frame(paths[0], older, optional=True)
+    _check_frame(paths[1], newer)
     if not isinstance(camera, Camera):
-        raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
+        raise InvalidInputError(f"{camera_path}: expected a Camera, got {type(camera).__name__}")
     opts = _options(options)
     if backend == "wgpu":
         return gpu.shared().reproject(
@@ -169,18 +207,27 @@ def reproject_alpha(
             options=opts,
             previous=previous,
             diagnostics=bool(diagnostics),
+            _paths=paths,
         )
-    out = _native.reproject(
-        method,
-        None if older is None else older.to_native("fwd"),
-        newer.to_native("bwd"),
-        camera.to_native(),
-        float(alpha),
-        opts.to_native(),
-        previous,
-        bool(diagnostics),
-        history,
+    frames = (
+        FrameArgument("older", paths[0], older, "fwd"),
+        FrameArgument("newer", paths[1], newer, "bwd"),
     )
+    precheck_frames(frames)
+    try:
+        out = _native.reproject(
+            method,
+            None if older is None else older.to_native("fwd"),
+            newer.to_native("bwd"),
+            camera.to_native(),
+            float(alpha),
+            opts.to_native(),
+            previous,
+            bool(diagnostics),
+            history,
+        )
+    except InvalidInputError as e:
+        raise native_error(e, frames, client=camera_path) from None
     return _result(out)
 
 
@@ -275,6 +322,7 @@ def reproject(
         raise InvalidInputError(
             f"frames out of order: newer.time = {newer.time} must be > older.time = {older.time}"
         )
+    pair: tuple[ServerFrame | None, ServerFrame]
     if _unidirectional(method, opts, older):
         held = [f for f in (newer, older) if f is not None and f.time <= t]
         if not held:
@@ -284,25 +332,19 @@ def reproject(
                 f"method '{method}' extrapolates from a frame at or before the request"
             )
         frame = held[0]
+        pair = (None, frame)
         alpha = 1.0 + (t - frame.time) * opts.server_fps
-        return reproject_alpha(
-            None,
-            frame,
-            request.camera,
-            alpha,
-            method,
-            options=opts,
-            previous=previous,
-            diagnostics=diagnostics,
-            history=history,
-            backend=backend,
-        )
-    if older is None:
-        raise InvalidInputError(f"method '{method}' needs both frames; older is None")
-    alpha = (t - older.time) / (newer.time - older.time)
-    return reproject_alpha(
-        older,
-        newer,
+        # The frame goes to the core as the newer one; messages name it as the caller passed it.
+        paths = ("older", "newer" if frame is newer else "older")
+    else:
+        if older is None:
+            raise InvalidInputError(f"method '{method}' needs both frames; older is None")
+        pair = (older, newer)
+        alpha = (t - older.time) / (newer.time - older.time)
+        paths = ("older", "newer")
+    return _reproject_alpha(
+        pair[0],
+        pair[1],
         request.camera,
         alpha,
         method,
@@ -311,6 +353,8 @@ def reproject(
         diagnostics=diagnostics,
         history=history,
         backend=backend,
+        paths=paths,
+        camera_path="request.camera",
     )
 
 
@@ -329,20 +373,15 @@ def scene_flow(
     Returns ``float32[H, W, 3]`` of ``[Δx, Δy, ΔZ]`` in NDC; NaN where the pixel is invalid or
     the moved point is behind the client camera.
     """
-    if not isinstance(source, CameraFrame):
-        raise InvalidInputError(
-            f"source: expected a CameraFrame, got {type(source).__name__}"
-        )
-    if not isinstance(client, Camera):
-        raise InvalidInputError(f"client: expected a Camera, got {type(client).__name__}")
-    if direction == "forward":
-        motion = source.motion_fwd
-    elif direction == "backward":
-        motion = source.motion_bwd
-    else:
+    if direction not in ("forward", "backward"):
         raise InvalidInputError(
             f"direction: expected 'forward' or 'backward', got {direction!r}"
         )
+    d = "fwd" if direction == "forward" else "bwd"
+    check_camera_frame("source", source, (d,))
+    if not isinstance(client, Camera):
+        raise InvalidInputError(f"client: expected a Camera, got {type(client).__name__}")
+    motion = source.motion_fwd if d == "fwd" else source.motion_bwd
     c = source.camera
     return _native.scene_flow(
         c.view,
@@ -368,10 +407,13 @@ def apply_shadows(
     """``frame_color`` (``uint8[H, W, 3]``) with its dynamic shadows at ``alpha`` applied
     (seeds/000 eqs. 9–11). ``role="older"`` for forward buffers (subframe ``j`` at
     ``t + j/S``), ``"newer"`` for backward buffers (at ``t+1 − j/S``)."""
-    if not isinstance(shadow, ShadowBuffers):
+    if not isinstance(frame_color, np.ndarray) or frame_color.ndim != 3:
         raise InvalidInputError(
-            f"shadow: expected ShadowBuffers, got {type(shadow).__name__}"
+            f"frame_color: expected uint8 array of shape (H, W, 3), got {describe(frame_color)}"
         )
+    h, w = frame_color.shape[:2]
+    check_array("frame_color", frame_color, np.uint8, (h, w, 3))
+    check_shadow("shadow", shadow, h, w)
     return _native.apply_shadows(
         frame_color,
         shadow.bits,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -43,13 +44,13 @@ MAX_SIDE = 16384
 Shape = tuple[int, ...]
 
 
-def _describe(value: object) -> str:
+def describe(value: object) -> str:
     if isinstance(value, np.ndarray):
         return f"{value.dtype} {tuple(value.shape)}"
     return type(value).__name__
 
 
-def _check_array(
+def check_array(
     where: str, value: object, dtype: type[np.generic], shape: Shape
 ) -> None:
     """Raises unless ``value`` is a C-contiguous ``dtype`` array of exactly ``shape``."""
@@ -60,18 +61,23 @@ def _check_array(
         or tuple(value.shape) != tuple(shape)
     ):
         raise InvalidInputError(
-            f"{where}: expected {want} array of shape {tuple(shape)}, got {_describe(value)}"
+            f"{where}: expected {want} array of shape {tuple(shape)}, got {describe(value)}"
         )
     if not value.flags.c_contiguous:
         raise InvalidInputError(
-            f"{where}: expected a C-contiguous array, got a non-contiguous {_describe(value)} "
+            f"{where}: expected a C-contiguous array, got a non-contiguous {describe(value)} "
             "view (pass numpy.ascontiguousarray(...))"
+        )
+    if not value.flags.aligned:
+        raise InvalidInputError(
+            f"{where}: expected an aligned array, got an unaligned {describe(value)} buffer "
+            "(pass numpy.array(..., copy=True))"
         )
 
 
 def _check_int(where: str, value: object, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise InvalidInputError(f"{where}: expected an int, got {_describe(value)}")
+        raise InvalidInputError(f"{where}: expected an int, got {describe(value)}")
     v = int(value)
     if not lo <= v <= hi:
         raise InvalidInputError(f"{where}: expected an int in [{lo}, {hi}], got {v}")
@@ -80,7 +86,7 @@ def _check_int(where: str, value: object, lo: int, hi: int) -> int:
 
 def _check_float(where: str, value: object, *, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise InvalidInputError(f"{where}: expected a float, got {_describe(value)}")
+        raise InvalidInputError(f"{where}: expected a float, got {describe(value)}")
     v = float(value)
     if not math.isfinite(v) or (positive and v <= 0.0):
         want = "a finite float > 0" if positive else "a finite float"
@@ -90,7 +96,7 @@ def _check_float(where: str, value: object, *, positive: bool = False) -> float:
 
 def _check_bool(where: str, value: object) -> bool:
     if not isinstance(value, (bool, np.bool_)):
-        raise InvalidInputError(f"{where}: expected a bool, got {_describe(value)}")
+        raise InvalidInputError(f"{where}: expected a bool, got {describe(value)}")
     return bool(value)
 
 
@@ -99,11 +105,11 @@ def _matrix(where: str, value: object) -> npt.NDArray[np.float64]:
         m = np.array(value, dtype=np.float64, copy=True)
     except (TypeError, ValueError):
         raise InvalidInputError(
-            f"{where}: expected a 4x4 matrix of floats, got {_describe(value)}"
+            f"{where}: expected a 4x4 matrix of floats, got {describe(value)}"
         ) from None
     if m.shape != (4, 4):
         raise InvalidInputError(
-            f"{where}: expected float64 array of shape (4, 4), got {_describe(value)}"
+            f"{where}: expected float64 array of shape (4, 4), got {describe(value)}"
         )
     if not np.isfinite(m).all():
         raise InvalidInputError(f"{where}: expected finite values, got {m.tolist()}")
@@ -183,12 +189,12 @@ class ShadowBuffers:
         bits = self.bits
         if not isinstance(bits, np.ndarray) or bits.ndim != 2:
             raise InvalidInputError(
-                f"ShadowBuffers.bits: expected uint32 array of shape (H, W), got {_describe(bits)}"
+                f"ShadowBuffers.bits: expected uint32 array of shape (H, W), got {describe(bits)}"
             )
         h, w = bits.shape
-        _check_array("ShadowBuffers.bits", bits, np.uint32, (h, w))
-        _check_array("ShadowBuffers.s_min", self.s_min, np.uint8, (h, w, 3))
-        _check_array("ShadowBuffers.s_max", self.s_max, np.uint8, (h, w, 3))
+        check_array("ShadowBuffers.bits", bits, np.uint32, (h, w))
+        check_array("ShadowBuffers.s_min", self.s_min, np.uint8, (h, w, 3))
+        check_array("ShadowBuffers.s_max", self.s_max, np.uint8, (h, w, 3))
 
     def to_native(
         self,
@@ -216,30 +222,7 @@ class CameraFrame:
     shadow_bwd: ShadowBuffers | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.camera, Camera):
-            raise InvalidInputError(
-                f"CameraFrame.camera: expected a Camera, got {_describe(self.camera)}"
-            )
-        h, w = self.camera.height, self.camera.width
-        _check_array("CameraFrame.color", self.color, np.uint8, (h, w, 3))
-        _check_array("CameraFrame.depth", self.depth, np.float32, (h, w))
-        for name in ("motion_fwd", "motion_bwd"):
-            m = getattr(self, name)
-            if m is not None:
-                _check_array(f"CameraFrame.{name}", m, np.float32, (h, w, 3))
-        for name in ("shadow_fwd", "shadow_bwd"):
-            s = getattr(self, name)
-            if s is None:
-                continue
-            if not isinstance(s, ShadowBuffers):
-                raise InvalidInputError(
-                    f"CameraFrame.{name}: expected ShadowBuffers or None, got {_describe(s)}"
-                )
-            if s.bits.shape != (h, w):
-                raise InvalidInputError(
-                    f"CameraFrame.{name}: expected buffers of shape ({h}, {w}), "
-                    f"got {tuple(s.bits.shape)}"
-                )
+        check_camera_frame("CameraFrame", self)
 
     def to_native(self, direction: str) -> tuple[Any, ...]:
         """``(view, proj, color, depth, motion, shadow)`` with the ``"fwd"`` or ``"bwd"``
@@ -272,19 +255,17 @@ class ServerFrame:
         object.__setattr__(self, "time", _check_float("ServerFrame.time", self.time))
         if not isinstance(self.main, CameraFrame):
             raise InvalidInputError(
-                f"ServerFrame.main: expected a CameraFrame, got {_describe(self.main)}"
+                f"ServerFrame.main: expected a CameraFrame, got {describe(self.main)}"
             )
         if isinstance(self.aux, (str, bytes)) or not isinstance(self.aux, Sequence):
             raise InvalidInputError(
-                f"ServerFrame.aux: expected a sequence of CameraFrame, got {_describe(self.aux)}"
+                f"ServerFrame.aux: expected a sequence of CameraFrame, got {describe(self.aux)}"
             )
         aux = tuple(self.aux)
-        for i, a in enumerate(aux):
-            if not isinstance(a, CameraFrame):
-                raise InvalidInputError(
-                    f"ServerFrame.aux[{i}]: expected a CameraFrame, got {_describe(a)}"
-                )
         object.__setattr__(self, "aux", aux)
+        # The cameras checked themselves when they were made, but numpy arrays stay mutable
+        # (``a.dtype = ...``, ``a.shape = ...``): check again, naming the path in this frame.
+        check_server_frame("ServerFrame", self)
 
     def to_native(self, direction: str) -> tuple[Any, list[Any]]:
         """``(main, [aux...])`` with the ``"fwd"`` or ``"bwd"`` buffers."""
@@ -304,7 +285,7 @@ class ClientRequest:
     def __post_init__(self) -> None:
         if not isinstance(self.camera, Camera):
             raise InvalidInputError(
-                f"ClientRequest.camera: expected a Camera, got {_describe(self.camera)}"
+                f"ClientRequest.camera: expected a Camera, got {describe(self.camera)}"
             )
         object.__setattr__(self, "time", _check_float("ClientRequest.time", self.time))
 
@@ -427,15 +408,165 @@ class Reprojection:
         img = self.image
         if not isinstance(img, np.ndarray) or img.ndim != 3:
             raise InvalidInputError(
-                f"Reprojection.image: expected uint8 array of shape (H, W, 3), got {_describe(img)}"
+                f"Reprojection.image: expected uint8 array of shape (H, W, 3), got {describe(img)}"
             )
         h, w = img.shape[:2]
-        _check_array("Reprojection.image", img, np.uint8, (h, w, 3))
-        _check_array("Reprojection.source", self.source, np.uint8, (h, w))
-        _check_array("Reprojection.error", self.error, np.float32, (h, w))
+        check_array("Reprojection.image", img, np.uint8, (h, w, 3))
+        check_array("Reprojection.source", self.source, np.uint8, (h, w))
+        check_array("Reprojection.error", self.error, np.float32, (h, w))
 
     @property
     def matched(self) -> npt.NDArray[np.bool_]:
         """``bool[H, W]``: pixels that some source coloured."""
         return np.asarray(self.source != self.SOURCE_NONE)
 
+
+
+# ------------------------------------------------------------------------------------------------
+# Checks of whole frames, naming each buffer by its path as the caller passed it
+
+#: The buffer directions of a camera frame: ``"fwd"`` (``motion_fwd``, ``shadow_fwd``: what a
+#: frame contributes as the older of a pair) and ``"bwd"`` (as the newer).
+DIRECTIONS: tuple[str, ...] = ("fwd", "bwd")
+
+
+def _check_camera(where: str, camera: object) -> Camera:
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"{where}: expected a Camera, got {describe(camera)}")
+    for name in ("view", "proj"):
+        m = getattr(camera, name)
+        if not isinstance(m, np.ndarray) or m.dtype != np.float64 or m.shape != (4, 4):
+            raise InvalidInputError(
+                f"{where}.{name}: expected float64 array of shape (4, 4), got {describe(m)}"
+            )
+    _check_int(f"{where}.width", camera.width, 1, MAX_SIDE)
+    _check_int(f"{where}.height", camera.height, 1, MAX_SIDE)
+    return camera
+
+
+def check_shadow(where: str, shadow: object, h: int, w: int) -> None:
+    if not isinstance(shadow, ShadowBuffers):
+        raise InvalidInputError(f"{where}: expected ShadowBuffers or None, got {describe(shadow)}")
+    bits, s_min, s_max = shadow.bits, shadow.s_min, shadow.s_max
+    sides = getattr(bits, "shape", None)
+    if (
+        isinstance(sides, tuple)
+        and len(sides) == 2
+        and sides != (h, w)
+        and getattr(s_min, "shape", None) == (*sides, 3)
+        and getattr(s_max, "shape", None) == (*sides, 3)
+    ):
+        # Buffers that agree with each other but not with the camera: say so once.
+        raise InvalidInputError(f"{where}: expected buffers of shape ({h}, {w}), got {sides}")
+    check_array(f"{where}.bits", bits, np.uint32, (h, w))
+    check_array(f"{where}.s_min", s_min, np.uint8, (h, w, 3))
+    check_array(f"{where}.s_max", s_max, np.uint8, (h, w, 3))
+
+
+def check_camera_frame(
+    where: str, frame: object, directions: Sequence[str] = DIRECTIONS
+) -> None:
+    """Raises :class:`InvalidInputError` unless ``frame`` is a :class:`CameraFrame` whose camera
+    and buffers (those of ``directions``) have the dtype, shape and layout the kernels read; the
+    message names the buffer as ``where.<field>`` (e.g. ``newer.aux[1].motion_bwd``,
+    ``CameraFrame.depth``). Nothing is copied."""
+    if not isinstance(frame, CameraFrame):
+        raise InvalidInputError(f"{where}: expected a CameraFrame, got {describe(frame)}")
+    camera = _check_camera(f"{where}.camera", frame.camera)
+    h, w = camera.height, camera.width
+    check_array(f"{where}.color", frame.color, np.uint8, (h, w, 3))
+    check_array(f"{where}.depth", frame.depth, np.float32, (h, w))
+    for d in directions:
+        m = getattr(frame, f"motion_{d}")
+        if m is not None:
+            check_array(f"{where}.motion_{d}", m, np.float32, (h, w, 3))
+    for d in directions:
+        s = getattr(frame, f"shadow_{d}")
+        if s is not None:
+            check_shadow(f"{where}.shadow_{d}", s, h, w)
+
+
+def check_server_frame(
+    where: str, frame: object, directions: Sequence[str] = DIRECTIONS
+) -> ServerFrame:
+    """:func:`check_camera_frame` for every camera of a :class:`ServerFrame`, naming them
+    ``where.main`` and ``where.aux[i]``; returns the frame."""
+    if not isinstance(frame, ServerFrame):
+        raise InvalidInputError(f"{where}: expected a ServerFrame, got {describe(frame)}")
+    check_camera_frame(f"{where}.main", frame.main, directions)
+    for i, a in enumerate(frame.aux):
+        check_camera_frame(f"{where}.aux[{i}]", a, directions)
+    return frame
+
+
+@dataclass(frozen=True, slots=True)
+class FrameArgument:
+    """A server frame as one native call receives it: under the name the native layer gives it
+    (``native``: ``"older"`` or ``"newer"``), with the buffers of ``direction``, and under the
+    path the caller knows it by (``path``: ``"older"``, ``"frames[3]"``, ...)."""
+
+    native: str
+    path: str
+    frame: ServerFrame | None
+    direction: str
+
+
+def _size_mismatch(frame: ServerFrame) -> bool:
+    """Whether some camera's depth is not of its camera's size: the one inconsistency the native
+    layer cannot see (it takes every size from the depth)."""
+    for cf in (frame.main, *frame.aux):
+        c = cf.camera
+        if getattr(cf.depth, "shape", None) != (c.height, c.width):
+            return True
+    return False
+
+
+def precheck_frames(args: Sequence[FrameArgument]) -> None:
+    """The cheap part of :func:`native_error` that runs before a native call (a few µs): frames
+    whose buffers agree with each other but not with their camera's size pass the native checks,
+    so they are checked here, naming the buffer by its path."""
+    for a in args:
+        if a.frame is not None and _size_mismatch(a.frame):
+            check_server_frame(a.path, a.frame, (a.direction,))
+
+
+_NATIVE_SUFFIX = re.compile(r"^((?:\.main|\.aux\[\d+\])?)\.(motion|shadow)\b")
+
+
+def native_error(
+    error: InvalidInputError, args: Sequence[FrameArgument], *, client: str | None = None
+) -> InvalidInputError:
+    """The error to raise for ``error``, raised by a native call that took the frames ``args``.
+
+    The native layer names a buffer by its place in the call (``newer.aux[1].motion``); the
+    caller knows it by the path it passed (``frames[3].aux[1].motion_bwd``). For an error about a
+    frame this checks the frames in Python (only now: on the hot path the native checks are the
+    only ones) and returns that error, whose message names the path; if they pass, the native
+    message with the frame's name replaced by its path. ``client`` is the path of the client
+    camera (the native ``client.view`` becomes ``request.camera.view``). Any other error is
+    returned as it is.
+    """
+    msg = str(error)
+    if client is not None and msg.startswith("client."):
+        return InvalidInputError(client + msg[len("client") :])
+    named = [a for a in args if msg.startswith(a.native)]
+    if not named:
+        return error
+    try:
+        for a in args:
+            if a.frame is not None:
+                check_server_frame(a.path, a.frame, (a.direction,))
+        held = [(a.path, a.frame) for a in args if a.frame is not None]
+        if len(held) == 2 and len(held[0][1].aux) != len(held[1][1].aux):
+            (p0, f0), (p1, f1) = held
+            raise InvalidInputError(
+                f"{p0}.aux has {len(f0.aux)} cameras but {p1}.aux has {len(f1.aux)}; "
+                "both frames of a pair need the same auxiliary cameras"
+            )
+    except InvalidInputError as found:
+        return found
+    a = named[0]
+    rest = _NATIVE_SUFFIX.sub(
+        lambda m: f"{m.group(1)}.{m.group(2)}_{a.direction}", msg[len(a.native) :]
+    )
+    return InvalidInputError(a.path + rest)

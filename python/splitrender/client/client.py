@@ -24,8 +24,8 @@ from splitrender.net.model import (
     FrameBuffer,
     choose_frames,
 )
-from splitrender.reproject import METHODS, reproject_alpha
-from splitrender.types import Camera, ReprojectOptions, ServerFrame
+from splitrender.reproject import METHODS, _reproject_alpha
+from splitrender.types import Camera, ReprojectOptions, ServerFrame, check_server_frame
 
 __all__ = ["Client"]
 
@@ -87,6 +87,8 @@ class Client:
         self.options = options
         self._buffer = FrameBuffer(capacity)
         self._frames: dict[int, ServerFrame] = {}
+        # What the caller knows each held frame by, for messages: "frame(index=3)", "frames[3]".
+        self._paths: dict[int, str] = {}
         self._previous: dict[int, _Image] = {}
         self._history: dict[int, tuple[tuple[int, int] | None, _native.BidirHistory]] = {}
         self.last_info: ClientFrameInfo | None = None
@@ -112,14 +114,25 @@ class Client:
         frame is usable from its receipt on.
 
         Raises:
-            InvalidInputError: if ``frame`` is not a :class:`ServerFrame` or its time contradicts
-                the order of the frames held.
+            InvalidInputError: if ``frame`` is not a valid :class:`ServerFrame` (naming the buffer,
+                e.g. ``frame.aux[1].depth``) or its time contradicts the order of the frames held.
         """
-        if not isinstance(frame, ServerFrame):
-            raise InvalidInputError(f"frame: expected a ServerFrame, got {type(frame).__name__}")
+        return self._receive(frame, "frame")
+
+    def _receive(self, frame: ServerFrame, path: str, *, checked: bool = False) -> bool:
+        """:meth:`receive` of a frame the caller knows by ``path`` (``frames[3]`` for
+        :func:`~splitrender.client.playback.play`). Checks every buffer once, here: the frames
+        will be read many times, and the native layer checks them again at each render, where a
+        frame's buffers are named by its index (``frame(index=3).aux[1].depth``). ``checked``:
+        the caller has just checked the frame under ``path``."""
+        if not checked:
+            check_server_frame(path, frame)
         if not self._buffer.receive(frame.index, frame.time):
             return False
         self._frames[frame.index] = frame
+        self._paths[frame.index] = (
+            f"frame(index={frame.index})" if path == "frame" else path
+        )
         return True
 
     def choose(self, time: float) -> ClientFrameInfo:
@@ -164,7 +177,7 @@ class Client:
             if self._gpu is not None:
                 image = self._render_gpu(older, info.older, info.newer, camera, info.alpha, prev, eye)
             else:
-                image = reproject_alpha(
+                image = _reproject_alpha(
                     older,
                     self._frames[info.newer],
                     camera,
@@ -172,12 +185,16 @@ class Client:
                     self.method,
                     options=self.options,
                     previous=prev,
+                    diagnostics=False,
                     history=history,
+                    backend="cpu",
+                    paths=self._paths_of(info.older, info.newer),
                 )
         self._previous[eye] = image
         self._buffer.prune(float(time))
         for j in [j for j in self._frames if j not in self._buffer.times]:
             del self._frames[j]
+            del self._paths[j]
         self.last_info = info
         return image
 
@@ -195,7 +212,8 @@ class Client:
         pair = (older_index, newer_index)
         if pair != self._gpu_pair:
             self._gpu_pair = None
-            self._gpu.load(older, self._frames[newer_index])
+            paths = self._paths_of(older_index, newer_index)
+            self._gpu._load(older, self._frames[newer_index], paths)
             self._gpu_pair = pair
         # The eye's output slot on the device holds exactly `prev` (the last frame returned for
         # this eye at this size), so nothing needs to go up but the pose.
@@ -208,10 +226,14 @@ class Client:
             slot=eye,
         )
 
+    def _paths_of(self, older: int | None, newer: int) -> tuple[str, str]:
+        return ("older" if older is None else self._paths[older], self._paths[newer])
+
     def reset(self) -> None:
         """Forgets every frame, previous output and history (a new session)."""
         self._buffer.clear()
         self._frames.clear()
+        self._paths.clear()
         self._previous.clear()
         self._history.clear()
         self.last_info = None

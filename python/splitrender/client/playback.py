@@ -12,8 +12,14 @@ import numpy.typing as npt
 
 from splitrender.client.client import Client
 from splitrender.errors import InvalidInputError
-from splitrender.net.model import TIME_EPS, ClientFrameInfo, NetworkModel, Schedule
-from splitrender.types import Camera, ReprojectOptions, ServerFrame
+from splitrender.net.model import (
+    TIME_EPS,
+    ClientFrameInfo,
+    NetworkModel,
+    Schedule,
+    network_for,
+)
+from splitrender.types import Camera, ReprojectOptions, ServerFrame, check_server_frame
 
 __all__ = ["PlaybackResult", "frame_nbytes", "play"]
 
@@ -89,13 +95,7 @@ def play(
     """
     client = Client(method, options, backend=backend)
     fs = client.server_fps
-    net = network if network is not None else NetworkModel(client_fps=fps)
-    if not isinstance(net, NetworkModel):
-        raise InvalidInputError(f"network: expected a NetworkModel, got {type(net).__name__}")
-    if not np.isclose(net.client_fps, fps):
-        raise InvalidInputError(
-            f"network.client_fps: expected the client's fps = {fps}, got {net.client_fps}"
-        )
+    net = network_for(network, fps, "the client's fps")
     lead_s = 1.0 / fs if lead is None else float(lead)
     cams = list(cameras)
     for n, c in enumerate(cams):
@@ -106,17 +106,16 @@ def play(
     sizes = None if frame_sizes is None else list(frame_sizes)
     arrivals: list[float | None] = []
     sends: list[float] = []
-    pending: tuple[ServerFrame, float | None] | None = None
+    pending: tuple[ServerFrame, float | None, int] | None = None
     exhausted = False
 
-    def next_frame() -> tuple[ServerFrame, float | None] | None:
+    def next_frame() -> tuple[ServerFrame, float | None, int] | None:
         k = len(sends)
         try:
             f = next(it)
         except StopIteration:
             return None
-        if not isinstance(f, ServerFrame):
-            raise InvalidInputError(f"frames[{k}]: expected a ServerFrame, got {type(f).__name__}")
+        check_server_frame(f"frames[{k}]", f)
         if sizes is not None:
             if k >= len(sizes):
                 raise InvalidInputError(
@@ -129,7 +128,7 @@ def play(
         sends.append(send)
         a = link.send(send, size)
         arrivals.append(a)
-        return (f, a)
+        return (f, a, k)
 
     result = PlaybackResult([], [], arrivals, sends)
     for n, cam in enumerate(cams):
@@ -140,11 +139,11 @@ def play(
                 if pending is None:
                     exhausted = True
                     break
-            f, a = pending
+            f, a, k = pending
             if a is not None and a > t + TIME_EPS:
                 break
             if a is not None:
-                client.receive(f, a)
+                client._receive(f, f"frames[{k}]", checked=True)
             pending = None
         image = client.render(cam, t)
         assert client.last_info is not None

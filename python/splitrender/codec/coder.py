@@ -57,7 +57,6 @@ import numpy as np
 import numpy.typing as npt
 import zstandard
 
-from splitrender.errors import InvalidInputError, StreamError
 from splitrender.codec.stream import (
     KIND_CHANNELS,
     MAX_PIXELS,
@@ -70,7 +69,14 @@ from splitrender.codec.stream import (
     pack_packet,
     unpack_packet,
 )
-from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
+from splitrender.errors import InvalidInputError, StreamError
+from splitrender.types import (
+    Camera,
+    CameraFrame,
+    ServerFrame,
+    ShadowBuffers,
+    check_server_frame,
+)
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # annotations only (Python 3.10)
@@ -522,7 +528,30 @@ class EncodeStats:
     hevc_targets_bps: dict[str, float] = field(default_factory=dict)
 
 
-class StreamEncoder:
+class _WorkerThreads:
+    """A lazily started pool of worker threads, ended by :meth:`close` or a ``with`` block."""
+
+    _pool: ThreadPoolExecutor | None = None
+
+    def _executor(self, threads: int, name: str) -> ThreadPoolExecutor:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=name)
+        return self._pool
+
+    def close(self) -> None:
+        """Ends the worker threads."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class StreamEncoder(_WorkerThreads):
     """Encodes server frames into packets, one libx265 encoder per (camera, lossy buffer).
 
     The first frame fixes the layout (number of cameras and their sizes); later frames must keep
@@ -543,26 +572,11 @@ class StreamEncoder:
         self._frames_since_update = 0
         self._lossless_bps = 0.0
         self._bits_total = 0
-        self._pool: ThreadPoolExecutor | None = None
         self.last = EncodeStats()
 
-    def close(self) -> None:
-        """Ends the worker threads (the encoders are freed with the object)."""
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     def _check_layout(self, frame: ServerFrame) -> None:
-        if not isinstance(frame, ServerFrame):
-            raise InvalidInputError(
-                f"frame: expected a ServerFrame, got {type(frame).__name__}"
-            )
+        # Every buffer as the coder reads it (numpy arrays stay mutable after the frame is made).
+        check_server_frame("frame", frame)
         layout = tuple((c.camera.width, c.camera.height) for c in _cameras_of(frame))
         if self._layout is None:
             if len(layout) != len(self.config.camera_shares):
@@ -577,7 +591,12 @@ class StreamEncoder:
             )
 
     def encode(self, frame: ServerFrame) -> bytes:
-        """One packet holding ``frame`` (see :mod:`splitrender.codec.stream`)."""
+        """One packet holding ``frame`` (see :mod:`splitrender.codec.stream`).
+
+        Raises:
+            InvalidInputError: for a buffer of the wrong dtype or shape (naming it, e.g.
+                ``frame.aux[0].color``) or a frame that does not match the stream's layout.
+        """
         self._check_layout(frame)
         cfg = self.config
         key = self._frames % cfg.gop == 0
@@ -592,7 +611,8 @@ class StreamEncoder:
         lossless = sum(len(j.payload) for j in jobs if isinstance(j.payload, bytes))
         if not cfg.uncompressed:
             self._update_rates(frame, jobs, lossless, key)
-        pool = self._executor()
+        # The encoders themselves are freed with the object.
+        pool = self._executor(cfg.threads or (os.cpu_count() or 1), "splitrender-enc")
         for j in jobs:
             if callable(j.payload):
                 j.payload = pool.submit(j.payload)
@@ -639,14 +659,6 @@ class StreamEncoder:
             {buffer_name(c, k): s.target_bps for (c, k), s in self._streams.items()},
         )
         return packet
-
-    def _executor(self) -> ThreadPoolExecutor:
-        if self._pool is None:
-            n = self.config.threads or (os.cpu_count() or 1)
-            self._pool = ThreadPoolExecutor(
-                max_workers=n, thread_name_prefix="splitrender-enc"
-            )
-        return self._pool
 
     # -- rate control -------------------------------------------------------------------------
 
@@ -844,7 +856,7 @@ def _hevc_decoder(width: int, height: int) -> Any:
     return ctx
 
 
-class StreamDecoder:
+class StreamDecoder(_WorkerThreads):
     """Decodes packets into :class:`~splitrender.types.ServerFrame` values, in order.
 
     Decoding starts at a key frame; after that every packet must follow the previous one
@@ -859,19 +871,7 @@ class StreamDecoder:
         self._decoders: dict[tuple[int, BufferKind], Any] = {}
         self._last: int | None = None
         self._threads = threads or (os.cpu_count() or 1)
-        self._pool: ThreadPoolExecutor | None = None
         self.max_pixels = max_pixels
-
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def decode(self, data: bytes | memoryview) -> ServerFrame:
         """The server frame held by one packet."""
@@ -902,11 +902,8 @@ class StreamDecoder:
         results: dict[tuple[int, BufferKind], npt.NDArray[Any]] = {}
         ycbcr: set[tuple[int, BufferKind]] = set()
         if len(hevc) > 1 and self._threads > 1:
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(
-                    self._threads, thread_name_prefix="splitrender-dec"
-                )
-            futs = [(b, self._pool.submit(self._decode_hevc, p.index, b)) for b in hevc]
+            pool = self._executor(self._threads, "splitrender-dec")
+            futs = [(b, pool.submit(self._decode_hevc, p.index, b)) for b in hevc]
             errors = []
             for b, f in futs:
                 try:

@@ -163,6 +163,24 @@ class NetworkModel:
         return [link.send(t, s) for t, s in zip(times, size_list)]
 
 
+def network_for(network: NetworkModel | None, client_fps: float, whose: str) -> NetworkModel:
+    """``network``, or the ideal network when ``None``, checked to run at ``client_fps`` (named
+    ``whose`` in the message): what :meth:`Schedule.build` and
+    :func:`splitrender.client.playback.play` take.
+
+    Raises:
+        InvalidInputError: for a non-network or one at another client frame rate.
+    """
+    net = network if network is not None else NetworkModel(client_fps=client_fps)
+    if not isinstance(net, NetworkModel):
+        raise InvalidInputError(f"network: expected a NetworkModel, got {type(net).__name__}")
+    if not math.isclose(net.client_fps, client_fps):
+        raise InvalidInputError(
+            f"network.client_fps: expected {whose} = {client_fps}, got {net.client_fps}"
+        )
+    return net
+
+
 class Link:
     """The state of one :class:`NetworkModel` link: call :meth:`send` for each packet in send
     order."""
@@ -357,14 +375,7 @@ class Schedule:
         client_fps = _float("client_fps", client_fps, positive=True)
         server_fps = _float("server_fps", server_fps, positive=True)
         method = _check_method(method)
-        net = network if network is not None else NetworkModel(client_fps=client_fps)
-        if not isinstance(net, NetworkModel):
-            raise InvalidInputError(f"network: expected a NetworkModel, got {type(net).__name__}")
-        if not math.isclose(net.client_fps, client_fps):
-            raise InvalidInputError(
-                f"network.client_fps: expected the schedule's client_fps = {client_fps}, "
-                f"got {net.client_fps}"
-            )
+        net = network_for(network, client_fps, "the schedule's client_fps")
         times = _frame_times(frame_times, server_fps)
         lead_s = 1.0 / server_fps if lead is None else _float("lead", lead)
         sends = [t - lead_s for t in times]
