@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any, NoReturn
+import sys
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from splitrender.reproject import METHODS
 from splitrender.types import MAX_SIDE
+
+if TYPE_CHECKING:
+    from splitrender.net.model import NetworkModel
 
 PROG = "splitrender"
 
@@ -18,26 +22,31 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
-def side(text: str) -> int:
+def fail(message: str) -> int:
+    """Prints ``splitrender: error: message`` on stderr and returns exit status 2 (a user error)."""
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def integer(text: str, lo: int, hi: int, what: str = "an integer") -> int:
+    """``text`` as an int in ``lo..hi``, or an ``ArgumentTypeError`` saying ``what`` is expected."""
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not 1 <= v <= MAX_SIDE:
-        raise argparse.ArgumentTypeError(f"expected a size in 1..{MAX_SIDE}, got {v}")
+    if not lo <= v <= hi:
+        raise argparse.ArgumentTypeError(f"expected {what} in {lo}..{hi}, got {v}")
     return v
+
+
+def side(text: str) -> int:
+    return integer(text, 1, MAX_SIDE, "a size")
 
 
 def samples(text: str) -> int:
     from splitrender.scene.builtin import MAX_SAMPLES
 
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not 1 <= v <= MAX_SAMPLES:
-        raise argparse.ArgumentTypeError(f"expected 1..{MAX_SAMPLES} per pixel side, got {v}")
-    return v
+    return integer(text, 1, MAX_SAMPLES, "a count per pixel side")
 
 
 SAMPLES_HELP = (
@@ -57,38 +66,30 @@ def positive(text: str) -> float:
     return v
 
 
-def methods(text: str) -> tuple[str, ...]:
+def _method_list(text: str, known: tuple[str, ...]) -> tuple[str, ...]:
     names = tuple(m.strip() for m in text.split(",") if m.strip())
     if not names:
         raise argparse.ArgumentTypeError("expected a comma-separated list of methods")
     for m in names:
-        if m not in METHODS:
+        if m not in known:
             raise argparse.ArgumentTypeError(
-                f"unknown method {m!r}; expected some of: {','.join(METHODS)}"
+                f"unknown method {m!r}; expected some of: {','.join(known)}"
             )
     if len(set(names)) != len(names):
         raise argparse.ArgumentTypeError(f"a method is listed twice in {text!r}")
     return names
 
 
+def methods(text: str) -> tuple[str, ...]:
+    return _method_list(text, METHODS)
+
+
 def count(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not 1 <= v <= 100000:
-        raise argparse.ArgumentTypeError(f"expected an integer in 1..100000, got {v}")
-    return v
+    return integer(text, 1, 100000)
 
 
 def frames_delay(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not 0 <= v <= 1000:
-        raise argparse.ArgumentTypeError(f"expected an integer in 0..1000, got {v}")
-    return v
+    return integer(text, 0, 1000)
 
 
 def add_backend(p: Any, scope: str) -> None:
@@ -98,6 +99,11 @@ def add_backend(p: Any, scope: str) -> None:
         f"{scope}; without a GPU, Mesa's lavapipe: apt-get install mesa-vulkan-drivers) "
         "(default: %(default)s)",
     )
+
+
+def add_scene(p: Any) -> None:
+    p.add_argument("--scene", default="courtyard", metavar="NAME",
+                   help="built-in scene: courtyard, colonnade, lab (default: %(default)s)")
 
 
 def names(text: str) -> tuple[str, ...]:
@@ -118,16 +124,72 @@ def delays(text: str) -> tuple[int, ...]:
 def eval_methods(text: str) -> tuple[str, ...]:
     from splitrender.evaluation.experiments import VIDEO_INTERP
 
-    names = tuple(m.strip() for m in text.split(",") if m.strip())
-    if not names:
-        raise argparse.ArgumentTypeError("expected a comma-separated list of methods")
-    for m in names:
-        if m not in METHODS and m != VIDEO_INTERP:
-            raise argparse.ArgumentTypeError(
-                f"unknown method {m!r}; expected some of: {','.join((*METHODS, VIDEO_INTERP))}"
-            )
-    if len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(f"a method is listed twice in {text!r}")
-    return names
+    return _method_list(text, (*METHODS, VIDEO_INTERP))
 
 
+def milliseconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of ms, got {text!r}") from None
+    if not 0 <= v <= 60000:
+        raise argparse.ArgumentTypeError(f"expected 0..60000 ms, got {text}")
+    return v
+
+
+def loss(text: str) -> float:
+    """A loss probability: a fraction in ``[0, 1]`` (``0.05``) or a percentage (``5%``)."""
+    t = text.strip()
+    percent = t.endswith("%")
+    try:
+        v = float(t[:-1] if percent else t)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a fraction in 0..1 or a percentage like 5%, got {text!r}"
+        ) from None
+    if percent:
+        v /= 100.0
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a loss in 0..1 (0%..100%), got {text}")
+    return v
+
+
+def add_network(p: Any, delay: bool = True) -> None:
+    """The network model's options (``--delay``, ``--bandwidth``, ``--latency``, ``--jitter``,
+    ``--loss``, ``--seed``); the defaults are the ideal link. ``delay=False`` leaves out
+    ``--delay`` (``eval`` has ``--delays``). :func:`network_model` builds the model."""
+    g = p.add_argument_group(
+        "network model",
+        "the one-way link from server to client (splitrender.NetworkModel); each server frame "
+        "is one packet of its encoded (or, uncompressed, its raw) size, serialised in order at "
+        "--bandwidth, then delayed by --latency plus a uniform jitter in [0, --jitter] plus "
+        "--delay client frames, delivered in order, or lost with probability --loss. The "
+        "defaults are the ideal link (unlimited bandwidth, no latency, jitter or loss)",
+    )
+    if delay:
+        g.add_argument("--delay", type=frames_delay, default=0, metavar="L",
+                       help="extra network delay in client frames, l (default: %(default)s)")
+    g.add_argument("--bandwidth", type=positive, default=None, metavar="MBPS",
+                   help="link bandwidth in Mb/s (10^6 bits/s) (default: unlimited)")
+    g.add_argument("--latency", type=milliseconds, default=0.0, metavar="MS",
+                   help="one-way latency in milliseconds (default: %(default)s)")
+    g.add_argument("--jitter", type=milliseconds, default=0.0, metavar="MS",
+                   help="extra delay per packet, uniform in [0, MS] milliseconds; packets stay "
+                   "in order (default: %(default)s)")
+    g.add_argument("--loss", type=loss, default=0.0, metavar="P",
+                   help="probability that a server frame is lost: a fraction in 0..1 (0.05) or "
+                   "a percentage (5%%) (default: %(default)s)")
+    g.add_argument("--seed", type=lambda t: integer(t, 0, 2**32 - 1), default=0, metavar="N",
+                   help="seed of the jitter and loss draws (default: %(default)s)")
+
+
+def network_model(args: argparse.Namespace, client_fps: float = 120.0) -> NetworkModel:
+    """The :class:`~splitrender.net.model.NetworkModel` of the options :func:`add_network`
+    added (``extra_delay_frames`` 0 without ``--delay``)."""
+    from splitrender.net.model import NetworkModel
+
+    return NetworkModel(
+        bandwidth_mbps=args.bandwidth, latency_ms=args.latency, jitter_ms=args.jitter,
+        extra_delay_frames=getattr(args, "delay", 0), loss=args.loss, seed=args.seed,
+        client_fps=client_fps,
+    )

@@ -3,12 +3,28 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
 
-from splitrender.cli.args import PROG, SAMPLES_HELP, add_backend, bitrates, count, delays, eval_methods, frames_delay, methods, names, positive, samples
+from splitrender.cli.args import (
+    SAMPLES_HELP,
+    add_backend,
+    add_network,
+    add_scene,
+    bitrates,
+    count,
+    delays,
+    eval_methods,
+    fail,
+    methods,
+    names,
+    network_model,
+    positive,
+    samples,
+)
+from splitrender.errors import SplitRenderError
+from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 
 
@@ -22,22 +38,23 @@ def add_demo(sub: Any) -> None:
             "The whole pipeline on a built-in dynamic scene: render the server frames (10 FPS, "
             "main + 2 auxiliary cameras, every buffer) and the ground-truth client frames "
             "(120 FPS, at the client's actual pose, which deviates from the server's predicted "
-            "one); encode the server frames at --bitrate and decode them; play them through the "
-            "network model (ideal link, no loss, --delay extra client frames) and the client with "
-            "every method; score each method against the ground truth (SSIM, FLIP, PSNR, VMAF; "
-            "first and last 12 client frames excluded). Writes to --out: video.mp4 (ground truth "
+            "one; with --stereo both eyes, IPD 7 cm); encode the server frames at --bitrate and "
+            "decode them; play them through the network model (by default the ideal link; see "
+            "the network model options) and the client with every method; score each method "
+            "against the ground truth (SSIM, FLIP, PSNR, VMAF; first and last 12 client frames "
+            "excluded; with --stereo per eye, the rows holding the mean of both eyes and "
+            "summary.json each eye's too). Writes to --out: video.mp4 (ground truth "
             "| ours | FLIP error map of ours, side by side, at --video-fps), stills/*.png "
-            "(three client frames: ground truth, every method, the FLIP map, the side-by-side), "
-            "summary.md and summary.json (per method: ssim, flip, psnr, vmaf, mbps, frames), "
+            "(three client frames: ground truth, every method, the FLIP map, the side-by-side; "
+            "the left eye with --stereo), "
+            "summary.md and summary.json (the network settings; per method: ssim, flip, psnr, "
+            "vmaf, mbps, frames, modes), "
             "and prints the table. The defaults (courtyard at 256x144, 1 s) take about 1.5 minutes "
             "on 2 CPU cores; time grows with scale^2 x seconds."
         ),
     )
     de.set_defaults(run=demo)
-    de.add_argument(
-        "--scene", default="courtyard", metavar="NAME",
-        help="built-in scene: courtyard, colonnade, lab (default: %(default)s)",
-    )
+    add_scene(de)
     de.add_argument(
         "--out", type=Path, default=Path("splitrender-demo"), metavar="DIR",
         help="output directory, created if missing; files in it are replaced "
@@ -62,10 +79,8 @@ def add_demo(sub: Any) -> None:
         "--methods", type=methods, default=DEFAULT_METHODS, metavar="LIST",
         help=f"comma-separated methods (default: {','.join(DEFAULT_METHODS)})",
     )
-    de.add_argument(
-        "--delay", type=frames_delay, default=0, metavar="L",
-        help="extra network delay in client frames, l (default: %(default)s)",
-    )
+    de.add_argument("--stereo", action="store_true",
+                    help="render two eyes (IPD 7 cm) and score both (as eval's Table 3)")
     de.add_argument(
         "--video-fps", type=positive, default=30.0, metavar="FPS",
         help="frame rate of video.mp4; every client frame is one video frame, so 30 plays the "
@@ -74,6 +89,7 @@ def add_demo(sub: Any) -> None:
     add_backend(de, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
     de.add_argument("--no-vmaf", action="store_true", help="skip VMAF (its column shows '-')")
     de.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_network(de)
 
 
 def demo(args: argparse.Namespace) -> int:
@@ -88,6 +104,8 @@ def demo(args: argparse.Namespace) -> int:
         methods=tuple(args.methods),
         vmaf=not args.no_vmaf,
         delay_frames=args.delay,
+        network=network_model(args),
+        stereo=args.stereo,
         video_fps=args.video_fps,
         progress=not args.quiet,
         backend=args.backend,
@@ -95,8 +113,7 @@ def demo(args: argparse.Namespace) -> int:
     try:
         res = run_demo(cfg)
     except DemoArgumentError as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
+        return fail(str(e))
     print(
         f"{cfg.scene} (dynamic) at {res.width}x{res.height}, {res.client_frames} client frames "
         f"from {res.server_frames} server frames at {res.mbps:.3f} Mb/s "
@@ -109,7 +126,12 @@ def demo(args: argparse.Namespace) -> int:
 
 
 def add_eval(sub: Any) -> None:
-    from splitrender.evaluation.experiments import DEFAULT_DELAYS, DEFAULT_EVAL_METHODS, DEFAULT_SCENES
+    from splitrender.evaluation.experiments import (
+        DEFAULT_DELAYS,
+        DEFAULT_EVAL_METHODS,
+        DEFAULT_SCENES,
+        EvalConfig,
+    )
 
     ev = sub.add_parser(
         "eval",
@@ -117,7 +139,7 @@ def add_eval(sub: Any) -> None:
         "Markdown, plots",
         description=(
             "Table 1: every --methods x --scenes x --variants on uncompressed server frames "
-            "(ideal link, l = 0). Table 2: ours on the dynamic scenes with --delays extra client "
+            "(l = 0). Table 2: ours on the dynamic scenes with --delays extra client "
             "frames, compressed at --bitrate, plus ours_extrapolate (l = 0). Table 3 (--stereo): "
             "every method, mono vs stereo, compressed. Figure 6 (--bitrates, on --rd-scenes): "
             "every method at each bitrate plus the references 'video_streaming' (the ground "
@@ -126,35 +148,47 @@ def add_eval(sub: Any) -> None:
             "prints the bitrates at which ours reaches VMAF 60 and 80. 'video_interp' (a "
             "--methods entry, not in Tables 2-3) is FFmpeg's minterpolate of the server colour "
             "video from 10 to 120 FPS. Recordings are rendered once per "
-            "(scene, variant) into OUT/recordings/ and reused. Writes OUT/results.json (a list "
+            "(scene, variant) into OUT/recordings/ and reused. Every experiment plays through "
+            "the network model given by the network model options (default: the ideal link), "
+            "with l = 0 but in Table 2. With --dataset DIR (a dataset in the authors' layout, "
+            "imported into OUT/recordings/<DIR's name>-dataset first) instead of the built-in "
+            "scenes: Table 1 only, every method on it as the scene <DIR's name> (variant "
+            "'dataset'), at its own size, rates and length. Writes OUT/results.json (a list "
             "of rows with the keys scene, variant, method, bitrate_mbps (null: uncompressed), "
-            "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames), OUT/tables.md and "
+            "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames, network (the link's "
+            "bandwidth_mbps, latency_ms, jitter_ms, loss, seed, extra_delay_frames; null for "
+            "video_interp and video_streaming, which bypass it)), OUT/tables.md and "
             "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 3 minutes on 2 "
             "CPU cores (about 1 minute per scene)."
         ),
     )
     ev.set_defaults(run=eval_)
     ev.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
-    ev.add_argument("--scenes", type=names, default=DEFAULT_SCENES, metavar="LIST",
+    ev.add_argument("--dataset", type=Path, default=None, metavar="DIR",
+                    help="evaluate a dataset in the authors' layout instead of the built-in "
+                    "scenes (Table 1 only; not with --scenes, --variants, --delays, --bitrate, "
+                    "--bitrates, --rd-scenes, --stereo, --scale, --seconds, --trace, --samples)")
+    ev.add_argument("--scenes", type=names, default=None, metavar="LIST",
                     help=f"comma-separated scenes (default: {','.join(DEFAULT_SCENES)})")
     ev.add_argument("--methods", type=eval_methods, default=DEFAULT_EVAL_METHODS,
                     metavar="LIST",
                     help=f"Table 1/3 and Figure 6 methods (default: "
                     f"{','.join(DEFAULT_EVAL_METHODS)})")
-    ev.add_argument("--delays", type=delays, default=DEFAULT_DELAYS, metavar="LIST",
+    ev.add_argument("--delays", type=delays, default=None, metavar="LIST",
                     help=f"Table 2 delays l (default: {','.join(map(str, DEFAULT_DELAYS))})")
     ev.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
                     help="bitrate of the compressed experiments (default: the paper's 40 Mb/s "
                     "scaled by pixel count)")
-    ev.add_argument("--scale", type=positive, default=0.05, metavar="X",
-                    help="main camera size round(2560X) x round(1440X) (default: %(default)s)")
-    ev.add_argument("--seconds", type=positive, default=1.0, metavar="S",
-                    help="length per scene (default: %(default)s)")
+    ev.add_argument("--scale", type=positive, default=None, metavar="X",
+                    help=f"main camera size round(2560X) x round(1440X) (default: "
+                    f"{EvalConfig.scale})")
+    ev.add_argument("--seconds", type=positive, default=None, metavar="S",
+                    help=f"length per scene (default: {EvalConfig.seconds})")
     ev.add_argument("--bitrates", type=bitrates, default=(), metavar="LIST",
                     help="also Figure 6 (rate-distortion) at these paper-equivalent Mb/s (at "
                     "2560x1440, scaled by pixel count), e.g. 10,20,40,60,100; plus the 'video "
                     "streaming' and timewarp references; writes OUT/rate_distortion.png")
-    ev.add_argument("--variants", type=names, default=("static", "dynamic"), metavar="LIST",
+    ev.add_argument("--variants", type=names, default=None, metavar="LIST",
                     help="Table 1's scene variants (default: static,dynamic; Tables 2-3 and "
                     "Figure 6 use dynamic)")
     ev.add_argument("--rd-scenes", type=names, default=None, metavar="LIST",
@@ -169,25 +203,51 @@ def add_eval(sub: Any) -> None:
     add_backend(ev, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
     ev.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
     ev.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_network(ev, delay=False)
 
 
 def eval_(args: argparse.Namespace) -> int:
+    from splitrender.cli.dataset import import_recording
     from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, run_eval
 
+    d = EvalConfig()
+    recording: Path | None = None
+    scenes = d.scenes if args.scenes is None else args.scenes
+    if args.dataset is not None:
+        for flag, value in (("--scenes", args.scenes), ("--variants", args.variants),
+                            ("--delays", args.delays), ("--bitrate", args.bitrate),
+                            ("--bitrates", args.bitrates or None),
+                            ("--rd-scenes", args.rd_scenes), ("--stereo", args.stereo or None),
+                            ("--scale", args.scale), ("--seconds", args.seconds),
+                            ("--trace", args.trace), ("--samples", args.samples)):
+            if value is not None:
+                return fail(f"{flag}: not with --dataset (Table 1 only, on the dataset's own "
+                            "size, rates and length)")
+        scenes = (args.dataset.resolve().name,)
+        recording = args.out / "recordings" / f"{scenes[0]}-dataset"
     cfg = EvalConfig(
-        out=args.out, scenes=tuple(args.scenes), methods=tuple(args.methods),
-        delays=tuple(args.delays), scale=args.scale, seconds=args.seconds,
-        bitrate_mbps=args.bitrate, bitrates=tuple(args.bitrates), stereo=args.stereo, vmaf=not args.no_vmaf,
+        out=args.out, scenes=tuple(scenes), methods=tuple(args.methods),
+        delays=d.delays if args.delays is None else tuple(args.delays),
+        scale=d.scale if args.scale is None else args.scale,
+        seconds=d.seconds if args.seconds is None else args.seconds,
+        bitrate_mbps=args.bitrate, bitrates=tuple(args.bitrates), stereo=args.stereo,
+        vmaf=not args.no_vmaf,
         rd_scenes=None if args.rd_scenes is None else tuple(args.rd_scenes),
-        variants=tuple(args.variants),
+        variants=d.variants if args.variants is None else tuple(args.variants),
         trace=args.trace, trace_scale=args.trace_scale, progress=not args.quiet,
-        backend=args.backend, samples=args.samples,
+        backend=args.backend, samples=args.samples, network=network_model(args),
+        recording=recording,
     )
+    if recording is not None:
+        try:
+            import_recording(args.dataset, recording, overwrite=True,
+                             stages=Progress(2, not args.quiet))
+        except SplitRenderError as e:
+            return fail(str(e))
     try:
         res = run_eval(cfg)
     except EvalArgumentError as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
+        return fail(str(e))
     for line in res.summary:
         print(line)
     print(f"{len(res.rows)} rows at {res.width}x{res.height}; wrote "
@@ -214,10 +274,7 @@ def add_bench(sub: Any) -> None:
         ),
     )
     be.set_defaults(run=bench)
-    be.add_argument(
-        "--scene", default="courtyard", metavar="NAME",
-        help="built-in scene: courtyard, colonnade, lab (default: %(default)s)",
-    )
+    add_scene(be)
     be.add_argument(
         "--methods", type=methods, default=METHODS, metavar="LIST",
         help=f"comma-separated methods (default: all: {','.join(METHODS)})",
@@ -250,8 +307,7 @@ def bench(args: argparse.Namespace) -> int:
             backend=args.backend,
         )
     except BenchArgumentError as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
+        return fail(str(e))
     print(format_rows(rows))
     if args.json is not None:
         args.json.write_text(

@@ -1,7 +1,7 @@
 """The ``splitrender`` command: the parser of every subcommand and the dispatch.
 
 Each subcommand family lives in its own module (``example``, ``recording``, ``play``,
-``evaluation``), which adds its parser and sets ``run`` as the parser's default, so that this
+``evaluation``, ``dataset``), which adds its parser and sets ``run`` as the parser's default, so that this
 module only dispatches.
 """
 
@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from splitrender._native import __version__
-from splitrender.cli import evaluation, example, play, recording
+from splitrender.cli import dataset, evaluation, example, play, recording
 from splitrender.cli.args import PROG, Parser
 from splitrender.errors import SplitRenderError
 from splitrender.reproject import METHODS
@@ -40,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     play.add(sub)
     evaluation.add_eval(sub)
     evaluation.add_bench(sub)
+    dataset.add(sub)
     return parser
 
 
@@ -50,10 +51,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         status: int = args.run(args)
         return status
-    except SplitRenderError as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 1
-    except OSError as e:
+    except (SplitRenderError, OSError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

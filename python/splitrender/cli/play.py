@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from splitrender.cli.args import PROG, add_backend, frames_delay, positive
+from splitrender.cli.args import add_backend, add_network, fail, network_model, positive
 from splitrender.errors import SplitRenderError
 from splitrender.imageio import write_png
+from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 
 
@@ -22,27 +22,35 @@ def add(sub: Any) -> None:
         "play",
         help="play a recording or stream file through the network model and the client",
         description=(
-            "Play SOURCE through the network model (ideal link, --delay extra client frames, no "
-            "loss) and the client with --method, and score the client frames against the "
+            "Play SOURCE through the network model (by default the ideal link; see the network "
+            "model options) and the client with --method, and score the client frames against the "
             "ground truth (SSIM, FLIP, PSNR, VMAF; first and last 12 client frames excluded). "
             "SOURCE is a recording directory (`splitrender render`; its server frames are played "
             "uncompressed, or encoded and decoded at --bitrate), a stream file (`splitrender "
             "encode`; --recording gives the recording it was encoded from, for the client poses "
             "and the ground truth), or a built-in scene name (rendered at --scale/--seconds into "
-            "OUT/recording first). Writes OUT/frames/NNNN.png per client frame (or OUT/client.mp4 "
-            "with --video) and OUT/play.json; prints the per-frame mode counts (interpolate, "
-            "extrapolate, hold) and the metrics. A stereo recording plays its left eye."
+            "OUT/recording first); or, with --dataset DIR instead of SOURCE, a dataset in the "
+            "authors' layout (imported into OUT/recording first, as `splitrender dataset import` "
+            "does). Writes OUT/frames/NNNN.png per client frame (or OUT/client.mp4 with --video) "
+            "and OUT/play.json (the source, the method, the network settings, the mode counts, "
+            "the mode of every client frame, every server frame's arrival time in seconds or "
+            "null when lost, the metrics); prints the mode counts (interpolate, extrapolate, "
+            "hold) and the metrics. A stereo recording plays its left eye, or with --stereo "
+            "both eyes (OUT/frames/left/, OUT/frames/right/ or OUT/client_left.mp4, "
+            "OUT/client_right.mp4), with the metrics per eye and their mean."
         ),
     )
     pl.set_defaults(run=run)
-    pl.add_argument("source", metavar="SOURCE", help="recording directory, stream file or scene")
+    pl.add_argument("source", metavar="SOURCE", nargs="?",
+                    help="recording directory, stream file or scene (or --dataset)")
+    pl.add_argument("--dataset", type=Path, default=None, metavar="DIR",
+                    help="play a dataset in the authors' layout (main/, left/, right/, "
+                    "client_ol/) instead of SOURCE; imported into OUT/recording first")
     pl.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     pl.add_argument("--recording", type=Path, metavar="REC",
                     help="the recording a stream file was encoded from (needed for a stream)")
     pl.add_argument("--method", default="ours", choices=METHODS, metavar="M",
                     help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
-    pl.add_argument("--delay", type=frames_delay, default=0, metavar="L",
-                    help="extra network delay in client frames, l (default: %(default)s)")
     pl.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
                     help="encode and decode a recording's server frames at this total bitrate "
                     "first (default: uncompressed; a stream file is always decoded as is)")
@@ -51,41 +59,66 @@ def add(sub: Any) -> None:
                     "it must match the recording's")
     pl.add_argument("--seconds", type=positive, default=None, metavar="S",
                     help="play only the first S seconds (default: all; 1.0 for a scene name)")
+    pl.add_argument("--stereo", action="store_true",
+                    help="play both eyes of a stereo recording (or stream file's recording) and "
+                    "report the metrics per eye and their mean")
     pl.add_argument("--video", action="store_true", help="write OUT/client.mp4 instead of PNGs")
     add_backend(pl, "ours, ours_extrapolate and forward_splat")
     pl.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
     pl.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_network(pl)
 
 
 def run(args: argparse.Namespace) -> int:
     import json
 
+    from splitrender.cli.dataset import import_recording
     from splitrender.codec.coder import CodecConfig, StreamDecoder
-    from splitrender.evaluation.demo import FC, _json_number, _Video, format_table
-    from splitrender.progress import Progress
-    from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
-    from splitrender.net.model import NetworkModel
-    from splitrender.evaluation.pipeline import encode_decode, play_and_score, raw_mbps
-    from splitrender.scene.recording import load_recording, plan, write_recording
-    from splitrender.scene.builtin import SCENE_NAMES, Scene
     from splitrender.codec.stream import StreamFile, stream_stats
-
-    def fail(msg: str) -> int:
-        print(f"{PROG}: error: {msg}", file=sys.stderr)
-        return 2
-
+    from splitrender.evaluation.demo import (
+        FC,
+        DemoArgumentError,
+        _json_number,
+        _Video,
+        check_run_args,
+        format_table,
+        metric_names,
+    )
+    from splitrender.evaluation.metrics import SKIP_FRAMES
+    from splitrender.evaluation.pipeline import (
+        encode_decode,
+        mean_row,
+        network_json,
+        play_and_score_eyes,
+        raw_mbps,
+    )
     from splitrender.gpu import check_backend
+    from splitrender.scene.builtin import SCENE_NAMES, Scene
+    from splitrender.scene.recording import load_recording, plan, write_recording
+    from splitrender.types import ReprojectOptions
 
     try:
         check_backend(args.backend, args.method)
     except SplitRenderError as e:
         return fail(f"--backend: {e}")
-    src = Path(args.source)
+    if (args.source is None) == (args.dataset is None):
+        return fail("expected SOURCE or --dataset DIR (one of them)")
+    if args.dataset is not None:
+        for flag, given in (("--recording", args.recording is not None),
+                            ("--scale", args.scale is not None)):
+            if given:
+                return fail(f"{flag}: not with --dataset (the dataset has its own size and "
+                            "client cameras)")
+    src = Path(args.source) if args.source is not None else args.dataset
     out: Path = args.out
-    stages = Progress(3 if args.source in SCENE_NAMES else 2, not args.quiet)
+    rendered = args.source in SCENE_NAMES and not src.exists()
+    stages = Progress(3 if rendered else 4 if args.dataset is not None else 2, not args.quiet)
     try:
         stream_path: Path | None = None
-        if src.is_dir():
+        if args.dataset is not None:
+            rec_path = out / "recording"
+            import_recording(args.dataset, rec_path, overwrite=True, stages=stages)
+        elif src.is_dir():
             rec_path = src
         elif src.is_file():
             if args.recording is None:
@@ -93,21 +126,17 @@ def run(args: argparse.Namespace) -> int:
             if args.bitrate is not None:
                 return fail("--bitrate: a stream file is played as encoded")
             stream_path, rec_path = src, args.recording
-        elif args.source in SCENE_NAMES:
+        elif rendered:
             scale = 0.1 if args.scale is None else args.scale
             seconds = 1.0 if args.seconds is None else args.seconds
             rec_path = out / "recording"
-            if round(seconds * FC) <= 2 * SKIP_FRAMES:
-                return fail(f"--seconds: {seconds:g} s is {round(seconds * FC)} client frames; at "
-                            f"least {2 * SKIP_FRAMES + 1} are needed ({SKIP_FRAMES} skipped at "
-                            "each end)")
+            if args.stereo:
+                return fail(f"--stereo: {args.source} is rendered mono; render a stereo "
+                            "recording with `splitrender render --stereo` and play that")
             try:
-                sw, sh = Scene(args.source).main_size(scale)
-            except SplitRenderError as e:
-                return fail(f"--scale: {e}")
-            if min(sw, sh) < 16 or max(sw, sh) > 4096:
-                return fail(f"--scale: {scale:g} gives a {sw}x{sh} main camera; expected "
-                            "16..4096 pixels a side")
+                check_run_args([args.source], [args.method], seconds, scale, DemoArgumentError)
+            except DemoArgumentError as e:
+                return fail(str(e))
             stages.stage(f"rendering {args.source} (dynamic) at scale {scale:g} into {rec_path}")
             write_recording(rec_path, Scene(args.source, "dynamic"), seconds=seconds,
                             scale=scale, overwrite=True,
@@ -116,6 +145,9 @@ def run(args: argparse.Namespace) -> int:
             return fail(f"{src}: no such recording or stream file, nor a built-in scene "
                         f"({', '.join(SCENE_NAMES)})")
         rec = load_recording(rec_path)
+        if args.stereo and not rec.stereo:
+            return fail(f"--stereo: {rec_path} is a mono recording (one eye); render one with "
+                        "`splitrender render --stereo`")
         if args.scale is not None and not math.isclose(rec.manifest["scale"], args.scale):
             return fail(f"--scale: {rec_path} was rendered at scale {rec.manifest['scale']:g}, "
                         f"not {args.scale:g}")
@@ -126,10 +158,12 @@ def run(args: argparse.Namespace) -> int:
         if n_client <= 2 * SKIP_FRAMES:
             return fail(f"--seconds: {seconds:g} s is {n_client} client frames; at least "
                         f"{2 * SKIP_FRAMES + 1} are needed ({SKIP_FRAMES} skipped at each end)")
+        eyes = 2 if args.stereo else 1
         clients = rec.client_frames[:n_client]
-        cams = [c.camera for c in clients]
-        truth = [c.ground_truth for c in clients]
-        w, h = cams[0].width, cams[0].height
+        cams = [[c.cameras[e] for c in clients] for e in range(eyes)]
+        truth = [[c.ground_truths[e] for c in clients] for e in range(eyes)]
+        del clients
+        w, h = cams[0][0].width, cams[0][0].height
         sizes: list[int] | None
         if stream_path is not None:
             stages.stage(f"decoding {stream_path}")
@@ -153,48 +187,69 @@ def run(args: argparse.Namespace) -> int:
                 stages.stage("uncompressed server frames")
                 sizes, mbps = None, raw_mbps(server, rec.fs)
             bitrate = args.bitrate
-        use_vmaf = not args.no_vmaf and min(w, h) >= VMAF_MIN_SIDE
-        metrics = ("ssim", "flip", "psnr", "vmaf") if use_vmaf else ("ssim", "flip", "psnr")
+        metrics = metric_names(not args.no_vmaf, w, h, note=False)
+        network = network_model(args, rec.fc)
         out.mkdir(parents=True, exist_ok=True)
-        video = _Video(out / "client.mp4", w + (w & 1), h + (h & 1), 30.0) if args.video else None
-        if not args.video:
-            (out / "frames").mkdir(exist_ok=True)
+        names = ("left", "right") if args.stereo else ("",)
+        videos: list[_Video] = []
+        video_files = [f"client_{name}.mp4" if name else "client.mp4" for name in names]
+        if args.video:
+            for file in video_files:
+                videos.append(_Video(out / file, w + (w & 1), h + (h & 1), 30.0))
+        else:
+            for name in names:
+                (out / "frames" / name).mkdir(parents=True, exist_ok=True)
 
-        def on_frame(n: int, image: npt.NDArray[np.uint8], info: Any) -> None:
-            if video is not None:
+        def on_frame(eye: int, n: int, image: npt.NDArray[np.uint8], info: Any) -> None:
+            if videos:
                 pad = np.zeros((h + (h & 1), w + (w & 1), 3), np.uint8)
                 pad[:h, :w] = image
-                video.write(pad)
+                videos[eye].write(pad)
             else:
-                write_png(out / "frames" / f"{n:04d}.png", image)
+                write_png(out / "frames" / names[eye] / f"{n:04d}.png", image)
 
-        stages.stage(f"{args.method}: playing {n_client} client frames (l = {args.delay}), "
+        stages.stage(f"{args.method}: playing {n_client} client frames"
+                     f"{' per eye' if args.stereo else ''} (l = {args.delay}), "
                      f"then {', '.join(metrics)}")
         try:
-            scored = play_and_score(
-                server, cams, truth, args.method,
-                NetworkModel(extra_delay_frames=args.delay, client_fps=rec.fc), rec.fc, metrics,
-                frame_sizes=sizes, bar=stages.bar, on_frame=on_frame, backend=args.backend)
+            scored = play_and_score_eyes(
+                server, cams, truth, args.method, network, rec.fc, metrics,
+                frame_sizes=sizes, bar=stages.bar, on_frame=on_frame, backend=args.backend,
+                options=ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes))
         finally:
-            if video is not None:
+            for video in videos:
                 video.close()
     except SplitRenderError as e:
         return fail(str(e))
-    modes = scored.playback.summary()
-    row = {"method": args.method, **scored.row(), "mbps": mbps}
+    finally:
+        stages.close()
+    playback = scored[0].playback
+    modes = playback.summary()
+    row = {"method": args.method, **mean_row(scored), "mbps": mbps}
+    numbers = ("ssim", "flip", "psnr", "vmaf")
     data = {
         "source": str(src), "recording": str(rec_path), "method": args.method,
-        "delay": args.delay, "bitrate_mbps": bitrate, "width": w, "height": h,
+        "delay": args.delay, "network": network_json(network), "bitrate_mbps": bitrate,
+        "width": w, "height": h, "stereo": args.stereo,
         "client_frames": n_client, "server_frames": len(server), "modes": modes,
-        "mode_per_frame": scored.playback.modes(),
-        **{k: _json_number(row[k]) for k in ("ssim", "flip", "psnr", "vmaf", "mbps")},
+        "mode_per_frame": playback.modes(), "arrivals": playback.arrivals,
+        **{k: _json_number(row[k]) for k in (*numbers, "mbps")},
         "frames": row["frames"],
     }
+    if args.stereo:
+        data["eyes"] = [{"eye": name, **{k: _json_number(s.row()[k]) for k in numbers}}
+                        for name, s in zip(names, scored)]
     (out / "play.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    where = "client.mp4" if args.video else f"frames/ ({n_client} PNGs)"
+    if args.video:
+        where = ", ".join(video_files)
+    else:
+        where = f"frames/ ({n_client * eyes} PNGs)"
     print(f"wrote {out}/: {where}, play.json")
     print("modes: " + ", ".join(f"{m} {c}" for m, c in modes.items()))
-    print(format_table([row]))
+    if args.stereo:
+        rows = [{"method": f"{args.method} ({name})", **s.row(), "mbps": mbps}
+                for name, s in zip(names, scored)]
+        print(format_table([*rows, {**row, "method": f"{args.method} (mean)"}]))
+    else:
+        print(format_table([row]))
     return 0
-
-

@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.errors import InvalidInputError
+from splitrender.net.model import NetworkModel
 from splitrender.progress import Progress
 from splitrender.imageio import write_png
 from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE, flip_map
@@ -104,6 +105,11 @@ class DemoConfig:
     methods: tuple[str, ...] = DEFAULT_METHODS
     vmaf: bool = True
     delay_frames: int = 0
+    #: The link (bandwidth, latency, jitter, loss, seed); ``None``: the ideal link. Its
+    #: ``extra_delay_frames`` and ``client_fps`` are replaced by ``delay_frames`` and :data:`FC`.
+    network: NetworkModel | None = None
+    #: Render two eyes (IPD 7 cm) and score both; the rows hold the mean and ``eyes``.
+    stereo: bool = False
     video_fps: float = 30.0
     stills: int = 3
     progress: bool = True
@@ -130,17 +136,18 @@ def _json_number(v: float | None) -> float | str | None:
     return v if math.isfinite(v) else str(v)
 
 
+def cell(v: Any, fmt: str) -> str:
+    """A table cell: ``–`` for ``None``, a string as is, a number formatted with ``fmt``."""
+    if v is None:
+        return "–"
+    if isinstance(v, str):
+        return v
+    return format(v, fmt)
+
+
 def format_table(rows: Sequence[dict[str, Any]], markdown: bool = False) -> str:
     """The summary rows as a plain-text (or Markdown) table."""
     head = ["method", "SSIM ↑", "FLIP ↓", "PSNR ↑", "VMAF ↑", "Mb/s", "frames"]
-
-    def cell(v: Any, fmt: str) -> str:
-        if v is None:
-            return "–"
-        if isinstance(v, str):
-            return v
-        return format(v, fmt)
-
     body = [
         [
             str(r["method"]),
@@ -223,6 +230,21 @@ def check_config(cfg: DemoConfig) -> None:
     check_run_args([cfg.scene], cfg.methods, cfg.seconds, cfg.scale, DemoArgumentError)
 
 
+def check_methods(
+    methods: Sequence[str], error: type[DemoArgumentError], extra_methods: Sequence[str] = ()
+) -> None:
+    """At least one method, each a reprojection method or one of ``extra_methods``, each once;
+    raises ``error`` (one line) naming ``--methods``."""
+    if not methods:
+        raise error("--methods: expected at least one method")
+    known = (*METHODS, *extra_methods)
+    bad = [m for m in methods if m not in known]
+    if bad:
+        raise error(f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(known)}")
+    if len(set(methods)) != len(methods):
+        raise error("--methods: a method is listed twice")
+
+
 def check_run_args(
     scenes: Sequence[str],
     methods: Sequence[str],
@@ -237,14 +259,7 @@ def check_run_args(
     from splitrender.errors import SplitRenderError
     from splitrender.scene.builtin import Scene
 
-    if not methods:
-        raise error("--methods: expected at least one method")
-    known = (*METHODS, *extra_methods)
-    bad = [m for m in methods if m not in known]
-    if bad:
-        raise error(f"--methods: unknown method {bad[0]!r}; expected some of: {', '.join(known)}")
-    if len(set(methods)) != len(methods):
-        raise error("--methods: a method is listed twice")
+    check_methods(methods, error, extra_methods)
     for name in scenes:
         duration = Scene(name).duration
         if seconds > duration + 1e-9:
@@ -262,6 +277,27 @@ def check_run_args(
         raise error(f"--scale: {e}") from None
     if min(w, h) < 16 or max(w, h) > 4096:
         raise error(f"--scale: {scale:g} gives a {w}x{h} main camera; expected 16..4096 pixels a side")
+
+
+def check_gpu(backend: str) -> None:
+    """For a GPU ``backend``: raises now (``GpuUnavailableError``) when it cannot run, not after
+    rendering."""
+    if backend != "cpu":
+        from splitrender.gpu import adapter, check_backend
+
+        check_backend(backend)
+        adapter()
+
+
+def metric_names(vmaf: bool, width: int, height: int, note: bool) -> tuple[str, ...]:
+    """The metrics computed: SSIM, FLIP, PSNR, and VMAF when asked for and the image is large
+    enough for it (else a note on stderr when ``note``)."""
+    if vmaf and min(width, height) < VMAF_MIN_SIDE:
+        vmaf = False
+        if note:
+            print(f"note: {width}x{height} is below VMAF's {VMAF_MIN_SIDE} pixels a side; VMAF "
+                  "skipped", file=sys.stderr)
+    return ("ssim", "flip", "psnr", "vmaf") if vmaf else ("ssim", "flip", "psnr")
 
 
 #: The demo's bitrate floor (Mb/s). Packet headers and the lossless parts (shadow bitfields,
@@ -284,32 +320,29 @@ def default_bitrate_mbps(width: int, height: int) -> float:
 
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Runs the demo (see the module docstring) and writes its files to ``cfg.out``."""
+    from dataclasses import replace
+
     from splitrender.codec.coder import CodecConfig
-    from splitrender.net.model import NetworkModel
     from splitrender.gpu import backend_for
-    from splitrender.evaluation.pipeline import encode_decode, play_and_score
+    from splitrender.evaluation.pipeline import (
+        encode_decode,
+        mean_row,
+        network_json,
+        network_text,
+        play_and_score_eyes,
+    )
     from splitrender.scene.recording import plan
     from splitrender.scene.builtin import Scene
     from splitrender.types import ServerFrame
 
     check_config(cfg)
-    if cfg.backend != "cpu":
-        from splitrender.gpu import adapter, check_backend
-
-        check_backend(cfg.backend)
-        adapter()  # no adapter: GpuUnavailableError now, not after rendering
+    check_gpu(cfg.backend)
     scene = Scene(cfg.scene, "dynamic")
     w, h = scene.main_size(cfg.scale)
     n_server, n_client = plan(cfg.seconds, FS, FC)
-    use_vmaf = cfg.vmaf
+    metrics = metric_names(cfg.vmaf, w, h, cfg.progress)
     stages = Progress(3 + len(cfg.methods), cfg.progress)
-    if use_vmaf and min(w, h) < VMAF_MIN_SIDE:
-        use_vmaf = False
-        if cfg.progress:
-            print(
-                f"note: {w}x{h} is below VMAF's {VMAF_MIN_SIDE} pixels a side; VMAF skipped",
-                file=sys.stderr,
-            )
+    eyes = 2 if cfg.stereo else 1
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
     (out / "stills").mkdir(exist_ok=True)
@@ -319,20 +352,21 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     # 1. render
     stages.stage(
         f"rendering {scene.name} (dynamic) at {w}x{h}: {n_server} server frames at {FS:g} FPS, "
-        f"{n_client} ground-truth client frames at {FC:g} FPS"
+        f"{n_client} ground-truth client frames at {FC:g} FPS{' per eye' if cfg.stereo else ''}"
     )
     total = n_server + n_client
     server: list[ServerFrame] = []
     for k in range(n_server):
         server.append(scene.server_frame(k, cfg.scale, FS))
         stages.bar(k + 1, total, "frames")
-    cameras = []
-    truth: list[_Image] = []
+    cameras: list[list[Any]] = [[] for _ in range(eyes)]
+    truths: list[list[_Image]] = [[] for _ in range(eyes)]
     for n in range(n_client):
-        cam, img = scene.client_frames(n, cfg.scale, FC)[0]
-        cameras.append(cam)
-        truth.append(img)
+        for e, (cam, img) in enumerate(scene.client_frames(n, cfg.scale, FC, cfg.stereo)):
+            cameras[e].append(cam)
+            truths[e].append(img)
         stages.bar(n_server + n + 1, total, "frames")
+    truth = truths[0]  # the video and the stills show the (left) eye
 
     # 2. encode + decode
     codec_cfg = (
@@ -345,9 +379,9 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     )
     decoded, sizes, mbps = encode_decode(server, codec_cfg, FS, stages.bar, n_server)
     del server
-    network = NetworkModel(extra_delay_frames=cfg.delay_frames, client_fps=FC)
+    network = replace(cfg.network or NetworkModel(), extra_delay_frames=cfg.delay_frames,
+                      client_fps=FC)
 
-    metrics = ("ssim", "flip", "psnr", "vmaf") if use_vmaf else ("ssim", "flip", "psnr")
     lo, hi = SKIP_FRAMES, n_client - SKIP_FRAMES - 1
     still_idx = sorted({round(lo + (hi - lo) * (i + 1) / (cfg.stills + 1)) for i in range(cfg.stills)})
     video_method = "ours" if "ours" in cfg.methods else cfg.methods[0]
@@ -358,13 +392,15 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     for method in cfg.methods:
         stages.stage(f"{method}: playing {n_client} client frames, then {', '.join(metrics)}")
 
-        scored = play_and_score(
-            decoded, cameras, truth, method, network, FC, metrics, frame_sizes=sizes,
+        scored = play_and_score_eyes(
+            decoded, cameras, truths, method, network, FC, metrics, frame_sizes=sizes,
             bar=stages.bar, backend=backend_for(method, cfg.backend),
         )
-        res = scored.playback
-        row: dict[str, Any] = {"method": method, **scored.row(), "mbps": mbps}
+        res = scored[0].playback
+        row: dict[str, Any] = {"method": method, **mean_row(scored), "mbps": mbps}
         row = {k: row[k] for k in ROW_KEYS} | {"modes": res.summary()}
+        if cfg.stereo:
+            row["eyes"] = [s.row() for s in scored]
         rows.append(row)
         for n in still_idx:
             still = out / "stills" / f"frame{n:04d}_{method}.png"
@@ -372,7 +408,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
             files.append(still)
         if method == video_method:
             video_frames = res.images
-        del res
+        del res, scored
 
     # 4. video + stills + summary
     stages.stage(f"writing video.mp4 (ground truth | {video_method} | FLIP map), stills, summary")
@@ -411,7 +447,8 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         "skip": SKIP_FRAMES,
         "bitrate_target_mbps": codec_cfg.bitrate_mbps,
         "mbps": mbps,
-        "network": {"extra_delay_frames": cfg.delay_frames, "loss": 0.0},
+        "stereo": cfg.stereo,
+        "network": network_json(network),
         "video": {"file": "video.mp4", "frames": n_client, "fps": cfg.video_fps,
                   "tiles": ["ground_truth", video_method, f"flip_{video_method}"]},
         "stills": still_idx,
@@ -419,6 +456,8 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         "rows": [
             {k: (_json_number(r[k]) if k not in ("method", "frames") else r[k]) for k in ROW_KEYS}
             | {"modes": r["modes"]}
+            | ({"eyes": [{k: _json_number(v) if k != "frames" else v for k, v in e.items()}
+                         for e in r["eyes"]]} if "eyes" in r else {})
             for r in rows
         ],
     }
@@ -429,8 +468,9 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         (
             f"{cfg.seconds:g} s: {n_server} server frames at {FS:g} FPS encoded at "
             f"{codec_cfg.bitrate_mbps:.3g} Mb/s (achieved {mbps:.3f} Mb/s), {n_client} client "
-            f"frames at {FC:g} FPS played through the network model (l = {cfg.delay_frames}, no "
-            f"loss). Metrics are per-frame means against the ground truth at the client pose, "
+            f"frames at {FC:g} FPS{' per eye (stereo)' if cfg.stereo else ''} played through the "
+            f"network model ({network_text(network)}). Metrics are per-frame means against the "
+            f"ground truth at the client pose{', averaged over both eyes' if cfg.stereo else ''}, "
             f"first and last {SKIP_FRAMES} client frames excluded."
         ),
         "",

@@ -57,11 +57,16 @@ from splitrender.evaluation.demo import (
     FS,
     DemoArgumentError,
     _json_number,
+    cell,
+    check_gpu,
+    check_methods,
     check_run_args,
+    metric_names,
 )
 from splitrender.errors import SplitRenderError
 from splitrender.progress import Progress
-from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
+from splitrender.evaluation.metrics import SKIP_FRAMES
+from splitrender.net.model import NetworkModel
 
 __all__ = [
     "DEFAULT_DELAYS",
@@ -80,7 +85,7 @@ __all__ = [
 
 ROW_KEYS: tuple[str, ...] = (
     "scene", "variant", "method", "bitrate_mbps", "delay", "stereo",
-    "ssim", "flip", "psnr", "vmaf", "mbps", "frames",
+    "ssim", "flip", "psnr", "vmaf", "mbps", "frames", "network",
 )
 DEFAULT_SCENES: tuple[str, ...] = ("courtyard", "colonnade", "lab")
 DEFAULT_DELAYS: tuple[int, ...] = (0, 1, 2, 4, 8, 12)
@@ -127,6 +132,15 @@ class EvalConfig:
     #: Colour sub-samples per pixel side of every render (server, ground truth, the timewarp
     #: lines' servers); ``None``: ``scenes.default_samples`` of each camera's size.
     samples: int | None = None
+    #: The link of every experiment (bandwidth, latency, jitter, loss, seed); ``None``: the ideal
+    #: link. Its ``extra_delay_frames`` is each experiment's ``l`` (0 but in Table 2).
+    network: NetworkModel | None = None
+    #: A recording (e.g. an imported dataset) to evaluate instead of rendering the built-in
+    #: scenes: Table 1 only (uncompressed, every method) on it, as the one scene ``scenes[0]``
+    #: and its own variant, rates and length (``delays``, ``variants``, ``scale`` and
+    #: ``seconds`` are not used; ``stereo``, ``bitrates``, ``rd_scenes``, ``trace`` and
+    #: ``samples`` must be left unset).
+    recording: Path | None = None
 
 
 @dataclass
@@ -140,12 +154,27 @@ class EvalResult:
     summary: list[str] = field(default_factory=list)
 
 
+def _check_recording_config(cfg: EvalConfig) -> None:
+    if len(cfg.scenes) != 1:
+        raise EvalArgumentError("--dataset: evaluates one recording, named by one scene")
+    for name, unset in (("--stereo", not cfg.stereo), ("--bitrates", not cfg.bitrates),
+                        ("--rd-scenes", cfg.rd_scenes is None), ("--trace", cfg.trace is None),
+                        ("--samples", cfg.samples is None)):
+        if not unset:
+            raise EvalArgumentError(f"{name}: not with --dataset (Table 1 only, on the "
+                                    "dataset as it is)")
+    check_methods(cfg.methods, EvalArgumentError, extra_methods=(VIDEO_INTERP,))
+
+
 def check_config(cfg: EvalConfig) -> None:
     """Raises :class:`EvalArgumentError` (one line) for a configuration that cannot run."""
     from splitrender.scene.builtin import SCENE_NAMES
 
     if not cfg.scenes:
         raise EvalArgumentError("--scenes: expected at least one scene")
+    if cfg.recording is not None:
+        _check_recording_config(cfg)
+        return
     from splitrender.scene.builtin import MAX_SAMPLES
 
     if cfg.samples is not None and not 1 <= cfg.samples <= MAX_SAMPLES:
@@ -180,14 +209,6 @@ def check_config(cfg: EvalConfig) -> None:
         raise EvalArgumentError(f"--trace: {cfg.trace}: no such file")
 
 
-def _cell(v: Any, fmt: str) -> str:
-    if v is None:
-        return "–"
-    if isinstance(v, str):
-        return v
-    return format(v, fmt)
-
-
 def format_rows(rows: Sequence[Row], keys: Sequence[str], group: Sequence[str] = ()) -> str:
     """``rows`` as a Markdown table: the columns ``keys`` then the metrics, Mb/s and frames; the
     best value of each metric among the rows that agree on ``group`` is in bold."""
@@ -205,16 +226,18 @@ def format_rows(rows: Sequence[Row], keys: Sequence[str], group: Sequence[str] =
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         b = best.get(tuple(r[g] for g in group), {})
-        cells = [_cell(r[k], "") if k != "bitrate_mbps" else _cell(r[k], ".3g") for k in keys]
+        cells = [cell(r[k], "") if k != "bitrate_mbps" else cell(r[k], ".3g") for k in keys]
         for metric, _, fmt, _ in _METRIC_HEAD:
-            c = _cell(r[metric], fmt)
+            c = cell(r[metric], fmt)
             cells.append(f"**{c}**" if metric in b and r[metric] == b[metric] else c)
-        cells += [_cell(r["mbps"], ".3f"), str(r["frames"])]
+        cells += [cell(r["mbps"], ".3f"), str(r["frames"])]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines)
 
 
 def _plan_stages(cfg: EvalConfig) -> int:
+    if cfg.recording is not None:
+        return 1 + len(cfg.methods)  # loading, Table 1
     core = len([m for m in cfg.methods if m != VIDEO_INTERP])
     nv = len(set(cfg.variants) | {"dynamic"})
     n = len(cfg.scenes) * nv  # recordings
@@ -233,39 +256,53 @@ def _plan_stages(cfg: EvalConfig) -> int:
 
 def run_eval(cfg: EvalConfig) -> EvalResult:
     """Runs the experiments (see the module docstring) and writes their files to ``cfg.out``."""
+    from dataclasses import replace
+
     from splitrender.codec.coder import CodecConfig
-    from splitrender.net.model import NetworkModel
     from splitrender.gpu import backend_for
-    from splitrender.evaluation.pipeline import encode_decode, play_and_score, raw_mbps
+    from splitrender.evaluation.pipeline import (
+        encode_decode,
+        mean_row,
+        network_json,
+        network_text,
+        play_and_score,
+        play_and_score_eyes,
+        raw_mbps,
+    )
     from splitrender.scene.recording import Recording, load_recording, plan, write_recording
     from splitrender.scene.builtin import PREDICTION_DELAY, Scene, Trace, default_samples, load_trace
     from splitrender.types import ReprojectOptions, ServerFrame
 
     check_config(cfg)
-    if cfg.backend != "cpu":
-        from splitrender.gpu import adapter, check_backend
-
-        check_backend(cfg.backend)
-        adapter()  # no adapter: GpuUnavailableError now, not after rendering
+    check_gpu(cfg.backend)
+    given = None if cfg.recording is None else load_recording(cfg.recording)
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
     (out / "recordings").mkdir(exist_ok=True)
     trace: Trace | None = None if cfg.trace is None else load_trace(cfg.trace)
-    w, h = Scene(cfg.scenes[0]).main_size(cfg.scale)
-    n_server, n_client = plan(cfg.seconds, FS, FC)
+    network = cfg.network or NetworkModel()
+    # Rates, size and length: the built-in scenes' (FS, FC, cfg.scale, cfg.seconds), or those of
+    # the recording given; its server_fps and shadow subframes also go to the client.
+    fs, fc = FS, FC
+    options: ReprojectOptions | None = None
+    if given is None:
+        w, h = Scene(cfg.scenes[0]).main_size(cfg.scale)
+        n_server, n_client = plan(cfg.seconds, FS, FC)
+        seconds = cfg.seconds
+    else:
+        fs, fc = given.fs, given.fc
+        w, h = given.manifest["cameras"]["main"]
+        n_server, n_client = len(given.server_frames), len(given.client_frames)
+        seconds = float(given.manifest["seconds"])
+        options = ReprojectOptions(server_fps=fs, shadow_subframes=given.subframes)
     codec_cfg = (
         CodecConfig.scaled(w, h)
         if cfg.bitrate_mbps is None
         else CodecConfig(bitrate_mbps=cfg.bitrate_mbps)
     )
     bitrate = codec_cfg.bitrate_mbps
-    use_vmaf = cfg.vmaf
-    if use_vmaf and min(w, h) < VMAF_MIN_SIDE:
-        use_vmaf = False
-        if cfg.progress:
-            print(f"note: {w}x{h} is below VMAF's {VMAF_MIN_SIDE} pixels a side; VMAF skipped",
-                  file=sys.stderr)
-    metrics = ("ssim", "flip", "psnr", "vmaf") if use_vmaf else ("ssim", "flip", "psnr")
+    metrics = metric_names(cfg.vmaf, w, h, cfg.progress)
+    use_vmaf = "vmaf" in metrics
     stages = Progress(_plan_stages(cfg), cfg.progress)
     rows: list[Row] = []
     cache: dict[tuple[Any, ...], Row] = {}
@@ -274,6 +311,9 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     main_samples = default_samples(w, h) if cfg.samples is None else cfg.samples
 
     def recording(scene: str, variant: str, stereo: bool) -> Recording:
+        if given is not None:
+            stages.stage(f"loading {given.path} ({scene})")
+            return given
         path = out / "recordings" / f"{scene}-{variant}{'-stereo' if stereo else ''}"
         if (path / "manifest.json").is_file():
             try:
@@ -316,24 +356,16 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         key = (scene, variant, method, br, delay, stereo)
         if key in cache:
             return cache[key]
-        net = NetworkModel(extra_delay_frames=delay, client_fps=FC)
-        means: dict[str, list[float]] = {}
-        frames = 0
-        use = metrics if which is None else which
-        for eye_cams, eye_truth in zip(cams, truth):
-            s = play_and_score(server, eye_cams, eye_truth, method, net, FC, use,
-                               frame_sizes=sizes, bar=stages.bar,
-                               backend=backend_for(method, cfg.backend))
-            r = s.row()
-            for m in use:
-                means.setdefault(m, []).append(float(r[m]))
-            frames = int(r["frames"])
+        net = replace(network, extra_delay_frames=delay, client_fps=fc)
+        scored = play_and_score_eyes(
+            server, cams, truth, method, net, fc, metrics if which is None else which,
+            frame_sizes=sizes, bar=stages.bar, options=options,
+            backend=backend_for(method, cfg.backend),
+        )
         row: Row = {
             "scene": scene, "variant": variant, "method": method, "bitrate_mbps": br,
-            "delay": delay, "stereo": stereo,
-            **{m: (float(np.mean(means[m])) if m in means else None)
-               for m in ("ssim", "flip", "psnr", "vmaf")},
-            "mbps": mbps, "frames": frames,
+            "delay": delay, "stereo": stereo, **mean_row(scored), "mbps": mbps,
+            "network": network_json(net),
         }
         cache[key] = row
         rows.append(row)
@@ -343,7 +375,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         scene: str, variant: str, colours: Sequence[_Image], mbps: float, br: float | None,
         truth: Sequence[_Image], which: Sequence[str] = metrics,
     ) -> Row:
-        frames = minterpolate(colours, FS, FC, len(truth))
+        frames = minterpolate(colours, fs, fc, len(truth))
         row = _score_frames(scene, variant, VIDEO_INTERP, br, frames, truth, mbps, which,
                             stages.bar)
         rows.append(row)
@@ -378,29 +410,31 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
 
     # Table 1: uncompressed, scenes x variants x methods.
     t1: list[Row] = []
+    variants = cfg.variants if given is None else (given.variant,)
     for scene in cfg.scenes:
-        for variant in cfg.variants:
+        for variant in variants:
             server, cams, truth = load(scene, variant, False)
-            mbps = raw_mbps(server, FS)
+            mbps = raw_mbps(server, fs)
             for method in cfg.methods:
                 stages.stage(f"table 1: {scene} ({variant}), {method}, uncompressed")
                 if method == VIDEO_INTERP:
                     colours = [f.main.color for f in server]
-                    raw = colours[0].nbytes * 8 * FS / 1e6
+                    raw = colours[0].nbytes * 8 * fs / 1e6
                     t1.append(interp(scene, variant, colours, raw, None, truth[0]))
                     continue
                 t1.append(score(scene, variant, method, server, None, None, mbps, 0, cams, truth))
     tables.append((
         "Table 1: methods × scenes × static/dynamic, uncompressed",
-        f"Ideal link (l = 0), uncompressed server frames (Mb/s: their raw rate). Bold: the best "
-        f"per scene and variant.", t1, ("scene", "variant", "method"), ("scene", "variant"),
+        f"Link: {network_text(network)}; uncompressed server frames (Mb/s: their raw rate). "
+        "Bold: the best per scene and variant.",
+        t1, ("scene", "variant", "method"), ("scene", "variant"),
     ))
     write_results()
 
     # Table 2: delays on the dynamic scenes, compressed.
     t2: list[Row] = []
     decoded_mono: dict[str, tuple[list[Any], list[int], float]] = {}
-    for scene in cfg.scenes:
+    for scene in cfg.scenes if given is None else ():  # a recording given: Table 1 only
         server, cams, truth = load(scene, "dynamic", False)
         stages.stage(f"table 2: {scene}: encoding {len(server)} server frames at {bitrate:.3g} "
                      "Mb/s and decoding them")
@@ -412,14 +446,15 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         stages.stage(f"table 2: {scene}, ours_extrapolate, l = 0")
         t2.append(score(scene, "dynamic", "ours_extrapolate", dec, sizes, bitrate, mbps, 0,
                         cams, truth))
-    tables.append((
-        "Table 2: extra delay l (client frames), dynamic scenes, compressed",
-        f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} FPS, "
-        f"f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s scaled by "
-        "pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best per scene.",
-        t2, ("scene", "method", "delay"), ("scene",),
-    ))
-    write_results()
+    if t2:
+        tables.append((
+            "Table 2: extra delay l (client frames), dynamic scenes, compressed",
+            f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} "
+            f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s "
+            "scaled by pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best "
+            "per scene.", t2, ("scene", "method", "delay"), ("scene",),
+        ))
+        write_results()
 
     # Table 3: mono vs stereo, compressed.
     if cfg.stereo:
@@ -487,8 +522,9 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                     twc = CodecConfig(bitrate_mbps=br, camera_shares=(1.0,), fps=float(fps),
                                       gop=fps)
                     tdec, tsizes, tmbps = encode_decode(tw_servers[fps], twc, float(fps))
+                    tw_net = replace(network, extra_delay_frames=0, client_fps=FC)
                     sc = play_and_score(
-                        tdec, cams[0], truth[0], "timewarp", NetworkModel(client_fps=FC), FC,
+                        tdec, cams[0], truth[0], "timewarp", tw_net, FC,
                         rd_metrics, frame_sizes=tsizes, bar=stages.bar,
                         options=ReprojectOptions(server_fps=float(fps)),
                     )
@@ -497,6 +533,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                         "bitrate_mbps": br, "delay": 0, "stereo": False,
                         **{k: sc.metrics.mean.get(k) for k in ("ssim", "flip", "psnr", "vmaf")},
                         "mbps": tmbps, "frames": sc.row()["frames"],
+                        "network": network_json(tw_net),
                     })
                     rows.append(f6[-1])
                 write_results()
@@ -534,21 +571,23 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         write_results()
 
     files = [out / "results.json"]
+    motion = (f"the recording {cfg.recording}'s client poses" if given is not None
+              else "the scenes head paths" if trace is None else f"head trace {cfg.trace}")
     md = [
         f"# splitrender eval: {', '.join(cfg.scenes)} at {w}x{h}",
         "",
-        f"{cfg.seconds:g} s per scene: {n_server} server frames at {FS:g} FPS, {n_client} client "
-        f"frames at {FC:g} FPS; per-frame means against the ground truth at the client pose, "
+        f"{seconds:g} s per scene: {n_server} server frames at {fs:g} FPS, {n_client} client "
+        f"frames at {fc:g} FPS; per-frame means against the ground truth at the client pose, "
         f"first and last {SKIP_FRAMES} client frames excluded"
-        f"{'' if use_vmaf else '; VMAF not computed'}. Client motion: "
-        f"{'the scenes head paths' if trace is None else f'head trace {cfg.trace}'}.",
+        f"{'' if use_vmaf else '; VMAF not computed'}. Client motion: {motion}. Network: "
+        f"{network_text(network)}{' (Table 2: l as given)' if t2 else ''}.",
         "",
     ]
     for title, note, trows, keys, group in tables:
         md += [f"## {title}", "", note, "", format_rows(trows, keys, group), ""]
     (out / "tables.md").write_text("\n".join(md), encoding="utf-8")
     files.append(out / "tables.md")
-    png = _plot_delays(out / "delays.png", t2, metrics)
+    png = _plot_delays(out / "delays.png", t2, metrics) if t2 else None
     if png is not None:
         files.append(png)
     if f6:
@@ -570,7 +609,7 @@ def _score_frames(
     return {
         "scene": scene, "variant": variant, "method": method, "bitrate_mbps": br, "delay": 0,
         "stereo": False, **{m: sm.mean.get(m) for m in ("ssim", "flip", "psnr", "vmaf")},
-        "mbps": mbps, "frames": len(sm.frames),
+        "mbps": mbps, "frames": len(sm.frames), "network": None,
     }
 
 
@@ -771,7 +810,7 @@ def _video_streaming_row(
         "scene": scene, "variant": "dynamic", "method": "video_streaming",
         "bitrate_mbps": mbps, "delay": 0, "stereo": False,
         **{m: sm.mean.get(m) for m in ("ssim", "flip", "psnr", "vmaf")},
-        "mbps": achieved, "frames": len(sm.frames),
+        "mbps": achieved, "frames": len(sm.frames), "network": None,
     }
 
 

@@ -8,6 +8,7 @@ frames against the ground truth with :func:`~splitrender.evaluation.metrics.eval
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -22,7 +23,16 @@ from splitrender.net.model import NetworkModel
 from splitrender.codec.stream import stream_stats
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 
-__all__ = ["Scored", "encode_decode", "play_and_score", "raw_mbps"]
+__all__ = [
+    "Scored",
+    "encode_decode",
+    "mean_row",
+    "network_json",
+    "network_text",
+    "play_and_score",
+    "play_and_score_eyes",
+    "raw_mbps",
+]
 
 _Image = npt.NDArray[np.uint8]
 #: ``bar(done, total, label)``: one progress bar (e.g. :meth:`splitrender.progress.Progress.bar`).
@@ -74,6 +84,20 @@ class Scored:
         }
 
 
+def network_json(network: NetworkModel) -> dict[str, Any]:
+    """The settings of ``network`` for a results file: ``bandwidth_mbps`` (``None``:
+    unlimited), ``latency_ms``, ``jitter_ms``, ``loss`` (a fraction), ``seed`` and
+    ``extra_delay_frames``."""
+    return {
+        "bandwidth_mbps": network.bandwidth_mbps,
+        "latency_ms": network.latency_ms,
+        "jitter_ms": network.jitter_ms,
+        "loss": network.loss,
+        "seed": network.seed,
+        "extra_delay_frames": network.extra_delay_frames,
+    }
+
+
 def play_and_score(
     frames: Iterable[ServerFrame],
     cameras: Sequence[Camera],
@@ -110,3 +134,64 @@ def play_and_score(
 
     sm = evaluate_sequence(res.images, truth, SKIP_FRAMES, metrics, fps=fc, progress=progress)
     return Scored(res, sm)
+
+
+def play_and_score_eyes(
+    frames: Sequence[ServerFrame],
+    cameras: Sequence[Sequence[Camera]],
+    truth: Sequence[Sequence[_Image]],
+    method: str,
+    network: NetworkModel,
+    fc: float,
+    metrics: Sequence[str],
+    *,
+    frame_sizes: Sequence[int] | None = None,
+    bar: Bar | None = None,
+    on_frame: Callable[[int, int, _Image, Any], None] | None = None,
+    options: ReprojectOptions | None = None,
+    backend: str = "cpu",
+) -> list[Scored]:
+    """:func:`play_and_score` once per eye: ``cameras[e]`` and ``truth[e]`` are eye ``e``'s
+    (one eye: mono; two: stereo, left then right). The same ``frames`` go through the same
+    ``network`` for every eye, so the eyes share their schedule. ``on_frame(eye, n, image,
+    info)`` is called for every client frame of every eye. :func:`mean_row` averages the
+    result over the eyes."""
+    out = []
+    for eye, (eye_cams, eye_truth) in enumerate(zip(cameras, truth)):
+        out.append(play_and_score(
+            frames, eye_cams, eye_truth, method, network, fc, metrics, frame_sizes=frame_sizes,
+            bar=bar, on_frame=None if on_frame is None else functools.partial(on_frame, eye),
+            options=options, backend=backend,
+        ))
+    return out
+
+
+def mean_row(scored: Sequence[Scored]) -> dict[str, Any]:
+    """The :meth:`Scored.row` of one or more eyes averaged: each metric's mean over the eyes
+    (``None`` when not computed), ``frames`` per eye."""
+    rows = [s.row() for s in scored]
+    out: dict[str, Any] = {}
+    for m in ("ssim", "flip", "psnr", "vmaf"):
+        vs = [r[m] for r in rows]
+        out[m] = None if any(v is None for v in vs) else float(np.mean(vs))
+    out["frames"] = rows[0]["frames"]
+    return out
+
+
+def network_text(network: NetworkModel) -> str:
+    """``network`` in words for a summary: ``"l = 2, ideal link"`` or ``"l = 0, 5 Mb/s, 20 ms
+    latency, jitter 0-5 ms, 10 % loss (seed 0)"``."""
+    parts = [f"l = {network.extra_delay_frames}"]
+    if network.bandwidth_mbps is not None:
+        parts.append(f"{network.bandwidth_mbps:g} Mb/s")
+    if network.latency_ms:
+        parts.append(f"{network.latency_ms:g} ms latency")
+    if network.jitter_ms:
+        parts.append(f"jitter 0-{network.jitter_ms:g} ms")
+    if network.loss:
+        parts.append(f"{100 * network.loss:g} % loss")
+    if len(parts) == 1:
+        return f"{parts[0]}, ideal link (no loss)"
+    if network.jitter_ms or network.loss:
+        parts[-1] += f" (seed {network.seed})"
+    return ", ".join(parts)
