@@ -182,6 +182,27 @@ def test_stereo_eyes_keep_separate_state(frames: list[sr.ServerFrame]) -> None:
     solo.render(left, 0.05)
     later = scene.rig(0.06, W, H)[0]
     assert np.array_equal(client.render(later, 0.06, eye=0), solo.render(later, 0.06))
+    # Every pixel is matched at these poses, so the previous output did not show. Turned 45°
+    # away, about a quarter of the view lies beyond every server camera: those holes keep the
+    # eye's own previous frame, also when the other eye has the same size and looks elsewhere.
+    away, other = _yawed(scene.rig(0.07, W, H)[0], 45.0), _yawed(scene.rig(0.07, W, H)[0], -45.0)
+    holes = sr.reproject(frames[0], frames[1], sr.ClientRequest(away, 0.07), "ours",
+                         diagnostics=True).source == sr.Reprojection.SOURCE_NONE
+    assert holes.mean() > 0.1
+    left_before = solo.render(later, 0.065)  # both clients' eye 0 shows this frame next
+    client.render(later, 0.065, eye=0)
+    right_before = client.render(other, 0.07, eye=1)
+    assert (left_before[holes] != right_before[holes]).any()  # a mix-up would show
+    got = client.render(away, 0.07, eye=0)
+    np.testing.assert_array_equal(got, solo.render(away, 0.07))
+    np.testing.assert_array_equal(got[holes], left_before[holes])
+
+
+def _yawed(cam: sr.Camera, deg: float) -> sr.Camera:
+    """``cam`` turned ``deg`` degrees about its own vertical axis."""
+    s, c = np.sin(np.radians(deg)), np.cos(np.radians(deg))
+    turn = np.array([[c, 0.0, s, 0.0], [0.0, 1.0, 0.0, 0.0], [-s, 0.0, c, 0.0], [0, 0, 0, 1.0]])
+    return sr.Camera(turn @ np.asarray(cam.view), np.asarray(cam.proj), cam.width, cam.height)
 
 
 def test_client_errors(frames: list[sr.ServerFrame], cameras: list[sr.Camera]) -> None:

@@ -57,7 +57,7 @@ def test_eval_rows_have_exactly_the_keys_and_types(eval_out: Path) -> None:
     assert not any(r["method"] == "video_interp" and r["stereo"] for r in rows)
 
 
-def test_eval_writes_tables_and_plot_and_reuses_recordings(eval_out: Path) -> None:
+def test_eval_writes_tables_plots_and_one_recording_per_scene_variant(eval_out: Path) -> None:
     md = (eval_out / "tables.md").read_text()
     assert md.count("## Table") == 3 and md.count("## Figure 6") == 1 and "timewarp" in md
     for png in ("delays.png", "rate_distortion.png"):

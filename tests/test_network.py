@@ -55,6 +55,12 @@ def test_loss_is_seeded_and_near_its_rate() -> None:
     # a lost packet still occupies the link
     arr = NetworkModel(bandwidth_mbps=1.0, loss=1.0).link()
     assert arr.send(0.0, 1250) is None
+    # 1250 bytes take 10 ms: packet i sent at 0 arrives at 10 (i + 1) ms whether or not the
+    # ones before it were lost.
+    a = NetworkModel(bandwidth_mbps=1.0, loss=0.5, seed=3).arrival_times([0.0] * 8, [1250] * 8)
+    assert a[:4] == [None] * 4 and a[4] is not None  # seed 3 loses the first four
+    for i, x in enumerate(a):
+        assert x is None or x == pytest.approx(0.010 * (i + 1)), (i, x)
 
 
 @pytest.mark.parametrize(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 
 import pytest
 
@@ -63,4 +64,13 @@ def test_a_new_loop_in_the_same_stage_starts_a_new_bar() -> None:
         p.bar(2, 4, "a")
         p.bar(1, 6, "b")  # another total: the first bar is closed, not overrun
         p.bar(6, 6, "b")
-    assert "6/6 b" in out.getvalue()
+    text = out.getvalue()
+    assert "6/6 b" in text
+    # The first bar stays where it stopped (2 of 4) and the second starts from 0 of its own
+    # total on a new line: neither is drawn with the other's total.
+    a, b = text.index("2/4 a"), text.index("0/6 b")
+    assert a < b and "\n" in text[a:b]
+    of_4 = re.findall(r"(\d+)/4 (\w)", text)
+    of_6 = re.findall(r"(\d+)/6 (\w)", text)
+    assert {u for _, u in of_4} == {"a"} and max(int(n) for n, _ in of_4) == 2
+    assert {u for _, u in of_6} == {"b"}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 import zipfile
@@ -206,6 +207,25 @@ def test_wrong_shape_is_rejected_before_reading(copy: Path) -> None:
         load_recording(copy).client_frames[4]
     with zipfile.ZipFile(p) as zf:
         assert zf.infolist()[0].date_time == (1980, 1, 1, 0, 0, 0)
+    # Before reading: a member whose header declares a 4.8 GB image and carries no data at all
+    # is refused by its header (reading it first would fail on the missing bytes instead).
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        header, {"descr": "|u1", "fortran_order": False, "shape": (40000, 40000, 3)}
+    )
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+        for k, a in arrays[:3]:
+            member = io.BytesIO()
+            np.lib.format.write_array(member, a, version=(1, 0))
+            zf.writestr(f"{k}.npy", member.getvalue())
+        zf.writestr("eye0.color.npy", header.getvalue())
+    data = buf.getvalue()
+    p.write_bytes(data)
+    m["client_frames"][4].update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+    (copy / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(RecordingError, match=r"eye0.color: uint8 \(40000, 40000, 3\), expected"):
+        load_recording(copy).client_frames[4]
 
 
 def test_cli_help(capsys: pytest.CaptureFixture[str]) -> None:

@@ -226,6 +226,10 @@ def test_nan_depth_region_keeps_the_previous_frame(setup):
     # finite error, and its colour stays as close to the ground truth as without the NaN block.
     assert (img[src == NONE] == prev[src == NONE]).all()
     assert np.isfinite(err[src != NONE]).all()
+    # Below ε_e, which reproj-core gives at the paper's 1440-pixel short side and scales to keep
+    # its size in pixels: 0.002 · 1440 / 180 here (aspect-scaled NDC, like the error).
+    eps_e = opts.eps_e * 1440 / min(W, H)
+    assert (err[src != NONE] < eps_e).all(), float(np.nanmax(err))
     same = (img == np.asarray(clean.image)).all(axis=-1)
     assert same[clear].mean() >= 0.999, (
         f"{(~same & clear).sum()} pixels far from the NaN block changed when it was introduced"
