@@ -28,14 +28,16 @@ def fail(message: str) -> int:
     return 2
 
 
-def integer(text: str, lo: int, hi: int, what: str = "an integer") -> int:
-    """``text`` as an int in ``lo..hi``, or an ``ArgumentTypeError`` saying ``what`` is expected."""
+def integer(text: str, lo: int, hi: int, what: str = "an integer", unit: str = "") -> int:
+    """``text`` as an int in ``lo..hi``, or an ``ArgumentTypeError`` saying ``what`` is expected
+    (``expected 1..8 per pixel side`` instead when a ``unit`` is given)."""
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if not lo <= v <= hi:
-        raise argparse.ArgumentTypeError(f"expected {what} in {lo}..{hi}, got {v}")
+        want = f"{lo}..{hi} {unit}" if unit else f"{what} in {lo}..{hi}"
+        raise argparse.ArgumentTypeError(f"expected {want}, got {v}")
     return v
 
 
@@ -46,7 +48,7 @@ def side(text: str) -> int:
 def samples(text: str) -> int:
     from splitrender.scene.builtin import MAX_SAMPLES
 
-    return integer(text, 1, MAX_SAMPLES, "a count per pixel side")
+    return integer(text, 1, MAX_SAMPLES, unit="per pixel side")
 
 
 SAMPLES_HELP = (
