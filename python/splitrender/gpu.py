@@ -20,7 +20,7 @@ from typing import Literal, overload
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import _native
+import splitrender._native as _native
 from splitrender.errors import GpuUnavailableError, InvalidInputError
 from splitrender.types import (
     Camera,

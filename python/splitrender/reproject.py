@@ -11,7 +11,8 @@ from typing import Literal, overload
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import _native, gpu
+import splitrender._native as _native
+import splitrender.gpu as gpu
 from splitrender.errors import InvalidInputError
 from splitrender.types import (
     Camera,

@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import _native
+import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 
 __all__ = [

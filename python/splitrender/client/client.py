@@ -16,7 +16,7 @@ import numbers
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import _native
+import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 from splitrender.gpu import GpuReprojector, check_backend
 from splitrender.net.model import (

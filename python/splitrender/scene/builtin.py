@@ -30,7 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import _native
+import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from splitrender import _native
+import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 
