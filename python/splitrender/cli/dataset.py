@@ -6,8 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from splitrender.cli.args import fail, names
-from splitrender.errors import SplitRenderError
+from splitrender.cli.args import names, run_stages, wrote_dir
 from splitrender.progress import Progress
 
 __all__ = ["add"]
@@ -92,30 +91,22 @@ def export(args: argparse.Namespace) -> int:
     from splitrender.scene.dataset import export_dataset
     from splitrender.scene.recording import load_recording
 
-    bar = Progress(1, not args.quiet)
-    try:
+    def work(bar: Progress) -> Path:
         rec = load_recording(args.recording)
         bar.stage(f"exporting {len(rec.server_frames)} server frames and "
                   f"{len(rec.client_frames)} client frames of {args.recording} into {args.out}")
-        out = export_dataset(rec, args.out, aux_names=tuple(args.aux_names), client=args.client)
-    except SplitRenderError as e:
-        return fail(str(e))
-    finally:
-        bar.close()
-    print(f"wrote {out}/ in {bar.elapsed():.1f} s")
-    return 0
+        return export_dataset(rec, args.out, aux_names=tuple(args.aux_names), client=args.client)
+
+    return run_stages(1, args.quiet, work, wrote_dir)
 
 
 def import_(args: argparse.Namespace) -> int:
     from splitrender.scene.dataset import import_dataset_as_recording
 
-    bar = Progress(2, not args.quiet)
-    try:
-        out = import_dataset_as_recording(args.dataset, args.out, aux=tuple(args.aux),
-                                          client=args.client, overwrite=args.force, stages=bar)
-    except SplitRenderError as e:
-        return fail(str(e))
-    finally:
-        bar.close()
-    print(f"wrote {out}/ in {bar.elapsed():.1f} s")
-    return 0
+    return run_stages(
+        2, args.quiet,
+        lambda bar: import_dataset_as_recording(args.dataset, args.out, aux=tuple(args.aux),
+                                                client=args.client, overwrite=args.force,
+                                                stages=bar),
+        wrote_dir,
+    )
