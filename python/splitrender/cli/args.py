@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import TYPE_CHECKING, Any, NoReturn
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
+from splitrender.errors import SplitRenderError
+from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import MAX_SIDE
 
@@ -13,6 +17,8 @@ if TYPE_CHECKING:
     from splitrender.net.model import NetworkModel
 
 PROG = "splitrender"
+
+T = TypeVar("T")
 
 
 class Parser(argparse.ArgumentParser):
@@ -26,6 +32,28 @@ def fail(message: str) -> int:
     """Prints ``splitrender: error: message`` on stderr and returns exit status 2 (a user error)."""
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return 2
+
+
+def run_stages(
+    stages: int, quiet: bool, work: Callable[[Progress], T], report: Callable[[T, float], None]
+) -> int:
+    """Runs ``work(bar)`` with a :class:`~splitrender.progress.Progress` ``bar`` of ``stages``
+    stages (silent with ``quiet``; closed at the end), then ``report(result, seconds)``; returns
+    0, or the exit status of :func:`fail` for a ``SplitRenderError``."""
+    bar = Progress(stages, not quiet)
+    try:
+        result = work(bar)
+    except SplitRenderError as e:
+        return fail(str(e))
+    finally:
+        bar.close()
+    report(result, bar.elapsed())
+    return 0
+
+
+def wrote_dir(out: Path, seconds: float) -> None:
+    """The last line of a command that wrote the directory ``out`` in ``seconds``."""
+    print(f"wrote {out}/ in {seconds:.1f} s")
 
 
 def integer(text: str, lo: int, hi: int, what: str = "an integer", unit: str = "") -> int:

@@ -207,8 +207,8 @@ def add_eval(sub: Any) -> None:
 
 
 def eval_(args: argparse.Namespace) -> int:
-    from splitrender.cli.dataset import import_recording
     from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, run_eval
+    from splitrender.scene.dataset import import_dataset_as_recording
 
     d = EvalConfig()
     recording: Path | None = None
@@ -240,8 +240,8 @@ def eval_(args: argparse.Namespace) -> int:
     )
     if recording is not None:
         try:
-            import_recording(args.dataset, recording, overwrite=True,
-                             stages=Progress(2, not args.quiet))
+            import_dataset_as_recording(args.dataset, recording, overwrite=True,
+                                        stages=Progress(2, not args.quiet))
         except SplitRenderError as e:
             return fail(str(e))
     try:

@@ -72,7 +72,6 @@ def add(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from splitrender.cli.dataset import import_recording
     from splitrender.codec.coder import CodecConfig, StreamDecoder
     from splitrender.codec.stream import StreamFile, stream_stats
     from splitrender.evaluation.demo import (
@@ -94,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from splitrender.gpu import check_backend
     from splitrender.scene.builtin import SCENE_NAMES, Scene
+    from splitrender.scene.dataset import import_dataset_as_recording
     from splitrender.scene.recording import load_recording, plan, write_recording
     from splitrender.types import ReprojectOptions
 
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         stream_path: Path | None = None
         if args.dataset is not None:
             rec_path = out / "recording"
-            import_recording(args.dataset, rec_path, overwrite=True, stages=stages)
+            import_dataset_as_recording(args.dataset, rec_path, overwrite=True, stages=stages)
         elif src.is_dir():
             rec_path = src
         elif src.is_file():

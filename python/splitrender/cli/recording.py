@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from splitrender.cli.args import SAMPLES_HELP, positive, run_stages, samples, wrote_dir
 
-from splitrender.cli.args import PROG, SAMPLES_HELP, positive, samples
-from splitrender.errors import SplitRenderError
-from splitrender.progress import Progress
+if TYPE_CHECKING:
+    from splitrender.codec.stream import StreamStats
+    from splitrender.progress import Progress
 
 
 def add_render(sub: Any) -> None:
@@ -82,8 +82,7 @@ def render(args: argparse.Namespace) -> int:
     from splitrender.scene.recording import plan, write_recording
     from splitrender.scene.builtin import Scene, load_trace
 
-    bar = Progress(1, not args.quiet)
-    try:
+    def work(bar: Progress) -> Path:
         scene = (
             Scene.from_description(args.scene)
             if args.scene.endswith(".json")
@@ -96,7 +95,7 @@ def render(args: argparse.Namespace) -> int:
             f"rendering {scene.name} ({scene.variant}) at {w}x{h}: {n_server} server frames, "
             f"{n_client} client frames{' (stereo)' if args.stereo else ''}"
         )
-        out = write_recording(
+        return write_recording(
             args.out,
             scene,
             seconds=args.seconds,
@@ -108,13 +107,8 @@ def render(args: argparse.Namespace) -> int:
             overwrite=args.force,
             progress=lambda done, total: bar.bar(done, total, "frames"),
         )
-    except SplitRenderError as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
-    finally:
-        bar.close()
-    print(f"wrote {out}/ in {bar.elapsed():.1f} s")
-    return 0
+
+    return run_stages(1, args.quiet, work, wrote_dir)
 
 
 def add_encode(sub: Any) -> None:
@@ -146,30 +140,27 @@ def add_encode(sub: Any) -> None:
 def encode(args: argparse.Namespace) -> int:
     from splitrender.codec.encode import encode_recording
 
-    bar = Progress(1, not args.quiet)
+    def work(bar: Progress) -> StreamStats:
+        def progress(done: int, total: int) -> None:
+            # The stage line once the recording has been read: a bad REC gives only the error
+            # line.
+            if bar.step == 0:
+                bar.stage(f"encoding {total} server frames of {args.recording} into {args.out}")
+            bar.bar(done, total, "server frames")
 
-    def progress(done: int, total: int) -> None:
-        # The stage line once the recording has been read: a bad REC gives only the error line.
-        if bar.step == 0:
-            bar.stage(f"encoding {total} server frames of {args.recording} into {args.out}")
-        bar.bar(done, total, "server frames")
-
-    try:
-        stats = encode_recording(
+        return encode_recording(
             args.recording, args.out, bitrate_mbps=args.bitrate, progress=progress
         )
-    except SplitRenderError as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
-    finally:
-        bar.close()
-    print(f"wrote {args.out} ({stats.frames} server frames) in {bar.elapsed():.1f} s")
-    print(f"  {'buffer':<28} {'Mb/s':>8}")
-    for name, mbps in sorted(stats.mbps_by_buffer().items()):
-        print(f"  {name:<28} {mbps:8.3f}")
-    for name, mbps in sorted(stats.mbps_by_camera().items()):
-        print(f"  {'camera ' + name:<28} {mbps:8.3f}")
-    print(f"  {'total':<28} {stats.mbps_total():8.3f}")
-    return 0
+
+    def report(stats: StreamStats, seconds: float) -> None:
+        print(f"wrote {args.out} ({stats.frames} server frames) in {seconds:.1f} s")
+        print(f"  {'buffer':<28} {'Mb/s':>8}")
+        for name, mbps in sorted(stats.mbps_by_buffer().items()):
+            print(f"  {name:<28} {mbps:8.3f}")
+        for name, mbps in sorted(stats.mbps_by_camera().items()):
+            print(f"  {'camera ' + name:<28} {mbps:8.3f}")
+        print(f"  {'total':<28} {stats.mbps_total():8.3f}")
+
+    return run_stages(1, args.quiet, work, report)
 
 

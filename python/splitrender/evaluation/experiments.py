@@ -408,6 +408,13 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                      else r[k]) for k in ROW_KEYS} for r in rows]
         (out / "results.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
 
+    def add_table(
+        title: str, note: str, trows: list[Row], keys: tuple[str, ...], group: tuple[str, ...]
+    ) -> None:
+        """A table for tables.md (written at the end); the rows so far go to results.json."""
+        tables.append((title, note, trows, keys, group))
+        write_results()
+
     # Table 1: uncompressed, scenes x variants x methods.
     t1: list[Row] = []
     variants = cfg.variants if given is None else (given.variant,)
@@ -423,13 +430,12 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                     t1.append(interp(scene, variant, colours, raw, None, truth[0]))
                     continue
                 t1.append(score(scene, variant, method, server, None, None, mbps, 0, cams, truth))
-    tables.append((
+    add_table(
         "Table 1: methods × scenes × static/dynamic, uncompressed",
         f"Link: {network_text(network)}; uncompressed server frames (Mb/s: their raw rate). "
         "Bold: the best per scene and variant.",
         t1, ("scene", "variant", "method"), ("scene", "variant"),
-    ))
-    write_results()
+    )
 
     # Table 2: delays on the dynamic scenes, compressed.
     t2: list[Row] = []
@@ -447,14 +453,13 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         t2.append(score(scene, "dynamic", "ours_extrapolate", dec, sizes, bitrate, mbps, 0,
                         cams, truth))
     if t2:
-        tables.append((
+        add_table(
             "Table 2: extra delay l (client frames), dynamic scenes, compressed",
             f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} "
             f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s "
             "scaled by pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best "
             "per scene.", t2, ("scene", "method", "delay"), ("scene",),
-        ))
-        write_results()
+        )
 
     # Table 3: mono vs stereo, compressed.
     if cfg.stereo:
@@ -472,13 +477,12 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                 stages.stage(f"table 3: {scene}, {method}, stereo")
                 t3.append(score(scene, "dynamic", method, dec, sizes, bitrate, mbps, 0,
                                 cams, truth))
-        tables.append((
+        add_table(
             "Table 3: mono vs stereo, dynamic scenes, compressed",
             f"Compressed at {bitrate:.3g} Mb/s, l = 0. Stereo: IPD 7 cm, metrics averaged over "
             "both eyes (frames: per eye). Bold: the best per scene and stereo setting.",
             t3, ("scene", "method", "stereo"), ("scene", "stereo"),
-        ))
-        write_results()
+        )
 
     # Figure 6: rate-distortion on the dynamic scenes.
     f6: list[Row] = []
@@ -552,7 +556,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                             f"{scene}: ours does not reach VMAF {level:g} at the measured "
                             f"bitrates (best {best['vmaf']:.2f} at {best['mbps']:.3g} Mb/s)"
                         )
-        tables.append((
+        add_table(
             "Figure 6: rate-distortion, dynamic scenes",
             "Every method at each bitrate (l = 0; the paper-equivalent bitrate scaled by pixel "
             "count); `video_interp`: the main colour video alone, HEVC at the bitrate at "
@@ -567,8 +571,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
                "evaluation time)." if rd_metrics != metrics else "")
             + ("\n\n" + "\n".join(f"* {line}" for line in summary) if summary else ""),
             f6, ("scene", "bitrate_mbps", "method"), ("scene", "bitrate_mbps"),
-        ))
-        write_results()
+        )
 
     files = [out / "results.json"]
     motion = (f"the recording {cfg.recording}'s client poses" if given is not None

@@ -28,22 +28,31 @@ Conventions, theirs → ours (derived in docs/dataset-format.md):
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 import OpenEXR  # type: ignore[import-not-found]  # compiled module, no stubs
 from PIL import Image
 
+from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
 from splitrender.imageio import write_png
-from splitrender.scene.recording import Recording, load_recording
+from splitrender.scene.recording import (
+    ClientFrame,
+    Recording,
+    check_destination,
+    load_recording,
+    plan,
+    write_frames,
+)
 from splitrender.types import (
     MAX_SIDE,
     Camera,
@@ -53,6 +62,9 @@ from splitrender.types import (
     ShadowBuffers,
 )
 
+if TYPE_CHECKING:
+    from splitrender.progress import Progress
+
 __all__ = [
     "DatasetError",
     "DatasetInfo",
@@ -60,6 +72,7 @@ __all__ = [
     "dataset_info",
     "export_dataset",
     "import_dataset",
+    "import_dataset_as_recording",
 ]
 
 _MAX_JSON_BYTES = 64 * 1024 * 1024
@@ -555,3 +568,96 @@ def import_dataset(
                 else None
             )
     return ImportedDataset(server, requests, truth)
+
+
+def _near_far(proj: npt.NDArray[np.float64]) -> tuple[float, float]:
+    """Near and far planes of a reversed-Z perspective projection (``z' = A z + B``,
+    ``near = B / (1 + A)``, ``far = B / A``); 0.1 / 1000 when they cannot be read from it."""
+    a, b = float(proj[2, 2]), float(proj[2, 3])
+    near = b / (1.0 + a) if 1.0 + a != 0 else math.nan
+    far = b / a if a != 0 else math.inf
+    if not (math.isfinite(near) and near > 0):
+        near = 0.1
+    if not (math.isfinite(far) and far > near):
+        far = 1000.0
+    return near, far
+
+
+def import_dataset_as_recording(
+    in_dir: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    aux: Sequence[str] = ("left", "right"),
+    client: str = "client_ol",
+    overwrite: bool = False,
+    stages: Progress | None = None,
+) -> Path:
+    """Reads the dataset in the authors' layout under ``in_dir`` (:func:`import_dataset`) and
+    writes it as a recording to ``out`` (see ``splitrender dataset import --help``); returns
+    ``out``. ``stages`` gets two stages (reading, writing).
+
+    Raises:
+        DatasetError: the dataset cannot be read or cannot be a recording (not two auxiliary
+            cameras, no ground truth, a client size other than the main camera's).
+        RecordingError: ``out`` exists (without ``overwrite``).
+    """
+    root, dest = Path(in_dir), Path(out)
+    if len(aux) != 2:
+        raise DatasetError(f"--aux: a recording has two auxiliary cameras, got {len(aux)}")
+    check_destination(dest, overwrite)
+    if stages is not None:
+        stages.stage(f"reading the dataset {root}")
+    data = import_dataset(root, aux, client)
+    info = dataset_info(root, client)
+    fs, fc = info.server_fps, info.client_fps
+    if not data.client_requests or any(t is None for t in data.ground_truth):
+        raise DatasetError(f"{root / client}/color: missing; a recording needs the ground truth")
+    w, h = data.server_frames[0].main.camera.width, data.server_frames[0].main.camera.height
+    cw, ch = data.client_requests[0].camera.width, data.client_requests[0].camera.height
+    if (cw, ch) != (w, h):
+        raise DatasetError(f"{root / client}/cam.json: client size {cw}x{ch}, a recording "
+                           f"needs the main camera's {w}x{h}")
+    n_server = len(data.server_frames)
+    n_client = len(data.client_requests)
+    while n_client > 0 and plan(n_client / fc, fs, fc)[0] > n_server:
+        n_client -= 1
+    if n_client == 0:
+        raise DatasetError(f"{root}: no client frame lies between two server frames")
+
+    # Server frame k is at k / fs (import_dataset's time); buffers the layout has no slot for
+    # (frame 0's backward ones) are None, which write_frames writes as zeros.
+    server = [(np.linalg.inv(f.main.camera.view).astype(np.float64), f)
+              for f in data.server_frames]
+    clients = []
+    for n in range(n_client):
+        cam = data.client_requests[n].camera
+        truth = data.ground_truth[n]
+        assert truth is not None
+        pose = np.linalg.inv(cam.view).astype(np.float64)
+        clients.append(ClientFrame(n, n / fc, pose, (cam,), (truth,)))
+    near, far = _near_far(data.server_frames[0].main.camera.proj)
+    fields = {
+        "generator": f"splitrender {__version__} (dataset import)",
+        "scene": root.resolve().name,
+        "variant": "dataset",
+        "scale": w / 2560,
+        "fs": fs,
+        "fc": fc,
+        "subframes": min(16, info.subframes),
+        "seconds": n_client / fc,
+        "stereo": False,
+        "samples": {"main": 1, "aux": 1, "client": 1},
+        "near": near,
+        "far": far,
+        "cameras": {
+            "main": [w, h],
+            "aux": [[a.camera.width, a.camera.height] for a in data.server_frames[0].aux],
+            "client": [w, h],
+            "eyes": 1,
+        },
+        "client_motion": {"source": "dataset", "dir": str(root)},
+    }
+    if stages is not None:
+        stages.stage(f"writing {n_server} server frames and {n_client} client frames into {dest}")
+    bar = None if stages is None else functools.partial(stages.bar, unit="frames")
+    return write_frames(dest, fields, server, clients, overwrite=overwrite, progress=bar)

@@ -26,9 +26,10 @@ predicted head) and, per camera ``c`` in ``main``, ``aux0``, ``aux1``: ``c.view`
 ``pose`` (the client's actual head) and per eye ``e`` in ``eye0`` (mono, or left) and ``eye1``
 (right, stereo): ``e.view``, ``e.proj`` and ``e.color`` (the ground truth).
 
-:func:`write_recording` renders into ``DIR.partial-<pid>`` next to ``DIR`` and renames it at the
-end; on an exception (Ctrl-C included) the partial directory is removed, and one left by a killed
-process is refused by :func:`load_recording`. Loading checks everything it reads against the
+:func:`write_frames` (which :func:`write_recording` and the dataset import use) writes into
+``DIR.partial-<pid>`` next to ``DIR`` and renames it at the end; on an exception (Ctrl-C included)
+the partial directory is removed, and one left by a killed process is refused by
+:func:`load_recording`. Loading checks everything it reads against the
 manifest (format and version, sizes, file sizes before reading, SHA-256, member names, dtypes and
 shapes before allocating) and raises :class:`RecordingError` naming the file and the problem.
 """
@@ -43,7 +44,7 @@ import os
 import re
 import shutil
 import zipfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic, TypeVar, overload
@@ -77,8 +78,10 @@ __all__ = [
     "ClientFrame",
     "Recording",
     "RecordingError",
+    "check_destination",
     "load_recording",
     "plan",
+    "write_frames",
     "write_recording",
 ]
 
@@ -138,27 +141,43 @@ def _npz_bytes(arrays: Sequence[tuple[str, npt.NDArray[Any]]]) -> bytes:
     return buf.getvalue()
 
 
+def _shape(channels: int, w: int, h: int) -> tuple[int, ...]:
+    """The shape of a server array with ``channels`` (see ``_SERVER_ARRAYS``) at ``w`` x ``h``."""
+    return (4, 4) if channels < 0 else (h, w) if channels == 0 else (h, w, 3)
+
+
 def _server_arrays(pose: npt.NDArray[np.float64], f: ServerFrame) -> list[tuple[str, Any]]:
+    """The members of server frame ``f``'s file; a buffer it lacks (``None``) is zero: no
+    motion, no shadow change."""
     out: list[tuple[str, Any]] = [("pose", pose)]
     for cam, cf in zip(_CAMERAS, (f.main, *f.aux)):
         sf, sb = cf.shadow_fwd, cf.shadow_bwd
-        assert sf is not None and sb is not None and cf.motion_fwd is not None
-        assert cf.motion_bwd is not None
-        values = {
+        values: dict[str, npt.NDArray[Any] | None] = {
             "view": cf.camera.view,
             "proj": cf.camera.proj,
             "color": cf.color,
             "depth": cf.depth,
             "motion_fwd": cf.motion_fwd,
             "motion_bwd": cf.motion_bwd,
-            "shadow_fwd_bits": sf.bits,
-            "shadow_fwd_min": sf.s_min,
-            "shadow_fwd_max": sf.s_max,
-            "shadow_bwd_bits": sb.bits,
-            "shadow_bwd_min": sb.s_min,
-            "shadow_bwd_max": sb.s_max,
+            "shadow_fwd_bits": None if sf is None else sf.bits,
+            "shadow_fwd_min": None if sf is None else sf.s_min,
+            "shadow_fwd_max": None if sf is None else sf.s_max,
+            "shadow_bwd_bits": None if sb is None else sb.bits,
+            "shadow_bwd_min": None if sb is None else sb.s_min,
+            "shadow_bwd_max": None if sb is None else sb.s_max,
         }
-        out.extend((f"{cam}.{name}", values[name]) for name, _, _ in _SERVER_ARRAYS)
+        w, h = cf.camera.width, cf.camera.height
+        for name, dt, ch in _SERVER_ARRAYS:
+            v = values[name]
+            out.append((f"{cam}.{name}", np.zeros(_shape(ch, w, h), dt) if v is None else v))
+    return out
+
+
+def _client_arrays(c: ClientFrame) -> list[tuple[str, Any]]:
+    """The members of client frame ``c``'s file."""
+    out: list[tuple[str, Any]] = [("pose", c.pose)]
+    for e, (cam, img) in enumerate(zip(c.cameras, c.ground_truths)):
+        out += [(f"eye{e}.view", cam.view), (f"eye{e}.proj", cam.proj), (f"eye{e}.color", img)]
     return out
 
 
@@ -216,8 +235,7 @@ def write_recording(
         raise RecordingError(
             f"{trace.name}: trace lasts {trace.duration:.3f} s, asked for {seconds:g} s"
         )
-    if out.exists() and not overwrite:
-        raise RecordingError(f"{out}: already exists (choose another --out or pass --force)")
+    check_destination(out, overwrite)
     motion: ClientMotion = (
         PathMotion(sc) if trace is None else TraceMotion(sc, trace, translation_scale)
     )
@@ -227,55 +245,26 @@ def write_recording(
     ):
         raise RecordingError(f"samples: expected an int in 1..{MAX_SAMPLES} or None, got {samples!r}")
     n_server, n_client = plan(seconds, fs, fc)
-    total = n_server + n_client
-    tmp = out.with_name(f"{out.name}.partial-{os.getpid()}")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    try:
-        (tmp / "server").mkdir(parents=True)
-        (tmp / "client").mkdir()
-        done = 0
+    aux_size: list[list[int]] = []
 
-        def entry(kind: str, index: int, time: float, data: bytes) -> dict[str, Any]:
-            rel = f"{kind}/{index:06d}.npz"
-            (tmp / rel).write_bytes(data)
-            return {
-                "index": index,
-                "time": time,
-                "file": rel,
-                "bytes": len(data),
-                "sha256": hashlib.sha256(data).hexdigest(),
-            }
+    def server_frame(k: int) -> tuple[npt.NDArray[np.float64], ServerFrame]:
+        nonlocal aux_size
+        pose = motion.server_pose(k, fs)
+        f = sc.server_frame(k, scale, fs, subframes, pose=pose, samples=samples)
+        aux_size = [[a.camera.width, a.camera.height] for a in f.aux]
+        return pose, f
 
-        server: list[dict[str, Any]] = []
-        aux_size: list[list[int]] = []
-        for k in range(n_server):
-            pose = motion.server_pose(k, fs)
-            f = sc.server_frame(k, scale, fs, subframes, pose=pose, samples=samples)
-            aux_size = [[a.camera.width, a.camera.height] for a in f.aux]
-            server.append(entry("server", k, f.time, _npz_bytes(_server_arrays(pose, f))))
-            done += 1
-            if progress is not None:
-                progress(done, total)
-        client: list[dict[str, Any]] = []
-        for n in range(n_client):
-            t = n / fc
-            pose = motion.client_pose(t)
-            eyes = sc.client_frames(n, scale, fc, stereo, pose=pose, samples=samples)
-            arrays: list[tuple[str, Any]] = [("pose", pose)]
-            for e, (cam, img) in enumerate(eyes):
-                arrays += [(f"eye{e}.view", cam.view), (f"eye{e}.proj", cam.proj)]
-                arrays.append((f"eye{e}.color", img))
-            client.append(entry("client", n, t, _npz_bytes(arrays)))
-            done += 1
-            if progress is not None:
-                progress(done, total)
-        def used_samples(w: int, h: int) -> int:
-            return samples if samples is not None else default_samples(w, h)
+    def client_frame(n: int) -> ClientFrame:
+        t = n / fc
+        pose = motion.client_pose(t)
+        eyes = sc.client_frames(n, scale, fc, stereo, pose=pose, samples=samples)
+        return ClientFrame(n, t, pose, tuple(c for c, _ in eyes), tuple(i for _, i in eyes))
 
-        manifest = {
-            "format": FORMAT,
-            "version": VERSION,
+    def used_samples(w: int, h: int) -> int:
+        return samples if samples is not None else default_samples(w, h)
+
+    def fields() -> dict[str, Any]:  # after the frames: the auxiliary cameras' size
+        return {
             "generator": f"splitrender {__version__}",
             "scene": sc.name,
             "variant": sc.variant,
@@ -299,6 +288,87 @@ def write_recording(
                 "eyes": 2 if stereo else 1,
             },
             "client_motion": motion.describe(),
+        }
+
+    return write_frames(
+        out,
+        fields,
+        _Frames(n_server, server_frame),
+        _Frames(n_client, client_frame),
+        overwrite=overwrite,
+        progress=progress,
+    )
+
+
+def check_destination(out: Path, overwrite: bool) -> None:
+    """Raises :class:`RecordingError` when ``out`` exists and not ``overwrite``: the check
+    :func:`write_frames` makes, for callers to make before long work."""
+    if out.exists() and not overwrite:
+        raise RecordingError(f"{out}: already exists (choose another --out or pass --force)")
+
+
+def write_frames(
+    out: str | os.PathLike[str],
+    fields: Mapping[str, Any] | Callable[[], Mapping[str, Any]],
+    server_frames: Sequence[tuple[npt.NDArray[np.float64], ServerFrame]],
+    client_frames: Sequence[ClientFrame],
+    *,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+) -> Path:
+    """Writes a recording into directory ``out`` and returns its path: ``server_frames`` as
+    ``(pose, frame)`` (the head pose it was rendered at, camera-to-world) and ``client_frames``;
+    item ``i`` of each becomes frame ``i`` at the item's ``time``. A buffer a server frame lacks
+    (``None``) is written as zeros: no motion, no shadow change.
+
+    ``fields`` are the manifest's fields between ``version`` and ``server_frames``, in order
+    (``generator`` ... ``client_motion``; see the module docstring); a callable is called once the
+    frames are written, for fields that depend on them. Each sequence is read once, in order, so
+    it may render or load a frame on access. ``progress(done, total)`` is called after every
+    written frame.
+
+    The recording is written into ``out.partial-<pid>`` and renamed to ``out`` when complete
+    (an existing ``out`` is replaced then, with ``overwrite``); on an exception (Ctrl-C included)
+    the partial directory is removed. Raises :class:`RecordingError` when ``out`` exists and
+    not ``overwrite``."""
+    out = Path(out)
+    check_destination(out, overwrite)
+    total = len(server_frames) + len(client_frames)
+    tmp = out.with_name(f"{out.name}.partial-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    try:
+        (tmp / "server").mkdir(parents=True)
+        (tmp / "client").mkdir()
+        done = 0
+
+        def entry(kind: str, index: int, time: float, data: bytes) -> dict[str, Any]:
+            nonlocal done
+            rel = f"{kind}/{index:06d}.npz"
+            (tmp / rel).write_bytes(data)
+            done += 1
+            if progress is not None:
+                progress(done, total)
+            return {
+                "index": index,
+                "time": time,
+                "file": rel,
+                "bytes": len(data),
+                "sha256": hashlib.sha256(data).hexdigest(),
+            }
+
+        server = [
+            entry("server", k, f.time, _npz_bytes(_server_arrays(pose, f)))
+            for k, (pose, f) in enumerate(server_frames)
+        ]
+        client = [
+            entry("client", n, c.time, _npz_bytes(_client_arrays(c)))
+            for n, c in enumerate(client_frames)
+        ]
+        manifest = {
+            "format": FORMAT,
+            "version": VERSION,
+            **(fields() if callable(fields) else fields),
             "server_frames": server,
             "client_frames": client,
         }
@@ -509,8 +579,7 @@ class Recording:
         spec: Spec = {"pose": (np.dtype(np.float64), (4, 4))}
         for cam, (w, h) in zip(_CAMERAS, self._sizes):
             for name, dt, ch in _SERVER_ARRAYS:
-                shape = (4, 4) if ch < 0 else (h, w) if ch == 0 else (h, w, 3)
-                spec[f"{cam}.{name}"] = (np.dtype(dt), shape)
+                spec[f"{cam}.{name}"] = (np.dtype(dt), _shape(ch, w, h))
         return spec
 
     def _server(self, k: int) -> ServerFrame:
