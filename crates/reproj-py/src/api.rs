@@ -1,11 +1,11 @@
 //! `reproject`, `scene_flow`, `apply_shadows`, the camera helpers and `BidirHistory`.
 
-use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray2, PyArray3, PyUntypedArrayMethods};
+use numpy::ndarray::{Array, Dimension, ShapeBuilder};
+use numpy::{IntoPyArray, PyArray, PyArray2, PyArray3, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use reproj_core::method::MAX_ALPHA;
-use reproj_core::{CameraView, Diagnostics, Mat4, Method, Request, Role};
+use reproj_core::{CameraBuffers, CameraView, Diagnostics, Mat4, Method, Request, Role};
 
 use crate::convert::{self, array, depth_and_size, slice, Dim, FrameArrays};
 use crate::errors::{invalid, map_reproj_error, SplitRenderError};
@@ -28,9 +28,7 @@ pub(crate) fn hw3<'py, T: numpy::Element>(
     h: usize,
     w: usize,
 ) -> PyResult<Bound<'py, PyArray3<T>>> {
-    Array3::from_shape_vec((h, w, 3), v)
-        .map(|a| a.into_pyarray(py))
-        .map_err(|e| SplitRenderError::new_err(format!("internal error: output shape: {e}")))
+    shaped(py, v, (h, w, 3))
 }
 
 /// An `H×W` array from a vector of `H·W` values (no copy).
@@ -40,41 +38,41 @@ pub(crate) fn hw<'py, T: numpy::Element>(
     h: usize,
     w: usize,
 ) -> PyResult<Bound<'py, PyArray2<T>>> {
-    Array2::from_shape_vec((h, w), v)
+    shaped(py, v, (h, w))
+}
+
+/// An array of `shape` from a vector of as many values (no copy).
+fn shaped<'py, T: numpy::Element, D: Dimension>(
+    py: Python<'py>,
+    v: Vec<T>,
+    shape: impl ShapeBuilder<Dim = D>,
+) -> PyResult<Bound<'py, PyArray<T, D>>> {
+    Array::from_shape_vec(shape, v)
         .map(|a| a.into_pyarray(py))
         .map_err(|e| SplitRenderError::new_err(format!("internal error: output shape: {e}")))
 }
 
-/// The server buffers of one camera as dict items (`color`, `depth`, `motion_fwd`, `motion_bwd`,
-/// `shadow_{fwd,bwd}_{bits,min,max}`), shared by the synthetic scene and the renderer bindings.
-pub(crate) struct ServerArrays {
-    pub width: usize,
-    pub height: usize,
-    pub color: Vec<u8>,
-    pub depth: Vec<f32>,
-    pub motion_fwd: Vec<f32>,
-    pub motion_bwd: Vec<f32>,
-    /// `(bits, s_min, s_max)` forward, then backward.
-    pub shadows: [(Vec<u32>, Vec<u8>, Vec<u8>); 2],
-}
-
-impl ServerArrays {
-    /// Moves the buffers into `d` as numpy arrays (no copies).
-    pub(crate) fn put(self, py: Python<'_>, d: &Bound<'_, pyo3::types::PyDict>) -> PyResult<()> {
-        let (h, w) = (self.height, self.width);
-        d.set_item("width", w)?;
-        d.set_item("height", h)?;
-        d.set_item("color", rgb(py, self.color, h, w)?)?;
-        d.set_item("depth", hw(py, self.depth, h, w)?)?;
-        d.set_item("motion_fwd", hw3(py, self.motion_fwd, h, w)?)?;
-        d.set_item("motion_bwd", hw3(py, self.motion_bwd, h, w)?)?;
-        for (dir, (bits, s_min, s_max)) in ["fwd", "bwd"].into_iter().zip(self.shadows) {
-            d.set_item(format!("shadow_{dir}_bits"), hw(py, bits, h, w)?)?;
-            d.set_item(format!("shadow_{dir}_min"), rgb(py, s_min, h, w)?)?;
-            d.set_item(format!("shadow_{dir}_max"), rgb(py, s_max, h, w)?)?;
-        }
-        Ok(())
+/// Moves one camera's server buffers into `d` as numpy arrays (no copies): `width`, `height`,
+/// `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_{fwd,bwd}_{bits,min,max}`; shared by the
+/// synthetic scene and the renderer bindings.
+pub(crate) fn put_buffers(
+    py: Python<'_>,
+    b: CameraBuffers,
+    d: &Bound<'_, pyo3::types::PyDict>,
+) -> PyResult<()> {
+    let (h, w) = (b.height, b.width);
+    d.set_item("width", w)?;
+    d.set_item("height", h)?;
+    d.set_item("color", rgb(py, b.color, h, w)?)?;
+    d.set_item("depth", hw(py, b.depth, h, w)?)?;
+    d.set_item("motion_fwd", hw3(py, b.motion_fwd, h, w)?)?;
+    d.set_item("motion_bwd", hw3(py, b.motion_bwd, h, w)?)?;
+    for (dir, sb) in [("fwd", b.shadow_fwd), ("bwd", b.shadow_bwd)] {
+        d.set_item(format!("shadow_{dir}_bits"), hw(py, sb.bits, h, w)?)?;
+        d.set_item(format!("shadow_{dir}_min"), rgb(py, sb.s_min, h, w)?)?;
+        d.set_item(format!("shadow_{dir}_max"), rgb(py, sb.s_max, h, w)?)?;
     }
+    Ok(())
 }
 
 /// A 4×4 `float64` array.
@@ -279,14 +277,7 @@ pub fn apply_shadows<'py>(
                 "alpha = {alpha} is outside the supported range [0, {MAX_ALPHA}]"
             )));
         }
-        let s = match usize::try_from(subframes) {
-            Ok(s) if (1..=16).contains(&s) => s,
-            _ => {
-                return Err(invalid(format!(
-                    "subframes: expected 1..=16, got {subframes}"
-                )))
-            }
-        };
+        let s = convert::subframes(subframes)?;
         let role = match role {
             "older" => Role::Older,
             "newer" => Role::Newer,
