@@ -12,7 +12,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 use reproj_core::{Camera, Mat4};
 use reproj_scene::{self as rs, HeadPose, Rigid, SceneError, ServerBuffers, Variant};
 
-use crate::api::{mat, put_buffers, rgb};
+use crate::api::{camera_items, mat, put_buffers, rgb};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
@@ -385,16 +385,9 @@ impl Scene {
                 .iter()
                 .zip(images)
                 .map(|(c, img)| {
-                    PyTuple::new(
-                        py,
-                        [
-                            mat(py, &c.view)?.into_any(),
-                            mat(py, &c.proj)?.into_any(),
-                            c.width.into_pyobject(py)?.into_any(),
-                            c.height.into_pyobject(py)?.into_any(),
-                            rgb(py, img, c.height, c.width)?.into_any(),
-                        ],
-                    )
+                    let mut items = camera_items(py, c)?;
+                    items.push(rgb(py, img, c.height, c.width)?.into_any());
+                    PyTuple::new(py, items)
                 })
                 .collect::<PyResult<Vec<_>>>()?;
             PyList::new(py, eyes)

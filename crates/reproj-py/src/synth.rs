@@ -4,24 +4,11 @@ use numpy::PyArray3;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 use reproj_core::synthetic::{self, SyntheticScene};
-use reproj_core::Camera;
 
-use crate::api::{mat, put_buffers, rgb};
+use crate::api::{camera_items, put_buffers, rgb};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
-
-fn camera_tuple<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyTuple>> {
-    PyTuple::new(
-        py,
-        [
-            mat(py, &c.view)?.into_any(),
-            mat(py, &c.proj)?.into_any(),
-            c.width.into_pyobject(py)?.into_any(),
-            c.height.into_pyobject(py)?.into_any(),
-        ],
-    )
-}
 
 /// Every server buffer of one camera of the synthetic scene at `time`, as a dict of arrays:
 /// `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_fwd_bits`, `shadow_fwd_min`,
@@ -101,7 +88,7 @@ pub fn synthetic_rig<'py>(
         let (main, aux) = synthetic::rig(eye, target, width, height);
         let cams = [main, aux[0], aux[1]]
             .iter()
-            .map(|c| camera_tuple(py, c))
+            .map(|c| PyTuple::new(py, camera_items(py, c)?))
             .collect::<PyResult<Vec<_>>>()?;
         PyList::new(py, cams)
     })
