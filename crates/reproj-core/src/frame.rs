@@ -115,6 +115,139 @@ impl CameraView<'_> {
     }
 }
 
+/// The dynamic-shadow buffers of one direction, owned (DESIGN.md "Dynamic shadows"); borrowed as a
+/// [`ShadowView`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShadowBuffers {
+    /// `H·W` bitfields: 2 bits per subframe, subframe `j` in bits `2j, 2j+1`; 0 where the level is
+    /// the same at every subframe.
+    pub bits: Vec<u32>,
+    /// `H·W·3` RGB8 colour at the minimum level; 0 where that level is subframe 0's or bits = 0.
+    pub s_min: Vec<u8>,
+    /// `H·W·3` RGB8 colour at the maximum level; 0 where that level is subframe 0's or bits = 0.
+    pub s_max: Vec<u8>,
+}
+
+impl ShadowBuffers {
+    /// `n` pixels of zeros ("no dynamic shadow").
+    pub fn zeroed(n: usize) -> Self {
+        ShadowBuffers {
+            bits: vec![0; n],
+            s_min: vec![0; 3 * n],
+            s_max: vec![0; 3 * n],
+        }
+    }
+
+    fn with_capacity(n: usize) -> Self {
+        ShadowBuffers {
+            bits: Vec::with_capacity(n),
+            s_min: Vec::with_capacity(3 * n),
+            s_max: Vec::with_capacity(3 * n),
+        }
+    }
+
+    fn extend(&mut self, other: &ShadowBuffers) {
+        self.bits.extend_from_slice(&other.bits);
+        self.s_min.extend_from_slice(&other.s_min);
+        self.s_max.extend_from_slice(&other.s_max);
+    }
+
+    /// Borrows the buffers.
+    pub fn view(&self) -> ShadowView<'_> {
+        ShadowView {
+            bits: &self.bits,
+            s_min: &self.s_min,
+            s_max: &self.s_max,
+        }
+    }
+}
+
+/// Every server buffer of one camera at one time, owned, with both directions: what a renderer
+/// produces. [`CameraBuffers::view`] borrows it as the older or the newer image of a pair.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraBuffers {
+    /// Image width in pixels.
+    pub width: usize,
+    /// Image height in pixels.
+    pub height: usize,
+    /// `H·W·3` RGB8 colour (continuous soft shadow).
+    pub color: Vec<u8>,
+    /// `H·W` reversed depth; 0 for the sky.
+    pub depth: Vec<f32>,
+    /// `H·W·3` object motion `P(X_{t+Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
+    pub motion_fwd: Vec<f32>,
+    /// `H·W·3` object motion `P(X_{t−Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
+    pub motion_bwd: Vec<f32>,
+    /// Shadow buffers toward `t + Δ`: subframe `j` at `t + jΔ/S`.
+    pub shadow_fwd: ShadowBuffers,
+    /// Shadow buffers toward `t − Δ`: subframe `j` at `t − jΔ/S`.
+    pub shadow_bwd: ShadowBuffers,
+}
+
+impl CameraBuffers {
+    /// `width × height` pixels of zeros: black, sky depth, no motion, no dynamic shadow.
+    pub fn zeroed(width: usize, height: usize) -> Self {
+        let n = width * height;
+        CameraBuffers {
+            width,
+            height,
+            color: vec![0; 3 * n],
+            depth: vec![0.0; n],
+            motion_fwd: vec![0.0; 3 * n],
+            motion_bwd: vec![0.0; 3 * n],
+            shadow_fwd: ShadowBuffers::zeroed(n),
+            shadow_bwd: ShadowBuffers::zeroed(n),
+        }
+    }
+
+    /// The `width × height` image whose rows are those of `blocks`, in order (each block
+    /// `width` wide; a renderer's row blocks, rendered in parallel).
+    pub fn from_row_blocks(
+        width: usize,
+        height: usize,
+        blocks: impl IntoIterator<Item = CameraBuffers>,
+    ) -> Self {
+        let n = width * height;
+        let mut out = CameraBuffers {
+            width,
+            height,
+            color: Vec::with_capacity(3 * n),
+            depth: Vec::with_capacity(n),
+            motion_fwd: Vec::with_capacity(3 * n),
+            motion_bwd: Vec::with_capacity(3 * n),
+            shadow_fwd: ShadowBuffers::with_capacity(n),
+            shadow_bwd: ShadowBuffers::with_capacity(n),
+        };
+        for b in blocks {
+            debug_assert_eq!(b.width, width, "row block of another width");
+            out.color.extend_from_slice(&b.color);
+            out.depth.extend_from_slice(&b.depth);
+            out.motion_fwd.extend_from_slice(&b.motion_fwd);
+            out.motion_bwd.extend_from_slice(&b.motion_bwd);
+            out.shadow_fwd.extend(&b.shadow_fwd);
+            out.shadow_bwd.extend(&b.shadow_bwd);
+        }
+        out
+    }
+
+    /// The buffers seen from `camera` (the camera they were rendered at) as the older image of a
+    /// pair (`forward = true`: forward motion and shadows) or the newer one (backward ones).
+    pub fn view(&self, camera: Camera, forward: bool) -> CameraView<'_> {
+        let (motion, shadow) = if forward {
+            (&self.motion_fwd, &self.shadow_fwd)
+        } else {
+            (&self.motion_bwd, &self.shadow_bwd)
+        };
+        CameraView {
+            camera,
+            color: &self.color,
+            depth: &self.depth,
+            motion: Some(motion),
+            shadow: Some(shadow.view()),
+        }
+    }
+}
+
 /// The most auxiliary cameras a frame may have (their diagnostic codes fit below
 /// [`crate::Diagnostics::BLENDED`]).
 pub const MAX_AUX: usize = 62;

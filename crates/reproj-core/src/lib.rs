@@ -28,7 +28,7 @@ pub mod timewarp;
 pub use backward_bidir::BidirHistory;
 pub use camera::{Camera, Mat4, NdcTransfer, Projector, M4, MAX_SIDE};
 pub use error::{ReprojError, Result};
-pub use frame::{CameraView, FrameView, ShadowView};
+pub use frame::{CameraBuffers, CameraView, FrameView, ShadowBuffers, ShadowView};
 pub use method::{reproject, Method};
 /// The former name of [`ours`] (its public path before issue 12).
 pub use ours as reproject;

@@ -1,11 +1,11 @@
 //! `reproject`, `scene_flow`, `apply_shadows`, the camera helpers and `BidirHistory`.
 
-use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray2, PyArray3, PyUntypedArrayMethods};
+use numpy::ndarray::{Array, Dimension, ShapeBuilder};
+use numpy::{IntoPyArray, PyArray, PyArray2, PyArray3, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use reproj_core::method::MAX_ALPHA;
-use reproj_core::{CameraView, Diagnostics, Mat4, Method, Request, Role};
+use reproj_core::{Camera, CameraBuffers, CameraView, Diagnostics, Mat4, Method, Request, Role};
 
 use crate::convert::{self, array, depth_and_size, slice, Dim, FrameArrays};
 use crate::errors::{invalid, map_reproj_error, SplitRenderError};
@@ -18,68 +18,56 @@ pub(crate) fn rgb<'py>(
     h: usize,
     w: usize,
 ) -> PyResult<Bound<'py, PyArray3<u8>>> {
-    hw3(py, v, h, w)
+    shaped(py, v, (h, w, 3))
 }
 
-/// An `H×W×3` array from a vector of `H·W·3` values (no copy).
-pub(crate) fn hw3<'py, T: numpy::Element>(
+/// An array of `shape` from a vector of as many values (no copy).
+pub(crate) fn shaped<'py, T: numpy::Element, D: Dimension>(
     py: Python<'py>,
     v: Vec<T>,
-    h: usize,
-    w: usize,
-) -> PyResult<Bound<'py, PyArray3<T>>> {
-    Array3::from_shape_vec((h, w, 3), v)
+    shape: impl ShapeBuilder<Dim = D>,
+) -> PyResult<Bound<'py, PyArray<T, D>>> {
+    Array::from_shape_vec(shape, v)
         .map(|a| a.into_pyarray(py))
         .map_err(|e| SplitRenderError::new_err(format!("internal error: output shape: {e}")))
 }
 
-/// An `H×W` array from a vector of `H·W` values (no copy).
-pub(crate) fn hw<'py, T: numpy::Element>(
-    py: Python<'py>,
-    v: Vec<T>,
-    h: usize,
-    w: usize,
-) -> PyResult<Bound<'py, PyArray2<T>>> {
-    Array2::from_shape_vec((h, w), v)
-        .map(|a| a.into_pyarray(py))
-        .map_err(|e| SplitRenderError::new_err(format!("internal error: output shape: {e}")))
-}
-
-/// The server buffers of one camera as dict items (`color`, `depth`, `motion_fwd`, `motion_bwd`,
-/// `shadow_{fwd,bwd}_{bits,min,max}`), shared by the synthetic scene and the renderer bindings.
-pub(crate) struct ServerArrays {
-    pub width: usize,
-    pub height: usize,
-    pub color: Vec<u8>,
-    pub depth: Vec<f32>,
-    pub motion_fwd: Vec<f32>,
-    pub motion_bwd: Vec<f32>,
-    /// `(bits, s_min, s_max)` forward, then backward.
-    pub shadows: [(Vec<u32>, Vec<u8>, Vec<u8>); 2],
-}
-
-impl ServerArrays {
-    /// Moves the buffers into `d` as numpy arrays (no copies).
-    pub(crate) fn put(self, py: Python<'_>, d: &Bound<'_, pyo3::types::PyDict>) -> PyResult<()> {
-        let (h, w) = (self.height, self.width);
-        d.set_item("width", w)?;
-        d.set_item("height", h)?;
-        d.set_item("color", rgb(py, self.color, h, w)?)?;
-        d.set_item("depth", hw(py, self.depth, h, w)?)?;
-        d.set_item("motion_fwd", hw3(py, self.motion_fwd, h, w)?)?;
-        d.set_item("motion_bwd", hw3(py, self.motion_bwd, h, w)?)?;
-        for (dir, (bits, s_min, s_max)) in ["fwd", "bwd"].into_iter().zip(self.shadows) {
-            d.set_item(format!("shadow_{dir}_bits"), hw(py, bits, h, w)?)?;
-            d.set_item(format!("shadow_{dir}_min"), rgb(py, s_min, h, w)?)?;
-            d.set_item(format!("shadow_{dir}_max"), rgb(py, s_max, h, w)?)?;
-        }
-        Ok(())
+/// Moves one camera's server buffers into `d` as numpy arrays (no copies): `width`, `height`,
+/// `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_{fwd,bwd}_{bits,min,max}`; shared by the
+/// synthetic scene and the renderer bindings.
+pub(crate) fn put_buffers(
+    py: Python<'_>,
+    b: CameraBuffers,
+    d: &Bound<'_, pyo3::types::PyDict>,
+) -> PyResult<()> {
+    let (h, w) = (b.height, b.width);
+    d.set_item("width", w)?;
+    d.set_item("height", h)?;
+    d.set_item("color", rgb(py, b.color, h, w)?)?;
+    d.set_item("depth", shaped(py, b.depth, (h, w))?)?;
+    d.set_item("motion_fwd", shaped(py, b.motion_fwd, (h, w, 3))?)?;
+    d.set_item("motion_bwd", shaped(py, b.motion_bwd, (h, w, 3))?)?;
+    for (dir, sb) in [("fwd", b.shadow_fwd), ("bwd", b.shadow_bwd)] {
+        d.set_item(format!("shadow_{dir}_bits"), shaped(py, sb.bits, (h, w))?)?;
+        d.set_item(format!("shadow_{dir}_min"), rgb(py, sb.s_min, h, w)?)?;
+        d.set_item(format!("shadow_{dir}_max"), rgb(py, sb.s_max, h, w)?)?;
     }
+    Ok(())
+}
+
+/// A camera as the items `(view, proj, width, height)` of a Python tuple.
+pub(crate) fn camera_items<'py>(py: Python<'py>, c: &Camera) -> PyResult<Vec<Bound<'py, PyAny>>> {
+    Ok(vec![
+        mat(py, &c.view)?.into_any(),
+        mat(py, &c.proj)?.into_any(),
+        c.width.into_pyobject(py)?.into_any(),
+        c.height.into_pyobject(py)?.into_any(),
+    ])
 }
 
 /// A 4×4 `float64` array.
 pub(crate) fn mat<'py>(py: Python<'py>, m: &Mat4) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    hw(py, m.0.iter().flatten().copied().collect(), 4, 4)
+    shaped(py, m.0.iter().flatten().copied().collect(), (4, 4))
 }
 
 /// The client's state for one server-frame pair, carried from one client frame to the next:
@@ -190,8 +178,8 @@ pub fn reproject<'py>(
         match diag {
             None => Ok(image),
             Some(d) => {
-                let source = hw(py, d.source, ch, cw)?.into_any();
-                let error = hw(py, d.error, ch, cw)?.into_any();
+                let source = shaped(py, d.source, (ch, cw))?.into_any();
+                let error = shaped(py, d.error, (ch, cw))?.into_any();
                 Ok(PyTuple::new(py, [image, source, error])?.into_any())
             }
         }
@@ -248,7 +236,7 @@ pub fn scene_flow<'py>(
         let flow = py
             .detach(|| reproj_core::scene_flow(&cv, &client, w as f32))
             .map_err(map_reproj_error)?;
-        hw3(py, flow.into_flattened(), sh, sw)
+        shaped(py, flow.into_flattened(), (sh, sw, 3))
     })
 }
 
@@ -279,14 +267,7 @@ pub fn apply_shadows<'py>(
                 "alpha = {alpha} is outside the supported range [0, {MAX_ALPHA}]"
             )));
         }
-        let s = match usize::try_from(subframes) {
-            Ok(s) if (1..=16).contains(&s) => s,
-            _ => {
-                return Err(invalid(format!(
-                    "subframes: expected 1..=16, got {subframes}"
-                )))
-            }
-        };
+        let s = convert::subframes(subframes)?;
         let role = match role {
             "older" => Role::Older,
             "newer" => Role::Newer,

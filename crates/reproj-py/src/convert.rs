@@ -497,3 +497,20 @@ fn option_names_cover_params(p: Params) {
         splat_bidirectional: _,
     } = p;
 }
+
+/// `v`, when finite.
+pub(crate) fn finite(v: f64, what: &str) -> PyResult<f64> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(invalid(format!("{what}: expected a finite float, got {v}")))
+    }
+}
+
+/// Shadow subframes per server interval, `1..=16` (2 bits each in a `u32`).
+pub(crate) fn subframes(v: i64) -> PyResult<usize> {
+    match usize::try_from(v) {
+        Ok(s) if (1..=16).contains(&s) => Ok(s),
+        _ => Err(invalid(format!("subframes: expected 1..=16, got {v}"))),
+    }
+}

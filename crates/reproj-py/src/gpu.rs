@@ -17,7 +17,7 @@ use reproj_wgpu::{
     ContextOptions, GpuContext, GpuError, Previous, Reprojector, ReprojectorOptions, MAX_OUTPUTS,
 };
 
-use crate::api::{hw, rgb};
+use crate::api::{rgb, shaped};
 use crate::convert::{self, array, slice, Dim, FrameArrays};
 use crate::errors::{invalid, map_reproj_error, SplitRenderError};
 use crate::guarded;
@@ -189,8 +189,8 @@ impl WgpuReprojector {
             match diag {
                 None => Ok(Some(image)),
                 Some(d) => {
-                    let source = hw(py, d.source, ch, cw)?.into_any();
-                    let error = hw(py, d.error, ch, cw)?.into_any();
+                    let source = shaped(py, d.source, (ch, cw))?.into_any();
+                    let error = shaped(py, d.error, (ch, cw))?.into_any();
                     Ok(Some(PyTuple::new(py, [image, source, error])?.into_any()))
                 }
             }

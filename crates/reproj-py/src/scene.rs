@@ -12,7 +12,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 use reproj_core::{Camera, Mat4};
 use reproj_scene::{self as rs, HeadPose, Rigid, SceneError, ServerBuffers, Variant};
 
-use crate::api::{mat, rgb, ServerArrays};
+use crate::api::{camera_items, mat, put_buffers, rgb};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
@@ -35,14 +35,6 @@ fn map_scene_error(e: SceneError) -> PyErr {
     }
 }
 
-fn finite(v: f64, what: &str) -> PyResult<f64> {
-    if v.is_finite() {
-        Ok(v)
-    } else {
-        Err(invalid(format!("{what}: expected a finite float, got {v}")))
-    }
-}
-
 fn rate(v: f64, what: &str) -> PyResult<f64> {
     if v.is_finite() && v > 0.0 {
         Ok(v)
@@ -60,13 +52,6 @@ fn index(v: i64, what: &str) -> PyResult<usize> {
         _ => Err(invalid(format!(
             "{what}: expected an int in [0, 2^31), got {v}"
         ))),
-    }
-}
-
-fn subframes(v: i64) -> PyResult<usize> {
-    match usize::try_from(v) {
-        Ok(s) if (1..=16).contains(&s) => Ok(s),
-        _ => Err(invalid(format!("subframes: expected 1..=16, got {v}"))),
     }
 }
 
@@ -146,19 +131,7 @@ fn buffers_dict(py: Python<'_>, b: ServerBuffers) -> PyResult<Bound<'_, PyDict>>
     let d = PyDict::new(py);
     d.set_item("view", mat(py, &b.view)?)?;
     d.set_item("proj", mat(py, &b.proj)?)?;
-    ServerArrays {
-        width: b.width,
-        height: b.height,
-        color: b.color,
-        depth: b.depth,
-        motion_fwd: b.motion_fwd,
-        motion_bwd: b.motion_bwd,
-        shadows: [
-            (b.shadow_fwd.bits, b.shadow_fwd.s_min, b.shadow_fwd.s_max),
-            (b.shadow_bwd.bits, b.shadow_bwd.s_min, b.shadow_bwd.s_max),
-        ],
-    }
-    .put(py, &d)?;
+    put_buffers(py, b.buffers, &d)?;
     Ok(d)
 }
 
@@ -219,7 +192,7 @@ impl Scene {
             for (i, m) in models.iter().enumerate() {
                 let what = format!("models[{i}]");
                 for v in [m.1[0], m.1[1], m.1[2], m.2, m.5, m.6] {
-                    finite(v, &what)?;
+                    convert::finite(v, &what)?;
                 }
                 if !(m.3 > 0.0 && m.3.is_finite()) {
                     return Err(invalid(format!(
@@ -293,7 +266,7 @@ impl Scene {
     /// The head box's camera-to-world pose at `t` (no anchor deviation).
     fn head_box<'py>(&self, py: Python<'py>, t: f64) -> PyResult<Bound<'py, PyArray2<f64>>> {
         guarded("Scene.head_box", || {
-            let t = finite(t, "t")?;
+            let t = convert::finite(t, "t")?;
             pose_matrix(py, &self.inner.path.head_box(t))
         })
     }
@@ -301,7 +274,7 @@ impl Scene {
     /// The client's actual (anchor) camera-to-world pose at `t`.
     fn client_pose<'py>(&self, py: Python<'py>, t: f64) -> PyResult<Bound<'py, PyArray2<f64>>> {
         guarded("Scene.client_pose", || {
-            let t = finite(t, "t")?;
+            let t = convert::finite(t, "t")?;
             pose_matrix(py, &self.inner.path.client_pose(t))
         })
     }
@@ -343,7 +316,7 @@ impl Scene {
         guarded("Scene.render_server_frame", || {
             let k = index(k, "k")?;
             let fs = rate(fs, "fs")?;
-            let s = self::subframes(subframes)?;
+            let s = convert::subframes(subframes)?;
             let (w, h) = rs::main_size(scale).map_err(map_scene_error)?;
             let scene = &self.inner;
             let pose = self.pose_or(pose, scene.path.server_pose(k, fs))?;
@@ -412,16 +385,9 @@ impl Scene {
                 .iter()
                 .zip(images)
                 .map(|(c, img)| {
-                    PyTuple::new(
-                        py,
-                        [
-                            mat(py, &c.view)?.into_any(),
-                            mat(py, &c.proj)?.into_any(),
-                            c.width.into_pyobject(py)?.into_any(),
-                            c.height.into_pyobject(py)?.into_any(),
-                            rgb(py, img, c.height, c.width)?.into_any(),
-                        ],
-                    )
+                    let mut items = camera_items(py, c)?;
+                    items.push(rgb(py, img, c.height, c.width)?.into_any());
+                    PyTuple::new(py, items)
                 })
                 .collect::<PyResult<Vec<_>>>()?;
             PyList::new(py, eyes)
@@ -444,7 +410,7 @@ impl Scene {
     ) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
         guarded("Scene.render_ground_truth", || {
             let camera = convert::camera(view, proj, width, height, "camera")?;
-            let t = finite(t, "t")?;
+            let t = convert::finite(t, "t")?;
             let n = self::samples(samples, camera.width, camera.height)?;
             let scene = &self.inner;
             let img = py

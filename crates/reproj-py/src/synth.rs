@@ -4,32 +4,11 @@ use numpy::PyArray3;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
 use reproj_core::synthetic::{self, SyntheticScene};
-use reproj_core::Camera;
 
-use crate::api::{mat, rgb, ServerArrays};
+use crate::api::{camera_items, put_buffers, rgb};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
-
-fn finite(v: f64, what: &str) -> PyResult<f64> {
-    if v.is_finite() {
-        Ok(v)
-    } else {
-        Err(invalid(format!("{what}: expected a finite float, got {v}")))
-    }
-}
-
-fn camera_tuple<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyTuple>> {
-    PyTuple::new(
-        py,
-        [
-            mat(py, &c.view)?.into_any(),
-            mat(py, &c.proj)?.into_any(),
-            c.width.into_pyobject(py)?.into_any(),
-            c.height.into_pyobject(py)?.into_any(),
-        ],
-    )
-}
 
 /// Every server buffer of one camera of the synthetic scene at `time`, as a dict of arrays:
 /// `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_fwd_bits`, `shadow_fwd_min`,
@@ -50,36 +29,17 @@ pub fn synthetic_render_server<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded("synthetic_render_server", || {
         let camera = convert::camera(view, proj, width, height, "camera")?;
-        let time = finite(time, "time")?;
+        let time = convert::finite(time, "time")?;
         if !(interval.is_finite() && interval > 0.0) {
             return Err(invalid(format!(
                 "interval: expected a finite value > 0, got {interval}"
             )));
         }
-        let s = match usize::try_from(subframes) {
-            Ok(s) if (1..=16).contains(&s) => s,
-            _ => {
-                return Err(invalid(format!(
-                    "subframes: expected 1..=16, got {subframes}"
-                )))
-            }
-        };
+        let s = convert::subframes(subframes)?;
         let scene = SyntheticScene::new(dynamic);
         let r = py.detach(|| scene.render_server(&camera, time, interval, s));
         let d = PyDict::new(py);
-        ServerArrays {
-            width: r.width,
-            height: r.height,
-            color: r.color,
-            depth: r.depth,
-            motion_fwd: r.motion_fwd,
-            motion_bwd: r.motion_bwd,
-            shadows: [
-                (r.shadow_fwd.bits, r.shadow_fwd.s_min, r.shadow_fwd.s_max),
-                (r.shadow_bwd.bits, r.shadow_bwd.s_min, r.shadow_bwd.s_max),
-            ],
-        }
-        .put(py, &d)?;
+        put_buffers(py, r, &d)?;
         Ok(d)
     })
 }
@@ -98,7 +58,7 @@ pub fn synthetic_ground_truth<'py>(
 ) -> PyResult<Bound<'py, PyArray3<u8>>> {
     guarded("synthetic_ground_truth", || {
         let camera = convert::camera(view, proj, width, height, "camera")?;
-        let time = finite(time, "time")?;
+        let time = convert::finite(time, "time")?;
         let scene = SyntheticScene::new(dynamic);
         let img = py.detach(|| scene.render_ground_truth(&camera, time));
         rgb(py, img, camera.height, camera.width)
@@ -128,7 +88,7 @@ pub fn synthetic_rig<'py>(
         let (main, aux) = synthetic::rig(eye, target, width, height);
         let cams = [main, aux[0], aux[1]]
             .iter()
-            .map(|c| camera_tuple(py, c))
+            .map(|c| PyTuple::new(py, camera_items(py, c)?))
             .collect::<PyResult<Vec<_>>>()?;
         PyList::new(py, cams)
     })
@@ -140,7 +100,7 @@ pub fn synthetic_rig<'py>(
 #[allow(clippy::type_complexity)]
 pub fn synthetic_head_pose(t: f64) -> PyResult<((f64, f64, f64), (f64, f64, f64))> {
     guarded("synthetic_head_pose", || {
-        let t = finite(t, "t")?;
+        let t = convert::finite(t, "t")?;
         let (e, g) = synthetic::head_pose(t);
         Ok(((e[0], e[1], e[2]), (g[0], g[1], g[2])))
     })

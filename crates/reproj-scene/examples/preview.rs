@@ -13,7 +13,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let scene = builtin(name, Variant::Dynamic)?;
         let t0 = std::time::Instant::now();
         let f = render_server_frame(&scene, k, scale, 10.0, 4)?;
-        let m = &f.main;
+        let m = &f.main.buffers;
         let mut out = format!("P6 {} {} 255\n", m.width, m.height).into_bytes();
         out.extend_from_slice(&m.color);
         std::fs::write(format!("preview_{name}.ppm"), out)?;

@@ -109,6 +109,17 @@ pub struct ServerFrame {
     pub aux: [ServerBuffers; 2],
 }
 
+impl ServerFrame {
+    /// The frame as the older image of a pair (`forward = true`: forward motion and shadows) or
+    /// the newer one (backward ones).
+    pub fn view(&self, forward: bool) -> reproj_core::FrameView<'_> {
+        reproj_core::FrameView {
+            main: self.main.camera_view(forward),
+            aux: self.aux.iter().map(|a| a.camera_view(forward)).collect(),
+        }
+    }
+}
+
 /// Renders server frame `k` of `scene` at `scale` (main camera `round(2560·scale) ×
 /// round(1440·scale)`), server rate `fs` and `subframes` shadow subframes per server interval,
 /// each camera's colour with [`default_samples`] for its size.

@@ -17,40 +17,9 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use reproj_core::{CameraView, FrameView, Method, Params, Request, ShadowView};
-use reproj_scene::{builtin, mono, render_server_frame, ServerBuffers, ServerFrame, Variant};
+use reproj_core::{Method, Params, Request};
+use reproj_scene::{builtin, mono, render_server_frame, Variant};
 use reproj_wgpu::{ContextOptions, GpuContext, Previous, Reprojector, ReprojectorOptions};
-
-fn view(b: &ServerBuffers, forward: bool) -> CameraView<'_> {
-    let (motion, shadow) = if forward {
-        (&b.motion_fwd, &b.shadow_fwd)
-    } else {
-        (&b.motion_bwd, &b.shadow_bwd)
-    };
-    CameraView {
-        camera: reproj_core::Camera {
-            view: b.view,
-            proj: b.proj,
-            width: b.width,
-            height: b.height,
-        },
-        color: &b.color,
-        depth: &b.depth,
-        motion: Some(motion),
-        shadow: Some(ShadowView {
-            bits: &shadow.bits,
-            s_min: &shadow.s_min,
-            s_max: &shadow.s_max,
-        }),
-    }
-}
-
-fn frame_view(f: &ServerFrame, older: bool) -> FrameView<'_> {
-    FrameView {
-        main: view(&f.main, older),
-        aux: f.aux.iter().map(|a| view(a, older)).collect(),
-    }
-}
 
 fn bench(c: &mut Criterion) {
     let ctx = match GpuContext::new(&ContextOptions::default()) {
@@ -70,9 +39,9 @@ fn bench(c: &mut Criterion) {
     for scale in [0.25, 0.5] {
         let f0 = render_server_frame(&scene, 2, scale, 10.0, 4).expect("render");
         let f1 = render_server_frame(&scene, 3, scale, 10.0, 4).expect("render");
-        let (w, h) = (f0.main.width, f0.main.height);
+        let (w, h) = (f0.main.buffers.width, f0.main.buffers.height);
         let size = format!("{w}x{h}");
-        let (older, newer) = (frame_view(&f0, true), frame_view(&f1, false));
+        let (older, newer) = (f0.view(true), f1.view(false));
         let alpha = 5.0 / 12.0;
         let client = mono(
             &scene.path.client_pose(0.2 + f64::from(alpha) / 10.0),
@@ -97,37 +66,28 @@ fn bench(c: &mut Criterion) {
             .expect("pipelines");
             gpu.load(Some(&older), &newer).expect("load");
             let name = gpu.atomics().name();
+            // One client frame, into `out` (downloaded) or left on the device.
+            let mut frame = |out: Option<&mut [u8]>| {
+                gpu.render(
+                    0,
+                    Method::Ours,
+                    black_box(&request),
+                    &params,
+                    Previous::Keep,
+                    out,
+                    None,
+                )
+                .expect("render")
+            };
             g.bench_function(
                 BenchmarkId::new(format!("ours/{name}/download"), &size),
-                |b| {
-                    b.iter(|| {
-                        gpu.render(
-                            0,
-                            Method::Ours,
-                            black_box(&request),
-                            &params,
-                            Previous::Keep,
-                            Some(&mut out),
-                            None,
-                        )
-                        .expect("render")
-                    })
-                },
+                |b| b.iter(|| frame(Some(&mut out))),
             );
             g.bench_function(
                 BenchmarkId::new(format!("ours/{name}/on_device"), &size),
                 |b| {
                     b.iter(|| {
-                        gpu.render(
-                            0,
-                            Method::Ours,
-                            black_box(&request),
-                            &params,
-                            Previous::Keep,
-                            None,
-                            None,
-                        )
-                        .expect("render");
+                        frame(None);
                         ctx.device.poll(wgpu::PollType::Wait).expect("device poll")
                     })
                 },

@@ -11,12 +11,7 @@
 
 @compute @workgroup_size(16, 16, 1)
 fn depth_pass(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let slot = slot_of_layer(gid.z);
-    if gid.x >= sources[slot].width || gid.y >= sources[slot].height {
-        return;
-    }
-    let p = scene_flow_point(slot, gid.x, gid.y);
-    flow[sources[slot].offset + p.idx] = p.flow;
+    let p = splat_point(gid, true);
     if p.cell >= 0 {
         atomicMax(&splat[2u * u32(p.cell) + 1u], bitcast<u32>(p.key_z));
     }
@@ -24,11 +19,7 @@ fn depth_pass(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 @compute @workgroup_size(16, 16, 1)
 fn index_pass(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let slot = slot_of_layer(gid.z);
-    if gid.x >= sources[slot].width || gid.y >= sources[slot].height {
-        return;
-    }
-    let p = scene_flow_point(slot, gid.x, gid.y);
+    let p = splat_point(gid, false);
     if p.cell >= 0 && atomicLoad(&splat[2u * u32(p.cell) + 1u]) == bitcast<u32>(p.key_z) {
         atomicMax(&splat[2u * u32(p.cell)], ~p.idx);
     }

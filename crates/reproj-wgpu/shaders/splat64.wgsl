@@ -10,12 +10,7 @@
 
 @compute @workgroup_size(16, 16, 1)
 fn splat_main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let slot = slot_of_layer(gid.z);
-    if gid.x >= sources[slot].width || gid.y >= sources[slot].height {
-        return;
-    }
-    let p = scene_flow_point(slot, gid.x, gid.y);
-    flow[sources[slot].offset + p.idx] = p.flow;
+    let p = splat_point(gid, true);
     if p.cell >= 0 {
         let key = (u64(bitcast<u32>(p.key_z)) << 32u) | u64(~p.idx);
         atomicMax(&splat[u32(p.cell)], key);

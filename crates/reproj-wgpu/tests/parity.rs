@@ -10,8 +10,8 @@
 
 use std::sync::OnceLock;
 
-use reproj_core::{CameraView, Diagnostics, FrameView, Method, Params, Request, ShadowView};
-use reproj_scene::{builtin, mono, render_server_frame, ServerBuffers, ServerFrame, Variant};
+use reproj_core::{Diagnostics, Method, Params, Request};
+use reproj_scene::{builtin, mono, render_server_frame, Variant};
 use reproj_wgpu::{
     Atomics, ContextOptions, GpuContext, GpuError, Previous, Reprojector, ReprojectorOptions,
 };
@@ -41,38 +41,6 @@ fn context() -> Option<&'static GpuContext> {
         }
     })
     .as_ref()
-}
-
-fn view(b: &ServerBuffers, forward: bool) -> CameraView<'_> {
-    let (motion, shadow) = if forward {
-        (&b.motion_fwd, &b.shadow_fwd)
-    } else {
-        (&b.motion_bwd, &b.shadow_bwd)
-    };
-    CameraView {
-        camera: reproj_core::Camera {
-            view: b.view,
-            proj: b.proj,
-            width: b.width,
-            height: b.height,
-        },
-        color: &b.color,
-        depth: &b.depth,
-        motion: Some(motion),
-        shadow: Some(ShadowView {
-            bits: &shadow.bits,
-            s_min: &shadow.s_min,
-            s_max: &shadow.s_max,
-        }),
-    }
-}
-
-/// `older` with its forward buffers, or `newer` with its backward ones.
-fn frame_view(f: &ServerFrame, older: bool) -> FrameView<'_> {
-    FrameView {
-        main: view(&f.main, older),
-        aux: f.aux.iter().map(|a| view(a, older)).collect(),
-    }
 }
 
 struct Case {
@@ -151,9 +119,9 @@ fn check_scene(name: &str) {
     let k = 2;
     let f0 = render_server_frame(&scene, k, SCALE, FS, SUBFRAMES).expect("render");
     let f1 = render_server_frame(&scene, k + 1, SCALE, FS, SUBFRAMES).expect("render");
-    let (w, h) = (f0.main.width, f0.main.height);
-    let older = frame_view(&f0, true);
-    let newer = frame_view(&f1, false);
+    let (w, h) = (f0.main.buffers.width, f0.main.buffers.height);
+    let older = f0.view(true);
+    let newer = f1.view(false);
     let mut gpus: Vec<Reprojector> = vec![Reprojector::new(
         ctx,
         &ReprojectorOptions {
@@ -278,9 +246,9 @@ fn device_resident_frames_and_errors() {
     let scene = builtin("courtyard", Variant::Dynamic).expect("built-in scene");
     let f0 = render_server_frame(&scene, 1, SCALE, FS, SUBFRAMES).expect("render");
     let f1 = render_server_frame(&scene, 2, SCALE, FS, SUBFRAMES).expect("render");
-    let (w, h) = (f0.main.width, f0.main.height);
-    let older = frame_view(&f0, true);
-    let newer = frame_view(&f1, false);
+    let (w, h) = (f0.main.buffers.width, f0.main.buffers.height);
+    let older = f0.view(true);
+    let newer = f1.view(false);
     let mut gpu = Reprojector::new(ctx, &ReprojectorOptions::default()).expect("pipelines");
     let p = Params::default();
     let request = |n: usize| {

@@ -29,7 +29,8 @@ use std::sync::OnceLock;
 use rayon::prelude::*;
 
 use crate::camera::{Camera, Mat4};
-use crate::frame::{CameraView, FrameView, ShadowView};
+use crate::frame::FrameView;
+pub use crate::frame::{CameraBuffers, ShadowBuffers};
 
 /// Near plane of every camera of the rig (metres).
 pub const NEAR: f64 = 0.1;
@@ -176,39 +177,6 @@ struct Pose {
 pub struct SyntheticScene {
     /// Whether the sphere and the cube move; `false` freezes them at their `t = 0` pose.
     pub dynamic: bool,
-}
-
-/// The dynamic-shadow buffers of one direction (DESIGN.md "Dynamic shadows").
-#[derive(Debug, Clone)]
-pub struct ShadowBuffers {
-    /// `H·W` bitfields: 2 bits per subframe, subframe `j` in bits `2j, 2j+1`; 0 where the level is
-    /// the same at every subframe.
-    pub bits: Vec<u32>,
-    /// `H·W·3` RGB8 colour at the minimum level; 0 where that level is subframe 0's or bits = 0.
-    pub s_min: Vec<u8>,
-    /// `H·W·3` RGB8 colour at the maximum level; 0 where that level is subframe 0's or bits = 0.
-    pub s_max: Vec<u8>,
-}
-
-/// Every server buffer of one camera at one time.
-#[derive(Debug, Clone)]
-pub struct RenderedCamera {
-    /// Image width in pixels.
-    pub width: usize,
-    /// Image height in pixels.
-    pub height: usize,
-    /// `H·W·3` RGB8 colour (continuous soft shadow).
-    pub color: Vec<u8>,
-    /// `H·W` reversed depth; 0 for the sky.
-    pub depth: Vec<f32>,
-    /// `H·W·3` object motion `P(X_{t+Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
-    pub motion_fwd: Vec<f32>,
-    /// `H·W·3` object motion `P(X_{t−Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
-    pub motion_bwd: Vec<f32>,
-    /// Shadow buffers toward `t + Δ`: subframe `j` at `t + jΔ/S`.
-    pub shadow_fwd: ShadowBuffers,
-    /// Shadow buffers toward `t − Δ`: subframe `j` at `t − jΔ/S`.
-    pub shadow_bwd: ShadowBuffers,
 }
 
 /// A camera's rays: the world position of its centre and `P⁻¹` for the pixel directions.
@@ -607,7 +575,7 @@ impl SyntheticScene {
         time: f64,
         interval: f64,
         subframes: usize,
-    ) -> RenderedCamera {
+    ) -> CameraBuffers {
         assert!(
             (1..=16).contains(&subframes),
             "subframes must be in 1..=16, got {subframes}"
@@ -624,11 +592,11 @@ impl SyntheticScene {
             .map(|j| self.pose(time - step * j as f64))
             .collect();
         let (pose_next, pose_prev) = (self.pose(time + interval), self.pose(time - interval));
-        let blocks: Vec<ServerBlock> = (0..h.div_ceil(BLOCK_ROWS))
+        let blocks: Vec<CameraBuffers> = (0..h.div_ceil(BLOCK_ROWS))
             .into_par_iter()
             .map(|b| {
                 let rows = BLOCK_ROWS.min(h - b * BLOCK_ROWS);
-                let mut blk = ServerBlock::new(rows * w);
+                let mut blk = CameraBuffers::zeroed(w, rows);
                 for r in 0..rows {
                     for i in 0..w {
                         let k = r * w + i;
@@ -658,41 +626,18 @@ impl SyntheticScene {
                         }
                         let (bf, minf, maxf) = self.shadow_field(&s, &poses_fwd);
                         let (bb, minb, maxb) = self.shadow_field(&s, &poses_bwd);
-                        blk.bits_fwd[k] = bf;
-                        blk.bits_bwd[k] = bb;
-                        blk.smin_fwd[3 * k..3 * k + 3].copy_from_slice(&minf);
-                        blk.smax_fwd[3 * k..3 * k + 3].copy_from_slice(&maxf);
-                        blk.smin_bwd[3 * k..3 * k + 3].copy_from_slice(&minb);
-                        blk.smax_bwd[3 * k..3 * k + 3].copy_from_slice(&maxb);
+                        blk.shadow_fwd.bits[k] = bf;
+                        blk.shadow_bwd.bits[k] = bb;
+                        blk.shadow_fwd.s_min[3 * k..3 * k + 3].copy_from_slice(&minf);
+                        blk.shadow_fwd.s_max[3 * k..3 * k + 3].copy_from_slice(&maxf);
+                        blk.shadow_bwd.s_min[3 * k..3 * k + 3].copy_from_slice(&minb);
+                        blk.shadow_bwd.s_max[3 * k..3 * k + 3].copy_from_slice(&maxb);
                     }
                 }
                 blk
             })
             .collect();
-        let n = w * h;
-        let mut out = RenderedCamera {
-            width: w,
-            height: h,
-            color: Vec::with_capacity(3 * n),
-            depth: Vec::with_capacity(n),
-            motion_fwd: Vec::with_capacity(3 * n),
-            motion_bwd: Vec::with_capacity(3 * n),
-            shadow_fwd: ShadowBuffers::with_capacity(n),
-            shadow_bwd: ShadowBuffers::with_capacity(n),
-        };
-        for b in blocks {
-            out.color.extend_from_slice(&b.color);
-            out.depth.extend_from_slice(&b.depth);
-            out.motion_fwd.extend_from_slice(&b.motion_fwd);
-            out.motion_bwd.extend_from_slice(&b.motion_bwd);
-            out.shadow_fwd.bits.extend_from_slice(&b.bits_fwd);
-            out.shadow_fwd.s_min.extend_from_slice(&b.smin_fwd);
-            out.shadow_fwd.s_max.extend_from_slice(&b.smax_fwd);
-            out.shadow_bwd.bits.extend_from_slice(&b.bits_bwd);
-            out.shadow_bwd.s_min.extend_from_slice(&b.smin_bwd);
-            out.shadow_bwd.s_max.extend_from_slice(&b.smax_bwd);
-        }
-        out
+        CameraBuffers::from_row_blocks(w, h, blocks)
     }
 
     /// Ground-truth colour (`H·W·3` RGB8) at the client `camera` and `time`: the same shading as
@@ -718,47 +663,6 @@ impl SyntheticScene {
                 }
             });
         out
-    }
-}
-
-/// The buffers of one block of rows, concatenated in order afterwards.
-struct ServerBlock {
-    color: Vec<u8>,
-    depth: Vec<f32>,
-    motion_fwd: Vec<f32>,
-    motion_bwd: Vec<f32>,
-    bits_fwd: Vec<u32>,
-    smin_fwd: Vec<u8>,
-    smax_fwd: Vec<u8>,
-    bits_bwd: Vec<u32>,
-    smin_bwd: Vec<u8>,
-    smax_bwd: Vec<u8>,
-}
-
-impl ServerBlock {
-    fn new(n: usize) -> Self {
-        ServerBlock {
-            color: vec![0; 3 * n],
-            depth: vec![0.0; n],
-            motion_fwd: vec![0.0; 3 * n],
-            motion_bwd: vec![0.0; 3 * n],
-            bits_fwd: vec![0; n],
-            smin_fwd: vec![0; 3 * n],
-            smax_fwd: vec![0; 3 * n],
-            bits_bwd: vec![0; n],
-            smin_bwd: vec![0; 3 * n],
-            smax_bwd: vec![0; 3 * n],
-        }
-    }
-}
-
-impl ShadowBuffers {
-    fn with_capacity(n: usize) -> Self {
-        ShadowBuffers {
-            bits: Vec::with_capacity(n),
-            s_min: Vec::with_capacity(3 * n),
-            s_max: Vec::with_capacity(3 * n),
-        }
     }
 }
 
@@ -828,7 +732,7 @@ pub fn head_pose(t: f64) -> ([f64; 3], [f64; 3]) {
 #[derive(Debug, Clone)]
 pub struct SyntheticFrame {
     /// Main camera first, then the auxiliary cameras, each with its buffers.
-    pub cams: Vec<(Camera, RenderedCamera)>,
+    pub cams: Vec<(Camera, CameraBuffers)>,
 }
 
 impl SyntheticFrame {
@@ -854,29 +758,11 @@ impl SyntheticFrame {
     /// The frame as the older (`forward = true`: forward motion and shadows) or the newer image
     /// of a pair (backward ones).
     pub fn view(&self, forward: bool) -> FrameView<'_> {
-        fn camera_view((camera, r): &(Camera, RenderedCamera), forward: bool) -> CameraView<'_> {
-            let (motion, sh) = if forward {
-                (&r.motion_fwd, &r.shadow_fwd)
-            } else {
-                (&r.motion_bwd, &r.shadow_bwd)
-            };
-            CameraView {
-                camera: *camera,
-                color: &r.color,
-                depth: &r.depth,
-                motion: Some(motion),
-                shadow: Some(ShadowView {
-                    bits: &sh.bits,
-                    s_min: &sh.s_min,
-                    s_max: &sh.s_max,
-                }),
-            }
-        }
         FrameView {
-            main: camera_view(&self.cams[0], forward),
+            main: self.cams[0].1.view(self.cams[0].0, forward),
             aux: self.cams[1..]
                 .iter()
-                .map(|c| camera_view(c, forward))
+                .map(|(camera, b)| b.view(*camera, forward))
                 .collect(),
         }
     }

@@ -291,7 +291,7 @@ fn rigid_node_animation_gives_the_analytic_motion() {
     let cam = camera();
     let rays = Rays::new(&cam, "t").unwrap();
     let t = 1.0;
-    let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap();
+    let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap().buffers;
     let snap = scene.at(t);
     let mut n = 0;
     for j in 0..cam.height {
@@ -321,7 +321,7 @@ fn skinned_motion_lands_on_the_skinned_material_point() {
     let cam = camera();
     let rays = Rays::new(&cam, "t").unwrap();
     let t = 1.0;
-    let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap();
+    let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap().buffers;
     let inv_vp = cam.view_proj().inverse().unwrap();
     let theta = |t: f64| 0.5 * PI * t / 4.0;
     let pivot = [1.0, 0.0, 0.0];
@@ -420,8 +420,14 @@ fn asset(rel: &str) -> Option<PathBuf> {
 /// Renders server frame 3 of a loaded model's scene and checks the model moves.
 fn renders_with_motion(scene: &Scene) {
     let f = crate::render_server_frame(scene, 3, 0.03, 10.0, 2).unwrap();
-    let moving = f.main.motion_fwd.iter().filter(|m| m.abs() > 1e-5).count();
-    let seen = f.main.depth.iter().filter(|&&z| z > 0.0).count();
+    let moving = f
+        .main
+        .buffers
+        .motion_fwd
+        .iter()
+        .filter(|m| m.abs() > 1e-5)
+        .count();
+    let seen = f.main.buffers.depth.iter().filter(|&&z| z > 0.0).count();
     assert!(
         seen > 0 && moving > 10,
         "{}: {moving} moving pixels",

@@ -45,7 +45,8 @@ mod server;
 mod tests;
 mod truth;
 
-use reproj_core::{Camera, Mat4};
+pub use reproj_core::ShadowBuffers;
+use reproj_core::{Camera, CameraBuffers, CameraView, Mat4};
 
 use crate::error::{Result, SceneError};
 use crate::material::Material;
@@ -93,41 +94,33 @@ fn check_samples(samples: usize) -> Result<usize> {
 /// in order, so the result does not depend on the thread count.
 const BLOCK_ROWS: usize = 16;
 
-/// The dynamic-shadow buffers of one direction (DESIGN.md "Dynamic shadows").
-#[derive(Debug, Clone, PartialEq)]
-pub struct ShadowBuffers {
-    /// `H·W` bitfields: 2 bits per subframe, subframe `j` in bits `2j, 2j+1`; 0 where the level is
-    /// the same at every subframe.
-    pub bits: Vec<u32>,
-    /// `H·W·3` RGB8 colour at the minimum level; 0 where that level is subframe 0's or bits = 0.
-    pub s_min: Vec<u8>,
-    /// `H·W·3` RGB8 colour at the maximum level; 0 where that level is subframe 0's or bits = 0.
-    pub s_max: Vec<u8>,
-}
-
-/// Every server buffer of one camera at one time.
+/// Every server buffer of one camera at one time, with the camera it was rendered at.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ServerBuffers {
-    /// Width in pixels.
-    pub width: usize,
-    /// Height in pixels.
-    pub height: usize,
     /// World → camera.
     pub view: Mat4,
     /// Camera → clip (reversed depth).
     pub proj: Mat4,
-    /// `H·W·3` RGB8 colour (continuous soft shadow).
-    pub color: Vec<u8>,
-    /// `H·W` reversed depth; 0 for the sky.
-    pub depth: Vec<f32>,
-    /// `H·W·3` object motion `P(X_{t+Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
-    pub motion_fwd: Vec<f32>,
-    /// `H·W·3` object motion `P(X_{t−Δ}) − P(X_t)` in this camera's NDC, camera held fixed.
-    pub motion_bwd: Vec<f32>,
-    /// Shadow buffers toward `t + Δ`: subframe `j` at `t + jΔ/S`.
-    pub shadow_fwd: ShadowBuffers,
-    /// Shadow buffers toward `t − Δ`: subframe `j` at `t − jΔ/S`.
-    pub shadow_bwd: ShadowBuffers,
+    /// The buffers (`width × height` pixels).
+    pub buffers: CameraBuffers,
+}
+
+impl ServerBuffers {
+    /// The camera the buffers were rendered at.
+    pub fn camera(&self) -> Camera {
+        Camera {
+            view: self.view,
+            proj: self.proj,
+            width: self.buffers.width,
+            height: self.buffers.height,
+        }
+    }
+
+    /// The buffers as the older image of a pair (`forward = true`: forward motion and shadows)
+    /// or the newer one (backward ones).
+    pub fn camera_view(&self, forward: bool) -> CameraView<'_> {
+        self.buffers.view(self.camera(), forward)
+    }
 }
 
 /// A camera's rays: its centre and `P⁻¹` for the pixel directions.

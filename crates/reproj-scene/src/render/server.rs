@@ -3,11 +3,11 @@
 //! bitfields with their `S_min`/`S_max` colours, rendered in blocks of rows.
 
 use rayon::prelude::*;
-use reproj_core::Camera;
+use reproj_core::{Camera, CameraBuffers};
 
 use super::{
     check_samples, footprint, material, mean_rgb8, pixel_color, sample, Rays, Sample,
-    ServerBuffers, ShadowBuffers, SubSample, BLOCK_ROWS,
+    ServerBuffers, SubSample, BLOCK_ROWS,
 };
 use crate::error::{Result, SceneError};
 use crate::math::{normalize, V3};
@@ -117,11 +117,11 @@ pub fn render_server(
     let bwd: Vec<Snapshot<'_>> = (1..subframes)
         .map(|j| scene.at(t - step * j as f64))
         .collect();
-    let blocks: Vec<Block> = (0..h.div_ceil(BLOCK_ROWS))
+    let blocks: Vec<CameraBuffers> = (0..h.div_ceil(BLOCK_ROWS))
         .into_par_iter()
         .map(|b| {
             let rows = BLOCK_ROWS.min(h - b * BLOCK_ROWS);
-            let mut blk = Block::new(rows * w);
+            let mut blk = CameraBuffers::zeroed(w, rows);
             let mut fp = Vec::with_capacity(n * n);
             for r in 0..rows {
                 for i in 0..w {
@@ -148,89 +148,20 @@ pub fn render_server(
                             blk.motion_bwd[3 * k + c] = (pb[c] - p[c]) as f32;
                         }
                     }
-                    for (subs, bits, smin, smax) in [
-                        (
-                            &fwd,
-                            &mut blk.bits_fwd,
-                            &mut blk.smin_fwd,
-                            &mut blk.smax_fwd,
-                        ),
-                        (
-                            &bwd,
-                            &mut blk.bits_bwd,
-                            &mut blk.smin_bwd,
-                            &mut blk.smax_bwd,
-                        ),
-                    ] {
+                    for (subs, sb) in [(&fwd, &mut blk.shadow_fwd), (&bwd, &mut blk.shadow_bwd)] {
                         let (bf, mn, mx) = shadow_field(&key, subs, &s, &fp);
-                        bits[k] = bf;
-                        smin[3 * k..3 * k + 3].copy_from_slice(&mn);
-                        smax[3 * k..3 * k + 3].copy_from_slice(&mx);
+                        sb.bits[k] = bf;
+                        sb.s_min[3 * k..3 * k + 3].copy_from_slice(&mn);
+                        sb.s_max[3 * k..3 * k + 3].copy_from_slice(&mx);
                     }
                 }
             }
             blk
         })
         .collect();
-    let n = w * h;
-    let shadow = || ShadowBuffers {
-        bits: Vec::with_capacity(n),
-        s_min: Vec::with_capacity(3 * n),
-        s_max: Vec::with_capacity(3 * n),
-    };
-    let mut out = ServerBuffers {
-        width: w,
-        height: h,
+    Ok(ServerBuffers {
         view: camera.view,
         proj: camera.proj,
-        color: Vec::with_capacity(3 * n),
-        depth: Vec::with_capacity(n),
-        motion_fwd: Vec::with_capacity(3 * n),
-        motion_bwd: Vec::with_capacity(3 * n),
-        shadow_fwd: shadow(),
-        shadow_bwd: shadow(),
-    };
-    for b in blocks {
-        out.color.extend_from_slice(&b.color);
-        out.depth.extend_from_slice(&b.depth);
-        out.motion_fwd.extend_from_slice(&b.motion_fwd);
-        out.motion_bwd.extend_from_slice(&b.motion_bwd);
-        out.shadow_fwd.bits.extend_from_slice(&b.bits_fwd);
-        out.shadow_fwd.s_min.extend_from_slice(&b.smin_fwd);
-        out.shadow_fwd.s_max.extend_from_slice(&b.smax_fwd);
-        out.shadow_bwd.bits.extend_from_slice(&b.bits_bwd);
-        out.shadow_bwd.s_min.extend_from_slice(&b.smin_bwd);
-        out.shadow_bwd.s_max.extend_from_slice(&b.smax_bwd);
-    }
-    Ok(out)
-}
-/// The buffers of one block of rows, concatenated in order afterwards.
-struct Block {
-    color: Vec<u8>,
-    depth: Vec<f32>,
-    motion_fwd: Vec<f32>,
-    motion_bwd: Vec<f32>,
-    bits_fwd: Vec<u32>,
-    smin_fwd: Vec<u8>,
-    smax_fwd: Vec<u8>,
-    bits_bwd: Vec<u32>,
-    smin_bwd: Vec<u8>,
-    smax_bwd: Vec<u8>,
-}
-
-impl Block {
-    fn new(n: usize) -> Self {
-        Block {
-            color: vec![0; 3 * n],
-            depth: vec![0.0; n],
-            motion_fwd: vec![0.0; 3 * n],
-            motion_bwd: vec![0.0; 3 * n],
-            bits_fwd: vec![0; n],
-            smin_fwd: vec![0; 3 * n],
-            smax_fwd: vec![0; 3 * n],
-            bits_bwd: vec![0; n],
-            smin_bwd: vec![0; 3 * n],
-            smax_bwd: vec![0; 3 * n],
-        }
-    }
+        buffers: CameraBuffers::from_row_blocks(w, h, blocks),
+    })
 }

@@ -57,7 +57,7 @@ fn rendering_is_deterministic_and_independent_of_the_thread_count() {
             .unwrap();
         pool.install(|| {
             (
-                render_server(&scene, &cam, t, DT, S, 3).unwrap(),
+                render_server(&scene, &cam, t, DT, S, 3).unwrap().buffers,
                 render_ground_truth(&scene, &cam, t, 3).unwrap(),
             )
         })
@@ -83,7 +83,7 @@ fn static_variants_have_no_motion_and_no_dynamic_shadow() {
     for name in crate::scenes::SCENE_NAMES {
         let scene = builtin(name, Variant::Static).unwrap();
         let cam = camera(&scene, 7, 48, 27);
-        let r = render_server(&scene, &cam, 0.7, DT, S, 2).unwrap();
+        let r = render_server(&scene, &cam, 0.7, DT, S, 2).unwrap().buffers;
         assert!(r.motion_fwd.iter().chain(&r.motion_bwd).all(|&m| m == 0.0));
         for sb in [&r.shadow_fwd, &r.shadow_bwd] {
             assert!(sb.bits.iter().all(|&b| b == 0), "{name}");
@@ -126,8 +126,10 @@ fn check_motion_consistency(name: &str, k: usize) {
     let (w, h) = (96, 54);
     let cam = camera(&scene, k, w, h);
     let t = k as f64 * DT;
-    let a = render_server(&scene, &cam, t, DT, 1, 1).unwrap();
-    let b = render_server(&scene, &cam, t + DT, DT, 1, 1).unwrap();
+    let a = render_server(&scene, &cam, t, DT, 1, 1).unwrap().buffers;
+    let b = render_server(&scene, &cam, t + DT, DT, 1, 1)
+        .unwrap()
+        .buffers;
     let (ia, ib) = (ids(&scene, &cam, t), ids(&scene, &cam, t + DT));
     for (src, dst, ids_src, ids_dst, motion) in [
         (&a, &b, &ia, &ib, &a.motion_fwd),
@@ -187,7 +189,7 @@ fn motion_unprojects_to_the_moved_material_point() {
     let (w, h) = (96, 54);
     let cam = camera(&scene, 12, w, h);
     let t = 1.2;
-    let r = render_server(&scene, &cam, t, DT, 1, 1).unwrap();
+    let r = render_server(&scene, &cam, t, DT, 1, 1).unwrap().buffers;
     let inv_vp = cam.view_proj().inverse().unwrap();
     let unproject = |x: f64, y: f64, z: f64| {
         let q = inv_vp.mul_vec([x, y, z, 1.0]);
@@ -241,7 +243,7 @@ fn shadow_bits_match_directly_rendered_subframes() {
     let (w, h) = (64, 36);
     let cam = camera(&scene, 20, w, h);
     let t = 2.0;
-    let r = render_server(&scene, &cam, t, DT, S, 1).unwrap();
+    let r = render_server(&scene, &cam, t, DT, S, 1).unwrap().buffers;
     let key = ids(&scene, &cam, t);
     let q = |f: f32| (f64::from(f) * 3.0).round() as u32;
     let mut changing = 0;
@@ -283,7 +285,7 @@ fn render_shadow_fraction_at(scene: &Scene, cam: &Camera, t: f64, p: usize) -> f
 fn shadow_colours_follow_the_levels_and_the_sky_is_far_and_still() {
     let scene = builtin("courtyard", Variant::Dynamic).unwrap();
     let cam = camera(&scene, 10, 80, 45);
-    let r = render_server(&scene, &cam, 1.0, DT, S, 3).unwrap();
+    let r = render_server(&scene, &cam, 1.0, DT, S, 3).unwrap().buffers;
     let mut with_bits = 0;
     for sb in [&r.shadow_fwd, &r.shadow_bwd] {
         for p in 0..80 * 45 {
@@ -306,7 +308,7 @@ fn shadow_colours_follow_the_levels_and_the_sky_is_far_and_still() {
     let mut sky = 0;
     // Point-sampled, so that a sky pixel is sky in all of its colour (supersampled, a thin
     // pole between two pixel centres would tint it).
-    let r = render_server(&scene, &cam, 1.0, DT, S, 1).unwrap();
+    let r = render_server(&scene, &cam, 1.0, DT, S, 1).unwrap().buffers;
     for p in 0..80 * 45 {
         if r.depth[p] == 0.0 {
             sky += 1;
@@ -355,10 +357,10 @@ fn sample_count_keeps_the_identity_and_leaves_geometry_alone() {
         let scene = builtin(name, Variant::Dynamic).unwrap();
         let cam = camera(&scene, k, 48, 27);
         let t = k as f64 * DT;
-        let renders: Vec<ServerBuffers> = [1, 2, 3]
+        let renders: Vec<reproj_core::CameraBuffers> = [1, 2, 3]
             .iter()
             .map(|&n| {
-                let r = render_server(&scene, &cam, t, DT, S, n).unwrap();
+                let r = render_server(&scene, &cam, t, DT, S, n).unwrap().buffers;
                 assert_eq!(
                     render_ground_truth(&scene, &cam, t, n).unwrap(),
                     r.color,

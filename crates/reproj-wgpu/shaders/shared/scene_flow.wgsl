@@ -105,3 +105,17 @@ fn scene_flow_point(slot: u32, i: u32, j: u32) -> SplatPoint {
     }
     return out;
 }
+
+// The point of splat-pass invocation `gid`, its scene flow stored when `store_flow`; cell -1
+// (nothing to splat, nothing stored) for an invocation outside its source image.
+fn splat_point(gid: vec3<u32>, store_flow: bool) -> SplatPoint {
+    let slot = slot_of_layer(gid.z);
+    if gid.x >= sources[slot].width || gid.y >= sources[slot].height {
+        return SplatPoint(vec4<f32>(0.0), -1, 0.0, 0u);
+    }
+    let p = scene_flow_point(slot, gid.x, gid.y);
+    if store_flow {
+        flow[sources[slot].offset + p.idx] = p.flow;
+    }
+    return p;
+}
