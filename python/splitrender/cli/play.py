@@ -75,7 +75,6 @@ def run(args: argparse.Namespace) -> int:
     from splitrender.codec.coder import CodecConfig, StreamDecoder
     from splitrender.codec.stream import StreamFile, stream_stats
     from splitrender.evaluation.demo import (
-        FC,
         DemoArgumentError,
         _json_number,
         _Video,
