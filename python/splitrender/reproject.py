@@ -23,10 +23,9 @@ from splitrender.types import (
     ReprojectOptions,
     ServerFrame,
     ShadowBuffers,
-    check_array,
     check_camera_frame,
+    check_image,
     check_shadow,
-    describe,
     native_error,
     precheck_frames,
 )
@@ -408,12 +407,7 @@ def apply_shadows(
     """``frame_color`` (``uint8[H, W, 3]``) with its dynamic shadows at ``alpha`` applied
     (seeds/000 eqs. 9–11). ``role="older"`` for forward buffers (subframe ``j`` at
     ``t + j/S``), ``"newer"`` for backward buffers (at ``t+1 − j/S``)."""
-    if not isinstance(frame_color, np.ndarray) or frame_color.ndim != 3:
-        raise InvalidInputError(
-            f"frame_color: expected uint8 array of shape (H, W, 3), got {describe(frame_color)}"
-        )
-    h, w = frame_color.shape[:2]
-    check_array("frame_color", frame_color, np.uint8, (h, w, 3))
+    h, w = check_image("frame_color", frame_color, np.uint8, 3)
     check_shadow("shadow", shadow, h, w)
     return _native.apply_shadows(
         frame_color,

@@ -75,6 +75,21 @@ def check_array(
         )
 
 
+def check_image(
+    where: str, value: object, dtype: type[np.generic], channels: int | None = None
+) -> tuple[int, int]:
+    """Raises unless ``value`` is a :func:`check_array` ``dtype`` array of shape ``(H, W)``
+    (``(H, W, channels)`` with ``channels``) for some ``H, W``; returns ``(H, W)``."""
+    ndim, shape = (2, "(H, W)") if channels is None else (3, f"(H, W, {channels})")
+    if not isinstance(value, np.ndarray) or value.ndim != ndim:
+        raise InvalidInputError(
+            f"{where}: expected {np.dtype(dtype)} array of shape {shape}, got {describe(value)}"
+        )
+    h, w = value.shape[:2]
+    check_array(where, value, dtype, (h, w) if channels is None else (h, w, channels))
+    return h, w
+
+
 def _check_int(where: str, value: object, lo: int, hi: int) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise InvalidInputError(f"{where}: expected an int, got {describe(value)}")
@@ -186,13 +201,7 @@ class ShadowBuffers:
     s_max: npt.NDArray[np.uint8]
 
     def __post_init__(self) -> None:
-        bits = self.bits
-        if not isinstance(bits, np.ndarray) or bits.ndim != 2:
-            raise InvalidInputError(
-                f"ShadowBuffers.bits: expected uint32 array of shape (H, W), got {describe(bits)}"
-            )
-        h, w = bits.shape
-        check_array("ShadowBuffers.bits", bits, np.uint32, (h, w))
+        h, w = check_image("ShadowBuffers.bits", self.bits, np.uint32)
         check_array("ShadowBuffers.s_min", self.s_min, np.uint8, (h, w, 3))
         check_array("ShadowBuffers.s_max", self.s_max, np.uint8, (h, w, 3))
 
@@ -405,13 +414,7 @@ class Reprojection:
     error: npt.NDArray[np.float32]
 
     def __post_init__(self) -> None:
-        img = self.image
-        if not isinstance(img, np.ndarray) or img.ndim != 3:
-            raise InvalidInputError(
-                f"Reprojection.image: expected uint8 array of shape (H, W, 3), got {describe(img)}"
-            )
-        h, w = img.shape[:2]
-        check_array("Reprojection.image", img, np.uint8, (h, w, 3))
+        h, w = check_image("Reprojection.image", self.image, np.uint8, 3)
         check_array("Reprojection.source", self.source, np.uint8, (h, w))
         check_array("Reprojection.error", self.error, np.float32, (h, w))
 

@@ -122,6 +122,64 @@ def frames_delay(text: str) -> int:
     return integer(text, 0, 1000)
 
 
+def command(
+    sub: Any,
+    name: str,
+    run: Callable[[argparse.Namespace], int] | None,
+    help: str,
+    description: str,
+) -> argparse.ArgumentParser:
+    """The parser of the subcommand ``name`` in ``sub`` (an ``add_subparsers`` action), with
+    ``help`` (its line in the parent's list) and ``description`` (its ``--help`` text); ``run``,
+    unless None (a parent of subcommands), is the parser's ``run`` default that :mod:`.main`
+    calls."""
+    p: argparse.ArgumentParser = sub.add_parser(name, help=help, description=description)
+    if run is not None:
+        p.set_defaults(run=run)
+    return p
+
+
+def add_out(
+    p: argparse.ArgumentParser, help: str = "output directory", metavar: str = "DIR",
+    default: Path | None = None,
+) -> None:
+    """``--out``: a ``Path``, required unless a ``default`` is given."""
+    p.add_argument("--out", type=Path, required=default is None, default=default,
+                   metavar=metavar, help=help)
+
+
+def add_quiet(p: argparse.ArgumentParser, help: str = "no progress on stderr") -> None:
+    p.add_argument("--quiet", action="store_true", help=help)
+
+
+def add_no_vmaf(p: argparse.ArgumentParser, help: str = "skip VMAF") -> None:
+    p.add_argument("--no-vmaf", action="store_true", help=help)
+
+
+def add_scale(p: argparse.ArgumentParser, default: float | None, shown: str = "") -> None:
+    """``--scale`` of the main camera; the help shows ``default`` with its size (256x144 for
+    0.1), or ``shown`` where the default is None (decided later)."""
+    if default is not None:
+        shown = f"%(default)s = {round(2560 * default)}x{round(1440 * default)}"
+    p.add_argument("--scale", type=positive, default=default, metavar="X",
+                   help=f"main camera size round(2560X) x round(1440X) (default: {shown})")
+
+
+def add_trace(p: argparse.ArgumentParser, rate: str = "") -> None:
+    """``--trace FILE`` (a head trace as client motion; ``rate``, e.g. `` (60 Hz)``, in its help)
+    and ``--trace-scale``."""
+    p.add_argument("--trace", type=Path, default=None, metavar="FILE",
+                   help=f"head trace 'px py pz pitch yaw roll t_ms' per line{rate} as client "
+                   "motion")
+    p.add_argument("--trace-scale", type=float, default=1.0, metavar="F",
+                   help="scale of the trace's translation (default: %(default)s)")
+
+
+def add_samples(p: argparse.ArgumentParser, more: str = "") -> None:
+    """``--samples N`` (:data:`SAMPLES_HELP`, then ``more``)."""
+    p.add_argument("--samples", type=samples, default=None, metavar="N", help=SAMPLES_HELP + more)
+
+
 def add_backend(p: Any, scope: str) -> None:
     p.add_argument(
         "--backend", choices=("cpu", "wgpu"), default="cpu",

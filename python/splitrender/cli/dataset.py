@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from splitrender.cli.args import names, run_stages, wrote_dir
+from splitrender.cli.args import add_out, add_quiet, command, names, run_stages, wrote_dir
 from splitrender.progress import Progress
 
 __all__ = ["add"]
@@ -16,8 +16,8 @@ _CLIENT = "client_ol"
 
 
 def add(sub: Any) -> None:
-    ds = sub.add_parser(
-        "dataset",
+    ds = command(
+        sub, "dataset", None,
         help="export a recording to, or import one from, the authors' dataset layout",
         description=(
             "Convert between recordings (`splitrender render`, docs/recording-format.md) and "
@@ -30,8 +30,8 @@ def add(sub: Any) -> None:
     )
     dsub = ds.add_subparsers(dest="dataset_command", metavar="ACTION", parser_class=type(ds))
     dsub.required = True
-    ex = dsub.add_parser(
-        "export",
+    ex = command(
+        dsub, "export", export,
         help="write a recording in the authors' dataset layout",
         description=(
             "Write the recording REC in the authors' dataset layout under DIR (created; it must "
@@ -44,13 +44,11 @@ def add(sub: Any) -> None:
             "manifest are not part of the layout."
         ),
     )
-    ex.set_defaults(run=export)
     ex.add_argument("recording", metavar="REC", type=Path, help="recording directory")
-    ex.add_argument("--out", type=Path, required=True, metavar="DIR",
-                    help="dataset directory to write (missing or empty)")
+    add_out(ex, "dataset directory to write (missing or empty)")
     _add_layout_options(ex, "--aux-names")
-    im = dsub.add_parser(
-        "import",
+    im = command(
+        dsub, "import", import_,
         help="read a dataset in the authors' layout into a recording",
         description=(
             "Read the dataset in the authors' layout under DIR, as splitrender.import_dataset "
@@ -69,22 +67,20 @@ def add(sub: Any) -> None:
             "renamed when complete."
         ),
     )
-    im.set_defaults(run=import_)
     im.add_argument("dataset", metavar="DIR", type=Path, help="dataset directory")
-    im.add_argument("--out", type=Path, required=True, metavar="REC",
-                    help="recording directory to write")
+    add_out(im, "recording directory to write", "REC")
     im.add_argument("--force", action="store_true", help="replace REC if it exists")
     _add_layout_options(im, "--aux")
 
 
-def _add_layout_options(p: Any, aux_flag: str) -> None:
+def _add_layout_options(p: argparse.ArgumentParser, aux_flag: str) -> None:
     p.add_argument(aux_flag, type=names, default=_AUX, metavar="LIST",
                    help="the directories of the two auxiliary cameras, in rig order "
                    f"(default: {','.join(_AUX)})")
     p.add_argument("--client", default=_CLIENT, metavar="NAME",
                    help="the directory of the client cameras (cam.json) and ground truth "
                    "(color/) (default: %(default)s)")
-    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_quiet(p)
 
 
 def export(args: argparse.Namespace) -> int:

@@ -6,13 +6,18 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-
 from splitrender.cli.args import (
-    SAMPLES_HELP,
     add_backend,
     add_network,
+    add_no_vmaf,
+    add_out,
+    add_quiet,
+    add_samples,
+    add_scale,
     add_scene,
+    add_trace,
     bitrates,
+    command,
     count,
     delays,
     eval_methods,
@@ -21,7 +26,6 @@ from splitrender.cli.args import (
     names,
     network_model,
     positive,
-    samples,
 )
 from splitrender.errors import SplitRenderError
 from splitrender.progress import Progress
@@ -31,8 +35,8 @@ from splitrender.reproject import METHODS
 def add_demo(sub: Any) -> None:
     from splitrender.evaluation.demo import DEFAULT_METHODS
 
-    de = sub.add_parser(
-        "demo",
+    de = command(
+        sub, "demo", demo,
         help="render, encode, stream and reproject a built-in dynamic scene; video + metrics",
         description=(
             "The whole pipeline on a built-in dynamic scene: render the server frames (10 FPS, "
@@ -53,17 +57,10 @@ def add_demo(sub: Any) -> None:
             "on 2 CPU cores; time grows with scale^2 x seconds."
         ),
     )
-    de.set_defaults(run=demo)
     add_scene(de)
-    de.add_argument(
-        "--out", type=Path, default=Path("splitrender-demo"), metavar="DIR",
-        help="output directory, created if missing; files in it are replaced "
-        "(default: %(default)s)",
-    )
-    de.add_argument(
-        "--scale", type=positive, default=0.1, metavar="X",
-        help="main camera size round(2560X) x round(1440X) (default: %(default)s = 256x144)",
-    )
+    add_out(de, "output directory, created if missing; files in it are replaced "
+            "(default: %(default)s)", default=Path("splitrender-demo"))
+    add_scale(de, 0.1)
     de.add_argument(
         "--seconds", type=positive, default=1.0, metavar="S",
         help="length, at least 0.21 s (25 client frames) and at most the scene's 4 s "
@@ -87,8 +84,8 @@ def add_demo(sub: Any) -> None:
         "120 FPS session 4x slowed down (default: %(default)s)",
     )
     add_backend(de, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
-    de.add_argument("--no-vmaf", action="store_true", help="skip VMAF (its column shows '-')")
-    de.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_no_vmaf(de, "skip VMAF (its column shows '-')")
+    add_quiet(de)
     add_network(de)
 
 
@@ -133,8 +130,8 @@ def add_eval(sub: Any) -> None:
         EvalConfig,
     )
 
-    ev = sub.add_parser(
-        "eval",
+    ev = command(
+        sub, "eval", eval_,
         help="the paper's experiments (Tables 1-3, Fig. 6) on the built-in scenes: JSON, "
         "Markdown, plots",
         description=(
@@ -162,8 +159,7 @@ def add_eval(sub: Any) -> None:
             "CPU cores (about 1 minute per scene)."
         ),
     )
-    ev.set_defaults(run=eval_)
-    ev.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    add_out(ev)
     ev.add_argument("--dataset", type=Path, default=None, metavar="DIR",
                     help="evaluate a dataset in the authors' layout instead of the built-in "
                     "scenes (Table 1 only; not with --scenes, --variants, --delays, --bitrate, "
@@ -179,9 +175,7 @@ def add_eval(sub: Any) -> None:
     ev.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
                     help="bitrate of the compressed experiments (default: the paper's 40 Mb/s "
                     "scaled by pixel count)")
-    ev.add_argument("--scale", type=positive, default=None, metavar="X",
-                    help=f"main camera size round(2560X) x round(1440X) (default: "
-                    f"{EvalConfig.scale})")
+    add_scale(ev, None, f"{EvalConfig.scale}")
     ev.add_argument("--seconds", type=positive, default=None, metavar="S",
                     help=f"length per scene (default: {EvalConfig.seconds})")
     ev.add_argument("--bitrates", type=bitrates, default=(), metavar="LIST",
@@ -194,15 +188,11 @@ def add_eval(sub: Any) -> None:
     ev.add_argument("--rd-scenes", type=names, default=None, metavar="LIST",
                     help="Figure 6 on these of the --scenes only (default: all --scenes)")
     ev.add_argument("--stereo", action="store_true", help="also Table 3 (mono vs stereo)")
-    ev.add_argument("--trace", type=Path, default=None, metavar="FILE",
-                    help="head trace 'px py pz pitch yaw roll t_ms' per line as client motion")
-    ev.add_argument("--trace-scale", type=float, default=1.0, metavar="F",
-                    help="scale of the trace's translation (default: %(default)s)")
-    ev.add_argument("--samples", type=samples, default=None, metavar="N",
-                    help=SAMPLES_HELP + " (every render: recordings and the timewarp lines)")
+    add_trace(ev)
+    add_samples(ev, " (every render: recordings and the timewarp lines)")
     add_backend(ev, "ours, ours_extrapolate and forward_splat; the other methods stay on the CPU")
-    ev.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
-    ev.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_no_vmaf(ev)
+    add_quiet(ev)
     add_network(ev, delay=False)
 
 
@@ -256,8 +246,8 @@ def eval_(args: argparse.Namespace) -> int:
 
 
 def add_bench(sub: Any) -> None:
-    be = sub.add_parser(
-        "bench",
+    be = command(
+        sub, "bench", bench,
         help="time client decoding and reprojection per method on a built-in recording",
         description=(
             "Render (once; cached in the temporary directory) two server frames of SCENE at "
@@ -273,16 +263,12 @@ def add_bench(sub: Any) -> None:
             "30 s the first time (rendering), about 15 s with the cache."
         ),
     )
-    be.set_defaults(run=bench)
     add_scene(be)
     be.add_argument(
         "--methods", type=methods, default=METHODS, metavar="LIST",
         help=f"comma-separated methods (default: all: {','.join(METHODS)})",
     )
-    be.add_argument(
-        "--scale", type=positive, default=0.5, metavar="X",
-        help="main camera size round(2560X) x round(1440X) (default: %(default)s = 1280x720)",
-    )
+    add_scale(be, 0.5)
     be.add_argument(
         "--frames", type=count, default=5, metavar="N",
         help="timed client frames per method (median) (default: %(default)s)",
@@ -293,7 +279,7 @@ def add_bench(sub: Any) -> None:
         "ms_per_frame, ns_per_pixel, decode_ms_per_server_frame",
     )
     add_backend(be, "ours, ours_extrapolate and forward_splat only")
-    be.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_quiet(be)
 
 
 def bench(args: argparse.Namespace) -> int:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from splitrender.cli.args import side
+from splitrender.cli.args import add_out, command, side
 from splitrender.imageio import write_png
 from splitrender.reproject import METHODS, reproject
 from splitrender.scene.synthetic import SyntheticScene
@@ -19,8 +19,8 @@ from splitrender.types import ClientRequest
 
 
 def add(sub: Any) -> None:
-    ex = sub.add_parser(
-        "example",
+    ex = command(
+        sub, "example", run,
         help="reproject a synthetic dynamic scene with every method and write PNGs",
         description=(
             "Render server frames 0 and 1 (10 FPS) of the synthetic dynamic scene (main camera "
@@ -30,14 +30,8 @@ def add(sub: Any) -> None:
             "against the ground truth. Pixels a method leaves unmatched stay black."
         ),
     )
-    ex.set_defaults(run=run)
-    ex.add_argument(
-        "--out",
-        type=Path,
-        default=Path("splitrender-out"),
-        metavar="DIR",
-        help="output directory, created if missing (default: %(default)s)",
-    )
+    add_out(ex, "output directory, created if missing (default: %(default)s)",
+            default=Path("splitrender-out"))
     ex.add_argument(
         "--width", type=side, default=640, metavar="W", help="main camera width (default: 640)"
     )

@@ -10,7 +10,17 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from splitrender.cli.args import add_backend, add_network, fail, network_model, positive
+from splitrender.cli.args import (
+    add_backend,
+    add_network,
+    add_no_vmaf,
+    add_out,
+    add_quiet,
+    command,
+    fail,
+    network_model,
+    positive,
+)
 from splitrender.errors import SplitRenderError
 from splitrender.imageio import write_png
 from splitrender.progress import Progress
@@ -18,8 +28,8 @@ from splitrender.reproject import METHODS
 
 
 def add(sub: Any) -> None:
-    pl = sub.add_parser(
-        "play",
+    pl = command(
+        sub, "play", run,
         help="play a recording or stream file through the network model and the client",
         description=(
             "Play SOURCE through the network model (by default the ideal link; see the network "
@@ -40,13 +50,12 @@ def add(sub: Any) -> None:
             "OUT/client_right.mp4), with the metrics per eye and their mean."
         ),
     )
-    pl.set_defaults(run=run)
     pl.add_argument("source", metavar="SOURCE", nargs="?",
                     help="recording directory, stream file or scene (or --dataset)")
     pl.add_argument("--dataset", type=Path, default=None, metavar="DIR",
                     help="play a dataset in the authors' layout (main/, left/, right/, "
                     "client_ol/) instead of SOURCE; imported into OUT/recording first")
-    pl.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    add_out(pl)
     pl.add_argument("--recording", type=Path, metavar="REC",
                     help="the recording a stream file was encoded from (needed for a stream)")
     pl.add_argument("--method", default="ours", choices=METHODS, metavar="M",
@@ -64,8 +73,8 @@ def add(sub: Any) -> None:
                     "report the metrics per eye and their mean")
     pl.add_argument("--video", action="store_true", help="write OUT/client.mp4 instead of PNGs")
     add_backend(pl, "ours, ours_extrapolate and forward_splat")
-    pl.add_argument("--no-vmaf", action="store_true", help="skip VMAF")
-    pl.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_no_vmaf(pl)
+    add_quiet(pl)
     add_network(pl)
 
 

@@ -6,7 +6,17 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from splitrender.cli.args import SAMPLES_HELP, positive, run_stages, samples, wrote_dir
+from splitrender.cli.args import (
+    add_out,
+    add_quiet,
+    add_samples,
+    add_scale,
+    add_trace,
+    command,
+    positive,
+    run_stages,
+    wrote_dir,
+)
 
 if TYPE_CHECKING:
     from splitrender.codec.stream import StreamStats
@@ -14,8 +24,8 @@ if TYPE_CHECKING:
 
 
 def add_render(sub: Any) -> None:
-    re = sub.add_parser(
-        "render",
+    re = command(
+        sub, "render", render,
         help="render a recording of a built-in scene (server buffers + ground truth)",
         description=(
             "Render SCENE with the reference renderer into a recording (docs/recording-format.md): "
@@ -30,14 +40,13 @@ def add_render(sub: Any) -> None:
             "about 70 s."
         ),
     )
-    re.set_defaults(run=render)
     re.add_argument(
         "scene",
         metavar="SCENE",
         help="built-in scene (courtyard, colonnade, lab), or a JSON scene description (*.json) that "
         "places glTF models into one; see splitrender.scene.builtin.Scene.from_description",
     )
-    re.add_argument("--out", type=Path, required=True, metavar="DIR", help="recording directory")
+    add_out(re, "recording directory")
     re.add_argument(
         "--variant",
         choices=("static", "dynamic"),
@@ -51,30 +60,12 @@ def add_render(sub: Any) -> None:
         metavar="S",
         help="length to record, at most the scene's 4 s (default: %(default)s)",
     )
-    re.add_argument(
-        "--scale",
-        type=positive,
-        default=0.125,
-        metavar="X",
-        help="main camera size round(2560X) x round(1440X) (default: %(default)s = 320x180)",
-    )
-    re.add_argument(
-        "--trace",
-        type=Path,
-        metavar="FILE",
-        help="head trace 'px py pz pitch yaw roll t_ms' per line (60 Hz) as client motion",
-    )
-    re.add_argument(
-        "--trace-scale",
-        type=float,
-        default=1.0,
-        metavar="F",
-        help="scale of the trace's translation (default: %(default)s)",
-    )
+    add_scale(re, 0.125)
+    add_trace(re, " (60 Hz)")
     re.add_argument("--stereo", action="store_true", help="two eyes (IPD 7 cm) per client frame")
-    re.add_argument("--samples", type=samples, default=None, metavar="N", help=SAMPLES_HELP)
+    add_samples(re)
     re.add_argument("--force", action="store_true", help="replace DIR if it exists")
-    re.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet(re, "no progress bar")
 
 
 def render(args: argparse.Namespace) -> int:
@@ -112,8 +103,8 @@ def render(args: argparse.Namespace) -> int:
 
 
 def add_encode(sub: Any) -> None:
-    en = sub.add_parser(
-        "encode",
+    en = command(
+        sub, "encode", encode,
         help="encode a recording into a stream file (HEVC + zstd, versioned packets)",
         description=(
             "Encode every server frame of the recording REC (from `splitrender render`) into a "
@@ -124,9 +115,8 @@ def add_encode(sub: Any) -> None:
             "and in total. The file is written under a temporary name and renamed when complete."
         ),
     )
-    en.set_defaults(run=encode)
     en.add_argument("recording", metavar="REC", type=Path, help="recording directory")
-    en.add_argument("--out", type=Path, required=True, metavar="FILE", help="stream file to write")
+    add_out(en, "stream file to write", "FILE")
     en.add_argument(
         "--bitrate",
         type=positive,
@@ -134,7 +124,7 @@ def add_encode(sub: Any) -> None:
         help="total target in Mb/s (default: the paper's 40 Mb/s at 2560x1440 scaled to the "
         "recording's main camera by pixel count)",
     )
-    en.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet(en, "no progress bar")
 
 
 def encode(args: argparse.Namespace) -> int:
