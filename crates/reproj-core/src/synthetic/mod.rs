@@ -135,9 +135,18 @@ fn checker(u: f64, v: f64, cell: f64) -> bool {
     ((u / cell).floor() as i64 + (v / cell).floor() as i64).rem_euclid(2) == 0
 }
 
+/// A texture's constants: colours `a` and `b`, checker cell, stripe period, noise cell.
+type Texture = (V3, V3, f64, f64, f64);
+
+/// The textures of the wall, floor, sphere and cube.
+const WALL: Texture = ([0.92, 0.9, 0.82], [0.45, 0.5, 0.62], 0.5, 0.05, 0.1);
+const FLOOR: Texture = ([0.95, 0.95, 0.95], [0.35, 0.55, 0.35], 0.5, 0.04, 0.125);
+const SPHERE: Texture = ([0.95, 0.3, 0.2], [0.98, 0.85, 0.3], 1.0, 0.125, 0.25);
+const CUBE: Texture = ([0.25, 0.3, 0.85], [0.9, 0.9, 0.95], 0.1, 0.025, 0.05);
+
 /// A texture: two colours on a checker of `cell`, fine stripes of period `stripe` along `u + v`,
 /// and a hashed brightness per `noise` cell.
-fn texture(u: f64, v: f64, a: V3, b: V3, cell: f64, stripe: f64, noise: f64, salt: u64) -> V3 {
+fn texture(u: f64, v: f64, (a, b, cell, stripe, noise): Texture, salt: u64) -> V3 {
     let base = if checker(u, v, cell) { a } else { b };
     let st = if ((u + v) / stripe).floor() as i64 & 1 == 0 {
         1.0
@@ -360,48 +369,15 @@ impl SyntheticScene {
     fn surface(&self, obj: Obj, x: V3, pose: &Pose) -> (V3, V3) {
         match obj {
             Obj::Sky => ([0.0; 3], [0.0, 0.0, 1.0]),
-            Obj::Wall => (
-                texture(
-                    x[0],
-                    x[1],
-                    [0.92, 0.9, 0.82],
-                    [0.45, 0.5, 0.62],
-                    0.5,
-                    0.05,
-                    0.1,
-                    1,
-                ),
-                [0.0, 0.0, 1.0],
-            ),
-            Obj::Floor => (
-                texture(
-                    x[0],
-                    x[2],
-                    [0.95, 0.95, 0.95],
-                    [0.35, 0.55, 0.35],
-                    0.5,
-                    0.04,
-                    0.125,
-                    2,
-                ),
-                [0.0, 1.0, 0.0],
-            ),
+            Obj::Wall => (texture(x[0], x[1], WALL, 1), [0.0, 0.0, 1.0]),
+            Obj::Floor => (texture(x[0], x[2], FLOOR, 2), [0.0, 1.0, 0.0]),
             Obj::Sphere => {
                 let n = normalize(sub(x, pose.sphere));
                 // Texture in the sphere's own frame, so that it turns with the spin.
                 let u = rotate(n, spin_axis(), -pose.spin);
                 let lon = u[2].atan2(u[0]) / (2.0 * PI) + 0.5;
                 let lat = u[1].clamp(-1.0, 1.0).asin() / PI + 0.5;
-                let alb = texture(
-                    lon * 16.0,
-                    lat * 8.0,
-                    [0.95, 0.3, 0.2],
-                    [0.98, 0.85, 0.3],
-                    1.0,
-                    0.125,
-                    0.25,
-                    3,
-                );
+                let alb = texture(lon * 16.0, lat * 8.0, SPHERE, 3);
                 (alb, n)
             }
             Obj::Cube => {
@@ -413,16 +389,7 @@ impl SyntheticScene {
                 n[k] = l[k].signum();
                 // The two in-face coordinates, in the cube's frame (it moves with the cube).
                 let (u, v) = (l[(k + 1) % 3], l[(k + 2) % 3]);
-                let alb = texture(
-                    u,
-                    v,
-                    [0.25, 0.3, 0.85],
-                    [0.9, 0.9, 0.95],
-                    0.1,
-                    0.025,
-                    0.05,
-                    4 + k as u64,
-                );
+                let alb = texture(u, v, CUBE, 4 + k as u64);
                 (alb, n)
             }
         }
