@@ -8,6 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
+from splitrender.cli.help import DESCRIPTION, HELP
 from splitrender.errors import SplitRenderError
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -126,14 +127,14 @@ def command(
     sub: Any,
     name: str,
     run: Callable[[argparse.Namespace], int] | None,
-    help: str,
-    description: str,
+    key: str | None = None,
 ) -> argparse.ArgumentParser:
-    """The parser of the subcommand ``name`` in ``sub`` (an ``add_subparsers`` action), with
-    ``help`` (its line in the parent's list) and ``description`` (its ``--help`` text); ``run``,
-    unless None (a parent of subcommands), is the parser's ``run`` default that :mod:`.main`
-    calls."""
-    p: argparse.ArgumentParser = sub.add_parser(name, help=help, description=description)
+    """The parser of the subcommand ``name`` in ``sub`` (an ``add_subparsers`` action), with its
+    line in the parent's list and its ``--help`` text from :mod:`.help` (under ``key``, by default
+    ``name``); ``run``, unless None (a parent of subcommands), is the parser's ``run`` default
+    that :mod:`.main` calls."""
+    k = name if key is None else key
+    p: argparse.ArgumentParser = sub.add_parser(name, help=HELP[k], description=DESCRIPTION[k])
     if run is not None:
         p.set_defaults(run=run)
     return p

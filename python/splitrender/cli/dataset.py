@@ -16,57 +16,14 @@ _CLIENT = "client_ol"
 
 
 def add(sub: Any) -> None:
-    ds = command(
-        sub, "dataset", None,
-        help="export a recording to, or import one from, the authors' dataset layout",
-        description=(
-            "Convert between recordings (`splitrender render`, docs/recording-format.md) and "
-            "the dataset layout of the paper's reference implementation (docs/dataset-format.md: "
-            "per camera a directory with cam.json, color/NNNN.png, depth/NNNN.exr, "
-            "forward/backwardFlowField/NNNN.exr and the forward/backward shadow PNGs; the client "
-            "cameras and ground truth in a client directory). See `splitrender dataset export "
-            "--help` and `splitrender dataset import --help`."
-        ),
-    )
+    ds = command(sub, "dataset", None)
     dsub = ds.add_subparsers(dest="dataset_command", metavar="ACTION", parser_class=type(ds))
     dsub.required = True
-    ex = command(
-        dsub, "export", export,
-        help="write a recording in the authors' dataset layout",
-        description=(
-            "Write the recording REC in the authors' dataset layout under DIR (created; it must "
-            "not exist or be empty), as splitrender.export_dataset does: the main camera in "
-            "DIR/main/, our auxiliary cameras in DIR/<--aux-names>/, the client's cameras and "
-            "ground truth (the left eye of a stereo recording) in DIR/<--client>/. Depth and "
-            "motion are written as half floats (relative error <= 2^-11); colours, shadow bits "
-            "and matrices are exact. The rates go to every cam.json (serverFps, shadowFps = "
-            "serverFps x subframes, clientFps); the scene name, scale and client motion of the "
-            "manifest are not part of the layout."
-        ),
-    )
+    ex = command(dsub, "export", export, key="dataset export")
     ex.add_argument("recording", metavar="REC", type=Path, help="recording directory")
     add_out(ex, "dataset directory to write (missing or empty)")
     _add_layout_options(ex, "--aux-names")
-    im = command(
-        dsub, "import", import_,
-        help="read a dataset in the authors' layout into a recording",
-        description=(
-            "Read the dataset in the authors' layout under DIR, as splitrender.import_dataset "
-            "does (main camera in DIR/main/, the two auxiliary cameras --aux, the client cameras "
-            "and ground truth in --client; converted to our conventions, see "
-            "docs/dataset-format.md), and write it as the recording REC, which `splitrender "
-            "play`, `encode` and the API read like a rendered one. Server frame k is at "
-            "k / serverFps, client frame n at n / clientFps; the recording lasts N / clientFps "
-            "s for the N client frames whose times lie before the last server frame's, so that "
-            "every client frame has a pair. Its manifest says scene = the folder's name, "
-            "variant 'dataset', client_motion {source: 'dataset'}, samples 1 (unknown) and the "
-            "scale, near and far derived from the main camera (width / 2560, its projection). "
-            "Buffers the layout has no slot for (frame 0's backward ones) are zero: no motion, "
-            "no shadow change. The client directory must have color/ (the ground truth) and "
-            "the client cameras the main camera's size. REC is written as REC.partial-<pid> and "
-            "renamed when complete."
-        ),
-    )
+    im = command(dsub, "import", import_, key="dataset import")
     im.add_argument("dataset", metavar="DIR", type=Path, help="dataset directory")
     add_out(im, "recording directory to write", "REC")
     im.add_argument("--force", action="store_true", help="replace REC if it exists")

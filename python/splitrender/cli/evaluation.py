@@ -35,28 +35,7 @@ from splitrender.reproject import METHODS
 def add_demo(sub: Any) -> None:
     from splitrender.evaluation.demo import DEFAULT_METHODS
 
-    de = command(
-        sub, "demo", demo,
-        help="render, encode, stream and reproject a built-in dynamic scene; video + metrics",
-        description=(
-            "The whole pipeline on a built-in dynamic scene: render the server frames (10 FPS, "
-            "main + 2 auxiliary cameras, every buffer) and the ground-truth client frames "
-            "(120 FPS, at the client's actual pose, which deviates from the server's predicted "
-            "one; with --stereo both eyes, IPD 7 cm); encode the server frames at --bitrate and "
-            "decode them; play them through the network model (by default the ideal link; see "
-            "the network model options) and the client with every method; score each method "
-            "against the ground truth (SSIM, FLIP, PSNR, VMAF; first and last 12 client frames "
-            "excluded; with --stereo per eye, the rows holding the mean of both eyes and "
-            "summary.json each eye's too). Writes to --out: video.mp4 (ground truth "
-            "| ours | FLIP error map of ours, side by side, at --video-fps), stills/*.png "
-            "(three client frames: ground truth, every method, the FLIP map, the side-by-side; "
-            "the left eye with --stereo), "
-            "summary.md and summary.json (the network settings; per method: ssim, flip, psnr, "
-            "vmaf, mbps, frames, modes), "
-            "and prints the table. The defaults (courtyard at 256x144, 1 s) take about 1.5 minutes "
-            "on 2 CPU cores; time grows with scale^2 x seconds."
-        ),
-    )
+    de = command(sub, "demo", demo)
     add_scene(de)
     add_out(de, "output directory, created if missing; files in it are replaced "
             "(default: %(default)s)", default=Path("splitrender-demo"))
@@ -130,35 +109,7 @@ def add_eval(sub: Any) -> None:
         EvalConfig,
     )
 
-    ev = command(
-        sub, "eval", eval_,
-        help="the paper's experiments (Tables 1-3, Fig. 6) on the built-in scenes: JSON, "
-        "Markdown, plots",
-        description=(
-            "Table 1: every --methods x --scenes x --variants on uncompressed server frames "
-            "(l = 0). Table 2: ours on the dynamic scenes with --delays extra client "
-            "frames, compressed at --bitrate, plus ours_extrapolate (l = 0). Table 3 (--stereo): "
-            "every method, mono vs stereo, compressed. Figure 6 (--bitrates, on --rd-scenes): "
-            "every method at each bitrate plus the references 'video_streaming' (the ground "
-            "truth as one 120 FPS HEVC video) and 'timewarp_10fps/_30fps/_60fps' (main colour "
-            "and depth rendered at 10/30/60 FPS with 100/33.3/16.7 ms prediction, timewarped); "
-            "prints the bitrates at which ours reaches VMAF 60 and 80. 'video_interp' (a "
-            "--methods entry, not in Tables 2-3) is FFmpeg's minterpolate of the server colour "
-            "video from 10 to 120 FPS. Recordings are rendered once per "
-            "(scene, variant) into OUT/recordings/ and reused. Every experiment plays through "
-            "the network model given by the network model options (default: the ideal link), "
-            "with l = 0 but in Table 2. With --dataset DIR (a dataset in the authors' layout, "
-            "imported into OUT/recordings/<DIR's name>-dataset first) instead of the built-in "
-            "scenes: Table 1 only, every method on it as the scene <DIR's name> (variant "
-            "'dataset'), at its own size, rates and length. Writes OUT/results.json (a list "
-            "of rows with the keys scene, variant, method, bitrate_mbps (null: uncompressed), "
-            "delay, stereo, ssim, flip, psnr, vmaf, mbps, frames, network (the link's "
-            "bandwidth_mbps, latency_ms, jitter_ms, loss, seed, extra_delay_frames; null for "
-            "video_interp and video_streaming, which bypass it)), OUT/tables.md and "
-            "OUT/delays.png (+ OUT/rate_distortion.png). The defaults take about 3 minutes on 2 "
-            "CPU cores (about 1 minute per scene)."
-        ),
-    )
+    ev = command(sub, "eval", eval_)
     add_out(ev)
     ev.add_argument("--dataset", type=Path, default=None, metavar="DIR",
                     help="evaluate a dataset in the authors' layout instead of the built-in "
@@ -246,23 +197,7 @@ def eval_(args: argparse.Namespace) -> int:
 
 
 def add_bench(sub: Any) -> None:
-    be = command(
-        sub, "bench", bench,
-        help="time client decoding and reprojection per method on a built-in recording",
-        description=(
-            "Render (once; cached in the temporary directory) two server frames of SCENE at "
-            "--scale, encode them at the paper's 40 Mb/s scaled by pixel count and time their "
-            "decoding (median ms per server frame), then time reproject() between the two "
-            "decoded frames per method on --frames client frames (median, after one warm-up). "
-            "Prints per method: ms per client frame, FPS, ns per output pixel, MB touched and "
-            "effective GB/s, where bytes touched = the source buffers the method reads (ours: "
-            "colour, depth, one motion and one shadow direction of every camera of both frames) "
-            "+ the output written (W*H*3), intermediates not counted. With --backend wgpu the "
-        "pair is uploaded once and each client frame uploads its pose and downloads the image. "
-            "Time on 2 cores at the default scale 0.5 (1280x720, the Targets' size): about "
-            "30 s the first time (rendering), about 15 s with the cache."
-        ),
-    )
+    be = command(sub, "bench", bench)
     add_scene(be)
     be.add_argument(
         "--methods", type=methods, default=METHODS, metavar="LIST",

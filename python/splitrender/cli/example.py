@@ -19,17 +19,7 @@ from splitrender.types import ClientRequest
 
 
 def add(sub: Any) -> None:
-    ex = command(
-        sub, "example", run,
-        help="reproject a synthetic dynamic scene with every method and write PNGs",
-        description=(
-            "Render server frames 0 and 1 (10 FPS) of the synthetic dynamic scene (main camera "
-            "plus two auxiliary cameras), reproject client frame 7 at 120 FPS (between them) at "
-            "the client's own pose with every method, write <method>.png, ground_truth.png and "
-            "montage.png to --out, and print each method's mean absolute error (MAE, 0-255) "
-            "against the ground truth. Pixels a method leaves unmatched stay black."
-        ),
-    )
+    ex = command(sub, "example", run)
     add_out(ex, "output directory, created if missing (default: %(default)s)",
             default=Path("splitrender-out"))
     ex.add_argument(

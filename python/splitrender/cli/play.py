@@ -28,28 +28,7 @@ from splitrender.reproject import METHODS
 
 
 def add(sub: Any) -> None:
-    pl = command(
-        sub, "play", run,
-        help="play a recording or stream file through the network model and the client",
-        description=(
-            "Play SOURCE through the network model (by default the ideal link; see the network "
-            "model options) and the client with --method, and score the client frames against the "
-            "ground truth (SSIM, FLIP, PSNR, VMAF; first and last 12 client frames excluded). "
-            "SOURCE is a recording directory (`splitrender render`; its server frames are played "
-            "uncompressed, or encoded and decoded at --bitrate), a stream file (`splitrender "
-            "encode`; --recording gives the recording it was encoded from, for the client poses "
-            "and the ground truth), or a built-in scene name (rendered at --scale/--seconds into "
-            "OUT/recording first); or, with --dataset DIR instead of SOURCE, a dataset in the "
-            "authors' layout (imported into OUT/recording first, as `splitrender dataset import` "
-            "does). Writes OUT/frames/NNNN.png per client frame (or OUT/client.mp4 with --video) "
-            "and OUT/play.json (the source, the method, the network settings, the mode counts, "
-            "the mode of every client frame, every server frame's arrival time in seconds or "
-            "null when lost, the metrics); prints the mode counts (interpolate, extrapolate, "
-            "hold) and the metrics. A stereo recording plays its left eye, or with --stereo "
-            "both eyes (OUT/frames/left/, OUT/frames/right/ or OUT/client_left.mp4, "
-            "OUT/client_right.mp4), with the metrics per eye and their mean."
-        ),
-    )
+    pl = command(sub, "play", run)
     pl.add_argument("source", metavar="SOURCE", nargs="?",
                     help="recording directory, stream file or scene (or --dataset)")
     pl.add_argument("--dataset", type=Path, default=None, metavar="DIR",

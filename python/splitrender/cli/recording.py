@@ -24,22 +24,7 @@ if TYPE_CHECKING:
 
 
 def add_render(sub: Any) -> None:
-    re = command(
-        sub, "render", render,
-        help="render a recording of a built-in scene (server buffers + ground truth)",
-        description=(
-            "Render SCENE with the reference renderer into a recording (docs/recording-format.md): "
-            "every buffer of the main and both auxiliary cameras for every server frame (10 FPS, "
-            "4 shadow subframes), the ground-truth client frames (120 FPS) and the client poses. "
-            "Client motion: the scene's head-box path with its deterministic deviation, the server "
-            "predicting with a 100 ms delay; or a recorded head trace (--trace), re-anchored at "
-            "the path's start. The recording is written to DIR.partial-<pid> and renamed to DIR "
-            "when complete. Rendering the same arguments twice gives identical bytes. Time: on 2 "
-            "CPU cores about 0.8 s per server frame and 0.23 s per client frame at scale 0.125 "
-            "(320x180, 3x3 colour samples), about 4x that at 0.25 (640x360); the defaults take "
-            "about 70 s."
-        ),
-    )
+    re = command(sub, "render", render)
     re.add_argument(
         "scene",
         metavar="SCENE",
@@ -103,18 +88,7 @@ def render(args: argparse.Namespace) -> int:
 
 
 def add_encode(sub: Any) -> None:
-    en = command(
-        sub, "encode", encode,
-        help="encode a recording into a stream file (HEVC + zstd, versioned packets)",
-        description=(
-            "Encode every server frame of the recording REC (from `splitrender render`) into a "
-            "stream file (docs/stream-format.md): colour and shadow colours in 8-bit HEVC, depth "
-            "and motion in 12-bit HEVC, shadow bitfields losslessly with zstd, split over the "
-            "cameras (main 60 %%, auxiliary 20 %% each) and buffers (colour 50 %%, depth 20 %%, "
-            "motion 20 %%, shadow colours 10 %%). Prints the achieved Mb/s per buffer, per camera "
-            "and in total. The file is written under a temporary name and renamed when complete."
-        ),
-    )
+    en = command(sub, "encode", encode)
     en.add_argument("recording", metavar="REC", type=Path, help="recording directory")
     add_out(en, "stream file to write", "FILE")
     en.add_argument(
