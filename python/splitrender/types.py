@@ -306,7 +306,10 @@ class ReprojectOptions:
 
     eps_e: float = 0.002
     """``ε_e``: reprojection-error threshold of the main camera, in NDC units scaled so that 2.0
-    is the image's short side (REFERENCE.md §2.5). (ours, forward_splat)"""
+    is the image's short side (REFERENCE.md §2.5), given at the paper's 2560×1440: the core
+    multiplies it by ``1440 / min(client width, height)``, so that it stays the same number of
+    pixels at every resolution (``Reprojection.error`` is compared against that scaled value).
+    (ours, forward_splat)"""
 
     eps_z: float = 0.001
     """``ε_z``: depth-similarity threshold of the main camera in NDC z units. (ours,
