@@ -1,11 +1,12 @@
 // Pass 2, per output pixel (and per auxiliary grid cell): window search, fixed-point iteration,
 // Algorithm 1, auxiliary merge and Algorithm 2, after reproj-core `ours/` (search.rs,
 // select.rs, auxiliary.rs: `Resolve::search`, `best_match`, `color_of`, `second_chance`,
-// `correspondence`, `resolve_aux_grid`, `resolve_pixel`). Two steps are arranged differently on the CPU, with the
-// same results: the CPU does the window search for all cells at once as a separable minimum
-// filter (`window_min`), where a GPU invocation scans its 3×3 window directly, and it evaluates
-// Algorithm 2's full scene flows (eqs. 2, 3) for every pixel in pass 1 (`full_flow_row`), where
-// the GPU evaluates them for the chosen match only (`correspondence` below).
+// `correspondence`, `resolve_aux_grid`, `resolve_pixel`). Two steps are arranged differently on
+// the CPU, with the same results: the CPU does the window search for all cells at once as a
+// separable minimum filter (`window_min`), where a GPU invocation scans its 3×3 window directly,
+// and it evaluates Algorithm 2's full scene flows (eqs. 2, 3) for every pixel in pass 1
+// (`full_flow_row`), where the GPU evaluates them for the chosen match only (`correspondence`
+// below).
 
 // M_cam per source pixel (pass 1): xyz flow, w = 1 / 0 visible in main, -1 invalid.
 @group(0) @binding(3) var<storage, read_write> flow: array<vec4<f32>>;
