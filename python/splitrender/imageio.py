@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import io
 import os
-from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
 from splitrender.errors import InvalidInputError
+from splitrender.files import write_atomic
 
 __all__ = ["encode_png", "write_png"]
 
@@ -48,14 +48,6 @@ def encode_png(image: npt.NDArray[np.uint8], *, level: int = 6) -> bytes:
 def write_png(
     path: str | os.PathLike[str], image: npt.NDArray[np.uint8], *, level: int = 6
 ) -> None:
-    """Writes ``image`` (see :func:`encode_png`) to ``path`` as PNG, atomically."""
-    data = encode_png(image, level=level)
-    dest = Path(path)
-    tmp = dest.with_name(f".{dest.name}.partial-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.replace(tmp, dest)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Writes ``image`` (see :func:`encode_png`) to ``path`` as PNG, atomically
+    (:func:`splitrender.files.write_atomic`)."""
+    write_atomic(path, encode_png(image, level=level))

@@ -28,6 +28,7 @@ from splitrender.cli.args import (
     positive,
 )
 from splitrender.errors import SplitRenderError
+from splitrender.files import write_atomic
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 
@@ -231,9 +232,7 @@ def bench(args: argparse.Namespace) -> int:
         return fail(str(e))
     print(format_rows(rows))
     if args.json is not None:
-        args.json.write_text(
-            json.dumps([r.to_json() for r in rows], indent=1) + "\n", encoding="utf-8"
-        )
+        write_atomic(args.json, json.dumps([r.to_json() for r in rows], indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0
 

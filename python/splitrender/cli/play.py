@@ -22,6 +22,7 @@ from splitrender.cli.args import (
     positive,
 )
 from splitrender.errors import SplitRenderError
+from splitrender.files import write_atomic
 from splitrender.imageio import write_png
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -226,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
     if args.stereo:
         data["eyes"] = [{"eye": name, **{k: _json_number(s.row()[k]) for k in numbers}}
                         for name, s in zip(names, scored)]
-    (out / "play.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    write_atomic(out / "play.json", json.dumps(data, indent=1) + "\n")
     if args.video:
         where = ", ".join(video_files)
     else:

@@ -1,11 +1,12 @@
 """The client runtime: :class:`Client`, the object a headset integration drives (feed it server
-frames as they arrive and ask for a frame per display refresh), and :func:`play`, the batch path
-the experiments use (a whole session through a :class:`~splitrender.net.model.NetworkModel`).
+frames as they arrive and ask for a frame per display refresh). The batch path the experiments
+use, a whole session through a :class:`~splitrender.net.model.NetworkModel`, is
+:func:`splitrender.client.playback.play`, which drives a :class:`Client`.
 
 Which frames, ``α`` and mode each client frame uses is decided by
 :func:`splitrender.net.model.choose_frames` (see :mod:`splitrender.net.model` for the timing rules,
-REFERENCE.md §2.1), so :func:`play` and :meth:`splitrender.net.model.Schedule.build` agree frame
-for frame.
+REFERENCE.md §2.1), so :func:`~splitrender.client.playback.play` and
+:meth:`splitrender.net.model.Schedule.build` agree frame for frame.
 """
 
 from __future__ import annotations

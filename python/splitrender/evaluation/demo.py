@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.errors import InvalidInputError
+from splitrender.files import write_atomic
 from splitrender.net.model import NetworkModel
 from splitrender.progress import Progress
 from splitrender.imageio import write_png
@@ -461,7 +462,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
             for r in rows
         ],
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    write_atomic(out / "summary.json", json.dumps(summary, indent=1) + "\n")
     md = [
         f"# splitrender demo: {scene.name} (dynamic), {w}x{h}",
         "",
@@ -484,6 +485,6 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         ),
         "",
     ]
-    (out / "summary.md").write_text("\n".join(md), encoding="utf-8")
+    write_atomic(out / "summary.md", "\n".join(md))
     files += [out / "summary.md", out / "summary.json"]
     return result

@@ -64,6 +64,7 @@ from splitrender.evaluation.demo import (
     metric_names,
 )
 from splitrender.errors import SplitRenderError
+from splitrender.files import write_atomic
 from splitrender.progress import Progress
 from splitrender.evaluation.metrics import SKIP_FRAMES
 from splitrender.net.model import NetworkModel
@@ -406,7 +407,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     def write_results() -> None:
         data = [{k: (_json_number(r[k]) if k in ("ssim", "flip", "psnr", "vmaf", "mbps")
                      else r[k]) for k in ROW_KEYS} for r in rows]
-        (out / "results.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+        write_atomic(out / "results.json", json.dumps(data, indent=1) + "\n")
 
     def add_table(
         title: str, note: str, trows: list[Row], keys: tuple[str, ...], group: tuple[str, ...]
@@ -588,7 +589,7 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
     ]
     for title, note, trows, keys, group in tables:
         md += [f"## {title}", "", note, "", format_rows(trows, keys, group), ""]
-    (out / "tables.md").write_text("\n".join(md), encoding="utf-8")
+    write_atomic(out / "tables.md", "\n".join(md))
     files.append(out / "tables.md")
     png = _plot_delays(out / "delays.png", t2, metrics) if t2 else None
     if png is not None:
