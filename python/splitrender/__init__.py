@@ -15,7 +15,7 @@ Conventions: shared/DESIGN.md ("Conventions").
 """
 
 from splitrender._native import BidirHistory, __version__
-from splitrender.client import Client, PlaybackResult, play
+from splitrender.client import Client, PlaybackResult, RealtimeClient, play
 from splitrender.codec import (
     CodecConfig,
     StreamDecoder,
@@ -79,6 +79,7 @@ __all__ = [
     "ModelPlacement",
     "NetworkModel",
     "PlaybackResult",
+    "RealtimeClient",
     "Recording",
     "RecordingError",
     "Reprojection",

@@ -201,20 +201,37 @@ def add_bench(sub: Any) -> None:
     be = command(sub, "bench", bench)
     add_scene(be)
     be.add_argument(
-        "--methods", type=methods, default=METHODS, metavar="LIST",
-        help=f"comma-separated methods (default: all: {','.join(METHODS)})",
+        "--methods", type=methods, default=None, metavar="LIST",
+        help=f"comma-separated methods (default: all: {','.join(METHODS)}; with --realtime "
+        "one method, default ours)",
     )
-    add_scale(be, 0.5)
+    add_scale(be, None, "0.5 = 1280x720; with --realtime 0.25 = 640x360")
     be.add_argument(
         "--frames", type=count, default=5, metavar="N",
         help="timed client frames per method (median) (default: %(default)s)",
     )
     be.add_argument(
+        "--realtime", action="store_true",
+        help="run the real-time client loop at wall-clock 120 FPS instead (decoding and pair "
+        "preparation on a worker thread) and report frame times and deadline misses",
+    )
+    be.add_argument(
+        "--seconds", type=positive, default=10.0, metavar="S",
+        help="with --realtime: seconds of display (default: %(default)s)",
+    )
+    be.add_argument(
+        "--stream", type=Path, default=None, metavar="FILE",
+        help="with --realtime: play this stream file instead of the built-in --scene",
+    )
+    be.add_argument(
         "--json", type=Path, default=None, metavar="FILE",
         help="also write a JSON list of rows with the keys method, backend, width, height, "
-        "ms_per_frame, ns_per_pixel, decode_ms_per_server_frame",
+        "ms_per_frame, ns_per_pixel, decode_ms_per_server_frame, copy_floor_ms, "
+        "ratio_to_floor (with --realtime: one object with at least method, source, width, "
+        "height, frames, deadline_misses, frame_ms_p50, frame_ms_p99, "
+        "decode_ms_per_server_frame)",
     )
-    add_backend(be, "ours, ours_extrapolate and forward_splat only")
+    add_backend(be, "ours, ours_extrapolate and forward_splat only; not with --realtime")
     add_quiet(be)
 
 
@@ -223,10 +240,16 @@ def bench(args: argparse.Namespace) -> int:
 
     from splitrender.evaluation.bench import BenchArgumentError, format_rows, run_bench
 
+    if args.realtime:
+        return _bench_realtime(args)
+    for flag, given in (("--stream", args.stream is not None),):
+        if given:
+            return fail(f"{flag} goes with --realtime")
     try:
         rows = run_bench(
-            args.scene, tuple(args.methods), args.scale, args.frames, progress=not args.quiet,
-            backend=args.backend,
+            args.scene, tuple(args.methods or METHODS),
+            0.5 if args.scale is None else args.scale, args.frames,
+            progress=not args.quiet, backend=args.backend,
         )
     except BenchArgumentError as e:
         return fail(str(e))
@@ -237,3 +260,28 @@ def bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_realtime(args: argparse.Namespace) -> int:
+    from splitrender.errors import InvalidInputError, StreamError
+    from splitrender.evaluation.bench_realtime import (
+        format_realtime,
+        run_realtime_bench,
+        write_realtime_json,
+    )
+
+    if args.backend != "cpu":
+        return fail("--realtime runs the CPU client; --backend wgpu is not supported with it")
+    chosen = args.methods or ("ours",)
+    if len(chosen) != 1:
+        return fail(f"--methods: --realtime runs one method, got {len(chosen)}")
+    try:
+        result = run_realtime_bench(
+            args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
+            stream=args.stream, progress=not args.quiet,
+        )
+    except (InvalidInputError, StreamError) as e:
+        return fail(str(e))
+    print(format_realtime(result))
+    if args.json is not None:
+        write_realtime_json(args.json, result)
+        print(f"wrote {args.json}")
+    return 0

@@ -31,6 +31,8 @@ from splitrender.types import Camera, ReprojectOptions, ServerFrame, check_serve
 __all__ = ["Client"]
 
 _Image = npt.NDArray[np.uint8]
+#: A server-frame pair by index: ``(older, newer)``; ``older`` is ``None`` when extrapolating.
+_Pair = tuple[int | None, int]
 
 
 class Client:
@@ -91,7 +93,15 @@ class Client:
         # What the caller knows each held frame by, for messages: "frame(index=3)", "frames[3]".
         self._paths: dict[int, str] = {}
         self._previous: dict[int, _Image] = {}
-        self._history: dict[int, tuple[tuple[int, int] | None, _native.BidirHistory]] = {}
+        # Per eye: the pair last rendered, its history, and the eye's own history (reset and
+        # reused when the pair changes; never one that was adopted, which the preparing side
+        # may reuse once retired).
+        self._history: dict[int, tuple[_Pair | None, _native.BidirHistory]] = {}
+        self._own: dict[int, _native.BidirHistory] = {}
+        # Pair state prepared off the display path (adopt_prepared), and the histories of pairs
+        # that can no longer be used, for the preparing side to reuse (their buffers are warm).
+        self._prepared: dict[_Pair, _native.BidirHistory] = {}
+        self._retired: list[_native.BidirHistory] = []
         self.last_info: ClientFrameInfo | None = None
         """How the last rendered frame was made (frames used, ``α``, mode)."""
         self._gpu = GpuReprojector() if self.backend == "wgpu" else None
@@ -167,13 +177,7 @@ class Client:
             image = prev.copy() if prev is not None else np.zeros((*camera.shape, 3), np.uint8)
         else:
             older = None if info.older is None else self._frames[info.older]
-            # One history per eye and server-frame pair: backward_bidir's previous B-frame, and the
-            # pair-level work of ours (done once per pair instead of once per client frame).
-            pair = (info.older, info.newer) if info.older is not None else None
-            last_pair, history = self._history.get(eye, (None, _native.BidirHistory()))
-            if pair != last_pair:
-                history.reset()
-            self._history[eye] = (pair, history)
+            history = self._history_for((info.older, info.newer), eye)
             assert info.alpha is not None
             if self._gpu is not None:
                 image = self._render_gpu(older, info.older, info.newer, camera, info.alpha, prev, eye)
@@ -196,8 +200,50 @@ class Client:
         for j in [j for j in self._frames if j not in self._buffer.times]:
             del self._frames[j]
             del self._paths[j]
+        for pair in [p for p in self._prepared if p[1] not in self._frames]:
+            self._retired.append(self._prepared.pop(pair))
         self.last_info = info
         return image
+
+    def _history_for(self, pair: _Pair, eye: int) -> _native.BidirHistory:
+        """The history of ``eye`` for ``pair``: backward_bidir's previous B-frame, and the
+        pair-level work of ours (done once per pair instead of once per client frame). A history
+        prepared for the pair (:meth:`adopt_prepared`) is used as it is; otherwise the eye's own
+        is reset when the pair changes (its buffers are kept)."""
+        last_pair, last = self._history.get(eye, (None, None))
+        prepared = self._prepared.get(pair)
+        if prepared is not None and self.method != "backward_bidir":
+            history = prepared
+        else:
+            history = self._own.setdefault(eye, _native.BidirHistory())
+            if pair != last_pair or last is not history:
+                history.reset()
+        self._history[eye] = (pair, history)
+        return history
+
+    def adopt_prepared(
+        self, older: int | None, newer: int, history: _native.BidirHistory
+    ) -> None:
+        """Uses ``history``, whose pair-level state for the held frames ``(older, newer)`` was
+        computed off the display path (:func:`splitrender.prepare_pair`), for every client frame
+        that renders that pair, so that the first of them costs no more than the others.
+        ``backward_bidir`` keeps its own per-eye history (its state depends on the pose)."""
+        self._prepared[(older, newer)] = history
+
+    def held_frame(self, index: int) -> ServerFrame | None:
+        """The held server frame ``index``, or ``None``."""
+        return self._frames.get(index)
+
+    def was_prepared(self, older: int | None, newer: int) -> bool:
+        """Whether client frames of the pair ``(older, newer)`` use a history adopted with
+        :meth:`adopt_prepared`."""
+        return self.method != "backward_bidir" and (older, newer) in self._prepared
+
+    def retired_histories(self) -> list[_native.BidirHistory]:
+        """Takes the adopted histories whose pair can no longer be rendered (reuse them for the
+        next :func:`splitrender.prepare_pair`: their buffers are already allocated)."""
+        out, self._retired = self._retired, []
+        return out
 
     def _render_gpu(
         self,
@@ -237,5 +283,8 @@ class Client:
         self._paths.clear()
         self._previous.clear()
         self._history.clear()
+        self._own.clear()
+        self._prepared.clear()
+        self._retired.clear()
         self.last_info = None
         self._gpu_pair = None

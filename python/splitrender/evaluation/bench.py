@@ -30,10 +30,17 @@ image written (``W·H·3``), divided by the median time. The buffers read per me
 
 Intermediate buffers (splat grids, history) are not counted, so it is a lower bound of the
 traffic.
+
+The memory-copy floor is measured in the same run, right after each method: the median time of
+one ``memcpy`` (:func:`numpy.copyto`, one thread) of as many bytes as the method touches,
+between two buffers already in memory. No method can touch its bytes faster than they can be
+copied, so ``ms_per_frame / copy_floor_ms`` says how far a method is from the hardware on this
+machine today (this VM's speed drifts from day to day; the ratio much less).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import statistics
 import tempfile
@@ -42,6 +49,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from splitrender.errors import InvalidInputError
 from splitrender.progress import Progress
@@ -59,6 +68,8 @@ BENCH_KEYS: tuple[str, ...] = (
     "ms_per_frame",
     "ns_per_pixel",
     "decode_ms_per_server_frame",
+    "copy_floor_ms",
+    "ratio_to_floor",
 )
 
 
@@ -77,6 +88,12 @@ class BenchRow:
     decode_ms_per_server_frame: float
     gb_per_s: float
     mb_touched: float
+    copy_floor_ms: float
+
+    @property
+    def ratio_to_floor(self) -> float:
+        """How many memory-copy floors one frame takes."""
+        return self.ms_per_frame / self.copy_floor_ms if self.copy_floor_ms > 0 else math.inf
 
     def to_json(self) -> dict[str, Any]:
         return {k: getattr(self, k) for k in BENCH_KEYS}
@@ -110,6 +127,20 @@ def bytes_touched(method: str, older: ServerFrame, newer: ServerFrame) -> int:
         src = _nbytes(older.main, "fwd", motion=True, shadows=False)
         src += _nbytes(newer.main, "bwd", motion=True, shadows=False)
     return int(src + out)
+
+
+def copy_floor_s(nbytes: int, repeats: int = 5) -> float:
+    """The memory-copy floor of ``nbytes`` (module docstring): median seconds of ``repeats``
+    copies between two buffers touched beforehand (a first touch of fresh pages costs far more
+    than a copy on this VM, and would not be the floor)."""
+    src = np.ones(max(int(nbytes), 1), np.uint8)
+    dst = np.zeros_like(src)
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        np.copyto(dst, src)
+        samples.append(time.perf_counter() - t0)
+    return statistics.median(samples)
 
 
 def _cache_dir(scene: str, scale: float) -> Path:
@@ -234,6 +265,7 @@ def run_bench(
                 samples.append(time.perf_counter() - t0)
         sec = statistics.median(samples)
         touched = bytes_touched(method, older, newer)
+        floor = copy_floor_s(touched)
         row = BenchRow(
             method=method,
             backend=backend,
@@ -244,6 +276,7 @@ def run_bench(
             decode_ms_per_server_frame=decode_ms,
             gb_per_s=touched / sec / 1e9,
             mb_touched=touched / 1e6,
+            copy_floor_ms=floor * 1e3,
         )
         rows.append(row)
     return rows
@@ -308,14 +341,15 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
         ),
         (
             f"{'method':<18} {'ms/frame':>9} {'FPS':>7} {'ns/pixel':>9} {'MB touched':>11} "
-            f"{'GB/s':>7}"
+            f"{'GB/s':>7} {'copy floor':>11} {'x floor':>8}"
         ),
     ]
     for r in rows:
         fps = 1e3 / r.ms_per_frame if r.ms_per_frame > 0 else float("inf")
         lines.append(
             f"{r.method:<18} {r.ms_per_frame:9.2f} {fps:7.1f} {r.ns_per_pixel:9.2f} "
-            f"{r.mb_touched:11.2f} {r.gb_per_s:7.2f}"
+            f"{r.mb_touched:11.2f} {r.gb_per_s:7.2f} {r.copy_floor_ms:8.2f} ms "
+            f"{r.ratio_to_floor:8.1f}"
         )
     return "\n".join(lines)
 

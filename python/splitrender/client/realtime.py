@@ -1,0 +1,468 @@
+"""The real-time client loop: :class:`RealtimeClient`, what a headset integration runs on top of
+:class:`~splitrender.client.client.Client` to show ``f_c`` frames per second (seeds/000 §3, §4.2).
+
+Three things happen at once, and only the last is on the display path:
+
+1. **Receive.** Server packets are handed to :meth:`RealtimeClient.submit` as they arrive and
+   decoded on a worker thread (:class:`~splitrender.codec.coder.StreamDecoder`).
+2. **Prepare.** On the same worker, right after decoding frame ``k``, the pair-level work of the
+   method (Algorithm 2's correspondences, the auxiliary cameras' visibility in main:
+   :func:`splitrender.prepare_pair`) is done for the pairs the frame opens: ``(k − 1, k)`` to
+   interpolate and ``(None, k)`` to extrapolate from it. Only then does the frame become usable:
+   until it is, the display extrapolates from the frames it has (that is the method's answer to
+   a late frame, seeds/000 §3.5), so no display frame waits for a decoder or pays the pair work.
+3. **Display.** :meth:`RealtimeClient.run` is driven by a monotonic clock at ``f_c``: display
+   frame ``n`` starts at refresh ``n`` (clock ``t0 + n / f_c``) with the pose of its display
+   time, is rendered by :meth:`Client.render` from the usable frames, and is due at the next
+   refresh. A frame that finishes after it is *late* (a deadline miss); the loop then starts
+   again at the first refresh not yet passed, so one slow frame never makes the following ones
+   late (the refreshes in between are *dropped*: the display repeats its image).
+
+Every display frame is recorded (:class:`DisplayFrame`): deadline met or missed, render time,
+mode (interpolate, extrapolate, hold), the server frames used, and the age of the newest server
+frame, from the time its pose was taken to the display time. :class:`RealtimeReport` sums them up
+(:meth:`RealtimeReport.summary`: percentiles, misses, decode and preparation times, CPU use).
+
+The clock is a parameter (:class:`Clock`), so that the loop's logic (deadlines, extrapolation
+while a pair is prepared, recovery after a late frame) is tested with a fake clock, and timings
+are left to ``splitrender bench --realtime``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+import splitrender._native as _native
+from splitrender.client.client import Client
+from splitrender.errors import InvalidInputError
+from splitrender.net.model import MODES
+from splitrender.reproject import prepare_pair
+from splitrender.types import Camera, ReprojectOptions, ServerFrame
+
+if TYPE_CHECKING:
+    from splitrender.codec.coder import StreamDecoder
+
+__all__ = [
+    "Clock",
+    "DisplayFrame",
+    "MonotonicClock",
+    "RealtimeClient",
+    "RealtimeReport",
+]
+
+_Image = npt.NDArray[np.uint8]
+
+
+class Clock(Protocol):
+    """Where the loop reads the time (seconds, monotonic) and waits."""
+
+    def now(self) -> float: ...
+
+    def sleep_until(self, t: float) -> None: ...
+
+
+class MonotonicClock:
+    """The wall clock: :func:`time.monotonic` and :func:`time.sleep`."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep_until(self, t: float) -> None:
+        d = t - time.monotonic()
+        if d > 0:
+            time.sleep(d)
+
+
+@dataclass(frozen=True, slots=True)
+class DisplayFrame:
+    """One display frame of :meth:`RealtimeClient.run`.
+
+    ``index`` is the display refresh it started on, ``time`` its display time (content seconds,
+    the time of its pose), ``start``/``done``/``deadline`` clock seconds (``deadline`` is the
+    next refresh). ``server_age_ms`` is the display time minus the time the pose of the newest
+    usable server frame was taken (``None`` before the first). ``prepared``: the pair it used
+    was prepared off the display path (``False`` for ``hold``, and for a pair the display had
+    to prepare itself)."""
+
+    index: int
+    time: float
+    start: float
+    done: float
+    deadline: float
+    mode: str
+    older: int | None
+    newer: int | None
+    alpha: float | None
+    server_age_ms: float | None
+    prepared: bool
+
+    @property
+    def render_ms(self) -> float:
+        return (self.done - self.start) * 1e3
+
+    @property
+    def met(self) -> bool:
+        """Whether the frame was done by its deadline."""
+        return self.done <= self.deadline
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    return float(np.percentile(values, q)) if values else None
+
+
+def _median(values: list[float]) -> float | None:
+    return _percentile(values, 50.0)
+
+
+@dataclass
+class RealtimeReport:
+    """What :meth:`RealtimeClient.run` did: every display frame, the refreshes dropped after a
+    late frame, the worker's decode and preparation times (ms per server frame), and the wall
+    and CPU seconds of the run (CPU: the whole process, every thread)."""
+
+    display_fps: float
+    frames: list[DisplayFrame] = field(default_factory=list)
+    dropped: int = 0
+    decode_ms: list[float] = field(default_factory=list)
+    prepare_ms: list[float] = field(default_factory=list)
+    server_frames_received: int = 0
+    server_frames_late: int = 0
+    wall_s: float = 0.0
+    cpu_s: float = 0.0
+    cpus: int = 1
+
+    @property
+    def deadline_misses(self) -> int:
+        return sum(not f.met for f in self.frames)
+
+    def summary(self) -> dict[str, Any]:
+        """One flat object: ``frames``, ``deadline_misses`` (count and ``_pct``), ``dropped``,
+        ``frame_ms_p50/p95/p99/max`` (render time), ``modes`` (count per mode), ``decode_ms_per_
+        server_frame`` and ``prepare_ms_per_server_frame`` (medians), the server frames received
+        and late, ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per
+        second of the run) and ``cpu_utilisation`` (process CPU seconds per wall second and core,
+        0–1). Times that have no sample are ``None``."""
+        render = [f.render_ms for f in self.frames]
+        ages = [f.server_age_ms for f in self.frames if f.server_age_ms is not None]
+        n = len(self.frames)
+        misses = self.deadline_misses
+        return {
+            "frames": n,
+            "display_fps": self.display_fps,
+            "deadline_misses": misses,
+            "deadline_misses_pct": 100.0 * misses / n if n else 0.0,
+            "dropped": self.dropped,
+            "frame_ms_p50": _percentile(render, 50),
+            "frame_ms_p95": _percentile(render, 95),
+            "frame_ms_p99": _percentile(render, 99),
+            "frame_ms_max": max(render) if render else None,
+            "modes": {m: sum(f.mode == m for f in self.frames) for m in MODES},
+            "prepared_pct": 100.0 * sum(f.prepared for f in self.frames) / n if n else 0.0,
+            "decode_ms_per_server_frame": _median(self.decode_ms),
+            "prepare_ms_per_server_frame": _median(self.prepare_ms),
+            "server_frames_received": self.server_frames_received,
+            "server_frames_late": self.server_frames_late,
+            "server_age_ms_p50": _median(ages),
+            "server_age_ms_max": max(ages) if ages else None,
+            "achieved_fps": (n - misses) / self.wall_s if self.wall_s > 0 else 0.0,
+            "wall_s": self.wall_s,
+            "cpu_utilisation": self.cpu_s / (self.wall_s * self.cpus) if self.wall_s > 0 else 0.0,
+        }
+
+
+#: Methods whose client frames use pair-level state that :func:`prepare_pair` can compute.
+_PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
+
+
+class RealtimeClient:
+    """The real-time client (module docs): packets in (:meth:`submit`, any thread), one frame
+    per refresh out (:meth:`run`, or :meth:`render` for a caller with its own display loop).
+
+    ``display_fps`` is ``f_c``; ``clock`` defaults to :class:`MonotonicClock`; ``client`` (else
+    a new :class:`Client` of ``method``, ``options``, ``capacity``) renders the frames.
+    ``prepare_threads`` is how many threads the pair preparation uses (its own pool, so that it
+    does not queue behind the display's frames; ``None``: the shared pool). ``executor`` runs
+    the receive side (default: one worker thread; it must run jobs in order). Use as a context
+    manager, or call :meth:`close`.
+
+    Raises:
+        InvalidInputError: for an unknown method, invalid options or a ``display_fps`` that is
+            not a positive finite number.
+    """
+
+    def __init__(
+        self,
+        method: str = "ours",
+        options: ReprojectOptions | None = None,
+        *,
+        display_fps: float = 120.0,
+        clock: Clock | None = None,
+        client: Client | None = None,
+        capacity: int = 4,
+        prepare_threads: int | None = 1,
+        decoder: StreamDecoder | None = None,
+        executor: Executor | None = None,
+    ) -> None:
+        if (
+            isinstance(display_fps, bool)
+            or not isinstance(display_fps, (int, float))
+            or not math.isfinite(display_fps)
+            or display_fps <= 0
+        ):
+            raise InvalidInputError(
+                f"display_fps: expected a positive finite number, got {display_fps!r}"
+            )
+        self.client = client if client is not None else Client(method, options, capacity=capacity)
+        self.display_fps = float(display_fps)
+        self.clock: Clock = clock if clock is not None else MonotonicClock()
+        self.prepare_threads = prepare_threads
+        self._decoder = decoder
+        self._lock = threading.Lock()
+        # One worker: packets are decoded in order (each depends on the previous one's
+        # pictures) and a frame's pairs are prepared before the next frame's.
+        self._worker = (
+            executor
+            if executor is not None
+            else ThreadPoolExecutor(1, thread_name_prefix="splitrender-receive")
+        )
+        self._pending: list[Future[int | None]] = []
+        self._camera: Camera | None = None
+        self._pose_time: dict[int, float] = {}
+        self._ready_at: dict[int, float] = {}
+        self._frame_time: dict[int, float] = {}
+        self._report = RealtimeReport(self.display_fps)
+        opts = self.client.options
+        self._interpolates = self.method == "ours" or (
+            self.method == "forward_splat" and opts.splat_bidirectional
+        )
+
+    @property
+    def method(self) -> str:
+        return self.client.method
+
+    def __enter__(self) -> RealtimeClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stops the worker (after the packets already submitted) and the decoder."""
+        self._worker.shutdown(wait=True)
+        if self._decoder is not None:
+            self._decoder.close()
+
+    # -- receive and prepare (worker thread) -----------------------------------------------
+
+    def submit(
+        self, packet: bytes | memoryview | ServerFrame, *, pose_time: float | None = None
+    ) -> Future[int | None]:
+        """Hands over a server packet (or an already decoded :class:`ServerFrame`) as it
+        arrives; returns at once. The worker decodes it, prepares its pairs and then makes it
+        usable; the future gives its index (``None``: the client refused it, e.g. stale). A
+        packet that cannot be decoded sets the future's exception (a
+        :class:`~splitrender.errors.StreamError`) and is otherwise ignored: the display goes on
+        extrapolating. ``pose_time``: when the pose of this frame was taken (default: the
+        frame's time minus one server frame, when the model's server sends it)."""
+        fut = self._worker.submit(self._receive, packet, pose_time)
+        self._pending.append(fut)
+        return fut
+
+    def wait(self, timeout: float | None = None) -> None:
+        """Blocks until every packet submitted so far is usable or refused (re-raises the first
+        error)."""
+        pending, self._pending = self._pending, []
+        for fut in pending:
+            fut.result(timeout)
+
+    def _decode(self, packet: bytes | memoryview) -> ServerFrame:
+        if self._decoder is None:
+            from splitrender.codec.coder import StreamDecoder
+
+            self._decoder = StreamDecoder()
+        return self._decoder.decode(packet)
+
+    def _receive(
+        self, packet: bytes | memoryview | ServerFrame, pose_time: float | None
+    ) -> int | None:
+        t0 = time.perf_counter()
+        frame = packet if isinstance(packet, ServerFrame) else self._decode(packet)
+        t1 = time.perf_counter()
+        with self._lock:
+            older = self.client.held_frame(frame.index - 1)
+            camera = self._camera if self._camera is not None else frame.main.camera
+            spare = self.client.retired_histories()
+        prepared: list[tuple[int | None, _native.BidirHistory]] = []
+        if self.method in _PREPARED_METHODS:
+            pairs: list[ServerFrame | None] = [None]
+            if older is not None and self._interpolates:
+                pairs.append(older)
+            for o in pairs:
+                history = spare.pop() if spare else _native.BidirHistory()
+                history.reset()
+                prepare_pair(
+                    o,
+                    frame,
+                    camera,
+                    self.method,
+                    options=self.client.options,
+                    history=history,
+                    threads=self.prepare_threads,
+                )
+                prepared.append((None if o is None else o.index, history))
+        t2 = time.perf_counter()
+        with self._lock:
+            if not isinstance(packet, ServerFrame):
+                self._report.decode_ms.append((t1 - t0) * 1e3)
+            if prepared:
+                self._report.prepare_ms.append((t2 - t1) * 1e3)
+            if not self.client.receive(frame):
+                return None
+            for older_index, history in prepared:
+                self.client.adopt_prepared(older_index, frame.index, history)
+            self._report.server_frames_received += 1
+            self._ready_at[frame.index] = self.clock.now()
+            self._frame_time[frame.index] = frame.time
+            self._pose_time[frame.index] = (
+                frame.time - 1.0 / self.client.server_fps if pose_time is None else pose_time
+            )
+        return frame.index
+
+    # -- display ---------------------------------------------------------------------------
+
+    def render(self, camera: Camera, time: float, *, eye: int = 0) -> _Image:
+        """The display frame at ``camera`` and display ``time`` from the frames usable now
+        (:meth:`Client.render`); :attr:`Client.last_info` says how it was made."""
+        return self._render(camera, time, eye)[0]
+
+    def _render(
+        self, camera: Camera, time: float, eye: int = 0
+    ) -> tuple[_Image, bool, float | None]:
+        """:meth:`render`, and (under the same lock, so that the worker cannot change them in
+        between) whether its pair was prepared and the pose time of the newest usable frame."""
+        with self._lock:
+            self._camera = camera
+            image = self.client.render(camera, time, eye=eye)
+            info = self.client.last_info
+            assert info is not None
+            prepared = info.newer is not None and self.client.was_prepared(info.older, info.newer)
+            held = self.client.held
+            newest = self._pose_time[max(held)] if held else None
+        return image, prepared, newest
+
+    def run(
+        self,
+        pose: Callable[[float], Camera],
+        seconds: float,
+        *,
+        feed: Iterable[tuple[float, bytes | memoryview | ServerFrame]] = (),
+        start_time: float = 0.0,
+        on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+    ) -> RealtimeReport:
+        """Shows ``seconds`` of display frames at ``f_c`` from display time ``start_time``:
+        frame ``n`` at the camera ``pose(start_time + n / f_c)``. ``feed`` (optional) is the
+        arrivals, ``(display time, packet)`` in time order: each is submitted when the clock
+        reaches it (between display frames; a live client calls :meth:`submit` from its network
+        thread instead). ``on_frame(image, record)`` is called after each frame (the caller's
+        present; its time counts against the frame's deadline only if it runs past the next
+        refresh). Returns the report of the run: its display frames, and what the worker did
+        since the previous run returned (or since the client was made)."""
+        fc = self.display_fps
+        n_frames = int(round(float(seconds) * fc))
+        if not math.isfinite(seconds) or n_frames < 1:
+            raise InvalidInputError(
+                f"seconds: expected at least one display frame at {fc:g} FPS, got {seconds!r}"
+            )
+        report = self._report
+        t0 = self.clock.now()
+        cpu0 = time.process_time()
+        # Python hands the GIL to a waiting thread only every switch interval (5 ms by
+        # default): the display thread could wait that long behind the worker's Python code
+        # between two native calls. 0.5 ms keeps that wait well inside a frame.
+        interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(interval, 0.0005))
+        try:
+            self._display(report, t0, n_frames, pose, iter(feed), start_time, on_frame)
+        finally:
+            sys.setswitchinterval(interval)
+        report.wall_s = self.clock.now() - t0
+        report.cpu_s = time.process_time() - cpu0
+        report.cpus = os.cpu_count() or 1
+        self._count_late(t0, start_time)
+        with self._lock:
+            self._report = RealtimeReport(self.display_fps)
+            self._ready_at.clear()
+        return report
+
+    def _display(
+        self,
+        report: RealtimeReport,
+        t0: float,
+        n_frames: int,
+        pose: Callable[[float], Camera],
+        arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]],
+        start_time: float,
+        on_frame: Callable[[_Image, DisplayFrame], None] | None,
+    ) -> None:
+        """The display loop of :meth:`run` (refresh ``n`` at clock ``t0 + n / f_c``)."""
+        period = 1.0 / self.display_fps
+        nxt = next(arrivals, None)
+        n = 0
+        while n < n_frames:
+            tick = t0 + n * period
+            while nxt is not None and t0 + (nxt[0] - start_time) <= tick:
+                self.clock.sleep_until(t0 + (nxt[0] - start_time))
+                self.submit(nxt[1])
+                nxt = next(arrivals, None)
+            self.clock.sleep_until(tick)
+            t = start_time + n * period
+            camera = pose(t)
+            start = self.clock.now()
+            image, prepared, newest = self._render(camera, t)
+            done = self.clock.now()
+            info = self.client.last_info
+            assert info is not None
+            record = DisplayFrame(
+                index=n,
+                time=t,
+                start=start,
+                done=done,
+                deadline=tick + period,
+                mode=info.mode,
+                older=info.older,
+                newer=info.newer,
+                alpha=info.alpha,
+                server_age_ms=None if newest is None else (t - newest) * 1e3,
+                prepared=prepared,
+            )
+            report.frames.append(record)
+            if on_frame is not None:
+                on_frame(image, record)
+            after = self.clock.now()
+            # The next frame starts at the first refresh not yet passed (a late frame drops
+            # the refreshes it overran instead of making every later frame late too).
+            following = max(n + 1, math.ceil((after - t0) / period - 1e-9))
+            report.dropped += min(following, n_frames) - n - 1
+            n = following
+
+    def _count_late(self, t0: float, start_time: float) -> None:
+        """A server frame is late when it became usable after the display first needed it:
+        one server frame period before its time, when the pair it closes starts."""
+        period = 1.0 / self.client.server_fps
+        with self._lock:
+            # A frame needed before the run began counts from the start of the run.
+            self._report.server_frames_late = sum(
+                ready > max(t0, t0 + (self._frame_time[index] - period - start_time))
+                for index, ready in self._ready_at.items()
+            )

@@ -1,0 +1,257 @@
+"""``splitrender bench --realtime``: a stream through the real-time client loop at wall-clock
+``f_c`` (:class:`~splitrender.client.realtime.RealtimeClient`).
+
+The source is a stream file, or a built-in scene whose server frames are rendered and encoded
+once (at the paper's 40 Mb/s scaled by pixel count) into a stream file cached in the temporary
+directory. Each server frame ``k`` (time ``t_k = k / f_s``) is handed to the client when the
+model's server would send it over an ideal link, at display time ``t_k − 1 / f_s``
+(:mod:`splitrender.net.model`), and decoded and prepared on the client's worker thread while
+the display loop renders every refresh at the client's pose. A run longer than the source
+loops it: packet ``k mod N`` is sent again as frame ``k`` (its header re-stamped; packet 0 is a
+key frame, so the decoder starts over cleanly), and the pose follows the scene's path modulo
+its length, so the seam is one jump of the content, nothing else.
+
+The client's pose: for a built-in scene its head path (:meth:`Scene.client_pose`) with the
+main camera's projection at the main camera's size; a stream file carries no client path, so
+the client looks from the main camera of the newest server frame whose time has passed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from splitrender.codec.stream import (
+    PACKET_VERSION,
+    CameraRecord,
+    pack_packet,
+    read_stream,
+    unpack_packet,
+)
+from splitrender.errors import InvalidInputError, StreamError
+from splitrender.files import write_atomic
+from splitrender.progress import Progress
+from splitrender.reproject import METHODS
+from splitrender.types import Camera
+
+__all__ = ["REALTIME_KEYS", "RealtimeBench", "format_realtime", "run_realtime_bench"]
+
+#: The keys ``--json`` always writes (the whole :meth:`RealtimeReport.summary` follows them).
+REALTIME_KEYS: tuple[str, ...] = (
+    "method",
+    "source",
+    "width",
+    "height",
+    "frames",
+    "deadline_misses",
+    "frame_ms_p50",
+    "frame_ms_p99",
+    "decode_ms_per_server_frame",
+)
+
+_FS = 10.0
+
+
+@dataclass(frozen=True)
+class RealtimeBench:
+    """The result of :func:`run_realtime_bench`: what ran and the loop's summary."""
+
+    method: str
+    source: str
+    width: int
+    height: int
+    looped: bool
+    summary: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "method": self.method,
+            "source": self.source,
+            "width": self.width,
+            "height": self.height,
+            "looped": self.looped,
+            **self.summary,
+        }
+
+
+def _scene_stream(scene: str, scale: float, n: int, progress: Progress) -> Path:
+    """The stream file of server frames ``0..n-1`` of ``scene`` at ``scale``, rendered and
+    encoded once into the temporary directory (written atomically, so an interrupted run
+    leaves nothing that reads as valid)."""
+    from splitrender._native import __version__
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+    from splitrender.codec.stream import StreamWriter
+    from splitrender.scene.builtin import Scene
+
+    path = Path(tempfile.gettempdir()) / (
+        f"splitrender-realtime-{scene}-{scale:g}-{n}-{__version__}-v{PACKET_VERSION}.srs"
+    )
+    if path.is_file():
+        try:
+            if sum(1 for _ in read_stream(path)) == n:
+                progress.stage(f"reusing the cached stream {path}")
+                return path
+        except (StreamError, OSError):  # a damaged or foreign file: render it again
+            pass
+    sc = Scene(scene)
+    w, h = sc.main_size(scale)
+    cfg = CodecConfig.scaled(w, h)
+    progress.stage(
+        f"rendering and encoding {n} server frames of {scene} at {w}x{h} + aux, "
+        f"{cfg.bitrate_mbps:.3g} Mb/s, into {path} (cached)"
+    )
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with StreamEncoder(cfg) as enc, StreamWriter(tmp, fps=_FS) as out:
+            for k in range(n):
+                out.write(enc.encode(sc.server_frame(k, scale, _FS)))
+                progress.bar(k + 1, n, "frames")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _camera(rec: CameraRecord) -> Camera:
+    return Camera(rec.view, rec.proj, rec.width, rec.height)
+
+
+def check_realtime_args(method: str, seconds: float, scale: float) -> None:
+    if method not in METHODS:
+        raise InvalidInputError(
+            f"--methods: --realtime runs one method; expected one of: {', '.join(METHODS)}, "
+            f"got {method!r}"
+        )
+    if not math.isfinite(seconds) or not 0.0 < seconds <= 3600.0:
+        raise InvalidInputError(f"--seconds: expected 0 < S <= 3600, got {seconds:g}")
+    if not math.isfinite(scale) or scale <= 0.0:
+        raise InvalidInputError(f"--scale: expected a positive number, got {scale:g}")
+
+
+def run_realtime_bench(
+    scene: str = "courtyard",
+    scale: float = 0.25,
+    seconds: float = 10.0,
+    method: str = "ours",
+    *,
+    stream: str | os.PathLike[str] | None = None,
+    display_fps: float = 120.0,
+    progress: bool = True,
+) -> RealtimeBench:
+    """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
+
+    Raises:
+        InvalidInputError: for arguments that cannot work.
+        StreamError: for a stream file that cannot be read.
+    """
+    from splitrender.client.client import Client
+    from splitrender.client.realtime import RealtimeClient
+    from splitrender.scene.builtin import SCENE_NAMES, Scene
+
+    check_realtime_args(method, seconds, scale)
+    stages = Progress(3 if stream is None else 2, progress)
+    if stream is None:
+        if scene not in SCENE_NAMES:
+            raise InvalidInputError(
+                f"unknown scene {scene!r}; expected one of: {', '.join(SCENE_NAMES)}"
+            )
+        sc = Scene(scene)
+        # The whole run's server frames, up to the scene's length (then it loops).
+        n = min(math.ceil(seconds * _FS) + 1, int(round(sc.duration * _FS)))
+        path = _scene_stream(scene, scale, n, stages)
+        source = f"{scene} (built-in, scale {scale:g})"
+    else:
+        sc = None
+        path = Path(stream)
+        if not path.is_file():
+            raise InvalidInputError(f"--stream: {path}: expected a stream file, found none")
+        source = str(path)
+    packets = list(read_stream(path))
+    if not packets:
+        raise InvalidInputError(f"{path}: the stream has no frames")
+    heads = [unpack_packet(p) for p in packets]
+    main = heads[0].cameras[0]
+    fs = _FS
+    if len(heads) > 1 and heads[1].time > heads[0].time:
+        fs = 1.0 / (heads[1].time - heads[0].time)
+    cycle = len(packets) / fs
+    n_sent = math.ceil(seconds * fs) + 1
+    looped = n_sent > len(packets)
+
+    def packet(k: int) -> bytes:
+        """Packet ``k mod N`` sent as frame ``k`` at time ``k / f_s`` (its header re-stamped
+        where it differs; the payloads are unchanged)."""
+        p = heads[k % len(heads)]
+        if p.index == k and p.time == k / fs:
+            return packets[k]
+        return pack_packet(dataclasses.replace(p, index=k, time=k / fs))
+
+    pose: Callable[[float], Camera]
+    if sc is not None:
+        scene_obj = sc
+
+        def pose(t: float) -> Camera:
+            view = np.linalg.inv(scene_obj.client_pose(t % cycle)).astype(np.float64)
+            return Camera(view, main.proj, main.width, main.height)
+
+    else:
+        cams = [_camera(h.cameras[0]) for h in heads]
+
+        def pose(t: float) -> Camera:
+            return cams[int(math.floor(t * fs + 1e-9)) % len(cams)]
+
+    feed = [(k / fs - 1.0 / fs, packet(k)) for k in range(n_sent)]
+    stages.stage(
+        f"running {method} in real time for {seconds:g} s at {display_fps:g} FPS, "
+        f"{main.width}x{main.height} + aux" + (" (the source loops)" if looped else "")
+    )
+    with RealtimeClient(client=Client(method, server_fps=fs), display_fps=display_fps) as client:
+        report = client.run(pose, seconds, feed=feed, start_time=0.0)
+    stages.close()
+    return RealtimeBench(method, source, main.width, main.height, looped, report.summary())
+
+
+def format_realtime(b: RealtimeBench) -> str:
+    """The summary as plain text."""
+    s = b.summary
+
+    def ms(key: str) -> str:
+        v = s.get(key)
+        return "n/a" if v is None else f"{v:.2f} ms"
+
+    modes = ", ".join(f"{k} {v}" for k, v in s["modes"].items())
+    return "\n".join(
+        [
+            f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
+            f"{s['display_fps']:g} FPS for {s['wall_s']:.1f} s"
+            + (" (source looped)" if b.looped else ""),
+            f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
+            f"({s['deadline_misses_pct']:.2f} %), dropped refreshes {s['dropped']}, "
+            f"achieved {s['achieved_fps']:.1f} FPS",
+            f"  frame time p50 {ms('frame_ms_p50')}, p95 {ms('frame_ms_p95')}, "
+            f"p99 {ms('frame_ms_p99')}, max {ms('frame_ms_max')}",
+            f"  modes: {modes}; pairs prepared off the display path: "
+            f"{s['prepared_pct']:.1f} % of frames",
+            f"  decode {ms('decode_ms_per_server_frame')} and pair preparation "
+            f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread, median); "
+            f"server frames {s['server_frames_received']} received, "
+            f"{s['server_frames_late']} late",
+            f"  newest server frame's age at display: p50 {ms('server_age_ms_p50')}, "
+            f"max {ms('server_age_ms_max')}; CPU {100 * s['cpu_utilisation']:.0f} % "
+            f"of {os.cpu_count() or 1} cores",
+        ]
+    )
+
+
+def write_realtime_json(path: Path, b: RealtimeBench) -> None:
+    import json
+
+    write_atomic(path, json.dumps(b.to_json(), indent=1) + "\n")

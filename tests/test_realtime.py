@@ -1,0 +1,303 @@
+"""The real-time client loop (splitrender.client.realtime) with a fake clock: deadlines,
+extrapolation while a pair is prepared, recovery after a late frame or a bad packet. No timing
+is asserted: the clock only moves when the loop sleeps or a test's client says a frame cost
+time."""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import Executor, Future
+from typing import Any
+
+import numpy as np
+import pytest
+import splitrender as sr
+import splitrender.client.realtime as rt
+from splitrender.client import Client
+from splitrender.client.realtime import RealtimeClient
+from splitrender.errors import InvalidInputError, StreamError
+
+W, H = 64, 36
+FS, FC = 10.0, 120.0
+PERIOD = 1.0 / FC
+
+
+class FakeClock:
+    """Time moves only when the loop sleeps or :meth:`advance` is called."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep_until(self, t: float) -> None:
+        self.t = max(self.t, t)
+
+    def advance(self, dt: float) -> None:
+        self.t += dt
+
+
+class CostClient(Client):
+    """A client whose n-th render takes ``cost(n)`` seconds of the fake clock."""
+
+    def __init__(self, clock: FakeClock, cost: Any, **kw: Any) -> None:
+        super().__init__("ours", **kw)
+        self.clock, self.cost, self.calls = clock, cost, 0
+
+    def render(self, camera: sr.Camera, time: float, *, eye: int = 0) -> np.ndarray:
+        image = super().render(camera, time, eye=eye)
+        self.clock.advance(self.cost(self.calls))
+        self.calls += 1
+        return image
+
+
+class InlineExecutor(Executor):
+    """Runs each job at once on the caller's thread: with the fake clock, receiving then takes
+    no time and the order of events is fixed."""
+
+    def submit(self, fn: Any, /, *args: Any, **kwargs: Any) -> Future[Any]:
+        fut: Future[Any] = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except Exception as e:
+            fut.set_exception(e)
+        return fut
+
+
+@pytest.fixture(scope="module")
+def scene() -> sr.SyntheticScene:
+    return sr.SyntheticScene(dynamic=True)
+
+
+@pytest.fixture(scope="module")
+def frames(scene: sr.SyntheticScene) -> list[sr.ServerFrame]:
+    return [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(4)]
+
+
+def pose_of(scene: sr.SyntheticScene) -> Any:
+    return lambda t: scene.rig(t, W, H)[0]
+
+
+def loop(
+    clock: FakeClock, cost: Any = lambda n: 0.002, executor: Executor | None = None
+) -> RealtimeClient:
+    return RealtimeClient(
+        client=CostClient(clock, cost), clock=clock, display_fps=FC, executor=executor
+    )
+
+
+def test_every_frame_meets_its_deadline_when_rendering_fits_the_period(scene, frames):
+    clock = FakeClock()
+    with loop(clock) as c:
+        for f in frames[:3]:
+            c.submit(f)
+        c.wait()
+        report = c.run(pose_of(scene), 0.2)
+    assert len(report.frames) == 24 and report.dropped == 0
+    assert report.deadline_misses == 0
+    # One frame per refresh, each started on its refresh and due at the next.
+    assert [f.index for f in report.frames] == list(range(24))
+    for f in report.frames:
+        assert f.start == pytest.approx(report.frames[0].start + f.index * PERIOD)
+        assert f.deadline == pytest.approx(f.start + PERIOD)
+        assert f.render_ms == pytest.approx(2.0)
+    assert {f.mode for f in report.frames} == {"interpolate"}
+    assert all(f.prepared for f in report.frames)
+
+
+def test_a_late_frame_is_a_miss_and_the_loop_resumes_on_the_next_free_refresh(scene, frames):
+    clock = FakeClock()
+    # Frame 3 takes 2.4 periods: it misses its deadline and overruns refreshes 4 and 5.
+    with loop(clock, lambda n: 2.4 * PERIOD if n == 3 else 0.001) as c:
+        for f in frames[:2]:
+            c.submit(f)
+        c.wait()
+        report = c.run(pose_of(scene), 0.1)
+    assert [f.index for f in report.frames] == [0, 1, 2, 3, 6, 7, 8, 9, 10, 11]
+    assert [f.met for f in report.frames].count(False) == 1
+    assert not report.frames[3].met
+    assert report.dropped == 2
+    # Back in phase: frame 6 starts on refresh 6, as if nothing had happened.
+    assert report.frames[4].start == pytest.approx(report.frames[0].start + 6 * PERIOD)
+    s = report.summary()
+    assert s["deadline_misses"] == 1 and s["frames"] == 10
+    assert s["deadline_misses_pct"] == pytest.approx(10.0)
+
+
+def test_display_extrapolates_while_the_new_pair_is_prepared(scene, frames, monkeypatch):
+    release = threading.Event()
+    entered = threading.Event()
+    real = rt.prepare_pair
+
+    def slow_prepare(older, newer, *a, **kw):  # type: ignore[no-untyped-def]
+        if newer.index == 1:
+            entered.set()
+            assert release.wait(10.0)
+        return real(older, newer, *a, **kw)
+
+    monkeypatch.setattr(rt, "prepare_pair", slow_prepare)
+    clock = FakeClock()
+    with loop(clock) as c:
+        c.submit(frames[0])
+        c.wait()
+        c.submit(frames[1])
+        assert entered.wait(10.0)
+        # Frame 1 is decoded but its pair is still being prepared: not usable yet.
+        first = c.run(pose_of(scene), 0.05)
+        assert {(f.mode, f.newer) for f in first.frames} == {("extrapolate", 0)}
+        assert all(f.met for f in first.frames)
+        release.set()
+        c.wait()
+        later = c.run(pose_of(scene), 0.04, start_time=0.05).frames
+    assert {(f.mode, f.older, f.newer) for f in later} == {("interpolate", 0, 1)}
+    assert all(f.prepared for f in later)
+
+
+def test_prepared_pairs_give_the_same_images_and_no_pair_work_on_the_display(scene, frames):
+    plain = Client("ours")
+    clock = FakeClock()
+    with loop(clock) as c:
+        for f in frames[:3]:
+            plain.receive(f)
+            c.submit(f)
+        c.wait()
+        histories = dict(c.client._prepared)
+        for n in range(1, 24):
+            t = n / FC
+            cam = scene.rig(t, W, H)[0]
+            np.testing.assert_array_equal(c.render(cam, t), plain.render(cam, t))
+            assert c.client.was_prepared(c.client.last_info.older, c.client.last_info.newer)
+    # Each prepared pair was computed once, on the worker, and never again by a client frame.
+    assert histories and all(h.pair_builds == 1 for h in histories.values())
+    assert (0, 1) in histories and (None, 2) in histories
+
+
+def test_packets_are_decoded_on_the_worker_and_a_bad_one_is_skipped(scene, frames):
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+
+    with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
+        packets = [enc.encode(f) for f in frames[:3]]
+    clock = FakeClock()
+    with loop(clock) as c:
+        feed = [(0.0 - 1 / FS, packets[0]), (0.0, b"not a packet"), (0.0, packets[1])]
+        c.submit(feed[0][1]).result(30)
+        bad = c.submit(feed[1][1])
+        good = c.submit(feed[2][1])
+        with pytest.raises(StreamError):
+            bad.result(30)
+        assert good.result(30) == 1
+        with pytest.raises(StreamError):
+            c.wait()
+        report = c.run(pose_of(scene), 0.05)
+    s = report.summary()
+    assert s["server_frames_received"] == 2 and len(report.decode_ms) == 2
+    assert s["decode_ms_per_server_frame"] > 0
+    assert {f.mode for f in report.frames} == {"interpolate"}
+
+
+def test_a_server_frame_that_becomes_usable_after_it_was_needed_counts_as_late(scene, frames):
+    clock = FakeClock()
+    with loop(clock, executor=InlineExecutor()) as c:
+        # Frame 0 before the run, frame 1 arriving mid-way through its pair's interval.
+        feed = [(-0.1, frames[0]), (0.05, frames[1])]
+        report = c.run(pose_of(scene), 0.1, feed=feed)
+    s = report.summary()
+    assert s["server_frames_received"] == 2
+    assert s["server_frames_late"] == 1
+    assert report.frames[0].mode == "extrapolate"
+    # The age of the newest frame: display time minus its pose time (its time minus 1/f_s).
+    assert report.frames[0].server_age_ms == pytest.approx(100.0)
+
+
+def test_summary_has_the_keys_the_bench_reports(scene, frames):
+    clock = FakeClock()
+    with loop(clock) as c:
+        c.submit(frames[0])
+        c.wait()
+        s = c.run(pose_of(scene), 0.02).summary()
+    for key in (
+        "frames",
+        "deadline_misses",
+        "frame_ms_p50",
+        "frame_ms_p95",
+        "frame_ms_p99",
+        "frame_ms_max",
+        "decode_ms_per_server_frame",
+        "prepare_ms_per_server_frame",
+        "cpu_utilisation",
+        "modes",
+    ):
+        assert key in s
+    assert s["decode_ms_per_server_frame"] is None  # frames handed over decoded
+
+
+@pytest.mark.parametrize("fps", [0, -1.0, float("nan"), "120"])
+def test_bad_display_rate_is_refused(fps):
+    with pytest.raises(InvalidInputError, match="display_fps"):
+        RealtimeClient(display_fps=fps)
+
+
+def test_run_needs_at_least_one_frame(scene):
+    with RealtimeClient(clock=FakeClock()) as c, pytest.raises(InvalidInputError, match="seconds"):
+        c.run(pose_of(scene), 0.001)
+
+
+# -- splitrender bench --realtime ---------------------------------------------------------------
+
+REALTIME_KEYS = ("method", "source", "width", "height", "frames", "deadline_misses",
+                 "frame_ms_p50", "frame_ms_p99", "decode_ms_per_server_frame")
+
+
+def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypatch):
+    import json
+    import tempfile
+
+    from splitrender.cli.main import main
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the stream cache
+    out = tmp_path / "rt.json"
+    assert main(["bench", "--realtime", "--scale", "0.05", "--seconds", "0.25",
+                 "--json", str(out), "--quiet"]) == 0
+    r = json.loads(out.read_text())
+    assert all(k in r for k in REALTIME_KEYS)
+    assert (r["method"], r["width"], r["height"]) == ("ours", 128, 72)
+    # Every refresh of the run either got a frame or was dropped after a late one.
+    assert r["frames"] + r["dropped"] == 30
+    assert r["server_frames_received"] >= 3 and r["decode_ms_per_server_frame"] > 0
+    assert sum(r["modes"].values()) == r["frames"]
+
+
+def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames, capsys):
+    import json
+
+    from splitrender.cli.main import main
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+
+    with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
+        sr.write_stream(tmp_path / "s.srs", [enc.encode(f) for f in frames[:3]])
+    out = tmp_path / "rt.json"
+    assert main(["bench", "--realtime", "--stream", str(tmp_path / "s.srs"), "--seconds",
+                 "0.5", "--methods", "ours_extrapolate", "--json", str(out), "--quiet"]) == 0
+    r = json.loads(out.read_text())
+    assert (r["method"], r["width"], r["height"], r["looped"]) == ("ours_extrapolate", W, H, True)
+    # 0.5 s at 10 FPS: frames 0..5 sent, the 3 packets of the file twice.
+    assert r["server_frames_received"] == 6
+    assert "source looped" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--stream", "x.srs"], "--stream goes with --realtime"),
+        (["--realtime", "--methods", "ours,timewarp"], "one method"),
+        (["--realtime", "--backend", "wgpu"], "--backend wgpu"),
+        (["--realtime", "--stream", "missing.srs"], "missing.srs"),
+    ],
+)
+def test_bench_realtime_argument_errors_exit_2(argv, message, tmp_path, monkeypatch, capsys):
+    from splitrender.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench", *argv, "--quiet"]) == 2
+    assert message in capsys.readouterr().err
