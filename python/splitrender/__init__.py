@@ -31,6 +31,7 @@ from splitrender.net import NetworkModel, Schedule
 from splitrender.reproject import (
     METHODS,
     apply_shadows,
+    prepare_pair,
     reproject,
     reproject_alpha,
     scene_flow,
@@ -98,6 +99,7 @@ __all__ = [
     "TraceError",
     "__version__",
     "apply_shadows",
+    "prepare_pair",
     "export_dataset",
     "import_dataset",
     "load_recording",

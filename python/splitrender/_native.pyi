@@ -61,6 +61,17 @@ class GpuUnavailableError(SplitRenderError): ...
 class BidirHistory:
     def __new__(cls) -> BidirHistory: ...
     def reset(self) -> None: ...
+    def prepare(
+        self,
+        method: str,
+        older: _Frame | None,
+        newer: _Frame,
+        client: _Client,
+        options: dict[str, Any] | None = None,
+        threads: int | None = None,
+    ) -> None: ...
+    @property
+    def pair_builds(self) -> int: ...
 
 def reproject(
     method: str,

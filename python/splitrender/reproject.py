@@ -1,12 +1,14 @@
 """Client-side reprojection: one display frame from the server frames the client holds.
 
 :func:`reproject` works in times (it picks the frames, their directional buffers and ``α``);
-:func:`reproject_alpha` is the core's entry point with an explicit ``α``.
+:func:`reproject_alpha` is the core's entry point with an explicit ``α``; :func:`prepare_pair`
+does a pair's client-independent work ahead of its first client frame.
 """
 
 from __future__ import annotations
 
-from typing import Literal, overload
+from collections.abc import Callable
+from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -30,12 +32,20 @@ from splitrender.types import (
     precheck_frames,
 )
 
-__all__ = ["METHODS", "apply_shadows", "reproject", "reproject_alpha", "scene_flow"]
+__all__ = [
+    "METHODS",
+    "apply_shadows",
+    "prepare_pair",
+    "reproject",
+    "reproject_alpha",
+    "scene_flow",
+]
 
 #: Every method, by name, in the order of the paper's tables.
 METHODS: tuple[str, ...] = tuple(_native.METHODS)
 
 _Image = npt.NDArray[np.uint8]
+_T = TypeVar("_T")
 
 
 def _check_method(method: object) -> str:
@@ -192,10 +202,7 @@ def _reproject_alpha(
     ``older`` and ``newer``) and ``camera_path`` start the messages about their buffers."""
     method = _check_method(method)
     backend = gpu.check_backend(backend, method)
-    _check_frame(paths[0], older, optional=True)
-    _check_frame(paths[1], newer)
-    if not isinstance(camera, Camera):
-        raise InvalidInputError(f"{camera_path}: expected a Camera, got {type(camera).__name__}")
+    _check_call(older, newer, camera, paths, camera_path)
     opts = _options(options)
     if backend == "wgpu":
         return gpu.shared().reproject(
@@ -209,26 +216,114 @@ def _reproject_alpha(
             diagnostics=bool(diagnostics),
             _paths=paths,
         )
-    frames = (
-        FrameArgument("older", paths[0], older, "fwd"),
-        FrameArgument("newer", paths[1], newer, "bwd"),
-    )
-    precheck_frames(frames)
-    try:
-        out = _native.reproject(
+    out = _call_native(
+        lambda o, n: _native.reproject(
             method,
-            None if older is None else older.to_native("fwd"),
-            newer.to_native("bwd"),
+            o,
+            n,
             camera.to_native(),
             float(alpha),
             opts.to_native(),
             previous,
             bool(diagnostics),
             history,
-        )
+        ),
+        older,
+        newer,
+        paths,
+        camera_path,
+    )
+    return _result(out)
+
+
+def _check_call(
+    older: object, newer: object, camera: object, paths: tuple[str, str], camera_path: str
+) -> None:
+    """The type checks of the frames and the camera of a native call (``paths`` and
+    ``camera_path`` name them in the messages)."""
+    _check_frame(paths[0], older, optional=True)
+    _check_frame(paths[1], newer)
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"{camera_path}: expected a Camera, got {type(camera).__name__}")
+
+
+def _call_native(
+    call: Callable[[tuple[Any, list[Any]] | None, tuple[Any, list[Any]]], _T],
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    paths: tuple[str, str],
+    camera_path: str,
+) -> _T:
+    """``call(older, newer)`` with the frames in their native form (the older frame's forward
+    buffers, the newer frame's backward ones), its errors about a frame or the camera named by
+    the caller's paths."""
+    frames = (
+        FrameArgument("older", paths[0], older, "fwd"),
+        FrameArgument("newer", paths[1], newer, "bwd"),
+    )
+    precheck_frames(frames)
+    try:
+        return call(None if older is None else older.to_native("fwd"), newer.to_native("bwd"))
     except InvalidInputError as e:
         raise native_error(e, frames, client=camera_path) from None
-    return _result(out)
+
+
+def prepare_pair(
+    older: ServerFrame | None,
+    newer: ServerFrame,
+    camera: Camera,
+    method: str = "ours",
+    *,
+    options: ReprojectOptions | None = None,
+    history: _native.BidirHistory,
+    threads: int | None = None,
+) -> None:
+    """Does the work of a server-frame pair that does not depend on the client pose, into
+    ``history``, ahead of the pair's first client frame.
+
+    ``ours``, ``ours_extrapolate`` and ``forward_splat`` keep that work (Algorithm 2's
+    correspondences, the auxiliary cameras' visibility in main) in the :class:`BidirHistory` and
+    otherwise do it in the first :func:`reproject_alpha` call of the pair, which then costs about
+    twice the others. A real-time client calls this when the pair's newer frame arrives (from a
+    background thread: the GIL is released), then displays the pair's frames with the same
+    ``history``, frames and ``options``; they reuse the work (``history.pair_builds`` does not
+    grow) and their images are the same as without it. Work the history already holds for this
+    pair is kept.
+
+    The arguments are those of :func:`reproject_alpha`, checked the same way. With ``older``
+    given, it prepares interpolation (every ``alpha < 1``) for the methods that interpolate
+    (``ours``, ``forward_splat`` with ``options.splat_bidirectional``); with ``older=None`` and
+    for ``ours_extrapolate`` and unidirectional ``forward_splat``, extrapolation from ``newer``
+    (``alpha >= 1``: pass ``older=None`` to prepare a late frame). The work does not depend on
+    ``camera`` (it is only checked). ``timewarp`` and ``backward_bidir`` have no pair work: the
+    call only checks its arguments.
+
+    ``threads`` runs the work on a dedicated pool of that many threads (kept for later calls), so
+    that it neither waits behind nor delays the display frames on the default pool; ``None``
+    uses the default pool. The CPU backend only.
+
+    Raises:
+        InvalidInputError: for any invalid argument (it names the argument or buffer), or a
+            history in use by another call.
+    """
+    method = _check_method(method)
+    _check_call(older, newer, camera, ("older", "newer"), "camera")
+    if not isinstance(history, _native.BidirHistory):
+        raise InvalidInputError(
+            f"history: expected a BidirHistory, got {type(history).__name__}"
+        )
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)):
+        raise InvalidInputError(f"threads: expected an int or None, got {type(threads).__name__}")
+    opts = _options(options)
+    _call_native(
+        lambda o, n: history.prepare(
+            method, o, n, camera.to_native(), opts.to_native(), threads
+        ),
+        older,
+        newer,
+        ("older", "newer"),
+        "camera",
+    )
 
 
 def _unidirectional(method: str, opts: ReprojectOptions, older: ServerFrame | None) -> bool:

@@ -5,7 +5,11 @@
 //! `ITERS` (timed calls, default 6), `SHADOWS=1` (keep the dynamic shadows, as the bench does),
 //! `NOBLEND=1` (no Algorithm 2), `AUX_ONLY=1` (skip the run without auxiliary cameras),
 //! `PAIR=1` (keep one `BidirHistory` across the calls, as a client does within a server-frame
-//! pair, so the pair-level work is done once instead of per call). For instruction counts that do not depend on the machine's load:
+//! pair, so the pair-level work is done once instead of per call), `PREPARE=1` (with `PAIR`: compute
+//! the pair state with `prepare_pair` before the first call, as a real-time client does off the
+//! display path, after one call without the history that warms the per-frame buffers;
+//! `PREPARE=only`: those two and nothing else, to subtract them from an instruction count).
+//! For instruction counts that do not depend on the machine's load:
 //! `ITERS=4` and `ITERS=0` under `valgrind --tool=callgrind`, and the difference over 4.
 //!
 //! Besides the wall-clock time it prints the process CPU time per call (Linux only: from
@@ -59,6 +63,20 @@ fn main() {
             let keep = std::env::var_os("PAIR").is_some();
             let mut diag = Diagnostics::new(w * h);
             out.fill(0);
+            let prepare = std::env::var("PREPARE").ok();
+            if keep && prepare.is_some() {
+                // A frame without the history first, as the previous pair's frames leave the
+                // per-frame buffers warm in a client: what follows then counts the pair work
+                // alone, not the first use of those buffers.
+                reproject(method, Some(&older), &newer, &req, &p, &mut out, None, None).unwrap();
+                // The older frame only when interpolating: a late frame prepares extrapolation.
+                let o = (req.alpha < 1.0).then_some(&older);
+                prepare_pair(method, o, &newer, &req.client, &p, &mut history).unwrap();
+                if prepare.as_deref() == Some("only") {
+                    println!("{method} aux={use_aux}: prepared only");
+                    continue;
+                }
+            }
             let h = keep.then_some(&mut history);
             reproject(
                 method,
@@ -91,10 +109,11 @@ fn main() {
             );
             let n = iters.max(1) as f64;
             println!(
-                "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU, {:.0} page faults per call; digest {digest:016x}",
+                "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU, {:.0} page faults per call; digest {digest:016x}; pair builds {}",
                 t.elapsed().as_secs_f64() * 1000.0 / n,
                 (cpu_seconds() - cpu0) * 1000.0 / n,
-                (minor_faults() - faults0) / n
+                (minor_faults() - faults0) / n,
+                history.pair_builds()
             );
         }
     }

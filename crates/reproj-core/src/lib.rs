@@ -20,6 +20,7 @@ pub mod frame;
 pub mod method;
 pub mod ours;
 pub mod params;
+pub mod pool;
 pub mod request;
 pub mod shadow;
 pub mod synthetic;
@@ -29,7 +30,7 @@ pub use backward_bidir::BidirHistory;
 pub use camera::{Camera, Mat4, NdcTransfer, Projector, M4, MAX_SIDE};
 pub use error::{ReprojError, Result};
 pub use frame::{CameraBuffers, CameraView, FrameView, ShadowBuffers, ShadowView};
-pub use method::{reproject, Method};
+pub use method::{prepare_pair, reproject, Method};
 /// The former name of [`ours`] (its public path before issue 12).
 pub use ours as reproject;
 pub use ours::scene_flow;

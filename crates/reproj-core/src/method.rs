@@ -6,6 +6,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use crate::backward_bidir::{self, BidirHistory};
+use crate::camera::Camera;
 use crate::error::{ReprojError, Result};
 use crate::frame::FrameView;
 use crate::params::Params;
@@ -97,10 +98,94 @@ pub fn reproject(
     diag: Option<&mut Diagnostics>,
     history: Option<&mut BidirHistory>,
 ) -> Result<()> {
+    let (cw, ch) = (request.client.width, request.client.height);
+    let output = || check_output(out, diag.as_deref(), cw, ch);
+    match route(method, older, newer, request, params, output)? {
+        Route::Splat(mode, older_used) => ours::run(
+            mode,
+            older_used,
+            newer,
+            request,
+            params,
+            out,
+            diag,
+            history.map(BidirHistory::pair_cache),
+        ),
+        Route::Timewarp(frame) => timewarp::run(frame, request, params, out, diag),
+        Route::BackwardBidir(older) => {
+            backward_bidir::run(older, newer, request, params, out, diag, history)
+        }
+    }
+}
+
+/// Computes into `history` the pair-level state that the next [`reproject`] call with the same
+/// method, frames and parameters would otherwise compute on its own ([`crate::ours::PairCache`]:
+/// Algorithm 2's correspondences and the auxiliary cameras' visibility in main), and nothing of
+/// a client frame. A client calls it when the pair's newer frame arrives, off the display path,
+/// so that the first client frame of the pair costs what the others do.
+///
+/// The pair state depends on whether the frames are interpolated or extrapolated, not on the
+/// client pose or on `α` otherwise: with `older` given, this prepares interpolation (every
+/// `α < 1`) for the methods that interpolate (`ours`, `forward_splat` with
+/// [`Params::splat_bidirectional`]); without it, and for `ours_extrapolate` and unidirectional
+/// `forward_splat`, extrapolation from `newer` (`α ≥ 1`). `client` is checked as [`reproject`]
+/// checks it; the state does not depend on it. Methods without pair state (`timewarp`,
+/// `backward_bidir`) check their inputs and do nothing.
+///
+/// Work already in `history` for the same pair is kept (the call then does nothing);
+/// [`BidirHistory::pair_builds`] counts the computations.
+///
+/// # Errors
+/// Any [`ReprojError`] [`reproject`] gives for these inputs at that `α`; `history` is unchanged
+/// then.
+pub fn prepare_pair(
+    method: Method,
+    older: Option<&FrameView>,
+    newer: &FrameView,
+    client: &Camera,
+    params: &Params,
+    history: &mut BidirHistory,
+) -> Result<()> {
+    let interpolates = older.is_some()
+        && (method == Method::Ours
+            || (method == Method::ForwardSplat && params.splat_bidirectional));
+    let request = Request {
+        client: *client,
+        alpha: if interpolates { 0.0 } else { 1.0 },
+    };
+    match route(method, older, newer, &request, params, || Ok(()))? {
+        Route::Splat(mode, older_used) => {
+            ours::prepare(mode, older_used, newer, params, history.pair_cache())
+        }
+        Route::Timewarp(_) | Route::BackwardBidir(_) => Ok(()),
+    }
+}
+
+/// Where [`reproject`] sends a call, once its inputs are checked.
+enum Route<'f, 'a> {
+    /// The splat-based kernel ([`ours::run`]) in this mode, with the older frame when it takes
+    /// part.
+    Splat(ours::Mode, Option<&'f FrameView<'a>>),
+    /// Timewarp from this frame.
+    Timewarp(&'f FrameView<'a>),
+    /// `backward_bidir` with this older frame (and the newer one).
+    BackwardBidir(&'f FrameView<'a>),
+}
+
+/// Checks what every method shares (parameters, client camera, `output`: the caller's output
+/// buffers, then `α`'s range and the frame pair) and what each method needs of `older` and `α`;
+/// shared by [`reproject`] and [`prepare_pair`], so that both accept exactly the same calls.
+fn route<'f, 'a>(
+    method: Method,
+    older: Option<&'f FrameView<'a>>,
+    newer: &'f FrameView<'a>,
+    request: &Request,
+    params: &Params,
+    output: impl FnOnce() -> Result<()>,
+) -> Result<Route<'f, 'a>> {
     params.validate()?;
-    let client = &request.client;
-    client.projector("client camera")?;
-    check_output(out, diag.as_deref(), client.width, client.height)?;
+    request.client.projector("client camera")?;
+    output()?;
     let alpha = request.alpha;
     let range_err = |range: &str| ReprojError::AlphaRange {
         alpha,
@@ -125,32 +210,29 @@ pub fn reproject(
             Ok(None)
         }
     };
-    let (mode, older_used) = match method {
-        Method::Ours => (
+    Ok(match method {
+        Method::Ours => Route::Splat(
             ours::Mode::Ours,
             interpolating("method 'ours' interpolates for alpha < 1 and needs the older frame; pass it, or use alpha >= 1 to extrapolate from the newer frame")?,
         ),
-        Method::OursExtrapolate => (
+        Method::OursExtrapolate => Route::Splat(
             ours::Mode::Ours,
             extrapolating("[1, 3] (extrapolation from the newest frame, given as `newer`)")?,
         ),
-        Method::ForwardSplat if params.splat_bidirectional => (
+        Method::ForwardSplat if params.splat_bidirectional => Route::Splat(
             ours::Mode::ForwardSplat,
             interpolating("bidirectional forward_splat with alpha < 1 needs the older frame")?,
         ),
-        Method::ForwardSplat => (
+        Method::ForwardSplat => Route::Splat(
             ours::Mode::ForwardSplat,
             extrapolating(
                 "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)",
             )?,
         ),
-        Method::Timewarp => {
-            let frame = match older {
-                Some(o) if alpha < 1.0 => o,
-                _ => newer,
-            };
-            return timewarp::run(frame, request, params, out, diag);
-        }
+        Method::Timewarp => Route::Timewarp(match older {
+            Some(o) if alpha < 1.0 => o,
+            _ => newer,
+        }),
         Method::BackwardBidir => {
             let older = older.ok_or_else(|| {
                 ReprojError::MissingFrame("method 'backward_bidir' needs both frames".into())
@@ -158,24 +240,9 @@ pub fn reproject(
             if alpha > 1.0 {
                 return Err(range_err("[0, 1] (backward_bidir only interpolates)"));
             }
-            return backward_bidir::run(older, newer, request, params, out, diag, history);
+            Route::BackwardBidir(older)
         }
-    };
-    ours::run(
-        mode,
-        older_used,
-        newer,
-        request,
-        params,
-        out,
-        diag,
-        pair(history),
-    )
-}
-
-/// The pair-level cache of `ours` inside the caller's history.
-fn pair(history: Option<&mut BidirHistory>) -> Option<&mut ours::PairCache> {
-    history.map(BidirHistory::pair_cache)
+    })
 }
 
 #[cfg(test)]

@@ -5,7 +5,9 @@ use numpy::{IntoPyArray, PyArray, PyArray2, PyArray3, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use reproj_core::method::MAX_ALPHA;
-use reproj_core::{Camera, CameraBuffers, CameraView, Diagnostics, Mat4, Method, Request, Role};
+use reproj_core::{
+    Camera, CameraBuffers, CameraView, Diagnostics, Mat4, Method, Params, Request, Role,
+};
 
 use crate::convert::{self, array, depth_and_size, slice, Dim, FrameArrays};
 use crate::errors::{invalid, map_reproj_error, SplitRenderError};
@@ -81,6 +83,9 @@ pub struct BidirHistory {
     inner: reproj_core::BidirHistory,
 }
 
+/// The most threads `BidirHistory.prepare` accepts for its pool.
+const MAX_PREPARE_THREADS: i64 = 256;
+
 #[pymethods]
 impl BidirHistory {
     #[new]
@@ -94,8 +99,112 @@ impl BidirHistory {
         self.inner.reset();
     }
 
+    /// Computes the pair-level state of `method` for the frames (`reproj_core::prepare_pair`),
+    /// which the next `reproject` calls with them then reuse; see `splitrender.prepare_pair`.
+    /// `threads`: run it on a dedicated pool of that many threads (kept for later calls), so that
+    /// it neither waits behind nor delays the frames on the global pool; `None` = the global
+    /// pool.
+    #[pyo3(signature = (method, older, newer, client, options=None, threads=None))]
+    fn prepare<'py>(
+        slf: &Bound<'py, Self>,
+        method: &str,
+        older: Option<&Bound<'py, PyAny>>,
+        newer: &Bound<'py, PyAny>,
+        client: &Bound<'py, PyAny>,
+        options: Option<&Bound<'py, PyAny>>,
+        threads: Option<i64>,
+    ) -> PyResult<()> {
+        guarded("BidirHistory.prepare", || {
+            let args = CallArgs::extract(method, older, newer, client, options)?;
+            let threads = match threads {
+                Some(t) if !(1..=MAX_PREPARE_THREADS).contains(&t) => {
+                    return Err(invalid(format!(
+                        "threads: expected None or 1..={MAX_PREPARE_THREADS}, got {t}"
+                    )))
+                }
+                t => t.map(|t| t as usize),
+            };
+            let mut hist = history_mut(slf.as_any())?;
+            let older_view = args.older.as_ref().map(FrameArrays::view).transpose()?;
+            let newer_view = args.newer.view()?;
+            let inner = &mut hist.inner;
+            let mut work = || {
+                reproj_core::prepare_pair(
+                    args.method,
+                    older_view.as_ref(),
+                    &newer_view,
+                    &args.client,
+                    &args.params,
+                    inner,
+                )
+            };
+            // As in `reproject`: the kernel only reads the borrowed arrays.
+            let done = slf.py().detach(|| match threads {
+                None => Ok(work()),
+                Some(n) => reproj_core::pool::install(n, work),
+            });
+            done.map_err(|e| {
+                SplitRenderError::new_err(format!(
+                    "BidirHistory.prepare: cannot start a pool of {threads:?} threads: {e}"
+                ))
+            })?
+            .map_err(map_reproj_error)
+        })
+    }
+
+    /// How many times the pair-level state was computed into this history (by `prepare`, or by
+    /// a `reproject` call whose pair it did not hold); `reset()` does not clear it.
+    #[getter]
+    fn pair_builds(&self) -> u64 {
+        self.inner.pair_builds()
+    }
+
     fn __repr__(&self) -> &'static str {
         "BidirHistory()"
+    }
+}
+
+/// `history` as a `BidirHistory` borrowed for writing, or the error `reproject` and
+/// `BidirHistory.prepare` give for another object or one in use by another call.
+fn history_mut<'py>(h: &Bound<'py, PyAny>) -> PyResult<PyRefMut<'py, BidirHistory>> {
+    let h = h.cast::<BidirHistory>().map_err(|_| {
+        invalid(format!(
+            "history: expected a BidirHistory or None, got {}",
+            convert::describe(h)
+        ))
+    })?;
+    h.try_borrow_mut()
+        .map_err(|_| invalid("history: this BidirHistory is in use by another call"))
+}
+
+/// The arguments `reproject` and `BidirHistory.prepare` share, extracted and checked in this
+/// order (so that both name the first bad one alike).
+struct CallArgs<'py> {
+    method: Method,
+    params: Params,
+    client: Camera,
+    older: Option<FrameArrays<'py>>,
+    newer: FrameArrays<'py>,
+}
+
+impl<'py> CallArgs<'py> {
+    fn extract(
+        method: &str,
+        older: Option<&Bound<'py, PyAny>>,
+        newer: &Bound<'py, PyAny>,
+        client: &Bound<'py, PyAny>,
+        options: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Self> {
+        Ok(CallArgs {
+            method: method.parse().map_err(map_reproj_error)?,
+            params: convert::params(options)?,
+            client: convert::client(client, "client")?,
+            older: match older.filter(|o| !o.is_none()) {
+                Some(o) => Some(FrameArrays::extract(o, "older")?),
+                None => None,
+            },
+            newer: FrameArrays::extract(newer, "newer")?,
+        })
     }
 }
 
@@ -116,14 +225,13 @@ pub fn reproject<'py>(
     history: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     guarded("reproject", || {
-        let method: Method = method.parse().map_err(map_reproj_error)?;
-        let params = convert::params(options)?;
-        let client = convert::client(client, "client")?;
-        let older = match older.filter(|o| !o.is_none()) {
-            Some(o) => Some(FrameArrays::extract(o, "older")?),
-            None => None,
-        };
-        let newer = FrameArrays::extract(newer, "newer")?;
+        let CallArgs {
+            method,
+            params,
+            client,
+            older,
+            newer,
+        } = CallArgs::extract(method, older, newer, client, options)?;
         let (cw, ch) = (client.width, client.height);
         let n = cw * ch;
         let mut out = match previous.filter(|p| !p.is_none()) {
@@ -135,21 +243,10 @@ pub fn reproject<'py>(
             }
             None => vec![0u8; n * 3],
         };
-        let mut hist_ref =
-            match history.filter(|h| !h.is_none()) {
-                Some(h) => {
-                    let h = h.cast::<BidirHistory>().map_err(|_| {
-                        invalid(format!(
-                            "history: expected a BidirHistory or None, got {}",
-                            convert::describe(h)
-                        ))
-                    })?;
-                    Some(h.try_borrow_mut().map_err(|_| {
-                        invalid("history: this BidirHistory is in use by another call")
-                    })?)
-                }
-                None => None,
-            };
+        let mut hist_ref = history
+            .filter(|h| !h.is_none())
+            .map(history_mut)
+            .transpose()?;
         let hist = hist_ref.as_deref_mut().map(|h| &mut h.inner);
         let mut diag = diagnostics.then(|| Diagnostics::new(n));
         let older_view = older.as_ref().map(FrameArrays::view).transpose()?;

@@ -92,6 +92,14 @@ impl BidirHistory {
         &mut self.ours
     }
 
+    /// How many times the pair-level state of `ours`, `ours_extrapolate` or `forward_splat` was
+    /// computed into this history ([`crate::prepare_pair`], or lazily by
+    /// [`crate::reproject`] when the history did not hold the call's pair); not reset by
+    /// [`BidirHistory::reset`].
+    pub fn pair_builds(&self) -> u64 {
+        self.ours.builds()
+    }
+
     /// `α₀` of the stored B-frame, or `None` when the history is empty.
     pub fn alpha(&self) -> Option<f32> {
         (!self.offsets.is_empty()).then_some(self.alpha)

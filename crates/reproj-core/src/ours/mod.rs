@@ -56,7 +56,7 @@ use std::sync::atomic::AtomicU8;
 
 use rayon::prelude::*;
 
-use crate::camera::{Camera, NdcTransfer, Projector};
+use crate::camera::{Camera, Mat4, NdcTransfer, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
 use crate::params::Params;
@@ -254,28 +254,17 @@ struct Choice {
     visible_in_main: bool,
 }
 
-/// Runs `ours` or `forward_splat`. `older = None` (or `α ≥ 1`) means unidirectional from `newer`.
-pub(crate) fn run<'a>(
-    mode: Mode,
+/// The source images of a call (main and auxiliary cameras, (older, newer) per camera when
+/// `older` is given), in the order every per-source list follows, without their per-frame
+/// buffers. Every camera's projector is built first, so that a singular matrix is reported
+/// before any work.
+fn sources<'a>(
     older: Option<&FrameView<'a>>,
     newer: &FrameView<'a>,
-    request: &Request,
     params: &Params,
-    out: &mut [u8],
-    diag: Option<&mut Diagnostics>,
-    pair: Option<&mut PairCache>,
-) -> Result<()> {
-    let alpha = request.alpha;
-    request.client.projector("client camera")?;
-    let older = if alpha < 1.0 { older } else { None };
-    let bidirectional = older.is_some();
-    let use_aux = params.use_aux;
-
-    let mut pool = BUFFER_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
-    let mut take = || pool.pop().unwrap_or_default();
-    // Projectors of every camera first, so that a singular matrix is reported before any work.
+) -> Result<Vec<Src<'a>>> {
     let mut sources: Vec<Src> = Vec::new();
-    let n_aux = if use_aux { newer.aux.len() } else { 0 };
+    let n_aux = if params.use_aux { newer.aux.len() } else { 0 };
     for cam in 0..=n_aux {
         let pick = |f: &FrameView<'a>| -> CameraView<'a> {
             if cam == 0 {
@@ -314,30 +303,120 @@ pub(crate) fn run<'a>(
                 proj: op,
                 to_other: n_to_o,
             };
-            sources.push(Src::new(ov, op, Some(other_of_o), Role::Older, cam, take()));
-            sources.push(Src::new(nv, np, Some(other_of_n), Role::Newer, cam, take()));
+            sources.push(Src::new(ov, op, Some(other_of_o), Role::Older, cam));
+            sources.push(Src::new(nv, np, Some(other_of_n), Role::Newer, cam));
         } else {
-            sources.push(Src::new(nv, np, None, Role::Newer, cam, take()));
+            sources.push(Src::new(nv, np, None, Role::Newer, cam));
         }
     }
+    Ok(sources)
+}
 
-    // Pass 1: scene flow and splatting. Visibility in main is needed for auxiliary sources only;
-    // main sources are 0 and (if bidirectional) 1.
-    let n_main = if bidirectional { 2 } else { 1 };
-    let mains: Vec<(CameraView, Projector, Role)> = sources[..n_main]
+/// The inverse view-projection of every source (its NDC → world).
+fn inverses(sources: &[Src]) -> Result<Vec<Mat4>> {
+    sources
         .iter()
-        .map(|s| (s.view, s.proj, s.role))
+        .map(|src| {
+            src.view
+                .camera
+                .view_proj()
+                .inverse()
+                .ok_or_else(|| ReprojError::SingularMatrix {
+                    what: "source camera".into(),
+                })
+        })
+        .collect()
+}
+
+/// Brings `pair` up to date for `sources`: what does not depend on the client pose or α
+/// ([`PairCache`]), computed only when the cache holds another pair (or nothing).
+fn ensure_pair<'a>(
+    sources: &[Src<'a>],
+    inverses: &[Mat4],
+    mode: Mode,
+    params: &Params,
+    pair: &mut PairCache,
+) {
+    // Main sources are 0 and (if bidirectional) 1; visibility in main is needed for the
+    // auxiliary sources only.
+    let bidirectional = sources.get(1).is_some_and(|s| s.camera == 0);
+    let blends = mode == Mode::Ours && params.blend && bidirectional;
+    let key = PairKey::of(sources, mode, params, blends);
+    if pair.key.as_ref() == Some(&key) {
+        return;
+    }
+    pair.key = None;
+    let n_main = if bidirectional { 2 } else { 1 };
+    let mains = &sources[..n_main];
+    let to_main = |k: usize, m: &Src<'a>| {
+        (
+            m.view,
+            m.proj,
+            NdcTransfer::new(&inverses[k], &m.view.camera.view_proj()),
+        )
+    };
+    let vis_ctx: Vec<Option<VisCtx>> = sources
+        .iter()
+        .enumerate()
+        .map(|(k, src)| {
+            (src.camera > 0).then(|| VisCtx {
+                same: mains
+                    .iter()
+                    .find(|m| m.role == src.role)
+                    .map(|m| to_main(k, m)),
+                other: mains
+                    .iter()
+                    .find(|m| m.role != src.role)
+                    .map(|m| to_main(k, m)),
+                eps_z: params.eps_z * params.aux_threshold_scale,
+            })
+        })
         .collect();
+    pair.compute(sources, &vis_ctx, blends, params);
+    pair.key = Some(key);
+}
+
+/// The pair-level state alone ([`crate::prepare_pair`]): what [`run`] with the same mode, frames
+/// and parameters would compute into `pair` (`older` is the frame `run` uses, `None` when
+/// extrapolating), and no client frame.
+pub(crate) fn prepare(
+    mode: Mode,
+    older: Option<&FrameView>,
+    newer: &FrameView,
+    params: &Params,
+    pair: &mut PairCache,
+) -> Result<()> {
+    let sources = sources(older, newer, params)?;
+    let inverses = inverses(&sources)?;
+    ensure_pair(&sources, &inverses, mode, params, pair);
+    Ok(())
+}
+
+/// Runs `ours` or `forward_splat`. `older = None` (or `α ≥ 1`) means unidirectional from `newer`.
+pub(crate) fn run<'a>(
+    mode: Mode,
+    older: Option<&FrameView<'a>>,
+    newer: &FrameView<'a>,
+    request: &Request,
+    params: &Params,
+    out: &mut [u8],
+    diag: Option<&mut Diagnostics>,
+    pair: Option<&mut PairCache>,
+) -> Result<()> {
+    let alpha = request.alpha;
+    request.client.projector("client camera")?;
+    let older = if alpha < 1.0 { older } else { None };
+    let bidirectional = older.is_some();
+    let mut sources = sources(older, newer, params)?;
+    let n_aux = if params.use_aux { newer.aux.len() } else { 0 };
     let eps_z_aux = params.eps_z * params.aux_threshold_scale;
     let client_vp = request.client.view_proj();
-    let mut inverses = Vec::with_capacity(sources.len());
-    for src in &sources {
-        let Some(inv) = src.view.camera.view_proj().inverse() else {
-            return Err(ReprojError::SingularMatrix {
-                what: "source camera".into(),
-            });
-        };
-        inverses.push(inv);
+    let inverses = inverses(&sources)?;
+    let mut pool = BUFFER_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
+    for src in &mut sources {
+        src.bufs = pool.pop().unwrap_or_default();
+        src.bufs
+            .fit(src.view.camera.width * src.view.camera.height, src.camera);
     }
 
     // What does not depend on the client pose or α: computed once per server-frame pair when the
@@ -348,39 +427,10 @@ pub(crate) fn run<'a>(
         Some(p) => p,
         None => own_pair.insert(PAIR_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()))),
     };
-    let key = PairKey::of(&sources, mode, params, blends);
-    if pair.key.as_ref() != Some(&key) {
-        pair.key = None;
-        let to_main = |k: usize, m: &(CameraView<'a>, Projector, Role)| {
-            (
-                m.0,
-                m.1,
-                NdcTransfer::new(&inverses[k], &m.0.camera.view_proj()),
-            )
-        };
-        let vis_ctx: Vec<Option<VisCtx>> = sources
-            .iter()
-            .enumerate()
-            .map(|(k, src)| {
-                (src.camera > 0).then(|| VisCtx {
-                    same: mains
-                        .iter()
-                        .find(|m| m.2 == src.role)
-                        .map(|m| to_main(k, m)),
-                    other: mains
-                        .iter()
-                        .find(|m| m.2 != src.role)
-                        .map(|m| to_main(k, m)),
-                    eps_z: eps_z_aux,
-                })
-            })
-            .collect();
-        pair.compute(&sources, &vis_ctx, blends, params);
-        pair.key = Some(key);
-    }
+    ensure_pair(&sources, &inverses, mode, params, pair);
 
     let pair: &PairCache = pair;
-    // Every source at once, each with its own parallel bands inside: one wait for the slowest
+    // Pass 1: scene flow and splatting. Every source at once, each with its own parallel bands inside: one wait for the slowest
     // task per frame instead of two per source (the small auxiliary grids have too few bands to
     // keep both cores busy on their own).
     sources.par_iter_mut().enumerate().for_each(|(k, src)| {
@@ -467,36 +517,14 @@ pub(crate) fn run<'a>(
 }
 
 impl<'a> Src<'a> {
+    /// A source without its per-frame buffers (see [`Buffers::fit`]).
     fn new(
         view: CameraView<'a>,
         proj: Projector,
         other: Option<Other>,
         role: Role,
         camera: usize,
-        mut bufs: Buffers,
     ) -> Self {
-        let n = view.camera.width * view.camera.height;
-        if bufs.flow.len() != n {
-            bufs.flow = Vec::new();
-            bufs.flow.resize(n, [f32::NAN; 2]);
-            bufs.zc = Vec::new();
-            bufs.zc.resize(n, f32::NAN);
-            bufs.splat = Vec::new();
-            bufs.splat.resize(n, EMPTY_SPLAT);
-            bufs.init = Vec::new();
-            bufs.init.resize(n, NO_SPLAT);
-        }
-        if camera > 0 {
-            if bufs.invisible.len() != n {
-                bufs.invisible = Vec::new();
-                bufs.invisible.resize_with(n, || AtomicU8::new(0));
-            } else {
-                // Exclusive access: plain stores, which the compiler turns into a memset (an
-                // atomic store per flag would not vectorise). A quarter of a byte per output
-                // pixel, so one thread.
-                bufs.invisible.iter_mut().for_each(|f| *f.get_mut() = 0);
-            }
-        }
         let short = view.camera.width.min(view.camera.height) as f32;
         Src {
             view,
@@ -509,7 +537,35 @@ impl<'a> Src<'a> {
                 view.camera.height as f32 / short,
             ],
             ndc: NdcTable::new(view.camera.width, view.camera.height),
-            bufs,
+            bufs: Buffers::default(),
+        }
+    }
+}
+
+impl Buffers {
+    /// Sizes the buffers for a source of `n` pixels (`camera` as [`Src::camera`]), reusing
+    /// their memory when the size is unchanged, and clears the auxiliary flags.
+    fn fit(&mut self, n: usize, camera: usize) {
+        if self.flow.len() != n {
+            self.flow = Vec::new();
+            self.flow.resize(n, [f32::NAN; 2]);
+            self.zc = Vec::new();
+            self.zc.resize(n, f32::NAN);
+            self.splat = Vec::new();
+            self.splat.resize(n, EMPTY_SPLAT);
+            self.init = Vec::new();
+            self.init.resize(n, NO_SPLAT);
+        }
+        if camera > 0 {
+            if self.invisible.len() != n {
+                self.invisible = Vec::new();
+                self.invisible.resize_with(n, || AtomicU8::new(0));
+            } else {
+                // Exclusive access: plain stores, which the compiler turns into a memset (an
+                // atomic store per flag would not vectorise). A quarter of a byte per output
+                // pixel, so one thread.
+                self.invisible.iter_mut().for_each(|f| *f.get_mut() = 0);
+            }
         }
     }
 }
@@ -665,7 +721,8 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
             what: "source camera".into(),
         })?;
     let to_client = NdcTransfer::new(&inv, &client.view_proj());
-    let mut src = Src::new(*view, proj, None, Role::Older, 0, Buffers::default());
+    let mut src = Src::new(*view, proj, None, Role::Older, 0);
+    src.bufs.fit(view.camera.width * view.camera.height, 0);
     scene_flow_and_splat(&mut src, &to_client, w, None);
     Ok(src
         .bufs

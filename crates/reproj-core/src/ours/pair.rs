@@ -31,6 +31,8 @@ use super::{packed_cell, unpack_pixel, Mode, Src, NO_SPLAT};
 pub struct PairCache {
     pub(super) key: Option<PairKey>,
     pub(super) sources: Vec<PairSource>,
+    /// How many times the state was computed ([`PairCache::builds`]).
+    builds: u64,
 }
 
 /// The pair-level state of one source image ([`PairCache`]).
@@ -101,9 +103,16 @@ impl PairCache {
         PairCache::default()
     }
 
-    /// Forgets the pair (its buffers are kept for the next one).
+    /// Forgets the pair (its buffers are kept for the next one, and the count of
+    /// [`PairCache::builds`] goes on).
     pub fn reset(&mut self) {
         self.key = None;
+    }
+
+    /// How many times this cache has computed its state (for a first pair or a changed one), so
+    /// that a caller can see whether a call did pair-level work.
+    pub fn builds(&self) -> u64 {
+        self.builds
     }
 
     /// Fills the cache for `sources` (in the order of [`run`](super::run): (older, newer) per camera when
@@ -115,6 +124,7 @@ impl PairCache {
         blends: bool,
         params: &Params,
     ) {
+        self.builds += 1;
         self.sources.resize_with(sources.len(), PairSource::default);
         // Every source at once (each with parallel rows inside), as pass 1 of `run`.
         self.sources

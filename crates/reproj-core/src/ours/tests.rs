@@ -329,18 +329,24 @@ fn lazy_auxiliary_search_equals_searching_every_cell() {
     );
 }
 
+/// Three consecutive server frames (10 Hz) of the dynamic synthetic scene at `w × h`: two pairs.
+fn three_frames(w: usize, h: usize) -> Vec<crate::synthetic::SyntheticFrame> {
+    use crate::synthetic::{SyntheticFrame, SyntheticScene};
+    let scene = SyntheticScene::new(true);
+    (0..3)
+        .map(|k| SyntheticFrame::render(&scene, 0.1 * k as f64, w, h, 0.1, 4))
+        .collect()
+}
+
 /// A client keeps one history per server-frame pair: with it, `ours` computes the pair-level
 /// state once; the bytes must equal those of calls without it, for every α of the pair, and a
 /// different pair in the same history must not be served the old pair's state.
 #[test]
 fn pair_cache_gives_the_same_bytes_and_follows_the_pair() {
-    use crate::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+    use crate::synthetic::{head_pose, rig};
     use crate::BidirHistory;
     let (w, h) = (96, 54);
-    let scene = SyntheticScene::new(true);
-    let frames: Vec<SyntheticFrame> = (0..3)
-        .map(|k| SyntheticFrame::render(&scene, 0.1 * k as f64, w, h, 0.1, 4))
-        .collect();
+    let frames = three_frames(w, h);
     let mut history = BidirHistory::new();
     for pair in 0..2 {
         let (older, newer) = (frames[pair].view(true), frames[pair + 1].view(false));
@@ -374,6 +380,130 @@ fn pair_cache_gives_the_same_bytes_and_follows_the_pair() {
             assert_eq!(cached, fresh, "pair {pair}, alpha {alpha}");
         }
     }
+}
+
+/// `prepare_pair` computes the pair state that the client frames of the pair then use: none of
+/// them rebuilds it, and their bytes equal those of calls without a history; a different pair
+/// rebuilds; extrapolation (no older frame) prepares its own state; the methods without pair
+/// state do nothing.
+#[test]
+fn prepare_pair_does_the_pair_work_of_the_next_frames() {
+    use crate::synthetic::{head_pose, rig};
+    use crate::{prepare_pair, BidirHistory};
+    let (w, h) = (96, 54);
+    let frames = three_frames(w, h);
+    let p = Params::default();
+    let client = |t: f64| {
+        let (e, tg) = head_pose(t);
+        rig(e, tg, w, h).0
+    };
+    let frame = |method: Method,
+                 older: Option<&FrameView>,
+                 newer: &FrameView,
+                 alpha: f32,
+                 hist: Option<&mut BidirHistory>| {
+        let req = Request {
+            client: client(0.1 * f64::from(alpha)),
+            alpha,
+        };
+        let mut out = vec![5u8; w * h * 3];
+        let mut diag = Diagnostics::new(w * h);
+        reproject(
+            method,
+            older,
+            newer,
+            &req,
+            &p,
+            &mut out,
+            Some(&mut diag),
+            hist,
+        )
+        .unwrap();
+        (out, diag.source)
+    };
+    let mut history = BidirHistory::new();
+    for (pair, builds) in [(0, 1), (1, 2)] {
+        let (older, newer) = (frames[pair].view(true), frames[pair + 1].view(false));
+        prepare_pair(
+            Method::Ours,
+            Some(&older),
+            &newer,
+            &client(0.0),
+            &p,
+            &mut history,
+        )
+        .unwrap();
+        assert_eq!(history.pair_builds(), builds, "pair {pair} prepared");
+        // Preparing the same pair again keeps the work.
+        prepare_pair(
+            Method::Ours,
+            Some(&older),
+            &newer,
+            &client(0.3),
+            &p,
+            &mut history,
+        )
+        .unwrap();
+        for alpha in [0.0f32, 0.3, 0.6, 0.9] {
+            let prepared = frame(
+                Method::Ours,
+                Some(&older),
+                &newer,
+                alpha,
+                Some(&mut history),
+            );
+            let fresh = frame(Method::Ours, Some(&older), &newer, alpha, None);
+            assert_eq!(prepared, fresh, "pair {pair}, alpha {alpha}");
+            assert_eq!(history.pair_builds(), builds, "pair {pair}, alpha {alpha}");
+        }
+    }
+    // Extrapolation from the newest frame alone has state of its own.
+    let newer = frames[2].view(false);
+    for method in [Method::OursExtrapolate, Method::ForwardSplat] {
+        let mut history = BidirHistory::new();
+        prepare_pair(method, None, &newer, &client(0.0), &p, &mut history).unwrap();
+        assert_eq!(history.pair_builds(), 1, "{method}");
+        for alpha in [1.0f32, 1.5] {
+            let prepared = frame(method, None, &newer, alpha, Some(&mut history));
+            assert_eq!(
+                prepared,
+                frame(method, None, &newer, alpha, None),
+                "{method}"
+            );
+            assert_eq!(history.pair_builds(), 1, "{method}, alpha {alpha}");
+        }
+    }
+    let older = frames[1].view(true);
+    for method in [Method::Timewarp, Method::BackwardBidir] {
+        let mut history = BidirHistory::new();
+        prepare_pair(method, Some(&older), &newer, &client(0.0), &p, &mut history).unwrap();
+        assert_eq!(history.pair_builds(), 0, "{method}");
+    }
+    // It checks its inputs as `reproject` does.
+    let bad = Params {
+        eps_z: -1.0,
+        ..Params::default()
+    };
+    let mut history = BidirHistory::new();
+    assert!(prepare_pair(
+        Method::Ours,
+        Some(&older),
+        &newer,
+        &client(0.0),
+        &bad,
+        &mut history
+    )
+    .is_err());
+    assert!(prepare_pair(
+        Method::BackwardBidir,
+        None,
+        &newer,
+        &client(0.0),
+        &p,
+        &mut history
+    )
+    .is_err());
+    assert_eq!(history.pair_builds(), 0);
 }
 
 #[test]
