@@ -237,6 +237,67 @@ impl Camera {
     }
 }
 
+/// A camera's rays, for ray casting a scene from it (the analytic scene of [`crate::synthetic`]
+/// and reproj-scene's renderer): its centre and `P⁻¹` for the pixel directions, in `f64`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rays {
+    vp: Mat4,
+    inv_vp: Mat4,
+    /// The camera's centre (world).
+    pub origin: [f64; 3],
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+}
+
+impl Rays {
+    /// The rays of `camera`.
+    ///
+    /// # Errors
+    /// The matrix that cannot be inverted, in words: `"singular view-projection"` (checked first)
+    /// or `"singular view"`.
+    pub fn new(camera: &Camera) -> std::result::Result<Rays, &'static str> {
+        let vp = camera.view_proj();
+        let inv_vp = vp.inverse().ok_or("singular view-projection")?;
+        let iv = camera.view.inverse().ok_or("singular view")?;
+        let o = iv.mul_vec([0.0, 0.0, 0.0, 1.0]);
+        Ok(Rays {
+            vp,
+            inv_vp,
+            origin: [o[0] / o[3], o[1] / o[3], o[2] / o[3]],
+            width: camera.width,
+            height: camera.height,
+        })
+    }
+
+    /// The ray through the centre of pixel `(i, j)`, scaled so that the parameter `s = 1` is the
+    /// near plane (so "in front of the near plane" is `s ≥ 1`).
+    #[inline]
+    pub fn ray(&self, i: usize, j: usize) -> [f64; 3] {
+        self.sub_ray(i, j, 0, 0, 1)
+    }
+
+    /// The ray through sub-sample `(a, b)` of the `n×n` ordered grid of pixel `(i, j)`, at
+    /// `(i + (a + ½)/n, j + (b + ½)/n)` pixels. Numerator and denominator are integers, so the
+    /// middle sub-sample of an odd grid is the pixel-centre ray bit for bit.
+    #[inline]
+    pub fn sub_ray(&self, i: usize, j: usize, a: usize, b: usize, n: usize) -> [f64; 3] {
+        let x = (2 * n * i + 2 * a + 1) as f64 / (n * self.width) as f64 - 1.0;
+        let y = 1.0 - (2 * n * j + 2 * b + 1) as f64 / (n * self.height) as f64;
+        let h = self.inv_vp.mul_vec([x, y, 1.0, 1.0]);
+        let o = self.origin;
+        [h[0] / h[3] - o[0], h[1] / h[3] - o[1], h[2] / h[3] - o[2]]
+    }
+
+    /// `P(X)` with the perspective division.
+    #[inline]
+    pub fn project(&self, x: [f64; 3]) -> [f64; 3] {
+        let h = self.vp.mul_vec([x[0], x[1], x[2], 1.0]);
+        [h[0] / h[3], h[1] / h[3], h[2] / h[3]]
+    }
+}
+
 /// A camera ready for the kernels: `P` and `P⁻¹` in `f32` plus its pixel grid.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Projector {

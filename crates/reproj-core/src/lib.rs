@@ -27,7 +27,7 @@ pub mod synthetic;
 pub mod timewarp;
 
 pub use backward_bidir::BidirHistory;
-pub use camera::{Camera, Mat4, NdcTransfer, Projector, M4, MAX_SIDE};
+pub use camera::{Camera, Mat4, NdcTransfer, Projector, Rays, M4, MAX_SIDE};
 pub use error::{ReprojError, Result};
 pub use frame::{CameraBuffers, CameraView, FrameView, ShadowBuffers, ShadowView};
 pub use method::{prepare_pair, reproject, Method};

@@ -277,13 +277,44 @@ pub(crate) enum Kind {
     Deforming,
 }
 
-/// The geometry of one glTF mesh node placed in a scene (see the module docs for the kinds).
-pub struct GltfShape {
+/// One mesh node of a glTF model placed in a scene and what drives it: the animation, the clock
+/// from scene to model time and the placement scale. Its geometry ([`GltfShape`]) and, for the
+/// rigid kind, its motion ([`NodeTrack`]) share it.
+#[derive(Debug, Clone)]
+pub(crate) struct PlacedNode {
     pub(crate) model: Arc<GltfModel>,
     pub(crate) node: usize,
     pub(crate) animation: Option<usize>,
     pub(crate) clock: Clock,
     pub(crate) scale: f64,
+}
+
+impl PlacedNode {
+    /// The node itself.
+    fn get(&self) -> &Node {
+        &self.model.nodes[self.node]
+    }
+
+    /// The world matrix of every node of the model at scene time `t`.
+    fn world(&self, t: f64) -> Vec<DMat4> {
+        self.model.world(self.animation, self.clock.tau(t))
+    }
+}
+
+/// The same node of the same loaded model (compared by identity), driven the same way.
+impl PartialEq for PlacedNode {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.model, &other.model)
+            && self.node == other.node
+            && self.animation == other.animation
+            && self.clock == other.clock
+            && self.scale == other.scale
+    }
+}
+
+/// The geometry of one glTF mesh node placed in a scene (see the module docs for the kinds).
+pub struct GltfShape {
+    pub(crate) placed: PlacedNode,
     pub(crate) kind: Kind,
     /// Rigid kind: the linear part of the node's world matrix at the reference time, baked into
     /// the geometry.
@@ -297,8 +328,8 @@ pub struct GltfShape {
 impl std::fmt::Debug for GltfShape {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GltfShape")
-            .field("path", &self.model.path)
-            .field("node", &self.node)
+            .field("path", &self.placed.model.path)
+            .field("node", &self.placed.node)
             .field("kind", &self.kind)
             .field("rest", &self.rest)
             .finish()
@@ -318,7 +349,7 @@ impl GltfShape {
 
     /// Whether this is a skinned mesh.
     pub fn skinned(&self) -> bool {
-        self.model.nodes[self.node].skin.is_some()
+        self.placed.get().skin.is_some()
     }
 
     /// Albedo of triangle `tri` at `uv`: base colour factor times the base-colour texture.
@@ -326,7 +357,7 @@ impl GltfShape {
         let m = self
             .tri_material
             .get(tri as usize)
-            .and_then(|&m| self.model.materials.get(m));
+            .and_then(|&m| self.placed.model.materials.get(m));
         match m {
             Some(m) => match &m.texture {
                 Some(tex) => {
@@ -341,14 +372,13 @@ impl GltfShape {
 
     /// The object-space vertices at scene (animation) time `t`.
     fn vertices(&self, t: f64) -> Vec<Vertex> {
-        let tau = self.clock.tau(t);
-        let world = self.model.world(self.animation, tau);
-        let node = &self.model.nodes[self.node];
-        let prims = &self.model.meshes[node.mesh.expect("mesh node")];
-        let s = self.scale;
+        let world = self.placed.world(t);
+        let node = self.placed.get();
+        let prims = &self.placed.model.meshes[node.mesh.expect("mesh node")];
+        let s = self.placed.scale;
         let mut out = Vec::with_capacity(prims.iter().map(|p| p.positions.len()).sum());
         let joints: Option<Vec<DMat4>> = node.skin.map(|k| {
-            let skin = &self.model.skins[k];
+            let skin = &self.placed.model.skins[k];
             skin.joints
                 .iter()
                 .zip(&skin.inverse_bind)
@@ -372,12 +402,12 @@ impl GltfShape {
                         if sum > 0.0 {
                             acc
                         } else {
-                            world[self.node]
+                            world[self.placed.node]
                         }
                     }
                     _ => match self.kind {
                         Kind::Rigid => DMat4::from_mat3(self.reference),
-                        _ => world[self.node],
+                        _ => world[self.placed.node],
                     },
                 };
                 let q = m.transform_point3(pos) * s;
@@ -405,10 +435,10 @@ impl GltfShape {
     }
 
     fn triangles(&self) -> Vec<[u32; 3]> {
-        let node = &self.model.nodes[self.node];
+        let node = self.placed.get();
         let mut out = Vec::new();
         let mut base = 0u32;
-        for p in &self.model.meshes[node.mesh.expect("mesh node")] {
+        for p in &self.placed.model.meshes[node.mesh.expect("mesh node")] {
             out.extend(p.triangles.iter().map(|t| t.map(|i| i + base)));
             base += p.positions.len() as u32;
         }
@@ -425,30 +455,23 @@ impl GltfShape {
 /// the reference, with the placement scale applied to the translation.
 #[derive(Debug)]
 pub struct NodeTrack {
-    pub(crate) model: Arc<GltfModel>,
-    pub(crate) node: usize,
-    pub(crate) animation: Option<usize>,
-    pub(crate) clock: Clock,
-    pub(crate) scale: f64,
+    pub(crate) placed: PlacedNode,
     pub(crate) inv_reference: DMat3,
 }
 
+/// `inv_reference` follows from the placed node, so it is not compared.
 impl PartialEq for NodeTrack {
     fn eq(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.model, &other.model)
-            && self.node == other.node
-            && self.animation == other.animation
-            && self.clock == other.clock
-            && self.scale == other.scale
+        self.placed == other.placed
     }
 }
 
 impl NodeTrack {
     /// The transform at scene time `t`.
     pub fn at(&self, t: f64) -> Rigid {
-        let w = self.model.world(self.animation, self.clock.tau(t))[self.node];
+        let w = self.placed.world(t)[self.placed.node];
         let r = DMat3::from_mat4(w) * self.inv_reference;
-        let tr = w.w_axis.truncate() * self.scale;
+        let tr = w.w_axis.truncate() * self.placed.scale;
         Rigid {
             // DMat3 is column-major; Rigid is row-major.
             rot: std::array::from_fn(|i| std::array::from_fn(|j| r.col(j)[i])),

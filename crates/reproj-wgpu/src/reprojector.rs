@@ -499,25 +499,19 @@ impl Reprojector {
                 detail,
             })
         };
-        if let Some(o) = out.as_deref() {
-            if o.len() != n * 3 {
-                return Err(size_err(
-                    "output image",
-                    n * 3,
-                    o.len(),
-                    format!("{ch}x{cw}x3"),
-                ));
+        // The output and the previous client frame: client-sized RGB8 images.
+        let check_rgb = |what: &str, len: usize| {
+            if len == n * 3 {
+                Ok(())
+            } else {
+                Err(size_err(what, n * 3, len, format!("{ch}x{cw}x3")))
             }
+        };
+        if let Some(o) = out.as_deref() {
+            check_rgb("output image", o.len())?;
         }
         if let Previous::Image(p) = previous {
-            if p.len() != n * 3 {
-                return Err(size_err(
-                    "previous client frame",
-                    n * 3,
-                    p.len(),
-                    format!("{ch}x{cw}x3"),
-                ));
-            }
+            check_rgb("previous client frame", p.len())?;
         }
         if let Some(d) = diag.as_deref() {
             if d.source.len() != n || d.error.len() != n {

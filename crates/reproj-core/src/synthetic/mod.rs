@@ -28,7 +28,7 @@ use std::sync::OnceLock;
 
 use rayon::prelude::*;
 
-use crate::camera::{Camera, Mat4};
+use crate::camera::{Camera, Mat4, Rays};
 use crate::frame::FrameView;
 pub use crate::frame::{CameraBuffers, ShadowBuffers};
 
@@ -186,47 +186,6 @@ struct Pose {
 pub struct SyntheticScene {
     /// Whether the sphere and the cube move; `false` freezes them at their `t = 0` pose.
     pub dynamic: bool,
-}
-
-/// A camera's rays: the world position of its centre and `P⁻¹` for the pixel directions.
-struct Rays {
-    vp: Mat4,
-    inv_vp: Mat4,
-    origin: V3,
-    width: usize,
-    height: usize,
-}
-
-impl Rays {
-    /// `None` when the camera's matrices cannot be inverted (then everything is sky).
-    fn new(camera: &Camera) -> Option<Rays> {
-        let vp = camera.view_proj();
-        let inv_vp = vp.inverse()?;
-        let iv = camera.view.inverse()?;
-        let o = iv.mul_vec([0.0, 0.0, 0.0, 1.0]);
-        Some(Rays {
-            vp,
-            inv_vp,
-            origin: [o[0] / o[3], o[1] / o[3], o[2] / o[3]],
-            width: camera.width,
-            height: camera.height,
-        })
-    }
-
-    /// The ray through the centre of pixel `(i, j)`, scaled so that the parameter `s = 1` is the
-    /// near plane (so "in front of the near plane" is `s ≥ 1`).
-    fn ray(&self, i: usize, j: usize) -> V3 {
-        let x = (2 * i + 1) as f64 / self.width as f64 - 1.0;
-        let y = 1.0 - (2 * j + 1) as f64 / self.height as f64;
-        let h = self.inv_vp.mul_vec([x, y, 1.0, 1.0]);
-        sub([h[0] / h[3], h[1] / h[3], h[2] / h[3]], self.origin)
-    }
-
-    /// `P(X)` with the perspective division.
-    fn project(&self, x: V3) -> V3 {
-        let h = self.vp.mul_vec([x[0], x[1], x[2], 1.0]);
-        [h[0] / h[3], h[1] / h[3], h[2] / h[3]]
-    }
 }
 
 /// Directions of the cube's shadow rays over the light's disc: a Vogel spiral, fixed once, so the
@@ -548,7 +507,8 @@ impl SyntheticScene {
             "subframes must be in 1..=16, got {subframes}"
         );
         let (w, h) = (camera.width, camera.height);
-        let rays = Rays::new(camera);
+        // None when the camera's matrices cannot be inverted: then everything is sky.
+        let rays = Rays::new(camera).ok();
         let pose = self.pose(time);
         // Poses are the same for every pixel: computed once, not per pixel and subframe.
         let step = interval / subframes as f64;
@@ -611,7 +571,8 @@ impl SyntheticScene {
     /// the server colour, so at a server camera and time it equals that colour exactly.
     pub fn render_ground_truth(&self, camera: &Camera, time: f64) -> Vec<u8> {
         let (w, h) = (camera.width, camera.height);
-        let rays = Rays::new(camera);
+        // None when the camera's matrices cannot be inverted: then everything is sky.
+        let rays = Rays::new(camera).ok();
         let pose = self.pose(time);
         let mut out = vec![0u8; 3 * w * h];
         if w == 0 {

@@ -11,7 +11,7 @@ use glam::DMat3;
 use super::err;
 use crate::anim::Anim;
 use crate::error::Result;
-use crate::gltf_model::{Clock, GltfModel, GltfShape, Kind, NodeTrack};
+use crate::gltf_model::{Clock, GltfModel, GltfShape, Kind, NodeTrack, PlacedNode};
 use crate::material::{Material, Pattern};
 use crate::math::{add, scale, Rigid};
 use crate::mesh::Mesh;
@@ -134,12 +134,15 @@ pub fn place_model(
         } else {
             Kind::Deforming
         };
-        let mut shape = GltfShape {
+        let placed = PlacedNode {
             model: model.clone(),
             node: n,
             animation,
             clock,
             scale: placement.scale,
+        };
+        let mut shape = GltfShape {
+            placed: placed.clone(),
             kind,
             reference,
             rest: Arc::new(Mesh::new(Vec::new(), Vec::new())),
@@ -154,11 +157,7 @@ pub fn place_model(
         if kind == Kind::Rigid {
             let inv = reference.inverse();
             anims.push(Anim::Keyframes(Arc::new(NodeTrack {
-                model: model.clone(),
-                node: n,
-                animation,
-                clock,
-                scale: placement.scale,
+                placed,
                 inv_reference: inv,
             })));
         }

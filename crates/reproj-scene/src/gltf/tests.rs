@@ -11,7 +11,7 @@ use reproj_core::Camera;
 use super::*;
 use crate::anim::Anim;
 use crate::math::{add, sub, Rigid, V3};
-use crate::render::{render_ground_truth, render_server, sample, Rays};
+use crate::render::{camera_rays, render_ground_truth, render_server, sample, Rays};
 use crate::rig::{mono, CameraPath, HeadPose};
 use crate::scene::{Light, Scene, Variant};
 
@@ -252,7 +252,7 @@ fn pixel_of(rays: &Rays, x: V3) -> (usize, usize) {
 fn texture_shows_where_expected() {
     let scene = test_scene("texture");
     let cam = camera();
-    let rays = Rays::new(&cam, "t").unwrap();
+    let rays = camera_rays(&cam, "t").unwrap();
     let snap = scene.at(0.0);
     let image = render_ground_truth(&scene, &cam, 0.0, 1).unwrap();
     // Quad centre at (0, 1, 0); uv (0.25, 0.25) is the top-left texel (red), and so on.
@@ -289,7 +289,7 @@ fn rigid_node_animation_gives_the_analytic_motion() {
     assert!(matches!(scene.objects[0].anims[..], [Anim::Keyframes(_)]));
     assert!(!scene.objects[0].shape.deforms() && scene.objects[1].shape.deforms());
     let cam = camera();
-    let rays = Rays::new(&cam, "t").unwrap();
+    let rays = camera_rays(&cam, "t").unwrap();
     let t = 1.0;
     let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap().buffers;
     let snap = scene.at(t);
@@ -319,7 +319,7 @@ fn rigid_node_animation_gives_the_analytic_motion() {
 fn skinned_motion_lands_on_the_skinned_material_point() {
     let scene = test_scene("skin");
     let cam = camera();
-    let rays = Rays::new(&cam, "t").unwrap();
+    let rays = camera_rays(&cam, "t").unwrap();
     let t = 1.0;
     let r = render_server(&scene, &cam, t, DT, 4, 1).unwrap().buffers;
     let inv_vp = cam.view_proj().inverse().unwrap();

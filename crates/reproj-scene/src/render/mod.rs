@@ -45,13 +45,14 @@ mod server;
 mod tests;
 mod truth;
 
+pub(crate) use reproj_core::Rays;
 pub use reproj_core::ShadowBuffers;
 use reproj_core::{Camera, CameraBuffers, CameraView, Mat4};
 
 use crate::error::{Result, SceneError};
 use crate::material::Material;
-use crate::math::{add, normalize, scale, sub, V3};
-use crate::scene::{Scene, Snapshot};
+use crate::math::{add, normalize, scale, V3};
+use crate::scene::Snapshot;
 pub use server::render_server;
 pub use truth::{render_ground_truth, render_shadow_fraction};
 
@@ -123,74 +124,25 @@ impl ServerBuffers {
     }
 }
 
-/// A camera's rays: its centre and `P⁻¹` for the pixel directions.
-pub(crate) struct Rays {
-    vp: Mat4,
-    inv_vp: Mat4,
-    pub origin: V3,
-    pub width: usize,
-    pub height: usize,
-}
-
-impl Rays {
-    pub(crate) fn new(camera: &Camera, what: &str) -> Result<Rays> {
-        let bad = |why: &str| SceneError::BadCamera {
-            what: what.to_string(),
-            why: why.to_string(),
-        };
-        if camera.width == 0
-            || camera.height == 0
-            || camera.width > reproj_core::MAX_SIDE
-            || camera.height > reproj_core::MAX_SIDE
-        {
-            return Err(bad(&format!(
-                "size {}×{} outside 1..={}",
-                camera.width,
-                camera.height,
-                reproj_core::MAX_SIDE
-            )));
-        }
-        let vp = camera.view_proj();
-        let inv_vp = vp
-            .inverse()
-            .ok_or_else(|| bad("singular view-projection"))?;
-        let iv = camera.view.inverse().ok_or_else(|| bad("singular view"))?;
-        let o = iv.mul_vec([0.0, 0.0, 0.0, 1.0]);
-        Ok(Rays {
-            vp,
-            inv_vp,
-            origin: [o[0] / o[3], o[1] / o[3], o[2] / o[3]],
-            width: camera.width,
-            height: camera.height,
-        })
+/// `camera`'s rays, checking its size; `what` names it in errors.
+pub(crate) fn camera_rays(camera: &Camera, what: &str) -> Result<Rays> {
+    let bad = |why: &str| SceneError::BadCamera {
+        what: what.to_string(),
+        why: why.to_string(),
+    };
+    if camera.width == 0
+        || camera.height == 0
+        || camera.width > reproj_core::MAX_SIDE
+        || camera.height > reproj_core::MAX_SIDE
+    {
+        return Err(bad(&format!(
+            "size {}×{} outside 1..={}",
+            camera.width,
+            camera.height,
+            reproj_core::MAX_SIDE
+        )));
     }
-
-    /// The ray through the centre of pixel `(i, j)`, scaled so that `s = 1` is the near plane.
-    pub(crate) fn ray(&self, i: usize, j: usize) -> V3 {
-        self.sub_ray(i, j, 0, 0, 1)
-    }
-
-    /// The ray through sub-sample `(a, b)` of the `n×n` ordered grid of pixel `(i, j)`, at
-    /// `(i + (a + ½)/n, j + (b + ½)/n)` pixels. Numerator and denominator are integers, so the
-    /// middle sub-sample of an odd grid is the pixel-centre ray bit for bit.
-    pub(crate) fn sub_ray(&self, i: usize, j: usize, a: usize, b: usize, n: usize) -> V3 {
-        let x = (2 * n * i + 2 * a + 1) as f64 / (n * self.width) as f64 - 1.0;
-        let y = 1.0 - (2 * n * j + 2 * b + 1) as f64 / (n * self.height) as f64;
-        let h = self.inv_vp.mul_vec([x, y, 1.0, 1.0]);
-        sub([h[0] / h[3], h[1] / h[3], h[2] / h[3]], self.origin)
-    }
-
-    /// The ray parameter of the far plane along `d` (the ray at `s = 1` is on the near plane, and
-    /// view depth is linear in `s`).
-    fn far_param(&self, scene: &Scene) -> f64 {
-        scene.far / scene.near
-    }
-
-    /// `P(X)` with the perspective division.
-    pub(crate) fn project(&self, x: V3) -> V3 {
-        let h = self.vp.mul_vec([x[0], x[1], x[2], 1.0]);
-        [h[0] / h[3], h[1] / h[3], h[2] / h[3]]
-    }
+    Rays::new(camera).map_err(bad)
 }
 
 /// What one pixel (or colour sub-sample) sees at the key time.
@@ -236,8 +188,10 @@ fn sample_ray(snap: &Snapshot<'_>, rays: &Rays, d: V3, with_shadow: bool) -> Sam
         albedo: [0.0; 3],
         shadow: 0.0,
     };
-    // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0).
-    let Some(hit) = snap.trace(rays.origin, d, 1.0, rays.far_param(snap.scene)) else {
+    // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
+    // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
+    let far = snap.scene.far / snap.scene.near;
+    let Some(hit) = snap.trace(rays.origin, d, 1.0, far) else {
         return sky;
     };
     let x = add(rays.origin, scale(d, hit.t));

@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use reproj_core::{Camera, CameraBuffers};
 
 use super::{
-    check_samples, footprint, material, mean_rgb8, pixel_color, sample, Rays, Sample,
+    camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample, Sample,
     ServerBuffers, SubSample, BLOCK_ROWS,
 };
 use crate::error::{Result, SceneError};
@@ -106,7 +106,7 @@ pub fn render_server(
         return Err(SceneError::BadSubframes { subframes });
     }
     let n = check_samples(samples)?;
-    let rays = Rays::new(camera, "server")?;
+    let rays = camera_rays(camera, "server")?;
     let (w, h) = (camera.width, camera.height);
     let key = scene.at(t);
     let (next, prev) = (scene.at(t + interval), scene.at(t - interval));

@@ -3,7 +3,7 @@
 
 use super::*;
 use crate::rig::rig;
-use crate::scene::Variant;
+use crate::scene::{Scene, Variant};
 use crate::scenes::builtin;
 use crate::shape::Shape;
 
@@ -24,7 +24,7 @@ fn camera(scene: &Scene, k: usize, w: usize, h: usize) -> Camera {
 
 /// `(object, face)` seen at each pixel (`None` for the sky).
 fn ids(scene: &Scene, cam: &Camera, t: f64) -> Vec<Option<(usize, u32)>> {
-    let rays = Rays::new(cam, "test").unwrap();
+    let rays = camera_rays(cam, "test").unwrap();
     let snap = scene.at(t);
     let mut out = Vec::new();
     for j in 0..cam.height {
@@ -276,7 +276,7 @@ fn shadow_bits_match_directly_rendered_subframes() {
 }
 
 fn render_shadow_fraction_at(scene: &Scene, cam: &Camera, t: f64, p: usize) -> f32 {
-    let rays = Rays::new(cam, "test").unwrap();
+    let rays = camera_rays(cam, "test").unwrap();
     let snap = scene.at(t);
     sample(&snap, &rays, p % cam.width, p / cam.width, true).shadow as f32
 }
@@ -419,7 +419,7 @@ fn supersampled_flat_colour_equals_the_point_sample() {
     }
     let (w, h, t) = (64, 36, 0.4);
     let cam = camera(&scene, 4, w, h);
-    let rays = Rays::new(&cam, "test").unwrap();
+    let rays = camera_rays(&cam, "test").unwrap();
     let snap = scene.at(t);
     let point = render_ground_truth(&scene, &cam, t, 1).unwrap();
     let mut flat = 0;

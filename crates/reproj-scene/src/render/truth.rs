@@ -5,7 +5,7 @@
 use rayon::prelude::*;
 use reproj_core::Camera;
 
-use super::{check_samples, footprint, pixel_color, sample, Rays, BLOCK_ROWS};
+use super::{camera_rays, check_samples, footprint, pixel_color, sample, Rays, BLOCK_ROWS};
 use crate::error::Result;
 use crate::scene::Scene;
 
@@ -40,7 +40,7 @@ pub fn render_ground_truth(
     samples: usize,
 ) -> Result<Vec<u8>> {
     let n = check_samples(samples)?;
-    let rays = Rays::new(camera, "client")?;
+    let rays = camera_rays(camera, "client")?;
     let snap = scene.at(t);
     Ok(per_pixel(&rays, |i, j| {
         let mut fp = Vec::with_capacity(n * n);
@@ -62,7 +62,7 @@ pub fn render_ground_truth(
 /// # Errors
 /// As [`render_ground_truth`].
 pub fn render_shadow_fraction(scene: &Scene, camera: &Camera, t: f64) -> Result<Vec<f32>> {
-    let rays = Rays::new(camera, "shadow")?;
+    let rays = camera_rays(camera, "shadow")?;
     let snap = scene.at(t);
     Ok(per_pixel(&rays, |i, j| {
         [sample(&snap, &rays, i, j, true).shadow as f32]
