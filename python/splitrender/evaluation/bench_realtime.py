@@ -72,14 +72,10 @@ class RealtimeBench:
     summary: dict[str, Any]
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "method": self.method,
-            "source": self.source,
-            "width": self.width,
-            "height": self.height,
-            "looped": self.looped,
-            **self.summary,
-        }
+        """What ran (every field but the summary), then the summary's keys."""
+        head = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        summary = head.pop("summary")
+        return {**head, **summary}
 
 
 def _scene_stream(scene: str, scale: float, n: int, progress: Progress) -> Path:
