@@ -61,14 +61,14 @@ use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
 use crate::params::Params;
 use crate::request::{par_row_blocks, Diagnostics, Request};
-use crate::shadow::{round_rgb4, Role};
+use crate::shadow::Role;
 
 use auxiliary::{AuxBlock, AuxGrid, AuxRow};
 pub use pair::PairCache;
 use pair::{PairKey, VisCtx, PAIR_POOL};
 use pass1::{scene_flow_and_splat, window_min};
 use search::{SearchRow, Targets};
-use select::{Picks, NO_SOURCE};
+use select::Picks;
 
 /// Which pipeline [`run`] executes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -647,7 +647,7 @@ impl Resolve<'_> {
         // searches ([`Resolve::search_row`]), Algorithm 1 for them without branches on the data
         // ([`Resolve::choose_row`]; which frame wins is close to random from pixel to pixel, so
         // a branch on it would be mispredicted about half the time), the auxiliary cameras where
-        // they can change the pixel, and the colours (Algorithm 2).
+        // they can change the pixel, and the colours (Algorithm 2, [`Resolve::colour_row`]).
         for r in 0..rows {
             let j = j0 + r;
             let targets = Targets {
@@ -663,37 +663,10 @@ impl Resolve<'_> {
             }
             self.choose_row(sides, picks);
             self.aux_row(j, picks, aux, &mut blocks);
-            // The colours of the row, then their rounding into the output: the float-to-byte
-            // conversions of one pixel no longer wait behind its colour loads.
-            picks.rgb.resize(cw, [0.0; 4]);
-            for i in 0..cw {
-                let src = picks.src[i];
-                let local = r * cw + i;
-                if src == NO_SOURCE {
-                    if let Some((s, err)) = diag.as_mut() {
-                        s[local] = Diagnostics::NONE;
-                        err[local] = f32::NAN;
-                    }
-                    continue;
-                }
-                let (rgb, blended) = self.second_chance(usize::from(src), picks.p[i] as usize);
-                picks.rgb[i] = rgb;
-                if let Some((s, err)) = diag.as_mut() {
-                    s[local] = self.code_of(usize::from(src), blended);
-                    err[local] = picks.e[i];
-                }
-            }
-            let row_out = &mut out[3 * r * cw..3 * (r + 1) * cw];
-            for ((o, &src), &rgb) in row_out
-                .chunks_exact_mut(3)
-                .zip(&picks.src[..cw])
-                .zip(&picks.rgb[..cw])
-            {
-                // No match keeps the previous client frame's colour.
-                if src != NO_SOURCE {
-                    o.copy_from_slice(&round_rgb4(rgb)[..3]);
-                }
-            }
+            let row_diag = diag
+                .as_mut()
+                .map(|(s, e)| (&mut s[r * cw..(r + 1) * cw], &mut e[r * cw..(r + 1) * cw]));
+            self.colour_row(picks, &mut out[3 * r * cw..3 * (r + 1) * cw], row_diag);
         }
         ROW_STATE.with(|b| *b.borrow_mut() = scratch);
         AUX_BLOCKS.with(|b| *b.borrow_mut() = blocks);

@@ -2,10 +2,11 @@
 //! (forward) and newer (backward) match by reprojection error (`ε_e`) and depth (`ε_z`);
 //! Algorithm 2 colours the kept match, blended with its correspondence in the other frame where the
 //! pair state found one (the "second chance"), after the dynamic shadows of §3.3 (eqs. 9–11,
-//! [`shadow_color`]) are applied to each colour. Also the diagnostic code of a match.
+//! [`shadow_color`]) are applied to each colour; [`Resolve::colour_row`] does it for a row and
+//! rounds the colours into the output. Also the diagnostic code of a match.
 
 use crate::request::Diagnostics;
-use crate::shadow::{shadow_color, Role};
+use crate::shadow::{round_rgb4, shadow_color, Role};
 
 use super::search::SearchRow;
 use super::simd::avx2_method;
@@ -85,6 +86,52 @@ impl Resolve<'_> {
             p[i] = if older { pf[i] } else { pb[i] };
             e[i] = if older { ef[i] } else { eb[i] };
             z[i] = if older { zf[i] } else { zb[i] };
+        }
+    }
+
+    avx2_method! {
+        /// The colours of a row: Algorithm 2 ([`Resolve::second_chance`]) for every pixel that
+        /// kept a match, then their rounding into `out` (the row's `3·W` bytes; a pixel without a
+        /// match keeps the previous frame's colour there), and the diagnostics when asked. Two
+        /// loops, so that the float-to-byte conversions of a pixel do not wait behind its colour
+        /// loads, compiled for AVX2 like the other stages (the colours' conversions and blends
+        /// are four-lane vectors).
+        pub(super) fn colour_row / colour_row_avx2 => colour_row_impl(&self, picks: &mut Picks, out: &mut [u8], diag: Option<(&mut [u8], &mut [f32])>)
+    }
+
+    #[inline(always)]
+    fn colour_row_impl(
+        &self,
+        picks: &mut Picks,
+        out: &mut [u8],
+        mut diag: Option<(&mut [u8], &mut [f32])>,
+    ) {
+        let cw = self.client_w;
+        picks.rgb.resize(cw, [0.0; 4]);
+        for i in 0..cw {
+            let src = picks.src[i];
+            if src == NO_SOURCE {
+                if let Some((s, err)) = diag.as_mut() {
+                    s[i] = Diagnostics::NONE;
+                    err[i] = f32::NAN;
+                }
+                continue;
+            }
+            let (rgb, blended) = self.second_chance(usize::from(src), picks.p[i] as usize);
+            picks.rgb[i] = rgb;
+            if let Some((s, err)) = diag.as_mut() {
+                s[i] = self.code_of(usize::from(src), blended);
+                err[i] = picks.e[i];
+            }
+        }
+        for ((o, &src), &rgb) in out
+            .chunks_exact_mut(3)
+            .zip(&picks.src[..cw])
+            .zip(&picks.rgb[..cw])
+        {
+            if src != NO_SOURCE {
+                o.copy_from_slice(&round_rgb4(rgb)[..3]);
+            }
         }
     }
 
