@@ -338,6 +338,33 @@ fn three_frames(w: usize, h: usize) -> Vec<crate::synthetic::SyntheticFrame> {
         .collect()
 }
 
+/// One client frame of `method` with diagnostics (over an output that is not black, so that
+/// the pixels left alone show): its image and the source of every pixel.
+fn with_sources(
+    method: Method,
+    older: Option<&FrameView>,
+    newer: &FrameView,
+    req: &Request,
+    params: &Params,
+    history: Option<&mut crate::BidirHistory>,
+) -> (Vec<u8>, Vec<u8>) {
+    let (w, h) = (req.client.width, req.client.height);
+    let mut out = vec![3u8; w * h * 3];
+    let mut diag = Diagnostics::new(w * h);
+    reproject(
+        method,
+        older,
+        newer,
+        req,
+        params,
+        &mut out,
+        Some(&mut diag),
+        history,
+    )
+    .unwrap();
+    (out, diag.source)
+}
+
 /// A client keeps one history per server-frame pair: with it, `ours` computes the pair-level
 /// state once; the bytes must equal those of calls without it, for every α of the pair, and a
 /// different pair in the same history must not be served the old pair's state.
@@ -357,22 +384,9 @@ fn pair_cache_gives_the_same_bytes_and_follows_the_pair() {
                 client: rig(e, tg, w, h).0,
                 alpha,
             };
+            let p = Params::default();
             let run = |hist: Option<&mut BidirHistory>| {
-                let mut out = vec![3u8; w * h * 3];
-                let mut diag = Diagnostics::new(w * h);
-                let p = Params::default();
-                reproject(
-                    Method::Ours,
-                    Some(&older),
-                    &newer,
-                    &req,
-                    &p,
-                    &mut out,
-                    Some(&mut diag),
-                    hist,
-                )
-                .unwrap();
-                (out, diag.source)
+                with_sources(Method::Ours, Some(&older), &newer, &req, &p, hist)
             };
             // Deliberately no reset between the pairs: the cache must notice by itself.
             let cached = run(Some(&mut history));
@@ -406,20 +420,7 @@ fn prepare_pair_does_the_pair_work_of_the_next_frames() {
             client: client(0.1 * f64::from(alpha)),
             alpha,
         };
-        let mut out = vec![5u8; w * h * 3];
-        let mut diag = Diagnostics::new(w * h);
-        reproject(
-            method,
-            older,
-            newer,
-            &req,
-            &p,
-            &mut out,
-            Some(&mut diag),
-            hist,
-        )
-        .unwrap();
-        (out, diag.source)
+        with_sources(method, older, newer, &req, &p, hist)
     };
     let mut history = BidirHistory::new();
     for (pair, builds) in [(0, 1), (1, 2)] {
