@@ -98,8 +98,8 @@ __all__ = [
     "write_stream",
 ]
 
-PACKET_VERSION = 2
-STREAM_VERSION = 2
+PACKET_VERSION = 3
+STREAM_VERSION = 3
 
 #: Largest image side (as ``splitrender.types.MAX_SIDE``).
 MAX_SIDE = 16384
@@ -159,6 +159,10 @@ class BufferKind(enum.IntEnum):
     MOTION_BWD_STATIC = 12
     MOTION_FWD_INVALID = 13
     MOTION_BWD_INVALID = 14
+    # Version 3: one HEVC picture per group holds the tiles of every camera (camera 0's entry).
+    PICTURE_COLOR = 15
+    PICTURE_GEOMETRY = 16
+    PICTURE_SHADOW = 17
 
 
 #: Channels of each kind (masks and bitfields count as one channel).
@@ -178,6 +182,9 @@ KIND_CHANNELS: dict[BufferKind, int] = {
     BufferKind.MOTION_BWD_STATIC: 1,
     BufferKind.MOTION_FWD_INVALID: 1,
     BufferKind.MOTION_BWD_INVALID: 1,
+    BufferKind.PICTURE_COLOR: 1,
+    BufferKind.PICTURE_GEOMETRY: 1,
+    BufferKind.PICTURE_SHADOW: 1,
 }
 
 _KIND_NAMES: dict[BufferKind, str] = {
@@ -196,6 +203,29 @@ _KIND_NAMES: dict[BufferKind, str] = {
     BufferKind.MOTION_BWD_STATIC: "motion_bwd.static",
     BufferKind.MOTION_FWD_INVALID: "motion_fwd.invalid",
     BufferKind.MOTION_BWD_INVALID: "motion_bwd.invalid",
+    BufferKind.PICTURE_COLOR: "color",
+    BufferKind.PICTURE_GEOMETRY: "geometry",
+    BufferKind.PICTURE_SHADOW: "shadow",
+}
+
+#: The HEVC pictures of version 3 and the buffer kinds whose tiles each one holds.
+PICTURE_KINDS: dict[BufferKind, tuple[BufferKind, ...]] = {
+    BufferKind.PICTURE_COLOR: (BufferKind.COLOR,),
+    BufferKind.PICTURE_GEOMETRY: (
+        BufferKind.DEPTH,
+        BufferKind.MOTION_FWD,
+        BufferKind.MOTION_BWD,
+    ),
+    BufferKind.PICTURE_SHADOW: (
+        BufferKind.SHADOW_FWD_MIN,
+        BufferKind.SHADOW_FWD_MAX,
+        BufferKind.SHADOW_BWD_MIN,
+        BufferKind.SHADOW_BWD_MAX,
+    ),
+}
+#: The picture that holds the tile of each lossy kind.
+TILE_PICTURE: dict[BufferKind, BufferKind] = {
+    k: pic for pic, kinds in PICTURE_KINDS.items() for k in kinds
 }
 
 
@@ -207,8 +237,10 @@ class Codec(enum.IntEnum):
 
     - ``RAW``: the array's bytes, C order, little-endian (uint8 colour, float32 depth/motion,
       uint32 bitfields, uint8 masks one byte per pixel).
-    - ``HEVC``: one HEVC access unit of that buffer's stream (8-bit colour; 12-bit depth/motion
-      codes, ``value = code * scale + offset`` per channel).
+    - ``HEVC``: one HEVC access unit of a picture's stream (only the ``PICTURE_*`` kinds).
+    - ``TILE``: no payload; the buffer is a tile of its picture (:data:`TILE_PICTURE`) in the
+      same packet (8-bit colour; 12-bit depth/motion codes, ``value = code * scale + offset``
+      per channel).
     - ``ZSTD``: a zstd frame (shadow bitfields of the non-zero pixels, or a bit-packed mask).
     - ``ZERO``: no payload; every value is zero (a mask: no pixel set).
     """
@@ -217,6 +249,7 @@ class Codec(enum.IntEnum):
     HEVC = 1
     ZSTD = 2
     ZERO = 3
+    TILE = 4
 
 
 def camera_name(camera: int) -> str:
@@ -225,12 +258,15 @@ def camera_name(camera: int) -> str:
 
 
 def buffer_name(camera: int, kind: int) -> str:
-    """``"main.depth"``, ``"aux1.shadow_fwd.bits"``, ..."""
+    """``"main.depth"``, ``"aux1.shadow_fwd.bits"``, ..., ``"picture.geometry"`` (a picture
+    belongs to no one camera)."""
     try:
-        k = _KIND_NAMES[BufferKind(kind)]
+        bk = BufferKind(kind)
     except ValueError:
-        k = f"kind{kind}"
-    return f"{camera_name(camera)}.{k}"
+        return f"{camera_name(camera)}.kind{kind}"
+    if bk in PICTURE_KINDS:
+        return f"picture.{_KIND_NAMES[bk]}"
+    return f"{camera_name(camera)}.{_KIND_NAMES[bk]}"
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -281,8 +317,8 @@ def _where(index: int | None, name: str | None = None) -> str:
 
 
 def _n_params(b: BufferEntry) -> int:
-    """The (scale, offset) pairs an entry carries: its channels for quantised HEVC buffers."""
-    return b.channels if b.codec == Codec.HEVC and b.kind in _QUANTISED else 0
+    """The (scale, offset) pairs an entry carries: its channels for quantised tiles."""
+    return b.channels if b.codec == Codec.TILE and b.kind in _QUANTISED else 0
 
 
 def _f32(v: float) -> bool:
@@ -369,11 +405,18 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
     if magic != _MAGIC:
         raise StreamError(f"frame ?: not a splitrender packet (magic {bytes(magic)!r})")
     if version != PACKET_VERSION:
-        raise StreamError(
-            f"frame {index}: unsupported packet version {version} (this reader knows "
-            f"{PACKET_VERSION})"
-        )
+        raise StreamError(f"frame {index}: {_version_message('packet', version)}")
     return int(index), bool(flags & FLAG_KEY)
+
+
+def _version_message(what: str, version: int) -> str:
+    """Why a packet or file of another version is refused, and what to do about it."""
+    if 1 <= version < PACKET_VERSION:
+        return (
+            f"{what} format version {version} is no longer supported (this reader knows "
+            f"version {PACKET_VERSION}); re-encode the recording with `splitrender encode`"
+        )
+    return f"unsupported {what} version {version} (this reader knows {PACKET_VERSION})"
 
 
 def _header_block(where: str, packed: memoryview) -> bytes:
@@ -482,7 +525,16 @@ def unpack_packet(data: bytes | memoryview) -> Packet:
                 f"{bwhere}: unknown kind {kind} or codec {codec}"
             ) from None
         ch = KIND_CHANNELS[k]
-        want_par = ch if c == Codec.HEVC and k in _QUANTISED else 0
+        if (c == Codec.HEVC) != (k in PICTURE_KINDS) or (
+            c == Codec.TILE and k not in TILE_PICTURE
+        ):
+            raise StreamError(
+                f"{bwhere}: codec {c.name} is not a codec of this buffer kind (HEVC: only the "
+                "pictures; TILE: only colour, depth, motion and shadow colours)"
+            )
+        if k in PICTURE_KINDS and cam != 0:
+            raise StreamError(f"{bwhere}: a picture must be listed under camera 0, not {cam}")
+        want_par = ch if c == Codec.TILE and k in _QUANTISED else 0
         if n_par != want_par:
             raise StreamError(
                 f"{bwhere}: {n_par} scale/offset pairs (expected {want_par})"
@@ -498,8 +550,8 @@ def unpack_packet(data: bytes | memoryview) -> Packet:
                 f"{bwhere}: payload of {length} bytes but {len(mv) - at} bytes remain "
                 f"(limit {MAX_PAYLOAD})"
             )
-        if c == Codec.ZERO and length != 0:
-            raise StreamError(f"{bwhere}: a ZERO buffer with a {length}-byte payload")
+        if c in (Codec.ZERO, Codec.TILE) and length != 0:
+            raise StreamError(f"{bwhere}: a {c.name} buffer with a {length}-byte payload")
         scale = tuple(float(pr[0]) for pr in pairs) + (0.0,) * (3 - n_par)
         offset = tuple(float(pr[1]) for pr in pairs) + (0.0,) * (3 - n_par)
         w, h = cameras[cam].width, cameras[cam].height
@@ -622,10 +674,7 @@ class StreamFile:
                     f"{self._name}: not a splitrender stream ({bytes(magic)!r})"
                 )
             if version != STREAM_VERSION:
-                raise StreamError(
-                    f"{self._name}: unsupported stream version {version} (this reader knows "
-                    f"{STREAM_VERSION})"
-                )
+                raise StreamError(f"{self._name}: {_version_message('stream', version)}")
             if not (math.isfinite(fps) and fps > 0):
                 raise StreamError(f"{self._name}: invalid fps {fps}")
             self.fps = float(fps)
