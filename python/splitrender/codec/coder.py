@@ -437,13 +437,15 @@ def _plane_array(
 
 
 def _sparse_colour(
-    planes: Sequence[npt.NDArray[np.uint8]], t: _Tile, on: npt.NDArray[np.bool_]
+    planes: Sequence[npt.NDArray[np.uint8]],
+    t: _Tile,
+    on: tuple[npt.NDArray[np.intp], ...],
 ) -> npt.NDArray[np.uint8]:
     """A shadow colour from the Y, Cb, Cr planes of its picture, converted (BT.709, full range)
-    only where ``on`` (the bitfield is set): elsewhere 0. Chroma is read at the sample that
-    covers each pixel (4:2:0: ``(y // 2, x // 2)``)."""
+    only at the pixels ``on`` (``np.nonzero`` of the bitfield): elsewhere 0. Chroma is read at the
+    sample that covers each pixel (4:2:0: ``(y // 2, x // 2)``)."""
     out = np.zeros((t.h, t.w, 3), np.uint8)
-    ys, xs = np.nonzero(on)
+    ys, xs = on
     if ys.size == 0:
         return out
     sy = planes[0].shape[0] // planes[1].shape[0]
@@ -1043,29 +1045,36 @@ class StreamDecoder(_WorkerThreads):
         self._last = None  # until this frame has decoded fully
         sizes = tuple((c.width, c.height) for c in p.cameras)
         pictures = [b for b in p.buffers if b.codec == Codec.HEVC]
-        results: _Decoded = {}
-        shadow_planes: list[npt.NDArray[np.uint8]] = []
+        futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
         if len(pictures) > 1 and self._threads > 1:
             pool = self._executor(min(self._threads, 3), "splitrender-dec")
             futs = [
                 pool.submit(self._picture, p.index, b, sizes, seen) for b in pictures
             ]
-            errors = []
-            for f in futs:
-                try:
-                    out, planes = f.result()
-                except StreamError as e:
-                    errors.append(e)
-                    continue
-                results.update(out)
-                shadow_planes = planes or shadow_planes
-            if errors:
-                raise errors[0]
-        else:
-            for b in pictures:
-                out, planes = self._picture(p.index, b, sizes, seen)
-                results.update(out)
-                shadow_planes = planes or shadow_planes
+        errors: list[StreamError] = []
+        lossless: _Decoded = {}
+        try:
+            # While the pictures decode, this thread unpacks the lossless parts.
+            lossless = _lossless(p, seen)
+        except StreamError as e:
+            errors.append(e)
+        parts = []
+        for (
+            f
+        ) in futs:  # every one waited for: none may outlive this call (thread safety)
+            try:
+                parts.append(f.result())
+            except StreamError as e:
+                errors.append(e)
+        if errors:
+            raise errors[0]
+        if not futs:
+            parts = [self._picture(p.index, b, sizes, seen) for b in pictures]
+        results: _Decoded = dict(lossless)
+        shadow_planes: list[npt.NDArray[np.uint8]] = []
+        for out, planes in parts:
+            results.update(out)
+            shadow_planes = planes or shadow_planes
         cams = [
             self._camera(p, ci, rec, seen, results, shadow_planes)
             for ci, rec in enumerate(p.cameras)
@@ -1173,32 +1182,19 @@ class StreamDecoder(_WorkerThreads):
                 if required:
                     raise StreamError(f"{where}: buffer missing from the packet")
                 return None
-            if b.codec == Codec.TILE:
+            if b.codec in (Codec.TILE, Codec.ZSTD):
                 return results.get((ci, kind))
             if b.codec == Codec.ZERO:
                 return np.zeros(shape, dtype)
-            if b.codec == Codec.RAW:
-                want = int(np.prod(shape)) * np.dtype(dtype).itemsize
-                if len(b.payload) != want:
-                    raise StreamError(
-                        f"{where}: raw payload of {len(b.payload)} bytes, expected {want}"
-                    )
-                raw: npt.NDArray[Any] = (
-                    np.frombuffer(b.payload, dtype).reshape(shape).copy()
+            want = int(np.prod(shape)) * np.dtype(dtype).itemsize
+            if len(b.payload) != want:
+                raise StreamError(
+                    f"{where}: raw payload of {len(b.payload)} bytes, expected {want}"
                 )
-                return raw
-            # ZSTD
-            if kind in (_K.SHADOW_FWD_BITS, _K.SHADOW_BWD_BITS):
-                return _unpack_bits(where, b.payload, w, h)
-            if kind in (
-                _K.DEPTH_INVALID,
-                _K.MOTION_FWD_STATIC,
-                _K.MOTION_BWD_STATIC,
-                _K.MOTION_FWD_INVALID,
-                _K.MOTION_BWD_INVALID,
-            ):
-                return _unpack_mask(where, b.payload, w, h)
-            raise StreamError(f"{where}: zstd is not a codec of this buffer kind")
+            raw: npt.NDArray[Any] = (
+                np.frombuffer(b.payload, dtype).reshape(shape).copy()
+            )
+            return raw
 
         def mask(kind: BufferKind) -> npt.NDArray[np.bool_] | None:
             b = seen.get((ci, kind))
@@ -1220,7 +1216,10 @@ class StreamDecoder(_WorkerThreads):
             if m is not None:
                 st = mask(kstatic)
                 if st is not None:
-                    np.copyto(m, np.float32(0), where=st[..., None])
+                    # Most pixels are static: a multiply by "moving" beats a masked copy (m is
+                    # finite here; invalid pixels become NaN just below).
+                    moving = np.logical_not(st).view(np.uint8).astype(np.float32)
+                    np.multiply(m, moving[..., None], out=m)
                 iv = mask(kinvalid)
                 if iv is not None:
                     np.copyto(m, np.float32(np.nan), where=iv[..., None])
@@ -1231,6 +1230,7 @@ class StreamDecoder(_WorkerThreads):
                 shadows[d] = None
                 continue
             colours = []
+            on: tuple[npt.NDArray[np.intp], ...] | None = None
             for k in (kmin, kmax):
                 b = seen.get((ci, k))
                 if b is not None and b.codec == Codec.TILE:
@@ -1241,9 +1241,10 @@ class StreamDecoder(_WorkerThreads):
                     t, _, _ = _layout(
                         _PIC_SHADOW, tuple((c.width, c.height) for c in p.cameras)
                     )
-                    colours.append(
-                        _sparse_colour(shadow_planes, t[(ci, k, 0)], bits != 0)
-                    )
+                    if on is None:
+                        flat = np.flatnonzero(bits)  # cheaper than np.nonzero
+                        on = (flat // w, flat % w)
+                    colours.append(_sparse_colour(shadow_planes, t[(ci, k, 0)], on))
                 else:
                     c = get(k, "u1", (h, w, 3), required=True)
                     assert c is not None
@@ -1260,6 +1261,29 @@ class StreamDecoder(_WorkerThreads):
         )
 
 
+def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _Decoded:
+    """Every zstd buffer of a packet: masks as bool arrays, bitfields as uint32."""
+    out: _Decoded = {}
+    for (ci, kind), b in seen.items():
+        if b.codec != Codec.ZSTD:
+            continue
+        where = f"frame {p.index}, {b.name}"
+        w, h = p.cameras[ci].width, p.cameras[ci].height
+        if kind in (_K.SHADOW_FWD_BITS, _K.SHADOW_BWD_BITS):
+            out[(ci, kind)] = _unpack_bits(where, b.payload, w, h)
+        elif kind in (
+            _K.DEPTH_INVALID,
+            _K.MOTION_FWD_STATIC,
+            _K.MOTION_BWD_STATIC,
+            _K.MOTION_FWD_INVALID,
+            _K.MOTION_BWD_INVALID,
+        ):
+            out[(ci, kind)] = _unpack_mask(where, b.payload, w, h)
+        else:
+            raise StreamError(f"{where}: zstd is not a codec of this buffer kind")
+    return out
+
+
 def _motion(
     q: npt.NDArray[np.uint16],
     tiles: dict[tuple[int, BufferKind, int], _Tile],
@@ -1269,16 +1293,21 @@ def _motion(
     w: int,
     h: int,
 ) -> npt.NDArray[np.float32]:
-    """Motion at ``w x h`` from its three half-size tiles: each code dequantised once and written
-    to the 2x2 pixels it covers of the client's array (no intermediate full-size copy)."""
+    """Motion at ``w x h`` from its three half-size tiles: dequantised at half size, then each
+    value copied to the 2x2 pixels it covers of the client's array."""
     hw, hh = _half(w), _half(h)
-    out = np.empty((2 * hh, 2 * hw, 3), np.float32)
-    blocks = out.reshape(hh, 2, hw, 2, 3)
+    half = np.empty((hh, hw, 3), np.float32)
     for c in range(3):
         t = tiles[(ci, kind, c)]
-        v = q[t.y : t.y + hh, t.x : t.x + hw] * np.float32(e.scale[c])
-        v += np.float32(e.offset[c])
-        blocks[:, :, :, :, c] = v[:, None, :, None]
+        np.multiply(
+            q[t.y : t.y + hh, t.x : t.x + hw], np.float32(e.scale[c]), out=half[..., c]
+        )
+        half[..., c] += np.float32(e.offset[c])
+    out = np.empty((2 * hh, 2 * hw, 3), np.float32)
+    # Doubled along x, then each row written twice: long contiguous copies (a single 5-d
+    # broadcast copy of 3-float runs takes twice as long).
+    row = np.repeat(half, 2, axis=1).reshape(hh, 1, -1)
+    out.reshape(hh, 2, -1)[...] = row
     if (2 * hw, 2 * hh) == (w, h):
         return out
     return np.ascontiguousarray(out[:h, :w])
