@@ -7,12 +7,12 @@ the frame and, where there is one, the buffer (``"frame 12, main.depth: ..."``).
 fill and read the payloads live in :mod:`splitrender.codec.coder`. The format is also described in
 ``docs/stream-format.md``.
 
-Packet (version 2), all integers little-endian::
+Packet (version 3), all integers little-endian::
 
     offset  size  field
     0       4     magic b"SRPK"
-    4       2     version (u16) = 2
-    6       2     flags (u16): bit 0 key frame (every HEVC stream starts with an IDR and its
+    4       2     version (u16) = 3
+    6       2     flags (u16): bit 0 key frame (every HEVC picture starts with an IDR and its
                   parameter sets, so decoding may start here), bit 1 uncompressed; others 0
     8       8     frame index (u64)
     16      8     time in seconds (f64, finite)
@@ -21,25 +21,30 @@ Packet (version 2), all integers little-endian::
     32      M     the header block as one zstd frame that declares its content size
                   (at most MAX_HEADER bytes), laid out as:
                     u8 C cameras (1..MAX_CAMERAS; camera 0 is the main camera, camera i >= 1
-                    auxiliary camera i-1), u8 reserved = 0, u16 B buffers (0..MAX_BUFFERS);
+                    auxiliary camera i-1), u8 reserved = 0, u16 B entries (0..MAX_BUFFERS);
                     C x camera record (264 bytes): u32 width, u32 height (1..MAX_SIDE),
                     f64[16] view, f64[16] proj (row-major, column-vector convention, finite);
-                    B x buffer entry (8 + 8*P bytes): u8 camera, u8 kind (BufferKind),
-                    u8 codec (Codec), u8 P (the number of (scale, offset) pairs: the channels
-                    of a quantised HEVC buffer, else 0), u32 payload length,
+                    B x entry (8 + 8*P bytes): u8 camera, u8 kind (BufferKind), u8 codec
+                    (Codec), u8 P (the number of (scale, offset) pairs: the channels of a
+                    quantised TILE buffer, else 0), u32 payload length,
                     P x (f32 scale, f32 offset): per channel, value = code * scale + offset
                     (finite); every buffer has its camera's size
     32+M    ...   payloads, back to back, in table order; the packet ends exactly after the
                   last payload
 
-Version 1 spent ~1.7 kB per frame on a plain header (f64 scale/offset pairs, a size and a CRC
-per buffer); version 2 compresses the header block with zstd, stores the scales as the float32
-values they are, and covers the whole packet with one CRC: about 0.6 kB per frame for three
-cameras (docs/stream-format.md).
+Version 3 (issue 13): the lossy buffers of every camera are tiles (codec ``TILE``, no payload)
+of at most three HEVC pictures per packet, the ``PICTURE_*`` entries (codec ``HEVC``, listed
+under camera 0): colour, geometry (depth and motion) and shadow colours. Where each tile lies is
+a function of the camera sizes alone (``coder._layout``). Version 2 sent one HEVC stream per
+buffer and camera (24 a frame), which took three times as long to decode; version-2 packets and
+files are refused with a message that says to re-encode. Version 1 spent ~1.7 kB per frame on a
+plain header; since version 2 the header block is zstd-compressed, the scales are the float32
+values they are and one CRC covers the whole packet: about 0.6 kB per frame for three cameras
+(docs/stream-format.md).
 
-Container file (version 2; it holds version-2 packets)::
+Container file (version 3; it holds version-3 packets)::
 
-    b"SRSTREAM", u16 version = 2, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
+    b"SRSTREAM", u16 version = 3, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
     records: u32 packet length, packet bytes                                     (repeated)
     index:   b"SRIX", u32 N, N x (u64 frame index, u64 record offset, u8 key, 7 x pad),
              u32 CRC32 of the N entries
@@ -396,7 +401,8 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
     """``(frame index, key)`` of a packet from its fixed header alone (no CRC check).
 
     # Errors
-    :class:`StreamError` when the bytes do not start with a version-2 packet header."""
+    :class:`StreamError` when the bytes do not start with a version-3 packet header (an older
+    version: a message that says to re-encode)."""
     if len(data) < _FIXED.size:
         raise StreamError(
             f"frame ?: packet of {len(data)} bytes is shorter than the {_FIXED.size}-byte header"
