@@ -352,6 +352,26 @@ def test_tile_without_its_picture_raises(
         dec.decode(pack_packet(dataclasses.replace(p, buffers=bufs)))
 
 
+def test_picture_of_odd_cameras_refused_before_decoding() -> None:
+    """Two cameras within the per-camera and total pixel limits whose shapes (16x16384 and
+    16384x16) would make a 16400x16384 picture: refused before FFmpeg allocates it."""
+    from splitrender.codec.stream import BufferEntry, CameraRecord, Packet
+
+    eye = np.eye(4)
+    cams = (CameraRecord(eye, eye, 16, 16384), CameraRecord(eye, eye, 16384, 16))
+    bufs = (
+        BufferEntry(0, BufferKind.COLOR, Codec.TILE, 3, 16, 16384, b""),
+        BufferEntry(1, BufferKind.COLOR, Codec.TILE, 3, 16384, 16, b""),
+        BufferEntry(0, BufferKind.PICTURE_COLOR, Codec.HEVC, 1, 16, 16384, b"x"),
+    )
+    packet = pack_packet(Packet(0, 0.0, True, False, cams, bufs))
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match="frame 0, picture.color: a 16400x16384 picture"),
+    ):
+        dec.decode(packet)
+
+
 def test_picture_layout() -> None:
     """Tiles for the server's rig: on the 8-pixel grid, never overlapping, the colour picture
     without a gap."""

@@ -1045,6 +1045,15 @@ class StreamDecoder(_WorkerThreads):
         self._last = None  # until this frame has decoded fully
         sizes = tuple((c.width, c.height) for c in p.cameras)
         pictures = [b for b in p.buffers if b.codec == Codec.HEVC]
+        for b in pictures:
+            # Odd camera shapes waste room in the columns: bound the picture itself too, at
+            # what the shadow picture of one camera of max_pixels needs.
+            _, pw, ph = _layout(b.kind, sizes)
+            if pw * ph > 4 * self.max_pixels + (1 << 16):
+                raise StreamError(
+                    f"{where}, {b.name}: a {pw}x{ph} picture for these cameras exceeds the "
+                    f"decoder's limit of {4 * self.max_pixels + (1 << 16)} pixels"
+                )
         futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
         if len(pictures) > 1 and self._threads > 1:
             pool = self._executor(min(self._threads, 3), "splitrender-dec")
