@@ -134,7 +134,13 @@ class CodecConfig:
 
     ``bitrate_mbps`` is the target of the whole stream (all cameras, all buffers, headers) at
     ``fps`` server frames per second; DESIGN.md scales it with the pixel count (the paper's
-    40 Mb/s at 2560x1440 is 10 Mb/s at 1280x720, see :meth:`scaled`)."""
+    40 Mb/s at 2560x1440 is 10 Mb/s at 1280x720, see :meth:`scaled`).
+
+    ``camera_shares`` must still give one share per camera (it fixes the number of cameras the
+    stream expects), but since stream format 3 every picture holds all cameras and x265 splits
+    its bits between their tiles by content. ``chroma`` is that of the colour and shadow
+    pictures; 4:2:0 by default since format 3 (half the decode time of the colour picture,
+    docs/codec-results.md)."""
 
     bitrate_mbps: float = 10.0
     camera_shares: tuple[float, ...] = (0.6, 0.2, 0.2)
