@@ -1231,10 +1231,7 @@ class StreamDecoder(_WorkerThreads):
             if m is not None:
                 st = mask(kstatic)
                 if st is not None:
-                    # Most pixels are static: a multiply by "moving" beats a masked copy (m is
-                    # finite here; invalid pixels become NaN just below).
-                    moving = np.logical_not(st).view(np.uint8).astype(np.float32)
-                    np.multiply(m, moving[..., None], out=m)
+                    _zero_static(m, st)
                 iv = mask(kinvalid)
                 if iv is not None:
                     np.copyto(m, np.float32(np.nan), where=iv[..., None])
@@ -1297,6 +1294,25 @@ def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _De
         else:
             raise StreamError(f"{where}: zstd is not a codec of this buffer kind")
     return out
+
+
+def _zero_static(m: npt.NDArray[np.float32], static: npt.NDArray[np.bool_]) -> None:
+    """Sets the motion of the static pixels to exactly 0. Moving pixels are usually a compact
+    part of the picture: everything outside their bounding box is cleared wholesale and only the
+    box is multiplied by the mask (``m`` is finite here; invalid pixels become NaN later)."""
+    moving = np.logical_not(static)
+    rows = np.flatnonzero(moving.any(axis=1))
+    if rows.size == 0:
+        m[...] = 0
+        return
+    cols = np.flatnonzero(moving.any(axis=0))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    m[:y0] = 0
+    m[y1:] = 0
+    m[y0:y1, :x0] = 0
+    m[y0:y1, x1:] = 0
+    box = m[y0:y1, x0:x1]
+    np.multiply(box, moving[y0:y1, x0:x1, None], out=box)
 
 
 def _motion(
