@@ -812,8 +812,9 @@ def read_stream(
 class StreamStats:
     """Bytes per buffer over a run of packets, and the rates they make at ``fps``.
 
-    Buffer keys are names such as ``"main.color"`` or ``"aux0.shadow_fwd.bits"``; the packet
-    headers, camera records and tables are counted as ``"<camera>.header"``-less ``"header"``."""
+    Buffer keys are names such as ``"picture.color"`` or ``"aux0.shadow_fwd.bits"`` (tiles are not
+    listed: their bits are in their picture's); the packet headers, camera records and tables are
+    counted as ``"header"``."""
 
     fps: float
     frames: int = 0
@@ -825,6 +826,8 @@ class StreamStats:
         self.frames += 1
         payload = 0
         for b in p.buffers:
+            if b.codec == Codec.TILE:
+                continue  # no bytes of its own: they are in its picture's
             self.bytes_by_buffer[b.name] = self.bytes_by_buffer.get(b.name, 0) + len(
                 b.payload
             )
