@@ -1060,20 +1060,31 @@ class StreamDecoder(_WorkerThreads):
                     f"{where}, {b.name}: a {pw}x{ph} picture for these cameras exceeds the "
                     f"decoder's limit of {4 * self.max_pixels + (1 << 16)} pixels"
                 )
+        # Colour and shadow pictures start at once; this thread meanwhile unpacks the lossless
+        # parts, which the geometry picture's worker then applies (static and invalid masks),
+        # so that work too runs beside the other pictures' decoding.
+        parallel = len(pictures) > 1 and self._threads > 1
+        geometry = [b for b in pictures if b.kind == _PIC_GEOMETRY]
         futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
-        if len(pictures) > 1 and self._threads > 1:
+        if parallel:
             pool = self._executor(min(self._threads, 3), "splitrender-dec")
             futs = [
-                pool.submit(self._picture, p.index, b, sizes, seen) for b in pictures
+                pool.submit(self._picture, p.index, b, sizes, seen, {})
+                for b in pictures
+                if b.kind != _PIC_GEOMETRY
             ]
         errors: list[StreamError] = []
         lossless: _Decoded = {}
         try:
-            # While the pictures decode, this thread unpacks the lossless parts.
             lossless = _lossless(p, seen)
         except StreamError as e:
             errors.append(e)
         parts = []
+        if parallel and not errors:
+            futs += [
+                pool.submit(self._picture, p.index, b, sizes, seen, lossless)
+                for b in geometry
+            ]
         for (
             f
         ) in futs:  # every one waited for: none may outlive this call (thread safety)
@@ -1083,8 +1094,8 @@ class StreamDecoder(_WorkerThreads):
                 errors.append(e)
         if errors:
             raise errors[0]
-        if not futs:
-            parts = [self._picture(p.index, b, sizes, seen) for b in pictures]
+        if not parallel:
+            parts = [self._picture(p.index, b, sizes, seen, lossless) for b in pictures]
         results: _Decoded = dict(lossless)
         shadow_planes: list[npt.NDArray[np.uint8]] = []
         for out, planes in parts:
@@ -1105,9 +1116,11 @@ class StreamDecoder(_WorkerThreads):
         b: BufferEntry,
         sizes: tuple[tuple[int, int], ...],
         seen: dict[tuple[int, BufferKind], BufferEntry],
+        masks: _Decoded,
     ) -> tuple[_Decoded, list[npt.NDArray[np.uint8]]]:
         """Decodes one picture: ``(colour and geometry buffers, shadow picture planes)``. The
-        shadow colours are converted later, where their bitfields are set."""
+        shadow colours are converted later, where their bitfields are set. Depth and motion
+        leave with the static and invalid ``masks`` (the unpacked lossless parts) applied."""
         where = f"frame {index}, {b.name}"
         tiles, pw, ph = _layout(b.kind, sizes)
         ctx = self._decoders.get(b.kind)
@@ -1166,11 +1179,24 @@ class StreamDecoder(_WorkerThreads):
                     q[t.y : t.y + h, t.x : t.x + w], np.float32(entry.scale[0]), out=d
                 )
                 d += np.float32(entry.offset[0])
+                inv = masks.get((ci, _K.DEPTH_INVALID))
+                if inv is not None:
+                    np.copyto(d, np.float32(np.nan), where=inv)
                 out[(ci, _K.DEPTH)] = d
             for kind in (_K.MOTION_FWD, _K.MOTION_BWD):
                 entry = seen.get((ci, kind))
                 if entry is not None and entry.codec == Codec.TILE:
-                    out[(ci, kind)] = _motion(q, tiles, ci, kind, entry, w, h)
+                    m = _motion(q, tiles, ci, kind, entry, w, h)
+                    _, kstatic, kinvalid = _MOTION[
+                        "fwd" if kind == _K.MOTION_FWD else "bwd"
+                    ]
+                    st = masks.get((ci, kstatic))
+                    if st is not None:
+                        _zero_static(m, st)
+                    iv = masks.get((ci, kinvalid))
+                    if iv is not None:
+                        np.copyto(m, np.float32(np.nan), where=iv[..., None])
+                    out[(ci, kind)] = m
         return out, []
 
     def _camera(
@@ -1220,8 +1246,9 @@ class StreamDecoder(_WorkerThreads):
         color = get(_K.COLOR, "u1", (h, w, 3), required=True)
         depth = get(_K.DEPTH, "<f4", (h, w), required=True)
         assert color is not None and depth is not None
+        # Tiles left their picture with the masks applied; raw buffers get them here.
         inv = mask(_K.DEPTH_INVALID)
-        if inv is not None:
+        if inv is not None and seen[(ci, _K.DEPTH)].codec != Codec.TILE:
             np.copyto(depth, np.float32(np.nan), where=inv)
         motions: dict[str, npt.NDArray[np.float32] | None] = {}
         shadows: dict[str, ShadowBuffers | None] = {}
@@ -1229,11 +1256,11 @@ class StreamDecoder(_WorkerThreads):
             kind, kstatic, kinvalid = _MOTION[d]
             m = get(kind, "<f4", (h, w, 3))
             if m is not None:
-                st = mask(kstatic)
-                if st is not None:
+                st, iv = mask(kstatic), mask(kinvalid)  # checked for tiles too
+                raw = seen[(ci, kind)].codec != Codec.TILE
+                if st is not None and raw:
                     _zero_static(m, st)
-                iv = mask(kinvalid)
-                if iv is not None:
+                if iv is not None and raw:
                     np.copyto(m, np.float32(np.nan), where=iv[..., None])
             motions[d] = m
             kb, kmin, kmax = _SHADOW[d]
