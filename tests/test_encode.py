@@ -56,7 +56,7 @@ def test_encode_cli(recording: Path, tmp_path: Path, capsys: pytest.CaptureFixtu
     out = tmp_path / "s.srs"
     assert main(["encode", str(recording), "--bitrate", "0.5", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "total" in text and "main.color" in text
+    assert "total" in text and "picture.color" in text
     assert out.is_file()
 
 
