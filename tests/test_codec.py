@@ -114,24 +114,64 @@ def test_shadow_bits_beyond_8_bits_survive() -> None:
     assert np.array_equal(out.main.shadow_fwd.bits, bits)
 
 
-def test_depth_and_motion_error_bounds(
+# Worst case over the 12 frames at BITRATE, measured with stream format 3 (PyAV 18.1.0,
+# libx265; printed by the test with -s): colour PSNR main 30.4 / aux 29.6 dB; shadow colours on
+# their set pixels 35.4 / 34.8 / 30.4 dB; depth mean |error| 0.043 / 0.065 / 0.065 % of the
+# frame's depth range (median 0.029 / 0.030 / 0.036 %); motion mean |error| 0.091 / 0.081 /
+# 0.083 % of the channel's span (worst channel). Bounds: twice the measured error (PSNR: 3 dB
+# less, twice the squared error), so a codec change that doubles any buffer's error fails.
+_BOUNDS = {
+    #       colour PSNR, shadow PSNR, depth mean, depth median, motion mean
+    "main": (27.4, 32.4, 0.0009, 0.0006, 0.0018),
+    "aux0": (26.7, 31.7, 0.0013, 0.0006, 0.0017),
+    "aux1": (26.6, 27.4, 0.0013, 0.0008, 0.0017),
+}
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b) ** 2))
+    return 99.0 if mse == 0 else 10 * np.log10(255.0**2 / mse)
+
+
+def test_every_buffer_within_twice_its_measured_error(
     frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]]
 ) -> None:
-    """At BITRATE (2 Mb/s) for the 160x90 rig: mean |depth error| <= 2 % of the frame's depth range
-    (the error concentrates on silhouettes), the median <= 0.3 %; mean |motion error| per
-    channel <= 3 % of the channel's range."""
+    """At BITRATE (2 Mb/s) for the 160x90 rig, per camera and frame: colour PSNR, shadow colour
+    PSNR where the bitfield is set, depth mean and median |error| as a fraction of the frame's
+    depth range, motion mean |error| per channel as a fraction of the channel's span; each
+    within twice what stream format 3 achieves (``_BOUNDS``)."""
     _, decoded = coded
+    worst: dict[str, list[float]] = {}
     for f, d in zip(frames, decoded):
-        for a, b in zip(_cams(f), _cams(d)):
+        for name, a, b in zip(("main", "aux0", "aux1"), _cams(f), _cams(d)):
+            c_psnr, s_psnr, d_mean, d_median, m_mean = _BOUNDS[name]
+            got = [_psnr(a.color, b.color), 99.0]
+            assert got[0] >= c_psnr, (f.index, name, "colour", got[0])
+            for sa, sb in ((a.shadow_fwd, b.shadow_fwd), (a.shadow_bwd, b.shadow_bwd)):
+                assert sa is not None and sb is not None
+                on = sa.bits != 0
+                for x in ("s_min", "s_max"):
+                    p = _psnr(getattr(sa, x)[on], getattr(sb, x)[on])
+                    assert p >= s_psnr, (f.index, name, x, p)
+                    got[1] = min(got[1], p)
             rng = float(a.depth.max() - a.depth.min())
-            err = np.abs(a.depth - b.depth)
-            assert err.mean() <= 0.02 * rng, (f.index, err.mean() / rng)
-            assert np.median(err) <= 0.003 * rng
+            err = np.abs(a.depth - b.depth) / rng
+            assert err.mean() <= d_mean, (f.index, name, err.mean())
+            assert np.median(err) <= d_median, (f.index, name, np.median(err))
+            got += [float(err.mean()), float(np.median(err)), 0.0]
             for ma, mb in ((a.motion_fwd, b.motion_fwd), (a.motion_bwd, b.motion_bwd)):
                 assert ma is not None and mb is not None
                 span = np.ptp(ma.reshape(-1, 3), axis=0) + 1e-9
-                merr = np.abs(ma - mb).reshape(-1, 3).mean(axis=0)
-                assert (merr <= 0.03 * span).all(), (f.index, merr / span)
+                merr = np.abs(ma - mb).reshape(-1, 3).mean(axis=0) / span
+                assert (merr <= m_mean).all(), (f.index, name, merr)
+                got[4] = max(got[4], float(merr.max()))
+            prev = worst.setdefault(name, got)
+            worst[name] = [min(prev[0], got[0]), min(prev[1], got[1])] + [
+                max(x, y) for x, y in zip(prev[2:], got[2:])
+            ]
+    for name, w in worst.items():
+        print(f"{name}: colour {w[0]:.1f} dB, shadow {w[1]:.1f} dB, depth mean {w[2]:.5f} "
+              f"median {w[3]:.5f}, motion {w[4]:.5f}")
 
 
 def test_static_motion_decodes_to_exact_zero(
@@ -249,11 +289,11 @@ def _replace_payload(packet: bytes, name: str, payload: bytes) -> bytes:
     ("name", "payload", "message"),
     [
         (
-            "main.color",
+            "picture.color",
             b"\x00\x00\x01garbage" * 20,
-            "main.color: HEVC payload of 200 bytes",
+            "picture.color: HEVC payload of 200 bytes",
         ),
-        ("aux0.depth", b"", "aux0.depth: HEVC payload of 0 bytes"),
+        ("picture.geometry", b"", "picture.geometry: HEVC payload of 0 bytes"),
         (
             "main.shadow_fwd.bits",
             b"not zstd at all",
@@ -279,6 +319,80 @@ def test_undecodable_payloads_raise_stream_error(
         pytest.raises(StreamError, match=f"frame 0, {message}"),
     ):
         dec.decode(bad)
+
+
+def test_packet_holds_three_pictures_and_tiles(
+    coded: tuple[list[bytes], list[sr.ServerFrame]],
+) -> None:
+    """Stream format 3: every lossy buffer of every camera is a payload-less tile of one of
+    three HEVC pictures (version 2 sent 24 HEVC streams, whose decoding cost ~3x as long)."""
+    packets, _ = coded
+    for packet in packets:
+        p = unpack_packet(packet)
+        hevc = [b.name for b in p.buffers if b.codec == Codec.HEVC]
+        assert hevc == ["picture.color", "picture.geometry", "picture.shadow"]
+        tiles = [b for b in p.buffers if b.codec == Codec.TILE]
+        assert len(tiles) == 3 * 8 and all(len(b.payload) == 0 for b in tiles)
+
+
+def test_tile_without_its_picture_raises(
+    coded: tuple[list[bytes], list[sr.ServerFrame]],
+) -> None:
+    packets, _ = coded
+    p = unpack_packet(packets[0])
+    bufs = tuple(b for b in p.buffers if b.name != "picture.shadow")
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(
+            StreamError,
+            match="frame 0, main.shadow_fwd.s_min: a tile of picture.shadow, which the "
+            "packet does not hold",
+        ),
+    ):
+        dec.decode(pack_packet(dataclasses.replace(p, buffers=bufs)))
+
+
+def test_picture_of_odd_cameras_refused_before_decoding() -> None:
+    """Two cameras within the per-camera and total pixel limits whose shapes (16x16384 and
+    16384x16) would make a 16400x16384 picture: refused before FFmpeg allocates it."""
+    from splitrender.codec.stream import BufferEntry, CameraRecord, Packet
+
+    eye = np.eye(4)
+    cams = (CameraRecord(eye, eye, 16, 16384), CameraRecord(eye, eye, 16384, 16))
+    bufs = (
+        BufferEntry(0, BufferKind.COLOR, Codec.TILE, 3, 16, 16384, b""),
+        BufferEntry(1, BufferKind.COLOR, Codec.TILE, 3, 16384, 16, b""),
+        BufferEntry(0, BufferKind.PICTURE_COLOR, Codec.HEVC, 1, 16, 16384, b"x"),
+    )
+    packet = pack_packet(Packet(0, 0.0, True, False, cams, bufs))
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match="frame 0, picture.color: a 16400x16384 picture"),
+    ):
+        dec.decode(packet)
+
+
+def test_picture_layout() -> None:
+    """Tiles for the server's rig: on the 8-pixel grid, never overlapping, the colour picture
+    without a gap."""
+    from splitrender.codec.coder import _layout
+
+    sizes = ((1280, 720), (640, 360), (640, 360))
+    expected = {
+        BufferKind.PICTURE_COLOR: (1920, 720),
+        # depth 1280 + aux depths 640 + 6 main motion tiles (3 columns of 640) + 12 aux
+        # motion tiles in 320x184 slots (on the 8-pixel grid: 3 to a column, 4 columns)
+        BufferKind.PICTURE_GEOMETRY: (5120, 720),
+        BufferKind.PICTURE_SHADOW: (7680, 720),
+    }
+    for pic, size in expected.items():
+        tiles, pw, ph = _layout(pic, sizes)
+        assert (pw, ph) == size
+        cover = np.zeros((ph, pw), np.int32)
+        for t in tiles.values():
+            assert t.x % 8 == 0 and t.y % 8 == 0
+            cover[t.y : t.y + t.h, t.x : t.x + t.w] += 1
+        assert cover.max() == 1
 
 
 def test_zstd_bomb_rejected(coded: tuple[list[bytes], list[sr.ServerFrame]]) -> None:
@@ -321,8 +435,8 @@ def test_layout_change_is_invalid_input(frames: list[sr.ServerFrame]) -> None:
 def test_bitrate_within_ten_percent(paper_mbps: float) -> None:
     """20 frames at 640x360 (two GOPs), the paper's 20/40/80 Mb/s scaled by pixel count
     (1.25/2.5/5 Mb/s): the whole stream, headers included, within ±10 % of the target.
-    (Measured: +7.1 %, +2.9 %, -0.4 %. At 320x180 and 0.31 Mb/s the fixed costs of 24 HEVC streams and the
-    lossless parts already overshoot by ~13 %.)"""
+    (Measured with stream format 3: +0.7 %, -0.4 %, -2.2 %; format 2's 24 HEVC streams: +7.1 %,
+    +2.9 %, -0.4 %.)"""
     w, h = 640, 360
     scene = sr.SyntheticScene(dynamic=True)
     cfg = CodecConfig.scaled(w, h, paper_mbps)
@@ -335,10 +449,10 @@ def test_bitrate_within_ten_percent(paper_mbps: float) -> None:
 def test_ours_on_decoded_close_to_uncompressed() -> None:
     """`ours` at client time 7/120 s between frames 0 and 1 of the dynamic scene, 320x180, at
     the default bitrate (the paper's 40 Mb/s scaled by pixel count: 0.625 Mb/s). Mean absolute
-    error against ground truth (0..255), measured: uncompressed 5.9, decoded 17.0; the codec's
-    own colour error at this rate is 16.5 (the synthetic scene's fine procedural texture is hard
-    to code at 0.2 bit per pixel); at 4x the rate: 5.9 vs 9.3. Asserted: decoded <= 20 and
-    <= uncompressed + 13."""
+    error against ground truth (0..255), measured: uncompressed 5.94, decoded 16.27 (stream
+    format 2: 17.0); the codec's own colour error at this rate is about as large (the synthetic
+    scene's fine procedural texture is hard to code at 0.2 bit per pixel). Asserted: decoded
+    <= 20 and <= uncompressed + 13."""
     w, h = 320, 180
     scene = sr.SyntheticScene(dynamic=True)
     src = [scene.server_frame(i, i / 10, w, h) for i in range(2)]

@@ -3,14 +3,13 @@ the paper's 20/40/80 Mb/s scaled by pixel count, and `ours` on decoded server fr
 default bitrate close to `ours` on the uncompressed ones.
 
 Scene: ``courtyard`` dynamic at scale 0.2 (main camera 512x288, auxiliary cameras 256x144), 20
-server frames at 10 FPS (2 s, two GOPs of 10). Figures and their discussion (including why scale
-0.125 misses at 20 Mb/s) are in docs/codec-results.md; run with ``-s`` to print them.
+server frames at 10 FPS (2 s, two GOPs of 10). Figures and their discussion are in
+docs/codec-results.md; run with ``-s`` to print them.
 
 Scale 0.2 rather than 0.125: at 320x180 the paper's 20 Mb/s scales to 0.3125 Mb/s, and the parts
-no rate control can shrink (packet headers and camera records, 1736 bytes a frame = 0.139 Mb/s,
-plus the lossless static-motion masks and shadow bitfields, 0.164 Mb/s) already take 97 % of it;
-the stream came out at +24 %. That is a fixed-cost floor of the format, not a rate-control
-error (docs/codec-results.md)."""
+no rate control can shrink (packet headers and camera records, plus the lossless static-motion
+masks and shadow bitfields) took most of it with stream format 1 (+24 %). That is a fixed-cost
+floor of the format, not a rate-control error (docs/codec-results.md)."""
 
 from __future__ import annotations
 
@@ -67,8 +66,8 @@ def _encode(
 def test_bitrate_within_ten_percent_on_builtin_scene(
     frames: list[sr.ServerFrame], encoded: Encoded, paper_mbps: float
 ) -> None:
-    """Measured (courtyard dynamic, 512x288, 20 frames): 20 -> 0.80 Mb/s target, 0.846
-    achieved (+5.8 %); 40 -> 1.6, 1.628 (+1.7 %); 80 -> 3.2, 3.245 (+1.4 %)."""
+    """Measured (courtyard dynamic, 512x288, 20 frames, stream format 3): 20 -> 0.80 Mb/s
+    target, 0.8087 achieved (+1.1 %); 40 -> 1.6, 1.6133 (+0.8 %); 80 -> 3.2, 3.1783 (-0.7 %)."""
     w, h = frames[0].main.camera.width, frames[0].main.camera.height
     cfg, packets = _encode(frames, paper_mbps, encoded)
     stats = stream_stats(packets, cfg.fps)
@@ -99,12 +98,11 @@ def test_ours_on_decoded_close_to_uncompressed_on_builtin_scene(
     """Client frames 0..29 at 30 Hz (ideal network), `ours`, against the client's ground truth,
     at the default bitrate (the paper's 40 Mb/s scaled: 1.6 Mb/s at 512x288).
 
-    Measured: uncompressed PSNR 24.78 dB / SSIM 0.717, decoded 24.60 dB / 0.669 (mean drop
-    0.18 dB and 0.048; worst single frame 0.40 dB). The PSNR drop is small because the
-    reprojection error of `ours` itself (disocclusions, shadows) dominates the MSE; SSIM, which
-    sees the codec's loss of fine texture, drops more. Asserted: mean PSNR drop <= 1.0 dB, every
-    frame's drop <= 1.5 dB, mean SSIM drop <= 0.08 (about 5x / 4x / 1.7x the measured figures:
-    room for libx265 builds that decide differently, while "close" stays a real bound)."""
+    Measured (stream format 3): uncompressed PSNR 30.54 dB / SSIM 0.8928, decoded 29.63 dB /
+    0.8590 (mean drop 0.90 dB and 0.034; worst single frame 1.12 dB). The reprojection error of
+    `ours` itself (disocclusions, shadows) is part of both; SSIM sees the codec's loss of fine
+    texture. Asserted: mean PSNR drop <= 1.0 dB, every frame's drop <= 1.5 dB (1.1x and 1.3x the
+    measured figures), mean SSIM drop <= 0.07 (2x)."""
     w, h = frames[0].main.camera.width, frames[0].main.camera.height
     n = int(N_CLIENT / CLIENT_FPS * 10) + 2  # up to the frame after the last client time
     used = frames[:n]
@@ -139,4 +137,4 @@ def test_ours_on_decoded_close_to_uncompressed_on_builtin_scene(
     )
     assert p_raw - p_dec <= 1.0, (p_raw, p_dec)
     assert max(drops) <= 1.5, drops
-    assert s_raw - s_dec <= 0.08, (s_raw, s_dec)
+    assert s_raw - s_dec <= 0.07, (s_raw, s_dec)

@@ -40,16 +40,17 @@ def _packet(index: int = 7, key: bool = True) -> Packet:
         BufferEntry(
             0,
             BufferKind.DEPTH,
-            Codec.HEVC,
+            Codec.TILE,
             1,
             8,
             4,
-            b"\x01\x02\x03",
+            b"",
             (0.5, 0, 0),
             (0.25, 0, 0),
         ),
         BufferEntry(1, BufferKind.MOTION_FWD, Codec.ZERO, 3, 4, 2, b""),
         BufferEntry(1, BufferKind.SHADOW_FWD_BITS, Codec.ZSTD, 1, 4, 2, b"zz"),
+        BufferEntry(0, BufferKind.PICTURE_GEOMETRY, Codec.HEVC, 1, 8, 4, b"\x01\x02\x03"),
     )
     return Packet(
         index=index, time=0.7, key=key, uncompressed=False, cameras=cams, buffers=bufs
@@ -92,18 +93,49 @@ def test_packet_round_trip() -> None:
     assert [(b.camera, b.kind, b.codec, bytes(b.payload)) for b in q.buffers] == [
         (b.camera, b.kind, b.codec, bytes(b.payload)) for b in p.buffers
     ]
-    assert [(b.width, b.height) for b in q.buffers] == [(8, 4), (8, 4), (4, 2), (4, 2)]
+    assert [(b.width, b.height) for b in q.buffers] == [
+        (8, 4), (8, 4), (4, 2), (4, 2), (8, 4)
+    ]
     assert q.buffers[1].scale == (0.5, 0.0, 0.0) and q.buffers[1].offset == (
         0.25,
         0.0,
         0.0,
     )
     assert q.buffers[3].name == "aux0.shadow_fwd.bits"
+    assert q.buffers[4].name == "picture.geometry"
+
+
+@pytest.mark.parametrize(
+    ("index", "change", "message"),
+    [
+        # a tile carries no payload of its own: its picture does
+        (1, {"payload": b"x"}, "main.depth: a TILE buffer with a 1-byte payload"),
+        # HEVC is the codec of the pictures only, TILE of the lossy buffers only
+        (1, {"codec": Codec.HEVC}, "main.depth: codec HEVC is not a codec of this buffer kind"),
+        (3, {"codec": Codec.TILE}, "aux0.shadow_fwd.bits: codec TILE is not a codec"),
+        (4, {"codec": Codec.ZSTD}, "picture.geometry: codec ZSTD is not a codec"),
+        (4, {"camera": 1}, "picture.geometry: a picture must be listed under camera 0, not 1"),
+    ],
+)
+def test_tiles_and_pictures_keep_their_codecs(
+    index: int, change: dict[str, object], message: str
+) -> None:
+    p = _packet()
+    bufs = list(p.buffers)
+    bufs[index] = dataclasses.replace(bufs[index], **change)  # type: ignore[arg-type]
+    if "camera" in change:  # an aux camera of the picture's size, so only the camera differs
+        p = dataclasses.replace(p, cameras=(p.cameras[0], p.cameras[0]))
+        bufs[2:4] = [dataclasses.replace(b, width=8, height=4) for b in bufs[2:4]]
+    # pack_packet checks sizes, not codecs: a hostile producer can write any table
+    data = pack_packet(dataclasses.replace(p, buffers=tuple(bufs)))
+    with pytest.raises(StreamError, match=f"frame 7, {message}"):
+        unpack_packet(data)
 
 
 def test_header_is_compact() -> None:
-    """Version 2's fixed costs: a three-camera, 37-buffer frame (the server's layout) spends
-    well under the ~1.7 kB of version 1's plain header."""
+    """Version 3's fixed costs: a three-camera frame with 39 buffer entries (the server's layout:
+    13 per camera, the lossy ones as payload-less tiles) and its 3 pictures spends well under
+    the ~1.7 kB of version 1's plain header."""
     rng = np.random.default_rng(0)
     cams = tuple(
         CameraRecord(
@@ -122,11 +154,15 @@ def test_header_is_compact() -> None:
             sc = tuple(float(np.float32(v)) for v in rng.uniform(1e-4, 1e-2, 3))
             bufs.append(
                 BufferEntry(
-                    c, k, Codec.HEVC if q else Codec.ZSTD, n if q else 1, w, h,
-                    bytes(int(rng.integers(1, 3000))),
+                    c, k, Codec.TILE if q else Codec.ZSTD, n if q else 1, w, h,
+                    b"" if q else bytes(int(rng.integers(1, 3000))),
                     sc if q else (0.0, 0.0, 0.0), sc if q else (0.0, 0.0, 0.0),
                 )
             )
+    bufs += [
+        BufferEntry(0, k, Codec.HEVC, 1, 320, 180, bytes(int(rng.integers(1, 30000))))
+        for k in (BufferKind.PICTURE_COLOR, BufferKind.PICTURE_GEOMETRY, BufferKind.PICTURE_SHADOW)
+    ]
     p = Packet(index=5, time=0.5, key=False, uncompressed=False, cameras=cams,
                buffers=tuple(bufs))
     data = pack_packet(p)
@@ -169,6 +205,14 @@ def test_wrong_version_and_magic() -> None:
     data = bytearray(pack_packet(_packet()))
     data[4:6] = struct.pack("<H", 9)
     with pytest.raises(StreamError, match="frame 7: unsupported packet version 9"):
+        unpack_packet(bytes(data))
+    # Version 2 (24 HEVC streams a frame) is refused with what to do about it.
+    data[4:6] = struct.pack("<H", 2)
+    with pytest.raises(
+        StreamError,
+        match="frame 7: packet format version 2 is no longer supported .*re-encode the "
+        "recording with `splitrender encode`",
+    ):
         unpack_packet(bytes(data))
     with pytest.raises(StreamError, match="not a splitrender packet"):
         unpack_packet(b"XXXX" + bytes(data[4:]))
@@ -272,6 +316,11 @@ def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
     bad = tmp_path / "v.srs"
     bad.write_bytes(raw[:8] + struct.pack("<H", 9) + raw[10:])
     with pytest.raises(StreamError, match="unsupported stream version 9"):
+        StreamFile(bad)
+    bad.write_bytes(raw[:8] + struct.pack("<H", 2) + raw[10:])
+    with pytest.raises(
+        StreamError, match="v.srs: stream format version 2 is no longer supported"
+    ):
         StreamFile(bad)
     bad.write_bytes(b"nonsense")
     with pytest.raises(StreamError):

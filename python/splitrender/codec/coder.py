@@ -1,55 +1,77 @@
 """Compression of server frames (seeds/000 §3.4, §4.1; DESIGN.md "Wire format and codecs").
 
 :class:`StreamEncoder` turns each :class:`~splitrender.types.ServerFrame` into one packet
-(:mod:`splitrender.codec.stream`); :class:`StreamDecoder` turns packets back into the same dataclasses
-the client consumes. Per camera, these buffers travel (a frame is the older one of one pair and the
-newer one of the next, so the client needs both directions of every frame):
+(:mod:`splitrender.codec.stream`, format version 3); :class:`StreamDecoder` turns packets back
+into the same dataclasses the client consumes. A frame is the older one of one pair and the newer
+one of the next, so the client needs both directions of every frame.
 
-=====================  ==========================================================================
-colour                 HEVC 8-bit (libx265), YCbCr BT.709 full range, 4:4:4 (default) or 4:2:0
-depth                  linear 12-bit codes (per-frame min/max in the packet), HEVC ``gray12le``
-motion_fwd/_bwd        linear 12-bit codes per channel, HEVC ``yuv444p12le`` (x, y, z in Y, Cb,
-                       Cr); the per-channel scale/offset travel in the packet, and 0 is an exact
-                       code (``offset = -z0 * scale``), so a code of ``z0`` decodes to 0.0
-motion_*.static        lossless mask (zstd) of the pixels whose motion is exactly 0: they decode
-                       to exactly 0 whatever the lossy codec did nearby
-depth/motion .invalid  lossless mask (zstd) of NaN/inf pixels (only when there are any): they decode
-                       to NaN, so invalid stays invalid (DESIGN.md)
-shadow_*.bits          bit-exact: zstd level 10 of a bit-packed occupancy mask and the non-zero
-                       bitfields only (0 = no dynamic shadow, the DESIGN.md sentinel); every bit of
-                       the uint32 is kept, so up to 16 subframes survive (the reference code keeps 8)
-shadow_*.s_min/_max    HEVC 8-bit like colour, zeroed where the bitfield is 0 (never read there)
-=====================  ==========================================================================
+The lossy buffers of *all* cameras travel as tiles of at most three HEVC pictures per frame
+(version 2 sent 24 HEVC streams; decoding costs per sample, not per stream, so the samples
+themselves were cut as well, see docs/codec-results.md):
 
-Rate control: every HEVC stream is its own libx265 encoder, kept open across frames: zero-latency
-tuning, no B-frames, ABR to a per-stream target with a VBV buffer of ``vbv_buffer_s`` seconds
-(``vbv-maxrate`` = target). The total target is split main 60 % / auxiliary 20 % each; within a
-camera, after the lossless parts (shadow bits, masks, headers; measured, not assumed), colour
-50 %, depth 20 %, motion 20 % (half per direction), shadow colours 10 % (a quarter each), all
-configurable. At every key frame the targets are recomputed from the lossless bytes, the
-achieved rate of the last GOP and the shortfall of the whole stream so far (a bounded gain),
-because sparse buffers such as shadow colours cannot use their share and x265's ABR drifts over
-short sequences.
+==================  ===========================================================================
+picture             tiles (every camera, in the order of :func:`_tiles`)
+==================  ===========================================================================
+``color``           colour, HEVC 8-bit YCbCr BT.709 full range, 4:2:0 (default) or 4:4:4
+``geometry``        depth at full size and each channel of motion fwd and bwd at half size
+                    (``ceil(w/2) x ceil(h/2)``), as linear 12-bit codes, HEVC ``gray12le``; the
+                    per-tile scale/offset travel in the packet, and 0 is an exact motion code
+                    (``offset = -z0 * scale``)
+``shadow``          the four shadow colours (fwd/bwd s_min/s_max), 8-bit like colour
+==================  ===========================================================================
+
+The tiles are packed into columns by :func:`_layout`, a pure function of the camera sizes, so the
+packet needs no layout of its own; each tile sits on the 8-pixel grid and its slot is filled by
+repeating its last row and column, so that no coding block straddles two tiles.
+
+Lossless beside them (zstd, bit-exact):
+
+- ``motion_*.static``: pixels whose motion is exactly 0; they decode to exactly 0 whatever the
+  lossy codec did nearby. Motion at half size is the mean of the *moving* pixels of each 2x2
+  block, so moving pixels next to static ones keep their own motion.
+- ``depth/motion .invalid``: NaN/inf pixels (only when there are any); they decode to NaN.
+- ``shadow_*.bits``: a bit-packed occupancy mask and the non-zero bitfields (all 32 bits). Shadow
+  colours are only read where a bitfield is set: elsewhere they decode to 0, and the encoder
+  fills them with the mean of the set pixels of their 2x2 block (4:2:0: the chroma sample of a
+  block then is that of its set pixels) or 0, so they cost next to nothing.
+
+Rate control: one libx265 encoder per picture, kept open across frames: zero-latency tuning, no
+B-frames, ABR to a per-picture target with a VBV buffer of ``vbv_buffer_s`` seconds
+(``vbv-maxrate`` = target). After the lossless parts (measured, not assumed), the budget is
+split colour 50 %, geometry (depth + motion) 40 %, shadow colours 10 %, all configurable. Within
+a picture x265 spends bits where the content needs them; ``camera_shares`` (main 60 %, auxiliary
+20 % each) is no longer a separate target (one picture holds every camera) but the tile areas
+give about that split (main 4/6, each auxiliary camera 1/6 of the pixels). At every key frame the
+targets are recomputed from the lossless bytes, the achieved rate of the last GOP and the
+shortfall of the whole stream so far (a bounded gain), because x265's ABR drifts over short
+sequences.
+
+Decoding: the (up to) three pictures decode in parallel on a thread pool (FFmpeg releases the
+GIL), each with FFmpeg's slice threading over x265's wavefront rows, never frame threading, which
+would hold each picture back by a frame. The colour picture is converted to RGB by swscale in one
+call; every other buffer is dequantised straight from the decoded planes into the client's array.
 
 Random access: every ``gop`` frames a key frame forces an IDR with the parameter sets in every
-HEVC stream; a :class:`StreamDecoder` can start at any key frame.
+picture; a :class:`StreamDecoder` can start at any key frame.
 
 Where this differs from the reference code on purpose (REFERENCE.md §5, §8): shadow bitfields keep
 all 32 bits (the reference keeps only the blue channel, losing subframes beyond 4); no morphological
 opening of the shadow mask (lossless means lossless); no zeroing of |v| < 1e-4 (exact zeros are kept
-by the static mask instead); the same rate mode for every buffer (the vbr CRF bug does not arise:
-each stream has its own target); the depth/motion codes are taken straight from float32 (a detour
-through half floats would only add error once 12 bits are taken).
+by the static mask instead); the same rate mode for every picture (the vbr CRF bug does not arise);
+the depth/motion codes are taken straight from float32 (a detour through half floats would only
+add error once 12 bits are taken).
 """
 
 from __future__ import annotations
 
 import math
 import os
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from fractions import Fraction
+from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 import av
@@ -60,12 +82,15 @@ import zstandard
 from splitrender.codec.stream import (
     KIND_CHANNELS,
     MAX_PIXELS,
+    PICTURE_KINDS,
+    TILE_PICTURE,
     BufferEntry,
     BufferKind,
     CameraRecord,
     Codec,
     Packet,
     buffer_name,
+    camera_name,
     pack_packet,
     unpack_packet,
 )
@@ -85,25 +110,14 @@ __all__ = ["CodecConfig", "StreamDecoder", "StreamEncoder"]
 
 _K = BufferKind
 _CODE_MAX = 4095  # 12 bits
+_ALIGN = 8  # tiles on the 8x8 transform grid: no block straddles two tiles
 
-#: Lossy kinds, their stream group (for the buffer shares) and the fraction of the group.
-_GROUP: dict[BufferKind, tuple[str, float]] = {
-    _K.COLOR: ("color", 1.0),
-    _K.DEPTH: ("depth", 1.0),
-    _K.MOTION_FWD: ("motion", 0.5),
-    _K.MOTION_BWD: ("motion", 0.5),
-    _K.SHADOW_FWD_MIN: ("shadow_color", 0.25),
-    _K.SHADOW_FWD_MAX: ("shadow_color", 0.25),
-    _K.SHADOW_BWD_MIN: ("shadow_color", 0.25),
-    _K.SHADOW_BWD_MAX: ("shadow_color", 0.25),
-}
-_COLOR_KINDS = (
-    _K.COLOR,
-    _K.SHADOW_FWD_MIN,
-    _K.SHADOW_FWD_MAX,
-    _K.SHADOW_BWD_MIN,
-    _K.SHADOW_BWD_MAX,
+_PIC_COLOR, _PIC_GEOMETRY, _PIC_SHADOW = (
+    _K.PICTURE_COLOR,
+    _K.PICTURE_GEOMETRY,
+    _K.PICTURE_SHADOW,
 )
+_SHADOW_COLOURS = PICTURE_KINDS[_PIC_SHADOW]
 _MOTION = {
     "fwd": (_K.MOTION_FWD, _K.MOTION_FWD_STATIC, _K.MOTION_FWD_INVALID),
     "bwd": (_K.MOTION_BWD, _K.MOTION_BWD_STATIC, _K.MOTION_BWD_INVALID),
@@ -120,7 +134,13 @@ class CodecConfig:
 
     ``bitrate_mbps`` is the target of the whole stream (all cameras, all buffers, headers) at
     ``fps`` server frames per second; DESIGN.md scales it with the pixel count (the paper's
-    40 Mb/s at 2560x1440 is 10 Mb/s at 1280x720, see :meth:`scaled`)."""
+    40 Mb/s at 2560x1440 is 10 Mb/s at 1280x720, see :meth:`scaled`).
+
+    ``camera_shares`` must still give one share per camera (it fixes the number of cameras the
+    stream expects), but since stream format 3 every picture holds all cameras and x265 splits
+    its bits between their tiles by content. ``chroma`` is that of the colour and shadow
+    pictures; 4:2:0 by default since format 3 (half the decode time of the colour picture,
+    docs/codec-results.md)."""
 
     bitrate_mbps: float = 10.0
     camera_shares: tuple[float, ...] = (0.6, 0.2, 0.2)
@@ -128,7 +148,7 @@ class CodecConfig:
     depth_share: float = 0.2
     motion_share: float = 0.2
     shadow_color_share: float = 0.1
-    chroma: str = "444"
+    chroma: str = "420"
     preset: str = "superfast"
     fps: float = 10.0
     gop: int = 10
@@ -203,40 +223,139 @@ class CodecConfig:
         }
 
 
-def _padded(w: int, h: int) -> tuple[int, int]:
-    """The coded size: even (4:2:0) and at least 16 (libx265's minimum)."""
-    return max(16, w + (w & 1)), max(16, h + (h & 1))
+# --------------------------------------------------------------------------------------------
+# Tiles
 
 
-def _pad(a: npt.NDArray[Any], w: int, h: int) -> npt.NDArray[Any]:
-    pw, ph = _padded(w, h)
-    if (pw, ph) == (w, h):
-        return a
-    widths = [(0, ph - h), (0, pw - w)] + [(0, 0)] * (a.ndim - 2)
-    return np.pad(a, widths, mode="edge")
+@dataclass(frozen=True, slots=True)
+class _Tile:
+    """Where one buffer (or one channel of motion) lies in its picture."""
+
+    camera: int
+    kind: BufferKind
+    channel: int
+    w: int
+    h: int
+    x: int = 0
+    y: int = 0
 
 
-def _hevc_format(kind: BufferKind, chroma: str) -> str:
-    if kind in _COLOR_KINDS:
-        return "yuv444p" if chroma == "444" else "yuv420p"
-    return "gray12le" if kind == _K.DEPTH else "yuv444p12le"
+def _aligned(n: int) -> int:
+    return -(-n // _ALIGN) * _ALIGN
+
+
+def _half(n: int) -> int:
+    return (n + 1) // 2
+
+
+def _tiles(picture: BufferKind, sizes: tuple[tuple[int, int], ...]) -> list[_Tile]:
+    """The tiles of ``picture`` for cameras of ``sizes``, unplaced, in their canonical order."""
+    out = []
+    for ci, (w, h) in enumerate(sizes):
+        if picture == _PIC_COLOR:
+            out.append(_Tile(ci, _K.COLOR, 0, w, h))
+        elif picture == _PIC_GEOMETRY:
+            out.append(_Tile(ci, _K.DEPTH, 0, w, h))
+            out += [
+                _Tile(ci, k, c, _half(w), _half(h))
+                for k in (_K.MOTION_FWD, _K.MOTION_BWD)
+                for c in range(3)
+            ]
+        else:
+            out += [_Tile(ci, k, 0, w, h) for k in _SHADOW_COLOURS]
+    return out
+
+
+@lru_cache(maxsize=64)
+def _layout(
+    picture: BufferKind, sizes: tuple[tuple[int, int], ...]
+) -> tuple[dict[tuple[int, BufferKind, int], _Tile], int, int]:
+    """``(tiles by (camera, kind, channel), width, height)`` of a picture.
+
+    Columns as tall as the tallest tile, filled top to bottom with the tiles from the tallest
+    down (ties in canonical order): 1280x720 + two 640x360 cameras give a 1920x720 colour
+    picture without a gap. Deterministic, so encoder and decoder agree without a table."""
+    tiles = _tiles(picture, sizes)
+    col_h = _aligned(max(t.h for t in tiles))
+    placed: dict[tuple[int, BufferKind, int], _Tile] = {}
+    x = y = col_w = 0
+    for t in sorted(tiles, key=lambda t: -t.h):
+        tw, th = _aligned(t.w), _aligned(t.h)
+        if y + th > col_h:
+            x, y, col_w = x + col_w, 0, 0
+        placed[(t.camera, t.kind, t.channel)] = _Tile(
+            t.camera, t.kind, t.channel, t.w, t.h, x, y
+        )
+        y += th
+        col_w = max(col_w, tw)
+    # libx265's smallest picture is 16x16 (8x8 tiles of a tiny camera would be less)
+    return placed, max(16, x + col_w), max(16, col_h)
+
+
+def _put(atlas: npt.NDArray[Any], t: _Tile, a: npt.NDArray[Any]) -> None:
+    """Writes ``a`` into its tile and repeats its last column and row to the end of the slot."""
+    x1, y1 = t.x + t.w, t.y + t.h
+    x2, y2 = t.x + _aligned(t.w), t.y + _aligned(t.h)
+    atlas[t.y : y1, t.x : x1] = a
+    if x2 > x1:
+        atlas[t.y : y1, x1:x2] = atlas[t.y : y1, x1 - 1 : x1]
+    if y2 > y1:
+        atlas[y1:y2, t.x : x2] = atlas[y1 - 1 : y1, t.x : x2]
+
+
+def _block_mean(
+    a: npt.NDArray[np.float32], weight: npt.NDArray[np.bool_]
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
+    """Per 2x2 block (odd sizes padded): the mean of ``a`` over the pixels where ``weight`` is set
+    (0 where none is), and whether any is set. ``a`` is ``(h, w, c)``."""
+    h, w = weight.shape
+    hh, hw = _half(h), _half(w)
+    wp = np.zeros((2 * hh, 2 * hw), np.float32)
+    wp[:h, :w] = weight
+    ap = np.zeros((2 * hh, 2 * hw, a.shape[2]), np.float32)
+    ap[:h, :w] = a
+    ap *= wp[..., None]
+    sums = ap.reshape(hh, 2, hw, 2, -1).sum(axis=(1, 3))
+    counts = wp.reshape(hh, 2, hw, 2).sum(axis=(1, 3))
+    mean = sums / np.maximum(counts, 1)[..., None]
+    return mean.astype(np.float32), counts > 0
+
+
+def _shadow_fill(
+    col: npt.NDArray[np.uint8], on: npt.NDArray[np.bool_], subsampled: bool
+) -> npt.NDArray[np.uint8]:
+    """A shadow colour as coded: itself where ``on``; elsewhere (never read) 0, or with 4:2:0 the
+    mean of the ``on`` pixels of its 2x2 block, so that the block's chroma sample is theirs and
+    not dragged towards black."""
+    if not subsampled:
+        return np.where(on[..., None], col, np.uint8(0))
+    mean, _ = _block_mean(col.astype(np.float32), on)
+    h, w = on.shape
+    fill = np.repeat(np.repeat(mean, 2, axis=0), 2, axis=1)[:h, :w]
+    return np.where(on[..., None], col, np.rint(fill).astype(np.uint8))
+
+
+def _hevc_format(picture: BufferKind, chroma: str) -> str:
+    if picture == _PIC_GEOMETRY:
+        return "gray12le"
+    return "yuv444p" if chroma == "444" else "yuv420p"
 
 
 _DECODED_FORMATS: dict[BufferKind, tuple[str, ...]] = {
     # full-range 8-bit pictures come back as the (deprecated) "j" formats for 4:2:0
-    **{k: ("yuv444p", "yuv420p", "yuvj444p", "yuvj420p") for k in _COLOR_KINDS},
-    _K.DEPTH: ("gray12le",),
-    _K.MOTION_FWD: ("yuv444p12le",),
-    _K.MOTION_BWD: ("yuv444p12le",),
+    _PIC_COLOR: ("yuv444p", "yuv420p", "yuvj444p", "yuvj420p"),
+    _PIC_SHADOW: ("yuv444p", "yuv420p", "yuvj444p", "yuvj420p"),
+    _PIC_GEOMETRY: ("gray12le",),
 }
 
 
 class _HevcStream:
-    """One libx265 encoder, kept open across frames, reopened when its target changes."""
+    """One libx265 encoder of a picture, kept open across frames, reopened when its target
+    changes."""
 
-    def __init__(self, kind: BufferKind, w: int, h: int, cfg: CodecConfig) -> None:
-        self.kind, self.w, self.h, self.cfg = kind, w, h, cfg
-        self.fmt = _hevc_format(kind, cfg.chroma)
+    def __init__(self, picture: BufferKind, w: int, h: int, cfg: CodecConfig) -> None:
+        self.picture, self.w, self.h, self.cfg = picture, w, h, cfg
+        self.fmt = _hevc_format(picture, cfg.chroma)
         self.ctx: Any = None
         self.target_bps = 0.0
         self.pts = 0
@@ -246,9 +365,8 @@ class _HevcStream:
     def open(self, target_bps: float) -> None:
         kbps = max(2, round(target_bps / 1000))
         buf = max(1, round(kbps * self.cfg.vbv_buffer_s))
-        pw, ph = _padded(self.w, self.h)
         ctx = av.CodecContext.create("libx265", "w")
-        ctx.width, ctx.height, ctx.pix_fmt = pw, ph, self.fmt
+        ctx.width, ctx.height, ctx.pix_fmt = self.w, self.h, self.fmt
         fps = Fraction(self.cfg.fps).limit_denominator(1001)
         ctx.time_base = 1 / fps
         ctx.framerate = fps
@@ -264,10 +382,13 @@ class _HevcStream:
             "range=full",
             "pools=1",
             "frame-threads=1",
+            # Wavefront rows (x265's default, stated because the decoder's slice threads rely
+            # on their entry points).
+            "wpp=1",
             "log-level=error",
             "info=0",  # no SEI with the encoder settings (about 2 kB per stream start)
         ]
-        if self.kind in _COLOR_KINDS:
+        if self.picture != _PIC_GEOMETRY:
             params += ["colorprim=bt709", "transfer=bt709", "colormatrix=bt709"]
         ctx.options = {
             "preset": self.cfg.preset,
@@ -280,25 +401,17 @@ class _HevcStream:
         self.target_bps = kbps * 1000.0
         self.need_idr = True
 
-    def encode(
-        self, planes: list[npt.NDArray[Any]] | npt.NDArray[np.uint8], key: bool
-    ) -> bytes:
-        pw, ph = _padded(self.w, self.h)
-        if self.kind in _COLOR_KINDS:
-            rgb = _pad(planes, self.w, self.h)  # type: ignore[arg-type]
-            frame = av.VideoFrame.from_ndarray(
-                np.ascontiguousarray(rgb), format="rgb24"
-            )
-            frame = frame.reformat(
+    def encode(self, atlas: npt.NDArray[Any], key: bool) -> bytes:
+        if atlas.ndim == 3:
+            frame = av.VideoFrame.from_ndarray(atlas, format="rgb24").reformat(
                 format=self.fmt,
                 dst_colorspace="ITU709",
                 dst_color_range="JPEG",
                 interpolation="BICUBIC",
             )
         else:
-            frame = av.VideoFrame(pw, ph, self.fmt)
-            for plane, src in zip(frame.planes, planes):
-                _fill_plane(plane, _pad(src, self.w, self.h))
+            frame = av.VideoFrame(self.w, self.h, self.fmt)
+            _fill_plane(frame.planes[0], atlas)
         frame.pts = self.pts
         self.pts += 1
         if key or self.need_idr:
@@ -320,43 +433,38 @@ def _fill_plane(plane: Any, a: npt.NDArray[np.uint16]) -> None:
     buf[:, :w] = a
 
 
-def _dequantise(
-    q: npt.NDArray[np.uint16], scale: float, offset: float
-) -> npt.NDArray[np.float32]:
-    """``q * scale + offset`` in float32 (scale and offset are float32 values on the wire)."""
-    out = q.astype(np.float32)
-    out *= np.float32(scale)
-    out += np.float32(offset)
-    return out
-
-
-def _sparse_colour(
-    img: npt.NDArray[np.uint8],
-    on: npt.NDArray[np.bool_],
-    ycbcr: bool,
-) -> npt.NDArray[np.uint8]:
-    """A shadow colour image with every pixel whose bitfield is 0 set to 0. A 4:4:4 HEVC picture
-    arrives as its raw Y, Cb, Cr planes and is converted (BT.709, full range) only where ``on``."""
-    out = np.zeros_like(img)
-    if ycbcr:
-        yuv = img[on].astype(np.float32)
-        y, cb, cr = yuv[:, 0], yuv[:, 1] - 128.0, yuv[:, 2] - 128.0
-        rgb = np.stack(
-            [y + 1.5748 * cr, y - 0.187324 * cb - 0.468124 * cr, y + 1.8556 * cb],
-            axis=-1,
-        )
-        out[on] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
-    else:
-        out[on] = img[on]
-    return out
-
-
 def _plane_array(
     plane: Any, w: int, h: int, dtype: type[np.generic]
 ) -> npt.NDArray[Any]:
+    """A view of a decoded plane (no copy)."""
     itemsize = np.dtype(dtype).itemsize
     buf = np.frombuffer(plane, dtype=dtype)
     return buf.reshape(-1, plane.line_size // itemsize)[:h, :w]
+
+
+def _sparse_colour(
+    planes: Sequence[npt.NDArray[np.uint8]],
+    t: _Tile,
+    on: tuple[npt.NDArray[np.intp], ...],
+) -> npt.NDArray[np.uint8]:
+    """A shadow colour from the Y, Cb, Cr planes of its picture, converted (BT.709, full range)
+    only at the pixels ``on`` (``np.nonzero`` of the bitfield): elsewhere 0. Chroma is read at the
+    sample that covers each pixel (4:2:0: ``(y // 2, x // 2)``)."""
+    out = np.zeros((t.h, t.w, 3), np.uint8)
+    ys, xs = on
+    if ys.size == 0:
+        return out
+    sy = planes[0].shape[0] // planes[1].shape[0]
+    sx = planes[0].shape[1] // planes[1].shape[1]
+    py, px = ys + t.y, xs + t.x
+    y = planes[0][py, px].astype(np.float32)
+    cb = planes[1][py // sy, px // sx].astype(np.float32) - 128.0
+    cr = planes[2][py // sy, px // sx].astype(np.float32) - 128.0
+    rgb = np.stack(
+        [y + 1.5748 * cr, y - 0.187324 * cb - 0.468124 * cr, y + 1.8556 * cb], axis=-1
+    )
+    out[ys, xs] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -535,7 +643,9 @@ class _WorkerThreads:
 
     def _executor(self, threads: int, name: str) -> ThreadPoolExecutor:
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=name)
+            self._pool = ThreadPoolExecutor(
+                max_workers=threads, thread_name_prefix=name
+            )
         return self._pool
 
     def close(self) -> None:
@@ -551,11 +661,20 @@ class _WorkerThreads:
         self.close()
 
 
+def _group_share(cfg: CodecConfig, picture: BufferKind, motion: bool) -> float:
+    if picture == _PIC_COLOR:
+        return cfg.color_share
+    if picture == _PIC_SHADOW:
+        return cfg.shadow_color_share
+    return cfg.depth_share + (cfg.motion_share if motion else 0.0)
+
+
 class StreamEncoder(_WorkerThreads):
-    """Encodes server frames into packets, one libx265 encoder per (camera, lossy buffer).
+    """Encodes server frames into packets: one libx265 encoder per picture (colour, geometry,
+    shadow colours), each holding every camera's tiles.
 
     The first frame fixes the layout (number of cameras and their sizes); later frames must keep
-    it. Not thread-safe (it is a stream); internally the HEVC streams of a frame are encoded in
+    it. Not thread-safe (it is a stream); internally the pictures of a frame are encoded in
     parallel (``config.threads``, 0 = one per CPU).
 
     # Errors
@@ -565,7 +684,7 @@ class StreamEncoder(_WorkerThreads):
     def __init__(self, config: CodecConfig | None = None) -> None:
         self.config = config if config is not None else CodecConfig()
         self._layout: tuple[tuple[int, int], ...] | None = None
-        self._streams: dict[tuple[int, BufferKind], _HevcStream] = {}
+        self._streams: dict[BufferKind, _HevcStream] = {}
         self._frames = 0
         self._gain = 1.0
         self._lossless_since_update = 0
@@ -598,19 +717,41 @@ class StreamEncoder(_WorkerThreads):
                 ``frame.aux[0].color``) or a frame that does not match the stream's layout.
         """
         self._check_layout(frame)
+        assert self._layout is not None
         cfg = self.config
         key = self._frames % cfg.gop == 0
         cams = _cameras_of(frame)
         if key:
-            # Streams that skip this frame (no motion, no shadow) restart with an IDR later.
+            # A picture that skips this frame (no shadows) restarts with an IDR later.
             for s in self._streams.values():
                 s.need_idr = True
+        atlases: dict[BufferKind, npt.NDArray[Any]] = {}
+        if not cfg.uncompressed:
+            for pic in PICTURE_KINDS:
+                _, pw, ph = _layout(pic, self._layout)
+                atlases[pic] = (
+                    np.zeros((ph, pw), np.uint16)
+                    if pic == _PIC_GEOMETRY
+                    else np.zeros((ph, pw, 3), np.uint8)
+                )
         jobs: list[_Job] = []
         for ci, cf in enumerate(cams):
-            jobs += self._camera_jobs(ci, cf, key)
+            jobs += (
+                self._raw_jobs(ci, cf)
+                if cfg.uncompressed
+                else self._camera_jobs(ci, cf, atlases)
+            )
+        used = {TILE_PICTURE[j.kind] for j in jobs if j.codec == Codec.TILE}
+        motion = any(
+            j.codec == Codec.TILE and j.kind in (_K.MOTION_FWD, _K.MOTION_BWD)
+            for j in jobs
+        )
+        for pic in PICTURE_KINDS:
+            if pic in used:
+                jobs.append(self._picture_job(pic, atlases[pic], key))
         lossless = sum(len(j.payload) for j in jobs if isinstance(j.payload, bytes))
         if not cfg.uncompressed:
-            self._update_rates(frame, jobs, lossless, key)
+            self._update_rates(jobs, lossless, key, motion)
         # The encoders themselves are freed with the object.
         pool = self._executor(cfg.threads or (os.cpu_count() or 1), "splitrender-enc")
         for j in jobs:
@@ -656,20 +797,20 @@ class StreamEncoder(_WorkerThreads):
         self.last = EncodeStats(
             len(packet),
             len(packet) - hevc,
-            {buffer_name(c, k): s.target_bps for (c, k), s in self._streams.items()},
+            {buffer_name(0, k): s.target_bps for k, s in self._streams.items()},
         )
         return packet
 
     # -- rate control -------------------------------------------------------------------------
 
     def _update_rates(
-        self, frame: ServerFrame, jobs: list[_Job], lossless: int, key: bool
+        self, jobs: list[_Job], lossless: int, key: bool, motion: bool
     ) -> None:
         """At key frames: (re)opens the HEVC encoders with targets from the budget left after the
         lossless parts, corrected by the rate achieved over the last GOP."""
         cfg = self.config
         total = cfg.bitrate_mbps * 1e6
-        lossy = [(j.camera, j.kind) for j in jobs if callable(j.payload)]
+        lossy = [j.kind for j in jobs if j.codec == Codec.HEVC]
         new = [k for k in lossy if k not in self._streams]
         if not key and not new:
             return
@@ -693,87 +834,68 @@ class StreamEncoder(_WorkerThreads):
                 self._gain = min(max(self._gain * ratio, 0.25), 8.0)
         elif not self._streams:
             # First frame: this frame's lossless bytes plus an estimate of the packet header
-            # (stream format version 2: about 10 bytes per buffer and 250 for the cameras).
+            # (stream format version 3: about 10 bytes per buffer and 250 for the cameras).
             self._lossless_bps = 8 * (lossless + 10 * len(jobs) + 250) * cfg.fps
         budget = max(total - self._lossless_bps, 0.05 * total) * self._gain
-        shares = cfg.shares()
-        targets: dict[tuple[int, BufferKind], float] = {}
-        for cam in sorted({c for c, _ in lossy}):
-            kinds = [k for c, k in lossy if c == cam]
-            groups = {_GROUP[k][0] for k in kinds}
-            norm = sum(shares[g] for g in groups) or 1.0
-            group_size = {
-                g: sum(_GROUP[k][1] for k in kinds if _GROUP[k][0] == g) for g in groups
-            }
-            for k in kinds:
-                g, frac = _GROUP[k]
-                targets[(cam, k)] = (
-                    budget
-                    * cfg.camera_shares[cam]
-                    * shares[g]
-                    / norm
-                    * frac
-                    / group_size[g]
-                )
-        for sk, t in targets.items():
-            s = self._streams.get(sk)
+        shares = {k: _group_share(cfg, k, motion) for k in lossy}
+        norm = sum(shares.values()) or 1.0
+        assert self._layout is not None
+        for pic in lossy:
+            t = budget * shares[pic] / norm
+            s = self._streams.get(pic)
             if not key and s is not None:
                 continue  # mid-GOP: only open the new streams
             if s is None:
-                assert self._layout is not None
-                w, h = self._layout[sk[0]]
-                s = self._streams[sk] = _HevcStream(sk[1], w, h, cfg)
+                _, pw, ph = _layout(pic, self._layout)
+                s = self._streams[pic] = _HevcStream(pic, pw, ph, cfg)
                 s.open(t)
             elif abs(t - s.target_bps) > 0.03 * s.target_bps:
                 s.open(t)
             s.bits_since_update = 0
         if not key:
             return
-        for sk, s in self._streams.items():
-            if sk not in targets:
+        for pic, s in self._streams.items():
+            if pic not in lossy:
                 s.bits_since_update = 0
         self._lossless_since_update = 0
         self._frames_since_update = 0
 
     # -- buffers --------------------------------------------------------------------------------
 
-    def _camera_jobs(self, ci: int, cf: CameraFrame, key: bool) -> list[_Job]:
-        cfg = self.config
+    def _raw_jobs(self, ci: int, cf: CameraFrame) -> list[_Job]:
+        """Every buffer as its bytes (``uncompressed``)."""
         w, h = cf.camera.width, cf.camera.height
-        jobs: list[_Job] = []
-        if cfg.uncompressed:
-            jobs.append(_Job(ci, _K.COLOR, w, h, Codec.RAW, cf.color.tobytes()))
-            jobs.append(
-                _Job(ci, _K.DEPTH, w, h, Codec.RAW, cf.depth.astype("<f4").tobytes())
-            )
-            for d in ("fwd", "bwd"):
-                m = getattr(cf, f"motion_{d}")
-                if m is not None:
-                    jobs.append(
-                        _Job(
-                            ci,
-                            _MOTION[d][0],
-                            w,
-                            h,
-                            Codec.RAW,
-                            m.astype("<f4").tobytes(),
-                        )
-                    )
-                s = getattr(cf, f"shadow_{d}")
-                if s is not None:
-                    kb, kmin, kmax = _SHADOW[d]
-                    jobs.append(
-                        _Job(ci, kb, w, h, Codec.RAW, s.bits.astype("<u4").tobytes())
-                    )
-                    jobs.append(_Job(ci, kmin, w, h, Codec.RAW, s.s_min.tobytes()))
-                    jobs.append(_Job(ci, kmax, w, h, Codec.RAW, s.s_max.tobytes()))
-            return jobs
+        arrays: list[tuple[BufferKind, npt.NDArray[Any]]] = [
+            (_K.COLOR, cf.color),
+            (_K.DEPTH, cf.depth.astype("<f4")),
+        ]
+        for d in ("fwd", "bwd"):
+            m = getattr(cf, f"motion_{d}")
+            if m is not None:
+                arrays.append((_MOTION[d][0], m.astype("<f4")))
+            s = getattr(cf, f"shadow_{d}")
+            if s is not None:
+                kb, kmin, kmax = _SHADOW[d]
+                arrays += [(kb, s.bits.astype("<u4")), (kmin, s.s_min), (kmax, s.s_max)]
+        return [_Job(ci, k, w, h, Codec.RAW, a.tobytes()) for k, a in arrays]
 
+    def _camera_jobs(
+        self, ci: int, cf: CameraFrame, atlases: dict[BufferKind, npt.NDArray[Any]]
+    ) -> list[_Job]:
+        """The lossless parts and tile entries of one camera; its tiles go into ``atlases``."""
+        cfg = self.config
+        assert self._layout is not None
+        w, h = cf.camera.width, cf.camera.height
         lvl = cfg.zstd_level
-        jobs.append(self._hevc_job(ci, _K.COLOR, w, h, cf.color, key))
+        colour_tiles, _, _ = _layout(_PIC_COLOR, self._layout)
+        geo_tiles, _, _ = _layout(_PIC_GEOMETRY, self._layout)
+        shadow_tiles, _, _ = _layout(_PIC_SHADOW, self._layout)
+        _put(atlases[_PIC_COLOR], colour_tiles[(ci, _K.COLOR, 0)], cf.color)
+        jobs = [_Job(ci, _K.COLOR, w, h, Codec.TILE)]
         q, scale, lo, invalid = _quantise_depth(cf.depth)
+        _put(atlases[_PIC_GEOMETRY], geo_tiles[(ci, _K.DEPTH, 0)], q)
         jobs.append(
-            self._hevc_job(ci, _K.DEPTH, w, h, [q], key, (scale, 0, 0), (lo, 0, 0))
+            _Job(ci, _K.DEPTH, w, h, Codec.TILE, b"", (scale, 0, 0), (lo, 0, 0))
         )
         if invalid is not None:
             jobs.append(
@@ -791,8 +913,16 @@ class StreamEncoder(_WorkerThreads):
                 if static.all():
                     jobs.append(_Job(ci, kind, w, h, Codec.ZERO))
                 else:
-                    planes, sc, off = _quantise_motion(mm)
-                    jobs.append(self._hevc_job(ci, kind, w, h, planes, key, sc, off))
+                    # With the static mask, static pixels decode to 0 anyway: the half-size
+                    # motion is the mean of the moving ones only (invalid ones never count).
+                    weight = finite & ~static if cfg.exact_static_motion else finite
+                    half, _ = _block_mean(mm, weight)
+                    planes, sc, off = _quantise_motion(half)
+                    for c in range(3):
+                        _put(
+                            atlases[_PIC_GEOMETRY], geo_tiles[(ci, kind, c)], planes[c]
+                        )
+                    jobs.append(_Job(ci, kind, w, h, Codec.TILE, b"", sc, off))
                     if cfg.exact_static_motion:
                         jobs.append(
                             _Job(ci, kstatic, w, h, Codec.ZSTD, _pack_mask(static, lvl))
@@ -812,48 +942,45 @@ class StreamEncoder(_WorkerThreads):
                     continue
                 jobs.append(_Job(ci, kb, w, h, Codec.ZSTD, _pack_bits(s.bits, lvl)))
                 for k, col in ((kmin, s.s_min), (kmax, s.s_max)):
-                    # Texels of pixels without dynamic shadow are never read: zero them so they
-                    # cost no bits.
-                    jobs.append(
-                        self._hevc_job(
-                            ci, k, w, h, np.where(nz[..., None], col, 0), key
-                        )
-                    )
+                    filled = _shadow_fill(col, nz, cfg.chroma == "420")
+                    _put(atlases[_PIC_SHADOW], shadow_tiles[(ci, k, 0)], filled)
+                    jobs.append(_Job(ci, k, w, h, Codec.TILE))
         return jobs
 
-    def _hevc_job(
-        self,
-        ci: int,
-        kind: BufferKind,
-        w: int,
-        h: int,
-        data: Any,
-        key: bool,
-        scale: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    def _picture_job(
+        self, picture: BufferKind, atlas: npt.NDArray[Any], key: bool
     ) -> _Job:
         def run() -> bytes:
-            return self._streams[(ci, kind)].encode(data, key)
+            return self._streams[picture].encode(atlas, key)
 
-        return _Job(ci, kind, w, h, Codec.HEVC, run, scale, offset)
+        assert self._layout is not None
+        w, h = self._layout[0]
+        return _Job(0, picture, w, h, Codec.HEVC, run)
 
 
 # --------------------------------------------------------------------------------------------
 # Decoder
 
 
-def _hevc_decoder(width: int, height: int) -> Any:
+def _hevc_decoder(width: int, height: int, threads: int = 1) -> Any:
     """An HEVC decoder that refuses pictures larger than ``width x height`` pixels.
 
     The payload is untrusted: its sequence parameter set could declare a picture far larger than
-    the buffer table says, and FFmpeg would allocate it before we could compare sizes. FFmpeg's
-    ``max_pixels`` limit makes it reject such a picture before allocating. The limit allows each
-    side to be rounded up to a whole 64-pixel coding tree unit, since the coded size of a picture
-    (which FFmpeg checks) may exceed its cropped size by that much."""
+    the packet's cameras imply, and FFmpeg would allocate it before we could compare sizes.
+    FFmpeg's ``max_pixels`` limit makes it reject such a picture before allocating. The limit
+    allows each side to be rounded up to a whole 64-pixel coding tree unit, since the coded size
+    of a picture (which FFmpeg checks) may exceed its cropped size by that much.
+
+    ``threads > 1`` turns on slice threading only (over the wavefront rows): frame threading
+    would return each picture one call late, and the client needs it as soon as it arrives."""
     ctx = av.CodecContext.create("hevc", "r")
-    ctx.thread_count = 1
+    ctx.thread_type = "SLICE" if threads > 1 else "NONE"
+    ctx.thread_count = threads
     ctx.options = {"max_pixels": str((-(-width // 64) * 64) * (-(-height // 64) * 64))}
     return ctx
+
+
+_Decoded = dict[tuple[int, BufferKind], npt.NDArray[Any]]
 
 
 class StreamDecoder(_WorkerThreads):
@@ -861,6 +988,11 @@ class StreamDecoder(_WorkerThreads):
 
     Decoding starts at a key frame; after that every packet must follow the previous one
     (frame index + 1), or be a key frame. The HEVC decoders are created afresh at every key frame.
+    :meth:`decode` may be called from any thread; calls on one instance run one at a time (a
+    stream has an order), and the HEVC decoding, which is most of the time, releases the GIL.
+
+    ``threads`` (0 = one per CPU) is the number of pictures decoded at once and the slice threads
+    of each picture's decoder.
 
     # Errors
     :class:`~splitrender.errors.StreamError` naming the frame and buffer for anything wrong in a
@@ -868,21 +1000,34 @@ class StreamDecoder(_WorkerThreads):
     not match its table entry, a missing buffer, or a non-key packet without its predecessor."""
 
     def __init__(self, threads: int = 0, max_pixels: int = MAX_PIXELS) -> None:
-        self._decoders: dict[tuple[int, BufferKind], Any] = {}
+        self._decoders: dict[BufferKind, Any] = {}
         self._last: int | None = None
         self._threads = threads or (os.cpu_count() or 1)
+        self._lock = threading.Lock()
         self.max_pixels = max_pixels
 
     def decode(self, data: bytes | memoryview) -> ServerFrame:
         """The server frame held by one packet."""
+        with self._lock:
+            return self._decode(data)
+
+    def _decode(self, data: bytes | memoryview) -> ServerFrame:
         p = unpack_packet(data)
         where = f"frame {p.index}"
+        total = 0
         for i, c in enumerate(p.cameras):
+            total += c.width * c.height
             if c.width * c.height > self.max_pixels:
                 raise StreamError(
-                    f"{where}, {buffer_name(i, 0).split('.')[0]}: {c.width}x{c.height} exceeds "
-                    f"the decoder's limit of {self.max_pixels} pixels"
+                    f"{where}, {camera_name(i)}: {c.width}x{c.height} exceeds the decoder's "
+                    f"limit of {self.max_pixels} pixels"
                 )
+        # The pictures hold every camera: bound the sum too, before any of them is allocated.
+        if total > self.max_pixels:
+            raise StreamError(
+                f"{where}: the cameras hold {total} pixels together, beyond the decoder's "
+                f"limit of {self.max_pixels}"
+            )
         if p.key:
             self._decoders = {}
         elif self._last is None or p.index != self._last + 1:
@@ -897,48 +1042,91 @@ class StreamDecoder(_WorkerThreads):
             if (b.camera, b.kind) in seen:
                 raise StreamError(f"{where}, {b.name}: buffer appears twice")
             seen[(b.camera, b.kind)] = b
+        for b in p.buffers:
+            if b.codec == Codec.TILE and (0, TILE_PICTURE[b.kind]) not in seen:
+                raise StreamError(
+                    f"{where}, {b.name}: a tile of {buffer_name(0, TILE_PICTURE[b.kind])}, "
+                    "which the packet does not hold"
+                )
         self._last = None  # until this frame has decoded fully
-        hevc = [b for b in p.buffers if b.codec == Codec.HEVC]
-        results: dict[tuple[int, BufferKind], npt.NDArray[Any]] = {}
-        ycbcr: set[tuple[int, BufferKind]] = set()
-        if len(hevc) > 1 and self._threads > 1:
-            pool = self._executor(self._threads, "splitrender-dec")
-            futs = [(b, pool.submit(self._decode_hevc, p.index, b)) for b in hevc]
-            errors = []
-            for b, f in futs:
-                try:
-                    results[(b.camera, b.kind)], yuv = f.result()
-                except StreamError as e:
-                    errors.append(e)
-                    continue
-                if yuv:
-                    ycbcr.add((b.camera, b.kind))
-            if errors:
-                raise errors[0]
-        else:
-            for b in hevc:
-                results[(b.camera, b.kind)], yuv = self._decode_hevc(p.index, b)
-                if yuv:
-                    ycbcr.add((b.camera, b.kind))
-        cams = []
-        for ci, rec in enumerate(p.cameras):
-            cams.append(self._camera(p, ci, rec, seen, results, ycbcr))
+        sizes = tuple((c.width, c.height) for c in p.cameras)
+        pictures = [b for b in p.buffers if b.codec == Codec.HEVC]
+        for b in pictures:
+            # Odd camera shapes waste room in the columns: bound the picture itself too, at
+            # what the shadow picture of one camera of max_pixels needs.
+            _, pw, ph = _layout(b.kind, sizes)
+            if pw * ph > 4 * self.max_pixels + (1 << 16):
+                raise StreamError(
+                    f"{where}, {b.name}: a {pw}x{ph} picture for these cameras exceeds the "
+                    f"decoder's limit of {4 * self.max_pixels + (1 << 16)} pixels"
+                )
+        # Colour and shadow pictures start at once; this thread meanwhile unpacks the lossless
+        # parts, which the geometry picture's worker then applies (static and invalid masks),
+        # so that work too runs beside the other pictures' decoding.
+        parallel = len(pictures) > 1 and self._threads > 1
+        geometry = [b for b in pictures if b.kind == _PIC_GEOMETRY]
+        futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
+        if parallel:
+            pool = self._executor(min(self._threads, 3), "splitrender-dec")
+            futs = [
+                pool.submit(self._picture, p.index, b, sizes, seen, {})
+                for b in pictures
+                if b.kind != _PIC_GEOMETRY
+            ]
+        errors: list[StreamError] = []
+        lossless: _Decoded = {}
+        try:
+            lossless = _lossless(p, seen)
+        except StreamError as e:
+            errors.append(e)
+        parts = []
+        if parallel and not errors:
+            futs += [
+                pool.submit(self._picture, p.index, b, sizes, seen, lossless)
+                for b in geometry
+            ]
+        for (
+            f
+        ) in futs:  # every one waited for: none may outlive this call (thread safety)
+            try:
+                parts.append(f.result())
+            except StreamError as e:
+                errors.append(e)
+        if errors:
+            raise errors[0]
+        if not parallel:
+            parts = [self._picture(p.index, b, sizes, seen, lossless) for b in pictures]
+        results: _Decoded = dict(lossless)
+        shadow_planes: list[npt.NDArray[np.uint8]] = []
+        for out, planes in parts:
+            results.update(out)
+            shadow_planes = planes or shadow_planes
+        cams = [
+            self._camera(p, ci, rec, seen, results, shadow_planes)
+            for ci, rec in enumerate(p.cameras)
+        ]
         self._last = p.index
         return ServerFrame(
             index=p.index, time=p.time, main=cams[0], aux=tuple(cams[1:])
         )
 
-    def _decode_hevc(self, index: int, b: BufferEntry) -> tuple[npt.NDArray[Any], bool]:
-        """The decoded picture as the buffer's array, and whether it is still Y, Cb, Cr (sparse
-        shadow colours, converted later)."""
+    def _picture(
+        self,
+        index: int,
+        b: BufferEntry,
+        sizes: tuple[tuple[int, int], ...],
+        seen: dict[tuple[int, BufferKind], BufferEntry],
+        masks: _Decoded,
+    ) -> tuple[_Decoded, list[npt.NDArray[np.uint8]]]:
+        """Decodes one picture: ``(colour and geometry buffers, shadow picture planes)``. The
+        shadow colours are converted later, where their bitfields are set. Depth and motion
+        leave with the static and invalid ``masks`` (the unpacked lossless parts) applied."""
         where = f"frame {index}, {b.name}"
-        if b.kind not in _DECODED_FORMATS:
-            raise StreamError(f"{where}: HEVC is not a codec of this buffer kind")
-        key = (b.camera, b.kind)
-        ctx = self._decoders.get(key)
+        tiles, pw, ph = _layout(b.kind, sizes)
+        ctx = self._decoders.get(b.kind)
         if ctx is None:
-            ctx = _hevc_decoder(*_padded(b.width, b.height))
-            self._decoders[key] = ctx
+            threads = max(1, self._threads - len(PICTURE_KINDS) + 1)
+            ctx = self._decoders[b.kind] = _hevc_decoder(pw, ph, threads)
         try:
             frames = ctx.decode(av.Packet(bytes(b.payload)))
         except av.error.FFmpegError as e:
@@ -951,39 +1139,65 @@ class StreamDecoder(_WorkerThreads):
                 f"({len(frames)} pictures)"
             )
         f = frames[0]
-        pw, ph = _padded(b.width, b.height)
-        if (f.width, f.height) != (pw, ph) or f.format.name not in _DECODED_FORMATS[
-            b.kind
-        ]:
+        fmt = f.format.name
+        if (f.width, f.height) != (pw, ph) or fmt not in _DECODED_FORMATS[b.kind]:
             raise StreamError(
-                f"{where}: HEVC picture is {f.width}x{f.height} {f.format.name}, expected "
+                f"{where}: HEVC picture is {f.width}x{f.height} {fmt}, expected "
                 f"{pw}x{ph} {'/'.join(_DECODED_FORMATS[b.kind])}"
             )
-        w, h = b.width, b.height
-        if (
-            b.kind in _COLOR_KINDS
-            and b.kind != _K.COLOR
-            and f.format.name in ("yuv444p", "yuvj444p")
-        ):
-            # Shadow colours are sparse: convert only where a bitfield is set (later).
-            planes = [_plane_array(f.planes[c], w, h, np.uint8) for c in range(3)]
-            return np.stack(planes, axis=-1), True
-        if b.kind in _COLOR_KINDS:
+        out: _Decoded = {}
+        if b.kind == _PIC_SHADOW:
+            sub = 2 if "420" in fmt else 1
+            return out, [
+                _plane_array(
+                    f.planes[c],
+                    pw // (sub if c else 1),
+                    ph // (sub if c else 1),
+                    np.uint8,
+                )
+                for c in range(3)
+            ]
+        if b.kind == _PIC_COLOR:
             rgb = f.reformat(
                 format="rgb24",
                 src_colorspace="ITU709",
                 src_color_range="JPEG",
                 interpolation="BICUBIC",
-            ).to_ndarray()
-            return np.ascontiguousarray(rgb[:h, :w]), False
-        if b.kind == _K.DEPTH:
-            q = _plane_array(f.planes[0], w, h, np.uint16)
-            return _dequantise(q, b.scale[0], b.offset[0]), False
-        out = np.empty((h, w, 3), np.float32)
-        for c in range(3):
-            q = _plane_array(f.planes[c], w, h, np.uint16)
-            out[..., c] = _dequantise(q, b.scale[c], b.offset[c])
-        return out, False
+            )
+            full = _plane_array(rgb.planes[0], 3 * pw, ph, np.uint8).reshape(ph, pw, 3)
+            for (ci, kind, _), t in tiles.items():
+                if seen.get((ci, kind), b).codec == Codec.TILE:
+                    out[(ci, kind)] = full[t.y : t.y + t.h, t.x : t.x + t.w].copy()
+            return out, []
+        q = _plane_array(f.planes[0], pw, ph, np.uint16)
+        for ci, (w, h) in enumerate(sizes):
+            entry = seen.get((ci, _K.DEPTH))
+            if entry is not None and entry.codec == Codec.TILE:
+                t = tiles[(ci, _K.DEPTH, 0)]
+                d = np.empty((h, w), np.float32)
+                np.multiply(
+                    q[t.y : t.y + h, t.x : t.x + w], np.float32(entry.scale[0]), out=d
+                )
+                d += np.float32(entry.offset[0])
+                inv = masks.get((ci, _K.DEPTH_INVALID))
+                if inv is not None:
+                    np.copyto(d, np.float32(np.nan), where=inv)
+                out[(ci, _K.DEPTH)] = d
+            for kind in (_K.MOTION_FWD, _K.MOTION_BWD):
+                entry = seen.get((ci, kind))
+                if entry is not None and entry.codec == Codec.TILE:
+                    m = _motion(q, tiles, ci, kind, entry, w, h)
+                    _, kstatic, kinvalid = _MOTION[
+                        "fwd" if kind == _K.MOTION_FWD else "bwd"
+                    ]
+                    st = masks.get((ci, kstatic))
+                    if st is not None:
+                        _zero_static(m, st)
+                    iv = masks.get((ci, kinvalid))
+                    if iv is not None:
+                        np.copyto(m, np.float32(np.nan), where=iv[..., None])
+                    out[(ci, kind)] = m
+        return out, []
 
     def _camera(
         self,
@@ -991,8 +1205,8 @@ class StreamDecoder(_WorkerThreads):
         ci: int,
         rec: CameraRecord,
         seen: dict[tuple[int, BufferKind], BufferEntry],
-        results: dict[tuple[int, BufferKind], npt.NDArray[Any]],
-        ycbcr: set[tuple[int, BufferKind]],
+        results: _Decoded,
+        shadow_planes: list[npt.NDArray[np.uint8]],
     ) -> CameraFrame:
         w, h = rec.width, rec.height
 
@@ -1009,45 +1223,32 @@ class StreamDecoder(_WorkerThreads):
                 if required:
                     raise StreamError(f"{where}: buffer missing from the packet")
                 return None
-            if b.codec == Codec.HEVC:
-                return results[(ci, kind)]
+            if b.codec in (Codec.TILE, Codec.ZSTD):
+                return results.get((ci, kind))
             if b.codec == Codec.ZERO:
                 return np.zeros(shape, dtype)
-            if b.codec == Codec.RAW:
-                want = int(np.prod(shape)) * np.dtype(dtype).itemsize
-                if len(b.payload) != want:
-                    raise StreamError(
-                        f"{where}: raw payload of {len(b.payload)} bytes, expected {want}"
-                    )
-                raw: npt.NDArray[Any] = (
-                    np.frombuffer(b.payload, dtype).reshape(shape).copy()
+            want = int(np.prod(shape)) * np.dtype(dtype).itemsize
+            if len(b.payload) != want:
+                raise StreamError(
+                    f"{where}: raw payload of {len(b.payload)} bytes, expected {want}"
                 )
-                return raw
-            # ZSTD
-            if kind in (_K.SHADOW_FWD_BITS, _K.SHADOW_BWD_BITS):
-                return _unpack_bits(where, b.payload, w, h)
-            if kind in (
-                _K.DEPTH_INVALID,
-                _K.MOTION_FWD_STATIC,
-                _K.MOTION_BWD_STATIC,
-                _K.MOTION_FWD_INVALID,
-                _K.MOTION_BWD_INVALID,
-            ):
-                return _unpack_mask(where, b.payload, w, h)
-            raise StreamError(f"{where}: zstd is not a codec of this buffer kind")
+            raw: npt.NDArray[Any] = (
+                np.frombuffer(b.payload, dtype).reshape(shape).copy()
+            )
+            return raw
 
         def mask(kind: BufferKind) -> npt.NDArray[np.bool_] | None:
             b = seen.get((ci, kind))
             if b is not None and b.codec == Codec.RAW:
                 raise StreamError(f"frame {p.index}, {b.name}: a mask cannot be raw")
-            m = get(kind, "bool", (h, w))
-            return None if m is None else m.astype(bool)
+            return get(kind, "bool", (h, w))
 
         color = get(_K.COLOR, "u1", (h, w, 3), required=True)
         depth = get(_K.DEPTH, "<f4", (h, w), required=True)
         assert color is not None and depth is not None
+        # Tiles left their picture with the masks applied; raw buffers get them here.
         inv = mask(_K.DEPTH_INVALID)
-        if inv is not None:
+        if inv is not None and seen[(ci, _K.DEPTH)].codec != Codec.TILE:
             np.copyto(depth, np.float32(np.nan), where=inv)
         motions: dict[str, npt.NDArray[np.float32] | None] = {}
         shadows: dict[str, ShadowBuffers | None] = {}
@@ -1055,11 +1256,11 @@ class StreamDecoder(_WorkerThreads):
             kind, kstatic, kinvalid = _MOTION[d]
             m = get(kind, "<f4", (h, w, 3))
             if m is not None:
-                st = mask(kstatic)
-                if st is not None:
-                    np.copyto(m, np.float32(0), where=st[..., None])
-                iv = mask(kinvalid)
-                if iv is not None:
+                st, iv = mask(kstatic), mask(kinvalid)  # checked for tiles too
+                raw = seen[(ci, kind)].codec != Codec.TILE
+                if st is not None and raw:
+                    _zero_static(m, st)
+                if iv is not None and raw:
                     np.copyto(m, np.float32(np.nan), where=iv[..., None])
             motions[d] = m
             kb, kmin, kmax = _SHADOW[d]
@@ -1067,28 +1268,107 @@ class StreamDecoder(_WorkerThreads):
             if bits is None:
                 shadows[d] = None
                 continue
-            smin = get(kmin, "u1", (h, w, 3), required=True)
-            smax = get(kmax, "u1", (h, w, 3), required=True)
-            assert smin is not None and smax is not None
-            if seen[(ci, kb)].codec != Codec.RAW:
-                on = bits != 0
-                smin = _sparse_colour(smin, on, (ci, kmin) in ycbcr)
-                smax = _sparse_colour(smax, on, (ci, kmax) in ycbcr)
-            shadows[d] = ShadowBuffers(
-                np.ascontiguousarray(bits, np.uint32),
-                np.ascontiguousarray(smin),
-                np.ascontiguousarray(smax),
-            )
-        camera = Camera(rec.view, rec.proj, w, h)
+            colours = []
+            on: tuple[npt.NDArray[np.intp], ...] | None = None
+            for k in (kmin, kmax):
+                b = seen.get((ci, k))
+                if b is not None and b.codec == Codec.TILE:
+                    if seen[(ci, kb)].codec != Codec.ZSTD:
+                        raise StreamError(
+                            f"frame {p.index}, {b.name}: a tile needs its bitfield as zstd"
+                        )
+                    t, _, _ = _layout(
+                        _PIC_SHADOW, tuple((c.width, c.height) for c in p.cameras)
+                    )
+                    if on is None:
+                        flat = np.flatnonzero(bits)  # cheaper than np.nonzero
+                        on = (flat // w, flat % w)
+                    colours.append(_sparse_colour(shadow_planes, t[(ci, k, 0)], on))
+                else:
+                    c = get(k, "u1", (h, w, 3), required=True)
+                    assert c is not None
+                    colours.append(c)
+            shadows[d] = ShadowBuffers(bits, colours[0], colours[1])
         return CameraFrame(
-            camera=camera,
-            color=np.ascontiguousarray(color),
-            depth=np.ascontiguousarray(depth, dtype=np.float32),
+            camera=Camera(rec.view, rec.proj, w, h),
+            color=color,
+            depth=depth,
             motion_fwd=motions["fwd"],
             motion_bwd=motions["bwd"],
             shadow_fwd=shadows["fwd"],
             shadow_bwd=shadows["bwd"],
         )
+
+
+def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _Decoded:
+    """Every zstd buffer of a packet: masks as bool arrays, bitfields as uint32."""
+    out: _Decoded = {}
+    for (ci, kind), b in seen.items():
+        if b.codec != Codec.ZSTD:
+            continue
+        where = f"frame {p.index}, {b.name}"
+        w, h = p.cameras[ci].width, p.cameras[ci].height
+        if kind in (_K.SHADOW_FWD_BITS, _K.SHADOW_BWD_BITS):
+            out[(ci, kind)] = _unpack_bits(where, b.payload, w, h)
+        elif kind in (
+            _K.DEPTH_INVALID,
+            _K.MOTION_FWD_STATIC,
+            _K.MOTION_BWD_STATIC,
+            _K.MOTION_FWD_INVALID,
+            _K.MOTION_BWD_INVALID,
+        ):
+            out[(ci, kind)] = _unpack_mask(where, b.payload, w, h)
+        else:
+            raise StreamError(f"{where}: zstd is not a codec of this buffer kind")
+    return out
+
+
+def _zero_static(m: npt.NDArray[np.float32], static: npt.NDArray[np.bool_]) -> None:
+    """Sets the motion of the static pixels to exactly 0. Moving pixels are usually a compact
+    part of the picture: everything outside their bounding box is cleared wholesale and only the
+    box is multiplied by the mask (``m`` is finite here; invalid pixels become NaN later)."""
+    moving = np.logical_not(static)
+    rows = np.flatnonzero(moving.any(axis=1))
+    if rows.size == 0:
+        m[...] = 0
+        return
+    cols = np.flatnonzero(moving.any(axis=0))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    m[:y0] = 0
+    m[y1:] = 0
+    m[y0:y1, :x0] = 0
+    m[y0:y1, x1:] = 0
+    box = m[y0:y1, x0:x1]
+    np.multiply(box, moving[y0:y1, x0:x1, None], out=box)
+
+
+def _motion(
+    q: npt.NDArray[np.uint16],
+    tiles: dict[tuple[int, BufferKind, int], _Tile],
+    ci: int,
+    kind: BufferKind,
+    e: BufferEntry,
+    w: int,
+    h: int,
+) -> npt.NDArray[np.float32]:
+    """Motion at ``w x h`` from its three half-size tiles: dequantised at half size, then each
+    value copied to the 2x2 pixels it covers of the client's array."""
+    hw, hh = _half(w), _half(h)
+    half = np.empty((hh, hw, 3), np.float32)
+    for c in range(3):
+        t = tiles[(ci, kind, c)]
+        np.multiply(
+            q[t.y : t.y + hh, t.x : t.x + hw], np.float32(e.scale[c]), out=half[..., c]
+        )
+        half[..., c] += np.float32(e.offset[c])
+    out = np.empty((2 * hh, 2 * hw, 3), np.float32)
+    # Doubled along x, then each row written twice: long contiguous copies (a single 5-d
+    # broadcast copy of 3-float runs takes twice as long).
+    row = np.repeat(half, 2, axis=1).reshape(hh, 1, -1)
+    out.reshape(hh, 2, -1)[...] = row
+    if (2 * hw, 2 * hh) == (w, h):
+        return out
+    return np.ascontiguousarray(out[:h, :w])
 
 
 def decode_packets(packets: Sequence[bytes]) -> list[ServerFrame]:

@@ -7,12 +7,12 @@ the frame and, where there is one, the buffer (``"frame 12, main.depth: ..."``).
 fill and read the payloads live in :mod:`splitrender.codec.coder`. The format is also described in
 ``docs/stream-format.md``.
 
-Packet (version 2), all integers little-endian::
+Packet (version 3), all integers little-endian::
 
     offset  size  field
     0       4     magic b"SRPK"
-    4       2     version (u16) = 2
-    6       2     flags (u16): bit 0 key frame (every HEVC stream starts with an IDR and its
+    4       2     version (u16) = 3
+    6       2     flags (u16): bit 0 key frame (every HEVC picture starts with an IDR and its
                   parameter sets, so decoding may start here), bit 1 uncompressed; others 0
     8       8     frame index (u64)
     16      8     time in seconds (f64, finite)
@@ -21,25 +21,30 @@ Packet (version 2), all integers little-endian::
     32      M     the header block as one zstd frame that declares its content size
                   (at most MAX_HEADER bytes), laid out as:
                     u8 C cameras (1..MAX_CAMERAS; camera 0 is the main camera, camera i >= 1
-                    auxiliary camera i-1), u8 reserved = 0, u16 B buffers (0..MAX_BUFFERS);
+                    auxiliary camera i-1), u8 reserved = 0, u16 B entries (0..MAX_BUFFERS);
                     C x camera record (264 bytes): u32 width, u32 height (1..MAX_SIDE),
                     f64[16] view, f64[16] proj (row-major, column-vector convention, finite);
-                    B x buffer entry (8 + 8*P bytes): u8 camera, u8 kind (BufferKind),
-                    u8 codec (Codec), u8 P (the number of (scale, offset) pairs: the channels
-                    of a quantised HEVC buffer, else 0), u32 payload length,
+                    B x entry (8 + 8*P bytes): u8 camera, u8 kind (BufferKind), u8 codec
+                    (Codec), u8 P (the number of (scale, offset) pairs: the channels of a
+                    quantised TILE buffer, else 0), u32 payload length,
                     P x (f32 scale, f32 offset): per channel, value = code * scale + offset
                     (finite); every buffer has its camera's size
     32+M    ...   payloads, back to back, in table order; the packet ends exactly after the
                   last payload
 
-Version 1 spent ~1.7 kB per frame on a plain header (f64 scale/offset pairs, a size and a CRC
-per buffer); version 2 compresses the header block with zstd, stores the scales as the float32
-values they are, and covers the whole packet with one CRC: about 0.6 kB per frame for three
-cameras (docs/stream-format.md).
+Version 3 (issue 13): the lossy buffers of every camera are tiles (codec ``TILE``, no payload)
+of at most three HEVC pictures per packet, the ``PICTURE_*`` entries (codec ``HEVC``, listed
+under camera 0): colour, geometry (depth and motion) and shadow colours. Where each tile lies is
+a function of the camera sizes alone (``coder._layout``). Version 2 sent one HEVC stream per
+buffer and camera (24 a frame), which took three times as long to decode; version-2 packets and
+files are refused with a message that says to re-encode. Version 1 spent ~1.7 kB per frame on a
+plain header; since version 2 the header block is zstd-compressed, the scales are the float32
+values they are and one CRC covers the whole packet: about 0.6 kB per frame for three cameras
+(docs/stream-format.md).
 
-Container file (version 2; it holds version-2 packets)::
+Container file (version 3; it holds version-3 packets)::
 
-    b"SRSTREAM", u16 version = 2, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
+    b"SRSTREAM", u16 version = 3, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
     records: u32 packet length, packet bytes                                     (repeated)
     index:   b"SRIX", u32 N, N x (u64 frame index, u64 record offset, u8 key, 7 x pad),
              u32 CRC32 of the N entries
@@ -98,8 +103,8 @@ __all__ = [
     "write_stream",
 ]
 
-PACKET_VERSION = 2
-STREAM_VERSION = 2
+PACKET_VERSION = 3
+STREAM_VERSION = 3
 
 #: Largest image side (as ``splitrender.types.MAX_SIDE``).
 MAX_SIDE = 16384
@@ -159,6 +164,10 @@ class BufferKind(enum.IntEnum):
     MOTION_BWD_STATIC = 12
     MOTION_FWD_INVALID = 13
     MOTION_BWD_INVALID = 14
+    # Version 3: one HEVC picture per group holds the tiles of every camera (camera 0's entry).
+    PICTURE_COLOR = 15
+    PICTURE_GEOMETRY = 16
+    PICTURE_SHADOW = 17
 
 
 #: Channels of each kind (masks and bitfields count as one channel).
@@ -178,6 +187,9 @@ KIND_CHANNELS: dict[BufferKind, int] = {
     BufferKind.MOTION_BWD_STATIC: 1,
     BufferKind.MOTION_FWD_INVALID: 1,
     BufferKind.MOTION_BWD_INVALID: 1,
+    BufferKind.PICTURE_COLOR: 1,
+    BufferKind.PICTURE_GEOMETRY: 1,
+    BufferKind.PICTURE_SHADOW: 1,
 }
 
 _KIND_NAMES: dict[BufferKind, str] = {
@@ -196,6 +208,29 @@ _KIND_NAMES: dict[BufferKind, str] = {
     BufferKind.MOTION_BWD_STATIC: "motion_bwd.static",
     BufferKind.MOTION_FWD_INVALID: "motion_fwd.invalid",
     BufferKind.MOTION_BWD_INVALID: "motion_bwd.invalid",
+    BufferKind.PICTURE_COLOR: "color",
+    BufferKind.PICTURE_GEOMETRY: "geometry",
+    BufferKind.PICTURE_SHADOW: "shadow",
+}
+
+#: The HEVC pictures of version 3 and the buffer kinds whose tiles each one holds.
+PICTURE_KINDS: dict[BufferKind, tuple[BufferKind, ...]] = {
+    BufferKind.PICTURE_COLOR: (BufferKind.COLOR,),
+    BufferKind.PICTURE_GEOMETRY: (
+        BufferKind.DEPTH,
+        BufferKind.MOTION_FWD,
+        BufferKind.MOTION_BWD,
+    ),
+    BufferKind.PICTURE_SHADOW: (
+        BufferKind.SHADOW_FWD_MIN,
+        BufferKind.SHADOW_FWD_MAX,
+        BufferKind.SHADOW_BWD_MIN,
+        BufferKind.SHADOW_BWD_MAX,
+    ),
+}
+#: The picture that holds the tile of each lossy kind.
+TILE_PICTURE: dict[BufferKind, BufferKind] = {
+    k: pic for pic, kinds in PICTURE_KINDS.items() for k in kinds
 }
 
 
@@ -207,8 +242,10 @@ class Codec(enum.IntEnum):
 
     - ``RAW``: the array's bytes, C order, little-endian (uint8 colour, float32 depth/motion,
       uint32 bitfields, uint8 masks one byte per pixel).
-    - ``HEVC``: one HEVC access unit of that buffer's stream (8-bit colour; 12-bit depth/motion
-      codes, ``value = code * scale + offset`` per channel).
+    - ``HEVC``: one HEVC access unit of a picture's stream (only the ``PICTURE_*`` kinds).
+    - ``TILE``: no payload; the buffer is a tile of its picture (:data:`TILE_PICTURE`) in the
+      same packet (8-bit colour; 12-bit depth/motion codes, ``value = code * scale + offset``
+      per channel).
     - ``ZSTD``: a zstd frame (shadow bitfields of the non-zero pixels, or a bit-packed mask).
     - ``ZERO``: no payload; every value is zero (a mask: no pixel set).
     """
@@ -217,6 +254,7 @@ class Codec(enum.IntEnum):
     HEVC = 1
     ZSTD = 2
     ZERO = 3
+    TILE = 4
 
 
 def camera_name(camera: int) -> str:
@@ -225,12 +263,15 @@ def camera_name(camera: int) -> str:
 
 
 def buffer_name(camera: int, kind: int) -> str:
-    """``"main.depth"``, ``"aux1.shadow_fwd.bits"``, ..."""
+    """``"main.depth"``, ``"aux1.shadow_fwd.bits"``, ..., ``"picture.geometry"`` (a picture
+    belongs to no one camera)."""
     try:
-        k = _KIND_NAMES[BufferKind(kind)]
+        bk = BufferKind(kind)
     except ValueError:
-        k = f"kind{kind}"
-    return f"{camera_name(camera)}.{k}"
+        return f"{camera_name(camera)}.kind{kind}"
+    if bk in PICTURE_KINDS:
+        return f"picture.{_KIND_NAMES[bk]}"
+    return f"{camera_name(camera)}.{_KIND_NAMES[bk]}"
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -281,8 +322,8 @@ def _where(index: int | None, name: str | None = None) -> str:
 
 
 def _n_params(b: BufferEntry) -> int:
-    """The (scale, offset) pairs an entry carries: its channels for quantised HEVC buffers."""
-    return b.channels if b.codec == Codec.HEVC and b.kind in _QUANTISED else 0
+    """The (scale, offset) pairs an entry carries: its channels for quantised tiles."""
+    return b.channels if b.codec == Codec.TILE and b.kind in _QUANTISED else 0
 
 
 def _f32(v: float) -> bool:
@@ -360,7 +401,8 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
     """``(frame index, key)`` of a packet from its fixed header alone (no CRC check).
 
     # Errors
-    :class:`StreamError` when the bytes do not start with a version-2 packet header."""
+    :class:`StreamError` when the bytes do not start with a version-3 packet header (an older
+    version: a message that says to re-encode)."""
     if len(data) < _FIXED.size:
         raise StreamError(
             f"frame ?: packet of {len(data)} bytes is shorter than the {_FIXED.size}-byte header"
@@ -369,11 +411,18 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
     if magic != _MAGIC:
         raise StreamError(f"frame ?: not a splitrender packet (magic {bytes(magic)!r})")
     if version != PACKET_VERSION:
-        raise StreamError(
-            f"frame {index}: unsupported packet version {version} (this reader knows "
-            f"{PACKET_VERSION})"
-        )
+        raise StreamError(f"frame {index}: {_version_message('packet', version)}")
     return int(index), bool(flags & FLAG_KEY)
+
+
+def _version_message(what: str, version: int) -> str:
+    """Why a packet or file of another version is refused, and what to do about it."""
+    if 1 <= version < PACKET_VERSION:
+        return (
+            f"{what} format version {version} is no longer supported (this reader knows "
+            f"version {PACKET_VERSION}); re-encode the recording with `splitrender encode`"
+        )
+    return f"unsupported {what} version {version} (this reader knows {PACKET_VERSION})"
 
 
 def _header_block(where: str, packed: memoryview) -> bytes:
@@ -482,7 +531,16 @@ def unpack_packet(data: bytes | memoryview) -> Packet:
                 f"{bwhere}: unknown kind {kind} or codec {codec}"
             ) from None
         ch = KIND_CHANNELS[k]
-        want_par = ch if c == Codec.HEVC and k in _QUANTISED else 0
+        if (c == Codec.HEVC) != (k in PICTURE_KINDS) or (
+            c == Codec.TILE and k not in TILE_PICTURE
+        ):
+            raise StreamError(
+                f"{bwhere}: codec {c.name} is not a codec of this buffer kind (HEVC: only the "
+                "pictures; TILE: only colour, depth, motion and shadow colours)"
+            )
+        if k in PICTURE_KINDS and cam != 0:
+            raise StreamError(f"{bwhere}: a picture must be listed under camera 0, not {cam}")
+        want_par = ch if c == Codec.TILE and k in _QUANTISED else 0
         if n_par != want_par:
             raise StreamError(
                 f"{bwhere}: {n_par} scale/offset pairs (expected {want_par})"
@@ -498,8 +556,8 @@ def unpack_packet(data: bytes | memoryview) -> Packet:
                 f"{bwhere}: payload of {length} bytes but {len(mv) - at} bytes remain "
                 f"(limit {MAX_PAYLOAD})"
             )
-        if c == Codec.ZERO and length != 0:
-            raise StreamError(f"{bwhere}: a ZERO buffer with a {length}-byte payload")
+        if c in (Codec.ZERO, Codec.TILE) and length != 0:
+            raise StreamError(f"{bwhere}: a {c.name} buffer with a {length}-byte payload")
         scale = tuple(float(pr[0]) for pr in pairs) + (0.0,) * (3 - n_par)
         offset = tuple(float(pr[1]) for pr in pairs) + (0.0,) * (3 - n_par)
         w, h = cameras[cam].width, cameras[cam].height
@@ -622,10 +680,7 @@ class StreamFile:
                     f"{self._name}: not a splitrender stream ({bytes(magic)!r})"
                 )
             if version != STREAM_VERSION:
-                raise StreamError(
-                    f"{self._name}: unsupported stream version {version} (this reader knows "
-                    f"{STREAM_VERSION})"
-                )
+                raise StreamError(f"{self._name}: {_version_message('stream', version)}")
             if not (math.isfinite(fps) and fps > 0):
                 raise StreamError(f"{self._name}: invalid fps {fps}")
             self.fps = float(fps)
@@ -757,8 +812,9 @@ def read_stream(
 class StreamStats:
     """Bytes per buffer over a run of packets, and the rates they make at ``fps``.
 
-    Buffer keys are names such as ``"main.color"`` or ``"aux0.shadow_fwd.bits"``; the packet
-    headers, camera records and tables are counted as ``"<camera>.header"``-less ``"header"``."""
+    Buffer keys are names such as ``"picture.color"`` or ``"aux0.shadow_fwd.bits"`` (tiles are not
+    listed: their bits are in their picture's); the packet headers, camera records and tables are
+    counted as ``"header"``."""
 
     fps: float
     frames: int = 0
@@ -770,6 +826,8 @@ class StreamStats:
         self.frames += 1
         payload = 0
         for b in p.buffers:
+            if b.codec == Codec.TILE:
+                continue  # no bytes of its own: they are in its picture's
             self.bytes_by_buffer[b.name] = self.bytes_by_buffer.get(b.name, 0) + len(
                 b.payload
             )

@@ -7,18 +7,27 @@ non-key frames), the realtime factor at ``f_s`` (``1/f_s`` divided by the time p
 realtime), the achieved bitrate and its split, colour PSNR, depth and motion errors, and how many
 static pixels would decode to exactly zero motion without the static mask. With ``--chroma`` it
 also compares 4:4:4 and 4:2:0 colour at equal bitrate.
+
+``--profile`` instead encodes the two server frames of ``splitrender bench`` (courtyard at
+1280x720, cached in the temporary directory) at the paper's 40 Mb/s scaled and prints, per HEVC
+picture of each packet, its pixels, pixel format, bytes and the CPU time of FFmpeg's decoding
+alone (its own single-threaded decoder, median of 5), then the CPU and wall time of
+``StreamDecoder.decode`` per server frame and the load average: where the decode time goes
+(docs/codec-results.md, "Decode time").
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import time
 
+import av
 import numpy as np
 
 from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
-from splitrender.codec.stream import stream_stats
+from splitrender.codec.stream import Codec, stream_stats, unpack_packet
 from splitrender.scene.synthetic import SyntheticScene
 from splitrender.types import CameraFrame, ServerFrame
 
@@ -101,6 +110,67 @@ def static_without_mask(frames: list[ServerFrame], cfg: CodecConfig) -> float:
     return hit / max(tot, 1)
 
 
+def profile(repeats: int = 5) -> None:
+    """Where the decoding of one 1280x720 server frame goes (see the module docstring)."""
+    from splitrender.codec.coder import _hevc_decoder
+    from splitrender.evaluation.bench import _recording
+
+    rec = _recording("courtyard", 0.5, print)
+    f0, f1 = rec.server_frames[0], rec.server_frames[1]
+    w, h = f0.main.camera.width, f0.main.camera.height
+    cfg = CodecConfig.scaled(w, h)
+    with StreamEncoder(cfg) as enc:
+        packets = [enc.encode(f0), enc.encode(f1)]
+    print(
+        f"{w}x{h} + aux, {cfg.bitrate_mbps:g} Mb/s, chroma {cfg.chroma}; packets "
+        f"{[len(p) for p in packets]} bytes"
+    )
+    print(
+        f"{'picture':20} {'frame':>5} {'pixels':>9} {'format':10} {'bytes':>7} {'CPU ms':>7}"
+    )
+    cpu: dict[tuple[str, int], list[float]] = {}
+    info: dict[tuple[str, int], tuple[int, str, int]] = {}
+    for _ in range(repeats):
+        decoders: dict[str, object] = {}
+        for i, packet in enumerate(packets):
+            for b in unpack_packet(packet).buffers:
+                if b.codec != Codec.HEVC:
+                    continue
+                ctx = decoders.get(b.name)
+                if ctx is None:
+                    ctx = decoders[b.name] = _hevc_decoder(1 << 14, 1 << 13)
+                t0 = time.thread_time()
+                frame = ctx.decode(av.Packet(bytes(b.payload)))[0]  # type: ignore[attr-defined]
+                cpu.setdefault((b.name, i), []).append(time.thread_time() - t0)
+                info[(b.name, i)] = (
+                    frame.width * frame.height,
+                    frame.format.name,
+                    len(b.payload),
+                )
+    totals = [0.0, 0.0]
+    for (name, i), ts in cpu.items():
+        px, fmt, n = info[(name, i)]
+        ms = statistics.median(ts) * 1e3
+        totals[i] += ms
+        print(f"{name:20} {i:5} {px:9} {fmt:10} {n:7} {ms:7.2f}")
+    print(
+        f"FFmpeg decoding alone, CPU ms per frame: key {totals[0]:.1f}, other {totals[1]:.1f}"
+    )
+    walls, cpus = [], []
+    for _ in range(repeats):
+        with StreamDecoder() as dec:
+            c0, t0 = time.process_time(), time.perf_counter()
+            for p in packets:
+                dec.decode(p)
+            walls.append((time.perf_counter() - t0) / len(packets))
+            cpus.append((time.process_time() - c0) / len(packets))
+    print(
+        f"StreamDecoder.decode per server frame (median of {repeats}, frames 0 and 1): wall "
+        f"{statistics.median(walls) * 1e3:.1f} ms, CPU (all threads) "
+        f"{statistics.median(cpus) * 1e3:.1f} ms; load average {os.getloadavg()}"
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=20)
@@ -110,7 +180,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--chroma", action="store_true", help="also compare 4:4:4 and 4:2:0"
     )
+    ap.add_argument(
+        "--profile",
+        action="store_true",
+        help="only the decode-time profile of two 1280x720 courtyard frames",
+    )
     args = ap.parse_args(argv)
+    if args.profile:
+        profile()
+        return
     print(
         f"cpus: {os.cpu_count()}, frames per run: {args.frames}, preset {args.preset}"
     )
