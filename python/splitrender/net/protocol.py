@@ -76,6 +76,9 @@ MAX_TOKEN = 64
 #: Largest stream-format packet behind a frame header: 64 MiB, far above a 2560x1440 frame at
 #: the paper's rates (about 0.5 MB) and small enough that a lying header cannot exhaust memory.
 MAX_FRAME_PAYLOAD = 64 << 20
+#: Largest coordinate of a pose's position (scene units): far beyond any scene, and the
+#: renderer's arithmetic stays finite.
+MAX_POSITION = 1e6
 #: Longest scene name in a welcome, in bytes (UTF-8).
 MAX_SCENE_NAME = 255
 
@@ -360,9 +363,13 @@ class PoseSample:
         t = _finite("pose.time", t, -1e9, 1e9)
         m = np.eye(4)
         m[:3] = np.asarray(rows, dtype=np.float64).reshape(3, 4)
-        if not np.isfinite(m).all():
-            raise ProtocolError("pose.pose: expected finite values")
+        if not np.isfinite(m).all() or np.abs(m[:3, 3]).max() > MAX_POSITION:
+            raise ProtocolError(
+                f"pose.pose: expected finite values, positions within ±{MAX_POSITION:g}"
+            )
         r = m[:3, :3]
+        if np.abs(r).max() > 1.001:  # before the product below (it could overflow)
+            raise ProtocolError("pose.pose: the 3x3 part is not a rotation")
         # A rotation (the renderer refuses anything else): orthonormal within float noise.
         if not np.allclose(r @ r.T, np.eye(3), atol=1e-4) or np.linalg.det(r) <= 0:
             raise ProtocolError("pose.pose: the 3x3 part is not a rotation")

@@ -60,7 +60,6 @@ from splitrender.net.protocol import (
     CLOSE_DISPLAY,
     CLOSE_TOKEN,
     CLOSE_VERSION,
-    MAX_DATAGRAM,
     PROTOCOL_VERSION,
     ControlReader,
     FrameHeader,
@@ -81,6 +80,8 @@ __all__ = ["LiveServer", "ServerOptions", "SessionStats", "self_signed_certifica
 
 #: Error code of a stream reset because its frame went stale.
 RESET_STALE = 1
+#: The QUIC transport parameter max_datagram_frame_size: anything that fits a packet.
+QUIC_MAX_DATAGRAM = 65535
 #: Smallest relative change of the adaptive target that is passed to the encoder.
 ABR_STEP = 0.2
 #: A session whose client sent no pose for this long ends (its QUIC idle timeout is the same).
@@ -419,10 +420,13 @@ class _Session(QuicConnectionProtocol):
             len(packet),
         )
         for old in [i for i in self._open if i < k - 2]:
-            # Stale: the client no longer needs it (aioquic ignores a reset of a stream whose
-            # data was all acknowledged, so this resets only what is still in flight).
-            self._quic.reset_stream(self._open.pop(old), RESET_STALE)
-            self.stats.streams_reset += 1
+            # Stale: the client no longer needs it. Only a stream still in flight is reset (one
+            # whose data was all acknowledged is done; aioquic forgets it).
+            old_sid = self._open.pop(old)
+            stream = self._quic._streams.get(old_sid)
+            if stream is not None and not stream.sender.is_finished:
+                self._quic.reset_stream(old_sid, RESET_STALE)
+                self.stats.streams_reset += 1
         sid = self._quic.get_next_available_stream_id(is_unidirectional=True)
         self._quic.send_stream_data(sid, header.encode() + packet, end_stream=True)
         self._open[k] = sid
@@ -532,7 +536,10 @@ class LiveServer:
         cfg = QuicConfiguration(
             is_client=False,
             alpn_protocols=[ALPN],
-            max_datagram_frame_size=MAX_DATAGRAM,
+            # QUIC closes a connection that receives a DATAGRAM larger than this transport
+            # parameter; the protocol's own limit (MAX_DATAGRAM) is checked per message
+            # instead, so that an oversized one is dropped and counted, not fatal.
+            max_datagram_frame_size=QUIC_MAX_DATAGRAM,
             idle_timeout=IDLE_TIMEOUT_S,
         )
         cfg.certificate = self.certificate
