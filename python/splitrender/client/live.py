@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from aioquic.asyncio import QuicConnectionProtocol, connect
+from aioquic.asyncio.client import connect
+from aioquic.asyncio.protocol import QuicConnectionProtocol
 from aioquic.quic.configuration import QuicConfiguration
 from aioquic.quic.events import (
     ConnectionTerminated,
@@ -310,7 +311,7 @@ class _Connection(QuicConnectionProtocol):
         header = self._headers.get(sid)
         if header is None and len(buf) >= FrameHeader.SIZE:
             try:
-                header = FrameHeader.decode(buf)
+                header = FrameHeader.decode(bytes(buf[: FrameHeader.SIZE]))
             except ProtocolError:
                 self._drop(sid)
                 return
@@ -577,7 +578,7 @@ class LiveClient:
             m = motion(t)
             self.poses.append((t, m))
             self.send_pose(t, m)
-            return Camera(np.linalg.inv(m), proj, w.width, w.height)
+            return Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
 
         self._t0 = time.monotonic()
         rt = self.realtime.run(pose, seconds, on_frame=on_frame)

@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation  # type: ignore[import-untyped,unused-ignore]
 
 from splitrender.errors import InvalidInputError
 
@@ -96,7 +96,7 @@ class ConstantVelocity:
             return None
         t1, p1 = s[-1]
         if len(s) < 2:
-            return p1.copy()
+            return np.array(p1, dtype=np.float64)
         t0, p0 = s[0]
         ahead = min(time - t1, self.max_ahead)
         f = ahead / (t1 - t0)
@@ -106,7 +106,7 @@ class ConstantVelocity:
         r1 = Rotation.from_matrix(p1[:3, :3])
         step = (r1 * r0.inv()).as_rotvec()  # world-frame rotation from t0 to t1
         out[:3, :3] = (Rotation.from_rotvec(f * step) * r1).as_matrix()
-        return out
+        return np.asarray(out, dtype=np.float64)
 
 
 #: The predictors ``splitrender serve --predictor`` offers.

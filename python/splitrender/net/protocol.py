@@ -296,11 +296,13 @@ def decode_control(data: bytes | memoryview) -> Hello | Welcome | KeyRequest:
     """One control message (without its length) by its type byte."""
     if not data:
         raise ProtocolError("control message: empty")
-    decoders = {T_HELLO: Hello.decode, T_WELCOME: Welcome.decode, T_KEY_REQUEST: KeyRequest.decode}
-    decoder = decoders.get(data[0])
-    if decoder is None:
-        raise ProtocolError(f"control message: unknown type {data[0]:#04x}")
-    return decoder(data)
+    if data[0] == T_HELLO:
+        return Hello.decode(data)
+    if data[0] == T_WELCOME:
+        return Welcome.decode(data)
+    if data[0] == T_KEY_REQUEST:
+        return KeyRequest.decode(data)
+    raise ProtocolError(f"control message: unknown type {data[0]:#04x}")
 
 
 class ControlReader:

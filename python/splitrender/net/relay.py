@@ -22,6 +22,7 @@ import math
 import random
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from splitrender.errors import InvalidInputError
 
@@ -173,7 +174,7 @@ class Relay(asyncio.DatagramProtocol):
             self._transport.sendto(data, self._client)
 
     # asyncio.DatagramProtocol: datagrams from the client
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:  # type: ignore[override]
+    def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
         self._client = (addr[0], addr[1])
         self._forward("up", data)
 
@@ -182,5 +183,5 @@ class _Upstream(asyncio.DatagramProtocol):
     def __init__(self, relay: Relay) -> None:
         self.relay = relay
 
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:  # type: ignore[override]
+    def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
         self.relay._forward("down", data)

@@ -39,7 +39,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
-from aioquic.asyncio import QuicConnectionProtocol, serve
+from aioquic.asyncio.protocol import QuicConnectionProtocol
+from aioquic.asyncio.server import serve
 from aioquic.quic.configuration import QuicConfiguration
 from aioquic.quic.events import (
     ConnectionTerminated,
@@ -560,6 +561,7 @@ class LiveServer:
         Session.server = server
         quic = await serve(host, port, configuration=self.configuration(),
                            create_protocol=Session)
+        assert quic._transport is not None
         self.port = int(quic._transport.get_extra_info("sockname")[1])
         if ready is not None:
             ready(self)
