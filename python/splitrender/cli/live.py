@@ -214,9 +214,14 @@ def run_connect(args: argparse.Namespace) -> int:
                   f"{welcome.height} at {welcome.server_fps:g} FPS; displaying {args.method} "
                   f"at {args.fps:g} FPS for {args.seconds:g} s", file=sys.stderr, flush=True)
         frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
-        report = client.run(
-            motion, args.seconds, on_frame=lambda img, rec: frames.append((rec.time, img.copy()))
-        )
+        first_shown: list[float] = []
+
+        def on_frame(img: npt.NDArray[np.uint8], rec: Any) -> None:
+            frames.append((rec.time, img.copy()))
+            if rec.mode != "hold" and not first_shown:
+                first_shown.append(rec.time)
+
+        report = client.run(motion, args.seconds, on_frame=on_frame)
     except SplitRenderError as e:
         client.close()
         return fail(str(e))
@@ -224,7 +229,11 @@ def run_connect(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     _write_video(out / "video.mp4", [img for _, img in frames], args.fps)
     if args.score:
-        report.update(_score(scene, welcome.scale, args.fps, client.poses, frames, args.no_vmaf))
+        # Scored from the first frame made from a server frame on: before it every method
+        # shows the same black start-up (no server frame yet); holds after it count.
+        start = first_shown[0] if first_shown else math.inf
+        report.update(_score(scene, welcome.scale, args.fps, client.poses,
+                             [f for f in frames if f[0] >= start], args.no_vmaf))
     write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
     print(f"{report['frames']} frames, {report['deadline_misses']} deadline misses, modes "
@@ -251,6 +260,10 @@ def _write_video(path: Path, images: list[npt.NDArray[np.uint8]], fps: float) ->
     tmp.replace(path)  # atomic: a reader never sees half a video
 
 
+#: Most display frames `connect --score` scores.
+SCORED = 120
+
+
 def _score(
     scene: Any, scale: float, fc: float, poses: list[tuple[float, Any]],
     frames: list[tuple[float, npt.NDArray[np.uint8]]], no_vmaf: bool,
@@ -258,13 +271,23 @@ def _score(
     """The display frames against the ground truth rendered at the poses the client had."""
     from splitrender.evaluation.metrics import METRICS, evaluate_sequence
 
+    from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
+
     by_time = dict(poses)
+    # The first and last SKIP_FRAMES are left out (as `play` does), and at most SCORED frames
+    # evenly spread over the rest are scored: the ground truth costs a render per frame.
+    inner = frames[SKIP_FRAMES : len(frames) - SKIP_FRAMES]
+    if not inner:
+        return {"scored_frames": 0}
+    picked = [inner[i] for i in sorted({round(j * (len(inner) - 1) / max(1, SCORED - 1))
+                                        for j in range(min(SCORED, len(inner)))})]
     truth = []
-    for t, _ in frames:
-        n = round(t * fc)
-        truth.append(scene.client_frames(n, scale, fc, pose=by_time[t])[0][1])
-    metrics = [m for m in METRICS if not (no_vmaf and m == "vmaf")]
-    result = evaluate_sequence([img for _, img in frames], truth, metrics=metrics)
+    for t, _ in picked:
+        truth.append(scene.client_frames(round(t * fc), scale, fc, pose=by_time[t])[0][1])
+    h, w = picked[0][1].shape[:2]
+    metrics = [m for m in METRICS
+               if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]
+    result = evaluate_sequence([img for _, img in picked], truth, skip=0, metrics=metrics)
     return {m: result.mean[m] for m in metrics} | {"scored_frames": len(result.frames)}
 
 

@@ -343,7 +343,9 @@ class _Session(QuicConnectionProtocol):
                 owd = self._rtt() / 2
                 client_now = loop.time() + self._offset
                 # Frame k is first needed at t_k - 1/f_s (it closes the pair (k-1, k)).
-                k = math.ceil((client_now + proc + owd) * fs - 1e-9) + 1
+                k = math.ceil((client_now + proc + owd) * fs - 1e-9) + (last >= 0)
+                # (The first frame of a session is for the time it arrives at: it can be shown
+                # at once, extrapolated; every later one is for one period after that.)
                 # Skip only when two or more frames would be late: the frame after a skip must
                 # be a key frame (larger, and slower to encode: x265 restarts), so skipping for
                 # one slightly late frame would make the next one late too.
