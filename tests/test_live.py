@@ -223,7 +223,10 @@ def test_client_killed_then_next_session(server: _Server, tmp_path: Path) -> Non
     _all_refreshes(_report(tmp_path / "next"), 1.0)
 
 
-def test_through_the_relay(server: _Server, tmp_path: Path) -> None:
+def test_through_the_relay(tmp_path: Path) -> None:
+    # Its own server, which leaves out every 4th frame (as if lost beyond what QUIC's
+    # retransmissions repair in time, which 1 % loss rarely is): key-frame recovery is seen.
+    server = _Server(tmp_path / "serve.log", "--drop-every", "4")
     relay = _Proc(["relay", "--listen", "127.0.0.1:0", "--target", f"127.0.0.1:{server.port}",
                    "--delay", "50", "--jitter", "20", "--loss", "1%", "--seed", "3",
                    "--seconds", "60"], tmp_path / "relay.log")
@@ -232,15 +235,16 @@ def test_through_the_relay(server: _Server, tmp_path: Path) -> None:
         done = _connect(port, tmp_path, "--seconds", "5", fingerprint=server.fingerprint)
     finally:
         relay.stop()
+        server.stop()
     assert done.returncode == 0, done.stderr
     r = _report(tmp_path)
     _all_refreshes(r, 5.0)
     assert r["modes"]["extrapolate"] > 0
     assert r["server_frames_received"] >= 2
     net = r["network"]
-    # Whatever was lost was asked for again, and every request that a key frame answered in
-    # time counts as a recovery.
-    assert net["key_recoveries"] <= net["key_requests"]
+    assert net["frames_lost"] >= 1 and net["key_requests"] >= 1
+    assert net["key_recoveries"] >= 1, net
+    assert "dropped on purpose" in server.log.read_text()
     assert r["pose_to_display_ms_p50"] > 50  # at least the one-way delay
 
 

@@ -90,6 +90,9 @@ def add_serve(sub: Any) -> None:
                    help="head-pose predictor (default: %(default)s)")
     p.add_argument("--sessions", type=lambda t: integer(t, 0, 1000000), default=0, metavar="N",
                    help="exit after N sessions (default: 0, serve until interrupted)")
+    p.add_argument("--drop-every", type=lambda t: integer(t, 0, 1000000), default=0,
+                   metavar="N", help="fault injection: do not send every N-th frame that is "
+                   "not a key frame, as if lost (the client asks for a key frame) (default: 0)")
 
 
 def run_serve(args: argparse.Namespace) -> int:
@@ -121,7 +124,8 @@ def run_serve(args: argparse.Namespace) -> int:
         gop = args.gop if args.gop is not None else max(1, round(10 * args.fps))
         server = LiveServer(
             ServerOptions(name, args.scale, args.fps, args.bitrate, args.min_bitrate, gop,
-                          token, args.predictor, args.sessions),
+                          token, args.predictor, args.sessions,
+                          drop_every=args.drop_every),
             scene=scene, certificate=cert, private_key=key,
         )
     except (SplitRenderError, ValueError, OSError) as e:

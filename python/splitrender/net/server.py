@@ -131,6 +131,9 @@ class ServerOptions:
     predictor: str = "constant-velocity"
     sessions: int = 0
     encoder_threads: int = 1
+    #: Fault injection for tests and demos: every ``drop_every``-th frame that is not a key
+    #: frame is encoded but not sent, as if the network had lost it (0: none).
+    drop_every: int = 0
 
 
 @dataclass
@@ -139,6 +142,7 @@ class SessionStats:
 
     frames_sent: int = 0
     frames_skipped: int = 0
+    frames_dropped: int = 0
     key_frames: int = 0
     key_requests: int = 0
     streams_reset: int = 0
@@ -158,7 +162,7 @@ class SessionStats:
 
         return (
             f"{self.frames_sent} frames sent ({self.key_frames} key, {self.frames_skipped} "
-            f"skipped, {self.streams_reset} reset), render {med(self.render_ms)} ms + encode "
+            f"skipped, {self.streams_reset} reset, {self.frames_dropped} dropped on purpose), render {med(self.render_ms)} ms + encode "
             f"{med(self.encode_ms)} ms per frame (median), {self.key_requests} key requests, "
             f"{self.malformed_datagrams} malformed datagrams, {self.malformed_streams} "
             f"malformed streams; ended: {self.ended}"
@@ -394,8 +398,14 @@ class _Session(QuicConnectionProtocol):
                 if not key:
                     recent.append(t2 - t0)
                     proc = float(np.median(recent))
-                self._send(k, key, pose_time, packet, render_ms, encode_ms, encoder)
                 last = k
+                n = opts.drop_every
+                if n and not key and (self.stats.frames_sent + self.stats.frames_dropped) % n == (
+                    n - 1
+                ):
+                    self.stats.frames_dropped += 1  # the injected loss (ServerOptions)
+                    continue
+                self._send(k, key, pose_time, packet, render_ms, encode_ms, encoder)
         except asyncio.CancelledError:
             pass
 
