@@ -28,8 +28,9 @@ def _pose(t: float) -> np.ndarray:
     return m
 
 
-def _header(index: int, key: bool = False, size: int = 3) -> proto.FrameHeader:
-    return proto.FrameHeader(index, key, 0.1, 0.2, 5.0, 1e6, 10.0, 5.0, size)
+def _header(seq: int, key: bool = False, size: int = 3) -> proto.FrameHeader:
+    # Frame index 2·seq: the server skipped every other frame (the order follows seq).
+    return proto.FrameHeader(2 * seq, seq, key, 0.1, 0.2, 5.0, 1e6, 10.0, 5.0, size)
 
 
 # -- messages ------------------------------------------------------------------------------------
@@ -59,7 +60,7 @@ def test_documented_sizes() -> None:
     assert len(proto.Hello("x" * proto.MAX_TOKEN).encode()) == 84
     assert len(proto.PoseSample(0, 0.0, np.eye(4)).encode()) == 109
     assert len(proto.RateReport(0, 0, 0, 0, 0, 0, 0).encode()) == 37
-    assert proto.FrameHeader.SIZE == 54
+    assert proto.FrameHeader.SIZE == 62
     w = proto.Welcome(10.0, 0.1, 1, 1, (0.0,) * 16, 1, 1.0, 1.0, "s" * 255)
     assert len(w.encode()) == 425 <= proto.MAX_CONTROL
 
@@ -104,7 +105,7 @@ def test_frame_header_limits() -> None:
     struct.pack_into("<I", raw, proto.FrameHeader.SIZE - 4, proto.MAX_FRAME_PAYLOAD + 1)
     with pytest.raises(ProtocolError, match="frame header.size"):
         proto.FrameHeader.decode(bytes(raw))
-    with pytest.raises(ProtocolError, match="at least 54 bytes"):
+    with pytest.raises(ProtocolError, match="at least 62 bytes"):
         proto.FrameHeader.decode(b"\x20" * 10)
 
 
@@ -169,7 +170,7 @@ class _Log:
 
     def order(self, give_up: float = 0.1) -> FrameOrder:
         return FrameOrder(
-            lambda h, p: self.submitted.append(h.index),
+            lambda h, p: self.submitted.append(h.seq),
             lambda last, reason: self.requests.append((last, reason)),
             self.stopped.append,
             give_up,
@@ -186,11 +187,11 @@ def test_order_in_sequence_and_reordered() -> None:
     assert log.submitted == [0, 1, 2] and not log.requests
 
 
-def test_order_skip_to_key_frame_is_not_a_loss() -> None:
+def test_order_gap_before_key_frame_is_not_a_loss() -> None:
     log = _Log()
     o = log.order()
     o.complete(_header(0, True), b"", 0.0)
-    o.complete(_header(4, True), b"", 0.1)  # the server skipped 1..3
+    o.complete(_header(4, True), b"", 0.1)  # 1..3 reset by the server (stale), then a key
     assert log.submitted == [0, 4] and o.lost == 0 and not log.requests
 
 

@@ -17,6 +17,7 @@ real-time client, which sits above the network layer; the protocol and the serve
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import hashlib
 import hmac
 import math
@@ -43,6 +44,7 @@ from aioquic.quic.events import (
 
 from splitrender.client.client import Client
 from splitrender.client.realtime import DisplayFrame, RealtimeClient
+from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import ProtocolError
 from splitrender.net.protocol import (
     ALPN,
@@ -62,7 +64,7 @@ from splitrender.net.protocol import (
     fingerprint_hex,
     frame_control,
 )
-from splitrender.types import Camera
+from splitrender.types import Camera, ServerFrame
 
 __all__ = ["ConnectOptions", "FrameOrder", "LiveClient"]
 
@@ -96,6 +98,8 @@ class ConnectOptions:
 class FrameOrder:
     """Puts completed frames back in order for the decoder, which needs every frame after a key
     frame in sequence (the pure logic of the receive side; no network, no clock of its own).
+    The order is the encoded sequence, ``FrameHeader.seq`` (the frame index skips what the
+    server did not render; the sequence does not).
 
     :meth:`complete` takes a frame whose stream finished; :meth:`tick` is called periodically.
     Frames are handed to ``submit`` in index order. A gap followed by a key frame is skipped at
@@ -117,7 +121,7 @@ class FrameOrder:
         self.next: int | None = None  # None: waiting for a key frame
         self.last = -1
         self.pending: dict[int, tuple[FrameHeader, bytes]] = {}
-        self.in_flight: dict[int, int] = {}  # frame index -> stream id (header seen)
+        self.in_flight: dict[int, int] = {}  # seq -> stream id (header seen)
         self._gap_since: float | None = None
         self._requested_at: float | None = None
         self.waiting_for_key = False  # after a loss (not at the start)
@@ -126,23 +130,23 @@ class FrameOrder:
         self.recoveries = 0
         self.submitted = 0
 
-    def started(self, index: int, stream_id: int) -> None:
-        self.in_flight[index] = stream_id
+    def started(self, seq: int, stream_id: int) -> None:
+        self.in_flight[seq] = stream_id
 
     def complete(self, header: FrameHeader, payload: bytes, now: float) -> None:
-        self.in_flight.pop(header.index, None)
-        if header.index <= self.last:
+        self.in_flight.pop(header.seq, None)
+        if header.seq <= self.last:
             return  # older than what the decoder already has (a late retransmission)
-        self.pending[header.index] = (header, payload)
+        self.pending[header.seq] = (header, payload)
         self._flush(now)
 
-    def undecodable(self, index: int, now: float) -> None:
-        """The decoder refused frame ``index``: the stream is broken until a key frame."""
+    def undecodable(self, seq: int, now: float) -> None:
+        """The decoder refused frame ``seq``: the stream is broken until a key frame."""
         if self.next is not None or not self.waiting_for_key:
             self.next = None
             self.waiting_for_key = True
             self.pending = {i: p for i, p in self.pending.items() if p[0].key}
-            self._ask(index, KEY_UNDECODABLE, now)
+            self._ask(seq, KEY_UNDECODABLE, now)
 
     def tick(self, now: float) -> None:
         self._flush(now)
@@ -201,6 +205,20 @@ class FrameOrder:
             self.pending = {i: p for i, p in self.pending.items() if p[0].key}
             self._ask(self.last, KEY_LOST, now)
             return
+
+
+class _TimeIndexed(StreamDecoder):
+    """The stream decoder, with each frame's index taken back from its time (``round(t ·
+    f_s)``): the packets are indexed by their place in the encoded sequence (consecutive, as
+    the decoder checks), while the client orders frames by time (FrameHeader)."""
+
+    def __init__(self, server_fps: float) -> None:
+        super().__init__()
+        self.server_fps = server_fps
+
+    def decode(self, data: bytes | memoryview) -> ServerFrame:
+        frame = super().decode(data)
+        return dataclasses.replace(frame, index=round(frame.time * self.server_fps))
 
 
 @dataclass
@@ -316,7 +334,7 @@ class _Connection(QuicConnectionProtocol):
                 self._drop(sid)
                 return
             self._headers[sid] = header
-            self.owner.order.started(header.index, sid)
+            self.owner.order.started(header.seq, sid)
         if header is not None and len(buf) > FrameHeader.SIZE + header.size:
             self._drop(sid)  # more bytes than the header announced
             return
@@ -390,6 +408,7 @@ class LiveClient:
         self.realtime = RealtimeClient(
             client=Client(self.options.method, server_fps=welcome.server_fps),
             display_fps=self.options.display_fps,
+            decoder=_TimeIndexed(welcome.server_fps),
         )
         self._ready.set()
 
@@ -424,7 +443,7 @@ class LiveClient:
         assert self.realtime is not None
         fut = self.realtime.submit(payload, pose_time=header.pose_time)
         loop = asyncio.get_running_loop()
-        index = header.index
+        index = header.seq
 
         def done(f: Any) -> None:
             if f.exception() is not None:

@@ -106,7 +106,7 @@ _WELCOME = struct.Struct("<BHddHHHdd16dB")  # ...; then the scene name
 _KEY_REQUEST = struct.Struct("<BqB")
 _POSE = struct.Struct("<BId12d")
 _REPORT = struct.Struct("<BIddffII")
-_FRAME = struct.Struct("<BqBddddffI")
+_FRAME = struct.Struct("<BqqBddddffI")
 
 #: Key request reasons.
 KEY_LOST = 1  #: a frame was given up (lost, reset, or too late to wait for)
@@ -264,7 +264,8 @@ class Welcome:
 
 @dataclass(frozen=True, slots=True)
 class KeyRequest:
-    """The client asks for a key frame: ``last`` is the last frame it decoded (-1: none),
+    """The client asks for a key frame: ``last`` is the ``seq`` of the last frame it decoded
+    (-1: none),
     ``reason`` one of ``KEY_LOST``, ``KEY_UNDECODABLE``, ``KEY_START``."""
 
     last: int
@@ -439,8 +440,11 @@ def decode_datagram(data: bytes | memoryview) -> PoseSample | RateReport:
 
 @dataclass(frozen=True, slots=True)
 class FrameHeader:
-    """What precedes a server frame's packet on its stream: ``index`` and ``key`` (as in the
-    packet, so that the client can order and skip without parsing it), ``pose_time`` (the
+    """What precedes a server frame's packet on its stream: ``index`` (the frame's time is
+    ``index / f_s``), ``seq`` (its place in the encoded sequence, which is the index in the
+    packet: the decoder needs consecutive ``seq`` or a key frame, while ``index`` skips the
+    frames the server could not render in time) and ``key``, so that the client can order
+    and give up frames without parsing the packet; ``pose_time`` (the
     display time of the newest pose the server had when it predicted: pose-to-display latency
     is measured from it), ``predicted_time`` (the time the pose was predicted for), ``sent``
     (the server's clock when it sent the frame: the client measures queueing from its
@@ -448,6 +452,7 @@ class FrameHeader:
     packet's ``size``."""
 
     index: int
+    seq: int
     key: bool
     pose_time: float
     predicted_time: float
@@ -463,6 +468,7 @@ class FrameHeader:
         return _FRAME.pack(
             T_FRAME,
             self.index,
+            self.seq,
             int(self.key),
             self.pose_time,
             self.predicted_time,
@@ -478,9 +484,9 @@ class FrameHeader:
         """The header at the start of ``data`` (the packet may follow)."""
         _type("frame header", data, T_FRAME)
         _expect("frame header", data, _FRAME.size, exact=False)
-        _, index, key, pt, tt, sent, bps, rms, ems, size = _FRAME.unpack_from(data, 0)
-        if index < 0:
-            raise ProtocolError(f"frame header.index: expected >= 0, got {index}")
+        _, index, seq, key, pt, tt, sent, bps, rms, ems, size = _FRAME.unpack_from(data, 0)
+        if index < 0 or seq < 0:
+            raise ProtocolError(f"frame header: index {index}, seq {seq}: expected >= 0")
         if key not in (0, 1):
             raise ProtocolError(f"frame header.key: expected 0 or 1, got {key}")
         if not 0 < size <= MAX_FRAME_PAYLOAD:
@@ -489,6 +495,7 @@ class FrameHeader:
             )
         return cls(
             int(index),
+            int(seq),
             bool(key),
             _finite("frame header.pose_time", pt, -1e9, 1e9),
             _finite("frame header.predicted_time", tt, -1e9, 1e9),

@@ -9,13 +9,14 @@ session, the frame loop:
 2. picks the next frame ``k`` (time ``k / f_s``) that can still arrive by ``t_k − 1/f_s``, when
    the client first needs it for the pair ``(k−1, k)`` (splitrender.net.model), given the
    measured render + encode time and half the round trip. If rendering cannot keep ``f_s``
-   it skips frames (the client extrapolates meanwhile: that is the method's point), says so
-   once, and makes the frame after a skip a key frame, because the stream's decoder needs
-   consecutive frames or a key frame;
+   it skips frames (the client extrapolates meanwhile: that is the method's point) and says so
+   once. The encoded sequence does not skip: each packet carries its place in it (``seq``) as
+   its index, which the stream decoder needs consecutive, and the frame header carries ``k``
+   (the client restores it: :class:`splitrender.client.live.FrameOrder`);
 3. predicts the head pose at ``t_k`` (:mod:`splitrender.net.predict`), renders with the
    reference renderer (on a worker thread: the event loop keeps receiving), encodes at the
    adaptive target (:mod:`splitrender.net.abr`) and sends the frame on its own unidirectional
-   stream; streams of frames two periods older that are still unsent are reset (stale).
+   stream; the stream of a frame still in flight when two newer ones are sent is reset (stale).
 
 A hello with a wrong version or token, a malformed hello, or a second client: the connection
 is closed with a ``CLOSE_*`` code and a one-line reason, and the server keeps nothing of it.
@@ -25,6 +26,7 @@ Malformed datagrams and streams of an accepted session are dropped and counted.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import datetime
 import hmac
 import math
@@ -188,7 +190,7 @@ class _Session(QuicConnectionProtocol):
         self._key_wanted = False
         self._abr = self.server.rate_controller()
         self._new_target: float | None = None
-        self._open: dict[int, int] = {}  # frame index -> stream id, for stale resets
+        self._open: dict[int, int] = {}  # seq -> stream id, for stale resets
         self._closed = asyncio.Event()
 
     # -- events ---------------------------------------------------------------------------
@@ -332,6 +334,7 @@ class _Session(QuicConnectionProtocol):
             encoder.set_bitrate(srv.max_mbps())  # each session starts at the top
         encoder.request_key_frame()
         last = -1
+        seq = 0  # place in the encoded sequence (the packets' index: see FrameHeader)
         proc = srv.proc_estimate
         recent: deque[float] = deque(maxlen=5)
         warned = False
@@ -350,14 +353,10 @@ class _Session(QuicConnectionProtocol):
                 k = math.ceil((client_now + proc + owd) * fs - 1e-9) + (last >= 0)
                 # (The first frame of a session is for the time it arrives at: it can be shown
                 # at once, extrapolated; every later one is for one period after that.)
-                # Skip only when two or more frames would be late: the frame after a skip must
-                # be a key frame (larger, and slower to encode: x265 restarts), so skipping for
-                # one slightly late frame would make the next one late too.
-                if k < last + 3:
-                    k = last + 1
+                # Frames that could not arrive in time are skipped. The encoded sequence goes
+                # on (the packet's index is seq, not k), so a skip costs no key frame.
                 if k > last + 1 and last >= 0:
                     self.stats.frames_skipped += k - last - 1
-                    encoder.request_key_frame()  # the decoder needs k-1 or a key frame
                     if not warned:
                         srv.log(
                             f"rendering cannot keep {fs:g} FPS ({proc * 1e3:.0f} ms per frame): "
@@ -388,7 +387,9 @@ class _Session(QuicConnectionProtocol):
                 if self._key_wanted:
                     encoder.request_key_frame()
                     self._key_wanted = False
-                packet: bytes = await loop.run_in_executor(srv.executor, encoder.encode, frame)
+                packet: bytes = await loop.run_in_executor(
+                    srv.executor, encoder.encode, dataclasses.replace(frame, index=seq)
+                )
                 t2 = time.perf_counter()
                 key = bool(packet[6] & 1)  # the stream format's flags: bit 0 = key frame
                 render_ms, encode_ms = (t1 - t0) * 1e3, (t2 - t1) * 1e3
@@ -399,19 +400,21 @@ class _Session(QuicConnectionProtocol):
                     recent.append(t2 - t0)
                     proc = float(np.median(recent))
                 last = k
+                seq += 1
                 n = opts.drop_every
                 if n and not key and (self.stats.frames_sent + self.stats.frames_dropped) % n == (
                     n - 1
                 ):
                     self.stats.frames_dropped += 1  # the injected loss (ServerOptions)
                     continue
-                self._send(k, key, pose_time, packet, render_ms, encode_ms, encoder)
+                self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, encoder)
         except asyncio.CancelledError:
             pass
 
     def _send(
         self,
         k: int,
+        seq: int,
         key: bool,
         pose_time: float,
         packet: bytes,
@@ -423,6 +426,7 @@ class _Session(QuicConnectionProtocol):
         target = encoder.config.bitrate_mbps * 1e6
         header = FrameHeader(
             k,
+            seq,
             key,
             pose_time,
             k / fs,
@@ -432,7 +436,7 @@ class _Session(QuicConnectionProtocol):
             encode_ms,
             len(packet),
         )
-        for old in [i for i in self._open if i < k - 2]:
+        for old in [i for i in self._open if i < seq - 2]:
             # Stale: the client no longer needs it. Only a stream still in flight is reset (one
             # whose data was all acknowledged is done; aioquic forgets it).
             old_sid = self._open.pop(old)
@@ -442,7 +446,7 @@ class _Session(QuicConnectionProtocol):
                 self.stats.streams_reset += 1
         sid = self._quic.get_next_available_stream_id(is_unidirectional=True)
         self._quic.send_stream_data(sid, header.encode() + packet, end_stream=True)
-        self._open[k] = sid
+        self._open[seq] = sid
         self.transmit()
         s = self.stats
         s.frames_sent += 1
