@@ -85,6 +85,8 @@ __all__ = ["LiveServer", "ServerOptions", "SessionStats", "self_signed_certifica
 RESET_STALE = 1
 #: The QUIC transport parameter max_datagram_frame_size: anything that fits a packet.
 QUIC_MAX_DATAGRAM = 65535
+#: Least time between two key frames that the adaptive bit-rate forces.
+ABR_KEY_INTERVAL_S = 2.0
 #: Smallest relative change of the adaptive target that is passed to the encoder.
 ABR_STEP = 0.2
 #: A session whose client sent no pose for this long ends (its QUIC idle timeout is the same).
@@ -335,6 +337,7 @@ class _Session(QuicConnectionProtocol):
         encoder.request_key_frame()
         last = -1
         seq = 0  # place in the encoded sequence (the packets' index: see FrameHeader)
+        abr_key_at = -math.inf
         proc = srv.proc_estimate
         recent: deque[float] = deque(maxlen=5)
         warned = False
@@ -378,11 +381,16 @@ class _Session(QuicConnectionProtocol):
                 target = self._new_target
                 current = encoder.config.bitrate_mbps * 1e6
                 if target is not None and abs(target - current) > ABR_STEP * current:
-                    # Only steps that matter: a change reopens the x265 encoders, which needs a
-                    # key frame and costs tens of ms per stream; it is taken at once (a
-                    # narrowed link cannot wait for the next regular key frame).
+                    # Only steps that matter: the encoders take a new target at a key frame
+                    # (x265 reopens, tens of ms per stream). It is taken at once with a key frame
+                    # of its own (a narrowed link cannot wait for the next regular one), at most
+                    # every ABR_KEY_INTERVAL_S (a key frame is itself larger); in between, the
+                    # change waits for the next key frame.
                     encoder.set_bitrate(target / 1e6)
-                    encoder.request_key_frame()
+                    now = loop.time()
+                    if now - abr_key_at >= ABR_KEY_INTERVAL_S:
+                        encoder.request_key_frame()
+                        abr_key_at = now
                 self._new_target = None
                 if self._key_wanted:
                     encoder.request_key_frame()
