@@ -170,6 +170,10 @@ def add_connect(sub: Any) -> None:
     p.add_argument("--score", action="store_true",
                    help="afterwards, render the ground truth at the poses the client had and "
                    "score the display frames (ssim, flip, psnr, vmaf) into report.json")
+    p.add_argument("--compare", default=None, choices=METHODS, metavar="M",
+                   help="with --score: afterwards, replay the packets this session decoded, "
+                   "at the same arrival times and poses, through method M and score it too "
+                   "(report.json's compare): the two methods in the same conditions")
     add_no_vmaf(p)
     add_quiet(p)
     p.add_argument("--protocol-version", type=lambda t: integer(t, 0, 65535), default=None,
@@ -186,6 +190,8 @@ def run_connect(args: argparse.Namespace) -> int:
     from splitrender.net.protocol import PROTOCOL_VERSION, normalise_fingerprint
     from splitrender.scene.builtin import SCENE_NAMES, Scene, TraceMotion, load_trace
 
+    if args.compare is not None and not args.score:
+        return fail("--compare: needs --score")
     if args.fingerprint is None and not args.insecure:
         return fail("--fingerprint: expected the server's certificate fingerprint (or --insecure)")
     try:
@@ -238,6 +244,14 @@ def run_connect(args: argparse.Namespace) -> int:
         start = first_shown[0] if first_shown else math.inf
         report.update(_score(scene, welcome.scale, args.fps, client.poses,
                              [f for f in frames if f[0] >= start], args.no_vmaf))
+        if args.compare is not None:
+            other: list[tuple[float, npt.NDArray[np.uint8]]] = []
+            summary = client.replay(args.compare, args.seconds,
+                                    on_frame=lambda img, rec: other.append((rec.time, img.copy())))
+            # The same frames as the live method's score (display times from its first shown).
+            summary.update(_score(scene, welcome.scale, args.fps, client.poses,
+                                  [f for f in other if f[0] >= start], args.no_vmaf))
+            report["compare"] = {"method": args.compare, **summary}
     write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
     print(f"{report['frames']} frames, {report['deadline_misses']} deadline misses, modes "

@@ -389,6 +389,9 @@ class LiveClient:
         self._window: deque[tuple[float, int, float]] = deque()  # arrival, bytes, delay
         self._min_delay: float | None = None
         self.realtime: RealtimeClient | None = None
+        #: (display time, packet) of every packet handed to the decoder: :meth:`replay` feeds
+        #: them to another method in the same conditions.
+        self.arrivals: list[tuple[float, bytes]] = []
         self.order = FrameOrder(self._submit, self._request_key, self._stop_stream, 0.1)
 
     # -- network thread -------------------------------------------------------------------
@@ -441,6 +444,7 @@ class LiveClient:
 
     def _submit(self, header: FrameHeader, payload: bytes) -> None:
         assert self.realtime is not None
+        self.arrivals.append((self._now(), payload))
         fut = self.realtime.submit(payload, pose_time=header.pose_time)
         loop = asyncio.get_running_loop()
         index = header.seq
@@ -605,6 +609,32 @@ class LiveClient:
         self.display_frames = rt.frames
         self.close()
         return self.report(seconds)
+
+    def replay(
+        self,
+        method: str,
+        seconds: float,
+        on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+    ) -> dict[str, Any]:
+        """The session again with ``method``, offline from the network: the packets this
+        session decoded, each submitted at the display time it was, at the same poses, through
+        a real-time loop of its own (so what differs between two methods is the method, not
+        what the network and the server did). Returns the loop's summary."""
+        w = self.welcome
+        assert w is not None, "connect() and run() first"
+        proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
+        poses = dict(self.poses)
+
+        def pose(t: float) -> Camera:
+            m = poses[t] if t in poses else poses[min(poses, key=lambda p: abs(p - t))]
+            return Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
+
+        with RealtimeClient(
+            client=Client(method, server_fps=w.server_fps),
+            display_fps=self.options.display_fps,
+            decoder=_TimeIndexed(w.server_fps),
+        ) as rt:
+            return rt.run(pose, seconds, feed=self.arrivals, on_frame=on_frame).summary()
 
     def report(self, seconds: float) -> dict[str, Any]:
         """``report.json``: the real-time loop's summary, the pose-to-display latency, the
