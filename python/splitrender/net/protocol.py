@@ -38,6 +38,7 @@ __all__ = [
     "CLOSE_BUSY",
     "CLOSE_BYE",
     "CLOSE_DISPLAY",
+    "CLOSE_SERVER_ERROR",
     "CLOSE_TOKEN",
     "CLOSE_VERSION",
     "MAX_CONTROL",
@@ -89,6 +90,7 @@ CLOSE_TOKEN = 2  #: the hello's token is wrong
 CLOSE_BAD_HELLO = 3  #: the control stream did not start with a well-formed hello
 CLOSE_BUSY = 4  #: the server already serves a session
 CLOSE_DISPLAY = 5  #: the display size is not the one the server renders
+CLOSE_SERVER_ERROR = 6  #: the server failed to render or encode; the session ends
 
 # Message types (the first byte of every message).
 T_HELLO = 0x01

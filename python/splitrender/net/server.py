@@ -61,6 +61,7 @@ from splitrender.net.protocol import (
     CLOSE_BAD_HELLO,
     CLOSE_BUSY,
     CLOSE_DISPLAY,
+    CLOSE_SERVER_ERROR,
     CLOSE_TOKEN,
     CLOSE_VERSION,
     PROTOCOL_VERSION,
@@ -418,6 +419,13 @@ class _Session(QuicConnectionProtocol):
                 self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, encoder)
         except asyncio.CancelledError:
             pass
+        except Exception as e:  # noqa: BLE001 - a session's failure must not end the server
+            # Whatever broke (a pose the renderer refuses, an encoder error), this session ends
+            # with the reason and the server serves the next one.
+            reason = f"server error: {type(e).__name__}: {e}".splitlines()[0][:200]
+            srv.log(reason)
+            self._quic.close(error_code=CLOSE_SERVER_ERROR, reason_phrase=reason)
+            self.transmit()
 
     def _send(
         self,
