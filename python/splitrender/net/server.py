@@ -193,7 +193,7 @@ class _Session(QuicConnectionProtocol):
         self._key_wanted = False
         self._abr = self.server.rate_controller()
         self._new_target: float | None = None
-        self._open: dict[int, int] = {}  # seq -> stream id, for stale resets
+        self._open: dict[int, tuple[int, bool]] = {}  # seq -> (stream id, key), in flight
         self._closed = asyncio.Event()
 
     # -- events ---------------------------------------------------------------------------
@@ -323,6 +323,18 @@ class _Session(QuicConnectionProtocol):
 
     # -- frames ---------------------------------------------------------------------------
 
+    def _unacked(self, sid: int) -> bool:
+        """Whether the stream still has data the client has not acknowledged (aioquic drops
+        a finished stream, so a missing one is done)."""
+        stream = self._quic._streams.get(sid)
+        return stream is not None and not stream.sender.is_finished
+
+    def _in_flight(self) -> int:
+        """Frames sent and not yet acknowledged (the finished ones are forgotten)."""
+        for done in [i for i, (sid, _) in self._open.items() if not self._unacked(sid)]:
+            del self._open[done]
+        return len(self._open)
+
     def _rtt(self) -> float:
         # aioquic keeps its RTT estimate in the loss recovery (no public accessor).
         return float(getattr(self._quic._loss, "_rtt_smoothed", 0.0) or 0.0)
@@ -352,6 +364,12 @@ class _Session(QuicConnectionProtocol):
                     await asyncio.sleep(0.01)
                     continue
                 owd = self._rtt() / 2
+                if self._in_flight() >= 2 + math.ceil(2 * owd * fs):
+                    # The link is behind (more frames unacknowledged than a round trip holds):
+                    # rendering more would only queue behind them, and a key frame the client
+                    # waits for would wait longer. The frames not rendered are skipped.
+                    await asyncio.sleep(0.25 / fs)
+                    continue
                 client_now = loop.time() + self._offset
                 # Frame k is first needed at t_k - 1/f_s (it closes the pair (k-1, k)).
                 k = math.ceil((client_now + proc + owd) * fs - 1e-9) + (last >= 0)
@@ -453,16 +471,16 @@ class _Session(QuicConnectionProtocol):
             len(packet),
         )
         for old in [i for i in self._open if i < seq - 2]:
-            # Stale: the client no longer needs it. Only a stream still in flight is reset (one
-            # whose data was all acknowledged is done; aioquic forgets it).
-            old_sid = self._open.pop(old)
-            stream = self._quic._streams.get(old_sid)
-            if stream is not None and not stream.sender.is_finished:
+            # Stale: the client no longer needs it (it will ask for a key frame). A key frame
+            # is not reset: it is what a client that lost frames waits for.
+            old_sid, old_key = self._open[old]
+            if self._unacked(old_sid) and not old_key:
+                del self._open[old]
                 self._quic.reset_stream(old_sid, RESET_STALE)
                 self.stats.streams_reset += 1
         sid = self._quic.get_next_available_stream_id(is_unidirectional=True)
         self._quic.send_stream_data(sid, header.encode() + packet, end_stream=True)
-        self._open[seq] = sid
+        self._open[seq] = (sid, key)
         self.transmit()
         s = self.stats
         s.frames_sent += 1
