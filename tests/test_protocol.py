@@ -304,3 +304,40 @@ def test_relay_stays_on_loopback() -> None:
         Relay(("10.0.0.1", 4433), Impairment(), Impairment())
     with pytest.raises(InvalidInputError, match="loss"):
         Impairment(loss=1.0)
+
+
+# -- the encoder's live controls and the client's time-indexed decoding -------------------------
+
+
+def test_encoder_live_controls_and_seq_indexed_packets() -> None:
+    """StreamEncoder.request_key_frame/set_bitrate (the live server's hooks), and packets
+    indexed by their place in the sequence (seq) while the frames skip indices: the client's
+    decoder gets the frame index back from the time."""
+    import dataclasses
+
+    import splitrender as sr
+    from splitrender.client.live import _TimeIndexed
+    from splitrender.codec.stream import peek_header
+
+    scene = sr.SyntheticScene(dynamic=True)
+    fps = 10.0
+    ks = [0, 1, 4, 5, 9]  # the server skipped 2, 3, 6, 7, 8
+    frames = [scene.server_frame(k, k / fps, 32, 24, fps=fps) for k in ks]
+    with sr.StreamEncoder(sr.CodecConfig(bitrate_mbps=0.5, fps=fps, gop=100, threads=1)) as enc:
+        packets = []
+        for seq, f in enumerate(frames):
+            if seq == 2:
+                enc.request_key_frame()
+            if seq == 3:
+                enc.set_bitrate(0.25)
+                assert enc.config.bitrate_mbps == 0.25
+            packets.append(enc.encode(dataclasses.replace(f, index=seq)))
+    keys = [peek_header(p)[1] for p in packets]
+    assert keys == [True, False, True, False, False]  # a rate change alone waits for a key
+    with pytest.raises(InvalidInputError):
+        sr.StreamEncoder().set_bitrate(0.0)
+    dec = _TimeIndexed(fps)
+    try:
+        assert [dec.decode(p).index for p in packets] == ks
+    finally:
+        dec.close()

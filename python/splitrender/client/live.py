@@ -665,7 +665,9 @@ class LiveClient:
                 "rate_reports": n.reports,
                 "longest_gap_s": float(gaps.max()),
                 "connection_closed_at": n.closed_at,
-                "connection_closed": n.closed_reason,
+                # None only when closing the connection took longer than close() waits (the
+                # server unreachable through a collapsed link).
+                "connection_closed": n.closed_reason or "still closing at the end",
                 "server_render_ms_p50": med(n.server_render_ms),
                 "server_encode_ms_p50": med(n.server_encode_ms),
                 "server_fingerprint": self.server_fingerprint,
