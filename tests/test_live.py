@@ -224,9 +224,9 @@ def test_client_killed_then_next_session(server: _Server, tmp_path: Path) -> Non
 
 
 def test_through_the_relay(tmp_path: Path) -> None:
-    # Its own server, which leaves out every 4th frame (as if lost beyond what QUIC's
+    # Its own server, which leaves out every 3rd frame (as if lost beyond what QUIC's
     # retransmissions repair in time, which 1 % loss rarely is): key-frame recovery is seen.
-    server = _Server(tmp_path / "serve.log", "--drop-every", "4")
+    server = _Server(tmp_path / "serve.log", "--drop-every", "3")
     relay = _Proc(["relay", "--listen", "127.0.0.1:0", "--target", f"127.0.0.1:{server.port}",
                    "--delay", "50", "--jitter", "20", "--loss", "1%", "--seed", "3",
                    "--seconds", "60"], tmp_path / "relay.log")

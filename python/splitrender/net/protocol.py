@@ -57,7 +57,9 @@ __all__ = [
     "decode_datagram",
     "fingerprint_hex",
     "frame_control",
+    "hello_version",
     "normalise_fingerprint",
+    "unsupported_version",
 ]
 
 #: The version this code speaks; a hello of any other is refused (:data:`CLOSE_VERSION`).
@@ -182,10 +184,7 @@ class Hello:
         if magic != HELLO_MAGIC:
             raise ProtocolError(f"hello: expected magic {HELLO_MAGIC!r}, got {bytes(magic)!r}")
         if version != PROTOCOL_VERSION:
-            raise ProtocolError(
-                f"hello: protocol version {version} is not supported (this server speaks "
-                f"version {PROTOCOL_VERSION})"
-            )
+            raise ProtocolError(f"hello: {unsupported_version(version)}")
         if n > MAX_TOKEN:
             raise ProtocolError(f"hello.token: at most {MAX_TOKEN} bytes, got {n}")
         _expect("hello", data, _HELLO.size + n + _HELLO_TAIL.size)
@@ -197,6 +196,23 @@ class Hello:
             )
         fc = _finite("hello.display_fps", fc, 1.0, 1000.0)
         return cls(token, w, h, fc, version)
+
+
+def unsupported_version(version: int) -> str:
+    """The one-line reason a hello of another ``version`` is refused with."""
+    return (
+        f"protocol version {version} is not supported (this server speaks version "
+        f"{PROTOCOL_VERSION})"
+    )
+
+
+def hello_version(data: bytes | memoryview) -> int | None:
+    """The protocol version a hello declares, read before anything else in it is checked
+    (``None``: not even that far a hello), so that a peer of another version is refused as
+    such rather than for whatever its hello's layout does differently."""
+    if len(data) < _HELLO.size or data[0] != T_HELLO:
+        return None
+    return int(_HELLO.unpack_from(data, 0)[2])
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,7 +30,6 @@ import dataclasses
 import datetime
 import hmac
 import math
-import struct
 import sys
 import time
 from collections import deque
@@ -76,6 +75,8 @@ from splitrender.net.protocol import (
     decode_datagram,
     fingerprint_hex,
     frame_control,
+    hello_version,
+    unsupported_version,
 )
 from splitrender.scene.builtin import Scene
 from splitrender.types import ServerFrame
@@ -264,15 +265,10 @@ class _Session(QuicConnectionProtocol):
             raise ProtocolError(f"control stream: unexpected {type(msg).__name__} after hello")
 
     def _hello(self, raw: bytes) -> None:
-        if len(raw) >= 7 and raw[0] == 0x01:
-            (version,) = struct.unpack_from("<H", raw, 5)
-            if version != PROTOCOL_VERSION:
-                self._refuse(
-                    CLOSE_VERSION,
-                    f"protocol version {version} is not supported (this server speaks "
-                    f"version {PROTOCOL_VERSION})",
-                )
-                return
+        version = hello_version(raw)
+        if version is not None and version != PROTOCOL_VERSION:
+            self._refuse(CLOSE_VERSION, unsupported_version(version))
+            return
         hello = Hello.decode(raw)
         # Constant time: the comparison must not tell how much of a guess was right.
         if not hmac.compare_digest(hello.token.encode(), self.server.options.token.encode()):
