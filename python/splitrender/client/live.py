@@ -642,6 +642,7 @@ class LiveClient:
         recoveries, malformed streams, the outage, the encoder target per frame)."""
         s = dict(self.summary)
         n = self.net
+        fs = self.welcome.server_fps if self.welcome is not None else 1.0
         arrivals = n.arrivals
         gaps = np.diff([0.0, *arrivals, seconds]) if arrivals else np.array([seconds])
 
@@ -672,8 +673,12 @@ class LiveClient:
                 "server_encode_ms_p50": med(n.server_encode_ms),
                 "server_fingerprint": self.server_fingerprint,
             },
+            # Per frame received: the encoder target, the arrival (display seconds) and how
+            # late it was against when the display first needed it, t_k - 1/f_s (negative:
+            # early), the measure of whether frames arrive on time as the target moves.
             target_mbps=[
-                {"index": i, "mbps": round(m, 6), "arrival": round(t, 4)}
+                {"index": i, "mbps": round(m, 6), "arrival": round(t, 4),
+                 "late_ms": round((t - (i - 1) / fs) * 1e3, 1)}
                 for i, m, t in n.targets
             ],
         )
