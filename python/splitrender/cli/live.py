@@ -242,14 +242,14 @@ def run_connect(args: argparse.Namespace) -> int:
         # Scored from the first frame made from a server frame on: before it every method
         # shows the same black start-up (no server frame yet); holds after it count.
         start = first_shown[0] if first_shown else math.inf
-        report.update(_score(scene, welcome.scale, args.fps, client.poses,
+        report.update(_score(scene, welcome.scale, args.fps, motion,
                              [f for f in frames if f[0] >= start], args.no_vmaf))
         if args.compare is not None:
             other: list[tuple[float, npt.NDArray[np.uint8]]] = []
-            summary = client.replay(args.compare, args.seconds,
+            summary = client.replay(args.compare, motion, args.seconds,
                                     on_frame=lambda img, rec: other.append((rec.time, img.copy())))
-            # The same frames as the live method's score (display times from its first shown).
-            summary.update(_score(scene, welcome.scale, args.fps, client.poses,
+            # The same span as the live method's score (display times from its first shown).
+            summary.update(_score(scene, welcome.scale, args.fps, motion,
                                   [f for f in other if f[0] >= start], args.no_vmaf))
             report["compare"] = {"method": args.compare, **summary}
     write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
@@ -283,15 +283,15 @@ SCORED = 120
 
 
 def _score(
-    scene: Any, scale: float, fc: float, poses: list[tuple[float, Any]],
+    scene: Any, scale: float, fc: float, motion: Any,
     frames: list[tuple[float, npt.NDArray[np.uint8]]], no_vmaf: bool,
 ) -> dict[str, Any]:
-    """The display frames against the ground truth rendered at the poses the client had."""
+    """The display frames against the ground truth rendered at the poses the client had
+    (``motion(t)``: the same function that gave them)."""
     from splitrender.evaluation.metrics import METRICS, evaluate_sequence
 
     from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
 
-    by_time = dict(poses)
     # The first and last SKIP_FRAMES are left out (as `play` does), and at most SCORED frames
     # evenly spread over the rest are scored: the ground truth costs a render per frame.
     inner = frames[SKIP_FRAMES : len(frames) - SKIP_FRAMES]
@@ -301,7 +301,7 @@ def _score(
                                         for j in range(min(SCORED, len(inner)))})]
     truth = []
     for t, _ in picked:
-        truth.append(scene.client_frames(round(t * fc), scale, fc, pose=by_time[t])[0][1])
+        truth.append(scene.client_frames(round(t * fc), scale, fc, pose=motion(t))[0][1])
     h, w = picked[0][1].shape[:2]
     metrics = [m for m in METRICS
                if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]

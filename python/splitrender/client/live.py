@@ -613,21 +613,22 @@ class LiveClient:
     def replay(
         self,
         method: str,
+        motion: Callable[[float], _F64],
         seconds: float,
         on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
     ) -> dict[str, Any]:
         """The session again with ``method``, offline from the network: the packets this
-        session decoded, each submitted at the display time it was, at the same poses, through
-        a real-time loop of its own (so what differs between two methods is the method, not
-        what the network and the server did). Returns the loop's summary."""
+        session decoded, each submitted at the display time it was, at the poses ``motion``
+        (the session's), through a real-time loop of its own (so what differs between two
+        methods is the method, not what the network and the server did). Returns the loop's
+        summary."""
         w = self.welcome
         assert w is not None, "connect() and run() first"
         proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
-        poses = dict(self.poses)
 
         def pose(t: float) -> Camera:
-            m = poses[t] if t in poses else poses[min(poses, key=lambda p: abs(p - t))]
-            return Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
+            view = np.asarray(np.linalg.inv(motion(t)), np.float64)
+            return Camera(view, proj, w.width, w.height)
 
         with RealtimeClient(
             client=Client(method, server_fps=w.server_fps),
