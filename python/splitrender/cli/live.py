@@ -225,11 +225,21 @@ def run_connect(args: argparse.Namespace) -> int:
                   f"at {args.fps:g} FPS for {args.seconds:g} s", file=sys.stderr, flush=True)
         frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
         first_shown: list[float] = []
+        # The display frames are kept (for the video and the score, written afterwards so
+        # that no display frame pays for encoding) within MAX_KEPT_BYTES: past it every other
+        # one is let go and only every `stride`-th is kept, so a long session at a large
+        # scale cannot exhaust memory (the video's rate drops instead).
+        stride = [1]
 
         def on_frame(img: npt.NDArray[np.uint8], rec: Any) -> None:
-            frames.append((rec.time, img.copy()))
             if rec.mode != "hold" and not first_shown:
                 first_shown.append(rec.time)
+            if rec.index % stride[0]:
+                return
+            frames.append((rec.time, img.copy()))
+            if len(frames) * img.nbytes > MAX_KEPT_BYTES:
+                del frames[1::2]
+                stride[0] *= 2
 
         report = client.run(motion, args.seconds, on_frame=on_frame)
     except SplitRenderError as e:
@@ -237,7 +247,7 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail(str(e))
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    _write_video(out / "video.mp4", [img for _, img in frames], args.fps)
+    _write_video(out / "video.mp4", [img for _, img in frames], args.fps / stride[0])
     if args.score:
         # Scored from the first frame made from a server frame on: before it every method
         # shows the same black start-up (no server frame yet); holds after it count.
@@ -278,6 +288,8 @@ def _write_video(path: Path, images: list[npt.NDArray[np.uint8]], fps: float) ->
     tmp.replace(path)  # atomic: a reader never sees half a video
 
 
+#: Most bytes of display frames `connect` keeps for its video and score.
+MAX_KEPT_BYTES = 1 << 30
 #: Most display frames `connect --score` scores.
 SCORED = 120
 
