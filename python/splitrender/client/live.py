@@ -416,7 +416,12 @@ class LiveClient:
         self._ready.set()
 
     def terminated(self, code: int, reason: str) -> None:
-        if self.welcome is None:
+        if self.welcome is None and self.server_fingerprint is None:
+            # Closed before the handshake completed: nobody (or no QUIC server) answered.
+            o = self.options
+            self.refuse(f"no answer from {o.host}:{o.port} ({reason or f'code {code}'}): is "
+                        "`splitrender serve` running there?")
+        elif self.welcome is None:
             self.refuse(f"refused by the server: {reason or f'connection closed (code {code})'}")
         if self.net.closed_reason is None:
             self.net.closed_reason = reason or f"code {code}"
