@@ -18,6 +18,9 @@ HELP: dict[str, str] = {
         "Markdown, plots"
     ),
     "bench": "time client decoding and reprojection per method on a built-in recording",
+    "serve": "serve live split rendering over QUIC: render at the predicted pose, stream",
+    "connect": "connect to `splitrender serve`: display at f_c, send poses, write a report",
+    "relay": "a seeded UDP relay on 127.0.0.1 with delay, jitter, loss and a bandwidth cap",
 }
 
 DESCRIPTION: dict[str, str] = {
@@ -164,5 +167,33 @@ DESCRIPTION: dict[str, str] = {
         "frame-time p50/p95/p99/max, deadline misses (count and %), dropped refreshes, modes, "
         "decode and pair-preparation ms per server frame, the newest server frame's age at "
         "display and CPU use."
+    ),
+    "serve": (
+        "Serve live split rendering sessions over QUIC (docs/protocol.md, docs/live.md), one at "
+        "a time. Per session: receive the client's poses (datagrams), predict the head pose at "
+        "each server frame's time (--predictor), render every buffer with the reference "
+        "renderer at --scale, encode at the adaptive target between --min-bitrate and "
+        "--bitrate, and send each frame on its own QUIC stream. A frame the renderer cannot "
+        "make in time is skipped (the client extrapolates). Without --cert/--key a new "
+        "self-signed certificate is made; its SHA-256 fingerprint is printed (the client pins "
+        "it with --fingerprint), and so is the token when --token is not given. A hello with a "
+        "wrong token or protocol version is refused with a one-line reason."
+    ),
+    "connect": (
+        "Connect to `splitrender serve` at HOST:PORT (certificate pinned with --fingerprint), "
+        "run the real-time client loop at --fps with the client's actual pose (the scene's "
+        "head path, or --trace), send each pose to the server, and write OUT/report.json "
+        "(frames, deadline misses, frame times, modes, server frames received and late, "
+        "pose-to-display latency, Mb/s, network counters, the encoder target per frame) and "
+        "OUT/video.mp4; with --score, the ground truth is rendered afterwards at the poses the "
+        "client had and ssim, flip, psnr, vmaf go into the report. A lost server or outage does "
+        "not stop the display: it extrapolates, then holds, until --seconds."
+    ),
+    "relay": (
+        "Relay UDP datagrams from --listen to --target (both on loopback) with a one-way "
+        "--delay plus a uniform --jitter, a --loss probability (each direction), and a "
+        "bandwidth cap on the server-to-client direction (--bandwidth, changed over time with "
+        "--bandwidth-at) whose queue drops past --queue ms; all draws seeded by --seed. Use it "
+        "between `splitrender connect` and `splitrender serve` where `tc netem` is missing."
     ),
 }

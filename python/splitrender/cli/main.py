@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from splitrender._native import __version__
-from splitrender.cli import dataset, evaluation, example, play, recording
+from splitrender.cli import dataset, evaluation, example, live, play, recording
 from splitrender.cli.args import PROG, Parser
 from splitrender.errors import SplitRenderError
 from splitrender.reproject import METHODS
@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluation.add_eval(sub)
     evaluation.add_bench(sub)
     dataset.add(sub)
+    live.add_serve(sub)
+    live.add_connect(sub)
+    live.add_relay(sub)
     return parser
 
 

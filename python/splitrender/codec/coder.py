@@ -691,6 +691,8 @@ class StreamEncoder(_WorkerThreads):
         self._frames_since_update = 0
         self._lossless_bps = 0.0
         self._bits_total = 0
+        self._force_key = False
+        self._rate_changed = False
         self.last = EncodeStats()
 
     def _check_layout(self, frame: ServerFrame) -> None:
@@ -719,7 +721,14 @@ class StreamEncoder(_WorkerThreads):
         self._check_layout(frame)
         assert self._layout is not None
         cfg = self.config
-        key = self._frames % cfg.gop == 0
+        regular = self._frames % cfg.gop == 0
+        key = regular or self._force_key
+        # A forced key frame restarts the pictures (IDR) but not the rate control, unless the
+        # target changed: reopening x265 costs tens of ms per stream.
+        rates_at_key = regular or self._rate_changed
+        self._force_key = False
+        if key:
+            self._rate_changed = False
         cams = _cameras_of(frame)
         if key:
             # A picture that skips this frame (no shadows) restarts with an IDR later.
@@ -751,7 +760,7 @@ class StreamEncoder(_WorkerThreads):
                 jobs.append(self._picture_job(pic, atlases[pic], key))
         lossless = sum(len(j.payload) for j in jobs if isinstance(j.payload, bytes))
         if not cfg.uncompressed:
-            self._update_rates(jobs, lossless, key, motion)
+            self._update_rates(jobs, lossless, key and rates_at_key, motion)
         # The encoders themselves are freed with the object.
         pool = self._executor(cfg.threads or (os.cpu_count() or 1), "splitrender-enc")
         for j in jobs:
@@ -800,6 +809,31 @@ class StreamEncoder(_WorkerThreads):
             {buffer_name(0, k): s.target_bps for k, s in self._streams.items()},
         )
         return packet
+
+    # -- live control (splitrender.net.server) --------------------------------------------------
+    # Kept apart from the rest: a live server changes the stream while it runs, which the file
+    # encoder never needed. A key frame may come at any frame (the decoder restarts at every
+    # key frame whatever the index); the regular key frames keep their schedule.
+
+    def request_key_frame(self) -> None:
+        """Makes the next :meth:`encode` a key frame (a client that lost a frame can decode
+        again from it)."""
+        self._force_key = True
+
+    def set_bitrate(self, mbps: float) -> None:
+        """Moves the stream's target to ``mbps``. The HEVC encoders take it at the next key
+        frame, regular or requested (x265 is reopened, which needs an IDR), so a caller that
+        needs it sooner also calls :meth:`request_key_frame`. The shortfall accounting restarts
+        from here, so that the new target is not pulled towards the old one.
+
+        Raises:
+            InvalidInputError: for a rate that is not a finite number > 0.
+        """
+        import dataclasses
+
+        self.config = dataclasses.replace(self.config, bitrate_mbps=mbps)
+        self._bits_total = round(mbps * 1e6 * self._frames / self.config.fps)
+        self._rate_changed = True
 
     # -- rate control -------------------------------------------------------------------------
 

@@ -1,0 +1,385 @@
+"""``splitrender serve``, ``splitrender connect`` and ``splitrender relay``: live split rendering
+over QUIC (docs/protocol.md, docs/live.md)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import secrets
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender.cli.args import (
+    add_no_vmaf,
+    add_out,
+    add_quiet,
+    add_scale,
+    add_trace,
+    command,
+    fail,
+    integer,
+    loss,
+    milliseconds,
+    positive,
+)
+from splitrender.errors import SplitRenderError
+from splitrender.files import write_atomic
+from splitrender.reproject import METHODS
+
+__all__ = ["add_connect", "add_relay", "add_serve"]
+
+
+def _address(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    return host.strip("[]"), integer(port, 0, 65535, "a port")
+
+
+def _port(text: str) -> int:
+    return integer(text, 0, 65535, "a port")
+
+
+def _step(text: str) -> tuple[float, float]:
+    t, sep, mbps = text.partition(":")
+    try:
+        v = (float(t), float(mbps))
+    except ValueError:
+        v = (math.nan, math.nan)
+    if not sep or not all(math.isfinite(x) and x >= 0 for x in v):
+        raise argparse.ArgumentTypeError(f"expected SECONDS:MBPS (both >= 0), got {text!r}")
+    return v
+
+
+# -- serve ---------------------------------------------------------------------------------------
+
+
+def add_serve(sub: Any) -> None:
+    from splitrender.net.predict import PREDICTORS
+
+    p = command(sub, "serve", run_serve)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: %(default)s)")
+    p.add_argument("--port", type=_port, default=4433, help="UDP port (default: %(default)s)")
+    p.add_argument("--scene", default="courtyard", metavar="SCENE",
+                   help="built-in scene (courtyard, colonnade, lab) or a JSON scene description "
+                   "(default: %(default)s)")
+    add_scale(p, 0.0625)
+    p.add_argument("--fps", type=positive, default=10.0, metavar="FS",
+                   help="server frames per second, f_s (default: %(default)s)")
+    p.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
+                   help="encoder target at the start and its ceiling (default: the paper's "
+                   "40 Mb/s scaled by pixel count)")
+    p.add_argument("--min-bitrate", type=positive, default=None, metavar="MBPS",
+                   help="floor of the adaptive target (default: a quarter of --bitrate)")
+    p.add_argument("--gop", type=lambda t: integer(t, 1, 1000), default=None, metavar="N",
+                   help="key frame every N server frames (default: one per 10 s: the client asks "
+                   "for one when it needs it, and each regular key frame restarts the encoders' "
+                   "rate control, which is slow)")
+    p.add_argument("--token", default=None,
+                   help="session token the client must send (default: a random one, printed)")
+    p.add_argument("--cert", type=Path, default=None, metavar="PEM",
+                   help="certificate (PEM); with --key. Default: a new self-signed one")
+    p.add_argument("--key", type=Path, default=None, metavar="PEM", help="private key (PEM)")
+    p.add_argument("--predictor", choices=PREDICTORS, default="constant-velocity",
+                   help="head-pose predictor (default: %(default)s)")
+    p.add_argument("--sessions", type=lambda t: integer(t, 0, 1000000), default=0, metavar="N",
+                   help="exit after N sessions (default: 0, serve until interrupted)")
+    p.add_argument("--drop-every", type=lambda t: integer(t, 0, 1000000), default=0,
+                   metavar="N", help="fault injection: do not send every N-th frame that is "
+                   "not a key frame, as if lost (the client asks for a key frame) (default: 0)")
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    from splitrender.net.server import LiveServer, ServerOptions, load_certificate
+    from splitrender.scene.builtin import SCENE_NAMES, Scene
+
+    if (args.cert is None) != (args.key is None):
+        return fail("--cert and --key go together")
+    if args.bitrate is not None and args.min_bitrate is not None and (
+        args.min_bitrate > args.bitrate
+    ):
+        return fail(f"--min-bitrate {args.min_bitrate:g} is above --bitrate {args.bitrate:g}")
+    token = args.token if args.token is not None else secrets.token_urlsafe(16)
+    if len(token.encode()) > 64:
+        return fail("--token: at most 64 bytes")
+    try:
+        if args.scene in SCENE_NAMES:
+            scene = Scene(args.scene)
+            name = args.scene
+        elif Path(args.scene).is_file():
+            scene = Scene.from_description(args.scene)
+            name = scene.name
+        else:
+            return fail(f"--scene: {args.scene!r} is neither a built-in scene "
+                        f"({', '.join(SCENE_NAMES)}) nor a scene description file")
+        cert = key = None
+        if args.cert is not None:
+            cert, key = load_certificate(args.cert, args.key)
+        gop = args.gop if args.gop is not None else max(1, round(10 * args.fps))
+        server = LiveServer(
+            ServerOptions(name, args.scale, args.fps, args.bitrate, args.min_bitrate, gop,
+                          token, args.predictor, args.sessions,
+                          drop_every=args.drop_every),
+            scene=scene, certificate=cert, private_key=key,
+        )
+    except (SplitRenderError, ValueError, OSError) as e:
+        return fail(str(e))
+
+    def ready(s: LiveServer) -> None:
+        w, h = s.size
+        print(f"listening on {args.host}:{s.port}: {name} at {w}x{h} (scale {args.scale:g}), "
+              f"{args.fps:g} FPS, {s.min_mbps():.3g}-{s.max_mbps():.3g} Mb/s, first frame "
+              f"rendered + encoded in {s.proc_estimate * 1e3:.0f} ms", flush=True)
+        print(f"fingerprint {s.fingerprint}", flush=True)
+        if args.token is None:
+            print(f"token {token}", flush=True)
+
+    try:
+        asyncio.run(server.run(args.host, args.port, ready))
+    except OSError as e:
+        return fail(f"cannot listen on {args.host}:{args.port}: {e}")
+    return 0
+
+
+# -- connect -------------------------------------------------------------------------------------
+
+
+def add_connect(sub: Any) -> None:
+    p = command(sub, "connect", run_connect)
+    p.add_argument("server", type=_address, metavar="HOST:PORT", help="the server to connect to")
+    p.add_argument("--token", default="", help="the server's session token")
+    p.add_argument("--fingerprint", default=None, metavar="SHA256",
+                   help="the server certificate's SHA-256 (hex, colons and case ignored), as "
+                   "`splitrender serve` prints it; a mismatch is refused")
+    p.add_argument("--insecure", action="store_true",
+                   help="accept any certificate (no --fingerprint; for a trusted loopback only)")
+    p.add_argument("--method", default="ours", choices=METHODS, metavar="M",
+                   help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
+    p.add_argument("--seconds", type=positive, default=5.0, metavar="S",
+                   help="session length (default: %(default)s)")
+    p.add_argument("--fps", type=positive, default=120.0, metavar="FC",
+                   help="display frames per second, f_c (default: %(default)s)")
+    add_trace(p)
+    add_out(p)
+    p.add_argument("--score", action="store_true",
+                   help="afterwards, render the ground truth at the poses the client had and "
+                   "score the display frames (ssim, flip, psnr, vmaf) into report.json")
+    p.add_argument("--compare", default=None, choices=METHODS, metavar="M",
+                   help="with --score: afterwards, replay the packets this session decoded, "
+                   "at the same arrival times and poses, through method M and score it too "
+                   "(report.json's compare): the two methods in the same conditions")
+    add_no_vmaf(p)
+    add_quiet(p)
+    p.add_argument("--protocol-version", type=lambda t: integer(t, 0, 65535), default=None,
+                   help=argparse.SUPPRESS)  # tests: a hello of another version, to be refused
+
+
+def _even(img: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    h, w = img.shape[:2]
+    return np.pad(img, ((0, h & 1), (0, w & 1), (0, 0)), mode="edge") if (h | w) & 1 else img
+
+
+def run_connect(args: argparse.Namespace) -> int:
+    from splitrender.client.live import ConnectOptions, LiveClient
+    from splitrender.net.protocol import PROTOCOL_VERSION, normalise_fingerprint
+    from splitrender.scene.builtin import SCENE_NAMES, Scene, TraceMotion, load_trace
+
+    if args.compare is not None and not args.score:
+        return fail("--compare: needs --score")
+    if args.fingerprint is None and not args.insecure:
+        return fail("--fingerprint: expected the server's certificate fingerprint (or --insecure)")
+    try:
+        pinned = None if args.fingerprint is None else normalise_fingerprint(args.fingerprint)
+        trace = None if args.trace is None else load_trace(args.trace)
+    except SplitRenderError as e:
+        return fail(str(e))
+    host, port = args.server
+    opts = ConnectOptions(
+        host, port, args.token, pinned, args.method, args.fps,
+        version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
+    )
+    client = LiveClient(opts)
+    try:
+        welcome = client.connect()
+    except SplitRenderError as e:
+        return fail(str(e))
+    try:
+        if welcome.scene not in SCENE_NAMES:
+            client.close()
+            return fail(f"the server renders {welcome.scene!r}, not a built-in scene: this "
+                        "client cannot compute its poses in it")
+        scene = Scene(welcome.scene)
+        if trace is not None:
+            motion = TraceMotion(scene, trace, args.trace_scale).client_pose
+        else:
+            motion = scene.client_pose
+        if not args.quiet:
+            print(f"connected to {host}:{port}: {welcome.scene} {welcome.width}x"
+                  f"{welcome.height} at {welcome.server_fps:g} FPS; displaying {args.method} "
+                  f"at {args.fps:g} FPS for {args.seconds:g} s", file=sys.stderr, flush=True)
+        frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
+        first_shown: list[float] = []
+        # The display frames are kept (for the video and the score, written afterwards so
+        # that no display frame pays for encoding) within MAX_KEPT_BYTES: past it every other
+        # one is let go and only every `stride`-th is kept, so a long session at a large
+        # scale cannot exhaust memory (the video's rate drops instead).
+        stride = [1]
+
+        def on_frame(img: npt.NDArray[np.uint8], rec: Any) -> None:
+            if rec.mode != "hold" and not first_shown:
+                first_shown.append(rec.time)
+            if rec.index % stride[0]:
+                return
+            frames.append((rec.time, img.copy()))
+            if len(frames) * img.nbytes > MAX_KEPT_BYTES:
+                del frames[1::2]
+                stride[0] *= 2
+
+        report = client.run(motion, args.seconds, on_frame=on_frame)
+    except SplitRenderError as e:
+        client.close()
+        return fail(str(e))
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    _write_video(out / "video.mp4", [img for _, img in frames], args.fps / stride[0])
+    if args.score:
+        # Scored from the first frame made from a server frame on: before it every method
+        # shows the same black start-up (no server frame yet); holds after it count.
+        start = first_shown[0] if first_shown else math.inf
+        report.update(_score(scene, welcome.scale, args.fps, motion,
+                             [f for f in frames if f[0] >= start], args.no_vmaf))
+        if args.compare is not None:
+            other: list[tuple[float, npt.NDArray[np.uint8]]] = []
+            summary = client.replay(args.compare, motion, args.seconds,
+                                    on_frame=lambda img, rec: other.append((rec.time, img.copy())))
+            # The same span as the live method's score (display times from its first shown).
+            summary.update(_score(scene, welcome.scale, args.fps, motion,
+                                  [f for f in other if f[0] >= start], args.no_vmaf))
+            report["compare"] = {"method": args.compare, **summary}
+    write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
+    net = report["network"]
+    print(f"{report['frames']} frames, {report['deadline_misses']} deadline misses, modes "
+          f"{report['modes']}, {report['server_frames_received']} server frames "
+          f"({net['frames_lost']} lost, {net['key_recoveries']} key-frame recoveries), "
+          f"pose-to-display p50 {report['pose_to_display_ms_p50'] or 0:.0f} ms, "
+          f"{report['mbps']:.3f} Mb/s; wrote {out}/report.json")
+    return 0
+
+
+def _write_video(path: Path, images: list[npt.NDArray[np.uint8]], fps: float) -> None:
+    from splitrender.evaluation.demo import _Video
+
+    if not images:
+        return
+    first = _even(images[0])
+    tmp = path.with_name(path.name + ".part.mp4")
+    video = _Video(tmp, first.shape[1], first.shape[0], fps)
+    try:
+        for img in images:
+            video.write(_even(img))
+    finally:
+        video.close()
+    tmp.replace(path)  # atomic: a reader never sees half a video
+
+
+#: Most bytes of display frames `connect` keeps for its video and score.
+MAX_KEPT_BYTES = 1 << 30
+#: Most display frames `connect --score` scores.
+SCORED = 120
+
+
+def _score(
+    scene: Any, scale: float, fc: float, motion: Any,
+    frames: list[tuple[float, npt.NDArray[np.uint8]]], no_vmaf: bool,
+) -> dict[str, Any]:
+    """The display frames against the ground truth rendered at the poses the client had
+    (``motion(t)``: the same function that gave them)."""
+    from splitrender.evaluation.metrics import METRICS, evaluate_sequence
+
+    from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
+
+    # The first and last SKIP_FRAMES are left out (as `play` does), and at most SCORED frames
+    # evenly spread over the rest are scored: the ground truth costs a render per frame.
+    inner = frames[SKIP_FRAMES : len(frames) - SKIP_FRAMES]
+    if not inner:
+        return {"scored_frames": 0}
+    picked = [inner[i] for i in sorted({round(j * (len(inner) - 1) / max(1, SCORED - 1))
+                                        for j in range(min(SCORED, len(inner)))})]
+    truth = []
+    for t, _ in picked:
+        truth.append(scene.client_frames(round(t * fc), scale, fc, pose=motion(t))[0][1])
+    h, w = picked[0][1].shape[:2]
+    metrics = [m for m in METRICS
+               if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]
+    result = evaluate_sequence([img for _, img in picked], truth, skip=0, metrics=metrics)
+    return {m: result.mean[m] for m in metrics} | {"scored_frames": len(result.frames)}
+
+
+# -- relay ---------------------------------------------------------------------------------------
+
+
+def add_relay(sub: Any) -> None:
+    p = command(sub, "relay", run_relay)
+    p.add_argument("--listen", type=_address, default=("127.0.0.1", 4434), metavar="HOST:PORT",
+                   help="where clients connect (loopback only; default: 127.0.0.1:4434)")
+    p.add_argument("--target", type=_address, default=("127.0.0.1", 4433), metavar="HOST:PORT",
+                   help="the server (loopback only; default: 127.0.0.1:4433)")
+    p.add_argument("--delay", type=milliseconds, default=0.0, metavar="MS",
+                   help="one-way delay, each direction (default: %(default)s)")
+    p.add_argument("--jitter", type=milliseconds, default=0.0, metavar="MS",
+                   help="plus a uniform jitter in [-MS, MS] per datagram (default: %(default)s)")
+    p.add_argument("--loss", type=loss, default=0.0, metavar="P",
+                   help="datagram loss probability per direction: 0.01 or 1%% (default: 0)")
+    p.add_argument("--bandwidth", type=positive, default=None, metavar="MBPS",
+                   help="cap of the server-to-client direction (default: none)")
+    p.add_argument("--bandwidth-at", type=_step, action="append", default=[],
+                   metavar="SECONDS:MBPS",
+                   help="change the cap SECONDS after the start (repeatable; 0 removes it)")
+    p.add_argument("--queue", type=milliseconds, default=500.0, metavar="MS",
+                   help="longest queue before the cap drops datagrams (default: %(default)s)")
+    p.add_argument("--seed", type=lambda t: integer(t, 0, 2**32 - 1), default=0, metavar="N",
+                   help="seed of the loss and jitter draws (default: %(default)s)")
+    p.add_argument("--seconds", type=positive, default=None, metavar="S",
+                   help="stop after S seconds (default: run until interrupted)")
+    add_quiet(p, "no summary at the end")
+
+
+def run_relay(args: argparse.Namespace) -> int:
+    from splitrender.net.relay import Impairment, Relay
+
+    try:
+        up = Impairment(args.delay, args.jitter, args.loss)
+        down = Impairment(args.delay, args.jitter, args.loss, args.bandwidth or 0.0,
+                          args.queue, tuple(args.bandwidth_at))
+        relay = Relay(args.target, up, down, args.seed, args.listen)
+    except SplitRenderError as e:
+        return fail(str(e))
+
+    async def main() -> None:
+        await relay.start()
+        print(f"relaying {relay.listen[0]}:{relay.port} -> {relay.target[0]}:{relay.target[1]}",
+              flush=True)
+        try:
+            if args.seconds is None:
+                await asyncio.Event().wait()
+            else:
+                await asyncio.sleep(args.seconds)
+        finally:
+            relay.close()
+
+    try:
+        asyncio.run(main())
+    except OSError as e:
+        return fail(f"relay: {e}")
+    except KeyboardInterrupt:
+        pass
+    if not args.quiet:
+        s = relay.stats
+        print(f"forwarded {s.forwarded}, lost {s.lost}, queue drops {s.queue_drops}", flush=True)
+    return 0

@@ -1,0 +1,695 @@
+"""The live client (``splitrender connect``): a QUIC session with ``splitrender serve`` around the
+real-time loop (:class:`~splitrender.client.realtime.RealtimeClient`; docs/protocol.md,
+docs/live.md).
+
+Two threads. The caller's thread runs the display loop at ``f_c`` with the client's actual pose
+and sends each pose to the server (a datagram; newest wins). An asyncio thread runs the
+connection: it verifies the server's certificate against the pinned fingerprint *before* the
+token is sent, sends the hello, receives one stream per server frame, puts the frames back in
+order (:class:`FrameOrder`) and submits them to the real-time client, and reports its receive
+rate and queueing delay for adaptive bit-rate.
+
+Lives in :mod:`splitrender.client` (not :mod:`splitrender.net`) because it drives the
+real-time client, which sits above the network layer; the protocol and the server are in
+:mod:`splitrender.net`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import hashlib
+import hmac
+import math
+import ssl
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from aioquic.asyncio.client import connect
+from aioquic.asyncio.protocol import QuicConnectionProtocol
+from aioquic.quic.configuration import QuicConfiguration
+from aioquic.quic.events import (
+    ConnectionTerminated,
+    HandshakeCompleted,
+    QuicEvent,
+    StreamDataReceived,
+    StreamReset,
+)
+
+from splitrender.client.client import Client
+from splitrender.client.realtime import DisplayFrame, RealtimeClient
+from splitrender.codec.coder import StreamDecoder
+from splitrender.errors import ProtocolError
+from splitrender.net.protocol import (
+    ALPN,
+    CLOSE_BYE,
+    KEY_LOST,
+    KEY_START,
+    KEY_UNDECODABLE,
+    MAX_DATAGRAM,
+    ControlReader,
+    FrameHeader,
+    Hello,
+    KeyRequest,
+    PoseSample,
+    RateReport,
+    Welcome,
+    decode_control,
+    fingerprint_hex,
+    frame_control,
+)
+from splitrender.types import Camera, ServerFrame
+
+__all__ = ["ConnectOptions", "FrameOrder", "LiveClient"]
+
+_F64 = npt.NDArray[np.float64]
+_Image = npt.NDArray[np.uint8]
+
+#: Error code of a stream the client gives up on (STOP_SENDING).
+STOP_STALE = 1
+#: Seconds between two rate reports.
+REPORT_INTERVAL_S = 0.25
+#: Seconds without any packet from the server after which the connection counts as lost.
+IDLE_TIMEOUT_S = 3.0
+
+
+@dataclass(frozen=True)
+class ConnectOptions:
+    """What ``splitrender connect`` is told. ``fingerprint``: the pinned SHA-256 of the server's
+    DER certificate (64 hex digits, :func:`~splitrender.net.protocol.normalise_fingerprint`);
+    ``None`` accepts any certificate (``--insecure``)."""
+
+    host: str
+    port: int
+    token: str = ""
+    fingerprint: str | None = None
+    method: str = "ours"
+    display_fps: float = 120.0
+    connect_timeout: float = 10.0
+    version: int = 1  # only tests send another (to see it refused)
+
+
+class FrameOrder:
+    """Puts completed frames back in order for the decoder, which needs every frame after a key
+    frame in sequence (the pure logic of the receive side; no network, no clock of its own).
+    The order is the encoded sequence, ``FrameHeader.seq`` (the frame index skips what the
+    server did not render; the sequence does not).
+
+    :meth:`complete` takes a frame whose stream finished; :meth:`tick` is called periodically.
+    Frames are handed to ``submit`` in index order. A gap followed by a key frame is skipped at
+    once (the server skipped frames). A gap followed by other frames is waited for ``give_up``
+    seconds (a retransmission may fill it); then the missing frames are given up (``stop`` on
+    their streams, when known), the client waits for a key frame and ``request_key`` asks for
+    one, repeated every ``repeat`` seconds until it comes."""
+
+    def __init__(
+        self,
+        submit: Callable[[FrameHeader, bytes], None],
+        request_key: Callable[[int, int], None],
+        stop: Callable[[int], None],
+        give_up: float,
+        repeat: float = 1.0,
+    ) -> None:
+        self._submit, self._request_key, self._stop = submit, request_key, stop
+        self.give_up, self.repeat = give_up, repeat
+        self.next: int | None = None  # None: waiting for a key frame
+        self.last = -1
+        self.pending: dict[int, tuple[FrameHeader, bytes]] = {}
+        self.in_flight: dict[int, int] = {}  # seq -> stream id (header seen)
+        self._gap_since: float | None = None
+        self._requested_at: float | None = None
+        self.waiting_for_key = False  # after a loss (not at the start)
+        self.lost = 0
+        self.key_requests = 0
+        self.recoveries = 0
+        self.submitted = 0
+
+    def started(self, seq: int, stream_id: int) -> None:
+        self.in_flight[seq] = stream_id
+
+    def complete(self, header: FrameHeader, payload: bytes, now: float) -> None:
+        self.in_flight.pop(header.seq, None)
+        if header.seq <= self.last:
+            return  # older than what the decoder already has (a late retransmission)
+        self.pending[header.seq] = (header, payload)
+        self._flush(now)
+
+    def undecodable(self, seq: int, now: float) -> None:
+        """The decoder refused frame ``seq``: the stream is broken until a key frame."""
+        if self.next is not None or not self.waiting_for_key:
+            self.next = None
+            self.waiting_for_key = True
+            self.pending = {i: p for i, p in self.pending.items() if p[0].key}
+            self._ask(seq, KEY_UNDECODABLE, now)
+
+    def tick(self, now: float) -> None:
+        self._flush(now)
+        if self.next is None and self._requested_at is not None:
+            if now - self._requested_at >= self.repeat:
+                self._ask(self.last, KEY_LOST, now)
+
+    def _ask(self, last: int, reason: int, now: float) -> None:
+        self._requested_at = now
+        self.key_requests += 1
+        self._request_key(last, reason)
+
+    def _take(self, index: int) -> None:
+        header, payload = self.pending.pop(index)
+        self.pending = {i: p for i, p in self.pending.items() if i > index}
+        self.next, self.last = index + 1, index
+        self._gap_since = None
+        if header.key and self.waiting_for_key:
+            self.recoveries += 1
+            self.waiting_for_key = False
+            self._requested_at = None
+        self.submitted += 1
+        self._submit(header, payload)
+
+    def _flush(self, now: float) -> None:
+        while self.pending:
+            first = min(self.pending)
+            if self.next is None:
+                keys = [i for i, p in self.pending.items() if p[0].key]
+                if keys:
+                    self._take(min(keys))
+                    continue
+                # Nothing decodable: a non-key frame with no key before it.
+                self.pending = {}
+                if self._requested_at is None:
+                    self.waiting_for_key = self.last >= 0
+                    self._ask(self.last, KEY_START if self.last < 0 else KEY_LOST, now)
+                return
+            if first == self.next or (first > self.next and self.pending[first][0].key):
+                self._take(first)
+                continue
+            if first < self.next:
+                del self.pending[first]
+                continue
+            # A gap before a non-key frame: wait a little for the missing frames.
+            if self._gap_since is None:
+                self._gap_since = now
+            if now - self._gap_since < self.give_up:
+                return
+            for i in [i for i in self.in_flight if i < first]:
+                self._stop(self.in_flight.pop(i))
+            self.lost += first - self.next
+            self.next = None
+            self.waiting_for_key = True
+            self._gap_since = None
+            self.pending = {i: p for i, p in self.pending.items() if p[0].key}
+            self._ask(self.last, KEY_LOST, now)
+            return
+
+
+class _TimeIndexed(StreamDecoder):
+    """The stream decoder, with each frame's index taken back from its time (``round(t ·
+    f_s)``): the packets are indexed by their place in the encoded sequence (consecutive, as
+    the decoder checks), while the client orders frames by time (FrameHeader)."""
+
+    def __init__(self, server_fps: float) -> None:
+        super().__init__()
+        self.server_fps = server_fps
+
+    def decode(self, data: bytes | memoryview) -> ServerFrame:
+        frame = super().decode(data)
+        return dataclasses.replace(frame, index=round(frame.time * self.server_fps))
+
+
+@dataclass
+class _NetStats:
+    frames_completed: int = 0
+    bytes_received: int = 0
+    malformed_streams: int = 0
+    streams_reset: int = 0
+    pose_datagrams: int = 0
+    reports: int = 0
+    key_frames: int = 0
+    decode_errors: int = 0
+    arrivals: list[float] = field(default_factory=list)  # display time of each completed frame
+    targets: list[tuple[int, float, float]] = field(default_factory=list)  # index, Mb/s, t
+    server_render_ms: list[float] = field(default_factory=list)
+    server_encode_ms: list[float] = field(default_factory=list)
+    closed_at: float | None = None
+    closed_reason: str | None = None
+
+
+class _Connection(QuicConnectionProtocol):
+    owner: LiveClient
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._control_id: int | None = None
+        self._control = ControlReader()
+        self._bufs: dict[int, bytearray] = {}
+        self._headers: dict[int, FrameHeader] = {}
+        self._dead: set[int] = set()
+
+    def quic_event_received(self, event: QuicEvent) -> None:
+        o = self.owner
+        if isinstance(event, HandshakeCompleted):
+            self._handshake()
+        elif isinstance(event, StreamDataReceived):
+            if event.stream_id == self._control_id:
+                self._control_data(event.data)
+            elif event.stream_id % 4 == 3:  # server-initiated unidirectional: a frame
+                self._frame_data(event.stream_id, event.data, event.end_stream)
+            elif event.stream_id not in self._dead:
+                self._dead.add(event.stream_id)
+                o.net.malformed_streams += 1
+        elif isinstance(event, StreamReset):
+            if event.stream_id in self._bufs or event.stream_id in self._headers:
+                o.net.streams_reset += 1
+            self._forget(event.stream_id)
+        elif isinstance(event, ConnectionTerminated):
+            o.terminated(event.error_code, event.reason_phrase)
+
+    def _handshake(self) -> None:
+        o = self.owner
+        from cryptography.hazmat.primitives.serialization import Encoding
+
+        cert = self._quic.tls._peer_certificate
+        der = b"" if cert is None else cert.public_bytes(Encoding.DER)
+        o.server_fingerprint = fingerprint_hex(der)
+        pinned = o.options.fingerprint
+        if pinned is not None and not hmac.compare_digest(
+            hashlib.sha256(der).hexdigest(), pinned
+        ):
+            # Before the hello: the token never goes to a server that is not the pinned one.
+            o.refuse(
+                f"the server's certificate (SHA-256 {o.server_fingerprint}) does not match "
+                "--fingerprint"
+            )
+            self._quic.close(error_code=CLOSE_BYE, reason_phrase="certificate mismatch")
+            self.transmit()
+            return
+        self._control_id = self._quic.get_next_available_stream_id()
+        hello = Hello(o.options.token, 0, 0, o.options.display_fps, o.options.version)
+        self._quic.send_stream_data(self._control_id, frame_control(hello.encode()))
+        self.transmit()
+
+    def _control_data(self, data: bytes) -> None:
+        o = self.owner
+        try:
+            for raw in self._control.feed(data):
+                msg = decode_control(raw)
+                if isinstance(msg, Welcome) and o.welcome is None:
+                    o.welcomed(msg)
+                else:
+                    o.net.malformed_streams += 1
+        except ProtocolError as e:
+            o.net.malformed_streams += 1
+            if o.welcome is None:
+                o.refuse(f"bad welcome from the server: {e}")
+                self._quic.close(error_code=CLOSE_BYE, reason_phrase="bad welcome")
+                self.transmit()
+
+    def _forget(self, sid: int) -> None:
+        self._bufs.pop(sid, None)
+        self._headers.pop(sid, None)
+
+    def _drop(self, sid: int) -> None:
+        """A malformed frame stream: counted, forgotten, and the server told to stop it."""
+        self.owner.net.malformed_streams += 1
+        self._forget(sid)
+        self._dead.add(sid)
+        self._quic.stop_stream(sid, STOP_STALE)
+        self.transmit()
+
+    def _frame_data(self, sid: int, data: bytes, end: bool) -> None:
+        if sid in self._dead:
+            return
+        buf = self._bufs.setdefault(sid, bytearray())
+        buf += data
+        header = self._headers.get(sid)
+        if header is None and len(buf) >= FrameHeader.SIZE:
+            try:
+                header = FrameHeader.decode(bytes(buf[: FrameHeader.SIZE]))
+            except ProtocolError:
+                self._drop(sid)
+                return
+            self._headers[sid] = header
+            self.owner.order.started(header.seq, sid)
+        if header is not None and len(buf) > FrameHeader.SIZE + header.size:
+            self._drop(sid)  # more bytes than the header announced
+            return
+        if end:
+            if header is None or len(buf) != FrameHeader.SIZE + header.size:
+                self._drop(sid)  # truncated
+                return
+            payload = bytes(buf[FrameHeader.SIZE :])
+            self._forget(sid)
+            self._dead.add(sid)
+            self.owner.frame_complete(header, payload)
+
+    def stop(self, sid: int) -> None:
+        if sid not in self._dead:
+            self._forget(sid)
+            self._dead.add(sid)
+            try:
+                self._quic.stop_stream(sid, STOP_STALE)
+            except ValueError:
+                pass  # already gone
+            self.transmit()
+
+    def send_control(self, message: bytes) -> None:
+        if self._control_id is not None:
+            self._quic.send_stream_data(self._control_id, frame_control(message))
+            self.transmit()
+
+    def send_datagram(self, data: bytes) -> None:
+        self._quic.send_datagram_frame(data)
+        self.transmit()
+
+
+class LiveClient:
+    """``splitrender connect``: :meth:`connect` opens the session (raises
+    :class:`~splitrender.errors.ProtocolError` with the server's one-line reason when refused,
+    or when the certificate does not match), :meth:`run` shows ``seconds`` of display frames at
+    the poses ``motion(t)`` (world-from-camera) and returns the report (:meth:`report`)."""
+
+    def __init__(self, options: ConnectOptions) -> None:
+        self.options = options
+        self.net = _NetStats()
+        self.welcome: Welcome | None = None
+        self.server_fingerprint: str | None = None
+        self._refusal: str | None = None
+        self._ready = threading.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._conn: _Connection | None = None
+        self._stop: asyncio.Event | None = None
+        self._thread: threading.Thread | None = None
+        self._t0: float | None = None
+        self._pose_seq = 0
+        self._window: deque[tuple[float, int, float]] = deque()  # arrival, bytes, delay
+        self._min_delay: float | None = None
+        self.realtime: RealtimeClient | None = None
+        #: (display time, packet) of every packet handed to the decoder: :meth:`replay` feeds
+        #: them to another method in the same conditions.
+        self.arrivals: list[tuple[float, bytes]] = []
+        self.order = FrameOrder(self._submit, self._request_key, self._stop_stream, 0.1)
+
+    # -- network thread -------------------------------------------------------------------
+
+    def _now(self) -> float:
+        """Display time (session seconds) on the display's clock (0 before the display runs)."""
+        return 0.0 if self._t0 is None else time.monotonic() - self._t0
+
+    def refuse(self, reason: str) -> None:
+        if self._refusal is None:
+            self._refusal = reason
+        self._ready.set()
+
+    def welcomed(self, welcome: Welcome) -> None:
+        self.welcome = welcome
+        self.order.give_up = 1.0 / welcome.server_fps
+        self.realtime = RealtimeClient(
+            client=Client(self.options.method, server_fps=welcome.server_fps),
+            display_fps=self.options.display_fps,
+            decoder=_TimeIndexed(welcome.server_fps),
+        )
+        self._ready.set()
+
+    def terminated(self, code: int, reason: str) -> None:
+        if self.welcome is None and self.server_fingerprint is None:
+            # Closed before the handshake completed: nobody (or no QUIC server) answered.
+            o = self.options
+            self.refuse(f"no answer from {o.host}:{o.port} ({reason or f'code {code}'}): is "
+                        "`splitrender serve` running there?")
+        elif self.welcome is None:
+            self.refuse(f"refused by the server: {reason or f'connection closed (code {code})'}")
+        if self.net.closed_reason is None:
+            self.net.closed_reason = reason or f"code {code}"
+            self.net.closed_at = self._now()
+        if self._stop is not None:
+            self._stop.set()
+
+    def frame_complete(self, header: FrameHeader, payload: bytes) -> None:
+        n = self.net
+        arrival = self._now()
+        loop_now = asyncio.get_running_loop().time()
+        n.frames_completed += 1
+        n.bytes_received += len(payload) + FrameHeader.SIZE
+        n.key_frames += header.key
+        n.arrivals.append(arrival)
+        n.targets.append((header.index, header.target_bps / 1e6, arrival))
+        n.server_render_ms.append(header.render_ms)
+        n.server_encode_ms.append(header.encode_ms)
+        # One-way delay up to a constant (the two clocks' offset): its excess over the least
+        # seen is the queue the frame met (the link's and the sender's).
+        delay = loop_now - header.sent
+        self._min_delay = delay if self._min_delay is None else min(self._min_delay, delay)
+        self._window.append((loop_now, len(payload) + FrameHeader.SIZE, delay))
+        self.order.complete(header, payload, loop_now)
+
+    def _submit(self, header: FrameHeader, payload: bytes) -> None:
+        assert self.realtime is not None
+        self.arrivals.append((self._now(), payload))
+        fut = self.realtime.submit(payload, pose_time=header.pose_time)
+        loop = asyncio.get_running_loop()
+        index = header.seq
+
+        def done(f: Any) -> None:
+            if f.exception() is not None:
+                loop.call_soon_threadsafe(self._undecodable, index)
+
+        fut.add_done_callback(done)
+
+    def _undecodable(self, index: int) -> None:
+        self.net.decode_errors += 1
+        assert self._loop is not None
+        self.order.undecodable(index, self._loop.time())
+
+    def _request_key(self, last: int, reason: int) -> None:
+        if self._conn is not None:
+            self._conn.send_control(KeyRequest(last, reason).encode())
+
+    def _stop_stream(self, sid: int) -> None:
+        if self._conn is not None:
+            self._conn.stop(sid)
+
+    def _report(self) -> None:
+        loop = asyncio.get_running_loop()
+        now = loop.time()
+        w = self._window
+        span = 2 * REPORT_INTERVAL_S
+        while w and w[0][0] < now - span:
+            w.popleft()
+        bps = 8 * sum(b for _, b, _ in w) / span
+        queue = (
+            float(np.median([d for _, _, d in w])) - self._min_delay
+            if w and self._min_delay is not None
+            else 0.0
+        )
+        self.net.reports += 1
+        report = RateReport(
+            self.net.reports, self._now(), bps, span, max(queue, 0.0) * 1e3,
+            self.net.frames_completed, self.order.lost,
+        )
+        if self._conn is not None:
+            self._conn.send_datagram(report.encode())
+
+    def send_pose(self, t: float, pose: _F64) -> None:
+        """From the display thread: the pose of display time ``t`` goes to the server."""
+        loop, conn = self._loop, self._conn
+        if loop is None or conn is None or self.net.closed_reason is not None:
+            return
+        self._pose_seq += 1
+        data = PoseSample(self._pose_seq, t, pose).encode()
+        self.net.pose_datagrams += 1
+        try:
+            loop.call_soon_threadsafe(conn.send_datagram, data)
+        except RuntimeError:
+            pass  # the loop has ended (connection gone): poses have nowhere to go
+
+    async def _main(self) -> None:
+        o = self.options
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        cfg = QuicConfiguration(
+            is_client=True,
+            alpn_protocols=[ALPN],
+            max_datagram_frame_size=MAX_DATAGRAM,
+            idle_timeout=IDLE_TIMEOUT_S,
+            # The certificate is checked against the pinned fingerprint once the handshake
+            # completes (a self-signed one has no CA to verify against).
+            verify_mode=ssl.CERT_NONE,
+        )
+        owner = self
+
+        class Connection(_Connection):
+            pass
+
+        Connection.owner = owner
+        try:
+            async with connect(
+                o.host, o.port, configuration=cfg, create_protocol=Connection,
+                wait_connected=True,
+            ) as conn:
+                assert isinstance(conn, _Connection)
+                self._conn = conn
+                reported = self._loop.time()
+                while not self._stop.is_set():
+                    # Ticks 5x per report interval: the give-up of a missing frame is timely.
+                    now = self._loop.time()
+                    self.order.tick(now)
+                    if self._t0 is not None and now - reported >= REPORT_INTERVAL_S:
+                        self._report()
+                        reported = now
+                    try:
+                        await asyncio.wait_for(self._stop.wait(), REPORT_INTERVAL_S / 5)
+                    except asyncio.TimeoutError:
+                        pass
+                conn.close(error_code=CLOSE_BYE, reason_phrase="session over")
+        except (ConnectionError, OSError, asyncio.TimeoutError) as e:
+            self.refuse(f"cannot connect to {o.host}:{o.port}: {e or type(e).__name__}")
+        finally:
+            self._conn = None
+            if self.net.closed_reason is None and self.welcome is not None:
+                self.net.closed_reason = "session over"
+                self.net.closed_at = self._now()
+            self._ready.set()
+
+    def connect(self) -> Welcome:
+        """Opens the session; returns the server's welcome.
+
+        Raises:
+            ProtocolError: refused (wrong token or version, busy, certificate mismatch; the
+                reason in one line) or no answer within ``connect_timeout``.
+        """
+        self._thread = threading.Thread(
+            target=lambda: asyncio.run(self._main()), name="splitrender-net", daemon=True
+        )
+        self._thread.start()
+        if not self._ready.wait(self.options.connect_timeout):
+            self.close()
+            raise ProtocolError(
+                f"no answer from {self.options.host}:{self.options.port} within "
+                f"{self.options.connect_timeout:g} s"
+            )
+        if self._refusal is not None or self.welcome is None:
+            self.close()
+            raise ProtocolError(self._refusal or "connection closed before the welcome")
+        return self.welcome
+
+    def close(self) -> None:
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None:
+            try:
+                loop.call_soon_threadsafe(stop.set)
+            except RuntimeError:
+                pass
+        if self._thread is not None:
+            self._thread.join(5.0)
+        if self.realtime is not None:
+            self.realtime.close()
+
+    def run(
+        self,
+        motion: Callable[[float], _F64],
+        seconds: float,
+        on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+    ) -> dict[str, Any]:
+        """The display loop for ``seconds`` at ``f_c`` (on this thread), sending each pose;
+        then closes the session and returns :meth:`report`'s object."""
+        w = self.welcome
+        assert w is not None and self.realtime is not None, "connect() first"
+        proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
+        self.poses: list[tuple[float, _F64]] = []
+
+        def pose(t: float) -> Camera:
+            m = motion(t)
+            self.poses.append((t, m))
+            self.send_pose(t, m)
+            return Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
+
+        self._t0 = time.monotonic()
+        rt = self.realtime.run(pose, seconds, on_frame=on_frame)
+        self.summary = rt.summary()
+        self.display_frames = rt.frames
+        self.close()
+        return self.report(seconds)
+
+    def replay(
+        self,
+        method: str,
+        motion: Callable[[float], _F64],
+        seconds: float,
+        on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+    ) -> dict[str, Any]:
+        """The session again with ``method``, offline from the network: the packets this
+        session decoded, each submitted at the display time it was, at the poses ``motion``
+        (the session's), through a real-time loop of its own (so what differs between two
+        methods is the method, not what the network and the server did). Returns the loop's
+        summary."""
+        w = self.welcome
+        assert w is not None, "connect() and run() first"
+        proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
+
+        def pose(t: float) -> Camera:
+            view = np.asarray(np.linalg.inv(motion(t)), np.float64)
+            return Camera(view, proj, w.width, w.height)
+
+        with RealtimeClient(
+            client=Client(method, server_fps=w.server_fps),
+            display_fps=self.options.display_fps,
+            decoder=_TimeIndexed(w.server_fps),
+        ) as rt:
+            return rt.run(pose, seconds, feed=self.arrivals, on_frame=on_frame).summary()
+
+    def report(self, seconds: float) -> dict[str, Any]:
+        """``report.json``: the real-time loop's summary, the pose-to-display latency, the
+        received rate, and what the network did (frames, key frames and requests, losses,
+        recoveries, malformed streams, the outage, the encoder target per frame)."""
+        s = dict(self.summary)
+        n = self.net
+        fs = self.welcome.server_fps if self.welcome is not None else 1.0
+        arrivals = n.arrivals
+        gaps = np.diff([0.0, *arrivals, seconds]) if arrivals else np.array([seconds])
+
+        def med(v: list[float]) -> float | None:
+            return float(np.median(v)) if v else None
+
+        s.update(
+            pose_to_display_ms_p50=s.get("server_age_ms_p50"),
+            mbps=8 * n.bytes_received / seconds / 1e6,
+            network={
+                "frames_completed": n.frames_completed,
+                "frames_submitted": self.order.submitted,
+                "frames_lost": self.order.lost,
+                "key_frames": n.key_frames,
+                "key_requests": self.order.key_requests,
+                "key_recoveries": self.order.recoveries,
+                "decode_errors": n.decode_errors,
+                "malformed_streams": n.malformed_streams,
+                "streams_reset": n.streams_reset,
+                "pose_datagrams": n.pose_datagrams,
+                "rate_reports": n.reports,
+                "longest_gap_s": float(gaps.max()),
+                "connection_closed_at": n.closed_at,
+                # None only when closing the connection took longer than close() waits (the
+                # server unreachable through a collapsed link).
+                "connection_closed": n.closed_reason or "still closing at the end",
+                "server_render_ms_p50": med(n.server_render_ms),
+                "server_encode_ms_p50": med(n.server_encode_ms),
+                "server_fingerprint": self.server_fingerprint,
+            },
+            # Per frame received: the encoder target, the arrival (display seconds) and how
+            # late it was against when the display first needed it, t_k - 1/f_s (negative:
+            # early), the measure of whether frames arrive on time as the target moves.
+            target_mbps=[
+                {"index": i, "mbps": round(m, 6), "arrival": round(t, 4),
+                 "late_ms": round((t - (i - 1) / fs) * 1e3, 1)}
+                for i, m, t in n.targets
+            ],
+        )
+        if n.closed_at is not None and n.closed_at < seconds - 1.0:
+            s["outage"] = {"from": arrivals[-1] if arrivals else 0.0, "reason": n.closed_reason}
+        if math.isnan(s["mbps"]):
+            s["mbps"] = 0.0
+        return s

@@ -1,0 +1,626 @@
+"""The live server (``splitrender serve``): QUIC sessions that receive a client's poses, render
+server frames at the predicted pose, encode and stream them (docs/protocol.md, docs/live.md).
+
+One session at a time (rendering takes the machine): a second client is refused as busy. Per
+session, the frame loop:
+
+1. estimates the client's display clock from its pose datagrams (the least-delayed sample
+   gives the offset between the two clocks);
+2. picks the next frame ``k`` (time ``k / f_s``) that can still arrive by ``t_k − 1/f_s``, when
+   the client first needs it for the pair ``(k−1, k)`` (splitrender.net.model), given the
+   measured render + encode time and half the round trip. If rendering cannot keep ``f_s``
+   it skips frames (the client extrapolates meanwhile: that is the method's point) and says so
+   once. The encoded sequence does not skip: each packet carries its place in it (``seq``) as
+   its index, which the stream decoder needs consecutive, and the frame header carries ``k``
+   (the client restores it: :class:`splitrender.client.live.FrameOrder`);
+3. predicts the head pose at ``t_k`` (:mod:`splitrender.net.predict`), renders with the
+   reference renderer (on a worker thread: the event loop keeps receiving), encodes at the
+   adaptive target (:mod:`splitrender.net.abr`) and sends the frame on its own unidirectional
+   stream; the stream of a frame still in flight when two newer ones are sent is reset (stale).
+
+A hello with a wrong version or token, a malformed hello, or a second client: the connection
+is closed with a ``CLOSE_*`` code and a one-line reason, and the server keeps nothing of it.
+Malformed datagrams and streams of an accepted session are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import datetime
+import hmac
+import math
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+from aioquic.asyncio.protocol import QuicConnectionProtocol
+from aioquic.asyncio.server import serve
+from aioquic.quic.configuration import QuicConfiguration
+from aioquic.quic.events import (
+    ConnectionTerminated,
+    DatagramFrameReceived,
+    QuicEvent,
+    StreamDataReceived,
+    StreamReset,
+)
+
+from splitrender.codec.coder import CodecConfig, StreamEncoder
+from splitrender.errors import ProtocolError
+from splitrender.net.abr import RateController
+from splitrender.net.predict import make_predictor
+from splitrender.net.protocol import (
+    ALPN,
+    CLOSE_BAD_HELLO,
+    CLOSE_BUSY,
+    CLOSE_DISPLAY,
+    CLOSE_SERVER_ERROR,
+    CLOSE_TOKEN,
+    CLOSE_VERSION,
+    PROTOCOL_VERSION,
+    ControlReader,
+    FrameHeader,
+    Hello,
+    KeyRequest,
+    PoseSample,
+    RateReport,
+    Welcome,
+    decode_control,
+    decode_datagram,
+    fingerprint_hex,
+    frame_control,
+    hello_version,
+    unsupported_version,
+)
+from splitrender.scene.builtin import Scene
+from splitrender.types import ServerFrame
+
+__all__ = ["LiveServer", "ServerOptions", "SessionStats", "self_signed_certificate"]
+
+#: Error code of a stream reset because its frame went stale.
+RESET_STALE = 1
+#: The QUIC transport parameter max_datagram_frame_size: anything that fits a packet.
+QUIC_MAX_DATAGRAM = 65535
+#: Least time between two key frames that the adaptive bit-rate forces.
+ABR_KEY_INTERVAL_S = 2.0
+#: Smallest relative change of the adaptive target that is passed to the encoder.
+ABR_STEP = 0.2
+#: A session whose client sent no pose for this long ends (its QUIC idle timeout is the same).
+IDLE_TIMEOUT_S = 3.0
+
+
+def self_signed_certificate(host: str = "localhost") -> tuple[Any, Any]:
+    """A new ECDSA P-256 key and a self-signed certificate for ``host`` valid for 30 days
+    (``cryptography`` objects, as :class:`QuicConfiguration` takes them)."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, host)])
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=30))
+        .add_extension(x509.SubjectAlternativeName([x509.DNSName(host)]), critical=False)
+        .sign(key, hashes.SHA256())
+    )
+    return cert, key
+
+
+@dataclass(frozen=True)
+class ServerOptions:
+    """What ``splitrender serve`` is told: the scene (a built-in name or a loaded
+    :class:`Scene`), ``scale``, server rate ``fps``, the bit-rate range in Mb/s (``bitrate`` is
+    the top and the start), the key-frame interval ``gop`` (frames), the session ``token``, the
+    pose predictor, and how many sessions to serve before returning (0: forever)."""
+
+    scene_name: str
+    scale: float = 0.0625
+    fps: float = 10.0
+    bitrate: float | None = None
+    min_bitrate: float | None = None
+    gop: int = 100
+    token: str = ""
+    predictor: str = "constant-velocity"
+    sessions: int = 0
+    encoder_threads: int = 1
+    #: Fault injection for tests and demos: every ``drop_every``-th frame that is not a key
+    #: frame is encoded but not sent, as if the network had lost it (0: none).
+    drop_every: int = 0
+
+
+@dataclass
+class SessionStats:
+    """What one session did (printed when it ends, and kept in :attr:`LiveServer.sessions`)."""
+
+    frames_sent: int = 0
+    frames_skipped: int = 0
+    frames_dropped: int = 0
+    key_frames: int = 0
+    key_requests: int = 0
+    streams_reset: int = 0
+    malformed_datagrams: int = 0
+    malformed_streams: int = 0
+    poses: int = 0
+    reports: int = 0
+    bytes_sent: int = 0
+    render_ms: list[float] = field(default_factory=list)
+    encode_ms: list[float] = field(default_factory=list)
+    target_mbps: list[float] = field(default_factory=list)
+    ended: str = ""
+
+    def line(self) -> str:
+        def med(v: list[float]) -> str:
+            return f"{float(np.median(v)):.0f}" if v else "n/a"
+
+        return (
+            f"{self.frames_sent} frames sent ({self.key_frames} key, {self.frames_skipped} "
+            f"skipped, {self.streams_reset} reset, {self.frames_dropped} dropped on purpose), render {med(self.render_ms)} ms + encode "
+            f"{med(self.encode_ms)} ms per frame (median), {self.key_requests} key requests, "
+            f"{self.malformed_datagrams} malformed datagrams, {self.malformed_streams} "
+            f"malformed streams; ended: {self.ended}"
+        )
+
+
+class _Session(QuicConnectionProtocol):
+    """One client connection: hello first, then poses in and frames out."""
+
+    server: LiveServer
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._control = ControlReader()
+        self._control_id: int | None = None
+        self.accepted = False
+        self._refused = False
+        self.stats = SessionStats()
+        self._task: asyncio.Task[None] | None = None
+        self._predictor = make_predictor(self.server.options.predictor)
+        self._offset: float | None = None  # client display time minus loop time (max seen)
+        self._last_pose_at = 0.0
+        self._key_wanted = False
+        self._abr = self.server.rate_controller()
+        self._new_target: float | None = None
+        self._open: dict[int, tuple[int, bool]] = {}  # seq -> (stream id, key), in flight
+        self._closed = asyncio.Event()
+
+    # -- events ---------------------------------------------------------------------------
+
+    def quic_event_received(self, event: QuicEvent) -> None:
+        if isinstance(event, StreamDataReceived):
+            self._stream_data(event)
+        elif isinstance(event, DatagramFrameReceived):
+            if self.accepted:
+                self._datagram(event.data)
+        elif isinstance(event, StreamReset):
+            if event.stream_id == self._control_id:
+                self._refuse(CLOSE_BAD_HELLO, "control stream reset by the client")
+        elif isinstance(event, ConnectionTerminated):
+            self._terminated(event.reason_phrase or f"closed (code {event.error_code})")
+
+    def _refuse(self, code: int, reason: str) -> None:
+        """Closes the connection with ``reason`` (one line); an accepted session ends."""
+        if self._refused:
+            return
+        self._refused = True
+        self.server.log(f"refused {self._peer()}: {reason}" if not self.accepted else reason)
+        if not self.accepted:
+            self.server.refused += 1
+        self._quic.close(error_code=code, reason_phrase=reason)
+        self.transmit()
+
+    def _peer(self) -> str:
+        peer = self._transport.get_extra_info("peername") if self._transport else None
+        return f"{peer[0]}:{peer[1]}" if peer else "client"
+
+    def _stream_data(self, event: StreamDataReceived) -> None:
+        sid = event.stream_id
+        if self._control_id is None and sid % 4 == 0:
+            self._control_id = sid  # the client's first bidirectional stream
+        if sid != self._control_id:
+            # Clients open no other stream: drop it, count it, and stop it being sent.
+            self.stats.malformed_streams += 1
+            if sid % 4 == 0 or sid % 4 == 2:
+                self._quic.stop_stream(sid, RESET_STALE)
+            self.transmit()
+            return
+        try:
+            messages = self._control.feed(event.data)
+            for raw in messages:
+                self._control_message(raw)
+        except ProtocolError as e:
+            if not self.accepted:
+                self._refuse(CLOSE_BAD_HELLO, f"bad hello: {e}")
+            else:
+                # The control stream cannot be re-synchronised after a framing error: stop
+                # reading it; frames and poses go on.
+                self.stats.malformed_streams += 1
+                self._control = ControlReader()
+                self._control_id = -1
+        if event.end_stream and not self.accepted and not self._refused:
+            self._refuse(CLOSE_BAD_HELLO, "bad hello: control stream ended before a hello")
+
+    def _control_message(self, raw: bytes) -> None:
+        if not self.accepted:
+            self._hello(raw)
+            return
+        msg = decode_control(raw)
+        if isinstance(msg, KeyRequest):
+            self.stats.key_requests += 1
+            self._key_wanted = True
+        else:
+            raise ProtocolError(f"control stream: unexpected {type(msg).__name__} after hello")
+
+    def _hello(self, raw: bytes) -> None:
+        version = hello_version(raw)
+        if version is not None and version != PROTOCOL_VERSION:
+            self._refuse(CLOSE_VERSION, unsupported_version(version))
+            return
+        hello = Hello.decode(raw)
+        # Constant time: the comparison must not tell how much of a guess was right.
+        if not hmac.compare_digest(hello.token.encode(), self.server.options.token.encode()):
+            self._refuse(CLOSE_TOKEN, "wrong token")
+            return
+        w, h = self.server.size
+        if hello.width and (hello.width, hello.height) != (w, h):
+            self._refuse(
+                CLOSE_DISPLAY,
+                f"display size {hello.width}x{hello.height}: this server renders {w}x{h}",
+            )
+            return
+        if self.server.active is not None:
+            self._refuse(CLOSE_BUSY, "busy: the server is serving another session")
+            return
+        self.accepted = True
+        self.server.active = self
+        self.server.log(f"session from {self._peer()}: display {hello.display_fps:g} FPS")
+        assert self._control_id is not None
+        self._quic.send_stream_data(self._control_id, frame_control(self.server.welcome()))
+        self.transmit()
+        self._task = asyncio.ensure_future(self._frames())
+
+    def _datagram(self, data: bytes) -> None:
+        try:
+            msg = decode_datagram(data)
+        except ProtocolError:
+            self.stats.malformed_datagrams += 1
+            return
+        now = asyncio.get_running_loop().time()
+        if isinstance(msg, PoseSample):
+            self.stats.poses += 1
+            self._predictor.add(msg.time, msg.pose)
+            off = msg.time - now
+            self._offset = off if self._offset is None else max(self._offset, off)
+            self._last_pose_at = now
+        elif isinstance(msg, RateReport):
+            self.stats.reports += 1
+            self._new_target = self._abr.update(msg.receive_bps, msg.queue_ms)
+
+    def _terminated(self, reason: str) -> None:
+        if self._task is not None:
+            self._task.cancel()
+        self._closed.set()
+        if self.accepted and self.server.active is self:
+            self.stats.ended = reason
+            self.server.session_ended(self)
+
+    # -- frames ---------------------------------------------------------------------------
+
+    def _unacked(self, sid: int) -> bool:
+        """Whether the stream still has data the client has not acknowledged (aioquic drops
+        a finished stream, so a missing one is done)."""
+        stream = self._quic._streams.get(sid)
+        return stream is not None and not stream.sender.is_finished
+
+    def _in_flight(self) -> int:
+        """Frames sent and not yet acknowledged (the finished ones are forgotten)."""
+        for done in [i for i, (sid, _) in self._open.items() if not self._unacked(sid)]:
+            del self._open[done]
+        return len(self._open)
+
+    def _rtt(self) -> float:
+        # aioquic keeps its RTT estimate in the loss recovery (no public accessor).
+        return float(getattr(self._quic._loss, "_rtt_smoothed", 0.0) or 0.0)
+
+    async def _frames(self) -> None:
+        srv = self.server
+        opts = srv.options
+        fs = opts.fps
+        loop = asyncio.get_running_loop()
+        encoder = srv.encoder
+        if encoder.config.bitrate_mbps != srv.max_mbps():
+            encoder.set_bitrate(srv.max_mbps())  # each session starts at the top
+        encoder.request_key_frame()
+        last = -1
+        seq = 0  # place in the encoded sequence (the packets' index: see FrameHeader)
+        abr_key_at = -math.inf
+        proc = srv.proc_estimate
+        recent: deque[float] = deque(maxlen=5)
+        warned = False
+        try:
+            while True:
+                if self._offset is None or loop.time() - self._last_pose_at > IDLE_TIMEOUT_S:
+                    if self._offset is not None:
+                        self._quic.close(reason_phrase="no pose for 3 s")
+                        self.transmit()
+                        return
+                    await asyncio.sleep(0.01)
+                    continue
+                owd = self._rtt() / 2
+                if self._in_flight() >= 2 + math.ceil(2 * owd * fs):
+                    # The link is behind (more frames unacknowledged than a round trip holds):
+                    # rendering more would only queue behind them, and a key frame the client
+                    # waits for would wait longer. The frames not rendered are skipped.
+                    await asyncio.sleep(0.25 / fs)
+                    continue
+                client_now = loop.time() + self._offset
+                # Frame k is first needed at t_k - 1/f_s (it closes the pair (k-1, k)).
+                k = math.ceil((client_now + proc + owd) * fs - 1e-9) + (last >= 0)
+                # (The first frame of a session is for the time it arrives at: it can be shown
+                # at once, extrapolated; every later one is for one period after that.)
+                # Frames that could not arrive in time are skipped. The encoded sequence goes
+                # on (the packet's index is seq, not k), so a skip costs no key frame.
+                if k > last + 1 and last >= 0:
+                    self.stats.frames_skipped += k - last - 1
+                    if not warned:
+                        srv.log(
+                            f"rendering cannot keep {fs:g} FPS ({proc * 1e3:.0f} ms per frame): "
+                            "skipping frames, the client extrapolates"
+                        )
+                        warned = True
+                k = max(k, last + 1)
+                start = (k - 1) / fs - proc - owd - self._offset  # loop time to start at
+                if start > loop.time():
+                    await asyncio.sleep(start - loop.time())
+                pose = self._predictor.predict(k / fs)
+                pose_time = self._predictor.newest_time
+                assert pose is not None and pose_time is not None
+                t0 = time.perf_counter()
+                frame: ServerFrame = await loop.run_in_executor(
+                    srv.executor, srv.render, k, pose
+                )
+                t1 = time.perf_counter()
+                target = self._new_target
+                current = encoder.config.bitrate_mbps * 1e6
+                if target is not None and abs(target - current) > ABR_STEP * current:
+                    # Only steps that matter: the encoders take a new target at a key frame
+                    # (x265 reopens, tens of ms per stream). It is taken at once with a key frame
+                    # of its own (a narrowed link cannot wait for the next regular one), at most
+                    # every ABR_KEY_INTERVAL_S (a key frame is itself larger); in between, the
+                    # change waits for the next key frame.
+                    encoder.set_bitrate(target / 1e6)
+                    now = loop.time()
+                    if now - abr_key_at >= ABR_KEY_INTERVAL_S:
+                        encoder.request_key_frame()
+                        abr_key_at = now
+                self._new_target = None
+                if self._key_wanted:
+                    encoder.request_key_frame()
+                    self._key_wanted = False
+                packet: bytes = await loop.run_in_executor(
+                    srv.executor, encoder.encode, dataclasses.replace(frame, index=seq)
+                )
+                t2 = time.perf_counter()
+                key = bool(packet[6] & 1)  # the stream format's flags: bit 0 = key frame
+                render_ms, encode_ms = (t1 - t0) * 1e3, (t2 - t1) * 1e3
+                # The median of the last frames that are not key frames (a key frame restarts
+                # the encoders and is no guide to the next frame's time; the median keeps one
+                # slow frame from making the next ones skip).
+                if not key:
+                    recent.append(t2 - t0)
+                    proc = float(np.median(recent))
+                last = k
+                seq += 1
+                n = opts.drop_every
+                if n and not key and (self.stats.frames_sent + self.stats.frames_dropped) % n == (
+                    n - 1
+                ):
+                    self.stats.frames_dropped += 1  # the injected loss (ServerOptions)
+                    continue
+                self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, encoder)
+        except asyncio.CancelledError:
+            pass
+        except Exception as e:  # noqa: BLE001 - a session's failure must not end the server
+            # Whatever broke (a pose the renderer refuses, an encoder error), this session ends
+            # with the reason and the server serves the next one.
+            reason = f"server error: {type(e).__name__}: {e}".splitlines()[0][:200]
+            srv.log(reason)
+            self._quic.close(error_code=CLOSE_SERVER_ERROR, reason_phrase=reason)
+            self.transmit()
+
+    def _send(
+        self,
+        k: int,
+        seq: int,
+        key: bool,
+        pose_time: float,
+        packet: bytes,
+        render_ms: float,
+        encode_ms: float,
+        encoder: StreamEncoder,
+    ) -> None:
+        fs = self.server.options.fps
+        target = encoder.config.bitrate_mbps * 1e6
+        header = FrameHeader(
+            k,
+            seq,
+            key,
+            pose_time,
+            k / fs,
+            asyncio.get_running_loop().time(),
+            target,
+            render_ms,
+            encode_ms,
+            len(packet),
+        )
+        for old in [i for i in self._open if i < seq - 2]:
+            # Stale: the client no longer needs it (it will ask for a key frame). A key frame
+            # is not reset: it is what a client that lost frames waits for.
+            old_sid, old_key = self._open[old]
+            if self._unacked(old_sid) and not old_key:
+                del self._open[old]
+                self._quic.reset_stream(old_sid, RESET_STALE)
+                self.stats.streams_reset += 1
+        sid = self._quic.get_next_available_stream_id(is_unidirectional=True)
+        self._quic.send_stream_data(sid, header.encode() + packet, end_stream=True)
+        self._open[seq] = (sid, key)
+        self.transmit()
+        s = self.stats
+        s.frames_sent += 1
+        s.key_frames += key
+        s.bytes_sent += len(packet) + FrameHeader.SIZE
+        s.render_ms.append(render_ms)
+        s.encode_ms.append(encode_ms)
+        s.target_mbps.append(target / 1e6)
+
+
+class LiveServer:
+    """``splitrender serve``: :meth:`run` serves sessions on ``host:port`` until
+    ``options.sessions`` have ended (0: until cancelled). ``certificate``/``private_key``
+    (``cryptography`` objects) default to a new self-signed pair; :attr:`fingerprint` is the
+    SHA-256 of the certificate (what a client pins). ``scene`` overrides the built-in scene of
+    ``options.scene_name`` (e.g. one loaded from a JSON description)."""
+
+    def __init__(
+        self,
+        options: ServerOptions,
+        *,
+        scene: Scene | None = None,
+        certificate: Any = None,
+        private_key: Any = None,
+        log: TextIO | None = None,
+    ) -> None:
+        self.options = options
+        self.scene = scene if scene is not None else Scene(options.scene_name)
+        if certificate is None:
+            certificate, private_key = self_signed_certificate()
+        from cryptography.hazmat.primitives.serialization import Encoding
+
+        self.certificate, self.private_key = certificate, private_key
+        self.fingerprint = fingerprint_hex(certificate.public_bytes(Encoding.DER))
+        self._log = log if log is not None else sys.stderr
+        self.active: _Session | None = None
+        self.refused = 0
+        self.sessions: list[SessionStats] = []
+        self.port = 0
+        self.executor = ThreadPoolExecutor(1, thread_name_prefix="splitrender-serve")
+        self._done = asyncio.Event()
+        # Two first frames: the camera the welcome describes, and the first estimate of the
+        # render + encode time of a frame that is not a key frame (refined per frame; the
+        # first encode opens the encoders, which is no guide).
+        first = self.render(0, self.scene.client_pose(0.0))
+        self.size = (first.main.camera.width, first.main.camera.height)
+        self.proj = tuple(float(v) for v in first.main.camera.proj.ravel())
+        # The encoder is kept across sessions (they come one at a time): a session starts it
+        # again with a key frame, which costs far less than opening its x265 encoders.
+        self.encoder = StreamEncoder(self.codec_config())
+        self.encoder.encode(first)
+        t0 = time.perf_counter()
+        self.encoder.encode(self.render(1, self.scene.client_pose(1.0 / options.fps)))
+        self.proc_estimate = time.perf_counter() - t0
+
+    def log(self, message: str) -> None:
+        print(f"splitrender serve: {message}", file=self._log, flush=True)
+
+    def render(self, k: int, pose: Any) -> ServerFrame:
+        return self.scene.server_frame(k, self.options.scale, self.options.fps, pose=pose)
+
+    def max_mbps(self) -> float:
+        if self.options.bitrate is not None:
+            return self.options.bitrate
+        w, h = self.scene.main_size(self.options.scale)
+        return CodecConfig.scaled(w, h).bitrate_mbps
+
+    def min_mbps(self) -> float:
+        hi = self.max_mbps()
+        lo = self.options.min_bitrate
+        return min(hi, hi / 4 if lo is None else lo)
+
+    def codec_config(self) -> CodecConfig:
+        o = self.options
+        return CodecConfig(
+            bitrate_mbps=self.max_mbps(), fps=o.fps, gop=o.gop, threads=o.encoder_threads
+        )
+
+    def rate_controller(self) -> RateController:
+        period_ms = 1e3 / self.options.fps
+        return RateController(
+            self.max_mbps() * 1e6,
+            self.min_mbps() * 1e6,
+            high_ms=0.4 * period_ms,
+            low_ms=0.15 * period_ms,
+        )
+
+    def welcome(self) -> bytes:
+        o = self.options
+        w, h = self.size
+        return Welcome(
+            o.fps, o.scale, w, h, self.proj, o.gop, self.max_mbps(), self.min_mbps(),
+            o.scene_name,
+        ).encode()
+
+    def session_ended(self, session: _Session) -> None:
+        self.active = None
+        self.sessions.append(session.stats)
+        self.log(f"session ended: {session.stats.line()}")
+        if self.options.sessions and len(self.sessions) >= self.options.sessions:
+            self._done.set()
+
+    def configuration(self) -> QuicConfiguration:
+        cfg = QuicConfiguration(
+            is_client=False,
+            alpn_protocols=[ALPN],
+            # QUIC closes a connection that receives a DATAGRAM larger than this transport
+            # parameter; the protocol's own limit (MAX_DATAGRAM) is checked per message
+            # instead, so that an oversized one is dropped and counted, not fatal.
+            max_datagram_frame_size=QUIC_MAX_DATAGRAM,
+            idle_timeout=IDLE_TIMEOUT_S,
+        )
+        cfg.certificate = self.certificate
+        cfg.private_key = self.private_key
+        return cfg
+
+    async def run(
+        self, host: str = "127.0.0.1", port: int = 4433,
+        ready: Callable[[LiveServer], None] | None = None,
+    ) -> None:
+        """Serves until ``options.sessions`` sessions have ended (or cancelled). ``ready`` is
+        called once the socket is bound (:attr:`port` holds the port, useful with 0)."""
+        server = self
+
+        class Session(_Session):
+            pass
+
+        Session.server = server
+        quic = await serve(host, port, configuration=self.configuration(),
+                           create_protocol=Session)
+        assert quic._transport is not None
+        self.port = int(quic._transport.get_extra_info("sockname")[1])
+        if ready is not None:
+            ready(self)
+        try:
+            await self._done.wait()
+        finally:
+            quic.close()
+            self.executor.shutdown(wait=True, cancel_futures=True)
+            self.encoder.close()
+
+
+def load_certificate(cert: Path, key: Path) -> tuple[Any, Any]:
+    """A PEM certificate and private key from files (``--cert``/``--key``)."""
+    cfg = QuicConfiguration(is_client=False)
+    cfg.load_cert_chain(cert, key)
+    return cfg.certificate, cfg.private_key

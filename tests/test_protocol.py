@@ -1,0 +1,343 @@
+"""The live protocol's messages (splitrender.net.protocol), the receive order of the client
+(FrameOrder), the pose predictor, the adaptive bit-rate controller and the relay's draws: pure
+logic, no network."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+import splitrender.net.protocol as proto
+from splitrender.client.live import FrameOrder
+from splitrender.errors import InvalidInputError, ProtocolError, SplitRenderError
+from splitrender.net.abr import RateController
+from splitrender.net.predict import ConstantVelocity, LastPose, make_predictor
+from splitrender.net.relay import Impairment, Relay, _Direction, check_loopback
+
+
+def _pose(t: float) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_euler("y", 0.5 * t).as_matrix()
+    m[:3, 3] = (t, 0.2 * t, -1.0)
+    return m
+
+
+def _header(seq: int, key: bool = False, size: int = 3) -> proto.FrameHeader:
+    # Frame index 2·seq: the server skipped every other frame (the order follows seq).
+    return proto.FrameHeader(2 * seq, seq, key, 0.1, 0.2, 5.0, 1e6, 10.0, 5.0, size)
+
+
+# -- messages ------------------------------------------------------------------------------------
+
+
+def test_round_trips() -> None:
+    hello = proto.Hello("tok€n", 160, 90, 90.0)
+    assert proto.decode_control(hello.encode()) == hello
+    welcome = proto.Welcome(10.0, 0.0625, 160, 90, tuple(float(i) for i in range(16)), 100,
+                            0.2, 0.05, "courtyard")
+    assert proto.decode_control(welcome.encode()) == welcome
+    kr = proto.KeyRequest(41, proto.KEY_UNDECODABLE)
+    assert proto.decode_control(kr.encode()) == kr
+    ps = proto.PoseSample(7, 1.25, _pose(1.25))
+    back = proto.decode_datagram(ps.encode())
+    assert isinstance(back, proto.PoseSample) and back.seq == 7 and back.time == 1.25
+    np.testing.assert_array_equal(back.pose, ps.pose)
+    rr = proto.RateReport(3, 2.0, 1.5e6, 0.5, 12.5, 40, 2)
+    assert proto.decode_datagram(rr.encode()) == rr
+    fh = _header(12, True, 999)
+    assert proto.FrameHeader.decode(fh.encode() + b"payload") == fh
+    assert len(fh.encode()) == proto.FrameHeader.SIZE
+
+
+def test_documented_sizes() -> None:
+    """docs/protocol.md states these sizes."""
+    assert len(proto.Hello("x" * proto.MAX_TOKEN).encode()) == 84
+    assert len(proto.PoseSample(0, 0.0, np.eye(4)).encode()) == 109
+    assert len(proto.RateReport(0, 0, 0, 0, 0, 0, 0).encode()) == 37
+    assert proto.FrameHeader.SIZE == 62
+    w = proto.Welcome(10.0, 0.1, 1, 1, (0.0,) * 16, 1, 1.0, 1.0, "s" * 255)
+    assert len(w.encode()) == 425 <= proto.MAX_CONTROL
+
+
+def test_hello_refusals_name_the_field() -> None:
+    raw = proto.Hello("t").encode()
+    other = raw[:5] + struct.pack("<H", 9) + raw[7:]
+    with pytest.raises(ProtocolError, match="protocol version 9 is not supported"):
+        proto.Hello.decode(other)
+    with pytest.raises(ProtocolError, match="magic"):
+        proto.Hello.decode(raw[:1] + b"XXXX" + raw[5:])
+    with pytest.raises(ProtocolError, match="token: at most 64"):
+        proto.Hello("x" * 65).encode()
+    long_token = raw[:7] + bytes([200]) + raw[8:]
+    with pytest.raises(ProtocolError, match="token: at most 64"):
+        proto.Hello.decode(long_token)
+    with pytest.raises(ProtocolError, match="expected 21 bytes"):
+        proto.Hello.decode(raw[:-1])
+    with pytest.raises(ProtocolError, match="display size 5x0"):
+        proto.Hello.decode(proto.Hello("t", 5, 1).encode()[:-12] + struct.pack("<HHd", 5, 0, 60))
+
+
+def test_datagram_limits_and_checks() -> None:
+    with pytest.raises(ProtocolError, match="at most 256"):
+        proto.decode_datagram(b"\x10" * 300)
+    with pytest.raises(ProtocolError, match="unknown type 0x7f"):
+        proto.decode_datagram(b"\x7f")
+    with pytest.raises(ProtocolError, match="empty"):
+        proto.decode_datagram(b"")
+    bad = np.eye(4)
+    bad[0, 0] = 2.0
+    with pytest.raises(ProtocolError, match="not a rotation"):
+        proto.decode_datagram(proto.PoseSample(1, 0.0, bad).encode())
+    nan = proto.PoseSample(1, 0.0, np.eye(4)).encode()
+    nan = nan[:5] + struct.pack("<d", math.nan) + nan[13:]
+    with pytest.raises(ProtocolError, match="pose.time"):
+        proto.decode_datagram(nan)
+
+
+def test_frame_header_limits() -> None:
+    raw = bytearray(_header(1).encode())
+    struct.pack_into("<I", raw, proto.FrameHeader.SIZE - 4, proto.MAX_FRAME_PAYLOAD + 1)
+    with pytest.raises(ProtocolError, match="frame header.size"):
+        proto.FrameHeader.decode(bytes(raw))
+    with pytest.raises(ProtocolError, match="at least 62 bytes"):
+        proto.FrameHeader.decode(b"\x20" * 10)
+
+
+def test_control_reader_splits_and_limits() -> None:
+    msgs = [proto.Hello("a").encode(), proto.KeyRequest(3).encode()]
+    stream = b"".join(proto.frame_control(m) for m in msgs)
+    r = proto.ControlReader()
+    got = []
+    for i in range(len(stream)):  # one byte at a time
+        got += r.feed(stream[i : i + 1])
+    assert got == msgs
+    with pytest.raises(ProtocolError, match="message length 0"):
+        proto.ControlReader().feed(b"\x00\x00")
+    with pytest.raises(ProtocolError, match="message length 2000"):
+        proto.ControlReader().feed(struct.pack("<H", 2000))
+
+
+@given(st.binary(max_size=600))
+def test_fuzz_only_protocol_errors(data: bytes) -> None:
+    """Whatever the bytes, the decoders return a message or raise ProtocolError."""
+    for decode in (proto.decode_datagram, proto.decode_control, proto.FrameHeader.decode):
+        try:
+            decode(data)
+        except ProtocolError:
+            pass
+    try:
+        proto.ControlReader().feed(data)
+    except ProtocolError:
+        pass
+
+
+@given(st.integers(0, 200), st.integers(0, 255))
+def test_fuzz_mutated_messages(pos: int, byte: int) -> None:
+    for raw in (proto.Hello("tok").encode(), proto.PoseSample(1, 2.0, _pose(2.0)).encode(),
+                proto.RateReport(1, 1, 1, 1, 1, 1, 1).encode(), _header(5).encode()):
+        m = bytearray(raw)
+        m[pos % len(m)] = byte
+        for decode in (proto.decode_datagram, proto.decode_control, proto.FrameHeader.decode):
+            try:
+                decode(bytes(m))
+            except ProtocolError:
+                pass
+
+
+def test_fingerprints() -> None:
+    fp = proto.fingerprint_hex(b"cert")
+    assert len(fp) == 95 and fp == fp.upper()
+    assert proto.normalise_fingerprint(fp) == proto.normalise_fingerprint(fp.lower().replace(":", ""))
+    with pytest.raises(ProtocolError, match="64 hex digits"):
+        proto.normalise_fingerprint("abcd")
+    assert issubclass(ProtocolError, SplitRenderError)
+
+
+# -- the client's receive order ------------------------------------------------------------------
+
+
+class _Log:
+    def __init__(self) -> None:
+        self.submitted: list[int] = []
+        self.requests: list[tuple[int, int]] = []
+        self.stopped: list[int] = []
+
+    def order(self, give_up: float = 0.1) -> FrameOrder:
+        return FrameOrder(
+            lambda h, p: self.submitted.append(h.seq),
+            lambda last, reason: self.requests.append((last, reason)),
+            self.stopped.append,
+            give_up,
+        )
+
+
+def test_order_in_sequence_and_reordered() -> None:
+    log = _Log()
+    o = log.order()
+    o.complete(_header(0, True), b"", 0.0)
+    o.complete(_header(2), b"", 0.01)  # 1 still in flight
+    assert log.submitted == [0]
+    o.complete(_header(1), b"", 0.02)
+    assert log.submitted == [0, 1, 2] and not log.requests
+
+
+def test_order_gap_before_key_frame_is_not_a_loss() -> None:
+    log = _Log()
+    o = log.order()
+    o.complete(_header(0, True), b"", 0.0)
+    o.complete(_header(4, True), b"", 0.1)  # 1..3 reset by the server (stale), then a key
+    assert log.submitted == [0, 4] and o.lost == 0 and not log.requests
+
+
+def test_order_gives_up_and_recovers_with_a_key_frame() -> None:
+    log = _Log()
+    o = log.order(give_up=0.1)
+    o.complete(_header(0, True), b"", 0.0)
+    o.started(1, 7)  # frame 1's stream: header seen, never completes
+    o.complete(_header(2), b"", 0.05)
+    o.tick(0.1)
+    assert log.submitted == [0] and not log.requests  # still waiting for 1
+    o.tick(0.2)
+    assert o.lost == 1 and log.stopped == [7]
+    assert log.requests == [(0, proto.KEY_LOST)]
+    o.complete(_header(3), b"", 0.25)  # not decodable without 1: dropped
+    assert log.submitted == [0]
+    o.tick(1.3)  # no key frame for a second: asked again
+    assert len(log.requests) == 2
+    o.complete(_header(4, True), b"", 1.4)
+    o.complete(_header(5), b"", 1.5)
+    assert log.submitted == [0, 4, 5] and o.recoveries == 1
+    o.complete(_header(1), b"", 1.6)  # a late retransmission of a given-up frame
+    assert log.submitted == [0, 4, 5]
+
+
+def test_order_undecodable_asks_once() -> None:
+    log = _Log()
+    o = log.order()
+    o.complete(_header(0, True), b"", 0.0)
+    o.complete(_header(1), b"", 0.1)
+    o.undecodable(1, 0.2)
+    o.undecodable(1, 0.21)
+    assert log.requests == [(1, proto.KEY_UNDECODABLE)]
+    o.complete(_header(2), b"", 0.3)
+    assert log.submitted == [0, 1]
+    o.complete(_header(3, True), b"", 0.4)
+    assert log.submitted == [0, 1, 3] and o.recoveries == 1
+
+
+def test_order_start_without_key_frame() -> None:
+    log = _Log()
+    o = log.order()
+    o.complete(_header(5), b"", 0.0)
+    assert log.requests == [(-1, proto.KEY_START)] and not log.submitted
+
+
+# -- prediction, rate control, relay -------------------------------------------------------------
+
+
+def test_constant_velocity_predicts_linear_motion() -> None:
+    p = ConstantVelocity(window=0.05)
+    assert p.predict(1.0) is None
+    for i in range(10):
+        p.add(i / 120, _pose(i / 120))
+    p.add(0.0, _pose(5.0))  # reordered, older: ignored
+    got = p.predict(0.3)
+    assert got is not None
+    np.testing.assert_allclose(got, _pose(0.3), atol=1e-9)
+    assert p.newest_time == pytest.approx(9 / 120)
+    # Beyond max_ahead it stops extrapolating.
+    far = ConstantVelocity(max_ahead=0.1)
+    far.add(0.0, _pose(0.0))
+    far.add(0.01, _pose(0.01))
+    np.testing.assert_allclose(far.predict(5.0), _pose(0.11), atol=1e-9)
+
+
+def test_last_pose_and_names() -> None:
+    p = LastPose()
+    p.add(1.0, _pose(1.0))
+    p.add(0.5, _pose(0.5))
+    np.testing.assert_array_equal(p.predict(9.0), _pose(1.0))
+    assert isinstance(make_predictor("constant-velocity"), ConstantVelocity)
+    with pytest.raises(InvalidInputError, match="predictor: expected one of"):
+        make_predictor("oracle")
+
+
+def test_rate_controller_backs_off_and_climbs() -> None:
+    rc = RateController(1e6, 1e5, high_ms=50, low_ms=10)
+    assert rc.update(0.9e6, 0.0) == 1e6  # room, already at the top
+    assert rc.update(0.4e6, 120.0) == pytest.approx(0.34e6)  # queue: to 85 % of what got through
+    assert rc.update(0.4e6, 30.0) == pytest.approx(0.34e6)  # in between: hold
+    for _ in range(100):
+        rc.update(0.0, 0.0)
+    assert rc.target_bps == 1e6
+    assert rc.update(1e3, 500.0) == 1e5  # never below the floor
+    with pytest.raises(InvalidInputError, match="bit-rate range"):
+        RateController(1e5, 1e6)
+
+
+def test_relay_draws_are_seeded() -> None:
+    imp = Impairment(delay_ms=50, jitter_ms=20, loss=0.1, bandwidth_mbps=1.0, queue_ms=100)
+
+    def fates(seed: int) -> list[float | None]:
+        d = _Direction(imp, seed)
+        return [d.fate(1200, i * 0.005) for i in range(300)]
+
+    a, b = fates(1), fates(1)
+    assert a == b and a != fates(2)
+    lost = sum(f is None for f in a)
+    assert 10 <= lost <= 60
+    kept = [f for f in a if f is not None and f >= 0]
+    assert all(0.03 - 1e-9 <= f <= 0.07 + 0.1 + 0.01 for f in kept)
+    # 1200 B every 5 ms is 1.92 Mb/s into a 1 Mb/s link: the queue fills and drops.
+    assert any(f == -1.0 for f in a)
+
+
+def test_relay_stays_on_loopback() -> None:
+    assert check_loopback("127.0.0.1", "x") == "127.0.0.1"
+    with pytest.raises(InvalidInputError, match="loopback"):
+        Relay(("10.0.0.1", 4433), Impairment(), Impairment())
+    with pytest.raises(InvalidInputError, match="loss"):
+        Impairment(loss=1.0)
+
+
+# -- the encoder's live controls and the client's time-indexed decoding -------------------------
+
+
+def test_encoder_live_controls_and_seq_indexed_packets() -> None:
+    """StreamEncoder.request_key_frame/set_bitrate (the live server's hooks), and packets
+    indexed by their place in the sequence (seq) while the frames skip indices: the client's
+    decoder gets the frame index back from the time."""
+    import dataclasses
+
+    import splitrender as sr
+    from splitrender.client.live import _TimeIndexed
+    from splitrender.codec.stream import peek_header
+
+    scene = sr.SyntheticScene(dynamic=True)
+    fps = 10.0
+    ks = [0, 1, 4, 5, 9]  # the server skipped 2, 3, 6, 7, 8
+    frames = [scene.server_frame(k, k / fps, 32, 24, fps=fps) for k in ks]
+    with sr.StreamEncoder(sr.CodecConfig(bitrate_mbps=0.5, fps=fps, gop=100, threads=1)) as enc:
+        packets = []
+        for seq, f in enumerate(frames):
+            if seq == 2:
+                enc.request_key_frame()
+            if seq == 3:
+                enc.set_bitrate(0.25)
+                assert enc.config.bitrate_mbps == 0.25
+            packets.append(enc.encode(dataclasses.replace(f, index=seq)))
+    keys = [peek_header(p)[1] for p in packets]
+    assert keys == [True, False, True, False, False]  # a rate change alone waits for a key
+    with pytest.raises(InvalidInputError):
+        sr.StreamEncoder().set_bitrate(0.0)
+    dec = _TimeIndexed(fps)
+    try:
+        assert [dec.decode(p).index for p in packets] == ks
+    finally:
+        dec.close()
