@@ -92,7 +92,7 @@ def test_every_frame_meets_its_deadline_when_rendering_fits_the_period(scene, fr
     with loop(clock) as c:
         for f in frames[:3]:
             c.submit(f)
-        c.wait()
+            c.wait()
         report = c.run(pose_of(scene), 0.2)
     assert len(report.frames) == 24 and report.dropped == 0
     assert report.deadline_misses == 0
@@ -161,7 +161,7 @@ def test_prepared_pairs_give_the_same_images_and_no_pair_work_on_the_display(sce
         for f in frames[:3]:
             plain.receive(f)
             c.submit(f)
-        c.wait()
+            c.wait()
         histories = dict(c.client._prepared)
         for n in range(1, 24):
             t = n / FC
@@ -208,6 +208,23 @@ def test_a_server_frame_that_becomes_usable_after_it_was_needed_counts_as_late(s
     assert report.frames[0].mode == "extrapolate"
     # The age of the newest frame: display time minus its pose time (its time minus 1/f_s).
     assert report.frames[0].server_age_ms == pytest.approx(100.0)
+
+
+def test_a_worker_that_is_behind_hands_frames_over_without_preparing_them(scene, frames):
+    from concurrent.futures import ThreadPoolExecutor
+
+    gate = threading.Event()
+    worker = ThreadPoolExecutor(1)
+    worker.submit(gate.wait, 10.0)  # holds the worker until every frame is queued
+    with RealtimeClient(client=CostClient(FakeClock(), lambda n: 0.0), executor=worker) as c:
+        for f in frames[:3]:
+            c.submit(f)
+        gate.set()
+        c.wait(30.0)
+        assert c.client.held == (0, 1, 2)
+        # Frames 0 and 1 had a newer frame waiting behind them; frame 2 did not.
+        assert not c.client.was_prepared(0, 1) and not c.client.was_prepared(None, 1)
+        assert c.client.was_prepared(1, 2) and c.client.was_prepared(None, 2)
 
 
 def test_summary_has_the_keys_the_bench_reports(scene, frames):

@@ -181,6 +181,17 @@ class RealtimeReport:
         }
 
 
+def _yield_to_display() -> None:
+    """Lowers the receive worker's scheduling priority (Linux: per thread; the decoder's and the
+    preparation pool's threads it starts inherit it), so that on a busy machine the display
+    thread, whose frames have deadlines, gets the cores first and the worker the rest. Lowering
+    needs no privilege; where the platform cannot, nothing changes."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+    except (AttributeError, OSError):
+        pass
+
+
 #: Methods whose client frames use pair-level state that :func:`prepare_pair` can compute.
 _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 
@@ -234,8 +245,11 @@ class RealtimeClient:
         self._worker = (
             executor
             if executor is not None
-            else ThreadPoolExecutor(1, thread_name_prefix="splitrender-receive")
+            else ThreadPoolExecutor(
+                1, thread_name_prefix="splitrender-receive", initializer=_yield_to_display
+            )
         )
+        self._queued = 0  # packets submitted and not yet being received
         self._pending: list[Future[int | None]] = []
         self._camera: Camera | None = None
         self._pose_time: dict[int, float] = {}
@@ -275,6 +289,8 @@ class RealtimeClient:
         :class:`~splitrender.errors.StreamError`) and is otherwise ignored: the display goes on
         extrapolating. ``pose_time``: when the pose of this frame was taken (default: the
         frame's time minus one server frame, when the model's server sends it)."""
+        with self._lock:
+            self._queued += 1
         fut = self._worker.submit(self._receive, packet, pose_time)
         self._pending.append(fut)
         return fut
@@ -296,6 +312,8 @@ class RealtimeClient:
     def _receive(
         self, packet: bytes | memoryview | ServerFrame, pose_time: float | None
     ) -> int | None:
+        with self._lock:
+            self._queued -= 1
         t0 = time.perf_counter()
         frame = packet if isinstance(packet, ServerFrame) else self._decode(packet)
         t1 = time.perf_counter()
@@ -303,8 +321,12 @@ class RealtimeClient:
             older = self.client.held_frame(frame.index - 1)
             camera = self._camera if self._camera is not None else frame.main.camera
             spare = self.client.retired_histories()
+            # Behind (a newer packet is already waiting): this frame is about to be superseded,
+            # so it is handed over at once and the worker's time goes to catching up; a display
+            # frame that still renders its pair does the pair work itself.
+            behind = self._queued > 0
         prepared: list[tuple[int | None, _native.BidirHistory]] = []
-        if self.method in _PREPARED_METHODS:
+        if self.method in _PREPARED_METHODS and not behind:
             pairs: list[ServerFrame | None] = [None]
             if older is not None and self._interpolates:
                 pairs.append(older)
