@@ -275,6 +275,27 @@ def test_error_missing_cam_json(handmade: Path) -> None:
         sr.import_dataset(handmade, aux=())
 
 
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        # serverFps of 401 digits: math.isfinite() of it raised OverflowError.
+        ('{"serverFps": 1' + "0" * 400 + "}", "integer of 401 digits"),
+        ('{"frames": ' + "[" * 100_000, "nested too deeply"),
+    ],
+)
+def test_error_hostile_cam_json(handmade: Path, text: str, problem: str) -> None:
+    (handmade / "main" / "cam.json").write_text(text)
+    with pytest.raises(DatasetError, match=rf"main[/\\]cam\.json: .*{problem}"):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_error_cam_json_not_a_regular_file(handmade: Path) -> None:
+    (handmade / "main" / "cam.json").unlink()
+    (handmade / "main" / "cam.json").symlink_to("/dev/zero")
+    with pytest.raises(DatasetError, match=r"cam\.json: camera file is a character device"):
+        sr.import_dataset(handmade, aux=())
+
+
 def test_error_missing_file(handmade: Path) -> None:
     (handmade / "main" / "depth" / "0008.exr").unlink()
     with pytest.raises(DatasetError, match=r"depth[/\\]0008\.exr: missing file"):

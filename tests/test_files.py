@@ -1,13 +1,20 @@
-"""splitrender.files.write_atomic: a failed write leaves the previous file intact, nothing else."""
+"""splitrender.files: write_atomic (a failed write leaves the previous file intact, nothing
+else); read_regular and read_json (only regular files, size-capped reads, parse failures as the
+caller's exception)."""
 
 from __future__ import annotations
 
 import os
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
-from splitrender.files import write_atomic
+from splitrender.errors import InvalidInputError
+from splitrender.files import read_json, read_regular, write_atomic
+from splitrender.scene.builtin import TraceError, load_trace
 
 
 def test_write_atomic_replaces_the_file_and_leaves_no_temporary(tmp_path: Path) -> None:
@@ -32,3 +39,90 @@ def test_a_failed_write_keeps_the_previous_file(
         write_atomic(path, "half of a new file")
     assert path.read_text() == "good\n"
     assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
+
+
+@contextmanager
+def _deadline(seconds: int) -> Iterator[None]:
+    """Fails the test instead of hanging it (a blocking read of a FIFO is the bug tested)."""
+
+    def expired(signum: int, frame: object) -> None:
+        raise AssertionError(f"still blocked after {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_read_regular_refuses_a_fifo_without_blocking(tmp_path: Path) -> None:
+    fifo = tmp_path / "trace.txt"
+    os.mkfifo(fifo)
+    with _deadline(5), pytest.raises(InvalidInputError, match="FIFO.*expected a regular file"):
+        read_regular(fifo, 1000, "trace", InvalidInputError)
+
+
+def test_load_trace_of_a_fifo_or_dev_zero_is_a_trace_error(tmp_path: Path) -> None:
+    # The FIFO blocked load_trace forever; /dev/zero (st_size 0) was read until memory ran out.
+    fifo = tmp_path / "fifo.txt"
+    os.mkfifo(fifo)
+    with _deadline(5), pytest.raises(TraceError, match="fifo.txt: trace file is a FIFO"):
+        load_trace(fifo)
+    zero = tmp_path / "zero.txt"
+    zero.symlink_to("/dev/zero")
+    with _deadline(5), pytest.raises(TraceError, match="zero.txt: trace file is a character"):
+        load_trace(zero)
+
+
+def test_read_regular_refuses_devices_directories_and_links_to_them(tmp_path: Path) -> None:
+    link = tmp_path / "zero.json"
+    link.symlink_to("/dev/zero")
+    with pytest.raises(InvalidInputError, match="zero.json: trace is a character device"):
+        read_regular(link, 1000, "trace", InvalidInputError)
+    with pytest.raises(InvalidInputError, match="a directory"):
+        read_regular(tmp_path, 1000, "trace", InvalidInputError)
+
+
+def test_read_regular_caps_the_read_at_the_limit(tmp_path: Path) -> None:
+    path = tmp_path / "t.txt"
+    path.write_bytes(b"x" * 11)
+    assert read_regular(path, 11, "trace", InvalidInputError) == b"x" * 11
+    with pytest.raises(InvalidInputError, match="more than 10 bytes"):
+        read_regular(path, 10, "trace", InvalidInputError)
+    with pytest.raises(FileNotFoundError):
+        read_regular(tmp_path / "missing", 10, "trace", InvalidInputError)
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+        ('{"fs": 1' + "0" * 400 + "}", "integer of 401 digits, expected at most 308"),
+        ('{"fs": 1' + "0" * 5000 + "}", "integer of 5001 digits"),
+        ("{ not json", "not valid JSON"),
+    ],
+)
+def test_read_json_reports_every_parse_failure_as_the_callers_error(
+    tmp_path: Path, text: str, problem: str
+) -> None:
+    path = tmp_path / "m.json"
+    path.write_text(text)
+    with pytest.raises(InvalidInputError, match=problem):
+        read_json(path, 1 << 20, "manifest", InvalidInputError)
+
+
+def test_read_json_refuses_bytes_that_are_not_utf8(tmp_path: Path) -> None:
+    path = tmp_path / "m.json"
+    path.write_bytes(b'{"a": "' + bytes([0xFF]) + b'"}')
+    with pytest.raises(InvalidInputError, match="not UTF-8"):
+        read_json(path, 1 << 20, "manifest", InvalidInputError)
+
+
+def test_read_json_keeps_ordinary_numbers(tmp_path: Path) -> None:
+    path = tmp_path / "m.json"
+    path.write_text('{"a": -12, "b": 1' + "0" * 307 + ', "c": 0.5}')
+    assert read_json(path, 1 << 20, "manifest", InvalidInputError) == {
+        "a": -12, "b": 10**307, "c": 0.5
+    }

@@ -169,6 +169,33 @@ def test_bad_manifest(copy: Path, changes: dict[str, object], problem: str) -> N
     assert "manifest.json" in str(e.value)
 
 
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        # fs of 401 digits: float() of it raised OverflowError.
+        ('{"fs": 1' + "0" * 400 + "}", "integer of 401 digits"),
+        ("[" * 100_000, "nested too deeply"),
+    ],
+)
+def test_hostile_manifest_numbers_and_nesting(copy: Path, text: str, problem: str) -> None:
+    (copy / "manifest.json").write_text(text)
+    with pytest.raises(RecordingError, match=f"manifest.json: recording manifest.*{problem}"):
+        load_recording(copy)
+
+
+def test_manifest_and_frames_must_be_regular_files(copy: Path) -> None:
+    # A link to /dev/zero (st_size 0) was read until memory ran out.
+    frame = copy / "client" / "000001.npz"
+    frame.unlink()
+    frame.symlink_to("/dev/zero")
+    with pytest.raises(RecordingError, match="000001.npz: frame file is a character device"):
+        load_recording(copy).client_frames[1]
+    (copy / "manifest.json").unlink()
+    (copy / "manifest.json").symlink_to("/dev/zero")
+    with pytest.raises(RecordingError, match="manifest.json: .*character device"):
+        load_recording(copy)
+
+
 def test_missing_corrupted_and_oversized_files(copy: Path) -> None:
     f1 = copy / "server" / "000001.npz"
     f1.unlink()
@@ -183,7 +210,7 @@ def test_missing_corrupted_and_oversized_files(copy: Path) -> None:
         rec.client_frames[2]
     c3 = copy / "client" / "000003.npz"
     c3.write_bytes(c3.read_bytes() + b"x" * 10)
-    with pytest.raises(RecordingError, match="000003.npz: file is"):
+    with pytest.raises(RecordingError, match=r"000003.npz: frame file is more than \d+ bytes"):
         rec.client_frames[3]
     rec.server_frames[0]  # untouched files still load
 

@@ -96,6 +96,18 @@ def test_description_errors_name_the_file(tmp_path: Path) -> None:
         sr.Scene.from_description(desc)
 
 
+def test_description_must_be_a_small_regular_file(tmp_path: Path) -> None:
+    # /dev/zero reports st_size 0: it was read until memory ran out.
+    zero = tmp_path / "zero.json"
+    zero.symlink_to("/dev/zero")
+    with pytest.raises(sr.InvalidInputError, match="zero.json: scene description is a character"):
+        sr.Scene.from_description(zero)
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000)
+    with pytest.raises(sr.InvalidInputError, match="deep.json: .*nested too deeply"):
+        sr.Scene.from_description(deep)
+
+
 def test_render_cli_accepts_a_description(tmp_path: Path) -> None:
     _write_quad(tmp_path)
     desc = _describe(tmp_path)

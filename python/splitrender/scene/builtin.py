@@ -19,7 +19,6 @@ camera-to-world ``float64[4, 4]`` head poses (the camera looks along its -z):
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 from dataclasses import dataclass
@@ -32,6 +31,7 @@ import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.errors import InvalidInputError
+from splitrender.files import read_json, read_regular
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 
 __all__ = [
@@ -57,6 +57,8 @@ MAX_SAMPLES: int = _native.MAX_SAMPLES
 PREDICTION_DELAY = 0.1
 #: Largest trace file read (bytes): 25 s at 60 Hz is about 60 KB.
 MAX_TRACE_BYTES = 64 * 1024 * 1024
+#: Largest scene description read (bytes): a JSON list of placed models is a few KB.
+MAX_DESCRIPTION_BYTES = 16 * 1024 * 1024
 
 F64 = npt.NDArray[np.float64]
 
@@ -182,11 +184,9 @@ class Scene:
         """
         p = Path(path)
         try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
+            doc = read_json(p, MAX_DESCRIPTION_BYTES, "scene description", InvalidInputError)
         except OSError as e:
             raise InvalidInputError(f"{p}: cannot read the scene description: {e}") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise InvalidInputError(f"{p}: not a JSON scene description: {e}") from None
         if not isinstance(doc, dict) or not isinstance(doc.get("scene"), str):
             raise InvalidInputError(f"{p}: expected an object with a \"scene\" name")
         unknown = set(doc) - {"scene", "variant", "models"}
@@ -440,10 +440,7 @@ def load_trace(path: str | os.PathLike[str]) -> Trace:
     problem."""
     p = Path(path)
     try:
-        size = p.stat().st_size
-        if size > MAX_TRACE_BYTES:
-            raise TraceError(f"{p}: trace file is {size} bytes, more than {MAX_TRACE_BYTES}")
-        data = p.read_bytes()
+        data = read_regular(p, MAX_TRACE_BYTES, "trace file", TraceError)
     except OSError as e:
         raise TraceError(f"{p}: cannot read trace: {e.strerror or e}") from None
     try:

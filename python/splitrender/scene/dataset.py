@@ -44,6 +44,7 @@ from PIL import Image
 
 from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
+from splitrender.files import read_json
 from splitrender.imageio import write_png
 from splitrender.scene.recording import (
     ClientFrame,
@@ -232,17 +233,11 @@ def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        size = path.stat().st_size
+        m = read_json(path, _MAX_JSON_BYTES, "camera file", DatasetError)
     except FileNotFoundError:
         raise _fail(path, "missing file") from None
     except OSError as e:
-        raise _fail(path, f"cannot read: {e}") from None
-    if size > _MAX_JSON_BYTES:
-        raise _fail(path, f"{size} bytes, more than {_MAX_JSON_BYTES}")
-    try:
-        m = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise _fail(path, f"cannot read: {e}") from None
+        raise _fail(path, f"cannot read: {e.strerror or e}") from None
     if not isinstance(m, dict):
         raise _fail(path, "expected a JSON object")
     return m

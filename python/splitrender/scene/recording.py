@@ -54,6 +54,7 @@ import numpy.typing as npt
 
 from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
+from splitrender.files import read_json, read_regular
 from splitrender.scene.builtin import (
     MAX_SAMPLES,
     ClientMotion,
@@ -430,10 +431,9 @@ def _read_npz(root: Path, entry: dict[str, Any], spec: Spec) -> dict[str, npt.ND
             f"manifest says {entry['bytes']} bytes, more than {limit} for its arrays",
         )
     try:
-        size = path.stat().st_size
-        if size != entry["bytes"]:
-            raise _fail(path, f"file is {size} bytes, the manifest says {entry['bytes']}")
-        data = path.read_bytes()
+        data = read_regular(path, entry["bytes"], "frame file", RecordingError)
+        if len(data) != entry["bytes"]:
+            raise _fail(path, f"file is {len(data)} bytes, the manifest says {entry['bytes']}")
     except FileNotFoundError:
         raise _fail(path, "missing file") from None
     except OSError as e:
@@ -676,14 +676,11 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
         raise _fail(root, "no such recording directory")
     mpath = root / _MANIFEST
     try:
-        size = mpath.stat().st_size
-        if size > _MAX_MANIFEST_BYTES:
-            raise _fail(mpath, f"{size} bytes, more than {_MAX_MANIFEST_BYTES}")
-        m = json.loads(mpath.read_text(encoding="utf-8"))
+        m = read_json(mpath, _MAX_MANIFEST_BYTES, "recording manifest", RecordingError)
     except FileNotFoundError:
         raise _fail(mpath, "missing: not a recording, or an unfinished one") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise _fail(mpath, f"cannot read: {e}") from None
+    except OSError as e:
+        raise _fail(mpath, f"cannot read: {e.strerror or e}") from None
     if not isinstance(m, dict):
         raise _fail(mpath, "expected a JSON object")
     if m.get("format") != FORMAT:
