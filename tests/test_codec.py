@@ -231,6 +231,29 @@ def test_invalid_depth_and_motion_stay_invalid(frames: list[sr.ServerFrame]) -> 
     )
 
 
+@pytest.mark.parametrize("tiny", [1e-45, -1e-45, 1e-40, 1e-38])
+def test_denormal_depth_and_motion_ranges_round_trip_finite(
+    frames: list[sr.ServerFrame], tiny: float
+) -> None:
+    # A span of a denormal float32 rounded the scale to 0.0: ZeroDivisionError in quantisation.
+    f = frames[0]
+    motion = np.zeros_like(f.main.motion_fwd)
+    motion[1, 2] = np.float32(tiny)
+    depth = np.full_like(f.main.depth, abs(tiny))
+    depth[3, 4] = 0.0
+    main = dataclasses.replace(f.main, depth=depth, motion_fwd=motion)
+    g = dataclasses.replace(f, main=main)
+    with (
+        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
+        StreamDecoder() as dec,
+    ):
+        out = dec.decode(enc.encode(g))
+    assert out.main.motion_fwd is not None
+    assert np.isfinite(out.main.motion_fwd).all() and np.isfinite(out.main.depth).all()
+    assert np.abs(out.main.motion_fwd - motion).max() <= 1e-34
+    assert np.abs(out.main.depth - depth).max() <= 1e-34
+
+
 def test_uncompressed_mode_round_trips_exactly(frames: list[sr.ServerFrame]) -> None:
     f = frames[3]
     depth = f.main.depth.copy()

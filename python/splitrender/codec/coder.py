@@ -110,6 +110,11 @@ __all__ = ["CodecConfig", "StreamDecoder", "StreamEncoder"]
 
 _K = BufferKind
 _CODE_MAX = 4095  # 12 bits
+# The smallest span quantised over its codes: below it (a denormal range such as motion of
+# 1e-45) span / codes rounds to a float32 scale of 0.0 or a denormal, and the division by the
+# scale raised ZeroDivisionError or gave infinities. A narrower span is coded as constant
+# (scale 1.0, every code the same), an error below 5e-35.
+_MIN_SPAN = float(np.finfo(np.float32).tiny) * _CODE_MAX
 _ALIGN = 8  # tiles on the 8x8 transform grid: no block straddles two tiles
 
 _PIC_COLOR, _PIC_GEOMETRY, _PIC_SHADOW = (
@@ -581,7 +586,7 @@ def _quantise_depth(
     vals = d[finite] if invalid is not None else d
     lo = float(vals.min()) if vals.size else 0.0
     hi = float(vals.max()) if vals.size else 0.0
-    scale = float(np.float32((hi - lo) / _CODE_MAX)) if hi > lo else 1.0
+    scale = float(np.float32((hi - lo) / _CODE_MAX)) if hi - lo >= _MIN_SPAN else 1.0
     q = np.rint((np.where(finite, d, lo).astype(np.float64) - lo) / scale)
     return np.clip(q, 0, _CODE_MAX).astype(np.uint16), scale, lo, invalid
 
@@ -598,7 +603,7 @@ def _quantise_motion(
         v = m[..., c].astype(np.float64)
         lo, hi = min(float(v.min()), 0.0), max(float(v.max()), 0.0)
         # float32-representable, so the decoder's float32 arithmetic also gives exactly 0.0
-        scale = float(np.float32((hi - lo) / (_CODE_MAX - 2))) if hi > lo else 1.0
+        scale = float(np.float32((hi - lo) / (_CODE_MAX - 2))) if hi - lo >= _MIN_SPAN else 1.0
         z0 = float(np.rint(-lo / scale))
         q = np.clip(np.rint(v / scale) + z0, 0, _CODE_MAX).astype(np.uint16)
         planes.append(q)
