@@ -453,6 +453,24 @@ def test_layout_change_is_invalid_input(frames: list[sr.ServerFrame]) -> None:
         CodecConfig(chroma="422")
 
 
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        # 1e300 Mb/s reached x265 as kb/s and raised OverflowError.
+        ("bitrate_mbps", 1e300),
+        ("bitrate_mbps", 100_001.0),
+        ("fps", 1e300),
+        ("vbv_buffer_s", 1e300),
+        ("bitrate_mbps", float("nan")),
+        ("fps", True),
+    ],
+)
+def test_codec_config_bounds(field: str, value: float) -> None:
+    with pytest.raises(InvalidInputError, match=f"CodecConfig.{field}: expected a number > 0"):
+        CodecConfig(**{field: value})
+    assert CodecConfig(bitrate_mbps=100_000.0, fps=1000.0, vbv_buffer_s=60.0).fps == 1000.0
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("paper_mbps", [20.0, 40.0, 80.0])
 def test_bitrate_within_ten_percent(paper_mbps: float) -> None:

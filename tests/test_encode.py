@@ -67,3 +67,10 @@ def test_encode_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFi
     with pytest.raises(SystemExit) as e:
         main(["encode", str(tmp_path), "--bitrate", "-3", "--out", str(tmp_path / "x.srs")])
     assert e.value.code == 2
+    capsys.readouterr()
+    # 1e300 reached the encoder and ended in an OverflowError traceback.
+    with pytest.raises(SystemExit) as e:
+        main(["encode", str(tmp_path), "--bitrate", "1e300", "--out", str(tmp_path / "x.srs")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--bitrate: expected at most 100000 Mb/s, got 1e300" in err

@@ -97,6 +97,19 @@ def positive(text: str) -> float:
     return v
 
 
+def bitrate(text: str) -> float:
+    """A target bitrate in Mb/s: :func:`positive` and at most what :class:`CodecConfig` takes
+    (1e300 reached the encoder and raised OverflowError)."""
+    from splitrender.codec.coder import MAX_BITRATE_MBPS
+
+    v = positive(text)
+    if v > MAX_BITRATE_MBPS:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {MAX_BITRATE_MBPS:g} Mb/s, got {text}"
+        )
+    return v
+
+
 def _method_list(text: str, known: tuple[str, ...]) -> tuple[str, ...]:
     names = tuple(m.strip() for m in text.split(",") if m.strip())
     if not names:
@@ -203,7 +216,7 @@ def names(text: str) -> tuple[str, ...]:
 
 
 def bitrates(text: str) -> tuple[float, ...]:
-    return tuple(positive(t) for t in names(text))
+    return tuple(bitrate(t) for t in names(text))
 
 
 def delays(text: str) -> tuple[int, ...]:

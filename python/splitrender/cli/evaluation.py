@@ -16,6 +16,7 @@ from splitrender.cli.args import (
     add_scale,
     add_scene,
     add_trace,
+    bitrate,
     bitrates,
     command,
     count,
@@ -47,7 +48,7 @@ def add_demo(sub: Any) -> None:
         "(default: %(default)s)",
     )
     de.add_argument(
-        "--bitrate", type=positive, default=None, metavar="MBPS",
+        "--bitrate", type=bitrate, default=None, metavar="MBPS",
         help="target bitrate of the whole stream in Mb/s (default: the paper's 40 Mb/s at "
         "2560x1440 scaled by pixel count, at least 1.6: headers and lossless parts cost a "
         "fixed ~0.15 Mb/s at 256x144)",
@@ -124,7 +125,7 @@ def add_eval(sub: Any) -> None:
                     f"{','.join(DEFAULT_EVAL_METHODS)})")
     ev.add_argument("--delays", type=delays, default=None, metavar="LIST",
                     help=f"Table 2 delays l (default: {','.join(map(str, DEFAULT_DELAYS))})")
-    ev.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
+    ev.add_argument("--bitrate", type=bitrate, default=None, metavar="MBPS",
                     help="bitrate of the compressed experiments (default: the paper's 40 Mb/s "
                     "scaled by pixel count)")
     add_scale(ev, None, f"{EvalConfig.scale}")

@@ -12,6 +12,7 @@ from splitrender.cli.args import (
     add_samples,
     add_scale,
     add_trace,
+    bitrate,
     command,
     positive,
     run_stages,
@@ -93,7 +94,7 @@ def add_encode(sub: Any) -> None:
     add_out(en, "stream file to write", "FILE")
     en.add_argument(
         "--bitrate",
-        type=positive,
+        type=bitrate,
         metavar="MBPS",
         help="total target in Mb/s (default: the paper's 40 Mb/s at 2560x1440 scaled to the "
         "recording's main camera by pixel count)",

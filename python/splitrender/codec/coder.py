@@ -133,6 +133,15 @@ _SHADOW = {
 }
 
 
+#: Largest ``CodecConfig.bitrate_mbps`` (100 Gb/s, beyond any link the stream is meant for):
+#: the target reaches x265 as an integer in kb/s, and 1e300 Mb/s raised OverflowError there.
+MAX_BITRATE_MBPS = 100_000.0
+#: Largest ``CodecConfig.fps``; like the bitrate, it reaches libav as a number it must hold.
+MAX_FPS = 1000.0
+#: Largest ``CodecConfig.vbv_buffer_s``: x265's VBV buffer is this many seconds of the bitrate.
+MAX_VBV_BUFFER_S = 60.0
+
+
 @dataclass(frozen=True, slots=True)
 class CodecConfig:
     """Settings of a :class:`StreamEncoder` (the decoder needs none: the packets say it all).
@@ -165,11 +174,15 @@ class CodecConfig:
     threads: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("bitrate_mbps", "fps", "vbv_buffer_s"):
+        for name, top in (
+            ("bitrate_mbps", MAX_BITRATE_MBPS),
+            ("fps", MAX_FPS),
+            ("vbv_buffer_s", MAX_VBV_BUFFER_S),
+        ):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 < v <= top):
                 raise InvalidInputError(
-                    f"CodecConfig.{name}: expected a finite value > 0, got {v!r}"
+                    f"CodecConfig.{name}: expected a number > 0 and <= {top:g}, got {v!r}"
                 )
         shares = (
             self.color_share,
