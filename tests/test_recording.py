@@ -43,6 +43,18 @@ def test_plan() -> None:
     assert plan(2.0, 10, 120) == (21, 240)
 
 
+@pytest.mark.parametrize(
+    ("rates", "what"),
+    [({"fs": 1e6}, "fs"), ({"fc": 1e6}, "fc"), ({"fs": 1e300, "fc": 1e300}, "fs")],
+)
+def test_frame_counts_are_bounded(tmp_path: Path, rates: dict[str, float], what: str) -> None:
+    # fs=1e6 planned 300,000 server frames to render; refused before anything is written.
+    out = tmp_path / "r"
+    with pytest.raises(RecordingError, match=f"{what}: .* more than 50000 frames"):
+        write_recording(out, "lab", seconds=SECONDS, scale=SCALE, **rates)  # type: ignore[arg-type]
+    assert not out.exists()
+
+
 def test_round_trip(recorded: Path) -> None:
     rec = load_recording(recorded)
     assert rec.scene == "lab" and rec.variant == "dynamic" and not rec.stereo

@@ -75,6 +75,7 @@ from splitrender.types import (
 
 __all__ = [
     "FORMAT",
+    "MAX_FRAMES",
     "VERSION",
     "ClientFrame",
     "Recording",
@@ -92,6 +93,9 @@ FORMAT = "splitrender-recording"
 VERSION = 2
 _MANIFEST = "manifest.json"
 _MAX_MANIFEST_BYTES = 64 * 1024 * 1024
+#: Most server or client frames one recording plans (seven minutes at 120 Hz): fs=1e6 planned
+#: 300,000 frames to render, and a product such as seconds·fc of 1e400 overflowed in plan().
+MAX_FRAMES = 50_000
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 # Per-member allowance over the array data: zip local header + central directory + npy header.
 _MEMBER_OVERHEAD = 512
@@ -245,6 +249,13 @@ def write_recording(
         isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= MAX_SAMPLES
     ):
         raise RecordingError(f"samples: expected an int in 1..{MAX_SAMPLES} or None, got {samples!r}")
+    for what, rate in (("fs", fs), ("fc", fc)):
+        # Checked as floats before plan() rounds them: a product too large for a float is inf.
+        if seconds * rate > MAX_FRAMES:
+            raise RecordingError(
+                f"{what}: {rate:g} frames/s for {seconds:g} s is more than {MAX_FRAMES} frames; "
+                f"expected seconds x {what} <= {MAX_FRAMES}"
+            )
     n_server, n_client = plan(seconds, fs, fc)
     aux_size: list[list[int]] = []
 
