@@ -108,6 +108,18 @@ def test_description_must_be_a_small_regular_file(tmp_path: Path) -> None:
         sr.Scene.from_description(deep)
 
 
+@pytest.mark.parametrize("value", ["1e400", "1e300", "2.5", "true", '"2"'])
+def test_description_animation_must_be_a_whole_number(tmp_path: Path, value: str) -> None:
+    # 1e400 (infinity) and 1e300 raised OverflowError converting to the native index.
+    desc = tmp_path / "scene.json"
+    desc.write_text(
+        '{"scene": "courtyard", "models": [{"path": "m.glb", "position": [0, 0, 0], '
+        f'"animation": {value}}}]}}'
+    )
+    with pytest.raises(sr.InvalidInputError, match=r"scene.json: models\[0\]: .*animation"):
+        sr.Scene.from_description(desc)
+
+
 def test_render_cli_accepts_a_description(tmp_path: Path) -> None:
     _write_quad(tmp_path)
     desc = _describe(tmp_path)

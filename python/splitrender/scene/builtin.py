@@ -59,6 +59,7 @@ PREDICTION_DELAY = 0.1
 MAX_TRACE_BYTES = 64 * 1024 * 1024
 #: Largest scene description read (bytes): a JSON list of placed models is a few KB.
 MAX_DESCRIPTION_BYTES = 16 * 1024 * 1024
+_MAX_ANIMATION = 2**32 - 1
 
 F64 = npt.NDArray[np.float64]
 
@@ -125,8 +126,11 @@ class ModelPlacement:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInputError(f"{self.path}: {name} must be a finite value > 0, got {v}")
-        if self.animation is not None and self.animation < 0:
-            raise InvalidInputError(f"{self.path}: animation must be >= 0 or None, got {self.animation}")
+        # The upper bound keeps the index within the native usize (10**300 raised OverflowError).
+        if self.animation is not None and not 0 <= self.animation <= _MAX_ANIMATION:
+            raise InvalidInputError(
+                f"{self.path}: animation must be in 0..{_MAX_ANIMATION} or None, got {self.animation}"
+            )
 
     def to_native(
         self,
@@ -206,7 +210,7 @@ class Scene:
                         position=tuple(float(v) for v in m["position"]),  # type: ignore[arg-type]
                         yaw_deg=float(m.get("yaw_deg", 0.0)),
                         scale=float(m.get("scale", 1.0)),
-                        animation=None if m.get("animation", 0) is None else int(m.get("animation", 0)),
+                        animation=_animation_index(m.get("animation", 0)),
                         time_offset=float(m.get("time_offset", 0.0)),
                         speed=float(m.get("speed", 1.0)),
                     )
@@ -480,6 +484,16 @@ def load_trace(path: str | os.PathLike[str]) -> Trace:
         positions=a[:, 0:3].copy(),
         rotations=q,
     )
+
+
+def _animation_index(v: object) -> int | None:
+    """A description's ``animation``: null or a whole number (``int()`` of 1e400, which JSON
+    parses as infinity, raised OverflowError)."""
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v):
+        raise ValueError(f"animation: expected an integer >= 0 or null, got {v!r}")
+    return int(v)
 
 
 def _is_float(text: str) -> bool:
