@@ -289,6 +289,15 @@ def test_error_hostile_cam_json(handmade: Path, text: str, problem: str) -> None
         sr.import_dataset(handmade, aux=())
 
 
+def test_error_frame_rates_out_of_range(handmade: Path) -> None:
+    # shadowFps / serverFps was an infinity, and floor() of it raised OverflowError.
+    cam = handmade / "main" / "cam.json"
+    m = json.loads(cam.read_text())
+    cam.write_text(json.dumps({**m, "serverFps": 1e-300, "shadowFps": 1e300}))
+    with pytest.raises(DatasetError, match=r"cam\.json: serverFps: expected a number in"):
+        dataset_info(handmade, client=None).subframes
+
+
 def test_error_cam_json_not_a_regular_file(handmade: Path) -> None:
     (handmade / "main" / "cam.json").unlink()
     (handmade / "main" / "cam.json").symlink_to("/dev/zero")

@@ -77,6 +77,7 @@ __all__ = [
 ]
 
 _MAX_JSON_BYTES = 64 * 1024 * 1024
+_FPS_RANGE = (1e-3, 1e4)
 _KEYS = [f"e{r}{c}" for r in range(4) for c in range(4)]
 _EXR_HEADER = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
 _FLOW = {"fwd": "forwardFlowField", "bwd": "backwardFlowField"}
@@ -244,9 +245,13 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 
 def _number(m: dict[str, Any], key: str, default: float, path: Path) -> float:
+    """A frame rate of ``cam.json``, in ``_FPS_RANGE``: the rates are divided and multiplied
+    (``shadowFps / serverFps``, frame plans), and 1e300 over 1e-300 made ``floor`` of an
+    infinity raise OverflowError."""
     v = m.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-        raise _fail(path, f"{key}: expected a number > 0, got {v!r}")
+    lo, hi = _FPS_RANGE
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+        raise _fail(path, f"{key}: expected a number in {lo:g}..{hi:g} (frames/s), got {v!r}")
     return float(v)
 
 
