@@ -460,6 +460,8 @@ def test_layout_change_is_invalid_input(frames: list[sr.ServerFrame]) -> None:
         ("bitrate_mbps", 1e300),
         ("bitrate_mbps", 100_001.0),
         ("fps", 1e300),
+        # 1e-300 fps became a Fraction of denominator 0 for libav: ZeroDivisionError.
+        ("fps", 1e-300),
         ("vbv_buffer_s", 1e300),
         ("bitrate_mbps", float("nan")),
         ("fps", True),

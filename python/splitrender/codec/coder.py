@@ -136,8 +136,10 @@ _SHADOW = {
 #: Largest ``CodecConfig.bitrate_mbps`` (100 Gb/s, beyond any link the stream is meant for):
 #: the target reaches x265 as an integer in kb/s, and 1e300 Mb/s raised OverflowError there.
 MAX_BITRATE_MBPS = 100_000.0
-#: Largest ``CodecConfig.fps``; like the bitrate, it reaches libav as a number it must hold.
-MAX_FPS = 1000.0
+#: Range of ``CodecConfig.fps`` (exclusive below): like the bitrate it reaches libav, as a
+#: fraction of denominator <= 1001 that 1e-300 rounded to 0 (ZeroDivisionError), and the rate
+#: control divides by it.
+MIN_FPS, MAX_FPS = 1e-3, 1000.0
 #: Largest ``CodecConfig.vbv_buffer_s``: x265's VBV buffer is this many seconds of the bitrate.
 MAX_VBV_BUFFER_S = 60.0
 
@@ -174,15 +176,15 @@ class CodecConfig:
     threads: int = 0
 
     def __post_init__(self) -> None:
-        for name, top in (
-            ("bitrate_mbps", MAX_BITRATE_MBPS),
-            ("fps", MAX_FPS),
-            ("vbv_buffer_s", MAX_VBV_BUFFER_S),
+        for name, low, top in (
+            ("bitrate_mbps", 0.0, MAX_BITRATE_MBPS),
+            ("fps", MIN_FPS, MAX_FPS),
+            ("vbv_buffer_s", 0.0, MAX_VBV_BUFFER_S),
         ):
             v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 < v <= top):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and low < v <= top):
                 raise InvalidInputError(
-                    f"CodecConfig.{name}: expected a number > 0 and <= {top:g}, got {v!r}"
+                    f"CodecConfig.{name}: expected a number > {low:g} and <= {top:g}, got {v!r}"
                 )
         shares = (
             self.color_share,
