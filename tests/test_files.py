@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from splitrender.errors import InvalidInputError
+from splitrender.codec.stream import StreamFile
+from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import read_json, read_regular, write_atomic
 from splitrender.scene.builtin import TraceError, load_trace
 
@@ -74,6 +75,14 @@ def test_load_trace_of_a_fifo_or_dev_zero_is_a_trace_error(tmp_path: Path) -> No
     zero.symlink_to("/dev/zero")
     with _deadline(5), pytest.raises(TraceError, match="zero.txt: trace file is a character"):
         load_trace(zero)
+
+
+def test_stream_file_of_a_fifo_is_a_stream_error(tmp_path: Path) -> None:
+    # open() of the FIFO blocked until a writer came.
+    fifo = tmp_path / "s.srs"
+    os.mkfifo(fifo)
+    with _deadline(5), pytest.raises(StreamError, match="s.srs: stream file is a FIFO"):
+        StreamFile(fifo)
 
 
 def test_read_regular_refuses_devices_directories_and_links_to_them(tmp_path: Path) -> None:

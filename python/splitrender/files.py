@@ -8,10 +8,11 @@ one. (No ``fsync``: this guards against interrupted processes, not power loss, a
 writes hundreds of frame PNGs.)
 
 Every small file the package parses (head traces, scene descriptions, a recording's
-``manifest.json``, a dataset's ``cam.json``) is read through :func:`read_regular` and, for JSON,
-:func:`read_json`: only regular files, at most a given number of bytes, and every parse failure
-(including nesting too deep for the parser and integers no float can hold) as the caller's own
-exception class.
+``manifest.json`` and frame files, a dataset's ``cam.json``) is read through
+:func:`read_regular` and, for JSON, :func:`read_json`: only regular files, at most a given
+number of bytes, and every parse failure (including nesting too deep for the parser and
+integers no float can hold) as the caller's own exception class. Stream files, read in parts,
+are opened by :func:`open_regular`.
 """
 
 from __future__ import annotations
@@ -21,46 +22,46 @@ import os
 import stat
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
-__all__ = ["read_json", "read_regular", "write_atomic"]
+__all__ = ["open_regular", "read_json", "read_regular", "write_atomic"]
 
 # The most digits a JSON integer may have: every integer of 308 digits is below 1.8e308, the
 # largest float, and a longer one that the package converted with float() or math.isfinite()
 # could raise OverflowError (and above 4300 digits int() itself refuses it).
 _MAX_INT_DIGITS = sys.float_info.max_10_exp
-_CHUNK = 1 << 20
 
 
-def read_regular(
-    path: str | os.PathLike[str], limit: int, what: str, error: type[Exception]
-) -> bytes:
-    """The bytes of ``path`` (symbolic links followed), which must be a regular file of at most
-    ``limit`` bytes; otherwise raises ``error`` naming the path, ``what`` it should be and why.
+def open_regular(path: str | os.PathLike[str], what: str, error: type[Exception]) -> BinaryIO:
+    """``path`` (symbolic links followed) opened for binary reading, which must be a regular
+    file; otherwise raises ``error`` naming the path, ``what`` it should be and what it is.
 
     The file is opened non-blocking and checked with ``fstat`` on the open descriptor, so a FIFO
-    cannot block the open and the file checked is the file read (no race with a rename); and at
-    most ``limit + 1`` bytes are read whatever ``st_size`` says, so a device such as /dev/zero
-    (size 0) or a file growing while read cannot exhaust memory. :class:`OSError` from opening or
-    reading (a missing file, no permission) propagates for the caller to word."""
+    cannot block the open and the file checked is the file read (no race with a rename).
+    :class:`OSError` from opening (a missing file, no permission) propagates for the caller to
+    word."""
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     try:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):
             raise error(f"{path}: {what} is {_kind(mode)}, expected a regular file")
-        chunks: list[bytes] = []
-        got = 0
-        while got <= limit:
-            chunk = os.read(fd, min(_CHUNK, limit + 1 - got))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            got += len(chunk)
-    finally:
+        return os.fdopen(fd, "rb")
+    except BaseException:
         os.close(fd)
-    if got > limit:
+        raise
+
+
+def read_regular(
+    path: str | os.PathLike[str], limit: int, what: str, error: type[Exception]
+) -> bytes:
+    """The bytes of ``path``, opened by :func:`open_regular`, which must be at most ``limit``
+    bytes; otherwise raises ``error``. At most ``limit + 1`` bytes are read whatever
+    ``st_size`` says, so a file growing while read cannot exhaust memory."""
+    with open_regular(path, what, error) as f:
+        data = f.read(limit + 1)
+    if len(data) > limit:
         raise error(f"{path}: {what} is more than {limit} bytes")
-    return b"".join(chunks)
+    return data
 
 
 def _kind(mode: int) -> str:

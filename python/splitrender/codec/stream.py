@@ -72,6 +72,7 @@ import numpy.typing as npt
 import zstandard
 
 from splitrender.errors import StreamError
+from splitrender.files import open_regular
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # annotations only (Python 3.10)
@@ -667,7 +668,8 @@ class StreamFile:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = os.fspath(path)
         self._name = os.path.basename(self.path)
-        with open(self.path, "rb") as f:
+        # Only a regular file: open() of a FIFO blocked forever (issue 15).
+        with open_regular(self.path, "stream file", StreamError) as f:
             self._size = os.fstat(f.fileno()).st_size
             head = f.read(_FILE_HEADER.size)
             if len(head) < _FILE_HEADER.size:
@@ -782,7 +784,7 @@ class StreamFile:
                     f"{self.key_frames[:20]})"
                 )
             first = hits[0]
-        with open(self.path, "rb") as f:
+        with open_regular(self.path, "stream file", StreamError) as f:
             prev = self.index[first - 1].frame if first > 0 else None
             for e in self.index[first:]:
                 f.seek(e.offset)
