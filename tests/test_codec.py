@@ -210,6 +210,18 @@ def test_static_scene_motion_costs_nothing() -> None:
             assert m is not None and not m.any()
 
 
+def _round_trip_main(
+    f: sr.ServerFrame, depth: np.ndarray, motion: np.ndarray
+) -> sr.ServerFrame:
+    """``f`` with the main camera's depth and forward motion replaced, encoded and decoded."""
+    main = dataclasses.replace(f.main, depth=depth, motion_fwd=motion)
+    with (
+        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
+        StreamDecoder() as dec,
+    ):
+        return dec.decode(enc.encode(dataclasses.replace(f, main=main)))
+
+
 def test_invalid_depth_and_motion_stay_invalid(frames: list[sr.ServerFrame]) -> None:
     f = frames[0]
     depth = f.main.depth.copy()
@@ -217,13 +229,7 @@ def test_invalid_depth_and_motion_stay_invalid(frames: list[sr.ServerFrame]) -> 
     depth[5, 6] = np.inf
     motion = f.main.motion_fwd.copy()  # type: ignore[union-attr]
     motion[7, 8, 1] = np.nan
-    main = dataclasses.replace(f.main, depth=depth, motion_fwd=motion)
-    g = dataclasses.replace(f, main=main)
-    with (
-        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
-        StreamDecoder() as dec,
-    ):
-        out = dec.decode(enc.encode(g))
+    out = _round_trip_main(f, depth, motion)
     assert np.array_equal(np.isfinite(out.main.depth), np.isfinite(depth))
     assert out.main.motion_fwd is not None
     assert np.array_equal(
@@ -241,13 +247,7 @@ def test_denormal_depth_and_motion_ranges_round_trip_finite(
     motion[1, 2] = np.float32(tiny)
     depth = np.full_like(f.main.depth, abs(tiny))
     depth[3, 4] = 0.0
-    main = dataclasses.replace(f.main, depth=depth, motion_fwd=motion)
-    g = dataclasses.replace(f, main=main)
-    with (
-        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
-        StreamDecoder() as dec,
-    ):
-        out = dec.decode(enc.encode(g))
+    out = _round_trip_main(f, depth, motion)
     assert out.main.motion_fwd is not None
     assert np.isfinite(out.main.motion_fwd).all() and np.isfinite(out.main.depth).all()
     assert np.abs(out.main.motion_fwd - motion).max() <= 1e-34
