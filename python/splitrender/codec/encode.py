@@ -2,8 +2,8 @@
 
 The server side of the wire: every server frame of a recording (:mod:`splitrender.scene.recording`) goes
 through one :class:`~splitrender.codec.coder.StreamEncoder` and into a container file
-(:mod:`splitrender.codec.stream`). The file is written under a temporary name and renamed when complete,
-so an interrupted encode never leaves a stream that looks finished.
+(:mod:`splitrender.codec.stream`), whose writer writes under a temporary name and renames when
+complete, so an interrupted encode never leaves a stream that looks finished.
 """
 
 from __future__ import annotations
@@ -56,18 +56,14 @@ def encode_recording(
         base = dataclasses.replace(base, bitrate_mbps=bitrate_mbps)
     encoder = StreamEncoder(base)
     stats = StreamStats(fps=rec.fs)
-    partial = out_path.with_name(out_path.name + f".partial-{os.getpid()}")
-    try:
-        with StreamWriter(partial, fps=rec.fs) as writer:
-            for k, frame in enumerate(frames):
-                packet = encoder.encode(frame)
-                writer.write(packet)
-                stats.add(packet)
-                if progress is not None:
-                    progress(k + 1, len(frames))
-        os.replace(partial, out_path)
-    finally:
-        if partial.exists():
-            partial.unlink()
+    # StreamWriter writes beside out_path and renames when complete: an interrupted encode
+    # leaves the previous file, never a stream that looks finished.
+    with StreamWriter(out_path, fps=rec.fs) as writer:
+        for k, frame in enumerate(frames):
+            packet = encoder.encode(frame)
+            writer.write(packet)
+            stats.add(packet)
+            if progress is not None:
+                progress(k + 1, len(frames))
     return stats
 
