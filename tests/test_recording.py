@@ -137,6 +137,19 @@ def test_existing_output_needs_overwrite(recorded: Path) -> None:
         write_recording(recorded, "lab", seconds=SECONDS, scale=SCALE)
 
 
+def test_a_file_or_link_is_not_replaced_even_with_overwrite(recorded: Path, tmp_path: Path) -> None:
+    # Issue 15: overwrite=True renamed a regular file aside, rendered everything, then failed.
+    file = tmp_path / "notes.txt"
+    file.write_text("keep me\n")
+    link = tmp_path / "link"
+    link.symlink_to(recorded, target_is_directory=True)
+    for out in (file, link):
+        with pytest.raises(RecordingError, match=f"{out.name}: exists and is not a directory"):
+            write_recording(out, "lab", seconds=SECONDS, scale=SCALE, overwrite=True)
+    assert file.read_text() == "keep me\n" and link.resolve() == recorded.resolve()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "notes.txt"]
+
+
 @pytest.fixture
 def copy(recorded: Path, tmp_path: Path) -> Path:
     return Path(shutil.copytree(recorded, tmp_path / "copy"))
