@@ -8,15 +8,21 @@ one. (No ``fsync``: this guards against interrupted processes, not power loss, a
 writes hundreds of frame PNGs.)
 
 :func:`temporary_beside` names such a temporary file for writers that stream (the stream file).
+:func:`check_name` and :func:`joined` keep names that come from data or arguments from
+escaping the folder they are joined under, and :func:`check_apart` refuses an output that is an
+input, lies inside one or holds one (writing it would destroy what is being read).
 """
 
 from __future__ import annotations
 
 import itertools
 import os
+from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["temporary_beside", "write_atomic"]
+from splitrender.errors import InvalidInputError
+
+__all__ = ["check_apart", "check_name", "joined", "temporary_beside", "write_atomic"]
 
 # Two writers of the same path in one process (threads, nested writers) must not share a
 # temporary file, so the name carries a per-process serial number besides the pid.
@@ -44,3 +50,55 @@ def write_atomic(path: str | os.PathLike[str], data: bytes | str) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+Error = Callable[[str], Exception]
+
+
+def check_name(name: object, what: str, error: Error = InvalidInputError) -> str:
+    """Returns ``name`` if it is a plain file or folder name (a non-empty ``str`` without ``/``,
+    ``\\`` or NUL, not ``.`` or ``..``), else raises ``error(message)`` naming ``what``. Both
+    separators are refused on every system: a name from a dataset or a command line written on
+    one system must not mean a path on another."""
+    if (
+        not isinstance(name, str)
+        or name in ("", ".", "..")
+        or any(c in name for c in "/\\\0")
+        or os.path.isabs(name)
+    ):
+        raise error(
+            f"{what}: expected a plain name (not empty, no '/', '\\' or NUL, not '.' or '..'), "
+            f"got {name!r}"
+        )
+    return name
+
+
+def joined(folder: str | os.PathLike[str], name: object, what: str,
+           error: Error = InvalidInputError) -> Path:
+    """``folder / name`` for a :func:`check_name` name, checked to stay inside ``folder`` once
+    symbolic links are resolved (a link already there must not lead a writer elsewhere)."""
+    base = Path(folder)
+    path = base / check_name(name, what, error)
+    if not path.resolve().is_relative_to(base.resolve()):
+        raise error(f"{what}: {path} leads outside {base}; expected a path inside it")
+    return path
+
+
+def check_apart(out: str | os.PathLike[str], inputs: dict[str, str | os.PathLike[str]],
+                error: Error = InvalidInputError) -> None:
+    """Raises ``error(message)`` when the output ``out`` is one of ``inputs`` (``{what: path}``),
+    lies inside one, or holds one: writing it would replace or mix into what is being read (an
+    ``encode REC --out REC/manifest.json`` would replace the recording's manifest). Paths are
+    compared once resolved, so ``..`` and symbolic links do not hide it."""
+    o = Path(out).resolve()
+    for what, path in inputs.items():
+        i = Path(path).resolve()
+        if o == i:
+            problem = f"is the {what} {path}"
+        elif o.is_relative_to(i):
+            problem = f"lies inside the {what} {path}"
+        elif i.is_relative_to(o):
+            problem = f"holds the {what} {path}"
+        else:
+            continue
+        raise error(f"{out}: the output {problem}; expected a path outside it")

@@ -44,6 +44,7 @@ from PIL import Image
 
 from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
+from splitrender.files import check_apart, joined
 from splitrender.imageio import write_png
 from splitrender.scene.recording import (
     ClientFrame,
@@ -337,12 +338,19 @@ def export_dataset(
     ground truth to ``client``. Depth and motion are written as half floats.
 
     Raises:
-        DatasetError: ``out_dir`` is not empty, or the recording has more auxiliary cameras
-            than ``aux_names``.
+        DatasetError: ``out_dir`` is not empty, is the recording's directory or lies inside it
+            (or holds it), a name of ``aux_names`` or ``client`` is not a plain folder name
+            (empty, with a separator, ``.`` or ``..``), or the recording has more auxiliary
+            cameras than ``aux_names``.
         RecordingError: the recording cannot be read.
     """
-    rec = recording if isinstance(recording, Recording) else load_recording(recording)
     out = Path(out_dir)
+    # The camera folders are joined under out: a name with a separator or '..' would write
+    # outside it, so every name is checked before anything is read or written.
+    aux_dirs = [joined(out, a, f"aux_names[{i}]", DatasetError) for i, a in enumerate(aux_names)]
+    client_dir = joined(out, client, "client", DatasetError)
+    rec = recording if isinstance(recording, Recording) else load_recording(recording)
+    check_apart(out, {"recording": rec.path}, DatasetError)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise _fail(out, "exists and is not an empty directory")
     frames = list(rec.server_frames)
@@ -352,12 +360,12 @@ def export_dataset(
     names = ["main", *aux_names[:n_aux]]
     if len(set(names)) != len(names) or client in names:
         raise _fail(out, f"camera directory names must differ, got {[*names, client]}")
+    dirs = [out / "main", *aux_dirs[:n_aux]]
     fs, fc = rec.fs, rec.fc
     shadow_fps = fs * rec.subframes
     idxs = [f.index for f in frames]
-    for ci, name in enumerate(names):
+    for ci, d in enumerate(dirs):
         cam_frames = [f.main if ci == 0 else f.aux[ci - 1] for f in frames]
-        d = out / name
         for sub in ("color", "depth", *_FLOW.values(), *_SHADOW["fwd"], *_SHADOW["bwd"]):
             (d / sub).mkdir(parents=True, exist_ok=True)
         (d / "cam.json").write_text(
@@ -391,7 +399,7 @@ def export_dataset(
                 write_png(d / info / _name(idx, "png"), bits_to_rgba(sh.bits), level=1)
                 write_png(d / col_a / _name(idx, "png"), np.concatenate([sh.s_min, alpha], 2), level=1)
                 write_png(d / col_b / _name(idx, "png"), np.concatenate([sh.s_max, alpha], 2), level=1)
-    cd = out / client
+    cd = client_dir
     (cd / "color").mkdir(parents=True, exist_ok=True)
     cframes = list(rec.client_frames)
     (cd / "cam.json").write_text(
@@ -598,12 +606,15 @@ def import_dataset_as_recording(
 
     Raises:
         DatasetError: the dataset cannot be read or cannot be a recording (not two auxiliary
-            cameras, no ground truth, a client size other than the main camera's).
+            cameras, no ground truth, a client size other than the main camera's), or ``out``
+            is the dataset's directory, lies inside it or holds it.
         RecordingError: ``out`` exists (without ``overwrite``).
     """
     root, dest = Path(in_dir), Path(out)
     if len(aux) != 2:
         raise DatasetError(f"--aux: a recording has two auxiliary cameras, got {len(aux)}")
+    # With overwrite, write_frames removes the old dest: that must not be (or hold) the dataset.
+    check_apart(dest, {"dataset": root}, DatasetError)
     check_destination(dest, overwrite)
     if stages is not None:
         stages.stage(f"reading the dataset {root}")
