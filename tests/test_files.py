@@ -54,10 +54,11 @@ def test_check_apart(tmp_path: Path) -> None:
     rec.mkdir()
     check_apart(tmp_path / "s.srs", {"recording": rec})
     check_apart(tmp_path / "rec2", {"recording": rec})  # a common prefix is not inside
+    check_apart(tmp_path, {"recording": rec})  # beside the input: only a replaced one holds it
     for out, problem in [
         (rec / "manifest.json", "lies inside the recording"),
         (rec / ".." / "rec", "is the recording"),
         (tmp_path, "holds the recording"),
     ]:
         with pytest.raises(InvalidInputError, match=f"the output {problem} {rec}; expected"):
-            check_apart(out, {"recording": rec})
+            check_apart(out, {"recording": rec}, replaced=True)

@@ -10,7 +10,7 @@ writes hundreds of frame PNGs.)
 :func:`temporary_beside` names such a temporary file for writers that stream (the stream file).
 :func:`check_name` and :func:`joined` keep names that come from data or arguments from
 escaping the folder they are joined under, and :func:`check_apart` refuses an output that is an
-input, lies inside one or holds one (writing it would destroy what is being read).
+input or lies inside one (writing it would destroy what is being read).
 """
 
 from __future__ import annotations
@@ -85,11 +85,13 @@ def joined(folder: str | os.PathLike[str], name: object, what: str,
 
 
 def check_apart(out: str | os.PathLike[str], inputs: dict[str, str | os.PathLike[str]],
-                error: Error = InvalidInputError) -> None:
-    """Raises ``error(message)`` when the output ``out`` is one of ``inputs`` (``{what: path}``),
-    lies inside one, or holds one: writing it would replace or mix into what is being read (an
-    ``encode REC --out REC/manifest.json`` would replace the recording's manifest). Paths are
-    compared once resolved, so ``..`` and symbolic links do not hide it."""
+                error: Error = InvalidInputError, *, replaced: bool = False) -> None:
+    """Raises ``error(message)`` when the output ``out`` is one of ``inputs`` (``{what: path}``)
+    or lies inside one: writing it would replace or mix into what is being read (``encode REC
+    --out REC/manifest.json`` replaced the recording's manifest). With ``replaced`` (``out`` is a
+    folder removed and written anew, as ``--force`` does) an ``out`` that holds an input is
+    refused too; otherwise writing beside an input (``--out .``) is fine. Paths are compared once
+    resolved, so ``..`` and symbolic links do not hide it; the message names both paths."""
     o = Path(out).resolve()
     for what, path in inputs.items():
         i = Path(path).resolve()
@@ -97,7 +99,7 @@ def check_apart(out: str | os.PathLike[str], inputs: dict[str, str | os.PathLike
             problem = f"is the {what} {path}"
         elif o.is_relative_to(i):
             problem = f"lies inside the {what} {path}"
-        elif i.is_relative_to(o):
+        elif replaced and i.is_relative_to(o):
             problem = f"holds the {what} {path}"
         else:
             continue

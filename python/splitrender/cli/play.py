@@ -22,7 +22,7 @@ from splitrender.cli.args import (
     positive,
 )
 from splitrender.errors import SplitRenderError
-from splitrender.files import write_atomic
+from splitrender.files import check_apart, write_atomic
 from splitrender.imageio import write_png
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -99,6 +99,13 @@ def run(args: argparse.Namespace) -> int:
                             "client cameras)")
     src = Path(args.source) if args.source is not None else args.dataset
     out: Path = args.out
+    # Frames and play.json written into a recording, a dataset or over a stream file would
+    # damage the input being played.
+    inputs = {"source" if args.dataset is None else "dataset": src, "recording": args.recording}
+    try:
+        check_apart(out, {k: v for k, v in inputs.items() if v is not None and v.exists()})
+    except SplitRenderError as e:
+        return fail(f"--out {e}")
     rendered = args.source in SCENE_NAMES and not src.exists()
     stages = Progress(3 if rendered else 4 if args.dataset is not None else 2, not args.quiet)
     try:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from splitrender.codec.coder import CodecConfig, StreamEncoder
 from splitrender.errors import InvalidInputError
+from splitrender.files import check_apart
 from splitrender.scene.recording import load_recording
 from splitrender.codec.stream import StreamStats, StreamWriter
 
@@ -39,9 +40,12 @@ def encode_recording(
     Returns the per-buffer byte accounting of the stream.
 
     Raises:
-        InvalidInputError: for a bad bitrate or an output path that already exists as a folder.
+        InvalidInputError: for a bad bitrate, an output path that already exists as a folder or
+            one that is the recording or lies inside it.
         RecordingError: for a recording that is missing, incomplete or corrupted.
     """
+    # The stream must not land inside the recording (--out REC/manifest.json replaced it).
+    check_apart(out, {"recording": recording})
     rec = load_recording(recording)
     frames = rec.server_frames
     if len(frames) == 0:

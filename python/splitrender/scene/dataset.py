@@ -614,7 +614,7 @@ def import_dataset_as_recording(
     if len(aux) != 2:
         raise DatasetError(f"--aux: a recording has two auxiliary cameras, got {len(aux)}")
     # With overwrite, write_frames removes the old dest: that must not be (or hold) the dataset.
-    check_apart(dest, {"dataset": root}, DatasetError)
+    check_apart(dest, {"dataset": root}, DatasetError, replaced=overwrite)
     check_destination(dest, overwrite)
     if stages is not None:
         stages.stage(f"reading the dataset {root}")
