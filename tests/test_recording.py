@@ -137,6 +137,26 @@ def test_existing_output_needs_overwrite(recorded: Path) -> None:
         write_recording(recorded, "lab", seconds=SECONDS, scale=SCALE)
 
 
+def test_a_failed_overwrite_puts_the_previous_recording_back(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "rec"
+    shutil.copytree(recorded, out)
+    before = _files(out)
+    rename = Path.rename
+
+    def failing(self: Path, target: str | Path) -> Path:
+        if ".partial-" in self.name:  # the finished recording cannot be moved into place
+            raise OSError(5, "Input/output error")
+        return rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", failing)
+    with pytest.raises(OSError, match="Input/output error"):
+        write_recording(out, "lab", seconds=SECONDS, scale=SCALE, overwrite=True)
+    assert _files(out) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["rec"]
+
+
 def test_a_file_or_link_is_not_replaced_even_with_overwrite(recorded: Path, tmp_path: Path) -> None:
     # Issue 15: overwrite=True renamed a regular file aside, rendered everything, then failed.
     file = tmp_path / "notes.txt"

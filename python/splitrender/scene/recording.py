@@ -385,7 +385,11 @@ def write_frames(
         if out.exists():  # overwrite: move the old one aside first, remove it after the rename
             old = out.with_name(f"{out.name}.old-{os.getpid()}")
             out.rename(old)
-            tmp.rename(out)
+            try:
+                tmp.rename(out)
+            except BaseException:
+                old.rename(out)  # the previous recording goes back where it was
+                raise
             shutil.rmtree(old)
         else:
             tmp.rename(out)
