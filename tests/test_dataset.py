@@ -166,6 +166,34 @@ def test_export_names_stay_inside_the_output(
     assert list(tmp_path.rglob("*")) == []
 
 
+def test_an_interrupted_export_leaves_no_dataset(
+    recording: sr.Recording, exported: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Issue 15: the export wrote in place, so a failure left a dataset with cameras or frames
+    # missing under the final name.
+    from splitrender.scene import dataset
+
+    write_png, calls = dataset.write_png, []
+
+    def full_disk(*args: object, **kwargs: object) -> None:
+        calls.append(1)
+        if len(calls) == 20:
+            raise OSError(28, "No space left on device")
+        write_png(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(dataset, "write_png", full_disk)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for out in (tmp_path / "new" / "ds", empty):
+        calls.clear()
+        with pytest.raises(OSError, match="No space left"):
+            sr.export_dataset(recording, out)
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == ["empty", "new"]
+    monkeypatch.undo()
+    sr.export_dataset(recording, empty)  # an empty folder is replaced by the finished export
+    assert sorted(p.name for p in empty.iterdir()) == sorted(p.name for p in exported.iterdir())
+
+
 def test_export_and_import_refuse_an_output_inside_the_input(
     recording: sr.Recording, exported: Path
 ) -> None:
