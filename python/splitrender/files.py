@@ -7,7 +7,8 @@ so an exception, Ctrl-C or a full disk leaves the previous file intact and never
 one. (No ``fsync``: this guards against interrupted processes, not power loss, and a session
 writes hundreds of frame PNGs.)
 
-:func:`temporary_beside` names such a temporary file for writers that stream (the stream file).
+:func:`temporary_beside` names such a temporary file for writers that stream (the stream file,
+the videos), which derive from :class:`AtomicWriter`.
 :func:`check_name` and :func:`joined` keep names that come from data or arguments from
 escaping the folder they are joined under, and :func:`check_apart` refuses an output that is an
 input or lies inside one (writing it would destroy what is being read).
@@ -19,10 +20,19 @@ import itertools
 import os
 from collections.abc import Callable
 from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING
 
 from splitrender.errors import InvalidInputError
 
-__all__ = ["check_apart", "check_name", "joined", "temporary_beside", "write_atomic"]
+if TYPE_CHECKING:
+    from typing_extensions import Self  # annotations only (Python 3.10)
+
+__all__ = [
+    "AtomicWriter",
+    "check_apart", "check_name", "joined", "temporary_beside",
+    "write_atomic",
+]
 
 # Two writers of the same path in one process (threads, nested writers) must not share a
 # temporary file, so the name carries a per-process serial number besides the pid.
@@ -35,6 +45,34 @@ def temporary_beside(path: str | os.PathLike[str]) -> Path:
     process and call."""
     dest = Path(path)
     return dest.with_name(f".{dest.name}.partial-{os.getpid()}-{next(_serial)}")
+
+
+class AtomicWriter:
+    """A writer that writes into a :func:`temporary_beside` file and renames it into place.
+
+    As a context manager, a clean exit calls :meth:`close` (finish, rename over the target)
+    and an exception :meth:`abort` (remove the temporary file, leave the target as it was), so
+    an error inside the ``with`` never leaves a shorter file that reads as complete."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def write_atomic(path: str | os.PathLike[str], data: bytes | str) -> None:

@@ -66,18 +66,14 @@ import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
-from typing import TYPE_CHECKING, BinaryIO
+from typing import BinaryIO
 
 import numpy as np
 import numpy.typing as npt
 import zstandard
 
 from splitrender.errors import StreamError
-from splitrender.files import temporary_beside
-
-if TYPE_CHECKING:
-    from typing_extensions import Self  # annotations only (Python 3.10)
+from splitrender.files import AtomicWriter, temporary_beside
 
 __all__ = [
     "MAX_BUFFERS",
@@ -599,7 +595,7 @@ class IndexEntry:
     key: bool
 
 
-class StreamWriter:
+class StreamWriter(AtomicWriter):
     """Writes packets to a container file, then the key-frame index on :meth:`close`.
 
     Use as a context manager. The packets go to a temporary file beside ``path``
@@ -670,20 +666,6 @@ class StreamWriter:
         if not self._file.closed:
             self._file.close()
         self._tmp.unlink(missing_ok=True)
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 def write_stream(
