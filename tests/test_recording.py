@@ -309,6 +309,22 @@ def test_cli_render(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert e.value.code == 2 and "--samples: expected 1..8" in capsys.readouterr().err
 
 
+def test_cli_render_refuses_an_output_that_is_or_holds_an_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 15: --force removes the old DIR after the render, with the trace or scene in it.
+    old = tmp_path / "r"
+    old.mkdir()
+    trace = old / "trace.txt"
+    trace.write_text("0 0 0 0 0 0 0\n")
+    for out, problem in [(old, "holds the trace"), (trace, "is the trace")]:
+        argv = ["render", "colonnade", "--out", str(out), "--trace", str(trace), "--force"]
+        assert main([*argv, "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err == f"splitrender: error: {out}: the output {problem} {trace}; expected a path outside it\n"
+    assert trace.read_text() == "0 0 0 0 0 0 0\n"
+
+
 def test_cli_render_shared_trace(tmp_path: Path) -> None:
     trace = TRACES / "robot_lab_path.txt"
     if not trace.is_file():

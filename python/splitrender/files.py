@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import itertools
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING
@@ -122,7 +122,7 @@ def joined(folder: str | os.PathLike[str], name: object, what: str,
     return path
 
 
-def check_apart(out: str | os.PathLike[str], inputs: dict[str, str | os.PathLike[str]],
+def check_apart(out: str | os.PathLike[str], inputs: Mapping[str, str | os.PathLike[str]],
                 error: Error = InvalidInputError, *, replaced: bool = False) -> None:
     """Raises ``error(message)`` when the output ``out`` is one of ``inputs`` (``{what: path}``)
     or lies inside one: writing it would replace or mix into what is being read (``encode REC
