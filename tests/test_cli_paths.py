@@ -177,6 +177,32 @@ def test_render_and_encode_write_the_recording_and_a_stream_near_the_target(
     assert mbps == pytest.approx(BITRATE, rel=0.2)
 
 
+def test_an_output_inside_an_input_is_refused_and_the_input_kept(
+    recording: Path, stream: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 15: `encode REC --out REC/manifest.json` exited 0 and destroyed the recording.
+    before = {p.name: p.read_bytes() for p in recording.iterdir() if p.is_file()}
+    names = sorted(p.name for p in recording.iterdir())
+    stream_bytes = stream.read_bytes()
+    rec = str(recording)
+    for out, argv in [
+        (recording / "manifest.json", ["encode", rec]),
+        (recording, ["encode", rec]),
+        (recording / "ds", ["dataset", "export", rec]),
+        (recording, ["play", rec, "--no-vmaf"]),
+        (recording / "play", ["play", str(stream), "--recording", rec, "--no-vmaf"]),
+        (stream, ["play", str(stream), "--recording", rec, "--no-vmaf"]),
+    ]:
+        assert main([*argv, "--out", str(out), "--quiet"]) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("splitrender: error: ") and err.count("\n") == 1, err
+        assert f"{out}: the output " in err and "expected a path outside it" in err, err
+        assert (str(stream) if out == stream else rec) in err.split(": the output ")[1], err
+    assert sorted(p.name for p in recording.iterdir()) == names
+    assert {p.name: p.read_bytes() for p in recording.iterdir() if p.is_file()} == before
+    assert stream.read_bytes() == stream_bytes
+
+
 def test_play_stream_file_scores_the_frames_it_writes(
     recording: Path, stream: Path, played_stream: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

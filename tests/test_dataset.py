@@ -19,6 +19,7 @@ from splitrender.scene.dataset import (
     bits_from_rgba,
     bits_to_rgba,
     dataset_info,
+    import_dataset_as_recording,
     matrix_to_unity,
     motion_from_theirs,
     motion_to_theirs,
@@ -142,6 +143,70 @@ def test_imported_frames_reproject_alike(recording: sr.Recording, exported: Path
 def test_export_refuses_non_empty(recording: sr.Recording, exported: Path) -> None:
     with pytest.raises(DatasetError, match="not an empty directory"):
         sr.export_dataset(recording, exported)
+
+
+@pytest.mark.parametrize(
+    ("aux_names", "client", "what"),
+    [
+        (("../../x", "right"), "client_ol", r"aux_names\[0\]"),
+        (("left", "a/b"), "client_ol", r"aux_names\[1\]"),
+        (("left", "right"), "..", "client"),
+        (("left", "right"), "", "client"),
+        (("left", "right"), "/tmp/elsewhere", "client"),
+        (("left", "c:\\x"), "client_ol", r"aux_names\[1\]"),
+    ],
+)
+def test_export_names_stay_inside_the_output(
+    recording: sr.Recording, tmp_path: Path, aux_names: tuple[str, str], client: str, what: str
+) -> None:
+    # Issue 15: aux_names=("../../x", ...) wrote outside the output folder.
+    out = tmp_path / "a" / "b" / "ds"
+    with pytest.raises(DatasetError, match=f"{what}: expected a plain name"):
+        sr.export_dataset(recording, out, aux_names=aux_names, client=client)
+    assert list(tmp_path.rglob("*")) == []
+
+
+def test_an_interrupted_export_leaves_no_dataset(
+    recording: sr.Recording, exported: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Issue 15: the export wrote in place, so a failure left a dataset with cameras or frames
+    # missing under the final name.
+    from splitrender.scene import dataset
+
+    write_png, calls = dataset.write_png, []
+
+    def full_disk(*args: object, **kwargs: object) -> None:
+        calls.append(1)
+        if len(calls) == 20:
+            raise OSError(28, "No space left on device")
+        write_png(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(dataset, "write_png", full_disk)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for out in (tmp_path / "new" / "ds", empty):
+        calls.clear()
+        with pytest.raises(OSError, match="No space left"):
+            sr.export_dataset(recording, out)
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == ["empty", "new"]
+    monkeypatch.undo()
+    sr.export_dataset(recording, empty)  # an empty folder is replaced by the finished export
+    assert sorted(p.name for p in empty.iterdir()) == sorted(p.name for p in exported.iterdir())
+
+
+def test_export_and_import_refuse_an_output_inside_the_input(
+    recording: sr.Recording, exported: Path
+) -> None:
+    before = sorted(p.name for p in recording.path.iterdir())
+    for out in (recording.path, recording.path / "ds"):
+        with pytest.raises(DatasetError, match="the output (is|lies inside) the recording"):
+            sr.export_dataset(recording, out)
+    assert sorted(p.name for p in recording.path.iterdir()) == before
+    with pytest.raises(DatasetError, match="the output is the dataset"):
+        import_dataset_as_recording(exported, exported, overwrite=True)
+    with pytest.raises(DatasetError, match="the output holds the dataset"):
+        import_dataset_as_recording(exported, exported.parent, overwrite=True)
+    assert (exported / "main" / "cam.json").is_file()
 
 
 # ----------------------------------------------------------------------------------------------

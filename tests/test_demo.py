@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 from splitrender.evaluation.bench import BENCH_KEYS
 from splitrender.cli import main
-from splitrender.evaluation.demo import DEFAULT_METHODS, ROW_KEYS, colormap
+import numpy as np
+from splitrender.evaluation.demo import DEFAULT_METHODS, ROW_KEYS, _Video, colormap
 
 av = pytest.importorskip("av")
 
@@ -117,3 +118,23 @@ def test_colormap_is_dark_for_no_error_and_bright_for_full_error() -> None:
     c = colormap(np.array([[0.0, 0.5, 1.0, np.nan]], np.float32))
     assert c.dtype == np.uint8 and c.shape == (1, 4, 3)
     assert c[0, 0].sum() < 20 and c[0, 2].sum() > 600 and (c[0, 3] == c[0, 0]).all()
+
+
+def test_a_failed_video_leaves_the_previous_one_and_no_temporary(tmp_path: Path) -> None:
+    # Issue 15: the video was written in place and closed on the way out of an exception, which
+    # left a shorter video that played.
+    path = tmp_path / "video.mp4"
+    frame = np.full((16, 32, 3), 128, np.uint8)
+    with _Video(path, 32, 16, 24.0) as v:
+        for _ in range(5):
+            v.write(frame)
+    good = path.read_bytes()
+    with av.open(str(path)) as c:
+        assert sum(1 for _ in c.decode(video=0)) == 5
+    with pytest.raises(RuntimeError, match="midway"):
+        with _Video(path, 32, 16, 24.0) as v:
+            v.write(frame)
+            raise RuntimeError("midway")
+    assert path.read_bytes() == good
+    assert [p.name for p in tmp_path.iterdir()] == ["video.mp4"]
+

@@ -1,6 +1,6 @@
 """splitrender.files: write_atomic (a failed write leaves the previous file intact, nothing
 else); read_regular and read_json (only regular files, size-capped reads, parse failures as the
-caller's exception)."""
+caller's exception); names and outputs cannot escape their folder or overwrite an input."""
 
 from __future__ import annotations
 
@@ -14,7 +14,14 @@ import pytest
 
 from splitrender.codec.stream import StreamFile
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.files import read_json, read_regular, write_atomic
+from splitrender.files import (
+    check_apart,
+    check_name,
+    joined,
+    read_json,
+    read_regular,
+    write_atomic,
+)
 from splitrender.scene.builtin import TraceError, load_trace
 
 
@@ -135,3 +142,31 @@ def test_read_json_keeps_ordinary_numbers(tmp_path: Path) -> None:
     assert read_json(path, 1 << 20, "manifest", InvalidInputError) == {
         "a": -12, "b": 10**307, "c": 0.5
     }
+
+
+@pytest.mark.parametrize("name", ["", ".", "..", "../x", "a/b", "a\\b", "/abs", "x\0", None, 3])
+def test_check_name_refuses_anything_but_a_plain_name(name: object) -> None:
+    with pytest.raises(InvalidInputError, match=r"--aux: expected a plain name .* got"):
+        check_name(name, "--aux")
+
+
+def test_joined_stays_inside_the_folder(tmp_path: Path) -> None:
+    assert joined(tmp_path, "left", "aux") == tmp_path / "left"
+    (tmp_path / "link").symlink_to(tmp_path.parent)  # a link already there leads out
+    with pytest.raises(ValueError, match="link leads outside"):
+        joined(tmp_path, "link", "aux", ValueError)
+
+
+def test_check_apart(tmp_path: Path) -> None:
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    check_apart(tmp_path / "s.srs", {"recording": rec})
+    check_apart(tmp_path / "rec2", {"recording": rec})  # a common prefix is not inside
+    check_apart(tmp_path, {"recording": rec})  # beside the input: only a replaced one holds it
+    for out, problem in [
+        (rec / "manifest.json", "lies inside the recording"),
+        (rec / ".." / "rec", "is the recording"),
+        (tmp_path, "holds the recording"),
+    ]:
+        with pytest.raises(InvalidInputError, match=f"the output {problem} {rec}; expected"):
+            check_apart(out, {"recording": rec}, replaced=True)

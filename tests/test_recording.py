@@ -149,6 +149,39 @@ def test_existing_output_needs_overwrite(recorded: Path) -> None:
         write_recording(recorded, "lab", seconds=SECONDS, scale=SCALE)
 
 
+def test_a_failed_overwrite_puts_the_previous_recording_back(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "rec"
+    shutil.copytree(recorded, out)
+    before = _files(out)
+    rename = Path.rename
+
+    def failing(self: Path, target: str | Path) -> Path:
+        if ".partial-" in self.name:  # the finished recording cannot be moved into place
+            raise OSError(5, "Input/output error")
+        return rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", failing)
+    with pytest.raises(OSError, match="Input/output error"):
+        write_recording(out, "lab", seconds=SECONDS, scale=SCALE, overwrite=True)
+    assert _files(out) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["rec"]
+
+
+def test_a_file_or_link_is_not_replaced_even_with_overwrite(recorded: Path, tmp_path: Path) -> None:
+    # Issue 15: overwrite=True renamed a regular file aside, rendered everything, then failed.
+    file = tmp_path / "notes.txt"
+    file.write_text("keep me\n")
+    link = tmp_path / "link"
+    link.symlink_to(recorded, target_is_directory=True)
+    for out in (file, link):
+        with pytest.raises(RecordingError, match=f"{out.name}: exists and is not a directory"):
+            write_recording(out, "lab", seconds=SECONDS, scale=SCALE, overwrite=True)
+    assert file.read_text() == "keep me\n" and link.resolve() == recorded.resolve()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "notes.txt"]
+
+
 @pytest.fixture
 def copy(recorded: Path, tmp_path: Path) -> Path:
     return Path(shutil.copytree(recorded, tmp_path / "copy"))
@@ -313,6 +346,22 @@ def test_cli_render(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as e:
         main([*args, "--force", "--samples", "9"])
     assert e.value.code == 2 and "--samples: expected 1..8" in capsys.readouterr().err
+
+
+def test_cli_render_refuses_an_output_that_is_or_holds_an_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Issue 15: --force removes the old DIR after the render, with the trace or scene in it.
+    old = tmp_path / "r"
+    old.mkdir()
+    trace = old / "trace.txt"
+    trace.write_text("0 0 0 0 0 0 0\n")
+    for out, problem in [(old, "holds the trace"), (trace, "is the trace")]:
+        argv = ["render", "colonnade", "--out", str(out), "--trace", str(trace), "--force"]
+        assert main([*argv, "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err == f"splitrender: error: {out}: the output {problem} {trace}; expected a path outside it\n"
+    assert trace.read_text() == "0 0 0 0 0 0 0\n"
 
 
 def test_cli_render_shared_trace(tmp_path: Path) -> None:

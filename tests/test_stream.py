@@ -5,8 +5,10 @@ the frame and buffer; fuzzed with hypothesis)."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import struct
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +26,7 @@ from splitrender.codec.stream import (
     Codec,
     Packet,
     StreamFile,
+    StreamWriter,
     pack_packet,
     read_stream,
     stream_stats,
@@ -300,6 +303,49 @@ def test_container_index_and_random_access(tmp_path: Path) -> None:
     assert list(read_stream(path, start=3)) == packets[3:]
     with pytest.raises(StreamError, match="frame 4 is not a key frame"):
         list(read_stream(path, start=4))
+
+
+def test_a_failed_write_leaves_the_previous_stream_intact(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Issue 15: the writer wrote in place, so a failure midway destroyed the previous file and
+    # left a shorter one that still read cleanly.
+    path = tmp_path / "s.srs"
+    packets = [pack_packet(_packet(i)) for i in range(4)]
+    write_stream(path, packets)
+    good = path.read_bytes()
+
+    with pytest.raises(RuntimeError, match="midway"):
+        with StreamWriter(path, fps=10) as w:
+            w.write(packets[0])
+            raise RuntimeError("midway")
+    assert path.read_bytes() == good
+
+    def packets_then_fail() -> Iterator[bytes]:
+        yield packets[0]
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_stream(path, packets_then_fail())
+    with pytest.raises(StreamError):  # a bad packet midway
+        write_stream(path, [packets[0], b"not a packet"])
+    assert path.read_bytes() == good
+
+    def full_disk(fd: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        write_stream(path, packets[:2])
+    assert path.read_bytes() == good
+    assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
+    monkeypatch.undo()
+
+    write_stream(path, packets[:2])  # a clean close replaces it
+    assert list(read_stream(path)) == packets[:2]
+    assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
+    with pytest.raises(IsADirectoryError, match="got a folder"):
+        StreamWriter(tmp_path)
 
 
 def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:

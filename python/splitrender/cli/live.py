@@ -278,14 +278,10 @@ def _write_video(path: Path, images: list[npt.NDArray[np.uint8]], fps: float) ->
     if not images:
         return
     first = _even(images[0])
-    tmp = path.with_name(path.name + ".part.mp4")
-    video = _Video(tmp, first.shape[1], first.shape[0], fps)
-    try:
+    # _Video writes beside path and renames when complete: a reader never sees half a video.
+    with _Video(path, first.shape[1], first.shape[0], fps) as video:
         for img in images:
             video.write(_even(img))
-    finally:
-        video.close()
-    tmp.replace(path)  # atomic: a reader never sees half a video
 
 
 #: Most bytes of display frames `connect` keeps for its video and score.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from splitrender.cli.args import (
     positive,
 )
 from splitrender.errors import SplitRenderError
-from splitrender.files import write_atomic
+from splitrender.files import check_apart, write_atomic
 from splitrender.imageio import write_png
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -99,6 +100,13 @@ def run(args: argparse.Namespace) -> int:
                             "client cameras)")
     src = Path(args.source) if args.source is not None else args.dataset
     out: Path = args.out
+    # Frames and play.json written into a recording, a dataset or over a stream file would
+    # damage the input being played.
+    inputs = {"source" if args.dataset is None else "dataset": src, "recording": args.recording}
+    try:
+        check_apart(out, {k: v for k, v in inputs.items() if v is not None and v.exists()})
+    except SplitRenderError as e:
+        return fail(f"--out {e}")
     rendered = args.source in SCENE_NAMES and not src.exists()
     stages = Progress(3 if rendered else 4 if args.dataset is not None else 2, not args.quiet)
     try:
@@ -181,32 +189,32 @@ def run(args: argparse.Namespace) -> int:
         names = ("left", "right") if args.stereo else ("",)
         videos: list[_Video] = []
         video_files = [f"client_{name}.mp4" if name else "client.mp4" for name in names]
-        if args.video:
-            for file in video_files:
-                videos.append(_Video(out / file, w + (w & 1), h + (h & 1), 30.0))
-        else:
-            for name in names:
-                (out / "frames" / name).mkdir(parents=True, exist_ok=True)
-
-        def on_frame(eye: int, n: int, image: npt.NDArray[np.uint8], info: Any) -> None:
-            if videos:
-                pad = np.zeros((h + (h & 1), w + (w & 1), 3), np.uint8)
-                pad[:h, :w] = image
-                videos[eye].write(pad)
+        # Each video is finished and renamed into place if the play completes, and dropped if it
+        # raises (_Video.__exit__): a failed play leaves no shorter video that plays.
+        with ExitStack() as stack:
+            if args.video:
+                for file in video_files:
+                    videos.append(stack.enter_context(
+                        _Video(out / file, w + (w & 1), h + (h & 1), 30.0)))
             else:
-                write_png(out / "frames" / names[eye] / f"{n:04d}.png", image)
+                for name in names:
+                    (out / "frames" / name).mkdir(parents=True, exist_ok=True)
 
-        stages.stage(f"{args.method}: playing {n_client} client frames"
-                     f"{' per eye' if args.stereo else ''} (l = {args.delay}), "
-                     f"then {', '.join(metrics)}")
-        try:
+            def on_frame(eye: int, n: int, image: npt.NDArray[np.uint8], info: Any) -> None:
+                if videos:
+                    pad = np.zeros((h + (h & 1), w + (w & 1), 3), np.uint8)
+                    pad[:h, :w] = image
+                    videos[eye].write(pad)
+                else:
+                    write_png(out / "frames" / names[eye] / f"{n:04d}.png", image)
+
+            stages.stage(f"{args.method}: playing {n_client} client frames"
+                         f"{' per eye' if args.stereo else ''} (l = {args.delay}), "
+                         f"then {', '.join(metrics)}")
             scored = play_and_score_eyes(
                 server, cams, truth, args.method, network, rec.fc, metrics,
                 frame_sizes=sizes, bar=stages.bar, on_frame=on_frame, backend=args.backend,
                 options=ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes))
-        finally:
-            for video in videos:
-                video.close()
     except SplitRenderError as e:
         return fail(str(e))
     finally:

@@ -58,8 +58,15 @@ def render(args: argparse.Namespace) -> int:
     # Imported here: the renderer is not needed by the other commands.
     from splitrender.scene.recording import plan, write_recording
     from splitrender.scene.builtin import Scene, load_trace
+    from splitrender.files import check_apart
 
     def work(bar: Progress) -> Path:
+        # With --force the old DIR is removed once the new recording is in place: it must not
+        # hold the scene description or the trace (nor be one of them).
+        inputs: dict[str, str | Path] = {} if args.trace is None else {"trace": args.trace}
+        if args.scene.endswith(".json"):
+            inputs["scene description"] = args.scene
+        check_apart(args.out, inputs, replaced=args.force)
         scene = (
             Scene.from_description(args.scene)
             if args.scene.endswith(".json")

@@ -2,8 +2,8 @@
 
 The server side of the wire: every server frame of a recording (:mod:`splitrender.scene.recording`) goes
 through one :class:`~splitrender.codec.coder.StreamEncoder` and into a container file
-(:mod:`splitrender.codec.stream`). The file is written under a temporary name and renamed when complete,
-so an interrupted encode never leaves a stream that looks finished.
+(:mod:`splitrender.codec.stream`), whose writer writes under a temporary name and renames when
+complete, so an interrupted encode never leaves a stream that looks finished.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from pathlib import Path
 
 from splitrender.codec.coder import CodecConfig, StreamEncoder
 from splitrender.errors import InvalidInputError
+from splitrender.files import check_apart
 from splitrender.scene.recording import load_recording
 from splitrender.codec.stream import StreamStats, StreamWriter
 
@@ -39,9 +40,12 @@ def encode_recording(
     Returns the per-buffer byte accounting of the stream.
 
     Raises:
-        InvalidInputError: for a bad bitrate or an output path that already exists as a folder.
+        InvalidInputError: for a bad bitrate, an output path that already exists as a folder or
+            one that is the recording or lies inside it.
         RecordingError: for a recording that is missing, incomplete or corrupted.
     """
+    # The stream must not land inside the recording (--out REC/manifest.json replaced it).
+    check_apart(out, {"recording": recording})
     rec = load_recording(recording)
     frames = rec.server_frames
     if len(frames) == 0:
@@ -56,18 +60,14 @@ def encode_recording(
         base = dataclasses.replace(base, bitrate_mbps=bitrate_mbps)
     encoder = StreamEncoder(base)
     stats = StreamStats(fps=rec.fs)
-    partial = out_path.with_name(out_path.name + f".partial-{os.getpid()}")
-    try:
-        with StreamWriter(partial, fps=rec.fs) as writer:
-            for k, frame in enumerate(frames):
-                packet = encoder.encode(frame)
-                writer.write(packet)
-                stats.add(packet)
-                if progress is not None:
-                    progress(k + 1, len(frames))
-        os.replace(partial, out_path)
-    finally:
-        if partial.exists():
-            partial.unlink()
+    # StreamWriter writes beside out_path and renames when complete: an interrupted encode
+    # leaves the previous file, never a stream that looks finished.
+    with StreamWriter(out_path, fps=rec.fs) as writer:
+        for k, frame in enumerate(frames):
+            packet = encoder.encode(frame)
+            writer.write(packet)
+            stats.add(packet)
+            if progress is not None:
+                progress(k + 1, len(frames))
     return stats
 

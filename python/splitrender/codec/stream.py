@@ -58,24 +58,23 @@ runs past the end of the file raises :class:`StreamError`.
 from __future__ import annotations
 
 import enum
+import errno
 import math
 import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
-from types import TracebackType
-from typing import TYPE_CHECKING, BinaryIO
+from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import numpy.typing as npt
 import zstandard
 
 from splitrender.errors import StreamError
-from splitrender.files import open_regular
+from splitrender.files import AtomicWriter, open_regular, temporary_beside
 
-if TYPE_CHECKING:
-    from typing_extensions import Self  # annotations only (Python 3.10)
 
 __all__ = [
     "MAX_BUFFERS",
@@ -597,21 +596,38 @@ class IndexEntry:
     key: bool
 
 
-class StreamWriter:
+class StreamWriter(AtomicWriter):
     """Writes packets to a container file, then the key-frame index on :meth:`close`.
 
-    Use as a context manager; the index and trailer are only written by a clean close."""
+    Use as a context manager. The packets go to a temporary file beside ``path``
+    (:func:`~splitrender.files.temporary_beside`); only a clean close writes the index, flushes
+    and syncs the file and renames it over ``path``. An exception inside the ``with`` (or from a
+    write, a full disk included) calls :meth:`abort` instead: the temporary file is removed and
+    ``path`` is as it was, so a failed write never leaves a stream that reads as complete with
+    fewer frames, nor destroys the previous one."""
 
     def __init__(self, path: str | os.PathLike[str], fps: float = 10.0) -> None:
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"fps: expected a finite value > 0, got {fps}")
-        self._file: BinaryIO = open(path, "wb")  # noqa: SIM115 - closed by close()
-        self._file.write(_FILE_HEADER.pack(_FILE_MAGIC, STREAM_VERSION, 0, 0, fps))
+        self.path = Path(path)
+        if self.path.is_dir():  # found now, not by the rename after all the frames
+            raise IsADirectoryError(
+                errno.EISDIR, "expected a file name for the stream, got a folder", str(path)
+            )
+        self._tmp = temporary_beside(self.path)
+        self._file: BinaryIO = open(self._tmp, "wb")  # noqa: SIM115 - closed by close()/abort()
         self._index: list[IndexEntry] = []
         self.fps = fps
+        try:
+            self._file.write(_FILE_HEADER.pack(_FILE_MAGIC, STREAM_VERSION, 0, 0, fps))
+        except BaseException:
+            self.abort()
+            raise
 
     def write(self, packet: bytes) -> None:
         """Appends one packet (as :func:`pack_packet` or ``StreamEncoder.encode`` made it)."""
+        if self._file.closed:
+            raise ValueError(f"{self.path}: the stream writer is closed")
         frame, key = peek_header(packet)
         if len(packet) > MAX_PACKET:
             raise StreamError(
@@ -622,34 +638,42 @@ class StreamWriter:
         self._file.write(packet)
 
     def close(self) -> None:
+        """Writes the index and trailer and replaces ``path`` with the finished file (a second
+        call does nothing). On a failure the temporary file is removed and ``path`` is kept."""
         if self._file.closed:
             return
-        offset = self._file.tell()
-        entries = b"".join(
-            _INDEX_ENTRY.pack(e.frame, e.offset, e.key) for e in self._index
-        )
-        self._file.write(_INDEX_HEAD.pack(_INDEX_MAGIC, len(self._index)))
-        self._file.write(entries)
-        self._file.write(struct.pack("<I", zlib.crc32(entries)))
-        self._file.write(_TRAILER.pack(offset, _TRAILER_MAGIC))
-        self._file.close()
+        try:
+            offset = self._file.tell()
+            entries = b"".join(
+                _INDEX_ENTRY.pack(e.frame, e.offset, e.key) for e in self._index
+            )
+            self._file.write(_INDEX_HEAD.pack(_INDEX_MAGIC, len(self._index)))
+            self._file.write(entries)
+            self._file.write(struct.pack("<I", zlib.crc32(entries)))
+            self._file.write(_TRAILER.pack(offset, _TRAILER_MAGIC))
+            self._file.flush()
+            # One file, written once: the sync is cheap, and without it a crash soon after the
+            # rename could leave an empty file where the previous good one was.
+            os.fsync(self._file.fileno())
+            self._file.close()
+            os.replace(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
+    def abort(self) -> None:
+        """Drops what was written: closes and removes the temporary file; ``path`` is left as
+        it was. Does nothing after :meth:`close` has replaced ``path``."""
+        if not self._file.closed:
+            self._file.close()
+        self._tmp.unlink(missing_ok=True)
 
 
 def write_stream(
     path: str | os.PathLike[str], packets: Iterable[bytes], fps: float = 10.0
 ) -> None:
-    """Writes ``packets`` to a container file at ``path`` with its key-frame index."""
+    """Writes ``packets`` to a container file at ``path`` with its key-frame index, atomically
+    (:class:`StreamWriter`): if ``packets`` or a write raises, ``path`` is as it was."""
     with StreamWriter(path, fps) as w:
         for p in packets:
             w.write(p)

@@ -80,8 +80,8 @@ class RealtimeBench:
 
 def _scene_stream(scene: str, scale: float, n: int, progress: Progress) -> Path:
     """The stream file of server frames ``0..n-1`` of ``scene`` at ``scale``, rendered and
-    encoded once into the temporary directory (written atomically, so an interrupted run
-    leaves nothing that reads as valid)."""
+    encoded once into the temporary directory (StreamWriter writes it atomically, so an
+    interrupted run leaves nothing that reads as valid)."""
     from splitrender._native import __version__
     from splitrender.codec.coder import CodecConfig, StreamEncoder
     from splitrender.codec.stream import StreamWriter
@@ -104,15 +104,10 @@ def _scene_stream(scene: str, scale: float, n: int, progress: Progress) -> Path:
         f"rendering and encoding {n} server frames of {scene} at {w}x{h} + aux, "
         f"{cfg.bitrate_mbps:.3g} Mb/s, into {path} (cached)"
     )
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with StreamEncoder(cfg) as enc, StreamWriter(tmp, fps=_FS) as out:
-            for k in range(n):
-                out.write(enc.encode(sc.server_frame(k, scale, _FS)))
-                progress.bar(k + 1, n, "frames")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with StreamEncoder(cfg) as enc, StreamWriter(path, fps=_FS) as out:
+        for k in range(n):
+            out.write(enc.encode(sc.server_frame(k, scale, _FS)))
+            progress.bar(k + 1, n, "frames")
     return path
 
 

@@ -21,8 +21,10 @@ stays at a few sequences whatever the number of methods.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -34,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.errors import InvalidInputError
-from splitrender.files import write_atomic
+from splitrender.files import AtomicWriter, temporary_beside, write_atomic
 from splitrender.net.model import NetworkModel
 from splitrender.progress import Progress
 from splitrender.imageio import write_png
@@ -187,8 +189,13 @@ def _side_by_side(tiles: Sequence[_Image], gap: int = 4) -> _Image:
     return out
 
 
-class _Video:
-    """An H.264 (or MPEG-4 Part 2 when libx264 is missing) ``yuv420p`` video written by PyAV."""
+class _Video(AtomicWriter):
+    """An H.264 (or MPEG-4 Part 2 when libx264 is missing) ``yuv420p`` video written by PyAV.
+
+    Written atomically, like every result file (:mod:`splitrender.files`): into a temporary
+    file beside ``path`` that :meth:`close` finishes and renames over ``path``. An exception
+    inside the ``with`` (or from a write or the close) calls :meth:`abort` instead, which removes
+    it: a failed run leaves the previous video, never a shorter one that plays."""
 
     def __init__(self, path: Path, width: int, height: int, fps: float) -> None:
         from fractions import Fraction
@@ -196,15 +203,23 @@ class _Video:
         import av
 
         self._av = av
-        self.container = av.open(str(path), mode="w")
-        rate = Fraction(fps).limit_denominator(1001)
-        codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
-        stream: Any = self.container.add_stream(codec, rate=rate)
-        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
-        if codec == "libx264":
-            stream.options = {"crf": "18", "preset": "veryfast"}
-        else:
-            stream.bit_rate = max(1_000_000, width * height * 8)
+        self.path = path
+        self._tmp = temporary_beside(path)
+        self._done = False
+        # The temporary name ends in .partial-*, from which PyAV cannot guess the container.
+        self.container = av.open(str(self._tmp), mode="w", format="mp4")
+        try:
+            rate = Fraction(fps).limit_denominator(1001)
+            codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
+            stream: Any = self.container.add_stream(codec, rate=rate)
+            stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+            if codec == "libx264":
+                stream.options = {"crf": "18", "preset": "veryfast"}
+            else:
+                stream.bit_rate = max(1_000_000, width * height * 8)
+        except BaseException:
+            self.abort()
+            raise
         self.stream = stream
         self.frames = 0
 
@@ -215,9 +230,26 @@ class _Video:
         self.frames += 1
 
     def close(self) -> None:
-        for packet in self.stream.encode():
-            self.container.mux(packet)
-        self.container.close()
+        """Flushes the encoder and replaces ``path`` with the finished video (once)."""
+        if self._done:
+            return
+        try:
+            for packet in self.stream.encode():
+                self.container.mux(packet)
+            self.container.close()
+            os.replace(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
+        self._done = True
+
+    def abort(self) -> None:
+        """Drops the video: closes and removes the temporary file; ``path`` is as it was."""
+        self._done = True
+        # Closed only to release the file, which goes anyway: the error that led here wins.
+        with contextlib.suppress(Exception):
+            self.container.close()
+        self._tmp.unlink(missing_ok=True)
 
 
 def check_config(cfg: DemoConfig) -> None:
@@ -415,8 +447,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     stages.stage(f"writing video.mp4 (ground truth | {video_method} | FLIP map), stills, summary")
     vw, vh = _side_by_side([truth[0]] * 3).shape[1::-1]
     video_path = out / "video.mp4"
-    video = _Video(video_path, vw, vh, cfg.video_fps)
-    try:
+    with _Video(video_path, vw, vh, cfg.video_fps) as video:
         for n in range(n_client):
             err = colormap(flip_map(video_frames[n], truth[n]))
             video.write(_side_by_side([truth[n], video_frames[n], err]))
@@ -429,8 +460,6 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
                 write_png(still, _side_by_side([truth[n], video_frames[n], err]))
                 files.append(still)
             stages.bar(n + 1, n_client, "video frames")
-    finally:
-        video.close()
     files.insert(0, video_path)
     elapsed = time.perf_counter() - t0
     result = DemoResult(w, h, n_server, n_client, codec_cfg.bitrate_mbps, mbps, rows, files, elapsed)

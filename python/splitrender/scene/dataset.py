@@ -32,6 +32,7 @@ import functools
 import json
 import math
 import os
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +45,7 @@ from PIL import Image
 
 from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
-from splitrender.files import read_json
+from splitrender.files import check_apart, check_name, joined, read_json, temporary_beside
 from splitrender.imageio import write_png
 from splitrender.scene.recording import (
     ClientFrame,
@@ -337,12 +338,20 @@ def export_dataset(
     ground truth to ``client``. Depth and motion are written as half floats.
 
     Raises:
-        DatasetError: ``out_dir`` is not empty, or the recording has more auxiliary cameras
-            than ``aux_names``.
+        DatasetError: ``out_dir`` is not empty, is the recording's directory or lies inside it,
+            a name of ``aux_names`` or ``client`` is not a plain folder name
+            (empty, with a separator, ``.`` or ``..``), or the recording has more auxiliary
+            cameras than ``aux_names``.
         RecordingError: the recording cannot be read.
     """
-    rec = recording if isinstance(recording, Recording) else load_recording(recording)
     out = Path(out_dir)
+    # The camera folders are joined under out: a name with a separator or '..' would write
+    # outside it, so every name is checked before anything is read or written.
+    for i, a in enumerate(aux_names):
+        check_name(a, f"aux_names[{i}]", DatasetError)
+    check_name(client, "client", DatasetError)
+    rec = recording if isinstance(recording, Recording) else load_recording(recording)
+    check_apart(out, {"recording": rec.path}, DatasetError)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise _fail(out, "exists and is not an empty directory")
     frames = list(rec.server_frames)
@@ -352,12 +361,30 @@ def export_dataset(
     names = ["main", *aux_names[:n_aux]]
     if len(set(names)) != len(names) or client in names:
         raise _fail(out, f"camera directory names must differ, got {[*names, client]}")
+    # Written into a temporary folder beside out and renamed when complete: an interrupted
+    # export leaves no dataset that reads as valid with cameras or frames missing.
+    tmp = temporary_beside(out)
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        _write_layout(tmp, rec, frames, names, client)
+        os.replace(tmp, out)  # out is missing or an empty folder, which a rename replaces
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def _write_layout(
+    root: Path, rec: Recording, frames: Sequence[ServerFrame], names: Sequence[str], client: str
+) -> None:
+    """Writes the cameras ``names`` (main first) and the client folder of :func:`export_dataset`
+    under ``root``."""
     fs, fc = rec.fs, rec.fc
     shadow_fps = fs * rec.subframes
     idxs = [f.index for f in frames]
     for ci, name in enumerate(names):
+        d = joined(root, name, "camera folder", DatasetError)
         cam_frames = [f.main if ci == 0 else f.aux[ci - 1] for f in frames]
-        d = out / name
         for sub in ("color", "depth", *_FLOW.values(), *_SHADOW["fwd"], *_SHADOW["bwd"]):
             (d / sub).mkdir(parents=True, exist_ok=True)
         (d / "cam.json").write_text(
@@ -391,7 +418,7 @@ def export_dataset(
                 write_png(d / info / _name(idx, "png"), bits_to_rgba(sh.bits), level=1)
                 write_png(d / col_a / _name(idx, "png"), np.concatenate([sh.s_min, alpha], 2), level=1)
                 write_png(d / col_b / _name(idx, "png"), np.concatenate([sh.s_max, alpha], 2), level=1)
-    cd = out / client
+    cd = joined(root, client, "client", DatasetError)
     (cd / "color").mkdir(parents=True, exist_ok=True)
     cframes = list(rec.client_frames)
     (cd / "cam.json").write_text(
@@ -402,7 +429,6 @@ def export_dataset(
     )
     for c in cframes:
         write_png(cd / "color" / _name(c.index, "png"), c.ground_truth, level=1)
-    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -598,12 +624,15 @@ def import_dataset_as_recording(
 
     Raises:
         DatasetError: the dataset cannot be read or cannot be a recording (not two auxiliary
-            cameras, no ground truth, a client size other than the main camera's).
+            cameras, no ground truth, a client size other than the main camera's), or ``out``
+            is the dataset's directory, lies inside it or holds it.
         RecordingError: ``out`` exists (without ``overwrite``).
     """
     root, dest = Path(in_dir), Path(out)
     if len(aux) != 2:
         raise DatasetError(f"--aux: a recording has two auxiliary cameras, got {len(aux)}")
+    # With overwrite, write_frames removes the old dest: that must not be (or hold) the dataset.
+    check_apart(dest, {"dataset": root}, DatasetError, replaced=overwrite)
     check_destination(dest, overwrite)
     if stages is not None:
         stages.stage(f"reading the dataset {root}")

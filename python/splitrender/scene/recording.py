@@ -313,8 +313,16 @@ def write_recording(
 
 
 def check_destination(out: Path, overwrite: bool) -> None:
-    """Raises :class:`RecordingError` when ``out`` exists and not ``overwrite``: the check
+    """Raises :class:`RecordingError` when ``out`` exists and not ``overwrite``, or exists and
+    is not a directory (a file or a symbolic link), even with ``overwrite``: the check
     :func:`write_frames` makes, for callers to make before long work."""
+    # Only a directory is replaced: write_frames moves the old one aside and removes it with
+    # rmtree, which a file or a link would only fail at after the rename, all frames written.
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise RecordingError(
+            f"{out}: exists and is not a directory; expected a new path or a recording "
+            "directory to replace"
+        )
     if out.exists() and not overwrite:
         raise RecordingError(f"{out}: already exists (choose another --out or pass --force)")
 
@@ -389,7 +397,11 @@ def write_frames(
         if out.exists():  # overwrite: move the old one aside first, remove it after the rename
             old = out.with_name(f"{out.name}.old-{os.getpid()}")
             out.rename(old)
-            tmp.rename(out)
+            try:
+                tmp.rename(out)
+            except BaseException:
+                old.rename(out)  # the previous recording goes back where it was
+                raise
             shutil.rmtree(old)
         else:
             tmp.rename(out)
