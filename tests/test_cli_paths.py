@@ -203,6 +203,22 @@ def test_an_output_inside_an_input_is_refused_and_the_input_kept(
     assert stream.read_bytes() == stream_bytes
 
 
+def test_play_of_a_stream_without_frames_is_refused(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # It used to score held black frames and exit 0.
+    empty = tmp_path / "empty.srs"
+    sr.write_stream(empty, [])
+    argv = ["play", str(empty), "--recording", str(recording), "--no-vmaf"]
+    assert main([*argv, "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"splitrender: error: {empty}: the stream has no frames; expected at least one server "
+        "frame\n"
+    )
+    assert not (tmp_path / "out").exists()
+
+
 def test_play_stream_file_scores_the_frames_it_writes(
     recording: Path, stream: Path, played_stream: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

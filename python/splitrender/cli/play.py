@@ -165,6 +165,10 @@ def run(args: argparse.Namespace) -> int:
             stages.stage(f"decoding {stream_path}")
             sf = StreamFile(stream_path)
             packets = list(sf.packets())[:n_server]
+            if not packets:
+                # Scoring nothing but held black frames would report a result for no content.
+                return fail(f"{stream_path}: the stream has no frames; expected at least one "
+                            "server frame")
             with StreamDecoder() as dec:
                 server = []
                 for k, p in enumerate(packets):
