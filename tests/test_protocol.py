@@ -301,7 +301,8 @@ def test_relay_draws_are_seeded() -> None:
 def test_relay_stays_on_loopback() -> None:
     assert check_loopback("127.0.0.1", "x") == "127.0.0.1"
     with pytest.raises(InvalidInputError, match="loopback"):
-        Relay(("10.0.0.1", 4433), Impairment(), Impairment())
+        # A reserved name (RFC 2606) that is refused before any lookup: nothing is contacted.
+        Relay(("relay.invalid", 4433), Impairment(), Impairment())
     with pytest.raises(InvalidInputError, match="loss"):
         Impairment(loss=1.0)
 

@@ -255,9 +255,10 @@ def test_bad_display_rate_is_refused(fps):
         RealtimeClient(display_fps=fps)
 
 
-def test_run_needs_at_least_one_frame(scene):
+@pytest.mark.parametrize("seconds", [0.001, 0.0, -1.0, float("nan"), float("inf"), "1", True])
+def test_run_needs_at_least_one_frame(scene, seconds):
     with RealtimeClient(clock=FakeClock()) as c, pytest.raises(InvalidInputError, match="seconds"):
-        c.run(pose_of(scene), 0.001)
+        c.run(pose_of(scene), seconds)
 
 
 # -- splitrender bench --realtime ---------------------------------------------------------------

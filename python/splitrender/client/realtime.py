@@ -401,11 +401,13 @@ class RealtimeClient:
         refresh). Returns the report of the run: its display frames, and what the worker did
         since the previous run returned (or since the client was made)."""
         fc = self.display_fps
-        n_frames = int(round(float(seconds) * fc))
-        if not math.isfinite(seconds) or n_frames < 1:
+        valid = not isinstance(seconds, bool) and isinstance(seconds, (int, float))
+        # Checked before rounding: round() of NaN or infinity raises a ValueError of its own.
+        if not valid or not math.isfinite(seconds) or round(seconds * fc) < 1:
             raise InvalidInputError(
                 f"seconds: expected at least one display frame at {fc:g} FPS, got {seconds!r}"
             )
+        n_frames = int(round(seconds * fc))
         report = self._report
         t0 = self.clock.now()
         cpu0 = time.process_time()
