@@ -32,6 +32,7 @@ import numpy as np
 from splitrender.codec.stream import (
     PACKET_VERSION,
     CameraRecord,
+    StreamFile,
     pack_packet,
     read_stream,
     unpack_packet,
@@ -92,7 +93,9 @@ def _scene_stream(scene: str, scale: float, n: int, progress: Progress) -> Path:
     )
     if path.is_file():
         try:
-            if sum(1 for _ in read_stream(path)) == n:
+            # The file's index counts its frames without reading them (they are read once,
+            # by the caller).
+            if len(StreamFile(path)) == n:
                 progress.stage(f"reusing the cached stream {path}")
                 return path
         except (StreamError, OSError):  # a damaged or foreign file: render it again
