@@ -513,3 +513,46 @@ def test_ours_on_decoded_close_to_uncompressed() -> None:
         f"ours MAE vs ground truth: uncompressed {mae_raw:.2f}, decoded {mae_dec:.2f}"
     )
     assert mae_dec <= 20 and mae_dec <= mae_raw + 13
+
+
+# --------------------------------------------------------------------------------------------
+# The dequantisation kernels the decoder calls (reproj_core::dequant)
+
+
+def test_dequantised_motion_is_the_float32_formula_with_masks_applied() -> None:
+    from splitrender import _native
+
+    rng = np.random.default_rng(3)
+    w, h = 7, 5  # odd sides: the last half-size code covers one column / row
+    hw, hh = 4, 3
+    codes = rng.integers(0, 4096, (3 * hh + 2, hw + 3), dtype=np.uint16)
+    tiles = [(1, c * hh) for c in range(3)]
+    scale, offset = (0.01, 0.5, 2.0), (-1.25, -3.0, 7.0)
+    static = rng.random((h, w)) < 0.3
+    invalid = rng.random((h, w)) < 0.2
+    m = _native.dequantise_motion(codes, tiles, w, h, scale, offset, static, invalid)
+    want = np.empty((h, w, 3), np.float32)
+    for c, (x, y) in enumerate(tiles):
+        half = codes[y : y + hh, x : x + hw].astype(np.float32) * np.float32(scale[c])
+        half += np.float32(offset[c])
+        want[..., c] = np.repeat(np.repeat(half, 2, 0), 2, 1)[:h, :w]
+    want[static] = 0.0
+    want[invalid] = np.nan
+    assert np.array_equal(m, want, equal_nan=True)
+    zeros = m[static & ~invalid]
+    assert not np.signbit(zeros).any(), "static motion is +0.0, not -0.0"
+
+
+def test_dequantisation_refuses_a_tile_outside_its_plane() -> None:
+    from splitrender import _native
+
+    codes = np.zeros((8, 8), np.uint16)
+    with pytest.raises(InvalidInputError, match="motion tile 2"):
+        _native.dequantise_motion(codes, [(0, 0), (0, 4), (0, 6)], 8, 8, (1, 1, 1), (0, 0, 0))
+    with pytest.raises(InvalidInputError, match="depth tile"):
+        _native.dequantise_depth(codes, 4, 0, 8, 8, 1.0, 0.0)
+    with pytest.raises(InvalidInputError, match="invalid_mask"):
+        _native.dequantise_depth(codes, 0, 0, 8, 8, 1.0, 0.0, np.zeros((4, 4), bool))
+    luma, chroma = np.zeros((8, 8), np.uint8), np.zeros((4, 4), np.uint8)
+    with pytest.raises(InvalidInputError, match="shadow tile"):
+        _native.shadow_colour(luma, chroma, chroma, 1, 0, np.ones((8, 8), np.uint32))

@@ -7,6 +7,7 @@ and a frame is ``(main: Cam, aux: list[Cam])``. Every error is a ``SplitRenderEr
 input raises ``InvalidInputError`` (also a ``ValueError``) naming the offending argument.
 """
 
+from collections.abc import Sequence
 from typing import Any, final
 
 import numpy as np
@@ -35,6 +36,9 @@ __all__ = [
     "apply_shadows",
     "perspective",
     "look_at",
+    "dequantise_depth",
+    "dequantise_motion",
+    "shadow_colour",
     "synthetic_render_server",
     "synthetic_ground_truth",
     "synthetic_rig",
@@ -106,6 +110,29 @@ def apply_shadows(
 ) -> _U8: ...
 def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> _F64: ...
 def look_at(eye: _Vec3, target: _Vec3, up: _Vec3 | None = None) -> _F64: ...
+def dequantise_depth(
+    codes: npt.NDArray[np.uint16],
+    x: int,
+    y: int,
+    w: int,
+    h: int,
+    scale: float,
+    offset: float,
+    invalid_mask: npt.NDArray[np.bool_] | None = None,
+) -> _F32: ...
+def dequantise_motion(
+    codes: npt.NDArray[np.uint16],
+    tiles: Sequence[tuple[int, int]],
+    w: int,
+    h: int,
+    scale: tuple[float, float, float],
+    offset: tuple[float, float, float],
+    static_mask: npt.NDArray[np.bool_] | None = None,
+    invalid_mask: npt.NDArray[np.bool_] | None = None,
+) -> _F32: ...
+def shadow_colour(
+    luma: _U8, cb: _U8, cr: _U8, x: int, y: int, bits: _U32
+) -> _U8: ...
 def synthetic_render_server(
     dynamic: bool,
     view: _F64,

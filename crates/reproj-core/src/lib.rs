@@ -15,6 +15,7 @@
 
 pub mod backward_bidir;
 pub mod camera;
+pub mod dequant;
 pub mod error;
 pub mod frame;
 pub mod method;

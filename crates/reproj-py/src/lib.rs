@@ -11,6 +11,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use pyo3::prelude::*;
 
 mod api;
+mod codec;
 mod convert;
 mod errors;
 mod gpu;
@@ -73,6 +74,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(api::apply_shadows, m)?)?;
     m.add_function(wrap_pyfunction!(api::perspective, m)?)?;
     m.add_function(wrap_pyfunction!(api::look_at, m)?)?;
+    m.add_function(wrap_pyfunction!(codec::dequantise_depth, m)?)?;
+    m.add_function(wrap_pyfunction!(codec::dequantise_motion, m)?)?;
+    m.add_function(wrap_pyfunction!(codec::shadow_colour, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_render_server, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_ground_truth, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_rig, m)?)?;

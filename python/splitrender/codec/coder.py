@@ -94,6 +94,7 @@ from splitrender.codec.stream import (
     pack_packet,
     unpack_packet,
 )
+from splitrender import _native
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.types import (
     Camera,
@@ -453,38 +454,18 @@ def _fill_plane(plane: Any, a: npt.NDArray[np.uint16]) -> None:
     buf[:, :w] = a
 
 
+def _plane_rows(plane: Any, dtype: type[np.generic]) -> npt.NDArray[Any]:
+    """A decoded plane as its rows of ``line_size`` bytes, padding included (no copy): the
+    C-contiguous view the dequantisation kernels take."""
+    itemsize = np.dtype(dtype).itemsize
+    return np.frombuffer(plane, dtype=dtype).reshape(-1, plane.line_size // itemsize)
+
+
 def _plane_array(
     plane: Any, w: int, h: int, dtype: type[np.generic]
 ) -> npt.NDArray[Any]:
-    """A view of a decoded plane (no copy)."""
-    itemsize = np.dtype(dtype).itemsize
-    buf = np.frombuffer(plane, dtype=dtype)
-    return buf.reshape(-1, plane.line_size // itemsize)[:h, :w]
-
-
-def _sparse_colour(
-    planes: Sequence[npt.NDArray[np.uint8]],
-    t: _Tile,
-    on: tuple[npt.NDArray[np.intp], ...],
-) -> npt.NDArray[np.uint8]:
-    """A shadow colour from the Y, Cb, Cr planes of its picture, converted (BT.709, full range)
-    only at the pixels ``on`` (``np.nonzero`` of the bitfield): elsewhere 0. Chroma is read at the
-    sample that covers each pixel (4:2:0: ``(y // 2, x // 2)``)."""
-    out = np.zeros((t.h, t.w, 3), np.uint8)
-    ys, xs = on
-    if ys.size == 0:
-        return out
-    sy = planes[0].shape[0] // planes[1].shape[0]
-    sx = planes[0].shape[1] // planes[1].shape[1]
-    py, px = ys + t.y, xs + t.x
-    y = planes[0][py, px].astype(np.float32)
-    cb = planes[1][py // sy, px // sx].astype(np.float32) - 128.0
-    cr = planes[2][py // sy, px // sx].astype(np.float32) - 128.0
-    rgb = np.stack(
-        [y + 1.5748 * cr, y - 0.187324 * cb - 0.468124 * cr, y + 1.8556 * cb], axis=-1
-    )
-    out[ys, xs] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
-    return out
+    """A view of a decoded plane's visible ``w x h`` samples (no copy)."""
+    return _plane_rows(plane, dtype)[:h, :w]
 
 
 # --------------------------------------------------------------------------------------------
@@ -1201,16 +1182,7 @@ class StreamDecoder(_WorkerThreads):
             )
         out: _Decoded = {}
         if b.kind == _PIC_SHADOW:
-            sub = 2 if "420" in fmt else 1
-            return out, [
-                _plane_array(
-                    f.planes[c],
-                    pw // (sub if c else 1),
-                    ph // (sub if c else 1),
-                    np.uint8,
-                )
-                for c in range(3)
-            ]
+            return out, [_plane_rows(f.planes[c], np.uint8) for c in range(3)]
         if b.kind == _PIC_COLOR:
             rgb = f.reformat(
                 format="rgb24",
@@ -1223,34 +1195,28 @@ class StreamDecoder(_WorkerThreads):
                 if seen.get((ci, kind), b).codec == Codec.TILE:
                     out[(ci, kind)] = full[t.y : t.y + t.h, t.x : t.x + t.w].copy()
             return out, []
-        q = _plane_array(f.planes[0], pw, ph, np.uint16)
+        # Dequantised in the core (reproj_core::dequant): code * scale + offset in float32,
+        # motion from its half-size tiles, the lossless masks applied in the same pass.
+        q = _plane_rows(f.planes[0], np.uint16)
         for ci, (w, h) in enumerate(sizes):
             entry = seen.get((ci, _K.DEPTH))
             if entry is not None and entry.codec == Codec.TILE:
                 t = tiles[(ci, _K.DEPTH, 0)]
-                d = np.empty((h, w), np.float32)
-                np.multiply(
-                    q[t.y : t.y + h, t.x : t.x + w], np.float32(entry.scale[0]), out=d
+                out[(ci, _K.DEPTH)] = _native.dequantise_depth(
+                    q, t.x, t.y, w, h, entry.scale[0], entry.offset[0],
+                    masks.get((ci, _K.DEPTH_INVALID)),
                 )
-                d += np.float32(entry.offset[0])
-                inv = masks.get((ci, _K.DEPTH_INVALID))
-                if inv is not None:
-                    np.copyto(d, np.float32(np.nan), where=inv)
-                out[(ci, _K.DEPTH)] = d
             for kind in (_K.MOTION_FWD, _K.MOTION_BWD):
                 entry = seen.get((ci, kind))
                 if entry is not None and entry.codec == Codec.TILE:
-                    m = _motion(q, tiles, ci, kind, entry, w, h)
                     _, kstatic, kinvalid = _MOTION[
                         "fwd" if kind == _K.MOTION_FWD else "bwd"
                     ]
-                    st = masks.get((ci, kstatic))
-                    if st is not None:
-                        _zero_static(m, st)
-                    iv = masks.get((ci, kinvalid))
-                    if iv is not None:
-                        np.copyto(m, np.float32(np.nan), where=iv[..., None])
-                    out[(ci, kind)] = m
+                    ct = [tiles[(ci, kind, c)] for c in range(3)]
+                    out[(ci, kind)] = _native.dequantise_motion(
+                        q, [(t.x, t.y) for t in ct], w, h, entry.scale, entry.offset,
+                        masks.get((ci, kstatic)), masks.get((ci, kinvalid)),
+                    )
         return out, []
 
     def _camera(
@@ -1313,7 +1279,7 @@ class StreamDecoder(_WorkerThreads):
                 st, iv = mask(kstatic), mask(kinvalid)  # checked for tiles too
                 raw = seen[(ci, kind)].codec != Codec.TILE
                 if st is not None and raw:
-                    _zero_static(m, st)
+                    m[st] = 0.0
                 if iv is not None and raw:
                     np.copyto(m, np.float32(np.nan), where=iv[..., None])
             motions[d] = m
@@ -1323,7 +1289,6 @@ class StreamDecoder(_WorkerThreads):
                 shadows[d] = None
                 continue
             colours = []
-            on: tuple[npt.NDArray[np.intp], ...] | None = None
             for k in (kmin, kmax):
                 b = seen.get((ci, k))
                 if b is not None and b.codec == Codec.TILE:
@@ -1334,10 +1299,14 @@ class StreamDecoder(_WorkerThreads):
                     t, _, _ = _layout(
                         _PIC_SHADOW, tuple((c.width, c.height) for c in p.cameras)
                     )
-                    if on is None:
-                        flat = np.flatnonzero(bits)  # cheaper than np.nonzero
-                        on = (flat // w, flat % w)
-                    colours.append(_sparse_colour(shadow_planes, t[(ci, k, 0)], on))
+                    if len(shadow_planes) != 3:
+                        raise StreamError(
+                            f"frame {p.index}, {b.name}: a tile without its shadow picture"
+                        )
+                    tile = t[(ci, k, 0)]
+                    luma, cb, cr = shadow_planes
+                    # Converted (BT.709, full range) only where the bitfield is set.
+                    colours.append(_native.shadow_colour(luma, cb, cr, tile.x, tile.y, bits))
                 else:
                     c = get(k, "u1", (h, w, 3), required=True)
                     assert c is not None
@@ -1375,54 +1344,6 @@ def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _De
         else:
             raise StreamError(f"{where}: zstd is not a codec of this buffer kind")
     return out
-
-
-def _zero_static(m: npt.NDArray[np.float32], static: npt.NDArray[np.bool_]) -> None:
-    """Sets the motion of the static pixels to exactly 0. Moving pixels are usually a compact
-    part of the picture: everything outside their bounding box is cleared wholesale and only the
-    box is multiplied by the mask (``m`` is finite here; invalid pixels become NaN later)."""
-    moving = np.logical_not(static)
-    rows = np.flatnonzero(moving.any(axis=1))
-    if rows.size == 0:
-        m[...] = 0
-        return
-    cols = np.flatnonzero(moving.any(axis=0))
-    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    m[:y0] = 0
-    m[y1:] = 0
-    m[y0:y1, :x0] = 0
-    m[y0:y1, x1:] = 0
-    box = m[y0:y1, x0:x1]
-    np.multiply(box, moving[y0:y1, x0:x1, None], out=box)
-
-
-def _motion(
-    q: npt.NDArray[np.uint16],
-    tiles: dict[tuple[int, BufferKind, int], _Tile],
-    ci: int,
-    kind: BufferKind,
-    e: BufferEntry,
-    w: int,
-    h: int,
-) -> npt.NDArray[np.float32]:
-    """Motion at ``w x h`` from its three half-size tiles: dequantised at half size, then each
-    value copied to the 2x2 pixels it covers of the client's array."""
-    hw, hh = _half(w), _half(h)
-    half = np.empty((hh, hw, 3), np.float32)
-    for c in range(3):
-        t = tiles[(ci, kind, c)]
-        np.multiply(
-            q[t.y : t.y + hh, t.x : t.x + hw], np.float32(e.scale[c]), out=half[..., c]
-        )
-        half[..., c] += np.float32(e.offset[c])
-    out = np.empty((2 * hh, 2 * hw, 3), np.float32)
-    # Doubled along x, then each row written twice: long contiguous copies (a single 5-d
-    # broadcast copy of 3-float runs takes twice as long).
-    row = np.repeat(half, 2, axis=1).reshape(hh, 1, -1)
-    out.reshape(hh, 2, -1)[...] = row
-    if (2 * hw, 2 * hh) == (w, h):
-        return out
-    return np.ascontiguousarray(out[:h, :w])
 
 
 def decode_packets(packets: Sequence[bytes]) -> list[ServerFrame]:

@@ -1,0 +1,200 @@
+//! The stream decoder's dequantisation kernels (`reproj_core::dequant`): depth and motion from
+//! the geometry picture's 12-bit codes, shadow colours from their Y′CbCr picture. Called by
+//! `splitrender.codec.coder` with views of the decoded planes; each checks that the tile lies in
+//! its plane and that the masks have the camera's size before the kernel runs.
+
+use numpy::{PyArray2, PyArray3, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use reproj_core::dequant::{self, CodeTile, YCbCrPlanes};
+
+use crate::api::shaped;
+use crate::convert::{array, finite, side, slice, Dim};
+use crate::errors::invalid;
+use crate::guarded;
+
+/// A position inside a plane (`0..=MAX_SIDE`).
+fn position(v: i64, what: &str) -> PyResult<usize> {
+    usize::try_from(v)
+        .ok()
+        .filter(|&p| p <= reproj_core::MAX_SIDE)
+        .ok_or_else(|| {
+            invalid(format!(
+                "{what}: expected 0..={}, got {v}",
+                reproj_core::MAX_SIDE
+            ))
+        })
+}
+
+/// A 2-D C-contiguous plane and its row length.
+fn plane<'py, T: numpy::Element>(
+    obj: &Bound<'py, PyAny>,
+    what: &str,
+) -> PyResult<(PyReadonlyArrayDyn<'py, T>, usize)> {
+    let a = array::<T>(obj, what, &[Dim::Any("rows"), Dim::Any("stride")])?;
+    let stride = a.shape()[1];
+    Ok((a, stride))
+}
+
+fn mask<'py>(
+    obj: Option<&Bound<'py, PyAny>>,
+    what: &str,
+    w: usize,
+    h: usize,
+) -> PyResult<Option<PyReadonlyArrayDyn<'py, bool>>> {
+    obj.filter(|m| !m.is_none())
+        .map(|m| array::<bool>(m, what, &[Dim::Is(h), Dim::Is(w)]))
+        .transpose()
+}
+
+fn tile<'a>(
+    codes: &'a [u16],
+    stride: usize,
+    x: i64,
+    y: i64,
+    w: usize,
+    h: usize,
+    what: &str,
+) -> PyResult<CodeTile<'a>> {
+    let t = CodeTile {
+        plane: codes,
+        stride,
+        x: position(x, what)?,
+        y: position(y, what)?,
+    };
+    if !t.fits(w, h) {
+        return Err(invalid(format!(
+            "{what}: a {w}x{h} tile at ({x}, {y}) does not fit a plane of {} rows of {stride}",
+            codes.len() / stride.max(1)
+        )));
+    }
+    Ok(t)
+}
+
+/// Depth `float32[h, w]` from the full-resolution tile at `(x, y)` of `codes` (`uint16[rows,
+/// stride]`): `f32(code) · scale + offset`, NaN where `invalid_mask`.
+#[pyfunction]
+#[pyo3(signature = (codes, x, y, w, h, scale, offset, invalid_mask=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn dequantise_depth<'py>(
+    py: Python<'py>,
+    codes: &Bound<'py, PyAny>,
+    x: i64,
+    y: i64,
+    w: i64,
+    h: i64,
+    scale: f64,
+    offset: f64,
+    invalid_mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    guarded("dequantise_depth", || {
+        let (w, h) = (side(w, "w")?, side(h, "h")?);
+        let (scale, offset) = (
+            finite(scale, "scale")? as f32,
+            finite(offset, "offset")? as f32,
+        );
+        let (codes, stride) = plane::<u16>(codes, "codes")?;
+        let codes = slice(&codes, "codes")?;
+        let t = tile(codes, stride, x, y, w, h, "depth tile")?;
+        let inv = mask(invalid_mask, "invalid_mask", w, h)?;
+        let inv = inv.as_ref().map(|m| slice(m, "invalid_mask")).transpose()?;
+        let mut out = vec![0.0f32; w * h];
+        py.detach(|| dequant::depth_from_codes(t, w, h, scale, offset, inv, &mut out));
+        shaped(py, out, (h, w))
+    })
+}
+
+/// Motion `float32[h, w, 3]` from three half-resolution channel tiles of `codes` at `tiles`
+/// (`[(x, y)] * 3`): `f32(code) · scale[c] + offset[c]` copied to the 2×2 pixels it covers,
+/// `+0.0` where `static_mask`, NaN where `invalid_mask`.
+#[pyfunction]
+#[pyo3(signature = (codes, tiles, w, h, scale, offset, static_mask=None, invalid_mask=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn dequantise_motion<'py>(
+    py: Python<'py>,
+    codes: &Bound<'py, PyAny>,
+    tiles: [(i64, i64); 3],
+    w: i64,
+    h: i64,
+    scale: [f64; 3],
+    offset: [f64; 3],
+    static_mask: Option<&Bound<'py, PyAny>>,
+    invalid_mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    guarded("dequantise_motion", || {
+        let (w, h) = (side(w, "w")?, side(h, "h")?);
+        let (codes, stride) = plane::<u16>(codes, "codes")?;
+        let codes = slice(&codes, "codes")?;
+        let (hw, hh) = (w.div_ceil(2), h.div_ceil(2));
+        let mut ch = [CodeTile {
+            plane: codes,
+            stride,
+            x: 0,
+            y: 0,
+        }; 3];
+        let (mut s, mut o) = ([0f32; 3], [0f32; 3]);
+        for c in 0..3 {
+            let (x, y) = tiles[c];
+            ch[c] = tile(codes, stride, x, y, hw, hh, &format!("motion tile {c}"))?;
+            s[c] = finite(scale[c], "scale")? as f32;
+            o[c] = finite(offset[c], "offset")? as f32;
+        }
+        let st = mask(static_mask, "static_mask", w, h)?;
+        let st = st.as_ref().map(|m| slice(m, "static_mask")).transpose()?;
+        let inv = mask(invalid_mask, "invalid_mask", w, h)?;
+        let inv = inv.as_ref().map(|m| slice(m, "invalid_mask")).transpose()?;
+        let mut out = vec![0.0f32; w * h * 3];
+        py.detach(|| dequant::motion_from_half_codes(ch, w, h, s, o, st, inv, &mut out));
+        shaped(py, out, (h, w, 3))
+    })
+}
+
+/// A shadow colour `uint8[h, w, 3]` from the tile at `(x, y)` of its full-range BT.709 Y′CbCr
+/// planes (`luma` `uint8[rows, stride]`, `cb`/`cr` at full or half resolution), converted where
+/// `bits` (`uint32[h, w]`) is non-zero and 0 elsewhere.
+#[pyfunction]
+#[pyo3(signature = (luma, cb, cr, x, y, bits))]
+pub fn shadow_colour<'py>(
+    py: Python<'py>,
+    luma: &Bound<'py, PyAny>,
+    cb: &Bound<'py, PyAny>,
+    cr: &Bound<'py, PyAny>,
+    x: i64,
+    y: i64,
+    bits: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray3<u8>>> {
+    guarded("shadow_colour", || {
+        let bits = array::<u32>(bits, "bits", &[Dim::Any("h"), Dim::Any("w")])?;
+        let (h, w) = (bits.shape()[0], bits.shape()[1]);
+        let (l, ls) = plane::<u8>(luma, "luma")?;
+        let (b, bs) = plane::<u8>(cb, "cb")?;
+        let (r, rs) = plane::<u8>(cr, "cr")?;
+        if rs != bs || r.shape()[0] != b.shape()[0] {
+            return Err(invalid(format!(
+                "cr: expected the shape of cb {:?}, got {:?}",
+                b.shape(),
+                r.shape()
+            )));
+        }
+        // 4:2:0 chroma has half the luma's rows; 4:4:4 as many.
+        let sub = if b.shape()[0] == l.shape()[0] { 1 } else { 2 };
+        let planes = YCbCrPlanes {
+            y: slice(&l, "luma")?,
+            cb: slice(&b, "cb")?,
+            cr: slice(&r, "cr")?,
+            stride: [ls, bs],
+            sub,
+        };
+        let (x, y) = (position(x, "x")?, position(y, "y")?);
+        if !planes.fits(x, y, w, h) {
+            return Err(invalid(format!(
+                "shadow tile: {w}x{h} at ({x}, {y}) does not fit luma {:?} with chroma {:?}",
+                l.shape(),
+                b.shape()
+            )));
+        }
+        let bits = slice(&bits, "bits")?;
+        let mut out = vec![0u8; w * h * 3];
+        py.detach(|| dequant::shadow_colour_from_ycbcr(planes, x, y, w, h, bits, &mut out));
+        shaped(py, out, (h, w, 3))
+    })
+}
