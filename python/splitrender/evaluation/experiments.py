@@ -14,7 +14,8 @@ graph of renders (one recording per scene, variant[, stereo]), encodes (per bit-
 content-addressed cache that later runs reuse. Every result is a row with exactly the keys
 :data:`ROW_KEYS`; ``results.json`` (the list of rows, the same bytes whichever executor made
 them), ``tables.md`` (one Markdown table per experiment), ``delays.png`` (metrics against ``l``)
-and ``run-info.json`` (executor, host, seconds, task counts) are written to ``OUT``.
+and ``run-info.json`` (executor, host, seconds, task counts) are written to ``OUT``;
+``OUT/recordings/SCENE-VARIANT[-stereo]`` link to the recordings in the cache (for ``play``).
 
 * Figure 6 (``bitrates``): every method on the dynamic scenes of ``rd_scenes`` (default: all)
   at each paper-equivalent bitrate (scaled by pixel count), plus the reference lines of
@@ -273,6 +274,8 @@ class _Plan:
         self.metrics = metrics
         self.given = given
         self.tasks: dict[str, Task] = {}
+        #: ``OUT/recordings/`` names of the rendered recordings, by task key.
+        self.names: dict[str, str] = {}
 
     def add(self, stage: str, fn: str, params: Row, deps: Sequence[Task] = (),
             label: str = "") -> Task:
@@ -297,9 +300,11 @@ class _Plan:
             return self.add("render", "render_recording",
                             {"given": hashlib.sha256(manifest).hexdigest()},
                             label=f"{scene} (the recording {self.given.path})")
-        return self.add("render", "render_recording",
-                        {"scene": scene, "variant": variant, "stereo": stereo, **self._motion()},
-                        label=f"{scene} ({variant}{', stereo' if stereo else ''})")
+        t = self.add("render", "render_recording",
+                     {"scene": scene, "variant": variant, "stereo": stereo, **self._motion()},
+                     label=f"{scene} ({variant}{', stereo' if stereo else ''})")
+        self.names[t.key] = f"{scene}-{variant}{'-stereo' if stereo else ''}"
+        return t
 
     def timewarp(self, scene: str, fps: int, delay: float) -> Task:
         return self.add("render", "render_timewarp",
@@ -340,6 +345,29 @@ def _fixed(scene: str, variant: str, method: str, br: float | None, delay: int, 
            network: Row | None) -> Row:
     return {"scene": scene, "variant": variant, "method": method, "bitrate_mbps": br,
             "delay": delay, "stereo": stereo, "network": network}
+
+
+def _link_recordings(folder: Path, targets: dict[str, Path]) -> None:
+    """``folder/NAME`` as a symbolic link to each recording in the cache (for ``play``), each
+    replaced atomically (a link made beside it, renamed over it)."""
+    import os
+
+    from splitrender.files import temporary_beside
+
+    if not targets:
+        return
+    folder.mkdir(exist_ok=True)
+    for name, target in sorted(targets.items()):
+        link = folder / name
+        if link.exists() and not link.is_symlink():
+            continue  # a recording of an earlier version of eval: left as it is
+        tmp = temporary_beside(link)
+        os.symlink(target.resolve(), tmp, target_is_directory=True)
+        try:
+            os.replace(tmp, link)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
 
 
 def run_eval(
@@ -507,6 +535,7 @@ def run_eval(
                       address=cfg.address, progress=stages, fault=fault, ray_init=ray_init)
     stages.close()
 
+    _link_recordings(out / "recordings", {n: cache.recording(k) for k, n in g.names.items()})
     parts: dict[str, Row] = {}
 
     def row(p: _Planned) -> Row:
