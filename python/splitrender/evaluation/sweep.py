@@ -355,10 +355,12 @@ def run_ray(todo: Sequence[Task], cache: Cache, jobs: int, address: str | None, 
     """Runs ``todo`` as Ray tasks on the cluster at ``address`` (``None``: a local Ray with
     ``jobs`` CPUs, started now and stopped at the end)."""
     ray = _import_ray()
+    if address is not None:
+        _check_reachable(address)
+    if not todo:
+        return
     started = False
     if not ray.is_initialized():
-        if address is not None:
-            _check_reachable(address)
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                   "configure_logging": False}
         if address is None:
