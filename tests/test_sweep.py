@@ -18,11 +18,12 @@ from splitrender.evaluation.experiments import ROW_KEYS, EvalConfig, run_eval
 
 pytest.importorskip("av")
 
-# One scene, dynamic only, two methods: render 1, encode 1, score 4 (Table 1: ours, timewarp;
+# One scene, dynamic only, two methods: render 4 (4 server frames in one chunk, 36 client frames
+# in two, the recording assembled from them), encode 1, score 4 (Table 1: ours, timewarp;
 # Table 2: ours at l = 0, ours_extrapolate).
 SWEEP = ["eval", "--scale", "0.03", "--seconds", "0.3", "--scenes", "courtyard", "--variants",
          "dynamic", "--methods", "ours,timewarp", "--delays", "0", "--no-vmaf", "--quiet"]
-TASKS = {"render": 1, "encode": 1, "score": 4}
+TASKS = {"render": 4, "encode": 1, "score": 4}
 
 
 def _config(out: Path, cache: Path, **kw: Any) -> EvalConfig:
@@ -65,29 +66,31 @@ def test_two_local_processes_give_the_same_bytes(serial: Path, tmp_path: Path) -
 
 
 def test_interrupted_sweep_resumes_without_recomputing(serial: Path, tmp_path: Path) -> None:
-    started: list[str] = []
+    started: list[sweep.Task] = []
 
-    def fail_third(task: sweep.Task) -> None:
-        started.append(task.key)
-        if len(started) == 3:
+    def fail_sixth(task: sweep.Task) -> None:
+        started.append(task)
+        if len(started) == 6:
             raise RuntimeError("injected fault")
 
     cache, out = tmp_path / "cache", tmp_path / "out"
     with pytest.raises(sweep.TaskFailedError) as e:
-        run_eval(_config(out, cache), fault=fail_third)
+        run_eval(_config(out, cache), fault=fail_sixth)
     message = str(e.value)
     # Which task, on what, why, and how to resume.
-    assert started[2][:12] in message and "injected fault" in message
-    assert "courtyard" in message and "run the same command again" in message
-    finished = set(started[:2])
-    assert len(list((cache / "rows").glob("*.json"))) == 1  # render, then one score row
+    assert started[5].key[:12] in message and "injected fault" in message
+    assert started[5].label in message and "run the same command again" in message
+    # Finished: the three chunks, the recording assembled from them, one score row.
+    assert [t.stage for t in started[:5]] == ["render"] * 4 + ["score"]
+    assert len(list((cache / "rows").glob("*.json"))) == 1
+    assert not any((cache / "chunks").iterdir())  # removed once assembled
 
     again: list[str] = []
     res = run_eval(_config(out, cache), fault=lambda t: again.append(t.key))
     assert res.stats is not None
-    assert not finished & set(again)  # nothing that had finished ran again
-    assert sum(res.stats.cached.values()) == 2 and len(again) == 4
-    assert res.stats.cached["render"] == 1 and res.stats.cached["score"] == 1
+    # Nothing that had finished ran again (nor the chunks of the cached recording).
+    assert not {t.key for t in started[:5]} & set(again) and len(again) == 4
+    assert res.stats.cached == {"render": 4, "encode": 0, "score": 1}
     assert (out / "results.json").read_bytes() == (serial / "results.json").read_bytes()
 
     # A third run on the same cache computes nothing.

@@ -157,7 +157,8 @@ def default_cache_dir() -> Path:
 
 
 class Cache:
-    """The content-addressed store under ``root``: ``recordings/KEY/`` (a recording folder),
+    """The content-addressed store under ``root``: ``chunks/KEY/`` (frames of a recording
+    being rendered, removed once it is assembled), ``recordings/KEY/`` (a recording folder),
     ``timewarp/KEY.npz``, ``streams/KEY.stream`` with ``streams/KEY.json`` (written last),
     ``rows/KEY.json`` (one score task's row). An entry exists only once complete."""
 
@@ -166,7 +167,7 @@ class Cache:
 
     def prepare(self) -> None:
         """Creates the folders (raises ``OSError`` when ``root`` cannot be one)."""
-        for sub in ("recordings", "timewarp", "streams", "rows"):
+        for sub in ("chunks", "recordings", "timewarp", "streams", "rows"):
             (self.root / sub).mkdir(parents=True, exist_ok=True)
 
     def recording(self, key: str) -> Path:
@@ -181,6 +182,9 @@ class Cache:
     def stream_info(self, key: str) -> Path:
         return self.root / "streams" / f"{key}.json"
 
+    def chunk(self, key: str) -> Path:
+        return self.root / "chunks" / key
+
     def row(self, key: str) -> Path:
         return self.root / "rows" / f"{key}.json"
 
@@ -192,6 +196,8 @@ class Cache:
             return self.stream_info(task.key)
         if task.fn.endswith(":render_timewarp"):
             return self.timewarp(task.key)
+        if task.fn.endswith(":render_chunk"):
+            return self.chunk(task.key) / "entries.json"
         return self.recording(task.key) / "manifest.json"
 
     def has(self, task: Task) -> bool:
@@ -416,13 +422,25 @@ def run_graph(
     """
     start = time.perf_counter()
     stats = SweepStats()
+    # A task runs when its output is missing and something needs it: it is a final task (no
+    # other depends on it) or a task that runs depends on it. So the chunks of a recording
+    # already assembled, or a recording whose rows are all cached, are not made again.
+    dependents: dict[str, int] = {}
+    for t in tasks:
+        for d in t.deps:
+            dependents[d] = dependents.get(d, 0) + 1
+    needed: set[str] = set()
+    for t in reversed(tasks):
+        if not cache.has(t) and (t.key in needed or not dependents.get(t.key)):
+            needed.add(t.key)
+            needed.update(t.deps)
     todo: list[Task] = []
     for t in tasks:
         stats.total[t.stage] += 1
-        if cache.has(t):
-            stats.cached[t.stage] += 1
-        else:
+        if t.key in needed and not cache.has(t):
             todo.append(t)
+        else:
+            stats.cached[t.stage] += 1
     if progress is None:
         progress = Progress(len(todo), enabled=False)
     progress.total = len(todo)

@@ -2,7 +2,8 @@
 worker as ``fn(task, cache)``, reads its inputs from the cache (or ``task.paths``) and writes its
 one output atomically under ``task.key``.
 
-- :func:`render_recording`: a recording (server and client frames) of a built-in scene.
+- :func:`render_chunk`: a run of a recording's server or client frames of a built-in scene;
+  :func:`render_recording`: the recording assembled from them.
 - :func:`render_timewarp`: the main camera's colour and depth at another server rate or
   prediction delay (Figure 6's timewarp lines), as one ``.npz``.
 - :func:`encode_stream`: a recording's server frames encoded at one bit-rate: a stream file and
@@ -26,7 +27,11 @@ from splitrender.evaluation.sweep import Cache, Task
 from splitrender.files import write_atomic
 
 __all__ = [
+    "CLIENT_CHUNK",
+    "SERVER_CHUNK",
+    "chunks",
     "encode_stream",
+    "render_chunk",
     "render_recording",
     "render_timewarp",
     "score_interp",
@@ -50,16 +55,94 @@ def _trace(task: Task) -> Any:
     return trace
 
 
-def render_recording(task: Task, cache: Cache) -> None:
-    from splitrender.scene.builtin import Scene
-    from splitrender.scene.recording import write_recording
+#: Frames per render task at most: a 1280x720 server frame takes ~10 s to render and a ground
+#: truth (client) frame ~2.6 s (issue 16), so a chunk is about a minute of work there: small
+#: enough to spread a recording over many workers, large enough that a task's start-up
+#: (loading the scene, a Ray task's scheduling) stays a small part of it.
+SERVER_CHUNK = 4
+CLIENT_CHUNK = 24
+
+
+def _renderer(task: Task) -> Any:
+    from splitrender.scene.recording import RecordingRender
 
     p = task.params
-    write_recording(
-        cache.recording(task.key), Scene(p["scene"], p["variant"]), seconds=p["seconds"],
-        scale=p["scale"], stereo=p["stereo"], trace=_trace(task),
-        translation_scale=p["trace_scale"], samples=p["samples"], overwrite=True,
+    return RecordingRender(
+        p["scene"], variant=p["variant"], seconds=p["seconds"], scale=p["scale"],
+        stereo=p["stereo"], trace=_trace(task), translation_scale=p["trace_scale"],
+        samples=p["samples"],
     )
+
+
+def render_chunk(task: Task, cache: Cache) -> None:
+    """Frames ``start..stop`` of the ``part`` (``"server"`` or ``"client"``) of a recording:
+    their npz files as the recording holds them, and ``entries.json`` (times, and the auxiliary
+    cameras' sizes) written last; the folder is renamed into place once complete."""
+    import os
+    import shutil
+
+    from splitrender.files import temporary_beside
+
+    p = task.params
+    r = _renderer(task)
+    dest = cache.chunk(task.key)
+    tmp = temporary_beside(dest)
+    tmp.mkdir(parents=True)
+    try:
+        times: list[float] = []
+        aux: list[list[int]] = []
+        for i in range(p["start"], p["stop"]):
+            if p["part"] == "server":
+                t, data, aux = r.server_entry(i)
+            else:
+                t, data = r.client_entry(i)
+            (tmp / f"{i:06d}.npz").write_bytes(data)
+            times.append(t)
+        write_atomic(tmp / "entries.json", json.dumps({"part": p["part"], "times": times, "aux": aux}) + "\n")
+        if dest.exists():  # an earlier partial attempt cannot be there (renamed whole): a twin
+            shutil.rmtree(tmp)
+        else:
+            os.rename(tmp, dest)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def chunks(n: int, size: int) -> list[tuple[int, int]]:
+    """``0..n`` in consecutive ``(start, stop)`` runs of at most ``size``."""
+    return [(a, min(n, a + size)) for a in range(0, n, size)]
+
+
+def render_recording(task: Task, cache: Cache) -> None:
+    """The recording assembled from its chunks (``deps``: the server chunks, then the client
+    chunks, in frame order); the chunks are removed once it is in place."""
+    import shutil
+
+    from splitrender.scene.recording import write_entries
+
+    r = _renderer(task)
+    server: list[tuple[float, Path]] = []
+    client: list[tuple[float, Path]] = []
+    aux: list[list[int]] = []
+    for key in task.deps:
+        folder = cache.chunk(key)
+        info = json.loads((folder / "entries.json").read_text())
+        files = sorted(folder.glob("*.npz"))
+        if len(files) != len(info["times"]):
+            raise ValueError(f"{folder}: {len(files)} frames, expected {len(info['times'])}")
+        if info["part"] == "server":
+            aux = aux or info["aux"]
+            server += zip(info["times"], files)
+        else:
+            client += zip(info["times"], files)
+    if (len(server), len(client)) != (r.n_server, r.n_client):
+        raise ValueError(f"chunks hold {len(server)} server and {len(client)} client frames, "
+                         f"expected {r.n_server} and {r.n_client}")
+    write_entries(cache.recording(task.key), r.fields(aux),
+                  [(t, f.read_bytes()) for t, f in server],
+                  [(t, f.read_bytes()) for t, f in client], overwrite=True)
+    for key in task.deps:
+        shutil.rmtree(cache.chunk(key), ignore_errors=True)
 
 
 def render_timewarp(task: Task, cache: Cache) -> None:
