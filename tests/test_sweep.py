@@ -176,3 +176,29 @@ def test_unreachable_cluster_is_a_bounded_one_line_error(
                      "--cache", str(tmp_path / "c"), "--out", str(tmp_path / "o")]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "--address" in err and address in err
+
+
+def _failing_graph(tmp_path: Path) -> tuple[list[sweep.Task], sweep.Cache]:
+    """Two independent score tasks: one returns (``operator.eq``, writing nothing), the other
+    raises in the worker (``json.loads`` of a Task is a TypeError)."""
+    cache = sweep.Cache(tmp_path / "cache")
+    cache.prepare()
+    good = sweep.make_task("score", "operator:eq", {"n": 1}, label="a task that works")
+    bad = sweep.make_task("score", "json:loads", {"n": 2}, paths={"input": "/some/file"},
+                          label="a task that fails")
+    return [good, bad], cache
+
+
+@pytest.mark.parametrize("executor", ["local", "ray"])
+def test_a_failing_task_is_named_with_its_inputs(
+    executor: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    if executor == "ray":
+        request.getfixturevalue("local_ray")
+    tasks, cache = _failing_graph(tmp_path)
+    with pytest.raises(sweep.TaskFailedError) as e:
+        sweep.run_graph(tasks, cache, executor=executor, jobs=2)
+    message = str(e.value)
+    assert "a task that fails" in message and "input=/some/file" in message
+    assert "TypeError" in message and str(cache.root) in message
+    assert "a task that works" not in message
