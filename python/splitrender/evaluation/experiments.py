@@ -463,8 +463,8 @@ def run_eval(
                                      rec, None, 1))
     tables.append((
         "Table 1: methods × scenes × static/dynamic, uncompressed",
-        f"Link: {network_text(network)}; uncompressed server frames (Mb/s: their raw rate). "
-        "Bold: the best per scene and variant.",
+        (f"Link: {network_text(network)}; uncompressed server frames (Mb/s: their raw rate). "
+         "Bold: the best per scene and variant."),
         t1, ("scene", "variant", "method"), ("scene", "variant"),
     ))
 
@@ -481,10 +481,10 @@ def run_eval(
     if t2:
         tables.append((
             "Table 2: extra delay l (client frames), dynamic scenes, compressed",
-            f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} "
-            f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s "
-            "scaled by pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best "
-            "per scene.", t2, ("scene", "method", "delay"), ("scene",),
+            (f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} "
+             f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s "
+             "scaled by pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best "
+             "per scene."), t2, ("scene", "method", "delay"), ("scene",),
         ))
 
     # Table 3: mono vs stereo, compressed.
@@ -502,9 +502,9 @@ def run_eval(
                                  rec, st, 2))
         tables.append((
             "Table 3: mono vs stereo, dynamic scenes, compressed",
-            f"Compressed at {bitrate:.3g} Mb/s, l = 0. Stereo: IPD 7 cm, metrics averaged over "
-            "both eyes (PSNR: of the mean MSE; frames: per eye). Bold: the best per scene and "
-            "stereo setting.",
+            (f"Compressed at {bitrate:.3g} Mb/s, l = 0. Stereo: IPD 7 cm, metrics averaged "
+             "over both eyes (PSNR: of the mean MSE; frames: per eye). Bold: the best per scene "
+             "and stereo setting."),
             t3, ("scene", "method", "stereo"), ("scene", "stereo"),
         ))
 
