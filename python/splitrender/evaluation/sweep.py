@@ -379,7 +379,10 @@ def run_ray(todo: Sequence[Task], cache: Cache, jobs: int, address: str | None, 
                 f"--address {address}: cannot join the Ray cluster: {e}") from e
         started = True
     try:
-        remote = ray.remote(max_retries=0)(_ray_task)
+        # Ray schedules each task on one CPU (num_cpus=1), so the native kernels' thread pool
+        # of a task gets one thread: N tasks on an N-CPU node use its N cores, no more.
+        remote = ray.remote(max_retries=0, num_cpus=1, runtime_env={
+            "env_vars": {"RAYON_NUM_THREADS": "1"}})(_ray_task)
         refs: dict[str, Any] = {}
         tasks: dict[Any, Task] = {}
         for t in todo:
