@@ -153,10 +153,11 @@ def add_eval(sub: Any) -> None:
                     help="local: worker processes of this machine (no Ray needed); ray: Ray "
                     "tasks on a local Ray started for the run or on the cluster at --address "
                     "(pip install 'splitrender[ray]') (default: %(default)s)")
-    sw.add_argument("--jobs", type=_jobs, default=1, metavar="N",
-                    help="local: worker processes; ray without --address: CPUs of the local "
-                    "Ray (default: 1: the renderer and the reprojection kernels already use "
-                    "every core, and each worker holds a recording's frames in memory)")
+    sw.add_argument("--jobs", type=_jobs, default=None, metavar="N",
+                    help="local: worker processes (default 1: the renderer and the reprojection "
+                    "kernels already use every core, and each worker holds a recording's frames "
+                    "in memory); ray without --address: CPUs of the local Ray, one task per CPU "
+                    "(default: every CPU)")
     sw.add_argument("--address", default=None, metavar="ADDR",
                     help="with --executor ray: join this running cluster (HOST:PORT, "
                     "ray://HOST:PORT or auto) instead of starting a local Ray")
@@ -174,7 +175,11 @@ def _jobs(text: str) -> int:
 
 def eval_(args: argparse.Namespace) -> int:
     from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, run_eval
-    from splitrender.evaluation.sweep import ClusterUnreachableError, RayMissingError
+    from splitrender.evaluation.sweep import (
+        ClusterUnreachableError,
+        RayMissingError,
+        default_cache_dir,
+    )
     from splitrender.scene.dataset import import_dataset_as_recording
 
     d = EvalConfig()
@@ -221,8 +226,8 @@ def eval_(args: argparse.Namespace) -> int:
     if res.stats is not None:
         s = res.stats
         print(f"{sum(s.total.values())} tasks ({sum(s.cached.values())} from the cache "
-              f"{cfg.cache or 'default'}, {sum(s.computed.values())} run) in {s.seconds:.1f} s "
-              f"on the {cfg.executor} executor")
+              f"{cfg.cache or default_cache_dir()}, {sum(s.computed.values())} run) in "
+              f"{s.seconds:.1f} s on the {cfg.executor} executor")
     print(f"{len(res.rows)} rows at {res.width}x{res.height}; wrote "
           + ", ".join(str(p) for p in res.files))
     return 0

@@ -149,7 +149,8 @@ class EvalConfig:
     #: ``"local"`` (processes of this machine) or ``"ray"`` (docs/sweeps.md).
     executor: str = "local"
     #: Local: worker processes (1: this process); Ray without ``address``: the local Ray's CPUs.
-    jobs: int = 1
+    #: ``None``: 1 for local, every CPU (``os.cpu_count()``) for a local Ray.
+    jobs: int | None = None
     #: Ray: the cluster to join (``HOST:PORT``, ``ray://HOST:PORT`` or ``auto``); ``None``:
     #: start a local Ray and stop it at the end.
     address: str | None = None
@@ -408,8 +409,12 @@ def run_eval(
     check_gpu(cfg.backend)
     if cfg.executor not in ("local", "ray"):
         raise EvalArgumentError(f"--executor: expected local or ray, got {cfg.executor!r}")
-    if cfg.jobs < 1:
-        raise EvalArgumentError(f"--jobs: expected an integer >= 1, got {cfg.jobs}")
+    import os
+
+    jobs = cfg.jobs if cfg.jobs is not None else (
+        1 if cfg.executor == "local" else os.cpu_count() or 1)
+    if jobs < 1:
+        raise EvalArgumentError(f"--jobs: expected an integer >= 1, got {jobs}")
     if cfg.address is not None and cfg.executor != "ray":
         raise EvalArgumentError("--address: goes with --executor ray")
     given = None if cfg.recording is None else load_recording(cfg.recording)
@@ -543,7 +548,7 @@ def run_eval(
                     (rec,) if src is None else (rec, src), rd_metrics))
 
     stages = Progress(0, cfg.progress)
-    stats = run_graph(list(g.tasks.values()), cache, executor=cfg.executor, jobs=cfg.jobs,
+    stats = run_graph(list(g.tasks.values()), cache, executor=cfg.executor, jobs=jobs,
                       address=cfg.address, progress=stages, fault=fault, ray_init=ray_init)
     stages.close()
 
@@ -640,7 +645,7 @@ def run_eval(
         if png is not None:
             files.append(png)
     # What made the results, apart from them: results.json holds nothing of the run itself.
-    info = {"executor": cfg.executor, "jobs": cfg.jobs, "address": cfg.address,
+    info = {"executor": cfg.executor, "jobs": jobs, "address": cfg.address,
             "cache": str(cache.root), "host": platform.node(), **stats.to_json()}
     write_atomic(out / "run-info.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
     files.append(out / "run-info.json")
