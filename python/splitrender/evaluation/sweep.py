@@ -201,7 +201,9 @@ class Cache:
         return self.recording(task.key) / "manifest.json"
 
     def has(self, task: Task) -> bool:
-        return task.stage == "render" and "recording" in task.paths or self.marker(task).is_file()
+        """Whether ``task``'s output is there; a recording given from outside (``--dataset``,
+        keyed by its manifest) always is."""
+        return task.stage == "render" and "given" in task.params or self.marker(task).is_file()
 
     def read_row(self, key: str) -> dict[str, Any]:
         from splitrender.files import read_json
