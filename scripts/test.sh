@@ -7,8 +7,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 export PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore
-# Builds the extension in release mode (maturin) and installs pytest, hypothesis and mypy.
-python -m pip install --quiet ".[test]"
+# Builds the extension in release mode (maturin) and installs pytest, hypothesis and mypy, and
+# Ray for the sweep test on a local 2-CPU Ray (tests/test_sweep.py).
+python -m pip install --quiet ".[test,ray]"
 
 # The GPU tests (crates/reproj-wgpu, tests/test_wgpu.py) need a wgpu adapter and skip with a
 # message without one. Mesa's software Vulkan driver (lavapipe) gives one on any machine: install

@@ -7,6 +7,7 @@ not flake) and ``dev`` (more examples, for local runs). Select with ``HYPOTHESIS
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
@@ -23,6 +24,15 @@ settings.register_profile(
 )
 settings.register_profile("dev", max_examples=200, deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _sweep_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """``eval``'s default cache (docs/sweeps.md) in a folder of this session, not the user's
+    cache: tests compute what they check, and leave nothing behind."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SPLITRENDER_CACHE", str(tmp_path_factory.mktemp("sweep-cache")))
+        yield
 
 #: Main camera size of the small fixtures (auxiliary cameras are half of it).
 SMALL_W, SMALL_H = 48, 32

@@ -49,9 +49,11 @@ def test_ours_beats_baselines(scene: str, tmp_path: Path) -> None:
     # at this size since the colour is supersampled (recording format 2): there `ours` is
     # 0.19 dB under `ours_extrapolate`, losing at alpha near 0 and 1 where it takes candidates
     # from the farther frame (docs/builtin-quality.md); at 320x180 it wins again (+0.48 dB,
-    # docs/results). The gap is bounded so that a regression still shows.
+    # docs/results). The gap is bounded so that a regression still shows: 0.35 dB since a
+    # sequence's PSNR is that of its mean MSE (issue 16; 0.19 dB as the mean of per-frame PSNRs,
+    # the frames near the server frames, where `ours` loses, weigh more in the MSE).
     if scene == "lab":
-        assert ours_psnr > s["ours_extrapolate"][0] - 0.3, f"{scene}: {table}"
+        assert ours_psnr > s["ours_extrapolate"][0] - 0.5, f"{scene}: {table}"
     else:
         assert ours_psnr > s["ours_extrapolate"][0], f"{scene}: {table}"
     # Absolute sanity floor at this tiny resolution (aliasing of thin geometry dominates).

@@ -353,7 +353,8 @@ def test_eval_on_wgpu_gives_the_cpu_rows(tmp_path: Path) -> None:
     args = ["eval", "--scale", GPU_SCALE, "--seconds", SECONDS, "--scenes", "courtyard",
             "--methods", "ours,timewarp", "--variants", "dynamic", "--delays", "0", "--no-vmaf"]
     run_cli(*args, "--out", str(tmp_path / "cpu"))
-    shutil.copytree(tmp_path / "cpu" / "recordings", tmp_path / "wgpu" / "recordings")
+    # The recordings come from the session's sweep cache (conftest.py); the rows do not: the
+    # backend is part of a score task's key.
     with client_backends() as seen:
         run_cli(*args, "--backend", "wgpu", "--out", str(tmp_path / "wgpu"))
     assert seen == {("ours", "wgpu"), ("ours_extrapolate", "wgpu"), ("timewarp", "cpu")}

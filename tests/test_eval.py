@@ -62,9 +62,17 @@ def test_eval_writes_tables_plots_and_one_recording_per_scene_variant(eval_out: 
     assert md.count("## Table") == 3 and md.count("## Figure 6") == 1 and "timewarp" in md
     for png in ("delays.png", "rate_distortion.png"):
         assert (eval_out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert sorted(p.name for p in (eval_out / "recordings").iterdir()) == [
-        "courtyard-dynamic", "courtyard-dynamic-stereo", "courtyard-static",
-    ]
+    info = json.loads((eval_out / "run-info.json").read_text())
+    # Recordings: static, dynamic, dynamic stereo (each of one server and two client chunks),
+    # and the 30 and 60 FPS timewarp servers; streams: mono and stereo at the one bitrate
+    # (Figure 6's 40 Mb/s is Table 2's here).
+    assert info["tasks"] == {"render": 3 * 4 + 2, "encode": 2, "score": 19}
+    assert info["executor"] == "local" and info["jobs"] == 1
+    recordings = [p for p in (Path(info["cache"]) / "recordings").iterdir()
+                  if (p / "manifest.json").is_file()]
+    made = {(json.loads((p / "manifest.json").read_text())["variant"],
+             json.loads((p / "manifest.json").read_text())["stereo"]) for p in recordings}
+    assert {("static", False), ("dynamic", False), ("dynamic", True)} <= made
 
 
 def test_play_writes_frames_and_prints_modes(
@@ -115,15 +123,19 @@ def test_bad_arguments_exit_2_with_one_line(
 def test_eval_reuses_matching_recordings(
     eval_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    import shutil
-
+    """Another sweep on the same cache renders nothing it already has: its recording comes
+    from the cache and only its new rows are computed."""
+    cache = json.loads((eval_out / "run-info.json").read_text())["cache"]
     out = tmp_path / "again"
-    shutil.copytree(eval_out / "recordings", out / "recordings")
     args = ["eval", "--scale", "0.03", "--seconds", "0.3", "--scenes", "courtyard",
-            "--methods", "timewarp", "--delays", "0", "--no-vmaf", "--out", str(out)]
+            "--methods", "timewarp", "--delays", "0", "--no-vmaf", "--out", str(out),
+            "--cache", cache]
     assert main(args) == 0
+    info = json.loads((out / "run-info.json").read_text())
+    assert info["cached"]["render"] == info["tasks"]["render"] == 2 * 4
+    assert info["computed"]["render"] == 0 and info["cached"]["score"] >= 2
     err = capsys.readouterr().err
-    assert "reusing" in err and "rendering" not in err
+    assert "render:" not in err and "in the cache" in err
 
 
 def test_minterpolate_output_n_is_client_frame_n() -> None:

@@ -37,7 +37,7 @@ def box_blur(img: np.ndarray, r: int = 2) -> np.ndarray:
 def test_identical_images_have_perfect_scores() -> None:
     a = textured(40, 56)
     assert M.ssim(a, a) == pytest.approx(1.0, abs=1e-12)
-    assert M.psnr(a, a) == math.inf
+    assert M.psnr(a, a) == M.PSNR_CAP_DB == 100.0
     assert M.flip(a, a) == 0.0
     assert float(M.flip_map(a, a).max()) == 0.0
 
@@ -183,10 +183,31 @@ def test_evaluate_sequence_skips_the_first_and_last_frames() -> None:
     assert len(res.per_frame) == n - 2 * skip
     assert res.mean["ssim"] == pytest.approx(1.0, abs=1e-12)
     assert res.mean["flip"] == 0.0
-    assert res.mean["psnr"] == math.inf
+    assert res.mean["psnr"] == M.PSNR_CAP_DB and res.mse == 0.0
     assert res.mean["vmaf"] == pytest.approx(100.0, abs=0.01)
     assert ("psnr", n - 2 * skip, n - 2 * skip) in seen and ("vmaf", 1, 1) in seen
-    assert res.to_dict()["mean"]["psnr"] == "inf"
+    assert res.to_dict()["mean"]["psnr"] == M.PSNR_CAP_DB
+
+
+def test_sequence_psnr_is_that_of_the_mean_mse_and_never_infinite() -> None:
+    """A sequence with identical frames (a head standing still) has a finite PSNR: the PSNR of
+    the mean squared error over its frames, not the mean of per-frame PSNRs (inf there)."""
+    truth = [textured(24, 32, seed=s) for s in range(5)]
+    rendered = [t.copy() for t in truth]
+    rendered[3] = np.clip(truth[3].astype(np.int16) + 8, 0, 255).astype(np.uint8)
+    res = M.evaluate_sequence(rendered, truth, skip=1, metrics=("psnr",))
+    mses = [float(np.mean(((r / 255.0) - (t / 255.0)) ** 2)) for r, t in
+            zip(rendered[1:4], truth[1:4])]
+    assert [row["psnr"] for row in res.per_frame][:2] == [M.PSNR_CAP_DB] * 2
+    assert res.mse == pytest.approx(np.mean(mses), rel=1e-12)
+    assert res.mean["psnr"] == pytest.approx(-10 * math.log10(np.mean(mses)), rel=1e-12)
+    assert math.isfinite(res.mean["psnr"]) and res.mean["psnr"] < M.PSNR_CAP_DB
+    # The cap: at and below an MSE of 1e-10, and for 0; refused for negative or NaN.
+    assert M.psnr_of_mse(0.0) == M.psnr_of_mse(1e-12) == M.PSNR_CAP_DB
+    assert M.psnr_of_mse(1e-9) == pytest.approx(90.0)
+    for bad in (-1e-3, float("nan"), float("inf")):
+        with pytest.raises(InvalidInputError):
+            M.psnr_of_mse(bad)
 
 
 def test_evaluate_sequence_per_frame_values_and_errors() -> None:
@@ -197,7 +218,11 @@ def test_evaluate_sequence_per_frame_values_and_errors() -> None:
     for row, i in zip(res.per_frame, res.frames):
         assert set(row) == {"ssim", "psnr"}
         assert row["psnr"] == pytest.approx(M.psnr(rendered[i], truth[i]))
-    assert res.mean["psnr"] == pytest.approx(np.mean([r["psnr"] for r in res.per_frame]))
+    assert res.mean["ssim"] == pytest.approx(np.mean([r["ssim"] for r in res.per_frame]))
+    # PSNR's mean is the PSNR of the mean MSE, at most the mean PSNR (log is concave).
+    mse = np.mean([10 ** (-r["psnr"] / 10) for r in res.per_frame])
+    assert res.mean["psnr"] == pytest.approx(-10 * np.log10(mse))
+    assert res.mean["psnr"] < np.mean([r["psnr"] for r in res.per_frame])
     with pytest.raises(InvalidInputError, match="more than 2\\*skip"):
         M.evaluate_sequence(rendered, truth, skip=4)
     with pytest.raises(InvalidInputError, match="metrics"):

@@ -23,6 +23,7 @@ from splitrender.cli.args import (
     delays,
     eval_methods,
     fail,
+    integer,
     methods,
     names,
     network_model,
@@ -147,10 +148,38 @@ def add_eval(sub: Any) -> None:
     add_no_vmaf(ev)
     add_quiet(ev)
     add_network(ev, delay=False)
+    sw = ev.add_argument_group("sweep (docs/sweeps.md)")
+    sw.add_argument("--executor", choices=("local", "ray"), default="local",
+                    help="local: worker processes of this machine (no Ray needed); ray: Ray "
+                    "tasks on a local Ray started for the run or on the cluster at --address "
+                    "(pip install 'splitrender[ray]') (default: %(default)s)")
+    sw.add_argument("--jobs", type=_jobs, default=None, metavar="N",
+                    help="local: worker processes (default 1: the renderer and the reprojection "
+                    "kernels already use every core, and each worker holds a recording's frames "
+                    "in memory); ray without --address: CPUs of the local Ray, one task per CPU "
+                    "(default: every CPU)")
+    sw.add_argument("--address", default=None, metavar="ADDR",
+                    help="with --executor ray: join this running cluster (HOST:PORT, "
+                    "ray://HOST:PORT or auto) instead of starting a local Ray")
+    sw.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                    help="content-addressed cache of recordings, streams and score rows, "
+                    "reused by later runs and by a resumed one (a shared path on a cluster; "
+                    "default: $SPLITRENDER_CACHE, else $XDG_CACHE_HOME/splitrender, else "
+                    "~/.cache/splitrender)")
+
+
+def _jobs(text: str) -> int:
+    """``--jobs``: worker processes or Ray CPUs, 1..1024."""
+    return integer(text, 1, 1024, "a number of jobs")
 
 
 def eval_(args: argparse.Namespace) -> int:
     from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, run_eval
+    from splitrender.evaluation.sweep import (
+        ClusterUnreachableError,
+        RayMissingError,
+        default_cache_dir,
+    )
     from splitrender.scene.dataset import import_dataset_as_recording
 
     d = EvalConfig()
@@ -179,7 +208,8 @@ def eval_(args: argparse.Namespace) -> int:
         variants=d.variants if args.variants is None else tuple(args.variants),
         trace=args.trace, trace_scale=args.trace_scale, progress=not args.quiet,
         backend=args.backend, samples=args.samples, network=network_model(args),
-        recording=recording,
+        recording=recording, executor=args.executor, jobs=args.jobs, address=args.address,
+        cache=args.cache,
     )
     if recording is not None:
         try:
@@ -189,10 +219,15 @@ def eval_(args: argparse.Namespace) -> int:
             return fail(str(e))
     try:
         res = run_eval(cfg)
-    except EvalArgumentError as e:
+    except (EvalArgumentError, RayMissingError, ClusterUnreachableError) as e:
         return fail(str(e))
     for line in res.summary:
         print(line)
+    if res.stats is not None:
+        s = res.stats
+        print(f"{sum(s.total.values())} tasks ({sum(s.cached.values())} from the cache "
+              f"{cfg.cache or default_cache_dir()}, {sum(s.computed.values())} run) in "
+              f"{s.seconds:.1f} s on the {cfg.executor} executor")
     print(f"{len(res.rows)} rows at {res.width}x{res.height}; wrote "
           + ", ".join(str(p) for p in res.files))
     return 0

@@ -8,11 +8,14 @@
 * Table 3 (``stereo=True``): every method on the dynamic scenes, compressed, mono (left eye of
   the mono recording) vs stereo (both eyes, IPD 7 cm; the metrics are the means over both eyes).
 
-Recordings are rendered once per (scene, variant[, stereo]) into ``OUT/recordings/`` and reused
-while their format version, scale, length, colour sub-samples and client motion match. Every result is a row with exactly the keys
-:data:`ROW_KEYS`; ``results.json`` (the list of rows, rewritten after each experiment),
-``tables.md`` (one Markdown table per experiment) and ``delays.png`` (metrics against ``l``) are
-written to ``OUT``.
+The experiments run as one sweep (:mod:`splitrender.evaluation.sweep`, docs/sweeps.md): a task
+graph of renders (one recording per scene, variant[, stereo]), encodes (per bit-rate) and scores
+(per method × delay × bit-rate × eye) on the local or the Ray executor, every output kept in a
+content-addressed cache that later runs reuse. Every result is a row with exactly the keys
+:data:`ROW_KEYS`; ``results.json`` (the list of rows, the same bytes whichever executor made
+them), ``tables.md`` (one Markdown table per experiment), ``delays.png`` (metrics against ``l``)
+and ``run-info.json`` (executor, host, seconds, task counts) are written to ``OUT``;
+``OUT/recordings/SCENE-VARIANT[-stereo]`` link to the recordings in the cache (for ``play``).
 
 * Figure 6 (``bitrates``): every method on the dynamic scenes of ``rd_scenes`` (default: all)
   at each paper-equivalent bitrate (scaled by pixel count), plus the reference lines of
@@ -66,7 +69,8 @@ from splitrender.evaluation.demo import (
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.progress import Progress
-from splitrender.evaluation.metrics import SKIP_FRAMES
+from splitrender.evaluation.metrics import PSNR_CAP_DB, SKIP_FRAMES
+from splitrender.evaluation.sweep import SweepStats, Task, make_task
 from splitrender.net.model import NetworkModel
 
 __all__ = [
@@ -142,6 +146,17 @@ class EvalConfig:
     #: ``seconds`` are not used; ``stereo``, ``bitrates``, ``rd_scenes``, ``trace`` and
     #: ``samples`` must be left unset).
     recording: Path | None = None
+    #: ``"local"`` (processes of this machine) or ``"ray"`` (docs/sweeps.md).
+    executor: str = "local"
+    #: Local: worker processes (1: this process); Ray without ``address``: the local Ray's CPUs.
+    #: ``None``: 1 for local, every CPU (``os.cpu_count()``) for a local Ray.
+    jobs: int | None = None
+    #: Ray: the cluster to join (``HOST:PORT``, ``ray://HOST:PORT`` or ``auto``); ``None``:
+    #: start a local Ray and stop it at the end.
+    address: str | None = None
+    #: The content-addressed cache of recordings, streams and rows; ``None``:
+    #: :func:`~splitrender.evaluation.sweep.default_cache_dir`.
+    cache: Path | None = None
 
 
 @dataclass
@@ -153,6 +168,8 @@ class EvalResult:
     bitrate_mbps: float = 0.0
     #: Lines worth printing (Figure 6: the bitrates at which ``ours`` reaches VMAF 60 and 80).
     summary: list[str] = field(default_factory=list)
+    #: Tasks of the sweep per stage: in the graph, found in the cache, run now.
+    stats: SweepStats | None = None
 
 
 def _check_recording_config(cfg: EvalConfig) -> None:
@@ -236,56 +253,182 @@ def format_rows(rows: Sequence[Row], keys: Sequence[str], group: Sequence[str] =
     return "\n".join(lines)
 
 
-def _plan_stages(cfg: EvalConfig) -> int:
-    if cfg.recording is not None:
-        return 1 + len(cfg.methods)  # loading, Table 1
-    core = len([m for m in cfg.methods if m != VIDEO_INTERP])
-    nv = len(set(cfg.variants) | {"dynamic"})
-    n = len(cfg.scenes) * nv  # recordings
-    n += len(cfg.scenes) * len(cfg.variants) * len(cfg.methods)  # Table 1
-    n += len(cfg.scenes) * (1 + len(cfg.delays) + 1)  # Table 2: encode, delays, extrapolate
-    if cfg.stereo:
-        n += len(cfg.scenes) * (1 + 1 + 2 * core)  # recording, encode, mono/stereo
-    if cfg.bitrates:
-        rd = len(cfg.scenes if cfg.rd_scenes is None else cfg.rd_scenes)
-        lines = len(TIMEWARP_LINES)
-        # Per scene: the timewarp servers at 30/60 FPS; per bitrate: encode, the methods,
-        # video streaming, each timewarp line.
-        n += rd * ((lines - 1) + len(cfg.bitrates) * (2 + len(cfg.methods) + lines))
-    return n
+_TASKS = "splitrender.evaluation.sweep_tasks"
 
 
-def run_eval(cfg: EvalConfig) -> EvalResult:
-    """Runs the experiments (see the module docstring) and writes their files to ``cfg.out``."""
+@dataclass
+class _Planned:
+    """A row of the results before the sweep ran: its fixed fields and the score tasks whose
+    parts (one per eye) make its metrics."""
+
+    fixed: Row
+    parts: tuple[str, ...]
+
+
+class _Plan:
+    """The task graph of one ``eval`` (built in the order the rows appear in results.json)."""
+
+    def __init__(self, cfg: EvalConfig, trace: Any, metrics: tuple[str, ...],
+                 given: Any) -> None:
+        self.cfg = cfg
+        self.trace = trace
+        self.metrics = metrics
+        self.given = given
+        self.tasks: dict[str, Task] = {}
+        #: ``OUT/recordings/`` names of the rendered recordings, by task key.
+        self.names: dict[str, str] = {}
+
+    def add(self, stage: str, fn: str, params: Row, deps: Sequence[Task] = (),
+            label: str = "") -> Task:
+        paths = {} if self.given is None else {"recording": str(self.given.path)}
+        if self.trace is not None and stage == "render":
+            paths["trace"] = str(self.cfg.trace)
+        t = make_task(stage, f"{_TASKS}:{fn}", params, deps, paths, label)
+        self.tasks.setdefault(t.key, t)
+        return t
+
+    def _motion(self) -> Row:
+        cfg = self.cfg
+        return {"seconds": cfg.seconds, "scale": cfg.scale, "samples": cfg.samples,
+                "trace_sha256": None if self.trace is None else self.trace.sha256,
+                "trace_scale": cfg.trace_scale if self.trace is not None else None}
+
+    def recording(self, scene: str, variant: str, stereo: bool) -> Task:
+        if self.given is not None:
+            import hashlib
+
+            manifest = (Path(self.given.path) / "manifest.json").read_bytes()
+            return self.add("render", "render_recording",
+                            {"given": hashlib.sha256(manifest).hexdigest()},
+                            label=f"{scene} (the recording {self.given.path})")
+        from splitrender.evaluation.sweep_tasks import CLIENT_CHUNK, SERVER_CHUNK, chunks
+        from splitrender.scene.recording import plan
+
+        params = {"scene": scene, "variant": variant, "stereo": stereo, **self._motion()}
+        label = f"{scene} ({variant}{', stereo' if stereo else ''})"
+        n_server, n_client = plan(self.cfg.seconds, FS, FC)
+        parts = [
+            self.add("render", "render_chunk",
+                     {**params, "part": part, "start": a, "stop": b},
+                     label=f"{label} {part} frames {a}-{b - 1}")
+            for part, n, size in (("server", n_server, SERVER_CHUNK),
+                                  ("client", n_client, CLIENT_CHUNK))
+            for a, b in chunks(n, size)
+        ]
+        t = self.add("render", "render_recording", params, parts, label=label)
+        self.names[t.key] = f"{scene}-{variant}{'-stereo' if stereo else ''}"
+        return t
+
+    def timewarp(self, scene: str, fps: int, delay: float) -> Task:
+        return self.add("render", "render_timewarp",
+                        {"scene": scene, "fps": fps, "delay": delay, **self._motion()},
+                        label=f"{scene} main camera at {fps} FPS, prediction "
+                        f"{1000 * delay:.1f} ms")
+
+    def stream(self, rec: Task, codec: Any) -> Task:
+        from dataclasses import asdict
+
+        return self.add("encode", "encode_stream", {"codec": asdict(codec)}, (rec,),
+                        label=f"{rec.label} at {codec.bitrate_mbps:.3g} Mb/s")
+
+    def play(self, fixed: Row, rec: Task, stream: Task | None, eyes: int,
+             which: Sequence[str] | None = None) -> _Planned:
+        cfg = self.cfg
+        deps = (rec,) if stream is None else (rec, stream)
+        parts = []
+        for eye in range(eyes):
+            params = {"method": fixed["method"], "eye": eye, "stream": stream is not None,
+                      "network": fixed["network"], "metrics": list(which or self.metrics),
+                      "backend": cfg.backend, "own_rates": self.given is not None}
+            where = f"{'stereo eye ' + str(eye) + ', ' if eyes > 1 else ''}l = {fixed['delay']}"
+            parts.append(self.add("score", "score_play", params, deps,
+                                  label=f"{fixed['method']} on {(stream or rec).label}, {where}"))
+        return _Planned(fixed, tuple(t.key for t in parts))
+
+    def score(self, fixed: Row, fn: str, params: Row, deps: Sequence[Task],
+              which: Sequence[str] | None = None) -> _Planned:
+        t = self.add("score", fn, {**params, "metrics": list(which or self.metrics)}, deps,
+                     label=f"{fixed['method']} on {deps[0].label}"
+                     + ("" if fixed["bitrate_mbps"] is None
+                        else f" at {fixed['bitrate_mbps']:.3g} Mb/s"))
+        return _Planned(fixed, (t.key,))
+
+
+def _fixed(scene: str, variant: str, method: str, br: float | None, delay: int, stereo: bool,
+           network: Row | None) -> Row:
+    return {"scene": scene, "variant": variant, "method": method, "bitrate_mbps": br,
+            "delay": delay, "stereo": stereo, "network": network}
+
+
+def _link_recordings(folder: Path, targets: dict[str, Path]) -> None:
+    """``folder/NAME`` as a symbolic link to each recording in the cache (for ``play``), each
+    replaced atomically (a link made beside it, renamed over it)."""
+    import os
+
+    from splitrender.files import temporary_beside
+
+    if not targets:
+        return
+    folder.mkdir(exist_ok=True)
+    for name, target in sorted(targets.items()):
+        link = folder / name
+        if link.exists() and not link.is_symlink():
+            continue  # a recording of an earlier version of eval: left as it is
+        tmp = temporary_beside(link)
+        os.symlink(target.resolve(), tmp, target_is_directory=True)
+        try:
+            os.replace(tmp, link)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
+
+def run_eval(
+    cfg: EvalConfig, *, fault: Callable[[Task], None] | None = None,
+    ray_init: dict[str, Any] | None = None,
+) -> EvalResult:
+    """Runs the experiments (see the module docstring) as one sweep (docs/sweeps.md) and writes
+    their files to ``cfg.out``. ``fault(task)`` is called before each task starts (tests inject
+    failures with it); ``ray_init`` adds ``ray.init`` arguments when a local Ray is started.
+
+    Raises:
+        EvalArgumentError: a configuration that cannot run.
+        splitrender.evaluation.sweep.TaskFailedError: a task failed (what finished is cached).
+        splitrender.evaluation.sweep.SweepError: the executor cannot start.
+    """
+    import platform
     from dataclasses import replace
 
     from splitrender.codec.coder import CodecConfig
-    from splitrender.gpu import backend_for
-    from splitrender.evaluation.pipeline import (
-        encode_decode,
-        mean_row,
-        network_json,
-        network_text,
-        play_and_score,
-        play_and_score_eyes,
-        raw_mbps,
-    )
-    from splitrender.scene.recording import Recording, load_recording, plan, write_recording
-    from splitrender.scene.builtin import PREDICTION_DELAY, Scene, Trace, default_samples, load_trace
-    from splitrender.types import ReprojectOptions, ServerFrame
+    from splitrender.evaluation.pipeline import mean_of_eyes, network_json, network_text
+    from splitrender.evaluation.sweep import Cache, default_cache_dir, run_graph
+    from splitrender.scene.builtin import PREDICTION_DELAY, Scene, Trace, load_trace
+    from splitrender.scene.recording import load_recording, plan
 
     check_config(cfg)
     check_gpu(cfg.backend)
+    if cfg.executor not in ("local", "ray"):
+        raise EvalArgumentError(f"--executor: expected local or ray, got {cfg.executor!r}")
+    import os
+
+    jobs = cfg.jobs if cfg.jobs is not None else (
+        1 if cfg.executor == "local" else os.cpu_count() or 1)
+    if jobs < 1:
+        raise EvalArgumentError(f"--jobs: expected an integer >= 1, got {jobs}")
+    if cfg.address is not None and cfg.executor != "ray":
+        raise EvalArgumentError("--address: goes with --executor ray")
     given = None if cfg.recording is None else load_recording(cfg.recording)
     out = cfg.out
+    cache = Cache(default_cache_dir() if cfg.cache is None else cfg.cache)
+    try:
+        cache.prepare()
+    except OSError as e:
+        raise EvalArgumentError(f"--cache: {cache.root}: cannot create the cache there: "
+                                f"{e.strerror or e}") from e
     out.mkdir(parents=True, exist_ok=True)
-    (out / "recordings").mkdir(exist_ok=True)
     trace: Trace | None = None if cfg.trace is None else load_trace(cfg.trace)
     network = cfg.network or NetworkModel()
-    # Rates, size and length: the built-in scenes' (FS, FC, cfg.scale, cfg.seconds), or those of
-    # the recording given; its server_fps and shadow subframes also go to the client.
     fs, fc = FS, FC
-    options: ReprojectOptions | None = None
     if given is None:
         w, h = Scene(cfg.scenes[0]).main_size(cfg.scale)
         n_server, n_client = plan(cfg.seconds, FS, FC)
@@ -295,269 +438,168 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         w, h = given.manifest["cameras"]["main"]
         n_server, n_client = len(given.server_frames), len(given.client_frames)
         seconds = float(given.manifest["seconds"])
-        options = ReprojectOptions(server_fps=fs, shadow_subframes=given.subframes)
     codec_cfg = (
         CodecConfig.scaled(w, h)
         if cfg.bitrate_mbps is None
         else CodecConfig(bitrate_mbps=cfg.bitrate_mbps)
     )
     bitrate = codec_cfg.bitrate_mbps
-    metrics = metric_names(cfg.vmaf, w, h, cfg.progress)
+    metrics = tuple(metric_names(cfg.vmaf, w, h, cfg.progress))
     use_vmaf = "vmaf" in metrics
-    stages = Progress(_plan_stages(cfg), cfg.progress)
-    rows: list[Row] = []
-    cache: dict[tuple[Any, ...], Row] = {}
-    tables: list[tuple[str, str, list[Row], tuple[str, ...], tuple[str, ...]]] = []
-
-    main_samples = default_samples(w, h) if cfg.samples is None else cfg.samples
-
-    def recording(scene: str, variant: str, stereo: bool) -> Recording:
-        if given is not None:
-            stages.stage(f"loading {given.path} ({scene})")
-            return given
-        path = out / "recordings" / f"{scene}-{variant}{'-stereo' if stereo else ''}"
-        if (path / "manifest.json").is_file():
-            try:
-                rec = load_recording(path)
-                m = rec.manifest
-                motion = m.get("client_motion", {})
-                same_motion = (
-                    motion.get("source") == "path"
-                    if trace is None
-                    else motion.get("sha256") == trace.sha256
-                    and motion.get("translation_scale") == cfg.trace_scale
-                )
-                if (
-                    m["scale"] == cfg.scale
-                    and m["seconds"] == cfg.seconds
-                    and m["samples"]["main"] == main_samples
-                    and bool(m["stereo"]) == stereo
-                    and same_motion
-                ):
-                    stages.stage(f"reusing {path}")
-                    return rec
-            except SplitRenderError:
-                pass
-        stages.stage(
-            f"rendering {scene} ({variant}{', stereo' if stereo else ''}) at {w}x{h} into {path}"
-        )
-        write_recording(
-            path, Scene(scene, variant), seconds=cfg.seconds, scale=cfg.scale, stereo=stereo,
-            trace=trace, translation_scale=cfg.trace_scale, samples=cfg.samples, overwrite=True,
-            progress=lambda d, t: stages.bar(d, t, "frames"),
-        )
-        return load_recording(path)
-
-    def score(
-        scene: str, variant: str, method: str, server: Sequence[Any], sizes: list[int] | None,
-        br: float | None, mbps: float, delay: int, cams: Sequence[Sequence[Any]],
-        truth: Sequence[Sequence[_Image]], which: Sequence[str] | None = None,
-    ) -> Row:
-        stereo = len(cams) > 1
-        key = (scene, variant, method, br, delay, stereo)
-        if key in cache:
-            return cache[key]
-        net = replace(network, extra_delay_frames=delay, client_fps=fc)
-        scored = play_and_score_eyes(
-            server, cams, truth, method, net, fc, metrics if which is None else which,
-            frame_sizes=sizes, bar=stages.bar, options=options,
-            backend=backend_for(method, cfg.backend),
-        )
-        row: Row = {
-            "scene": scene, "variant": variant, "method": method, "bitrate_mbps": br,
-            "delay": delay, "stereo": stereo, **mean_row(scored), "mbps": mbps,
-            "network": network_json(net),
-        }
-        cache[key] = row
-        rows.append(row)
-        return row
-
-    def interp(
-        scene: str, variant: str, colours: Sequence[_Image], mbps: float, br: float | None,
-        truth: Sequence[_Image], which: Sequence[str] = metrics,
-    ) -> Row:
-        frames = minterpolate(colours, fs, fc, len(truth))
-        row = _score_frames(scene, variant, VIDEO_INTERP, br, frames, truth, mbps, which,
-                            stages.bar)
-        rows.append(row)
-        return row
-
+    g = _Plan(cfg, trace, metrics, given)
+    tables: list[tuple[str, str, list[_Planned], tuple[str, ...], tuple[str, ...]]] = []
     core_methods = [m for m in cfg.methods if m != VIDEO_INTERP]
-    loaded: dict[tuple[str, str, bool], tuple[list[Any], list[list[Any]], list[list[_Image]]]]
-    loaded = {}
 
-    def load(
-        scene: str, variant: str, stereo: bool
-    ) -> tuple[list[Any], list[list[Any]], list[list[_Image]]]:
-        key = (scene, variant, stereo)
-        if key in loaded:
-            return loaded[key]
-        rec = recording(scene, variant, stereo)
-        eyes = 2 if stereo else 1
-        server = list(rec.server_frames)
-        cams: list[list[Any]] = [[] for _ in range(eyes)]
-        truth: list[list[_Image]] = [[] for _ in range(eyes)]
-        for c in rec.client_frames:
-            for e in range(eyes):
-                cams[e].append(c.cameras[e])
-                truth[e].append(c.ground_truths[e])
-        loaded[key] = (server, cams, truth)
-        return loaded[key]
-
-    def write_results() -> None:
-        data = [{k: (_json_number(r[k]) if k in ("ssim", "flip", "psnr", "vmaf", "mbps")
-                     else r[k]) for k in ROW_KEYS} for r in rows]
-        write_atomic(out / "results.json", json.dumps(data, indent=1) + "\n")
-
-    def add_table(
-        title: str, note: str, trows: list[Row], keys: tuple[str, ...], group: tuple[str, ...]
-    ) -> None:
-        """A table for tables.md (written at the end); the rows so far go to results.json."""
-        tables.append((title, note, trows, keys, group))
-        write_results()
+    def link(delay: int) -> Row:
+        return network_json(replace(network, extra_delay_frames=delay, client_fps=fc))
 
     # Table 1: uncompressed, scenes x variants x methods.
-    t1: list[Row] = []
+    t1: list[_Planned] = []
     variants = cfg.variants if given is None else (given.variant,)
     for scene in cfg.scenes:
         for variant in variants:
-            server, cams, truth = load(scene, variant, False)
-            mbps = raw_mbps(server, fs)
+            rec = g.recording(scene, variant, False)
             for method in cfg.methods:
-                stages.stage(f"table 1: {scene} ({variant}), {method}, uncompressed")
                 if method == VIDEO_INTERP:
-                    colours = [f.main.color for f in server]
-                    raw = colours[0].nbytes * 8 * fs / 1e6
-                    t1.append(interp(scene, variant, colours, raw, None, truth[0]))
-                    continue
-                t1.append(score(scene, variant, method, server, None, None, mbps, 0, cams, truth))
-    add_table(
+                    t1.append(g.score(_fixed(scene, variant, method, None, 0, False, None),
+                                      "score_interp", {"bitrate": None}, (rec,)))
+                else:
+                    t1.append(g.play(_fixed(scene, variant, method, None, 0, False, link(0)),
+                                     rec, None, 1))
+    tables.append((
         "Table 1: methods × scenes × static/dynamic, uncompressed",
-        f"Link: {network_text(network)}; uncompressed server frames (Mb/s: their raw rate). "
-        "Bold: the best per scene and variant.",
+        (f"Link: {network_text(network)}; uncompressed server frames (Mb/s: their raw rate). "
+         "Bold: the best per scene and variant."),
         t1, ("scene", "variant", "method"), ("scene", "variant"),
-    )
+    ))
 
     # Table 2: delays on the dynamic scenes, compressed.
-    t2: list[Row] = []
-    decoded_mono: dict[str, tuple[list[Any], list[int], float]] = {}
+    t2: list[_Planned] = []
     for scene in cfg.scenes if given is None else ():  # a recording given: Table 1 only
-        server, cams, truth = load(scene, "dynamic", False)
-        stages.stage(f"table 2: {scene}: encoding {len(server)} server frames at {bitrate:.3g} "
-                     "Mb/s and decoding them")
-        dec, sizes, mbps = encode_decode(server, codec_cfg, FS, stages.bar, len(server))
-        decoded_mono[scene] = (dec, sizes, mbps)
+        rec = g.recording(scene, "dynamic", False)
+        st = g.stream(rec, codec_cfg)
         for d in cfg.delays:
-            stages.stage(f"table 2: {scene}, ours, l = {d}")
-            t2.append(score(scene, "dynamic", "ours", dec, sizes, bitrate, mbps, d, cams, truth))
-        stages.stage(f"table 2: {scene}, ours_extrapolate, l = 0")
-        t2.append(score(scene, "dynamic", "ours_extrapolate", dec, sizes, bitrate, mbps, 0,
-                        cams, truth))
+            t2.append(g.play(_fixed(scene, "dynamic", "ours", bitrate, d, False, link(d)),
+                             rec, st, 1))
+        t2.append(g.play(_fixed(scene, "dynamic", "ours_extrapolate", bitrate, 0, False,
+                                link(0)), rec, st, 1))
     if t2:
-        add_table(
+        tables.append((
             "Table 2: extra delay l (client frames), dynamic scenes, compressed",
-            f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} "
-            f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s "
-            "scaled by pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best "
-            "per scene.", t2, ("scene", "method", "delay"), ("scene",),
-        )
+            (f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} "
+             f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s "
+             "scaled by pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best "
+             "per scene."), t2, ("scene", "method", "delay"), ("scene",),
+        ))
 
     # Table 3: mono vs stereo, compressed.
     if cfg.stereo:
-        t3: list[Row] = []
+        t3: list[_Planned] = []
         for scene in cfg.scenes:
-            server, cams, truth = load(scene, "dynamic", True)
-            stages.stage(f"table 3: {scene} (stereo): encoding and decoding")
-            dec, sizes, mbps = encode_decode(server, codec_cfg, FS, stages.bar, len(server))
-            mdec, msizes, mmbps = decoded_mono[scene]
-            _, mcams, mtruth = load(scene, "dynamic", False)
+            mono = g.recording(scene, "dynamic", False)
+            mst = g.stream(mono, codec_cfg)
+            rec = g.recording(scene, "dynamic", True)
+            st = g.stream(rec, codec_cfg)
             for method in core_methods:
-                stages.stage(f"table 3: {scene}, {method}, mono")
-                t3.append(score(scene, "dynamic", method, mdec, msizes, bitrate, mmbps, 0,
-                                mcams, mtruth))
-                stages.stage(f"table 3: {scene}, {method}, stereo")
-                t3.append(score(scene, "dynamic", method, dec, sizes, bitrate, mbps, 0,
-                                cams, truth))
-        add_table(
+                t3.append(g.play(_fixed(scene, "dynamic", method, bitrate, 0, False, link(0)),
+                                 mono, mst, 1))
+                t3.append(g.play(_fixed(scene, "dynamic", method, bitrate, 0, True, link(0)),
+                                 rec, st, 2))
+        tables.append((
             "Table 3: mono vs stereo, dynamic scenes, compressed",
-            f"Compressed at {bitrate:.3g} Mb/s, l = 0. Stereo: IPD 7 cm, metrics averaged over "
-            "both eyes (frames: per eye). Bold: the best per scene and stereo setting.",
+            (f"Compressed at {bitrate:.3g} Mb/s, l = 0. Stereo: IPD 7 cm, metrics averaged "
+             "over both eyes (PSNR: of the mean MSE; frames: per eye). Bold: the best per scene "
+             "and stereo setting."),
             t3, ("scene", "method", "stereo"), ("scene", "stereo"),
-        )
+        ))
 
     # Figure 6: rate-distortion on the dynamic scenes.
-    f6: list[Row] = []
-    summary: list[str] = []
+    f6: list[_Planned] = []
     rd_scenes = cfg.scenes if cfg.rd_scenes is None else cfg.rd_scenes
     # Figure 6 plots VMAF; FLIP (three quarters of the evaluation time) is skipped there when
     # VMAF is computed.
-    rd_metrics = tuple(m for m in metrics if m != "flip") if "vmaf" in metrics else metrics
-    if cfg.bitrates:
+    rd_metrics = tuple(m for m in metrics if m != "flip") if use_vmaf else metrics
+    for scene in rd_scenes if cfg.bitrates else ():
+        rec = g.recording(scene, "dynamic", False)
+        tw: dict[int, Task | None] = {}
+        for fps, delay in TIMEWARP_LINES:
+            own = fps == FS and delay == PREDICTION_DELAY and trace is None
+            tw[fps] = None if own else g.timewarp(scene, fps, delay)
+        for paper in sorted(cfg.bitrates):
+            cc = CodecConfig.scaled(w, h, paper_mbps=paper)
+            br = cc.bitrate_mbps
+            st = g.stream(rec, cc)
+            for method in cfg.methods:
+                if method == VIDEO_INTERP:
+                    f6.append(g.score(_fixed(scene, "dynamic", method, br, 0, False, None),
+                                      "score_interp", {"bitrate": br}, (rec,), rd_metrics))
+                else:
+                    f6.append(g.play(_fixed(scene, "dynamic", method, br, 0, False, link(0)),
+                                     rec, st, 1, rd_metrics))
+            f6.append(g.score(_fixed(scene, "dynamic", "video_streaming", br, 0, False, None),
+                              "score_video_streaming", {"bitrate": br}, (rec,), rd_metrics))
+            for fps, _ in TIMEWARP_LINES:
+                src = tw[fps]
+                f6.append(g.score(
+                    _fixed(scene, "dynamic", f"timewarp_{fps}fps", br, 0, False, link(0)),
+                    "score_timewarp",
+                    {"fps": fps, "bitrate": br, "network": link(0),
+                     "source": "recording" if src is None else "timewarp"},
+                    (rec,) if src is None else (rec, src), rd_metrics))
+
+    stages = Progress(0, cfg.progress)
+    stats = run_graph(list(g.tasks.values()), cache, executor=cfg.executor, jobs=jobs,
+                      address=cfg.address, progress=stages, fault=fault, ray_init=ray_init)
+    stages.close()
+
+    _link_recordings(out / "recordings", {n: cache.recording(k) for k, n in g.names.items()})
+    parts: dict[str, Row] = {}
+
+    def row(p: _Planned) -> Row:
+        got = [parts.setdefault(k, cache.read_row(k)) for k in p.parts]
+        merged = mean_of_eyes(got)
+        return {**p.fixed, **merged, "mbps": got[0]["mbps"]}
+
+    rows: list[Row] = []
+    seen: set[tuple[Any, ...]] = set()
+    done_tables = []
+    for title, note, planned, keys, group in tables:
+        trows = [row(p) for p in planned]
+        done_tables.append((title, note, trows, keys, group))
+        for r in trows:
+            k = tuple(r[x] for x in ("scene", "variant", "method", "bitrate_mbps", "delay",
+                                     "stereo"))
+            if k not in seen:
+                seen.add(k)
+                rows.append(r)
+    t1_rows = done_tables[0][2]
+    t2_rows = next((t[2] for t in done_tables if t[0].startswith("Table 2")), [])
+    f6_rows = [row(p) for p in f6]
+    for r in f6_rows:
+        k = tuple(r[x] for x in ("scene", "variant", "method", "bitrate_mbps", "delay", "stereo"))
+        if k not in seen:
+            seen.add(k)
+            rows.append(r)
+
+    summary: list[str] = []
+    if f6 and use_vmaf:
         for scene in rd_scenes:
-            server, cams, truth = load(scene, "dynamic", False)
-            tw_servers: dict[int, list[ServerFrame]] = {}
-            for fps, delay in TIMEWARP_LINES:
-                if fps == FS and delay == PREDICTION_DELAY and trace is None:
-                    tw_servers[fps] = [_main_colour_depth(f) for f in server]
-                    continue
-                stages.stage(f"figure 6: {scene}: rendering the main camera at {fps} FPS "
-                             f"(prediction {1000 * delay:.1f} ms) for the timewarp line")
-                tw_servers[fps] = _timewarp_server(scene, fps, delay, cfg, trace, stages.bar)
-            for paper in sorted(cfg.bitrates):
-                cc = CodecConfig.scaled(w, h, paper_mbps=paper)
-                br = cc.bitrate_mbps
-                stages.stage(f"figure 6: {scene}: encoding and decoding at {br:.3g} Mb/s "
-                             f"({paper:g} Mb/s at 2560x1440)")
-                dec, sizes, mbps = encode_decode(server, cc, FS, stages.bar, len(server))
-                for method in cfg.methods:
-                    stages.stage(f"figure 6: {scene}, {method}, {br:.3g} Mb/s")
-                    if method == VIDEO_INTERP:
-                        coded, cmbps = _video_streaming([f.main.color for f in server], br, FS)
-                        f6.append(interp(scene, "dynamic", coded, cmbps, br, truth[0],
-                                         rd_metrics))
-                        continue
-                    f6.append(score(scene, "dynamic", method, dec, sizes, br, mbps, 0, cams,
-                                    truth, rd_metrics))
-                stages.stage(f"figure 6: {scene}, video streaming of the ground truth at "
-                             f"{br:.3g} Mb/s")
-                f6.append(_video_streaming_row(scene, truth[0], br, rd_metrics, stages.bar))
-                rows.append(f6[-1])
-                for fps, delay in TIMEWARP_LINES:
-                    stages.stage(f"figure 6: {scene}, timewarp at {fps} FPS, {br:.3g} Mb/s")
-                    twc = CodecConfig(bitrate_mbps=br, camera_shares=(1.0,), fps=float(fps),
-                                      gop=fps)
-                    tdec, tsizes, tmbps = encode_decode(tw_servers[fps], twc, float(fps))
-                    tw_net = replace(network, extra_delay_frames=0, client_fps=FC)
-                    sc = play_and_score(
-                        tdec, cams[0], truth[0], "timewarp", tw_net, FC,
-                        rd_metrics, frame_sizes=tsizes, bar=stages.bar,
-                        options=ReprojectOptions(server_fps=float(fps)),
+            ours = [r for r in f6_rows if r["scene"] == scene and r["method"] == "ours"]
+            for level, at in vmaf_crossings(ours, VMAF_LEVELS).items():
+                paper_scale = 2560 * 1440 / (w * h)
+                if at is not None:
+                    summary.append(
+                        f"{scene}: ours reaches VMAF {level:g} at {at:.3g} Mb/s "
+                        f"({at * paper_scale:.3g} Mb/s at 2560x1440)"
                     )
-                    f6.append({
-                        "scene": scene, "variant": "dynamic", "method": f"timewarp_{fps}fps",
-                        "bitrate_mbps": br, "delay": 0, "stereo": False,
-                        **{k: sc.metrics.mean.get(k) for k in ("ssim", "flip", "psnr", "vmaf")},
-                        "mbps": tmbps, "frames": sc.row()["frames"],
-                        "network": network_json(tw_net),
-                    })
-                    rows.append(f6[-1])
-                write_results()
-            if "vmaf" in metrics:
-                ours = [r for r in f6 if r["scene"] == scene and r["method"] == "ours"]
-                for level, at in vmaf_crossings(ours, VMAF_LEVELS).items():
-                    paper_scale = 2560 * 1440 / (w * h)
-                    if at is not None:
-                        summary.append(
-                            f"{scene}: ours reaches VMAF {level:g} at {at:.3g} Mb/s "
-                            f"({at * paper_scale:.3g} Mb/s at 2560x1440)"
-                        )
-                    else:
-                        best = max(ours, key=lambda r: float(r["vmaf"]))
-                        summary.append(
-                            f"{scene}: ours does not reach VMAF {level:g} at the measured "
-                            f"bitrates (best {best['vmaf']:.2f} at {best['mbps']:.3g} Mb/s)"
-                        )
-        add_table(
+                elif ours:
+                    best = max(ours, key=lambda r: float(r["vmaf"]))
+                    summary.append(
+                        f"{scene}: ours does not reach VMAF {level:g} at the measured "
+                        f"bitrates (best {best['vmaf']:.2f} at {best['mbps']:.3g} Mb/s)"
+                    )
+    if f6:
+        done_tables.append((
             "Figure 6: rate-distortion, dynamic scenes",
             "Every method at each bitrate (l = 0; the paper-equivalent bitrate scaled by pixel "
             "count); `video_interp`: the main colour video alone, HEVC at the bitrate at "
@@ -571,9 +613,12 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
             + (" FLIP is not computed here (the figure is VMAF; FLIP is most of the "
                "evaluation time)." if rd_metrics != metrics else "")
             + ("\n\n" + "\n".join(f"* {line}" for line in summary) if summary else ""),
-            f6, ("scene", "bitrate_mbps", "method"), ("scene", "bitrate_mbps"),
-        )
+            f6_rows, ("scene", "bitrate_mbps", "method"), ("scene", "bitrate_mbps"),
+        ))
 
+    data = [{k: (_json_number(r[k]) if k in ("ssim", "flip", "psnr", "vmaf", "mbps")
+                 else r[k]) for k in ROW_KEYS} for r in rows]
+    write_atomic(out / "results.json", json.dumps(data, indent=1, allow_nan=False) + "\n")
     files = [out / "results.json"]
     motion = (f"the recording {cfg.recording}'s client poses" if given is not None
               else "the scenes head paths" if trace is None else f"head trace {cfg.trace}")
@@ -582,39 +627,29 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
         "",
         f"{seconds:g} s per scene: {n_server} server frames at {fs:g} FPS, {n_client} client "
         f"frames at {fc:g} FPS; per-frame means against the ground truth at the client pose, "
-        f"first and last {SKIP_FRAMES} client frames excluded"
+        f"first and last {SKIP_FRAMES} client frames excluded (PSNR: of the mean squared "
+        f"error over those frames, capped at {PSNR_CAP_DB:g} dB)"
         f"{'' if use_vmaf else '; VMAF not computed'}. Client motion: {motion}. Network: "
         f"{network_text(network)}{' (Table 2: l as given)' if t2 else ''}.",
         "",
     ]
-    for title, note, trows, keys, group in tables:
+    for title, note, trows, keys, group in done_tables:
         md += [f"## {title}", "", note, "", format_rows(trows, keys, group), ""]
     write_atomic(out / "tables.md", "\n".join(md))
     files.append(out / "tables.md")
-    png = _plot_delays(out / "delays.png", t2, metrics) if t2 else None
+    png = _plot_delays(out / "delays.png", t2_rows, metrics) if t2_rows else None
     if png is not None:
         files.append(png)
-    if f6:
-        png = _plot_rate_distortion(out / "rate_distortion.png", f6, t1, metrics)
+    if f6_rows:
+        png = _plot_rate_distortion(out / "rate_distortion.png", f6_rows, t1_rows, metrics)
         if png is not None:
             files.append(png)
-    return EvalResult(rows, files, w, h, bitrate, summary)
-
-
-def _score_frames(
-    scene: str, variant: str, method: str, br: float | None, frames: Sequence[_Image],
-    truth: Sequence[_Image], mbps: float, metrics: Sequence[str],
-    bar: Callable[[int, int, str], None],
-) -> Row:
-    from splitrender.evaluation.metrics import evaluate_sequence
-
-    sm = evaluate_sequence(frames, truth, SKIP_FRAMES, metrics, fps=FC,
-                           progress=lambda m, d, t: bar(d, t, m))
-    return {
-        "scene": scene, "variant": variant, "method": method, "bitrate_mbps": br, "delay": 0,
-        "stereo": False, **{m: sm.mean.get(m) for m in ("ssim", "flip", "psnr", "vmaf")},
-        "mbps": mbps, "frames": len(sm.frames), "network": None,
-    }
+    # What made the results, apart from them: results.json holds nothing of the run itself.
+    info = {"executor": cfg.executor, "jobs": jobs, "address": cfg.address,
+            "cache": str(cache.root), "host": platform.node(), **stats.to_json()}
+    write_atomic(out / "run-info.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
+    files.append(out / "run-info.json")
+    return EvalResult(rows, files, w, h, bitrate, summary, stats)
 
 
 def _rate(v: float) -> str:
@@ -668,30 +703,6 @@ def _main_colour_depth(f: Any) -> Any:
     from splitrender.types import CameraFrame, ServerFrame
 
     return ServerFrame(f.index, f.time, CameraFrame(f.main.camera, f.main.color, f.main.depth))
-
-
-def _timewarp_server(
-    scene: str, fps: int, delay: float, cfg: EvalConfig, trace: Any,
-    bar: Callable[[int, int, str], None],
-) -> list[Any]:
-    """The main camera's colour and depth at ``fps`` FPS, rendered at poses predicted
-    ``delay`` seconds ahead (a traditional streaming server for the timewarp lines)."""
-    from splitrender.scene.recording import plan
-    from splitrender.scene.builtin import ClientMotion, PathMotion, Scene, TraceMotion
-
-    sc = Scene(scene, "dynamic")
-    motion: ClientMotion = (
-        PathMotion(sc, delay) if trace is None
-        else TraceMotion(sc, trace, cfg.trace_scale, delay)
-    )
-    n_server, _ = plan(cfg.seconds, float(fps), FC)
-    out = []
-    for k in range(n_server):
-        f = sc.server_frame(k, cfg.scale, float(fps), 1, pose=motion.server_pose(k, float(fps)),
-                            samples=cfg.samples)
-        out.append(_main_colour_depth(f))
-        bar(k + 1, n_server, "server frames")
-    return out
 
 
 def vmaf_crossings(
@@ -799,23 +810,6 @@ def _video_streaming(
     if len(out) != len(truth):
         raise SplitRenderError(f"video streaming: decoded {len(out)} of {len(truth)} frames")
     return out, nbytes * 8 * fps / len(truth) / 1e6
-
-
-def _video_streaming_row(
-    scene: str, truth: Sequence[_Image], mbps: float, metrics: Sequence[str],
-    bar: Callable[[int, int, str], None],
-) -> Row:
-    from splitrender.evaluation.metrics import evaluate_sequence
-
-    frames, achieved = _video_streaming(truth, mbps, FC)
-    sm = evaluate_sequence(frames, truth, SKIP_FRAMES, metrics, fps=FC,
-                           progress=lambda m, d, t: bar(d, t, m))
-    return {
-        "scene": scene, "variant": "dynamic", "method": "video_streaming",
-        "bitrate_mbps": mbps, "delay": 0, "stereo": False,
-        **{m: sm.mean.get(m) for m in ("ssim", "flip", "psnr", "vmaf")},
-        "mbps": achieved, "frames": len(sm.frames), "network": None,
-    }
 
 
 def _plot_rate_distortion(

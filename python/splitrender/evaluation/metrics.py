@@ -8,9 +8,15 @@ The two images of a comparison must have the same shape and dtype.
 
 Settings, and where they differ from the reference (REFERENCE.md §6):
 
-- **PSNR** ``= −10·log10(MSE)`` over every pixel and channel in ``[0, 1]``; identical images give
-  ``inf`` (the mean of a sequence containing an identical frame is then ``inf`` too, as in the
-  reference's plain mean).
+- **PSNR** ``= min(−10·log10(MSE), 100 dB)``, the MSE over every pixel and channel in ``[0, 1]``.
+  The cap :data:`PSNR_CAP_DB` (reached at ``MSE <= 1e-10``, i.e. identical images, or one 8-bit
+  level off in a single channel of fewer than ~0.2 % of a 320×180 image's pixels) keeps identical
+  frames finite: a client frame equal to its ground truth (a head standing still) used to give
+  ``inf``. A sequence's PSNR (:attr:`SequenceMetrics.mean`) follows the field's convention for
+  video: the PSNR of the mean MSE over its scored frames (then capped), not the mean of the
+  per-frame PSNRs, so one perfect frame cannot dominate it (the reference's plain mean of
+  per-frame values is ``inf`` then). Means over stereo eyes likewise average the MSE
+  (:attr:`SequenceMetrics.mse`).
 - **SSIM** exactly as the reference ("3DGS-style"): an 11×11 Gaussian window with ``σ = 1.5``
   applied per channel with *zero* padding of 5 pixels, ``C1 = 0.01²``, ``C2 = 0.03²``, population
   (not sample) statistics, the mean of the full SSIM map over all pixels and channels.
@@ -51,6 +57,7 @@ __all__ = [
     "DEFAULT_METRICS",
     "FLIP_PPD",
     "METRICS",
+    "PSNR_CAP_DB",
     "SKIP_FRAMES",
     "VMAF_FPS",
     "VMAF_MIN_SIDE",
@@ -59,6 +66,7 @@ __all__ = [
     "flip",
     "flip_map",
     "psnr",
+    "psnr_of_mse",
     "ssim",
     "ssim_map",
     "vmaf",
@@ -76,6 +84,9 @@ VMAF_FPS = 120.0
 #: Smallest image side accepted by :func:`vmaf`: libvmaf in the imageio-ffmpeg binary crashes
 #: (SIGSEGV) at 16 pixels (its four-scale pyramids run out); 32 keeps a margin.
 VMAF_MIN_SIDE = 32
+#: The highest PSNR reported (dB): the value of identical images (MSE 0), and of any MSE below
+#: ``10**(-PSNR_CAP_DB / 10)``.
+PSNR_CAP_DB = 100.0
 
 _SSIM_SIGMA = 1.5
 _SSIM_RADIUS = 5  # 11x11 window
@@ -145,16 +156,26 @@ def _to_u8(where: str, img: object) -> npt.NDArray[np.uint8]:
 def psnr(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
     """PSNR in dB of two images, ``−10·log10(MSE)`` over all pixels and channels in ``[0, 1]``.
 
-    Returns ``inf`` for identical images.
+    Capped at :data:`PSNR_CAP_DB` (identical images give 100, not ``inf``).
 
     Raises:
         InvalidInputError: unless both are ``(H, W, 3)`` images of the same shape and dtype.
     """
+    return psnr_of_mse(_mse(a, b))
+
+
+def _mse(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
     x, y = _pair(a, b, ("a", "b"))
-    mse = float(np.mean((x - y) ** 2))
-    if mse == 0.0:
-        return math.inf
-    return -10.0 * math.log10(mse)
+    return float(np.mean((x - y) ** 2))
+
+
+def psnr_of_mse(mse: float) -> float:
+    """``min(−10·log10(mse), PSNR_CAP_DB)`` for a mean squared error of values in ``[0, 1]``."""
+    if not mse >= 0.0 or not math.isfinite(mse):
+        raise InvalidInputError(f"mse: expected a finite number >= 0, got {mse!r}")
+    if mse <= 10.0 ** (-PSNR_CAP_DB / 10.0):
+        return PSNR_CAP_DB
+    return min(PSNR_CAP_DB, -10.0 * math.log10(mse))
 
 
 def _gauss_taps() -> _F64:
@@ -380,14 +401,18 @@ class SequenceMetrics:
 
     ``frames`` are the indices of the evaluated frames (the first and last ``skip`` excluded);
     ``per_frame[i]`` maps each metric to its value for frame ``frames[i]``; ``mean`` is the plain
-    arithmetic mean of each metric over those frames."""
+    arithmetic mean of each metric over those frames, but for PSNR: the PSNR of ``mse``, the
+    mean squared error over those frames (see the module docstring)."""
 
     frames: list[int]
     per_frame: list[dict[str, float]]
     mean: dict[str, float] = field(default_factory=dict)
+    #: The mean over the frames of each frame's MSE (``None`` when PSNR was not computed).
+    mse: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (``inf`` PSNR becomes the string ``"inf"``)."""
+        """A JSON-ready dict (a non-finite value, which no metric gives, would become a string
+        such as ``"inf"``, not invalid JSON)."""
 
         def enc(v: float) -> float | str:
             return v if math.isfinite(v) else str(v)
@@ -444,10 +469,16 @@ def evaluate_sequence(
         raise InvalidInputError(f"rendered: expected more than 2*skip = {2 * skip} frames, got {n}")
     kept = list(range(skip, n - skip))
     per_frame: list[dict[str, float]] = [{} for _ in kept]
+    mses: list[float] = []
+
+    def frame_psnr(t: Any, ref: Any) -> float:
+        mses.append(_mse(t, ref))
+        return psnr_of_mse(mses[-1])
+
     funcs: dict[str, Callable[[Any, Any], float]] = {
         "ssim": ssim,
         "flip": lambda t, ref: flip(t, ref, ppd),
-        "psnr": psnr,
+        "psnr": frame_psnr,
     }
     ordered = [m for m in METRICS if m in metrics]
     for m in ordered:
@@ -463,4 +494,7 @@ def evaluate_sequence(
             if progress is not None:
                 progress(m, j + 1, len(kept))
     mean = {m: float(np.mean([row[m] for row in per_frame])) for m in ordered}
-    return SequenceMetrics(frames=kept, per_frame=per_frame, mean=mean)
+    mse = float(np.mean(mses)) if mses else None
+    if mse is not None:
+        mean["psnr"] = psnr_of_mse(mse)
+    return SequenceMetrics(frames=kept, per_frame=per_frame, mean=mean, mse=mse)

@@ -18,7 +18,12 @@ import numpy.typing as npt
 
 from splitrender.client.playback import PlaybackResult, frame_nbytes, play
 from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
-from splitrender.evaluation.metrics import SKIP_FRAMES, SequenceMetrics, evaluate_sequence
+from splitrender.evaluation.metrics import (
+    SKIP_FRAMES,
+    SequenceMetrics,
+    evaluate_sequence,
+    psnr_of_mse,
+)
 from splitrender.net.model import NetworkModel
 from splitrender.codec.stream import stream_stats
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
@@ -26,6 +31,7 @@ from splitrender.types import Camera, ReprojectOptions, ServerFrame
 __all__ = [
     "Scored",
     "encode_decode",
+    "mean_of_eyes",
     "mean_row",
     "network_json",
     "network_text",
@@ -169,11 +175,20 @@ def play_and_score_eyes(
 def mean_row(scored: Sequence[Scored]) -> dict[str, Any]:
     """The :meth:`Scored.row` of one or more eyes averaged: each metric's mean over the eyes
     (``None`` when not computed), ``frames`` per eye."""
-    rows = [s.row() for s in scored]
+    return mean_of_eyes([{**s.row(), "mse": s.metrics.mse} for s in scored])
+
+
+def mean_of_eyes(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Rows of :meth:`Scored.row` with the key ``mse`` (:attr:`SequenceMetrics.mse`) of one or
+    more eyes, averaged: each metric's mean over the eyes (``None`` when not computed) but PSNR,
+    the PSNR of the eyes' mean MSE (metrics.py's convention); ``frames`` per eye."""
     out: dict[str, Any] = {}
     for m in ("ssim", "flip", "psnr", "vmaf"):
         vs = [r[m] for r in rows]
         out[m] = None if any(v is None for v in vs) else float(np.mean(vs))
+    mses = [r.get("mse") for r in rows]
+    if out["psnr"] is not None and all(isinstance(v, float) for v in mses):
+        out["psnr"] = psnr_of_mse(float(np.mean([float(v) for v in mses if v is not None])))
     out["frames"] = rows[0]["frames"]
     return out
 

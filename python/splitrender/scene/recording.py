@@ -80,9 +80,11 @@ __all__ = [
     "ClientFrame",
     "Recording",
     "RecordingError",
+    "RecordingRender",
     "check_destination",
     "load_recording",
     "plan",
+    "write_entries",
     "write_frames",
     "write_recording",
 ]
@@ -201,6 +203,120 @@ def _check_positive(what: str, v: float) -> float:
     return float(v)
 
 
+class RecordingRender:
+    """Renders the frames of one recording, each on its own (``write_recording`` renders them
+    all in order; ``eval``'s sweep renders chunks of them in separate tasks and assembles the
+    recording with :func:`write_entries`). Each frame depends only on its index, so the bytes
+    are the same however the frames are split. Arguments as :func:`write_recording`'s; the
+    checks raise :class:`RecordingError` (``InvalidInputError`` for bad scene arguments)."""
+
+    def __init__(
+        self,
+        scene: str | Scene,
+        *,
+        variant: str = "dynamic",
+        seconds: float = 2.0,
+        scale: float = 0.125,
+        fs: float = 10.0,
+        fc: float = 120.0,
+        subframes: int = 4,
+        stereo: bool = False,
+        trace: Trace | None = None,
+        translation_scale: float = 1.0,
+        samples: int | None = None,
+    ) -> None:
+        sc = scene if isinstance(scene, Scene) else Scene(scene, variant)
+        seconds = _check_positive("seconds", seconds)
+        fs = _check_positive("fs", fs)
+        fc = _check_positive("fc", fc)
+        if seconds > sc.duration + 1e-9:
+            raise RecordingError(
+                f"seconds: scene {sc.name!r} lasts {sc.duration:g} s, asked for {seconds:g} s"
+            )
+        if trace is not None and seconds > trace.duration + 1e-9:
+            raise RecordingError(
+                f"{trace.name}: trace lasts {trace.duration:.3f} s, asked for {seconds:g} s"
+            )
+        if samples is not None and (
+            isinstance(samples, bool) or not isinstance(samples, int)
+            or not 1 <= samples <= MAX_SAMPLES
+        ):
+            raise RecordingError(
+                f"samples: expected an int in 1..{MAX_SAMPLES} or None, got {samples!r}")
+        for what, rate in (("fs", fs), ("fc", fc)):
+            # Checked as floats before plan() rounds them: a product too large for a float is inf.
+            if seconds * rate > MAX_FRAMES:
+                raise RecordingError(
+                    f"{what}: {rate:g} frames/s for {seconds:g} s is more than {MAX_FRAMES} "
+                    f"frames; expected seconds x {what} <= {MAX_FRAMES}"
+                )
+        self.scene = sc
+        self.motion: ClientMotion = (
+            PathMotion(sc) if trace is None else TraceMotion(sc, trace, translation_scale)
+        )
+        self.seconds, self.scale, self.fs, self.fc = seconds, scale, fs, fc
+        self.subframes, self.stereo, self.samples = subframes, stereo, samples
+        self.width, self.height = sc.main_size(scale)
+        self.n_server, self.n_client = plan(seconds, fs, fc)
+
+    def server_frame(self, k: int) -> tuple[npt.NDArray[np.float64], ServerFrame]:
+        """Server frame ``k`` and the head pose it was rendered at."""
+        pose = self.motion.server_pose(k, self.fs)
+        f = self.scene.server_frame(k, self.scale, self.fs, self.subframes, pose=pose,
+                                    samples=self.samples)
+        return pose, f
+
+    def client_frame(self, n: int) -> ClientFrame:
+        t = n / self.fc
+        pose = self.motion.client_pose(t)
+        eyes = self.scene.client_frames(n, self.scale, self.fc, self.stereo, pose=pose,
+                                        samples=self.samples)
+        return ClientFrame(n, t, pose, tuple(c for c, _ in eyes), tuple(i for _, i in eyes))
+
+    def server_entry(self, k: int) -> tuple[float, bytes, list[list[int]]]:
+        """Server frame ``k`` as written: ``(time, npz bytes, auxiliary cameras' sizes)``."""
+        pose, f = self.server_frame(k)
+        return f.time, _npz_bytes(_server_arrays(pose, f)), [
+            [a.camera.width, a.camera.height] for a in f.aux]
+
+    def client_entry(self, n: int) -> tuple[float, bytes]:
+        """Client frame ``n`` as written: ``(time, npz bytes)``."""
+        c = self.client_frame(n)
+        return c.time, _npz_bytes(_client_arrays(c))
+
+    def fields(self, aux_size: list[list[int]]) -> dict[str, Any]:
+        """The manifest's fields (between ``version`` and ``server_frames``)."""
+        def used_samples(w: int, h: int) -> int:
+            return self.samples if self.samples is not None else default_samples(w, h)
+
+        sc, width, height = self.scene, self.width, self.height
+        return {
+            "generator": f"splitrender {__version__}",
+            "scene": sc.name,
+            "variant": sc.variant,
+            "scale": float(self.scale),
+            "fs": self.fs,
+            "fc": self.fc,
+            "subframes": self.subframes,
+            "seconds": self.seconds,
+            "stereo": bool(self.stereo),
+            "samples": {
+                "main": used_samples(width, height),
+                "aux": used_samples(*aux_size[0]),
+                "client": used_samples(width, height),
+            },
+            "near": sc.near,
+            "far": sc.far,
+            "cameras": {
+                "main": [width, height],
+                "aux": aux_size,
+                "client": [width, height],
+                "eyes": 2 if self.stereo else 1,
+            },
+            "client_motion": self.motion.describe(),
+        }
+
+
 def write_recording(
     out: str | os.PathLike[str],
     scene: str | Scene,
@@ -228,85 +344,23 @@ def write_recording(
     :class:`RecordingError` when ``out`` exists (unless ``overwrite``) or ``seconds`` exceeds
     the scene's or trace's duration, ``InvalidInputError`` for bad scene arguments."""
     out = Path(out)
-    sc = scene if isinstance(scene, Scene) else Scene(scene, variant)
-    seconds = _check_positive("seconds", seconds)
-    fs = _check_positive("fs", fs)
-    fc = _check_positive("fc", fc)
-    if seconds > sc.duration + 1e-9:
-        raise RecordingError(
-            f"seconds: scene {sc.name!r} lasts {sc.duration:g} s, asked for {seconds:g} s"
-        )
-    if trace is not None and seconds > trace.duration + 1e-9:
-        raise RecordingError(
-            f"{trace.name}: trace lasts {trace.duration:.3f} s, asked for {seconds:g} s"
-        )
-    check_destination(out, overwrite)
-    motion: ClientMotion = (
-        PathMotion(sc) if trace is None else TraceMotion(sc, trace, translation_scale)
+    r = RecordingRender(
+        scene, variant=variant, seconds=seconds, scale=scale, fs=fs, fc=fc, subframes=subframes,
+        stereo=stereo, trace=trace, translation_scale=translation_scale, samples=samples,
     )
-    width, height = sc.main_size(scale)
-    if samples is not None and (
-        isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= MAX_SAMPLES
-    ):
-        raise RecordingError(f"samples: expected an int in 1..{MAX_SAMPLES} or None, got {samples!r}")
-    for what, rate in (("fs", fs), ("fc", fc)):
-        # Checked as floats before plan() rounds them: a product too large for a float is inf.
-        if seconds * rate > MAX_FRAMES:
-            raise RecordingError(
-                f"{what}: {rate:g} frames/s for {seconds:g} s is more than {MAX_FRAMES} frames; "
-                f"expected seconds x {what} <= {MAX_FRAMES}"
-            )
-    n_server, n_client = plan(seconds, fs, fc)
+    check_destination(out, overwrite)
     aux_size: list[list[int]] = []
 
-    def server_frame(k: int) -> tuple[npt.NDArray[np.float64], ServerFrame]:
+    def server_entry(k: int) -> tuple[float, bytes]:
         nonlocal aux_size
-        pose = motion.server_pose(k, fs)
-        f = sc.server_frame(k, scale, fs, subframes, pose=pose, samples=samples)
-        aux_size = [[a.camera.width, a.camera.height] for a in f.aux]
-        return pose, f
+        t, data, aux_size = r.server_entry(k)
+        return t, data
 
-    def client_frame(n: int) -> ClientFrame:
-        t = n / fc
-        pose = motion.client_pose(t)
-        eyes = sc.client_frames(n, scale, fc, stereo, pose=pose, samples=samples)
-        return ClientFrame(n, t, pose, tuple(c for c, _ in eyes), tuple(i for _, i in eyes))
-
-    def used_samples(w: int, h: int) -> int:
-        return samples if samples is not None else default_samples(w, h)
-
-    def fields() -> dict[str, Any]:  # after the frames: the auxiliary cameras' size
-        return {
-            "generator": f"splitrender {__version__}",
-            "scene": sc.name,
-            "variant": sc.variant,
-            "scale": float(scale),
-            "fs": fs,
-            "fc": fc,
-            "subframes": subframes,
-            "seconds": seconds,
-            "stereo": bool(stereo),
-            "samples": {
-                "main": used_samples(width, height),
-                "aux": used_samples(*aux_size[0]),
-                "client": used_samples(width, height),
-            },
-            "near": sc.near,
-            "far": sc.far,
-            "cameras": {
-                "main": [width, height],
-                "aux": aux_size,
-                "client": [width, height],
-                "eyes": 2 if stereo else 1,
-            },
-            "client_motion": motion.describe(),
-        }
-
-    return write_frames(
+    return write_entries(
         out,
-        fields,
-        _Frames(n_server, server_frame),
-        _Frames(n_client, client_frame),
+        lambda: r.fields(aux_size),  # after the frames: the auxiliary cameras' size
+        _Frames(r.n_server, server_entry),
+        _Frames(r.n_client, r.client_entry),
         overwrite=overwrite,
         progress=progress,
     )
@@ -351,6 +405,31 @@ def write_frames(
     (an existing ``out`` is replaced then, with ``overwrite``); on an exception (Ctrl-C included)
     the partial directory is removed. Raises :class:`RecordingError` when ``out`` exists and
     not ``overwrite``."""
+
+    def server(k: int) -> tuple[float, bytes]:
+        pose, f = server_frames[k]
+        return f.time, _npz_bytes(_server_arrays(pose, f))
+
+    def client(n: int) -> tuple[float, bytes]:
+        c = client_frames[n]
+        return c.time, _npz_bytes(_client_arrays(c))
+
+    return write_entries(out, fields, _Frames(len(server_frames), server),
+                         _Frames(len(client_frames), client), overwrite=overwrite,
+                         progress=progress)
+
+
+def write_entries(
+    out: str | os.PathLike[str],
+    fields: Mapping[str, Any] | Callable[[], Mapping[str, Any]],
+    server_frames: Sequence[tuple[float, bytes]],
+    client_frames: Sequence[tuple[float, bytes]],
+    *,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+) -> Path:
+    """:func:`write_frames` of frames already serialised: ``(time, npz bytes)`` per frame, as
+    :meth:`RecordingRender.server_entry` and :meth:`RecordingRender.client_entry` make them."""
     out = Path(out)
     check_destination(out, overwrite)
     total = len(server_frames) + len(client_frames)
@@ -377,14 +456,8 @@ def write_frames(
                 "sha256": hashlib.sha256(data).hexdigest(),
             }
 
-        server = [
-            entry("server", k, f.time, _npz_bytes(_server_arrays(pose, f)))
-            for k, (pose, f) in enumerate(server_frames)
-        ]
-        client = [
-            entry("client", n, c.time, _npz_bytes(_client_arrays(c)))
-            for n, c in enumerate(client_frames)
-        ]
+        server = [entry("server", k, t, data) for k, (t, data) in enumerate(server_frames)]
+        client = [entry("client", n, t, data) for n, (t, data) in enumerate(client_frames)]
         manifest = {
             "format": FORMAT,
             "version": VERSION,

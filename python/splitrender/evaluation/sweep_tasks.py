@@ -1,0 +1,309 @@
+"""The task functions of ``eval``'s sweep (:mod:`splitrender.evaluation.sweep`): each runs in a
+worker as ``fn(task, cache)``, reads its inputs from the cache (or ``task.paths``) and writes its
+one output atomically under ``task.key``.
+
+- :func:`render_chunk`: a run of a recording's server or client frames of a built-in scene;
+  :func:`render_recording`: the recording assembled from them.
+- :func:`render_timewarp`: the main camera's colour and depth at another server rate or
+  prediction delay (Figure 6's timewarp lines), as one ``.npz``.
+- :func:`encode_stream`: a recording's server frames encoded at one bit-rate: a stream file and
+  its packet sizes and achieved rate.
+- :func:`score_play`, :func:`score_interp`, :func:`score_video_streaming`,
+  :func:`score_timewarp`: one row part (one eye of one method × delay × bit-rate), a JSON object
+  with ``ssim``, ``flip``, ``psnr``, ``vmaf``, ``mse``, ``frames`` and ``mbps``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender.evaluation.sweep import Cache, Task
+from splitrender.files import write_atomic
+
+__all__ = [
+    "CLIENT_CHUNK",
+    "SERVER_CHUNK",
+    "chunks",
+    "encode_stream",
+    "render_chunk",
+    "render_recording",
+    "render_timewarp",
+    "score_interp",
+    "score_play",
+    "score_timewarp",
+    "score_video_streaming",
+]
+
+_Image = npt.NDArray[np.uint8]
+
+
+def _trace(task: Task) -> Any:
+    from splitrender.scene.builtin import load_trace
+
+    path = task.paths.get("trace")
+    if path is None:
+        return None
+    trace = load_trace(path)
+    if trace.sha256 != task.params["trace_sha256"]:
+        raise ValueError(f"{path}: the trace changed since the sweep was planned")
+    return trace
+
+
+#: Frames per render task at most: a 1280x720 server frame takes ~10 s to render and a ground
+#: truth (client) frame ~2.6 s (issue 16), so a chunk is about a minute of work there: small
+#: enough to spread a recording over many workers, large enough that a task's start-up
+#: (loading the scene, a Ray task's scheduling) stays a small part of it.
+SERVER_CHUNK = 4
+CLIENT_CHUNK = 24
+
+
+def _renderer(task: Task) -> Any:
+    from splitrender.scene.recording import RecordingRender
+
+    p = task.params
+    return RecordingRender(
+        p["scene"], variant=p["variant"], seconds=p["seconds"], scale=p["scale"],
+        stereo=p["stereo"], trace=_trace(task), translation_scale=p["trace_scale"],
+        samples=p["samples"],
+    )
+
+
+def render_chunk(task: Task, cache: Cache) -> None:
+    """Frames ``start..stop`` of the ``part`` (``"server"`` or ``"client"``) of a recording:
+    their npz files as the recording holds them, and ``entries.json`` (times, and the auxiliary
+    cameras' sizes) written last; the folder is renamed into place once complete."""
+    import os
+    import shutil
+
+    from splitrender.files import temporary_beside
+
+    p = task.params
+    r = _renderer(task)
+    dest = cache.chunk(task.key)
+    tmp = temporary_beside(dest)
+    tmp.mkdir(parents=True)
+    try:
+        times: list[float] = []
+        aux: list[list[int]] = []
+        for i in range(p["start"], p["stop"]):
+            if p["part"] == "server":
+                t, data, aux = r.server_entry(i)
+            else:
+                t, data = r.client_entry(i)
+            (tmp / f"{i:06d}.npz").write_bytes(data)
+            times.append(t)
+        write_atomic(tmp / "entries.json", json.dumps({"part": p["part"], "times": times, "aux": aux}) + "\n")
+        if dest.exists():  # an earlier partial attempt cannot be there (renamed whole): a twin
+            shutil.rmtree(tmp)
+        else:
+            os.rename(tmp, dest)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def chunks(n: int, size: int) -> list[tuple[int, int]]:
+    """``0..n`` in consecutive ``(start, stop)`` runs of at most ``size``."""
+    return [(a, min(n, a + size)) for a in range(0, n, size)]
+
+
+def render_recording(task: Task, cache: Cache) -> None:
+    """The recording assembled from its chunks (``deps``: the server chunks, then the client
+    chunks, in frame order); the chunks are removed once it is in place."""
+    import shutil
+
+    from splitrender.scene.recording import write_entries
+
+    r = _renderer(task)
+    server: list[tuple[float, Path]] = []
+    client: list[tuple[float, Path]] = []
+    aux: list[list[int]] = []
+    for key in task.deps:
+        folder = cache.chunk(key)
+        info = json.loads((folder / "entries.json").read_text())
+        files = sorted(folder.glob("*.npz"))
+        if len(files) != len(info["times"]):
+            raise ValueError(f"{folder}: {len(files)} frames, expected {len(info['times'])}")
+        if info["part"] == "server":
+            aux = aux or info["aux"]
+            server += zip(info["times"], files)
+        else:
+            client += zip(info["times"], files)
+    if (len(server), len(client)) != (r.n_server, r.n_client):
+        raise ValueError(f"chunks hold {len(server)} server and {len(client)} client frames, "
+                         f"expected {r.n_server} and {r.n_client}")
+    write_entries(cache.recording(task.key), r.fields(aux),
+                  [(t, f.read_bytes()) for t, f in server],
+                  [(t, f.read_bytes()) for t, f in client], overwrite=True)
+    for key in task.deps:
+        shutil.rmtree(cache.chunk(key), ignore_errors=True)
+
+
+def render_timewarp(task: Task, cache: Cache) -> None:
+    from splitrender.evaluation.demo import FC
+    from splitrender.scene.builtin import ClientMotion, PathMotion, Scene, TraceMotion
+    from splitrender.scene.recording import plan
+
+    p = task.params
+    sc = Scene(p["scene"], "dynamic")
+    trace = _trace(task)
+    fps = float(p["fps"])
+    motion: ClientMotion = (
+        PathMotion(sc, p["delay"]) if trace is None
+        else TraceMotion(sc, trace, p["trace_scale"], p["delay"])
+    )
+    n_server, _ = plan(p["seconds"], fps, FC)
+    frames = [sc.server_frame(k, p["scale"], fps, 1, pose=motion.server_pose(k, fps),
+                              samples=p["samples"]) for k in range(n_server)]
+    buf = io.BytesIO()
+    np.savez(
+        buf, index=np.array([f.index for f in frames], np.int64),
+        time=np.array([f.time for f in frames], np.float64),
+        view=np.stack([f.main.camera.view for f in frames]),
+        proj=np.stack([f.main.camera.proj for f in frames]),
+        color=np.stack([f.main.color for f in frames]),
+        depth=np.stack([f.main.depth for f in frames]),
+    )
+    write_atomic(cache.timewarp(task.key), buf.getvalue())
+
+
+def _timewarp_frames(path: Path) -> list[Any]:
+    from splitrender.types import Camera, CameraFrame, ServerFrame
+
+    with np.load(path) as z:
+        h, w = z["color"].shape[1:3]
+        return [
+            ServerFrame(int(z["index"][k]), float(z["time"][k]), CameraFrame(
+                Camera(z["view"][k], z["proj"][k], int(w), int(h)), z["color"][k], z["depth"][k]))
+            for k in range(len(z["index"]))
+        ]
+
+
+def _recording(task: Task, cache: Cache) -> Any:
+    from splitrender.scene.recording import load_recording
+
+    return load_recording(task.paths.get("recording") or cache.recording(task.deps[0]))
+
+
+def encode_stream(task: Task, cache: Cache) -> None:
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+    from splitrender.codec.stream import StreamWriter, stream_stats
+
+    rec = _recording(task, cache)
+    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
+                              for k, v in task.params["codec"].items()}
+    cfg = CodecConfig(**fields)
+    packets: list[bytes] = []
+    with StreamWriter(cache.stream(task.key), rec.fs) as out, StreamEncoder(cfg) as enc:
+        for f in rec.server_frames:
+            packets.append(enc.encode(f))
+            out.write(packets[-1])
+    info = {"sizes": [len(p) for p in packets], "mbps": stream_stats(packets, rec.fs).mbps_total()}
+    write_atomic(cache.stream_info(task.key), json.dumps(info) + "\n")
+
+
+def _eye(rec: Any, eye: int) -> tuple[list[Any], list[_Image]]:
+    cams, truth = [], []
+    for c in rec.client_frames:
+        cams.append(c.cameras[eye])
+        truth.append(c.ground_truths[eye])
+    return cams, truth
+
+
+def _write_part(task: Task, cache: Cache, metrics: Any, mbps: float) -> None:
+    part = {**{m: metrics.mean.get(m) for m in ("ssim", "flip", "psnr", "vmaf")},
+            "mse": metrics.mse, "frames": len(metrics.frames), "mbps": float(mbps)}
+    write_atomic(cache.row(task.key), json.dumps(part, sort_keys=True, allow_nan=False) + "\n")
+
+
+def score_play(task: Task, cache: Cache) -> None:
+    from splitrender.codec.coder import decode_packets
+    from splitrender.codec.stream import read_stream
+    from splitrender.evaluation.pipeline import play_and_score, raw_mbps
+    from splitrender.gpu import backend_for
+    from splitrender.net.model import NetworkModel
+    from splitrender.types import ReprojectOptions
+
+    p = task.params
+    rec = _recording(task, cache)
+    sizes: list[int] | None = None
+    if p["stream"]:
+        key = task.deps[1]
+        info = json.loads(cache.stream_info(key).read_text())
+        server = decode_packets(list(read_stream(cache.stream(key))))
+        sizes, mbps = [int(s) for s in info["sizes"]], float(info["mbps"])
+    else:
+        server = list(rec.server_frames)
+        mbps = raw_mbps(server, rec.fs)
+    options = (ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes)
+               if p["own_rates"] else None)
+    cams, truth = _eye(rec, p["eye"])
+    net = NetworkModel(**p["network"], client_fps=rec.fc)
+    scored = play_and_score(server, cams, truth, p["method"], net, rec.fc, p["metrics"],
+                            frame_sizes=sizes, options=options,
+                            backend=backend_for(p["method"], p["backend"]))
+    _write_part(task, cache, scored.metrics, mbps)
+
+
+def score_interp(task: Task, cache: Cache) -> None:
+    """``video_interp``: minterpolate of the main colour (HEVC-coded at ``bitrate`` first when
+    one is given)."""
+    from splitrender.evaluation.experiments import _video_streaming, minterpolate
+    from splitrender.evaluation.metrics import SKIP_FRAMES, evaluate_sequence
+
+    p = task.params
+    rec = _recording(task, cache)
+    colours = [f.main.color for f in rec.server_frames]
+    if p["bitrate"] is None:
+        mbps = colours[0].nbytes * 8 * rec.fs / 1e6
+    else:
+        colours, mbps = _video_streaming(colours, p["bitrate"], rec.fs)
+    _, truth = _eye(rec, 0)
+    frames = minterpolate(colours, rec.fs, rec.fc, len(truth))
+    _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
+                                               fps=rec.fc), mbps)
+
+
+def score_video_streaming(task: Task, cache: Cache) -> None:
+    """The ground truth itself as one HEVC video at ``bitrate``."""
+    from splitrender.evaluation.experiments import _video_streaming
+    from splitrender.evaluation.metrics import SKIP_FRAMES, evaluate_sequence
+
+    p = task.params
+    rec = _recording(task, cache)
+    _, truth = _eye(rec, 0)
+    frames, mbps = _video_streaming(truth, p["bitrate"], rec.fc)
+    _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
+                                               fps=rec.fc), mbps)
+
+
+def score_timewarp(task: Task, cache: Cache) -> None:
+    """A timewarp line: the main colour and depth at ``fps`` streamed at ``bitrate`` and
+    timewarped at the client poses. ``deps``: the recording, then the timewarp frames (when
+    ``source`` is ``"timewarp"``; else the recording's own server frames)."""
+    from splitrender.codec.coder import CodecConfig
+    from splitrender.evaluation.experiments import _main_colour_depth
+    from splitrender.evaluation.pipeline import encode_decode, play_and_score
+    from splitrender.net.model import NetworkModel
+    from splitrender.types import ReprojectOptions
+
+    p = task.params
+    rec = _recording(task, cache)
+    fps = float(p["fps"])
+    if p["source"] == "timewarp":
+        server = _timewarp_frames(cache.timewarp(task.deps[1]))
+    else:
+        server = [_main_colour_depth(f) for f in rec.server_frames]
+    twc = CodecConfig(bitrate_mbps=p["bitrate"], camera_shares=(1.0,), fps=fps, gop=int(fps))
+    dec, sizes, mbps = encode_decode(server, twc, fps)
+    cams, truth = _eye(rec, 0)
+    net = NetworkModel(**p["network"], client_fps=rec.fc)
+    scored = play_and_score(dec, cams, truth, "timewarp", net, rec.fc, p["metrics"],
+                            frame_sizes=sizes, options=ReprojectOptions(server_fps=fps))
+    _write_part(task, cache, scored.metrics, mbps)

@@ -1,0 +1,204 @@
+"""``eval``'s sweep engine (docs/sweeps.md): the same results.json bytes from the local
+executor with one and two processes and from Ray on a local 2-CPU cluster; a sweep interrupted
+by a failing task resumes without recomputing what finished; clear errors for a Ray cluster
+that does not answer and for Ray missing. Tiny: one scene at 77x43, 0.3 s."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import splitrender as sr
+from splitrender.cli import main
+from splitrender.evaluation import sweep
+from splitrender.evaluation.experiments import ROW_KEYS, EvalConfig, run_eval
+
+pytest.importorskip("av")
+
+# One scene, dynamic only, two methods: render 4 (4 server frames in one chunk, 36 client frames
+# in two, the recording assembled from them), encode 1, score 4 (Table 1: ours, timewarp;
+# Table 2: ours at l = 0, ours_extrapolate).
+SWEEP = ["eval", "--scale", "0.03", "--seconds", "0.3", "--scenes", "courtyard", "--variants",
+         "dynamic", "--methods", "ours,timewarp", "--delays", "0", "--no-vmaf", "--quiet"]
+TASKS = {"render": 4, "encode": 1, "score": 4}
+
+
+def _config(out: Path, cache: Path, **kw: Any) -> EvalConfig:
+    return EvalConfig(out=out, cache=cache, scenes=("courtyard",), variants=("dynamic",),
+                      methods=("ours", "timewarp"), delays=(0,), scale=0.03, seconds=0.3,
+                      vmaf=False, progress=False, **kw)
+
+
+def _info(out: Path) -> dict[str, Any]:
+    data: dict[str, Any] = json.loads((out / "run-info.json").read_text())
+    return data
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sweep on the local executor in this process (--jobs 1), with its own cache."""
+    work = tmp_path_factory.mktemp("sweep")
+    assert main([*SWEEP, "--jobs", "1", "--cache", str(work / "cache"),
+                 "--out", str(work / "out")]) == 0
+    return work / "out"
+
+
+def test_results_have_no_run_details_and_run_info_has_them(serial: Path) -> None:
+    text = (serial / "results.json").read_text()
+    rows = json.loads(text)
+    assert [(r["method"], r["bitrate_mbps"] is None) for r in rows] == [
+        ("ours", True), ("timewarp", True), ("ours", False), ("ours_extrapolate", False)]
+    info = _info(serial)
+    assert info["tasks"] == info["computed"] == TASKS and info["executor"] == "local"
+    assert all(list(r) == list(ROW_KEYS) for r in rows)  # no host, time or executor
+    assert {"host", "seconds", "executor"} <= set(info)
+
+
+def test_two_local_processes_give_the_same_bytes(serial: Path, tmp_path: Path) -> None:
+    assert main([*SWEEP, "--jobs", "2", "--cache", str(tmp_path / "cache"),
+                 "--out", str(tmp_path / "out")]) == 0
+    assert _info(tmp_path / "out")["computed"] == TASKS  # computed again, not read back
+    assert (tmp_path / "out" / "results.json").read_bytes() == (
+        serial / "results.json").read_bytes()
+
+
+def test_interrupted_sweep_resumes_without_recomputing(serial: Path, tmp_path: Path) -> None:
+    started: list[sweep.Task] = []
+
+    def fail_sixth(task: sweep.Task) -> None:
+        started.append(task)
+        if len(started) == 6:
+            raise RuntimeError("injected fault")
+
+    cache, out = tmp_path / "cache", tmp_path / "out"
+    with pytest.raises(sweep.TaskFailedError) as e:
+        run_eval(_config(out, cache), fault=fail_sixth)
+    message = str(e.value)
+    # Which task, on what, why, and how to resume.
+    assert started[5].key[:12] in message and "injected fault" in message
+    assert started[5].label in message and "run the same command again" in message
+    # Finished: the three chunks, the recording assembled from them, one score row.
+    assert [t.stage for t in started[:5]] == ["render"] * 4 + ["score"]
+    assert len(list((cache / "rows").glob("*.json"))) == 1
+    assert not any((cache / "chunks").iterdir())  # removed once assembled
+
+    again: list[str] = []
+    res = run_eval(_config(out, cache), fault=lambda t: again.append(t.key))
+    assert res.stats is not None
+    # Nothing that had finished ran again (nor the chunks of the cached recording).
+    assert not {t.key for t in started[:5]} & set(again) and len(again) == 4
+    assert res.stats.cached == {"render": 4, "encode": 0, "score": 1}
+    assert (out / "results.json").read_bytes() == (serial / "results.json").read_bytes()
+
+    # A third run on the same cache computes nothing.
+    third: list[str] = []
+    res = run_eval(_config(tmp_path / "out3", cache), fault=lambda t: third.append(t.key))
+    assert third == [] and res.stats is not None and res.stats.cached == TASKS
+
+
+def test_ray_missing_is_one_line_with_what_to_install(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    assert main([*SWEEP, "--executor", "ray", "--cache", str(tmp_path / "c"),
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install 'splitrender[ray]'" in err
+
+
+def test_address_without_ray_executor_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main([*SWEEP, "--address", "127.0.0.1:6379", "--cache", str(tmp_path / "c"),
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "--executor ray" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------- Ray
+
+
+@pytest.fixture(scope="module")
+def local_ray() -> Iterator[Any]:
+    """A local Ray of 2 CPUs for this module; ``eval --executor ray`` joins it (ray.init is
+    not called again) instead of starting its own."""
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, object_store_memory=200 * 1024**2,
+             log_to_driver=False, configure_logging=False)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def test_ray_gives_the_local_bytes(serial: Path, local_ray: Any, tmp_path: Path) -> None:
+    assert main([*SWEEP, "--executor", "ray", "--jobs", "2", "--cache", str(tmp_path / "cache"),
+                 "--out", str(tmp_path / "out")]) == 0
+    info = _info(tmp_path / "out")
+    assert info["executor"] == "ray" and info["computed"] == TASKS
+    assert (tmp_path / "out" / "results.json").read_bytes() == (
+        serial / "results.json").read_bytes()
+
+
+def test_dataset_through_both_executors(local_ray: Any, tmp_path: Path) -> None:
+    rec = sr.write_recording(tmp_path / "rec", "courtyard", seconds=0.3, scale=0.03)
+    ds = sr.export_dataset(rec, tmp_path / "ds")
+    results = []
+    for executor in ("local", "ray"):
+        out = tmp_path / executor
+        assert main(["eval", "--dataset", str(ds), "--methods", "ours", "--no-vmaf", "--quiet",
+                     "--executor", executor, "--cache", str(tmp_path / f"cache-{executor}"),
+                     "--out", str(out)]) == 0
+        assert _info(out)["computed"]["score"] == 1
+        results.append((out / "results.json").read_bytes())
+    assert results[0] == results[1]
+    assert [r["method"] for r in json.loads(results[0])] == ["ours"]
+
+
+def test_unreachable_cluster_is_a_bounded_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("ray")
+    import socket
+
+    # A port that was free a moment ago: nothing listens there, the connection is refused.
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    # And an address that never answers (TEST-NET-1): the connection attempt times out.
+    monkeypatch.setattr(sweep, "CONNECT_TIMEOUT_S", 0.5)
+    for address in (f"127.0.0.1:{port}", "192.0.2.1:6379", "nowhere"):
+        assert main([*SWEEP, "--executor", "ray", "--address", address,
+                     "--cache", str(tmp_path / "c"), "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--address" in err and address in err
+
+
+def _failing_graph(tmp_path: Path) -> tuple[list[sweep.Task], sweep.Cache]:
+    """Two independent score tasks: one returns (``operator.eq``, writing nothing), the other
+    raises in the worker (``json.loads`` of a Task is a TypeError)."""
+    cache = sweep.Cache(tmp_path / "cache")
+    cache.prepare()
+    good = sweep.make_task("score", "operator:eq", {"n": 1}, label="a task that works")
+    bad = sweep.make_task("score", "json:loads", {"n": 2}, paths={"input": "/some/file"},
+                          label="a task that fails")
+    return [good, bad], cache
+
+
+@pytest.mark.parametrize("executor", ["local", "ray"])
+def test_a_failing_task_is_named_with_its_inputs(
+    executor: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    if executor == "ray":
+        request.getfixturevalue("local_ray")
+    tasks, cache = _failing_graph(tmp_path)
+    with pytest.raises(sweep.TaskFailedError) as e:
+        sweep.run_graph(tasks, cache, executor=executor, jobs=2)
+    message = str(e.value)
+    assert "a task that fails" in message and "input=/some/file" in message
+    assert "TypeError" in message and str(cache.root) in message
+    assert "a task that works" not in message
