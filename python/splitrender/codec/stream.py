@@ -664,9 +664,16 @@ class StreamWriter(AtomicWriter):
     def abort(self) -> None:
         """Drops what was written: closes and removes the temporary file; ``path`` is left as
         it was. Does nothing after :meth:`close` has replaced ``path``."""
-        if not self._file.closed:
-            self._file.close()
-        self._tmp.unlink(missing_ok=True)
+        try:
+            if not self._file.closed:
+                # Closing flushes the buffer, which fails again on a full disk; the bytes are
+                # dropped anyway, and that error must neither keep the file nor replace the
+                # one being handled.
+                self._file.close()
+        except OSError:
+            pass
+        finally:
+            self._tmp.unlink(missing_ok=True)
 
 
 def write_stream(
