@@ -261,12 +261,50 @@ def test_unknown_kind_and_wrong_size() -> None:
 _VALID = pack_packet(_packet())
 
 
-@given(st.binary(max_size=300))
-def test_fuzz_random_bytes(data: bytes) -> None:
+# Every integer field of _VALID's header block: (offset, struct format). The block holds
+# 2 cameras, then 5 entries; the second (main.depth, a quantised TILE) carries one pair.
+_BLOCK_FIELDS = [(0, "<B"), (1, "<B"), (2, "<H")] + [
+    (_CAMS + 264 * c + k, "<I") for c in range(2) for k in (0, 4)
+] + [
+    (start + k, fmt)
+    for start in (_ENTRIES, _ENTRIES + 8, _ENTRIES + 24, _ENTRIES + 32, _ENTRIES + 40)
+    for k, fmt in ((0, "<B"), (1, "<B"), (2, "<B"), (3, "<B"), (4, "<I"))
+]
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(_BLOCK_FIELDS),
+            st.one_of(
+                st.sampled_from([0, 1, 2, 3, 4, 15, 16, 17, 255, 256, 512, 513, 16384, 16385,
+                                 1 << 25, 0xFFFF, 0xFFFFFFFF]),
+                st.integers(0, 0xFFFFFFFF),
+            ),
+        ),
+        min_size=1,
+        max_size=4,
+    ),
+    st.integers(-40, 0),
+)
+def test_fuzz_header_block_fields(edits: list[tuple[tuple[int, str], int]], cut: int) -> None:
+    """Structure-aware: counts, sizes, kinds, codecs and lengths of a real packet's header block
+    set to edge values (and the block cut short), re-packed with a consistent block length and
+    CRC so that every case reaches the block parser (random bytes stopped at the first length
+    check). Either a StreamError naming the frame, or a packet within the format's limits whose
+    payloads lie inside it."""
+    head, block, payloads = _split(_VALID)
+    for (offset, fmt), value in edits:
+        struct.pack_into(fmt, block, offset, value & ((1 << (8 * struct.calcsize(fmt))) - 1))
+    data = _join(head, bytes(block[: len(block) + cut] if cut else block), payloads)
     try:
-        unpack_packet(data)
-    except StreamError:
-        pass
+        p = unpack_packet(data)
+    except StreamError as e:
+        assert str(e).startswith("frame 7")  # past the fixed header: the frame is known
+    else:
+        assert 1 <= len(p.cameras) <= 16
+        assert all(c.width * c.height <= 1 << 25 for c in p.cameras)
+        assert sum(len(b.payload) for b in p.buffers) <= len(data)
 
 
 @given(

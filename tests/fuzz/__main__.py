@@ -14,6 +14,7 @@ import argparse
 import datetime
 import json
 import random
+import re
 import secrets
 import shutil
 import sys
@@ -29,8 +30,12 @@ from tests.fuzz.harness import Outcome, Verdict, run_case
 #: Address space a case may take beyond the fork server's own (bytes): a frame of the
 #: decoder's largest camera (2^25 pixels, about 1 GB of buffers) fits, 30 GB does not.
 MEM_BUDGET = 2 << 30
+#: What ``splitrender serve`` prints once it serves (until interrupted, by design).
+_LISTENING = re.compile(r"^listening on ", re.MULTILINE)
+#: The heading in tests/fuzz/targets.py's docstring under which the checks are listed.
+_WHY = "Why accepting is right, per kind (the check each ``run`` makes):"
 #: The CI profile: cases and seed (tests/test_fuzz.py).
-CI_CASES, CI_SEED = 300, 20261202
+CI_CASES, CI_SEED = 250, 20261202
 
 
 @dataclass(frozen=True)
@@ -75,7 +80,7 @@ def run_one(kind: str, index: int, seed: int, seeds: Path, work: Path) -> Result
     serve = bool(opts.get("serve"))
 
     def log_check(v: Verdict, output: str) -> Verdict:
-        return targets.classify_cli(v, output, serve) if cli else v
+        return targets.classify_cli(v, output) if cli else v
 
     verdict = run_case(
         _work(run, cli),
@@ -83,6 +88,7 @@ def run_one(kind: str, index: int, seed: int, seeds: Path, work: Path) -> Result
         mem_budget=MEM_BUDGET,
         fsize_limit=opts.get("fsize_limit"),
         log_check=log_check,
+        running=_LISTENING if serve else None,
     )
     return Result(kind, index, mutation, verdict.outcome.value, verdict.detail)
 
@@ -92,7 +98,9 @@ def preload() -> None:
     starts no thread; run_case checks)."""
     import av  # noqa: F401
     import OpenEXR  # noqa: F401
-    import PIL.Image  # noqa: F401
+    import PIL.Image
+
+    PIL.Image.init()  # the format plugins, which Image.open would otherwise load in each child
 
     import splitrender  # noqa: F401
     import splitrender.cli.main  # noqa: F401
@@ -150,7 +158,7 @@ def table(results: list[Result]) -> str:
 
 def report(results: list[Result], seed: int, command: str, seconds: float, examples: int = 5) -> str:
     bad = [r for r in results if not Outcome(r.outcome).good]
-    why = (targets.__doc__ or "").split("Why accepting is right, per kind", 1)[-1]
+    why = (targets.__doc__ or "").split(_WHY, 1)[-1].strip()
     lines = [
         "# Fuzz results",
         "",
@@ -173,7 +181,8 @@ def report(results: list[Result], seed: int, command: str, seconds: float, examp
         "## Why an accepted case is right",
         "",
         "What each kind's check verifies before an accepted case counts as accepted:",
-        why.rstrip().strip(":").rstrip(),
+        "",
+        why,
         "",
         "## Cases with a bad outcome",
         "",

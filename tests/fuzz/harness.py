@@ -157,10 +157,13 @@ def run_case(
     mem_budget: int,
     fsize_limit: int | None = None,
     log_check: Callable[[Verdict, str], Verdict] | None = None,
+    running: re.Pattern[str] | None = None,
 ) -> Verdict:
     """Runs ``work`` in a forked child with ``mem_budget`` bytes of address space over this
     process's own, and classifies how it ended. ``log_check(verdict, output)`` may reclassify
-    from the child's stdout/stderr (the CLI cases)."""
+    from the child's stdout/stderr (the CLI cases). A child whose output matches ``running``
+    (a server that says it is listening) is stopped there and counted as accepted: it runs
+    until interrupted by design."""
     check_single_threaded()
     mem_limit = virtual_size() + mem_budget
     r, w = os.pipe()
@@ -172,13 +175,18 @@ def run_case(
         os.close(w)
         data = b""
         deadline = time.monotonic() + time_limit
-        hung = False
+        hung = serving = False
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
                 hung = True
                 break
-            ready, _, _ = select.select([r], [], [], left)
+            if running is not None:
+                log.seek(0)
+                if running.search(log.read().decode("utf-8", "replace")):
+                    hung = serving = True
+                    break
+            ready, _, _ = select.select([r], [], [], min(left, 0.2) if running else left)
             if ready:
                 chunk = os.read(r, 65536)
                 if not chunk:
@@ -197,6 +205,8 @@ def run_case(
             pass
         log.seek(0)
         output = log.read().decode("utf-8", "replace")
+    if serving:
+        return Verdict(Outcome.ACCEPTED, "serving (runs until interrupted)")
     if hung:
         return Verdict(Outcome.HANG, f"no result after {time_limit:g} s")
     verdict: Verdict
