@@ -5,6 +5,8 @@ the frame and buffer; fuzzed with hypothesis)."""
 from __future__ import annotations
 
 import dataclasses
+import errno
+import io
 import os
 import struct
 import zlib
@@ -384,6 +386,38 @@ def test_a_failed_write_leaves_the_previous_stream_intact(
     assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
     with pytest.raises(IsADirectoryError, match="got a folder"):
         StreamWriter(tmp_path)
+
+
+class _FullDisk(io.RawIOBase):
+    """A file whose every write fails as on a full disk."""
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return 0
+
+    def write(self, b: object) -> int:
+        raise OSError(errno.EFBIG, "File too large")
+
+
+def test_an_abort_on_a_full_disk_removes_the_temporary_file(tmp_path: Path) -> None:
+    # Found by the fuzz suite (issue 15): abort() closed the file first, whose flush of the
+    # buffered bytes failed again on the full disk, so the temporary file was never removed.
+    path = tmp_path / "s.srs"
+    write_stream(path, [pack_packet(_packet(0))])
+    good = path.read_bytes()
+    w = StreamWriter(path, fps=10)
+    w._file.close()
+    w._file = io.BufferedWriter(_FullDisk())
+    w.write(pack_packet(_packet(0)))  # buffered: the failure comes with the flush
+    with pytest.raises(OSError, match="File too large"):
+        w.close()
+    assert path.read_bytes() == good
+    assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
 
 
 def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
