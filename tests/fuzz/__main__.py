@@ -8,8 +8,6 @@ Exit status 0 when every case ended as "specific error" or "accepted", 1 otherwi
 
 from __future__ import annotations
 
-import tests.fuzz  # noqa: F401 - sets the thread-pool variables before numpy is imported
-
 import argparse
 import datetime
 import json
@@ -24,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import tests.fuzz  # noqa: F401 - sets the thread-pool variables before numpy is imported
 from tests.fuzz import targets
 from tests.fuzz.harness import Outcome, Verdict, run_case
 
@@ -102,9 +101,9 @@ def preload() -> None:
 
     PIL.Image.init()  # the format plugins, which Image.open would otherwise load in each child
 
-    import splitrender  # noqa: F401
-    import splitrender.cli.main  # noqa: F401
-    import splitrender.codec.coder  # noqa: F401
+    import splitrender
+    import splitrender.cli.main
+    import splitrender.codec.coder
     import splitrender.scene.dataset  # noqa: F401
 
 

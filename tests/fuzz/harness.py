@@ -28,8 +28,9 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
-import splitrender.errors as errors
+from splitrender import errors
 
 
 class Outcome(str, enum.Enum):
@@ -86,9 +87,8 @@ def check_single_threaded() -> None:
     """Raises RuntimeError unless this process has one thread: forking is only safe then."""
     n = len(os.listdir("/proc/self/task"))
     if n != 1:
-        names = sorted(
-            open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")
-        )
+        tasks = Path("/proc/self/task")
+        names = sorted((t / "comm").read_text().strip() for t in tasks.iterdir())
         raise RuntimeError(f"the fork server must be single-threaded, it has {n} threads: {names}")
 
 

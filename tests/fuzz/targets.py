@@ -54,7 +54,14 @@ from typing import Any
 import numpy as np
 import zstandard
 
-from tests.fuzz.harness import CLI_ERROR, Corrupted, DiskFull, Outcome, Verdict, WrongAccept
+from tests.fuzz.harness import (
+    CLI_ERROR,
+    Corrupted,
+    DiskFull,
+    Outcome,
+    Verdict,
+    WrongAccept,
+)
 from tests.fuzz.mutate import (
     BOUNDARY_FLOATS,
     dumps,
@@ -230,7 +237,7 @@ def _split_packet(data: bytes) -> tuple[bytes, bytearray, bytes]:
     return data[:32], bytearray(block), data[32 + m :]
 
 
-def join_packet(head: bytes, block: bytes, payloads: bytes) -> bytes:
+def join_packet(head: bytes, block: bytes | bytearray, payloads: bytes) -> bytes:
     """A packet from its parts with a consistent block length and CRC: a hostile sender
     writes consistent CRCs, so mutations must get past them to reach the parser."""
     packed = zstandard.ZstdCompressor(write_content_size=True).compress(bytes(block))
@@ -239,7 +246,7 @@ def join_packet(head: bytes, block: bytes, payloads: bytes) -> bytes:
     return head + struct.pack("<I", crc) + packed + payloads
 
 
-def _entries(block: bytes) -> list[tuple[int, int, int]]:
+def _entries(block: bytes | bytearray) -> list[tuple[int, int, int]]:
     """``(offset, size with its pairs, payload length)`` of each table entry of a block."""
     n_cam, _, n_buf = struct.unpack_from("<BBH", block, 0)
     pos = 4 + n_cam * _BLOCK_CAMERA
@@ -292,9 +299,9 @@ def mutate_packet(data: bytes, rng: random.Random) -> tuple[bytes, str, bool]:
         if pairs and rng.random() < 0.5:
             off, name = rng.choice(pairs)
             v = rng.choice(BOUNDARY_FLOATS)
-            b = bytearray(block)
-            b[off : off + 4] = struct.pack("<f", v if abs(v) < 3.4e38 or not math.isfinite(v) else math.inf)
-            return join_packet(head, b, payloads), f"{name} -> f32 {v!r}", not math.isfinite(v)
+            edited = bytearray(block)
+            edited[off : off + 4] = struct.pack("<f", v if abs(v) < 3.4e38 or not math.isfinite(v) else math.inf)
+            return join_packet(head, edited, payloads), f"{name} -> f32 {v!r}", not math.isfinite(v)
         off, name = rng.choice(floats)
         b2, what = set_float(bytes(block), off, rng)
         v = struct.unpack_from("<d", b2, off)[0]
@@ -323,12 +330,12 @@ def mutate_packet(data: bytes, rng: random.Random) -> tuple[bytes, str, bool]:
         return join_packet(head, block, p), f"payloads: {what}", False
     # The issue's attack: many large cameras whose buffers are all ZERO (no payload bytes).
     n = rng.choice((1, 2, 4, 16))
-    w, h = rng.choice(((8192, 4096), (16384, 2048), (4096, 4096), (5793, 5793)))
-    cams = b"".join(struct.pack("<II", w, h) + bytes(block[4 + 8 : 4 + _BLOCK_CAMERA])
+    cw, ch = rng.choice(((8192, 4096), (16384, 2048), (4096, 4096), (5793, 5793)))
+    cams = b"".join(struct.pack("<II", cw, ch) + bytes(block[4 + 8 : 4 + _BLOCK_CAMERA])
                     for _ in range(n))
     zero = b"".join(struct.pack("<BBBBI", c, k, 3, 0, 0) for c in range(n) for k in (0, 1, 2, 3))
     b5 = struct.pack("<BBH", n, 0, 4 * n) + cams + zero
-    return join_packet(head, b5, b""), f"{n} cameras of {w}x{h}, every buffer ZERO", False
+    return join_packet(head, b5, b""), f"{n} cameras of {cw}x{ch}, every buffer ZERO", False
 
 
 def _packet_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
@@ -433,15 +440,15 @@ def _stream_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Call
         f = StreamFile(path)
         frames = []
         with StreamDecoder() as d:
-            for p in f.packets():
-                frames.append((d.decode(p), unpack_packet(p)))
+            for data in f.packets():
+                frames.append((d.decode(data), unpack_packet(data)))
         for key in f.key_frames[:2]:
             for _ in f.packets(start=key):
                 pass
         if must_refuse:
             raise WrongAccept(f"accepted a stream that must be refused ({what})")
-        for k, (frame, p) in enumerate(frames):
-            _well_formed(f"frame {k}", frame, [(c.width, c.height) for c in p.cameras])
+        for k, (frame, packet) in enumerate(frames):
+            _well_formed(f"frame {k}", frame, [(c.width, c.height) for c in packet.cameras])
 
     return what, run, {}
 
@@ -480,7 +487,7 @@ def _stream_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[st
     opts: dict[str, Any] = {}
     items: list[bytes | None] = [*packets, *packets]
     if op == "disk-full":
-        limit = rng.randrange(1, sum(len(p) + 4 for p in items) + 24 + 100)
+        limit = rng.randrange(1, sum(len(p) + 4 for p in packets) * 2 + 24 + 100)
         opts["fsize_limit"] = limit
         what = f"file size limit {limit} bytes (a full disk)"
     elif op == "raises":
