@@ -18,7 +18,7 @@ import pytest
 import zstandard
 from hypothesis import given
 from hypothesis import strategies as st
-from splitrender.errors import StreamError
+from splitrender.errors import InvalidInputError, StreamError
 from splitrender.codec.stream import (
     MAX_HEADER,
     MAX_PAYLOAD,
@@ -386,6 +386,12 @@ def test_a_failed_write_leaves_the_previous_stream_intact(
     assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
     with pytest.raises(IsADirectoryError, match="got a folder"):
         StreamWriter(tmp_path)
+    # The rename would replace the node itself (as root, `encode --out /dev/zero` did).
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(InvalidInputError, match="fifo: the output is not a regular file"):
+        StreamWriter(fifo)
+    assert fifo.is_fifo()
 
 
 class _FullDisk(io.RawIOBase):
@@ -418,6 +424,15 @@ def test_an_abort_on_a_full_disk_removes_the_temporary_file(tmp_path: Path) -> N
         w.close()
     assert path.read_bytes() == good
     assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
+
+
+def test_a_stream_path_that_does_not_open_is_a_stream_error(tmp_path: Path) -> None:
+    # Found by the fuzz suite: a dangling link or a loop of links raised OSError.
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    (tmp_path / "loop").symlink_to("loop")
+    for name in ("missing", "dangling", "loop"):
+        with pytest.raises(StreamError, match=f"{name}: cannot open the stream file"):
+            StreamFile(tmp_path / name)
 
 
 def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:

@@ -226,6 +226,28 @@ def _well_formed(where: str, frame: object, sizes: list[tuple[int, int]] | None 
             raise WrongAccept(f"{where}: accepted with non-finite camera matrices")
 
 
+def special_file(path: Path, rng: random.Random) -> str:
+    """Replaces the file ``path`` by something that is not a regular file of bounded size: a
+    FIFO (an open() of it blocks), a link to /dev/zero (endless, st_size 0), a folder, a
+    dangling link or a link loop. Returns what it is."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    else:
+        path.unlink(missing_ok=True)
+    what = rng.choice(("fifo", "zero", "folder", "dangling", "loop"))
+    if what == "fifo":
+        os.mkfifo(path)
+    elif what == "zero":
+        path.symlink_to("/dev/zero")
+    elif what == "folder":
+        path.mkdir()
+    elif what == "dangling":
+        path.symlink_to(path.with_name("missing-target"))
+    else:
+        path.symlink_to(path.name)
+    return f"{path.name} replaced by a {what}"
+
+
 # -- packets ----------------------------------------------------------------------------------
 
 _BLOCK_CAMERA = 264
@@ -388,10 +410,12 @@ def _stream_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Call
     offs, index = _stream_layout(data)
     packets = [data[o + 4 : o + 4 + struct.unpack_from("<I", data, o)[0]] for o in offs]
     op = rng.choice(("header", "record-length", "index", "index", "trailer", "bytes",
-                     "reorder", "packet", "truncate"))
+                     "reorder", "packet", "truncate", "special"))
     path = work / "s.srs"
     must_refuse = False
-    if op == "header":
+    if op == "special":
+        out, what = b"", ""
+    elif op == "header":
         off, width, name = rng.choice(((0, 1, "magic"), (8, 2, "version"), (10, 2, "reserved"),
                                        (12, 4, "reserved"), (16, 0, "fps")))
         out, what = set_int(data, off, width, rng) if width else set_float(data, off, rng)
@@ -432,6 +456,8 @@ def _stream_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Call
         what = f"inside record at {o}: {what} (packet CRC stale)"
         must_refuse = len(out) == len(data) and out != data
     path.write_bytes(out)
+    if op == "special":
+        what = special_file(path, rng)
 
     def run() -> None:
         from splitrender.codec.coder import StreamDecoder
@@ -635,8 +661,13 @@ def _recording_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, C
     shutil.copytree(seeds / "rec-small", rec)
     mpath = rec / "manifest.json"
     manifest = json.loads(mpath.read_text())
-    op = rng.choice(("manifest", "manifest", "npz-bytes", "npz-member", "npz-member", "remove", "raw-manifest"))
-    if op == "manifest":
+    op = rng.choice(("manifest", "manifest", "npz-bytes", "npz-member", "npz-member", "remove",
+                     "raw-manifest", "special"))
+    if op == "special":
+        victim = rng.choice([mpath, rec / manifest["server_frames"][0]["file"],
+                             rec / manifest["client_frames"][-1]["file"]])
+        what = f"{victim.relative_to(rec).parent}/{special_file(victim, rng)}"
+    elif op == "manifest":
         focus = [("version",), ("cameras", "main"), ("cameras", "aux", 0), ("cameras", "eyes"),
                  ("server_frames",), ("client_frames",), ("server_frames", 0, "bytes"),
                  ("server_frames", 1, "time"), ("fs",), ("fc",), ("samples",), ("stereo",),
@@ -691,8 +722,13 @@ def _recording_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, C
 def _dataset_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
     ds = work / "ds"
     shutil.copytree(seeds / "dataset", ds)
-    op = rng.choice(("cam", "cam", "cam", "image", "image", "remove"))
-    if op == "cam":
+    op = rng.choice(("cam", "cam", "cam", "image", "image", "remove", "special"))
+    if op == "special":
+        victim = rng.choice([ds / "main" / "cam.json", ds / "client_ol" / "cam.json",
+                             ds / "left" / "color" / "0000.png", ds / "main" / "depth" / "0001.exr",
+                             ds / "right" / "forwardShadowInfo" / "0000.png"])
+        what = f"{victim.relative_to(ds).parent}/{special_file(victim, rng)}"
+    elif op == "cam":
         cam = ds / rng.choice(("main", "left", "right", "client_ol")) / "cam.json"
         doc = json.loads(cam.read_text())
         focus = [("resolution",), ("resolution", "x"), ("frames",), ("frames", 0, "idx"),
@@ -738,8 +774,10 @@ def _dataset_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Cal
 def _trace_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
     text = (seeds / "trace.txt").read_text()
     lines = text.splitlines()
-    op = rng.choice(("field", "field", "lines", "bytes", "columns", "encoding"))
-    if op == "field":
+    op = rng.choice(("field", "field", "lines", "bytes", "columns", "encoding", "special"))
+    if op == "special":
+        out, what = b"", ""
+    elif op == "field":
         i = rng.randrange(len(lines))
         fields = lines[i].split()
         j = rng.randrange(len(fields))
@@ -769,6 +807,8 @@ def _trace_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Calla
         out, what = mutate_bytes(text.encode(), rng)
     path = work / "trace.txt"
     path.write_bytes(out)
+    if op == "special":
+        what = special_file(path, rng)
 
     def run() -> None:
         from splitrender.scene.builtin import load_trace
@@ -804,7 +844,10 @@ def _copy_model(seeds: Path, work: Path) -> None:
 def _description_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
     _copy_model(seeds, work)
     doc = json.loads((seeds / "scene.json").read_text())
-    if rng.random() < 0.15:
+    if rng.random() < 0.1:
+        (work / "scene.json").write_text("{}")
+        what = special_file(work / "scene.json", rng)
+    elif rng.random() < 0.15:
         raw, what = mutate_bytes(json.dumps(doc).encode(), rng)
         (work / "scene.json").write_bytes(raw)
     else:
@@ -962,9 +1005,12 @@ def cli_seeds(seeds: Path, work: Path) -> list[list[str]]:
     ]
 
 
+#: Garbage values of command-line arguments. System paths (/dev/zero, /dev/null) are given as
+#: links in the case's folder: the harness runs as whatever user it is given, root included,
+#: and a writer renaming its result over such a path must replace the link, never the device.
 _CLI_VALUES = (
     "", "0", "-1", "nan", "inf", "-inf", "1e300", "1e-300", "1e-9", "9" * 400, "0x10", "x", "--",
-    "-", "1,2", ",", "1:2", "ours,ours", "/dev/zero", "/dev/null", "/", ".", "..", "\x01",
+    "-", "1,2", ",", "1:2", "ours,ours", "DEV/zero", "DEV/null", ".", "..", "\x01",
     "a" * 5000, "65536", "4294967296", "-0", "1e309", "none",
 )
 
@@ -988,6 +1034,11 @@ def mutate_argv(argv: list[str], rng: random.Random, seeds: Path, work: Path) ->
                             str(seeds / "rec" / "server")))
         else:
             v = rng.choice(_CLI_VALUES)
+            if v.startswith("DEV/"):
+                link = work / f"dev-{v[4:]}"
+                if not link.is_symlink():
+                    link.symlink_to(f"/dev/{v[4:]}")
+                v = str(link)
         old = out[i]
         out[i] = v
         return out, f"argument {i} {old[-30:]!r} -> {v[:40]!r}"
@@ -1010,6 +1061,12 @@ def mutate_argv(argv: list[str], rng: random.Random, seeds: Path, work: Path) ->
 
 
 def _cli_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
+    # The command lines read and write copies: a mutation such as `render --out SEEDS/rec
+    # --force` must not replace the seeds of the cases that follow.
+    shared = seeds
+    seeds = work / "seeds"
+    shutil.copytree(shared, seeds, ignore=shutil.ignore_patterns("rec-small", "rec-eval"),
+                    symlinks=True)
     base = rng.choice(cli_seeds(seeds, work))
     argv, what = mutate_argv(base, rng, seeds, work)
     def run() -> None:
@@ -1020,6 +1077,7 @@ def _cli_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callabl
 
     shown = " ".join(a if len(a) < 40 else a[:37] + "..." for a in argv)
     text = f"{what}: splitrender {shown}".replace(str(seeds), "SEEDS").replace(str(work), "CASE")
+    text = text.replace(str(shared), "SEEDS")
     return text, run, {"cli": True, "serve": argv[0] == "serve"}
 
 
