@@ -20,6 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.codec.stream import (
+    KIND_CHANNELS,
     MAX_HEADER,
     MAX_PAYLOAD,
     BufferEntry,
@@ -247,6 +248,26 @@ def test_absurd_sizes_rejected_before_allocation() -> None:
     crc = zlib.crc32(payloads, zlib.crc32(huge, zlib.crc32(h)))
     with pytest.raises(StreamError, match=f"frame 7: header block of {MAX_HEADER + 1} bytes"):
         unpack_packet(h + struct.pack("<I", crc) + huge + payloads)
+
+
+def test_cameras_over_the_budget_together_are_refused_before_allocating() -> None:
+    # Issue 15: each camera's size was checked but not their sum; a tiny packet of 16 cameras
+    # of 8192 x 4096 whose buffers are all ZERO made the decoder ask for ~30 GB.
+    from splitrender.codec.coder import StreamDecoder
+
+    eye = np.eye(4)
+    cams = tuple(CameraRecord(eye, eye, 8192, 4096) for _ in range(16))
+    bufs = tuple(
+        BufferEntry(c, k, Codec.ZERO, KIND_CHANNELS[k], 8192, 4096, b"")
+        for c in range(16)
+        for k in (BufferKind.COLOR, BufferKind.DEPTH)
+    )
+    data = pack_packet(Packet(0, 0.0, True, False, cams, bufs))
+    assert len(data) < 1000
+    with StreamDecoder(threads=1) as d, pytest.raises(
+        StreamError, match="the cameras hold 536870912 pixels together"
+    ):
+        d.decode(data)
 
 
 def test_unknown_kind_and_wrong_size() -> None:
