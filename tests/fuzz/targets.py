@@ -836,6 +836,22 @@ def _render_check(scene: Any) -> None:
     _well_formed("rendered", frame)
 
 
+def _placed_model(
+    path: Path, what: str, rng: random.Random
+) -> tuple[str, Callable[[], None], dict[str, Any]]:
+    """The case of a (mutated) model file: placed in front of the camera, animated or at rest,
+    loaded and rendered."""
+    anim = rng.choice((0, None))
+
+    def run() -> None:
+        from splitrender.scene.builtin import ModelPlacement, Scene
+
+        scene = Scene("lab", "static", [ModelPlacement(str(path), (0.0, 0.0, -2.0), animation=anim)])
+        _render_check(scene)
+
+    return f"{what} (animation {anim})", run, {}
+
+
 def _copy_model(seeds: Path, work: Path) -> None:
     for n in ("quad.gltf", "quad.bin", "quad.glb"):
         shutil.copy(seeds / n, work / n)
@@ -914,16 +930,7 @@ def _gltf_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callab
         gltf["buffers"][0]["uri"] = uri
         (work / "quad.gltf").write_text(json.dumps(gltf))
         what = f"buffer as a data URI ({uri[:40]}..., {len(uri)} chars)"
-    anim = rng.choice((0, None))
-
-    def run() -> None:
-        from splitrender.scene.builtin import ModelPlacement, Scene
-
-        scene = Scene("lab", "static", [ModelPlacement(str(work / "quad.gltf"), (0.0, 0.0, -2.0),
-                                                       animation=anim)])
-        _render_check(scene)
-
-    return f"{what} (animation {anim})", run, {}
+    return _placed_model(work / "quad.gltf", what, rng)
 
 
 def _glb_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
@@ -962,16 +969,7 @@ def _glb_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callabl
     else:
         out, what = mutate_bytes(data, rng)
     (work / "quad.glb").write_bytes(out)
-    anim = rng.choice((0, None))
-
-    def run() -> None:
-        from splitrender.scene.builtin import ModelPlacement, Scene
-
-        scene = Scene("lab", "static", [ModelPlacement(str(work / "quad.glb"), (0.0, 0.0, -2.0),
-                                                       animation=anim)])
-        _render_check(scene)
-
-    return f"{what} (animation {anim})", run, {}
+    return _placed_model(work / "quad.glb", what, rng)
 
 
 # -- command line -----------------------------------------------------------------------------
