@@ -15,6 +15,16 @@ from hypothesis import HealthCheck, settings
 
 import splitrender as sr
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Leaves out the long fuzz profile (``@pytest.mark.fuzz``) unless ``-m`` names ``fuzz``."""
+    if "fuzz" in (config.getoption("markexpr") or ""):
+        return
+    kept = [item for item in items if item.get_closest_marker("fuzz") is None]
+    if len(kept) != len(items):
+        config.hook.pytest_deselected(items=[i for i in items if i.get_closest_marker("fuzz")])
+        items[:] = kept
+
+
 settings.register_profile(
     "ci",
     max_examples=25,

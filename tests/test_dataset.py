@@ -378,6 +378,18 @@ def test_error_missing_file(handmade: Path) -> None:
         sr.import_dataset(handmade)
 
 
+def test_error_broken_png(handmade: Path) -> None:
+    # Found by the fuzz suite: Pillow reports a malformed chunk as SyntaxError.
+    p = handmade / "main" / "color" / "0007.png"
+    data = p.read_bytes()
+    at = data.index(b"IDAT") - 4
+    n = int.from_bytes(data[at : at + 4], "big")
+    # IDAT declared 8 bytes short: the image data runs on into what is read as the next chunk.
+    p.write_bytes(data[:at] + (n - 8).to_bytes(4, "big") + data[at + 4 :])
+    with pytest.raises(DatasetError, match=r"color[/\\]0007\.png: cannot read PNG"):
+        sr.import_dataset(handmade, aux=())
+
+
 def test_error_wrong_resolution(handmade: Path) -> None:
     _write_png(handmade / "main" / "color" / "0007.png", np.zeros((4, 5, 3), np.uint8))
     with pytest.raises(DatasetError, match=r"color[/\\]0007\.png: resolution 5x4 .* 4x4"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import struct
 import shutil
 import zipfile
 from pathlib import Path
@@ -258,6 +259,35 @@ def test_missing_corrupted_and_oversized_files(copy: Path) -> None:
     with pytest.raises(RecordingError, match=r"000003.npz: frame file is more than \d+ bytes"):
         rec.client_frames[3]
     rec.server_frames[0]  # untouched files still load
+
+
+@pytest.mark.parametrize(
+    "header",
+    [
+        "{'descr': '<f8'",  # cut short: numpy's tokenizer raised TokenError (fuzz suite)
+        "{'descr': '<f8', 'fortran_order': False, 'shape': (4, 4),",
+        "{'descr': '<f8', 'fortran_order': False, 'shape': (4, 4)} )",
+    ],
+)
+def test_malformed_npy_header(copy: Path, header: str) -> None:
+    import hashlib
+
+    p = copy / "server" / "000000.npz"
+    buf = io.BytesIO()
+    with zipfile.ZipFile(p) as src, zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as dst:
+        for name in src.namelist():
+            raw = src.read(name)
+            if name == "pose.npy":
+                text = header.ljust(118) + "\n"
+                raw = raw[:8] + struct.pack("<H", len(text)) + text.encode("latin1")
+            dst.writestr(name, raw)
+    data = buf.getvalue()
+    p.write_bytes(data)
+    m = json.loads((copy / "manifest.json").read_text())
+    m["server_frames"][0].update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+    (copy / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(RecordingError, match="000000.npz: not a valid npz"):
+        load_recording(copy).server_frames[0]
 
 
 def test_wrong_shape_is_rejected_before_reading(copy: Path) -> None:

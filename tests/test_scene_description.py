@@ -94,6 +94,11 @@ def test_description_errors_name_the_file(tmp_path: Path) -> None:
     desc.write_text(json.dumps({"scene": "courtyard", "oops": 1}))
     with pytest.raises(sr.InvalidInputError, match="unknown keys"):
         sr.Scene.from_description(desc)
+    # Found by the fuzz suite: a number raised TypeError, a string was walked letter by letter.
+    for models in ("Infinity", "3", '"quad.gltf"', '{"path": "quad.gltf"}'):
+        desc.write_text(f'{{"scene": "courtyard", "models": {models}}}')
+        with pytest.raises(sr.InvalidInputError, match="models: expected an array of objects"):
+            sr.Scene.from_description(desc)
 
 
 def test_description_must_be_a_small_regular_file(tmp_path: Path) -> None:

@@ -5,6 +5,8 @@ the frame and buffer; fuzzed with hypothesis)."""
 from __future__ import annotations
 
 import dataclasses
+import errno
+import io
 import os
 import struct
 import zlib
@@ -16,8 +18,9 @@ import pytest
 import zstandard
 from hypothesis import given
 from hypothesis import strategies as st
-from splitrender.errors import StreamError
+from splitrender.errors import InvalidInputError, StreamError
 from splitrender.codec.stream import (
+    KIND_CHANNELS,
     MAX_HEADER,
     MAX_PAYLOAD,
     BufferEntry,
@@ -247,6 +250,26 @@ def test_absurd_sizes_rejected_before_allocation() -> None:
         unpack_packet(h + struct.pack("<I", crc) + huge + payloads)
 
 
+def test_cameras_over_the_budget_together_are_refused_before_allocating() -> None:
+    # Issue 15: each camera's size was checked but not their sum; a tiny packet of 16 cameras
+    # of 8192 x 4096 whose buffers are all ZERO made the decoder ask for ~30 GB.
+    from splitrender.codec.coder import StreamDecoder
+
+    eye = np.eye(4)
+    cams = tuple(CameraRecord(eye, eye, 8192, 4096) for _ in range(16))
+    bufs = tuple(
+        BufferEntry(c, k, Codec.ZERO, KIND_CHANNELS[k], 8192, 4096, b"")
+        for c in range(16)
+        for k in (BufferKind.COLOR, BufferKind.DEPTH)
+    )
+    data = pack_packet(Packet(0, 0.0, True, False, cams, bufs))
+    assert len(data) < 1000
+    with StreamDecoder(threads=1) as d, pytest.raises(
+        StreamError, match="the cameras hold 536870912 pixels together"
+    ):
+        d.decode(data)
+
+
 def test_unknown_kind_and_wrong_size() -> None:
     p = _packet()
     bad = dataclasses.replace(p.buffers[0], width=9)
@@ -261,12 +284,50 @@ def test_unknown_kind_and_wrong_size() -> None:
 _VALID = pack_packet(_packet())
 
 
-@given(st.binary(max_size=300))
-def test_fuzz_random_bytes(data: bytes) -> None:
+# Every integer field of _VALID's header block: (offset, struct format). The block holds
+# 2 cameras, then 5 entries; the second (main.depth, a quantised TILE) carries one pair.
+_BLOCK_FIELDS = [(0, "<B"), (1, "<B"), (2, "<H")] + [
+    (_CAMS + 264 * c + k, "<I") for c in range(2) for k in (0, 4)
+] + [
+    (start + k, fmt)
+    for start in (_ENTRIES, _ENTRIES + 8, _ENTRIES + 24, _ENTRIES + 32, _ENTRIES + 40)
+    for k, fmt in ((0, "<B"), (1, "<B"), (2, "<B"), (3, "<B"), (4, "<I"))
+]
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(_BLOCK_FIELDS),
+            st.one_of(
+                st.sampled_from([0, 1, 2, 3, 4, 15, 16, 17, 255, 256, 512, 513, 16384, 16385,
+                                 1 << 25, 0xFFFF, 0xFFFFFFFF]),
+                st.integers(0, 0xFFFFFFFF),
+            ),
+        ),
+        min_size=1,
+        max_size=4,
+    ),
+    st.integers(-40, 0),
+)
+def test_fuzz_header_block_fields(edits: list[tuple[tuple[int, str], int]], cut: int) -> None:
+    """Structure-aware: counts, sizes, kinds, codecs and lengths of a real packet's header block
+    set to edge values (and the block cut short), re-packed with a consistent block length and
+    CRC so that every case reaches the block parser (random bytes stopped at the first length
+    check). Either a StreamError naming the frame, or a packet within the format's limits whose
+    payloads lie inside it."""
+    head, block, payloads = _split(_VALID)
+    for (offset, fmt), value in edits:
+        struct.pack_into(fmt, block, offset, value & ((1 << (8 * struct.calcsize(fmt))) - 1))
+    data = _join(head, bytes(block[: len(block) + cut] if cut else block), payloads)
     try:
-        unpack_packet(data)
-    except StreamError:
-        pass
+        p = unpack_packet(data)
+    except StreamError as e:
+        assert str(e).startswith("frame 7")  # past the fixed header: the frame is known
+    else:
+        assert 1 <= len(p.cameras) <= 16
+        assert all(c.width * c.height <= 1 << 25 for c in p.cameras)
+        assert sum(len(b.payload) for b in p.buffers) <= len(data)
 
 
 @given(
@@ -346,6 +407,53 @@ def test_a_failed_write_leaves_the_previous_stream_intact(
     assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
     with pytest.raises(IsADirectoryError, match="got a folder"):
         StreamWriter(tmp_path)
+    # The rename would replace the node itself (as root, `encode --out /dev/zero` did).
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(InvalidInputError, match="fifo: the output is not a regular file"):
+        StreamWriter(fifo)
+    assert fifo.is_fifo()
+
+
+class _FullDisk(io.RawIOBase):
+    """A file whose every write fails as on a full disk."""
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return 0
+
+    def write(self, b: object) -> int:
+        raise OSError(errno.EFBIG, "File too large")
+
+
+def test_an_abort_on_a_full_disk_removes_the_temporary_file(tmp_path: Path) -> None:
+    # Found by the fuzz suite (issue 15): abort() closed the file first, whose flush of the
+    # buffered bytes failed again on the full disk, so the temporary file was never removed.
+    path = tmp_path / "s.srs"
+    write_stream(path, [pack_packet(_packet(0))])
+    good = path.read_bytes()
+    w = StreamWriter(path, fps=10)
+    w._file.close()
+    w._file = io.BufferedWriter(_FullDisk())
+    w.write(pack_packet(_packet(0)))  # buffered: the failure comes with the flush
+    with pytest.raises(OSError, match="File too large"):
+        w.close()
+    assert path.read_bytes() == good
+    assert [p.name for p in tmp_path.iterdir()] == ["s.srs"]
+
+
+def test_a_stream_path_that_does_not_open_is_a_stream_error(tmp_path: Path) -> None:
+    # Found by the fuzz suite: a dangling link or a loop of links raised OSError.
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    (tmp_path / "loop").symlink_to("loop")
+    for name in ("missing", "dangling", "loop"):
+        with pytest.raises(StreamError, match=f"{name}: cannot open the stream file"):
+            StreamFile(tmp_path / name)
 
 
 def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:

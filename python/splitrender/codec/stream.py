@@ -72,7 +72,7 @@ import numpy as np
 import numpy.typing as npt
 import zstandard
 
-from splitrender.errors import StreamError
+from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import AtomicWriter, open_regular, temporary_beside
 
 
@@ -614,6 +614,13 @@ class StreamWriter(AtomicWriter):
             raise IsADirectoryError(
                 errno.EISDIR, "expected a file name for the stream, got a folder", str(path)
             )
+        if self.path.exists() and not self.path.is_file():
+            # The rename would replace the node itself: run as root, `encode --out /dev/zero`
+            # replaced the device with a regular file (found by the fuzz suite, issue 15).
+            raise InvalidInputError(
+                f"{path}: the output is not a regular file (a device, FIFO or socket); "
+                "expected a regular file or a new name"
+            )
         self._tmp = temporary_beside(self.path)
         self._file: BinaryIO = open(self._tmp, "wb")  # noqa: SIM115 - closed by close()/abort()
         self._index: list[IndexEntry] = []
@@ -664,9 +671,16 @@ class StreamWriter(AtomicWriter):
     def abort(self) -> None:
         """Drops what was written: closes and removes the temporary file; ``path`` is left as
         it was. Does nothing after :meth:`close` has replaced ``path``."""
-        if not self._file.closed:
-            self._file.close()
-        self._tmp.unlink(missing_ok=True)
+        try:
+            if not self._file.closed:
+                # Closing flushes the buffer, which fails again on a full disk; the bytes are
+                # dropped anyway, and that error must neither keep the file nor replace the
+                # one being handled.
+                self._file.close()
+        except OSError:
+            pass
+        finally:
+            self._tmp.unlink(missing_ok=True)
 
 
 def write_stream(
@@ -693,7 +707,7 @@ class StreamFile:
         self.path = os.fspath(path)
         self._name = os.path.basename(self.path)
         # Only a regular file: open() of a FIFO blocked forever (issue 15).
-        with open_regular(self.path, "stream file", StreamError) as f:
+        with self._open() as f:
             self._size = os.fstat(f.fileno()).st_size
             head = f.read(_FILE_HEADER.size)
             if len(head) < _FILE_HEADER.size:
@@ -712,6 +726,17 @@ class StreamFile:
             self.fps = float(fps)
             self._end = self._size
             self._end, self.index = self._read_index(f)
+
+    def _open(self) -> BinaryIO:
+        """The file, opened by :func:`~splitrender.files.open_regular`; a path that cannot be
+        opened (missing, a dangling link or a loop of links, no permission) is a
+        :class:`StreamError` too, as every other reader's (found by the fuzz suite)."""
+        try:
+            return open_regular(self.path, "stream file", StreamError)
+        except OSError as e:
+            raise StreamError(
+                f"{self.path}: cannot open the stream file: {e.strerror or e}"
+            ) from None
 
     def _read_index(self, f: BinaryIO) -> tuple[int, list[IndexEntry]]:
         """``(end of records, index)``; falls back to a scan of the record lengths."""
@@ -808,7 +833,7 @@ class StreamFile:
                     f"{self.key_frames[:20]})"
                 )
             first = hits[0]
-        with open_regular(self.path, "stream file", StreamError) as f:
+        with self._open() as f:
             prev = self.index[first - 1].frame if first > 0 else None
             for e in self.index[first:]:
                 f.seek(e.offset)

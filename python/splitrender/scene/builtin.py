@@ -196,8 +196,15 @@ class Scene:
         unknown = set(doc) - {"scene", "variant", "models"}
         if unknown:
             raise InvalidInputError(f"{p}: unknown keys {sorted(unknown)}")
+        entries = doc.get("models", [])
+        if not isinstance(entries, list):
+            # A number raised TypeError from enumerate(), a string or object was walked as
+            # a sequence of its characters or keys (issue 15, found by the fuzz suite).
+            raise InvalidInputError(
+                f"{p}: models: expected an array of objects, got {type(entries).__name__}"
+            )
         models = []
-        for i, m in enumerate(doc.get("models", [])):
+        for i, m in enumerate(entries):
             if not isinstance(m, dict) or "path" not in m or "position" not in m:
                 raise InvalidInputError(f"{p}: models[{i}]: expected an object with path and position")
             extra = set(m) - {"path", "position", "yaw_deg", "scale", "animation", "time_offset", "speed"}

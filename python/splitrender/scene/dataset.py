@@ -189,7 +189,9 @@ def _read_png(path: Path, size: tuple[int, int]) -> _U8:
             a = np.asarray(im)
     except DatasetError:
         raise
-    except (OSError, ValueError, Image.DecompressionBombError) as e:
+    except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError) as e:
+        # Pillow reports a malformed chunk as SyntaxError ("broken PNG file"), found by the
+        # fuzz suite (issue 15).
         raise _fail(path, f"cannot read PNG: {e}") from None
     if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] not in (3, 4):
         raise _fail(path, f"expected an 8-bit RGB(A) PNG, got {a.dtype} {a.shape}")

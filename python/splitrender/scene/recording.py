@@ -43,7 +43,9 @@ import math
 import os
 import re
 import shutil
+import tokenize
 import zipfile
+import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -558,8 +560,14 @@ def _read_npz(root: Path, entry: dict[str, Any], spec: Spec) -> dict[str, npt.ND
                     raw = fh.read(int(np.prod(shape)) * dtype.itemsize)
                     a = np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
                     out[key] = a
-    except (zipfile.BadZipFile, ValueError, EOFError) as e:
-        raise _fail(path, f"not a valid npz: {e}") from None
+    except (zipfile.BadZipFile, ValueError, EOFError, SyntaxError, tokenize.TokenError,
+            RecursionError, NotImplementedError, RuntimeError, OSError, zlib.error) as e:
+        # numpy parses the npy header with tokenize and ast.literal_eval, which report a
+        # malformed one as TokenError or SyntaxError (found by the fuzz suite, issue 15);
+        # zipfile reports an unknown compression method as NotImplementedError, an encrypted
+        # member as RuntimeError and broken compressed data as zlib.error, OSError (bzip2)
+        # or lzma.LZMAError (an OSError).
+        raise _fail(path, f"not a valid npz: {type(e).__name__}: {e}") from None
     return out
 
 
