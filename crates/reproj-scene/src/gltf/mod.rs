@@ -33,9 +33,13 @@
 //! module, below the shapes and animations that use them), `read.rs` decodes one image and one
 //! primitive's accessors, `place.rs` puts a model into a scene, `tests.rs` holds the unit tests.
 
+mod access;
+#[cfg(test)]
+mod hostile;
 mod load;
 mod place;
 mod read;
+mod source;
 #[cfg(test)]
 mod tests;
 
