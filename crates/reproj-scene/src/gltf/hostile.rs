@@ -507,6 +507,22 @@ fn model_without_meshes() {
 }
 
 #[test]
+fn placement_work_is_bounded() {
+    // 5000 mesh nodes under the animated node 0 (and the skinned node 1): each would evaluate the whole hierarchy at
+    // every key time; a file of a few hundred kilobytes asks for that.
+    let mut m = base_model();
+    let extra = 5000;
+    let nodes = m.json["nodes"].as_array_mut().unwrap();
+    nodes.extend((0..extra).map(|_| serde_json_value(r#"{"mesh": 0}"#)));
+    m.json["nodes"][0]["children"] = Value::from((4..4 + extra).collect::<Vec<usize>>());
+    let msg = place_err(&m, Placement::default());
+    assert_names(
+        &msg,
+        &["5002 animated mesh nodes", "expected at most 200000000"],
+    );
+}
+
+#[test]
 fn negative_skin_weights() {
     let mut m = base_model();
     let at = 124; // WEIGHTS_0 view (bytes 120..168): vertex 0, weight 1

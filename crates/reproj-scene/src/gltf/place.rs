@@ -129,7 +129,14 @@ pub fn place_model(
     };
     // Refused before any object is added, so that an error leaves the scene as it was.
     let reach = world_reach(model, animation);
+    let moving = moving_nodes(model, animation);
+    let skin_moving: Vec<bool> = model
+        .skins
+        .iter()
+        .map(|s| s.joints.iter().any(|&j| moving[j]))
+        .collect();
     let mut any = false;
+    let mut animated_meshes = 0usize;
     for &n in &model.order {
         let Some(m) = model.nodes[n].mesh else {
             continue;
@@ -138,6 +145,8 @@ pub fn place_model(
             continue;
         }
         any = true;
+        let skin_moves = model.nodes[n].skin.is_some_and(|s| skin_moving[s]);
+        animated_meshes += usize::from(moving[n] || skin_moves);
         let extent = placement.scale * geometry_reach(model, n, &reach) + shift;
         if !(extent <= MAX_COORD) {
             return Err(err(
@@ -157,6 +166,28 @@ pub fn place_model(
             "the model's scene has no mesh node with triangles, expected at least one",
         ));
     }
+    // Each moving mesh node evaluates the whole hierarchy at every key time (the rigidity test
+    // below) and at every snapshot (posing): bound that work, or a small file of many nodes and
+    // keys would keep the renderer busy for hours.
+    let keys = animation
+        .and_then(|a| model.animations.get(a))
+        .map_or(0, |a| {
+            a.channels.iter().map(|c| c.times.len()).sum::<usize>()
+        });
+    let per_pass = model.nodes.len() + keys;
+    let work = animated_meshes
+        .saturating_mul(2 * keys + 1)
+        .saturating_mul(per_pass);
+    if work > MAX_HIERARCHY_WORK {
+        return Err(err(
+            path,
+            format!(
+                "{animated_meshes} animated mesh nodes, {keys} key values and {} nodes need {work} \
+                 node evaluations to place, expected at most {MAX_HIERARCHY_WORK}",
+                model.nodes.len()
+            ),
+        ));
+    }
     let tau0 = clock.tau(0.0);
     let world0 = model.world(animation, tau0);
     let mut added = Vec::new();
@@ -169,15 +200,11 @@ pub fn place_model(
         if model.meshes[m].iter().all(|p| p.triangles.is_empty()) {
             continue;
         }
-        let animated = model.animated(animation, n);
+        let animated = moving[n];
         let reference = DMat3::from_mat4(world0[n]);
         let kind = if let Some(skin) = node.skin {
             // Skinned: deforms when any joint moves; a rest skin is still posed once.
-            let moving = model.skins[skin]
-                .joints
-                .iter()
-                .any(|&j| model.animated(animation, j));
-            if moving {
+            if skin_moving[skin] {
                 Kind::Deforming
             } else {
                 Kind::Static
@@ -232,6 +259,27 @@ pub fn place_model(
     }
     scene.refresh()?;
     Ok(added)
+}
+
+/// Largest number of node evaluations [`place_model`] accepts for one model (moving mesh nodes ×
+/// key times × nodes): a few seconds of work.
+const MAX_HIERARCHY_WORK: usize = 200_000_000;
+
+/// Whether animation `animation` moves each node, through itself or an ancestor (one pass,
+/// parents before children).
+fn moving_nodes(model: &GltfModel, animation: Option<usize>) -> Vec<bool> {
+    let mut moving = vec![false; model.nodes.len()];
+    if let Some(a) = animation.and_then(|a| model.animations.get(a)) {
+        for ch in &a.channels {
+            moving[ch.node] = true;
+        }
+    }
+    for &n in &model.order {
+        if let Some(p) = model.nodes[n].parent {
+            moving[n] |= moving[p];
+        }
+    }
+    moving
 }
 
 /// For every node, bounds `(l, t)` over all times of `animation` on its world matrix: the norm of
