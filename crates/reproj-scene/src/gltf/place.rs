@@ -6,7 +6,7 @@ use std::f64::consts::PI;
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::{DMat3, DVec3};
+use glam::{DMat3, DMat4, DVec3};
 
 use super::err;
 use super::read::MAX_COORD;
@@ -54,8 +54,10 @@ impl Default for Placement {
 /// [`Anim::Circle`] to make a walking model go round) before [`Scene::refresh`].
 ///
 /// # Errors
-/// As [`GltfModel::load`]; [`SceneError::Gltf`] for an animation index out of range or a
-/// non-positive scale.
+/// As [`GltfModel::load`]; [`SceneError::Gltf`] for an animation index out of range, a
+/// non-positive scale, non-finite timing, a placement or geometry reaching beyond
+/// `MAX_COORD` (1e15 m) from the origin at any time of the animation, a model without triangles, or
+/// more hierarchy work than `MAX_HIERARCHY_WORK`.
 pub fn place_gltf(
     scene: &mut Scene,
     path: impl AsRef<Path>,
@@ -295,11 +297,7 @@ fn world_reach(model: &GltfModel, animation: Option<usize>) -> Vec<(f64, f64)> {
         .nodes
         .iter()
         .map(|node| match &node.local {
-            Local::Matrix(m) => {
-                let lin = DMat3::from_mat4(*m).to_cols_array();
-                let frobenius = lin.iter().map(|x| x * x).sum::<f64>().sqrt();
-                (frobenius, m.w_axis.truncate().length())
-            }
+            Local::Matrix(m) => (frobenius(m), m.w_axis.truncate().length()),
             Local::Trs(x) => (x.s.abs().max_element(), x.t.length()),
         })
         .collect();
@@ -322,6 +320,12 @@ fn world_reach(model: &GltfModel, animation: Option<usize>) -> Vec<(f64, f64)> {
     world
 }
 
+/// The Frobenius norm of an affine matrix's linear part: a bound on how much it stretches.
+fn frobenius(m: &DMat4) -> f64 {
+    let lin = DMat3::from_mat4(*m).to_cols_array();
+    lin.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
 /// A bound on the distance from the model's origin of mesh node `n`'s vertices at any time,
 /// skinned or not, from [`world_reach`]'s bounds (skinning weights are non-negative and
 /// normalised, so a skinned vertex stays within the farthest joint's reach).
@@ -342,10 +346,8 @@ fn geometry_reach(model: &GltfModel, n: usize, reach: &[(f64, f64)]) -> f64 {
         .iter()
         .zip(&skin.inverse_bind)
         .map(|(&j, ib)| {
-            let lin = DMat3::from_mat4(*ib).to_cols_array();
-            let frobenius = lin.iter().map(|x| x * x).sum::<f64>().sqrt();
             let (l, t) = reach[j];
-            l * (frobenius * r + ib.w_axis.truncate().length()) + t
+            l * (frobenius(ib) * r + ib.w_axis.truncate().length()) + t
         })
         .fold(
             own,
