@@ -216,21 +216,6 @@ impl GltfModel {
         world
     }
 
-    /// Whether animation `anim` moves node `n` (through itself or an ancestor).
-    pub(crate) fn animated(&self, anim: Option<usize>, n: usize) -> bool {
-        let Some(a) = anim.and_then(|a| self.animations.get(a)) else {
-            return false;
-        };
-        let mut cur = Some(n);
-        while let Some(c) = cur {
-            if a.channels.iter().any(|ch| ch.node == c) {
-                return true;
-            }
-            cur = self.nodes[c].parent;
-        }
-        false
-    }
-
     /// Bounds of the scene at rest (model space, no animation).
     pub fn bounds(&self) -> Bounds {
         let world = self.world(None, 0.0);

@@ -1,12 +1,17 @@
 //! Loading a `.gltf` or `.glb` file into a [`GltfModel`]: buffers, base-colour materials and
 //! textures, meshes, the node hierarchy, skins and animation channels, each validated.
 
+use std::panic::AssertUnwindSafe;
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::{DMat4, DQuat, DVec3};
+use glam::{DMat3, DMat4, DQuat, DVec3};
+use gltf::json::accessor::{ComponentType as C, Type};
+use gltf::json::validation::Checked;
 
-use super::read::{decode_image, read_primitive};
+use super::access::{self, read, Budget, Bytes, Data, Expect, BUDGET_BASE};
+use super::read::{decode_image, read_primitive, MAX_COORD};
+use super::source::{self, Sources, MAX_FILE_BYTES};
 use super::{err, unsupported};
 use crate::error::Result;
 use crate::gltf_model::{
@@ -22,48 +27,144 @@ impl GltfModel {
     /// not implement. Both name the file.
     pub fn load(path: impl AsRef<Path>) -> Result<GltfModel> {
         let path = path.as_ref();
-        // The decoders index untrusted data; a panic there must become an error, not an abort
-        // of the caller.
-        std::panic::catch_unwind(|| load_inner(path))
-            .unwrap_or_else(|_| Err(err(path, "the glTF decoder panicked on malformed data")))
+        let bytes = source::read_file(path, path, "the model file", MAX_FILE_BYTES)?;
+        GltfModel::from_bytes(path, &bytes)
+    }
+
+    /// Decodes a `.gltf` or `.glb` file's contents; `path` names it in messages and locates its
+    /// external buffers and textures.
+    ///
+    /// # Errors
+    /// As [`GltfModel::load`].
+    pub fn from_bytes(path: impl AsRef<Path>, bytes: &[u8]) -> Result<GltfModel> {
+        decode(path.as_ref(), bytes, BUDGET_BASE)
     }
 }
 
-fn load_inner(path: &Path) -> Result<GltfModel> {
-    let gltf::Gltf { document, blob } = gltf::Gltf::open(path).map_err(|e| match e {
-        gltf::Error::Io(e) => err(path, format!("cannot read the file: {e}")),
-        e => err(path, format!("malformed glTF: {e}")),
-    })?;
-    let base = path.parent().unwrap_or(Path::new("."));
+/// [`GltfModel::from_bytes`] with `budget_base` decoded bytes allowed on top of the part
+/// proportional to the input (the tests use a small one).
+pub(crate) fn decode(path: &Path, bytes: &[u8], budget_base: usize) -> Result<GltfModel> {
+    // Every check above the decoders is meant to leave them nothing to panic on; should one
+    // still do so, the caller gets an error rather than an abort.
+    std::panic::catch_unwind(AssertUnwindSafe(|| {
+        decode_checked(path, bytes, budget_base)
+    }))
+    .unwrap_or_else(|_| Err(err(path, "the glTF decoder panicked on malformed data")))
+}
+
+/// The error for a node or animation value that is not finite or beyond [`MAX_COORD`].
+fn check_values(path: &Path, what: &str, values: &[f64]) -> Result<()> {
+    access::bounded(path, what, values, MAX_COORD)
+}
+
+/// A rotation quaternion, normalised; a zero-length or non-finite one is refused (normalising
+/// it gives NaN).
+fn rotation(path: &Path, what: &str, q: [f64; 4]) -> Result<DQuat> {
+    let q = DQuat::from_array(q);
+    let len = q.length();
+    if !(len.is_finite() && len > 1e-6) {
+        return Err(err(
+            path,
+            format!(
+                "{what}: rotation {:?} has length {len}, expected a unit quaternion",
+                q.to_array()
+            ),
+        ));
+    }
+    Ok(q / len)
+}
+
+/// A node's rest transform, checked: finite and bounded values, a non-zero quaternion, an
+/// invertible affine matrix. A zero TRS scale is allowed (the glTF specification lets a node
+/// be hidden that way).
+fn local(path: &Path, index: usize, n: &gltf::json::Node) -> Result<Local> {
+    let what = format!("node {index}");
+    if let Some(m) = n.matrix {
+        let m = m.map(f64::from);
+        check_values(path, &format!("{what} matrix"), &m)?;
+        // Column-major: the last row is elements 3, 7, 11, 15.
+        let row = [m[3], m[7], m[11], m[15]];
+        if row != [0.0, 0.0, 0.0, 1.0] {
+            return Err(err(
+                path,
+                format!("{what}: matrix's last row is {row:?}, expected [0, 0, 0, 1] (an affine transform)"),
+            ));
+        }
+        let m = DMat4::from_cols_array(&m);
+        let lin = DMat3::from_mat4(m);
+        let size = lin
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, x| a.max(x.abs()));
+        let det = lin.determinant();
+        // Relative to its size, so that a uniformly tiny model is not refused.
+        if !(det.abs() > 1e-12 * size.powi(3)) {
+            return Err(err(
+                path,
+                format!("{what}: matrix is not invertible (determinant {det:e}), expected an invertible affine transform"),
+            ));
+        }
+        return Ok(Local::Matrix(m));
+    }
+    let t = n.translation.unwrap_or([0.0; 3]).map(f64::from);
+    let s = n.scale.unwrap_or([1.0; 3]).map(f64::from);
+    let r = n
+        .rotation
+        .map_or([0.0, 0.0, 0.0, 1.0], |q| q.0)
+        .map(f64::from);
+    check_values(path, &format!("{what} translation"), &t)?;
+    check_values(path, &format!("{what} scale"), &s)?;
+    check_values(path, &format!("{what} rotation"), &r)?;
+    Ok(Local::Trs(Trs {
+        t: DVec3::from_array(t),
+        r: rotation(path, &what, r)?,
+        s: DVec3::from_array(s),
+    }))
+}
+
+fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<GltfModel> {
+    let (json, blob) = if bytes.starts_with(source::GLB_MAGIC) {
+        source::split_glb(path, bytes)?
+    } else {
+        (bytes, None)
+    };
+    let document = source::parse_document(path, json)?;
+    let root = document.as_json();
     if let Some(ext) = document.extensions_required().next() {
         return Err(unsupported(path, format!("required extension {ext}")));
     }
-    let buffers = gltf::import_buffers(&document, Some(base), blob).map_err(|e| {
-        let uris: Vec<String> = document
-            .buffers()
-            .filter_map(|b| match b.source() {
-                gltf::buffer::Source::Uri(u) if !u.starts_with("data:") => Some(u.to_string()),
-                _ => None,
-            })
-            .collect();
-        err(
-            path,
-            format!("cannot load a buffer (external: {uris:?}): {e}"),
-        )
-    })?;
-    for b in document.buffers() {
-        if buffers[b.index()].len() < b.length() {
+    let mut sources = Sources::new(path, bytes.len());
+    let mut buffers: Vec<Bytes> = Vec::with_capacity(root.buffers.len());
+    for (i, b) in root.buffers.iter().enumerate() {
+        let d = match (&b.uri, blob) {
+            (Some(uri), _) => sources.read(uri, &format!("buffer {i}"))?,
+            // Only the first buffer may be the GLB's BIN chunk.
+            (None, Some(bin)) if i == 0 => Bytes::new(bin.to_vec()),
+            (None, _) => {
+                return Err(err(
+                    path,
+                    format!("buffer {i} has no uri, expected one (only buffer 0 of a GLB file with a BIN chunk may omit it)"),
+                ))
+            }
+        };
+        if (d.len() as u64) < b.byte_length.0 {
             return Err(err(
                 path,
                 format!(
-                    "buffer {} holds {} bytes, the file declares {}",
-                    b.index(),
-                    buffers[b.index()].len(),
-                    b.length()
+                    "buffer {i} holds {} bytes, the file declares {}",
+                    d.len(),
+                    b.byte_length.0
                 ),
             ));
         }
+        buffers.push(d);
     }
+    let mut data = Data {
+        path,
+        root,
+        buffers,
+        budget: Budget::new(sources.input as usize, budget_base),
+    };
 
     // Textures: only the base-colour ones are decoded (FlightHelmet's normal and ORM maps would
     // cost seconds for nothing).
@@ -87,12 +188,25 @@ fn load_inner(path: &Path) -> Result<GltfModel> {
                 let image = info.texture().source();
                 let i = image.index();
                 if decoded[i].is_none() {
-                    decoded[i] = Some(Arc::new(decode_image(path, base, &image, &buffers)?));
+                    let before = sources.input;
+                    let texture = decode_image(&mut data, &mut sources, &image)?;
+                    // A texture file read is input too: it widens the budget it was charged to.
+                    data.budget.grow((sources.input - before) as usize);
+                    decoded[i] = Some(Arc::new(texture));
                 }
                 decoded[i].clone()
             }
             None => None,
         };
+        if !f.iter().all(|c| c.is_finite()) {
+            return Err(err(
+                path,
+                format!(
+                    "material {}: baseColorFactor {f:?}, expected finite numbers",
+                    m.index().unwrap_or(0)
+                ),
+            ));
+        }
         materials.push(GltfMaterial {
             factor: [f[0] as f64, f[1] as f64, f[2] as f64],
             texture,
@@ -103,50 +217,36 @@ fn load_inner(path: &Path) -> Result<GltfModel> {
     for mesh in document.meshes() {
         let mut prims = Vec::new();
         for (k, p) in mesh.primitives().enumerate() {
-            prims.push(read_primitive(path, mesh.index(), k, &p, &buffers)?);
+            prims.push(read_primitive(&mut data, mesh.index(), k, &p)?);
         }
         meshes.push(prims);
     }
 
-    let mut nodes: Vec<Node> = document
-        .nodes()
-        .map(|n| Node {
-            local: match n.transform() {
-                gltf::scene::Transform::Matrix { matrix } => {
-                    Local::Matrix(DMat4::from_cols_array_2d(&matrix.map(|c| c.map(f64::from))))
-                }
-                gltf::scene::Transform::Decomposed {
-                    translation,
-                    rotation,
-                    scale,
-                } => Local::Trs(Trs {
-                    t: DVec3::from_array(translation.map(f64::from)),
-                    r: DQuat::from_array(rotation.map(f64::from)).normalize(),
-                    s: DVec3::from_array(scale.map(f64::from)),
-                }),
-            },
+    let mut nodes = Vec::with_capacity(root.nodes.len());
+    for (i, n) in root.nodes.iter().enumerate() {
+        nodes.push(Node {
+            local: local(path, i, n)?,
             parent: None,
-            mesh: n.mesh().map(|m| m.index()),
-            skin: n.skin().map(|s| s.index()),
-        })
-        .collect();
-    for n in document.nodes() {
-        for c in n.children() {
-            if nodes[c.index()].parent.is_some() || c.index() == n.index() {
-                return Err(err(
-                    path,
-                    format!("node {} has more than one parent", c.index()),
-                ));
+            mesh: n.mesh.map(|m| m.value()),
+            skin: n.skin.map(|s| s.value()),
+        });
+    }
+    // Indices from the JSON directly: the document's `children()` and `nodes()` iterators look
+    // each index up from the start (quadratic in the number of nodes).
+    for (p, n) in root.nodes.iter().enumerate() {
+        for c in n.children.iter().flatten().map(|c| c.value()) {
+            if nodes[c].parent.is_some() || c == p {
+                return Err(err(path, format!("node {c} has more than one parent")));
             }
-            nodes[c.index()].parent = Some(n.index());
+            nodes[c].parent = Some(p);
         }
     }
-    let scene = document
-        .default_scene()
-        .or_else(|| document.scenes().next())
+    let scene = root
+        .scenes
+        .get(root.scene.map_or(0, |s| s.value()))
         .ok_or_else(|| err(path, "no scene"))?;
     let mut order = Vec::new();
-    let mut stack: Vec<usize> = scene.nodes().map(|n| n.index()).collect();
+    let mut stack: Vec<usize> = scene.nodes.iter().map(|n| n.value()).collect();
     stack.reverse();
     let mut seen = vec![false; nodes.len()];
     while let Some(n) = stack.pop() {
@@ -154,25 +254,28 @@ fn load_inner(path: &Path) -> Result<GltfModel> {
             return Err(err(path, format!("node {n} is reached twice (a cycle?)")));
         }
         order.push(n);
-        let node = document.nodes().nth(n).expect("index from the document");
-        stack.extend(node.children().map(|c| c.index()));
+        let children = root.nodes[n].children.iter().flatten();
+        stack.extend(children.map(|c| c.value()));
     }
 
     let mut skins = Vec::new();
     for s in document.skins() {
         let joints: Vec<usize> = s.joints().map(|j| j.index()).collect();
-        let reader = s.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
         let inverse_bind: Vec<DMat4> = match s.inverse_bind_matrices() {
-            Some(_) => reader
-                .read_inverse_bind_matrices()
-                .ok_or_else(|| {
-                    err(
-                        path,
-                        format!("skin {}: unreadable inverseBindMatrices", s.index()),
-                    )
-                })?
-                .map(|m| DMat4::from_cols_array_2d(&m.map(|c| c.map(f64::from))))
-                .collect(),
+            Some(a) => {
+                let m = read::<16>(
+                    &mut data,
+                    a.index(),
+                    "inverseBindMatrices",
+                    &Expect::floats(Type::Mat4),
+                )?;
+                check_values(
+                    path,
+                    &format!("skin {} inverseBindMatrices", s.index()),
+                    m.as_flattened(),
+                )?;
+                m.iter().map(DMat4::from_cols_array).collect()
+            }
             None => vec![DMat4::IDENTITY; joints.len()],
         };
         if inverse_bind.len() < joints.len() {
@@ -215,15 +318,36 @@ fn load_inner(path: &Path) -> Result<GltfModel> {
     for a in document.animations() {
         let mut channels = Vec::new();
         for ch in a.channels() {
-            let target = ch.target();
-            let property = match target.property() {
-                gltf::animation::Property::Translation => Property::Translation,
-                gltf::animation::Property::Rotation => Property::Rotation,
-                gltf::animation::Property::Scale => Property::Scale,
+            // The channels' targets are not checked by the document's validation: read them
+            // from the JSON and check them here (`target().node()` would panic).
+            let target = &root.animations[a.index()].channels[ch.index()].target;
+            let here = format!("animation {} channel {}", a.index(), ch.index());
+            let node = target.node.value();
+            if node >= nodes.len() {
+                return Err(err(
+                    path,
+                    format!(
+                        "{here} targets node {node}, which does not exist ({} nodes)",
+                        nodes.len()
+                    ),
+                ));
+            }
+            use gltf::json::animation::Property as P;
+            let property = match target.path {
+                Checked::Valid(P::Translation) => Property::Translation,
+                Checked::Valid(P::Rotation) => Property::Rotation,
+                Checked::Valid(P::Scale) => Property::Scale,
                 // Morph targets are not applied, so their weights have nothing to drive.
-                gltf::animation::Property::MorphTargetWeights => continue,
+                Checked::Valid(P::MorphTargetWeights) => continue,
+                Checked::Invalid => {
+                    return Err(err(
+                        path,
+                        format!("{here}: unknown target path, expected translation, rotation, scale or weights"),
+                    ))
+                }
             };
-            let step = match ch.sampler().interpolation() {
+            let sampler = ch.sampler();
+            let step = match sampler.interpolation() {
                 gltf::animation::Interpolation::Linear => false,
                 gltf::animation::Interpolation::Step => true,
                 gltf::animation::Interpolation::CubicSpline => {
@@ -233,31 +357,41 @@ fn load_inner(path: &Path) -> Result<GltfModel> {
                     ))
                 }
             };
-            let reader = ch.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-            let bad = || {
-                err(
-                    path,
-                    format!(
-                        "animation {} channel {}: unreadable sampler data",
-                        a.index(),
-                        ch.index()
-                    ),
-                )
-            };
-            let times: Vec<f64> = reader
-                .read_inputs()
-                .ok_or_else(bad)?
-                .map(f64::from)
-                .collect();
-            let values: Vec<[f64; 4]> = match reader.read_outputs().ok_or_else(bad)? {
-                gltf::animation::util::ReadOutputs::Translations(it)
-                | gltf::animation::util::ReadOutputs::Scales(it) => it
-                    .map(|v| [v[0] as f64, v[1] as f64, v[2] as f64, 0.0])
-                    .collect(),
-                gltf::animation::util::ReadOutputs::Rotations(r) => {
-                    r.into_f32().map(|q| q.map(f64::from)).collect()
+            let input = sampler.input().index();
+            let output = sampler.output().index();
+            let times: Vec<f64> = read::<1>(
+                &mut data,
+                input,
+                &format!("{here} input"),
+                &Expect::floats(Type::Scalar),
+            )?
+            .into_iter()
+            .map(|[t]| t)
+            .collect();
+            let out_what = format!("{here} output");
+            let values: Vec<[f64; 4]> = match property {
+                Property::Translation | Property::Scale => {
+                    let v = read::<3>(&mut data, output, &out_what, &Expect::floats(Type::Vec3))?;
+                    check_values(path, &out_what, v.as_flattened())?;
+                    v.into_iter().map(|v| [v[0], v[1], v[2], 0.0]).collect()
                 }
-                gltf::animation::util::ReadOutputs::MorphTargetWeights(_) => continue,
+                Property::Rotation => {
+                    const ROTATION: Expect = Expect {
+                        ty: Type::Vec4,
+                        components: &[
+                            (C::F32, false),
+                            (C::I8, true),
+                            (C::U8, true),
+                            (C::I16, true),
+                            (C::U16, true),
+                        ],
+                    };
+                    let v = read::<4>(&mut data, output, &out_what, &ROTATION)?;
+                    for (k, q) in v.iter().enumerate() {
+                        rotation(path, &format!("{out_what} key {k}"), *q)?;
+                    }
+                    v
+                }
             };
             if times.is_empty() || values.len() != times.len() {
                 return Err(err(
@@ -281,18 +415,14 @@ fn load_inner(path: &Path) -> Result<GltfModel> {
                     ),
                 ));
             }
-            if matches!(nodes[target.node().index()].local, Local::Matrix(_)) {
+            if matches!(nodes[node].local, Local::Matrix(_)) {
                 return Err(err(
                     path,
-                    format!(
-                        "animation {} targets node {}, which has a matrix",
-                        a.index(),
-                        target.node().index()
-                    ),
+                    format!("{here} targets node {node}, which has a matrix"),
                 ));
             }
             channels.push(Channel {
-                node: target.node().index(),
+                node,
                 property,
                 step,
                 times,

@@ -24,18 +24,33 @@
 //! ignored); the `CUBICSPLINE` interpolation, non-triangle primitives and texture coordinate sets
 //! other than 0 are refused with [`SceneError::GltfUnsupported`].
 //!
-//! The file is untrusted: every accessor is checked against its buffer by the `gltf` crate's
-//! reader, vertex indices, joint indices and attribute lengths are validated before use, and a
-//! panic inside the decoder is turned into an error naming the file.
+//! The file is untrusted (issue 15). Only regular files are read, each at most
+//! `MAX_FILE_BYTES` (1 GiB); the GLB container is split here with every length checked
+//! against the bytes present; the `gltf` crate only parses and validates the JSON, after the
+//! indices its validation would use unchecked are checked. Accessors are decoded by `access.rs`,
+//! never by the crate's readers: buffer views inside their buffers, strides that hold an element,
+//! sparse indices and values inside their views, and every decoded size charged to a budget
+//! proportional to the input *before* it is allocated; textures decode under the same budget.
+//! Positions, node transforms, inverse bind matrices and animation values must be finite and
+//! within `MAX_COORD` (1e15), quaternions non-zero, matrices affine and invertible, and
+//! a placed model must stay within that bound at every time of its animation, so that nothing
+//! absurd reaches the BVH. Each refusal is a [`SceneError::Gltf`] naming the file, the element
+//! (accessor, node, animation channel…), what was found and what was expected.
 //!
 //! This file holds the error helpers and the public names; `load.rs` walks the document into a
 //! [`GltfModel`] (defined, with [`GltfShape`] and [`NodeTrack`], in the crate's `gltf_model`
-//! module, below the shapes and animations that use them), `read.rs` decodes one image and one
-//! primitive's accessors, `place.rs` puts a model into a scene, `tests.rs` holds the unit tests.
+//! module, below the shapes and animations that use them), `source.rs` reads the file, its GLB
+//! chunks and its buffers, `access.rs` decodes accessors, `read.rs` decodes one image and one
+//! primitive, `place.rs` puts a model into a scene, `tests.rs` and `hostile.rs` hold the unit
+//! tests.
 
+mod access;
+#[cfg(test)]
+mod hostile;
 mod load;
 mod place;
 mod read;
+mod source;
 #[cfg(test)]
 mod tests;
 

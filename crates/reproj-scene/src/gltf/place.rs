@@ -6,14 +6,17 @@ use std::f64::consts::PI;
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::DMat3;
+use glam::{DMat3, DMat4, DVec3};
 
 use super::err;
+use super::read::MAX_COORD;
 use crate::anim::Anim;
 use crate::error::Result;
-use crate::gltf_model::{Clock, GltfModel, GltfShape, Kind, NodeTrack, PlacedNode};
+use crate::gltf_model::{
+    Clock, GltfModel, GltfShape, Kind, Local, NodeTrack, PlacedNode, Property,
+};
 use crate::material::{Material, Pattern};
-use crate::math::{add, scale, Rigid};
+use crate::math::{add, length, scale, Rigid};
 use crate::mesh::Mesh;
 use crate::rig::CameraPath;
 use crate::scene::{Light, Object, Scene, Variant};
@@ -51,8 +54,10 @@ impl Default for Placement {
 /// [`Anim::Circle`] to make a walking model go round) before [`Scene::refresh`].
 ///
 /// # Errors
-/// As [`GltfModel::load`]; [`SceneError::Gltf`] for an animation index out of range or a
-/// non-positive scale.
+/// As [`GltfModel::load`]; [`SceneError::Gltf`] for an animation index out of range, a
+/// non-positive scale, non-finite timing, a placement or geometry reaching beyond
+/// `MAX_COORD` (1e15 m) from the origin at any time of the animation, a model without triangles, or
+/// more hierarchy work than `MAX_HIERARCHY_WORK`.
 pub fn place_gltf(
     scene: &mut Scene,
     path: impl AsRef<Path>,
@@ -76,6 +81,27 @@ pub fn place_model(
         return Err(err(
             path,
             format!("placement scale {} must be positive", placement.scale),
+        ));
+    }
+    if !(placement.time_offset.is_finite() && placement.speed.is_finite()) {
+        return Err(err(
+            path,
+            format!(
+                "placement time offset {} and speed {}: expected finite numbers",
+                placement.time_offset, placement.speed
+            ),
+        ));
+    }
+    let p = &placement.place;
+    let shift = length(p.trans);
+    if !(shift <= MAX_COORD && p.rot.iter().flatten().all(|x| x.is_finite())) {
+        return Err(err(
+            path,
+            format!(
+                "placement translation {:?} is {shift:e} m from the origin or its rotation is not \
+                 finite, expected at most {MAX_COORD:e} m and a finite rotation",
+                p.trans
+            ),
         ));
     }
     let animation = match placement.animation {
@@ -103,6 +129,69 @@ pub fn place_model(
         start,
         end,
     };
+    // Refused before any object is added, so that an error leaves the scene as it was.
+    let reach = world_reach(model, animation);
+    let moving = moving_nodes(model, animation);
+    let skin_moving: Vec<bool> = model
+        .skins
+        .iter()
+        .map(|s| s.joints.iter().any(|&j| moving[j]))
+        .collect();
+    let mut any = false;
+    let mut animated_meshes = 0usize;
+    for &n in &model.order {
+        let Some(m) = model.nodes[n].mesh else {
+            continue;
+        };
+        if model.meshes[m].iter().all(|p| p.triangles.is_empty()) {
+            continue;
+        }
+        any = true;
+        let skin_moves = model.nodes[n].skin.is_some_and(|s| skin_moving[s]);
+        animated_meshes += usize::from(moving[n] || skin_moves);
+        let extent = placement.scale * geometry_reach(model, n, &reach) + shift;
+        if !(extent <= MAX_COORD) {
+            return Err(err(
+                path,
+                format!(
+                    "node {n}: placed with scale {:e}, its geometry can reach {extent:e} m from the \
+                     origin (node transforms and animation included), expected at most \
+                     {MAX_COORD:e} m",
+                    placement.scale
+                ),
+            ));
+        }
+    }
+    if !any {
+        return Err(err(
+            path,
+            "the model's scene has no mesh node with triangles, expected at least one",
+        ));
+    }
+    // Each moving mesh node evaluates the whole hierarchy at every key time (the rigidity test
+    // below) and at every snapshot (posing): bound that work, or a small file of many nodes and
+    // keys would keep the renderer busy for hours.
+    let keys = animation
+        .and_then(|a| model.animations.get(a))
+        .map_or(0, |a| {
+            a.channels.iter().map(|c| c.times.len()).sum::<usize>()
+        });
+    let per_pass = model.nodes.len() + keys;
+    let work = animated_meshes
+        .saturating_mul(2 * keys + 1)
+        .saturating_mul(per_pass);
+    if work > MAX_HIERARCHY_WORK {
+        return Err(err(
+            path,
+            format!(
+                "{animated_meshes} animated mesh nodes, {keys} key values and {} nodes need {work} \
+                 node evaluations to place, expected at most {MAX_HIERARCHY_WORK}",
+                model.nodes.len()
+            ),
+        ));
+    }
+    let tau0 = clock.tau(0.0);
+    let world0 = model.world(animation, tau0);
     let mut added = Vec::new();
     let stem = path
         .file_stem()
@@ -113,16 +202,11 @@ pub fn place_model(
         if model.meshes[m].iter().all(|p| p.triangles.is_empty()) {
             continue;
         }
-        let animated = model.animated(animation, n);
-        let tau0 = clock.tau(0.0);
-        let reference = DMat3::from_mat4(model.world(animation, tau0)[n]);
+        let animated = moving[n];
+        let reference = DMat3::from_mat4(world0[n]);
         let kind = if let Some(skin) = node.skin {
             // Skinned: deforms when any joint moves; a rest skin is still posed once.
-            let moving = model.skins[skin]
-                .joints
-                .iter()
-                .any(|&j| model.animated(animation, j));
-            if moving {
+            if skin_moving[skin] {
                 Kind::Deforming
             } else {
                 Kind::Static
@@ -177,6 +261,98 @@ pub fn place_model(
     }
     scene.refresh()?;
     Ok(added)
+}
+
+/// Largest number of node evaluations [`place_model`] accepts for one model (moving mesh nodes ×
+/// key times × nodes): a few seconds of work.
+const MAX_HIERARCHY_WORK: usize = 200_000_000;
+
+/// Whether animation `animation` moves each node, through itself or an ancestor (one pass,
+/// parents before children).
+fn moving_nodes(model: &GltfModel, animation: Option<usize>) -> Vec<bool> {
+    let mut moving = vec![false; model.nodes.len()];
+    if let Some(a) = animation.and_then(|a| model.animations.get(a)) {
+        for ch in &a.channels {
+            moving[ch.node] = true;
+        }
+    }
+    for &n in &model.order {
+        if let Some(p) = model.nodes[n].parent {
+            moving[n] |= moving[p];
+        }
+    }
+    moving
+}
+
+/// For every node, bounds `(l, t)` over all times of `animation` on its world matrix: the norm of
+/// the linear part is at most `l` and the translation at most `t` long. Each local transform's
+/// bounds take the largest scale and translation over the rest value and the key values of the
+/// channels driving it (interpolation stays within them; rotations keep lengths), and chain
+/// down the hierarchy. Non-finite results read as beyond any bound.
+fn world_reach(model: &GltfModel, animation: Option<usize>) -> Vec<(f64, f64)> {
+    let channels = animation
+        .and_then(|a| model.animations.get(a))
+        .map_or(&[][..], |a| &a.channels[..]);
+    let mut local: Vec<(f64, f64)> = model
+        .nodes
+        .iter()
+        .map(|node| match &node.local {
+            Local::Matrix(m) => (frobenius(m), m.w_axis.truncate().length()),
+            Local::Trs(x) => (x.s.abs().max_element(), x.t.length()),
+        })
+        .collect();
+    for ch in channels {
+        let l = &mut local[ch.node];
+        for v in &ch.values {
+            let v3 = DVec3::new(v[0], v[1], v[2]);
+            match ch.property {
+                Property::Scale => l.0 = l.0.max(v3.abs().max_element()),
+                Property::Translation => l.1 = l.1.max(v3.length()),
+                Property::Rotation => {}
+            }
+        }
+    }
+    let mut world = vec![(1.0, 0.0); model.nodes.len()];
+    for &n in &model.order {
+        let (pl, pt) = model.nodes[n].parent.map_or((1.0, 0.0), |p| world[p]);
+        world[n] = (pl * local[n].0, pl * local[n].1 + pt);
+    }
+    world
+}
+
+/// The Frobenius norm of an affine matrix's linear part: a bound on how much it stretches.
+fn frobenius(m: &DMat4) -> f64 {
+    let lin = DMat3::from_mat4(*m).to_cols_array();
+    lin.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// A bound on the distance from the model's origin of mesh node `n`'s vertices at any time,
+/// skinned or not, from [`world_reach`]'s bounds (skinning weights are non-negative and
+/// normalised, so a skinned vertex stays within the farthest joint's reach).
+fn geometry_reach(model: &GltfModel, n: usize, reach: &[(f64, f64)]) -> f64 {
+    let node = &model.nodes[n];
+    let r = node.mesh.map_or(0.0, |m| {
+        model.meshes[m]
+            .iter()
+            .flat_map(|p| p.positions.iter().map(|v| v.length()))
+            .fold(0.0, f64::max)
+    });
+    let own = reach[n].0 * r + reach[n].1;
+    let own = if own.is_nan() { f64::INFINITY } else { own };
+    let Some(skin) = node.skin.and_then(|s| model.skins.get(s)) else {
+        return own;
+    };
+    skin.joints
+        .iter()
+        .zip(&skin.inverse_bind)
+        .map(|(&j, ib)| {
+            let (l, t) = reach[j];
+            l * (frobenius(ib) * r + ib.w_axis.truncate().length()) + t
+        })
+        .fold(
+            own,
+            |a, b| if b.is_nan() { f64::INFINITY } else { a.max(b) },
+        )
 }
 
 /// Whether node `n`'s world linear part stays `R(τ)·reference` with `R` a rotation at every key

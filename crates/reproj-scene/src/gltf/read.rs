@@ -1,49 +1,80 @@
 //! Reading one image into a [`Texture`] and one triangle primitive's accessors into a [`Prim`],
-//! validated against the file (pixel formats, attribute lengths, vertex indices).
-
-use std::path::Path;
+//! validated against the file (pixel formats, image sizes within the budget, attribute types and
+//! lengths, finite and bounded positions, non-negative weights, vertex indices).
 
 use glam::DVec3;
 
+use image::ImageFormat;
+
+use super::access::{self, read, Bytes, Data, Expect};
+use super::source::Sources;
 use super::{err, unsupported};
 use crate::error::Result;
 use crate::gltf_model::{Prim, Texture};
 
+/// Largest texture side decoded (pixels).
+const MAX_TEXTURE_SIDE: u32 = 16384;
+
 pub(super) fn decode_image(
-    path: &Path,
-    base: &Path,
+    data: &mut Data<'_>,
+    sources: &mut Sources<'_>,
     image: &gltf::Image<'_>,
-    buffers: &[gltf::buffer::Data],
 ) -> Result<Texture> {
-    let what = match image.source() {
-        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
-            format!("texture file {uri:?}")
+    let path = data.path;
+    let (what, bytes, mime): (String, Bytes, Option<String>) = match image.source() {
+        gltf::image::Source::Uri { uri, mime_type } => {
+            let what = if uri.starts_with("data:") {
+                format!("embedded image {}", image.index())
+            } else {
+                format!("texture file {uri:?}")
+            };
+            let bytes = sources.read(uri, &what)?;
+            (what, bytes, mime_type.map(str::to_string))
         }
-        _ => format!("embedded image {}", image.index()),
+        gltf::image::Source::View { view, mime_type } => {
+            let what = format!("embedded image {}", image.index());
+            let b = access::view_bytes(path, data.root, &data.buffers, view.index(), &what)?;
+            (what, Bytes::new(b.to_vec()), Some(mime_type.to_string()))
+        }
     };
-    let data = gltf::image::Data::from_source(image.source(), Some(base), buffers)
-        .map_err(|e| err(path, format!("cannot load {what}: {e}")))?;
-    use gltf::image::Format;
-    let ch = match data.format {
-        Format::R8 => 1,
-        Format::R8G8 => 2,
-        Format::R8G8B8 => 3,
-        Format::R8G8B8A8 => 4,
-        f => return Err(unsupported(path, format!("{what} has pixel format {f:?}"))),
-    };
-    let (w, h) = (data.width as usize, data.height as usize);
-    if w == 0 || h == 0 || data.pixels.len() < w * h * ch {
-        return Err(err(path, format!("{what} is empty or truncated")));
+    let format = match mime.as_deref() {
+        Some("image/png") => Some(ImageFormat::Png),
+        Some("image/jpeg") => Some(ImageFormat::Jpeg),
+        _ => image::guess_format(&bytes).ok(),
     }
-    let rgb = data
-        .pixels
-        .chunks_exact(ch)
-        .take(w * h)
-        .map(|p| {
-            let c = |k: usize| f32::from(p[if ch < 3 { 0 } else { k }]) / 255.0;
-            [c(0), c(1), c(2)]
-        })
-        .collect();
+    .filter(|f| matches!(f, ImageFormat::Png | ImageFormat::Jpeg))
+    .ok_or_else(|| unsupported(path, format!("{what} is neither PNG nor JPEG")))?;
+    // The decoder sizes its buffer from the image header; the limits keep a header that claims
+    // a huge image from allocating more than the model's budget allows.
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+    limits.max_alloc = Some(data.budget.left() as u64);
+    let mut reader = image::ImageReader::with_format(std::io::Cursor::new(&bytes[..]), format);
+    reader.limits(limits);
+    let decoded = reader
+        .decode()
+        .map_err(|e| err(path, format!("cannot decode {what}: {e}")))?;
+    let (w, h) = (decoded.width() as usize, decoded.height() as usize);
+    if w == 0 || h == 0 {
+        return Err(err(path, format!("{what} is empty")));
+    }
+    data.budget
+        .take(path, &what, w * h * std::mem::size_of::<[f32; 3]>())?;
+    use image::DynamicImage as D;
+    let rgb: Vec<[f32; 3]> = match decoded {
+        D::ImageLuma8(_) | D::ImageLumaA8(_) | D::ImageRgb8(_) | D::ImageRgba8(_) => decoded
+            .to_rgb8()
+            .pixels()
+            .map(|p| p.0.map(|c| f32::from(c) / 255.0))
+            .collect(),
+        other => {
+            return Err(unsupported(
+                path,
+                format!("{what} has pixel format {:?}", other.color()),
+            ))
+        }
+    };
     Ok(Texture {
         width: w,
         height: h,
@@ -51,13 +82,23 @@ pub(super) fn decode_image(
     })
 }
 
+/// Largest coordinate of a vertex, a translation or a scale accepted in a model (metres or a
+/// factor): beyond it, squares of coordinates leave the `f32` range of the BVH's boxes, and no
+/// real model comes near it.
+pub(crate) const MAX_COORD: f64 = 1e15;
+
+fn vec3s(v: Vec<[f64; 3]>) -> Vec<DVec3> {
+    v.into_iter().map(DVec3::from_array).collect()
+}
+
 pub(super) fn read_primitive(
-    path: &Path,
+    data: &mut Data<'_>,
     mesh: usize,
     k: usize,
     p: &gltf::Primitive<'_>,
-    buffers: &[gltf::buffer::Data],
 ) -> Result<Prim> {
+    use gltf::json::accessor::{ComponentType as C, Type};
+    let path = data.path;
     let here = |problem: String| err(path, format!("mesh {mesh} primitive {k}: {problem}"));
     if p.mode() != gltf::mesh::Mode::Triangles {
         return Err(unsupported(
@@ -68,12 +109,18 @@ pub(super) fn read_primitive(
             ),
         ));
     }
-    let reader = p.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-    let positions: Vec<DVec3> = reader
-        .read_positions()
-        .ok_or_else(|| here("missing or unreadable POSITION".into()))?
-        .map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64))
-        .collect();
+    let attribute = |semantic: gltf::Semantic| p.get(&semantic).map(|a| a.index());
+    let Some(pos) = attribute(gltf::Semantic::Positions) else {
+        return Err(here("no POSITION attribute".into()));
+    };
+    let positions = read::<3>(data, pos, "POSITION", &Expect::floats(Type::Vec3))?;
+    access::bounded(
+        path,
+        &format!("accessor {pos} (POSITION)"),
+        positions.as_flattened(),
+        MAX_COORD,
+    )?;
+    let positions = vec3s(positions);
     let n = positions.len();
     let same = |what: &str, len: usize| {
         if len == n {
@@ -82,47 +129,72 @@ pub(super) fn read_primitive(
             Err(here(format!("{what} has {len} entries for {n} vertices")))
         }
     };
-    let normals = match reader.read_normals() {
-        Some(it) => {
-            let v: Vec<DVec3> = it
-                .map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64))
-                .collect();
+    let normals = match attribute(gltf::Semantic::Normals) {
+        Some(a) => {
+            let v = vec3s(read::<3>(data, a, "NORMAL", &Expect::floats(Type::Vec3))?);
             same("NORMAL", v.len())?;
             Some(v)
         }
         None => None,
     };
-    let uvs = match reader.read_tex_coords(0) {
-        Some(it) => {
-            let v: Vec<[f64; 2]> = it.into_f32().map(|v| [v[0] as f64, v[1] as f64]).collect();
+    const UNORM: &[(C, bool)] = &[(C::F32, false), (C::U8, true), (C::U16, true)];
+    let uvs = match attribute(gltf::Semantic::TexCoords(0)) {
+        Some(a) => {
+            let expect = Expect {
+                ty: Type::Vec2,
+                components: UNORM,
+            };
+            let v = read::<2>(data, a, "TEXCOORD_0", &expect)?;
             same("TEXCOORD_0", v.len())?;
             Some(v)
         }
         None => None,
     };
-    let joints = match reader.read_joints(0) {
-        Some(it) => {
-            let v: Vec<[u16; 4]> = it.into_u16().collect();
+    let joints = match attribute(gltf::Semantic::Joints(0)) {
+        Some(a) => {
+            let expect = Expect {
+                ty: Type::Vec4,
+                components: &[(C::U8, false), (C::U16, false)],
+            };
+            let v = read::<4>(data, a, "JOINTS_0", &expect)?;
             same("JOINTS_0", v.len())?;
-            Some(v)
+            // Unsigned 8- or 16-bit integers, so the casts are exact.
+            Some(v.into_iter().map(|j| j.map(|x| x as u16)).collect())
         }
         None => None,
     };
-    let weights = match reader.read_weights(0) {
-        Some(it) => {
-            let v: Vec<[f64; 4]> = it.into_f32().map(|w| w.map(f64::from)).collect();
+    let weights = match attribute(gltf::Semantic::Weights(0)) {
+        Some(a) => {
+            let expect = Expect {
+                ty: Type::Vec4,
+                components: UNORM,
+            };
+            let v = read::<4>(data, a, "WEIGHTS_0", &expect)?;
             same("WEIGHTS_0", v.len())?;
+            // Skinning divides by the sum of the weights: a negative one could make it tiny.
+            if let Some(i) = v
+                .iter()
+                .position(|w| w.iter().any(|&x| !(0.0..=1e6).contains(&x)))
+            {
+                return Err(here(format!(
+                    "WEIGHTS_0 of vertex {i} is {:?}, expected non-negative weights",
+                    v[i]
+                )));
+            }
             Some(v)
         }
         None => None,
     };
     let flat: Vec<u32> = match p.indices() {
-        Some(_) => reader
-            .read_indices()
-            .ok_or_else(|| here("unreadable indices".into()))?
-            .into_u32()
-            .collect(),
-        None => (0..n as u32).collect(),
+        Some(a) => access::read_indices(data, a.index(), "indices")?,
+        None => {
+            data.budget.take(
+                path,
+                &format!("mesh {mesh} primitive {k} implicit indices"),
+                4 * n,
+            )?;
+            (0..n as u32).collect()
+        }
     };
     if flat.len() % 3 != 0 {
         return Err(here(format!(

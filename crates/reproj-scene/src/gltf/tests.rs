@@ -17,7 +17,7 @@ use crate::scene::{Light, Scene, Variant};
 
 const DT: f64 = 0.1;
 
-fn base64(data: &[u8]) -> String {
+pub(super) fn base64(data: &[u8]) -> String {
     const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut out = String::new();
     for c in data.chunks(3) {
@@ -189,7 +189,7 @@ fn write_model(name: &str, texture: &str, bad_index: bool) -> PathBuf {
     path
 }
 
-fn empty_scene() -> Scene {
+pub(super) fn empty_scene() -> Scene {
     let eye = [0.0, 0.0, 4.0];
     Scene::new(
         "test",

@@ -1,0 +1,186 @@
+"""Hostile glTF models placed from a scene description (issue 15): each reported example raises
+InvalidInputError naming the file, what was wrong and what was expected, with no panic text on
+stderr. The models are written by the tests (a quad with a translation animation)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import struct
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import splitrender as sr
+
+_POSITIONS = [-1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 2.0, 0.0, -1.0, 2.0, 0.0]
+
+
+def _blob(positions: list[float]) -> bytes:
+    """Positions (48 bytes), indices (12), key times (8), translations (24)."""
+    return (
+        struct.pack("<12f", *positions)
+        + struct.pack("<6H", 0, 1, 2, 0, 2, 3)
+        + struct.pack("<2f", 0.0, 1.0)
+        + struct.pack("<6f", 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+    )
+
+
+def _document(blob: bytes) -> dict[str, Any]:
+    return {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "animations": [
+            {
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}],
+                "samplers": [{"input": 2, "output": 3}],
+            }
+        ],
+        "buffers": [
+            {
+                "byteLength": len(blob),
+                "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode(),
+            }
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 48, "byteLength": 12},
+            {"buffer": 0, "byteOffset": 60, "byteLength": 8},
+            {"buffer": 0, "byteOffset": 68, "byteLength": 24},
+        ],
+        "accessors": [
+            {
+                "bufferView": 0,
+                "componentType": 5126,
+                "count": 4,
+                "type": "VEC3",
+                "min": [-1, 0, 0],
+                "max": [1, 2, 0],
+            },
+            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"},
+            {"bufferView": 2, "componentType": 5126, "count": 2, "type": "SCALAR"},
+            {"bufferView": 3, "componentType": 5126, "count": 2, "type": "VEC3"},
+        ],
+    }
+
+
+def _glb(doc: dict[str, Any], blob: bytes) -> bytes:
+    del doc["buffers"][0]["uri"]
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    blob += b"\0" * (-len(blob) % 4)
+    total = 12 + 8 + len(js) + 8 + len(blob)
+    return (
+        b"glTF"
+        + struct.pack("<II", 2, total)
+        + struct.pack("<I", len(js))
+        + b"JSON"
+        + js
+        + struct.pack("<I", len(blob))
+        + b"BIN\0"
+        + blob
+    )
+
+
+def _place(folder: Path, model: bytes, name: str, **placement: object) -> sr.Scene:
+    (folder / name).write_bytes(model)
+    desc = folder / "scene.json"
+    entry = {"path": name, "position": [0.0, 0.0, 0.0], **placement}
+    desc.write_text(json.dumps({"scene": "courtyard", "variant": "static", "models": [entry]}))
+    return sr.Scene.from_description(desc)
+
+
+def _edited(edit: Callable[[dict[str, Any]], None], positions: list[float] = _POSITIONS) -> bytes:
+    blob = _blob(positions)
+    doc = _document(blob)
+    edit(doc)
+    return json.dumps(doc).encode()
+
+
+def _stride(d: dict[str, Any]) -> None:
+    d["bufferViews"][0]["byteStride"] = 4
+
+
+def _missing_node(d: dict[str, Any]) -> None:
+    d["animations"][0]["channels"][0]["target"]["node"] = 99
+
+
+def _huge_sparse(d: dict[str, Any]) -> None:
+    a = d["accessors"][0]
+    del a["bufferView"]
+    a["count"] = 500_000_000
+    a["sparse"] = {
+        "count": 1,
+        "indices": {"bufferView": 1, "componentType": 5123},
+        "values": {"bufferView": 0},
+    }
+
+
+def _vec2(d: dict[str, Any]) -> None:
+    d["accessors"][0]["type"] = "VEC2"
+
+
+def _zero_quaternion(d: dict[str, Any]) -> None:
+    d["nodes"][0]["rotation"] = [0, 0, 0, 0]
+
+
+def _huge_matrix(d: dict[str, Any]) -> None:
+    d["nodes"][0]["matrix"] = [1e39, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]
+    d["animations"] = []
+
+
+def _no_mesh(d: dict[str, Any]) -> None:
+    del d["nodes"][0]["mesh"]
+
+
+def _keep(d: dict[str, Any]) -> None:
+    pass
+
+
+_NAN = [float("nan")] + _POSITIONS[1:]
+_INF = _POSITIONS[:3] + [float("inf")] + _POSITIONS[4:]
+
+CASES = [
+    ("stride", _edited(_stride), "accessor 0 (POSITION): byteStride 4 is smaller than the element size 12"),
+    ("missing_node", _edited(_missing_node), "animation 0 channel 0 targets node 99, which does not exist (1 nodes)"),
+    ("huge_sparse", _edited(_huge_sparse), "accessor 0 (POSITION) with count 500000000: decoding it needs"),
+    ("nan", _edited(_keep, _NAN), "accessor 0 (POSITION): element 0 is [NaN, 0.0, 0.0], expected finite numbers"),
+    ("inf", _edited(_keep, _INF), "accessor 0 (POSITION): element 1 is [inf, 0.0, 0.0], expected finite numbers"),
+    ("vec2", _edited(_vec2), "accessor 0 (POSITION): type VEC2, expected VEC3"),
+    ("zero_quaternion", _edited(_zero_quaternion), "rotation [0.0, 0.0, 0.0, 0.0] has length 0, expected a unit quaternion"),
+    ("huge_matrix", _edited(_huge_matrix), "node 0 matrix: value inf is not finite or beyond ±1e15"),
+    ("no_mesh", _edited(_no_mesh), "the model's scene has no mesh node with triangles, expected at least one"),
+]
+
+
+@pytest.mark.parametrize(("name", "model", "message"), CASES, ids=[c[0] for c in CASES])
+def test_hostile_model_is_refused(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], name: str, model: bytes, message: str
+) -> None:
+    with pytest.raises(sr.InvalidInputError, match=rf"{name}\.gltf: .*{re.escape(message)}"):
+        _place(tmp_path, model, f"{name}.gltf")
+    assert "panicked" not in capfd.readouterr().err
+
+
+def test_huge_placement_scale_is_refused(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(sr.InvalidInputError, match=r"placed with scale 1e40, .*expected at most 1e15 m"):
+        _place(tmp_path, _edited(_keep), "quad.gltf", scale=1e40)
+    assert "panicked" not in capfd.readouterr().err
+
+
+def test_glb_length_beyond_the_file(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    blob = _blob(_POSITIONS)
+    glb = _glb(_document(blob), blob)
+    # The valid file loads, so the refusal below is the length's doing.
+    _place(tmp_path, glb, "ok.glb")
+    bad = glb[:8] + struct.pack("<I", 0xFFFFFFFF) + glb[12:]
+    with pytest.raises(
+        sr.InvalidInputError, match=re.escape(f"GLB header length 4294967295, expected 20..={len(glb)}")
+    ):
+        _place(tmp_path, bad, "bad.glb")
+    assert "panicked" not in capfd.readouterr().err
