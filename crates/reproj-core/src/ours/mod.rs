@@ -148,6 +148,23 @@ struct Src<'a> {
     bufs: Buffers,
 }
 
+/// Row `j` of a `sw × sh` source image: where a row kernel ([`pass1`], [`pair`]) works. One
+/// value instead of three arguments, so that each kernel and its AVX2 dispatch name them once.
+#[derive(Debug, Clone, Copy)]
+struct SrcRow {
+    j: usize,
+    sw: usize,
+    sh: usize,
+}
+
+impl SrcRow {
+    /// NDC y of the row's pixel centres ([`crate::camera::ndc_of_pixel`]).
+    #[inline(always)]
+    fn ndc_y(self) -> f32 {
+        crate::camera::ndc_of_pixel(0, self.j, self.sw, self.sh)[1]
+    }
+}
+
 /// The NDC of every pixel centre of a `W × H` image, by column (x) and by row (y): the same values
 /// as [`crate::camera::ndc_of_pixel`], looked up instead of divided for each search.
 #[derive(Debug, Clone, Default)]
