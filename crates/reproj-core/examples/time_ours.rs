@@ -69,7 +69,16 @@ fn main() {
                 // A frame without the history first, as the previous pair's frames leave the
                 // per-frame buffers warm in a client: what follows then counts the pair work
                 // alone, not the first use of those buffers.
-                reproject(method, Some(&older), &newer, &req, &p, &mut out, None, None).unwrap();
+                reproject(
+                    method,
+                    Some(&older),
+                    &newer,
+                    &req,
+                    &p,
+                    Output::new(&mut out),
+                    None,
+                )
+                .unwrap();
                 // The older frame only when interpolating: a late frame prepares extrapolation.
                 let o = (req.alpha < 1.0).then_some(&older);
                 prepare_pair(method, o, &newer, &req.client, &p, &mut history).unwrap();
@@ -83,7 +92,7 @@ fn main() {
                 let t = std::time::Instant::now();
                 for _ in 0..iters {
                     let h = keep.then_some(&mut *history);
-                    reproject(method, Some(&older), &newer, &req, &p, out, None, h).unwrap();
+                    reproject(method, Some(&older), &newer, &req, &p, Output::new(out), h).unwrap();
                 }
                 (t.elapsed(), cpu_seconds() - cpu0, minor_faults() - faults0)
             };
@@ -98,8 +107,7 @@ fn main() {
                 &newer,
                 &req,
                 &p,
-                &mut out,
-                Some(&mut diag),
+                Output::with_diagnostics(&mut out, &mut diag),
                 h,
             )
             .unwrap();

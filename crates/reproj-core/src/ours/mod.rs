@@ -60,7 +60,7 @@ use crate::camera::{Camera, Mat4, NdcTransfer, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
 use crate::params::Params;
-use crate::request::{par_row_blocks, Diagnostics, Request};
+use crate::request::{par_row_blocks, Output, Request};
 use crate::shadow::Role;
 
 use auxiliary::{AuxBlock, AuxGrid, AuxRow};
@@ -416,8 +416,7 @@ pub(crate) fn run<'a>(
     newer: &FrameView<'a>,
     request: &Request,
     params: &Params,
-    out: &mut [u8],
-    diag: Option<&mut Diagnostics>,
+    out: Output,
     pair: Option<&mut PairCache>,
 ) -> Result<()> {
     let alpha = request.alpha;
@@ -515,7 +514,7 @@ pub(crate) fn run<'a>(
         aux: aux_grids,
         ..ctx
     };
-    par_row_blocks(out, diag, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
+    par_row_blocks(out, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
     // Back to the pools in reverse, so that the next frame pops them in the same order and each
     // source gets a buffer of its own size again.
     aux_pool.extend(ctx.aux.into_iter().rev().map(|g| g.maybe));
