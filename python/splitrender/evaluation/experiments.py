@@ -471,13 +471,14 @@ def run_eval(cfg: EvalConfig) -> EvalResult:
             dec, sizes, mbps = encode_decode(server, codec_cfg, FS, stages.bar, len(server))
             mdec, msizes, mmbps = decoded_mono[scene]
             _, mcams, mtruth = load(scene, "dynamic", False)
+            # Each method on the mono session (decoded for Table 2) and on the stereo one.
+            sessions = {"mono": (mdec, msizes, mmbps, mcams, mtruth),
+                        "stereo": (dec, sizes, mbps, cams, truth)}
             for method in core_methods:
-                stages.stage(f"table 3: {scene}, {method}, mono")
-                t3.append(score(scene, "dynamic", method, mdec, msizes, bitrate, mmbps, 0,
-                                mcams, mtruth))
-                stages.stage(f"table 3: {scene}, {method}, stereo")
-                t3.append(score(scene, "dynamic", method, dec, sizes, bitrate, mbps, 0,
-                                cams, truth))
+                for eyes, (sdec, ssizes, smbps, scams, struth) in sessions.items():
+                    stages.stage(f"table 3: {scene}, {method}, {eyes}")
+                    t3.append(score(scene, "dynamic", method, sdec, ssizes, bitrate, smbps, 0,
+                                    scams, struth))
         add_table(
             "Table 3: mono vs stereo, dynamic scenes, compressed",
             f"Compressed at {bitrate:.3g} Mb/s, l = 0. Stereo: IPD 7 cm, metrics averaged over "
