@@ -6,7 +6,7 @@ use std::f64::consts::PI;
 use super::{at, cuboid, finish, path, sun, turned};
 use crate::anim::Anim;
 use crate::material::Material;
-use crate::material::Pattern::{Bricks, Checker, Noise, Tiles};
+use crate::material::Pattern::{Checker, Noise, Tiles};
 use crate::math::Rigid;
 use crate::meshes;
 use crate::scene::{Light, Object, Scene, Variant};
