@@ -9,7 +9,8 @@ writes hundreds of frame PNGs.)
 
 Every small file the package parses (head traces, scene descriptions, a recording's
 ``manifest.json`` and frame files, a dataset's ``cam.json``) is read through
-:func:`read_regular` and, for JSON, :func:`read_json`: only regular files, at most a given
+:func:`read_regular` and, for JSON, :func:`read_json` (:func:`read_json_object` where the
+document must be an object): only regular files, at most a given
 number of bytes, and every parse failure (including nesting too deep for the parser and
 integers no float can hold) as the caller's own exception class. Stream files, read in parts,
 are opened by :func:`open_regular`.
@@ -125,6 +126,28 @@ def read_json(
         raise error(f"{path}: {what} is not UTF-8 ({e.reason} at byte {e.start})") from None
     except ValueError as e:  # json.JSONDecodeError, and _parse_int's refusal
         raise error(f"{path}: {what} is not valid JSON: {e}") from None
+
+
+def read_json_object(
+    path: str | os.PathLike[str],
+    limit: int,
+    what: str,
+    error: type[Exception],
+    *,
+    missing: str = "missing file",
+) -> dict[str, Any]:
+    """:func:`read_json` of a document that must be a JSON object, with every failure as
+    ``error`` naming the path: ``missing`` when there is no such file, ``cannot read: …`` for
+    another system error, ``expected a JSON object`` for any other JSON value."""
+    try:
+        doc = read_json(path, limit, what, error)
+    except FileNotFoundError:
+        raise error(f"{path}: {missing}") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read: {e.strerror or e}") from None
+    if not isinstance(doc, dict):
+        raise error(f"{path}: expected a JSON object")
+    return doc
 
 
 # Two writers of the same path in one process (threads, nested writers) must not share a

@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
-use reproj_core::{reproject, BidirHistory, FrameView, Method, Params, Request};
+use reproj_core::{reproject, BidirHistory, FrameView, Method, Output, Params, Request};
 
 /// Server frame interval (f_s = 10) and dynamic-shadow subframes (f_d = 40).
 const DT: f64 = 0.1;
@@ -55,8 +55,7 @@ fn client_frame(
         black_box(newer),
         black_box(req),
         params,
-        black_box(out),
-        None,
+        Output::new(black_box(out)),
         Some(history),
     )
 }
@@ -93,8 +92,7 @@ fn bench_size(c: &mut Criterion, w: usize, h: usize) {
             &newer,
             &req,
             &params,
-            &mut out,
-            None,
+            Output::new(&mut out),
             Some(&mut history),
         )
         .unwrap_or_else(|e| panic!("{method}: {e}"));

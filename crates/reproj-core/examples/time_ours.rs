@@ -63,13 +63,17 @@ fn main() {
             let keep = std::env::var_os("PAIR").is_some();
             let mut diag = Diagnostics::new(w * h);
             out.fill(0);
+            // One client frame of this configuration.
+            let frame = |out: Output, h: Option<&mut BidirHistory>| {
+                reproject(method, Some(&older), &newer, &req, &p, out, h).unwrap()
+            };
             let prepare = std::env::var("PREPARE").ok();
             let prepared = keep && prepare.is_some();
             if prepared {
                 // A frame without the history first, as the previous pair's frames leave the
                 // per-frame buffers warm in a client: what follows then counts the pair work
                 // alone, not the first use of those buffers.
-                reproject(method, Some(&older), &newer, &req, &p, &mut out, None, None).unwrap();
+                frame(Output::new(&mut out), None);
                 // The older frame only when interpolating: a late frame prepares extrapolation.
                 let o = (req.alpha < 1.0).then_some(&older);
                 prepare_pair(method, o, &newer, &req.client, &p, &mut history).unwrap();
@@ -83,7 +87,7 @@ fn main() {
                 let t = std::time::Instant::now();
                 for _ in 0..iters {
                     let h = keep.then_some(&mut *history);
-                    reproject(method, Some(&older), &newer, &req, &p, out, None, h).unwrap();
+                    frame(Output::new(out), h);
                 }
                 (t.elapsed(), cpu_seconds() - cpu0, minor_faults() - faults0)
             };
@@ -92,17 +96,7 @@ fn main() {
             let early = prepared.then(|| timed(&mut history, &mut out));
             let before = out.clone();
             let h = keep.then_some(&mut history);
-            reproject(
-                method,
-                Some(&older),
-                &newer,
-                &req,
-                &p,
-                &mut out,
-                Some(&mut diag),
-                h,
-            )
-            .unwrap();
+            frame(Output::with_diagnostics(&mut out, &mut diag), h);
             let digest = fnv1a(
                 out.iter()
                     .chain(&diag.source)

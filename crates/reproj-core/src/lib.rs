@@ -36,5 +36,5 @@ pub use method::{prepare_pair, reproject, Method};
 pub use ours as reproject;
 pub use ours::scene_flow;
 pub use params::{Params, TILE};
-pub use request::{Diagnostics, Request};
+pub use request::{Diagnostics, Output, Request};
 pub use shadow::{apply_shadows, shadow_color, Role};

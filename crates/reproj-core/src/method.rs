@@ -10,7 +10,7 @@ use crate::camera::Camera;
 use crate::error::{ReprojError, Result};
 use crate::frame::FrameView;
 use crate::params::Params;
-use crate::request::check_output;
+use crate::request::Output;
 use crate::{ours, timewarp};
 
 // The public paths these had when they were defined here.
@@ -74,8 +74,9 @@ impl FromStr for Method {
 
 /// Synthesises one client frame with `method` into `out`.
 ///
-/// `out` (`H·W·3` RGB8 at the client camera's size) holds the previous client frame on entry;
-/// pixels without a match keep it. `older` is `F_t` (with its forward motion and shadows), `newer`
+/// `out.image` (`H·W·3` RGB8 at the client camera's size) holds the previous client frame on
+/// entry; pixels without a match keep it; `out.diag`, when given, receives the per-pixel
+/// [`Diagnostics`]. `older` is `F_t` (with its forward motion and shadows), `newer`
 /// is `F_{t+1}` (with its backward motion and shadows). Unidirectional methods (ours_extrapolate,
 /// forward_splat, timewarp) use `newer` alone when `α ≥ 1` or `older` is `None`; timewarp uses
 /// `older` when `α < 1`.
@@ -87,20 +88,19 @@ impl FromStr for Method {
 /// client frame. The caller resets it when the frame pair changes; `None` gives the same output.
 ///
 /// # Errors
-/// Any [`ReprojError`] about the inputs; nothing is written to `out` or `diag` then.
+/// Any [`ReprojError`] about the inputs; nothing is written to `out` then.
 pub fn reproject(
     method: Method,
     older: Option<&FrameView>,
     newer: &FrameView,
     request: &Request,
     params: &Params,
-    out: &mut [u8],
-    diag: Option<&mut Diagnostics>,
+    out: Output,
     history: Option<&mut BidirHistory>,
 ) -> Result<()> {
     let (cw, ch) = (request.client.width, request.client.height);
-    let output = || check_output(out, diag.as_deref(), cw, ch);
-    match route(method, older, newer, request, params, output)? {
+    let check = || out.check(cw, ch);
+    match route(method, older, newer, request, params, check)? {
         Route::Splat(mode, older_used) => ours::run(
             mode,
             older_used,
@@ -108,12 +108,11 @@ pub fn reproject(
             request,
             params,
             out,
-            diag,
             history.map(BidirHistory::pair_cache),
         ),
-        Route::Timewarp(frame) => timewarp::run(frame, request, params, out, diag),
+        Route::Timewarp(frame) => timewarp::run(frame, request, params, out),
         Route::BackwardBidir(older) => {
-            backward_bidir::run(older, newer, request, params, out, diag, history)
+            backward_bidir::run(older, newer, request, params, out, history)
         }
     }
 }
@@ -283,8 +282,7 @@ mod tests {
                 newer,
                 &req,
                 &p,
-                &mut out,
-                None,
+                Output::new(&mut out),
                 None,
             )
         };

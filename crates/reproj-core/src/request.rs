@@ -55,53 +55,77 @@ impl Diagnostics {
         }
     }
 }
-/// Checks the output and diagnostics buffers against a `w × h` output. [`crate::reproject()`] checks them
-/// for every method; the methods' own public entry points repeat this O(1) check so that they stay
-/// panic-free when called directly.
-pub(crate) fn check_output(
-    out: &[u8],
-    diag: Option<&Diagnostics>,
-    w: usize,
-    h: usize,
-) -> Result<()> {
-    let n = w * h;
-    if out.len() != n * 3 {
-        return Err(ReprojError::BufferSize {
-            what: "previous client frame".into(),
-            expected: n * 3,
-            actual: out.len(),
-            detail: format!("{h}x{w}x3"),
-        });
-    }
-    if let Some(d) = diag {
-        if d.source.len() != n || d.error.len() != n {
-            return Err(ReprojError::BufferSize {
-                what: "diagnostics".into(),
-                expected: n,
-                actual: d.source.len().min(d.error.len()),
-                detail: format!("{h}x{w}"),
-            });
-        }
-    }
-    Ok(())
+/// Where a method writes one client frame: the image and, when asked for, its per-pixel
+/// diagnostics. Every method takes the two together, so they travel as one value.
+#[derive(Debug)]
+pub struct Output<'a> {
+    /// `H·W·3` RGB8 at the client camera's size. It holds the previous client frame on entry:
+    /// pixels without a match keep it.
+    pub image: &'a mut [u8],
+    /// Per-pixel diagnostics (`H·W` entries each), written when given.
+    pub diag: Option<&'a mut Diagnostics>,
 }
 
-/// Runs `rows(j0, out, diag)` in parallel for every block of [`TILE`] rows of a `w`-wide output:
-/// `j0` is the block's first row, `out` its RGB8 rows, and `diag` (when diagnostics are asked for)
+impl<'a> Output<'a> {
+    /// The image alone, without diagnostics.
+    pub fn new(image: &'a mut [u8]) -> Output<'a> {
+        Output { image, diag: None }
+    }
+
+    /// The image and its diagnostics.
+    pub fn with_diagnostics(image: &'a mut [u8], diag: &'a mut Diagnostics) -> Output<'a> {
+        Output {
+            image,
+            diag: Some(diag),
+        }
+    }
+
+    /// Checks the image and the diagnostics against a `w × h` output. [`crate::reproject()`]
+    /// checks them for every method; the methods' own public entry points repeat this O(1)
+    /// check so that they stay panic-free when called directly.
+    pub(crate) fn check(&self, w: usize, h: usize) -> Result<()> {
+        let (out, diag) = (&*self.image, self.diag.as_deref());
+        let n = w * h;
+        if out.len() != n * 3 {
+            return Err(ReprojError::BufferSize {
+                what: "previous client frame".into(),
+                expected: n * 3,
+                actual: out.len(),
+                detail: format!("{h}x{w}x3"),
+            });
+        }
+        if let Some(d) = diag {
+            if d.source.len() != n || d.error.len() != n {
+                return Err(ReprojError::BufferSize {
+                    what: "diagnostics".into(),
+                    expected: n,
+                    actual: d.source.len().min(d.error.len()),
+                    detail: format!("{h}x{w}"),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Runs `rows(j0, image, diag)` in parallel for every block of [`TILE`] rows of a `w`-wide output:
+/// `j0` is the block's first row, `image` its RGB8 rows, and `diag` (when diagnostics are asked for)
 /// its rows of [`Diagnostics::source`] and [`Diagnostics::error`]. The buffers' sizes are those
-/// [`check_output`] accepts.
-pub(crate) fn par_row_blocks<F>(out: &mut [u8], diag: Option<&mut Diagnostics>, w: usize, rows: F)
+/// [`Output::check`] accepts.
+pub(crate) fn par_row_blocks<F>(out: Output, w: usize, rows: F)
 where
     F: Fn(usize, &mut [u8], Option<(&mut [u8], &mut [f32])>) + Sync,
 {
-    match diag {
+    match out.diag {
         Some(d) => out
+            .image
             .par_chunks_mut(TILE * w * 3)
             .zip(d.source.par_chunks_mut(TILE * w))
             .zip(d.error.par_chunks_mut(TILE * w))
             .enumerate()
             .for_each(|(b, ((o, s), e))| rows(b * TILE, o, Some((s, e)))),
         None => out
+            .image
             .par_chunks_mut(TILE * w * 3)
             .enumerate()
             .for_each(|(b, o)| rows(b * TILE, o, None)),

@@ -35,7 +35,7 @@ use crate::camera::{pixel_of_ndc, Camera, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
 use crate::params::{Params, TILE};
-use crate::request::{par_row_blocks, Diagnostics, Request};
+use crate::request::{par_row_blocks, Diagnostics, Output, Request};
 
 /// Rays more parallel to the plane than this (`|ray·N|`, unit vectors) are not written.
 const PARALLEL_EPS: f32 = 1e-6;
@@ -57,28 +57,17 @@ struct Plane {
 /// see the hit) to the client camera of `request`. `α` is not used: the frame is shown as it is.
 ///
 /// Every output pixel whose ray meets the plane in front of the client and whose sampled source
-/// pixel is valid is written; the others keep the previous client frame in `out`. `diag`, when
-/// given, receives [`Diagnostics::MAIN_NEWER`] for main samples ("the current frame"),
+/// pixel is valid is written; the others keep the previous client frame in `out.image`. `out.diag`,
+/// when given, receives [`Diagnostics::MAIN_NEWER`] for main samples ("the current frame"),
 /// `AUX_BASE + 1` for auxiliary samples, [`Diagnostics::NONE`] elsewhere; the error is always NaN.
 ///
 /// # Errors
 /// [`ReprojError::SingularMatrix`] when a camera of `frame` or the client camera cannot be
 /// inverted; [`ReprojError::BufferSize`] when a buffer does not match its camera (also checked by
 /// [`crate::reproject()`]). Nothing is written on error.
-pub fn run(
-    frame: &FrameView,
-    request: &Request,
-    params: &Params,
-    out: &mut [u8],
-    diag: Option<&mut Diagnostics>,
-) -> Result<()> {
+pub fn run(frame: &FrameView, request: &Request, params: &Params, out: Output) -> Result<()> {
     frame.validate("frame")?;
-    crate::request::check_output(
-        out,
-        diag.as_deref(),
-        request.client.width,
-        request.client.height,
-    )?;
+    out.check(request.client.width, request.client.height)?;
     let main = frame.main;
     let server = main.camera.projector("timewarp frame main camera")?;
     let client = request.client.projector("client camera")?;
@@ -94,7 +83,7 @@ pub fn run(
     };
     let Some(plane) = plane else {
         // No valid depth: nothing can be warped, every pixel keeps the previous frame.
-        if let Some(d) = diag {
+        if let Some(d) = out.diag {
             d.source.fill(Diagnostics::NONE);
             d.error.fill(f32::NAN);
         }
@@ -109,7 +98,7 @@ pub fn run(
         plane,
     };
     let cw = request.client.width;
-    par_row_blocks(out, diag, cw, |j0, o, d| warp.warp_rows(j0, o, d));
+    par_row_blocks(out, cw, |j0, o, d| warp.warp_rows(j0, o, d));
     Ok(())
 }
 
@@ -330,7 +319,13 @@ mod tests {
         let mut out = vec![3u8; n * 3];
         let mut diag = Diagnostics::new(n);
         let request = Request { client, alpha: 0.5 };
-        run(frame, &request, params, &mut out, Some(&mut diag)).unwrap();
+        run(
+            frame,
+            &request,
+            params,
+            Output::with_diagnostics(&mut out, &mut diag),
+        )
+        .unwrap();
         (out, diag)
     }
 

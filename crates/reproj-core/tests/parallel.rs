@@ -5,7 +5,9 @@
 
 use proptest::prelude::*;
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
-use reproj_core::{reproject, BidirHistory, Diagnostics, FrameView, Method, Params, Request};
+use reproj_core::{
+    reproject, BidirHistory, Diagnostics, FrameView, Method, Output, Params, Request,
+};
 
 /// Main camera size: small enough to keep the property fast in debug builds, and neither side a
 /// multiple of the 16-pixel tile, so partial tiles and row blocks are exercised too.
@@ -53,8 +55,7 @@ fn run_in(
                     newer,
                     req,
                     params,
-                    &mut out,
-                    Some(&mut diag),
+                    Output::with_diagnostics(&mut out, &mut diag),
                     Some(&mut history),
                 )
                 .map(|()| {

@@ -6,7 +6,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use reproj_core::method::MAX_ALPHA;
 use reproj_core::{
-    Camera, CameraBuffers, CameraView, Diagnostics, Mat4, Method, Params, Request, Role,
+    Camera, CameraBuffers, CameraView, Diagnostics, Mat4, Method, Output, Params, Request, Role,
 };
 
 use crate::convert::{self, array, depth_and_size, slice, Dim, FrameArrays};
@@ -265,8 +265,10 @@ pub fn reproject<'py>(
                 &newer_view,
                 &request,
                 &params,
-                &mut out,
-                diag.as_mut(),
+                Output {
+                    image: &mut out,
+                    diag: diag.as_mut(),
+                },
                 hist,
             )
         })

@@ -17,7 +17,7 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use reproj_core::{Method, Params, Request};
+use reproj_core::{Method, Output, Params, Request};
 use reproj_scene::{builtin, mono, render_server_frame, Variant};
 use reproj_wgpu::{ContextOptions, GpuContext, Previous, Reprojector, ReprojectorOptions};
 
@@ -101,8 +101,7 @@ fn bench(c: &mut Criterion) {
                     &newer,
                     black_box(&request),
                     &params,
-                    &mut out,
-                    None,
+                    Output::new(&mut out),
                     None,
                 )
                 .expect("cpu")

@@ -10,7 +10,7 @@
 
 use std::sync::OnceLock;
 
-use reproj_core::{Diagnostics, Method, Params, Request};
+use reproj_core::{Diagnostics, Method, Output, Params, Request};
 use reproj_scene::{builtin, mono, render_server_frame, Variant};
 use reproj_wgpu::{
     Atomics, ContextOptions, GpuContext, GpuError, Previous, Reprojector, ReprojectorOptions,
@@ -156,8 +156,7 @@ fn check_scene(name: &str) {
             &newer,
             &request,
             &case.params,
-            &mut cpu,
-            Some(&mut cpu_diag),
+            Output::with_diagnostics(&mut cpu, &mut cpu_diag),
             None,
         )
         .expect("cpu");
@@ -282,8 +281,7 @@ fn device_resident_frames_and_errors() {
             &newer,
             &request(n),
             &p,
-            &mut cpu,
-            None,
+            Output::new(&mut cpu),
             None,
         )
         .expect("cpu");
@@ -311,8 +309,7 @@ fn device_resident_frames_and_errors() {
         &newer,
         &request(3),
         &p,
-        &mut cpu,
-        None,
+        Output::new(&mut cpu),
         None,
     )
     .expect_err("alpha < 1");

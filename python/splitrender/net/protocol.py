@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -311,17 +313,32 @@ def frame_control(message: bytes) -> bytes:
     return struct.pack("<H", len(message)) + message
 
 
+_T = TypeVar("_T")
+
+
+def _decode_by_type(
+    data: bytes | memoryview, what: str, decoders: Mapping[int, Callable[[bytes | memoryview], _T]]
+) -> _T:
+    """``data`` decoded by the decoder of its first byte, the message type (``what`` names the
+    kind of message in errors)."""
+    if not data:
+        raise ProtocolError(f"{what}: empty")
+    decode = decoders.get(data[0])
+    if decode is None:
+        raise ProtocolError(f"{what}: unknown type {data[0]:#04x}")
+    return decode(data)
+
+
+_CONTROL_DECODERS: dict[int, Callable[[bytes | memoryview], Hello | Welcome | KeyRequest]] = {
+    T_HELLO: Hello.decode,
+    T_WELCOME: Welcome.decode,
+    T_KEY_REQUEST: KeyRequest.decode,
+}
+
+
 def decode_control(data: bytes | memoryview) -> Hello | Welcome | KeyRequest:
     """One control message (without its length) by its type byte."""
-    if not data:
-        raise ProtocolError("control message: empty")
-    if data[0] == T_HELLO:
-        return Hello.decode(data)
-    if data[0] == T_WELCOME:
-        return Welcome.decode(data)
-    if data[0] == T_KEY_REQUEST:
-        return KeyRequest.decode(data)
-    raise ProtocolError(f"control message: unknown type {data[0]:#04x}")
+    return _decode_by_type(data, "control message", _CONTROL_DECODERS)
 
 
 class ControlReader:
@@ -439,18 +456,18 @@ class RateReport:
         )
 
 
+_DATAGRAM_DECODERS: dict[int, Callable[[bytes | memoryview], PoseSample | RateReport]] = {
+    T_POSE: PoseSample.decode,
+    T_REPORT: RateReport.decode,
+}
+
+
 def decode_datagram(data: bytes | memoryview) -> PoseSample | RateReport:
     """A client datagram by its type byte (anything over :data:`MAX_DATAGRAM` is refused
     first)."""
     if len(data) > MAX_DATAGRAM:
         raise ProtocolError(f"datagram: {len(data)} bytes, at most {MAX_DATAGRAM}")
-    if not data:
-        raise ProtocolError("datagram: empty")
-    if data[0] == T_POSE:
-        return PoseSample.decode(data)
-    if data[0] == T_REPORT:
-        return RateReport.decode(data)
-    raise ProtocolError(f"datagram: unknown type {data[0]:#04x}")
+    return _decode_by_type(data, "datagram", _DATAGRAM_DECODERS)
 
 
 # -- frame streams -------------------------------------------------------------------------------

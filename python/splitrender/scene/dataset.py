@@ -45,7 +45,7 @@ from PIL import Image
 
 from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
-from splitrender.files import check_apart, check_name, joined, read_json, temporary_beside
+from splitrender.files import check_apart, check_name, joined, read_json_object, temporary_beside
 from splitrender.imageio import write_png
 from splitrender.scene.recording import (
     ClientFrame,
@@ -236,15 +236,7 @@ def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
 
 
 def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        m = read_json(path, _MAX_JSON_BYTES, "camera file", DatasetError)
-    except FileNotFoundError:
-        raise _fail(path, "missing file") from None
-    except OSError as e:
-        raise _fail(path, f"cannot read: {e.strerror or e}") from None
-    if not isinstance(m, dict):
-        raise _fail(path, "expected a JSON object")
-    return m
+    return read_json_object(path, _MAX_JSON_BYTES, "camera file", DatasetError)
 
 
 def _number(m: dict[str, Any], key: str, default: float, path: Path) -> float:

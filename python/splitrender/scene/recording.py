@@ -56,7 +56,7 @@ import numpy.typing as npt
 
 from splitrender._native import __version__
 from splitrender.errors import SplitRenderError
-from splitrender.files import read_json, read_regular
+from splitrender.files import read_json_object, read_regular
 from splitrender.scene.builtin import (
     MAX_SAMPLES,
     ClientMotion,
@@ -779,14 +779,13 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
     if not root.is_dir():
         raise _fail(root, "no such recording directory")
     mpath = root / _MANIFEST
-    try:
-        m = read_json(mpath, _MAX_MANIFEST_BYTES, "recording manifest", RecordingError)
-    except FileNotFoundError:
-        raise _fail(mpath, "missing: not a recording, or an unfinished one") from None
-    except OSError as e:
-        raise _fail(mpath, f"cannot read: {e.strerror or e}") from None
-    if not isinstance(m, dict):
-        raise _fail(mpath, "expected a JSON object")
+    m = read_json_object(
+        mpath,
+        _MAX_MANIFEST_BYTES,
+        "recording manifest",
+        RecordingError,
+        missing="missing: not a recording, or an unfinished one",
+    )
     if m.get("format") != FORMAT:
         raise _fail(mpath, f"format {m.get('format')!r}, expected {FORMAT!r}")
     if m.get("version") != VERSION:

@@ -45,7 +45,7 @@ use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
 use crate::ours::PairCache;
 use crate::params::{Params, TILE};
-use crate::request::{Diagnostics, Request};
+use crate::request::{Diagnostics, Output, Request};
 use crate::shadow::round_rgb;
 
 /// State carried from one client frame (B-frame) to the next for seeds/001's latest-frame
@@ -123,7 +123,7 @@ impl BidirHistory {
 ///
 /// Only the main cameras are used. Every output pixel is written unless neither search found a
 /// valid source pixel (invalid depth or motion everywhere it looked); those keep the previous
-/// client frame. `diag` receives [`Diagnostics::MAIN_OLDER`]/[`Diagnostics::MAIN_NEWER`] for the
+/// client frame. `out.diag` receives [`Diagnostics::MAIN_OLDER`]/[`Diagnostics::MAIN_NEWER`] for the
 /// frame whose match was chosen (the smaller error under rule 3), or-ed with
 /// [`Diagnostics::BLENDED`] when both frames were blended, and the error of that match.
 ///
@@ -136,15 +136,14 @@ impl BidirHistory {
 /// camera, differ in size (the method works in the server images' pixel grid);
 /// [`ReprojError::SingularMatrix`] when a main camera cannot be inverted;
 /// [`ReprojError::AlphaRange`] for `α` outside `[0, 1]`; [`ReprojError::BufferSize`] when a buffer
-/// does not match its camera (also checked by [`crate::reproject()`]). Nothing is written to `out`,
-/// `diag` or `history` on error.
+/// does not match its camera (also checked by [`crate::reproject()`]). Nothing is written to `out`
+/// or `history` on error.
 pub fn run(
     older: &FrameView,
     newer: &FrameView,
     request: &Request,
     params: &Params,
-    out: &mut [u8],
-    diag: Option<&mut Diagnostics>,
+    out: Output,
     history: Option<&mut BidirHistory>,
 ) -> Result<()> {
     older.validate("older")?;
@@ -171,7 +170,7 @@ pub fn run(
             "backward_bidir: client camera is {cw}x{ch} but the main cameras are {w}x{h}; the method interpolates in the server images' pixel grid and ignores the client pose, so the output size must equal the main camera size"
         )));
     }
-    crate::request::check_output(out, diag.as_deref(), w, h)?;
+    out.check(w, h)?;
     let op = ov.camera.projector("older.main camera")?;
     let np = nv.camera.projector("newer.main camera")?;
 
@@ -213,8 +212,9 @@ pub fn run(
             scale: [w as f32 / short, h as f32 / short],
             latest,
         };
-        match diag {
+        match out.diag {
             Some(d) => out
+                .image
                 .par_chunks_mut(TILE * w * 3)
                 .zip(offsets.par_chunks_mut(TILE * w))
                 .zip(d.source.par_chunks_mut(TILE * w))
@@ -224,6 +224,7 @@ pub fn run(
                     ctx.resolve_rows(b * TILE, o, off, Some((s, e)))
                 }),
             None => out
+                .image
                 .par_chunks_mut(TILE * w * 3)
                 .zip(offsets.par_chunks_mut(TILE * w))
                 .enumerate()

@@ -64,8 +64,7 @@ fn run_bb(
         &newer.frame(),
         &request,
         &Params::default(),
-        &mut out,
-        Some(&mut diag),
+        Output::with_diagnostics(&mut out, &mut diag),
         history,
     )
     .unwrap();
@@ -300,8 +299,7 @@ fn backward_bidir_rejects_size_mismatch() {
             &newer.frame(),
             &request,
             &params,
-            out,
-            None,
+            Output::new(out),
             None,
         )
     };

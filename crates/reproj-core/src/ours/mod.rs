@@ -60,7 +60,7 @@ use crate::camera::{Camera, Mat4, NdcTransfer, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
 use crate::params::Params;
-use crate::request::{par_row_blocks, Diagnostics, Request};
+use crate::request::{par_row_blocks, Output, Request};
 use crate::shadow::Role;
 
 use auxiliary::{AuxBlock, AuxGrid, AuxRow};
@@ -146,6 +146,23 @@ struct Src<'a> {
     /// NDC of the pixel centres.
     ndc: NdcTable,
     bufs: Buffers,
+}
+
+/// Row `j` of a `sw × sh` source image: where a row kernel ([`pass1`], [`pair`]) works. One
+/// value instead of three arguments, so that each kernel and its AVX2 dispatch name them once.
+#[derive(Debug, Clone, Copy)]
+struct SrcRow {
+    j: usize,
+    sw: usize,
+    sh: usize,
+}
+
+impl SrcRow {
+    /// NDC y of the row's pixel centres ([`crate::camera::ndc_of_pixel`]).
+    #[inline(always)]
+    fn ndc_y(self) -> f32 {
+        crate::camera::ndc_of_pixel(0, self.j, self.sw, self.sh)[1]
+    }
 }
 
 /// The NDC of every pixel centre of a `W × H` image, by column (x) and by row (y): the same values
@@ -399,8 +416,7 @@ pub(crate) fn run<'a>(
     newer: &FrameView<'a>,
     request: &Request,
     params: &Params,
-    out: &mut [u8],
-    diag: Option<&mut Diagnostics>,
+    out: Output,
     pair: Option<&mut PairCache>,
 ) -> Result<()> {
     let alpha = request.alpha;
@@ -498,7 +514,7 @@ pub(crate) fn run<'a>(
         aux: aux_grids,
         ..ctx
     };
-    par_row_blocks(out, diag, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
+    par_row_blocks(out, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
     // Back to the pools in reverse, so that the next frame pops them in the same order and each
     // source gets a buffer of its own size again.
     aux_pool.extend(ctx.aux.into_iter().rev().map(|g| g.maybe));

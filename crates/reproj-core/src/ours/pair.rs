@@ -11,7 +11,7 @@ use crate::frame::CameraView;
 use crate::params::{Params, TILE};
 
 use super::simd::avx2_dispatch;
-use super::{packed_cell, unpack_pixel, Mode, Src, NO_SPLAT};
+use super::{packed_cell, unpack_pixel, Mode, Src, SrcRow, NO_SPLAT};
 
 /// What `ours` computes once per server-frame pair and reuses for every client frame between the
 /// two server frames (12 at 120/10 Hz): none of it depends on the client pose or `α`.
@@ -195,7 +195,7 @@ fn full_flows(src: &Src, ctx: &FullCtx, full: &mut Vec<[f32; 4]>) {
     full.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
         let depth = &view.depth[j * sw..(j + 1) * sw];
         let motion = view.motion.map(|m| &m[3 * j * sw..3 * (j + 1) * sw]);
-        full_flow_row(j, sw, sh, depth, motion, ctx, row);
+        full_flow_row(SrcRow { j, sw, sh }, depth, motion, ctx, row);
     });
 }
 
@@ -273,9 +273,7 @@ avx2_dispatch! {
     /// the chosen match; computing every pixel with vector instructions is cheaper than two
     /// scalar evaluations per match.
     fn full_flow_row / full_flow_row_avx2 => full_flow_row_impl(
-        j: usize,
-        sw: usize,
-        sh: usize,
+        row: SrcRow,
         depth: &[f32],
         motion: Option<&[f32]>,
         ctx: &FullCtx,
@@ -285,18 +283,15 @@ avx2_dispatch! {
 
 #[inline(always)]
 fn full_flow_row_impl(
-    j: usize,
-    sw: usize,
-    sh: usize,
+    row: SrcRow,
     depth: &[f32],
     motion: Option<&[f32]>,
     ctx: &FullCtx,
     out: &mut [[f32; 4]],
 ) {
-    let y = crate::camera::ndc_of_pixel(0, j, sw, sh)[1];
     let k = FullRow {
-        y,
-        wf: sw as i32 as f32,
+        y: row.ndc_y(),
+        wf: row.sw as i32 as f32,
         owf: ctx.ow as i32 as f32,
         ohf: ctx.oh as i32 as f32,
         to_other: ctx.to_other,

@@ -15,7 +15,7 @@ use crate::camera::NdcTransfer;
 use crate::params::TILE;
 
 use super::simd::avx2_dispatch;
-use super::{pack_pixel, splat_index, splat_key, Src, EMPTY_SPLAT, NO_SPLAT};
+use super::{pack_pixel, splat_index, splat_key, Src, SrcRow, EMPTY_SPLAT, NO_SPLAT};
 
 /// Source rows per task of the splatting pass. Points that land outside their task's rows are
 /// applied after the parallel pass; taller bands leave fewer of them (a vertical flow of `d` rows
@@ -80,7 +80,7 @@ pub(super) fn scene_flow_and_splat(
                 if let Some(vis) = vis {
                     // Auxiliary sources: flag where the points not visible in main land.
                     let v = &vis[j * sw..(j + 1) * sw];
-                    landing_row(j, sw, sh, xs, row, v, &mut scratch.inv);
+                    landing_row(SrcRow { j, sw, sh }, xs, row, v, &mut scratch.inv);
                     for &c in &scratch.inv {
                         if c != NO_SPLAT {
                             // A plain store on x86-64: setting a flag needs no read-modify-write.
@@ -273,9 +273,7 @@ avx2_dispatch! {
     /// the client's near plane). Points just outside the grid need no flag: the cells along the
     /// grid's border are always searched.
     fn landing_row / landing_row_avx2 => landing_row_impl(
-        j: usize,
-        sw: usize,
-        sh: usize,
+        row: SrcRow,
         x: &[f32],
         flow: &[[f32; 2]],
         vis: &[u8],
@@ -284,16 +282,8 @@ avx2_dispatch! {
 }
 
 #[inline(always)]
-fn landing_row_impl(
-    j: usize,
-    sw: usize,
-    sh: usize,
-    x: &[f32],
-    flow: &[[f32; 2]],
-    vis: &[u8],
-    inv: &mut [u32],
-) {
-    let y = crate::camera::ndc_of_pixel(0, j, sw, sh)[1];
+fn landing_row_impl(row: SrcRow, x: &[f32], flow: &[[f32; 2]], vis: &[u8], inv: &mut [u32]) {
+    let (y, sw, sh) = (row.ndc_y(), row.sw, row.sh);
     let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
     for (d, ((x, f), v)) in inv.iter_mut().zip(x.iter().zip(flow).zip(vis)) {
         // `pixel_of_ndc` without branches; NaN (invalid) flow fails every comparison.
@@ -416,19 +406,23 @@ pub(super) fn window_min(src: &mut Src, wr: usize) {
         .par_chunks_mut(TILE * sw)
         .enumerate()
         .for_each(|(b, out)| {
-            ROW_MIN
-                .with(|cell| window_block(splat, sw, sh, wr, b * TILE, out, &mut cell.borrow_mut()))
+            ROW_MIN.with(|cell| {
+                let first = SrcRow {
+                    j: b * TILE,
+                    sw,
+                    sh,
+                };
+                window_block(splat, first, wr, out, &mut cell.borrow_mut())
+            })
         });
 }
 
 avx2_dispatch! {
-    /// [`window_min`] for the output rows starting at `j0`; `scratch` holds row minima.
+    /// [`window_min`] for the output rows starting at `first`; `scratch` holds row minima.
     fn window_block / window_block_avx2 => window_block_impl(
         splat: &[u64],
-        sw: usize,
-        sh: usize,
+        first: SrcRow,
         wr: usize,
-        j0: usize,
         out: &mut [u32],
         scratch: &mut Vec<u64>,
     )
@@ -437,13 +431,12 @@ avx2_dispatch! {
 #[inline(always)]
 fn window_block_impl(
     splat: &[u64],
-    sw: usize,
-    sh: usize,
+    first: SrcRow,
     wr: usize,
-    j0: usize,
     out: &mut [u32],
     scratch: &mut Vec<u64>,
 ) {
+    let SrcRow { j: j0, sw, sh } = first;
     let j1 = j0 + out.len() / sw;
     let (lo, hi) = (j0.saturating_sub(wr), (j1 + wr).min(sh));
     // Layout: the horizontal minima of rows lo..hi, then two rows of working space. Every entry

@@ -5,7 +5,7 @@ use super::auxiliary::EAGER_AUX;
 use super::*;
 use crate::camera::Mat4;
 use crate::frame::FrameView;
-use crate::{reproject, Method};
+use crate::{reproject, Diagnostics, Method};
 
 /// A fronto-parallel textured plane at view depth `d` seen by `cam` (exact per pixel).
 fn plane(cam: &Camera, d: f64) -> (Vec<u8>, Vec<f32>) {
@@ -52,7 +52,7 @@ fn reproject_plain(
     out: &mut [u8],
 ) {
     let p = Params::default();
-    reproject(method, older, newer, req, &p, out, None, None).unwrap();
+    reproject(method, older, newer, req, &p, Output::new(out), None).unwrap();
 }
 
 fn cam(x: f64, w: usize, h: usize) -> Camera {
@@ -127,8 +127,7 @@ fn camera_translation_matches_the_analytic_image() {
         &f1,
         &req,
         &params,
-        &mut out,
-        Some(&mut diag),
+        Output::with_diagnostics(&mut out, &mut diag),
         None,
     )
     .unwrap();
@@ -213,8 +212,7 @@ fn auxiliary_camera_with_non_integer_ratio_fills_holes() {
         &f,
         &req,
         &Params::default(),
-        &mut out,
-        Some(&mut diag),
+        Output::with_diagnostics(&mut out, &mut diag),
         None,
     )
     .unwrap();
@@ -266,7 +264,16 @@ fn extrapolation_of_a_static_scene_is_the_identity() {
         for m in [Method::Ours, Method::OursExtrapolate] {
             let mut out = vec![0u8; color.len()];
             let req = Request { client: c, alpha };
-            reproject(m, None, &f, &req, &Params::default(), &mut out, None, None).unwrap();
+            reproject(
+                m,
+                None,
+                &f,
+                &req,
+                &Params::default(),
+                Output::new(&mut out),
+                None,
+            )
+            .unwrap();
             assert_eq!(out, color, "{m} alpha {alpha}");
         }
     }
@@ -304,8 +311,7 @@ fn lazy_auxiliary_search_equals_searching_every_cell() {
                 &newer,
                 &req,
                 &p,
-                &mut out,
-                Some(&mut diag),
+                Output::with_diagnostics(&mut out, &mut diag),
                 None,
             )
             .unwrap();
@@ -357,8 +363,7 @@ fn with_sources(
         newer,
         req,
         params,
-        &mut out,
-        Some(&mut diag),
+        Output::with_diagnostics(&mut out, &mut diag),
         history,
     )
     .unwrap();

@@ -5,7 +5,8 @@ use std::f64::consts::PI;
 
 use super::{at, capsule, cuboid, finish, path, sun};
 use crate::anim::Anim;
-use crate::material::{Material, Pattern};
+use crate::material::Material;
+use crate::material::Pattern::{Bricks, Checker, Noise, Tiles};
 use crate::math::V3;
 use crate::meshes;
 use crate::scene::{Object, Scene, Variant};
@@ -15,21 +16,9 @@ use crate::shape::Shape;
 /// the ground at `y = start[1]`) and running along −z at `speed`; `stride` is the stride's angular
 /// rate (rad/s). Returns the pelvis index.
 fn runner(objects: &mut Vec<Object>, start: V3, speed: f64, stride: f64) -> usize {
-    let skin = Material::matte(
-        Pattern::Noise,
-        [0.85, 0.62, 0.5],
-        [0.7, 0.45, 0.38],
-        8.0,
-        40,
-    );
-    let shirt = Material::matte(
-        Pattern::Checker,
-        [0.85, 0.2, 0.15],
-        [0.95, 0.9, 0.85],
-        12.0,
-        41,
-    );
-    let trousers = Material::matte(Pattern::Tiles, [0.2, 0.25, 0.5], [0.1, 0.1, 0.2], 20.0, 42);
+    let skin = Material::matte(Noise, [0.85, 0.62, 0.5], [0.7, 0.45, 0.38], 8.0, 40);
+    let shirt = Material::matte(Checker, [0.85, 0.2, 0.15], [0.95, 0.9, 0.85], 12.0, 41);
+    let trousers = Material::matte(Tiles, [0.2, 0.25, 0.5], [0.1, 0.1, 0.2], 20.0, 42);
     let pelvis = objects.len();
     objects.push(
         Object::new(
@@ -151,44 +140,14 @@ fn runner(objects: &mut Vec<Object>, start: V3, speed: f64, stride: f64) -> usiz
 }
 /// `colonnade`: see the module docs.
 pub fn colonnade(variant: Variant) -> Scene {
-    let marble = Material::matte(
-        Pattern::Tiles,
-        [0.86, 0.82, 0.74],
-        [0.4, 0.36, 0.3],
-        1.0,
-        20,
-    )
-    .shiny(0.15, 40.0);
-    let stone = Material::matte(
-        Pattern::Noise,
-        [0.8, 0.74, 0.62],
-        [0.62, 0.56, 0.46],
-        3.0,
-        21,
-    );
-    let brick = Material::matte(
-        Pattern::Bricks,
-        [0.66, 0.42, 0.3],
-        [0.8, 0.76, 0.68],
-        2.5,
-        22,
-    );
+    let marble =
+        Material::matte(Tiles, [0.86, 0.82, 0.74], [0.4, 0.36, 0.3], 1.0, 20).shiny(0.15, 40.0);
+    let stone = Material::matte(Noise, [0.8, 0.74, 0.62], [0.62, 0.56, 0.46], 3.0, 21);
+    let brick = Material::matte(Bricks, [0.66, 0.42, 0.3], [0.8, 0.76, 0.68], 2.5, 22);
     let cloth = [
-        Material::matte(
-            Pattern::Checker,
-            [0.7, 0.1, 0.12],
-            [0.9, 0.75, 0.2],
-            6.0,
-            23,
-        ),
-        Material::matte(
-            Pattern::Checker,
-            [0.1, 0.4, 0.2],
-            [0.85, 0.85, 0.8],
-            6.0,
-            24,
-        ),
-        Material::matte(Pattern::Checker, [0.15, 0.2, 0.6], [0.9, 0.6, 0.2], 6.0, 25),
+        Material::matte(Checker, [0.7, 0.1, 0.12], [0.9, 0.75, 0.2], 6.0, 23),
+        Material::matte(Checker, [0.1, 0.4, 0.2], [0.85, 0.85, 0.8], 6.0, 24),
+        Material::matte(Checker, [0.15, 0.2, 0.6], [0.9, 0.6, 0.2], 6.0, 25),
     ];
     let mut o = vec![Object::new(
         "floor",

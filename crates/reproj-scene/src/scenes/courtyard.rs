@@ -5,7 +5,8 @@ use std::f64::consts::PI;
 
 use super::{at, cuboid, finish, path, sun, turned};
 use crate::anim::Anim;
-use crate::material::{Material, Pattern};
+use crate::material::Material;
+use crate::material::Pattern::{Bricks, Checker, Noise, Tiles};
 use crate::math::Rigid;
 use crate::meshes;
 use crate::scene::{Object, Scene, Variant};
@@ -13,46 +14,16 @@ use crate::shape::Shape;
 
 /// `courtyard`: see the module docs.
 pub fn courtyard(variant: Variant) -> Scene {
-    let cobbles = Material::matte(
-        Pattern::Tiles,
-        [0.62, 0.58, 0.52],
-        [0.3, 0.28, 0.25],
-        2.5,
-        1,
-    );
-    let brick = Material::matte(
-        Pattern::Bricks,
-        [0.7, 0.38, 0.28],
-        [0.82, 0.8, 0.74],
-        2.0,
-        2,
-    );
-    let plaster = Material::matte(
-        Pattern::Noise,
-        [0.88, 0.84, 0.72],
-        [0.7, 0.66, 0.56],
-        1.5,
-        3,
-    );
-    let roof = Material::matte(Pattern::Tiles, [0.45, 0.18, 0.12], [0.2, 0.1, 0.08], 4.0, 4);
-    let wood = Material::matte(
-        Pattern::Noise,
-        [0.55, 0.38, 0.22],
-        [0.35, 0.22, 0.12],
-        6.0,
-        5,
-    );
-    let grass = Material::matte(Pattern::Noise, [0.32, 0.5, 0.2], [0.2, 0.35, 0.12], 3.0, 6);
-    let ball = Material::matte(
-        Pattern::Checker,
-        [0.95, 0.3, 0.2],
-        [0.98, 0.88, 0.35],
-        8.0,
-        7,
-    )
-    .shiny(0.3, 30.0);
-    let metal = Material::matte(Pattern::Noise, [0.6, 0.62, 0.66], [0.45, 0.47, 0.5], 4.0, 8)
-        .shiny(0.5, 60.0);
+    let cobbles = Material::matte(Tiles, [0.62, 0.58, 0.52], [0.3, 0.28, 0.25], 2.5, 1);
+    let brick = Material::matte(Bricks, [0.7, 0.38, 0.28], [0.82, 0.8, 0.74], 2.0, 2);
+    let plaster = Material::matte(Noise, [0.88, 0.84, 0.72], [0.7, 0.66, 0.56], 1.5, 3);
+    let roof = Material::matte(Tiles, [0.45, 0.18, 0.12], [0.2, 0.1, 0.08], 4.0, 4);
+    let wood = Material::matte(Noise, [0.55, 0.38, 0.22], [0.35, 0.22, 0.12], 6.0, 5);
+    let grass = Material::matte(Noise, [0.32, 0.5, 0.2], [0.2, 0.35, 0.12], 3.0, 6);
+    let ball =
+        Material::matte(Checker, [0.95, 0.3, 0.2], [0.98, 0.88, 0.35], 8.0, 7).shiny(0.3, 30.0);
+    let metal =
+        Material::matte(Noise, [0.6, 0.62, 0.66], [0.45, 0.47, 0.5], 4.0, 8).shiny(0.5, 60.0);
     let mut o = vec![
         Object::new(
             "ground",
@@ -158,7 +129,7 @@ pub fn courtyard(variant: Variant) -> Scene {
             "crate",
             cuboid([0.4; 3]),
             Material::matte(
-                Pattern::Checker,
+                Checker,
                 [0.6, 0.45, 0.25],
                 [0.45, 0.32, 0.16],
                 5.0,
@@ -231,13 +202,7 @@ pub fn courtyard(variant: Variant) -> Scene {
                 min: [-0.04, -0.9, -0.45],
                 max: [0.04, -0.1, 0.45],
             },
-            Material::matte(
-                Pattern::Checker,
-                [0.2, 0.35, 0.7],
-                [0.9, 0.85, 0.6],
-                6.0,
-                12,
-            ),
+            Material::matte(Checker, [0.2, 0.35, 0.7], [0.9, 0.85, 0.6], 6.0, 12),
             at([-1.0, 3.45, -11.9]),
         )
         .animated([Anim::Swing {

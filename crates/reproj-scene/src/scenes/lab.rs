@@ -5,7 +5,8 @@ use std::f64::consts::PI;
 
 use super::{at, cuboid, finish, path, sun, turned};
 use crate::anim::Anim;
-use crate::material::{Material, Pattern};
+use crate::material::Material;
+use crate::material::Pattern::{Checker, Noise, Tiles};
 use crate::math::Rigid;
 use crate::meshes;
 use crate::scene::{Light, Object, Scene, Variant};
@@ -13,45 +14,14 @@ use crate::shape::Shape;
 
 /// `lab`: see the module docs.
 pub fn lab(variant: Variant) -> Scene {
-    let floor = Material::matte(
-        Pattern::Checker,
-        [0.85, 0.85, 0.82],
-        [0.25, 0.27, 0.3],
-        1.0,
-        30,
-    );
-    let wall = Material::matte(
-        Pattern::Tiles,
-        [0.75, 0.8, 0.82],
-        [0.4, 0.42, 0.45],
-        2.0,
-        31,
-    );
-    let steel = Material::matte(
-        Pattern::Noise,
-        [0.62, 0.64, 0.68],
-        [0.42, 0.44, 0.5],
-        5.0,
-        32,
-    )
-    .shiny(0.6, 80.0);
-    let orange = Material::matte(
-        Pattern::Checker,
-        [0.95, 0.5, 0.1],
-        [0.2, 0.2, 0.22],
-        10.0,
-        33,
-    )
-    .shiny(0.3, 30.0);
-    let teal = Material::matte(Pattern::Noise, [0.1, 0.6, 0.6], [0.05, 0.3, 0.4], 6.0, 34)
-        .shiny(0.4, 50.0);
-    let table = Material::matte(
-        Pattern::Noise,
-        [0.5, 0.36, 0.22],
-        [0.36, 0.24, 0.14],
-        4.0,
-        35,
-    );
+    let floor = Material::matte(Checker, [0.85, 0.85, 0.82], [0.25, 0.27, 0.3], 1.0, 30);
+    let wall = Material::matte(Tiles, [0.75, 0.8, 0.82], [0.4, 0.42, 0.45], 2.0, 31);
+    let steel =
+        Material::matte(Noise, [0.62, 0.64, 0.68], [0.42, 0.44, 0.5], 5.0, 32).shiny(0.6, 80.0);
+    let orange =
+        Material::matte(Checker, [0.95, 0.5, 0.1], [0.2, 0.2, 0.22], 10.0, 33).shiny(0.3, 30.0);
+    let teal = Material::matte(Noise, [0.1, 0.6, 0.6], [0.05, 0.3, 0.4], 6.0, 34).shiny(0.4, 50.0);
+    let table = Material::matte(Noise, [0.5, 0.36, 0.22], [0.36, 0.24, 0.14], 4.0, 35);
     let mut o = vec![
         Object::new(
             "floor",
@@ -232,13 +202,7 @@ pub fn lab(variant: Variant) -> Scene {
             Object::new(
                 "rail ball",
                 Shape::Sphere { radius: 0.22 },
-                Material::matte(
-                    Pattern::Checker,
-                    [0.9, 0.9, 0.9],
-                    [0.8, 0.1, 0.3],
-                    10.0,
-                    36 + k,
-                ),
+                Material::matte(Checker, [0.9, 0.9, 0.9], [0.8, 0.1, 0.3], 10.0, 36 + k),
                 at([-5.0, 1.22, -3.5 + 0.9 * k as f64]),
             )
             .animated([Anim::Roll {
