@@ -20,6 +20,7 @@ from splitrender.files import (
     joined,
     read_json,
     read_regular,
+    temporary_beside,
     write_atomic,
 )
 from splitrender.scene.builtin import TraceError, load_trace
@@ -63,6 +64,23 @@ def _deadline(seconds: int) -> Iterator[None]:
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
+
+
+def test_writers_refuse_to_replace_a_fifo_or_device(tmp_path: Path) -> None:
+    """The final rename would replace the node itself (as root, an output of /dev/zero once
+    replaced the device); a link is replaced as a link and stays allowed."""
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(InvalidInputError, match="FIFO"):
+        write_atomic(fifo, b"x")
+    with pytest.raises(InvalidInputError, match="FIFO"):
+        temporary_beside(fifo)
+    assert fifo.is_fifo() and [p.name for p in tmp_path.iterdir()] == ["pipe"]
+    link = tmp_path / "link"
+    link.symlink_to("/dev/null")
+    write_atomic(link, b"y")
+    assert not link.is_symlink() and link.read_bytes() == b"y"
+    assert Path("/dev/null").is_char_device()
 
 
 def test_read_regular_refuses_a_fifo_without_blocking(tmp_path: Path) -> None:

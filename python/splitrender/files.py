@@ -158,8 +158,21 @@ _serial = itertools.count()
 def temporary_beside(path: str | os.PathLike[str]) -> Path:
     """A fresh name for the temporary file of ``path``: hidden, in the same folder (so that the
     final ``os.replace`` is a rename within one file system, hence atomic) and unique to this
-    process and call."""
+    process and call.
+
+    Raises :class:`~splitrender.errors.InvalidInputError` when ``path`` is a device, FIFO or
+    socket: the rename would replace the node itself (run as root, an output of ``/dev/zero``
+    replaced the device with a regular file; found by the fuzz suite). A link is replaced as a
+    link, so it is allowed whatever it points to."""
     dest = Path(path)
+    try:
+        mode = dest.lstat().st_mode
+    except OSError:
+        mode = None  # missing (or unreadable: the write itself will say why)
+    if mode is not None and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode) or stat.S_ISLNK(mode)):
+        raise InvalidInputError(
+            f"{dest}: the output is {_kind(mode)}; expected a regular file or a new name"
+        )
     return dest.with_name(f".{dest.name}.partial-{os.getpid()}-{next(_serial)}")
 
 
