@@ -550,6 +550,12 @@ class ReprojectOptions:
 
     def replace(self, **changes: Any) -> ReprojectOptions:
         """A copy with ``changes`` applied (validated again)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise InvalidInputError(
+                f"ReprojectOptions.replace: unknown options {sorted(unknown)}; expected some of "
+                f"{', '.join(f.name for f in dataclasses.fields(self))}"
+            )
         return dataclasses.replace(self, **changes)
 
 

@@ -233,6 +233,10 @@ class Client:
         self._history[eye] = (pair, history)
         return history
 
+    @checked(
+        older=optional(ints(-(1 << 63), (1 << 63) - 1)), newer=ints(-(1 << 63), (1 << 63) - 1),
+        history=instances(_native.BidirHistory),
+    )
     def adopt_prepared(
         self, older: int | None, newer: int, history: _native.BidirHistory
     ) -> None:
@@ -247,6 +251,9 @@ class Client:
         """The held server frame ``index``, or ``None``."""
         return self._frames.get(index)
 
+    @checked(
+        older=optional(ints(-(1 << 63), (1 << 63) - 1)), newer=ints(-(1 << 63), (1 << 63) - 1)
+    )
     def was_prepared(self, older: int | None, newer: int) -> bool:
         """Whether client frames of the pair ``(older, newer)`` use a history adopted with
         :meth:`adopt_prepared`."""

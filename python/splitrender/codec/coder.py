@@ -64,6 +64,7 @@ add error once 12 bits are taken).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -237,14 +238,8 @@ class CodecConfig:
             raise InvalidInputError(
                 f"CodecConfig.chroma: expected '444' or '420', got {self.chroma!r}"
             )
-        if not (isinstance(self.gop, int) and 1 <= self.gop <= 100000):
-            raise InvalidInputError(
-                f"CodecConfig.gop: expected an int in [1, 100000], got {self.gop!r}"
-            )
-        if not (isinstance(self.zstd_level, int) and 1 <= self.zstd_level <= 22):
-            raise InvalidInputError(
-                f"CodecConfig.zstd_level: expected 1..22, got {self.zstd_level!r}"
-            )
+        check_int("CodecConfig.gop", self.gop, 1, 100000)
+        check_int("CodecConfig.zstd_level", self.zstd_level, 1, 22)
         check_int("CodecConfig.threads", self.threads, 0, MAX_THREADS)
         check_str("CodecConfig.preset", self.preset, X265_PRESETS)
         for name in ("uncompressed", "exact_static_motion", "rate_feedback"):
@@ -257,6 +252,10 @@ class CodecConfig:
     ) -> CodecConfig:
         """A config whose bitrate is ``paper_mbps`` (given for the paper's 2560x1440 main camera)
         scaled to a ``width x height`` main camera by pixel count."""
+        # bitrate_mbps is what this sets; any other name is not an option.
+        unknown = set(kwargs) - ({f.name for f in dataclasses.fields(cls)} - {"bitrate_mbps"})
+        if unknown:
+            raise InvalidInputError(f"CodecConfig.scaled: unknown options {sorted(unknown)}")
         return cls(bitrate_mbps=paper_mbps * width * height / (2560 * 1440), **kwargs)
 
     def shares(self) -> dict[str, float]:

@@ -79,6 +79,7 @@ from splitrender.types import (  # argument checks
     MAX_RATE,
     PATH,
     check_float,
+    check_instance,
     check_int,
     checked,
     floats,
@@ -640,6 +641,7 @@ class StreamWriter(AtomicWriter):
         """Appends one packet (as :func:`pack_packet` or ``StreamEncoder.encode`` made it)."""
         if self._file.closed:
             raise ValueError(f"{self.path}: the stream writer is closed")
+        check_instance("packet", packet, (bytes, bytearray, memoryview))
         frame, key = peek_header(packet)
         if len(packet) > MAX_PACKET:
             raise StreamError(
