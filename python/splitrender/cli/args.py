@@ -106,8 +106,8 @@ def number(text: str, lo: float, hi: float, unit: str = "", *, low_open: bool = 
     return v
 
 
-#: Shortest and longest ``--seconds``: one client frame at 120 FPS (less renders or plays
-#: nothing), and a day.
+#: Shortest and longest ``--seconds``: about one client frame at 120 FPS (1e-9 rendered a
+#: one-frame recording and exited 0), and a day.
 MIN_SECONDS, MAX_SECONDS = 0.01, 86400.0
 
 
@@ -142,8 +142,9 @@ def video_fps(text: str) -> float:
     return number(text, 1.0, 240.0, "FPS")
 
 
-#: Lowest ``--bitrate`` (Mb/s): below it a stream's fixed cost (headers, lossless parts, about
-#: 0.15 Mb/s at 256x144) is all it carries.
+#: Lowest ``--bitrate`` or ``--bandwidth`` (Mb/s, 10 kb/s): far below a stream's fixed cost
+#: (headers and lossless parts, about 0.15 Mb/s at 256x144), so only a slip goes lower (1e-9
+#: reached the encoder, and as a link made every frame arrive years late).
 MIN_BITRATE_MBPS = 0.01
 
 
@@ -174,10 +175,11 @@ def out_dir(text: str) -> Path:
 
 
 def out_file(text: str) -> Path:
-    """An output file: not a directory, in an existing directory."""
+    """An output file in an existing directory (that it is not itself a directory, or an input,
+    the command checks, saying which)."""
     path = Path(text)
-    if text == "" or path.is_dir():
-        raise argparse.ArgumentTypeError(f"expected a file name, got the directory {text!r}")
+    if text == "":
+        raise argparse.ArgumentTypeError("expected a file name, got ''")
     parent = path.absolute().parent
     if not parent.is_dir():
         raise argparse.ArgumentTypeError(
