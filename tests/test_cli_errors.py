@@ -94,7 +94,7 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("output under a file", ["encode", "{rec}", "--out", "{garbage}/a.srs"],
      ("--out", "not a directory")),
     ("directory output that is a file", ["example", "--out", "{garbage}"],
-     ("--out", "not a directory")),
+     ("garbage: File exists",)),
     ("output inside the input", ["encode", "{rec}", "--out", "{rec}/manifest.json"],
      ("expected a path outside it",)),
     ("refused destination", ["render", "courtyard", "--out", "{rec}", "--scale", "0.03",

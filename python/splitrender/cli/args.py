@@ -158,12 +158,11 @@ def bitrate(text: str) -> float:
 
 def out_dir(text: str) -> Path:
     """An output directory: it may be missing (it is created, with its parents), but the
-    nearest existing path above it must be a directory (a file there cannot hold it)."""
+    nearest existing path above it must be a directory (a file there cannot hold it). The path
+    itself the command checks (it may be an input, which check_apart names)."""
     path = Path(text)
     if text == "":
         raise argparse.ArgumentTypeError("expected a directory path, got ''")
-    if path.exists() and not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} is not a directory; expected a directory path")
     for up in path.absolute().parents:
         if up.exists():
             if not up.is_dir():
