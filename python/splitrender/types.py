@@ -111,10 +111,12 @@ def check_int(where: str, value: object, lo: int, hi: int) -> int:
 
 def check_float(
     where: str, value: object, *, positive: bool = False, lo: float | None = None,
-    hi: float | None = None,
+    hi: float | None = None, finite: bool = True,
 ) -> float:
     """``value`` as a finite float (> 0 with ``positive``; within ``lo..hi`` when given); an int
-    too large for a float is refused like a non-number."""
+    too large for a float is refused like a non-number. ``finite=False`` lets NaN and the
+    infinities through (when the callee words their refusal better, e.g. with the range a
+    method supports)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise InvalidInputError(f"{where}: expected a float, got {describe(value)}")
     try:
@@ -128,7 +130,7 @@ def check_float(
         low = " > 0"
     top = "" if hi is None else f"{' and' if low else ''} <= {hi:g}"
     if (
-        not math.isfinite(v)
+        (finite and not math.isfinite(v))
         or (positive and v <= 0.0)
         or (lo is not None and v < lo)
         or (hi is not None and v > hi)
@@ -212,9 +214,11 @@ def ints(lo: int, hi: int) -> Check:
 
 
 def floats(
-    *, positive: bool = False, lo: float | None = None, hi: float | None = None
+    *, positive: bool = False, lo: float | None = None, hi: float | None = None,
+    finite: bool = True,
 ) -> Check:
-    return lambda where, v: check_float(where, v, positive=positive, lo=lo, hi=hi)
+    return lambda where, v: check_float(where, v, positive=positive, lo=lo, hi=hi,
+                                        finite=finite)
 
 
 def strs(*choices: str) -> Check:
