@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.cli.args import (
+    MAX_SECONDS,
     add_no_vmaf,
     add_out,
     add_quiet,
@@ -49,13 +50,20 @@ def _port(text: str) -> int:
 
 
 def _step(text: str) -> tuple[float, float]:
+    from splitrender.codec.coder import MAX_BITRATE_MBPS
+
     t, sep, mbps = text.partition(":")
     try:
         v = (float(t), float(mbps))
     except ValueError:
         v = (math.nan, math.nan)
-    if not sep or not all(math.isfinite(x) and x >= 0 for x in v):
-        raise argparse.ArgumentTypeError(f"expected SECONDS:MBPS (both >= 0), got {text!r}")
+    if not sep or not all(math.isfinite(x) and x >= 0 for x in v) or (
+        v[0] > MAX_SECONDS or v[1] > MAX_BITRATE_MBPS
+    ):
+        raise argparse.ArgumentTypeError(
+            f"expected SECONDS:MBPS (SECONDS in 0..{MAX_SECONDS:g}, MBPS in "
+            f"0..{MAX_BITRATE_MBPS:g}), got {text!r}"
+        )
     return v
 
 
