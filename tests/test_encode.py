@@ -73,4 +73,4 @@ def test_encode_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFi
         main(["encode", str(tmp_path), "--bitrate", "1e300", "--out", str(tmp_path / "x.srs")])
     assert e.value.code == 2
     err = capsys.readouterr().err
-    assert "--bitrate: expected at most 100000 Mb/s, got 1e300" in err
+    assert "--bitrate: expected a finite number >= 0.01 and <= 100000 Mb/s, got 1e300" in err

@@ -31,6 +31,14 @@ from splitrender.types import (
     native_error,
     precheck_frames,
 )
+from splitrender.types import (  # argument checks
+    BOOL,
+    checked,
+    floats,
+    ints,
+    optional,
+    strs,
+)
 
 __all__ = [
     "METHODS",
@@ -124,6 +132,8 @@ def reproject_alpha(
     history: _native.BidirHistory | None = ...,
     backend: str = ...,
 ) -> _Image | Reprojection: ...
+# NaN and infinities reach the core, which names the range the method supports.
+@checked(alpha=floats(finite=False), diagnostics=BOOL)
 def reproject_alpha(
     older: ServerFrame | None,
     newer: ServerFrame,
@@ -268,6 +278,7 @@ def _call_native(
         raise native_error(e, frames, client=camera_path) from None
 
 
+@checked(threads=optional(ints(0, 1 << 16)))
 def prepare_pair(
     older: ServerFrame | None,
     newer: ServerFrame,
@@ -374,6 +385,7 @@ def reproject(
     history: _native.BidirHistory | None = ...,
     backend: str = ...,
 ) -> _Image | Reprojection: ...
+@checked(diagnostics=BOOL)
 def reproject(
     older: ServerFrame | None,
     newer: ServerFrame,
@@ -453,6 +465,7 @@ def reproject(
     )
 
 
+@checked(w=floats(), direction=strs("forward", "backward"))
 def scene_flow(
     source: CameraFrame,
     client: Camera,
@@ -491,6 +504,7 @@ def scene_flow(
     )
 
 
+@checked(alpha=floats(), subframes=ints(1, 16), role=strs("older", "newer"))
 def apply_shadows(
     frame_color: _Image,
     shadow: ShadowBuffers,

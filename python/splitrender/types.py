@@ -14,12 +14,15 @@ only the small camera matrices are converted to read-only ``float64`` copies.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import inspect
 import math
 import numbers
+import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -90,7 +93,14 @@ def check_image(
     return h, w
 
 
-def _check_int(where: str, value: object, lo: int, hi: int) -> int:
+# ------------------------------------------------------------------------------------------------
+# Checks of single arguments, shared by every public entry point: each raises InvalidInputError
+# naming ``where`` (the parameter or field), what was expected and what came, and returns the
+# value as the code below it may take it, before it reaches float(), int(), struct or the kernels.
+
+
+def check_int(where: str, value: object, lo: int, hi: int) -> int:
+    """``value`` as an int in ``lo..hi`` (a bool, float or string is refused)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise InvalidInputError(f"{where}: expected an int, got {describe(value)}")
     v = int(value)
@@ -99,26 +109,179 @@ def _check_int(where: str, value: object, lo: int, hi: int) -> int:
     return v
 
 
-def _check_float(where: str, value: object, *, positive: bool = False) -> float:
+def check_float(
+    where: str, value: object, *, positive: bool = False, lo: float | None = None,
+    hi: float | None = None, finite: bool = True,
+) -> float:
+    """``value`` as a finite float (> 0 with ``positive``; within ``lo..hi`` when given); an int
+    too large for a float is refused like a non-number. ``finite=False`` lets NaN and the
+    infinities through (when the callee words their refusal better, e.g. with the range a
+    method supports)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise InvalidInputError(f"{where}: expected a float, got {describe(value)}")
-    v = float(value)
-    if not math.isfinite(v) or (positive and v <= 0.0):
-        want = "a finite float > 0" if positive else "a finite float"
-        raise InvalidInputError(f"{where}: expected {want}, got {v}")
+    try:
+        v = float(value)
+    except OverflowError:
+        raise InvalidInputError(
+            f"{where}: expected a finite float, got an int too large for a float"
+        ) from None
+    low = "" if lo is None else f" >= {lo:g}"
+    if positive:
+        low = " > 0"
+    top = "" if hi is None else f"{' and' if low else ''} <= {hi:g}"
+    if (
+        (finite and not math.isfinite(v))
+        or (positive and v <= 0.0)
+        or (lo is not None and v < lo)
+        or (hi is not None and v > hi)
+    ):
+        raise InvalidInputError(f"{where}: expected a finite float{low}{top}, got {v}")
     return v
 
 
-def _check_bool(where: str, value: object) -> bool:
+def check_bool(where: str, value: object) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise InvalidInputError(f"{where}: expected a bool, got {describe(value)}")
     return bool(value)
 
 
+def check_str(where: str, value: object, choices: Sequence[str] = ()) -> str:
+    """``value`` as a str, one of ``choices`` when given."""
+    if not isinstance(value, str):
+        raise InvalidInputError(f"{where}: expected a str, got {describe(value)}")
+    if choices and value not in choices:
+        names = [repr(c) for c in choices]
+        want = " or ".join(names) if len(names) == 2 else "one of " + ", ".join(names)
+        raise InvalidInputError(f"{where}: expected {want}, got {value!r}")
+    return value
+
+
+def check_path(where: str, value: object) -> str | os.PathLike[str]:
+    """``value`` as a file system path: a non-empty str or an ``os.PathLike`` of one."""
+    if isinstance(value, os.PathLike):
+        text = os.fspath(value)
+    else:
+        text = value
+    if not isinstance(text, str) or not text or "\0" in text:
+        raise InvalidInputError(
+            f"{where}: expected a path (a non-empty str or os.PathLike), got {describe(value)}"
+        )
+    return value  # type: ignore[return-value]
+
+
+def check_items(where: str, value: object, item: Check | None = None) -> list[Any]:
+    """``value`` as a list: a sequence or other iterable (not a str, bytes or mapping), each
+    item checked by ``item`` (named ``where[i]``) when given."""
+    if isinstance(value, (str, bytes, bytearray, dict)) or not isinstance(value, Iterable):
+        raise InvalidInputError(f"{where}: expected a sequence, got {describe(value)}")
+    items = list(value)
+    if item is not None:
+        items = [item(f"{where}[{i}]", v) for i, v in enumerate(items)]
+    return items
+
+
+def check_iterable(where: str, value: object) -> object:
+    """``value`` unchanged if it can be iterated (it is not consumed: it may be a generator)
+    and is not a str, bytes or mapping."""
+    if isinstance(value, (str, bytes, bytearray, dict)) or not isinstance(value, Iterable):
+        raise InvalidInputError(f"{where}: expected an iterable, got {describe(value)}")
+    return value
+
+
+def check_callable(where: str, value: object) -> object:
+    if not callable(value):
+        raise InvalidInputError(f"{where}: expected a callable, got {describe(value)}")
+    return value
+
+
+def check_instance(where: str, value: object, cls: type | tuple[type, ...]) -> Any:
+    """``value`` if it is an instance of ``cls``."""
+    if not isinstance(value, cls):
+        names = " or ".join(c.__name__ for c in (cls if isinstance(cls, tuple) else (cls,)))
+        raise InvalidInputError(f"{where}: expected {names}, got {describe(value)}")
+    return value
+
+
+#: Largest frame rate (FPS) an entry point takes: the codec's ``MAX_FPS``.
+MAX_RATE = 1000.0
+
+#: A check of one argument: ``(where, value) -> value as the callee takes it``.
+Check = Callable[[str, Any], Any]
+
+
+def ints(lo: int, hi: int) -> Check:
+    return lambda where, v: check_int(where, v, lo, hi)
+
+
+def floats(
+    *, positive: bool = False, lo: float | None = None, hi: float | None = None,
+    finite: bool = True,
+) -> Check:
+    return lambda where, v: check_float(where, v, positive=positive, lo=lo, hi=hi,
+                                        finite=finite)
+
+
+def strs(*choices: str) -> Check:
+    return lambda where, v: check_str(where, v, choices)
+
+
+def instances(cls: type | tuple[type, ...]) -> Check:
+    return lambda where, v: check_instance(where, v, cls)
+
+
+def items(item: Check | None = None) -> Check:
+    return lambda where, v: check_items(where, v, item)
+
+
+def optional(check: Check) -> Check:
+    """``check``, with ``None`` allowed."""
+    return lambda where, v: None if v is None else check(where, v)
+
+
+BOOL: Check = check_bool
+PATH: Check = check_path
+CALLABLE: Check = check_callable
+ITERABLE: Check = check_iterable
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def checked(**checks: Check) -> Callable[[_F], _F]:
+    """A public entry point whose arguments named in ``checks`` are checked (and converted:
+    ``check(name, value)`` returns what the body gets) before its body runs; a parameter the
+    caller left at its default is not checked. Missing or unexpected arguments raise
+    InvalidInputError too, not TypeError. The table of every public name and its bad arguments
+    is tests/test_api_types.py."""
+
+    def wrap(fn: _F) -> _F:
+        sig = inspect.signature(fn)
+        unknown = set(checks) - set(sig.parameters)
+        if unknown:  # a typo here would silently check nothing
+            raise AssertionError(f"{fn.__qualname__}: no parameters {sorted(unknown)}")
+        name = fn.__qualname__
+
+        @functools.wraps(fn)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            try:
+                bound = sig.bind(*args, **kwargs)
+            except TypeError as e:
+                raise InvalidInputError(f"{name}: {e}") from None
+            given = bound.arguments
+            for param, check in checks.items():
+                if param in given:
+                    given[param] = check(param, given[param])
+            return fn(*bound.args, **bound.kwargs)
+
+        call.__checked__ = checks  # type: ignore[attr-defined]
+        return call  # type: ignore[return-value]
+
+    return wrap
+
+
 def _matrix(where: str, value: object) -> npt.NDArray[np.float64]:
     try:
         m = np.array(value, dtype=np.float64, copy=True)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InvalidInputError(
             f"{where}: expected a 4x4 matrix of floats, got {describe(value)}"
         ) from None
@@ -145,12 +308,15 @@ class Camera:
     def __post_init__(self) -> None:
         object.__setattr__(self, "view", _matrix("Camera.view", self.view))
         object.__setattr__(self, "proj", _matrix("Camera.proj", self.proj))
-        object.__setattr__(self, "width", _check_int("Camera.width", self.width, 1, MAX_SIDE))
+        object.__setattr__(self, "width", check_int("Camera.width", self.width, 1, MAX_SIDE))
         object.__setattr__(
-            self, "height", _check_int("Camera.height", self.height, 1, MAX_SIDE)
+            self, "height", check_int("Camera.height", self.height, 1, MAX_SIDE)
         )
 
     @classmethod
+    @checked(
+        fov_y_deg=floats(positive=True), near=floats(positive=True), far=floats(positive=True),
+    )
     def look_at(
         cls,
         eye: Sequence[float],
@@ -165,8 +331,8 @@ class Camera:
     ) -> Camera:
         """A camera at ``eye`` looking at ``target`` with vertical field of view ``fov_y_deg`` and
         the reversed-depth projection of DESIGN.md (aspect ``width / height``)."""
-        width = _check_int("width", width, 1, MAX_SIDE)
-        height = _check_int("height", height, 1, MAX_SIDE)
+        width = check_int("width", width, 1, MAX_SIDE)
+        height = check_int("height", height, 1, MAX_SIDE)
         view = _native.look_at(_vec3("eye", eye), _vec3("target", target), _vec3("up", up))
         proj = _native.perspective(fov_y_deg, width / height, near, far)
         return cls(view, proj, width, height)
@@ -184,7 +350,7 @@ class Camera:
 def _vec3(where: str, v: Sequence[float]) -> tuple[float, float, float]:
     try:
         x, y, z = (float(c) for c in v)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InvalidInputError(f"{where}: expected 3 floats, got {v!r}") from None
     return (x, y, z)
 
@@ -259,9 +425,9 @@ class ServerFrame:
 
     def __post_init__(self) -> None:
         object.__setattr__(
-            self, "index", _check_int("ServerFrame.index", self.index, 0, 2**63 - 1)
+            self, "index", check_int("ServerFrame.index", self.index, 0, 2**63 - 1)
         )
-        object.__setattr__(self, "time", _check_float("ServerFrame.time", self.time))
+        object.__setattr__(self, "time", check_float("ServerFrame.time", self.time))
         if not isinstance(self.main, CameraFrame):
             raise InvalidInputError(
                 f"ServerFrame.main: expected a CameraFrame, got {describe(self.main)}"
@@ -296,7 +462,7 @@ class ClientRequest:
             raise InvalidInputError(
                 f"ClientRequest.camera: expected a Camera, got {describe(self.camera)}"
             )
-        object.__setattr__(self, "time", _check_float("ClientRequest.time", self.time))
+        object.__setattr__(self, "time", check_float("ClientRequest.time", self.time))
 
 
 @dataclass(frozen=True, slots=True)
@@ -368,14 +534,14 @@ class ReprojectOptions:
 
     def __post_init__(self) -> None:
         for name in (*self._FLOATS, "server_fps"):
-            v = _check_float(f"ReprojectOptions.{name}", getattr(self, name), positive=True)
+            v = check_float(f"ReprojectOptions.{name}", getattr(self, name), positive=True)
             object.__setattr__(self, name, v)
         for name, (lo, hi) in self._INTS.items():
-            v = _check_int(f"ReprojectOptions.{name}", getattr(self, name), lo, hi)
+            v = check_int(f"ReprojectOptions.{name}", getattr(self, name), lo, hi)
             object.__setattr__(self, name, v)
         for name in self._BOOLS:
             object.__setattr__(
-                self, name, _check_bool(f"ReprojectOptions.{name}", getattr(self, name))
+                self, name, check_bool(f"ReprojectOptions.{name}", getattr(self, name))
             )
 
     def to_native(self) -> dict[str, float | int | bool]:
@@ -388,6 +554,12 @@ class ReprojectOptions:
 
     def replace(self, **changes: Any) -> ReprojectOptions:
         """A copy with ``changes`` applied (validated again)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise InvalidInputError(
+                f"ReprojectOptions.replace: unknown options {sorted(unknown)}; expected some of "
+                f"{', '.join(f.name for f in dataclasses.fields(self))}"
+            )
         return dataclasses.replace(self, **changes)
 
 
@@ -445,8 +617,8 @@ def _check_camera(where: str, camera: object) -> Camera:
             raise InvalidInputError(
                 f"{where}.{name}: expected float64 array of shape (4, 4), got {describe(m)}"
             )
-    _check_int(f"{where}.width", camera.width, 1, MAX_SIDE)
-    _check_int(f"{where}.height", camera.height, 1, MAX_SIDE)
+    check_int(f"{where}.width", camera.width, 1, MAX_SIDE)
+    check_int(f"{where}.height", camera.height, 1, MAX_SIDE)
     return camera
 
 

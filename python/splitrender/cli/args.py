@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -87,27 +88,104 @@ SAMPLES_HELP = (
 )
 
 
-def positive(text: str) -> float:
+def number(text: str, lo: float, hi: float, unit: str = "", *, low_open: bool = False) -> float:
+    """``text`` as a finite float in ``lo..hi`` (``lo`` excluded with ``low_open``), or an
+    ``ArgumentTypeError`` saying so (with ``unit`` after the range). Every numeric option goes
+    through here at parse time, so NaN, infinities and values no later step can use (``1e300``,
+    ``1e-9``) never reach the commands."""
     try:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (v > 0 and v < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
+    if not (math.isfinite(v) and (v > lo if low_open else v >= lo) and v <= hi):
+        above = f"> {lo:g}" if low_open else f">= {lo:g}"
+        raise argparse.ArgumentTypeError(
+            f"expected a finite number {above} and <= {hi:g}{' ' + unit if unit else ''}, "
+            f"got {text}"
+        )
     return v
+
+
+#: Shortest and longest ``--seconds``: about one client frame at 120 FPS (1e-9 rendered a
+#: one-frame recording and exited 0), and a day.
+MIN_SECONDS, MAX_SECONDS = 0.01, 86400.0
+
+
+def seconds(text: str) -> float:
+    """A duration in seconds, :data:`MIN_SECONDS` .. :data:`MAX_SECONDS` (a scene's own length
+    is checked later, against the scene)."""
+    return number(text, MIN_SECONDS, MAX_SECONDS, "s")
+
+
+def scale(text: str) -> float:
+    """A main-camera scale ``X``: ``round(2560X) x round(1440X)`` must be 1..MAX_SIDE pixels a
+    side."""
+    v = number(text, 0.0, MAX_SIDE / 2560, low_open=True)
+    if round(1440 * v) < 1:
+        raise argparse.ArgumentTypeError(
+            f"expected a scale giving at least 1 pixel a side (>= {1 / 2880:.5f}), got {text}"
+        )
+    return v
+
+
+def rate(text: str) -> float:
+    """A frame rate in FPS, as the codec takes it (``CodecConfig.fps``'s range)."""
+    from splitrender.codec.coder import MAX_FPS, MIN_FPS
+
+    return number(text, MIN_FPS, MAX_FPS, "FPS")
+
+
+def video_fps(text: str) -> float:
+    """A video's frame rate, 1..240 FPS: what players and the H.264/MPEG-4 writers take (the
+    rate is stored as a fraction with a denominator of at most 1001, so below 1 FPS it would be
+    coarse, and 1e-9 became 0, which PyAV replaced by its default 24)."""
+    return number(text, 1.0, 240.0, "FPS")
+
+
+#: Lowest ``--bitrate`` or ``--bandwidth`` (Mb/s, 10 kb/s): far below a stream's fixed cost
+#: (headers and lossless parts, about 0.15 Mb/s at 256x144), so only a slip goes lower (1e-9
+#: reached the encoder, and as a link made every frame arrive years late).
+MIN_BITRATE_MBPS = 0.01
 
 
 def bitrate(text: str) -> float:
-    """A target bitrate in Mb/s: :func:`positive` and at most what :class:`CodecConfig` takes
-    (1e300 reached the encoder and raised OverflowError)."""
+    """A target bitrate (or link bandwidth) in Mb/s: :data:`MIN_BITRATE_MBPS` and at most what
+    :class:`CodecConfig` takes (1e300 reached the encoder and raised OverflowError)."""
     from splitrender.codec.coder import MAX_BITRATE_MBPS
 
-    v = positive(text)
-    if v > MAX_BITRATE_MBPS:
+    return number(text, MIN_BITRATE_MBPS, MAX_BITRATE_MBPS, "Mb/s")
+
+
+def out_dir(text: str) -> Path:
+    """An output directory: it may be missing (it is created, with its parents), but the
+    nearest existing path above it must be a directory (a file there cannot hold it). The path
+    itself the command checks (it may be an input, which check_apart names)."""
+    path = Path(text)
+    if text == "":
+        raise argparse.ArgumentTypeError("expected a directory path, got ''")
+    for up in path.absolute().parents:
+        if up.exists():
+            if not up.is_dir():
+                raise argparse.ArgumentTypeError(
+                    f"{text}: {up} is not a directory; expected a path under a directory"
+                )
+            break
+    return path
+
+
+def out_file(text: str) -> Path:
+    """An output file in an existing directory (that it is not itself a directory, or an input,
+    the command checks, saying which)."""
+    path = Path(text)
+    if text == "":
+        raise argparse.ArgumentTypeError("expected a file name, got ''")
+    parent = path.absolute().parent
+    if not parent.is_dir():
         raise argparse.ArgumentTypeError(
-            f"expected at most {MAX_BITRATE_MBPS:g} Mb/s, got {text}"
+            f"{text}: expected a file in an existing directory, {parent} is "
+            f"{'not a directory' if parent.exists() else 'missing'}"
         )
-    return v
+    return path
 
 
 def _method_list(text: str, known: tuple[str, ...]) -> tuple[str, ...]:
@@ -157,9 +235,10 @@ def add_out(
     p: argparse.ArgumentParser, help: str = "output directory", metavar: str = "DIR",
     default: Path | None = None,
 ) -> None:
-    """``--out``: a ``Path``, required unless a ``default`` is given."""
-    p.add_argument("--out", type=Path, required=default is None, default=default,
-                   metavar=metavar, help=help)
+    """``--out``: a directory (:func:`out_dir`), or a file (:func:`out_file`) when ``metavar``
+    is ``FILE``; required unless a ``default`` is given."""
+    p.add_argument("--out", type=out_file if metavar == "FILE" else out_dir,
+                   required=default is None, default=default, metavar=metavar, help=help)
 
 
 def add_quiet(p: argparse.ArgumentParser, help: str = "no progress on stderr") -> None:
@@ -175,7 +254,7 @@ def add_scale(p: argparse.ArgumentParser, default: float | None, shown: str = ""
     0.1), or ``shown`` where the default is None (decided later)."""
     if default is not None:
         shown = f"%(default)s = {round(2560 * default)}x{round(1440 * default)}"
-    p.add_argument("--scale", type=positive, default=default, metavar="X",
+    p.add_argument("--scale", type=scale, default=default, metavar="X",
                    help=f"main camera size round(2560X) x round(1440X) (default: {shown})")
 
 
@@ -185,7 +264,8 @@ def add_trace(p: argparse.ArgumentParser, rate: str = "") -> None:
     p.add_argument("--trace", type=Path, default=None, metavar="FILE",
                    help=f"head trace 'px py pz pitch yaw roll t_ms' per line{rate} as client "
                    "motion")
-    p.add_argument("--trace-scale", type=float, default=1.0, metavar="F",
+    p.add_argument("--trace-scale", type=lambda t: number(t, 0.0, 1000.0), default=1.0,
+                   metavar="F",
                    help="scale of the trace's translation (default: %(default)s)")
 
 
@@ -271,7 +351,7 @@ def add_network(p: Any, delay: bool = True) -> None:
     if delay:
         g.add_argument("--delay", type=frames_delay, default=0, metavar="L",
                        help="extra network delay in client frames, l (default: %(default)s)")
-    g.add_argument("--bandwidth", type=positive, default=None, metavar="MBPS",
+    g.add_argument("--bandwidth", type=bitrate, default=None, metavar="MBPS",
                    help="link bandwidth in Mb/s (10^6 bits/s) (default: unlimited)")
     g.add_argument("--latency", type=milliseconds, default=0.0, metavar="MS",
                    help="one-way latency in milliseconds (default: %(default)s)")

@@ -27,7 +27,9 @@ from splitrender.cli.args import (
     methods,
     names,
     network_model,
-    positive,
+    out_file,
+    seconds,
+    video_fps,
 )
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
@@ -44,7 +46,7 @@ def add_demo(sub: Any) -> None:
             "(default: %(default)s)", default=Path("splitrender-demo"))
     add_scale(de, 0.1)
     de.add_argument(
-        "--seconds", type=positive, default=1.0, metavar="S",
+        "--seconds", type=seconds, default=1.0, metavar="S",
         help="length, at least 0.21 s (25 client frames) and at most the scene's 4 s "
         "(default: %(default)s)",
     )
@@ -61,7 +63,7 @@ def add_demo(sub: Any) -> None:
     de.add_argument("--stereo", action="store_true",
                     help="render two eyes (IPD 7 cm) and score both (as eval's Table 3)")
     de.add_argument(
-        "--video-fps", type=positive, default=30.0, metavar="FPS",
+        "--video-fps", type=video_fps, default=30.0, metavar="FPS",
         help="frame rate of video.mp4; every client frame is one video frame, so 30 plays the "
         "120 FPS session 4x slowed down (default: %(default)s)",
     )
@@ -130,7 +132,7 @@ def add_eval(sub: Any) -> None:
                     help="bitrate of the compressed experiments (default: the paper's 40 Mb/s "
                     "scaled by pixel count)")
     add_scale(ev, None, f"{EvalConfig.scale}")
-    ev.add_argument("--seconds", type=positive, default=None, metavar="S",
+    ev.add_argument("--seconds", type=seconds, default=None, metavar="S",
                     help=f"length per scene (default: {EvalConfig.seconds})")
     ev.add_argument("--bitrates", type=bitrates, default=(), metavar="LIST",
                     help="also Figure 6 (rate-distortion) at these paper-equivalent Mb/s (at "
@@ -252,7 +254,7 @@ def add_bench(sub: Any) -> None:
         "preparation on a worker thread) and report frame times and deadline misses",
     )
     be.add_argument(
-        "--seconds", type=positive, default=10.0, metavar="S",
+        "--seconds", type=seconds, default=10.0, metavar="S",
         help="with --realtime: seconds of display (default: %(default)s)",
     )
     be.add_argument(
@@ -260,7 +262,7 @@ def add_bench(sub: Any) -> None:
         help="with --realtime: play this stream file instead of the built-in --scene",
     )
     be.add_argument(
-        "--json", type=Path, default=None, metavar="FILE",
+        "--json", type=out_file, default=None, metavar="FILE",
         help="also write a JSON list of rows with the keys method, backend, width, height, "
         "ms_per_frame, ns_per_pixel, decode_ms_per_server_frame, copy_floor_ms, "
         "ratio_to_floor (with --realtime: one object with at least method, source, width, "

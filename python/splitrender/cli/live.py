@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.cli.args import (
+    MAX_SECONDS,
     add_no_vmaf,
     add_out,
     add_quiet,
@@ -26,7 +27,9 @@ from splitrender.cli.args import (
     integer,
     loss,
     milliseconds,
-    positive,
+    bitrate,
+    rate,
+    seconds,
 )
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
@@ -47,13 +50,20 @@ def _port(text: str) -> int:
 
 
 def _step(text: str) -> tuple[float, float]:
+    from splitrender.codec.coder import MAX_BITRATE_MBPS
+
     t, sep, mbps = text.partition(":")
     try:
         v = (float(t), float(mbps))
     except ValueError:
         v = (math.nan, math.nan)
-    if not sep or not all(math.isfinite(x) and x >= 0 for x in v):
-        raise argparse.ArgumentTypeError(f"expected SECONDS:MBPS (both >= 0), got {text!r}")
+    if not sep or not all(math.isfinite(x) and x >= 0 for x in v) or (
+        v[0] > MAX_SECONDS or v[1] > MAX_BITRATE_MBPS
+    ):
+        raise argparse.ArgumentTypeError(
+            f"expected SECONDS:MBPS (SECONDS in 0..{MAX_SECONDS:g}, MBPS in "
+            f"0..{MAX_BITRATE_MBPS:g}), got {text!r}"
+        )
     return v
 
 
@@ -70,12 +80,12 @@ def add_serve(sub: Any) -> None:
                    help="built-in scene (courtyard, colonnade, lab) or a JSON scene description "
                    "(default: %(default)s)")
     add_scale(p, 0.0625)
-    p.add_argument("--fps", type=positive, default=10.0, metavar="FS",
+    p.add_argument("--fps", type=rate, default=10.0, metavar="FS",
                    help="server frames per second, f_s (default: %(default)s)")
-    p.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
+    p.add_argument("--bitrate", type=bitrate, default=None, metavar="MBPS",
                    help="encoder target at the start and its ceiling (default: the paper's "
                    "40 Mb/s scaled by pixel count)")
-    p.add_argument("--min-bitrate", type=positive, default=None, metavar="MBPS",
+    p.add_argument("--min-bitrate", type=bitrate, default=None, metavar="MBPS",
                    help="floor of the adaptive target (default: a quarter of --bitrate)")
     p.add_argument("--gop", type=lambda t: integer(t, 1, 1000), default=None, metavar="N",
                    help="key frame every N server frames (default: one per 10 s: the client asks "
@@ -161,9 +171,9 @@ def add_connect(sub: Any) -> None:
                    help="accept any certificate (no --fingerprint; for a trusted loopback only)")
     p.add_argument("--method", default="ours", choices=METHODS, metavar="M",
                    help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
-    p.add_argument("--seconds", type=positive, default=5.0, metavar="S",
+    p.add_argument("--seconds", type=seconds, default=5.0, metavar="S",
                    help="session length (default: %(default)s)")
-    p.add_argument("--fps", type=positive, default=120.0, metavar="FC",
+    p.add_argument("--fps", type=rate, default=120.0, metavar="FC",
                    help="display frames per second, f_c (default: %(default)s)")
     add_trace(p)
     add_out(p)
@@ -332,7 +342,7 @@ def add_relay(sub: Any) -> None:
                    help="plus a uniform jitter in [-MS, MS] per datagram (default: %(default)s)")
     p.add_argument("--loss", type=loss, default=0.0, metavar="P",
                    help="datagram loss probability per direction: 0.01 or 1%% (default: 0)")
-    p.add_argument("--bandwidth", type=positive, default=None, metavar="MBPS",
+    p.add_argument("--bandwidth", type=bitrate, default=None, metavar="MBPS",
                    help="cap of the server-to-client direction (default: none)")
     p.add_argument("--bandwidth-at", type=_step, action="append", default=[],
                    metavar="SECONDS:MBPS",
@@ -341,7 +351,7 @@ def add_relay(sub: Any) -> None:
                    help="longest queue before the cap drops datagrams (default: %(default)s)")
     p.add_argument("--seed", type=lambda t: integer(t, 0, 2**32 - 1), default=0, metavar="N",
                    help="seed of the loss and jitter draws (default: %(default)s)")
-    p.add_argument("--seconds", type=positive, default=None, metavar="S",
+    p.add_argument("--seconds", type=seconds, default=None, metavar="S",
                    help="stop after S seconds (default: run until interrupted)")
     add_quiet(p, "no summary at the end")
 

@@ -8,16 +8,21 @@ module only dispatches.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import traceback
 from collections.abc import Sequence
 
 from splitrender._native import __version__
 from splitrender.cli import dataset, evaluation, example, live, play, recording
 from splitrender.cli.args import PROG, Parser
-from splitrender.errors import SplitRenderError
+from splitrender.errors import SplitRenderError, is_user_error
 from splitrender.reproject import METHODS
 
 __all__ = ["main"]
+
+#: Set (to anything but empty or 0) to print the traceback of an internal error.
+DEBUG_ENV = "SPLITRENDER_DEBUG"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,15 +53,41 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``splitrender`` console script; returns the exit status."""
+    """Entry point of the ``splitrender`` console script; returns the exit status.
+
+    0: done. 2: the caller's error (:func:`~splitrender.errors.is_user_error`: a bad argument,
+    an unreadable or malformed input, a refused destination ...), one ``splitrender: error:``
+    line naming it, as argparse does for a bad option. 1: a failure that is not the caller's
+    (``SplitRenderError`` itself: an external tool or the device; any other exception: a bug,
+    said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         status: int = args.run(args)
         return status
-    except (SplitRenderError, OSError) as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:
+        if is_user_error(e):
+            print(f"{PROG}: error: {_describe(e)}", file=sys.stderr)
+            return 2
+        if isinstance(e, SplitRenderError):
+            print(f"{PROG}: error: {_describe(e)}", file=sys.stderr)
+            return 1
+        if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+            traceback.print_exc()
+        print(f"{PROG}: internal error: {type(e).__name__}: {_describe(e)} (this is a bug; "
+              f"please report it with the traceback that {DEBUG_ENV}=1 prints)", file=sys.stderr)
+        return 1
+
+
+def _describe(error: BaseException) -> str:
+    """``error``'s message on one line; an ``OSError`` as ``path: reason``."""
+    if isinstance(error, OSError) and error.strerror and error.filename is not None:
+        text = f"{error.filename}: {error.strerror}"
+        if error.filename2 is not None:
+            text += f" (and {error.filename2})"
+    else:
+        text = str(error) or type(error).__name__
+    return " ".join(text.split())

@@ -20,7 +20,9 @@ from splitrender.cli.args import (
     command,
     fail,
     network_model,
-    positive,
+    bitrate,
+    scale,
+    seconds,
 )
 from splitrender.errors import SplitRenderError
 from splitrender.files import check_apart, write_atomic
@@ -41,13 +43,13 @@ def add(sub: Any) -> None:
                     help="the recording a stream file was encoded from (needed for a stream)")
     pl.add_argument("--method", default="ours", choices=METHODS, metavar="M",
                     help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
-    pl.add_argument("--bitrate", type=positive, default=None, metavar="MBPS",
+    pl.add_argument("--bitrate", type=bitrate, default=None, metavar="MBPS",
                     help="encode and decode a recording's server frames at this total bitrate "
                     "first (default: uncompressed; a stream file is always decoded as is)")
-    pl.add_argument("--scale", type=positive, default=None, metavar="X",
+    pl.add_argument("--scale", type=scale, default=None, metavar="X",
                     help="scale of a scene rendered from its name (default 0.1); for a recording "
                     "it must match the recording's")
-    pl.add_argument("--seconds", type=positive, default=None, metavar="S",
+    pl.add_argument("--seconds", type=seconds, default=None, metavar="S",
                     help="play only the first S seconds (default: all; 1.0 for a scene name)")
     pl.add_argument("--stereo", action="store_true",
                     help="play both eyes of a stereo recording (or stream file's recording) and "
@@ -115,6 +117,11 @@ def run(args: argparse.Namespace) -> int:
             rec_path = out / "recording"
             import_dataset_as_recording(args.dataset, rec_path, overwrite=True, stages=stages)
         elif src.is_dir():
+            if args.recording is not None:
+                # --recording names the recording of a stream file (its poses and ground
+                # truth); a recording SOURCE has its own, so another one would be ignored.
+                return fail(f"--recording: only with a stream file SOURCE; {src} is a "
+                            "recording, which has its own client poses and ground truth")
             rec_path = src
         elif src.is_file():
             if args.recording is None:
@@ -123,6 +130,9 @@ def run(args: argparse.Namespace) -> int:
                 return fail("--bitrate: a stream file is played as encoded")
             stream_path, rec_path = src, args.recording
         elif rendered:
+            if args.recording is not None:
+                return fail(f"--recording: only with a stream file SOURCE; {args.source} is "
+                            "rendered into OUT/recording")
             scale = 0.1 if args.scale is None else args.scale
             seconds = 1.0 if args.seconds is None else args.seconds
             rec_path = out / "recording"

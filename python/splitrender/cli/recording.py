@@ -14,7 +14,7 @@ from splitrender.cli.args import (
     add_trace,
     bitrate,
     command,
-    positive,
+    seconds,
     run_stages,
     wrote_dir,
 )
@@ -41,7 +41,7 @@ def add_render(sub: Any) -> None:
     )
     re.add_argument(
         "--seconds",
-        type=positive,
+        type=seconds,
         default=2.0,
         metavar="S",
         help="length to record, at most the scene's 4 s (default: %(default)s)",

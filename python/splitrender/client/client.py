@@ -27,6 +27,14 @@ from splitrender.net.model import (
 )
 from splitrender.reproject import METHODS, _reproject_alpha
 from splitrender.types import Camera, ReprojectOptions, ServerFrame, check_server_frame
+from splitrender.types import (  # argument checks
+    MAX_RATE,
+    checked,
+    floats,
+    instances,
+    ints,
+    optional,
+)
 
 __all__ = ["Client"]
 
@@ -57,6 +65,7 @@ class Client:
         GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
 
+    @checked(server_fps=optional(floats(positive=True, hi=MAX_RATE)), capacity=ints(2, 1 << 16))
     def __init__(
         self,
         method: str = "ours",
@@ -119,6 +128,7 @@ class Client:
         """Indices of the server frames held, oldest first."""
         return tuple(sorted(self._frames))
 
+    @checked(frame=instances(ServerFrame), arrival_time=optional(floats()))
     def receive(self, frame: ServerFrame, arrival_time: float | None = None) -> bool:
         """Takes a server frame that has arrived; returns whether it was kept (``False`` for a
         duplicate, a stale frame or a full buffer). ``arrival_time`` is informational only: a
@@ -146,6 +156,7 @@ class Client:
         )
         return True
 
+    @checked(time=floats())
     def choose(self, time: float) -> ClientFrameInfo:
         """The frames, ``α`` and mode :meth:`render` would use at ``time`` (no state change)."""
         return choose_frames(
@@ -156,6 +167,7 @@ class Client:
             splat_bidirectional=self.options.splat_bidirectional,
         )
 
+    @checked(camera=instances(Camera), time=floats(), eye=ints(0, 1))
     def render(self, camera: Camera, time: float, *, eye: int = 0) -> _Image:
         """The client frame (``uint8[H, W, 3]``) at ``camera`` and display ``time`` seconds;
         ``eye`` keys the previous-output and history state (0 mono/left, 1 right).
@@ -221,6 +233,10 @@ class Client:
         self._history[eye] = (pair, history)
         return history
 
+    @checked(
+        older=optional(ints(-(1 << 63), (1 << 63) - 1)), newer=ints(-(1 << 63), (1 << 63) - 1),
+        history=instances(_native.BidirHistory),
+    )
     def adopt_prepared(
         self, older: int | None, newer: int, history: _native.BidirHistory
     ) -> None:
@@ -230,10 +246,14 @@ class Client:
         ``backward_bidir`` keeps its own per-eye history (its state depends on the pose)."""
         self._prepared[(older, newer)] = history
 
+    @checked(index=ints(-(1 << 63), (1 << 63) - 1))
     def held_frame(self, index: int) -> ServerFrame | None:
         """The held server frame ``index``, or ``None``."""
         return self._frames.get(index)
 
+    @checked(
+        older=optional(ints(-(1 << 63), (1 << 63) - 1)), newer=ints(-(1 << 63), (1 << 63) - 1)
+    )
     def was_prepared(self, older: int | None, newer: int) -> bool:
         """Whether client frames of the pair ``(older, newer)`` use a history adopted with
         :meth:`adopt_prepared`."""

@@ -20,6 +20,19 @@ from splitrender.net.model import (
     network_for,
 )
 from splitrender.types import Camera, ReprojectOptions, ServerFrame, check_server_frame
+from splitrender.types import (  # argument checks
+    BOOL,
+    CALLABLE,
+    ITERABLE,
+    MAX_RATE,
+    checked,
+    floats,
+    instances,
+    ints,
+    items,
+    optional,
+    strs,
+)
 
 __all__ = ["PlaybackResult", "frame_nbytes", "play"]
 
@@ -65,6 +78,12 @@ class PlaybackResult:
         return Schedule(list(self.info), list(self.arrivals), sends=list(self.sends))
 
 
+@checked(
+    frames=ITERABLE, cameras=items(instances(Camera)), network=optional(instances(NetworkModel)),
+    fps=floats(positive=True, hi=MAX_RATE), method=strs(),
+    frame_sizes=optional(items(ints(0, 1 << 40))), lead=optional(floats(lo=0.0)),
+    keep_images=BOOL, on_frame=optional(CALLABLE), backend=strs(),
+)
 def play(
     frames: Iterable[ServerFrame],
     cameras: Sequence[Camera],

@@ -49,6 +49,15 @@ from splitrender.errors import InvalidInputError
 from splitrender.net.model import MODES
 from splitrender.reproject import prepare_pair
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
+from splitrender.types import (  # argument checks
+    MAX_RATE,
+    check_instance,
+    checked,
+    floats,
+    instances,
+    ints,
+    optional,
+)
 
 if TYPE_CHECKING:
     from splitrender.codec.coder import StreamDecoder
@@ -196,6 +205,20 @@ def _yield_to_display() -> None:
 _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 
 
+def _clock(where: str, value: object) -> Any:
+    if not all(callable(getattr(value, m, None)) for m in ("now", "sleep_until")):
+        raise InvalidInputError(
+            f"{where}: expected a Clock (now() and sleep_until(t)), got {type(value).__name__}"
+        )
+    return value
+
+
+def _decoder(where: str, value: object) -> Any:
+    from splitrender.codec.coder import StreamDecoder  # the codec imports this module's users
+
+    return check_instance(where, value, StreamDecoder)
+
+
 class RealtimeClient:
     """The real-time client (module docs): packets in (:meth:`submit`, any thread), one frame
     per refresh out (:meth:`run`, or :meth:`render` for a caller with its own display loop).
@@ -212,6 +235,12 @@ class RealtimeClient:
             not a positive finite number.
     """
 
+    @checked(
+        display_fps=floats(positive=True, hi=MAX_RATE), clock=optional(_clock),
+        client=optional(instances(Client)), capacity=ints(2, 1 << 16),
+        prepare_threads=optional(ints(0, 1 << 16)), decoder=optional(_decoder),
+        executor=optional(instances(Executor)),
+    )
     def __init__(
         self,
         method: str = "ours",

@@ -64,6 +64,7 @@ add error once 12 bits are taken).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -103,6 +104,19 @@ from splitrender.types import (
     ShadowBuffers,
     check_server_frame,
 )
+from splitrender.types import (  # argument checks
+    MAX_SIDE,
+    check_bool,
+    check_float,
+    check_int,
+    check_items,
+    check_str,
+    checked,
+    floats,
+    instances,
+    ints,
+    optional,
+)
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # annotations only (Python 3.10)
@@ -141,6 +155,13 @@ MAX_BITRATE_MBPS = 100_000.0
 #: fraction of denominator <= 1001 that 1e-300 rounded to 0 (ZeroDivisionError), and the rate
 #: control divides by it.
 MIN_FPS, MAX_FPS = 1e-3, 1000.0
+#: Most encoder or decoder threads (``threads=10**400`` reached the thread pool).
+MAX_THREADS = 1024
+#: The presets of x265 (``CodecConfig.preset``), fastest first.
+X265_PRESETS = (
+    "ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower",
+    "veryslow", "placebo",
+)
 #: Largest ``CodecConfig.vbv_buffer_s``: x265's VBV buffer is this many seconds of the bitrate.
 MAX_VBV_BUFFER_S = 60.0
 
@@ -187,6 +208,8 @@ class CodecConfig:
                 raise InvalidInputError(
                     f"CodecConfig.{name}: expected a number > {low:g} and <= {top:g}, got {v!r}"
                 )
+        for name in ("color_share", "depth_share", "motion_share", "shadow_color_share"):
+            object.__setattr__(self, name, check_float(f"CodecConfig.{name}", getattr(self, name)))
         shares = (
             self.color_share,
             self.depth_share,
@@ -200,7 +223,9 @@ class CodecConfig:
             raise InvalidInputError(
                 f"CodecConfig: buffer shares must be >= 0 and sum to 1, got {shares}"
             )
-        cs = tuple(float(s) for s in self.camera_shares)
+        cs = tuple(
+            check_items("CodecConfig.camera_shares", self.camera_shares, floats(lo=0.0))
+        )
         if (
             not cs
             or any(not (math.isfinite(s) and s > 0) for s in cs)
@@ -214,25 +239,24 @@ class CodecConfig:
             raise InvalidInputError(
                 f"CodecConfig.chroma: expected '444' or '420', got {self.chroma!r}"
             )
-        if not (isinstance(self.gop, int) and 1 <= self.gop <= 100000):
-            raise InvalidInputError(
-                f"CodecConfig.gop: expected an int in [1, 100000], got {self.gop!r}"
-            )
-        if not (isinstance(self.zstd_level, int) and 1 <= self.zstd_level <= 22):
-            raise InvalidInputError(
-                f"CodecConfig.zstd_level: expected 1..22, got {self.zstd_level!r}"
-            )
-        if not (isinstance(self.threads, int) and self.threads >= 0):
-            raise InvalidInputError(
-                f"CodecConfig.threads: expected an int >= 0, got {self.threads!r}"
-            )
+        check_int("CodecConfig.gop", self.gop, 1, 100000)
+        check_int("CodecConfig.zstd_level", self.zstd_level, 1, 22)
+        check_int("CodecConfig.threads", self.threads, 0, MAX_THREADS)
+        check_str("CodecConfig.preset", self.preset, X265_PRESETS)
+        for name in ("uncompressed", "exact_static_motion", "rate_feedback"):
+            object.__setattr__(self, name, check_bool(f"CodecConfig.{name}", getattr(self, name)))
 
     @classmethod
+    @checked(width=ints(1, MAX_SIDE), height=ints(1, MAX_SIDE), paper_mbps=floats(positive=True))
     def scaled(
         cls, width: int, height: int, paper_mbps: float = 40.0, **kwargs: Any
     ) -> CodecConfig:
         """A config whose bitrate is ``paper_mbps`` (given for the paper's 2560x1440 main camera)
         scaled to a ``width x height`` main camera by pixel count."""
+        # bitrate_mbps is what this sets; any other name is not an option.
+        unknown = set(kwargs) - ({f.name for f in dataclasses.fields(cls)} - {"bitrate_mbps"})
+        if unknown:
+            raise InvalidInputError(f"CodecConfig.scaled: unknown options {sorted(unknown)}")
         return cls(bitrate_mbps=paper_mbps * width * height / (2560 * 1440), **kwargs)
 
     def shares(self) -> dict[str, float]:
@@ -682,6 +706,7 @@ class StreamEncoder(_WorkerThreads):
     :class:`~splitrender.errors.InvalidInputError` for a frame that does not match the layout or
     the camera shares."""
 
+    @checked(config=optional(instances(CodecConfig)))
     def __init__(self, config: CodecConfig | None = None) -> None:
         self.config = config if config is not None else CodecConfig()
         self._layout: tuple[tuple[int, int], ...] | None = None
@@ -712,6 +737,7 @@ class StreamEncoder(_WorkerThreads):
                 f"frame {frame.index}: camera sizes {layout} differ from the stream's {self._layout}"
             )
 
+    @checked(frame=instances(ServerFrame))
     def encode(self, frame: ServerFrame) -> bytes:
         """One packet holding ``frame`` (see :mod:`splitrender.codec.stream`).
 
@@ -821,6 +847,7 @@ class StreamEncoder(_WorkerThreads):
         again from it)."""
         self._force_key = True
 
+    @checked(mbps=floats(positive=True, hi=MAX_BITRATE_MBPS))
     def set_bitrate(self, mbps: float) -> None:
         """Moves the stream's target to ``mbps``. The HEVC encoders take it at the next key
         frame, regular or requested (x265 is reopened, which needs an IDR), so a caller that
@@ -1034,6 +1061,7 @@ class StreamDecoder(_WorkerThreads):
     packet (see :func:`splitrender.codec.stream.unpack_packet`), a payload that does not decode or does
     not match its table entry, a missing buffer, or a non-key packet without its predecessor."""
 
+    @checked(threads=ints(0, MAX_THREADS), max_pixels=ints(1, 1 << 40))
     def __init__(self, threads: int = 0, max_pixels: int = MAX_PIXELS) -> None:
         self._decoders: dict[BufferKind, Any] = {}
         self._last: int | None = None
@@ -1041,6 +1069,7 @@ class StreamDecoder(_WorkerThreads):
         self._lock = threading.Lock()
         self.max_pixels = max_pixels
 
+    @checked(data=instances((bytes, bytearray, memoryview)))
     def decode(self, data: bytes | memoryview) -> ServerFrame:
         """The server frame held by one packet."""
         with self._lock:

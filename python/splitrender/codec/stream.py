@@ -74,6 +74,19 @@ import zstandard
 
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import AtomicWriter, open_regular, temporary_beside
+from splitrender.types import (  # argument checks
+    ITERABLE,
+    MAX_RATE,
+    PATH,
+    check_float,
+    check_instance,
+    check_int,
+    checked,
+    floats,
+    instances,
+    ints,
+    optional,
+)
 
 
 __all__ = [
@@ -635,6 +648,7 @@ class StreamWriter(AtomicWriter):
         """Appends one packet (as :func:`pack_packet` or ``StreamEncoder.encode`` made it)."""
         if self._file.closed:
             raise ValueError(f"{self.path}: the stream writer is closed")
+        check_instance("packet", packet, (bytes, bytearray, memoryview))
         frame, key = peek_header(packet)
         if len(packet) > MAX_PACKET:
             raise StreamError(
@@ -683,6 +697,7 @@ class StreamWriter(AtomicWriter):
             self._tmp.unlink(missing_ok=True)
 
 
+@checked(path=PATH, packets=ITERABLE, fps=floats(positive=True, hi=MAX_RATE))
 def write_stream(
     path: str | os.PathLike[str], packets: Iterable[bytes], fps: float = 10.0
 ) -> None:
@@ -847,6 +862,7 @@ class StreamFile:
                 yield data
 
 
+@checked(path=PATH, start=optional(ints(0, (1 << 31) - 1)))
 def read_stream(
     path: str | os.PathLike[str], start: int | None = None
 ) -> Iterator[bytes]:
@@ -872,6 +888,21 @@ class StreamStats:
     bytes_by_buffer: dict[str, int] = field(default_factory=dict)
     header_bytes: int = 0
 
+    def __post_init__(self) -> None:
+        self.fps = check_float("StreamStats.fps", self.fps, positive=True, hi=MAX_RATE)
+        for name in ("frames", "header_bytes"):
+            setattr(self, name, check_int(f"StreamStats.{name}", getattr(self, name), 0, 1 << 62))
+        if not isinstance(self.bytes_by_buffer, dict) or not all(
+            isinstance(k, str) for k in self.bytes_by_buffer
+        ):
+            raise InvalidInputError(
+                "StreamStats.bytes_by_buffer: expected a dict of buffer names to byte counts, "
+                f"got {type(self.bytes_by_buffer).__name__}"
+            )
+        for k, v in self.bytes_by_buffer.items():
+            check_int(f"StreamStats.bytes_by_buffer[{k!r}]", v, 0, 1 << 62)
+
+    @checked(packet=instances((bytes, bytearray, memoryview, Packet)))
     def add(self, packet: bytes | memoryview | Packet) -> None:
         p = packet if isinstance(packet, Packet) else unpack_packet(packet)
         self.frames += 1
@@ -927,6 +958,7 @@ class StreamStats:
         return "\n".join(lines)
 
 
+@checked(packets=ITERABLE, fps=floats(positive=True, hi=MAX_RATE))
 def stream_stats(
     packets: Iterable[bytes | memoryview | Packet], fps: float = 10.0
 ) -> StreamStats:

@@ -207,9 +207,18 @@ class _Video(AtomicWriter):
         self._tmp = temporary_beside(path)
         self._done = False
         # The temporary name ends in .partial-*, from which PyAV cannot guess the container.
+        # The rate is stored as a fraction: one that differs from fps (1e-9 became 0, which PyAV
+        # silently replaced by 24) is refused before anything is written.
+        rate = Fraction(0)
+        if isinstance(fps, (int, float)) and 0 < fps <= 1000:
+            rate = Fraction(fps).limit_denominator(1001)
+        if not (rate > 0 and abs(float(rate) - fps) <= 1e-3 * fps):
+            raise InvalidInputError(
+                f"{path}: expected a video frame rate in 1/1001..1000 FPS that a fraction with "
+                f"a denominator of at most 1001 holds, got {fps!r}"
+            )
         self.container = av.open(str(self._tmp), mode="w", format="mp4")
         try:
-            rate = Fraction(fps).limit_denominator(1001)
             codec = "libx264" if "libx264" in av.codecs_available else "mpeg4"
             stream: Any = self.container.add_stream(codec, rate=rate)
             stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
@@ -261,6 +270,9 @@ def check_config(cfg: DemoConfig) -> None:
             f"unknown scene {cfg.scene!r}; expected one of: {', '.join(SCENE_NAMES)}"
         )
     check_run_args([cfg.scene], cfg.methods, cfg.seconds, cfg.scale, DemoArgumentError)
+    fps = cfg.video_fps
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 1 <= fps <= 240:
+        raise DemoArgumentError(f"--video-fps: expected a number of FPS in 1..240, got {fps!r}")
 
 
 def check_methods(

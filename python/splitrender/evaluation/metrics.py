@@ -52,6 +52,15 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.errors import InvalidInputError, SplitRenderError
+from splitrender.types import (  # argument checks
+    CALLABLE,
+    checked,
+    floats,
+    ints,
+    items,
+    optional,
+    strs,
+)
 
 __all__ = [
     "DEFAULT_METRICS",
@@ -236,6 +245,7 @@ def _flip(test: object, reference: object, ppd: float) -> tuple[npt.NDArray[np.f
     return np.asarray(err[..., 0], dtype=np.float32), float(mean)
 
 
+@checked(ppd=floats(positive=True))
 def flip(test: npt.ArrayLike, reference: npt.ArrayLike, ppd: float = FLIP_PPD) -> float:
     """Mean LDR-FLIP error (``0`` = identical, up to 1) of ``test`` against ``reference``,
     both sRGB in ``[0, 1]``, at ``ppd`` pixels per degree.
@@ -247,6 +257,7 @@ def flip(test: npt.ArrayLike, reference: npt.ArrayLike, ppd: float = FLIP_PPD) -
     return _flip(test, reference, ppd)[1]
 
 
+@checked(ppd=floats(positive=True))
 def flip_map(
     test: npt.ArrayLike, reference: npt.ArrayLike, ppd: float = FLIP_PPD
 ) -> npt.NDArray[np.float32]:
@@ -284,6 +295,7 @@ def _ffmpeg() -> str:
     return str(imageio_ffmpeg.get_ffmpeg_exe())
 
 
+@checked(fps=floats(positive=True, hi=1000.0), threads=optional(ints(1, 1024)))
 def vmaf(
     distorted: Sequence[npt.ArrayLike] | npt.ArrayLike,
     reference: Sequence[npt.ArrayLike] | npt.ArrayLike,
@@ -424,6 +436,10 @@ class SequenceMetrics:
         }
 
 
+@checked(
+    skip=ints(0, (1 << 31) - 1), metrics=items(strs()), fps=floats(positive=True),
+    ppd=floats(positive=True), progress=optional(CALLABLE),
+)
 def evaluate_sequence(
     rendered: Sequence[npt.ArrayLike],
     truth: Sequence[npt.ArrayLike],

@@ -38,6 +38,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from splitrender.errors import InvalidInputError
+from splitrender.types import (  # argument checks
+    BOOL,
+    check_float,
+    check_int,
+    check_items,
+    checked,
+    floats,
+    ints,
+    items,
+    optional,
+    strs,
+)
 
 __all__ = [
     "BIDIRECTIONAL_METHODS",
@@ -64,23 +76,21 @@ BIDIRECTIONAL_METHODS: tuple[str, ...] = ("ours", "backward_bidir")
 _METHODS = ("ours", "ours_extrapolate", "forward_splat", "timewarp", "backward_bidir")
 
 
+#: Most frames, packets or bytes a count here may name (``frame_times=10**400`` planned that
+#: many frames and exhausted memory).
+_MAX_COUNT = 10**7
+_MAX_INT = 2**63 - 1
+
+
 def _float(where: str, value: object, *, lo: float = 0.0, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise InvalidInputError(f"{where}: expected a float, got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v) or v < lo or (positive and v <= 0.0):
-        want = f"a finite float > {lo}" if positive else f"a finite float >= {lo}"
-        raise InvalidInputError(f"{where}: expected {want}, got {v}")
-    return v
+    """:func:`~splitrender.types.check_float` with ``lo`` as the lower bound (``-inf``: none)."""
+    return check_float(
+        where, value, positive=positive, lo=None if positive or lo == -math.inf else lo
+    )
 
 
-def _int(where: str, value: object, lo: int = 0) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise InvalidInputError(f"{where}: expected an int, got {type(value).__name__}")
-    v = int(value)
-    if v < lo:
-        raise InvalidInputError(f"{where}: expected an int >= {lo}, got {v}")
-    return v
+def _int(where: str, value: object, lo: int = 0, hi: int = _MAX_INT) -> int:
+    return check_int(where, value, lo, hi)
 
 
 @dataclass(frozen=True)
@@ -136,6 +146,7 @@ class NetworkModel:
         """A fresh stateful link (packets sent one at a time, e.g. while streaming)."""
         return Link(self)
 
+    @checked(send_times=items(floats()), sizes=optional(items(ints(0, 1 << 40))))
     def arrival_times(
         self, send_times: Sequence[float], sizes: Sequence[int] | None = None
     ) -> list[float | None]:
@@ -330,8 +341,9 @@ class FrameBuffer:
 
 def _frame_times(frame_times: Sequence[float] | int, server_fps: float) -> list[float]:
     if isinstance(frame_times, (int, numbers.Integral)):
-        return [k / server_fps for k in range(_int("frame_times", frame_times))]
-    return [_float(f"frame_times[{i}]", t, lo=-math.inf) for i, t in enumerate(frame_times)]
+        return [k / server_fps for k in range(_int("frame_times", frame_times, hi=_MAX_COUNT))]
+    times = check_items("frame_times", frame_times)
+    return [_float(f"frame_times[{i}]", t, lo=-math.inf) for i, t in enumerate(times)]
 
 
 @dataclass
@@ -349,6 +361,10 @@ class Schedule:
     sends: list[float] = field(default_factory=list)
 
     @classmethod
+    @checked(
+        frame_sizes=optional(items(ints(0, 1 << 40))), method=strs(), splat_bidirectional=BOOL,
+        capacity=ints(2, 1 << 16),
+    )
     def build(
         cls,
         frame_times: Sequence[float] | int,
@@ -383,7 +399,7 @@ class Schedule:
         arrivals = net.arrival_times(sends, sizes)
         if n_client_frames is None:
             n_client_frames = 0 if not times else max(0, math.ceil(times[-1] * client_fps - 1e-6))
-        n_client = _int("n_client_frames", n_client_frames)
+        n_client = _int("n_client_frames", n_client_frames, hi=_MAX_COUNT)
         buf = FrameBuffer(capacity)
         entries: list[ClientFrameInfo] = []
         nxt = 0

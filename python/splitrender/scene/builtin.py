@@ -33,6 +33,18 @@ import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 from splitrender.files import read_json, read_regular
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
+from splitrender.types import (  # argument checks
+    BOOL,
+    PATH,
+    check_float,
+    check_int,
+    check_items,
+    check_path,
+    checked,
+    floats,
+    instances,
+    ints,
+)
 
 __all__ = [
     "MAX_SAMPLES",
@@ -117,15 +129,21 @@ class ModelPlacement:
     speed: float = 1.0
 
     def __post_init__(self) -> None:
-        if len(self.position) != 3 or not all(math.isfinite(v) for v in self.position):
-            raise InvalidInputError(f"{self.path}: position must be 3 finite numbers, got {self.position}")
+        where = f"ModelPlacement({self.path!r})"
+        check_path(f"{where}.path", self.path)
+        position = check_items(f"{where}.position", self.position, floats())
+        if len(position) != 3:
+            raise InvalidInputError(
+                f"{self.path}: position must be 3 finite numbers, got {self.position}"
+            )
+        object.__setattr__(self, "position", tuple(position))
         for name in ("yaw_deg", "time_offset"):
-            if not math.isfinite(getattr(self, name)):
-                raise InvalidInputError(f"{self.path}: {name} must be finite")
+            object.__setattr__(self, name, check_float(f"{where}.{name}", getattr(self, name)))
         for name in ("scale", "speed"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise InvalidInputError(f"{self.path}: {name} must be a finite value > 0, got {v}")
+            v = check_float(f"{where}.{name}", getattr(self, name), positive=True)
+            object.__setattr__(self, name, v)
+        if self.animation is not None:
+            check_int(f"{where}.animation", self.animation, 0, _MAX_ANIMATION)
         # The upper bound keeps the index within the native usize (10**300 raised OverflowError).
         if self.animation is not None and not 0 <= self.animation <= _MAX_ANIMATION:
             raise InvalidInputError(
@@ -161,6 +179,7 @@ class Scene:
             raise InvalidInputError(
                 f"Scene: expected name and variant as str, got {name!r}, {variant!r}"
             )
+        models = check_items("Scene.models", models)
         for i, m in enumerate(models):
             if not isinstance(m, ModelPlacement):
                 raise InvalidInputError(
@@ -172,6 +191,7 @@ class Scene:
         )
 
     @classmethod
+    @checked(path=PATH)
     def from_description(cls, path: str | os.PathLike[str]) -> Scene:
         """A scene from a JSON description: a built-in environment and glTF models placed in it::
 
@@ -222,7 +242,7 @@ class Scene:
                         speed=float(m.get("speed", 1.0)),
                     )
                 )
-            except (TypeError, ValueError) as e:
+            except (TypeError, ValueError, OverflowError) as e:
                 raise InvalidInputError(f"{p}: models[{i}]: {e}") from None
         try:
             return cls(doc["scene"], str(doc.get("variant", "dynamic")), models)
@@ -253,22 +273,30 @@ class Scene:
     def far(self) -> float:
         return self._native.far
 
+    @checked(scale=floats(positive=True))
     def main_size(self, scale: float) -> tuple[int, int]:
         """Main camera ``(width, height)`` at ``scale``: ``round(2560·scale) x round(1440·scale)``."""
         return self._native.main_size(scale)
 
+    @checked(t=floats())
     def head_box(self, t: float) -> F64:
         """The head box's camera-to-world pose at ``t`` (no deviation)."""
         return self._native.head_box(t)
 
+    @checked(t=floats())
     def client_pose(self, t: float) -> F64:
         """The client's actual camera-to-world pose at ``t`` on the scene's path."""
         return self._native.client_pose(t)
 
+    @checked(k=ints(0, (1 << 31) - 1), fps=floats(positive=True))
     def server_pose(self, k: int, fps: float = 10.0) -> F64:
         """The predicted pose the server renders frame ``k`` at on the scene's path."""
         return self._native.server_pose(k, fps)
 
+    @checked(
+        k=ints(0, (1 << 31) - 1), scale=floats(positive=True), fps=floats(positive=True),
+        subframes=ints(1, 16),
+    )
     def server_frame(
         self,
         k: int,
@@ -293,6 +321,10 @@ class Scene:
             tuple(_camera_frame(a) for a in d["aux"]),
         )
 
+    @checked(
+        n=ints(0, (1 << 31) - 1), scale=floats(positive=True), fc=floats(positive=True),
+        stereo=BOOL,
+    )
     def client_frames(
         self,
         n: int,
@@ -311,6 +343,7 @@ class Scene:
         )
         return [(Camera(v, p, w, h), img) for v, p, w, h, img in eyes]
 
+    @checked(camera=instances(Camera), t=floats())
     def ground_truth(
         self, camera: Camera, t: float, *, samples: int | None = None
     ) -> npt.NDArray[np.uint8]:
@@ -318,6 +351,7 @@ class Scene:
         samples`` sub-samples per pixel (``None``: :func:`default_samples` of its size)."""
         return self._native.render_ground_truth(*camera.to_native(), t, _check_samples(samples))
 
+    @checked(prediction_delay=floats(lo=0.0, hi=10.0))
     def path_motion(self, prediction_delay: float = PREDICTION_DELAY) -> PathMotion:
         return PathMotion(self, prediction_delay)
 
@@ -423,6 +457,7 @@ class Trace:
     def duration(self) -> float:
         return float(self.times[-1])
 
+    @checked(t=floats())
     def pose(self, t: float) -> F64:
         """Camera-to-world pose at ``t`` seconds (clamped to the trace): positions interpolated
         linearly, orientations by normalised quaternion interpolation."""
@@ -443,6 +478,7 @@ class Trace:
         return m
 
 
+@checked(path=PATH)
 def load_trace(path: str | os.PathLike[str]) -> Trace:
     """Reads a head trace: one pose per line, ``px py pz pitch yaw roll t_ms`` (metres, degrees,
     milliseconds, strictly increasing times); blank lines are skipped.

@@ -63,6 +63,14 @@ from splitrender.types import (
     ServerFrame,
     ShadowBuffers,
 )
+from splitrender.types import (  # argument checks
+    PATH,
+    checked,
+    instances,
+    items,
+    optional,
+    strs,
+)
 
 if TYPE_CHECKING:
     from splitrender.progress import Progress
@@ -318,6 +326,10 @@ def _cam_json(
     }
 
 
+@checked(
+    recording=instances((Recording, str, os.PathLike)), out_dir=PATH, aux_names=items(strs()),
+    client=strs(),
+)
 def export_dataset(
     recording: Recording | str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -528,6 +540,7 @@ def _import_camera(d: Path, cam: _Cam) -> list[CameraFrame]:
     return out
 
 
+@checked(in_dir=PATH, aux=items(strs()), client=optional(PATH))
 def import_dataset(
     in_dir: str | os.PathLike[str],
     aux: Sequence[str] = ("left", "right"),

@@ -74,6 +74,17 @@ from splitrender.types import (
     ServerFrame,
     ShadowBuffers,
 )
+from splitrender.types import (  # argument checks
+    BOOL,
+    CALLABLE,
+    PATH,
+    checked,
+    floats,
+    instances,
+    ints,
+    optional,
+    strs,
+)
 
 __all__ = [
     "FORMAT",
@@ -319,6 +330,12 @@ class RecordingRender:
         }
 
 
+@checked(
+    out=PATH, scene=instances((str, Scene)), variant=strs(), seconds=floats(positive=True),
+    scale=floats(positive=True), fs=floats(positive=True), fc=floats(positive=True),
+    subframes=ints(1, 16), stereo=BOOL, trace=optional(instances(Trace)),
+    translation_scale=floats(), overwrite=BOOL, progress=optional(CALLABLE),
+)
 def write_recording(
     out: str | os.PathLike[str],
     scene: str | Scene,
@@ -765,6 +782,7 @@ def _check_frames(m: dict[str, Any], key: str, rate: float, where: Path) -> None
             raise _fail(where, f"{w}: bad bytes or sha256")
 
 
+@checked(path=PATH)
 def load_recording(path: str | os.PathLike[str]) -> Recording:
     """Opens the recording in directory ``path``, validating its manifest; frame files are read
     and checked on access (:meth:`Recording.verify` reads them all).

@@ -13,6 +13,13 @@ import numpy.typing as npt
 import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
+from splitrender.types import (  # argument checks
+    MAX_SIDE,
+    checked,
+    floats,
+    instances,
+    ints,
+)
 
 __all__ = ["SyntheticScene"]
 
@@ -38,10 +45,12 @@ class SyntheticScene:
         return f"SyntheticScene(dynamic={self.dynamic})"
 
     @staticmethod
+    @checked(t=floats())
     def head_pose(t: float) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """The deterministic head path: ``(eye, target)`` at time ``t``."""
         return _native.synthetic_head_pose(t)
 
+    @checked(t=floats(), width=ints(1, MAX_SIDE), height=ints(1, MAX_SIDE))
     def rig(self, t: float, width: int, height: int) -> tuple[Camera, tuple[Camera, Camera]]:
         """The DESIGN.md camera rig at the head pose of time ``t``: the main camera (60°,
         ``width x height``) and the two auxiliary cameras (80°, half size, 20 cm left/right,
@@ -51,6 +60,7 @@ class SyntheticScene:
         return _camera(main), (_camera(left), _camera(right))
 
     @staticmethod
+    @checked(t=floats())
     def head_deviation(t: float) -> tuple[float, float, float]:
         """The actual head's deterministic deviation from the predicted path at time ``t``
         (metres, a sum of slow sines of a few centimetres, as DESIGN.md's anchor): the server
@@ -63,6 +73,7 @@ class SyntheticScene:
             0.03 * np.sin(two_pi * 0.7 * t + 2.0),
         )
 
+    @checked(t=floats(), width=ints(1, MAX_SIDE), height=ints(1, MAX_SIDE))
     def client_camera(self, t: float, width: int, height: int) -> Camera:
         """The client's actual main camera at ``t``: the rig's main camera moved by
         :meth:`head_deviation` and turned towards a target shifted by twice that (about 1° of
@@ -76,6 +87,9 @@ class SyntheticScene:
             height=height,
         )
 
+    @checked(
+        camera=instances(Camera), time=floats(), fps=floats(positive=True), subframes=ints(1, 16),
+    )
     def render(
         self, camera: Camera, time: float, *, fps: float = 10.0, subframes: int = 4
     ) -> CameraFrame:
@@ -110,6 +124,10 @@ class SyntheticScene:
             ),
         )
 
+    @checked(
+        index=ints(0, (1 << 31) - 1), time=floats(), width=ints(1, MAX_SIDE),
+        height=ints(1, MAX_SIDE), fps=floats(positive=True), subframes=ints(1, 16),
+    )
     def server_frame(
         self,
         index: int,
@@ -130,6 +148,7 @@ class SyntheticScene:
             aux=tuple(self.render(a, time, fps=fps, subframes=subframes) for a in aux),
         )
 
+    @checked(camera=instances(Camera), time=floats())
     def ground_truth(self, camera: Camera, time: float) -> npt.NDArray[np.uint8]:
         """The exact image (``uint8[H, W, 3]``) at ``camera`` and ``time``."""
         if not isinstance(camera, Camera):
