@@ -397,11 +397,6 @@ impl<'a> Snapshot<'a> {
         t0 <= t1
     }
 
-    fn occludes(&self, i: usize, o: V3, d: V3) -> bool {
-        let inv = &self.inv[i];
-        self.shape(i).occludes(inv.point(o), inv.vector(d))
-    }
-
     /// The nearest surface along `o + t·d` with `t ∈ (tmin, tmax)`.
     pub fn trace(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
@@ -445,9 +440,11 @@ impl<'a> Snapshot<'a> {
         // Offset along the normal against acne on meshes, relative to the coordinates' size.
         let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
         let origin = add(x, scale(n, 1e-5 * ext));
-        let mut candidates = [0usize; 64];
+        // Candidates with the shadow ray's origin in their object space (the same for all 32
+        // rays, so it is transformed once per candidate instead of once per ray).
+        let mut candidates = [(0usize, [0.0f64; 3]); 64];
         let mut nc = 0;
-        let mut overflow: Vec<usize> = Vec::new();
+        let mut overflow: Vec<(usize, V3)> = Vec::new();
         for (i, o) in self.scene.objects.iter().enumerate() {
             if !o.casts_shadow || (i == obj && o.shape.is_convex()) {
                 continue;
@@ -470,26 +467,43 @@ impl<'a> Snapshot<'a> {
             if !self.cone_may_hit(i, x, l, (dist + r) * sin_a / cos_a) {
                 continue;
             }
+            let c = (i, self.inv[i].point(origin));
             if nc < candidates.len() {
-                candidates[nc] = i;
+                candidates[nc] = c;
                 nc += 1;
             } else {
-                overflow.push(i);
+                overflow.push(c);
             }
         }
         let below = self.samples.iter().filter(|&&s| dot(s, n) <= 0.0).count();
         if nc == 0 && overflow.is_empty() {
             return below as f64 / SHADOW_SAMPLES as f64;
         }
+        // A ray is blocked when any candidate blocks it, so the order of the tests does not
+        // change the count: the candidate that blocked the previous ray (neighbouring rays of
+        // the disc mostly meet the same occluder) is tried first.
+        let mut last: Option<(usize, V3)> = None;
         let blocked = self
             .samples
             .iter()
             .filter(|&&s| {
-                dot(s, n) <= 0.0
-                    || candidates[..nc]
-                        .iter()
-                        .chain(&overflow)
-                        .any(|&i| self.occludes(i, origin, s))
+                if dot(s, n) <= 0.0 {
+                    return true;
+                }
+                let occludes =
+                    |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.inv[i].vector(s));
+                if last.as_ref().is_some_and(occludes) {
+                    return true;
+                }
+                let hit = candidates[..nc]
+                    .iter()
+                    .chain(&overflow)
+                    .filter(|c| Some(c.0) != last.map(|l| l.0))
+                    .find(|c| occludes(c));
+                if hit.is_some() {
+                    last = hit.copied();
+                }
+                hit.is_some()
             })
             .count();
         blocked as f64 / SHADOW_SAMPLES as f64
