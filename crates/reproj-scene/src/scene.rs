@@ -308,6 +308,11 @@ pub(crate) struct Snapshot<'a> {
     posed: Vec<Option<Shape>>,
     pub light: V3,
     samples: [V3; SHADOW_SAMPLES],
+    /// `(sin, cos)` of the light's angular radius.
+    light_sin_cos: (f64, f64),
+    /// Per object: the light direction in object space and the object-space bounds, what the
+    /// shadow rays' culling needs of every object on every evaluation.
+    light_obj: Vec<(V3, Bounds)>,
 }
 
 impl<'a> Snapshot<'a> {
@@ -347,7 +352,18 @@ impl<'a> Snapshot<'a> {
             )
         });
         let light = scene.light.direction(scene.anim_time(t));
+        let light_obj = (0..world.len())
+            .map(|i| {
+                let b = posed[i]
+                    .as_ref()
+                    .unwrap_or(&scene.objects[i].shape)
+                    .bounds();
+                (inv[i].vector(light), b)
+            })
+            .collect();
         Snapshot {
+            light_sin_cos: scene.light.angular_radius.sin_cos(),
+            light_obj,
             scene,
             world,
             inv,
@@ -372,12 +388,11 @@ impl<'a> Snapshot<'a> {
             .intersect(inv.point(o), inv.vector(d), tmin, tmax)
     }
 
-    /// Whether the ray `x + t·l`, `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
+    /// Whether the ray `x + t·l` (`l` the light), `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
     /// object-space box.
-    fn cone_may_hit(&self, i: usize, x: V3, l: V3, grow: f64) -> bool {
-        let b = self.shape(i).bounds();
-        let inv = &self.inv[i];
-        let (o, d) = (inv.point(x), inv.vector(l));
+    fn cone_may_hit(&self, i: usize, x: V3, grow: f64) -> bool {
+        let (d, b) = &self.light_obj[i];
+        let o = self.inv[i].point(x);
         let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
         for k in 0..3 {
             let (lo, hi) = (b.min[k] - grow, b.max[k] + grow);
@@ -433,7 +448,7 @@ impl<'a> Snapshot<'a> {
     /// plane, and skipping it rules out shadow acne.
     pub fn shadow(&self, obj: usize, x: V3, n: V3) -> f64 {
         let l = self.light;
-        let (sin_a, cos_a) = self.scene.light.angular_radius.sin_cos();
+        let (sin_a, cos_a) = self.light_sin_cos;
         if dot(n, l) < -sin_a {
             return 1.0;
         }
@@ -442,7 +457,7 @@ impl<'a> Snapshot<'a> {
         let origin = add(x, scale(n, 1e-5 * ext));
         // Candidates with the shadow ray's origin in their object space (the same for all 32
         // rays, so it is transformed once per candidate instead of once per ray).
-        let mut candidates = [(0usize, [0.0f64; 3]); 64];
+        let mut candidates = [(0usize, [0.0f64; 3]); 16];
         let mut nc = 0;
         let mut overflow: Vec<(usize, V3)> = Vec::new();
         for (i, o) in self.scene.objects.iter().enumerate() {
@@ -464,7 +479,7 @@ impl<'a> Snapshot<'a> {
             // The sphere is loose around long objects (walls, beams): test the light's cone
             // against the object-space box too, grown by the cone's radius at the far side of the
             // box, which contains every shadow ray's path through the box.
-            if !self.cone_may_hit(i, x, l, (dist + r) * sin_a / cos_a) {
+            if !self.cone_may_hit(i, x, (dist + r) * sin_a / cos_a) {
                 continue;
             }
             let c = (i, self.inv[i].point(origin));
