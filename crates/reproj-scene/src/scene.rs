@@ -308,6 +308,11 @@ pub(crate) struct Snapshot<'a> {
     posed: Vec<Option<Shape>>,
     pub light: V3,
     samples: [V3; SHADOW_SAMPLES],
+    /// `(sin, cos)` of the light's angular radius.
+    light_sin_cos: (f64, f64),
+    /// Per object: the light direction in object space and the object-space bounds, what the
+    /// shadow rays' culling needs of every object on every evaluation.
+    light_obj: Vec<(V3, Bounds)>,
 }
 
 impl<'a> Snapshot<'a> {
@@ -347,7 +352,18 @@ impl<'a> Snapshot<'a> {
             )
         });
         let light = scene.light.direction(scene.anim_time(t));
+        let light_obj = (0..world.len())
+            .map(|i| {
+                let b = posed[i]
+                    .as_ref()
+                    .unwrap_or(&scene.objects[i].shape)
+                    .bounds();
+                (inv[i].vector(light), b)
+            })
+            .collect();
         Snapshot {
+            light_sin_cos: scene.light.angular_radius.sin_cos(),
+            light_obj,
             scene,
             world,
             inv,
@@ -372,12 +388,11 @@ impl<'a> Snapshot<'a> {
             .intersect(inv.point(o), inv.vector(d), tmin, tmax)
     }
 
-    /// Whether the ray `x + t·l`, `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
+    /// Whether the ray `x + t·l` (`l` the light), `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
     /// object-space box.
-    fn cone_may_hit(&self, i: usize, x: V3, l: V3, grow: f64) -> bool {
-        let b = self.shape(i).bounds();
-        let inv = &self.inv[i];
-        let (o, d) = (inv.point(x), inv.vector(l));
+    fn cone_may_hit(&self, i: usize, x: V3, grow: f64) -> bool {
+        let (d, b) = &self.light_obj[i];
+        let o = self.inv[i].point(x);
         let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
         for k in 0..3 {
             let (lo, hi) = (b.min[k] - grow, b.max[k] + grow);
@@ -395,11 +410,6 @@ impl<'a> Snapshot<'a> {
             t1 = t1.min(c);
         }
         t0 <= t1
-    }
-
-    fn occludes(&self, i: usize, o: V3, d: V3) -> bool {
-        let inv = &self.inv[i];
-        self.shape(i).occludes(inv.point(o), inv.vector(d))
     }
 
     /// The nearest surface along `o + t·d` with `t ∈ (tmin, tmax)`.
@@ -438,16 +448,18 @@ impl<'a> Snapshot<'a> {
     /// plane, and skipping it rules out shadow acne.
     pub fn shadow(&self, obj: usize, x: V3, n: V3) -> f64 {
         let l = self.light;
-        let (sin_a, cos_a) = self.scene.light.angular_radius.sin_cos();
+        let (sin_a, cos_a) = self.light_sin_cos;
         if dot(n, l) < -sin_a {
             return 1.0;
         }
         // Offset along the normal against acne on meshes, relative to the coordinates' size.
         let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
         let origin = add(x, scale(n, 1e-5 * ext));
-        let mut candidates = [0usize; 64];
+        // Candidates with the shadow ray's origin in their object space (the same for all 32
+        // rays, so it is transformed once per candidate instead of once per ray).
+        let mut candidates = [(0usize, [0.0f64; 3]); 16];
         let mut nc = 0;
-        let mut overflow: Vec<usize> = Vec::new();
+        let mut overflow: Vec<(usize, V3)> = Vec::new();
         for (i, o) in self.scene.objects.iter().enumerate() {
             if !o.casts_shadow || (i == obj && o.shape.is_convex()) {
                 continue;
@@ -467,29 +479,46 @@ impl<'a> Snapshot<'a> {
             // The sphere is loose around long objects (walls, beams): test the light's cone
             // against the object-space box too, grown by the cone's radius at the far side of the
             // box, which contains every shadow ray's path through the box.
-            if !self.cone_may_hit(i, x, l, (dist + r) * sin_a / cos_a) {
+            if !self.cone_may_hit(i, x, (dist + r) * sin_a / cos_a) {
                 continue;
             }
+            let c = (i, self.inv[i].point(origin));
             if nc < candidates.len() {
-                candidates[nc] = i;
+                candidates[nc] = c;
                 nc += 1;
             } else {
-                overflow.push(i);
+                overflow.push(c);
             }
         }
         let below = self.samples.iter().filter(|&&s| dot(s, n) <= 0.0).count();
         if nc == 0 && overflow.is_empty() {
             return below as f64 / SHADOW_SAMPLES as f64;
         }
+        // A ray is blocked when any candidate blocks it, so the order of the tests does not
+        // change the count: the candidate that blocked the previous ray (neighbouring rays of
+        // the disc mostly meet the same occluder) is tried first.
+        let mut last: Option<(usize, V3)> = None;
         let blocked = self
             .samples
             .iter()
             .filter(|&&s| {
-                dot(s, n) <= 0.0
-                    || candidates[..nc]
-                        .iter()
-                        .chain(&overflow)
-                        .any(|&i| self.occludes(i, origin, s))
+                if dot(s, n) <= 0.0 {
+                    return true;
+                }
+                let occludes =
+                    |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.inv[i].vector(s));
+                if last.as_ref().is_some_and(occludes) {
+                    return true;
+                }
+                let hit = candidates[..nc]
+                    .iter()
+                    .chain(&overflow)
+                    .filter(|c| Some(c.0) != last.map(|l| l.0))
+                    .find(|c| occludes(c));
+                if hit.is_some() {
+                    last = hit.copied();
+                }
+                hit.is_some()
             })
             .count();
         blocked as f64 / SHADOW_SAMPLES as f64

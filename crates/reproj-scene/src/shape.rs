@@ -102,7 +102,17 @@ impl Shape {
         match self {
             Shape::Mesh(m) => m.occludes(o, d),
             Shape::Gltf(g) => g.rest().occludes(o, d),
-            _ => self.intersect(o, d, 0.0, f64::INFINITY).is_some(),
+            // The analytic shapes decide with the distance alone: the same arithmetic as
+            // `intersect`, without its normal and texture coordinates (an `atan2` and an `asin`
+            // per sphere hit), so the answer is exactly `intersect(..).is_some()`.
+            Shape::Sphere { radius } => {
+                sphere_t(o, d, [0.0; 3], *radius, 0.0, f64::INFINITY).is_some()
+            }
+            Shape::Cuboid { min, max } => cuboid_t(o, d, *min, *max, 0.0, f64::INFINITY).is_some(),
+            Shape::Capsule { a, b, radius } => {
+                capsule_t(o, d, *a, *b, *radius, 0.0, f64::INFINITY).is_some()
+            }
+            Shape::Quad { half } => quad_t(o, d, *half, 0.0, f64::INFINITY).is_some(),
         }
     }
 
@@ -112,22 +122,12 @@ impl Shape {
             Shape::Sphere { radius } => sphere_hit(o, d, [0.0; 3], *radius, tmin, tmax),
             Shape::Cuboid { min, max } => cuboid_hit(o, d, *min, *max, tmin, tmax),
             Shape::Capsule { a, b, radius } => capsule_hit(o, d, *a, *b, *radius, tmin, tmax),
-            Shape::Quad { half } => {
-                if d[1] == 0.0 {
-                    return None;
-                }
-                let t = -o[1] / d[1];
-                let x = o[0] + t * d[0];
-                let z = o[2] + t * d[2];
-                (t > tmin && t < tmax && x.abs() <= half[0] && z.abs() <= half[1]).then_some(
-                    LocalHit {
-                        t,
-                        normal: [0.0, 1.0, 0.0],
-                        uv: [x, z],
-                        face: 0,
-                    },
-                )
-            }
+            Shape::Quad { half } => quad_t(o, d, *half, tmin, tmax).map(|(t, x, z)| LocalHit {
+                t,
+                normal: [0.0, 1.0, 0.0],
+                uv: [x, z],
+                face: 0,
+            }),
             Shape::Mesh(m) => m.intersect(o, d, tmin, tmax),
             Shape::Gltf(g) => g.rest().intersect(o, d, tmin, tmax),
         };
@@ -135,7 +135,22 @@ impl Shape {
     }
 }
 
-fn sphere_hit(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<LocalHit> {
+/// Where `o + t·d`, `t ∈ (tmin, tmax)`, meets the rectangle `y = 0` of half extents `half`:
+/// `(t, x, z)`.
+#[inline]
+fn quad_t(o: V3, d: V3, half: [f64; 2], tmin: f64, tmax: f64) -> Option<(f64, f64, f64)> {
+    if d[1] == 0.0 {
+        return None;
+    }
+    let t = -o[1] / d[1];
+    let x = o[0] + t * d[0];
+    let z = o[2] + t * d[2];
+    (t > tmin && t < tmax && x.abs() <= half[0] && z.abs() <= half[1]).then_some((t, x, z))
+}
+
+/// The ray parameter where `o + t·d`, `t ∈ (tmin, tmax)`, first meets the sphere `(c, r)`.
+#[inline]
+fn sphere_t(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<f64> {
     let oc = sub(o, c);
     let a = dot(d, d);
     let b = dot(d, oc);
@@ -145,9 +160,13 @@ fn sphere_hit(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<Local
     }
     let sq = disc.sqrt();
     // The front surface first; the back one only when the front lies before tmin.
-    let t = [(-b - sq) / a, (-b + sq) / a]
+    [(-b - sq) / a, (-b + sq) / a]
         .into_iter()
-        .find(|&t| t > tmin && t < tmax)?;
+        .find(|&t| t > tmin && t < tmax)
+}
+
+fn sphere_hit(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<LocalHit> {
+    let t = sphere_t(o, d, c, r, tmin, tmax)?;
     let n = normalize(sub(add(o, scale(d, t)), c));
     let lon = n[2].atan2(n[0]) / (2.0 * PI) + 0.5;
     let lat = n[1].clamp(-1.0, 1.0).asin() / PI + 0.5;
@@ -160,6 +179,24 @@ fn sphere_hit(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<Local
 }
 
 fn cuboid_hit(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
+    let (t, k) = cuboid_t(o, d, min, max, tmin, tmax)?;
+    let p = add(o, scale(d, t));
+    let mid = 0.5 * (min[k] + max[k]);
+    let mut n = [0.0; 3];
+    n[k] = if p[k] >= mid { 1.0 } else { -1.0 };
+    let face = 2 * k as u32 + u32::from(n[k] > 0.0);
+    Some(LocalHit {
+        t,
+        normal: n,
+        uv: [p[(k + 1) % 3], p[(k + 2) % 3]],
+        face,
+    })
+}
+
+/// Where `o + t·d`, `t ∈ (tmin, tmax)`, first meets the box `[min, max]`: `(t, axis of the
+/// face)`.
+#[inline]
+fn cuboid_t(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<(f64, usize)> {
     let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
     let (mut a0, mut a1) = (0usize, 0usize);
     for k in 0..3 {
@@ -186,23 +223,41 @@ fn cuboid_hit(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<Lo
         return None;
     }
     let (t, k) = if t0 > tmin { (t0, a0) } else { (t1, a1) };
-    if !(t > tmin && t < tmax) {
-        return None;
-    }
+    (t > tmin && t < tmax).then_some((t, k))
+}
+
+fn capsule_hit(o: V3, d: V3, a: V3, b: V3, r: f64, tmin: f64, tmax: f64) -> Option<LocalHit> {
+    let (t, radial, face, axis) = capsule_t(o, d, a, b, r, tmin, tmax)?;
+    let n = normalize(radial);
     let p = add(o, scale(d, t));
-    let mid = 0.5 * (min[k] + max[k]);
-    let mut n = [0.0; 3];
-    n[k] = if p[k] >= mid { 1.0 } else { -1.0 };
-    let face = 2 * k as u32 + u32::from(n[k] > 0.0);
+    // UV: angle around the axis (against a fixed perpendicular) and distance along it.
+    let e1 = normalize(if axis[0].abs() < 0.9 {
+        cross(axis, [1.0, 0.0, 0.0])
+    } else {
+        cross(axis, [0.0, 1.0, 0.0])
+    });
+    let e2 = cross(axis, e1);
+    let ang = dot(n, e2).atan2(dot(n, e1)) / (2.0 * PI) + 0.5;
     Some(LocalHit {
         t,
         normal: n,
-        uv: [p[(k + 1) % 3], p[(k + 2) % 3]],
+        uv: [ang, dot(sub(p, a), axis)],
         face,
     })
 }
 
-fn capsule_hit(o: V3, d: V3, a: V3, b: V3, r: f64, tmin: f64, tmax: f64) -> Option<LocalHit> {
+/// Where `o + t·d`, `t ∈ (tmin, tmax)`, first meets the capsule: `(t, the unnormalised radial
+/// direction, face, unit axis)`.
+#[inline]
+fn capsule_t(
+    o: V3,
+    d: V3,
+    a: V3,
+    b: V3,
+    r: f64,
+    tmin: f64,
+    tmax: f64,
+) -> Option<(f64, V3, u32, V3)> {
     let ba = sub(b, a);
     let len2 = dot(ba, ba);
     let len = len2.sqrt();
@@ -233,32 +288,18 @@ fn capsule_hit(o: V3, d: V3, a: V3, b: V3, r: f64, tmin: f64, tmax: f64) -> Opti
     }
     for (c, face) in [(a, 1), (b, 2)] {
         let lim = best.map_or(tmax, |b| b.0);
-        if let Some(h) = sphere_hit(o, d, c, r, tmin, lim) {
+        if let Some(t) = sphere_t(o, d, c, r, tmin, lim) {
             // Only the cap's outer half belongs to the capsule.
-            let p = add(o, scale(d, h.t));
+            let p = add(o, scale(d, t));
             let s = dot(sub(p, a), axis);
             if (face == 1 && s <= 0.0) || (face == 2 && s >= len) {
-                best = Some((h.t, scale(h.normal, r), face));
+                // The cap sphere's unit normal at the hit, scaled back to the radius.
+                let n = normalize(sub(add(o, scale(d, t)), c));
+                best = Some((t, scale(n, r), face));
             }
         }
     }
-    let (t, radial, face) = best?;
-    let n = normalize(radial);
-    let p = add(o, scale(d, t));
-    // UV: angle around the axis (against a fixed perpendicular) and distance along it.
-    let e1 = normalize(if axis[0].abs() < 0.9 {
-        cross(axis, [1.0, 0.0, 0.0])
-    } else {
-        cross(axis, [0.0, 1.0, 0.0])
-    });
-    let e2 = cross(axis, e1);
-    let ang = dot(n, e2).atan2(dot(n, e1)) / (2.0 * PI) + 0.5;
-    Some(LocalHit {
-        t,
-        normal: n,
-        uv: [ang, dot(sub(p, a), axis)],
-        face,
-    })
+    best.map(|(t, radial, face)| (t, radial, face, axis))
 }
 
 #[cfg(test)]

@@ -448,3 +448,92 @@ fn supersampled_flat_colour_equals_the_point_sample() {
     }
     assert!(flat > 1000, "only {flat} flat pixels compared");
 }
+
+/// FNV-1a (64-bit) of a byte stream: a fixed, dependency-free digest for the pinned renders.
+fn fnv1a(bytes: impl IntoIterator<Item = u8>) -> u64 {
+    bytes.into_iter().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// Every byte of a camera's server buffers, floats by their bits.
+fn buffer_bytes(b: &reproj_core::CameraBuffers) -> Vec<u8> {
+    let floats = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let mut out = b.color.clone();
+    out.extend(floats(&b.depth));
+    out.extend(floats(&b.motion_fwd));
+    out.extend(floats(&b.motion_bwd));
+    for sb in [&b.shadow_fwd, &b.shadow_bwd] {
+        out.extend(sb.bits.iter().flat_map(|x| x.to_le_bytes()));
+        out.extend(&sb.s_min);
+        out.extend(&sb.s_max);
+    }
+    out
+}
+
+/// The renderer's output pinned byte for byte: one server frame (main and both auxiliary
+/// cameras, every buffer, 3×3 colour sub-samples) and one ground-truth frame (3×3, and 2×2 at
+/// the same camera) of every built-in scene, static and dynamic, at 48×27. Speed-ups of the
+/// renderer (traversal, intersection, BVH) must leave these digests unchanged; a deliberate
+/// change of the images updates them together with the recording format's renderer version.
+#[test]
+fn renders_are_pinned_byte_for_byte() {
+    const SCALE: f64 = 0.01875; // 48×27 main camera, 24×13 auxiliary ones.
+    let pinned: [(&str, Variant, u64, u64); 6] = [
+        (
+            "courtyard",
+            Variant::Static,
+            0xaa6b74688cac063f,
+            0x8fa14b17f3a5eab2,
+        ),
+        (
+            "courtyard",
+            Variant::Dynamic,
+            0x58ff4f686f814948,
+            0x74396a18356b07ad,
+        ),
+        (
+            "colonnade",
+            Variant::Static,
+            0xe9cb07e030d24047,
+            0xa7a8fd8a53672bb7,
+        ),
+        (
+            "colonnade",
+            Variant::Dynamic,
+            0xc107c20a08c050da,
+            0xcb2d36690f229f24,
+        ),
+        (
+            "lab",
+            Variant::Static,
+            0x0850591b8f6821bc,
+            0xaa06ff8591403244,
+        ),
+        (
+            "lab",
+            Variant::Dynamic,
+            0x6d82b12bbc8c95e3,
+            0x35c2fa34ed32cf20,
+        ),
+    ];
+    let mut got = Vec::new();
+    for &(name, variant, _, _) in &pinned {
+        let scene = builtin(name, variant).unwrap();
+        let frame = crate::render_server_frame(&scene, 12, SCALE, 10.0, S).unwrap();
+        let server = fnv1a(
+            std::iter::once(&frame.main)
+                .chain(&frame.aux)
+                .flat_map(|c| buffer_bytes(&c.buffers)),
+        );
+        let n = 150; // t = 1.25 s at 120 Hz, between server frames.
+        let mut truth = crate::render_client_frame(&scene, n, SCALE, 120.0, false).unwrap();
+        let (w, h) = crate::main_size(SCALE).unwrap();
+        let pose = scene.path.client_pose(n as f64 / 120.0);
+        let cam = crate::rig::mono(&pose, w, h, scene.near, scene.far);
+        truth.push(render_ground_truth(&scene, &cam, n as f64 / 120.0, 2).unwrap());
+        got.push((name, variant, server, fnv1a(truth.concat())));
+    }
+    let expect: Vec<_> = pinned.to_vec();
+    assert_eq!(got, expect, "renders differ from the pinned digests");
+}
