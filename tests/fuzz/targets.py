@@ -125,7 +125,7 @@ def quad_gltf() -> tuple[dict[str, Any], bytes]:
     blob = (
         struct.pack("<12f", *pos)
         + struct.pack("<6H", 0, 1, 2, 0, 2, 3)
-        + b"\0\0"
+        + b"\0" * 4  # the key times start at byte 64, as their buffer view says
         + struct.pack("<2f", *times)
         + struct.pack("<6f", *moves)
     )
