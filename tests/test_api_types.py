@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 import splitrender as sr
-from splitrender.errors import SplitRenderError
+from splitrender.errors import InvalidInputError, SplitRenderError
 
 #: Bad values by what a parameter takes. ``BIG`` is an int no float can hold.
 BIG = 10**400
@@ -342,6 +342,8 @@ TABLE: dict[str, Entry] = {
     "Trace.pose": (lambda f: f.trace.pose, lambda f: dict(t=0.01), dict(t=NUMBER)),
     "metrics.psnr": (lambda f: sr.metrics.psnr, lambda f: dict(a=f.img, b=f.img),
                      dict(a=THING, b=THING)),
+    "metrics.psnr_of_mse": (lambda f: sr.metrics.psnr_of_mse, lambda f: dict(mse=0.01),
+                            dict(mse=[*NUMBER, -1e-9])),
     "metrics.ssim": (lambda f: sr.metrics.ssim, lambda f: dict(a=f.img, b=f.img),
                      dict(a=THING, b=THING)),
     "metrics.ssim_map": (lambda f: sr.metrics.ssim_map, lambda f: dict(a=f.img, b=f.img),
@@ -399,10 +401,8 @@ EXEMPT: dict[str, str] = {
     "RealtimeClient.wait": "covered by test_realtime",
     "RealtimeClient.render": "the same checks as Client.render, which it calls",
     "RealtimeClient.run": "covered by test_realtime (seconds: NaN, inf, 0, bool)",
-    # Not yet: the native method converts method and threads with PyO3's own conversions, so
-    # method=None raises TypeError and threads=10**400 OverflowError. prepare_pair() is the
-    # checked form; the bindings' signature has to take PyAny to fix it.
-    "BidirHistory.prepare": "native; method and threads not yet checked (see comment)",
+    "BidirHistory.prepare": "native, takes the bindings' frame tuples: "
+                            "test_bidir_history_prepare_checks_its_arguments",
 }
 
 
@@ -486,3 +486,17 @@ def test_a_bad_argument_raises_the_package_error_naming_it(
             pytest.fail(f"{name}({param}={value!r}) raised {type(e).__name__}: {e}")
         else:
             pytest.fail(f"{name}({param}={value!r}) was accepted")
+
+
+@pytest.mark.parametrize(
+    ("method", "threads", "named"),
+    [(None, None, "method"), (3, None, "method"), ("ours", 10**400, "threads"),
+     ("ours", "2", "threads"), ("ours", True, "threads"), ("ours", 0, "threads")],
+)
+def test_bidir_history_prepare_checks_its_arguments(
+    method: Any, threads: Any, named: str
+) -> None:
+    """The native method takes Python objects and checks them itself (pyo3's conversions raised
+    TypeError and OverflowError); the frames are never reached."""
+    with pytest.raises(InvalidInputError, match=named):
+        sr.BidirHistory().prepare(method, None, None, None, None, threads)  # type: ignore[arg-type]

@@ -107,23 +107,34 @@ impl BidirHistory {
     #[pyo3(signature = (method, older, newer, client, options=None, threads=None))]
     fn prepare<'py>(
         slf: &Bound<'py, Self>,
-        method: &str,
+        method: &Bound<'py, PyAny>,
         older: Option<&Bound<'py, PyAny>>,
         newer: &Bound<'py, PyAny>,
         client: &Bound<'py, PyAny>,
         options: Option<&Bound<'py, PyAny>>,
-        threads: Option<i64>,
+        threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<()> {
         guarded("BidirHistory.prepare", || {
-            let args = CallArgs::extract(method, older, newer, client, options)?;
-            let threads = match threads {
-                Some(t) if !(1..=MAX_PREPARE_THREADS).contains(&t) => {
-                    return Err(invalid(format!(
-                        "threads: expected None or 1..={MAX_PREPARE_THREADS}, got {t}"
-                    )))
-                }
-                t => t.map(|t| t as usize),
+            // Taken as objects and checked here: pyo3's own conversion of `&str` and `i64`
+            // raised TypeError / OverflowError, outside the package's hierarchy (issue 15).
+            let method: String = method.extract().map_err(|_| {
+                invalid(format!(
+                    "method: expected a method name (str), got {}",
+                    convert::describe(method)
+                ))
+            })?;
+            let threads = match threads.filter(|t| !t.is_none()) {
+                None => None,
+                Some(t) => match convert::int(t, "threads")? {
+                    t if (1..=MAX_PREPARE_THREADS).contains(&t) => Some(t as usize),
+                    t => {
+                        return Err(invalid(format!(
+                            "threads: expected None or 1..={MAX_PREPARE_THREADS}, got {t}"
+                        )))
+                    }
+                },
             };
+            let args = CallArgs::extract(&method, older, newer, client, options)?;
             let mut hist = history_mut(slf.as_any())?;
             let older_view = args.older.as_ref().map(FrameArrays::view).transpose()?;
             let newer_view = args.newer.view()?;

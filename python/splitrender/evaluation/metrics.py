@@ -178,10 +178,9 @@ def _mse(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
     return float(np.mean((x - y) ** 2))
 
 
+@checked(mse=floats(lo=0.0))
 def psnr_of_mse(mse: float) -> float:
     """``min(−10·log10(mse), PSNR_CAP_DB)`` for a mean squared error of values in ``[0, 1]``."""
-    if not mse >= 0.0 or not math.isfinite(mse):
-        raise InvalidInputError(f"mse: expected a finite number >= 0, got {mse!r}")
     if mse <= 10.0 ** (-PSNR_CAP_DB / 10.0):
         return PSNR_CAP_DB
     return min(PSNR_CAP_DB, -10.0 * math.log10(mse))
