@@ -659,6 +659,10 @@ def _rate(v: float) -> str:
     return f"{f.numerator}/{f.denominator}"
 
 
+#: The smallest side (pixels) FFmpeg's minterpolate emits frames for: two of its 16-pixel blocks.
+_MINTERPOLATE_MIN = 32
+
+
 def minterpolate(
     frames: Sequence[_Image], fs: float, fc: float, n_out: int
 ) -> list[_Image]:
@@ -676,9 +680,17 @@ def minterpolate(
 
     if not frames:
         raise SplitRenderError("minterpolate: no frames")
-    h, w = frames[0].shape[:2]
-    data = b"".join(np.ascontiguousarray(f, dtype=np.uint8).tobytes()
-                    for f in [*frames, frames[-1]])
+    h0, w0 = frames[0].shape[:2]
+    # The filter emits nothing for a picture under two 16-pixel blocks a side (ffmpeg exits 234
+    # "Nothing was written"; e.g. a 26x14 dataset, found by the fuzz suite): smaller frames are
+    # padded by repeating their edge and the output cropped back.
+    ph, pw = max(0, _MINTERPOLATE_MIN - h0), max(0, _MINTERPOLATE_MIN - w0)
+    h, w = h0 + ph, w0 + pw
+    data = b"".join(
+        np.ascontiguousarray(np.pad(f, ((0, ph), (0, pw), (0, 0)), mode="edge") if ph or pw
+                             else f, dtype=np.uint8).tobytes()
+        for f in [*frames, frames[-1]]
+    )
     cmd = [
         _ffmpeg(), "-nostdin", "-hide_banner", "-loglevel", "error",
         "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", _rate(fs), "-i", "-",
@@ -695,7 +707,7 @@ def minterpolate(
     if n < n_out:
         raise SplitRenderError(f"minterpolate: ffmpeg emitted {n} frames, expected {n_out}")
     out = np.frombuffer(proc.stdout, np.uint8, count=n_out * h * w * 3).reshape(n_out, h, w, 3)
-    return [out[i].copy() for i in range(n_out)]
+    return [out[i, :h0, :w0].copy() for i in range(n_out)]
 
 
 def _main_colour_depth(f: Any) -> Any:
