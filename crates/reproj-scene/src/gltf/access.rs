@@ -333,20 +333,11 @@ pub(super) fn read<const N: usize>(
             }
         };
         let isize_ = component_size(it);
-        let idx = view_bytes(
-            path,
-            root,
-            buffers,
-            s.indices.buffer_view.value(),
-            &format!("{name} sparse indices"),
-        )?;
-        let vals = view_bytes(
-            path,
-            root,
-            buffers,
-            s.values.buffer_view.value(),
-            &format!("{name} sparse values"),
-        )?;
+        let sparse_bytes = |view: usize, part: &str| {
+            view_bytes(path, root, buffers, view, &format!("{name} sparse {part}"))
+        };
+        let idx = sparse_bytes(s.indices.buffer_view.value(), "indices")?;
+        let vals = sparse_bytes(s.values.buffer_view.value(), "values")?;
         let fits = |data: &[u8], offset: u64, size: usize| {
             (n as u64)
                 .checked_mul(size as u64)

@@ -9,7 +9,7 @@ use image::ImageFormat;
 use super::access::{self, read, Bytes, Data, Expect};
 use super::source::Sources;
 use super::{err, unsupported};
-use crate::error::Result;
+use crate::error::{Result, SceneError};
 use crate::gltf_model::{Prim, Texture};
 
 /// Largest texture side decoded (pixels).
@@ -91,6 +91,31 @@ fn vec3s(v: Vec<[f64; 3]>) -> Vec<DVec3> {
     v.into_iter().map(DVec3::from_array).collect()
 }
 
+/// The optional per-vertex attribute `semantic` of primitive `p`: `None` when the primitive has
+/// none; an error (through `here`, which names the primitive) when it has other than one entry
+/// for each of the `n` vertices.
+fn per_vertex<const N: usize>(
+    data: &mut Data<'_>,
+    p: &gltf::Primitive<'_>,
+    semantic: gltf::Semantic,
+    expect: &Expect,
+    n: usize,
+    here: &dyn Fn(String) -> SceneError,
+) -> Result<Option<Vec<[f64; N]>>> {
+    let Some(a) = p.get(&semantic) else {
+        return Ok(None);
+    };
+    let what = semantic.to_string(); // "TEXCOORD_0", as the file names it
+    let v = read::<N>(data, a.index(), &what, expect)?;
+    if v.len() != n {
+        return Err(here(format!(
+            "{what} has {} entries for {n} vertices",
+            v.len()
+        )));
+    }
+    Ok(Some(v))
+}
+
 pub(super) fn read_primitive(
     data: &mut Data<'_>,
     mesh: usize,
@@ -98,6 +123,7 @@ pub(super) fn read_primitive(
     p: &gltf::Primitive<'_>,
 ) -> Result<Prim> {
     use gltf::json::accessor::{ComponentType as C, Type};
+    use gltf::Semantic as S;
     let path = data.path;
     let here = |problem: String| err(path, format!("mesh {mesh} primitive {k}: {problem}"));
     if p.mode() != gltf::mesh::Mode::Triangles {
@@ -109,8 +135,7 @@ pub(super) fn read_primitive(
             ),
         ));
     }
-    let attribute = |semantic: gltf::Semantic| p.get(&semantic).map(|a| a.index());
-    let Some(pos) = attribute(gltf::Semantic::Positions) else {
+    let Some(pos) = p.get(&gltf::Semantic::Positions).map(|a| a.index()) else {
         return Err(here("no POSITION attribute".into()));
     };
     let positions = read::<3>(data, pos, "POSITION", &Expect::floats(Type::Vec3))?;
@@ -122,69 +147,36 @@ pub(super) fn read_primitive(
     )?;
     let positions = vec3s(positions);
     let n = positions.len();
-    let same = |what: &str, len: usize| {
-        if len == n {
-            Ok(())
-        } else {
-            Err(here(format!("{what} has {len} entries for {n} vertices")))
-        }
-    };
-    let normals = match attribute(gltf::Semantic::Normals) {
-        Some(a) => {
-            let v = vec3s(read::<3>(data, a, "NORMAL", &Expect::floats(Type::Vec3))?);
-            same("NORMAL", v.len())?;
-            Some(v)
-        }
-        None => None,
-    };
     const UNORM: &[(C, bool)] = &[(C::F32, false), (C::U8, true), (C::U16, true)];
-    let uvs = match attribute(gltf::Semantic::TexCoords(0)) {
-        Some(a) => {
-            let expect = Expect {
-                ty: Type::Vec2,
-                components: UNORM,
-            };
-            let v = read::<2>(data, a, "TEXCOORD_0", &expect)?;
-            same("TEXCOORD_0", v.len())?;
-            Some(v)
-        }
-        None => None,
+    const VEC3: Expect = Expect::floats(Type::Vec3);
+    const UV: Expect = Expect {
+        ty: Type::Vec2,
+        components: UNORM,
     };
-    let joints = match attribute(gltf::Semantic::Joints(0)) {
-        Some(a) => {
-            let expect = Expect {
-                ty: Type::Vec4,
-                components: &[(C::U8, false), (C::U16, false)],
-            };
-            let v = read::<4>(data, a, "JOINTS_0", &expect)?;
-            same("JOINTS_0", v.len())?;
-            // Unsigned 8- or 16-bit integers, so the casts are exact.
-            Some(v.into_iter().map(|j| j.map(|x| x as u16)).collect())
-        }
-        None => None,
+    const JOINTS: Expect = Expect {
+        ty: Type::Vec4,
+        components: &[(C::U8, false), (C::U16, false)],
     };
-    let weights = match attribute(gltf::Semantic::Weights(0)) {
-        Some(a) => {
-            let expect = Expect {
-                ty: Type::Vec4,
-                components: UNORM,
-            };
-            let v = read::<4>(data, a, "WEIGHTS_0", &expect)?;
-            same("WEIGHTS_0", v.len())?;
-            // Skinning divides by the sum of the weights: a negative one could make it tiny.
-            if let Some(i) = v
-                .iter()
-                .position(|w| w.iter().any(|&x| !(0.0..=1e6).contains(&x)))
-            {
-                return Err(here(format!(
-                    "WEIGHTS_0 of vertex {i} is {:?}, expected non-negative weights",
-                    v[i]
-                )));
-            }
-            Some(v)
-        }
-        None => None,
+    const WEIGHTS: Expect = Expect {
+        ty: Type::Vec4,
+        components: UNORM,
     };
+    let normals = per_vertex::<3>(data, p, S::Normals, &VEC3, n, &here)?;
+    let uvs = per_vertex::<2>(data, p, S::TexCoords(0), &UV, n, &here)?;
+    let joints = per_vertex::<4>(data, p, S::Joints(0), &JOINTS, n, &here)?;
+    let weights = per_vertex::<4>(data, p, S::Weights(0), &WEIGHTS, n, &here)?;
+    // Skinning divides by the sum of the weights: a negative one could make it tiny.
+    if let Some(v) = &weights {
+        if let Some(i) = v
+            .iter()
+            .position(|w| w.iter().any(|&x| !(0.0..=1e6).contains(&x)))
+        {
+            return Err(here(format!(
+                "WEIGHTS_0 of vertex {i} is {:?}, expected non-negative weights",
+                v[i]
+            )));
+        }
+    }
     let flat: Vec<u32> = match p.indices() {
         Some(a) => access::read_indices(data, a.index(), "indices")?,
         None => {
@@ -209,9 +201,10 @@ pub(super) fn read_primitive(
     }
     Ok(Prim {
         positions,
-        normals,
+        normals: normals.map(vec3s),
         uvs,
-        joints,
+        // Unsigned 8- or 16-bit integers, so the casts are exact.
+        joints: joints.map(|v| v.into_iter().map(|j| j.map(|x| x as u16)).collect()),
         weights,
         triangles: flat.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
         material: p.material().index(),
