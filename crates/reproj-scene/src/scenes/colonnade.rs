@@ -3,7 +3,7 @@
 
 use std::f64::consts::PI;
 
-use super::{at, capsule, cuboid, finish, path, sun};
+use super::{at, capsule, cuboid, finish, path, sun, swing_x};
 use crate::anim::Anim;
 use crate::material::Material;
 use crate::material::Pattern::{Bricks, Checker, Noise, Tiles};
@@ -51,13 +51,7 @@ fn runner(objects: &mut Vec<Object>, start: V3, speed: f64, stride: f64) -> usiz
             at([0.0, 0.06, 0.0]),
         )
         .child_of(pelvis)
-        .animated([Anim::Swing {
-            axis: [1.0, 0.0, 0.0],
-            offset: -0.2,
-            amplitude: 0.05,
-            rate: 2.0 * stride,
-            phase: 0.5,
-        }]),
+        .animated([swing_x(-0.2, 0.05, 2.0 * stride, 0.5)]),
     );
     objects.push(
         Object::new(
@@ -78,13 +72,7 @@ fn runner(objects: &mut Vec<Object>, start: V3, speed: f64, stride: f64) -> usiz
                 at([0.25 * side, 0.5, 0.0]),
             )
             .child_of(torso)
-            .animated([Anim::Swing {
-                axis: [1.0, 0.0, 0.0],
-                offset: 0.0,
-                amplitude: 0.9,
-                rate: stride,
-                phase,
-            }]),
+            .animated([swing_x(0.0, 0.9, stride, phase)]),
         );
         objects.push(
             Object::new(
@@ -94,13 +82,7 @@ fn runner(objects: &mut Vec<Object>, start: V3, speed: f64, stride: f64) -> usiz
                 at([0.0, -0.3, 0.0]),
             )
             .child_of(upper)
-            .animated([Anim::Swing {
-                axis: [1.0, 0.0, 0.0],
-                offset: 1.3,
-                amplitude: 0.3,
-                rate: stride,
-                phase,
-            }]),
+            .animated([swing_x(1.3, 0.3, stride, phase)]),
         );
         let thigh = objects.len();
         objects.push(
@@ -111,13 +93,7 @@ fn runner(objects: &mut Vec<Object>, start: V3, speed: f64, stride: f64) -> usiz
                 at([0.1 * side, -0.05, 0.0]),
             )
             .child_of(pelvis)
-            .animated([Anim::Swing {
-                axis: [1.0, 0.0, 0.0],
-                offset: 0.1,
-                amplitude: 0.75,
-                rate: stride,
-                phase: phase + PI,
-            }]),
+            .animated([swing_x(0.1, 0.75, stride, phase + PI)]),
         );
         objects.push(
             Object::new(
@@ -127,13 +103,7 @@ fn runner(objects: &mut Vec<Object>, start: V3, speed: f64, stride: f64) -> usiz
                 at([0.0, -0.44, 0.0]),
             )
             .child_of(thigh)
-            .animated([Anim::Swing {
-                axis: [1.0, 0.0, 0.0],
-                offset: -0.7,
-                amplitude: 0.6,
-                rate: stride,
-                phase: phase + PI - 1.2,
-            }]),
+            .animated([swing_x(-0.7, 0.6, stride, phase + PI - 1.2)]),
         );
     }
     pelvis

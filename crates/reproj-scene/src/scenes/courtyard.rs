@@ -3,7 +3,7 @@
 
 use std::f64::consts::PI;
 
-use super::{at, cuboid, finish, path, sun, turned};
+use super::{at, cuboid, finish, path, sun, swing_x, turned};
 use crate::anim::Anim;
 use crate::material::Material;
 use crate::material::Pattern::{Bricks, Checker, Noise, Tiles};
@@ -205,13 +205,7 @@ pub fn courtyard(variant: Variant) -> Scene {
             Material::matte(Checker, [0.2, 0.35, 0.7], [0.9, 0.85, 0.6], 6.0, 12),
             at([-1.0, 3.45, -11.9]),
         )
-        .animated([Anim::Swing {
-            axis: [1.0, 0.0, 0.0],
-            offset: 0.0,
-            amplitude: 0.35,
-            rate: 3.0,
-            phase: 0.0,
-        }]),
+        .animated([swing_x(0.0, 0.35, 3.0, 0.0)]),
     );
     // A windmill: a hub spinning with four blades as children.
     o.push(Object::new(

@@ -3,7 +3,7 @@
 
 use std::f64::consts::PI;
 
-use super::{at, cuboid, finish, path, sun, turned};
+use super::{at, cuboid, finish, path, sun, swing_x, turned};
 use crate::anim::Anim;
 use crate::material::Material;
 use crate::material::Pattern::{Checker, Noise, Tiles};
@@ -142,13 +142,7 @@ pub fn lab(variant: Variant) -> Scene {
             at([0.0, 0.75, 0.0]),
         )
         .child_of(base)
-        .animated([Anim::Swing {
-            axis: [1.0, 0.0, 0.0],
-            offset: -0.5,
-            amplitude: 0.35,
-            rate: 1.7,
-            phase: 0.3,
-        }]),
+        .animated([swing_x(-0.5, 0.35, 1.7, 0.3)]),
     );
     let fore = o.len();
     o.push(
@@ -163,13 +157,7 @@ pub fn lab(variant: Variant) -> Scene {
             at([0.0, 1.1, 0.0]),
         )
         .child_of(upper)
-        .animated([Anim::Swing {
-            axis: [1.0, 0.0, 0.0],
-            offset: -1.1,
-            amplitude: 0.5,
-            rate: 2.3,
-            phase: 1.0,
-        }]),
+        .animated([swing_x(-1.1, 0.5, 2.3, 1.0)]),
     );
     for side in [-1.0, 1.0] {
         o.push(

@@ -21,6 +21,7 @@ mod lab;
 #[cfg(test)]
 mod tests;
 
+use crate::anim::Anim;
 use crate::error::{Result, SceneError};
 use crate::math::{Rigid, V3};
 use crate::rig::CameraPath;
@@ -57,6 +58,18 @@ fn at(p: V3) -> Rigid {
 
 fn turned(p: V3, axis: V3, angle: f64) -> Rigid {
     Rigid::translation(p).then(&Rigid::rotation(axis, angle))
+}
+
+/// A joint swinging about its x axis (a limb or a hanging sign pitching forward and back):
+/// [`Anim::Swing`] by `offset + amplitude·sin(rate·t + phase)` rad.
+fn swing_x(offset: f64, amplitude: f64, rate: f64, phase: f64) -> Anim {
+    Anim::Swing {
+        axis: [1.0, 0.0, 0.0],
+        offset,
+        amplitude,
+        rate,
+        phase,
+    }
 }
 
 fn cuboid(half: V3) -> Shape {
