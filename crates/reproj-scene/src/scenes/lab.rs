@@ -3,7 +3,7 @@
 
 use std::f64::consts::PI;
 
-use super::{at, cuboid, finish, path, sun, swing_x, turned};
+use super::{at, cuboid, finish, path, sun, swing_x, turned, upright_capsule};
 use crate::anim::Anim;
 use crate::material::Material;
 use crate::material::Pattern::{Checker, Noise, Tiles};
@@ -113,11 +113,7 @@ pub fn lab(variant: Variant) -> Scene {
     o.push(
         Object::new(
             "arm base",
-            Shape::Capsule {
-                a: [0.0, 0.0, 0.0],
-                b: [0.0, 0.6, 0.0],
-                radius: 0.22,
-            },
+            upright_capsule(0.6, 0.22),
             orange,
             at([4.0, 0.2, -2.5]),
         )
@@ -133,11 +129,7 @@ pub fn lab(variant: Variant) -> Scene {
     o.push(
         Object::new(
             "arm upper",
-            Shape::Capsule {
-                a: [0.0; 3],
-                b: [0.0, 1.1, 0.0],
-                radius: 0.11,
-            },
+            upright_capsule(1.1, 0.11),
             steel,
             at([0.0, 0.75, 0.0]),
         )
@@ -148,11 +140,7 @@ pub fn lab(variant: Variant) -> Scene {
     o.push(
         Object::new(
             "arm fore",
-            Shape::Capsule {
-                a: [0.0; 3],
-                b: [0.0, 0.9, 0.0],
-                radius: 0.08,
-            },
+            upright_capsule(0.9, 0.08),
             orange,
             at([0.0, 1.1, 0.0]),
         )

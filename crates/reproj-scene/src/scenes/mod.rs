@@ -79,10 +79,20 @@ fn cuboid(half: V3) -> Shape {
     }
 }
 
+/// A capsule hanging `len` below its joint at the origin (a limb).
 fn capsule(len: f64, radius: f64) -> Shape {
     Shape::Capsule {
         a: [0.0; 3],
         b: [0.0, -len, 0.0],
+        radius,
+    }
+}
+
+/// A capsule standing `len` above its base at the origin (a robot arm's segment).
+fn upright_capsule(len: f64, radius: f64) -> Shape {
+    Shape::Capsule {
+        a: [0.0; 3],
+        b: [0.0, len, 0.0],
         radius,
     }
 }
