@@ -313,6 +313,138 @@ pub(crate) struct Snapshot<'a> {
     /// Per object: the light direction in object space and the object-space bounds, what the
     /// shadow rays' culling needs of every object on every evaluation.
     light_obj: Vec<(V3, Bounds)>,
+    /// The shadow-casting objects arranged across the light, so each shadow evaluation visits
+    /// only those its cone can reach.
+    cull: ShadowCull,
+}
+
+/// A conservative pre-selection for the shadow cull, built once per instant.
+///
+/// With `a` the light's angular radius (plus a little, to cover the exact test's tolerance),
+/// `s = sin a`, and an object's bounding sphere `(c, r)` at distance `dist` from the point `x`,
+/// the exact sphere test in [`Snapshot::shadow`] keeps only objects whose centre lies within
+/// `r + s·dist` of the line `x + t·l`; with `q` that lateral distance and `h` the distance along
+/// `l`, `dist ≤ |h| + q` gives `q ≤ (r + s·|h|) / (1 − s)`. Objects are sorted by one coordinate
+/// across the light, so a query reads only the window that bound allows for the largest ordinary
+/// radius and depth range; the few large objects (ground, walls) are always tested. Both the
+/// window and the per-object bound keep a 1 % margin plus an absolute one against rounding, so
+/// they never reject an object that the exact tests would keep: the candidate set is unchanged.
+struct ShadowCull {
+    /// Unit vectors across the light.
+    e1: V3,
+    e2: V3,
+    /// `sin a` and `1.01 / (1 − s)`; `None` for a light so wide that the bound is useless.
+    s: Option<(f64, f64)>,
+    /// Per object: centre's coordinates `(u, v, w)` along `e1`, `e2`, `l`.
+    proj: Vec<V3>,
+    /// Ordinary shadow casters as `(u, index)`, sorted by `u`.
+    sorted: Vec<(f64, usize)>,
+    /// Shadow casters always tested (large, or every caster when the light is too wide).
+    big: Vec<usize>,
+    /// Largest radius among `sorted`, the range of `w` over all casters, and the scale of the
+    /// coordinates (for the absolute margin).
+    r_small: f64,
+    w_range: (f64, f64),
+    size: f64,
+}
+
+impl ShadowCull {
+    fn new(objects: &[Object], spheres: &[(V3, f64)], l: V3, angular_radius: f64) -> ShadowCull {
+        let e1 = normalize(if l[0].abs() < 0.9 {
+            cross(l, [1.0, 0.0, 0.0])
+        } else {
+            cross(l, [0.0, 1.0, 0.0])
+        });
+        let e2 = normalize(cross(l, e1));
+        let a = angular_radius + 1e-4;
+        let s = (a < 0.5).then(|| (a.sin(), 1.01 / (1.0 - a.sin())));
+        let proj: Vec<V3> = spheres
+            .iter()
+            .map(|&(c, _)| [dot(c, e1), dot(c, e2), dot(c, l)])
+            .collect();
+        let casters: Vec<usize> = (0..objects.len())
+            .filter(|&i| objects[i].casts_shadow)
+            .collect();
+        let (mut u_lo, mut u_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let (mut w_lo, mut w_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let mut size = 1.0f64;
+        for &i in &casters {
+            let (c, r) = spheres[i];
+            u_lo = u_lo.min(proj[i][0]);
+            u_hi = u_hi.max(proj[i][0]);
+            w_lo = w_lo.min(proj[i][2]);
+            w_hi = w_hi.max(proj[i][2]);
+            size = size.max(c.iter().fold(r, |m, x| m.max(x.abs() + r)));
+        }
+        // An object wider than a sixteenth of the casters' spread would widen every window.
+        let big_r = (u_hi - u_lo) / 16.0;
+        let (mut sorted, mut big) = (Vec::new(), Vec::new());
+        let mut r_small = 0.0f64;
+        for &i in &casters {
+            let r = spheres[i].1;
+            if s.is_none() || !(r <= big_r) || !proj[i].iter().all(|x| x.is_finite()) {
+                big.push(i);
+            } else {
+                r_small = r_small.max(r);
+                sorted.push((proj[i][0], i));
+            }
+        }
+        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        ShadowCull {
+            e1,
+            e2,
+            s,
+            proj,
+            sorted,
+            big,
+            r_small,
+            w_range: (w_lo, w_hi),
+            size,
+        }
+    }
+
+    /// Calls `visit` on every shadow caster whose bounding sphere the exact test could keep for
+    /// a shadow evaluation at `x` (`ext` the largest coordinate of `x`, at least 1); `spheres`
+    /// are the objects' world bounding spheres.
+    fn visit(&self, x: V3, l: V3, ext: f64, spheres: &[(V3, f64)], mut visit: impl FnMut(usize)) {
+        let Some((s, k)) = self.s else {
+            self.big.iter().for_each(|&i| visit(i));
+            return;
+        };
+        let p = [dot(x, self.e1), dot(x, self.e2), dot(x, l)];
+        if !p.iter().all(|c| c.is_finite()) {
+            self.big
+                .iter()
+                .chain(self.sorted.iter().map(|e| &e.1))
+                .for_each(|&i| visit(i));
+            return;
+        }
+        let eps = 1e-6 * (self.size + ext);
+        let may = |i: usize| {
+            let q = &self.proj[i];
+            let (du, dv) = (q[0] - p[0], q[1] - p[1]);
+            let bound = (spheres[i].1 + s * (q[2] - p[2]).abs()) * k + eps;
+            // Rejects only on a definite answer (a NaN keeps the object, as the exact test would
+            // have to decide).
+            (du * du + dv * dv).partial_cmp(&(bound * bound)) != Some(std::cmp::Ordering::Greater)
+        };
+        for &i in &self.big {
+            if may(i) {
+                visit(i);
+            }
+        }
+        let depth = (self.w_range.1 - p[2]).max(p[2] - self.w_range.0).max(0.0);
+        let half = (self.r_small + s * depth) * k + eps;
+        let start = self.sorted.partition_point(|e| e.0 < p[0] - half);
+        for &(u, i) in &self.sorted[start..] {
+            if u > p[0] + half {
+                break;
+            }
+            if may(i) {
+                visit(i);
+            }
+        }
+    }
 }
 
 impl<'a> Snapshot<'a> {
@@ -361,7 +493,9 @@ impl<'a> Snapshot<'a> {
                 (inv[i].vector(light), b)
             })
             .collect();
+        let cull = ShadowCull::new(&scene.objects, &spheres, light, scene.light.angular_radius);
         Snapshot {
+            cull,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
             scene,
@@ -460,9 +594,9 @@ impl<'a> Snapshot<'a> {
         let mut candidates = [(0usize, [0.0f64; 3]); 16];
         let mut nc = 0;
         let mut overflow: Vec<(usize, V3)> = Vec::new();
-        for (i, o) in self.scene.objects.iter().enumerate() {
-            if !o.casts_shadow || (i == obj && o.shape.is_convex()) {
-                continue;
+        self.cull.visit(x, l, ext, &self.spheres, |i| {
+            if i == obj && self.scene.objects[i].shape.is_convex() {
+                return;
             }
             let (c, r) = self.spheres[i];
             let v = sub(c, x);
@@ -473,14 +607,14 @@ impl<'a> Snapshot<'a> {
                 let sin_b = r / dist;
                 let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
                 if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-9 {
-                    continue;
+                    return;
                 }
             }
             // The sphere is loose around long objects (walls, beams): test the light's cone
             // against the object-space box too, grown by the cone's radius at the far side of the
             // box, which contains every shadow ray's path through the box.
             if !self.cone_may_hit(i, x, (dist + r) * sin_a / cos_a) {
-                continue;
+                return;
             }
             let c = (i, self.inv[i].point(origin));
             if nc < candidates.len() {
@@ -489,7 +623,7 @@ impl<'a> Snapshot<'a> {
             } else {
                 overflow.push(c);
             }
-        }
+        });
         let below = self.samples.iter().filter(|&&s| dot(s, n) <= 0.0).count();
         if nc == 0 && overflow.is_empty() {
             return below as f64 / SHADOW_SAMPLES as f64;
