@@ -16,7 +16,7 @@ use crate::material::Material;
 use crate::math::{add, cross, dot, length, lerp, mul, normalize, scale, sub, Rigid, V3};
 use crate::mesh::{f32_ray, Bounds, LocalHit};
 use crate::rig::CameraPath;
-use crate::shape::Shape;
+use crate::shape::{Partial, Shape};
 
 /// Shadow rays per shading point over the light's disc. 32 keeps the penumbra smooth (33
 /// levels) while a fixed spiral keeps it deterministic.
@@ -516,12 +516,6 @@ impl<'a> Snapshot<'a> {
             .unwrap_or(&self.scene.objects[i].shape)
     }
 
-    fn hit_object(&self, i: usize, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
-        let inv = &self.inv[i];
-        self.shape(i)
-            .intersect(inv.point(o), inv.vector(d), tmin, tmax)
-    }
-
     /// Whether the ray `x + t·l` (`l` the light), `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
     /// object-space box.
     fn cone_may_hit(&self, i: usize, x: V3, grow: f64) -> bool {
@@ -550,27 +544,33 @@ impl<'a> Snapshot<'a> {
     pub fn trace(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
         let ray = f32_ray(o, d, f32::INFINITY);
-        let mut best: Option<Hit> = None;
+        // The winner's object and what its `t` came with, in its object space: the normal and
+        // texture coordinates are computed once, for the winner only, from the same values.
+        let mut best: Option<(usize, V3, V3, Partial)> = None;
         let mut limit = tmax;
         let mut rh = RayHit::none();
         bvh.ray_traverse(ray, &mut rh, |_, id| {
             let obj = bvh.primitive_indices[id] as usize;
-            match self.hit_object(obj, o, d, tmin, limit) {
-                Some(local) => {
-                    limit = local.t;
-                    best = Some(Hit {
-                        obj,
-                        t: local.t,
-                        local,
-                    });
+            let inv = &self.inv[obj];
+            let (lo, ld) = (inv.point(o), inv.vector(d));
+            match self.shape(obj).intersect_t(lo, ld, tmin, limit) {
+                Some(p) => {
+                    limit = p.t();
+                    best = Some((obj, lo, ld, p));
                     // Culling bound only: a little above the f64 distance, so the f32 box tests
                     // never drop a closer instance.
-                    (local.t * (1.0 + 1e-6)) as f32 + 1e-6
+                    (limit * (1.0 + 1e-6)) as f32 + 1e-6
                 }
                 None => f32::INFINITY,
             }
         });
-        best
+        let (obj, lo, ld, p) = best?;
+        let local = self.shape(obj).finish(lo, ld, p);
+        Some(Hit {
+            obj,
+            t: local.t,
+            local,
+        })
     }
 
     /// Fraction of the light's disc hidden from the point `x` with unit normal `n` (facing the
