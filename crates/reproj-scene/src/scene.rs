@@ -573,6 +573,26 @@ impl<'a> Snapshot<'a> {
         })
     }
 
+    /// The distance from `x` to object `i`'s bounding-sphere centre, or `None` where the
+    /// sphere's angular disc seen from `x` and the light's disc do not overlap (the object
+    /// cannot shadow `x`).
+    #[inline]
+    fn sphere_may_shadow(&self, i: usize, x: V3) -> Option<f64> {
+        let (sin_a, cos_a) = self.light_sin_cos;
+        let (c, r) = self.spheres[i];
+        let v = sub(c, x);
+        let dist = length(v);
+        if dist > r {
+            let cos_gamma = dot(v, self.light) / dist;
+            let sin_b = r / dist;
+            let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
+            if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-9 {
+                return None;
+            }
+        }
+        Some(dist)
+    }
+
     /// Fraction of the light's disc hidden from the point `x` with unit normal `n` (facing the
     /// side it is seen from) on object `obj`: 0 lit … 1 fully shadowed.
     ///
@@ -598,18 +618,10 @@ impl<'a> Snapshot<'a> {
             if i == obj && self.scene.objects[i].shape.is_convex() {
                 return;
             }
-            let (c, r) = self.spheres[i];
-            let v = sub(c, x);
-            let dist = length(v);
-            if dist > r {
-                // The bounding sphere's angular disc and the light's disc do not overlap.
-                let cos_gamma = dot(v, l) / dist;
-                let sin_b = r / dist;
-                let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
-                if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-9 {
-                    return;
-                }
-            }
+            let Some(dist) = self.sphere_may_shadow(i, x) else {
+                return;
+            };
+            let r = self.spheres[i].1;
             // The sphere is loose around long objects (walls, beams): test the light's cone
             // against the object-space box too, grown by the cone's radius at the far side of the
             // box, which contains every shadow ray's path through the box.
@@ -675,5 +687,55 @@ impl<'a> Snapshot<'a> {
             c = add(c, scale(light.color, s));
         }
         c.map(|v| (v * 255.0).clamp(0.0, 255.0))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{builtin, Variant, SCENE_NAMES};
+
+    /// The shadow cull's pre-selection never drops an object that the exact bounding-sphere test
+    /// keeps (so the candidate set, and the image, is unchanged), and it does drop some.
+    #[test]
+    fn shadow_cull_keeps_every_object_the_sphere_test_keeps() {
+        let (mut visited, mut kept, mut total) = (0usize, 0usize, 0usize);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3, 2.7] {
+                let snap = Snapshot::new(&scene, t);
+                let casters: Vec<usize> = (0..scene.objects.len())
+                    .filter(|&i| scene.objects[i].casts_shadow)
+                    .collect();
+                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+                for &i in &casters {
+                    let c = snap.spheres[i].0;
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(c[k] - 1.0);
+                        hi[k] = hi[k].max(c[k] + 1.0);
+                    }
+                }
+                for step in 0..729 {
+                    let f = [step % 9, step / 9 % 9, step / 81].map(|s| s as f64 / 8.0);
+                    let x = [0, 1, 2].map(|k| lo[k] + f[k] * (hi[k] - lo[k]));
+                    let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+                    let mut seen = vec![false; scene.objects.len()];
+                    snap.cull
+                        .visit(x, snap.light, ext, &snap.spheres, |i| seen[i] = true);
+                    for &i in &casters {
+                        total += 1;
+                        visited += usize::from(seen[i]);
+                        if snap.sphere_may_shadow(i, x).is_some() {
+                            kept += 1;
+                            assert!(seen[i], "{name} t={t} x={x:?}: object {i} dropped");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            kept > 0 && visited < total,
+            "kept {kept}, visited {visited} of {total}"
+        );
     }
 }
