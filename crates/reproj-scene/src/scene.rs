@@ -16,7 +16,7 @@ use crate::material::Material;
 use crate::math::{add, cross, dot, length, lerp, mul, normalize, scale, sub, Rigid, V3};
 use crate::mesh::{f32_ray, Bounds, LocalHit};
 use crate::rig::CameraPath;
-use crate::shape::Shape;
+use crate::shape::{Partial, Shape};
 
 /// Shadow rays per shading point over the light's disc. 32 keeps the penumbra smooth (33
 /// levels) while a fixed spiral keeps it deterministic.
@@ -313,6 +313,138 @@ pub(crate) struct Snapshot<'a> {
     /// Per object: the light direction in object space and the object-space bounds, what the
     /// shadow rays' culling needs of every object on every evaluation.
     light_obj: Vec<(V3, Bounds)>,
+    /// The shadow-casting objects arranged across the light, so each shadow evaluation visits
+    /// only those its cone can reach.
+    cull: ShadowCull,
+}
+
+/// A conservative pre-selection for the shadow cull, built once per instant.
+///
+/// With `a` the light's angular radius (plus a little, to cover the exact test's tolerance),
+/// `s = sin a`, and an object's bounding sphere `(c, r)` at distance `dist` from the point `x`,
+/// the exact sphere test in [`Snapshot::shadow`] keeps only objects whose centre lies within
+/// `r + s·dist` of the line `x + t·l`; with `q` that lateral distance and `h` the distance along
+/// `l`, `dist ≤ |h| + q` gives `q ≤ (r + s·|h|) / (1 − s)`. Objects are sorted by one coordinate
+/// across the light, so a query reads only the window that bound allows for the largest ordinary
+/// radius and depth range; the few large objects (ground, walls) are always tested. Both the
+/// window and the per-object bound keep a 1 % margin plus an absolute one against rounding, so
+/// they never reject an object that the exact tests would keep: the candidate set is unchanged.
+struct ShadowCull {
+    /// Unit vectors across the light.
+    e1: V3,
+    e2: V3,
+    /// `sin a` and `1.01 / (1 − s)`; `None` for a light so wide that the bound is useless.
+    s: Option<(f64, f64)>,
+    /// Per object: centre's coordinates `(u, v, w)` along `e1`, `e2`, `l`.
+    proj: Vec<V3>,
+    /// Ordinary shadow casters as `(u, index)`, sorted by `u`.
+    sorted: Vec<(f64, usize)>,
+    /// Shadow casters always tested (large, or every caster when the light is too wide).
+    big: Vec<usize>,
+    /// Largest radius among `sorted`, the range of `w` over all casters, and the scale of the
+    /// coordinates (for the absolute margin).
+    r_small: f64,
+    w_range: (f64, f64),
+    size: f64,
+}
+
+impl ShadowCull {
+    fn new(objects: &[Object], spheres: &[(V3, f64)], l: V3, angular_radius: f64) -> ShadowCull {
+        let e1 = normalize(if l[0].abs() < 0.9 {
+            cross(l, [1.0, 0.0, 0.0])
+        } else {
+            cross(l, [0.0, 1.0, 0.0])
+        });
+        let e2 = normalize(cross(l, e1));
+        let a = angular_radius + 1e-4;
+        let s = (a < 0.5).then(|| (a.sin(), 1.01 / (1.0 - a.sin())));
+        let proj: Vec<V3> = spheres
+            .iter()
+            .map(|&(c, _)| [dot(c, e1), dot(c, e2), dot(c, l)])
+            .collect();
+        let casters: Vec<usize> = (0..objects.len())
+            .filter(|&i| objects[i].casts_shadow)
+            .collect();
+        let (mut u_lo, mut u_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let (mut w_lo, mut w_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let mut size = 1.0f64;
+        for &i in &casters {
+            let (c, r) = spheres[i];
+            u_lo = u_lo.min(proj[i][0]);
+            u_hi = u_hi.max(proj[i][0]);
+            w_lo = w_lo.min(proj[i][2]);
+            w_hi = w_hi.max(proj[i][2]);
+            size = size.max(c.iter().fold(r, |m, x| m.max(x.abs() + r)));
+        }
+        // An object wider than a sixteenth of the casters' spread would widen every window.
+        let big_r = (u_hi - u_lo) / 16.0;
+        let (mut sorted, mut big) = (Vec::new(), Vec::new());
+        let mut r_small = 0.0f64;
+        for &i in &casters {
+            let r = spheres[i].1;
+            if s.is_none() || !(r <= big_r) || !proj[i].iter().all(|x| x.is_finite()) {
+                big.push(i);
+            } else {
+                r_small = r_small.max(r);
+                sorted.push((proj[i][0], i));
+            }
+        }
+        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        ShadowCull {
+            e1,
+            e2,
+            s,
+            proj,
+            sorted,
+            big,
+            r_small,
+            w_range: (w_lo, w_hi),
+            size,
+        }
+    }
+
+    /// Calls `visit` on every shadow caster whose bounding sphere the exact test could keep for
+    /// a shadow evaluation at `x` (`ext` the largest coordinate of `x`, at least 1); `spheres`
+    /// are the objects' world bounding spheres.
+    fn visit(&self, x: V3, l: V3, ext: f64, spheres: &[(V3, f64)], mut visit: impl FnMut(usize)) {
+        let Some((s, k)) = self.s else {
+            self.big.iter().for_each(|&i| visit(i));
+            return;
+        };
+        let p = [dot(x, self.e1), dot(x, self.e2), dot(x, l)];
+        if !p.iter().all(|c| c.is_finite()) {
+            self.big
+                .iter()
+                .chain(self.sorted.iter().map(|e| &e.1))
+                .for_each(|&i| visit(i));
+            return;
+        }
+        let eps = 1e-6 * (self.size + ext);
+        let may = |i: usize| {
+            let q = &self.proj[i];
+            let (du, dv) = (q[0] - p[0], q[1] - p[1]);
+            let bound = (spheres[i].1 + s * (q[2] - p[2]).abs()) * k + eps;
+            // Rejects only on a definite answer (a NaN keeps the object, as the exact test would
+            // have to decide).
+            (du * du + dv * dv).partial_cmp(&(bound * bound)) != Some(std::cmp::Ordering::Greater)
+        };
+        for &i in &self.big {
+            if may(i) {
+                visit(i);
+            }
+        }
+        let depth = (self.w_range.1 - p[2]).max(p[2] - self.w_range.0).max(0.0);
+        let half = (self.r_small + s * depth) * k + eps;
+        let start = self.sorted.partition_point(|e| e.0 < p[0] - half);
+        for &(u, i) in &self.sorted[start..] {
+            if u > p[0] + half {
+                break;
+            }
+            if may(i) {
+                visit(i);
+            }
+        }
+    }
 }
 
 impl<'a> Snapshot<'a> {
@@ -361,7 +493,9 @@ impl<'a> Snapshot<'a> {
                 (inv[i].vector(light), b)
             })
             .collect();
+        let cull = ShadowCull::new(&scene.objects, &spheres, light, scene.light.angular_radius);
         Snapshot {
+            cull,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
             scene,
@@ -380,12 +514,6 @@ impl<'a> Snapshot<'a> {
         self.posed[i]
             .as_ref()
             .unwrap_or(&self.scene.objects[i].shape)
-    }
-
-    fn hit_object(&self, i: usize, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
-        let inv = &self.inv[i];
-        self.shape(i)
-            .intersect(inv.point(o), inv.vector(d), tmin, tmax)
     }
 
     /// Whether the ray `x + t·l` (`l` the light), `t ≥ 0`, passes within `grow` (per axis) of object `i`'s
@@ -416,27 +544,53 @@ impl<'a> Snapshot<'a> {
     pub fn trace(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
         let ray = f32_ray(o, d, f32::INFINITY);
-        let mut best: Option<Hit> = None;
+        // The winner's object and what its `t` came with, in its object space: the normal and
+        // texture coordinates are computed once, for the winner only, from the same values.
+        let mut best: Option<(usize, V3, V3, Partial)> = None;
         let mut limit = tmax;
         let mut rh = RayHit::none();
         bvh.ray_traverse(ray, &mut rh, |_, id| {
             let obj = bvh.primitive_indices[id] as usize;
-            match self.hit_object(obj, o, d, tmin, limit) {
-                Some(local) => {
-                    limit = local.t;
-                    best = Some(Hit {
-                        obj,
-                        t: local.t,
-                        local,
-                    });
+            let inv = &self.inv[obj];
+            let (lo, ld) = (inv.point(o), inv.vector(d));
+            match self.shape(obj).intersect_t(lo, ld, tmin, limit) {
+                Some(p) => {
+                    limit = p.t();
+                    best = Some((obj, lo, ld, p));
                     // Culling bound only: a little above the f64 distance, so the f32 box tests
                     // never drop a closer instance.
-                    (local.t * (1.0 + 1e-6)) as f32 + 1e-6
+                    (limit * (1.0 + 1e-6)) as f32 + 1e-6
                 }
                 None => f32::INFINITY,
             }
         });
-        best
+        let (obj, lo, ld, p) = best?;
+        let local = self.shape(obj).finish(lo, ld, p);
+        Some(Hit {
+            obj,
+            t: local.t,
+            local,
+        })
+    }
+
+    /// The distance from `x` to object `i`'s bounding-sphere centre, or `None` where the
+    /// sphere's angular disc seen from `x` and the light's disc do not overlap (the object
+    /// cannot shadow `x`).
+    #[inline]
+    fn sphere_may_shadow(&self, i: usize, x: V3) -> Option<f64> {
+        let (sin_a, cos_a) = self.light_sin_cos;
+        let (c, r) = self.spheres[i];
+        let v = sub(c, x);
+        let dist = length(v);
+        if dist > r {
+            let cos_gamma = dot(v, self.light) / dist;
+            let sin_b = r / dist;
+            let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
+            if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-9 {
+                return None;
+            }
+        }
+        Some(dist)
     }
 
     /// Fraction of the light's disc hidden from the point `x` with unit normal `n` (facing the
@@ -460,27 +614,19 @@ impl<'a> Snapshot<'a> {
         let mut candidates = [(0usize, [0.0f64; 3]); 16];
         let mut nc = 0;
         let mut overflow: Vec<(usize, V3)> = Vec::new();
-        for (i, o) in self.scene.objects.iter().enumerate() {
-            if !o.casts_shadow || (i == obj && o.shape.is_convex()) {
-                continue;
+        self.cull.visit(x, l, ext, &self.spheres, |i| {
+            if i == obj && self.scene.objects[i].shape.is_convex() {
+                return;
             }
-            let (c, r) = self.spheres[i];
-            let v = sub(c, x);
-            let dist = length(v);
-            if dist > r {
-                // The bounding sphere's angular disc and the light's disc do not overlap.
-                let cos_gamma = dot(v, l) / dist;
-                let sin_b = r / dist;
-                let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
-                if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-9 {
-                    continue;
-                }
-            }
+            let Some(dist) = self.sphere_may_shadow(i, x) else {
+                return;
+            };
+            let r = self.spheres[i].1;
             // The sphere is loose around long objects (walls, beams): test the light's cone
             // against the object-space box too, grown by the cone's radius at the far side of the
             // box, which contains every shadow ray's path through the box.
             if !self.cone_may_hit(i, x, (dist + r) * sin_a / cos_a) {
-                continue;
+                return;
             }
             let c = (i, self.inv[i].point(origin));
             if nc < candidates.len() {
@@ -489,7 +635,7 @@ impl<'a> Snapshot<'a> {
             } else {
                 overflow.push(c);
             }
-        }
+        });
         let below = self.samples.iter().filter(|&&s| dot(s, n) <= 0.0).count();
         if nc == 0 && overflow.is_empty() {
             return below as f64 / SHADOW_SAMPLES as f64;
@@ -541,5 +687,55 @@ impl<'a> Snapshot<'a> {
             c = add(c, scale(light.color, s));
         }
         c.map(|v| (v * 255.0).clamp(0.0, 255.0))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{builtin, Variant, SCENE_NAMES};
+
+    /// The shadow cull's pre-selection never drops an object that the exact bounding-sphere test
+    /// keeps (so the candidate set, and the image, is unchanged), and it does drop some.
+    #[test]
+    fn shadow_cull_keeps_every_object_the_sphere_test_keeps() {
+        let (mut visited, mut kept, mut total) = (0usize, 0usize, 0usize);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3, 2.7] {
+                let snap = Snapshot::new(&scene, t);
+                let casters: Vec<usize> = (0..scene.objects.len())
+                    .filter(|&i| scene.objects[i].casts_shadow)
+                    .collect();
+                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+                for &i in &casters {
+                    let c = snap.spheres[i].0;
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(c[k] - 1.0);
+                        hi[k] = hi[k].max(c[k] + 1.0);
+                    }
+                }
+                for step in 0..729 {
+                    let f = [step % 9, step / 9 % 9, step / 81].map(|s| s as f64 / 8.0);
+                    let x = [0, 1, 2].map(|k| lo[k] + f[k] * (hi[k] - lo[k]));
+                    let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+                    let mut seen = vec![false; scene.objects.len()];
+                    snap.cull
+                        .visit(x, snap.light, ext, &snap.spheres, |i| seen[i] = true);
+                    for &i in &casters {
+                        total += 1;
+                        visited += usize::from(seen[i]);
+                        if snap.sphere_may_shadow(i, x).is_some() {
+                            kept += 1;
+                            assert!(seen[i], "{name} t={t} x={x:?}: object {i} dropped");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            kept > 0 && visited < total,
+            "kept {kept}, visited {visited} of {total}"
+        );
     }
 }

@@ -116,22 +116,82 @@ impl Shape {
         }
     }
 
-    /// Nearest intersection of `o + t·d`, `t ∈ (tmin, tmax)`, in object space.
+    /// Nearest intersection of `o + t·d`, `t ∈ (tmin, tmax)`, in object space (the renderer
+    /// calls the two halves itself, so that only the closest hit is finished).
+    #[cfg(test)]
     pub(crate) fn intersect(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
-        let hit = match self {
-            Shape::Sphere { radius } => sphere_hit(o, d, [0.0; 3], *radius, tmin, tmax),
-            Shape::Cuboid { min, max } => cuboid_hit(o, d, *min, *max, tmin, tmax),
-            Shape::Capsule { a, b, radius } => capsule_hit(o, d, *a, *b, *radius, tmin, tmax),
-            Shape::Quad { half } => quad_t(o, d, *half, tmin, tmax).map(|(t, x, z)| LocalHit {
+        self.intersect_t(o, d, tmin, tmax)
+            .map(|p| self.finish(o, d, p))
+    }
+
+    /// [`Shape::intersect`] up to its ray parameter: what finding `t` produced, without the
+    /// normal and texture coordinates of an analytic shape (an `atan2` and an `asin` on a
+    /// sphere), which a closest-hit search needs only for its winner ([`Shape::finish`]).
+    pub(crate) fn intersect_t(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Partial> {
+        let p = match self {
+            Shape::Sphere { radius } => {
+                sphere_t(o, d, [0.0; 3], *radius, tmin, tmax).map(Partial::Sphere)
+            }
+            Shape::Cuboid { min, max } => {
+                cuboid_t(o, d, *min, *max, tmin, tmax).map(|(t, k)| Partial::Cuboid(t, k))
+            }
+            Shape::Capsule { a, b, radius } => capsule_t(o, d, *a, *b, *radius, tmin, tmax)
+                .map(|(t, radial, face, axis)| Partial::Capsule(t, radial, face, axis)),
+            Shape::Quad { half } => {
+                quad_t(o, d, *half, tmin, tmax).map(|(t, x, z)| Partial::Quad(t, x, z))
+            }
+            Shape::Mesh(m) => m.intersect(o, d, tmin, tmax).map(Partial::Done),
+            Shape::Gltf(g) => g.rest().intersect(o, d, tmin, tmax).map(Partial::Done),
+        };
+        p.filter(|p| p.t() > tmin && p.t() < tmax)
+    }
+
+    /// The full hit from [`Shape::intersect_t`]'s answer for the same `o` and `d`.
+    pub(crate) fn finish(&self, o: V3, d: V3, p: Partial) -> LocalHit {
+        match (self, p) {
+            (_, Partial::Done(h)) => h,
+            (Shape::Cuboid { min, max }, Partial::Cuboid(t, k)) => {
+                cuboid_hit(o, d, *min, *max, t, k)
+            }
+            (Shape::Capsule { a, .. }, Partial::Capsule(t, radial, face, axis)) => {
+                capsule_hit(o, d, *a, t, radial, face, axis)
+            }
+            (_, Partial::Quad(t, x, z)) => LocalHit {
                 t,
                 normal: [0.0, 1.0, 0.0],
                 uv: [x, z],
                 face: 0,
-            }),
-            Shape::Mesh(m) => m.intersect(o, d, tmin, tmax),
-            Shape::Gltf(g) => g.rest().intersect(o, d, tmin, tmax),
-        };
-        hit.filter(|h| h.t > tmin && h.t < tmax)
+            },
+            // A sphere (the only shape left that answers with `t` alone) centred at the origin.
+            (_, p) => sphere_hit(o, d, [0.0; 3], p.t()),
+        }
+    }
+}
+
+/// What [`Shape::intersect_t`] found: the ray parameter and whatever of the hit came with it.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Partial {
+    Sphere(f64),
+    /// `t` and the axis of the face.
+    Cuboid(f64, usize),
+    /// `t`, the unnormalised radial direction, the face and the unit axis.
+    Capsule(f64, V3, u32, V3),
+    /// `t` and the hit's `x` and `z`.
+    Quad(f64, f64, f64),
+    /// A mesh's complete hit.
+    Done(LocalHit),
+}
+
+impl Partial {
+    /// The ray parameter.
+    pub(crate) fn t(&self) -> f64 {
+        match *self {
+            Partial::Sphere(t)
+            | Partial::Cuboid(t, _)
+            | Partial::Capsule(t, ..)
+            | Partial::Quad(t, ..) => t,
+            Partial::Done(h) => h.t,
+        }
     }
 }
 
@@ -165,32 +225,30 @@ fn sphere_t(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<f64> {
         .find(|&t| t > tmin && t < tmax)
 }
 
-fn sphere_hit(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<LocalHit> {
-    let t = sphere_t(o, d, c, r, tmin, tmax)?;
+fn sphere_hit(o: V3, d: V3, c: V3, t: f64) -> LocalHit {
     let n = normalize(sub(add(o, scale(d, t)), c));
     let lon = n[2].atan2(n[0]) / (2.0 * PI) + 0.5;
     let lat = n[1].clamp(-1.0, 1.0).asin() / PI + 0.5;
-    Some(LocalHit {
+    LocalHit {
         t,
         normal: n,
         uv: [lon, lat],
         face: 0,
-    })
+    }
 }
 
-fn cuboid_hit(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
-    let (t, k) = cuboid_t(o, d, min, max, tmin, tmax)?;
+fn cuboid_hit(o: V3, d: V3, min: V3, max: V3, t: f64, k: usize) -> LocalHit {
     let p = add(o, scale(d, t));
     let mid = 0.5 * (min[k] + max[k]);
     let mut n = [0.0; 3];
     n[k] = if p[k] >= mid { 1.0 } else { -1.0 };
     let face = 2 * k as u32 + u32::from(n[k] > 0.0);
-    Some(LocalHit {
+    LocalHit {
         t,
         normal: n,
         uv: [p[(k + 1) % 3], p[(k + 2) % 3]],
         face,
-    })
+    }
 }
 
 /// Where `o + t·d`, `t ∈ (tmin, tmax)`, first meets the box `[min, max]`: `(t, axis of the
@@ -226,8 +284,7 @@ fn cuboid_t(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<(f64
     (t > tmin && t < tmax).then_some((t, k))
 }
 
-fn capsule_hit(o: V3, d: V3, a: V3, b: V3, r: f64, tmin: f64, tmax: f64) -> Option<LocalHit> {
-    let (t, radial, face, axis) = capsule_t(o, d, a, b, r, tmin, tmax)?;
+fn capsule_hit(o: V3, d: V3, a: V3, t: f64, radial: V3, face: u32, axis: V3) -> LocalHit {
     let n = normalize(radial);
     let p = add(o, scale(d, t));
     // UV: angle around the axis (against a fixed perpendicular) and distance along it.
@@ -238,12 +295,12 @@ fn capsule_hit(o: V3, d: V3, a: V3, b: V3, r: f64, tmin: f64, tmax: f64) -> Opti
     });
     let e2 = cross(axis, e1);
     let ang = dot(n, e2).atan2(dot(n, e1)) / (2.0 * PI) + 0.5;
-    Some(LocalHit {
+    LocalHit {
         t,
         normal: n,
         uv: [ang, dot(sub(p, a), axis)],
         face,
-    })
+    }
 }
 
 /// Where `o + t·d`, `t ∈ (tmin, tmax)`, first meets the capsule: `(t, the unnormalised radial
