@@ -90,7 +90,7 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
      ("dir", "expected a stream file")),
     ("malformed JSON", ["render", "{bad_json}", "--out", "{tmp}/r"], ("bad.json",)),
     ("JSON of the wrong shape", ["render", "{models_json}", "--out", "{tmp}/r"],
-     ("models", "expected a list")),
+     ("models", "expected an array")),
     ("output under a file", ["encode", "{rec}", "--out", "{garbage}/a.srs"],
      ("--out", "not a directory")),
     ("directory output that is a file", ["example", "--out", "{garbage}"],
@@ -196,6 +196,7 @@ def test_every_error_class_is_the_callers_but_the_base() -> None:
     or raise SplitRenderError itself for failures that are not the caller's."""
     import splitrender.evaluation.bench  # noqa: F401  (defines BenchArgumentError)
     import splitrender.evaluation.experiments  # noqa: F401  (EvalArgumentError)
+    import splitrender.evaluation.sweep  # noqa: F401  (SweepError and its subclasses)
     import splitrender.net.protocol  # noqa: F401
 
     def subclasses(c: type) -> set[str]:
@@ -207,6 +208,9 @@ def test_every_error_class_is_the_callers_but_the_base() -> None:
         "InvalidInputError", "StreamError", "GpuUnavailableError", "ProtocolError",
         "RecordingError", "DatasetError", "TraceError", "DemoArgumentError",
         "EvalArgumentError", "BenchArgumentError",
+        # eval's sweep (issue 16): Ray missing, --address unreachable, a task that raised (its
+        # one line names the task, its inputs and how to resume).
+        "SweepError", "RayMissingError", "ClusterUnreachableError", "TaskFailedError",
     }
 
 

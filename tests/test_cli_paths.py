@@ -29,7 +29,7 @@ from PIL import Image
 from splitrender import gpu
 from splitrender.cli import main
 from splitrender.client.client import Client
-from splitrender.evaluation.metrics import SKIP_FRAMES, psnr, ssim
+from splitrender.evaluation.metrics import SKIP_FRAMES, psnr, psnr_of_mse, ssim
 from splitrender.reproject import METHODS
 
 av = pytest.importorskip("av")
@@ -233,7 +233,9 @@ def test_play_stream_file_scores_the_frames_it_writes(
     rec = sr.load_recording(recording)
     kept = range(SKIP_FRAMES, N_CLIENT - SKIP_FRAMES)
     truth = {n: rec.client_frames[n].ground_truth for n in kept}
-    assert data["psnr"] == pytest.approx(np.mean([psnr(frames[n], truth[n]) for n in kept]))
+    # A sequence's PSNR is that of its mean squared error (metrics.py, issue 16).
+    mse = np.mean([10.0 ** (-psnr(frames[n], truth[n]) / 10.0) for n in kept])
+    assert data["psnr"] == pytest.approx(psnr_of_mse(float(mse)))
     assert data["ssim"] == pytest.approx(np.mean([ssim(frames[n], truth[n]) for n in kept]))
     assert data["modes"]["interpolate"] > 0  # l = 0: the pairs arrive in time
 
