@@ -169,9 +169,9 @@ def test_unreachable_cluster_is_a_bounded_one_line_error(
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    # And an address that never answers (TEST-NET-1): the connection attempt times out.
+    # Tests talk to loopback only: a refused port there, and a name that does not resolve.
     monkeypatch.setattr(sweep, "CONNECT_TIMEOUT_S", 0.5)
-    for address in (f"127.0.0.1:{port}", "192.0.2.1:6379", "nowhere"):
+    for address in (f"127.0.0.1:{port}", "nowhere.invalid:6379", "nowhere"):
         assert main([*SWEEP, "--executor", "ray", "--address", address,
                      "--cache", str(tmp_path / "c"), "--out", str(tmp_path / "o")]) == 2
         err = capsys.readouterr().err.strip()
