@@ -5,7 +5,11 @@ that does not answer and for Ray missing. Tiny: one scene at 77x43, 0.3 s."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import socket
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -159,23 +163,80 @@ def test_dataset_through_both_executors(local_ray: Any, tmp_path: Path) -> None:
     assert [r["method"] for r in json.loads(results[0])] == ["ours"]
 
 
-def test_unreachable_cluster_is_a_bounded_one_line_error(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    pytest.importorskip("ray")
-    import socket
+@contextlib.contextmanager
+def _listener(kind: str) -> Iterator[str]:
+    """A loopback address that is not a Ray cluster, of one ``kind``:
+    ``refused`` (nothing listens), ``backlog`` (a full accept queue: the TCP connection itself
+    times out), ``silent`` (accepts and never answers), ``http1`` (answers, but not gRPC)."""
+    with socket.socket() as lsock:
+        lsock.bind(("127.0.0.1", 0))
+        port = lsock.getsockname()[1]
+        held: list[socket.socket] = []
+        stop = threading.Event()
+        if kind == "refused":
+            lsock.close()
+        elif kind == "backlog":
+            # listen(0) queues one connection; with it never accepted, the kernel drops the
+            # next SYNs, so a client's connect() waits until its own timeout.
+            lsock.listen(0)
+            held.append(socket.create_connection(("127.0.0.1", port), 5))
+        else:
+            lsock.listen(8)
+            lsock.settimeout(0.05)
 
-    # A port that was free a moment ago: nothing listens there, the connection is refused.
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    # Tests talk to loopback only: a refused port there, and a name that does not resolve.
+            def serve() -> None:
+                while not stop.is_set():
+                    try:
+                        conn, _ = lsock.accept()
+                    except TimeoutError:
+                        continue
+                    held.append(conn)
+                    if kind == "http1":
+                        conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+
+            thread = threading.Thread(target=serve, daemon=True)
+            thread.start()
+        try:
+            yield f"127.0.0.1:{port}"
+        finally:
+            stop.set()
+            if kind in ("silent", "http1"):
+                thread.join(5)
+            for c in held:
+                c.close()
+
+
+@pytest.mark.parametrize("kind", ["refused", "backlog", "silent", "http1", "unresolvable",
+                                  "malformed"])
+def test_unreachable_cluster_is_a_bounded_one_line_error(
+    kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Whatever is (or is not) at ``--address``, eval stops within a bounded time with one
+    line naming the address, instead of ``ray.init`` retrying for minutes (it waited more
+    than 5 minutes on a silent listener before this check). Tests talk to loopback only: a
+    name under ``.invalid`` never resolves."""
+    pytest.importorskip("ray")
     monkeypatch.setattr(sweep, "CONNECT_TIMEOUT_S", 0.5)
-    for address in (f"127.0.0.1:{port}", "nowhere.invalid:6379", "nowhere"):
+    fixed = {"unresolvable": "nowhere.invalid:6379", "malformed": "nowhere"}
+    with contextlib.ExitStack() as stack:
+        address = fixed.get(kind) or stack.enter_context(_listener(kind))
+        start = time.monotonic()
         assert main([*SWEEP, "--executor", "ray", "--address", address,
                      "--cache", str(tmp_path / "c"), "--out", str(tmp_path / "o")]) == 2
-        err = capsys.readouterr().err.strip()
-        assert len(err.splitlines()) == 1 and "--address" in err and address in err
+        # Generous: the check waits at most twice CONNECT_TIMEOUT_S (connect, then answer).
+        assert time.monotonic() - start < 30.0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--address" in err and address in err
+    if kind in ("backlog", "silent"):
+        assert "nothing answered within 0.5 s" in err
+    if kind == "http1":
+        assert "not a Ray cluster" in err
+
+
+def test_the_address_check_accepts_a_real_ray_head(local_ray: Any) -> None:
+    """The gRPC handshake probe passes against Ray's own head (GCS) of the local cluster."""
+    sweep._check_reachable(local_ray.get_runtime_context().gcs_address)
 
 
 def _failing_graph(tmp_path: Path) -> tuple[list[sweep.Task], sweep.Cache]:

@@ -337,10 +337,20 @@ def _import_ray() -> Any:
     return ray
 
 
+# What a Ray cluster's address answers: Ray's head (GCS, HOST:6379) and its client server
+# (ray://HOST:10001) are gRPC servers, and a gRPC server answers the HTTP/2 client preface with
+# a SETTINGS frame (RFC 9113 §3.4). Probing that bounds the wait for something that accepts
+# connections but is not Ray (another service, a stale port forward), where ``ray.init`` would
+# retry for minutes.
+_H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
+_H2_EMPTY_SETTINGS = b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"  # length 0, type 4, stream 0
+_H2_SETTINGS = 0x04
+
+
 def _check_reachable(address: str) -> None:
     """Raises :class:`ClusterUnreachableError` unless ``host:port`` (or ``ray://host:port``)
-    accepts a TCP connection within :data:`CONNECT_TIMEOUT_S` (``ray.init`` itself retries for
-    minutes)."""
+    accepts a TCP connection and answers as a gRPC server (Ray's head and client server are),
+    each within :data:`CONNECT_TIMEOUT_S` (``ray.init`` itself retries for minutes)."""
     if address == "auto":
         return
     hostport = address.split("://", 1)[-1]
@@ -348,14 +358,31 @@ def _check_reachable(address: str) -> None:
     if not sep or not port.isdigit() or not host:
         raise ClusterUnreachableError(
             f"--address: expected HOST:PORT, ray://HOST:PORT or auto, got {address!r}")
+    expected = "expected the address `ray start --head` printed (HOST:6379) or ray://HOST:10001"
     try:
-        with socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S):
-            pass
+        with socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S) as s:
+            s.settimeout(CONNECT_TIMEOUT_S)
+            s.sendall(_H2_PREFACE + _H2_EMPTY_SETTINGS)
+            head = b""
+            while len(head) < 9:
+                chunk = s.recv(9 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+    except TimeoutError as e:
+        raise ClusterUnreachableError(
+            f"--address {address}: no Ray cluster answers there (nothing answered within "
+            f"{CONNECT_TIMEOUT_S:g} s); {expected}"
+        ) from e
     except OSError as e:
         raise ClusterUnreachableError(
-            f"--address {address}: no Ray cluster answers there ({e}); expected the address "
-            "`ray start --head` printed (HOST:6379) or ray://HOST:10001"
+            f"--address {address}: no Ray cluster answers there ({e}); {expected}"
         ) from e
+    if len(head) < 9 or head[3] != _H2_SETTINGS:
+        raise ClusterUnreachableError(
+            f"--address {address}: something listens there but it is not a Ray cluster (it "
+            f"did not answer as a gRPC server); {expected}"
+        )
 
 
 def run_ray(todo: Sequence[Task], cache: Cache, jobs: int, address: str | None, report: _Report,
