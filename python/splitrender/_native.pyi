@@ -39,6 +39,7 @@ __all__ = [
     "dequantise_depth",
     "dequantise_motion",
     "shadow_colour",
+    "ssim",
     "synthetic_render_server",
     "synthetic_ground_truth",
     "synthetic_rig",
@@ -133,6 +134,9 @@ def dequantise_motion(
 def shadow_colour(
     luma: _U8, cb: _U8, cr: _U8, x: int, y: int, bits: _U32
 ) -> _U8: ...
+def ssim(
+    x: _F64, y: _F64, want_map: bool = False
+) -> tuple[float, _F64 | None]: ...
 def synthetic_render_server(
     dynamic: bool,
     view: _F64,

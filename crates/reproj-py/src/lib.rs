@@ -15,6 +15,7 @@ mod codec;
 mod convert;
 mod errors;
 mod gpu;
+mod metrics;
 mod scene;
 mod synth;
 
@@ -77,6 +78,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(codec::dequantise_depth, m)?)?;
     m.add_function(wrap_pyfunction!(codec::dequantise_motion, m)?)?;
     m.add_function(wrap_pyfunction!(codec::shadow_colour, m)?)?;
+    m.add_function(wrap_pyfunction!(metrics::ssim, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_render_server, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_ground_truth, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_rig, m)?)?;

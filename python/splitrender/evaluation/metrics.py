@@ -23,7 +23,8 @@ Settings, and where they differ from the reference (REFERENCE.md §6):
   scikit-image's ``structural_similarity(gaussian_weights=True, sigma=1.5,
   use_sample_covariance=False, data_range=1)`` computes the same map in the interior but pads by
   reflection and averages only the pixels at least 5 from the border, so it differs slightly; we
-  implement the reference's definition (scipy) and the tests check the interiors agree.
+  implement the reference's definition (``reproj_core::ssim``, compared in its tests with the
+  full 11×11 window pixel by pixel) and the tests check the interiors agree with scikit-image.
 - **FLIP**: NVIDIA's ``flip-evaluator`` (the reference uses FLIP's PyTorch port of the same
   algorithm), LDR mode, sRGB inputs clamped to ``[0, 1]``, 67 pixels per degree, the mean of the
   error map. Argument order is ours: ``flip(test, reference)``.
@@ -51,6 +52,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from splitrender import _native
 from splitrender.errors import InvalidInputError, SplitRenderError
 from splitrender.types import (  # argument checks
     CALLABLE,
@@ -97,10 +99,6 @@ VMAF_MIN_SIDE = 32
 #: ``10**(-PSNR_CAP_DB / 10)``.
 PSNR_CAP_DB = 100.0
 
-_SSIM_SIGMA = 1.5
-_SSIM_RADIUS = 5  # 11x11 window
-_SSIM_C1 = 0.01**2
-_SSIM_C2 = 0.03**2
 
 _F64 = npt.NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -186,31 +184,12 @@ def psnr_of_mse(mse: float) -> float:
     return min(PSNR_CAP_DB, -10.0 * math.log10(mse))
 
 
-def _gauss_taps() -> _F64:
-    x = np.arange(-_SSIM_RADIUS, _SSIM_RADIUS + 1, dtype=np.float64)
-    g = np.exp(-(x**2) / (2.0 * _SSIM_SIGMA**2))
-    return np.asarray(g / g.sum(), dtype=np.float64)
-
-
-def _blur(img: _F64, taps: _F64) -> _F64:
-    """Separable Gaussian over the two image axes with zero padding (the reference's conv2d)."""
-    from scipy.ndimage import correlate1d  # type: ignore[import-untyped,unused-ignore]
-
-    out = correlate1d(img, taps, axis=0, mode="constant", cval=0.0)
-    return np.asarray(correlate1d(out, taps, axis=1, mode="constant", cval=0.0))
-
-
 def ssim_map(a: npt.ArrayLike, b: npt.ArrayLike) -> _F64:
     """The per-pixel, per-channel SSIM map (``float64[H, W, 3]``) whose mean is :func:`ssim`."""
     x, y = _pair(a, b, ("a", "b"))
-    taps = _gauss_taps()
-    mu_x, mu_y = _blur(x, taps), _blur(y, taps)
-    var_x = _blur(x * x, taps) - mu_x * mu_x
-    var_y = _blur(y * y, taps) - mu_y * mu_y
-    cov = _blur(x * y, taps) - mu_x * mu_y
-    num = (2.0 * mu_x * mu_y + _SSIM_C1) * (2.0 * cov + _SSIM_C2)
-    den = (mu_x * mu_x + mu_y * mu_y + _SSIM_C1) * (var_x + var_y + _SSIM_C2)
-    return np.asarray(num / den, dtype=np.float64)
+    _, out = _native.ssim(x, y, True)
+    assert out is not None
+    return out
 
 
 def ssim(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
@@ -221,7 +200,8 @@ def ssim(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
     Raises:
         InvalidInputError: unless both are ``(H, W, 3)`` images of the same shape and dtype.
     """
-    return float(np.mean(ssim_map(a, b)))
+    x, y = _pair(a, b, ("a", "b"))
+    return _native.ssim(x, y)[0]
 
 
 def _flip(test: object, reference: object, ppd: float) -> tuple[npt.NDArray[np.float32], float]:
