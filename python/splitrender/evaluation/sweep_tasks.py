@@ -64,14 +64,13 @@ CLIENT_CHUNK = 24
 
 
 def _renderer(task: Task) -> Any:
-    from splitrender.scene.recording import RecordingRender
+    from splitrender.scene.recording import RecordingRender, RecordingSettings
 
     p = task.params
-    return RecordingRender(
-        p["scene"], variant=p["variant"], seconds=p["seconds"], scale=p["scale"],
-        stereo=p["stereo"], trace=_trace(task), translation_scale=p["trace_scale"],
-        samples=p["samples"],
-    )
+    return RecordingRender(p["scene"], RecordingSettings(
+        variant=p["variant"], seconds=p["seconds"], scale=p["scale"], stereo=p["stereo"],
+        trace=_trace(task), translation_scale=p["trace_scale"], samples=p["samples"],
+    ))
 
 
 def render_chunk(task: Task, cache: Cache) -> None:
