@@ -6,9 +6,12 @@ not flake) and ``dev`` (more examples, for local runs). Select with ``HYPOTHESIS
 
 from __future__ import annotations
 
+import base64
 import os
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -76,3 +79,65 @@ def make_pair(dynamic: bool = True, width: int = SMALL_W, height: int = SMALL_H)
 def pair() -> Pair:
     """A small dynamic pair (48x32 main, 24x16 auxiliary cameras), client at frame 7 of 120 FPS."""
     return make_pair()
+
+
+#: The vertices of a 2 m x 2 m vertical quad facing +z (x in -1..1, y in 0..2): the glTF tests'
+#: model, written by hand so that they need no asset.
+QUAD_POSITIONS = [-1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 2.0, 0.0, -1.0, 2.0, 0.0]
+
+
+def quad_blob(positions: list[float] = QUAD_POSITIONS, *, animated: bool = False) -> bytes:
+    """The quad's buffer: positions (48 bytes) and indices (12); with ``animated``, key times
+    (8) and translations (24) of a 1 m move along x in 1 s."""
+    blob = struct.pack("<12f", *positions) + struct.pack("<6H", 0, 1, 2, 0, 2, 3)
+    if animated:
+        blob += struct.pack("<2f", 0.0, 1.0) + struct.pack("<6f", 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+    return blob
+
+
+def quad_document(blob: bytes, *, animated: bool = False, material: bool = False) -> dict[str, Any]:
+    """The glTF document of a :func:`quad_blob` buffer (embedded as a data URI): one node with
+    the quad's mesh; with ``material`` a white base colour, with ``animated`` the translation
+    animation (the blob must then hold its keys)."""
+    primitive: dict[str, Any] = {"attributes": {"POSITION": 0}, "indices": 1}
+    doc: dict[str, Any] = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [primitive]}],
+        "buffers": [
+            {
+                "byteLength": len(blob),
+                "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode(),
+            }
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 48, "byteLength": 12},
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+             "min": [-1, 0, 0], "max": [1, 2, 0]},
+            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"},
+        ],
+    }
+    if material:
+        primitive["material"] = 0
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1]}}]
+    if animated:
+        doc["bufferViews"] += [
+            {"buffer": 0, "byteOffset": 60, "byteLength": 8},
+            {"buffer": 0, "byteOffset": 68, "byteLength": 24},
+        ]
+        doc["accessors"] += [
+            {"bufferView": 2, "componentType": 5126, "count": 2, "type": "SCALAR"},
+            {"bufferView": 3, "componentType": 5126, "count": 2, "type": "VEC3"},
+        ]
+        doc["animations"] = [
+            {
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}],
+                "samplers": [{"input": 2, "output": 3}],
+            }
+        ]
+    return doc

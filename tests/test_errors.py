@@ -159,10 +159,7 @@ def test_mismatched_camera_sizes(pair: Pair) -> None:
             cf.camera.proj,
             cf.depth,
             np.zeros((3, 3, 3), np.float32),
-            cf.camera.view,
-            cf.camera.proj,
-            48,
-            32,
+            (cf.camera.view, cf.camera.proj, 48, 32),
             0.5,
         ),
         "motion: expected float32 array of shape (32, 48, 3), got float32 (3, 3, 3)",
@@ -194,7 +191,7 @@ def test_sizes_checked_before_allocating(pair: Pair) -> None:
         "client.height",
     )
     _raises_invalid(
-        lambda: _native.synthetic_ground_truth(True, client[0], client[1], 10**6, 10, 0.0),
+        lambda: _native.synthetic_ground_truth(True, (client[0], client[1], 10**6, 10), 0.0),
         "camera.width: expected an image side in 1..=16384",
     )
     empty = _replace_cam(newer, "main", DEPTH, np.zeros((0, 48), np.float32))

@@ -4,7 +4,6 @@ stderr. The models are written by the tests (a quad with a translation animation
 
 from __future__ import annotations
 
-import base64
 import json
 import re
 import struct
@@ -14,59 +13,7 @@ from typing import Any
 
 import pytest
 import splitrender as sr
-
-_POSITIONS = [-1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 2.0, 0.0, -1.0, 2.0, 0.0]
-
-
-def _blob(positions: list[float]) -> bytes:
-    """Positions (48 bytes), indices (12), key times (8), translations (24)."""
-    return (
-        struct.pack("<12f", *positions)
-        + struct.pack("<6H", 0, 1, 2, 0, 2, 3)
-        + struct.pack("<2f", 0.0, 1.0)
-        + struct.pack("<6f", 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
-    )
-
-
-def _document(blob: bytes) -> dict[str, Any]:
-    return {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-        "animations": [
-            {
-                "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}],
-                "samplers": [{"input": 2, "output": 3}],
-            }
-        ],
-        "buffers": [
-            {
-                "byteLength": len(blob),
-                "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode(),
-            }
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-            {"buffer": 0, "byteOffset": 48, "byteLength": 12},
-            {"buffer": 0, "byteOffset": 60, "byteLength": 8},
-            {"buffer": 0, "byteOffset": 68, "byteLength": 24},
-        ],
-        "accessors": [
-            {
-                "bufferView": 0,
-                "componentType": 5126,
-                "count": 4,
-                "type": "VEC3",
-                "min": [-1, 0, 0],
-                "max": [1, 2, 0],
-            },
-            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"},
-            {"bufferView": 2, "componentType": 5126, "count": 2, "type": "SCALAR"},
-            {"bufferView": 3, "componentType": 5126, "count": 2, "type": "VEC3"},
-        ],
-    }
+from conftest import QUAD_POSITIONS, quad_blob, quad_document
 
 
 def _glb(doc: dict[str, Any], blob: bytes) -> bytes:
@@ -95,9 +42,11 @@ def _place(folder: Path, model: bytes, name: str, **placement: object) -> sr.Sce
     return sr.Scene.from_description(desc)
 
 
-def _edited(edit: Callable[[dict[str, Any]], None], positions: list[float] = _POSITIONS) -> bytes:
-    blob = _blob(positions)
-    doc = _document(blob)
+def _edited(
+    edit: Callable[[dict[str, Any]], None], positions: list[float] = QUAD_POSITIONS
+) -> bytes:
+    blob = quad_blob(positions, animated=True)
+    doc = quad_document(blob, animated=True)
     edit(doc)
     return json.dumps(doc).encode()
 
@@ -142,8 +91,8 @@ def _keep(d: dict[str, Any]) -> None:
     pass
 
 
-_NAN = [float("nan")] + _POSITIONS[1:]
-_INF = _POSITIONS[:3] + [float("inf")] + _POSITIONS[4:]
+_NAN = [float("nan")] + QUAD_POSITIONS[1:]
+_INF = QUAD_POSITIONS[:3] + [float("inf")] + QUAD_POSITIONS[4:]
 
 CASES = [
     ("stride", _edited(_stride), "accessor 0 (POSITION): byteStride 4 is smaller than the element size 12"),
@@ -174,8 +123,8 @@ def test_huge_placement_scale_is_refused(tmp_path: Path, capfd: pytest.CaptureFi
 
 
 def test_glb_length_beyond_the_file(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
-    blob = _blob(_POSITIONS)
-    glb = _glb(_document(blob), blob)
+    blob = quad_blob(animated=True)
+    glb = _glb(quad_document(blob, animated=True), blob)
     # The valid file loads, so the refusal below is the length's doing.
     _place(tmp_path, glb, "ok.glb")
     bad = glb[:8] + struct.pack("<I", 0xFFFFFFFF) + glb[12:]

@@ -114,10 +114,7 @@ def _native_flow(src: scenes.Cam, depth, motion, client: scenes.Cam, w: float) -
             src.proj,
             depth,
             motion,
-            client.view,
-            client.proj,
-            client.width,
-            client.height,
+            (client.view, client.proj, client.width, client.height),
             w,
         )
     )

@@ -2,55 +2,21 @@
 
 from __future__ import annotations
 
-import base64
 import json
-import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import splitrender as sr
+from conftest import quad_blob, quad_document
 from splitrender.cli import main
 
 
 def _write_quad(folder: Path) -> Path:
-    """A 2 m × 2 m vertical quad facing +z, untextured, white base colour: a big, visible
-    model written by hand so the test needs no asset."""
-    pos = [-1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 2.0, 0.0, -1.0, 2.0, 0.0]
-    idx = [0, 1, 2, 0, 2, 3]
-    blob = struct.pack("<12f", *pos) + struct.pack("<6H", *idx)
-    gltf = {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
-        "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1]}}],
-        "buffers": [
-            {
-                "byteLength": len(blob),
-                "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode(),
-            }
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-            {"buffer": 0, "byteOffset": 48, "byteLength": 12},
-        ],
-        "accessors": [
-            {
-                "bufferView": 0,
-                "componentType": 5126,
-                "count": 4,
-                "type": "VEC3",
-                "min": [-1, 0, 0],
-                "max": [1, 2, 0],
-            },
-            {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"},
-        ],
-    }
+    """The quad of :func:`conftest.quad_document`, white: a big, visible model."""
     path = folder / "quad.gltf"
-    path.write_text(json.dumps(gltf))
+    path.write_text(json.dumps(quad_document(quad_blob(), material=True)))
     return path
 
 

@@ -94,10 +94,7 @@ def scene_flow(
     proj: _F64,
     depth: _F32,
     motion: _F32 | None,
-    client_view: _F64,
-    client_proj: _F64,
-    client_width: int,
-    client_height: int,
+    client: _Client,
     w: float,
 ) -> _F32: ...
 def apply_shadows(
@@ -138,18 +135,9 @@ def ssim(
     x: _F64, y: _F64, want_map: bool = False
 ) -> tuple[float, _F64 | None]: ...
 def synthetic_render_server(
-    dynamic: bool,
-    view: _F64,
-    proj: _F64,
-    width: int,
-    height: int,
-    time: float,
-    interval: float,
-    subframes: int,
+    dynamic: bool, camera: _Client, time: float, interval: float, subframes: int
 ) -> dict[str, npt.NDArray[Any]]: ...
-def synthetic_ground_truth(
-    dynamic: bool, view: _F64, proj: _F64, width: int, height: int, time: float
-) -> _U8: ...
+def synthetic_ground_truth(dynamic: bool, camera: _Client, time: float) -> _U8: ...
 def synthetic_rig(
     eye: _Vec3, target: _Vec3, width: int, height: int
 ) -> list[tuple[_F64, _F64, int, int]]: ...

@@ -496,10 +496,7 @@ def scene_flow(
         c.proj,
         source.depth,
         motion,
-        client.view,
-        client.proj,
-        client.width,
-        client.height,
+        client.to_native(),
         float(w),
     )
 

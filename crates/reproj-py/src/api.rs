@@ -296,33 +296,24 @@ pub fn reproject<'py>(
     })
 }
 
-/// Scene flow of every pixel of one source image to the client camera with a fraction `w` of its
-/// object motion (seeds/000 eqs. 1, 12, 13): `f32[H, W, 3]`, NaN where invalid.
+/// Scene flow of every pixel of one source image to the `client` camera (a `(view, proj, width,
+/// height)` tuple, as [`reproject`] takes it) with a fraction `w` of its object motion
+/// (seeds/000 eqs. 1, 12, 13): `f32[H, W, 3]`, NaN where invalid.
 #[pyfunction]
-#[pyo3(signature = (view, proj, depth, motion, client_view, client_proj, client_width, client_height, w))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (view, proj, depth, motion, client, w))]
 pub fn scene_flow<'py>(
     py: Python<'py>,
     view: &Bound<'py, PyAny>,
     proj: &Bound<'py, PyAny>,
     depth: &Bound<'py, PyAny>,
     motion: Option<&Bound<'py, PyAny>>,
-    client_view: &Bound<'py, PyAny>,
-    client_proj: &Bound<'py, PyAny>,
-    client_width: i64,
-    client_height: i64,
+    client: &Bound<'py, PyAny>,
     w: f64,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
     guarded("scene_flow", || {
         let (depth, sw, sh) = depth_and_size(depth, "depth", None)?;
         let source = convert::camera(view, proj, sw as i64, sh as i64, "source")?;
-        let client = convert::camera(
-            client_view,
-            client_proj,
-            client_width,
-            client_height,
-            "client",
-        )?;
+        let client = convert::client(client, "client")?;
         let motion = match motion.filter(|m| !m.is_none()) {
             Some(m) => Some(array::<f32>(
                 m,

@@ -12,23 +12,20 @@ use crate::guarded;
 
 /// Every server buffer of one camera of the synthetic scene at `time`, as a dict of arrays:
 /// `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_fwd_bits`, `shadow_fwd_min`,
-/// `shadow_fwd_max`, `shadow_bwd_bits`, `shadow_bwd_min`, `shadow_bwd_max`.
+/// `shadow_fwd_max`, `shadow_bwd_bits`, `shadow_bwd_min`, `shadow_bwd_max`. `camera` is a
+/// `(view, proj, width, height)` tuple, as `reproject` takes its client.
 #[pyfunction]
-#[pyo3(signature = (dynamic, view, proj, width, height, time, interval, subframes))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (dynamic, camera, time, interval, subframes))]
 pub fn synthetic_render_server<'py>(
     py: Python<'py>,
     dynamic: bool,
-    view: &Bound<'py, PyAny>,
-    proj: &Bound<'py, PyAny>,
-    width: i64,
-    height: i64,
+    camera: &Bound<'py, PyAny>,
     time: f64,
     interval: f64,
     subframes: i64,
 ) -> PyResult<Bound<'py, PyDict>> {
     guarded("synthetic_render_server", || {
-        let camera = convert::camera(view, proj, width, height, "camera")?;
+        let camera = convert::client(camera, "camera")?;
         let time = convert::finite(time, "time")?;
         if !(interval.is_finite() && interval > 0.0) {
             return Err(invalid(format!(
@@ -44,20 +41,18 @@ pub fn synthetic_render_server<'py>(
     })
 }
 
-/// Ground-truth RGB8 image of the synthetic scene at a client camera and `time`.
+/// Ground-truth RGB8 image of the synthetic scene at a client `camera` (a `(view, proj, width,
+/// height)` tuple) and `time`.
 #[pyfunction]
-#[pyo3(signature = (dynamic, view, proj, width, height, time))]
+#[pyo3(signature = (dynamic, camera, time))]
 pub fn synthetic_ground_truth<'py>(
     py: Python<'py>,
     dynamic: bool,
-    view: &Bound<'py, PyAny>,
-    proj: &Bound<'py, PyAny>,
-    width: i64,
-    height: i64,
+    camera: &Bound<'py, PyAny>,
     time: f64,
 ) -> PyResult<Bound<'py, PyArray3<u8>>> {
     guarded("synthetic_ground_truth", || {
-        let camera = convert::camera(view, proj, width, height, "camera")?;
+        let camera = convert::client(camera, "camera")?;
         let time = convert::finite(time, "time")?;
         let scene = SyntheticScene::new(dynamic);
         let img = py.detach(|| scene.render_ground_truth(&camera, time));

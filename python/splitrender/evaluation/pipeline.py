@@ -2,13 +2,12 @@
 
 :func:`encode_decode` runs server frames through :class:`~splitrender.codec.coder.StreamEncoder` and
 :class:`~splitrender.codec.coder.StreamDecoder` (what the client sees of a compressed stream);
-:func:`play_and_score` plays one method through the network model and the client and scores its
-frames against the ground truth with :func:`~splitrender.evaluation.metrics.evaluate_sequence`.
+:func:`play_and_score_eyes` plays one method through the network model and the client and scores
+its frames (of one eye or two) against the ground truth with :func:`~splitrender.evaluation.metrics.evaluate_sequence`.
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -35,7 +34,6 @@ __all__ = [
     "mean_row",
     "network_json",
     "network_text",
-    "play_and_score",
     "play_and_score_eyes",
     "raw_mbps",
 ]
@@ -104,44 +102,6 @@ def network_json(network: NetworkModel) -> dict[str, Any]:
     }
 
 
-def play_and_score(
-    frames: Iterable[ServerFrame],
-    cameras: Sequence[Camera],
-    truth: Sequence[_Image],
-    method: str,
-    network: NetworkModel,
-    fc: float,
-    metrics: Sequence[str],
-    *,
-    frame_sizes: Sequence[int] | None = None,
-    bar: Bar | None = None,
-    on_frame: Callable[[int, _Image, Any], None] | None = None,
-    options: ReprojectOptions | None = None,
-    backend: str = "cpu",
-) -> Scored:
-    """Plays ``frames`` with ``method`` through ``network`` at the client ``cameras`` (``fc``
-    FPS) and scores the client frames against ``truth`` (first and last ``SKIP_FRAMES``
-    excluded). ``options`` go to the client (e.g. ``server_fps`` for a server at another rate
-    than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"`` (:class:`~splitrender.Client`)."""
-    n_client = len(cameras)
-
-    def frame_done(n: int, image: _Image, info: Any) -> None:
-        if bar is not None:
-            bar(n + 1, n_client, "client frames")
-        if on_frame is not None:
-            on_frame(n, image, info)
-
-    res = play(frames, cameras, network, fc, method, frame_sizes=frame_sizes, on_frame=frame_done,
-               options=options, backend=backend)
-
-    def progress(metric: str, done: int, total: int) -> None:
-        if bar is not None:
-            bar(done, total, metric)
-
-    sm = evaluate_sequence(res.images, truth, SKIP_FRAMES, metrics, fps=fc, progress=progress)
-    return Scored(res, sm)
-
-
 def play_and_score_eyes(
     frames: Sequence[ServerFrame],
     cameras: Sequence[Sequence[Camera]],
@@ -157,18 +117,34 @@ def play_and_score_eyes(
     options: ReprojectOptions | None = None,
     backend: str = "cpu",
 ) -> list[Scored]:
-    """:func:`play_and_score` once per eye: ``cameras[e]`` and ``truth[e]`` are eye ``e``'s
-    (one eye: mono; two: stereo, left then right). The same ``frames`` go through the same
-    ``network`` for every eye, so the eyes share their schedule. ``on_frame(eye, n, image,
-    info)`` is called for every client frame of every eye. :func:`mean_row` averages the
-    result over the eyes."""
+    """Plays ``frames`` with ``method`` through ``network`` at each eye's client cameras
+    (``cameras[e]``, ``fc`` FPS) and scores eye ``e``'s client frames against ``truth[e]``
+    (first and last ``SKIP_FRAMES`` excluded); one :class:`Scored` per eye (one eye: mono; two:
+    stereo, left then right). The same ``frames`` go through the same ``network`` for every
+    eye, so the eyes share their schedule. ``on_frame(eye, n, image, info)`` is called for
+    every client frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a
+    server at another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
+    (:class:`~splitrender.Client`). :func:`mean_row` averages the result over the eyes."""
     out = []
     for eye, (eye_cams, eye_truth) in enumerate(zip(cameras, truth)):
-        out.append(play_and_score(
-            frames, eye_cams, eye_truth, method, network, fc, metrics, frame_sizes=frame_sizes,
-            bar=bar, on_frame=None if on_frame is None else functools.partial(on_frame, eye),
-            options=options, backend=backend,
-        ))
+        n_client = len(eye_cams)
+
+        def frame_done(n: int, image: _Image, info: Any) -> None:
+            if bar is not None:
+                bar(n + 1, n_client, "client frames")
+            if on_frame is not None:
+                on_frame(eye, n, image, info)
+
+        res = play(frames, eye_cams, network, fc, method, frame_sizes=frame_sizes,
+                   on_frame=frame_done, options=options, backend=backend)
+
+        def progress(metric: str, done: int, total: int) -> None:
+            if bar is not None:
+                bar(done, total, metric)
+
+        sm = evaluate_sequence(res.images, eye_truth, SKIP_FRAMES, metrics, fps=fc,
+                               progress=progress)
+        out.append(Scored(res, sm))
     return out
 
 

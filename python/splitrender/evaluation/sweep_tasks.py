@@ -64,14 +64,13 @@ CLIENT_CHUNK = 24
 
 
 def _renderer(task: Task) -> Any:
-    from splitrender.scene.recording import RecordingRender
+    from splitrender.scene.recording import RecordingRender, RecordingSettings
 
     p = task.params
-    return RecordingRender(
-        p["scene"], variant=p["variant"], seconds=p["seconds"], scale=p["scale"],
-        stereo=p["stereo"], trace=_trace(task), translation_scale=p["trace_scale"],
-        samples=p["samples"],
-    )
+    return RecordingRender(p["scene"], RecordingSettings(
+        variant=p["variant"], seconds=p["seconds"], scale=p["scale"], stereo=p["stereo"],
+        trace=_trace(task), translation_scale=p["trace_scale"], samples=p["samples"],
+    ))
 
 
 def render_chunk(task: Task, cache: Cache) -> None:
@@ -225,7 +224,7 @@ def _write_part(task: Task, cache: Cache, metrics: Any, mbps: float) -> None:
 def score_play(task: Task, cache: Cache) -> None:
     from splitrender.codec.coder import decode_packets
     from splitrender.codec.stream import read_stream
-    from splitrender.evaluation.pipeline import play_and_score, raw_mbps
+    from splitrender.evaluation.pipeline import play_and_score_eyes, raw_mbps
     from splitrender.gpu import backend_for
     from splitrender.net.model import NetworkModel
     from splitrender.types import ReprojectOptions
@@ -245,9 +244,9 @@ def score_play(task: Task, cache: Cache) -> None:
                if p["own_rates"] else None)
     cams, truth = _eye(rec, p["eye"])
     net = NetworkModel(**p["network"], client_fps=rec.fc)
-    scored = play_and_score(server, cams, truth, p["method"], net, rec.fc, p["metrics"],
-                            frame_sizes=sizes, options=options,
-                            backend=backend_for(p["method"], p["backend"]))
+    [scored] = play_and_score_eyes(server, [cams], [truth], p["method"], net, rec.fc,
+                                   p["metrics"], frame_sizes=sizes, options=options,
+                                   backend=backend_for(p["method"], p["backend"]))
     _write_part(task, cache, scored.metrics, mbps)
 
 
@@ -289,7 +288,7 @@ def score_timewarp(task: Task, cache: Cache) -> None:
     ``source`` is ``"timewarp"``; else the recording's own server frames)."""
     from splitrender.codec.coder import CodecConfig
     from splitrender.evaluation.experiments import _main_colour_depth
-    from splitrender.evaluation.pipeline import encode_decode, play_and_score
+    from splitrender.evaluation.pipeline import encode_decode, play_and_score_eyes
     from splitrender.net.model import NetworkModel
     from splitrender.types import ReprojectOptions
 
@@ -304,6 +303,6 @@ def score_timewarp(task: Task, cache: Cache) -> None:
     dec, sizes, mbps = encode_decode(server, twc, fps)
     cams, truth = _eye(rec, 0)
     net = NetworkModel(**p["network"], client_fps=rec.fc)
-    scored = play_and_score(dec, cams, truth, "timewarp", net, rec.fc, p["metrics"],
-                            frame_sizes=sizes, options=ReprojectOptions(server_fps=fps))
+    [scored] = play_and_score_eyes(dec, [cams], [truth], "timewarp", net, rec.fc, p["metrics"],
+                                   frame_sizes=sizes, options=ReprojectOptions(server_fps=fps))
     _write_part(task, cache, scored.metrics, mbps)

@@ -94,6 +94,7 @@ __all__ = [
     "Recording",
     "RecordingError",
     "RecordingRender",
+    "RecordingSettings",
     "check_destination",
     "load_recording",
     "plan",
@@ -216,32 +217,36 @@ def _check_positive(what: str, v: float) -> float:
     return float(v)
 
 
+@dataclass(frozen=True, kw_only=True)
+class RecordingSettings:
+    """What a recording holds: :func:`write_recording`'s keyword arguments but ``overwrite`` and
+    ``progress``, with the same defaults and meaning (checked by :class:`RecordingRender`)."""
+
+    variant: str = "dynamic"
+    seconds: float = 2.0
+    scale: float = 0.125
+    fs: float = 10.0
+    fc: float = 120.0
+    subframes: int = 4
+    stereo: bool = False
+    trace: Trace | None = None
+    translation_scale: float = 1.0
+    samples: int | None = None
+
+
 class RecordingRender:
     """Renders the frames of one recording, each on its own (``write_recording`` renders them
     all in order; ``eval``'s sweep renders chunks of them in separate tasks and assembles the
     recording with :func:`write_entries`). Each frame depends only on its index, so the bytes
-    are the same however the frames are split. Arguments as :func:`write_recording`'s; the
-    checks raise :class:`RecordingError` (``InvalidInputError`` for bad scene arguments)."""
+    are the same however the frames are split. The checks raise :class:`RecordingError`
+    (``InvalidInputError`` for bad scene arguments)."""
 
-    def __init__(
-        self,
-        scene: str | Scene,
-        *,
-        variant: str = "dynamic",
-        seconds: float = 2.0,
-        scale: float = 0.125,
-        fs: float = 10.0,
-        fc: float = 120.0,
-        subframes: int = 4,
-        stereo: bool = False,
-        trace: Trace | None = None,
-        translation_scale: float = 1.0,
-        samples: int | None = None,
-    ) -> None:
-        sc = scene if isinstance(scene, Scene) else Scene(scene, variant)
-        seconds = _check_positive("seconds", seconds)
-        fs = _check_positive("fs", fs)
-        fc = _check_positive("fc", fc)
+    def __init__(self, scene: str | Scene, settings: RecordingSettings) -> None:
+        trace, samples = settings.trace, settings.samples
+        sc = scene if isinstance(scene, Scene) else Scene(scene, settings.variant)
+        seconds = _check_positive("seconds", settings.seconds)
+        fs = _check_positive("fs", settings.fs)
+        fc = _check_positive("fc", settings.fc)
         if seconds > sc.duration + 1e-9:
             raise RecordingError(
                 f"seconds: scene {sc.name!r} lasts {sc.duration:g} s, asked for {seconds:g} s"
@@ -265,11 +270,12 @@ class RecordingRender:
                 )
         self.scene = sc
         self.motion: ClientMotion = (
-            PathMotion(sc) if trace is None else TraceMotion(sc, trace, translation_scale)
+            PathMotion(sc) if trace is None
+            else TraceMotion(sc, trace, settings.translation_scale)
         )
-        self.seconds, self.scale, self.fs, self.fc = seconds, scale, fs, fc
-        self.subframes, self.stereo, self.samples = subframes, stereo, samples
-        self.width, self.height = sc.main_size(scale)
+        self.seconds, self.scale, self.fs, self.fc = seconds, settings.scale, fs, fc
+        self.subframes, self.stereo, self.samples = settings.subframes, settings.stereo, samples
+        self.width, self.height = sc.main_size(self.scale)
         self.n_server, self.n_client = plan(seconds, fs, fc)
 
     def server_frame(self, k: int) -> tuple[npt.NDArray[np.float64], ServerFrame]:
@@ -363,10 +369,10 @@ def write_recording(
     :class:`RecordingError` when ``out`` exists (unless ``overwrite``) or ``seconds`` exceeds
     the scene's or trace's duration, ``InvalidInputError`` for bad scene arguments."""
     out = Path(out)
-    r = RecordingRender(
-        scene, variant=variant, seconds=seconds, scale=scale, fs=fs, fc=fc, subframes=subframes,
+    r = RecordingRender(scene, RecordingSettings(
+        variant=variant, seconds=seconds, scale=scale, fs=fs, fc=fc, subframes=subframes,
         stereo=stereo, trace=trace, translation_scale=translation_scale, samples=samples,
-    )
+    ))
     check_destination(out, overwrite)
     aux_size: list[list[int]] = []
 

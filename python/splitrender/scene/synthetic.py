@@ -101,14 +101,7 @@ class SyntheticScene:
         if not fps > 0:
             raise InvalidInputError(f"fps: expected a value > 0, got {fps}")
         b = _native.synthetic_render_server(
-            self.dynamic,
-            camera.view,
-            camera.proj,
-            camera.width,
-            camera.height,
-            time,
-            1.0 / fps,
-            subframes,
+            self.dynamic, camera.to_native(), time, 1.0 / fps, subframes
         )
         return CameraFrame(
             camera=camera,
@@ -153,6 +146,4 @@ class SyntheticScene:
         """The exact image (``uint8[H, W, 3]``) at ``camera`` and ``time``."""
         if not isinstance(camera, Camera):
             raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
-        return _native.synthetic_ground_truth(
-            self.dynamic, camera.view, camera.proj, camera.width, camera.height, time
-        )
+        return _native.synthetic_ground_truth(self.dynamic, camera.to_native(), time)
