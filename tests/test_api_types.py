@@ -361,7 +361,7 @@ TABLE: dict[str, Entry] = {
         lambda f: sr.metrics.evaluate_sequence,
         lambda f: dict(rendered=[f.img] * 3, truth=[f.img] * 3, skip=0, metrics=("psnr",)),
         dict(rendered=THING, truth=THING, skip=[*COUNT], metrics=[None, "psnr", ["x"], 0],
-             fps=POSITIVE, ppd=POSITIVE, progress=CALLABLE),
+             fps=POSITIVE, ppd=POSITIVE, progress=CALLABLE, flip_every=[*INT, 0, 1 << 21]),
     ),
 }
 

@@ -210,6 +210,26 @@ def test_sequence_psnr_is_that_of_the_mean_mse_and_never_infinite() -> None:
             M.psnr_of_mse(bad)
 
 
+def test_flip_every_scores_flip_on_every_nth_frame_and_averages_those() -> None:
+    truth = [textured(32, 32, seed=i) for i in range(11)]
+    rendered = [np.clip(t.astype(int) + 3 * i, 0, 255).astype(np.uint8)
+                for i, t in enumerate(truth)]
+    full = M.evaluate_sequence(rendered, truth, skip=1, metrics=("ssim", "flip"))
+    calls: list[tuple[str, int, int]] = []
+    res = M.evaluate_sequence(rendered, truth, skip=1, metrics=("ssim", "flip"), flip_every=4,
+                              progress=lambda m, done, total: calls.append((m, done, total)))
+    # The 9 scored frames are 1..9; FLIP on the 1st, 5th and 9th of them, SSIM on all.
+    assert [i for i, row in zip(res.frames, res.per_frame) if "flip" in row] == [1, 5, 9]
+    assert all("ssim" in row for row in res.per_frame)
+    sampled = [full.per_frame[j]["flip"] for j in (0, 4, 8)]
+    assert [row["flip"] for row in res.per_frame if "flip" in row] == sampled
+    assert res.mean["flip"] == pytest.approx(np.mean(sampled))
+    assert res.mean["ssim"] == full.mean["ssim"]
+    assert calls[-1] == ("flip", 3, 3)
+    with pytest.raises(InvalidInputError, match="flip_every"):
+        M.evaluate_sequence(rendered, truth, skip=1, flip_every=0)
+
+
 def test_evaluate_sequence_per_frame_values_and_errors() -> None:
     truth = [textured(32, 32, seed=i) for i in range(7)]
     rendered = [np.clip(t.astype(int) + i, 0, 255).astype(np.uint8) for i, t in enumerate(truth)]

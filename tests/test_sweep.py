@@ -50,6 +50,22 @@ def serial(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return work / "out"
 
 
+def test_flip_every_rescores_only_and_is_stated(serial: Path, tmp_path: Path) -> None:
+    """--flip-every changes the score tasks only (the recordings and streams come from the
+    cache), SSIM stays the same, FLIP is the mean over the sampled frames, and the tables say
+    so."""
+    out = tmp_path / "out"
+    assert main([*SWEEP, "--flip-every", "5", "--cache", str(serial.parent / "cache"),
+                 "--out", str(out)]) == 0
+    info = _info(out)
+    assert info["computed"] == {"render": 0, "encode": 0, "score": TASKS["score"]}
+    every = json.loads((serial / "results.json").read_text())
+    sampled = json.loads((out / "results.json").read_text())
+    assert [r["ssim"] for r in sampled] == [r["ssim"] for r in every]
+    assert [r["flip"] for r in sampled] != [r["flip"] for r in every]
+    assert "FLIP on every 5th of those frames only" in (out / "tables.md").read_text()
+
+
 def test_results_have_no_run_details_and_run_info_has_them(serial: Path) -> None:
     text = (serial / "results.json").read_text()
     rows = json.loads(text)

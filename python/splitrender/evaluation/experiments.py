@@ -154,6 +154,9 @@ class EvalConfig:
     #: Ray: the cluster to join (``HOST:PORT``, ``ray://HOST:PORT`` or ``auto``); ``None``:
     #: start a local Ray and stop it at the end.
     address: str | None = None
+    #: FLIP on every N-th scored client frame only (``evaluate_sequence``'s ``flip_every``):
+    #: FLIP is most of the scoring time at 1280x720. 1: every frame.
+    flip_every: int = 1
     #: The content-addressed cache of recordings, streams and rows; ``None``:
     #: :func:`~splitrender.evaluation.sweep.default_cache_dir`.
     cache: Path | None = None
@@ -339,6 +342,7 @@ class _Plan:
         for eye in range(eyes):
             params = {"method": fixed["method"], "eye": eye, "stream": stream is not None,
                       "network": fixed["network"], "metrics": list(which or self.metrics),
+                      "flip_every": cfg.flip_every,
                       "backend": cfg.backend, "own_rates": self.given is not None}
             where = f"{'stereo eye ' + str(eye) + ', ' if eyes > 1 else ''}l = {fixed['delay']}"
             parts.append(self.add("score", "score_play", params, deps,
@@ -347,7 +351,8 @@ class _Plan:
 
     def score(self, fixed: Row, fn: str, params: Row, deps: Sequence[Task],
               which: Sequence[str] | None = None) -> _Planned:
-        t = self.add("score", fn, {**params, "metrics": list(which or self.metrics)}, deps,
+        t = self.add("score", fn, {**params, "metrics": list(which or self.metrics),
+                                   "flip_every": self.cfg.flip_every}, deps,
                      label=f"{fixed['method']} on {deps[0].label}"
                      + ("" if fixed["bitrate_mbps"] is None
                         else f" at {fixed['bitrate_mbps']:.3g} Mb/s"))
@@ -622,6 +627,8 @@ def run_eval(
     files = [out / "results.json"]
     motion = (f"the recording {cfg.recording}'s client poses" if given is not None
               else "the scenes head paths" if trace is None else f"head trace {cfg.trace}")
+    flip_note = ("" if cfg.flip_every == 1 else
+                 f"; FLIP on every {cfg.flip_every}th of those frames only (--flip-every)")
     md = [
         f"# splitrender eval: {', '.join(cfg.scenes)} at {w}x{h}",
         "",
@@ -629,7 +636,8 @@ def run_eval(
         f"frames at {fc:g} FPS; per-frame means against the ground truth at the client pose, "
         f"first and last {SKIP_FRAMES} client frames excluded (PSNR: of the mean squared "
         f"error over those frames, capped at {PSNR_CAP_DB:g} dB)"
-        f"{'' if use_vmaf else '; VMAF not computed'}. Client motion: {motion}. Network: "
+        f"{'' if use_vmaf else '; VMAF not computed'}"
+        f"{flip_note}. Client motion: {motion}. Network: "
         f"{network_text(network)}{' (Table 2: l as given)' if t2 else ''}.",
         "",
     ]

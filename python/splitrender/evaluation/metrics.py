@@ -417,7 +417,7 @@ class SequenceMetrics:
 
 @checked(
     skip=ints(0, (1 << 31) - 1), metrics=items(strs()), fps=floats(positive=True),
-    ppd=floats(positive=True), progress=optional(CALLABLE),
+    ppd=floats(positive=True), progress=optional(CALLABLE), flip_every=ints(1, 1 << 20),
 )
 def evaluate_sequence(
     rendered: Sequence[npt.ArrayLike],
@@ -428,11 +428,18 @@ def evaluate_sequence(
     fps: float = VMAF_FPS,
     ppd: float = FLIP_PPD,
     progress: Progress | None = None,
+    flip_every: int = 1,
 ) -> SequenceMetrics:
     """Every metric in ``metrics`` for each client frame of ``rendered`` against ``truth`` (the
     ground truth at the client pose), excluding the first and last ``skip`` frames, and the
     means. ``progress(stage, done, total)`` is called after each frame of each metric (see
-    :meth:`splitrender.progress.Progress.bar`); FLIP costs seconds per 1280×720 frame.
+    :meth:`splitrender.progress.Progress.bar`).
+
+    FLIP costs about 2 s of CPU per 1280×720 frame (``flip-evaluator``), 15× SSIM: with
+    ``flip_every = N`` it is computed on every N-th scored frame only (the first, then every
+    N-th; the other rows have no ``"flip"``) and its mean is over those. Choose N coprime with
+    the client frames per server frame (12 at 120/10 FPS; e.g. 5 or 7), so that the sampled
+    frames go through every phase of a server-frame pair instead of always the same α.
 
     Raises:
         InvalidInputError: for unknown metrics, sequences of different lengths or shapes, or
@@ -484,11 +491,12 @@ def evaluate_sequence(
             if progress is not None:
                 progress("vmaf", 1, 1)
             continue
-        for j, i in enumerate(kept):
-            per_frame[j][m] = funcs[m](r[i], g[i])
+        scored = range(0, len(kept), flip_every if m == "flip" else 1)
+        for done, j in enumerate(scored, 1):
+            per_frame[j][m] = funcs[m](r[kept[j]], g[kept[j]])
             if progress is not None:
-                progress(m, j + 1, len(kept))
-    mean = {m: float(np.mean([row[m] for row in per_frame])) for m in ordered}
+                progress(m, done, len(scored))
+    mean = {m: float(np.mean([row[m] for row in per_frame if m in row])) for m in ordered}
     mse = float(np.mean(mses)) if mses else None
     if mse is not None:
         mean["psnr"] = psnr_of_mse(mse)

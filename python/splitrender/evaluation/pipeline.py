@@ -116,6 +116,7 @@ def play_and_score_eyes(
     on_frame: Callable[[int, int, _Image, Any], None] | None = None,
     options: ReprojectOptions | None = None,
     backend: str = "cpu",
+    flip_every: int = 1,
 ) -> list[Scored]:
     """Plays ``frames`` with ``method`` through ``network`` at each eye's client cameras
     (``cameras[e]``, ``fc`` FPS) and scores eye ``e``'s client frames against ``truth[e]``
@@ -124,7 +125,7 @@ def play_and_score_eyes(
     eye, so the eyes share their schedule. ``on_frame(eye, n, image, info)`` is called for
     every client frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a
     server at another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
-    (:class:`~splitrender.Client`). :func:`mean_row` averages the result over the eyes."""
+    (:class:`~splitrender.Client`); ``flip_every`` as in :func:`evaluate_sequence`. :func:`mean_row` averages the result over the eyes."""
     out = []
     for eye, (eye_cams, eye_truth) in enumerate(zip(cameras, truth)):
         n_client = len(eye_cams)
@@ -143,7 +144,7 @@ def play_and_score_eyes(
                 bar(done, total, metric)
 
         sm = evaluate_sequence(res.images, eye_truth, SKIP_FRAMES, metrics, fps=fc,
-                               progress=progress)
+                               progress=progress, flip_every=flip_every)
         out.append(Scored(res, sm))
     return out
 

@@ -246,7 +246,8 @@ def score_play(task: Task, cache: Cache) -> None:
     net = NetworkModel(**p["network"], client_fps=rec.fc)
     [scored] = play_and_score_eyes(server, [cams], [truth], p["method"], net, rec.fc,
                                    p["metrics"], frame_sizes=sizes, options=options,
-                                   backend=backend_for(p["method"], p["backend"]))
+                                   backend=backend_for(p["method"], p["backend"]),
+                                   flip_every=p["flip_every"])
     _write_part(task, cache, scored.metrics, mbps)
 
 
@@ -266,7 +267,7 @@ def score_interp(task: Task, cache: Cache) -> None:
     _, truth = _eye(rec, 0)
     frames = minterpolate(colours, rec.fs, rec.fc, len(truth))
     _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
-                                               fps=rec.fc), mbps)
+                                               fps=rec.fc, flip_every=p["flip_every"]), mbps)
 
 
 def score_video_streaming(task: Task, cache: Cache) -> None:
@@ -279,7 +280,7 @@ def score_video_streaming(task: Task, cache: Cache) -> None:
     _, truth = _eye(rec, 0)
     frames, mbps = _video_streaming(truth, p["bitrate"], rec.fc)
     _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
-                                               fps=rec.fc), mbps)
+                                               fps=rec.fc, flip_every=p["flip_every"]), mbps)
 
 
 def score_timewarp(task: Task, cache: Cache) -> None:
@@ -304,5 +305,6 @@ def score_timewarp(task: Task, cache: Cache) -> None:
     cams, truth = _eye(rec, 0)
     net = NetworkModel(**p["network"], client_fps=rec.fc)
     [scored] = play_and_score_eyes(dec, [cams], [truth], "timewarp", net, rec.fc, p["metrics"],
-                                   frame_sizes=sizes, options=ReprojectOptions(server_fps=fps))
+                                   frame_sizes=sizes, options=ReprojectOptions(server_fps=fps),
+                                   flip_every=p["flip_every"])
     _write_part(task, cache, scored.metrics, mbps)
