@@ -125,7 +125,7 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
     version = _connect(server.port, tmp_path, "--protocol-version", "7", timeout=30,
                        fingerprint=server.fingerprint)
     assert version.returncode == 2 and len(version.stderr.strip().splitlines()) == 1
-    assert "protocol version 7 is not supported (this server speaks version 1)" in version.stderr
+    assert "protocol version 7 is not supported (this server speaks version 2)" in version.stderr
     other = server.fingerprint.replace(server.fingerprint[:2], "00" if server.fingerprint[:2]
                                        != "00" else "11", 1)
     pinned = _connect(server.port, tmp_path, fingerprint=other.lower().replace(":", ""),

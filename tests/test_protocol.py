@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 import splitrender.net.protocol as proto
 from splitrender.client.live import FrameOrder
 from splitrender.errors import InvalidInputError, ProtocolError, SplitRenderError
-from splitrender.net.abr import RateController
+from splitrender.net.abr import LeadController, RateController
 from splitrender.net.predict import ConstantVelocity, LastPose, make_predictor
 from splitrender.net.relay import Impairment, Relay, _Direction, check_loopback
 
@@ -48,7 +48,7 @@ def test_round_trips() -> None:
     back = proto.decode_datagram(ps.encode())
     assert isinstance(back, proto.PoseSample) and back.seq == 7 and back.time == 1.25
     np.testing.assert_array_equal(back.pose, ps.pose)
-    rr = proto.RateReport(3, 2.0, 1.5e6, 0.5, 12.5, 40, 2)
+    rr = proto.RateReport(3, 2.0, 1.5e6, 0.5, 12.5, 40, 2, 3, -42.5)
     assert proto.decode_datagram(rr.encode()) == rr
     fh = _header(12, True, 999)
     assert proto.FrameHeader.decode(fh.encode() + b"payload") == fh
@@ -59,7 +59,7 @@ def test_documented_sizes() -> None:
     """docs/protocol.md states these sizes."""
     assert len(proto.Hello("x" * proto.MAX_TOKEN).encode()) == 84
     assert len(proto.PoseSample(0, 0.0, np.eye(4)).encode()) == 109
-    assert len(proto.RateReport(0, 0, 0, 0, 0, 0, 0).encode()) == 37
+    assert len(proto.RateReport(0, 0, 0, 0, 0, 0, 0).encode()) == 43
     assert proto.FrameHeader.SIZE == 62
     w = proto.Welcome(10.0, 0.1, 1, 1, (0.0,) * 16, 1, 1.0, 1.0, "s" * 255)
     assert len(w.encode()) == 425 <= proto.MAX_CONTROL
@@ -273,12 +273,37 @@ def test_rate_controller_backs_off_and_climbs() -> None:
     assert rc.update(0.9e6, 0.0) == 1e6  # room, already at the top
     assert rc.update(0.4e6, 120.0) == pytest.approx(0.34e6)  # queue: to 85 % of what got through
     assert rc.update(0.4e6, 30.0) == pytest.approx(0.34e6)  # in between: hold
-    for _ in range(100):
-        rc.update(0.0, 0.0)
-    assert rc.target_bps == 1e6
+    # Room again: the climb is per second, whatever the report rate ...
+    a, b = RateController(1e6, 1e5), RateController(1e6, 1e5)
+    for r in (a, b):
+        r.update(0.2e6, 500.0)
+    for _ in range(2):
+        a.update(0.0, 0.0, 0.25)
+    b.update(0.0, 0.0, 0.5)
+    assert a.target_bps == pytest.approx(b.target_bps) == pytest.approx(0.17e6 * 1.36**0.5)
+    # ... and stops at the rate that got through at the backoff, which rises 3 % per second.
+    assert rc.update(0.0, 0.0, 1.0) == pytest.approx(0.4e6 * 1.03)
+    for _ in range(10):
+        rc.update(0.0, 0.0, 1.0)
+    assert rc.target_bps == pytest.approx(0.4e6 * 1.03**11)
+    for _ in range(40):
+        rc.update(0.0, 0.0, 1.0)
+    assert rc.target_bps == 1e6  # never above the top
     assert rc.update(1e3, 500.0) == 1e5  # never below the floor
     with pytest.raises(InvalidInputError, match="bit-rate range"):
         RateController(1e5, 1e6)
+
+
+def test_lead_follows_late_frames() -> None:
+    lead = LeadController(margin_ms=20, decay=0.1, max_s=0.5)
+    assert lead.update(0, 300.0) == 0.0  # no frame made usable: no news
+    assert lead.update(2, 80.0) == pytest.approx(0.1)  # late by 80 ms: 100 ms earlier
+    assert lead.update(1, -20.0) == pytest.approx(0.1)  # early by the margin: hold
+    assert lead.update(1, -120.0) == pytest.approx(0.09)  # early: a tenth of the excess back
+    assert lead.update(1, 2000.0) == 0.5  # at most max_s
+    for _ in range(200):
+        lead.update(1, -1000.0)
+    assert lead.lead_s == 0.0
 
 
 def test_relay_draws_are_seeded() -> None:

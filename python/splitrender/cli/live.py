@@ -363,7 +363,12 @@ def run_relay(args: argparse.Namespace) -> int:
         up = Impairment(args.delay, args.jitter, args.loss)
         down = Impairment(args.delay, args.jitter, args.loss, args.bandwidth or 0.0,
                           args.queue, tuple(args.bandwidth_at))
-        relay = Relay(args.target, up, down, args.seed, args.listen)
+        relay = Relay(
+            args.target, up, down, args.seed, args.listen,
+            on_step=lambda d, mbps, when: print(
+                f"bandwidth {d} {mbps:g} Mb/s at monotonic {when:.4f}", flush=True
+            ),
+        )
     except SplitRenderError as e:
         return fail(str(e))
 

@@ -232,7 +232,8 @@ class _NetStats:
     key_frames: int = 0
     decode_errors: int = 0
     arrivals: list[float] = field(default_factory=list)  # display time of each completed frame
-    targets: list[tuple[int, float, float]] = field(default_factory=list)  # index, Mb/s, t
+    # index, Mb/s, arrival (display s), sent (the server's clock)
+    targets: list[tuple[int, float, float, float]] = field(default_factory=list)
     server_render_ms: list[float] = field(default_factory=list)
     server_encode_ms: list[float] = field(default_factory=list)
     closed_at: float | None = None
@@ -387,7 +388,11 @@ class LiveClient:
         self._t0: float | None = None
         self._pose_seq = 0
         self._window: deque[tuple[float, int, float]] = deque()  # arrival, bytes, delay
+        self._usable: deque[tuple[float, float]] = deque()  # loop time, lateness (s)
+        #: Display time at which each server frame (by index) became usable.
+        self.usable_at: dict[int, float] = {}
         self._min_delay: float | None = None
+        self._reported = 0.0  # loop time of the last rate report
         self.realtime: RealtimeClient | None = None
         #: (display time, packet) of every packet handed to the decoder: :meth:`replay` feeds
         #: them to another method in the same conditions.
@@ -437,7 +442,7 @@ class LiveClient:
         n.bytes_received += len(payload) + FrameHeader.SIZE
         n.key_frames += header.key
         n.arrivals.append(arrival)
-        n.targets.append((header.index, header.target_bps / 1e6, arrival))
+        n.targets.append((header.index, header.target_bps / 1e6, arrival, header.sent))
         n.server_render_ms.append(header.render_ms)
         n.server_encode_ms.append(header.encode_ms)
         # One-way delay up to a constant (the two clocks' offset): its excess over the least
@@ -446,6 +451,10 @@ class LiveClient:
         self._min_delay = delay if self._min_delay is None else min(self._min_delay, delay)
         self._window.append((loop_now, len(payload) + FrameHeader.SIZE, delay))
         self.order.complete(header, payload, loop_now)
+        if self._t0 is not None:
+            # A report per frame as well as per interval: a link that narrows shows in the
+            # first frame it delays, and the server hears of it at once.
+            self._report()
 
     def _submit(self, header: FrameHeader, payload: bytes) -> None:
         assert self.realtime is not None
@@ -457,8 +466,23 @@ class LiveClient:
         def done(f: Any) -> None:
             if f.exception() is not None:
                 loop.call_soon_threadsafe(self._undecodable, index)
+            elif f.result() is not None:
+                # Usable now (decoded and prepared): how late against when the display
+                # first needed it, t_k - 1/f_s, for the server's planning (RateReport).
+                k = int(f.result())
+                usable = self._now()
+                loop.call_soon_threadsafe(self._made_usable, k, usable)
 
         fut.add_done_callback(done)
+
+    def _made_usable(self, k: int, usable: float) -> None:
+        assert self.welcome is not None and self._loop is not None
+        first = not self.usable_at
+        self.usable_at[k] = usable
+        if not first:
+            # (The session's first frame is for the time it arrives: late by construction.)
+            late = usable - (k - 1) / self.welcome.server_fps
+            self._usable.append((self._loop.time(), late))
 
     def _undecodable(self, index: int) -> None:
         self.net.decode_errors += 1
@@ -476,20 +500,27 @@ class LiveClient:
     def _report(self) -> None:
         loop = asyncio.get_running_loop()
         now = loop.time()
+        self._reported = now
         w = self._window
         span = 2 * REPORT_INTERVAL_S
         while w and w[0][0] < now - span:
             w.popleft()
         bps = 8 * sum(b for _, b, _ in w) / span
-        queue = (
-            float(np.median([d for _, _, d in w])) - self._min_delay
-            if w and self._min_delay is not None
-            else 0.0
-        )
+        if len(w) >= 2 and w[-1][0] > w[-2][0]:
+            # The newest frame over the time since the one before: when a queue holds them
+            # back to back, that is the link's rate now (the window's lags a narrowing).
+            bps = min(bps, 8 * w[-1][1] / (w[-1][0] - w[-2][0]))
+        # The newest frame's queueing delay: at a few server frames per second a window
+        # holds two or three, and a median would wait for the second delayed one.
+        queue = w[-1][2] - self._min_delay if w and self._min_delay is not None else 0.0
+        u = self._usable
+        while u and u[0][0] < now - span:
+            u.popleft()
         self.net.reports += 1
         report = RateReport(
             self.net.reports, self._now(), bps, span, max(queue, 0.0) * 1e3,
             self.net.frames_completed, self.order.lost,
+            len(u), max((late for _, late in u), default=0.0) * 1e3,
         )
         if self._conn is not None:
             self._conn.send_datagram(report.encode())
@@ -533,14 +564,13 @@ class LiveClient:
             ) as conn:
                 assert isinstance(conn, _Connection)
                 self._conn = conn
-                reported = self._loop.time()
+                self._reported = self._loop.time()
                 while not self._stop.is_set():
                     # Ticks 5x per report interval: the give-up of a missing frame is timely.
                     now = self._loop.time()
                     self.order.tick(now)
-                    if self._t0 is not None and now - reported >= REPORT_INTERVAL_S:
+                    if self._t0 is not None and now - self._reported >= REPORT_INTERVAL_S:
                         self._report()
-                        reported = now
                     try:
                         await asyncio.wait_for(self._stop.wait(), REPORT_INTERVAL_S / 5)
                     except asyncio.TimeoutError:
@@ -655,8 +685,17 @@ class LiveClient:
         def med(v: list[float]) -> float | None:
             return float(np.median(v)) if v else None
 
+        # The server's send times on the display's clock, up to the least one-way delay:
+        # shifted so that the least-delayed frame took no time (so they are late, if
+        # anything, by that delay).
+        shift = min((t - sent for _, _, t, sent in n.targets), default=0.0)
+
         s.update(
             pose_to_display_ms_p50=s.get("server_age_ms_p50"),
+            # time.monotonic() at display time 0 (the same clock in every process of the
+            # machine: events elsewhere, e.g. a relay's bandwidth step, can be placed on
+            # the session's timeline).
+            monotonic_at_start=self._t0,
             mbps=8 * n.bytes_received / seconds / 1e6,
             network={
                 "frames_completed": n.frames_completed,
@@ -681,11 +720,16 @@ class LiveClient:
             },
             # Per frame received: the encoder target, the arrival (display seconds) and how
             # late it was against when the display first needed it, t_k - 1/f_s (negative:
-            # early), the measure of whether frames arrive on time as the target moves.
+            # early), the measure of whether frames arrive on time as the target moves; and
+            # when it became usable (decoded and prepared; None: never) and whether that was
+            # late (what server_frames_late counts, frame by frame).
             target_mbps=[
-                {"index": i, "mbps": round(m, 6), "arrival": round(t, 4),
-                 "late_ms": round((t - (i - 1) / fs) * 1e3, 1)}
-                for i, m, t in n.targets
+                {"index": i, "mbps": round(m, 6), "sent": round(sent + shift, 4),
+                 "arrival": round(t, 4),
+                 "late_ms": round((t - (i - 1) / fs) * 1e3, 1),
+                 "usable": None if (u := self.usable_at.get(i)) is None else round(u, 4),
+                 "usable_late": u is not None and u > max(0.0, (i - 1) / fs)}
+                for i, m, t, sent in n.targets
             ],
         )
         if n.closed_at is not None and n.closed_at < seconds - 1.0:

@@ -20,7 +20,7 @@ import asyncio
 import ipaddress
 import math
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -111,12 +111,17 @@ class Relay(asyncio.DatagramProtocol):
         down: Impairment,
         seed: int = 0,
         listen: tuple[str, int] = ("127.0.0.1", 0),
+        on_step: Callable[[str, float, float], None] | None = None,
     ) -> None:
         self.target = (check_loopback(target[0], "target"), target[1])
         self.listen = (check_loopback(listen[0], "listen"), listen[1])
         # Two streams of draws from one seed: the directions do not disturb each other.
         self._dirs = {"up": _Direction(up, seed * 2 + 1), "down": _Direction(down, seed * 2 + 2)}
         self.stats = RelayStats()
+        #: Called as ``on_step(direction, mbps, when)`` as a scheduled step is applied
+        #: (``when``: the event loop's clock, ``time.monotonic()``, shared by every process
+        #: on the machine: a test aligns the step with a session's clock by it).
+        self.on_step = on_step
         self._client: tuple[str, int] | None = None
         self._down: _Upstream | None = None
         self._transport: asyncio.DatagramTransport | None = None
@@ -142,6 +147,8 @@ class Relay(asyncio.DatagramProtocol):
         for t, mbps in sorted(schedule):
             await asyncio.sleep(max(0.0, t0 + t - loop.time()))
             self.set_bandwidth(name, mbps)
+            if self.on_step is not None:
+                self.on_step(name, mbps, loop.time())
 
     def set_bandwidth(self, direction: str, mbps: float) -> None:
         """The cap of ``direction`` (``"up"``/``"down"``) from now on (0: none)."""

@@ -53,7 +53,7 @@ from aioquic.quic.events import (
 
 from splitrender.codec.coder import CodecConfig, StreamEncoder
 from splitrender.errors import ProtocolError
-from splitrender.net.abr import RateController
+from splitrender.net.abr import LeadController, RateController
 from splitrender.net.predict import make_predictor
 from splitrender.net.protocol import (
     ALPN,
@@ -193,7 +193,9 @@ class _Session(QuicConnectionProtocol):
         self._last_pose_at = 0.0
         self._key_wanted = False
         self._abr = self.server.rate_controller()
+        self._lead = LeadController(max_s=2.0 / self.server.options.fps)
         self._new_target: float | None = None
+        self._reported_at: float | None = None
         self._open: dict[int, tuple[int, bool]] = {}  # seq -> (stream id, key), in flight
         self._closed = asyncio.Event()
 
@@ -307,7 +309,10 @@ class _Session(QuicConnectionProtocol):
             self._last_pose_at = now
         elif isinstance(msg, RateReport):
             self.stats.reports += 1
-            self._new_target = self._abr.update(msg.receive_bps, msg.queue_ms)
+            dt = now - self._reported_at if self._reported_at is not None else 0.25
+            self._reported_at = now
+            self._new_target = self._abr.update(msg.receive_bps, msg.queue_ms, dt)
+            self._lead.update(msg.usable, msg.late_ms)
 
     def _terminated(self, reason: str) -> None:
         if self._task is not None:
@@ -346,8 +351,11 @@ class _Session(QuicConnectionProtocol):
         encoder.request_key_frame()
         last = -1
         seq = 0  # place in the encoded sequence (the packets' index: see FrameHeader)
-        abr_key_at = -math.inf
+        abr_key_at = loop.time()  # the session's first frame is a key frame
+        # The target the HEVC encoders run at: a new one takes effect at a key frame.
+        effective = encoder.config.bitrate_mbps * 1e6
         proc = srv.proc_estimate
+        proc_key = 2 * proc  # a frame that reopens the encoders (measured at the first)
         recent: deque[float] = deque(maxlen=5)
         warned = False
         try:
@@ -366,9 +374,34 @@ class _Session(QuicConnectionProtocol):
                     # waits for would wait longer. The frames not rendered are skipped.
                     await asyncio.sleep(0.25 / fs)
                     continue
+                target = self._new_target
+                current = encoder.config.bitrate_mbps * 1e6
+                if target is not None and abs(target - current) > ABR_STEP * current:
+                    # Only steps that matter: the encoders take a new target at a key frame
+                    # (x265 reopens, tens of ms per stream). It is taken at once with a key frame
+                    # of its own (a narrowed link cannot wait for the next regular one), at most
+                    # every ABR_KEY_INTERVAL_S (a key frame is itself larger); in between, the
+                    # change waits (at most that long, not for the next regular key frame).
+                    encoder.set_bitrate(target / 1e6)
+                self._new_target = None
+                # Decided before the frame is planned: reopening the encoders makes this
+                # frame slower (proc_key), and the plan must start it that much earlier.
+                reopen = (
+                    encoder.config.bitrate_mbps * 1e6 != effective
+                    and loop.time() - abr_key_at >= ABR_KEY_INTERVAL_S
+                )
+                if reopen:
+                    encoder.request_key_frame()
+                    abr_key_at = loop.time()
+                if self._key_wanted:
+                    encoder.request_key_frame()
+                    self._key_wanted = False
                 client_now = loop.time() + self._offset
+                # What the plan leaves out (the client's decode and preparation, a capped
+                # link's transfer time, scheduling noise), from the client's reports.
+                ahead = max(proc, proc_key if reopen else 0.0) + owd + self._lead.lead_s
                 # Frame k is first needed at t_k - 1/f_s (it closes the pair (k-1, k)).
-                k = math.ceil((client_now + proc + owd) * fs - 1e-9) + (last >= 0)
+                k = math.ceil((client_now + ahead) * fs - 1e-9) + (last >= 0)
                 # (The first frame of a session is for the time it arrives at: it can be shown
                 # at once, extrapolated; every later one is for one period after that.)
                 # Frames that could not arrive in time are skipped. The encoded sequence goes
@@ -382,7 +415,7 @@ class _Session(QuicConnectionProtocol):
                         )
                         warned = True
                 k = max(k, last + 1)
-                start = (k - 1) / fs - proc - owd - self._offset  # loop time to start at
+                start = (k - 1) / fs - ahead - self._offset  # loop time to start at
                 if start > loop.time():
                     await asyncio.sleep(start - loop.time())
                 pose = self._predictor.predict(k / fs)
@@ -393,28 +426,13 @@ class _Session(QuicConnectionProtocol):
                     srv.executor, srv.render, k, pose
                 )
                 t1 = time.perf_counter()
-                target = self._new_target
-                current = encoder.config.bitrate_mbps * 1e6
-                if target is not None and abs(target - current) > ABR_STEP * current:
-                    # Only steps that matter: the encoders take a new target at a key frame
-                    # (x265 reopens, tens of ms per stream). It is taken at once with a key frame
-                    # of its own (a narrowed link cannot wait for the next regular one), at most
-                    # every ABR_KEY_INTERVAL_S (a key frame is itself larger); in between, the
-                    # change waits for the next key frame.
-                    encoder.set_bitrate(target / 1e6)
-                    now = loop.time()
-                    if now - abr_key_at >= ABR_KEY_INTERVAL_S:
-                        encoder.request_key_frame()
-                        abr_key_at = now
-                self._new_target = None
-                if self._key_wanted:
-                    encoder.request_key_frame()
-                    self._key_wanted = False
                 packet: bytes = await loop.run_in_executor(
                     srv.executor, encoder.encode, dataclasses.replace(frame, index=seq)
                 )
                 t2 = time.perf_counter()
                 key = bool(packet[6] & 1)  # the stream format's flags: bit 0 = key frame
+                if key:
+                    effective = encoder.config.bitrate_mbps * 1e6
                 render_ms, encode_ms = (t1 - t0) * 1e3, (t2 - t1) * 1e3
                 # The median of the last frames that are not key frames (a key frame restarts
                 # the encoders and is no guide to the next frame's time; the median keeps one
@@ -422,6 +440,8 @@ class _Session(QuicConnectionProtocol):
                 if not key:
                     recent.append(t2 - t0)
                     proc = float(np.median(recent))
+                elif reopen:
+                    proc_key = t2 - t0
                 last = k
                 seq += 1
                 n = opts.drop_every
@@ -430,7 +450,7 @@ class _Session(QuicConnectionProtocol):
                 ):
                     self.stats.frames_dropped += 1  # the injected loss (ServerOptions)
                     continue
-                self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, encoder)
+                self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, effective)
         except asyncio.CancelledError:
             pass
         except Exception as e:  # noqa: BLE001 - a session's failure must not end the server
@@ -450,10 +470,10 @@ class _Session(QuicConnectionProtocol):
         packet: bytes,
         render_ms: float,
         encode_ms: float,
-        encoder: StreamEncoder,
+        target: float,
     ) -> None:
+        """Sends frame ``k``; ``target``: the bit-rate it was encoded at (b/s)."""
         fs = self.server.options.fps
-        target = encoder.config.bitrate_mbps * 1e6
         header = FrameHeader(
             k,
             seq,
