@@ -276,17 +276,21 @@ def test_rate_controller_backs_off_and_climbs() -> None:
     # Room again: the climb is per second, whatever the report rate ...
     a, b = RateController(1e6, 1e5), RateController(1e6, 1e5)
     for r in (a, b):
-        r.update(0.2e6, 500.0)
+        r.update(0.2e6, 500.0)  # to 0.17 Mb/s ...
+        r.update(1e6, 500.0)  # ... and a queue on a link found wider: the ceiling is 1 Mb/s
     for _ in range(2):
         a.update(0.0, 0.0, 0.25)
     b.update(0.0, 0.0, 0.5)
     assert a.target_bps == pytest.approx(b.target_bps) == pytest.approx(0.17e6 * 1.36**0.5)
-    # ... and stops at the rate that got through at the backoff, which rises 3 % per second.
-    assert rc.update(0.0, 0.0, 1.0) == pytest.approx(0.4e6 * 1.03)
+    held = a.target_bps
+    assert a.update(0.0, -1.0, 1.0) == held  # no frame since the last report: hold
+    # ... and stops at 85 % of the rate that got through at the backoff, which rises 3 % per
+    # second.
+    assert rc.update(0.0, 0.0, 1.0) == pytest.approx(0.34e6 * 1.03)
     for _ in range(10):
         rc.update(0.0, 0.0, 1.0)
-    assert rc.target_bps == pytest.approx(0.4e6 * 1.03**11)
-    for _ in range(40):
+    assert rc.target_bps == pytest.approx(0.34e6 * 1.03**11)
+    for _ in range(50):
         rc.update(0.0, 0.0, 1.0)
     assert rc.target_bps == 1e6  # never above the top
     assert rc.update(1e3, 500.0) == 1e5  # never below the floor

@@ -346,7 +346,8 @@ def add_relay(sub: Any) -> None:
                    help="cap of the server-to-client direction (default: none)")
     p.add_argument("--bandwidth-at", type=_step, action="append", default=[],
                    metavar="SECONDS:MBPS",
-                   help="change the cap SECONDS after the start (repeatable; 0 removes it)")
+                   help="change the cap SECONDS after the first datagram of the client (repeatable; "
+                   "0 removes it)")
     p.add_argument("--queue", type=milliseconds, default=500.0, metavar="MS",
                    help="longest queue before the cap drops datagrams (default: %(default)s)")
     p.add_argument("--seed", type=lambda t: integer(t, 0, 2**32 - 1), default=0, metavar="N",

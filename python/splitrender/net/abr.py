@@ -10,7 +10,7 @@ builds a queue at once, long before loss, so the queue is the signal:
 - queue below ``low_ms``: there is room; the target climbs by ``climb`` per second
   (multiplicative, so it takes a few seconds to double: probing, not jumping back into a
   queue), after a backoff only up to the rate that got through then, which rises slowly;
-- in between: hold.
+- in between, or no frame since the previous report (``queue_ms`` < 0): hold.
 
 The target stays in ``[min_bps, max_bps]`` (``--min-bitrate``, ``--bitrate``). This is the
 delay-based part of GCC (Carlucci et al. 2016) without its Kalman filter: enough for a
@@ -32,8 +32,9 @@ class RateController:
 
     :meth:`update` takes the time since the previous report, so that the climb is per second
     whatever the report rate (the client reports per frame and every quarter second). After
-    a backoff the target climbs back only up to the rate that got through then (``ceiling``,
-    the link's measured capacity), and that ceiling itself rises by ``probe`` per second:
+    a backoff the target climbs back only up to ``backoff`` times the rate that got through
+    then (``ceiling``, the link's measured capacity), and that ceiling itself rises by
+    ``probe`` per second:
     climbing straight back into the queue would make frames late again at every probe."""
 
     max_bps: float
@@ -60,14 +61,16 @@ class RateController:
     def update(self, receive_bps: float, queue_ms: float, dt: float = 0.25) -> float:
         """The new target after one report, ``dt`` seconds after the previous one."""
         dt = min(max(dt, 0.0), 1.0)
-        if queue_ms > self.high_ms and receive_bps > 0:
+        if queue_ms < 0:
+            pass  # no frame came since the last report: no news, hold
+        elif queue_ms > self.high_ms and receive_bps > 0:
             self.target_bps = min(self.target_bps, self.backoff * receive_bps)
-            self.ceiling_bps = receive_bps
+            self.ceiling_bps = max(receive_bps, self.target_bps)
         elif queue_ms < self.low_ms:
             self.target_bps *= self.climb**dt
             if self.ceiling_bps is not None:
                 self.ceiling_bps *= self.probe**dt
-                self.target_bps = min(self.target_bps, self.ceiling_bps)
+                self.target_bps = min(self.target_bps, self.backoff * self.ceiling_bps)
         self.target_bps = min(max(self.target_bps, self.min_bps), self.max_bps)
         return self.target_bps
 

@@ -418,7 +418,9 @@ class PoseSample:
 class RateReport:
     """The client's receive statistics for adaptive bit-rate: ``receive_bps`` over its last
     window, ``queue_ms`` (how much later than the least-delayed frame the recent frames
-    completed: the queue the link builds), and running counts. Since version 2 also the
+    completed: the queue the link builds; since version 2 that of the newest frame completed
+    or still arriving, and −1 when no frame came since the previous report: no news), and
+    running counts. Since version 2 also the
     timeliness of the frames made usable (decoded and prepared) in the window: ``usable`` of
     them, the latest by ``late_ms`` (usable time minus ``t_k − 1/f_s``, when the display
     first needed it; negative: early; 0 when ``usable`` is 0). The server plans its frames
@@ -458,7 +460,7 @@ class RateReport:
             _finite("report.time", t, -1e9, 1e9),
             _finite("report.receive_bps", bps, 0.0, 1e12),
             _finite("report.window_s", win, 0.0, 3600.0),
-            _finite("report.queue_ms", q, 0.0, 1e7),
+            _finite("report.queue_ms", q, -1.0, 1e7),
             int(rx),
             int(lost),
             int(usable),
@@ -492,9 +494,11 @@ class FrameHeader:
     and give up frames without parsing the packet; ``pose_time`` (the
     display time of the newest pose the server had when it predicted: pose-to-display latency
     is measured from it), ``predicted_time`` (the time the pose was predicted for), ``sent``
-    (the server's clock when it sent the frame: the client measures queueing from its
-    variation), the encoder's ``target_bps``, the server's ``render_ms``/``encode_ms`` and the
-    packet's ``size``."""
+    (when the server sent the frame; since version 2 on the client's display clock as the
+    server estimates it from the poses, early by the least one-way delay of a pose: the client
+    measures queueing from its variation), the encoder's ``target_bps`` (since version 2 the
+    one the frame was encoded at, not a newer one still waiting for a key frame), the server's
+    ``render_ms``/``encode_ms`` and the packet's ``size``."""
 
     index: int
     seq: int

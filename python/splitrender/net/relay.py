@@ -8,7 +8,9 @@ datagram leaves the link's queue ``8 · size / rate`` seconds after the one befo
 longer than ``queue_ms`` drops it, as a router's drop-tail does), and a one-way delay of
 ``delay_ms`` plus a jitter drawn uniformly in ``±jitter_ms`` (never below 0; datagrams may be
 reordered by it, as on a real path). The bandwidth can change during a run: a schedule of
-``(seconds after start, Mb/s)`` steps, or :meth:`Relay.set_bandwidth`.
+``(seconds, Mb/s)`` steps counted from the first datagram of a client (the session's start,
+not the relay's: a client may connect any time after the relay starts), or
+:meth:`Relay.set_bandwidth`.
 
 Every random draw comes from one ``random.Random(seed)`` per direction, so that a given
 sequence of datagrams meets the same fate in every run with the same seed.
@@ -43,7 +45,8 @@ def check_loopback(host: str, what: str) -> str:
 @dataclass(frozen=True)
 class Impairment:
     """One direction's impairments (all zero: a plain forwarder). ``bandwidth_mbps`` 0 means
-    no cap; ``schedule`` holds ``(seconds, mbps)`` steps applied after the start."""
+    no cap; ``schedule`` holds ``(seconds, mbps)`` steps applied after the first datagram
+    from a client."""
 
     delay_ms: float = 0.0
     jitter_ms: float = 0.0
@@ -137,9 +140,6 @@ class Relay(asyncio.DatagramProtocol):
             lambda: _Upstream(self), remote_addr=self.target
         )
         self._up_transport = up
-        for name, d in self._dirs.items():
-            if d.imp.schedule:
-                self._tasks.append(asyncio.ensure_future(self._steps(name, d.imp.schedule)))
 
     async def _steps(self, name: str, schedule: Sequence[tuple[float, float]]) -> None:
         loop = asyncio.get_running_loop()
@@ -182,6 +182,13 @@ class Relay(asyncio.DatagramProtocol):
 
     # asyncio.DatagramProtocol: datagrams from the client
     def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
+        if self._client is None:
+            # The first datagram of a client: the bandwidth schedules start now.
+            for name, d in self._dirs.items():
+                if d.imp.schedule:
+                    self._tasks.append(
+                        asyncio.ensure_future(self._steps(name, d.imp.schedule))
+                    )
         self._client = (addr[0], addr[1])
         self._forward("up", data)
 

@@ -309,9 +309,20 @@ class _Session(QuicConnectionProtocol):
             self._last_pose_at = now
         elif isinstance(msg, RateReport):
             self.stats.reports += 1
+            # The climb is per second since the previous report with news (a frame).
             dt = now - self._reported_at if self._reported_at is not None else 0.25
-            self._reported_at = now
+            if msg.queue_ms >= 0:
+                self._reported_at = now
+            before = self._abr.target_bps
             self._new_target = self._abr.update(msg.receive_bps, msg.queue_ms, dt)
+            if abs(self._new_target - before) > ABR_STEP * before and self._offset is not None:
+                # Session time: the client's display clock as estimated from its poses.
+                self.server.log(
+                    f"adaptive target {before / 1e6:.3g} -> {self._new_target / 1e6:.3g} Mb/s "
+                    "at session time "
+                    f"{now + self._offset:.2f} s (queue {msg.queue_ms:.0f} ms, receiving "
+                    f"{msg.receive_bps / 1e6:.3g} Mb/s)"
+                )
             self._lead.update(msg.usable, msg.late_ms)
 
     def _terminated(self, reason: str) -> None:
@@ -339,6 +350,28 @@ class _Session(QuicConnectionProtocol):
     def _rtt(self) -> float:
         # aioquic keeps its RTT estimate in the loss recovery (no public accessor).
         return float(getattr(self._quic._loss, "_rtt_smoothed", 0.0) or 0.0)
+
+    def _take_target(self, effective: float, key_at: float) -> tuple[bool, float]:
+        """Passes the adaptive target to the encoder. Only steps that matter: the encoders
+        take a new target at a key frame (x265 reopens, tens of ms per stream). It is taken at
+        once with a key frame of its own (a narrowed link cannot wait for the next regular
+        one); a climb at most every ABR_KEY_INTERVAL_S (a key frame is itself larger) and in
+        between waits (at most that long, not for the next regular key frame).
+        ``effective``: the target the encoders run at; ``key_at``: the loop time of the last
+        such key frame. Returns whether this frame reopens the encoders, and ``key_at``."""
+        encoder = self.server.encoder
+        target, self._new_target = self._new_target, None
+        current = encoder.config.bitrate_mbps * 1e6
+        if target is not None and abs(target - current) > ABR_STEP * current:
+            encoder.set_bitrate(target / 1e6)
+        now = asyncio.get_running_loop().time()
+        wanted = encoder.config.bitrate_mbps * 1e6
+        # A drop goes at once (the link is narrower now, and a key frame at the lower
+        # target is small); a climb waits ABR_KEY_INTERVAL_S after the last such key frame.
+        if wanted < effective or (wanted > effective and now - key_at >= ABR_KEY_INTERVAL_S):
+            encoder.request_key_frame()
+            return True, now
+        return False, key_at
 
     async def _frames(self) -> None:
         srv = self.server
@@ -374,28 +407,9 @@ class _Session(QuicConnectionProtocol):
                     # waits for would wait longer. The frames not rendered are skipped.
                     await asyncio.sleep(0.25 / fs)
                     continue
-                target = self._new_target
-                current = encoder.config.bitrate_mbps * 1e6
-                if target is not None and abs(target - current) > ABR_STEP * current:
-                    # Only steps that matter: the encoders take a new target at a key frame
-                    # (x265 reopens, tens of ms per stream). It is taken at once with a key frame
-                    # of its own (a narrowed link cannot wait for the next regular one), at most
-                    # every ABR_KEY_INTERVAL_S (a key frame is itself larger); in between, the
-                    # change waits (at most that long, not for the next regular key frame).
-                    encoder.set_bitrate(target / 1e6)
-                self._new_target = None
                 # Decided before the frame is planned: reopening the encoders makes this
                 # frame slower (proc_key), and the plan must start it that much earlier.
-                reopen = (
-                    encoder.config.bitrate_mbps * 1e6 != effective
-                    and loop.time() - abr_key_at >= ABR_KEY_INTERVAL_S
-                )
-                if reopen:
-                    encoder.request_key_frame()
-                    abr_key_at = loop.time()
-                if self._key_wanted:
-                    encoder.request_key_frame()
-                    self._key_wanted = False
+                reopen, abr_key_at = self._take_target(effective, abr_key_at)
                 client_now = loop.time() + self._offset
                 # What the plan leaves out (the client's decode and preparation, a capped
                 # link's transfer time, scheduling noise), from the client's reports.
@@ -418,6 +432,13 @@ class _Session(QuicConnectionProtocol):
                 start = (k - 1) / fs - ahead - self._offset  # loop time to start at
                 if start > loop.time():
                     await asyncio.sleep(start - loop.time())
+                    # A target that came during the wait is taken now: this frame may be
+                    # slower than planned, which beats a frame the link no longer carries.
+                    again, abr_key_at = self._take_target(effective, abr_key_at)
+                    reopen = reopen or again
+                if self._key_wanted:
+                    encoder.request_key_frame()
+                    self._key_wanted = False
                 pose = self._predictor.predict(k / fs)
                 pose_time = self._predictor.newest_time
                 assert pose is not None and pose_time is not None
@@ -474,13 +495,16 @@ class _Session(QuicConnectionProtocol):
     ) -> None:
         """Sends frame ``k``; ``target``: the bit-rate it was encoded at (b/s)."""
         fs = self.server.options.fps
+        assert self._offset is not None  # frames follow poses
         header = FrameHeader(
             k,
             seq,
             key,
             pose_time,
             k / fs,
-            asyncio.get_running_loop().time(),
+            # On the client's display clock as estimated from its poses: early by the
+            # least one-way delay of a pose.
+            asyncio.get_running_loop().time() + self._offset,
             target,
             render_ms,
             encode_ms,
@@ -577,11 +601,13 @@ class LiveServer:
 
     def rate_controller(self) -> RateController:
         period_ms = 1e3 / self.options.fps
+        # In frame periods (a frame's own transfer time varies with its size), but not so
+        # long at a low f_s that a narrowed link goes unnoticed for most of a second.
         return RateController(
             self.max_mbps() * 1e6,
             self.min_mbps() * 1e6,
-            high_ms=0.4 * period_ms,
-            low_ms=0.15 * period_ms,
+            high_ms=min(0.4 * period_ms, 150.0),
+            low_ms=min(0.15 * period_ms, 50.0),
         )
 
     def welcome(self) -> bytes:
