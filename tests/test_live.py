@@ -138,18 +138,10 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
 
 
 def test_session(server: _Server, tmp_path: Path) -> None:
-    done = _connect(server.port, tmp_path, "--seconds", "5", "--score", "--compare",
-                    "timewarp", "--no-vmaf", fingerprint=server.fingerprint)
+    done = _connect(server.port, tmp_path, "--seconds", "5", fingerprint=server.fingerprint)
     assert done.returncode == 0, done.stderr
     r = _report(tmp_path)
     _all_refreshes(r, 5.0)
-    # Scored, and timewarp replayed on the same packets and poses and scored on the same span.
-    # (Which is better is not asserted: live at this scale they are within noise, see
-    # docs/live.md.)
-    assert r["scored_frames"] > 0 and r["compare"]["scored_frames"] > 0
-    for m in ("ssim", "psnr", "flip"):
-        assert math.isfinite(r[m]) and math.isfinite(r["compare"][m])
-    assert r["compare"]["method"] == "timewarp" and r["compare"]["modes"]["interpolate"] == 0
     for key in ("deadline_misses", "frame_ms_p50", "frame_ms_p99", "server_frames_received",
                 "server_frames_late", "pose_to_display_ms_p50", "mbps", "target_mbps"):
         assert key in r
@@ -284,6 +276,32 @@ def test_server_killed_mid_session(tmp_path: Path) -> None:
 # f_s 2, not 4: this machine's starved server keeps 2 (each frame ~0.2-0.5 s of render +
 # encode); the ~1 s windows below are then several frames long.
 ABR_FS, ABR_TOP, CAP, HALVED_AT = "2", 0.5, 0.4, 5.0
+
+
+def test_ours_better_than_timewarp_live(tmp_path: Path) -> None:
+    # f_s 2, which this starved server keeps (mostly): the method interpolates between
+    # consecutive server frames, and at f_s 4 here the server skips every other frame, so
+    # pairs are rare, the content is ~1 s old (beyond the 3 periods the client extrapolates
+    # over) and both methods mostly hold the same stale image (docs/live.md, "ours against
+    # timewarp"). Measured margins at f_s 2: 0.03-0.04 SSIM; asserted: 0.01.
+    server = _Server(tmp_path / "serve.log", "--fps", "2")
+    try:
+        done = _connect(server.port, tmp_path, "--seconds", "5", "--score", "--compare",
+                        "timewarp", "--no-vmaf", fingerprint=server.fingerprint)
+    finally:
+        server.stop()
+    assert done.returncode == 0, done.stderr
+    r = _report(tmp_path)
+    _all_refreshes(r, 5.0)
+    # Timewarp replayed on the same packets, arrival times and poses, scored at the same
+    # display times.
+    c = r["compare"]
+    assert c["method"] == "timewarp" and c["modes"]["interpolate"] == 0
+    assert r["scored_frames"] >= 20 and c["scored_frames"] == r["scored_frames"]
+    for m in ("ssim", "psnr", "flip"):
+        assert math.isfinite(r[m]) and math.isfinite(c[m])
+    assert r["modes"]["interpolate"] > 0
+    assert r["ssim"] > c["ssim"] + 0.01, (r["ssim"], c["ssim"], r["modes"], c["modes"])
 
 
 def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:
