@@ -224,22 +224,40 @@ def test_client_killed_then_next_session(server: _Server, tmp_path: Path) -> Non
     _all_refreshes(_report(tmp_path / "next"), 1.0)
 
 
-def test_through_the_relay(tmp_path: Path) -> None:
-    # Its own server, which leaves out every 3rd frame (as if lost beyond what QUIC's
-    # retransmissions repair in time, which 1 % loss rarely is): key-frame recovery is seen.
-    server = _Server(tmp_path / "serve.log", "--drop-every", "3")
+def _relay(server: _Server, tmp_path: Path, *impairments: str) -> tuple[_Proc, int]:
+    """A relay in front of ``server`` (stops itself after 60 s) and the port it listens on."""
     relay = _Proc(["relay", "--listen", "127.0.0.1:0", "--target", f"127.0.0.1:{server.port}",
-                   "--delay", "50", "--jitter", "20", "--loss", "1%", "--seed", "3",
-                   "--seconds", "60"], tmp_path / "relay.log")
+                   *impairments, "--seconds", "60"], tmp_path / "relay.log")
     try:
-        port = int(relay.line("relaying ").split()[1].rsplit(":", 1)[1])
-        done = _connect(port, tmp_path, "--seconds", "5", fingerprint=server.fingerprint)
+        return relay, int(relay.line("relaying ").split()[1].rsplit(":", 1)[1])
+    except BaseException:
+        relay.stop()
+        raise
+
+
+def _session_through(server: _Server, relay: _Proc, port: int, tmp_path: Path,
+                     seconds: float) -> dict:  # type: ignore[type-arg]
+    """A session of ``seconds`` through ``relay``; both processes stopped after it. Returns
+    the report, checked to have served every display refresh."""
+    try:
+        done = _connect(port, tmp_path, "--seconds", f"{seconds:g}",
+                        fingerprint=server.fingerprint)
     finally:
         relay.stop()
         server.stop()
     assert done.returncode == 0, done.stderr
     r = _report(tmp_path)
-    _all_refreshes(r, 5.0)
+    _all_refreshes(r, seconds)
+    return r
+
+
+def test_through_the_relay(tmp_path: Path) -> None:
+    # Its own server, which leaves out every 3rd frame (as if lost beyond what QUIC's
+    # retransmissions repair in time, which 1 % loss rarely is): key-frame recovery is seen.
+    server = _Server(tmp_path / "serve.log", "--drop-every", "3")
+    relay, port = _relay(server, tmp_path, "--delay", "50", "--jitter", "20", "--loss", "1%",
+                         "--seed", "3")
+    r = _session_through(server, relay, port, tmp_path, 5.0)
     assert r["modes"]["extrapolate"] > 0
     assert r["server_frames_received"] >= 2
     net = r["network"]
@@ -307,19 +325,10 @@ def test_ours_better_than_timewarp_live(tmp_path: Path) -> None:
 def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:
     server = _Server(tmp_path / "serve.log", "--fps", ABR_FS, "--bitrate", str(ABR_TOP),
                      "--min-bitrate", "0.02")
-    relay = _Proc(["relay", "--listen", "127.0.0.1:0", "--target", f"127.0.0.1:{server.port}",
-                   "--bandwidth", str(CAP), "--bandwidth-at", f"{HALVED_AT}:{CAP / 2}",
-                   "--seconds", "60"], tmp_path / "relay.log")
-    try:
-        port = int(relay.line("relaying ").split()[1].rsplit(":", 1)[1])
-        done = _connect(port, tmp_path, "--seconds", "10", fingerprint=server.fingerprint)
-        step = relay.line("bandwidth down ", 5)
-    finally:
-        relay.stop()
-        server.stop()
-    assert done.returncode == 0, done.stderr
-    r = _report(tmp_path)
-    _all_refreshes(r, 10.0)
+    relay, port = _relay(server, tmp_path, "--bandwidth", str(CAP), "--bandwidth-at",
+                         f"{HALVED_AT}:{CAP / 2}")
+    r = _session_through(server, relay, port, tmp_path, 10.0)
+    step = relay.line("bandwidth down ", 5)  # printed mid-session, kept in the queue
     cap = CAP / 2
     # When the cap halved, on the session's clock (both processes read the machine's
     # monotonic clock): the relay counts from the session's first datagram, the display
