@@ -4,6 +4,7 @@ logic, no network."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 import struct
 
@@ -308,6 +309,37 @@ def test_lead_follows_late_frames() -> None:
     for _ in range(200):
         lead.update(1, -1000.0)
     assert lead.lead_s == 0.0
+
+
+def test_relay_schedule_starts_with_the_first_client_datagram() -> None:
+    """The bandwidth steps count from a client's first datagram (the session's start), and
+    each is reported with the loop's clock (time.monotonic) as it is applied."""
+    steps: list[tuple[str, float, float]] = []
+
+    async def run() -> tuple[float, float]:
+        loop = asyncio.get_running_loop()
+        relay = Relay(("127.0.0.1", 9), Impairment(), Impairment(schedule=((0.05, 1.0),)),
+                      on_step=lambda d, mbps, when: steps.append((d, mbps, when)))
+        await relay.start()
+        try:
+            await asyncio.sleep(0.2)
+            assert steps == []  # no client yet: the schedule has not started
+            sock, _ = await loop.create_datagram_endpoint(
+                asyncio.DatagramProtocol, remote_addr=("127.0.0.1", relay.port))
+            sent = loop.time()
+            sock.sendto(b"x")
+            for _ in range(100):
+                await asyncio.sleep(0.02)
+                if steps:
+                    break
+            sock.close()
+            return sent, relay._dirs["down"].rate_bps
+        finally:
+            relay.close()
+
+    sent, rate = asyncio.run(asyncio.wait_for(run(), 10))
+    assert rate == 1e6 and [(d, m) for d, m, _ in steps] == [("down", 1.0)]
+    assert sent + 0.05 <= steps[0][2] < sent + 1.5
 
 
 def test_relay_draws_are_seeded() -> None:
