@@ -10,6 +10,7 @@ import asyncio
 import json
 import math
 import queue
+import re
 import signal
 import ssl
 import subprocess
@@ -125,7 +126,7 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
     version = _connect(server.port, tmp_path, "--protocol-version", "7", timeout=30,
                        fingerprint=server.fingerprint)
     assert version.returncode == 2 and len(version.stderr.strip().splitlines()) == 1
-    assert "protocol version 7 is not supported (this server speaks version 1)" in version.stderr
+    assert "protocol version 7 is not supported (this server speaks version 2)" in version.stderr
     other = server.fingerprint.replace(server.fingerprint[:2], "00" if server.fingerprint[:2]
                                        != "00" else "11", 1)
     pinned = _connect(server.port, tmp_path, fingerprint=other.lower().replace(":", ""),
@@ -137,18 +138,10 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
 
 
 def test_session(server: _Server, tmp_path: Path) -> None:
-    done = _connect(server.port, tmp_path, "--seconds", "5", "--score", "--compare",
-                    "timewarp", "--no-vmaf", fingerprint=server.fingerprint)
+    done = _connect(server.port, tmp_path, "--seconds", "5", fingerprint=server.fingerprint)
     assert done.returncode == 0, done.stderr
     r = _report(tmp_path)
     _all_refreshes(r, 5.0)
-    # Scored, and timewarp replayed on the same packets and poses and scored on the same span.
-    # (Which is better is not asserted: live at this scale they are within noise, see
-    # docs/live.md.)
-    assert r["scored_frames"] > 0 and r["compare"]["scored_frames"] > 0
-    for m in ("ssim", "psnr", "flip"):
-        assert math.isfinite(r[m]) and math.isfinite(r["compare"][m])
-    assert r["compare"]["method"] == "timewarp" and r["compare"]["modes"]["interpolate"] == 0
     for key in ("deadline_misses", "frame_ms_p50", "frame_ms_p99", "server_frames_received",
                 "server_frames_late", "pose_to_display_ms_p50", "mbps", "target_mbps"):
         assert key in r
@@ -231,22 +224,40 @@ def test_client_killed_then_next_session(server: _Server, tmp_path: Path) -> Non
     _all_refreshes(_report(tmp_path / "next"), 1.0)
 
 
-def test_through_the_relay(tmp_path: Path) -> None:
-    # Its own server, which leaves out every 3rd frame (as if lost beyond what QUIC's
-    # retransmissions repair in time, which 1 % loss rarely is): key-frame recovery is seen.
-    server = _Server(tmp_path / "serve.log", "--drop-every", "3")
+def _relay(server: _Server, tmp_path: Path, *impairments: str) -> tuple[_Proc, int]:
+    """A relay in front of ``server`` (stops itself after 60 s) and the port it listens on."""
     relay = _Proc(["relay", "--listen", "127.0.0.1:0", "--target", f"127.0.0.1:{server.port}",
-                   "--delay", "50", "--jitter", "20", "--loss", "1%", "--seed", "3",
-                   "--seconds", "60"], tmp_path / "relay.log")
+                   *impairments, "--seconds", "60"], tmp_path / "relay.log")
     try:
-        port = int(relay.line("relaying ").split()[1].rsplit(":", 1)[1])
-        done = _connect(port, tmp_path, "--seconds", "5", fingerprint=server.fingerprint)
+        return relay, int(relay.line("relaying ").split()[1].rsplit(":", 1)[1])
+    except BaseException:
+        relay.stop()
+        raise
+
+
+def _session_through(server: _Server, relay: _Proc, port: int, tmp_path: Path,
+                     seconds: float) -> dict:  # type: ignore[type-arg]
+    """A session of ``seconds`` through ``relay``; both processes stopped after it. Returns
+    the report, checked to have served every display refresh."""
+    try:
+        done = _connect(port, tmp_path, "--seconds", f"{seconds:g}",
+                        fingerprint=server.fingerprint)
     finally:
         relay.stop()
         server.stop()
     assert done.returncode == 0, done.stderr
     r = _report(tmp_path)
-    _all_refreshes(r, 5.0)
+    _all_refreshes(r, seconds)
+    return r
+
+
+def test_through_the_relay(tmp_path: Path) -> None:
+    # Its own server, which leaves out every 3rd frame (as if lost beyond what QUIC's
+    # retransmissions repair in time, which 1 % loss rarely is): key-frame recovery is seen.
+    server = _Server(tmp_path / "serve.log", "--drop-every", "3")
+    relay, port = _relay(server, tmp_path, "--delay", "50", "--jitter", "20", "--loss", "1%",
+                         "--seed", "3")
+    r = _session_through(server, relay, port, tmp_path, 5.0)
     assert r["modes"]["extrapolate"] > 0
     assert r["server_frames_received"] >= 2
     net = r["network"]
@@ -274,3 +285,94 @@ def test_server_killed_mid_session(tmp_path: Path) -> None:
     _all_refreshes(r, 7.0)
     assert r["modes"]["hold"] > 0
     assert "outage" in r and r["network"]["connection_closed"]
+
+
+# The cap test's settings. At 77x43 a frame carries ~1.3 kB whatever the target (packet
+# header, lossless masks), so the coded bytes must dominate: 0.5 Mb/s at f_s 2 gives frames of
+# 12-15 kB (the encoder undershoots its target about 2x here), ~0.23 Mb/s on the wire. The cap
+# of 0.4 Mb/s carries that (a frame takes ~0.3 s of the 0.5 s period) and its half does not.
+# f_s 2, not 4: this machine's starved server keeps 2 (each frame ~0.2-0.5 s of render +
+# encode); the ~1 s windows below are then several frames long.
+ABR_FS, ABR_TOP, CAP, HALVED_AT = "2", 0.5, 0.4, 5.0
+
+
+def test_ours_better_than_timewarp_live(tmp_path: Path) -> None:
+    # f_s 2, which this starved server keeps (mostly): the method interpolates between
+    # consecutive server frames, and at f_s 4 here the server skips every other frame, so
+    # pairs are rare, the content is ~1 s old (beyond the 3 periods the client extrapolates
+    # over) and both methods mostly hold the same stale image (docs/live.md, "ours against
+    # timewarp"). Measured margins at f_s 2: 0.035-0.051 SSIM; asserted: 0.01.
+    server = _Server(tmp_path / "serve.log", "--fps", "2")
+    try:
+        done = _connect(server.port, tmp_path, "--seconds", "5", "--score", "--compare",
+                        "timewarp", "--no-vmaf", fingerprint=server.fingerprint)
+    finally:
+        server.stop()
+    assert done.returncode == 0, done.stderr
+    r = _report(tmp_path)
+    _all_refreshes(r, 5.0)
+    # Timewarp replayed on the same packets, arrival times and poses, scored at the same
+    # display times.
+    c = r["compare"]
+    assert c["method"] == "timewarp" and c["modes"]["interpolate"] == 0
+    assert r["scored_frames"] >= 20 and c["scored_frames"] == r["scored_frames"]
+    for m in ("ssim", "psnr", "flip"):
+        assert math.isfinite(r[m]) and math.isfinite(c[m])
+    assert r["modes"]["interpolate"] > 0
+    assert r["ssim"] > c["ssim"] + 0.01, (r["ssim"], c["ssim"], r["modes"], c["modes"])
+
+
+def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:
+    server = _Server(tmp_path / "serve.log", "--fps", ABR_FS, "--bitrate", str(ABR_TOP),
+                     "--min-bitrate", "0.02")
+    relay, port = _relay(server, tmp_path, "--bandwidth", str(CAP), "--bandwidth-at",
+                         f"{HALVED_AT}:{CAP / 2}")
+    r = _session_through(server, relay, port, tmp_path, 10.0)
+    step = relay.line("bandwidth down ", 5)  # printed mid-session, kept in the queue
+    cap = CAP / 2
+    # When the cap halved, on the session's clock (both processes read the machine's
+    # monotonic clock): the relay counts from the session's first datagram, the display
+    # starts after the handshake.
+    change = float(step.split()[-1]) - r["monotonic_at_start"]
+    assert 3.0 < change <= HALVED_AT, step
+    frames = r["target_mbps"]
+    # The target each frame was encoded at was chosen before its render and encode began
+    # (its send time, on the display clock as the server estimates it, minus those).
+    chosen = [(f["sent"] - f["server_ms"] / 1e3, f) for f in frames]
+    before = [f for t, f in chosen if t < change]
+    # Meaningful: the stream ran above the new cap before the change.
+    assert max(f["mbps"] for f in before) > cap, before
+    # The target followed within 1 s: the server's controller went to at most the new cap
+    # (its log says when, on the display clock as it estimates it from the poses: early by
+    # the uplink's least delay, about a millisecond here) within 1 s of the first frame sent
+    # after the change: nothing can tell of the narrower link before a frame crosses it, and
+    # this starved server sends one every 0.5-1 s (at 2 FPS kept, that is within 1 s of the
+    # change itself when a frame takes ~0.4 s to show it) ...
+    drops = [(float(m[2]), float(m[1])) for m in re.finditer(
+        r"adaptive target \S+ -> (\S+) Mb/s at session time (\S+) s", server.log.read_text())]
+    followed = min(t for t, mbps in drops if mbps <= cap and t > change - 0.5)
+    first_sent = min(f["sent"] for f in frames if f["sent"] >= change)
+    assert followed - first_sent <= 1.0 and followed - change <= 2.0, (change, drops, frames)
+    # ... and every frame whose target was chosen after that, until the controller may
+    # probe above the cap again (3 % per second from 85 % of it, so not within 3 s), was
+    # encoded at it. The frames come every 0.5-1 s from this starved server: at least one.
+    after = [f for t, f in chosen if followed + 0.05 < t < followed + 3.0]
+    assert after and all(f["mbps"] <= cap for f in after), (followed, frames)
+    # The halving was felt: the frames at the old target sent after the change took longer
+    # than the least (at 0.5 Mb/s a frame of ~13 kB takes ~0.5 s at 0.2 Mb/s).
+    base = min(f["arrival"] - f["sent"] for f in frames)
+    felt = [f for t, f in chosen if f["sent"] >= change and t < followed]
+    assert max(f["arrival"] - f["sent"] for f in felt) > base + 0.15, (change, followed, frames)
+    # And server_frames_late stopped growing: no frame whose target was chosen after the
+    # target followed became usable late (after t_k - 1/f_s), unless the server sent it too
+    # late for the halved link to carry it in time (its bytes at the cap, plus 0.1 s to
+    # decode): starved of CPU on this shared machine, the server's lateness, which no
+    # bit-rate cures.
+    fs = float(ABR_FS)
+    settled = [f for t, f in chosen if t > followed]
+    for f in settled:
+        if f["usable_late"]:
+            carry = 8 * f["bytes"] / (cap * 1e6) + 0.1
+            assert f["sent"] + carry > (f["index"] - 1) / fs, (followed, f)
+    log = server.log.read_text()
+    assert "adaptive target" in log and "Traceback" not in log

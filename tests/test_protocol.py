@@ -4,6 +4,7 @@ logic, no network."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 import struct
 
@@ -16,7 +17,7 @@ from scipy.spatial.transform import Rotation
 import splitrender.net.protocol as proto
 from splitrender.client.live import FrameOrder
 from splitrender.errors import InvalidInputError, ProtocolError, SplitRenderError
-from splitrender.net.abr import RateController
+from splitrender.net.abr import LeadController, RateController
 from splitrender.net.predict import ConstantVelocity, LastPose, make_predictor
 from splitrender.net.relay import Impairment, Relay, _Direction, check_loopback
 
@@ -48,7 +49,7 @@ def test_round_trips() -> None:
     back = proto.decode_datagram(ps.encode())
     assert isinstance(back, proto.PoseSample) and back.seq == 7 and back.time == 1.25
     np.testing.assert_array_equal(back.pose, ps.pose)
-    rr = proto.RateReport(3, 2.0, 1.5e6, 0.5, 12.5, 40, 2)
+    rr = proto.RateReport(3, 2.0, 1.5e6, 0.5, 12.5, 40, 2, 3, -42.5)
     assert proto.decode_datagram(rr.encode()) == rr
     fh = _header(12, True, 999)
     assert proto.FrameHeader.decode(fh.encode() + b"payload") == fh
@@ -59,7 +60,7 @@ def test_documented_sizes() -> None:
     """docs/protocol.md states these sizes."""
     assert len(proto.Hello("x" * proto.MAX_TOKEN).encode()) == 84
     assert len(proto.PoseSample(0, 0.0, np.eye(4)).encode()) == 109
-    assert len(proto.RateReport(0, 0, 0, 0, 0, 0, 0).encode()) == 37
+    assert len(proto.RateReport(0, 0, 0, 0, 0, 0, 0).encode()) == 43
     assert proto.FrameHeader.SIZE == 62
     w = proto.Welcome(10.0, 0.1, 1, 1, (0.0,) * 16, 1, 1.0, 1.0, "s" * 255)
     assert len(w.encode()) == 425 <= proto.MAX_CONTROL
@@ -273,12 +274,72 @@ def test_rate_controller_backs_off_and_climbs() -> None:
     assert rc.update(0.9e6, 0.0) == 1e6  # room, already at the top
     assert rc.update(0.4e6, 120.0) == pytest.approx(0.34e6)  # queue: to 85 % of what got through
     assert rc.update(0.4e6, 30.0) == pytest.approx(0.34e6)  # in between: hold
-    for _ in range(100):
-        rc.update(0.0, 0.0)
-    assert rc.target_bps == 1e6
+    # Room again: the climb is per second, whatever the report rate ...
+    a, b = RateController(1e6, 1e5), RateController(1e6, 1e5)
+    for r in (a, b):
+        r.update(0.2e6, 500.0)  # to 0.17 Mb/s ...
+        r.update(1e6, 500.0)  # ... and a queue on a link found wider: the ceiling is 1 Mb/s
+    for _ in range(2):
+        a.update(0.0, 0.0, 0.25)
+    b.update(0.0, 0.0, 0.5)
+    assert a.target_bps == pytest.approx(b.target_bps) == pytest.approx(0.17e6 * 1.36**0.5)
+    held = a.target_bps
+    assert a.update(0.0, -1.0, 1.0) == held  # no frame since the last report: hold
+    # ... and stops at 85 % of the rate that got through at the backoff, which rises 3 % per
+    # second.
+    assert rc.update(0.0, 0.0, 1.0) == pytest.approx(0.34e6 * 1.03)
+    for _ in range(10):
+        rc.update(0.0, 0.0, 1.0)
+    assert rc.target_bps == pytest.approx(0.34e6 * 1.03**11)
+    for _ in range(50):
+        rc.update(0.0, 0.0, 1.0)
+    assert rc.target_bps == 1e6  # never above the top
     assert rc.update(1e3, 500.0) == 1e5  # never below the floor
     with pytest.raises(InvalidInputError, match="bit-rate range"):
         RateController(1e5, 1e6)
+
+
+def test_lead_follows_late_frames() -> None:
+    lead = LeadController(margin_ms=20, decay=0.1, max_s=0.5)
+    assert lead.update(0, 300.0) == 0.0  # no frame made usable: no news
+    assert lead.update(2, 80.0) == pytest.approx(0.1)  # late by 80 ms: 100 ms earlier
+    assert lead.update(1, -20.0) == pytest.approx(0.1)  # early by the margin: hold
+    assert lead.update(1, -120.0) == pytest.approx(0.09)  # early: a tenth of the excess back
+    assert lead.update(1, 2000.0) == 0.5  # at most max_s
+    for _ in range(200):
+        lead.update(1, -1000.0)
+    assert lead.lead_s == 0.0
+
+
+def test_relay_schedule_starts_with_the_first_client_datagram() -> None:
+    """The bandwidth steps count from a client's first datagram (the session's start), and
+    each is reported with the loop's clock (time.monotonic) as it is applied."""
+    steps: list[tuple[str, float, float]] = []
+
+    async def run() -> tuple[float, float]:
+        loop = asyncio.get_running_loop()
+        relay = Relay(("127.0.0.1", 9), Impairment(), Impairment(schedule=((0.05, 1.0),)),
+                      on_step=lambda d, mbps, when: steps.append((d, mbps, when)))
+        await relay.start()
+        try:
+            await asyncio.sleep(0.2)
+            assert steps == []  # no client yet: the schedule has not started
+            sock, _ = await loop.create_datagram_endpoint(
+                asyncio.DatagramProtocol, remote_addr=("127.0.0.1", relay.port))
+            sent = loop.time()
+            sock.sendto(b"x")
+            for _ in range(100):
+                await asyncio.sleep(0.02)
+                if steps:
+                    break
+            sock.close()
+            return sent, relay._dirs["down"].rate_bps
+        finally:
+            relay.close()
+
+    sent, rate = asyncio.run(asyncio.wait_for(run(), 10))
+    assert rate == 1e6 and [(d, m) for d, m, _ in steps] == [("down", 1.0)]
+    assert sent + 0.05 <= steps[0][2] < sent + 1.5
 
 
 def test_relay_draws_are_seeded() -> None:

@@ -262,15 +262,16 @@ def run_connect(args: argparse.Namespace) -> int:
         # Scored from the first frame made from a server frame on: before it every method
         # shows the same black start-up (no server frame yet); holds after it count.
         start = first_shown[0] if first_shown else math.inf
-        report.update(_score(scene, welcome.scale, args.fps, motion,
-                             [f for f in frames if f[0] >= start], args.no_vmaf))
+        picked = _pick([f for f in frames if f[0] >= start])
+        report.update(_score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf))
         if args.compare is not None:
             other: list[tuple[float, npt.NDArray[np.uint8]]] = []
             summary = client.replay(args.compare, motion, args.seconds,
                                     on_frame=lambda img, rec: other.append((rec.time, img.copy())))
-            # The same span as the live method's score (display times from its first shown).
+            # The same display times as the live method's score: what each display showed
+            # then (a refresh whose frame was late repeats the one before, as it did live).
             summary.update(_score(scene, welcome.scale, args.fps, motion,
-                                  [f for f in other if f[0] >= start], args.no_vmaf))
+                                  _shown(other, [t for t, _ in picked]), args.no_vmaf))
             report["compare"] = {"method": args.compare, **summary}
     write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
@@ -300,23 +301,43 @@ MAX_KEPT_BYTES = 1 << 30
 SCORED = 120
 
 
-def _score(
-    scene: Any, scale: float, fc: float, motion: Any,
-    frames: list[tuple[float, npt.NDArray[np.uint8]]], no_vmaf: bool,
-) -> dict[str, Any]:
-    """The display frames against the ground truth rendered at the poses the client had
-    (``motion(t)``: the same function that gave them)."""
-    from splitrender.evaluation.metrics import METRICS, evaluate_sequence
+_Shown = list[tuple[float, npt.NDArray[np.uint8]]]
 
-    from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE
 
-    # The first and last SKIP_FRAMES are left out (as `play` does), and at most SCORED frames
-    # evenly spread over the rest are scored: the ground truth costs a render per frame.
+def _pick(frames: _Shown) -> _Shown:
+    """The display frames to score: the first and last SKIP_FRAMES left out (as `play`
+    does), and at most SCORED evenly spread over the rest (the ground truth costs a render
+    per frame)."""
+    from splitrender.evaluation.metrics import SKIP_FRAMES
+
     inner = frames[SKIP_FRAMES : len(frames) - SKIP_FRAMES]
-    if not inner:
+    return [inner[i] for i in sorted({round(j * (len(inner) - 1) / max(1, SCORED - 1))
+                                      for j in range(min(SCORED, len(inner)))})]
+
+
+def _shown(frames: _Shown, times: list[float]) -> _Shown:
+    """What a display that made ``frames`` (in time order) showed at each of ``times``: the
+    newest frame made for that time or before."""
+    import bisect
+
+    at = [t for t, _ in frames]
+    out = []
+    for t in times:
+        i = bisect.bisect_right(at, t + 1e-9) - 1
+        if i >= 0:
+            out.append((t, frames[i][1]))
+    return out
+
+
+def _score(
+    scene: Any, scale: float, fc: float, motion: Any, picked: _Shown, no_vmaf: bool,
+) -> dict[str, Any]:
+    """The display frames ``picked`` (display time, image) against the ground truth rendered
+    at the poses the client had (``motion(t)``: the same function that gave them)."""
+    from splitrender.evaluation.metrics import METRICS, VMAF_MIN_SIDE, evaluate_sequence
+
+    if not picked:
         return {"scored_frames": 0}
-    picked = [inner[i] for i in sorted({round(j * (len(inner) - 1) / max(1, SCORED - 1))
-                                        for j in range(min(SCORED, len(inner)))})]
     truth = []
     for t, _ in picked:
         truth.append(scene.client_frames(round(t * fc), scale, fc, pose=motion(t))[0][1])
@@ -346,7 +367,8 @@ def add_relay(sub: Any) -> None:
                    help="cap of the server-to-client direction (default: none)")
     p.add_argument("--bandwidth-at", type=_step, action="append", default=[],
                    metavar="SECONDS:MBPS",
-                   help="change the cap SECONDS after the start (repeatable; 0 removes it)")
+                   help="change the cap SECONDS after the first datagram of the client (repeatable; "
+                   "0 removes it)")
     p.add_argument("--queue", type=milliseconds, default=500.0, metavar="MS",
                    help="longest queue before the cap drops datagrams (default: %(default)s)")
     p.add_argument("--seed", type=lambda t: integer(t, 0, 2**32 - 1), default=0, metavar="N",
@@ -363,7 +385,12 @@ def run_relay(args: argparse.Namespace) -> int:
         up = Impairment(args.delay, args.jitter, args.loss)
         down = Impairment(args.delay, args.jitter, args.loss, args.bandwidth or 0.0,
                           args.queue, tuple(args.bandwidth_at))
-        relay = Relay(args.target, up, down, args.seed, args.listen)
+        relay = Relay(
+            args.target, up, down, args.seed, args.listen,
+            on_step=lambda d, mbps, when: print(
+                f"bandwidth {d} {mbps:g} Mb/s at monotonic {when:.4f}", flush=True
+            ),
+        )
     except SplitRenderError as e:
         return fail(str(e))
 

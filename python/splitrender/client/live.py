@@ -53,6 +53,7 @@ from splitrender.net.protocol import (
     KEY_START,
     KEY_UNDECODABLE,
     MAX_DATAGRAM,
+    PROTOCOL_VERSION,
     ControlReader,
     FrameHeader,
     Hello,
@@ -73,8 +74,12 @@ _Image = npt.NDArray[np.uint8]
 
 #: Error code of a stream the client gives up on (STOP_SENDING).
 STOP_STALE = 1
-#: Seconds between two rate reports.
-REPORT_INTERVAL_S = 0.25
+#: Seconds between two rate reports (and one per completed frame).
+REPORT_INTERVAL_S = 0.1
+#: The receive rate is measured over this many seconds.
+RATE_WINDOW_S = 0.5
+#: Seconds between two looks at the give-up timers and the report clock.
+TICK_S = 0.05
 #: Seconds without any packet from the server after which the connection counts as lost.
 IDLE_TIMEOUT_S = 3.0
 
@@ -92,7 +97,7 @@ class ConnectOptions:
     method: str = "ours"
     display_fps: float = 120.0
     connect_timeout: float = 10.0
-    version: int = 1  # only tests send another (to see it refused)
+    version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
 
 
 class FrameOrder:
@@ -232,7 +237,8 @@ class _NetStats:
     key_frames: int = 0
     decode_errors: int = 0
     arrivals: list[float] = field(default_factory=list)  # display time of each completed frame
-    targets: list[tuple[int, float, float]] = field(default_factory=list)  # index, Mb/s, t
+    # index, Mb/s, arrival, sent (display s), server render + encode ms, bytes
+    targets: list[tuple[int, float, float, float, float, int]] = field(default_factory=list)
     server_render_ms: list[float] = field(default_factory=list)
     server_encode_ms: list[float] = field(default_factory=list)
     closed_at: float | None = None
@@ -312,6 +318,7 @@ class _Connection(QuicConnectionProtocol):
     def _forget(self, sid: int) -> None:
         self._bufs.pop(sid, None)
         self._headers.pop(sid, None)
+        self.owner.in_progress.pop(sid, None)
 
     def _drop(self, sid: int) -> None:
         """A malformed frame stream: counted, forgotten, and the server told to stop it."""
@@ -335,6 +342,7 @@ class _Connection(QuicConnectionProtocol):
                 return
             self._headers[sid] = header
             self.owner.order.started(header.seq, sid)
+        self.owner.received(sid, len(data), header)
         if header is not None and len(buf) > FrameHeader.SIZE + header.size:
             self._drop(sid)  # more bytes than the header announced
             return
@@ -343,9 +351,10 @@ class _Connection(QuicConnectionProtocol):
                 self._drop(sid)  # truncated
                 return
             payload = bytes(buf[FrameHeader.SIZE :])
+            first = self.owner.in_progress.get(sid, [math.nan])[0]
             self._forget(sid)
             self._dead.add(sid)
-            self.owner.frame_complete(header, payload)
+            self.owner.frame_complete(header, payload, first)
 
     def stop(self, sid: int) -> None:
         if sid not in self._dead:
@@ -387,7 +396,15 @@ class LiveClient:
         self._t0: float | None = None
         self._pose_seq = 0
         self._window: deque[tuple[float, int, float]] = deque()  # arrival, bytes, delay
+        self._bytes: deque[tuple[float, int]] = deque()  # loop time, frame stream bytes
+        self._fresh: tuple[float, float] | None = None  # queue (s), rate (b/s): newest frame
+        #: Frames being received: stream id -> [first byte (loop time), bytes, header.sent].
+        self.in_progress: dict[int, list[float]] = {}
+        self._usable: list[float] = []  # lateness (s) of the frames usable since the report
+        #: Display time at which each server frame (by index) became usable.
+        self.usable_at: dict[int, float] = {}
         self._min_delay: float | None = None
+        self._reported = 0.0  # loop time of the last rate report
         self.realtime: RealtimeClient | None = None
         #: (display time, packet) of every packet handed to the decoder: :meth:`replay` feeds
         #: them to another method in the same conditions.
@@ -429,7 +446,8 @@ class LiveClient:
         if self._stop is not None:
             self._stop.set()
 
-    def frame_complete(self, header: FrameHeader, payload: bytes) -> None:
+    def frame_complete(self, header: FrameHeader, payload: bytes, first: float) -> None:
+        """Frame stream done: ``first``: the loop time its first bytes came (NaN: unknown)."""
         n = self.net
         arrival = self._now()
         loop_now = asyncio.get_running_loop().time()
@@ -437,15 +455,25 @@ class LiveClient:
         n.bytes_received += len(payload) + FrameHeader.SIZE
         n.key_frames += header.key
         n.arrivals.append(arrival)
-        n.targets.append((header.index, header.target_bps / 1e6, arrival))
+        n.targets.append((header.index, header.target_bps / 1e6, arrival, header.sent,
+                          header.render_ms + header.encode_ms, len(payload) + FrameHeader.SIZE))
         n.server_render_ms.append(header.render_ms)
         n.server_encode_ms.append(header.encode_ms)
         # One-way delay up to a constant (the two clocks' offset): its excess over the least
         # seen is the queue the frame met (the link's and the sender's).
         delay = loop_now - header.sent
         self._min_delay = delay if self._min_delay is None else min(self._min_delay, delay)
-        self._window.append((loop_now, len(payload) + FrameHeader.SIZE, delay))
+        size = len(payload) + FrameHeader.SIZE
+        self._window.append((loop_now, size, delay))
+        took = loop_now - first
+        # News for the next report: this frame's queueing, and its bytes over the time they
+        # took to come (when it queued, the rate of the link it queued on).
+        self._fresh = (delay - self._min_delay, 8 * size / took if took > 0.02 else math.nan)
         self.order.complete(header, payload, loop_now)
+        if self._t0 is not None:
+            # A report per frame as well as per interval: a link that narrows shows in the
+            # first frame it delays, and the server hears of it at once.
+            self._report()
 
     def _submit(self, header: FrameHeader, payload: bytes) -> None:
         assert self.realtime is not None
@@ -457,8 +485,22 @@ class LiveClient:
         def done(f: Any) -> None:
             if f.exception() is not None:
                 loop.call_soon_threadsafe(self._undecodable, index)
+            elif f.result() is not None:
+                # Usable now (decoded and prepared): how late against when the display
+                # first needed it, t_k - 1/f_s, for the server's planning (RateReport).
+                k = int(f.result())
+                usable = self._now()
+                loop.call_soon_threadsafe(self._made_usable, k, usable)
 
         fut.add_done_callback(done)
+
+    def _made_usable(self, k: int, usable: float) -> None:
+        assert self.welcome is not None and self._loop is not None
+        first = not self.usable_at
+        self.usable_at[k] = usable
+        if not first:
+            # (The session's first frame is for the time it arrives: late by construction.)
+            self._usable.append(usable - (k - 1) / self.welcome.server_fps)
 
     def _undecodable(self, index: int) -> None:
         self.net.decode_errors += 1
@@ -473,23 +515,50 @@ class LiveClient:
         if self._conn is not None:
             self._conn.stop(sid)
 
+    def received(self, sid: int, nbytes: int, header: FrameHeader | None) -> None:
+        """Bytes of frame stream ``sid`` arrived (its header, once known)."""
+        now = asyncio.get_running_loop().time()
+        self._bytes.append((now, nbytes))
+        p = self.in_progress.setdefault(sid, [now, 0.0, math.nan])
+        p[1] += nbytes
+        if header is not None:
+            p[2] = header.sent
+
     def _report(self) -> None:
         loop = asyncio.get_running_loop()
         now = loop.time()
-        w = self._window
-        span = 2 * REPORT_INTERVAL_S
-        while w and w[0][0] < now - span:
-            w.popleft()
-        bps = 8 * sum(b for _, b, _ in w) / span
-        queue = (
-            float(np.median([d for _, _, d in w])) - self._min_delay
-            if w and self._min_delay is not None
-            else 0.0
-        )
+        self._reported = now
+        span = RATE_WINDOW_S
+        for q in (self._window, self._bytes):
+            while q and q[0][0] < now - span:
+                q.popleft()
+        bps = 8 * sum(b for _, b in self._bytes) / span
+        # The queueing delay of the newest evidence: the frame completed since the previous
+        # report, else a frame still arriving (delayed at least this long so far: a link that
+        # narrows shows while the first frame it holds back is on its way); neither: no news
+        # (-1), the server holds its target (a report per frame keeps the news fresh).
+        queue = -1.0
+        rate = math.nan
+        if self._fresh is not None:
+            queue, rate = self._fresh
+            self._fresh = None
+        going = [p for p in self.in_progress.values() if math.isfinite(p[2])]
+        if going and self._min_delay is not None:
+            oldest = min(going, key=lambda p: p[2])
+            waited = now - oldest[2] - self._min_delay
+            if waited > queue:
+                queue = waited
+                rate = 8 * oldest[1] / (now - oldest[0]) if now - oldest[0] > 0.02 else math.nan
+        if math.isfinite(rate):
+            # A frame's own transfer rate, not the window's: the window counts the idle time
+            # of a server that sends less than the link carries.
+            bps = rate
+        late, self._usable = self._usable, []
         self.net.reports += 1
         report = RateReport(
-            self.net.reports, self._now(), bps, span, max(queue, 0.0) * 1e3,
+            self.net.reports, self._now(), bps, span, max(queue, 0.0) * 1e3 if queue >= 0 else -1.0,
             self.net.frames_completed, self.order.lost,
+            len(late), max(late, default=0.0) * 1e3,
         )
         if self._conn is not None:
             self._conn.send_datagram(report.encode())
@@ -533,16 +602,15 @@ class LiveClient:
             ) as conn:
                 assert isinstance(conn, _Connection)
                 self._conn = conn
-                reported = self._loop.time()
+                self._reported = self._loop.time()
                 while not self._stop.is_set():
-                    # Ticks 5x per report interval: the give-up of a missing frame is timely.
+                    # Ticks every TICK_S: the give-up of a missing frame is timely.
                     now = self._loop.time()
                     self.order.tick(now)
-                    if self._t0 is not None and now - reported >= REPORT_INTERVAL_S:
+                    if self._t0 is not None and now - self._reported >= REPORT_INTERVAL_S:
                         self._report()
-                        reported = now
                     try:
-                        await asyncio.wait_for(self._stop.wait(), REPORT_INTERVAL_S / 5)
+                        await asyncio.wait_for(self._stop.wait(), TICK_S)
                     except asyncio.TimeoutError:
                         pass
                 conn.close(error_code=CLOSE_BYE, reason_phrase="session over")
@@ -655,8 +723,13 @@ class LiveClient:
         def med(v: list[float]) -> float | None:
             return float(np.median(v)) if v else None
 
+
         s.update(
             pose_to_display_ms_p50=s.get("server_age_ms_p50"),
+            # time.monotonic() at display time 0 (the same clock in every process of the
+            # machine: events elsewhere, e.g. a relay's bandwidth step, can be placed on
+            # the session's timeline).
+            monotonic_at_start=self._t0,
             mbps=8 * n.bytes_received / seconds / 1e6,
             network={
                 "frames_completed": n.frames_completed,
@@ -681,11 +754,17 @@ class LiveClient:
             },
             # Per frame received: the encoder target, the arrival (display seconds) and how
             # late it was against when the display first needed it, t_k - 1/f_s (negative:
-            # early), the measure of whether frames arrive on time as the target moves.
+            # early), the measure of whether frames arrive on time as the target moves; and
+            # when it became usable (decoded and prepared; None: never) and whether that was
+            # late (what server_frames_late counts, frame by frame).
             target_mbps=[
-                {"index": i, "mbps": round(m, 6), "arrival": round(t, 4),
-                 "late_ms": round((t - (i - 1) / fs) * 1e3, 1)}
-                for i, m, t in n.targets
+                {"index": i, "mbps": round(m, 6), "sent": round(sent, 4),
+                 "server_ms": round(ms, 1), "bytes": size,
+                 "arrival": round(t, 4),
+                 "late_ms": round((t - (i - 1) / fs) * 1e3, 1),
+                 "usable": None if (u := self.usable_at.get(i)) is None else round(u, 4),
+                 "usable_late": u is not None and u > max(0.0, (i - 1) / fs)}
+                for i, m, t, sent, ms, size in n.targets
             ],
         )
         if n.closed_at is not None and n.closed_at < seconds - 1.0:

@@ -7,9 +7,10 @@ builds a queue at once, long before loss, so the queue is the signal:
 
 - queue above ``high_ms``: the link is full; the target drops to ``backoff`` times the rate that
   got through (what the link carries now), at once;
-- queue below ``low_ms``: there is room; the target climbs by ``climb`` per report (multiplicative,
-  so it takes a few seconds to double: probing, not jumping back into a queue);
-- in between: hold.
+- queue below ``low_ms``: there is room; the target climbs by ``climb`` per second
+  (multiplicative, so it takes a few seconds to double: probing, not jumping back into a
+  queue), after a backoff only up to the rate that got through then, which rises slowly;
+- in between, or no frame since the previous report (``queue_ms`` < 0): hold.
 
 The target stays in ``[min_bps, max_bps]`` (``--min-bitrate``, ``--bitrate``). This is the
 delay-based part of GCC (Carlucci et al. 2016) without its Kalman filter: enough for a
@@ -22,19 +23,27 @@ from dataclasses import dataclass
 
 from splitrender.errors import InvalidInputError
 
-__all__ = ["RateController"]
+__all__ = ["LeadController", "RateController"]
 
 
 @dataclass
 class RateController:
-    """The target (bits per second) between ``min_bps`` and ``max_bps``; starts at the top."""
+    """The target (bits per second) between ``min_bps`` and ``max_bps``; starts at the top.
+
+    :meth:`update` takes the time since the previous report, so that the climb is per second
+    whatever the report rate (the client reports per frame and every quarter second). After
+    a backoff the target climbs back only up to ``backoff`` times the rate that got through
+    then (``ceiling``, the link's measured capacity), and that ceiling itself rises by
+    ``probe`` per second:
+    climbing straight back into the queue would make frames late again at every probe."""
 
     max_bps: float
     min_bps: float
     high_ms: float = 60.0
     low_ms: float = 20.0
     backoff: float = 0.85
-    climb: float = 1.08
+    climb: float = 1.36  # per second (8 % per quarter second)
+    probe: float = 1.03  # per second
 
     def __post_init__(self) -> None:
         if not (
@@ -47,12 +56,54 @@ class RateController:
                 f"max {self.max_bps:g} b/s"
             )
         self.target_bps = float(self.max_bps)
+        self.ceiling_bps: float | None = None
 
-    def update(self, receive_bps: float, queue_ms: float) -> float:
-        """The new target after one report."""
-        if queue_ms > self.high_ms and receive_bps > 0:
+    def update(self, receive_bps: float, queue_ms: float, dt: float = 0.25) -> float:
+        """The new target after one report, ``dt`` seconds after the previous one."""
+        dt = min(max(dt, 0.0), 1.0)
+        if queue_ms < 0:
+            pass  # no frame came since the last report: no news, hold
+        elif queue_ms > self.high_ms and receive_bps > 0:
             self.target_bps = min(self.target_bps, self.backoff * receive_bps)
+            self.ceiling_bps = max(receive_bps, self.target_bps)
         elif queue_ms < self.low_ms:
-            self.target_bps *= self.climb
+            self.target_bps *= self.climb**dt
+            if self.ceiling_bps is not None:
+                self.ceiling_bps *= self.probe**dt
+                self.target_bps = min(self.target_bps, self.backoff * self.ceiling_bps)
         self.target_bps = min(max(self.target_bps, self.min_bps), self.max_bps)
         return self.target_bps
+
+
+@dataclass
+class LeadController:
+    """How much earlier than planned the server starts each frame (seconds), from the client's
+    reports of how late its frames became usable.
+
+    The server plans frame ``k`` to arrive by ``t_k − 1/f_s`` from its render + encode time and
+    half the round trip. What that leaves out: the client's own decode and pair preparation,
+    the time a frame takes to cross a capped link (its size over the rate), and the server's
+    scheduling noise on a loaded machine. All of them show in one number the client measures,
+    the latest frame's lateness over a report window (:class:`~splitrender.net.protocol.
+    RateReport`'s ``late_ms``), so the lead follows it: up at once by the lateness plus
+    ``margin_ms`` (a late frame costs the display its interpolation), down by ``decay`` of
+    the excess per report (a lead is content age, so it is given back, but slowly, so that
+    one lucky window does not make the next frames late). Within ``[0, max_s]``."""
+
+    margin_ms: float = 20.0
+    decay: float = 0.1
+    max_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_s) and self.max_s >= 0):
+            raise InvalidInputError(f"lead: expected max_s >= 0, got {self.max_s!r}")
+        self.lead_s = 0.0
+
+    def update(self, usable: int, late_ms: float) -> float:
+        """The new lead after one report (``usable`` frames in its window, the latest
+        ``late_ms`` late; none: no news, the lead stays)."""
+        if usable > 0 and math.isfinite(late_ms):
+            excess = (late_ms + self.margin_ms) / 1e3
+            self.lead_s += excess if excess > 0 else self.decay * excess
+            self.lead_s = min(max(self.lead_s, 0.0), self.max_s)
+        return self.lead_s

@@ -65,7 +65,7 @@ __all__ = [
 ]
 
 #: The version this code speaks; a hello of any other is refused (:data:`CLOSE_VERSION`).
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 #: QUIC's application protocol name (TLS ALPN); a peer without it fails the handshake.
 ALPN = "splitrender-live/1"
 #: Four bytes that open a :class:`Hello`, so that a stray peer is refused as such.
@@ -74,7 +74,7 @@ HELLO_MAGIC = b"SRLV"
 #: Largest control message body (after its u16 length): a hello with the longest token is 84 B,
 #: a welcome with the longest scene name 425 B.
 MAX_CONTROL = 1024
-#: Largest datagram either side accepts (a pose is 109 B, a report 37 B).
+#: Largest datagram either side accepts (a pose is 109 B, a report 43 B).
 MAX_DATAGRAM = 256
 #: Longest token, in bytes (UTF-8).
 MAX_TOKEN = 64
@@ -111,7 +111,7 @@ _HELLO_TAIL = struct.Struct("<HHd")  # display width, height (0 = the server's),
 _WELCOME = struct.Struct("<BHddHHHdd16dB")  # ...; then the scene name
 _KEY_REQUEST = struct.Struct("<BqB")
 _POSE = struct.Struct("<BId12d")
-_REPORT = struct.Struct("<BIddffII")
+_REPORT = struct.Struct("<BIddffIIHf")
 _FRAME = struct.Struct("<BqqBddddffI")
 
 #: Key request reasons.
@@ -418,7 +418,13 @@ class PoseSample:
 class RateReport:
     """The client's receive statistics for adaptive bit-rate: ``receive_bps`` over its last
     window, ``queue_ms`` (how much later than the least-delayed frame the recent frames
-    completed: the queue the link builds), and running counts."""
+    completed: the queue the link builds; since version 2 that of the newest frame completed
+    or still arriving, and −1 when no frame came since the previous report: no news), and
+    running counts. Since version 2 also the
+    timeliness of the frames made usable (decoded and prepared) in the window: ``usable`` of
+    them, the latest by ``late_ms`` (usable time minus ``t_k − 1/f_s``, when the display
+    first needed it; negative: early; 0 when ``usable`` is 0). The server plans its frames
+    that much earlier (:class:`splitrender.net.abr.LeadController`)."""
 
     seq: int
     time: float
@@ -427,6 +433,8 @@ class RateReport:
     queue_ms: float
     frames_received: int
     frames_lost: int
+    usable: int = 0
+    late_ms: float = 0.0
 
     def encode(self) -> bytes:
         return _REPORT.pack(
@@ -438,21 +446,25 @@ class RateReport:
             self.queue_ms,
             self.frames_received & 0xFFFFFFFF,
             self.frames_lost & 0xFFFFFFFF,
+            min(self.usable, 0xFFFF),
+            self.late_ms,
         )
 
     @classmethod
     def decode(cls, data: bytes | memoryview) -> RateReport:
         _type("report", data, T_REPORT)
         _expect("report", data, _REPORT.size)
-        _, seq, t, bps, win, q, rx, lost = _REPORT.unpack_from(data, 0)
+        _, seq, t, bps, win, q, rx, lost, usable, late = _REPORT.unpack_from(data, 0)
         return cls(
             int(seq),
             _finite("report.time", t, -1e9, 1e9),
             _finite("report.receive_bps", bps, 0.0, 1e12),
             _finite("report.window_s", win, 0.0, 3600.0),
-            _finite("report.queue_ms", q, 0.0, 1e7),
+            _finite("report.queue_ms", q, -1.0, 1e7),
             int(rx),
             int(lost),
+            int(usable),
+            _finite("report.late_ms", late, -1e7, 1e7),
         )
 
 
@@ -482,9 +494,11 @@ class FrameHeader:
     and give up frames without parsing the packet; ``pose_time`` (the
     display time of the newest pose the server had when it predicted: pose-to-display latency
     is measured from it), ``predicted_time`` (the time the pose was predicted for), ``sent``
-    (the server's clock when it sent the frame: the client measures queueing from its
-    variation), the encoder's ``target_bps``, the server's ``render_ms``/``encode_ms`` and the
-    packet's ``size``."""
+    (when the server sent the frame; since version 2 on the client's display clock as the
+    server estimates it from the poses, early by the least one-way delay of a pose: the client
+    measures queueing from its variation), the encoder's ``target_bps`` (since version 2 the
+    one the frame was encoded at, not a newer one still waiting for a key frame), the server's
+    ``render_ms``/``encode_ms`` and the packet's ``size``."""
 
     index: int
     seq: int

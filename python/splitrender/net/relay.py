@@ -8,7 +8,9 @@ datagram leaves the link's queue ``8 · size / rate`` seconds after the one befo
 longer than ``queue_ms`` drops it, as a router's drop-tail does), and a one-way delay of
 ``delay_ms`` plus a jitter drawn uniformly in ``±jitter_ms`` (never below 0; datagrams may be
 reordered by it, as on a real path). The bandwidth can change during a run: a schedule of
-``(seconds after start, Mb/s)`` steps, or :meth:`Relay.set_bandwidth`.
+``(seconds, Mb/s)`` steps counted from the first datagram of a client (the session's start,
+not the relay's: a client may connect any time after the relay starts), or
+:meth:`Relay.set_bandwidth`.
 
 Every random draw comes from one ``random.Random(seed)`` per direction, so that a given
 sequence of datagrams meets the same fate in every run with the same seed.
@@ -20,7 +22,7 @@ import asyncio
 import ipaddress
 import math
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,7 +45,8 @@ def check_loopback(host: str, what: str) -> str:
 @dataclass(frozen=True)
 class Impairment:
     """One direction's impairments (all zero: a plain forwarder). ``bandwidth_mbps`` 0 means
-    no cap; ``schedule`` holds ``(seconds, mbps)`` steps applied after the start."""
+    no cap; ``schedule`` holds ``(seconds, mbps)`` steps applied after the first datagram
+    from a client."""
 
     delay_ms: float = 0.0
     jitter_ms: float = 0.0
@@ -111,12 +114,17 @@ class Relay(asyncio.DatagramProtocol):
         down: Impairment,
         seed: int = 0,
         listen: tuple[str, int] = ("127.0.0.1", 0),
+        on_step: Callable[[str, float, float], None] | None = None,
     ) -> None:
         self.target = (check_loopback(target[0], "target"), target[1])
         self.listen = (check_loopback(listen[0], "listen"), listen[1])
         # Two streams of draws from one seed: the directions do not disturb each other.
         self._dirs = {"up": _Direction(up, seed * 2 + 1), "down": _Direction(down, seed * 2 + 2)}
         self.stats = RelayStats()
+        #: Called as ``on_step(direction, mbps, when)`` as a scheduled step is applied
+        #: (``when``: the event loop's clock, ``time.monotonic()``, shared by every process
+        #: on the machine: a test aligns the step with a session's clock by it).
+        self.on_step = on_step
         self._client: tuple[str, int] | None = None
         self._down: _Upstream | None = None
         self._transport: asyncio.DatagramTransport | None = None
@@ -132,9 +140,6 @@ class Relay(asyncio.DatagramProtocol):
             lambda: _Upstream(self), remote_addr=self.target
         )
         self._up_transport = up
-        for name, d in self._dirs.items():
-            if d.imp.schedule:
-                self._tasks.append(asyncio.ensure_future(self._steps(name, d.imp.schedule)))
 
     async def _steps(self, name: str, schedule: Sequence[tuple[float, float]]) -> None:
         loop = asyncio.get_running_loop()
@@ -142,6 +147,8 @@ class Relay(asyncio.DatagramProtocol):
         for t, mbps in sorted(schedule):
             await asyncio.sleep(max(0.0, t0 + t - loop.time()))
             self.set_bandwidth(name, mbps)
+            if self.on_step is not None:
+                self.on_step(name, mbps, loop.time())
 
     def set_bandwidth(self, direction: str, mbps: float) -> None:
         """The cap of ``direction`` (``"up"``/``"down"``) from now on (0: none)."""
@@ -175,6 +182,13 @@ class Relay(asyncio.DatagramProtocol):
 
     # asyncio.DatagramProtocol: datagrams from the client
     def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
+        if self._client is None:
+            # The first datagram of a client: the bandwidth schedules start now.
+            for name, d in self._dirs.items():
+                if d.imp.schedule:
+                    self._tasks.append(
+                        asyncio.ensure_future(self._steps(name, d.imp.schedule))
+                    )
         self._client = (addr[0], addr[1])
         self._forward("up", data)
 

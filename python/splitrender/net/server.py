@@ -53,7 +53,7 @@ from aioquic.quic.events import (
 
 from splitrender.codec.coder import CodecConfig, StreamEncoder
 from splitrender.errors import ProtocolError
-from splitrender.net.abr import RateController
+from splitrender.net.abr import LeadController, RateController
 from splitrender.net.predict import make_predictor
 from splitrender.net.protocol import (
     ALPN,
@@ -193,7 +193,9 @@ class _Session(QuicConnectionProtocol):
         self._last_pose_at = 0.0
         self._key_wanted = False
         self._abr = self.server.rate_controller()
+        self._lead = LeadController(max_s=2.0 / self.server.options.fps)
         self._new_target: float | None = None
+        self._reported_at: float | None = None
         self._open: dict[int, tuple[int, bool]] = {}  # seq -> (stream id, key), in flight
         self._closed = asyncio.Event()
 
@@ -307,7 +309,21 @@ class _Session(QuicConnectionProtocol):
             self._last_pose_at = now
         elif isinstance(msg, RateReport):
             self.stats.reports += 1
-            self._new_target = self._abr.update(msg.receive_bps, msg.queue_ms)
+            # The climb is per second since the previous report with news (a frame).
+            dt = now - self._reported_at if self._reported_at is not None else 0.25
+            if msg.queue_ms >= 0:
+                self._reported_at = now
+            before = self._abr.target_bps
+            self._new_target = self._abr.update(msg.receive_bps, msg.queue_ms, dt)
+            if abs(self._new_target - before) > ABR_STEP * before and self._offset is not None:
+                # Session time: the client's display clock as estimated from its poses.
+                self.server.log(
+                    f"adaptive target {before / 1e6:.3g} -> {self._new_target / 1e6:.3g} Mb/s "
+                    "at session time "
+                    f"{now + self._offset:.2f} s (queue {msg.queue_ms:.0f} ms, receiving "
+                    f"{msg.receive_bps / 1e6:.3g} Mb/s)"
+                )
+            self._lead.update(msg.usable, msg.late_ms)
 
     def _terminated(self, reason: str) -> None:
         if self._task is not None:
@@ -335,6 +351,28 @@ class _Session(QuicConnectionProtocol):
         # aioquic keeps its RTT estimate in the loss recovery (no public accessor).
         return float(getattr(self._quic._loss, "_rtt_smoothed", 0.0) or 0.0)
 
+    def _take_target(self, effective: float, key_at: float) -> tuple[bool, float]:
+        """Passes the adaptive target to the encoder. Only steps that matter: the encoders
+        take a new target at a key frame (x265 reopens, tens of ms per stream). It is taken at
+        once with a key frame of its own (a narrowed link cannot wait for the next regular
+        one); a climb at most every ABR_KEY_INTERVAL_S (a key frame is itself larger) and in
+        between waits (at most that long, not for the next regular key frame).
+        ``effective``: the target the encoders run at; ``key_at``: the loop time of the last
+        such key frame. Returns whether this frame reopens the encoders, and ``key_at``."""
+        encoder = self.server.encoder
+        target, self._new_target = self._new_target, None
+        current = encoder.config.bitrate_mbps * 1e6
+        if target is not None and abs(target - current) > ABR_STEP * current:
+            encoder.set_bitrate(target / 1e6)
+        now = asyncio.get_running_loop().time()
+        wanted = encoder.config.bitrate_mbps * 1e6
+        # A drop goes at once (the link is narrower now, and a key frame at the lower
+        # target is small); a climb waits ABR_KEY_INTERVAL_S after the last such key frame.
+        if wanted < effective or (wanted > effective and now - key_at >= ABR_KEY_INTERVAL_S):
+            encoder.request_key_frame()
+            return True, now
+        return False, key_at
+
     async def _frames(self) -> None:
         srv = self.server
         opts = srv.options
@@ -346,8 +384,11 @@ class _Session(QuicConnectionProtocol):
         encoder.request_key_frame()
         last = -1
         seq = 0  # place in the encoded sequence (the packets' index: see FrameHeader)
-        abr_key_at = -math.inf
+        abr_key_at = loop.time()  # the session's first frame is a key frame
+        # The target the HEVC encoders run at: a new one takes effect at a key frame.
+        effective = encoder.config.bitrate_mbps * 1e6
         proc = srv.proc_estimate
+        proc_key = 2 * proc  # a frame that reopens the encoders (measured at the first)
         recent: deque[float] = deque(maxlen=5)
         warned = False
         try:
@@ -366,9 +407,15 @@ class _Session(QuicConnectionProtocol):
                     # waits for would wait longer. The frames not rendered are skipped.
                     await asyncio.sleep(0.25 / fs)
                     continue
+                # Decided before the frame is planned: reopening the encoders makes this
+                # frame slower (proc_key), and the plan must start it that much earlier.
+                reopen, abr_key_at = self._take_target(effective, abr_key_at)
                 client_now = loop.time() + self._offset
+                # What the plan leaves out (the client's decode and preparation, a capped
+                # link's transfer time, scheduling noise), from the client's reports.
+                ahead = max(proc, proc_key if reopen else 0.0) + owd + self._lead.lead_s
                 # Frame k is first needed at t_k - 1/f_s (it closes the pair (k-1, k)).
-                k = math.ceil((client_now + proc + owd) * fs - 1e-9) + (last >= 0)
+                k = math.ceil((client_now + ahead) * fs - 1e-9) + (last >= 0)
                 # (The first frame of a session is for the time it arrives at: it can be shown
                 # at once, extrapolated; every later one is for one period after that.)
                 # Frames that could not arrive in time are skipped. The encoded sequence goes
@@ -382,9 +429,16 @@ class _Session(QuicConnectionProtocol):
                         )
                         warned = True
                 k = max(k, last + 1)
-                start = (k - 1) / fs - proc - owd - self._offset  # loop time to start at
+                start = (k - 1) / fs - ahead - self._offset  # loop time to start at
                 if start > loop.time():
                     await asyncio.sleep(start - loop.time())
+                    # A target that came during the wait is taken now: this frame may be
+                    # slower than planned, which beats a frame the link no longer carries.
+                    again, abr_key_at = self._take_target(effective, abr_key_at)
+                    reopen = reopen or again
+                if self._key_wanted:
+                    encoder.request_key_frame()
+                    self._key_wanted = False
                 pose = self._predictor.predict(k / fs)
                 pose_time = self._predictor.newest_time
                 assert pose is not None and pose_time is not None
@@ -393,28 +447,13 @@ class _Session(QuicConnectionProtocol):
                     srv.executor, srv.render, k, pose
                 )
                 t1 = time.perf_counter()
-                target = self._new_target
-                current = encoder.config.bitrate_mbps * 1e6
-                if target is not None and abs(target - current) > ABR_STEP * current:
-                    # Only steps that matter: the encoders take a new target at a key frame
-                    # (x265 reopens, tens of ms per stream). It is taken at once with a key frame
-                    # of its own (a narrowed link cannot wait for the next regular one), at most
-                    # every ABR_KEY_INTERVAL_S (a key frame is itself larger); in between, the
-                    # change waits for the next key frame.
-                    encoder.set_bitrate(target / 1e6)
-                    now = loop.time()
-                    if now - abr_key_at >= ABR_KEY_INTERVAL_S:
-                        encoder.request_key_frame()
-                        abr_key_at = now
-                self._new_target = None
-                if self._key_wanted:
-                    encoder.request_key_frame()
-                    self._key_wanted = False
                 packet: bytes = await loop.run_in_executor(
                     srv.executor, encoder.encode, dataclasses.replace(frame, index=seq)
                 )
                 t2 = time.perf_counter()
                 key = bool(packet[6] & 1)  # the stream format's flags: bit 0 = key frame
+                if key:
+                    effective = encoder.config.bitrate_mbps * 1e6
                 render_ms, encode_ms = (t1 - t0) * 1e3, (t2 - t1) * 1e3
                 # The median of the last frames that are not key frames (a key frame restarts
                 # the encoders and is no guide to the next frame's time; the median keeps one
@@ -422,6 +461,8 @@ class _Session(QuicConnectionProtocol):
                 if not key:
                     recent.append(t2 - t0)
                     proc = float(np.median(recent))
+                elif reopen:
+                    proc_key = t2 - t0
                 last = k
                 seq += 1
                 n = opts.drop_every
@@ -430,7 +471,7 @@ class _Session(QuicConnectionProtocol):
                 ):
                     self.stats.frames_dropped += 1  # the injected loss (ServerOptions)
                     continue
-                self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, encoder)
+                self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, effective)
         except asyncio.CancelledError:
             pass
         except Exception as e:  # noqa: BLE001 - a session's failure must not end the server
@@ -450,17 +491,20 @@ class _Session(QuicConnectionProtocol):
         packet: bytes,
         render_ms: float,
         encode_ms: float,
-        encoder: StreamEncoder,
+        target: float,
     ) -> None:
+        """Sends frame ``k``; ``target``: the bit-rate it was encoded at (b/s)."""
         fs = self.server.options.fps
-        target = encoder.config.bitrate_mbps * 1e6
+        assert self._offset is not None  # frames follow poses
         header = FrameHeader(
             k,
             seq,
             key,
             pose_time,
             k / fs,
-            asyncio.get_running_loop().time(),
+            # On the client's display clock as estimated from its poses: early by the
+            # least one-way delay of a pose.
+            asyncio.get_running_loop().time() + self._offset,
             target,
             render_ms,
             encode_ms,
@@ -557,11 +601,13 @@ class LiveServer:
 
     def rate_controller(self) -> RateController:
         period_ms = 1e3 / self.options.fps
+        # In frame periods (a frame's own transfer time varies with its size), but not so
+        # long at a low f_s that a narrowed link goes unnoticed for most of a second.
         return RateController(
             self.max_mbps() * 1e6,
             self.min_mbps() * 1e6,
-            high_ms=0.4 * period_ms,
-            low_ms=0.15 * period_ms,
+            high_ms=min(0.4 * period_ms, 150.0),
+            low_ms=min(0.15 * period_ms, 50.0),
         )
 
     def welcome(self) -> bytes:
