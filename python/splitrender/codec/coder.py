@@ -1049,7 +1049,10 @@ class StreamDecoder(_WorkerThreads):
     """Decodes packets into :class:`~splitrender.types.ServerFrame` values, in order.
 
     Decoding starts at a key frame; after that every packet must follow the previous one
-    (frame index + 1), or be a key frame. The HEVC decoders are created afresh at every key frame.
+    (frame index + 1), or be a key frame. The HEVC decoders live across key frames (an IDR
+    restarts a picture's references; a fresh FFmpeg decoder would allocate, and page-fault in,
+    all its picture buffers again, which cost more than the decoding of a nearly empty picture);
+    they are created afresh when a picture's size changes and after any failed packet.
     :meth:`decode` may be called from any thread; calls on one instance run one at a time (a
     stream has an order), and the HEVC decoding, which is most of the time, releases the GIL.
 
@@ -1063,7 +1066,8 @@ class StreamDecoder(_WorkerThreads):
 
     @checked(threads=ints(0, MAX_THREADS), max_pixels=ints(1, 1 << 40))
     def __init__(self, threads: int = 0, max_pixels: int = MAX_PIXELS) -> None:
-        self._decoders: dict[BufferKind, Any] = {}
+        # Per picture: its size and the FFmpeg decoder made for it.
+        self._decoders: dict[BufferKind, tuple[tuple[int, int], Any]] = {}
         self._last: int | None = None
         self._threads = threads or (os.cpu_count() or 1)
         self._lock = threading.Lock()
@@ -1073,7 +1077,13 @@ class StreamDecoder(_WorkerThreads):
     def decode(self, data: bytes | memoryview) -> ServerFrame:
         """The server frame held by one packet."""
         with self._lock:
-            return self._decode(data)
+            try:
+                return self._decode(data)
+            except BaseException:
+                # The next packet must be a key frame; its pictures start from new decoders,
+                # free of whatever state the failed one left.
+                self._decoders = {}
+                raise
 
     def _decode(self, data: bytes | memoryview) -> ServerFrame:
         p = unpack_packet(data)
@@ -1092,9 +1102,7 @@ class StreamDecoder(_WorkerThreads):
                 f"{where}: the cameras hold {total} pixels together, beyond the decoder's "
                 f"limit of {self.max_pixels}"
             )
-        if p.key:
-            self._decoders = {}
-        elif self._last is None or p.index != self._last + 1:
+        if not p.key and (self._last is None or p.index != self._last + 1):
             after = "none" if self._last is None else str(self._last)
             self._last = None
             raise StreamError(
@@ -1187,10 +1195,11 @@ class StreamDecoder(_WorkerThreads):
         leave with the static and invalid ``masks`` (the unpacked lossless parts) applied."""
         where = f"frame {index}, {b.name}"
         tiles, pw, ph = _layout(b.kind, sizes)
-        ctx = self._decoders.get(b.kind)
-        if ctx is None:
+        size, ctx = self._decoders.get(b.kind, ((0, 0), None))
+        if ctx is None or size != (pw, ph):
             threads = max(1, self._threads - len(PICTURE_KINDS) + 1)
-            ctx = self._decoders[b.kind] = _hevc_decoder(pw, ph, threads)
+            ctx = _hevc_decoder(pw, ph, threads)
+            self._decoders[b.kind] = ((pw, ph), ctx)
         try:
             frames = ctx.decode(av.Packet(bytes(b.payload)))
         except av.error.FFmpegError as e:
