@@ -67,6 +67,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -555,16 +556,18 @@ def _unpack_mask(
     raw = _unzstd(where, payload, n)
     if len(raw) != n:
         raise StreamError(f"{where}: mask of {len(raw)} bytes, expected {n}")
-    return (
-        np.unpackbits(np.frombuffer(raw, np.uint8), count=w * h)
-        .reshape(h, w)
-        .astype(bool)
-    )
+    # unpackbits gives 0/1 bytes: the bool view is the mask without a second array
+    return np.unpackbits(np.frombuffer(raw, np.uint8), count=w * h).reshape(h, w).view(np.bool_)
 
 
 def _unpack_bits(
-    where: str, payload: bytes | memoryview, w: int, h: int
+    where: str,
+    payload: bytes | memoryview,
+    w: int,
+    h: int,
+    out: npt.NDArray[np.uint32] | None = None,
 ) -> npt.NDArray[np.uint32]:
+    """The bitfields of a ``w x h`` camera, into ``out`` (``uint32[h, w]``) when given."""
     mbytes = (w * h + 7) // 8
     raw = _unzstd(where, payload, 1 + mbytes + 4 * w * h)
     if len(raw) < 1 + mbytes or raw[0] not in (1, 2, 3, 4):
@@ -589,9 +592,11 @@ def _unpack_bits(
         raise StreamError(
             f"{where}: shadow bitfield payload stores a zero for a set pixel"
         )
-    out = np.zeros(w * h, np.uint32)
-    out[nz] = vals
-    return out.reshape(h, w)
+    if out is None:
+        out = np.empty((h, w), np.uint32)
+    out.fill(0)
+    out.reshape(-1)[nz] = vals
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -1045,6 +1050,43 @@ def _hevc_decoder(width: int, height: int, threads: int = 1) -> Any:
 _Decoded = dict[tuple[int, BufferKind], npt.NDArray[Any]]
 
 
+class _Outputs:
+    """The arrays of the last few decoded frames, reused for a later frame once nobody but this
+    pool holds them.
+
+    A new array costs more than the values written into it: the kernel's first write to each
+    4 kB page faults it in (about 60 MB per 1280x720 server frame, a third of the decode CPU
+    time measured in docs/performance.md). The client keeps the two frames of its pair, so the
+    arrays of the frame before those are free again by the time the next one decodes. An array
+    is reused only when CPython's reference count says the pool's list is its only holder: any
+    ServerFrame, view or buffer export that can still reach it holds a reference, so a frame
+    handed out is never overwritten."""
+
+    #: Arrays kept per buffer: the client's pair, the frame being decoded and one spare.
+    DEPTH = 4
+
+    def __init__(self) -> None:
+        self._arrays: dict[tuple[int, BufferKind], list[npt.NDArray[Any]]] = {}
+
+    def take(
+        self, key: tuple[int, BufferKind], shape: tuple[int, ...], dtype: type[np.generic]
+    ) -> npt.NDArray[Any]:
+        """A C-contiguous ``shape`` array of ``dtype`` with undefined contents, for ``key``'s
+        buffer of the frame being decoded (each key is taken by one thread at a time)."""
+        kept = self._arrays.setdefault(key, [])
+        for i in range(len(kept)):
+            # 2: the list's reference and getrefcount's argument, nothing else.
+            if sys.getrefcount(kept[i]) == 2 and kept[i].shape == shape and kept[i].dtype == dtype:
+                a = kept.pop(i)
+                kept.append(a)  # most recently handed out last
+                return a
+        a = np.empty(shape, dtype)
+        if len(kept) >= self.DEPTH:
+            kept.pop(0)  # the oldest: still held by the client, no longer ours to reuse
+        kept.append(a)
+        return a
+
+
 class StreamDecoder(_WorkerThreads):
     """Decodes packets into :class:`~splitrender.types.ServerFrame` values, in order.
 
@@ -1071,6 +1113,7 @@ class StreamDecoder(_WorkerThreads):
         self._last: int | None = None
         self._threads = threads or (os.cpu_count() or 1)
         self._lock = threading.Lock()
+        self._out = _Outputs()
         self.max_pixels = max_pixels
 
     @checked(data=instances((bytes, bytearray, memoryview)))
@@ -1148,7 +1191,7 @@ class StreamDecoder(_WorkerThreads):
         errors: list[StreamError] = []
         lossless: _Decoded = {}
         try:
-            lossless = _lossless(p, seen)
+            lossless = _lossless(p, seen, self._out)
         except StreamError as e:
             errors.append(e)
         parts = []
@@ -1231,7 +1274,9 @@ class StreamDecoder(_WorkerThreads):
             full = _plane_array(rgb.planes[0], 3 * pw, ph, np.uint8).reshape(ph, pw, 3)
             for (ci, kind, _), t in tiles.items():
                 if seen.get((ci, kind), b).codec == Codec.TILE:
-                    out[(ci, kind)] = full[t.y : t.y + t.h, t.x : t.x + t.w].copy()
+                    dst = self._out.take((ci, kind), (t.h, t.w, 3), np.uint8)
+                    np.copyto(dst, full[t.y : t.y + t.h, t.x : t.x + t.w])
+                    out[(ci, kind)] = dst
             return out, []
         # Dequantised in the core (reproj_core::dequant): code * scale + offset in float32,
         # motion from its half-size tiles, the lossless masks applied in the same pass.
@@ -1243,6 +1288,7 @@ class StreamDecoder(_WorkerThreads):
                 out[(ci, _K.DEPTH)] = _native.dequantise_depth(
                     q, t.x, t.y, w, h, entry.scale[0], entry.offset[0],
                     masks.get((ci, _K.DEPTH_INVALID)),
+                    self._out.take((ci, _K.DEPTH), (h, w), np.float32),
                 )
             for kind in (_K.MOTION_FWD, _K.MOTION_BWD):
                 entry = seen.get((ci, kind))
@@ -1254,6 +1300,7 @@ class StreamDecoder(_WorkerThreads):
                     out[(ci, kind)] = _native.dequantise_motion(
                         q, [(t.x, t.y) for t in ct], w, h, entry.scale, entry.offset,
                         masks.get((ci, kstatic)), masks.get((ci, kinvalid)),
+                        self._out.take((ci, kind), (h, w, 3), np.float32),
                     )
         return out, []
 
@@ -1344,7 +1391,12 @@ class StreamDecoder(_WorkerThreads):
                     tile = t[(ci, k, 0)]
                     luma, cb, cr = shadow_planes
                     # Converted (BT.709, full range) only where the bitfield is set.
-                    colours.append(_native.shadow_colour(luma, cb, cr, tile.x, tile.y, bits))
+                    colours.append(
+                        _native.shadow_colour(
+                            luma, cb, cr, tile.x, tile.y, bits,
+                            self._out.take((ci, k), (h, w, 3), np.uint8),
+                        )
+                    )
                 else:
                     c = get(k, "u1", (h, w, 3), required=True)
                     assert c is not None
@@ -1361,8 +1413,11 @@ class StreamDecoder(_WorkerThreads):
         )
 
 
-def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _Decoded:
-    """Every zstd buffer of a packet: masks as bool arrays, bitfields as uint32."""
+def _lossless(
+    p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry], outputs: _Outputs
+) -> _Decoded:
+    """Every zstd buffer of a packet: masks as bool arrays, bitfields as uint32 (in arrays of
+    ``outputs``: they go to the client)."""
     out: _Decoded = {}
     for (ci, kind), b in seen.items():
         if b.codec != Codec.ZSTD:
@@ -1370,7 +1425,9 @@ def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _De
         where = f"frame {p.index}, {b.name}"
         w, h = p.cameras[ci].width, p.cameras[ci].height
         if kind in (_K.SHADOW_FWD_BITS, _K.SHADOW_BWD_BITS):
-            out[(ci, kind)] = _unpack_bits(where, b.payload, w, h)
+            out[(ci, kind)] = _unpack_bits(
+                where, b.payload, w, h, outputs.take((ci, kind), (h, w), np.uint32)
+            )
         elif kind in (
             _K.DEPTH_INVALID,
             _K.MOTION_FWD_STATIC,
