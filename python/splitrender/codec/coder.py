@@ -1094,7 +1094,8 @@ class StreamDecoder(_WorkerThreads):
     (frame index + 1), or be a key frame. The HEVC decoders live across key frames (an IDR
     restarts a picture's references; a fresh FFmpeg decoder would allocate, and page-fault in,
     all its picture buffers again, which cost more than the decoding of a nearly empty picture);
-    they are created afresh when a picture's size changes and after any failed packet.
+    they are created afresh when a picture's size changes and after a packet that failed once its
+    pictures were being decoded.
     :meth:`decode` may be called from any thread; calls on one instance run one at a time (a
     stream has an order), and the HEVC decoding, which is most of the time, releases the GIL.
 
@@ -1123,9 +1124,11 @@ class StreamDecoder(_WorkerThreads):
             try:
                 return self._decode(data)
             except BaseException:
-                # The next packet must be a key frame; its pictures start from new decoders,
-                # free of whatever state the failed one left.
-                self._decoders = {}
+                # A packet refused before any picture was touched (unparsable, say) leaves the
+                # stream where it was. Otherwise the next packet must be a key frame, and its
+                # pictures start from new decoders, free of whatever state the failed one left.
+                if self._last is None:
+                    self._decoders = {}
                 raise
 
     def _decode(self, data: bytes | memoryview) -> ServerFrame:
