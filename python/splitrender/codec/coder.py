@@ -50,6 +50,8 @@ Decoding: the (up to) three pictures decode in parallel on a thread pool (FFmpeg
 GIL), each with FFmpeg's slice threading over x265's wavefront rows, never frame threading, which
 would hold each picture back by a frame. The colour picture is converted to RGB by swscale in one
 call; every other buffer is dequantised straight from the decoded planes into the client's array.
+The FFmpeg decoders and the output arrays live across frames (new memory is paid in page faults,
+docs/performance.md "Codec"); an output array is reused only once nothing else holds it.
 
 Random access: every ``gop`` frames a key frame forces an IDR with the parameter sets in every
 picture; a :class:`StreamDecoder` can start at any key frame.
@@ -70,7 +72,7 @@ import os
 import sys
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from fractions import Fraction
 from functools import lru_cache
@@ -1180,7 +1182,8 @@ class StreamDecoder(_WorkerThreads):
                 )
         # Colour and shadow pictures start at once; this thread meanwhile unpacks the lossless
         # parts, which the geometry picture's worker then applies (static and invalid masks),
-        # so that work too runs beside the other pictures' decoding.
+        # and then converts the shadow colours as soon as their (quickest) picture is out, so
+        # that both run beside the other pictures' decoding rather than after it.
         parallel = len(pictures) > 1 and self._threads > 1
         geometry = [b for b in pictures if b.kind == _PIC_GEOMETRY]
         futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
@@ -1188,7 +1191,7 @@ class StreamDecoder(_WorkerThreads):
             pool = self._executor(min(self._threads, 3), "splitrender-dec")
             futs = [
                 pool.submit(self._picture, p.index, b, sizes, seen, {})
-                for b in pictures
+                for b in sorted(pictures, key=lambda b: b.kind != _PIC_SHADOW)
                 if b.kind != _PIC_GEOMETRY
             ]
         errors: list[StreamError] = []
@@ -1198,29 +1201,36 @@ class StreamDecoder(_WorkerThreads):
         except StreamError as e:
             errors.append(e)
         parts = []
+        shadow_rgb: _Decoded = {}
         if parallel and not errors:
             futs += [
                 pool.submit(self._picture, p.index, b, sizes, seen, lossless)
                 for b in geometry
             ]
-        for (
-            f
-        ) in futs:  # every one waited for: none may outlive this call (thread safety)
-            try:
-                parts.append(f.result())
-            except StreamError as e:
-                errors.append(e)
+        try:
+            for f in futs:
+                try:
+                    part = f.result()
+                except StreamError as e:
+                    errors.append(e)
+                    continue
+                parts.append(part)
+                if part[1] and not errors:  # the shadow picture's planes
+                    shadow_rgb = self._shadow_colours(p, seen, lossless, part[1])
+        finally:
+            wait(futs)  # none may outlive this call (thread safety)
         if errors:
             raise errors[0]
         if not parallel:
             parts = [self._picture(p.index, b, sizes, seen, lossless) for b in pictures]
+            for _, planes in parts:
+                if planes:
+                    shadow_rgb = self._shadow_colours(p, seen, lossless, planes)
         results: _Decoded = dict(lossless)
-        shadow_planes: list[npt.NDArray[np.uint8]] = []
-        for out, planes in parts:
+        for out, _ in parts:
             results.update(out)
-            shadow_planes = planes or shadow_planes
         cams = [
-            self._camera(p, ci, rec, seen, results, shadow_planes)
+            self._camera(p, ci, rec, seen, results, shadow_rgb)
             for ci, rec in enumerate(p.cameras)
         ]
         self._last = p.index
@@ -1307,6 +1317,34 @@ class StreamDecoder(_WorkerThreads):
                     )
         return out, []
 
+    def _shadow_colours(
+        self,
+        p: Packet,
+        seen: dict[tuple[int, BufferKind], BufferEntry],
+        lossless: _Decoded,
+        planes: list[npt.NDArray[np.uint8]],
+    ) -> _Decoded:
+        """Every shadow colour tile of the packet whose bitfield came as zstd, converted (BT.709,
+        full range) where that bitfield is set; :meth:`_camera` refuses the other tiles."""
+        sizes = tuple((c.width, c.height) for c in p.cameras)
+        tiles, _, _ = _layout(_PIC_SHADOW, sizes)
+        luma, cb, cr = planes
+        out: _Decoded = {}
+        for ci, (w, h) in enumerate(sizes):
+            for kb, kmin, kmax in _SHADOW.values():
+                bits = lossless.get((ci, kb))
+                if bits is None:
+                    continue
+                for k in (kmin, kmax):
+                    b = seen.get((ci, k))
+                    if b is not None and b.codec == Codec.TILE:
+                        t = tiles[(ci, k, 0)]
+                        out[(ci, k)] = _native.shadow_colour(
+                            luma, cb, cr, t.x, t.y, bits,
+                            self._out.take((ci, k), (h, w, 3), np.uint8),
+                        )
+        return out
+
     def _camera(
         self,
         p: Packet,
@@ -1314,7 +1352,7 @@ class StreamDecoder(_WorkerThreads):
         rec: CameraRecord,
         seen: dict[tuple[int, BufferKind], BufferEntry],
         results: _Decoded,
-        shadow_planes: list[npt.NDArray[np.uint8]],
+        shadow_rgb: _Decoded,
     ) -> CameraFrame:
         w, h = rec.width, rec.height
 
@@ -1384,22 +1422,11 @@ class StreamDecoder(_WorkerThreads):
                         raise StreamError(
                             f"frame {p.index}, {b.name}: a tile needs its bitfield as zstd"
                         )
-                    t, _, _ = _layout(
-                        _PIC_SHADOW, tuple((c.width, c.height) for c in p.cameras)
-                    )
-                    if len(shadow_planes) != 3:
+                    if (ci, k) not in shadow_rgb:
                         raise StreamError(
                             f"frame {p.index}, {b.name}: a tile without its shadow picture"
                         )
-                    tile = t[(ci, k, 0)]
-                    luma, cb, cr = shadow_planes
-                    # Converted (BT.709, full range) only where the bitfield is set.
-                    colours.append(
-                        _native.shadow_colour(
-                            luma, cb, cr, tile.x, tile.y, bits,
-                            self._out.take((ci, k), (h, w, 3), np.uint8),
-                        )
-                    )
+                    colours.append(shadow_rgb[(ci, k)])
                 else:
                     c = get(k, "u1", (h, w, 3), required=True)
                     assert c is not None
