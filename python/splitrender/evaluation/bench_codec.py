@@ -120,7 +120,7 @@ _STEPS: dict[str, str | tuple[str, ...]] = {
     "colour tiles into the client's arrays": ("copyto", "method 'copy' of 'numpy.ndarray'"),
     "depth dequantisation (core)": "dequantise_depth",
     "motion dequantisation + 2x2 (core)": "dequantise_motion",
-    "shadow colours at set bits (core)": "shadow_colour",
+    "shadow colours at set bits (core)": "_native.shadow_colour>",
     "lossless masks and bitfields (zstd)": "coder.py:_lossless",
     "packet parsing and checks": "stream.py:unpack_packet",
     "total (StreamDecoder._decode)": "coder.py:_decode",
