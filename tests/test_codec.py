@@ -8,6 +8,7 @@ Bounds are stated where they are asserted; the figures they come from are printe
 from __future__ import annotations
 
 import dataclasses
+import weakref
 
 import numpy as np
 import pytest
@@ -277,16 +278,37 @@ def test_uncompressed_mode_round_trips_exactly(frames: list[sr.ServerFrame]) -> 
                 assert np.array_equal(getattr(sa, x), getattr(sb, x))
 
 
+def _assert_same_frame(a: sr.ServerFrame, b: sr.ServerFrame) -> None:
+    for x, y in zip(_cams(a), _cams(b), strict=True):
+        assert np.array_equal(x.color, y.color)
+        assert np.array_equal(x.depth, y.depth, equal_nan=True)
+        for d in ("fwd", "bwd"):
+            mx, my = getattr(x, f"motion_{d}"), getattr(y, f"motion_{d}")
+            assert np.array_equal(mx, my, equal_nan=True)
+            sx, sy = getattr(x, f"shadow_{d}"), getattr(y, f"shadow_{d}")
+            for f in ("bits", "s_min", "s_max"):
+                assert np.array_equal(getattr(sx, f), getattr(sy, f))
+
+
 def test_decoding_starts_at_any_key_frame(
     coded: tuple[list[bytes], list[sr.ServerFrame]],
 ) -> None:
+    """A decoder started at key frame 6 gives the same frames, every buffer bit for bit, as the
+    one that decoded 0..11 and kept its HEVC decoders across the key frame; so does a decoder
+    that resumes at frame 6 after a packet that failed."""
     packets, decoded = coded
     assert [unpack_packet(p).key for p in packets] == [i % 6 == 0 for i in range(N)]
     with StreamDecoder() as dec:
         late = [dec.decode(p) for p in packets[6:]]
-    for a, b in zip(decoded[6:], late):
-        assert np.array_equal(a.main.color, b.main.color)
-        assert np.array_equal(a.aux[1].motion_bwd, b.aux[1].motion_bwd)  # type: ignore[arg-type]
+    with StreamDecoder() as dec:
+        dec.decode(packets[0])
+        with pytest.raises(StreamError):
+            # colour and shadow decode frame 1, then its geometry fails
+            dec.decode(_replace_payload(packets[1], "picture.geometry", b"\x00\x00\x01xx" * 9))
+        resumed = [dec.decode(p) for p in packets[6:]]
+    for a, b, c in zip(decoded[6:], late, resumed):
+        _assert_same_frame(a, b)
+        _assert_same_frame(a, c)
     with (
         StreamDecoder() as dec,
         pytest.raises(StreamError, match="frame 7: not a key frame"),
@@ -556,3 +578,78 @@ def test_dequantisation_refuses_a_tile_outside_its_plane() -> None:
     luma, chroma = np.zeros((8, 8), np.uint8), np.zeros((4, 4), np.uint8)
     with pytest.raises(InvalidInputError, match="shadow tile"):
         _native.shadow_colour(luma, chroma, chroma, 1, 0, np.ones((8, 8), np.uint32))
+
+
+def test_dequantisation_writes_into_out_every_value() -> None:
+    """With ``out`` each kernel returns that array, holding what it returns without one, whatever
+    ``out`` held before (the decoder reuses arrays of earlier frames)."""
+    from splitrender import _native
+
+    rng = np.random.default_rng(5)
+    codes = rng.integers(0, 4096, (12, 10), dtype=np.uint16)
+    depth = _native.dequantise_depth(codes, 1, 2, 6, 5, 0.5, -1.0)
+    out = np.full((5, 6), 123.0, np.float32)
+    assert _native.dequantise_depth(codes, 1, 2, 6, 5, 0.5, -1.0, None, out) is out
+    assert np.array_equal(out, depth)
+    tiles, args = [(0, 0), (0, 3), (5, 0)], ((0.1, 0.2, 0.3), (-1.0, 0.0, 1.0))
+    motion = _native.dequantise_motion(codes, tiles, 7, 5, *args)
+    out3 = np.full((5, 7, 3), np.nan, np.float32)
+    assert _native.dequantise_motion(codes, tiles, 7, 5, *args, None, None, out3) is out3
+    assert np.array_equal(out3, motion)
+    luma, chroma = rng.integers(0, 256, (8, 8), np.uint8), rng.integers(0, 256, (4, 4), np.uint8)
+    bits = (rng.random((6, 6)) < 0.5).astype(np.uint32)
+    colour = _native.shadow_colour(luma, chroma, chroma, 2, 2, bits)
+    out8 = np.full((6, 6, 3), 77, np.uint8)
+    assert _native.shadow_colour(luma, chroma, chroma, 2, 2, bits, out8) is out8
+    assert np.array_equal(out8, colour) and (out8[bits == 0] == 0).all()
+
+
+@pytest.mark.parametrize(
+    ("out", "message"),
+    [
+        (np.zeros((5, 5), np.float32), r"out: expected float32 array of shape \(5, 6\)"),
+        (np.zeros((5, 6), np.float64), "out: expected float32"),
+        (np.zeros((6, 5), np.float32).T, "out: expected a C-contiguous array"),
+        (np.zeros((5, 6), np.float32), None),
+    ],
+)
+def test_dequantisation_refuses_a_bad_out(out: np.ndarray, message: str | None) -> None:
+    from splitrender import _native
+
+    codes = np.zeros((12, 10), np.uint16)
+    if message is None:  # a fine one, made read-only
+        out.flags.writeable = False
+        message = "out: cannot borrow the array for writing"
+    with pytest.raises(InvalidInputError, match=message):
+        _native.dequantise_depth(codes, 1, 2, 6, 5, 0.5, -1.0, None, out)
+
+
+def test_dequantisation_refuses_an_out_that_overlaps_its_input() -> None:
+    from splitrender import _native
+
+    buf = np.zeros(64, np.float32)
+    codes = buf.view(np.uint16).reshape(8, 16)  # the first 64 floats' bytes
+    with pytest.raises(InvalidInputError, match="out: cannot borrow"):
+        _native.dequantise_depth(codes, 0, 0, 2, 2, 1.0, 0.0, None, buf[:4].reshape(2, 2))
+
+
+def test_decoder_reuses_released_arrays_and_never_held_ones(
+    coded: tuple[list[bytes], list[sr.ServerFrame]],
+) -> None:
+    """The decoder writes a frame into the arrays of an earlier frame only once nothing holds
+    them: frames kept by the caller stay as they decoded (compared with the fixture's decoder,
+    which holds all 12), and a released frame's arrays are taken again."""
+    packets, decoded = coded
+    with StreamDecoder() as dec:
+        held = [dec.decode(p) for p in packets[:6]]  # all held: no reuse possible
+        for a, b in zip(decoded[:6], held):
+            _assert_same_frame(a, b)
+        last = held[-1]
+        refs = [weakref.ref(a) for a in (last.main.depth, last.aux[1].motion_fwd, last.main.color)]
+        del held, last, a, b  # the loop's names hold the last frame too
+        again = [dec.decode(p) for p in packets[6:]]
+        for a, b in zip(decoded[6:], again):
+            _assert_same_frame(a, b)
+        taken = [(f.main.depth, f.aux[1].motion_fwd, f.main.color) for f in again]
+        for i, r in enumerate(refs):
+            assert any(t[i] is r() for t in taken), "a released frame's array was not reused"

@@ -117,6 +117,7 @@ def dequantise_depth(
     scale: float,
     offset: float,
     invalid_mask: npt.NDArray[np.bool_] | None = None,
+    out: _F32 | None = None,
 ) -> _F32: ...
 def dequantise_motion(
     codes: npt.NDArray[np.uint16],
@@ -127,9 +128,10 @@ def dequantise_motion(
     offset: tuple[float, float, float],
     static_mask: npt.NDArray[np.bool_] | None = None,
     invalid_mask: npt.NDArray[np.bool_] | None = None,
+    out: _F32 | None = None,
 ) -> _F32: ...
 def shadow_colour(
-    luma: _U8, cb: _U8, cr: _U8, x: int, y: int, bits: _U32
+    luma: _U8, cb: _U8, cr: _U8, x: int, y: int, bits: _U32, out: _U8 | None = None
 ) -> _U8: ...
 def ssim(
     x: _F64, y: _F64, want_map: bool = False

@@ -3,12 +3,14 @@
 //! `splitrender.codec.coder` with views of the decoded planes; each checks that the tile lies in
 //! its plane and that the masks have the camera's size before the kernel runs.
 
-use numpy::{PyArray2, PyArray3, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{
+    Element, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyReadwriteArrayDyn,
+    PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 use reproj_core::dequant::{self, CodeTile, YCbCrPlanes};
 
-use crate::api::shaped;
-use crate::convert::{array, finite, side, slice, Dim};
+use crate::convert::{array, array_mut, finite, side, slice, slice_mut, Dim};
 use crate::errors::invalid;
 use crate::guarded;
 
@@ -46,6 +48,26 @@ fn mask<'py>(
         .transpose()
 }
 
+/// Where a kernel writes: `out` when given (the caller's array, reused across frames so that
+/// its pages are not faulted in again for every frame), else a new numpy array. Every value is
+/// written by the kernel either way.
+fn output<'py, T: Element>(
+    py: Python<'py>,
+    out: Option<&Bound<'py, PyAny>>,
+    shape: &[usize],
+) -> PyResult<(Bound<'py, PyArrayDyn<T>>, PyReadwriteArrayDyn<'py, T>)> {
+    if let Some(o) = out.filter(|o| !o.is_none()) {
+        let dims: Vec<Dim> = shape.iter().map(|&n| Dim::Is(n)).collect();
+        let rw = array_mut::<T>(o, "out", &dims)?;
+        return Ok((o.cast::<PyArrayDyn<T>>()?.clone(), rw));
+    }
+    let arr = PyArrayDyn::<T>::zeros(py, shape, false);
+    let rw = arr
+        .try_readwrite()
+        .map_err(|e| invalid(format!("out: cannot borrow the array for writing: {e}")))?;
+    Ok((arr, rw))
+}
+
 fn tile<'a>(
     codes: &'a [u16],
     stride: usize,
@@ -71,9 +93,10 @@ fn tile<'a>(
 }
 
 /// Depth `float32[h, w]` from the full-resolution tile at `(x, y)` of `codes` (`uint16[rows,
-/// stride]`): `f32(code) · scale + offset`, NaN where `invalid_mask`.
+/// stride]`): `f32(code) · scale + offset`, NaN where `invalid_mask`; written into `out`
+/// (`float32[h, w]`) when given, which is returned.
 #[pyfunction]
-#[pyo3(signature = (codes, x, y, w, h, scale, offset, invalid_mask=None))]
+#[pyo3(signature = (codes, x, y, w, h, scale, offset, invalid_mask=None, out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn dequantise_depth<'py>(
     py: Python<'py>,
@@ -85,7 +108,8 @@ pub fn dequantise_depth<'py>(
     scale: f64,
     offset: f64,
     invalid_mask: Option<&Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    out: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
     guarded("dequantise_depth", || {
         let (w, h) = (side(w, "w")?, side(h, "h")?);
         let (scale, offset) = (
@@ -97,17 +121,19 @@ pub fn dequantise_depth<'py>(
         let t = tile(codes, stride, x, y, w, h, "depth tile")?;
         let inv = mask(invalid_mask, "invalid_mask", w, h)?;
         let inv = inv.as_ref().map(|m| slice(m, "invalid_mask")).transpose()?;
-        let mut out = vec![0.0f32; w * h];
-        py.detach(|| dequant::depth_from_codes(t, w, h, scale, offset, inv, &mut out));
-        shaped(py, out, (h, w))
+        let (arr, mut rw) = output::<f32>(py, out, &[h, w])?;
+        let dst = slice_mut(&mut rw, "out")?;
+        py.detach(|| dequant::depth_from_codes(t, w, h, scale, offset, inv, dst));
+        Ok(arr)
     })
 }
 
 /// Motion `float32[h, w, 3]` from three half-resolution channel tiles of `codes` at `tiles`
 /// (`[(x, y)] * 3`): `f32(code) · scale[c] + offset[c]` copied to the 2×2 pixels it covers,
-/// `+0.0` where `static_mask`, NaN where `invalid_mask`.
+/// `+0.0` where `static_mask`, NaN where `invalid_mask`; written into `out` (`float32[h, w,
+/// 3]`) when given, which is returned.
 #[pyfunction]
-#[pyo3(signature = (codes, tiles, w, h, scale, offset, static_mask=None, invalid_mask=None))]
+#[pyo3(signature = (codes, tiles, w, h, scale, offset, static_mask=None, invalid_mask=None, out=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn dequantise_motion<'py>(
     py: Python<'py>,
@@ -119,7 +145,8 @@ pub fn dequantise_motion<'py>(
     offset: [f64; 3],
     static_mask: Option<&Bound<'py, PyAny>>,
     invalid_mask: Option<&Bound<'py, PyAny>>,
-) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    out: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
     guarded("dequantise_motion", || {
         let (w, h) = (side(w, "w")?, side(h, "h")?);
         let (codes, stride) = plane::<u16>(codes, "codes")?;
@@ -142,17 +169,19 @@ pub fn dequantise_motion<'py>(
         let st = st.as_ref().map(|m| slice(m, "static_mask")).transpose()?;
         let inv = mask(invalid_mask, "invalid_mask", w, h)?;
         let inv = inv.as_ref().map(|m| slice(m, "invalid_mask")).transpose()?;
-        let mut out = vec![0.0f32; w * h * 3];
-        py.detach(|| dequant::motion_from_half_codes(ch, w, h, s, o, st, inv, &mut out));
-        shaped(py, out, (h, w, 3))
+        let (arr, mut rw) = output::<f32>(py, out, &[h, w, 3])?;
+        let dst = slice_mut(&mut rw, "out")?;
+        py.detach(|| dequant::motion_from_half_codes(ch, w, h, s, o, st, inv, dst));
+        Ok(arr)
     })
 }
 
 /// A shadow colour `uint8[h, w, 3]` from the tile at `(x, y)` of its full-range BT.709 Y′CbCr
 /// planes (`luma` `uint8[rows, stride]`, `cb`/`cr` at full or half resolution), converted where
-/// `bits` (`uint32[h, w]`) is non-zero and 0 elsewhere.
+/// `bits` (`uint32[h, w]`) is non-zero and 0 elsewhere; written into `out` (`uint8[h, w, 3]`)
+/// when given, which is returned.
 #[pyfunction]
-#[pyo3(signature = (luma, cb, cr, x, y, bits))]
+#[pyo3(signature = (luma, cb, cr, x, y, bits, out=None))]
 pub fn shadow_colour<'py>(
     py: Python<'py>,
     luma: &Bound<'py, PyAny>,
@@ -161,7 +190,8 @@ pub fn shadow_colour<'py>(
     x: i64,
     y: i64,
     bits: &Bound<'py, PyAny>,
-) -> PyResult<Bound<'py, PyArray3<u8>>> {
+    out: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArrayDyn<u8>>> {
     guarded("shadow_colour", || {
         let bits = array::<u32>(bits, "bits", &[Dim::Any("h"), Dim::Any("w")])?;
         let (h, w) = (bits.shape()[0], bits.shape()[1]);
@@ -193,8 +223,9 @@ pub fn shadow_colour<'py>(
             )));
         }
         let bits = slice(&bits, "bits")?;
-        let mut out = vec![0u8; w * h * 3];
-        py.detach(|| dequant::shadow_colour_from_ycbcr(planes, x, y, w, h, bits, &mut out));
-        shaped(py, out, (h, w, 3))
+        let (arr, mut rw) = output::<u8>(py, out, &[h, w, 3])?;
+        let dst = slice_mut(&mut rw, "out")?;
+        py.detach(|| dequant::shadow_colour_from_ycbcr(planes, x, y, w, h, bits, dst));
+        Ok(arr)
     })
 }

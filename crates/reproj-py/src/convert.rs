@@ -7,8 +7,8 @@
 
 use numpy::npyffi::flags::NPY_ARRAY_ALIGNED;
 use numpy::{
-    Element, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArray,
-    PyUntypedArrayMethods,
+    Element, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn,
+    PyReadwriteArrayDyn, PyUntypedArray, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
@@ -79,6 +79,31 @@ pub fn array<'py, T: Element>(
     what: &str,
     dims: &[Dim],
 ) -> PyResult<PyReadonlyArrayDyn<'py, T>> {
+    checked_array::<T>(obj, what, dims)?
+        .try_readonly()
+        .map_err(|e| invalid(format!("{what}: cannot borrow the array: {e}")))
+}
+
+/// Borrows `obj` for writing, with the checks of [`array`]; also refused: a read-only array
+/// and one that overlaps an array borrowed elsewhere in the same call (an input).
+///
+/// # Errors
+/// `InvalidInputError` naming `what`.
+pub fn array_mut<'py, T: Element>(
+    obj: &Bound<'py, PyAny>,
+    what: &str,
+    dims: &[Dim],
+) -> PyResult<PyReadwriteArrayDyn<'py, T>> {
+    checked_array::<T>(obj, what, dims)?
+        .try_readwrite()
+        .map_err(|e| invalid(format!("{what}: cannot borrow the array for writing: {e}")))
+}
+
+fn checked_array<'a, 'py, T: Element>(
+    obj: &'a Bound<'py, PyAny>,
+    what: &str,
+    dims: &[Dim],
+) -> PyResult<&'a Bound<'py, PyArrayDyn<T>>> {
     let py = obj.py();
     let want = numpy::dtype::<T>(py);
     let mismatch = || {
@@ -114,15 +139,21 @@ pub fn array<'py, T: Element>(
             describe(obj)
         )));
     }
-    let typed = obj.cast::<PyArrayDyn<T>>().map_err(|_| mismatch())?;
-    typed
-        .try_readonly()
-        .map_err(|e| invalid(format!("{what}: cannot borrow the array: {e}")))
+    obj.cast::<PyArrayDyn<T>>().map_err(|_| mismatch())
 }
 
 /// The contiguous data of an array checked by [`array`].
 pub fn slice<'a, T: Element>(a: &'a PyReadonlyArrayDyn<'_, T>, what: &str) -> PyResult<&'a [T]> {
     a.as_slice()
+        .map_err(|_| invalid(format!("{what}: expected a C-contiguous array")))
+}
+
+/// The contiguous data of an array borrowed by [`array_mut`].
+pub fn slice_mut<'a, T: Element>(
+    a: &'a mut PyReadwriteArrayDyn<'_, T>,
+    what: &str,
+) -> PyResult<&'a mut [T]> {
+    a.as_slice_mut()
         .map_err(|_| invalid(format!("{what}: expected a C-contiguous array")))
 }
 

@@ -50,6 +50,8 @@ Decoding: the (up to) three pictures decode in parallel on a thread pool (FFmpeg
 GIL), each with FFmpeg's slice threading over x265's wavefront rows, never frame threading, which
 would hold each picture back by a frame. The colour picture is converted to RGB by swscale in one
 call; every other buffer is dequantised straight from the decoded planes into the client's array.
+The FFmpeg decoders and the output arrays live across frames (new memory is paid in page faults,
+docs/performance.md "Codec"); an output array is reused only once nothing else holds it.
 
 Random access: every ``gop`` frames a key frame forces an IDR with the parameter sets in every
 picture; a :class:`StreamDecoder` can start at any key frame.
@@ -67,9 +69,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from fractions import Fraction
 from functools import lru_cache
@@ -555,16 +558,18 @@ def _unpack_mask(
     raw = _unzstd(where, payload, n)
     if len(raw) != n:
         raise StreamError(f"{where}: mask of {len(raw)} bytes, expected {n}")
-    return (
-        np.unpackbits(np.frombuffer(raw, np.uint8), count=w * h)
-        .reshape(h, w)
-        .astype(bool)
-    )
+    # unpackbits gives 0/1 bytes: the bool view is the mask without a second array
+    return np.unpackbits(np.frombuffer(raw, np.uint8), count=w * h).reshape(h, w).view(np.bool_)
 
 
 def _unpack_bits(
-    where: str, payload: bytes | memoryview, w: int, h: int
+    where: str,
+    payload: bytes | memoryview,
+    w: int,
+    h: int,
+    out: npt.NDArray[np.uint32] | None = None,
 ) -> npt.NDArray[np.uint32]:
+    """The bitfields of a ``w x h`` camera, into ``out`` (``uint32[h, w]``) when given."""
     mbytes = (w * h + 7) // 8
     raw = _unzstd(where, payload, 1 + mbytes + 4 * w * h)
     if len(raw) < 1 + mbytes or raw[0] not in (1, 2, 3, 4):
@@ -589,9 +594,11 @@ def _unpack_bits(
         raise StreamError(
             f"{where}: shadow bitfield payload stores a zero for a set pixel"
         )
-    out = np.zeros(w * h, np.uint32)
-    out[nz] = vals
-    return out.reshape(h, w)
+    if out is None:
+        out = np.empty((h, w), np.uint32)
+    out.fill(0)
+    out.reshape(-1)[nz] = vals
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -1045,11 +1052,52 @@ def _hevc_decoder(width: int, height: int, threads: int = 1) -> Any:
 _Decoded = dict[tuple[int, BufferKind], npt.NDArray[Any]]
 
 
+class _Outputs:
+    """The arrays of the last few decoded frames, reused for a later frame once nobody but this
+    pool holds them.
+
+    A new array costs more than the values written into it: the kernel's first write to each
+    4 kB page faults it in (about 60 MB per 1280x720 server frame, a third of the decode CPU
+    time measured in docs/performance.md). The client keeps the two frames of its pair, so the
+    arrays of the frame before those are free again by the time the next one decodes. An array
+    is reused only when CPython's reference count says the pool's list is its only holder: any
+    ServerFrame, view or buffer export that can still reach it holds a reference, so a frame
+    handed out is never overwritten."""
+
+    #: Arrays kept per buffer: the client's pair, the frame being decoded and one spare.
+    DEPTH = 4
+
+    def __init__(self) -> None:
+        self._arrays: dict[tuple[int, BufferKind], list[npt.NDArray[Any]]] = {}
+
+    def take(
+        self, key: tuple[int, BufferKind], shape: tuple[int, ...], dtype: type[np.generic]
+    ) -> npt.NDArray[Any]:
+        """A C-contiguous ``shape`` array of ``dtype`` with undefined contents, for ``key``'s
+        buffer of the frame being decoded (each key is taken by one thread at a time)."""
+        kept = self._arrays.setdefault(key, [])
+        for i in range(len(kept)):
+            # 2: the list's reference and getrefcount's argument, nothing else.
+            if sys.getrefcount(kept[i]) == 2 and kept[i].shape == shape and kept[i].dtype == dtype:
+                a = kept.pop(i)
+                kept.append(a)  # most recently handed out last
+                return a
+        a = np.empty(shape, dtype)
+        if len(kept) >= self.DEPTH:
+            kept.pop(0)  # the oldest: still held by the client, no longer ours to reuse
+        kept.append(a)
+        return a
+
+
 class StreamDecoder(_WorkerThreads):
     """Decodes packets into :class:`~splitrender.types.ServerFrame` values, in order.
 
     Decoding starts at a key frame; after that every packet must follow the previous one
-    (frame index + 1), or be a key frame. The HEVC decoders are created afresh at every key frame.
+    (frame index + 1), or be a key frame. The HEVC decoders live across key frames (an IDR
+    restarts a picture's references; a fresh FFmpeg decoder would allocate, and page-fault in,
+    all its picture buffers again, which cost more than the decoding of a nearly empty picture);
+    they are created afresh when a picture's size changes and after a packet that failed once its
+    pictures were being decoded.
     :meth:`decode` may be called from any thread; calls on one instance run one at a time (a
     stream has an order), and the HEVC decoding, which is most of the time, releases the GIL.
 
@@ -1063,17 +1111,27 @@ class StreamDecoder(_WorkerThreads):
 
     @checked(threads=ints(0, MAX_THREADS), max_pixels=ints(1, 1 << 40))
     def __init__(self, threads: int = 0, max_pixels: int = MAX_PIXELS) -> None:
-        self._decoders: dict[BufferKind, Any] = {}
+        # Per picture: its size and the FFmpeg decoder made for it.
+        self._decoders: dict[BufferKind, tuple[tuple[int, int], Any]] = {}
         self._last: int | None = None
         self._threads = threads or (os.cpu_count() or 1)
         self._lock = threading.Lock()
+        self._out = _Outputs()
         self.max_pixels = max_pixels
 
     @checked(data=instances((bytes, bytearray, memoryview)))
     def decode(self, data: bytes | memoryview) -> ServerFrame:
         """The server frame held by one packet."""
         with self._lock:
-            return self._decode(data)
+            try:
+                return self._decode(data)
+            except BaseException:
+                # A packet refused before any picture was touched (unparsable, say) leaves the
+                # stream where it was. Otherwise the next packet must be a key frame, and its
+                # pictures start from new decoders, free of whatever state the failed one left.
+                if self._last is None:
+                    self._decoders = {}
+                raise
 
     def _decode(self, data: bytes | memoryview) -> ServerFrame:
         p = unpack_packet(data)
@@ -1092,9 +1150,7 @@ class StreamDecoder(_WorkerThreads):
                 f"{where}: the cameras hold {total} pixels together, beyond the decoder's "
                 f"limit of {self.max_pixels}"
             )
-        if p.key:
-            self._decoders = {}
-        elif self._last is None or p.index != self._last + 1:
+        if not p.key and (self._last is None or p.index != self._last + 1):
             after = "none" if self._last is None else str(self._last)
             self._last = None
             raise StreamError(
@@ -1126,7 +1182,8 @@ class StreamDecoder(_WorkerThreads):
                 )
         # Colour and shadow pictures start at once; this thread meanwhile unpacks the lossless
         # parts, which the geometry picture's worker then applies (static and invalid masks),
-        # so that work too runs beside the other pictures' decoding.
+        # and then converts the shadow colours as soon as their (quickest) picture is out, so
+        # that both run beside the other pictures' decoding rather than after it.
         parallel = len(pictures) > 1 and self._threads > 1
         geometry = [b for b in pictures if b.kind == _PIC_GEOMETRY]
         futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
@@ -1134,39 +1191,46 @@ class StreamDecoder(_WorkerThreads):
             pool = self._executor(min(self._threads, 3), "splitrender-dec")
             futs = [
                 pool.submit(self._picture, p.index, b, sizes, seen, {})
-                for b in pictures
+                for b in sorted(pictures, key=lambda b: b.kind != _PIC_SHADOW)
                 if b.kind != _PIC_GEOMETRY
             ]
         errors: list[StreamError] = []
         lossless: _Decoded = {}
         try:
-            lossless = _lossless(p, seen)
+            lossless = _lossless(p, seen, self._out)
         except StreamError as e:
             errors.append(e)
         parts = []
+        shadow_rgb: _Decoded = {}
         if parallel and not errors:
             futs += [
                 pool.submit(self._picture, p.index, b, sizes, seen, lossless)
                 for b in geometry
             ]
-        for (
-            f
-        ) in futs:  # every one waited for: none may outlive this call (thread safety)
-            try:
-                parts.append(f.result())
-            except StreamError as e:
-                errors.append(e)
+        try:
+            for f in futs:
+                try:
+                    part = f.result()
+                except StreamError as e:
+                    errors.append(e)
+                    continue
+                parts.append(part)
+                if part[1] and not errors:  # the shadow picture's planes
+                    shadow_rgb = self._shadow_colours(p, seen, lossless, part[1])
+        finally:
+            wait(futs)  # none may outlive this call (thread safety)
         if errors:
             raise errors[0]
         if not parallel:
             parts = [self._picture(p.index, b, sizes, seen, lossless) for b in pictures]
+            for _, planes in parts:
+                if planes:
+                    shadow_rgb = self._shadow_colours(p, seen, lossless, planes)
         results: _Decoded = dict(lossless)
-        shadow_planes: list[npt.NDArray[np.uint8]] = []
-        for out, planes in parts:
+        for out, _ in parts:
             results.update(out)
-            shadow_planes = planes or shadow_planes
         cams = [
-            self._camera(p, ci, rec, seen, results, shadow_planes)
+            self._camera(p, ci, rec, seen, results, shadow_rgb)
             for ci, rec in enumerate(p.cameras)
         ]
         self._last = p.index
@@ -1187,10 +1251,11 @@ class StreamDecoder(_WorkerThreads):
         leave with the static and invalid ``masks`` (the unpacked lossless parts) applied."""
         where = f"frame {index}, {b.name}"
         tiles, pw, ph = _layout(b.kind, sizes)
-        ctx = self._decoders.get(b.kind)
-        if ctx is None:
+        size, ctx = self._decoders.get(b.kind, ((0, 0), None))
+        if ctx is None or size != (pw, ph):
             threads = max(1, self._threads - len(PICTURE_KINDS) + 1)
-            ctx = self._decoders[b.kind] = _hevc_decoder(pw, ph, threads)
+            ctx = _hevc_decoder(pw, ph, threads)
+            self._decoders[b.kind] = ((pw, ph), ctx)
         try:
             frames = ctx.decode(av.Packet(bytes(b.payload)))
         except av.error.FFmpegError as e:
@@ -1222,7 +1287,9 @@ class StreamDecoder(_WorkerThreads):
             full = _plane_array(rgb.planes[0], 3 * pw, ph, np.uint8).reshape(ph, pw, 3)
             for (ci, kind, _), t in tiles.items():
                 if seen.get((ci, kind), b).codec == Codec.TILE:
-                    out[(ci, kind)] = full[t.y : t.y + t.h, t.x : t.x + t.w].copy()
+                    dst = self._out.take((ci, kind), (t.h, t.w, 3), np.uint8)
+                    np.copyto(dst, full[t.y : t.y + t.h, t.x : t.x + t.w])
+                    out[(ci, kind)] = dst
             return out, []
         # Dequantised in the core (reproj_core::dequant): code * scale + offset in float32,
         # motion from its half-size tiles, the lossless masks applied in the same pass.
@@ -1234,6 +1301,7 @@ class StreamDecoder(_WorkerThreads):
                 out[(ci, _K.DEPTH)] = _native.dequantise_depth(
                     q, t.x, t.y, w, h, entry.scale[0], entry.offset[0],
                     masks.get((ci, _K.DEPTH_INVALID)),
+                    self._out.take((ci, _K.DEPTH), (h, w), np.float32),
                 )
             for kind in (_K.MOTION_FWD, _K.MOTION_BWD):
                 entry = seen.get((ci, kind))
@@ -1245,8 +1313,37 @@ class StreamDecoder(_WorkerThreads):
                     out[(ci, kind)] = _native.dequantise_motion(
                         q, [(t.x, t.y) for t in ct], w, h, entry.scale, entry.offset,
                         masks.get((ci, kstatic)), masks.get((ci, kinvalid)),
+                        self._out.take((ci, kind), (h, w, 3), np.float32),
                     )
         return out, []
+
+    def _shadow_colours(
+        self,
+        p: Packet,
+        seen: dict[tuple[int, BufferKind], BufferEntry],
+        lossless: _Decoded,
+        planes: list[npt.NDArray[np.uint8]],
+    ) -> _Decoded:
+        """Every shadow colour tile of the packet whose bitfield came as zstd, converted (BT.709,
+        full range) where that bitfield is set; :meth:`_camera` refuses the other tiles."""
+        sizes = tuple((c.width, c.height) for c in p.cameras)
+        tiles, _, _ = _layout(_PIC_SHADOW, sizes)
+        luma, cb, cr = planes
+        out: _Decoded = {}
+        for ci, (w, h) in enumerate(sizes):
+            for kb, kmin, kmax in _SHADOW.values():
+                bits = lossless.get((ci, kb))
+                if bits is None:
+                    continue
+                for k in (kmin, kmax):
+                    b = seen.get((ci, k))
+                    if b is not None and b.codec == Codec.TILE:
+                        t = tiles[(ci, k, 0)]
+                        out[(ci, k)] = _native.shadow_colour(
+                            luma, cb, cr, t.x, t.y, bits,
+                            self._out.take((ci, k), (h, w, 3), np.uint8),
+                        )
+        return out
 
     def _camera(
         self,
@@ -1255,7 +1352,7 @@ class StreamDecoder(_WorkerThreads):
         rec: CameraRecord,
         seen: dict[tuple[int, BufferKind], BufferEntry],
         results: _Decoded,
-        shadow_planes: list[npt.NDArray[np.uint8]],
+        shadow_rgb: _Decoded,
     ) -> CameraFrame:
         w, h = rec.width, rec.height
 
@@ -1325,17 +1422,11 @@ class StreamDecoder(_WorkerThreads):
                         raise StreamError(
                             f"frame {p.index}, {b.name}: a tile needs its bitfield as zstd"
                         )
-                    t, _, _ = _layout(
-                        _PIC_SHADOW, tuple((c.width, c.height) for c in p.cameras)
-                    )
-                    if len(shadow_planes) != 3:
+                    if (ci, k) not in shadow_rgb:
                         raise StreamError(
                             f"frame {p.index}, {b.name}: a tile without its shadow picture"
                         )
-                    tile = t[(ci, k, 0)]
-                    luma, cb, cr = shadow_planes
-                    # Converted (BT.709, full range) only where the bitfield is set.
-                    colours.append(_native.shadow_colour(luma, cb, cr, tile.x, tile.y, bits))
+                    colours.append(shadow_rgb[(ci, k)])
                 else:
                     c = get(k, "u1", (h, w, 3), required=True)
                     assert c is not None
@@ -1352,8 +1443,11 @@ class StreamDecoder(_WorkerThreads):
         )
 
 
-def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _Decoded:
-    """Every zstd buffer of a packet: masks as bool arrays, bitfields as uint32."""
+def _lossless(
+    p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry], outputs: _Outputs
+) -> _Decoded:
+    """Every zstd buffer of a packet: masks as bool arrays, bitfields as uint32 (in arrays of
+    ``outputs``: they go to the client)."""
     out: _Decoded = {}
     for (ci, kind), b in seen.items():
         if b.codec != Codec.ZSTD:
@@ -1361,7 +1455,9 @@ def _lossless(p: Packet, seen: dict[tuple[int, BufferKind], BufferEntry]) -> _De
         where = f"frame {p.index}, {b.name}"
         w, h = p.cameras[ci].width, p.cameras[ci].height
         if kind in (_K.SHADOW_FWD_BITS, _K.SHADOW_BWD_BITS):
-            out[(ci, kind)] = _unpack_bits(where, b.payload, w, h)
+            out[(ci, kind)] = _unpack_bits(
+                where, b.payload, w, h, outputs.take((ci, kind), (h, w), np.uint32)
+            )
         elif kind in (
             _K.DEPTH_INVALID,
             _K.MOTION_FWD_STATIC,

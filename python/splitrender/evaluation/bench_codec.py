@@ -9,11 +9,12 @@ static pixels would decode to exactly zero motion without the static mask. With 
 also compares 4:4:4 and 4:2:0 colour at equal bitrate.
 
 ``--profile`` instead encodes the two server frames of ``splitrender bench`` (courtyard at
-1280x720, cached in the temporary directory) at the paper's 40 Mb/s scaled and prints, per HEVC
-picture of each packet, its pixels, pixel format, bytes and the CPU time of FFmpeg's decoding
-alone (its own single-threaded decoder, median of 5), then the CPU and wall time of
-``StreamDecoder.decode`` per server frame and the load average: where the decode time goes
-(docs/codec-results.md, "Decode time").
+1280x720, cached in the temporary directory) at the paper's 40 Mb/s scaled and prints where the
+decode time goes (docs/performance.md, "Codec"), as minima of CPU time over repeated runs: per
+HEVC picture of each packet its size, pixel format, bytes and FFmpeg's decoding alone (a new
+decoder, and one kept across frames as a client's is); ``StreamDecoder.decode`` on one thread
+per step (FFmpeg, colour conversion, copies, dequantisation, lossless parts); and the CPU and
+wall time of ``StreamDecoder.decode`` per server frame with its default threads.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import argparse
 import os
 import statistics
 import time
+from typing import Any
 
 import av
 import numpy as np
@@ -110,8 +112,41 @@ def static_without_mask(frames: list[ServerFrame], cfg: CodecConfig) -> float:
     return hit / max(tot, 1)
 
 
-def profile(repeats: int = 5) -> None:
-    """Where the decoding of one 1280x720 server frame goes (see the module docstring)."""
+#: The steps of ``StreamDecoder.decode`` that ``--profile`` times: part of the name cProfile
+#: gives each function (``file:function``), or a tuple of such parts.
+_STEPS: dict[str, str | tuple[str, ...]] = {
+    "FFmpeg HEVC decoding": "method 'decode' of 'av.codec.context.CodecContext'",
+    "colour picture to RGB (swscale)": "method 'reformat' of 'av.video.frame.VideoFrame'",
+    "colour tiles into the client's arrays": ("copyto", "method 'copy' of 'numpy.ndarray'"),
+    "depth dequantisation (core)": "dequantise_depth",
+    "motion dequantisation + 2x2 (core)": "dequantise_motion",
+    "shadow colours at set bits (core)": "_native.shadow_colour>",
+    "lossless masks and bitfields (zstd)": "coder.py:_lossless",
+    "packet parsing and checks": "stream.py:unpack_packet",
+    "total (StreamDecoder._decode)": "coder.py:_decode",
+}
+
+
+def _step_times(stats: dict[tuple[str, int, str], tuple[Any, ...]]) -> dict[str, float]:
+    """Seconds per step of one cProfile run (``pstats.Stats.stats``), cumulative per function."""
+    out = dict.fromkeys(_STEPS, 0.0)
+    for (file, _, func), (_, _, _, cum, _) in stats.items():
+        name = f"{file}:{func}"
+        for step, parts in _STEPS.items():
+            if any(p in name for p in ((parts,) if isinstance(parts, str) else parts)):
+                out[step] += cum
+    return out
+
+
+def profile(repeats: int = 7) -> None:
+    """Where the decoding of one 1280x720 server frame goes (see the module docstring).
+
+    Every figure is the minimum over ``repeats`` runs of per-thread CPU time
+    (``time.thread_time``; ``time.process_time`` for all threads together): on a shared machine
+    the minimum is what the code costs, a median also counts the other jobs."""
+    import cProfile
+    import pstats
+
     from splitrender.codec.coder import _hevc_decoder
     from splitrender.evaluation.bench import _recording
 
@@ -123,52 +158,102 @@ def profile(repeats: int = 5) -> None:
         packets = [enc.encode(f0), enc.encode(f1)]
     print(
         f"{w}x{h} + aux, {cfg.bitrate_mbps:g} Mb/s, chroma {cfg.chroma}; packets "
-        f"{[len(p) for p in packets]} bytes"
+        f"{[len(p) for p in packets]} bytes; CPU ms, minimum of {repeats}"
     )
+    print("\n1. FFmpeg alone, each picture on its own single-threaded decoder")
     print(
-        f"{'picture':20} {'frame':>5} {'pixels':>9} {'format':10} {'bytes':>7} {'CPU ms':>7}"
+        f"{'picture':17} {'frame':>5} {'size':>9} {'format':9} {'bytes':>7} "
+        f"{'new decoder':>11} {'kept decoder':>12} {'ns/sample':>9}"
     )
-    cpu: dict[tuple[str, int], list[float]] = {}
-    info: dict[tuple[str, int], tuple[int, str, int]] = {}
-    for _ in range(repeats):
-        decoders: dict[str, object] = {}
-        for i, packet in enumerate(packets):
-            for b in unpack_packet(packet).buffers:
-                if b.codec != Codec.HEVC:
-                    continue
-                ctx = decoders.get(b.name)
-                if ctx is None:
-                    ctx = decoders[b.name] = _hevc_decoder(1 << 14, 1 << 13)
-                t0 = time.thread_time()
-                frame = ctx.decode(av.Packet(bytes(b.payload)))[0]  # type: ignore[attr-defined]
-                cpu.setdefault((b.name, i), []).append(time.thread_time() - t0)
-                info[(b.name, i)] = (
-                    frame.width * frame.height,
-                    frame.format.name,
-                    len(b.payload),
-                )
-    totals = [0.0, 0.0]
-    for (name, i), ts in cpu.items():
-        px, fmt, n = info[(name, i)]
-        ms = statistics.median(ts) * 1e3
-        totals[i] += ms
-        print(f"{name:20} {i:5} {px:9} {fmt:10} {n:7} {ms:7.2f}")
-    print(
-        f"FFmpeg decoding alone, CPU ms per frame: key {totals[0]:.1f}, other {totals[1]:.1f}"
-    )
-    walls, cpus = [], []
-    for _ in range(repeats):
-        with StreamDecoder() as dec:
+    cpu: dict[tuple[str, int, bool], list[float]] = {}
+    info: dict[tuple[str, int], tuple[str, str, int, float]] = {}
+    for kept in (False, True):
+        decoders: dict[str, Any] = {}
+        for r in range(repeats + kept):
+            if not kept:
+                decoders = {}
+            for i, packet in enumerate(packets):
+                for b in unpack_packet(packet).buffers:
+                    if b.codec != Codec.HEVC:
+                        continue
+                    ctx = decoders.get(b.name)
+                    if ctx is None:
+                        ctx = decoders[b.name] = _hevc_decoder(1 << 14, 1 << 13)
+                    pkt = av.Packet(bytes(b.payload))
+                    t0 = time.thread_time()
+                    frame = ctx.decode(pkt)[0]
+                    dt = time.thread_time() - t0
+                    if kept and r == 0:
+                        continue  # warm-up: the kept decoders' buffers are allocated here
+                    cpu.setdefault((b.name, i, kept), []).append(dt)
+                    fmt = frame.format.name
+                    samples = frame.width * frame.height * (
+                        1.5 if fmt.endswith("420p") else 1.0 if fmt.startswith("gray") else 3.0
+                    )
+                    info[(b.name, i)] = (
+                        f"{frame.width}x{frame.height}", fmt, len(b.payload), samples
+                    )
+                    del frame
+    totals = {(i, kept): 0.0 for i in (0, 1) for kept in (False, True)}
+    for (name, i), (size, fmt, n, samples) in sorted(info.items(), key=lambda x: x[0][1]):
+        new, old = min(cpu[(name, i, False)]) * 1e3, min(cpu[(name, i, True)]) * 1e3
+        totals[(i, False)] += new
+        totals[(i, True)] += old
+        print(
+            f"{name:17} {i:5} {size:>9} {fmt:9} {n:7} {new:11.2f} {old:12.2f} "
+            f"{old * 1e6 / samples:9.2f}"
+        )
+    for i, what in ((0, "key frame"), (1, "other")):
+        print(
+            f"{'all 3 (' + what + ')':51} {totals[(i, False)]:11.1f} {totals[(i, True)]:12.1f}"
+        )
+
+    print("\n2. StreamDecoder.decode on one thread (threads=1), a decoder kept across frames;")
+    print("   per step, CPU ms per server frame (mean of frames 0 and 1)")
+    steps: dict[str, list[float]] = {}
+    with StreamDecoder(threads=1) as dec:
+        for p in packets:
+            dec.decode(p)
+        for _ in range(repeats):
+            prof = cProfile.Profile(time.thread_time)
+            prof.enable()
+            kept_frames = [dec.decode(p) for p in packets]
+            prof.disable()
+            del kept_frames
+            for step, t in _step_times(pstats.Stats(prof).stats).items():  # type: ignore[attr-defined]
+                steps.setdefault(step, []).append(t / len(packets))
+    accounted = 0.0
+    for step, ts in steps.items():
+        ms = min(ts) * 1e3
+        if step.startswith("total"):
+            print(f"   {'other Python (checks, dicts, arrays)':40} {ms - accounted:7.1f}")
+        else:
+            accounted += ms
+        print(f"   {step:40} {ms:7.1f}")
+
+    print("\n3. StreamDecoder.decode per server frame, default threads (frames 0 and 1)")
+    for kept in (False, True):
+        walls, cpus = [], []
+        dec = StreamDecoder()
+        for r in range(repeats + kept):
+            if not kept:
+                dec.close()
+                dec = StreamDecoder()
             c0, t0 = time.process_time(), time.perf_counter()
-            for p in packets:
-                dec.decode(p)
-            walls.append((time.perf_counter() - t0) / len(packets))
-            cpus.append((time.process_time() - c0) / len(packets))
-    print(
-        f"StreamDecoder.decode per server frame (median of {repeats}, frames 0 and 1): wall "
-        f"{statistics.median(walls) * 1e3:.1f} ms, CPU (all threads) "
-        f"{statistics.median(cpus) * 1e3:.1f} ms; load average {os.getloadavg()}"
-    )
+            out = [dec.decode(p) for p in packets]
+            dt, dc = time.perf_counter() - t0, time.process_time() - c0
+            del out
+            if kept and r == 0:
+                continue
+            walls.append(dt / len(packets))
+            cpus.append(dc / len(packets))
+        dec.close()
+        print(
+            f"   {'kept decoder (a running stream)' if kept else 'new decoder per pair':32} "
+            f"CPU (all threads) min {min(cpus) * 1e3:6.1f} ms, wall min "
+            f"{min(walls) * 1e3:6.1f} median {statistics.median(walls) * 1e3:6.1f} ms"
+        )
+    print(f"load average {os.getloadavg()}")
 
 
 def main(argv: list[str] | None = None) -> None:
