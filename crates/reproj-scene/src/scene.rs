@@ -22,6 +22,37 @@ use crate::shape::{Partial, Shape};
 /// levels) while a fixed spiral keeps it deterministic.
 pub const SHADOW_SAMPLES: usize = 32;
 
+// One bit per shadow ray in the masks of `Snapshot::blocked_rays`.
+const _: () = assert!(SHADOW_SAMPLES > 0 && SHADOW_SAMPLES <= 32);
+
+/// Every shadow ray of a shading point, as a mask of [`Snapshot::blocked_rays`].
+pub(crate) const ALL_RAYS: u32 = u32::MAX >> (32 - SHADOW_SAMPLES);
+
+/// The shadow fraction of a mask of hidden shadow rays.
+pub(crate) fn shadow_fraction(hidden: u32) -> f64 {
+    hidden.count_ones() as f64 / SHADOW_SAMPLES as f64
+}
+
+/// Which occluders [`Snapshot::blocked_rays`] traces against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Occluders {
+    All,
+    /// Objects that do not move (the same at every instant).
+    Still,
+    /// Objects that move.
+    Moving,
+}
+
+impl Occluders {
+    fn includes(self, moves: bool) -> bool {
+        match self {
+            Occluders::All => true,
+            Occluders::Still => !moves,
+            Occluders::Moving => moves,
+        }
+    }
+}
+
 /// One object: a shape with a material, placed in its parent's frame and animated.
 #[derive(Debug, Clone)]
 pub struct Object {
@@ -316,6 +347,8 @@ pub(crate) struct Snapshot<'a> {
     /// The shadow-casting objects arranged across the light, so each shadow evaluation visits
     /// only those its cone can reach.
     cull: ShadowCull,
+    /// The shadow-casting objects that move.
+    moving_casters: Vec<usize>,
 }
 
 /// A conservative pre-selection for the shadow cull, built once per instant.
@@ -494,8 +527,12 @@ impl<'a> Snapshot<'a> {
             })
             .collect();
         let cull = ShadowCull::new(&scene.objects, &spheres, light, scene.light.angular_radius);
+        let moving_casters = (0..world.len())
+            .filter(|&i| scene.objects[i].casts_shadow && scene.moves(i))
+            .collect();
         Snapshot {
             cull,
+            moving_casters,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
             scene,
@@ -601,10 +638,55 @@ impl<'a> Snapshot<'a> {
     /// is skipped as an occluder of itself: it cannot block the directions above its own tangent
     /// plane, and skipping it rules out shadow acne.
     pub fn shadow(&self, obj: usize, x: V3, n: V3) -> f64 {
+        shadow_fraction(self.blocked_rays(obj, x, n, Occluders::All, None))
+    }
+
+    /// Whether the shadow rays of a still point are the same rays at `self` and at `other`
+    /// (the same light direction, hence the same disc samples), so that the still objects'
+    /// part of [`Snapshot::blocked_rays`] found at one holds at the other: a still object has
+    /// the same transform at every instant.
+    pub(crate) fn same_light(&self, other: &Snapshot<'_>) -> bool {
+        self.light.map(f64::to_bits) == other.light.map(f64::to_bits)
+    }
+
+    /// The shadow rays of [`Snapshot::shadow`] that are hidden, one bit per disc sample (bit
+    /// `k` for sample `k`): those below the tangent plane and those that an occluder among
+    /// `which` blocks. Rays already in `known` are not traced again (and are in the result).
+    ///
+    /// A ray is hidden when any occluder blocks it, so the mask over all occluders is the union
+    /// of the masks over the still and the moving ones, and the order of the tests does not
+    /// change it. Which objects are candidates does not depend on the other objects (the cull
+    /// keeps every object the exact per-object tests keep, see [`ShadowCull`]), so a still
+    /// point's still candidates, and what they block, are the same at every instant with the
+    /// same light.
+    pub(crate) fn blocked_rays(
+        &self,
+        obj: usize,
+        x: V3,
+        n: V3,
+        which: Occluders,
+        known: Option<u32>,
+    ) -> u32 {
         let l = self.light;
         let (sin_a, cos_a) = self.light_sin_cos;
         if dot(n, l) < -sin_a {
-            return 1.0;
+            return ALL_RAYS;
+        }
+        // `known` holds the rays below the tangent plane already, when it is given.
+        let mut hidden = match known {
+            Some(known) => known,
+            None => {
+                let mut below = 0u32;
+                for (k, s) in self.samples.iter().enumerate() {
+                    if dot(*s, n) <= 0.0 {
+                        below |= 1 << k;
+                    }
+                }
+                below
+            }
+        };
+        if hidden == ALL_RAYS {
+            return hidden;
         }
         // Offset along the normal against acne on meshes, relative to the coordinates' size.
         let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
@@ -614,7 +696,7 @@ impl<'a> Snapshot<'a> {
         let mut candidates = [(0usize, [0.0f64; 3]); 16];
         let mut nc = 0;
         let mut overflow: Vec<(usize, V3)> = Vec::new();
-        self.cull.visit(x, l, ext, &self.spheres, |i| {
+        let mut consider = |i: usize| {
             if i == obj && self.scene.objects[i].shape.is_convex() {
                 return;
             }
@@ -635,39 +717,43 @@ impl<'a> Snapshot<'a> {
             } else {
                 overflow.push(c);
             }
-        });
-        let below = self.samples.iter().filter(|&&s| dot(s, n) <= 0.0).count();
-        if nc == 0 && overflow.is_empty() {
-            return below as f64 / SHADOW_SAMPLES as f64;
+        };
+        match which {
+            // The moving casters are few: the exact tests alone, without the cull's window.
+            Occluders::Moving => self.moving_casters.iter().for_each(|&i| consider(i)),
+            _ => self.cull.visit(x, l, ext, &self.spheres, |i| {
+                if which.includes(self.scene.moves(i)) {
+                    consider(i);
+                }
+            }),
         }
-        // A ray is blocked when any candidate blocks it, so the order of the tests does not
-        // change the count: the candidate that blocked the previous ray (neighbouring rays of
-        // the disc mostly meet the same occluder) is tried first.
+        if nc == 0 && overflow.is_empty() {
+            return hidden;
+        }
+        // The candidate that blocked the previous ray (neighbouring rays of the disc mostly meet
+        // the same occluder) is tried first.
         let mut last: Option<(usize, V3)> = None;
-        let blocked = self
-            .samples
-            .iter()
-            .filter(|&&s| {
-                if dot(s, n) <= 0.0 {
-                    return true;
-                }
-                let occludes =
-                    |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.inv[i].vector(s));
-                if last.as_ref().is_some_and(occludes) {
-                    return true;
-                }
-                let hit = candidates[..nc]
+        for (k, &s) in self.samples.iter().enumerate() {
+            if hidden & (1 << k) != 0 {
+                continue;
+            }
+            let occludes = |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.inv[i].vector(s));
+            let hit = if last.as_ref().is_some_and(occludes) {
+                last
+            } else {
+                candidates[..nc]
                     .iter()
                     .chain(&overflow)
                     .filter(|c| Some(c.0) != last.map(|l| l.0))
-                    .find(|c| occludes(c));
-                if hit.is_some() {
-                    last = hit.copied();
-                }
-                hit.is_some()
-            })
-            .count();
-        blocked as f64 / SHADOW_SAMPLES as f64
+                    .find(|c| occludes(c))
+                    .copied()
+            };
+            if hit.is_some() {
+                last = hit;
+                hidden |= 1 << k;
+            }
+        }
+        hidden
     }
 
     /// Shaded colour of albedo `albedo` with unit normal `n` under shadow fraction `f`, seen

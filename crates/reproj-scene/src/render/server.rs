@@ -11,7 +11,7 @@ use super::{
 };
 use crate::error::{Result, SceneError};
 use crate::math::{normalize, V3};
-use crate::scene::{Scene, Snapshot, Variant};
+use crate::scene::{shadow_fraction, Occluders, Scene, Snapshot, Variant};
 use crate::shape::Shape;
 
 /// Where the material point `x` (seen on `obj`, triangle or face `face`, in `key`) is in
@@ -49,12 +49,15 @@ fn quantise(f: f64) -> u32 {
 
 /// Bitfield and `S_min`/`S_max` of the pixel-centre sample `s` following its material point over
 /// `subs` (the snapshots at subframes `1..S`; subframe 0 is the key); `S_min`/`S_max` re-shade the
-/// pixel's colour sub-samples `fp` on the centre's surface at the extreme levels.
+/// pixel's colour sub-samples `fp` on the centre's surface at the extreme levels. `still`: for a
+/// point on a still object under a still light, the shadow rays that still objects block (the
+/// same at every instant), so that only the moving objects are traced per subframe.
 fn shadow_field(
     key: &Snapshot<'_>,
     subs: &[Snapshot<'_>],
     s: &Sample,
     fp: &[SubSample],
+    still: Option<u32>,
 ) -> (u32, [u8; 3], [u8; 3]) {
     let (Some(obj), Some(m)) = (s.obj, material(key, s)) else {
         return (0, [0; 3], [0; 3]);
@@ -63,7 +66,12 @@ fn shadow_field(
     let (mut bits, mut lmin, mut lmax) = (l0, l0, l0);
     for (j, sub) in subs.iter().enumerate() {
         let (xj, nj) = carry(key, sub, obj, s.face, s.x, s.n_obj, s.normal);
-        let level = quantise(sub.shadow(obj, xj, nj));
+        let level = quantise(match still {
+            Some(known) => {
+                shadow_fraction(sub.blocked_rays(obj, xj, nj, Occluders::Moving, Some(known)))
+            }
+            None => sub.shadow(obj, xj, nj),
+        });
         bits |= level << (2 * (j + 1));
         lmin = lmin.min(level);
         lmax = lmax.max(level);
@@ -117,6 +125,11 @@ pub fn render_server(
     let bwd: Vec<Snapshot<'_>> = (1..subframes)
         .map(|j| scene.at(t - step * j as f64))
         .collect();
+    // With the light the same at every subframe, a point on a still object casts the same shadow
+    // rays at every instant, and the still objects block the same ones (see
+    // `Snapshot::blocked_rays`): they are traced once per pixel instead of once per instant.
+    let share =
+        scene.variant == Variant::Dynamic && fwd.iter().chain(&bwd).all(|s| key.same_light(s));
     let blocks: Vec<CameraBuffers> = (0..h.div_ceil(BLOCK_ROWS))
         .into_par_iter()
         .map(|b| {
@@ -127,7 +140,24 @@ pub fn render_server(
                 for i in 0..w {
                     let k = r * w + i;
                     let j = b * BLOCK_ROWS + r;
-                    let s = sample(&key, &rays, i, j, true);
+                    let mut s = sample(&key, &rays, i, j, false);
+                    let mut still = None;
+                    if let Some(obj) = s.obj {
+                        let (x, n) = (s.x, s.normal);
+                        s.shadow = if share && !scene.moves(obj) {
+                            let known = key.blocked_rays(obj, x, n, Occluders::Still, None);
+                            still = Some(known);
+                            shadow_fraction(key.blocked_rays(
+                                obj,
+                                x,
+                                n,
+                                Occluders::Moving,
+                                Some(known),
+                            ))
+                        } else {
+                            key.shadow(obj, x, n)
+                        };
+                    }
                     footprint(&key, &rays, (i, j), n, &s, &mut fp);
                     blk.color[3 * k..3 * k + 3].copy_from_slice(&pixel_color(&fp));
                     let Some(obj) = s.obj else {
@@ -149,7 +179,7 @@ pub fn render_server(
                         }
                     }
                     for (subs, sb) in [(&fwd, &mut blk.shadow_fwd), (&bwd, &mut blk.shadow_bwd)] {
-                        let (bf, mn, mx) = shadow_field(&key, subs, &s, &fp);
+                        let (bf, mn, mx) = shadow_field(&key, subs, &s, &fp, still);
                         sb.bits[k] = bf;
                         sb.s_min[3 * k..3 * k + 3].copy_from_slice(&mn);
                         sb.s_max[3 * k..3 * k + 3].copy_from_slice(&mx);
