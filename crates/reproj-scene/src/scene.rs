@@ -35,22 +35,13 @@ pub(crate) fn shadow_fraction(hidden: u32) -> f64 {
 
 /// Which occluders [`Snapshot::blocked_rays`] traces against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Occluders {
+pub(crate) enum Occluders<'c> {
     All,
     /// Objects that do not move (the same at every instant).
     Still,
-    /// Objects that move.
-    Moving,
-}
-
-impl Occluders {
-    fn includes(self, moves: bool) -> bool {
-        match self {
-            Occluders::All => true,
-            Occluders::Still => !moves,
-            Occluders::Moving => moves,
-        }
-    }
+    /// These moving objects (a superset of those that can shadow the point, see
+    /// [`Snapshot::movers_near`]).
+    Moving(&'c [usize]),
 }
 
 /// One object: a shape with a material, placed in its parent's frame and animated.
@@ -349,6 +340,8 @@ pub(crate) struct Snapshot<'a> {
     cull: ShadowCull,
     /// The shadow-casting objects that move.
     moving_casters: Vec<usize>,
+    /// Per object: the shadow rays' directions (`samples`) in its object space.
+    samples_obj: Vec<[V3; SHADOW_SAMPLES]>,
 }
 
 /// A conservative pre-selection for the shadow cull, built once per instant.
@@ -453,14 +446,7 @@ impl ShadowCull {
             return;
         }
         let eps = 1e-6 * (self.size + ext);
-        let may = |i: usize| {
-            let q = &self.proj[i];
-            let (du, dv) = (q[0] - p[0], q[1] - p[1]);
-            let bound = (spheres[i].1 + s * (q[2] - p[2]).abs()) * k + eps;
-            // Rejects only on a definite answer (a NaN keeps the object, as the exact test would
-            // have to decide).
-            (du * du + dv * dv).partial_cmp(&(bound * bound)) != Some(std::cmp::Ordering::Greater)
-        };
+        let may = |i: usize| may_shadow(&self.proj[i], spheres[i].1, &p, (s, k), eps);
         for &i in &self.big {
             if may(i) {
                 visit(i);
@@ -478,6 +464,26 @@ impl ShadowCull {
             }
         }
     }
+}
+
+/// The pre-selection of [`ShadowCull`] for one sphere: whether a sphere of radius `r` whose
+/// centre has the coordinates `q` across and along the light may shadow the point with the
+/// coordinates `p`, with `(s, k)` and `eps` as there.
+#[inline]
+fn may_shadow(q: &V3, r: f64, p: &V3, (s, k): (f64, f64), eps: f64) -> bool {
+    let (du, dv) = (q[0] - p[0], q[1] - p[1]);
+    let bound = (r + s * (q[2] - p[2]).abs()) * k + eps;
+    // Rejects only on a definite answer (a NaN keeps the object, as the exact test would have to
+    // decide).
+    (du * du + dv * dv).partial_cmp(&(bound * bound)) != Some(std::cmp::Ordering::Greater)
+}
+
+/// The moving shadow casters over several instants with one light, each with a sphere that
+/// holds its bounding spheres at all of them ([`Snapshot::swept_casters`]).
+pub(crate) struct SweptCasters {
+    /// Per moving caster: its index, the coordinates of the sphere's centre across and along the
+    /// light (as in [`ShadowCull`]) and the sphere's radius.
+    casters: Vec<(usize, V3, f64)>,
 }
 
 impl<'a> Snapshot<'a> {
@@ -530,9 +536,12 @@ impl<'a> Snapshot<'a> {
         let moving_casters = (0..world.len())
             .filter(|&i| scene.objects[i].casts_shadow && scene.moves(i))
             .collect();
+        let samples = scene.light.samples(light);
+        let samples_obj = inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
         Snapshot {
             cull,
             moving_casters,
+            samples_obj,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
             scene,
@@ -542,7 +551,7 @@ impl<'a> Snapshot<'a> {
             bvh,
             posed,
             light,
-            samples: scene.light.samples(light),
+            samples,
         }
     }
 
@@ -649,6 +658,55 @@ impl<'a> Snapshot<'a> {
         self.light.map(f64::to_bits) == other.light.map(f64::to_bits)
     }
 
+    /// The moving shadow casters over this instant and `others` (all with this light, see
+    /// [`Snapshot::same_light`]), each with a sphere around its bounding spheres at every one.
+    pub(crate) fn swept_casters(&self, others: &[&Snapshot<'_>]) -> SweptCasters {
+        let (e1, e2, l) = (self.cull.e1, self.cull.e2, self.light);
+        let casters = self
+            .moving_casters
+            .iter()
+            .map(|&i| {
+                let (c, r) = self.spheres[i];
+                let r = others.iter().fold(r, |m, o| {
+                    let (cj, rj) = o.spheres[i];
+                    m.max(length(sub(cj, c)) + rj)
+                });
+                (i, [dot(c, e1), dot(c, e2), dot(c, l)], r)
+            })
+            .collect();
+        SweptCasters { casters }
+    }
+
+    /// Into `out` (cleared first): the casters of `swept` that may shadow the point `x` at any of
+    /// its instants, a superset of those that [`Snapshot::blocked_rays`] would keep at each.
+    ///
+    /// The sphere `(C, R)` holds the sphere `(c, r)` of every instant, with `δ = |c − C|`,
+    /// `r + δ ≤ R`; [`ShadowCull`]'s bound for `(c, r)` is then at most the bound for `(C, R)`
+    /// less `δ` (the factor `1 / (1 − s)` exceeds 1), and `c`'s distance from the light's line
+    /// through `x` is at least `C`'s less `δ`, so a caster the bound rejects for `(C, R)` is
+    /// rejected for every `(c, r)`, and the exact tests reject it too.
+    pub(crate) fn movers_near(&self, swept: &SweptCasters, x: V3, out: &mut Vec<usize>) {
+        out.clear();
+        let p = [
+            dot(x, self.cull.e1),
+            dot(x, self.cull.e2),
+            dot(x, self.light),
+        ];
+        let Some(sk) = self.cull.s.filter(|_| p.iter().all(|c| c.is_finite())) else {
+            out.extend(swept.casters.iter().map(|c| c.0));
+            return;
+        };
+        let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+        let eps = 1e-6 * (self.cull.size + ext);
+        out.extend(
+            swept
+                .casters
+                .iter()
+                .filter(|(_, q, r)| may_shadow(q, *r, &p, sk, eps))
+                .map(|c| c.0),
+        );
+    }
+
     /// The shadow rays of [`Snapshot::shadow`] that are hidden, one bit per disc sample (bit
     /// `k` for sample `k`): those below the tangent plane and those that an occluder among
     /// `which` blocks. Rays already in `known` are not traced again (and are in the result).
@@ -664,7 +722,7 @@ impl<'a> Snapshot<'a> {
         obj: usize,
         x: V3,
         n: V3,
-        which: Occluders,
+        which: Occluders<'_>,
         known: Option<u32>,
     ) -> u32 {
         let l = self.light;
@@ -719,10 +777,11 @@ impl<'a> Snapshot<'a> {
             }
         };
         match which {
-            // The moving casters are few: the exact tests alone, without the cull's window.
-            Occluders::Moving => self.moving_casters.iter().for_each(|&i| consider(i)),
-            _ => self.cull.visit(x, l, ext, &self.spheres, |i| {
-                if which.includes(self.scene.moves(i)) {
+            // A short list: the exact tests alone, without the cull's window.
+            Occluders::Moving(list) => list.iter().for_each(|&i| consider(i)),
+            Occluders::All => self.cull.visit(x, l, ext, &self.spheres, consider),
+            Occluders::Still => self.cull.visit(x, l, ext, &self.spheres, |i| {
+                if !self.scene.moves(i) {
                     consider(i);
                 }
             }),
@@ -733,11 +792,12 @@ impl<'a> Snapshot<'a> {
         // The candidate that blocked the previous ray (neighbouring rays of the disc mostly meet
         // the same occluder) is tried first.
         let mut last: Option<(usize, V3)> = None;
-        for (k, &s) in self.samples.iter().enumerate() {
+        for k in 0..SHADOW_SAMPLES {
             if hidden & (1 << k) != 0 {
                 continue;
             }
-            let occludes = |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.inv[i].vector(s));
+            let occludes =
+                |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.samples_obj[i][k]);
             let hit = if last.as_ref().is_some_and(occludes) {
                 last
             } else {

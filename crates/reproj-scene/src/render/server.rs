@@ -51,13 +51,14 @@ fn quantise(f: f64) -> u32 {
 /// `subs` (the snapshots at subframes `1..S`; subframe 0 is the key); `S_min`/`S_max` re-shade the
 /// pixel's colour sub-samples `fp` on the centre's surface at the extreme levels. `still`: for a
 /// point on a still object under a still light, the shadow rays that still objects block (the
-/// same at every instant), so that only the moving objects are traced per subframe.
+/// same at every instant) and the moving casters that may shadow it at some instant, so that
+/// only those are traced per subframe.
 fn shadow_field(
     key: &Snapshot<'_>,
     subs: &[Snapshot<'_>],
     s: &Sample,
     fp: &[SubSample],
-    still: Option<u32>,
+    still: Option<(u32, &[usize])>,
 ) -> (u32, [u8; 3], [u8; 3]) {
     let (Some(obj), Some(m)) = (s.obj, material(key, s)) else {
         return (0, [0; 3], [0; 3]);
@@ -67,8 +68,10 @@ fn shadow_field(
     for (j, sub) in subs.iter().enumerate() {
         let (xj, nj) = carry(key, sub, obj, s.face, s.x, s.n_obj, s.normal);
         let level = quantise(match still {
-            Some(known) => {
-                shadow_fraction(sub.blocked_rays(obj, xj, nj, Occluders::Moving, Some(known)))
+            Some((known, [])) => shadow_fraction(known),
+            Some((known, movers)) => {
+                let near = Occluders::Moving(movers);
+                shadow_fraction(sub.blocked_rays(obj, xj, nj, near, Some(known)))
             }
             None => sub.shadow(obj, xj, nj),
         });
@@ -127,15 +130,19 @@ pub fn render_server(
         .collect();
     // With the light the same at every subframe, a point on a still object casts the same shadow
     // rays at every instant, and the still objects block the same ones (see
-    // `Snapshot::blocked_rays`): they are traced once per pixel instead of once per instant.
-    let share =
-        scene.variant == Variant::Dynamic && fwd.iter().chain(&bwd).all(|s| key.same_light(s));
+    // `Snapshot::blocked_rays`): they are traced once per pixel instead of once per instant. The
+    // moving casters that may shadow the point at some instant are found once per pixel too,
+    // from spheres around their bounding spheres at all of them (`Snapshot::movers_near`).
+    let others: Vec<&Snapshot<'_>> = fwd.iter().chain(&bwd).collect();
+    let swept = (scene.variant == Variant::Dynamic && others.iter().all(|s| key.same_light(s)))
+        .then(|| key.swept_casters(&others));
     let blocks: Vec<CameraBuffers> = (0..h.div_ceil(BLOCK_ROWS))
         .into_par_iter()
         .map(|b| {
             let rows = BLOCK_ROWS.min(h - b * BLOCK_ROWS);
             let mut blk = CameraBuffers::zeroed(w, rows);
             let mut fp = Vec::with_capacity(n * n);
+            let mut movers = Vec::new();
             for r in 0..rows {
                 for i in 0..w {
                     let k = r * w + i;
@@ -144,16 +151,16 @@ pub fn render_server(
                     let mut still = None;
                     if let Some(obj) = s.obj {
                         let (x, n) = (s.x, s.normal);
-                        s.shadow = if share && !scene.moves(obj) {
+                        s.shadow = if let (Some(swept), false) = (&swept, scene.moves(obj)) {
                             let known = key.blocked_rays(obj, x, n, Occluders::Still, None);
+                            key.movers_near(swept, x, &mut movers);
                             still = Some(known);
-                            shadow_fraction(key.blocked_rays(
-                                obj,
-                                x,
-                                n,
-                                Occluders::Moving,
-                                Some(known),
-                            ))
+                            shadow_fraction(if movers.is_empty() {
+                                known
+                            } else {
+                                let near = Occluders::Moving(&movers);
+                                key.blocked_rays(obj, x, n, near, Some(known))
+                            })
                         } else {
                             key.shadow(obj, x, n)
                         };
@@ -179,7 +186,8 @@ pub fn render_server(
                         }
                     }
                     for (subs, sb) in [(&fwd, &mut blk.shadow_fwd), (&bwd, &mut blk.shadow_bwd)] {
-                        let (bf, mn, mx) = shadow_field(&key, subs, &s, &fp, still);
+                        let (bf, mn, mx) =
+                            shadow_field(&key, subs, &s, &fp, still.map(|k| (k, &movers[..])));
                         sb.bits[k] = bf;
                         sb.s_min[3 * k..3 * k + 3].copy_from_slice(&mn);
                         sb.s_max[3 * k..3 * k + 3].copy_from_slice(&mx);
