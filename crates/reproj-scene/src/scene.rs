@@ -555,6 +555,11 @@ impl<'a> Snapshot<'a> {
         }
     }
 
+    /// Object `i`'s world bounding sphere at this instant.
+    pub(crate) fn sphere(&self, i: usize) -> (V3, f64) {
+        self.spheres[i]
+    }
+
     /// Object `i`'s shape at this instant.
     pub fn shape(&self, i: usize) -> &Shape {
         self.posed[i]

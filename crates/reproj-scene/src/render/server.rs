@@ -6,8 +6,8 @@ use rayon::prelude::*;
 use reproj_core::{Camera, CameraBuffers};
 
 use super::{
-    camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample, Sample,
-    ServerBuffers, SubSample, BLOCK_ROWS,
+    camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample_ray, EyeTiles,
+    Sample, ServerBuffers, SubSample, BLOCK_ROWS,
 };
 use crate::error::{Result, SceneError};
 use crate::math::{normalize, V3};
@@ -120,6 +120,7 @@ pub fn render_server(
     let rays = camera_rays(camera, "server")?;
     let (w, h) = (camera.width, camera.height);
     let key = scene.at(t);
+    let eye = EyeTiles::new(&key, camera, &rays);
     let (next, prev) = (scene.at(t + interval), scene.at(t - interval));
     let step = interval / subframes as f64;
     let fwd: Vec<Snapshot<'_>> = (1..subframes)
@@ -147,7 +148,8 @@ pub fn render_server(
                 for i in 0..w {
                     let k = r * w + i;
                     let j = b * BLOCK_ROWS + r;
-                    let mut s = sample(&key, &rays, i, j, false);
+                    let eye_px = eye.as_ref().map(|e| (e, (i, j)));
+                    let mut s = sample_ray(&key, &rays, rays.ray(i, j), false, eye_px);
                     let mut still = None;
                     if let Some(obj) = s.obj {
                         let (x, n) = (s.x, s.normal);
@@ -165,7 +167,7 @@ pub fn render_server(
                             key.shadow(obj, x, n)
                         };
                     }
-                    footprint(&key, &rays, (i, j), n, &s, &mut fp);
+                    footprint(&key, &rays, eye.as_ref(), (i, j), n, &s, &mut fp);
                     blk.color[3 * k..3 * k + 3].copy_from_slice(&pixel_color(&fp));
                     let Some(obj) = s.obj else {
                         continue; // Sky: Z = 0, zero motion, no dynamic shadow.

@@ -1,0 +1,162 @@
+//! Primary rays without the scene BVH: per screen tile, the objects whose bounding spheres the
+//! tile's rays can reach, nearest first ([`EyeTiles`], [`Snapshot::trace_eye`]).
+//!
+//! Every primary ray of a camera leaves its centre, so an object's place relative to the rays is
+//! known once per camera: the objects a tile's cone of rays can meet are listed once per tile,
+//! sorted by the distance to their bounding spheres, and a ray tests them in that order until the
+//! next sphere lies beyond its nearest hit so far. That finds the same nearest distance as the
+//! BVH; which object wins a tie (two objects at exactly the same distance) depends on the order
+//! they are tested in, so a ray that meets one falls back to [`Snapshot::trace`], whose order
+//! decides, and the answer is the BVH's in every case.
+
+use reproj_core::Camera;
+
+use super::Rays;
+use crate::math::{dot, length, normalize, sub, V3};
+use crate::scene::{Hit, Snapshot};
+use crate::shape::Partial;
+
+/// Pixels per tile side.
+const TILE: usize = 8;
+
+/// Per screen tile of one camera at one instant, the objects its rays may meet.
+pub(crate) struct EyeTiles {
+    /// Tiles per row.
+    cols: usize,
+    /// Per tile (row-major): `(nearest distance of the object's bounding sphere from the camera
+    /// centre, less a margin, object)`, nearest first.
+    lists: Vec<Vec<(f64, usize)>>,
+    /// Per object: the camera centre in its object space.
+    origin_obj: Vec<V3>,
+}
+
+impl EyeTiles {
+    /// The tiles of `camera` (whose rays are `rays`) at the instant `snap`; `None` where the
+    /// camera's geometry is not finite (the BVH then serves every ray).
+    pub(crate) fn new(snap: &Snapshot<'_>, camera: &Camera, rays: &Rays) -> Option<EyeTiles> {
+        let inv_vp = camera.view_proj().inverse()?;
+        let o = rays.origin;
+        let (w, h) = (rays.width, rays.height);
+        // The unit direction through the point `(px, py)` in pixels (edges at integers).
+        let dir = |px: usize, py: usize| {
+            let x = 2.0 * px as f64 / w as f64 - 1.0;
+            let y = 1.0 - 2.0 * py as f64 / h as f64;
+            let q = inv_vp.mul_vec([x, y, 1.0, 1.0]);
+            normalize(sub([q[0] / q[3], q[1] / q[3], q[2] / q[3]], o))
+        };
+        let (cols, rows) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let n = snap.world.len();
+        let spheres: Vec<(V3, f64, f64)> = (0..n)
+            .map(|i| {
+                let (c, r) = snap.sphere(i);
+                let v = sub(c, o);
+                (v, length(v), r)
+            })
+            .collect();
+        let size = spheres.iter().fold(
+            o.iter().fold(1.0f64, |m, c| m.max(c.abs())),
+            |m, &(_, d, r)| m.max(d + r),
+        );
+        let eps = 1e-9 * size;
+        let mut lists = Vec::with_capacity(cols * rows);
+        for ty in 0..rows {
+            for tx in 0..cols {
+                let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                let (y0, y1) = (ty * TILE, ((ty + 1) * TILE).min(h));
+                let corners = [dir(x0, y0), dir(x1, y0), dir(x0, y1), dir(x1, y1)];
+                let axis = normalize(
+                    corners
+                        .iter()
+                        .fold([0.0; 3], |a, c| crate::math::add(a, *c)),
+                );
+                // Every ray through the tile lies in the cone around `axis` through its corners
+                // (the directions within an angle of `axis` meet the image plane in a convex set).
+                let cone = corners
+                    .iter()
+                    .map(|c| dot(*c, axis).clamp(-1.0, 1.0).acos())
+                    .fold(0.0f64, f64::max);
+                if !cone.is_finite() || !axis.iter().all(|a| a.is_finite()) {
+                    return None;
+                }
+                let mut list: Vec<(f64, usize)> = Vec::new();
+                for (i, &(v, dist, r)) in spheres.iter().enumerate() {
+                    let near = (dist - r) * (1.0 - 1e-6) - eps;
+                    // A sphere that holds the centre (or nearly) is met by any ray.
+                    let keep = if !(dist > r * (1.0 + 1e-6) + eps) {
+                        true
+                    } else {
+                        let gamma = (dot(v, axis) / dist).clamp(-1.0, 1.0).acos();
+                        let reach = (r / dist).min(1.0).asin();
+                        !(gamma > cone + reach + 1e-6)
+                    };
+                    if keep {
+                        list.push((near.max(0.0), i));
+                    }
+                }
+                list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                lists.push(list);
+            }
+        }
+        let origin_obj = snap.inv.iter().map(|m| m.point(o)).collect();
+        Some(EyeTiles {
+            cols,
+            lists,
+            origin_obj,
+        })
+    }
+}
+
+impl Snapshot<'_> {
+    /// [`Snapshot::trace`] of the primary ray `d` through pixel `(i, j)` (or a sub-sample of it)
+    /// from the camera of `eye`, the same answer (see the module documentation).
+    pub(crate) fn trace_eye(
+        &self,
+        eye: &EyeTiles,
+        (i, j): (usize, usize),
+        o: V3,
+        d: V3,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<Hit> {
+        let dn = length(d);
+        let list = &eye.lists[(j / TILE) * eye.cols + i / TILE];
+        if !(dn > 0.0 && dn.is_finite()) {
+            return self.trace(o, d, tmin, tmax);
+        }
+        let mut best: Option<(usize, V3, V3, Partial)> = None;
+        let mut limit = tmax;
+        // The distance of a hit at exactly the nearest distance so far, from another object.
+        let mut tie = f64::NAN;
+        for &(near, obj) in list {
+            // Every hit inside the sphere is at least `near` from the centre.
+            if near > limit * dn * (1.0 + 1e-9) {
+                break;
+            }
+            let (lo, ld) = (eye.origin_obj[obj], self.inv[obj].vector(d));
+            // Up to and including the nearest distance so far (a positive finite number), to see
+            // ties.
+            let up = match best {
+                Some(_) => limit.next_up(),
+                None => tmax,
+            };
+            if let Some(p) = self.shape(obj).intersect_t(lo, ld, tmin, up) {
+                if p.t() < limit {
+                    limit = p.t();
+                    best = Some((obj, lo, ld, p));
+                } else {
+                    tie = p.t();
+                }
+            }
+        }
+        if tie == limit {
+            return self.trace(o, d, tmin, tmax);
+        }
+        let (obj, lo, ld, p) = best?;
+        let local = self.shape(obj).finish(lo, ld, p);
+        Some(Hit {
+            obj,
+            t: local.t,
+            local,
+        })
+    }
+}
