@@ -28,6 +28,10 @@ pub(crate) struct EyeTiles {
     lists: Vec<Vec<(f64, usize)>>,
     /// Per object: the camera centre in its object space.
     origin_obj: Vec<V3>,
+    /// Per object: its bounding sphere's centre relative to the camera centre `v`, and the
+    /// squared bound on a ray's distance from it, over `|d|²` ([`EyeTiles::new`]); `None` where
+    /// the camera centre is inside the sphere (or about).
+    spheres: Vec<Option<(V3, f64)>>,
 }
 
 impl EyeTiles {
@@ -98,10 +102,21 @@ impl EyeTiles {
             }
         }
         let origin_obj = snap.inv.iter().map(|m| m.point(o)).collect();
+        // A ray `o + t·d` passes the sphere at the distance `√(|v|²|d|² − (v·d)²) / |d|` from its
+        // centre; the bound keeps a relative margin on `r²` and one of `10⁻⁹·|v|²` against the
+        // cancellation in that difference, so that only rays that surely miss are skipped.
+        let spheres = spheres
+            .iter()
+            .map(|&(v, dist, r)| {
+                (dist > r * (1.0 + 1e-6) + eps)
+                    .then(|| (v, r * r * (1.0 + 1e-6) + 1e-9 * dist * dist + eps * eps))
+            })
+            .collect();
         Some(EyeTiles {
             cols,
             lists,
             origin_obj,
+            spheres,
         })
     }
 }
@@ -119,6 +134,7 @@ impl Snapshot<'_> {
         tmax: f64,
     ) -> Option<Hit> {
         let dn = length(d);
+        let dd = dot(d, d);
         let list = &eye.lists[(j / TILE) * eye.cols + i / TILE];
         if !(dn > 0.0 && dn.is_finite()) {
             return self.trace(o, d, tmin, tmax);
@@ -131,6 +147,14 @@ impl Snapshot<'_> {
             // Every hit inside the sphere is at least `near` from the centre.
             if near > limit * dn * (1.0 + 1e-9) {
                 break;
+            }
+            if let Some((v, bound)) = eye.spheres[obj] {
+                // Skip a sphere behind the camera centre or wide of the ray (the bound's margins
+                // keep every ray that could touch it).
+                let b = dot(v, d);
+                if b < 0.0 || dot(v, v) * dd - b * b > bound * dd {
+                    continue;
+                }
             }
             let (lo, ld) = (eye.origin_obj[obj], self.inv[obj].vector(d));
             // Up to and including the nearest distance so far (a positive finite number), to see
