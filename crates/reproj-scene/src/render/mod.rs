@@ -24,7 +24,8 @@
 //! neither.
 //!
 //! Shadow rays are most of the render time (32 per shadow evaluation, `2S − 1` evaluations per
-//! server pixel), and a soft shadow varies slowly across one pixel, so sub-samples do not shoot
+//! server pixel; on a still surface under a still light the still occluders are traced once for
+//! all of them and only the moving ones per instant, see `server.rs`), and a soft shadow varies slowly across one pixel, so sub-samples do not shoot
 //! their own: a sub-sample on the centre's surface (same object, normal within ~25°) takes the
 //! centre's shadow fraction, and the quantised levels of `S_min`/`S_max` are applied to exactly
 //! those sub-samples. A sub-sample on another surface (a silhouette, a box edge) takes the
@@ -38,7 +39,8 @@
 //! This file holds what both passes share: the buffer types, the camera rays, what one pixel or
 //! colour sub-sample sees and the colour filter; `server.rs` the server-buffer pass
 //! ([`render_server`]), `truth.rs` the ground-truth pass ([`render_ground_truth`],
-//! [`render_shadow_fraction`]), `tests.rs` the unit tests.
+//! [`render_shadow_fraction`]), `eye.rs` the primary rays' per-tile object lists (the same hits
+//! as the scene BVH, found faster), `tests.rs` the unit tests.
 
 mod eye;
 mod server;
