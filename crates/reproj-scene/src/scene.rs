@@ -615,13 +615,18 @@ impl<'a> Snapshot<'a> {
                 None => f32::INFINITY,
             }
         });
-        let (obj, lo, ld, p) = best?;
+        Some(self.finish_hit(best?))
+    }
+
+    /// The hit of a closest-hit search's winner: its object, the ray in its object space and
+    /// what its distance came with (the normal and texture coordinates, for the winner only).
+    pub(crate) fn finish_hit(&self, (obj, lo, ld, p): (usize, V3, V3, Partial)) -> Hit {
         let local = self.shape(obj).finish(lo, ld, p);
-        Some(Hit {
+        Hit {
             obj,
             t: local.t,
             local,
-        })
+        }
     }
 
     /// The distance from `x` to object `i`'s bounding-sphere centre, or `None` where the

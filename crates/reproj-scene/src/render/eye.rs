@@ -176,13 +176,7 @@ impl Snapshot<'_> {
         if tie == limit {
             return self.trace(o, d, tmin, tmax);
         }
-        let (obj, lo, ld, p) = best?;
-        let local = self.shape(obj).finish(lo, ld, p);
-        Some(Hit {
-            obj,
-            t: local.t,
-            local,
-        })
+        Some(self.finish_hit(best?))
     }
 }
 
