@@ -22,6 +22,28 @@ use crate::shape::{Partial, Shape};
 /// levels) while a fixed spiral keeps it deterministic.
 pub const SHADOW_SAMPLES: usize = 32;
 
+// One bit per shadow ray in the masks of `Snapshot::blocked_rays`.
+const _: () = assert!(SHADOW_SAMPLES > 0 && SHADOW_SAMPLES <= 32);
+
+/// Every shadow ray of a shading point, as a mask of [`Snapshot::blocked_rays`].
+pub(crate) const ALL_RAYS: u32 = u32::MAX >> (32 - SHADOW_SAMPLES);
+
+/// The shadow fraction of a mask of hidden shadow rays.
+pub(crate) fn shadow_fraction(hidden: u32) -> f64 {
+    hidden.count_ones() as f64 / SHADOW_SAMPLES as f64
+}
+
+/// Which occluders [`Snapshot::blocked_rays`] traces against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Occluders<'c> {
+    All,
+    /// Objects that do not move (the same at every instant).
+    Still,
+    /// These moving objects (a superset of those that can shadow the point, see
+    /// [`Snapshot::movers_near`]).
+    Moving(&'c [usize]),
+}
+
 /// One object: a shape with a material, placed in its parent's frame and animated.
 #[derive(Debug, Clone)]
 pub struct Object {
@@ -316,6 +338,10 @@ pub(crate) struct Snapshot<'a> {
     /// The shadow-casting objects arranged across the light, so each shadow evaluation visits
     /// only those its cone can reach.
     cull: ShadowCull,
+    /// The shadow-casting objects that move.
+    moving_casters: Vec<usize>,
+    /// Per object: the shadow rays' directions (`samples`) in its object space.
+    samples_obj: Vec<[V3; SHADOW_SAMPLES]>,
 }
 
 /// A conservative pre-selection for the shadow cull, built once per instant.
@@ -420,14 +446,7 @@ impl ShadowCull {
             return;
         }
         let eps = 1e-6 * (self.size + ext);
-        let may = |i: usize| {
-            let q = &self.proj[i];
-            let (du, dv) = (q[0] - p[0], q[1] - p[1]);
-            let bound = (spheres[i].1 + s * (q[2] - p[2]).abs()) * k + eps;
-            // Rejects only on a definite answer (a NaN keeps the object, as the exact test would
-            // have to decide).
-            (du * du + dv * dv).partial_cmp(&(bound * bound)) != Some(std::cmp::Ordering::Greater)
-        };
+        let may = |i: usize| may_shadow(&self.proj[i], spheres[i].1, &p, (s, k), eps);
         for &i in &self.big {
             if may(i) {
                 visit(i);
@@ -445,6 +464,26 @@ impl ShadowCull {
             }
         }
     }
+}
+
+/// The pre-selection of [`ShadowCull`] for one sphere: whether a sphere of radius `r` whose
+/// centre has the coordinates `q` across and along the light may shadow the point with the
+/// coordinates `p`, with `(s, k)` and `eps` as there.
+#[inline]
+fn may_shadow(q: &V3, r: f64, p: &V3, (s, k): (f64, f64), eps: f64) -> bool {
+    let (du, dv) = (q[0] - p[0], q[1] - p[1]);
+    let bound = (r + s * (q[2] - p[2]).abs()) * k + eps;
+    // Rejects only on a definite answer (a NaN keeps the object, as the exact test would have to
+    // decide).
+    (du * du + dv * dv).partial_cmp(&(bound * bound)) != Some(std::cmp::Ordering::Greater)
+}
+
+/// The moving shadow casters over several instants with one light, each with a sphere that
+/// holds its bounding spheres at all of them ([`Snapshot::swept_casters`]).
+pub(crate) struct SweptCasters {
+    /// Per moving caster: its index, the coordinates of the sphere's centre across and along the
+    /// light (as in [`ShadowCull`]) and the sphere's radius.
+    casters: Vec<(usize, V3, f64)>,
 }
 
 impl<'a> Snapshot<'a> {
@@ -494,8 +533,15 @@ impl<'a> Snapshot<'a> {
             })
             .collect();
         let cull = ShadowCull::new(&scene.objects, &spheres, light, scene.light.angular_radius);
+        let moving_casters = (0..world.len())
+            .filter(|&i| scene.objects[i].casts_shadow && scene.moves(i))
+            .collect();
+        let samples = scene.light.samples(light);
+        let samples_obj = inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
         Snapshot {
             cull,
+            moving_casters,
+            samples_obj,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
             scene,
@@ -505,8 +551,13 @@ impl<'a> Snapshot<'a> {
             bvh,
             posed,
             light,
-            samples: scene.light.samples(light),
+            samples,
         }
+    }
+
+    /// Object `i`'s world bounding sphere at this instant.
+    pub(crate) fn sphere(&self, i: usize) -> (V3, f64) {
+        self.spheres[i]
     }
 
     /// Object `i`'s shape at this instant.
@@ -564,13 +615,18 @@ impl<'a> Snapshot<'a> {
                 None => f32::INFINITY,
             }
         });
-        let (obj, lo, ld, p) = best?;
+        Some(self.finish_hit(best?))
+    }
+
+    /// The hit of a closest-hit search's winner: its object, the ray in its object space and
+    /// what its distance came with (the normal and texture coordinates, for the winner only).
+    pub(crate) fn finish_hit(&self, (obj, lo, ld, p): (usize, V3, V3, Partial)) -> Hit {
         let local = self.shape(obj).finish(lo, ld, p);
-        Some(Hit {
+        Hit {
             obj,
             t: local.t,
             local,
-        })
+        }
     }
 
     /// The distance from `x` to object `i`'s bounding-sphere centre, or `None` where the
@@ -601,10 +657,104 @@ impl<'a> Snapshot<'a> {
     /// is skipped as an occluder of itself: it cannot block the directions above its own tangent
     /// plane, and skipping it rules out shadow acne.
     pub fn shadow(&self, obj: usize, x: V3, n: V3) -> f64 {
+        shadow_fraction(self.blocked_rays(obj, x, n, Occluders::All, None))
+    }
+
+    /// Whether the shadow rays of a still point are the same rays at `self` and at `other`
+    /// (the same light direction, hence the same disc samples), so that the still objects'
+    /// part of [`Snapshot::blocked_rays`] found at one holds at the other: a still object has
+    /// the same transform at every instant.
+    pub(crate) fn same_light(&self, other: &Snapshot<'_>) -> bool {
+        self.light.map(f64::to_bits) == other.light.map(f64::to_bits)
+    }
+
+    /// The moving shadow casters over this instant and `others` (all with this light, see
+    /// [`Snapshot::same_light`]), each with a sphere around its bounding spheres at every one.
+    pub(crate) fn swept_casters(&self, others: &[&Snapshot<'_>]) -> SweptCasters {
+        let (e1, e2, l) = (self.cull.e1, self.cull.e2, self.light);
+        let casters = self
+            .moving_casters
+            .iter()
+            .map(|&i| {
+                let (c, r) = self.spheres[i];
+                let r = others.iter().fold(r, |m, o| {
+                    let (cj, rj) = o.spheres[i];
+                    m.max(length(sub(cj, c)) + rj)
+                });
+                (i, [dot(c, e1), dot(c, e2), dot(c, l)], r)
+            })
+            .collect();
+        SweptCasters { casters }
+    }
+
+    /// Into `out` (cleared first): the casters of `swept` that may shadow the point `x` at any of
+    /// its instants, a superset of those that [`Snapshot::blocked_rays`] would keep at each.
+    ///
+    /// The sphere `(C, R)` holds the sphere `(c, r)` of every instant, with `δ = |c − C|`,
+    /// `r + δ ≤ R`; [`ShadowCull`]'s bound for `(c, r)` is then at most the bound for `(C, R)`
+    /// less `δ` (the factor `1 / (1 − s)` exceeds 1), and `c`'s distance from the light's line
+    /// through `x` is at least `C`'s less `δ`, so a caster the bound rejects for `(C, R)` is
+    /// rejected for every `(c, r)`, and the exact tests reject it too.
+    pub(crate) fn movers_near(&self, swept: &SweptCasters, x: V3, out: &mut Vec<usize>) {
+        out.clear();
+        let p = [
+            dot(x, self.cull.e1),
+            dot(x, self.cull.e2),
+            dot(x, self.light),
+        ];
+        let Some(sk) = self.cull.s.filter(|_| p.iter().all(|c| c.is_finite())) else {
+            out.extend(swept.casters.iter().map(|c| c.0));
+            return;
+        };
+        let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+        let eps = 1e-6 * (self.cull.size + ext);
+        out.extend(
+            swept
+                .casters
+                .iter()
+                .filter(|(_, q, r)| may_shadow(q, *r, &p, sk, eps))
+                .map(|c| c.0),
+        );
+    }
+
+    /// The shadow rays of [`Snapshot::shadow`] that are hidden, one bit per disc sample (bit
+    /// `k` for sample `k`): those below the tangent plane and those that an occluder among
+    /// `which` blocks. Rays already in `known` are not traced again (and are in the result).
+    ///
+    /// A ray is hidden when any occluder blocks it, so the mask over all occluders is the union
+    /// of the masks over the still and the moving ones, and the order of the tests does not
+    /// change it. Which objects are candidates does not depend on the other objects (the cull
+    /// keeps every object the exact per-object tests keep, see [`ShadowCull`]), so a still
+    /// point's still candidates, and what they block, are the same at every instant with the
+    /// same light.
+    pub(crate) fn blocked_rays(
+        &self,
+        obj: usize,
+        x: V3,
+        n: V3,
+        which: Occluders<'_>,
+        known: Option<u32>,
+    ) -> u32 {
         let l = self.light;
         let (sin_a, cos_a) = self.light_sin_cos;
         if dot(n, l) < -sin_a {
-            return 1.0;
+            return ALL_RAYS;
+        }
+        // `known` holds the rays below the tangent plane already, when it is given.
+        let mut hidden = match known {
+            Some(known) => known,
+            None => {
+                let mut below = 0u32;
+                for (k, s) in self.samples.iter().enumerate() {
+                    if dot(*s, n) <= 0.0 {
+                        below |= 1 << k;
+                    }
+                }
+                below
+            }
+        };
+        if hidden == ALL_RAYS {
+            return hidden;
         }
         // Offset along the normal against acne on meshes, relative to the coordinates' size.
         let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
@@ -614,7 +764,7 @@ impl<'a> Snapshot<'a> {
         let mut candidates = [(0usize, [0.0f64; 3]); 16];
         let mut nc = 0;
         let mut overflow: Vec<(usize, V3)> = Vec::new();
-        self.cull.visit(x, l, ext, &self.spheres, |i| {
+        let mut consider = |i: usize| {
             if i == obj && self.scene.objects[i].shape.is_convex() {
                 return;
             }
@@ -635,39 +785,45 @@ impl<'a> Snapshot<'a> {
             } else {
                 overflow.push(c);
             }
-        });
-        let below = self.samples.iter().filter(|&&s| dot(s, n) <= 0.0).count();
-        if nc == 0 && overflow.is_empty() {
-            return below as f64 / SHADOW_SAMPLES as f64;
+        };
+        match which {
+            // A short list: the exact tests alone, without the cull's window.
+            Occluders::Moving(list) => list.iter().for_each(|&i| consider(i)),
+            Occluders::All => self.cull.visit(x, l, ext, &self.spheres, consider),
+            Occluders::Still => self.cull.visit(x, l, ext, &self.spheres, |i| {
+                if !self.scene.moves(i) {
+                    consider(i);
+                }
+            }),
         }
-        // A ray is blocked when any candidate blocks it, so the order of the tests does not
-        // change the count: the candidate that blocked the previous ray (neighbouring rays of
-        // the disc mostly meet the same occluder) is tried first.
+        if nc == 0 && overflow.is_empty() {
+            return hidden;
+        }
+        // The candidate that blocked the previous ray (neighbouring rays of the disc mostly meet
+        // the same occluder) is tried first.
         let mut last: Option<(usize, V3)> = None;
-        let blocked = self
-            .samples
-            .iter()
-            .filter(|&&s| {
-                if dot(s, n) <= 0.0 {
-                    return true;
-                }
-                let occludes =
-                    |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.inv[i].vector(s));
-                if last.as_ref().is_some_and(occludes) {
-                    return true;
-                }
-                let hit = candidates[..nc]
+        for k in 0..SHADOW_SAMPLES {
+            if hidden & (1 << k) != 0 {
+                continue;
+            }
+            let occludes =
+                |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.samples_obj[i][k]);
+            let hit = if last.as_ref().is_some_and(occludes) {
+                last
+            } else {
+                candidates[..nc]
                     .iter()
                     .chain(&overflow)
                     .filter(|c| Some(c.0) != last.map(|l| l.0))
-                    .find(|c| occludes(c));
-                if hit.is_some() {
-                    last = hit.copied();
-                }
-                hit.is_some()
-            })
-            .count();
-        blocked as f64 / SHADOW_SAMPLES as f64
+                    .find(|c| occludes(c))
+                    .copied()
+            };
+            if hit.is_some() {
+                last = hit;
+                hidden |= 1 << k;
+            }
+        }
+        hidden
     }
 
     /// Shaded colour of albedo `albedo` with unit normal `n` under shadow fraction `f`, seen

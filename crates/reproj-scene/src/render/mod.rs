@@ -24,7 +24,8 @@
 //! neither.
 //!
 //! Shadow rays are most of the render time (32 per shadow evaluation, `2S − 1` evaluations per
-//! server pixel), and a soft shadow varies slowly across one pixel, so sub-samples do not shoot
+//! server pixel; on a still surface under a still light the still occluders are traced once for
+//! all of them and only the moving ones per instant, see `server.rs`), and a soft shadow varies slowly across one pixel, so sub-samples do not shoot
 //! their own: a sub-sample on the centre's surface (same object, normal within ~25°) takes the
 //! centre's shadow fraction, and the quantised levels of `S_min`/`S_max` are applied to exactly
 //! those sub-samples. A sub-sample on another surface (a silhouette, a box edge) takes the
@@ -38,8 +39,10 @@
 //! This file holds what both passes share: the buffer types, the camera rays, what one pixel or
 //! colour sub-sample sees and the colour filter; `server.rs` the server-buffer pass
 //! ([`render_server`]), `truth.rs` the ground-truth pass ([`render_ground_truth`],
-//! [`render_shadow_fraction`]), `tests.rs` the unit tests.
+//! [`render_shadow_fraction`]), `eye.rs` the primary rays' per-tile object lists (the same hits
+//! as the scene BVH, found faster), `tests.rs` the unit tests.
 
+mod eye;
 mod server;
 #[cfg(test)]
 mod tests;
@@ -53,6 +56,7 @@ use crate::error::{Result, SceneError};
 use crate::material::Material;
 use crate::math::{add, normalize, scale, V3};
 use crate::scene::Snapshot;
+use eye::EyeTiles;
 pub use server::render_server;
 pub use truth::{render_ground_truth, render_shadow_fraction};
 
@@ -173,11 +177,18 @@ pub(crate) fn sample(
     j: usize,
     with_shadow: bool,
 ) -> Sample {
-    sample_ray(snap, rays, rays.ray(i, j), with_shadow)
+    sample_ray(snap, rays, rays.ray(i, j), with_shadow, None)
 }
 
-/// What the ray `d` from the camera centre sees.
-fn sample_ray(snap: &Snapshot<'_>, rays: &Rays, d: V3, with_shadow: bool) -> Sample {
+/// What the ray `d` from the camera centre sees; `eye`: the camera's tiles and the pixel `d`
+/// passes through, for the faster search of [`EyeTiles`] (the same hit).
+fn sample_ray(
+    snap: &Snapshot<'_>,
+    rays: &Rays,
+    d: V3,
+    with_shadow: bool,
+    eye: Option<(&EyeTiles, (usize, usize))>,
+) -> Sample {
     let sky = Sample {
         obj: None,
         face: 0,
@@ -191,7 +202,11 @@ fn sample_ray(snap: &Snapshot<'_>, rays: &Rays, d: V3, with_shadow: bool) -> Sam
     // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
     // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
     let far = snap.scene.far / snap.scene.near;
-    let Some(hit) = snap.trace(rays.origin, d, 1.0, far) else {
+    let hit = match eye {
+        Some((tiles, px)) => snap.trace_eye(tiles, px, rays.origin, d, 1.0, far),
+        None => snap.trace(rays.origin, d, 1.0, far),
+    };
+    let Some(hit) = hit else {
         return sky;
     };
     let x = add(rays.origin, scale(d, hit.t));
@@ -256,6 +271,7 @@ struct SubSample {
 fn footprint(
     snap: &Snapshot<'_>,
     rays: &Rays,
+    eye: Option<&EyeTiles>,
     (i, j): (usize, usize),
     n: usize,
     centre: &Sample,
@@ -272,7 +288,8 @@ fn footprint(
                 });
                 continue;
             }
-            let mut s = sample_ray(snap, rays, rays.sub_ray(i, j, a, b, n), false);
+            let d = rays.sub_ray(i, j, a, b, n);
+            let mut s = sample_ray(snap, rays, d, false, eye.map(|e| (e, (i, j))));
             let on_centre = same_surface(centre, &s);
             if on_centre {
                 s.shadow = centre.shadow;

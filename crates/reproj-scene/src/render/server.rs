@@ -6,12 +6,12 @@ use rayon::prelude::*;
 use reproj_core::{Camera, CameraBuffers};
 
 use super::{
-    camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample, Sample,
-    ServerBuffers, SubSample, BLOCK_ROWS,
+    camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample_ray, EyeTiles,
+    Sample, ServerBuffers, SubSample, BLOCK_ROWS,
 };
 use crate::error::{Result, SceneError};
 use crate::math::{normalize, V3};
-use crate::scene::{Scene, Snapshot, Variant};
+use crate::scene::{shadow_fraction, Occluders, Scene, Snapshot, Variant};
 use crate::shape::Shape;
 
 /// Where the material point `x` (seen on `obj`, triangle or face `face`, in `key`) is in
@@ -49,12 +49,16 @@ fn quantise(f: f64) -> u32 {
 
 /// Bitfield and `S_min`/`S_max` of the pixel-centre sample `s` following its material point over
 /// `subs` (the snapshots at subframes `1..S`; subframe 0 is the key); `S_min`/`S_max` re-shade the
-/// pixel's colour sub-samples `fp` on the centre's surface at the extreme levels.
+/// pixel's colour sub-samples `fp` on the centre's surface at the extreme levels. `still`: for a
+/// point on a still object under a still light, the shadow rays that still objects block (the
+/// same at every instant) and the moving casters that may shadow it at some instant, so that
+/// only those are traced per subframe.
 fn shadow_field(
     key: &Snapshot<'_>,
     subs: &[Snapshot<'_>],
     s: &Sample,
     fp: &[SubSample],
+    still: Option<(u32, &[usize])>,
 ) -> (u32, [u8; 3], [u8; 3]) {
     let (Some(obj), Some(m)) = (s.obj, material(key, s)) else {
         return (0, [0; 3], [0; 3]);
@@ -63,7 +67,14 @@ fn shadow_field(
     let (mut bits, mut lmin, mut lmax) = (l0, l0, l0);
     for (j, sub) in subs.iter().enumerate() {
         let (xj, nj) = carry(key, sub, obj, s.face, s.x, s.n_obj, s.normal);
-        let level = quantise(sub.shadow(obj, xj, nj));
+        let level = quantise(match still {
+            Some((known, [])) => shadow_fraction(known),
+            Some((known, movers)) => {
+                let near = Occluders::Moving(movers);
+                shadow_fraction(sub.blocked_rays(obj, xj, nj, near, Some(known)))
+            }
+            None => sub.shadow(obj, xj, nj),
+        });
         bits |= level << (2 * (j + 1));
         lmin = lmin.min(level);
         lmax = lmax.max(level);
@@ -109,6 +120,7 @@ pub fn render_server(
     let rays = camera_rays(camera, "server")?;
     let (w, h) = (camera.width, camera.height);
     let key = scene.at(t);
+    let eye = EyeTiles::new(&key, camera, &rays);
     let (next, prev) = (scene.at(t + interval), scene.at(t - interval));
     let step = interval / subframes as f64;
     let fwd: Vec<Snapshot<'_>> = (1..subframes)
@@ -117,18 +129,45 @@ pub fn render_server(
     let bwd: Vec<Snapshot<'_>> = (1..subframes)
         .map(|j| scene.at(t - step * j as f64))
         .collect();
+    // With the light the same at every subframe, a point on a still object casts the same shadow
+    // rays at every instant, and the still objects block the same ones (see
+    // `Snapshot::blocked_rays`): they are traced once per pixel instead of once per instant. The
+    // moving casters that may shadow the point at some instant are found once per pixel too,
+    // from spheres around their bounding spheres at all of them (`Snapshot::movers_near`).
+    let others: Vec<&Snapshot<'_>> = fwd.iter().chain(&bwd).collect();
+    let swept = (scene.variant == Variant::Dynamic && others.iter().all(|s| key.same_light(s)))
+        .then(|| key.swept_casters(&others));
     let blocks: Vec<CameraBuffers> = (0..h.div_ceil(BLOCK_ROWS))
         .into_par_iter()
         .map(|b| {
             let rows = BLOCK_ROWS.min(h - b * BLOCK_ROWS);
             let mut blk = CameraBuffers::zeroed(w, rows);
             let mut fp = Vec::with_capacity(n * n);
+            let mut movers = Vec::new();
             for r in 0..rows {
                 for i in 0..w {
                     let k = r * w + i;
                     let j = b * BLOCK_ROWS + r;
-                    let s = sample(&key, &rays, i, j, true);
-                    footprint(&key, &rays, (i, j), n, &s, &mut fp);
+                    let eye_px = eye.as_ref().map(|e| (e, (i, j)));
+                    let mut s = sample_ray(&key, &rays, rays.ray(i, j), false, eye_px);
+                    let mut still = None;
+                    if let Some(obj) = s.obj {
+                        let (x, n) = (s.x, s.normal);
+                        s.shadow = if let (Some(swept), false) = (&swept, scene.moves(obj)) {
+                            let known = key.blocked_rays(obj, x, n, Occluders::Still, None);
+                            key.movers_near(swept, x, &mut movers);
+                            still = Some(known);
+                            shadow_fraction(if movers.is_empty() {
+                                known
+                            } else {
+                                let near = Occluders::Moving(&movers);
+                                key.blocked_rays(obj, x, n, near, Some(known))
+                            })
+                        } else {
+                            key.shadow(obj, x, n)
+                        };
+                    }
+                    footprint(&key, &rays, eye.as_ref(), (i, j), n, &s, &mut fp);
                     blk.color[3 * k..3 * k + 3].copy_from_slice(&pixel_color(&fp));
                     let Some(obj) = s.obj else {
                         continue; // Sky: Z = 0, zero motion, no dynamic shadow.
@@ -149,7 +188,8 @@ pub fn render_server(
                         }
                     }
                     for (subs, sb) in [(&fwd, &mut blk.shadow_fwd), (&bwd, &mut blk.shadow_bwd)] {
-                        let (bf, mn, mx) = shadow_field(&key, subs, &s, &fp);
+                        let (bf, mn, mx) =
+                            shadow_field(&key, subs, &s, &fp, still.map(|k| (k, &movers[..])));
                         sb.bits[k] = bf;
                         sb.s_min[3 * k..3 * k + 3].copy_from_slice(&mn);
                         sb.s_max[3 * k..3 * k + 3].copy_from_slice(&mx);

@@ -434,7 +434,13 @@ fn supersampled_flat_colour_equals_the_point_sample() {
                     Shape::Cuboid { .. } | Shape::Quad { .. }
                 );
                 let one_face = (0..n * n).all(|q| {
-                    let s = sample_ray(&snap, &rays, rays.sub_ray(i, j, q % n, q / n, n), false);
+                    let s = sample_ray(
+                        &snap,
+                        &rays,
+                        rays.sub_ray(i, j, q % n, q / n, n),
+                        false,
+                        None,
+                    );
                     s.obj == c.obj && s.face == c.face
                 });
                 if !planar || !one_face {

@@ -5,7 +5,10 @@
 use rayon::prelude::*;
 use reproj_core::Camera;
 
-use super::{camera_rays, check_samples, footprint, pixel_color, sample, Rays, BLOCK_ROWS};
+use super::{
+    camera_rays, check_samples, footprint, pixel_color, sample, sample_ray, EyeTiles, Rays,
+    BLOCK_ROWS,
+};
 use crate::error::Result;
 use crate::scene::Scene;
 
@@ -42,16 +45,12 @@ pub fn render_ground_truth(
     let n = check_samples(samples)?;
     let rays = camera_rays(camera, "client")?;
     let snap = scene.at(t);
+    let eye = EyeTiles::new(&snap, camera, &rays);
     Ok(per_pixel(&rays, |i, j| {
         let mut fp = Vec::with_capacity(n * n);
-        footprint(
-            &snap,
-            &rays,
-            (i, j),
-            n,
-            &sample(&snap, &rays, i, j, true),
-            &mut fp,
-        );
+        let eye_px = eye.as_ref().map(|e| (e, (i, j)));
+        let centre = sample_ray(&snap, &rays, rays.ray(i, j), true, eye_px);
+        footprint(&snap, &rays, eye.as_ref(), (i, j), n, &centre, &mut fp);
         pixel_color(&fp)
     }))
 }

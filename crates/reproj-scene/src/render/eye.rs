@@ -1,0 +1,256 @@
+//! Primary rays without the scene BVH: per screen tile, the objects whose bounding spheres the
+//! tile's rays can reach, nearest first ([`EyeTiles`], [`Snapshot::trace_eye`]).
+//!
+//! Every primary ray of a camera leaves its centre, so an object's place relative to the rays is
+//! known once per camera: the objects a tile's cone of rays can meet are listed once per tile,
+//! sorted by the distance to their bounding spheres, and a ray tests them in that order until the
+//! next sphere lies beyond its nearest hit so far. That finds the same nearest distance as the
+//! BVH; which object wins a tie (two objects at exactly the same distance) depends on the order
+//! they are tested in, so a ray that meets one falls back to [`Snapshot::trace`], whose order
+//! decides, and the answer is the BVH's in every case.
+
+use reproj_core::Camera;
+
+use super::Rays;
+use crate::math::{dot, length, normalize, sub, V3};
+use crate::scene::{Hit, Snapshot};
+use crate::shape::Partial;
+
+/// Pixels per tile side.
+const TILE: usize = 8;
+
+/// Per screen tile of one camera at one instant, the objects its rays may meet.
+pub(crate) struct EyeTiles {
+    /// Tiles per row.
+    cols: usize,
+    /// Per tile (row-major): `(nearest distance of the object's bounding sphere from the camera
+    /// centre, less a margin, object)`, nearest first.
+    lists: Vec<Vec<(f64, usize)>>,
+    /// Per object: the camera centre in its object space.
+    origin_obj: Vec<V3>,
+    /// Per object: its bounding sphere's centre relative to the camera centre `v`, and the
+    /// squared bound on a ray's distance from it, over `|d|²` ([`EyeTiles::new`]); `None` where
+    /// the camera centre is inside the sphere (or about).
+    spheres: Vec<Option<(V3, f64)>>,
+}
+
+impl EyeTiles {
+    /// The tiles of `camera` (whose rays are `rays`) at the instant `snap`; `None` where the
+    /// camera's geometry is not finite (the BVH then serves every ray).
+    pub(crate) fn new(snap: &Snapshot<'_>, camera: &Camera, rays: &Rays) -> Option<EyeTiles> {
+        let inv_vp = camera.view_proj().inverse()?;
+        let o = rays.origin;
+        let (w, h) = (rays.width, rays.height);
+        // The unit direction through the point `(px, py)` in pixels (edges at integers).
+        let dir = |px: usize, py: usize| {
+            let x = 2.0 * px as f64 / w as f64 - 1.0;
+            let y = 1.0 - 2.0 * py as f64 / h as f64;
+            let q = inv_vp.mul_vec([x, y, 1.0, 1.0]);
+            normalize(sub([q[0] / q[3], q[1] / q[3], q[2] / q[3]], o))
+        };
+        let (cols, rows) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let n = snap.world.len();
+        let spheres: Vec<(V3, f64, f64)> = (0..n)
+            .map(|i| {
+                let (c, r) = snap.sphere(i);
+                let v = sub(c, o);
+                (v, length(v), r)
+            })
+            .collect();
+        let size = spheres.iter().fold(
+            o.iter().fold(1.0f64, |m, c| m.max(c.abs())),
+            |m, &(_, d, r)| m.max(d + r),
+        );
+        let eps = 1e-9 * size;
+        let mut lists = Vec::with_capacity(cols * rows);
+        for ty in 0..rows {
+            for tx in 0..cols {
+                let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                let (y0, y1) = (ty * TILE, ((ty + 1) * TILE).min(h));
+                let corners = [dir(x0, y0), dir(x1, y0), dir(x0, y1), dir(x1, y1)];
+                let axis = normalize(
+                    corners
+                        .iter()
+                        .fold([0.0; 3], |a, c| crate::math::add(a, *c)),
+                );
+                // Every ray through the tile lies in the cone around `axis` through its corners
+                // (the directions within an angle of `axis` meet the image plane in a convex set).
+                let cone = corners
+                    .iter()
+                    .map(|c| dot(*c, axis).clamp(-1.0, 1.0).acos())
+                    .fold(0.0f64, f64::max);
+                if !cone.is_finite() || !axis.iter().all(|a| a.is_finite()) {
+                    return None;
+                }
+                let mut list: Vec<(f64, usize)> = Vec::new();
+                for (i, &(v, dist, r)) in spheres.iter().enumerate() {
+                    let near = (dist - r) * (1.0 - 1e-6) - eps;
+                    // A sphere that holds the centre (or nearly) is met by any ray.
+                    let keep = if !(dist > r * (1.0 + 1e-6) + eps) {
+                        true
+                    } else {
+                        let gamma = (dot(v, axis) / dist).clamp(-1.0, 1.0).acos();
+                        let reach = (r / dist).min(1.0).asin();
+                        !(gamma > cone + reach + 1e-6)
+                    };
+                    if keep {
+                        list.push((near.max(0.0), i));
+                    }
+                }
+                list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                lists.push(list);
+            }
+        }
+        let origin_obj = snap.inv.iter().map(|m| m.point(o)).collect();
+        // A ray `o + t·d` passes the sphere at the distance `√(|v|²|d|² − (v·d)²) / |d|` from its
+        // centre; the bound keeps a relative margin on `r²` and one of `10⁻⁹·|v|²` against the
+        // cancellation in that difference, so that only rays that surely miss are skipped.
+        let spheres = spheres
+            .iter()
+            .map(|&(v, dist, r)| {
+                (dist > r * (1.0 + 1e-6) + eps)
+                    .then_some((v, r * r * (1.0 + 1e-6) + 1e-9 * dist * dist + eps * eps))
+            })
+            .collect();
+        Some(EyeTiles {
+            cols,
+            lists,
+            origin_obj,
+            spheres,
+        })
+    }
+}
+
+impl Snapshot<'_> {
+    /// [`Snapshot::trace`] of the primary ray `d` through pixel `(i, j)` (or a sub-sample of it)
+    /// from the camera of `eye`, the same answer (see the module documentation).
+    pub(crate) fn trace_eye(
+        &self,
+        eye: &EyeTiles,
+        (i, j): (usize, usize),
+        o: V3,
+        d: V3,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<Hit> {
+        let dn = length(d);
+        let dd = dot(d, d);
+        let list = &eye.lists[(j / TILE) * eye.cols + i / TILE];
+        // (`tmin ≥ 0` keeps every distance found positive, as `next_up` below needs.)
+        if !(dn > 0.0 && dn.is_finite() && tmin >= 0.0) {
+            return self.trace(o, d, tmin, tmax);
+        }
+        let mut best: Option<(usize, V3, V3, Partial)> = None;
+        let mut limit = tmax;
+        // The distance of a hit at exactly the nearest distance so far, from another object.
+        let mut tie = f64::NAN;
+        for &(near, obj) in list {
+            // Every hit inside the sphere is at least `near` from the centre.
+            if near > limit * dn * (1.0 + 1e-9) {
+                break;
+            }
+            if let Some((v, bound)) = eye.spheres[obj] {
+                // Skip a sphere behind the camera centre or wide of the ray (the bound's margins
+                // keep every ray that could touch it).
+                let b = dot(v, d);
+                if b < 0.0 || dot(v, v) * dd - b * b > bound * dd {
+                    continue;
+                }
+            }
+            let (lo, ld) = (eye.origin_obj[obj], self.inv[obj].vector(d));
+            // Up to and including the nearest distance so far (a positive finite number), to see
+            // ties.
+            let up = match best {
+                Some(_) => next_up(limit),
+                None => tmax,
+            };
+            if let Some(p) = self.shape(obj).intersect_t(lo, ld, tmin, up) {
+                if p.t() < limit {
+                    limit = p.t();
+                    best = Some((obj, lo, ld, p));
+                } else {
+                    tie = p.t();
+                }
+            }
+        }
+        if tie == limit {
+            return self.trace(o, d, tmin, tmax);
+        }
+        Some(self.finish_hit(best?))
+    }
+}
+
+/// The next `f64` above the finite positive `t` (`f64::next_up`, newer than the crate's minimum
+/// Rust version).
+fn next_up(t: f64) -> f64 {
+    f64::from_bits(t.to_bits() + 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::camera_rays;
+    use crate::rig::rig;
+    use crate::scene::{Scene, Variant};
+    use crate::scenes::{builtin, SCENE_NAMES};
+
+    /// For every pixel-centre ray and 2×2 sub-sample ray of a small main camera: the object,
+    /// distance and face that `trace_eye` finds, and how many of them lie on `objs`.
+    fn compare(scene: &Scene, k: usize, objs: &[usize]) -> usize {
+        let cam = rig(
+            &scene.path.server_pose(k, 10.0),
+            48,
+            27,
+            scene.near,
+            scene.far,
+        )
+        .main;
+        let rays = camera_rays(&cam, "test").unwrap();
+        let t = k as f64 / 10.0;
+        let snap = scene.at(t);
+        let eye = EyeTiles::new(&snap, &cam, &rays).unwrap();
+        let far = scene.far / scene.near;
+        let mut on = 0;
+        for j in 0..cam.height {
+            for i in 0..cam.width {
+                let subs = (0..4).map(|q| rays.sub_ray(i, j, q % 2, q / 2, 2));
+                for d in std::iter::once(rays.ray(i, j)).chain(subs) {
+                    let a = snap.trace(rays.origin, d, 1.0, far);
+                    let b = snap.trace_eye(&eye, (i, j), rays.origin, d, 1.0, far);
+                    let key = |h: Option<Hit>| h.map(|h| (h.obj, h.t.to_bits(), h.local.face));
+                    assert_eq!(key(a), key(b), "{} pixel ({i}, {j})", scene.name);
+                    on += usize::from(a.is_some_and(|h| objs.contains(&h.obj)));
+                }
+            }
+        }
+        on
+    }
+
+    #[test]
+    fn tile_lists_find_the_bvh_hit_for_every_primary_ray() {
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for k in [0, 14] {
+                compare(&scene, k, &[]);
+            }
+        }
+    }
+
+    /// Two copies of a house at the same place meet a ray at exactly the same distance: the
+    /// BVH's order decides which is seen, and the tile lists defer to it.
+    #[test]
+    fn exact_ties_are_decided_as_the_bvh_decides_them() {
+        let mut scene = builtin("courtyard", Variant::Static).unwrap();
+        let houses: Vec<usize> = (0..scene.objects.len())
+            .filter(|&i| scene.objects[i].name == "house")
+            .collect();
+        let mut doubled = houses.clone();
+        for &i in &houses {
+            scene.objects.push(scene.objects[i].clone());
+            doubled.push(scene.objects.len() - 1);
+        }
+        scene.refresh().unwrap();
+        let seen: usize = [0, 14].iter().map(|&k| compare(&scene, k, &doubled)).sum();
+        assert!(seen > 0, "no ray met a doubled house");
+    }
+}
