@@ -499,6 +499,7 @@ pub(crate) fn run<'a>(
                     &[]
                 },
                 other: k ^ 1,
+                texel: &pair.sources[k].texel,
                 omega: match s.role {
                     Role::Older => 1.0 - alpha,
                     Role::Newer => alpha,
@@ -638,6 +639,9 @@ struct Palette<'a> {
     partner: &'a [u32],
     /// The source index of the same camera in the other frame (only read through `partner`).
     other: usize,
+    /// Per pixel, its colour with its partner's and what Algorithm 2 does with them (from the
+    /// pair, [`texel`](pair::texel)).
+    texel: &'a [u64],
     /// ω: the weight of the source's own colour when blending.
     omega: f32,
 }

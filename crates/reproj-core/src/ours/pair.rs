@@ -42,6 +42,29 @@ pub(super) struct PairSource {
     pub(super) partner: Vec<u32>,
     /// Auxiliary sources: 1 where the point is visible in main, else 0; empty for main sources.
     pub(super) vis: Vec<u8>,
+    /// What the colour stage reads of each pixel, in one load ([`texel`]): its colour, its
+    /// partner's colour and which of the two Algorithm 2 takes. Without it the stage loaded the
+    /// colour, the shadow bits and the partner of the match, then (depending on the partner) the
+    /// partner's colour and shadow bits: five loads from five arrays, two of them dependent.
+    pub(super) texel: Vec<u64>,
+}
+
+/// [`texel`]: the pixel's own colour alone (no partner, no shadow bits).
+pub(super) const TEXEL_OWN: u8 = 0;
+/// [`texel`]: blended with the partner's colour (no shadow bits on either).
+pub(super) const TEXEL_BLEND: u8 = 1;
+/// [`texel`]: the pixel or its partner carries shadow bits; the colour stage takes the full path
+/// (`Resolve::second_chance`), whose shadows depend on α.
+pub(super) const TEXEL_SHADOW: u8 = 2;
+
+/// The texel of a pixel with colour `own`, its partner's colour `other` (zero without one) and
+/// `kind` ([`TEXEL_OWN`], [`TEXEL_BLEND`] or [`TEXEL_SHADOW`]): bytes `r, g, b, kind, r', g', b', 0`
+/// of a little-endian `u64`.
+#[inline(always)]
+pub(super) fn texel(own: [u8; 3], kind: u8, other: [u8; 3]) -> u64 {
+    u64::from_le_bytes([
+        own[0], own[1], own[2], kind, other[0], other[1], other[2], 0,
+    ])
 }
 
 /// What a [`PairCache`]'s contents depend on.
@@ -62,6 +85,8 @@ struct SourceKey {
     view_proj: [[f64; 4]; 4],
     size: [usize; 2],
     buffers: [usize; 4],
+    /// The colour and shadow-bit buffers' addresses and lengths (the texels copy them).
+    colours: [usize; 4],
 }
 
 impl PairKey {
@@ -79,10 +104,14 @@ impl PairKey {
                 .map(|s| {
                     let v = &s.view;
                     let (mp, ml) = v.motion.map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
+                    let (bp, bl) = v
+                        .shadow
+                        .map_or((0, 0), |sh| (sh.bits.as_ptr() as usize, sh.bits.len()));
                     SourceKey {
                         view_proj: v.camera.view_proj().0,
                         size: [s.proj.width, s.proj.height],
                         buffers: [v.depth.as_ptr() as usize, v.depth.len(), mp, ml],
+                        colours: [v.color.as_ptr() as usize, v.color.len(), bp, bl],
                     }
                 })
                 .collect(),
@@ -136,6 +165,10 @@ impl PairCache {
             });
         if !blends {
             self.sources.iter_mut().for_each(|ps| ps.partner.clear());
+            self.sources
+                .par_iter_mut()
+                .zip(sources.par_iter())
+                .for_each(|(ps, s)| texels(s, None, &mut ps.texel));
             return;
         }
         let mut fulls = FULL_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
@@ -184,7 +217,50 @@ impl PairCache {
                 });
         });
         FULL_POOL.with(|p| *p.borrow_mut() = fulls);
+        let mut texel_bufs: Vec<Vec<u64>> = self
+            .sources
+            .iter_mut()
+            .map(|ps| std::mem::take(&mut ps.texel))
+            .collect();
+        let partners: Vec<&[u32]> = self.sources.iter().map(|ps| &ps.partner[..]).collect();
+        texel_bufs
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(k, t)| texels(&sources[k], Some((partners[k], &sources[k ^ 1])), t));
+        for (ps, t) in self.sources.iter_mut().zip(texel_bufs) {
+            ps.texel = t;
+        }
     }
+}
+
+/// The [`texel`] of every pixel of `s`, with its partners `q` in `o` when blending.
+fn texels(s: &Src, blend: Option<(&[u32], &Src)>, out: &mut Vec<u64>) {
+    let sw = s.proj.width;
+    out.resize(sw * s.proj.height, 0);
+    let rgb = |c: &[u8], p: usize| [c[3 * p], c[3 * p + 1], c[3 * p + 2]];
+    let bits = |v: &CameraView, p: usize| v.shadow.is_some_and(|sh| sh.bits[p] != 0);
+    out.par_chunks_mut(TILE * sw)
+        .enumerate()
+        .for_each(|(b, chunk)| {
+            let p0 = b * TILE * sw;
+            for (d, t) in chunk.iter_mut().enumerate() {
+                let p = p0 + d;
+                let own = rgb(s.view.color, p);
+                let shadow = bits(&s.view, p);
+                *t = match blend.map(|(partner, o)| (partner[p], o)) {
+                    Some((q, o)) if q != NO_SPLAT => {
+                        let q = q as usize;
+                        let kind = if shadow || bits(&o.view, q) {
+                            TEXEL_SHADOW
+                        } else {
+                            TEXEL_BLEND
+                        };
+                        texel(own, kind, rgb(o.view.color, q))
+                    }
+                    _ => texel(own, if shadow { TEXEL_SHADOW } else { TEXEL_OWN }, [0; 3]),
+                };
+            }
+        });
 }
 
 /// The full scene flow of every pixel of `src` into the other frame ([`full_flow_row`]).
