@@ -21,8 +21,9 @@
 //!    of neighbouring pixels overlap and the arithmetic vectorises.
 //!
 //! What does not depend on the client pose or α — Algorithm 2's correspondences from the full
-//! scene flows (eqs. 2, 3) with the motion-cancel check, and the auxiliary points' visibility in
-//! main — is computed once per server-frame pair ([`PairCache`], kept in the client's history).
+//! scene flows (eqs. 2, 3) with the motion-cancel check, the auxiliary points' visibility in
+//! main, and each pixel's colour packed with its partner's for the colour stage — is computed once
+//! per server-frame pair ([`PairCache`], kept in the client's history).
 //!
 //! The row loops of pass 1 and of the window filter are written without data-dependent branches
 //! and run in an AVX2 build on processors that have it (no FMA contraction, so the output bytes do

@@ -1,8 +1,8 @@
 //! The pair-level work of `ours` ([`PairCache`]): what does not depend on the client pose or α,
 //! done once per server-frame pair. Algorithm 2's correspondences (seeds/000 §3.1) from the full
 //! scene flows of eqs. 2 and 3, with the motion-cancel and depth checks of §3.5
-//! (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`), and the auxiliary points' visibility in the main camera
-//! (§3.5 rule 2).
+//! (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`), the auxiliary points' visibility in the main camera
+//! (§3.5 rule 2), and the colours Algorithm 2 blends, packed per pixel for the colour stage.
 
 use rayon::prelude::*;
 
@@ -21,9 +21,12 @@ use super::{packed_cell, unpack_pixel, Mode, Src, SrcRow, NO_SPLAT};
 ///   full scene flow (eqs. 2, 3) of each pixel `p` lands on, kept only where the motions cancel
 ///   (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`) and the depths agree (`< ε_z`, `ε_z·4` for the
 ///   auxiliary cameras);
-/// - for the auxiliary cameras, whether each point is visible in the main camera (§3.5 rule 2).
+/// - for the auxiliary cameras, whether each point is visible in the main camera (§3.5 rule 2);
+/// - each pixel's colour beside its partner's colour ([`texel`]), so that the colour stage reads
+///   one value per match.
 ///
-/// The cache recomputes itself when the cameras, the buffers (by address and length) or the
+/// The cache recomputes itself when the cameras, the buffers (depth, motion, colour and shadow
+/// bits, by address and length) or the
 /// parameters it depends on change, so a new pair is never served stale data. A caller that
 /// rewrites the *same* buffers in place with a new frame must reset it
 /// ([`crate::BidirHistory::reset`]).
