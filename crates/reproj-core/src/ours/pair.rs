@@ -237,33 +237,44 @@ impl PairCache {
 }
 
 /// The [`texel`] of every pixel of `s`, with its partners `q` in `o` when blending.
+///
+/// Row by row in three loops, each without a test of which buffers exist: the own colours, then
+/// the partners' colours and kinds, then the own shadow bits (a pixel with shadow bits, its own or
+/// its partner's, takes [`TEXEL_SHADOW`] whatever else the texel holds). One loop per pixel with
+/// those tests inside cost ~90 instructions per pixel, half the pair's other work.
 fn texels(s: &Src, blend: Option<(&[u32], &Src)>, out: &mut Vec<u64>) {
     let sw = s.proj.width;
     out.resize(sw * s.proj.height, 0);
-    let rgb = |c: &[u8], p: usize| [c[3 * p], c[3 * p + 1], c[3 * p + 2]];
-    let bits = |v: &CameraView, p: usize| v.shadow.is_some_and(|sh| sh.bits[p] != 0);
-    out.par_chunks_mut(TILE * sw)
-        .enumerate()
-        .for_each(|(b, chunk)| {
-            let p0 = b * TILE * sw;
-            for (d, t) in chunk.iter_mut().enumerate() {
-                let p = p0 + d;
-                let own = rgb(s.view.color, p);
-                let shadow = bits(&s.view, p);
-                *t = match blend.map(|(partner, o)| (partner[p], o)) {
-                    Some((q, o)) if q != NO_SPLAT => {
-                        let q = q as usize;
-                        let kind = if shadow || bits(&o.view, q) {
-                            TEXEL_SHADOW
-                        } else {
-                            TEXEL_BLEND
-                        };
-                        texel(own, kind, rgb(o.view.color, q))
-                    }
-                    _ => texel(own, if shadow { TEXEL_SHADOW } else { TEXEL_OWN }, [0; 3]),
-                };
+    let own_bits = s.view.shadow.map(|sh| sh.bits);
+    let other = blend.map(|(partner, o)| (partner, o.view.color, o.view.shadow.map(|sh| sh.bits)));
+    out.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
+        let r = j * sw..(j + 1) * sw;
+        let colours = s.view.color[3 * r.start..3 * r.end].chunks_exact(3);
+        for (t, c) in row.iter_mut().zip(colours) {
+            *t = texel([c[0], c[1], c[2]], TEXEL_OWN, [0; 3]);
+        }
+        if let Some((partner, oc, ob)) = other {
+            for (t, &q) in row.iter_mut().zip(&partner[r.clone()]) {
+                if q != NO_SPLAT {
+                    let q = q as usize;
+                    let kind = if ob.is_some_and(|b| b[q] != 0) {
+                        TEXEL_SHADOW
+                    } else {
+                        TEXEL_BLEND
+                    };
+                    *t |= texel([0; 3], kind, [oc[3 * q], oc[3 * q + 1], oc[3 * q + 2]]);
+                }
             }
-        });
+        }
+        if let Some(bits) = own_bits {
+            const KIND: u64 = 0xFF << 24;
+            for (t, &b) in row.iter_mut().zip(&bits[r]) {
+                if b != 0 {
+                    *t = (*t & !KIND) | u64::from(TEXEL_SHADOW) << 24;
+                }
+            }
+        }
+    });
 }
 
 /// The full scene flow of every pixel of `src` into the other frame ([`full_flow_row`]).
