@@ -260,16 +260,11 @@ impl Resolve<'_> {
             return self.second_chance(src, p);
         }
         let base = [t[0], t[1], t[2], 0].map(f32::from);
+        if t[3] != TEXEL_BLEND {
+            return (base, false);
+        }
         let oc = [t[4], t[5], t[6], 0].map(f32::from);
-        // Without a partner the weights (1, 0) give `base` exactly (`1·b = b`, `0·o = +0` for the
-        // finite `o`, and `b + 0 = b` for `b ≥ 0`): a select instead of a branch on whether the
-        // pixel blends, which changes from pixel to pixel along every edge of a moving object.
-        let blended = t[3] == TEXEL_BLEND;
-        let (w, v) = if blended {
-            (pal.omega, 1.0 - pal.omega)
-        } else {
-            (1.0, 0.0)
-        };
+        let (w, v) = (pal.omega, 1.0 - pal.omega);
         (
             [
                 w * base[0] + v * oc[0],
@@ -277,7 +272,7 @@ impl Resolve<'_> {
                 w * base[2] + v * oc[2],
                 w * base[3] + v * oc[3],
             ],
-            blended,
+            true,
         )
     }
 
