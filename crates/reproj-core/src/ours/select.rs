@@ -238,16 +238,7 @@ impl Resolve<'_> {
             _ => return (base, false),
         };
         let oc = self.color_of(&self.palettes[pal.other], q);
-        let (w, v) = (pal.omega, 1.0 - pal.omega);
-        (
-            [
-                w * base[0] + v * oc[0],
-                w * base[1] + v * oc[1],
-                w * base[2] + v * oc[2],
-                w * base[3] + v * oc[3],
-            ],
-            true,
-        )
+        (blend(pal.omega, base, oc), true)
     }
 
     /// [`Resolve::second_chance`] from the pair's texel of the match (one load): the same
@@ -264,16 +255,7 @@ impl Resolve<'_> {
             return (base, false);
         }
         let oc = [t[4], t[5], t[6], 0].map(f32::from);
-        let (w, v) = (pal.omega, 1.0 - pal.omega);
-        (
-            [
-                w * base[0] + v * oc[0],
-                w * base[1] + v * oc[1],
-                w * base[2] + v * oc[2],
-                w * base[3] + v * oc[3],
-            ],
-            true,
-        )
+        (blend(pal.omega, base, oc), true)
     }
 
     /// The diagnostic code of a match in source `src`.
@@ -293,4 +275,17 @@ impl Resolve<'_> {
             code
         }
     }
+}
+
+/// Algorithm 2's blend of a colour `base` with its correspondence's colour `oc`, `ω` the weight
+/// of `base` (four lanes, as [`Resolve::color_of`] gives them).
+#[inline(always)]
+fn blend(omega: f32, base: [f32; 4], oc: [f32; 4]) -> [f32; 4] {
+    let (w, v) = (omega, 1.0 - omega);
+    [
+        w * base[0] + v * oc[0],
+        w * base[1] + v * oc[1],
+        w * base[2] + v * oc[2],
+        w * base[3] + v * oc[3],
+    ]
 }
