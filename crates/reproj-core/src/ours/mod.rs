@@ -21,8 +21,9 @@
 //!    of neighbouring pixels overlap and the arithmetic vectorises.
 //!
 //! What does not depend on the client pose or α — Algorithm 2's correspondences from the full
-//! scene flows (eqs. 2, 3) with the motion-cancel check, and the auxiliary points' visibility in
-//! main — is computed once per server-frame pair ([`PairCache`], kept in the client's history).
+//! scene flows (eqs. 2, 3) with the motion-cancel check, the auxiliary points' visibility in
+//! main, and each pixel's colour packed with its partner's for the colour stage — is computed once
+//! per server-frame pair ([`PairCache`], kept in the client's history).
 //!
 //! The row loops of pass 1 and of the window filter are written without data-dependent branches
 //! and run in an AVX2 build on processors that have it (no FMA contraction, so the output bytes do
@@ -499,6 +500,7 @@ pub(crate) fn run<'a>(
                     &[]
                 },
                 other: k ^ 1,
+                texel: &pair.sources[k].texel,
                 omega: match s.role {
                     Role::Older => 1.0 - alpha,
                     Role::Newer => alpha,
@@ -638,6 +640,9 @@ struct Palette<'a> {
     partner: &'a [u32],
     /// The source index of the same camera in the other frame (only read through `partner`).
     other: usize,
+    /// Per pixel, its colour with its partner's and what Algorithm 2 does with them (from the
+    /// pair, [`texel`](pair::texel)).
+    texel: &'a [u64],
     /// ω: the weight of the source's own colour when blending.
     omega: f32,
 }

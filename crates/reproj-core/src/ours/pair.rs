@@ -1,8 +1,8 @@
 //! The pair-level work of `ours` ([`PairCache`]): what does not depend on the client pose or α,
 //! done once per server-frame pair. Algorithm 2's correspondences (seeds/000 §3.1) from the full
 //! scene flows of eqs. 2 and 3, with the motion-cancel and depth checks of §3.5
-//! (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`), and the auxiliary points' visibility in the main camera
-//! (§3.5 rule 2).
+//! (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`), the auxiliary points' visibility in the main camera
+//! (§3.5 rule 2), and the colours Algorithm 2 blends, packed per pixel for the colour stage.
 
 use rayon::prelude::*;
 
@@ -21,9 +21,12 @@ use super::{packed_cell, unpack_pixel, Mode, Src, SrcRow, NO_SPLAT};
 ///   full scene flow (eqs. 2, 3) of each pixel `p` lands on, kept only where the motions cancel
 ///   (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`) and the depths agree (`< ε_z`, `ε_z·4` for the
 ///   auxiliary cameras);
-/// - for the auxiliary cameras, whether each point is visible in the main camera (§3.5 rule 2).
+/// - for the auxiliary cameras, whether each point is visible in the main camera (§3.5 rule 2);
+/// - each pixel's colour beside its partner's colour ([`texel`]), so that the colour stage reads
+///   one value per match.
 ///
-/// The cache recomputes itself when the cameras, the buffers (by address and length) or the
+/// The cache recomputes itself when the cameras, the buffers (depth, motion, colour and shadow
+/// bits, by address and length) or the
 /// parameters it depends on change, so a new pair is never served stale data. A caller that
 /// rewrites the *same* buffers in place with a new frame must reset it
 /// ([`crate::BidirHistory::reset`]).
@@ -42,6 +45,29 @@ pub(super) struct PairSource {
     pub(super) partner: Vec<u32>,
     /// Auxiliary sources: 1 where the point is visible in main, else 0; empty for main sources.
     pub(super) vis: Vec<u8>,
+    /// What the colour stage reads of each pixel, in one load ([`texel`]): its colour, its
+    /// partner's colour and which of the two Algorithm 2 takes. Without it the stage loaded the
+    /// colour, the shadow bits and the partner of the match, then (depending on the partner) the
+    /// partner's colour and shadow bits: five loads from five arrays, two of them dependent.
+    pub(super) texel: Vec<u64>,
+}
+
+/// [`texel`]: the pixel's own colour alone (no partner, no shadow bits).
+pub(super) const TEXEL_OWN: u8 = 0;
+/// [`texel`]: blended with the partner's colour (no shadow bits on either).
+pub(super) const TEXEL_BLEND: u8 = 1;
+/// [`texel`]: the pixel or its partner carries shadow bits; the colour stage takes the full path
+/// (`Resolve::second_chance`), whose shadows depend on α.
+pub(super) const TEXEL_SHADOW: u8 = 2;
+
+/// The texel of a pixel with colour `own`, its partner's colour `other` (zero without one) and
+/// `kind` ([`TEXEL_OWN`], [`TEXEL_BLEND`] or [`TEXEL_SHADOW`]): bytes `r, g, b, kind, r', g', b', 0`
+/// of a little-endian `u64`.
+#[inline(always)]
+pub(super) fn texel(own: [u8; 3], kind: u8, other: [u8; 3]) -> u64 {
+    u64::from_le_bytes([
+        own[0], own[1], own[2], kind, other[0], other[1], other[2], 0,
+    ])
 }
 
 /// What a [`PairCache`]'s contents depend on.
@@ -62,6 +88,8 @@ struct SourceKey {
     view_proj: [[f64; 4]; 4],
     size: [usize; 2],
     buffers: [usize; 4],
+    /// The colour and shadow-bit buffers' addresses and lengths (the texels copy them).
+    colours: [usize; 4],
 }
 
 impl PairKey {
@@ -79,10 +107,14 @@ impl PairKey {
                 .map(|s| {
                     let v = &s.view;
                     let (mp, ml) = v.motion.map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
+                    let (bp, bl) = v
+                        .shadow
+                        .map_or((0, 0), |sh| (sh.bits.as_ptr() as usize, sh.bits.len()));
                     SourceKey {
                         view_proj: v.camera.view_proj().0,
                         size: [s.proj.width, s.proj.height],
                         buffers: [v.depth.as_ptr() as usize, v.depth.len(), mp, ml],
+                        colours: [v.color.as_ptr() as usize, v.color.len(), bp, bl],
                     }
                 })
                 .collect(),
@@ -136,6 +168,10 @@ impl PairCache {
             });
         if !blends {
             self.sources.iter_mut().for_each(|ps| ps.partner.clear());
+            self.sources
+                .par_iter_mut()
+                .zip(sources.par_iter())
+                .for_each(|(ps, s)| texels(s, None, &mut ps.texel));
             return;
         }
         let mut fulls = FULL_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
@@ -184,7 +220,61 @@ impl PairCache {
                 });
         });
         FULL_POOL.with(|p| *p.borrow_mut() = fulls);
+        let mut texel_bufs: Vec<Vec<u64>> = self
+            .sources
+            .iter_mut()
+            .map(|ps| std::mem::take(&mut ps.texel))
+            .collect();
+        let partners: Vec<&[u32]> = self.sources.iter().map(|ps| &ps.partner[..]).collect();
+        texel_bufs
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(k, t)| texels(&sources[k], Some((partners[k], &sources[k ^ 1])), t));
+        for (ps, t) in self.sources.iter_mut().zip(texel_bufs) {
+            ps.texel = t;
+        }
     }
+}
+
+/// The [`texel`] of every pixel of `s`, with its partners `q` in `o` when blending.
+///
+/// Row by row in three loops, each without a test of which buffers exist: the own colours, then
+/// the partners' colours and kinds, then the own shadow bits (a pixel with shadow bits, its own or
+/// its partner's, takes [`TEXEL_SHADOW`] whatever else the texel holds). One loop per pixel with
+/// those tests inside cost ~90 instructions per pixel, half the pair's other work.
+fn texels(s: &Src, blend: Option<(&[u32], &Src)>, out: &mut Vec<u64>) {
+    let sw = s.proj.width;
+    out.resize(sw * s.proj.height, 0);
+    let own_bits = s.view.shadow.map(|sh| sh.bits);
+    let other = blend.map(|(partner, o)| (partner, o.view.color, o.view.shadow.map(|sh| sh.bits)));
+    out.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
+        let r = j * sw..(j + 1) * sw;
+        let colours = s.view.color[3 * r.start..3 * r.end].chunks_exact(3);
+        for (t, c) in row.iter_mut().zip(colours) {
+            *t = texel([c[0], c[1], c[2]], TEXEL_OWN, [0; 3]);
+        }
+        if let Some((partner, oc, ob)) = other {
+            for (t, &q) in row.iter_mut().zip(&partner[r.clone()]) {
+                if q != NO_SPLAT {
+                    let q = q as usize;
+                    let kind = if ob.is_some_and(|b| b[q] != 0) {
+                        TEXEL_SHADOW
+                    } else {
+                        TEXEL_BLEND
+                    };
+                    *t |= texel([0; 3], kind, [oc[3 * q], oc[3 * q + 1], oc[3 * q + 2]]);
+                }
+            }
+        }
+        if let Some(bits) = own_bits {
+            const KIND: u64 = 0xFF << 24;
+            for (t, &b) in row.iter_mut().zip(&bits[r]) {
+                if b != 0 {
+                    *t = (*t & !KIND) | u64::from(TEXEL_SHADOW) << 24;
+                }
+            }
+        }
+    });
 }
 
 /// The full scene flow of every pixel of `src` into the other frame ([`full_flow_row`]).

@@ -8,6 +8,7 @@
 use crate::request::Diagnostics;
 use crate::shadow::{round_rgb4, shadow_color, Role};
 
+use super::pair::{TEXEL_BLEND, TEXEL_SHADOW};
 use super::search::SearchRow;
 use super::simd::avx2_method;
 use super::{Cell, Choice, Match, Palette, Resolve, NO_SPLAT};
@@ -117,7 +118,7 @@ impl Resolve<'_> {
                 }
                 continue;
             }
-            let (rgb, blended) = self.second_chance(usize::from(src), picks.p[i] as usize);
+            let (rgb, blended) = self.colour_of_match(usize::from(src), picks.p[i] as usize);
             picks.rgb[i] = rgb;
             if let Some((s, err)) = diag.as_mut() {
                 s[i] = self.code_of(usize::from(src), blended);
@@ -237,16 +238,24 @@ impl Resolve<'_> {
             _ => return (base, false),
         };
         let oc = self.color_of(&self.palettes[pal.other], q);
-        let (w, v) = (pal.omega, 1.0 - pal.omega);
-        (
-            [
-                w * base[0] + v * oc[0],
-                w * base[1] + v * oc[1],
-                w * base[2] + v * oc[2],
-                w * base[3] + v * oc[3],
-            ],
-            true,
-        )
+        (blend(pal.omega, base, oc), true)
+    }
+
+    /// [`Resolve::second_chance`] from the pair's texel of the match (one load): the same
+    /// colour, computed by the same operations, except where shadow bits make it depend on α.
+    #[inline(always)]
+    fn colour_of_match(&self, src: usize, p: usize) -> ([f32; 4], bool) {
+        let pal = &self.palettes[src];
+        let t = pal.texel[p].to_le_bytes();
+        if t[3] == TEXEL_SHADOW {
+            return self.second_chance(src, p);
+        }
+        let base = [t[0], t[1], t[2], 0].map(f32::from);
+        if t[3] != TEXEL_BLEND {
+            return (base, false);
+        }
+        let oc = [t[4], t[5], t[6], 0].map(f32::from);
+        (blend(pal.omega, base, oc), true)
     }
 
     /// The diagnostic code of a match in source `src`.
@@ -266,4 +275,17 @@ impl Resolve<'_> {
             code
         }
     }
+}
+
+/// Algorithm 2's blend of a colour `base` with its correspondence's colour `oc`, `ω` the weight
+/// of `base` (four lanes, as [`Resolve::color_of`] gives them).
+#[inline(always)]
+fn blend(omega: f32, base: [f32; 4], oc: [f32; 4]) -> [f32; 4] {
+    let (w, v) = (omega, 1.0 - omega);
+    [
+        w * base[0] + v * oc[0],
+        w * base[1] + v * oc[1],
+        w * base[2] + v * oc[2],
+        w * base[3] + v * oc[3],
+    ]
 }

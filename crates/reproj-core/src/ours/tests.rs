@@ -401,6 +401,54 @@ fn pair_cache_gives_the_same_bytes_and_follows_the_pair() {
     }
 }
 
+/// The pair state holds each pixel's colour with its partner's (the colour stage's texels), so a
+/// pair whose depth and motion buffers are the same but whose colours (or shadow bits) are other
+/// buffers must not be served the old colours.
+#[test]
+fn pair_cache_follows_new_colour_buffers() {
+    use crate::synthetic::{head_pose, rig};
+    use crate::BidirHistory;
+    let (w, h) = (96, 54);
+    let frames = three_frames(w, h);
+    let (older, newer) = (frames[0].view(true), frames[1].view(false));
+    let (e, tg) = head_pose(0.05);
+    let req = Request {
+        client: rig(e, tg, w, h).0,
+        alpha: 0.5,
+    };
+    let p = Params::default();
+    let mut history = BidirHistory::new();
+    let first = with_sources(
+        Method::Ours,
+        Some(&older),
+        &newer,
+        &req,
+        &p,
+        Some(&mut history),
+    );
+    // Every camera's colours inverted, in new buffers; one camera without its shadow bits.
+    let inverted = |v: &crate::frame::CameraView| v.color.iter().map(|c| 255 - c).collect();
+    let colours: Vec<Vec<u8>> = [&older, &newer]
+        .iter()
+        .flat_map(|f| std::iter::once(&f.main).chain(&f.aux))
+        .map(inverted)
+        .collect();
+    let mut views = [older.clone(), newer.clone()];
+    let mut next = colours.iter();
+    for f in &mut views {
+        for v in std::iter::once(&mut f.main).chain(&mut f.aux) {
+            v.color = next.next().unwrap();
+        }
+    }
+    views[1].main.shadow = None;
+    let [o2, n2] = &views;
+    let cached = with_sources(Method::Ours, Some(o2), n2, &req, &p, Some(&mut history));
+    let fresh = with_sources(Method::Ours, Some(o2), n2, &req, &p, None);
+    assert_ne!(cached.0, first.0, "the colours changed");
+    assert_eq!(cached, fresh);
+    assert_eq!(history.pair_builds(), 2);
+}
+
 /// `prepare_pair` computes the pair state that the client frames of the pair then use: none of
 /// them rebuilds it, and their bytes equal those of calls without a history; a different pair
 /// rebuilds; extrapolation (no older frame) prepares its own state; the methods without pair
