@@ -67,7 +67,7 @@ CONNECT_TIMEOUT_S = 10.0
 _FINGERPRINTED = (
     "_native.abi3.so", "_native.pyi", "reproject.py", "types.py", "gpu.py", "imageio.py",
     "scene", "codec", "client", "net", "evaluation/metrics.py", "evaluation/pipeline.py",
-    "evaluation/sweep_tasks.py",
+    "evaluation/sweep_tasks.py", "evaluation/references.py",
 )
 
 

@@ -254,7 +254,7 @@ def score_play(task: Task, cache: Cache) -> None:
 def score_interp(task: Task, cache: Cache) -> None:
     """``video_interp``: minterpolate of the main colour (HEVC-coded at ``bitrate`` first when
     one is given)."""
-    from splitrender.evaluation.experiments import _video_streaming, minterpolate
+    from splitrender.evaluation.references import minterpolate, video_streaming
     from splitrender.evaluation.metrics import SKIP_FRAMES, evaluate_sequence
 
     p = task.params
@@ -263,22 +263,22 @@ def score_interp(task: Task, cache: Cache) -> None:
     if p["bitrate"] is None:
         mbps = colours[0].nbytes * 8 * rec.fs / 1e6
     else:
-        colours, mbps = _video_streaming(colours, p["bitrate"], rec.fs)
+        colours, mbps = video_streaming(colours, p["bitrate"], rec.fs)
     _, truth = _eye(rec, 0)
     frames = minterpolate(colours, rec.fs, rec.fc, len(truth))
     _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
                                                fps=rec.fc, flip_every=p["flip_every"]), mbps)
 
 
-def score_video_streaming(task: Task, cache: Cache) -> None:
+def scorevideo_streaming(task: Task, cache: Cache) -> None:
     """The ground truth itself as one HEVC video at ``bitrate``."""
-    from splitrender.evaluation.experiments import _video_streaming
+    from splitrender.evaluation.references import video_streaming
     from splitrender.evaluation.metrics import SKIP_FRAMES, evaluate_sequence
 
     p = task.params
     rec = _recording(task, cache)
     _, truth = _eye(rec, 0)
-    frames, mbps = _video_streaming(truth, p["bitrate"], rec.fc)
+    frames, mbps = video_streaming(truth, p["bitrate"], rec.fc)
     _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
                                                fps=rec.fc, flip_every=p["flip_every"]), mbps)
 
@@ -288,7 +288,7 @@ def score_timewarp(task: Task, cache: Cache) -> None:
     timewarped at the client poses. ``deps``: the recording, then the timewarp frames (when
     ``source`` is ``"timewarp"``; else the recording's own server frames)."""
     from splitrender.codec.coder import CodecConfig
-    from splitrender.evaluation.experiments import _main_colour_depth
+    from splitrender.evaluation.references import main_colour_depth
     from splitrender.evaluation.pipeline import encode_decode, play_and_score_eyes
     from splitrender.net.model import NetworkModel
     from splitrender.types import ReprojectOptions
@@ -299,7 +299,7 @@ def score_timewarp(task: Task, cache: Cache) -> None:
     if p["source"] == "timewarp":
         server = _timewarp_frames(cache.timewarp(task.deps[1]))
     else:
-        server = [_main_colour_depth(f) for f in rec.server_frames]
+        server = [main_colour_depth(f) for f in rec.server_frames]
     twc = CodecConfig(bitrate_mbps=p["bitrate"], camera_shares=(1.0,), fps=fps, gop=int(fps))
     dec, sizes, mbps = encode_decode(server, twc, fps)
     cams, truth = _eye(rec, 0)
