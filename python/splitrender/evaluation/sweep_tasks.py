@@ -270,7 +270,7 @@ def score_interp(task: Task, cache: Cache) -> None:
                                                fps=rec.fc, flip_every=p["flip_every"]), mbps)
 
 
-def scorevideo_streaming(task: Task, cache: Cache) -> None:
+def score_video_streaming(task: Task, cache: Cache) -> None:
     """The ground truth itself as one HEVC video at ``bitrate``."""
     from splitrender.evaluation.references import video_streaming
     from splitrender.evaluation.metrics import SKIP_FRAMES, evaluate_sequence
