@@ -395,7 +395,6 @@ class LiveClient:
         self._thread: threading.Thread | None = None
         self._t0: float | None = None
         self._pose_seq = 0
-        self._window: deque[tuple[float, int, float]] = deque()  # arrival, bytes, delay
         self._bytes: deque[tuple[float, int]] = deque()  # loop time, frame stream bytes
         self._fresh: tuple[float, float] | None = None  # queue (s), rate (b/s): newest frame
         #: Frames being received: stream id -> [first byte (loop time), bytes, header.sent].
@@ -452,19 +451,18 @@ class LiveClient:
         arrival = self._now()
         loop_now = asyncio.get_running_loop().time()
         n.frames_completed += 1
-        n.bytes_received += len(payload) + FrameHeader.SIZE
+        size = len(payload) + FrameHeader.SIZE
+        n.bytes_received += size
         n.key_frames += header.key
         n.arrivals.append(arrival)
         n.targets.append((header.index, header.target_bps / 1e6, arrival, header.sent,
-                          header.render_ms + header.encode_ms, len(payload) + FrameHeader.SIZE))
+                          header.render_ms + header.encode_ms, size))
         n.server_render_ms.append(header.render_ms)
         n.server_encode_ms.append(header.encode_ms)
         # One-way delay up to a constant (the two clocks' offset): its excess over the least
         # seen is the queue the frame met (the link's and the sender's).
         delay = loop_now - header.sent
         self._min_delay = delay if self._min_delay is None else min(self._min_delay, delay)
-        size = len(payload) + FrameHeader.SIZE
-        self._window.append((loop_now, size, delay))
         took = loop_now - first
         # News for the next report: this frame's queueing, and its bytes over the time they
         # took to come (when it queued, the rate of the link it queued on).
@@ -529,9 +527,8 @@ class LiveClient:
         now = loop.time()
         self._reported = now
         span = RATE_WINDOW_S
-        for q in (self._window, self._bytes):
-            while q and q[0][0] < now - span:
-                q.popleft()
+        while self._bytes and self._bytes[0][0] < now - span:
+            self._bytes.popleft()
         bps = 8 * sum(b for _, b in self._bytes) / span
         # The queueing delay of the newest evidence: the frame completed since the previous
         # report, else a frame still arriving (delayed at least this long so far: a link that
@@ -722,7 +719,6 @@ class LiveClient:
 
         def med(v: list[float]) -> float | None:
             return float(np.median(v)) if v else None
-
 
         s.update(
             pose_to_display_ms_p50=s.get("server_age_ms_p50"),

@@ -3,7 +3,8 @@
 :func:`encode_decode` runs server frames through :class:`~splitrender.codec.coder.StreamEncoder` and
 :class:`~splitrender.codec.coder.StreamDecoder` (what the client sees of a compressed stream);
 :func:`play_and_score_eyes` plays one method through the network model and the client and scores
-its frames (of one eye or two) against the ground truth with :func:`~splitrender.evaluation.metrics.evaluate_sequence`.
+its frames (of one eye or two) against the ground truth with
+:func:`~splitrender.evaluation.metrics.evaluate_sequence`.
 """
 
 from __future__ import annotations
@@ -125,7 +126,8 @@ def play_and_score_eyes(
     eye, so the eyes share their schedule. ``on_frame(eye, n, image, info)`` is called for
     every client frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a
     server at another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
-    (:class:`~splitrender.Client`); ``flip_every`` as in :func:`evaluate_sequence`. :func:`mean_row` averages the result over the eyes."""
+    (:class:`~splitrender.Client`); ``flip_every`` as in :func:`evaluate_sequence`.
+    :func:`mean_row` averages the result over the eyes."""
     out = []
     for eye, (eye_cams, eye_truth) in enumerate(zip(cameras, truth)):
         n_client = len(eye_cams)
