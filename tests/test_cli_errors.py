@@ -69,6 +69,8 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("zero", ["play", "{rec}", "--out", "{tmp}/p", "--seconds", "0"],
      ("--seconds", ">= 0.01")),
     ("negative", ["demo", "--out", "{tmp}/d", "--latency", "-1"], ("--latency", "0..60000")),
+    ("zero stride", ["eval", "--out", "{tmp}/e", "--flip-every", "0"],
+     ("--flip-every", "a frame stride in 1..1000", "got 0")),
     ("tiny", ["demo", "--out", "{tmp}/d", "--video-fps", "1e-9"],
      ("--video-fps", ">= 1", "1e-9")),
     ("huge", ["demo", "--out", "{tmp}/d", "--scale", "1e300"], ("--scale", "<= 6.4")),
