@@ -194,7 +194,7 @@ TABLE: dict[str, Entry] = {
                                  dict(changes=[{"eps_e": "x"}, {"nosuch": 1}])),
     "ServerFrame": (
         lambda f: sr.ServerFrame, lambda f: dict(index=0, time=0.0, main=_m(f), aux=f.f0.aux),
-        dict(index=COUNT, time=NUMBER, main=THING, aux=[None, 0, "x", [None]]),
+        dict(index=COUNT, time=NUMBER, main=THING, aux=[None, 0, "x", [None]], span=[*INT, 0, 17]),
     ),
     "ServerFrame.to_native": (lambda f: f.f0.to_native, lambda f: dict(direction="fwd"),
                               dict(direction=[*STR, "x"])),

@@ -26,8 +26,8 @@ import pytest
 from splitrender.net import protocol as proto
 
 TOKEN = "test-token"
-SCALE = "0.03"  # 77x43: the reference renderer takes ~0.1 s per server frame here
-FS = "4"
+SCALE = "0.03"  # 77x43: the reference renderer takes ~25 ms per server frame here, idle
+FS = "10"  # the method's rate; a busy server renders every m-th frame (ServerFrame.span)
 
 
 class _Proc:
@@ -126,7 +126,7 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
     version = _connect(server.port, tmp_path, "--protocol-version", "7", timeout=30,
                        fingerprint=server.fingerprint)
     assert version.returncode == 2 and len(version.stderr.strip().splitlines()) == 1
-    assert "protocol version 7 is not supported (this server speaks version 2)" in version.stderr
+    assert "protocol version 7 is not supported (this server speaks version 3)" in version.stderr
     other = server.fingerprint.replace(server.fingerprint[:2], "00" if server.fingerprint[:2]
                                        != "00" else "11", 1)
     pinned = _connect(server.port, tmp_path, fingerprint=other.lower().replace(":", ""),
@@ -289,20 +289,23 @@ def test_server_killed_mid_session(tmp_path: Path) -> None:
 
 # The cap test's settings. At 77x43 a frame carries ~1.3 kB whatever the target (packet
 # header, lossless masks), so the coded bytes must dominate: 0.5 Mb/s at f_s 2 gives frames of
-# 12-15 kB (the encoder undershoots its target about 2x here), ~0.23 Mb/s on the wire. The cap
+# 12-15 kB (x265 saturates about there on this tiny picture), ~0.23 Mb/s on the wire. The cap
 # of 0.4 Mb/s carries that (a frame takes ~0.3 s of the 0.5 s period) and its half does not.
-# f_s 2, not 4: this machine's starved server keeps 2 (each frame ~0.2-0.5 s of render +
-# encode); the ~1 s windows below are then several frames long.
+# f_s 2, not 10: at 10 the frames are ~5 kB and x265's rate control misses its target by up
+# to 40 % for a few frames after each change of target (docs/live.md), so a link used at
+# 75 % still queues now and then; at 2 the frames are larger and their sizes steadier.
 ABR_FS, ABR_TOP, CAP, HALVED_AT = "2", 0.5, 0.4, 5.0
 
 
 def test_ours_better_than_timewarp_live(tmp_path: Path) -> None:
-    # f_s 2, which this starved server keeps (mostly): the method interpolates between
-    # consecutive server frames, and at f_s 4 here the server skips every other frame, so
-    # pairs are rare, the content is ~1 s old (beyond the 3 periods the client extrapolates
-    # over) and both methods mostly hold the same stale image (docs/live.md, "ours against
-    # timewarp"). Measured margins at f_s 2: 0.035-0.051 SSIM; asserted: 0.01.
-    server = _Server(tmp_path / "serve.log", "--fps", "2")
+    # f_s 10; a server that cannot keep it renders every m-th frame with motion spanning m
+    # periods, so that the client still has pairs to interpolate (before spans, a starved
+    # server skipped frames wherever it slipped, pairs were rare and both methods mostly held
+    # the same stale image: docs/live.md, "ours against timewarp"). 0.5 Mb/s, not the
+    # paper's rate scaled to 77x43 (0.036 Mb/s: ~450 B per frame, below the packet's fixed
+    # ~1.3 kB), so that the images are the methods' and not the codec's. Measured margins:
+    # 0.043 SSIM (load average 6); asserted: 0.01.
+    server = _Server(tmp_path / "serve.log", "--bitrate", "0.5")
     try:
         done = _connect(server.port, tmp_path, "--seconds", "5", "--score", "--compare",
                         "timewarp", "--no-vmaf", fingerprint=server.fingerprint)
@@ -342,20 +345,20 @@ def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:
     before = [f for t, f in chosen if t < change]
     # Meaningful: the stream ran above the new cap before the change.
     assert max(f["mbps"] for f in before) > cap, before
-    # The target followed within 1 s: the server's controller went to at most the new cap
-    # (its log says when, on the display clock as it estimates it from the poses: early by
-    # the uplink's least delay, about a millisecond here) within 1 s of the first frame sent
-    # after the change: nothing can tell of the narrower link before a frame crosses it, and
-    # this starved server sends one every 0.5-1 s (at 2 FPS kept, that is within 1 s of the
-    # change itself when a frame takes ~0.4 s to show it) ...
+    # The target followed within 1 s of the change: the server's controller went to at most
+    # the new cap (its log says when, on the display clock as it estimates it from the poses:
+    # early by the uplink's least delay, about a millisecond here). Nothing can tell of the
+    # narrower link before a frame crosses it, one every 0.5 s at f_s 2 (more on a busy
+    # machine, whose server renders every m-th frame): within 1 s of the first frame sent
+    # after the change, and within 2 s of the change itself ...
     drops = [(float(m[2]), float(m[1])) for m in re.finditer(
         r"adaptive target \S+ -> (\S+) Mb/s at session time (\S+) s", server.log.read_text())]
     followed = min(t for t, mbps in drops if mbps <= cap and t > change - 0.5)
     first_sent = min(f["sent"] for f in frames if f["sent"] >= change)
     assert followed - first_sent <= 1.0 and followed - change <= 2.0, (change, drops, frames)
     # ... and every frame whose target was chosen after that, until the controller may
-    # probe above the cap again (3 % per second from 85 % of it, so not within 3 s), was
-    # encoded at it. The frames come every 0.5-1 s from this starved server: at least one.
+    # probe above the cap again (3 % per second from 75 % of it, so not within 9 s), was
+    # encoded at it (at least one frame).
     after = [f for t, f in chosen if followed + 0.05 < t < followed + 3.0]
     assert after and all(f["mbps"] <= cap for f in after), (followed, frames)
     # The halving was felt: the frames at the old target sent after the change took longer
@@ -363,16 +366,21 @@ def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:
     base = min(f["arrival"] - f["sent"] for f in frames)
     felt = [f for t, f in chosen if f["sent"] >= change and t < followed]
     assert max(f["arrival"] - f["sent"] for f in felt) > base + 0.15, (change, followed, frames)
-    # And server_frames_late stopped growing: no frame whose target was chosen after the
-    # target followed became usable late (after t_k - 1/f_s), unless the server sent it too
-    # late for the halved link to carry it in time (its bytes at the cap, plus 0.1 s to
-    # decode): starved of CPU on this shared machine, the server's lateness, which no
-    # bit-rate cures.
+    # And server_frames_late stopped growing: once the frames encoded before the target
+    # followed have crossed the link (they queue at the old rate; nothing can call them back),
+    # no frame became usable late (after t_k - m/f_s, m its span) because the link delivered
+    # it late, unless the server sent it too late for the halved link to carry it in time
+    # (its bytes at the cap, plus 50 ms): starved of CPU on a shared machine, the server's
+    # lateness, which no bit-rate cures. (A frame that arrived in time and was decoded late
+    # is the client's CPU, not the link.)
     fs = float(ABR_FS)
-    settled = [f for t, f in chosen if t > followed]
+    drained = max(f["arrival"] for t, f in chosen if t <= followed)
+    settled = [f for t, f in chosen if t > followed and f["sent"] >= drained]
+    assert settled, (followed, drained, frames)
     for f in settled:
-        if f["usable_late"]:
-            carry = 8 * f["bytes"] / (cap * 1e6) + 0.1
-            assert f["sent"] + carry > (f["index"] - 1) / fs, (followed, f)
+        needed = (f["index"] - f["span"]) / fs
+        if f["usable_late"] and f["arrival"] > needed:
+            carry = 8 * f["bytes"] / (cap * 1e6) + 0.05
+            assert f["sent"] + carry > needed, (followed, f)
     log = server.log.read_text()
     assert "adaptive target" in log and "Traceback" not in log

@@ -215,6 +215,26 @@ def test_choose_frames_rules() -> None:
         choose_frames(held, 0.45, method="magic")
 
 
+def test_choose_frames_pairs_frames_of_one_span() -> None:
+    # A server at f_s 10 that renders every 2nd frame: frames 4 and 6, motion spanning 0.2 s.
+    held, spans = {4: 0.4, 6: 0.6}, {4: 2, 6: 2}
+    e = choose_frames(held, 0.45, spans=spans)
+    assert (e.mode, e.older, e.newer, e.alpha) == ("interpolate", 4, 6, pytest.approx(0.25))
+    # Without the spans, 4 and 6 are not a pair (frame 5 is missing): extrapolation.
+    assert choose_frames(held, 0.45).mode == "extrapolate"
+    # Extrapolating from a frame of span 2 counts α in its own period: 0.1 s is half of it.
+    e = choose_frames(held, 0.7, spans=spans)
+    assert (e.mode, e.newer, e.alpha) == ("extrapolate", 6, pytest.approx(1.5))
+    # ... and holds after 2 of its periods (α 3), not after 2 of f_s's.
+    assert choose_frames(held, 0.95, spans=spans).mode == "extrapolate"
+    assert choose_frames(held, 1.05, spans=spans).mode == "hold"
+    # Frames of different spans do not pair: 5's motion reaches 6 and 6's reaches 4.
+    e = choose_frames({5: 0.5, 6: 0.6}, 0.55, spans={5: 1, 6: 2})
+    assert (e.mode, e.newer) == ("extrapolate", 5)
+    e = choose_frames({4: 0.4, 6: 0.6}, 0.45, spans={4: 2, 6: 1})
+    assert (e.mode, e.newer) == ("extrapolate", 4)
+
+
 def test_frame_buffer_refuses_duplicates_stale_and_overflow() -> None:
     buf = FrameBuffer(capacity=3)
     assert buf.receive(0, 0.0) and buf.receive(1, 0.1)

@@ -5,6 +5,7 @@ time."""
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from concurrent.futures import Executor, Future
 from typing import Any
@@ -171,6 +172,31 @@ def test_prepared_pairs_give_the_same_images_and_no_pair_work_on_the_display(sce
     # Each prepared pair was computed once, on the worker, and never again by a client frame.
     assert histories and all(h.pair_builds == 1 for h in histories.values())
     assert (0, 1) in histories and (None, 2) in histories
+
+
+def test_frames_of_a_longer_span_pair_with_each_other_and_are_prepared(scene):
+    # A live server that keeps only f_s / 2 renders every 2nd frame with motion spanning two
+    # periods (ServerFrame.span 2): frames 0 and 2 form the pair, prepared on the worker.
+    spanned = [
+        dataclasses.replace(scene.server_frame(k, k / FS, W, H, fps=FS / 2), span=2)
+        for k in (0, 2)
+    ]
+    plain = Client("ours")
+    clock = FakeClock()
+    with loop(clock) as c:
+        for f in spanned:
+            plain.receive(f)
+            c.submit(f)
+            c.wait()
+        assert (0, 2) in c.client._prepared
+        for n in range(1, 2 * round(FC / FS)):
+            t = n / FC
+            cam = scene.rig(t, W, H)[0]
+            np.testing.assert_array_equal(c.render(cam, t), plain.render(cam, t))
+            info = c.client.last_info
+            assert (info.mode, info.older, info.newer) == ("interpolate", 0, 2)
+            assert info.alpha == pytest.approx(t * FS / 2)
+            assert c.client.was_prepared(0, 2)
 
 
 def test_packets_are_decoded_on_the_worker_and_a_bad_one_is_skipped(scene, frames):

@@ -32,6 +32,7 @@ from splitrender.errors import InvalidInputError
 
 __all__ = [
     "MAX_SIDE",
+    "MAX_SPAN",
     "Camera",
     "CameraFrame",
     "ClientRequest",
@@ -43,6 +44,9 @@ __all__ = [
 
 #: Largest image side the kernels accept (``reproj_core::MAX_SIDE``).
 MAX_SIDE = 16384
+#: Most server-frame periods a frame's motion may span (:attr:`ServerFrame.span`): a server
+#: that keeps less than 1/16 of its f_s has nothing left to interpolate.
+MAX_SPAN = 16
 
 Shape = tuple[int, ...]
 
@@ -416,17 +420,24 @@ class CameraFrame:
 @dataclass(frozen=True, slots=True, eq=False)
 class ServerFrame:
     """Server frame ``index`` at ``time`` seconds: the main camera and the auxiliary cameras (in
-    rig order; the synthetic scene and the renderer produce two)."""
+    rig order; the synthetic scene and the renderer produce two).
+
+    ``span``: how many server-frame periods (``1 / f_s``) its motion and shadow buffers span,
+    so that it pairs with frame ``index ± span``. 1 everywhere but in a live session whose
+    server, unable to keep ``f_s``, renders every ``span``-th frame (docs/live.md); the stream
+    format does not store it (the live protocol's frame header carries it)."""
 
     index: int
     time: float
     main: CameraFrame
     aux: tuple[CameraFrame, ...] = ()
+    span: int = 1
 
     def __post_init__(self) -> None:
         object.__setattr__(
             self, "index", check_int("ServerFrame.index", self.index, 0, 2**63 - 1)
         )
+        object.__setattr__(self, "span", check_int("ServerFrame.span", self.span, 1, MAX_SPAN))
         object.__setattr__(self, "time", check_float("ServerFrame.time", self.time))
         if not isinstance(self.main, CameraFrame):
             raise InvalidInputError(

@@ -34,6 +34,7 @@ from splitrender.cli.args import (
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.reproject import METHODS
+from splitrender.types import MAX_SPAN
 
 __all__ = ["add_connect", "add_relay", "add_serve"]
 
@@ -81,7 +82,13 @@ def add_serve(sub: Any) -> None:
                    "(default: %(default)s)")
     add_scale(p, 0.0625)
     p.add_argument("--fps", type=rate, default=10.0, metavar="FS",
-                   help="server frames per second, f_s (default: %(default)s)")
+                   help="server frames per second, f_s (default: %(default)s); a server that "
+                   "cannot keep it renders every m-th frame (see --max-span)")
+    p.add_argument("--max-span", type=lambda t: integer(t, 1, MAX_SPAN), default=MAX_SPAN,
+                   metavar="M", help="when rendering cannot keep --fps, render every m-th frame "
+                   "(m <= M, f_s / m FPS, motion spanning m periods) so that the client still "
+                   "gets pairs to interpolate; 1: keep --fps and skip the frames that would "
+                   "be late instead (default: %(default)s)")
     p.add_argument("--bitrate", type=bitrate, default=None, metavar="MBPS",
                    help="encoder target at the start and its ceiling (default: the paper's "
                    "40 Mb/s scaled by pixel count)")
@@ -135,7 +142,7 @@ def run_serve(args: argparse.Namespace) -> int:
         server = LiveServer(
             ServerOptions(name, args.scale, args.fps, args.bitrate, args.min_bitrate, gop,
                           token, args.predictor, args.sessions,
-                          drop_every=args.drop_every),
+                          drop_every=args.drop_every, max_span=args.max_span),
             scene=scene, certificate=cert, private_key=key,
         )
     except (SplitRenderError, ValueError, OSError) as e:

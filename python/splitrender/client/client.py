@@ -165,6 +165,7 @@ class Client:
             self.server_fps,
             self.method,
             splat_bidirectional=self.options.splat_bidirectional,
+            spans={i: f.span for i, f in self._frames.items()},
         )
 
     @checked(camera=instances(Camera), time=floats(), eye=ints(0, 1))

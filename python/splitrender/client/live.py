@@ -215,15 +215,22 @@ class FrameOrder:
 class _TimeIndexed(StreamDecoder):
     """The stream decoder, with each frame's index taken back from its time (``round(t ·
     f_s)``): the packets are indexed by their place in the encoded sequence (consecutive, as
-    the decoder checks), while the client orders frames by time (FrameHeader)."""
+    the decoder checks), while the client orders frames by time (FrameHeader). ``spans``
+    (by ``seq``, from the frame headers; absent: 1) give each frame its span, which the
+    packet does not carry."""
 
-    def __init__(self, server_fps: float) -> None:
+    def __init__(self, server_fps: float, spans: dict[int, int] | None = None) -> None:
         super().__init__()
         self.server_fps = server_fps
+        self.spans: dict[int, int] = {} if spans is None else spans
 
     def decode(self, data: bytes | memoryview) -> ServerFrame:
         frame = super().decode(data)
-        return dataclasses.replace(frame, index=round(frame.time * self.server_fps))
+        return dataclasses.replace(
+            frame,
+            index=round(frame.time * self.server_fps),
+            span=self.spans.get(frame.index, 1),
+        )
 
 
 @dataclass
@@ -237,8 +244,10 @@ class _NetStats:
     key_frames: int = 0
     decode_errors: int = 0
     arrivals: list[float] = field(default_factory=list)  # display time of each completed frame
-    # index, Mb/s, arrival, sent (display s), server render + encode ms, bytes
-    targets: list[tuple[int, float, float, float, float, int]] = field(default_factory=list)
+    # index, Mb/s, arrival, sent (display s), server render + encode ms, bytes, span
+    targets: list[tuple[int, float, float, float, float, int, int]] = field(
+        default_factory=list
+    )
     server_render_ms: list[float] = field(default_factory=list)
     server_encode_ms: list[float] = field(default_factory=list)
     closed_at: float | None = None
@@ -408,6 +417,10 @@ class LiveClient:
         #: (display time, packet) of every packet handed to the decoder: :meth:`replay` feeds
         #: them to another method in the same conditions.
         self.arrivals: list[tuple[float, bytes]] = []
+        #: Each frame's span (FrameHeader.span) by its seq, for the decoder (the packet does
+        #: not carry it), and by its index.
+        self.spans: dict[int, int] = {}
+        self._span_of: dict[int, int] = {}
         self.order = FrameOrder(self._submit, self._request_key, self._stop_stream, 0.1)
 
     # -- network thread -------------------------------------------------------------------
@@ -427,7 +440,7 @@ class LiveClient:
         self.realtime = RealtimeClient(
             client=Client(self.options.method, server_fps=welcome.server_fps),
             display_fps=self.options.display_fps,
-            decoder=_TimeIndexed(welcome.server_fps),
+            decoder=_TimeIndexed(welcome.server_fps, self.spans),
         )
         self._ready.set()
 
@@ -456,7 +469,8 @@ class LiveClient:
         n.key_frames += header.key
         n.arrivals.append(arrival)
         n.targets.append((header.index, header.target_bps / 1e6, arrival, header.sent,
-                          header.render_ms + header.encode_ms, size))
+                          header.render_ms + header.encode_ms, size, header.span))
+        self.spans[header.seq] = self._span_of[header.index] = header.span
         n.server_render_ms.append(header.render_ms)
         n.server_encode_ms.append(header.encode_ms)
         # One-way delay up to a constant (the two clocks' offset): its excess over the least
@@ -485,7 +499,7 @@ class LiveClient:
                 loop.call_soon_threadsafe(self._undecodable, index)
             elif f.result() is not None:
                 # Usable now (decoded and prepared): how late against when the display
-                # first needed it, t_k - 1/f_s, for the server's planning (RateReport).
+                # first needed it, t_k - m/f_s (m: its span), for the server's planning (RateReport).
                 k = int(f.result())
                 usable = self._now()
                 loop.call_soon_threadsafe(self._made_usable, k, usable)
@@ -498,7 +512,8 @@ class LiveClient:
         self.usable_at[k] = usable
         if not first:
             # (The session's first frame is for the time it arrives: late by construction.)
-            self._usable.append(usable - (k - 1) / self.welcome.server_fps)
+            m = self._span_of.get(k, 1)
+            self._usable.append(usable - (k - m) / self.welcome.server_fps)
 
     def _undecodable(self, index: int) -> None:
         self.net.decode_errors += 1
@@ -703,7 +718,7 @@ class LiveClient:
         with RealtimeClient(
             client=Client(method, server_fps=w.server_fps),
             display_fps=self.options.display_fps,
-            decoder=_TimeIndexed(w.server_fps),
+            decoder=_TimeIndexed(w.server_fps, dict(self.spans)),
         ) as rt:
             return rt.run(pose, seconds, feed=self.arrivals, on_frame=on_frame).summary()
 
@@ -749,7 +764,7 @@ class LiveClient:
                 "server_fingerprint": self.server_fingerprint,
             },
             # Per frame received: the encoder target, the arrival (display seconds) and how
-            # late it was against when the display first needed it, t_k - 1/f_s (negative:
+            # late it was against when the display first needed it, t_k - m/f_s (m: its span) (negative:
             # early), the measure of whether frames arrive on time as the target moves; and
             # when it became usable (decoded and prepared; None: never) and whether that was
             # late (what server_frames_late counts, frame by frame).
@@ -757,10 +772,11 @@ class LiveClient:
                 {"index": i, "mbps": round(m, 6), "sent": round(sent, 4),
                  "server_ms": round(ms, 1), "bytes": size,
                  "arrival": round(t, 4),
-                 "late_ms": round((t - (i - 1) / fs) * 1e3, 1),
+                 "span": span,
+                 "late_ms": round((t - (i - span) / fs) * 1e3, 1),
                  "usable": None if (u := self.usable_at.get(i)) is None else round(u, 4),
-                 "usable_late": u is not None and u > max(0.0, (i - 1) / fs)}
-                for i, m, t, sent, ms, size in n.targets
+                 "usable_late": u is not None and u > max(0.0, (i - span) / fs)}
+                for i, m, t, sent, ms, size, span in n.targets
             ],
         )
         if n.closed_at is not None and n.closed_at < seconds - 1.0:

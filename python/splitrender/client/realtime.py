@@ -284,6 +284,7 @@ class RealtimeClient:
         self._pose_time: dict[int, float] = {}
         self._ready_at: dict[int, float] = {}
         self._frame_time: dict[int, float] = {}
+        self._period: dict[int, float] = {}  # seconds each frame's pair spans (its span / f_s)
         self._report = RealtimeReport(self.display_fps)
         opts = self.client.options
         self._interpolates = self.method == "ours" or (
@@ -317,7 +318,7 @@ class RealtimeClient:
         packet that cannot be decoded sets the future's exception (a
         :class:`~splitrender.errors.StreamError`) and is otherwise ignored: the display goes on
         extrapolating. ``pose_time``: when the pose of this frame was taken (default: the
-        frame's time minus one server frame, when the model's server sends it)."""
+        frame's time minus the period it spans, when the model's server sends it)."""
         with self._lock:
             self._queued += 1
         fut = self._worker.submit(self._receive, packet, pose_time)
@@ -347,7 +348,10 @@ class RealtimeClient:
         frame = packet if isinstance(packet, ServerFrame) else self._decode(packet)
         t1 = time.perf_counter()
         with self._lock:
-            older = self.client.held_frame(frame.index - 1)
+            # The frame it closes a pair with (ServerFrame.span: equal spans, that far apart).
+            older = self.client.held_frame(frame.index - frame.span)
+            if older is not None and older.span != frame.span:
+                older = None
             camera = self._camera if self._camera is not None else frame.main.camera
             spare = self.client.retired_histories()
             # Behind (a newer packet is already waiting): this frame is about to be superseded,
@@ -386,8 +390,11 @@ class RealtimeClient:
             self._ready_at[frame.index] = self.clock.now()
             self._frame_time[frame.index] = frame.time
             self._pose_time[frame.index] = (
-                frame.time - 1.0 / self.client.server_fps if pose_time is None else pose_time
+                frame.time - frame.span / self.client.server_fps
+                if pose_time is None
+                else pose_time
             )
+            self._period[frame.index] = frame.span / self.client.server_fps
         return frame.index
 
     # -- display ---------------------------------------------------------------------------
@@ -511,11 +518,11 @@ class RealtimeClient:
 
     def _count_late(self, t0: float, start_time: float) -> None:
         """A server frame is late when it became usable after the display first needed it:
-        one server frame period before its time, when the pair it closes starts."""
-        period = 1.0 / self.client.server_fps
+        one period of its span before its time, when the pair it closes starts."""
         with self._lock:
             # A frame needed before the run began counts from the start of the run.
             self._report.server_frames_late = sum(
-                ready > max(t0, t0 + (self._frame_time[index] - period - start_time))
+                ready
+                > max(t0, t0 + (self._frame_time[index] - self._period[index] - start_time))
                 for index, ready in self._ready_at.items()
             )

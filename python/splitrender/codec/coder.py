@@ -720,6 +720,10 @@ class StreamEncoder(_WorkerThreads):
         self._streams: dict[BufferKind, _HevcStream] = {}
         self._frames = 0
         self._gain = 1.0
+        # The target in effect over the frames since the last update, and whether it was
+        # lowered since (set_bitrate): the gain is measured against the former.
+        self._gop_total = self.config.bitrate_mbps * 1e6
+        self._lowered = False
         self._lossless_since_update = 0
         self._frames_since_update = 0
         self._lossless_bps = 0.0
@@ -866,6 +870,7 @@ class StreamEncoder(_WorkerThreads):
         """
         import dataclasses
 
+        self._lowered = self._lowered or mbps < self.config.bitrate_mbps
         self.config = dataclasses.replace(self.config, bitrate_mbps=mbps)
         self._bits_total = round(mbps * 1e6 * self._frames / self.config.fps)
         self._rate_changed = True
@@ -898,9 +903,19 @@ class StreamEncoder(_WorkerThreads):
             )
             wanted = max(aim - self._lossless_bps, 0.05 * total)
             if cfg.rate_feedback and achieved_bps > 0:
-                # Multiplicative correction, bounded so one odd GOP cannot run away.
-                ratio = min(max(wanted / achieved_bps, 1 / 3), 3.0)
+                # Multiplicative correction, bounded so one odd GOP cannot run away. The GOP
+                # ran at the target then in effect: after set_bitrate, what it achieved says
+                # how the encoders met that one, not the new one (measured against the new
+                # one, a drop read as an overshoot and a climb as a shortfall).
+                then = wanted if self._gop_total == total else wanted * self._gop_total / total
+                ratio = min(max(then / achieved_bps, 1 / 3), 3.0)
                 self._gain = min(max(self._gain * ratio, 0.25), 8.0)
+            if self._lowered:
+                # A gain above 1 was learned where the encoders fell short of a higher target
+                # (often: nothing left to spend the bits on) and promises nothing at a lower
+                # one; kept, it overshoots at once on a link that was just found narrower,
+                # while a shortfall is corrected at the next update.
+                self._gain = min(self._gain, 1.0)
         elif not self._streams:
             # First frame: this frame's lossless bytes plus an estimate of the packet header
             # (stream format version 3: about 10 bytes per buffer and 250 for the cameras).
@@ -928,6 +943,8 @@ class StreamEncoder(_WorkerThreads):
                 s.bits_since_update = 0
         self._lossless_since_update = 0
         self._frames_since_update = 0
+        self._gop_total = total
+        self._lowered = False
 
     # -- buffers --------------------------------------------------------------------------------
 

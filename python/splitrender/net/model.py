@@ -15,7 +15,8 @@ Frame choice (:func:`choose_frames`, shared by :class:`Schedule` and
 :class:`splitrender.Client`), for the frames the client holds at display time ``t``:
 
 - ``"interpolate"``: the newest held frame ``k`` with ``t_k ≤ t`` and ``k + 1`` held:
-  ``α = (t − t_k) / (t_{k+1} − t_k) ∈ [0, 1)`` (bidirectional methods: ``ours``,
+  ``α = (t − t_k) / (t_{k+1} − t_k) ∈ [0, 1)`` (``k + m`` for frames whose motion spans ``m``
+  periods, :attr:`~splitrender.types.ServerFrame.span`) (bidirectional methods: ``ours``,
   ``backward_bidir``, ``forward_splat`` with ``splat_bidirectional``);
 - ``"extrapolate"``: otherwise (or always, for the unidirectional methods ``ours_extrapolate``,
   ``forward_splat``, ``timewarp``) from the newest held frame ``j`` with ``t_j ≤ t`` alone,
@@ -275,9 +276,13 @@ def choose_frames(
     method: str = "ours",
     *,
     splat_bidirectional: bool = False,
+    spans: Mapping[int, int] | None = None,
 ) -> ClientFrameInfo:
     """The frames, ``α`` and mode for display time ``time`` given the frames ``held``
-    (``index -> time``), by the rules in the module docs."""
+    (``index -> time``), by the rules in the module docs. ``spans`` (``index -> span``,
+    absent: 1) are the periods each frame's motion spans (:attr:`ServerFrame.span`): frame
+    ``k`` of span ``m`` pairs with frame ``k + m`` of the same span, and extrapolates with
+    ``α = 1 + (t − t_k) · f_s / m``."""
     method = _check_method(method)
     t = float(time)
     bidir = method in BIDIRECTIONAL_METHODS or (method == "forward_splat" and splat_bidirectional)
@@ -285,12 +290,14 @@ def choose_frames(
     past = [j for j in held_ix if held[j] <= t + TIME_EPS]
     if past:
         k = past[-1]
-        if bidir and k + 1 in held:
-            alpha = _snap((t - held[k]) / (held[k + 1] - held[k]))
+        m = 1 if spans is None else spans.get(k, 1)
+        # A pair needs the motion of both frames to reach the other: equal spans, m apart.
+        if bidir and k + m in held and (spans is None or spans.get(k + m, 1) == m):
+            alpha = _snap((t - held[k]) / (held[k + m] - held[k]))
             if alpha < 1.0:
-                return ClientFrameInfo(t, k, k + 1, max(alpha, 0.0), "interpolate", held_ix)
+                return ClientFrameInfo(t, k, k + m, max(alpha, 0.0), "interpolate", held_ix)
         if method != "backward_bidir":
-            alpha = _snap(1.0 + (t - held[k]) * server_fps)
+            alpha = _snap(1.0 + (t - held[k]) * server_fps / m)
             if alpha <= MAX_ALPHA:
                 return ClientFrameInfo(t, None, k, max(alpha, 1.0), "extrapolate", held_ix)
     return ClientFrameInfo(t, None, None, None, "hold", held_ix)

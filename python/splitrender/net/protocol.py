@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.errors import ProtocolError
-from splitrender.types import MAX_SIDE
+from splitrender.types import MAX_SIDE, MAX_SPAN
 
 __all__ = [
     "ALPN",
@@ -46,6 +46,7 @@ __all__ = [
     "MAX_CONTROL",
     "MAX_DATAGRAM",
     "MAX_FRAME_PAYLOAD",
+    "MAX_SPAN",
     "MAX_TOKEN",
     "PROTOCOL_VERSION",
     "ControlReader",
@@ -65,7 +66,7 @@ __all__ = [
 ]
 
 #: The version this code speaks; a hello of any other is refused (:data:`CLOSE_VERSION`).
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 #: QUIC's application protocol name (TLS ALPN); a peer without it fails the handshake.
 ALPN = "splitrender-live/1"
 #: Four bytes that open a :class:`Hello`, so that a stray peer is refused as such.
@@ -112,7 +113,7 @@ _WELCOME = struct.Struct("<BHddHHHdd16dB")  # ...; then the scene name
 _KEY_REQUEST = struct.Struct("<BqB")
 _POSE = struct.Struct("<BId12d")
 _REPORT = struct.Struct("<BIddffIIHf")
-_FRAME = struct.Struct("<BqqBddddffI")
+_FRAME = struct.Struct("<BqqBddddffIB")
 
 #: Key request reasons.
 KEY_LOST = 1  #: a frame was given up (lost, reset, or too late to wait for)
@@ -422,7 +423,7 @@ class RateReport:
     or still arriving, and −1 when no frame came since the previous report: no news), and
     running counts. Since version 2 also the
     timeliness of the frames made usable (decoded and prepared) in the window: ``usable`` of
-    them, the latest by ``late_ms`` (usable time minus ``t_k − 1/f_s``, when the display
+    them, the latest by ``late_ms`` (usable time minus ``t_k − m/f_s``, when the display
     first needed it; negative: early; 0 when ``usable`` is 0). The server plans its frames
     that much earlier (:class:`splitrender.net.abr.LeadController`)."""
 
@@ -498,7 +499,9 @@ class FrameHeader:
     server estimates it from the poses, early by the least one-way delay of a pose: the client
     measures queueing from its variation), the encoder's ``target_bps`` (since version 2 the
     one the frame was encoded at, not a newer one still waiting for a key frame), the server's
-    ``render_ms``/``encode_ms`` and the packet's ``size``."""
+    ``render_ms``/``encode_ms``, the packet's ``size`` and (since version 3) ``span``: the
+    server-frame periods the frame's motion spans (``1..MAX_SPAN``; above 1 when the server
+    cannot keep ``f_s`` and renders every ``span``-th frame, :attr:`ServerFrame.span`)."""
 
     index: int
     seq: int
@@ -510,6 +513,7 @@ class FrameHeader:
     render_ms: float
     encode_ms: float
     size: int
+    span: int = 1
 
     SIZE = _FRAME.size
 
@@ -526,6 +530,7 @@ class FrameHeader:
             self.render_ms,
             self.encode_ms,
             self.size,
+            self.span,
         )
 
     @classmethod
@@ -533,7 +538,7 @@ class FrameHeader:
         """The header at the start of ``data`` (the packet may follow)."""
         _type("frame header", data, T_FRAME)
         _expect("frame header", data, _FRAME.size, exact=False)
-        _, index, seq, key, pt, tt, sent, bps, rms, ems, size = _FRAME.unpack_from(data, 0)
+        _, index, seq, key, pt, tt, sent, bps, rms, ems, size, span = _FRAME.unpack_from(data, 0)
         if index < 0 or seq < 0:
             raise ProtocolError(f"frame header: index {index}, seq {seq}: expected >= 0")
         if key not in (0, 1):
@@ -542,6 +547,8 @@ class FrameHeader:
             raise ProtocolError(
                 f"frame header.size: expected 1..{MAX_FRAME_PAYLOAD} bytes, got {size}"
             )
+        if not 1 <= span <= MAX_SPAN:
+            raise ProtocolError(f"frame header.span: expected 1..{MAX_SPAN}, got {span}")
         return cls(
             int(index),
             int(seq),
@@ -553,6 +560,7 @@ class FrameHeader:
             _finite("frame header.render_ms", rms, 0.0, 1e9),
             _finite("frame header.encode_ms", ems, 0.0, 1e9),
             int(size),
+            int(span),
         )
 
 

@@ -6,11 +6,15 @@ session, the frame loop:
 
 1. estimates the client's display clock from its pose datagrams (the least-delayed sample
    gives the offset between the two clocks);
-2. picks the next frame ``k`` (time ``k / f_s``) that can still arrive by ``t_k − 1/f_s``, when
-   the client first needs it for the pair ``(k−1, k)`` (splitrender.net.model), given the
-   measured render + encode time and half the round trip. If rendering cannot keep ``f_s``
-   it skips frames (the client extrapolates meanwhile: that is the method's point) and says so
-   once. The encoded sequence does not skip: each packet carries its place in it (``seq``) as
+2. picks the next frame ``k`` (time ``k / f_s``) that can still arrive by ``t_k − m/f_s``,
+   when the client first needs it for the pair ``(k−m, k)`` (splitrender.net.model), given the
+   measured render + encode time and half the round trip. ``m`` is the frame's *span*
+   (:func:`choose_span`): 1 while rendering keeps ``f_s``; when it cannot, the server renders
+   every ``m``-th frame with motion spanning ``m / f_s`` (the frames of a server at
+   ``f_s / m``), so that consecutive frames still form pairs to interpolate, and says so. Frames
+   that still cannot arrive in time (a link or a schedule that is behind) are skipped (the
+   client extrapolates meanwhile: that is the method's point). The encoded sequence does not
+   skip: each packet carries its place in it (``seq``) as
    its index, which the stream decoder needs consecutive, and the frame header carries ``k``
    (the client restores it: :class:`splitrender.client.live.FrameOrder`);
 3. predicts the head pose at ``t_k`` (:mod:`splitrender.net.predict`), renders with the
@@ -79,9 +83,15 @@ from splitrender.net.protocol import (
     unsupported_version,
 )
 from splitrender.scene.builtin import Scene
-from splitrender.types import ServerFrame
+from splitrender.types import MAX_SPAN, ServerFrame
 
-__all__ = ["LiveServer", "ServerOptions", "SessionStats", "self_signed_certificate"]
+__all__ = [
+    "LiveServer",
+    "ServerOptions",
+    "SessionStats",
+    "choose_span",
+    "self_signed_certificate",
+]
 
 #: Error code of a stream reset because its frame went stale.
 RESET_STALE = 1
@@ -93,6 +103,39 @@ ABR_KEY_INTERVAL_S = 2.0
 ABR_STEP = 0.2
 #: A session whose client sent no pose for this long ends (its QUIC idle timeout is the same).
 IDLE_TIMEOUT_S = 3.0
+#: Share of a span's period that rendering + encoding a frame may take: the rest is slack for
+#: one slower frame and for a client that shares the machine.
+SPAN_LOAD = 0.8
+#: The share under which a shorter span is taken again: lower than SPAN_LOAD, so that a render
+#: time near a boundary does not switch the span back and forth (each switch costs a pair).
+SPAN_LOAD_DOWN = 0.6
+#: Frames in a row that must fit a shorter span before the server goes back to it (one fast
+#: frame is no trend; a longer span is taken at once, since every frame late costs a pair).
+SPAN_CALM = 5
+
+
+def _span_for(proc_s: float, fs: float, load: float, max_span: int) -> int:
+    return min(max_span, max(1, math.ceil(proc_s * fs / load - 1e-9)))
+
+
+def choose_span(
+    proc_s: float, fs: float, current: int, calm: int, max_span: int = MAX_SPAN
+) -> tuple[int, int]:
+    """The span (server-frame periods per rendered frame, :attr:`ServerFrame.span`) for a
+    server whose render + encode takes ``proc_s`` seconds per frame at the rate ``fs``: the
+    least ``m ≤ max_span`` with ``proc_s ≤ SPAN_LOAD · m / fs``, taken at once when it is
+    longer than ``current``. A shorter one is taken only once :data:`SPAN_CALM` frames in a row
+    fit it with :data:`SPAN_LOAD_DOWN`; ``calm`` is that count so far. Returns
+    ``(span, calm)``."""
+    up = _span_for(proc_s, fs, SPAN_LOAD, max_span)
+    if up > current:
+        return up, 0
+    down = _span_for(proc_s, fs, SPAN_LOAD_DOWN, max_span)
+    if down >= current:
+        return current, 0
+    if calm + 1 >= SPAN_CALM:
+        return down, 0
+    return current, calm + 1
 
 
 def self_signed_certificate(host: str = "localhost") -> tuple[Any, Any]:
@@ -140,6 +183,8 @@ class ServerOptions:
     #: Fault injection for tests and demos: every ``drop_every``-th frame that is not a key
     #: frame is encoded but not sent, as if the network had lost it (0: none).
     drop_every: int = 0
+    #: Longest span :func:`choose_span` may pick (1: never lower the rate; skip frames instead).
+    max_span: int = MAX_SPAN
 
 
 @dataclass
@@ -194,7 +239,6 @@ class _Session(QuicConnectionProtocol):
         self._key_wanted = False
         self._abr = self.server.rate_controller()
         self._lead = LeadController(max_s=2.0 / self.server.options.fps)
-        self._new_target: float | None = None
         self._reported_at: float | None = None
         self._open: dict[int, tuple[int, bool]] = {}  # seq -> (stream id, key), in flight
         self._closed = asyncio.Event()
@@ -314,11 +358,11 @@ class _Session(QuicConnectionProtocol):
             if msg.queue_ms >= 0:
                 self._reported_at = now
             before = self._abr.target_bps
-            self._new_target = self._abr.update(msg.receive_bps, msg.queue_ms, dt)
-            if abs(self._new_target - before) > ABR_STEP * before and self._offset is not None:
+            after = self._abr.update(msg.receive_bps, msg.queue_ms, dt)
+            if abs(after - before) > ABR_STEP * before and self._offset is not None:
                 # Session time: the client's display clock as estimated from its poses.
                 self.server.log(
-                    f"adaptive target {before / 1e6:.3g} -> {self._new_target / 1e6:.3g} Mb/s "
+                    f"adaptive target {before / 1e6:.3g} -> {after / 1e6:.3g} Mb/s "
                     "at session time "
                     f"{now + self._offset:.2f} s (queue {msg.queue_ms:.0f} ms, receiving "
                     f"{msg.receive_bps / 1e6:.3g} Mb/s)"
@@ -351,24 +395,35 @@ class _Session(QuicConnectionProtocol):
         # aioquic keeps its RTT estimate in the loss recovery (no public accessor).
         return float(getattr(self._quic._loss, "_rtt_smoothed", 0.0) or 0.0)
 
-    def _take_target(self, effective: float, key_at: float) -> tuple[bool, float]:
-        """Passes the adaptive target to the encoder. Only steps that matter: the encoders
-        take a new target at a key frame (x265 reopens, tens of ms per stream). It is taken at
-        once with a key frame of its own (a narrowed link cannot wait for the next regular
-        one); a climb at most every ABR_KEY_INTERVAL_S (a key frame is itself larger) and in
-        between waits (at most that long, not for the next regular key frame).
-        ``effective``: the target the encoders run at; ``key_at``: the loop time of the last
-        such key frame. Returns whether this frame reopens the encoders, and ``key_at``."""
+    def _take_target(
+        self, effective: float, key_at: float, span: int, effective_span: int
+    ) -> tuple[bool, float]:
+        """Passes the adaptive target, times ``span``, to the encoder: the target is the
+        link's rate, and the encoder's rate control spends its target's share of one period
+        per frame, while at span ``m`` one frame goes per ``m`` periods. Only steps that
+        matter: the encoders take a new target at a key frame (x265 reopens, tens of ms per
+        stream). A drop is taken at once with a key frame of its own (a narrowed link cannot
+        wait for the next regular one); a climb at most every ABR_KEY_INTERVAL_S (a key frame
+        is itself larger) and in between waits (at most that long, not for the next regular
+        key frame).
+        ``effective``: the target the encoders run at, set for frames of ``effective_span``
+        (a new span is taken at once: until then the link's rate is off by the ratio of the
+        spans); ``key_at``: the loop time of the last such key frame. Returns whether this
+        frame reopens the encoders, and ``key_at``."""
         encoder = self.server.encoder
-        target, self._new_target = self._new_target, None
+        target = self._abr.target_bps * span
         current = encoder.config.bitrate_mbps * 1e6
-        if target is not None and abs(target - current) > ABR_STEP * current:
+        if abs(target - current) > ABR_STEP * current:
             encoder.set_bitrate(target / 1e6)
         now = asyncio.get_running_loop().time()
         wanted = encoder.config.bitrate_mbps * 1e6
         # A drop goes at once (the link is narrower now, and a key frame at the lower
-        # target is small); a climb waits ABR_KEY_INTERVAL_S after the last such key frame.
-        if wanted < effective or (wanted > effective and now - key_at >= ABR_KEY_INTERVAL_S):
+        # target is small); a climb waits ABR_KEY_INTERVAL_S after the last such key frame,
+        # unless the span changed (a pair is broken there anyway).
+        if wanted < effective or (
+            wanted > effective
+            and (now - key_at >= ABR_KEY_INTERVAL_S or span != effective_span)
+        ):
             encoder.request_key_frame()
             return True, now
         return False, key_at
@@ -379,15 +434,19 @@ class _Session(QuicConnectionProtocol):
         fs = opts.fps
         loop = asyncio.get_running_loop()
         encoder = srv.encoder
-        if encoder.config.bitrate_mbps != srv.max_mbps():
-            encoder.set_bitrate(srv.max_mbps())  # each session starts at the top
+        proc = srv.proc_estimate
+        span, calm = choose_span(proc, fs, 1, 0, opts.max_span)
+        if span > 1:
+            srv.log(self._span_line(span, proc))
+        if encoder.config.bitrate_mbps != srv.max_mbps() * span:
+            encoder.set_bitrate(srv.max_mbps() * span)  # each session starts at the top
         encoder.request_key_frame()
         last = -1
         seq = 0  # place in the encoded sequence (the packets' index: see FrameHeader)
         abr_key_at = loop.time()  # the session's first frame is a key frame
         # The target the HEVC encoders run at: a new one takes effect at a key frame.
         effective = encoder.config.bitrate_mbps * 1e6
-        proc = srv.proc_estimate
+        effective_span = span
         proc_key = 2 * proc  # a frame that reopens the encoders (measured at the first)
         recent: deque[float] = deque(maxlen=5)
         warned = False
@@ -409,32 +468,42 @@ class _Session(QuicConnectionProtocol):
                     continue
                 # Decided before the frame is planned: reopening the encoders makes this
                 # frame slower (proc_key), and the plan must start it that much earlier.
-                reopen, abr_key_at = self._take_target(effective, abr_key_at)
+                reopen, abr_key_at = self._take_target(
+                    effective, abr_key_at, span, effective_span
+                )
                 client_now = loop.time() + self._offset
                 # What the plan leaves out (the client's decode and preparation, a capped
                 # link's transfer time, scheduling noise), from the client's reports.
                 ahead = max(proc, proc_key if reopen else 0.0) + owd + self._lead.lead_s
-                # Frame k is first needed at t_k - 1/f_s (it closes the pair (k-1, k)).
-                k = math.ceil((client_now + ahead) * fs - 1e-9) + (last >= 0)
+                m = span
+                # Frame k is first needed at t_k - m/f_s (it closes the pair (k-m, k)), and
+                # lies on its span's grid (k a multiple of m: the time of a frame at f_s/m).
                 # (The first frame of a session is for the time it arrives at: it can be shown
-                # at once, extrapolated; every later one is for one period after that.)
+                # at once, extrapolated; every later one is for one span after that.)
+                k = m * math.ceil(
+                    (math.ceil((client_now + ahead) * fs - 1e-9) + m * (last >= 0)) / m
+                )
                 # Frames that could not arrive in time are skipped. The encoded sequence goes
                 # on (the packet's index is seq, not k), so a skip costs no key frame.
-                if k > last + 1 and last >= 0:
-                    self.stats.frames_skipped += k - last - 1
+                following = m * (last // m + 1)  # the next frame on the grid after the last
+                if k > following and last >= 0:
+                    self.stats.frames_skipped += (k - following) // m
                     if not warned:
                         srv.log(
-                            f"rendering cannot keep {fs:g} FPS ({proc * 1e3:.0f} ms per frame): "
-                            "skipping frames, the client extrapolates"
+                            f"frames arrive too late at {fs / m:g} FPS "
+                            f"({proc * 1e3:.0f} ms per frame): skipping frames, the client "
+                            "extrapolates"
                         )
                         warned = True
-                k = max(k, last + 1)
-                start = (k - 1) / fs - ahead - self._offset  # loop time to start at
+                k = max(k, following) if last >= 0 else k
+                start = (k - m) / fs - ahead - self._offset  # loop time to start at
                 if start > loop.time():
                     await asyncio.sleep(start - loop.time())
                     # A target that came during the wait is taken now: this frame may be
                     # slower than planned, which beats a frame the link no longer carries.
-                    again, abr_key_at = self._take_target(effective, abr_key_at)
+                    again, abr_key_at = self._take_target(
+                        effective, abr_key_at, m, effective_span
+                    )
                     reopen = reopen or again
                 if self._key_wanted:
                     encoder.request_key_frame()
@@ -444,7 +513,7 @@ class _Session(QuicConnectionProtocol):
                 assert pose is not None and pose_time is not None
                 t0 = time.perf_counter()
                 frame: ServerFrame = await loop.run_in_executor(
-                    srv.executor, srv.render, k, pose
+                    srv.executor, srv.render, k, pose, m
                 )
                 t1 = time.perf_counter()
                 packet: bytes = await loop.run_in_executor(
@@ -453,7 +522,7 @@ class _Session(QuicConnectionProtocol):
                 t2 = time.perf_counter()
                 key = bool(packet[6] & 1)  # the stream format's flags: bit 0 = key frame
                 if key:
-                    effective = encoder.config.bitrate_mbps * 1e6
+                    effective, effective_span = encoder.config.bitrate_mbps * 1e6, m
                 render_ms, encode_ms = (t1 - t0) * 1e3, (t2 - t1) * 1e3
                 # The median of the last frames that are not key frames (a key frame restarts
                 # the encoders and is no guide to the next frame's time; the median keeps one
@@ -461,6 +530,9 @@ class _Session(QuicConnectionProtocol):
                 if not key:
                     recent.append(t2 - t0)
                     proc = float(np.median(recent))
+                    span, calm = choose_span(proc, fs, span, calm, opts.max_span)
+                    if span != m:
+                        srv.log(self._span_line(span, proc))
                 elif reopen:
                     proc_key = t2 - t0
                 last = k
@@ -471,7 +543,10 @@ class _Session(QuicConnectionProtocol):
                 ):
                     self.stats.frames_dropped += 1  # the injected loss (ServerOptions)
                     continue
-                self._send(k, seq - 1, key, pose_time, packet, render_ms, encode_ms, effective)
+                # (The link's rate the frame was encoded for: its encoder target over its span.)
+                self._send(
+                    k, m, seq - 1, key, pose_time, packet, render_ms, encode_ms, effective / m
+                )
         except asyncio.CancelledError:
             pass
         except Exception as e:  # noqa: BLE001 - a session's failure must not end the server
@@ -482,9 +557,19 @@ class _Session(QuicConnectionProtocol):
             self._quic.close(error_code=CLOSE_SERVER_ERROR, reason_phrase=reason)
             self.transmit()
 
+    def _span_line(self, span: int, proc: float) -> str:
+        fs = self.server.options.fps
+        if span == 1:
+            return f"rendering keeps {fs:g} FPS again ({proc * 1e3:.0f} ms per frame)"
+        return (
+            f"rendering cannot keep {fs:g} FPS ({proc * 1e3:.0f} ms per frame): rendering every "
+            f"{span} frames ({fs / span:g} FPS, span {span}); the client interpolates those"
+        )
+
     def _send(
         self,
         k: int,
+        span: int,
         seq: int,
         key: bool,
         pose_time: float,
@@ -493,7 +578,7 @@ class _Session(QuicConnectionProtocol):
         encode_ms: float,
         target: float,
     ) -> None:
-        """Sends frame ``k``; ``target``: the bit-rate it was encoded at (b/s)."""
+        """Sends frame ``k`` of ``span``; ``target``: the bit-rate it was encoded at (b/s)."""
         fs = self.server.options.fps
         assert self._offset is not None  # frames follow poses
         header = FrameHeader(
@@ -509,6 +594,7 @@ class _Session(QuicConnectionProtocol):
             render_ms,
             encode_ms,
             len(packet),
+            span,
         )
         for old in [i for i in self._open if i < seq - 2]:
             # Stale: the client no longer needs it (it will ask for a key frame). A key frame
@@ -579,8 +665,12 @@ class LiveServer:
     def log(self, message: str) -> None:
         print(f"splitrender serve: {message}", file=self._log, flush=True)
 
-    def render(self, k: int, pose: Any) -> ServerFrame:
-        return self.scene.server_frame(k, self.options.scale, self.options.fps, pose=pose)
+    def render(self, k: int, pose: Any, span: int = 1) -> ServerFrame:
+        """Frame ``k`` (a multiple of ``span``) at ``pose``, its motion spanning ``span``
+        periods: frame ``k / span`` of a server at ``f_s / span``, which has the same time."""
+        fs = self.options.fps
+        f = self.scene.server_frame(k // span, self.options.scale, fs / span, pose=pose)
+        return dataclasses.replace(f, index=k, span=span)
 
     def max_mbps(self) -> float:
         if self.options.bitrate is not None:
