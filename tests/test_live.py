@@ -288,13 +288,13 @@ def test_server_killed_mid_session(tmp_path: Path) -> None:
 
 
 # The cap test's settings. At 77x43 a frame carries ~1.3 kB whatever the target (packet
-# header, lossless masks), so the coded bytes must dominate: 0.5 Mb/s at f_s 2 gives frames of
-# 12-15 kB (x265 saturates about there on this tiny picture), ~0.23 Mb/s on the wire. The cap
-# of 0.4 Mb/s carries that (a frame takes ~0.3 s of the 0.5 s period) and its half does not.
-# f_s 2, not 10: at 10 the frames are ~5 kB and x265's rate control misses its target by up
-# to 40 % for a few frames after each change of target (docs/live.md), so a link used at
-# 75 % still queues now and then; at 2 the frames are larger and their sizes steadier.
-ABR_FS, ABR_TOP, CAP, HALVED_AT = "2", 0.5, 0.4, 5.0
+# header, lossless masks), so the coded bytes must dominate: 0.5 Mb/s at f_s 5 gives frames
+# of ~12 kB (about where x265 saturates on this tiny picture), ~0.5 Mb/s on the wire, which
+# the first cap of 0.8 Mb/s carries and its half does not. f_s 5, not 10: at 10 the frames are
+# ~5 kB and x265 overshoots its target by up to 40 % for a few frames after each change, so a
+# link used at 75 % still queued now and then (docs/live.md); not 2, where a frame crosses
+# the link only every 0.5 s and the step came 0.5-1.1 s after the change.
+ABR_FS, ABR_TOP, CAP, HALVED_AT = "5", 0.5, 0.8, 5.0
 
 
 def test_ours_better_than_timewarp_live(tmp_path: Path) -> None:
@@ -348,24 +348,25 @@ def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:
     # The target followed within 1 s of the change: the server's controller went to at most
     # the new cap (its log says when, on the display clock as it estimates it from the poses:
     # early by the uplink's least delay, about a millisecond here). Nothing can tell of the
-    # narrower link before a frame crosses it, one every 0.5 s at f_s 2 (more on a busy
-    # machine, whose server renders every m-th frame): within 1 s of the first frame sent
-    # after the change, and within 2 s of the change itself ...
+    # narrower link before a frame crosses it; at f_s 5 (or a span of 2 on a busy machine)
+    # one does within a few tenths of a second (measured: 0.23-0.4 s) ...
     drops = [(float(m[2]), float(m[1])) for m in re.finditer(
         r"adaptive target \S+ -> (\S+) Mb/s at session time (\S+) s", server.log.read_text())]
     followed = min(t for t, mbps in drops if mbps <= cap and t > change - 0.5)
-    first_sent = min(f["sent"] for f in frames if f["sent"] >= change)
-    assert followed - first_sent <= 1.0 and followed - change <= 2.0, (change, drops, frames)
+    assert followed - change <= 1.0, (change, drops, frames)
     # ... and every frame whose target was chosen after that, until the controller may
     # probe above the cap again (3 % per second from 75 % of it, so not within 9 s), was
     # encoded at it (at least one frame).
     after = [f for t, f in chosen if followed + 0.05 < t < followed + 3.0]
     assert after and all(f["mbps"] <= cap for f in after), (followed, frames)
-    # The halving was felt: the frames at the old target sent after the change took longer
-    # than the least (at 0.5 Mb/s a frame of ~13 kB takes ~0.5 s at 0.2 Mb/s).
+    # The halving was felt: a frame at the old target sent after the change took longer than
+    # the least, by at least half of what the halved cap adds to its transfer (a frame of
+    # ~12 kB takes ~0.12 s at 0.8 Mb/s and ~0.24 s at 0.4).
     base = min(f["arrival"] - f["sent"] for f in frames)
     felt = [f for t, f in chosen if f["sent"] >= change and t < followed]
-    assert max(f["arrival"] - f["sent"] for f in felt) > base + 0.15, (change, followed, frames)
+    assert any(
+        f["arrival"] - f["sent"] > base + 0.5 * 8 * f["bytes"] / (cap * 2e6) for f in felt
+    ), (change, followed, frames)
     # And server_frames_late stopped growing: once the frames encoded before the target
     # followed have crossed the link (they queue at the old rate; nothing can call them back),
     # no frame became usable late (after t_k - m/f_s, m its span) because the link delivered
