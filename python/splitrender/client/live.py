@@ -499,7 +499,8 @@ class LiveClient:
                 loop.call_soon_threadsafe(self._undecodable, index)
             elif f.result() is not None:
                 # Usable now (decoded and prepared): how late against when the display
-                # first needed it, t_k - m/f_s (m: its span), for the server's planning (RateReport).
+                # first needed it, t_k - m/f_s (m: its span), for the server's planning
+                # (RateReport).
                 k = int(f.result())
                 usable = self._now()
                 loop.call_soon_threadsafe(self._made_usable, k, usable)
@@ -764,8 +765,8 @@ class LiveClient:
                 "server_fingerprint": self.server_fingerprint,
             },
             # Per frame received: the encoder target, the arrival (display seconds) and how
-            # late it was against when the display first needed it, t_k - m/f_s (m: its span) (negative:
-            # early), the measure of whether frames arrive on time as the target moves; and
+            # late it was against when the display first needed it, t_k - m/f_s (m: its
+            # span; negative: early), the measure of whether frames arrive on time as the target moves; and
             # when it became usable (decoded and prepared; None: never) and whether that was
             # late (what server_frames_late counts, frame by frame).
             target_mbps=[

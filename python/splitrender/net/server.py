@@ -562,8 +562,8 @@ class _Session(QuicConnectionProtocol):
         if span == 1:
             return f"rendering keeps {fs:g} FPS again ({proc * 1e3:.0f} ms per frame)"
         return (
-            f"rendering cannot keep {fs:g} FPS ({proc * 1e3:.0f} ms per frame): rendering every "
-            f"{span} frames ({fs / span:g} FPS, span {span}); the client interpolates those"
+            f"rendering cannot keep {fs:g} FPS ({proc * 1e3:.0f} ms per frame): rendering one "
+            f"frame in {span} ({fs / span:g} FPS, span {span}); the client interpolates those"
         )
 
     def _send(
