@@ -767,8 +767,8 @@ class LiveClient:
             # Per frame received: the encoder target, the arrival (display seconds) and how
             # late it was against when the display first needed it, t_k - m/f_s (m: its
             # span; negative: early), the measure of whether frames arrive on time as the
-            # target moves; and when it became usable (decoded and prepared; None: never) and whether that was
-            # late (what server_frames_late counts, frame by frame).
+            # target moves; and when it became usable (decoded and prepared; None: never)
+            # and whether that was late (what server_frames_late counts, frame by frame).
             target_mbps=[
                 {"index": i, "mbps": round(m, 6), "sent": round(sent, 4),
                  "server_ms": round(ms, 1), "bytes": size,
