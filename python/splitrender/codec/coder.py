@@ -618,10 +618,9 @@ def _unpack_bits(
             f"{where}: malformed shadow bitfield payload ({len(raw)} bytes)"
         )
     n = raw[0]
-    nz = np.unpackbits(np.frombuffer(raw, np.uint8, mbytes, 1), count=w * h).astype(
-        bool
-    )
-    count = int(nz.sum())
+    # unpackbits gives 0/1 bytes: their bool view is the mask without a copy
+    nz = np.unpackbits(np.frombuffer(raw, np.uint8, mbytes, 1), count=w * h).view(np.bool_)
+    count = int(np.count_nonzero(nz))
     if len(raw) != 1 + mbytes + n * count:
         raise StreamError(
             f"{where}: shadow bitfield payload holds {len(raw) - 1 - mbytes} value bytes for "
