@@ -123,7 +123,7 @@ def test_shadow_bits_beyond_8_bits_survive() -> None:
 # 3 dB less, twice the squared error), so a codec change that doubles any buffer's error fails.
 # Format 3 measured the same but for the shadow colours (35.4 / 34.8 / 30.4 dB): format 4 sends
 # them at half size, and this scene's procedural texture at 160x90 is the worst case for that
-# (the 2x2 block means alone give 19-28 dB here; on courtyard at 1280x720 the loss is 3-4 dB,
+# (the 2x2 block means alone give 19-28 dB here; on courtyard at 1280x720 the loss is 1-5 dB,
 # and Figure 6 shows none, docs/codec-results.md).
 _BOUNDS = {
     #       colour PSNR, shadow PSNR, depth mean, depth median, motion mean
