@@ -295,17 +295,27 @@ mod tests {
         assert!(!huge.fits(1, 1));
     }
 
+    fn planes<'a>(
+        y: &'a [u8],
+        cb: &'a [u8],
+        cr: &'a [u8],
+        stride: [usize; 2],
+        sub: usize,
+    ) -> YCbCrPlanes<'a> {
+        YCbCrPlanes {
+            y,
+            cb,
+            cr,
+            stride,
+            sub,
+        }
+    }
+
     #[test]
     fn shadow_colour_only_where_bits_are_set_with_shared_chroma() {
         let y = [100u8, 150, 200, 250];
         let (cb, cr) = ([128u8 + 10], [128u8 - 20]);
-        let planes = YCbCrPlanes {
-            y: &y,
-            cb: &cb,
-            cr: &cr,
-            stride: [2, 1],
-            sub: 2,
-        };
+        let planes = planes(&y, &cb, &cr, [2, 1], 2);
         let bits = [1u32, 0, 0, 4];
         let mut out = [9u8; 12];
         shadow_colour_from_ycbcr(planes, 0, 0, 2, 2, 1, &bits, &mut out);
@@ -321,13 +331,7 @@ mod tests {
         // A 3×3 camera from a 2×2 tile at (1, 0) of a 3×2 luma plane; 4:4:4 chroma, neutral.
         let y = [0u8, 10, 20, 0, 30, 40];
         let c = [128u8; 6];
-        let planes = YCbCrPlanes {
-            y: &y,
-            cb: &c,
-            cr: &c,
-            stride: [3, 3],
-            sub: 1,
-        };
+        let planes = planes(&y, &c, &c, [3, 3], 1);
         let bits = [1u32; 9];
         let mut out = [0u8; 27];
         shadow_colour_from_ycbcr(planes, 1, 0, 3, 3, 2, &bits, &mut out);
