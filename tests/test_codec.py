@@ -461,6 +461,34 @@ def test_picture_layout(
         assert cover.max() == 1
 
 
+def test_layout_of_odd_rigs_covers_each_tile_once_in_fewest_samples() -> None:
+    """Random rigs of 1-16 cameras: every tile inside its picture, on the 8-pixel grid, none
+    overlapping, and the picture no larger than with columns as tall as the tallest slot
+    (format 3's rule, always among the heights tried)."""
+    from splitrender.codec.coder import _aligned, _layout, _place, _tiles
+    from splitrender.codec.stream import PICTURE_KINDS
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        n = int(rng.integers(1, 17))
+        sizes = tuple(
+            (int(rng.integers(1, 700)), int(rng.integers(1, 400))) for _ in range(n)
+        )
+        for pic in PICTURE_KINDS:
+            tiles, pw, ph = _layout(pic, sizes)
+            assert len(tiles) == len(_tiles(pic, sizes))
+            cover = np.zeros((ph, pw), np.int32)
+            for t in tiles.values():
+                assert t.x % 8 == 0 and t.y % 8 == 0
+                assert t.x + t.w <= pw and t.y + t.h <= ph
+                cover[t.y : t.y + t.h, t.x : t.x + t.w] += 1
+            assert cover.max() == 1
+            ordered = sorted(_tiles(pic, sizes), key=lambda t: -t.h)
+            low = _aligned(ordered[0].h)
+            _, width = _place(ordered, low)
+            assert pw * ph <= max(16, width) * max(16, low)
+
+
 def test_zstd_bomb_rejected(coded: tuple[list[bytes], list[sr.ServerFrame]]) -> None:
     import zstandard
 

@@ -325,10 +325,11 @@ def _tiles(picture: BufferKind, sizes: tuple[tuple[int, int], ...]) -> list[_Til
 def _place(
     tiles: list[_Tile], col_h: int
 ) -> tuple[dict[tuple[int, BufferKind, int], _Tile], int]:
-    """Tiles in columns of height ``col_h`` (see :func:`_layout`) and the width they take."""
+    """Tiles, sorted tallest first, in columns of height ``col_h`` (see :func:`_layout`) and the
+    width they take."""
     placed: dict[tuple[int, BufferKind, int], _Tile] = {}
     x = y = col_w = 0
-    for t in sorted(tiles, key=lambda t: -t.h):
+    for t in tiles:
         tw, th = _aligned(t.w), _aligned(t.h)
         if y + th > col_h:
             x, y, col_w = x + col_w, 0, 0
@@ -348,17 +349,15 @@ def _layout(
 
     Columns filled top to bottom with the tiles from the tallest down (ties in canonical order),
     as tall as gives the picture the fewest pixels (decoding costs per sample): the tallest
-    slot, or a stack of two or more slots up to twice that (ties: the lower). 1280x720 + two
-    640x360 cameras give a 1920x720 colour picture without a gap; their half-size 320x180
-    shadow tiles take 320x184 slots, two of which fit a column of 368 but not of 360.
-    Deterministic, so encoder and decoder agree without a table."""
-    tiles = _tiles(picture, sizes)
-    low = _aligned(max(t.h for t in tiles))
-    heights = sorted({_aligned(t.h) for t in tiles})
-    candidates = {low}
-    for a in heights:
-        candidates.update(k * a for k in range(2, 2 * low // a + 1))
-        candidates.update(a + b for b in heights if a + b <= 2 * low)
+    slot, or a stack of two to four slots of one height, up to twice the tallest (ties: the
+    lower). 1280x720 + two 640x360 cameras give a 1920x720 colour picture without a gap; their
+    half-size 320x180 shadow tiles take 320x184 slots, two of which fit a column of 368 but not
+    of 360. At most 1 + 3 x 32 heights are tried (16 cameras, two tile heights each), so that a
+    packet's odd camera sizes cannot make the decoder search for long. Deterministic, so
+    encoder and decoder agree without a table."""
+    tiles = sorted(_tiles(picture, sizes), key=lambda t: -t.h)
+    low = _aligned(tiles[0].h)
+    candidates = {low} | {k * _aligned(t.h) for t in tiles for k in (2, 3, 4)}
     best: tuple[int, int, dict[tuple[int, BufferKind, int], _Tile], int] | None = None
     for col_h in sorted(c for c in candidates if low <= c <= 2 * low):
         placed, width = _place(tiles, col_h)
