@@ -212,14 +212,16 @@ def test_wrong_version_and_magic() -> None:
     data[4:6] = struct.pack("<H", 9)
     with pytest.raises(StreamError, match="frame 7: unsupported packet version 9"):
         unpack_packet(bytes(data))
-    # Version 2 (24 HEVC streams a frame) is refused with what to do about it.
-    data[4:6] = struct.pack("<H", 2)
-    with pytest.raises(
-        StreamError,
-        match="frame 7: packet format version 2 is no longer supported .*re-encode the "
-        "recording with `splitrender encode`",
-    ):
-        unpack_packet(bytes(data))
+    # Versions 2 (24 HEVC streams a frame) and 3 (full-size shadow colours, which a version-4
+    # decoder would read wrongly: same bytes, other meaning) are refused with what to do.
+    for old in (2, 3):
+        data[4:6] = struct.pack("<H", old)
+        with pytest.raises(
+            StreamError,
+            match=f"frame 7: packet format version {old} is no longer supported \\(this reader "
+            "knows version 4\\); re-encode the recording with `splitrender encode`",
+        ):
+            unpack_packet(bytes(data))
     with pytest.raises(StreamError, match="not a splitrender packet"):
         unpack_packet(b"XXXX" + bytes(data[4:]))
 
@@ -471,11 +473,14 @@ def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
     bad.write_bytes(raw[:8] + struct.pack("<H", 9) + raw[10:])
     with pytest.raises(StreamError, match="unsupported stream version 9"):
         StreamFile(bad)
-    bad.write_bytes(raw[:8] + struct.pack("<H", 2) + raw[10:])
-    with pytest.raises(
-        StreamError, match="v.srs: stream format version 2 is no longer supported"
-    ):
-        StreamFile(bad)
+    for old in (2, 3):
+        bad.write_bytes(raw[:8] + struct.pack("<H", old) + raw[10:])
+        with pytest.raises(
+            StreamError,
+            match=f"v.srs: stream format version {old} is no longer supported \\(this reader "
+            "knows version 4\\)",
+        ):
+            StreamFile(bad)
     bad.write_bytes(b"nonsense")
     with pytest.raises(StreamError):
         StreamFile(bad)

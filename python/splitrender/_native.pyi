@@ -131,7 +131,14 @@ def dequantise_motion(
     out: _F32 | None = None,
 ) -> _F32: ...
 def shadow_colour(
-    luma: _U8, cb: _U8, cr: _U8, x: int, y: int, bits: _U32, out: _U8 | None = None
+    luma: _U8,
+    cb: _U8,
+    cr: _U8,
+    x: int,
+    y: int,
+    bits: _U32,
+    out: _U8 | None = None,
+    half: bool = False,
 ) -> _U8: ...
 def ssim(
     x: _F64, y: _F64, want_map: bool = False

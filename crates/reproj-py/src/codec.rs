@@ -179,9 +179,11 @@ pub fn dequantise_motion<'py>(
 /// A shadow colour `uint8[h, w, 3]` from the tile at `(x, y)` of its full-range BT.709 Y′CbCr
 /// planes (`luma` `uint8[rows, stride]`, `cb`/`cr` at full or half resolution), converted where
 /// `bits` (`uint32[h, w]`) is non-zero and 0 elsewhere; written into `out` (`uint8[h, w, 3]`)
-/// when given, which is returned.
+/// when given, which is returned. `half`: the tile holds one sample per 2×2 pixels
+/// (`⌈w/2⌉ × ⌈h/2⌉`, stream format 4).
 #[pyfunction]
-#[pyo3(signature = (luma, cb, cr, x, y, bits, out=None))]
+#[pyo3(signature = (luma, cb, cr, x, y, bits, out=None, half=false))]
+#[allow(clippy::too_many_arguments)]
 pub fn shadow_colour<'py>(
     py: Python<'py>,
     luma: &Bound<'py, PyAny>,
@@ -191,6 +193,7 @@ pub fn shadow_colour<'py>(
     y: i64,
     bits: &Bound<'py, PyAny>,
     out: Option<&Bound<'py, PyAny>>,
+    half: bool,
 ) -> PyResult<Bound<'py, PyArrayDyn<u8>>> {
     guarded("shadow_colour", || {
         let bits = array::<u32>(bits, "bits", &[Dim::Any("h"), Dim::Any("w")])?;
@@ -215,9 +218,11 @@ pub fn shadow_colour<'py>(
             sub,
         };
         let (x, y) = (position(x, "x")?, position(y, "y")?);
-        if !planes.fits(x, y, w, h) {
+        let step = if half { 2 } else { 1 };
+        let (tw, th) = (w.div_ceil(step), h.div_ceil(step));
+        if !planes.fits(x, y, tw, th) {
             return Err(invalid(format!(
-                "shadow tile: {w}x{h} at ({x}, {y}) does not fit luma {:?} with chroma {:?}",
+                "shadow tile: {tw}x{th} at ({x}, {y}) does not fit luma {:?} with chroma {:?}",
                 l.shape(),
                 b.shape()
             )));
@@ -225,7 +230,7 @@ pub fn shadow_colour<'py>(
         let bits = slice(&bits, "bits")?;
         let (arr, mut rw) = output::<u8>(py, out, &[h, w, 3])?;
         let dst = slice_mut(&mut rw, "out")?;
-        py.detach(|| dequant::shadow_colour_from_ycbcr(planes, x, y, w, h, bits, dst));
+        py.detach(|| dequant::shadow_colour_from_ycbcr(planes, x, y, w, h, step, bits, dst));
         Ok(arr)
     })
 }

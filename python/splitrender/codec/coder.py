@@ -1,7 +1,7 @@
 """Compression of server frames (seeds/000 §3.4, §4.1; DESIGN.md "Wire format and codecs").
 
 :class:`StreamEncoder` turns each :class:`~splitrender.types.ServerFrame` into one packet
-(:mod:`splitrender.codec.stream`, format version 3); :class:`StreamDecoder` turns packets back
+(:mod:`splitrender.codec.stream`, format version 4); :class:`StreamDecoder` turns packets back
 into the same dataclasses the client consumes. A frame is the older one of one pair and the newer
 one of the next, so the client needs both directions of every frame.
 
@@ -17,8 +17,12 @@ picture             tiles (every camera, in the order of :func:`_tiles`)
                     (``ceil(w/2) x ceil(h/2)``), as linear 12-bit codes, HEVC ``gray12le``; the
                     per-tile scale/offset travel in the packet, and 0 is an exact motion code
                     (``offset = -z0 * scale``)
-``shadow``          the four shadow colours (fwd/bwd s_min/s_max), 8-bit like colour
+``shadow``          the four shadow colours (fwd/bwd s_min/s_max) at half size (since format 4),
+                    8-bit like colour
 ==================  ===========================================================================
+
+The geometry and shadow pictures are coded without HEVC's in-loop filters (deblocking, SAO;
+format 4): a third of their decoding, for no loss (docs/stream-format.md, "Why version 4").
 
 The tiles are packed into columns by :func:`_layout`, a pure function of the camera sizes, so the
 packet needs no layout of its own; each tile sits on the 8-pixel grid and its slot is filled by
@@ -31,9 +35,11 @@ Lossless beside them (zstd, bit-exact):
   block, so moving pixels next to static ones keep their own motion.
 - ``depth/motion .invalid``: NaN/inf pixels (only when there are any); they decode to NaN.
 - ``shadow_*.bits``: a bit-packed occupancy mask and the non-zero bitfields (all 32 bits). Shadow
-  colours are only read where a bitfield is set: elsewhere they decode to 0, and the encoder
-  fills them with the mean of the set pixels of their 2x2 block (4:2:0: the chroma sample of a
-  block then is that of its set pixels) or 0, so they cost next to nothing.
+  colours are only read where a bitfield is set: elsewhere they decode to 0. Each half-size
+  sample is the mean of the set pixels of its 2x2 block (every set pixel of the block decodes
+  to it); a sample without any is never read, and the encoder fills it with the mean of the
+  used samples of its own 2x2 block (4:2:0: the chroma sample then is theirs) or 0, so it
+  costs next to nothing.
 
 Rate control: one libx265 encoder per picture, kept open across frames: zero-latency tuning, no
 B-frames, ABR to a per-picture target with a VBV buffer of ``vbv_buffer_s`` seconds
@@ -310,24 +316,20 @@ def _tiles(picture: BufferKind, sizes: tuple[tuple[int, int], ...]) -> list[_Til
                 for c in range(3)
             ]
         else:
-            out += [_Tile(ci, k, 0, w, h) for k in _SHADOW_COLOURS]
+            # Half size since format 4, like motion: read only where a bitfield is set, and
+            # the picture's decoding costs per sample (docs/stream-format.md, "Why version 4").
+            out += [_Tile(ci, k, 0, _half(w), _half(h)) for k in _SHADOW_COLOURS]
     return out
 
 
-@lru_cache(maxsize=64)
-def _layout(
-    picture: BufferKind, sizes: tuple[tuple[int, int], ...]
-) -> tuple[dict[tuple[int, BufferKind, int], _Tile], int, int]:
-    """``(tiles by (camera, kind, channel), width, height)`` of a picture.
-
-    Columns as tall as the tallest tile, filled top to bottom with the tiles from the tallest
-    down (ties in canonical order): 1280x720 + two 640x360 cameras give a 1920x720 colour
-    picture without a gap. Deterministic, so encoder and decoder agree without a table."""
-    tiles = _tiles(picture, sizes)
-    col_h = _aligned(max(t.h for t in tiles))
+def _place(
+    tiles: list[_Tile], col_h: int
+) -> tuple[dict[tuple[int, BufferKind, int], _Tile], int]:
+    """Tiles, sorted tallest first, in columns of height ``col_h`` (see :func:`_layout`) and the
+    width they take."""
     placed: dict[tuple[int, BufferKind, int], _Tile] = {}
     x = y = col_w = 0
-    for t in sorted(tiles, key=lambda t: -t.h):
+    for t in tiles:
         tw, th = _aligned(t.w), _aligned(t.h)
         if y + th > col_h:
             x, y, col_w = x + col_w, 0, 0
@@ -336,8 +338,35 @@ def _layout(
         )
         y += th
         col_w = max(col_w, tw)
+    return placed, x + col_w
+
+
+@lru_cache(maxsize=64)
+def _layout(
+    picture: BufferKind, sizes: tuple[tuple[int, int], ...]
+) -> tuple[dict[tuple[int, BufferKind, int], _Tile], int, int]:
+    """``(tiles by (camera, kind, channel), width, height)`` of a picture.
+
+    Columns filled top to bottom with the tiles from the tallest down (ties in canonical order),
+    as tall as gives the picture the fewest pixels (decoding costs per sample): the tallest
+    slot, or a stack of two to four slots of one height, up to twice the tallest (ties: the
+    lower). 1280x720 + two 640x360 cameras give a 1920x720 colour picture without a gap; their
+    half-size 320x180 shadow tiles take 320x184 slots, two of which fit a column of 368 but not
+    of 360. At most 1 + 3 x 32 heights are tried (16 cameras, two tile heights each), so that a
+    packet's odd camera sizes cannot make the decoder search for long. Deterministic, so
+    encoder and decoder agree without a table."""
+    tiles = sorted(_tiles(picture, sizes), key=lambda t: -t.h)
+    low = _aligned(tiles[0].h)
+    candidates = {low} | {k * _aligned(t.h) for t in tiles for k in (2, 3, 4)}
+    best: tuple[int, int, dict[tuple[int, BufferKind, int], _Tile], int] | None = None
+    for col_h in sorted(c for c in candidates if low <= c <= 2 * low):
+        placed, width = _place(tiles, col_h)
+        if best is None or width * col_h < best[0]:
+            best = (width * col_h, col_h, placed, width)
+    assert best is not None
+    _, col_h, placed, width = best
     # libx265's smallest picture is 16x16 (8x8 tiles of a tiny camera would be less)
-    return placed, max(16, x + col_w), max(16, col_h)
+    return placed, max(16, width), max(16, col_h)
 
 
 def _put(atlas: npt.NDArray[Any], t: _Tile, a: npt.NDArray[Any]) -> None:
@@ -389,6 +418,16 @@ def _hevc_format(picture: BufferKind, chroma: str) -> str:
     return "yuv444p" if chroma == "444" else "yuv420p"
 
 
+#: x265 settings of one picture beyond those of all. The geometry and shadow pictures go without
+#: HEVC's in-loop filters (deblocking, SAO): they smooth block edges of natural images, but
+#: there they cost about a third of the pictures' decoding (nearly empty samples, which FFmpeg
+#: filters all the same) for no gain in the error the client sees (docs/stream-format.md, "Why
+#: version 4"). ``no-`` is how x265 turns a flag off (``deblock=0`` would mean offsets 0:0).
+_PICTURE_PARAMS: dict[BufferKind, list[str]] = {
+    _PIC_GEOMETRY: ["no-deblock=1", "no-sao=1"],
+    _PIC_SHADOW: ["no-deblock=1", "no-sao=1"],
+}
+
 _DECODED_FORMATS: dict[BufferKind, tuple[str, ...]] = {
     # full-range 8-bit pictures come back as the (deprecated) "j" formats for 4:2:0
     _PIC_COLOR: ("yuv444p", "yuv420p", "yuvj444p", "yuvj420p"),
@@ -438,6 +477,7 @@ class _HevcStream:
         ]
         if self.picture != _PIC_GEOMETRY:
             params += ["colorprim=bt709", "transfer=bt709", "colormatrix=bt709"]
+        params += _PICTURE_PARAMS.get(self.picture, [])
         ctx.options = {
             "preset": self.cfg.preset,
             "tune": "zerolatency",
@@ -577,10 +617,9 @@ def _unpack_bits(
             f"{where}: malformed shadow bitfield payload ({len(raw)} bytes)"
         )
     n = raw[0]
-    nz = np.unpackbits(np.frombuffer(raw, np.uint8, mbytes, 1), count=w * h).astype(
-        bool
-    )
-    count = int(nz.sum())
+    # unpackbits gives 0/1 bytes: their bool view is the mask without a copy
+    nz = np.unpackbits(np.frombuffer(raw, np.uint8, mbytes, 1), count=w * h).view(np.bool_)
+    count = int(np.count_nonzero(nz))
     if len(raw) != 1 + mbytes + n * count:
         raise StreamError(
             f"{where}: shadow bitfield payload holds {len(raw) - 1 - mbytes} value bytes for "
@@ -918,7 +957,7 @@ class StreamEncoder(_WorkerThreads):
                 self._gain = min(self._gain, 1.0)
         elif not self._streams:
             # First frame: this frame's lossless bytes plus an estimate of the packet header
-            # (stream format version 3: about 10 bytes per buffer and 250 for the cameras).
+            # (stream format version 4: about 10 bytes per buffer and 250 for the cameras).
             self._lossless_bps = 8 * (lossless + 10 * len(jobs) + 250) * cfg.fps
         budget = max(total - self._lossless_bps, 0.05 * total) * self._gain
         shares = {k: _group_share(cfg, k, motion) for k in lossy}
@@ -1028,7 +1067,12 @@ class StreamEncoder(_WorkerThreads):
                     continue
                 jobs.append(_Job(ci, kb, w, h, Codec.ZSTD, _pack_bits(s.bits, lvl)))
                 for k, col in ((kmin, s.s_min), (kmax, s.s_max)):
-                    filled = _shadow_fill(col, nz, cfg.chroma == "420")
+                    # Half size: per 2x2 block the mean of its set pixels (the decoder gives
+                    # each set pixel its block's sample), then the fill of the unread samples.
+                    half, on = _block_mean(col.astype(np.float32), nz)
+                    filled = _shadow_fill(
+                        np.rint(half).astype(np.uint8), on, cfg.chroma == "420"
+                    )
                     _put(atlases[_PIC_SHADOW], shadow_tiles[(ci, k, 0)], filled)
                     jobs.append(_Job(ci, k, w, h, Codec.TILE))
         return jobs
@@ -1190,7 +1234,8 @@ class StreamDecoder(_WorkerThreads):
         pictures = [b for b in p.buffers if b.codec == Codec.HEVC]
         for b in pictures:
             # Odd camera shapes waste room in the columns: bound the picture itself too, at
-            # what the shadow picture of one camera of max_pixels needs.
+            # four times max_pixels (what format 3's full-size shadow picture of one camera
+            # needed; format 4's largest, geometry, needs 2.5 times plus slot padding).
             _, pw, ph = _layout(b.kind, sizes)
             if pw * ph > 4 * self.max_pixels + (1 << 16):
                 raise StreamError(
@@ -1358,7 +1403,7 @@ class StreamDecoder(_WorkerThreads):
                         t = tiles[(ci, k, 0)]
                         out[(ci, k)] = _native.shadow_colour(
                             luma, cb, cr, t.x, t.y, bits,
-                            self._out.take((ci, k), (h, w, 3), np.uint8),
+                            self._out.take((ci, k), (h, w, 3), np.uint8), half=True,
                         )
         return out
 

@@ -7,11 +7,11 @@ the frame and, where there is one, the buffer (``"frame 12, main.depth: ..."``).
 fill and read the payloads live in :mod:`splitrender.codec.coder`. The format is also described in
 ``docs/stream-format.md``.
 
-Packet (version 3), all integers little-endian::
+Packet (version 4), all integers little-endian::
 
     offset  size  field
     0       4     magic b"SRPK"
-    4       2     version (u16) = 3
+    4       2     version (u16) = 4
     6       2     flags (u16): bit 0 key frame (every HEVC picture starts with an IDR and its
                   parameter sets, so decoding may start here), bit 1 uncompressed; others 0
     8       8     frame index (u64)
@@ -42,9 +42,15 @@ plain header; since version 2 the header block is zstd-compressed, the scales ar
 values they are and one CRC covers the whole packet: about 0.6 kB per frame for three cameras
 (docs/stream-format.md).
 
-Container file (version 3; it holds version-3 packets)::
+Version 4 keeps version 3's bytes and changes what the shadow picture holds: the shadow colours
+at half size per axis (as motion), and the geometry and shadow pictures coded without HEVC's
+in-loop filters; together about a quarter less decoding per server frame. Version-3 packets
+would decode to wrong shadow colours, so they are refused like version 2 (``coder`` and
+docs/stream-format.md, "Why version 4").
 
-    b"SRSTREAM", u16 version = 3, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
+Container file (version 4; it holds version-4 packets)::
+
+    b"SRSTREAM", u16 version = 4, u16 reserved, u32 reserved, f64 server fps   (24 bytes)
     records: u32 packet length, packet bytes                                     (repeated)
     index:   b"SRIX", u32 N, N x (u64 frame index, u64 record offset, u8 key, 7 x pad),
              u32 CRC32 of the N entries
@@ -116,8 +122,8 @@ __all__ = [
     "write_stream",
 ]
 
-PACKET_VERSION = 3
-STREAM_VERSION = 3
+PACKET_VERSION = 4
+STREAM_VERSION = 4
 
 #: Largest image side (as ``splitrender.types.MAX_SIDE``).
 MAX_SIDE = 16384
@@ -226,7 +232,7 @@ _KIND_NAMES: dict[BufferKind, str] = {
     BufferKind.PICTURE_SHADOW: "shadow",
 }
 
-#: The HEVC pictures of version 3 and the buffer kinds whose tiles each one holds.
+#: The HEVC pictures (since version 3) and the buffer kinds whose tiles each one holds.
 PICTURE_KINDS: dict[BufferKind, tuple[BufferKind, ...]] = {
     BufferKind.PICTURE_COLOR: (BufferKind.COLOR,),
     BufferKind.PICTURE_GEOMETRY: (
@@ -414,7 +420,7 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
     """``(frame index, key)`` of a packet from its fixed header alone (no CRC check).
 
     # Errors
-    :class:`StreamError` when the bytes do not start with a version-3 packet header (an older
+    :class:`StreamError` when the bytes do not start with a version-4 packet header (an older
     version: a message that says to re-encode)."""
     if len(data) < _FIXED.size:
         raise StreamError(
