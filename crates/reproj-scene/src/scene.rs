@@ -330,6 +330,9 @@ pub(crate) struct Snapshot<'a> {
     posed: Vec<Option<Shape>>,
     pub light: V3,
     samples: [V3; SHADOW_SAMPLES],
+    /// A bound on `dot(n, l)` above which no disc sample lies below the tangent plane of a
+    /// point with unit normal `n` ([`Snapshot::below_tangent_plane`]).
+    all_above: f64,
     /// `(sin, cos)` of the light's angular radius.
     light_sin_cos: (f64, f64),
     /// Per object: the light direction in object space and the object-space bounds, what the
@@ -537,11 +540,18 @@ impl<'a> Snapshot<'a> {
             .filter(|&i| scene.objects[i].casts_shadow && scene.moves(i))
             .collect();
         let samples = scene.light.samples(light);
+        // The sine of the widest angle between the light and a disc sample (each sample's
+        // component across `l`, over its length), plus a margin far above their rounding.
+        let all_above = samples.iter().fold(0.0f64, |m, s| {
+            let across = sub(*s, scale(light, dot(*s, light)));
+            m.max(length(across) / length(*s))
+        }) + 1e-6;
         let samples_obj = inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
         Snapshot {
             cull,
             moving_casters,
             samples_obj,
+            all_above,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
             scene,
@@ -741,18 +751,7 @@ impl<'a> Snapshot<'a> {
             return ALL_RAYS;
         }
         // `known` holds the rays below the tangent plane already, when it is given.
-        let mut hidden = match known {
-            Some(known) => known,
-            None => {
-                let mut below = 0u32;
-                for (k, s) in self.samples.iter().enumerate() {
-                    if dot(*s, n) <= 0.0 {
-                        below |= 1 << k;
-                    }
-                }
-                below
-            }
-        };
+        let mut hidden = known.unwrap_or_else(|| self.below_tangent_plane(n));
         if hidden == ALL_RAYS {
             return hidden;
         }
@@ -826,6 +825,32 @@ impl<'a> Snapshot<'a> {
         hidden
     }
 
+    /// The disc samples below the tangent plane of a point with unit normal `n` (`dot(s, n) ≤ 0`),
+    /// one bit each as in [`Snapshot::blocked_rays`].
+    ///
+    /// When the light is higher above the plane than the disc is wide, none is, and the 32 dot
+    /// products are skipped: with `θ` the angle between `n` and `l` and `φ` the widest angle of
+    /// a sample from `l` (`sin φ ≤ all_above − 10⁻⁶`), `cos θ > sin φ` gives `θ + φ < 90°`, so
+    /// every `dot(s, n)` is positive by about `10⁻⁶`, far beyond the rounding of the sum (about
+    /// `10⁻¹⁵` for unit vectors): the loop would have found no bit either.
+    fn below_tangent_plane(&self, n: V3) -> u32 {
+        if dot(n, self.light) > self.all_above * length(n) {
+            return 0;
+        }
+        self.below_each(n)
+    }
+
+    /// [`Snapshot::below_tangent_plane`] sample by sample.
+    fn below_each(&self, n: V3) -> u32 {
+        let mut below = 0u32;
+        for (k, s) in self.samples.iter().enumerate() {
+            if dot(*s, n) <= 0.0 {
+                below |= 1 << k;
+            }
+        }
+        below
+    }
+
     /// Shaded colour of albedo `albedo` with unit normal `n` under shadow fraction `f`, seen
     /// along the unit direction `view` (from the point toward the eye), on the RGB8 scale
     /// (`[0, 255]`, clamped as a display would) but not yet rounded, so that sub-samples can be
@@ -850,6 +875,40 @@ impl<'a> Snapshot<'a> {
 mod tests {
     use super::*;
     use crate::{builtin, Variant, SCENE_NAMES};
+
+    /// Skipping the per-sample test for normals well toward the light finds what the test finds
+    /// (no sample below the plane), for normals all around the light and crowded near the
+    /// threshold, where some samples are below.
+    #[test]
+    fn tangent_plane_shortcut_finds_what_each_sample_finds() {
+        let (mut skipped, mut some_below) = (0, 0);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3, 2.7] {
+                let snap = Snapshot::new(&scene, t);
+                let l = snap.light;
+                let e1 = normalize(cross(l, [0.3, 1.0, 0.2]));
+                let e2 = cross(l, e1);
+                // Angles from the light: a coarse sweep plus a fine one around 90° − φ.
+                let edge = (snap.all_above - 1e-6).asin();
+                let angles = (0..=90)
+                    .map(|k| k as f64 * PI / 90.0)
+                    .chain((-200..=200).map(|k| PI / 2.0 - edge + k as f64 * 1e-5));
+                for theta in angles {
+                    for k in 0..24 {
+                        let (s, c) = (k as f64 * PI / 12.0).sin_cos();
+                        let across = add(scale(e1, c), scale(e2, s));
+                        let n = normalize(add(scale(l, theta.cos()), scale(across, theta.sin())));
+                        let each = snap.below_each(n);
+                        assert_eq!(snap.below_tangent_plane(n), each, "{name} t={t} n={n:?}");
+                        skipped += usize::from(dot(n, l) > snap.all_above);
+                        some_below += usize::from(each != 0 && each != ALL_RAYS);
+                    }
+                }
+            }
+        }
+        assert!(skipped > 0 && some_below > 0, "{skipped} {some_below}");
+    }
 
     /// The shadow cull's pre-selection never drops an object that the exact bounding-sphere test
     /// keeps (so the candidate set, and the image, is unchanged), and it does drop some.

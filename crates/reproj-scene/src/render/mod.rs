@@ -165,6 +165,7 @@ pub(crate) struct Sample {
     pub normal: V3,
     /// Unit direction from the point toward the eye.
     pub view: V3,
+    /// NaN where [`Needs::albedo`] was not asked for.
     pub albedo: V3,
     /// Continuous shadow fraction at the key time.
     pub shadow: f64,
@@ -177,7 +178,38 @@ pub(crate) fn sample(
     j: usize,
     with_shadow: bool,
 ) -> Sample {
-    sample_ray(snap, rays, rays.ray(i, j), with_shadow, None)
+    let needs = Needs {
+        shadow: with_shadow,
+        albedo: true,
+    };
+    sample_ray(snap, rays, rays.ray(i, j), needs, None)
+}
+
+/// What [`sample_ray`] computes besides the hit's geometry.
+#[derive(Clone, Copy)]
+pub(crate) struct Needs {
+    /// The shadow fraction at the key time (else 0).
+    pub shadow: bool,
+    /// The albedo (else NaN). The centre of an even sub-sample grid is not one of the colour
+    /// sub-samples, so nothing reads its albedo, and a texture look-up is saved per pixel.
+    pub albedo: bool,
+}
+
+impl Needs {
+    /// A colour sub-sample: the albedo, and the shadow is shared ([`footprint`]).
+    const COLOUR: Needs = Needs {
+        shadow: false,
+        albedo: true,
+    };
+
+    /// A pixel centre for `n×n` colour sub-samples: its albedo only where it is one of them
+    /// (odd `n`).
+    fn centre(shadow: bool, n: usize) -> Needs {
+        Needs {
+            shadow,
+            albedo: n % 2 == 1,
+        }
+    }
 }
 
 /// What the ray `d` from the camera centre sees; `eye`: the camera's tiles and the pixel `d`
@@ -186,8 +218,8 @@ fn sample_ray(
     snap: &Snapshot<'_>,
     rays: &Rays,
     d: V3,
-    with_shadow: bool,
-    eye: Option<(&EyeTiles, (usize, usize))>,
+    needs: Needs,
+    eye: Option<(&EyeTiles<'_>, (usize, usize))>,
 ) -> Sample {
     let sky = Sample {
         obj: None,
@@ -218,7 +250,7 @@ fn sample_ray(
         n_obj = scale(n_obj, -1.0);
     }
     let normal = normalize(snap.world[hit.obj].vector(n_obj));
-    let shadow = if with_shadow {
+    let shadow = if needs.shadow {
         snap.shadow(hit.obj, x, normal)
     } else {
         0.0
@@ -230,10 +262,13 @@ fn sample_ray(
         n_obj,
         normal,
         view: normalize(scale(d, -1.0)),
-        albedo: o
-            .shape
-            .own_albedo(hit.local.face, hit.local.uv)
-            .unwrap_or_else(|| o.material.albedo(hit.local.uv)),
+        albedo: if needs.albedo {
+            o.shape
+                .own_albedo(hit.local.face, hit.local.uv)
+                .unwrap_or_else(|| o.material.albedo(hit.local.uv))
+        } else {
+            [f64::NAN; 3]
+        },
         shadow,
     }
 }
@@ -271,7 +306,7 @@ struct SubSample {
 fn footprint(
     snap: &Snapshot<'_>,
     rays: &Rays,
-    eye: Option<&EyeTiles>,
+    eye: Option<&EyeTiles<'_>>,
     (i, j): (usize, usize),
     n: usize,
     centre: &Sample,
@@ -289,7 +324,7 @@ fn footprint(
                 continue;
             }
             let d = rays.sub_ray(i, j, a, b, n);
-            let mut s = sample_ray(snap, rays, d, false, eye.map(|e| (e, (i, j))));
+            let mut s = sample_ray(snap, rays, d, Needs::COLOUR, eye.map(|e| (e, (i, j))));
             let on_centre = same_surface(centre, &s);
             if on_centre {
                 s.shadow = centre.shadow;
