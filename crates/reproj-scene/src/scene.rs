@@ -354,10 +354,13 @@ pub(crate) struct Snapshot<'a> {
 /// the exact sphere test in [`Snapshot::shadow`] keeps only objects whose centre lies within
 /// `r + s·dist` of the line `x + t·l`; with `q` that lateral distance and `h` the distance along
 /// `l`, `dist ≤ |h| + q` gives `q ≤ (r + s·|h|) / (1 − s)`. Objects are sorted by one coordinate
-/// across the light, so a query reads only the window that bound allows for the largest ordinary
-/// radius and depth range; the few large objects (ground, walls) are always tested. Both the
-/// window and the per-object bound keep a 1 % margin plus an absolute one against rounding, so
-/// they never reject an object that the exact tests would keep: the candidate set is unchanged.
+/// across the light, in a few windows by size (ordinary objects, then houses and walls up to four
+/// times as wide), so a query reads only the part of each window that bound allows for the
+/// window's largest radius and the depth range; the few giant objects (the ground) are always
+/// tested. Both the windows and the per-object bound keep a 1 % margin plus an absolute one
+/// against rounding, so they never reject an object that the exact tests would keep: the
+/// candidate set is unchanged (its order is not, which decides only which occluder of a ray is
+/// found first, not whether one is).
 struct ShadowCull {
     /// Unit vectors across the light.
     e1: V3,
@@ -366,13 +369,13 @@ struct ShadowCull {
     s: Option<(f64, f64)>,
     /// Per object: centre's coordinates `(u, v, w)` along `e1`, `e2`, `l`.
     proj: Vec<V3>,
-    /// Ordinary shadow casters as `(u, index)`, sorted by `u`.
-    sorted: Vec<(f64, usize)>,
-    /// Shadow casters always tested (large, or every caster when the light is too wide).
+    /// Shadow casters by size, each window as `(u, index)` sorted by `u`, with its largest
+    /// radius.
+    windows: Vec<(Vec<(f64, usize)>, f64)>,
+    /// Shadow casters always tested (giant, or every caster when the light is too wide).
     big: Vec<usize>,
-    /// Largest radius among `sorted`, the range of `w` over all casters, and the scale of the
-    /// coordinates (for the absolute margin).
-    r_small: f64,
+    /// The range of `w` over all casters, and the scale of the coordinates (for the absolute
+    /// margin).
     w_range: (f64, f64),
     size: f64,
 }
@@ -405,28 +408,33 @@ impl ShadowCull {
             w_hi = w_hi.max(proj[i][2]);
             size = size.max(c.iter().fold(r, |m, x| m.max(x.abs() + r)));
         }
-        // An object wider than a sixteenth of the casters' spread would widen every window.
-        let big_r = (u_hi - u_lo) / 16.0;
-        let (mut sorted, mut big) = (Vec::new(), Vec::new());
-        let mut r_small = 0.0f64;
+        // An object wider than a sixteenth of the casters' spread would widen every window of
+        // the ordinary ones; up to four times that, it goes to a second window; beyond, it is
+        // tested always.
+        let limits = [1.0, 4.0].map(|f| f * (u_hi - u_lo) / 16.0);
+        let mut windows = limits.map(|_| (Vec::new(), 0.0f64));
+        let mut big = Vec::new();
         for &i in &casters {
             let r = spheres[i].1;
-            if s.is_none() || !(r <= big_r) || !proj[i].iter().all(|x| x.is_finite()) {
-                big.push(i);
-            } else {
-                r_small = r_small.max(r);
-                sorted.push((proj[i][0], i));
+            let window = limits.iter().position(|&limit| r <= limit);
+            match window {
+                Some(w) if s.is_some() && proj[i].iter().all(|x| x.is_finite()) => {
+                    windows[w].0.push((proj[i][0], i));
+                    windows[w].1 = windows[w].1.max(r);
+                }
+                _ => big.push(i),
             }
         }
-        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (sorted, _) in &mut windows {
+            sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        }
         ShadowCull {
             e1,
             e2,
             s,
             proj,
-            sorted,
+            windows: windows.into(),
             big,
-            r_small,
             w_range: (w_lo, w_hi),
             size,
         }
@@ -444,7 +452,7 @@ impl ShadowCull {
         if !p.iter().all(|c| c.is_finite()) {
             self.big
                 .iter()
-                .chain(self.sorted.iter().map(|e| &e.1))
+                .chain(self.windows.iter().flat_map(|w| w.0.iter().map(|e| &e.1)))
                 .for_each(|&i| visit(i));
             return;
         }
@@ -456,14 +464,16 @@ impl ShadowCull {
             }
         }
         let depth = (self.w_range.1 - p[2]).max(p[2] - self.w_range.0).max(0.0);
-        let half = (self.r_small + s * depth) * k + eps;
-        let start = self.sorted.partition_point(|e| e.0 < p[0] - half);
-        for &(u, i) in &self.sorted[start..] {
-            if u > p[0] + half {
-                break;
-            }
-            if may(i) {
-                visit(i);
+        for (sorted, r_max) in &self.windows {
+            let half = (r_max + s * depth) * k + eps;
+            let start = sorted.partition_point(|e| e.0 < p[0] - half);
+            for &(u, i) in &sorted[start..] {
+                if u > p[0] + half {
+                    break;
+                }
+                if may(i) {
+                    visit(i);
+                }
             }
         }
     }
