@@ -3,7 +3,7 @@
 //! Every pattern carries detail at several scales down to a few centimetres (fine stripes, mortar
 //! lines, hashed per-cell noise), so resampling errors of the client show in the metrics.
 
-use crate::math::{floor, hash, lerp, scale, V3};
+use crate::math::{floor, floor_i64, hash, lerp, scale, V3};
 
 /// The procedural pattern of a material, evaluated on the shape's UV (scaled by
 /// [`Material::uv_scale`]).
@@ -70,13 +70,13 @@ impl Material {
     pub fn albedo(&self, uv: [f64; 2]) -> V3 {
         let (u, v) = (uv[0] * self.uv_scale, uv[1] * self.uv_scale);
         let cell = |x: f64, y: f64, s: f64, salt: u64| {
-            hash(floor(x) as i64, floor(y) as i64, s.to_bits() ^ salt)
+            hash(floor_i64(x), floor_i64(y), s.to_bits() ^ salt)
         };
         match self.pattern {
             Pattern::Checker => {
-                let even = (floor(u) as i64 + floor(v) as i64).rem_euclid(2) == 0;
+                let even = (floor_i64(u) + floor_i64(v)).rem_euclid(2) == 0;
                 let base = if even { self.a } else { self.b };
-                let st = if (floor((u + v) * 8.0) as i64) & 1 == 0 {
+                let st = if floor_i64((u + v) * 8.0) & 1 == 0 {
                     1.0
                 } else {
                     0.82

@@ -70,6 +70,21 @@ pub(crate) fn floor(x: f64) -> f64 {
     }
 }
 
+/// `x.floor() as i64`, the same integer for every `f64` (saturating as `as` does, NaN to 0),
+/// without the floating-point floor: the truncation `x as i64` is exact (and saturates and maps
+/// NaN as the cast of the floor does), and is one above the floor exactly when it lies above a
+/// negative non-integer `x` (the comparison is exact: the truncation of an `x` beyond `2⁵³` is
+/// `x` itself); the saturating step keeps `i64::MIN` for every `x` below it.
+#[inline(always)]
+pub(crate) fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if i as f64 > x {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
+}
+
 /// A rigid transform `x ↦ R·x + t` (rotation `R` row-major, no scale), so ray parameters are the
 /// same in object and world space and the inverse is exact up to rounding (`Rᵀ`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -176,10 +191,10 @@ mod tests {
         assert!((0..3).all(|k| (q[k] - p[k]).abs() < 1e-14));
     }
 
-    /// [`floor`] is `f64::floor` bit for bit: special values, values at and near integers and
+    /// [`floor`] is `f64::floor` bit for bit, and [`floor_i64`] its cast: special values, values at and near integers and
     /// the `2⁵²` threshold, and pseudo-random bit patterns over the whole range.
     #[test]
-    fn floor_is_the_library_floor_bit_for_bit() {
+    fn floors_are_the_library_floor_bit_for_bit() {
         let mut xs = vec![
             0.0,
             -0.0,
@@ -221,6 +236,7 @@ mod tests {
         }
         for x in xs {
             assert_eq!(floor(x).to_bits(), x.floor().to_bits(), "floor({x:e})");
+            assert_eq!(floor_i64(x), x.floor() as i64, "floor_i64({x:e})");
         }
     }
 

@@ -221,16 +221,6 @@ fn sample_ray(
     needs: Needs,
     eye: Option<(&EyeTiles<'_>, (usize, usize))>,
 ) -> Sample {
-    let sky = Sample {
-        obj: None,
-        face: 0,
-        x: [0.0; 3],
-        n_obj: [0.0; 3],
-        normal: [0.0; 3],
-        view: [0.0; 3],
-        albedo: [0.0; 3],
-        shadow: 0.0,
-    };
     // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
     // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
     let far = snap.scene.far / snap.scene.near;
@@ -239,7 +229,7 @@ fn sample_ray(
         None => snap.trace(rays.origin, d, 1.0, far),
     };
     let Some(hit) = hit else {
-        return sky;
+        return Sample::SKY;
     };
     let x = add(rays.origin, scale(d, hit.t));
     let o = &snap.scene.objects[hit.obj];
@@ -290,6 +280,20 @@ fn same_surface(a: &Sample, b: &Sample) -> bool {
     a.obj.is_some() && a.obj == b.obj && crate::math::dot(a.normal, b.normal) >= SAME_SURFACE_COS
 }
 
+impl Sample {
+    /// What a ray that meets nothing sees.
+    const SKY: Sample = Sample {
+        obj: None,
+        face: 0,
+        x: [0.0; 3],
+        n_obj: [0.0; 3],
+        normal: [0.0; 3],
+        view: [0.0; 3],
+        albedo: [0.0; 3],
+        shadow: 0.0,
+    };
+}
+
 /// One colour sub-sample of a pixel.
 struct SubSample {
     s: Sample,
@@ -324,21 +328,29 @@ fn footprint(
                 continue;
             }
             let d = rays.sub_ray(i, j, a, b, n);
-            let mut s = sample_ray(snap, rays, d, Needs::COLOUR, eye.map(|e| (e, (i, j))));
-            let on_centre = same_surface(centre, &s);
-            if on_centre {
-                s.shadow = centre.shadow;
-            } else if let Some(obj) = s.obj {
-                s.shadow = match out.iter().find(|p| !p.on_centre && same_surface(&p.s, &s)) {
-                    Some(p) => p.s.shadow,
+            // Built in place (a sub-sample is some 180 bytes, and moving it cost two copies).
+            out.push(SubSample {
+                s: sample_ray(snap, rays, d, Needs::COLOUR, eye.map(|e| (e, (i, j)))),
+                on_centre: false,
+                key: [0.0; 3],
+            });
+            let k = out.len() - 1;
+            let (earlier, last) = out.split_at_mut(k);
+            let p = &mut last[0];
+            p.on_centre = same_surface(centre, &p.s);
+            if p.on_centre {
+                p.s.shadow = centre.shadow;
+            } else if let Some(obj) = p.s.obj {
+                let s = &p.s;
+                p.s.shadow = match earlier
+                    .iter()
+                    .find(|q| !q.on_centre && same_surface(&q.s, s))
+                {
+                    Some(q) => q.s.shadow,
                     None => snap.shadow(obj, s.x, s.normal),
                 };
             }
-            out.push(SubSample {
-                s,
-                on_centre,
-                key: key_color(snap, &s),
-            });
+            p.key = key_color(snap, &p.s);
         }
     }
 }
