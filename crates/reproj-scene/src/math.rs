@@ -191,8 +191,9 @@ mod tests {
         assert!((0..3).all(|k| (q[k] - p[k]).abs() < 1e-14));
     }
 
-    /// [`floor`] is `f64::floor` bit for bit, and [`floor_i64`] its cast: special values, values at and near integers and
-    /// the `2⁵²` threshold, and pseudo-random bit patterns over the whole range.
+    /// [`floor`] is `f64::floor` bit for bit, and [`floor_i64`] its cast: special values, values
+    /// at and near integers and the `2⁵²` threshold, and pseudo-random bit patterns over the
+    /// whole range.
     #[test]
     fn floors_are_the_library_floor_bit_for_bit() {
         let mut xs = vec![
@@ -218,8 +219,8 @@ mod tests {
                 for y in [
                     x,
                     -x,
-                    f64::from_bits(x.to_bits() + 1),
-                    f64::from_bits(x.to_bits() - 1),
+                    f64::from_bits(x.to_bits().wrapping_add(1)),
+                    f64::from_bits(x.to_bits().wrapping_sub(1)),
                 ] {
                     xs.extend([y, -y]);
                 }
