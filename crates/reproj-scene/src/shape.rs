@@ -152,6 +152,9 @@ impl Shape {
     }
 
     /// The full hit from [`Shape::intersect_t`]'s answer for the same `o` and `d`.
+    // Inlined into `Snapshot::finish_hit`, the renderer's one caller (left to itself, the
+    // compiler's choice changes with unrelated edits of the crate).
+    #[inline]
     pub(crate) fn finish(&self, o: V3, d: V3, p: Partial) -> LocalHit {
         match (self, p) {
             (_, Partial::Done(h)) => h,

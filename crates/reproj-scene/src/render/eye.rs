@@ -9,6 +9,7 @@
 //! they are tested in, so a ray that meets one falls back to [`Snapshot::trace`], whose order
 //! decides, and the answer is the BVH's in every case.
 
+use rayon::prelude::*;
 use reproj_core::Camera;
 
 use super::Rays;
@@ -66,22 +67,24 @@ impl<'s> EyeTiles<'s> {
         };
         let (cols, rows) = (w.div_ceil(TILE), h.div_ceil(TILE));
         let n = snap.world.len();
-        let spheres: Vec<(V3, f64, f64)> = (0..n)
+        // Per object: its sphere's centre relative to the camera centre, its distance, radius,
+        // and the angle its sphere subtends (the same for every tile).
+        let spheres: Vec<(V3, f64, f64, f64)> = (0..n)
             .map(|i| {
                 let (c, r) = snap.sphere(i);
                 let v = sub(c, o);
-                (v, length(v), r)
+                let dist = length(v);
+                (v, dist, r, (r / dist).min(1.0).asin())
             })
             .collect();
         let size = spheres.iter().fold(
             o.iter().fold(1.0f64, |m, c| m.max(c.abs())),
-            |m, &(_, d, r)| m.max(d + r),
+            |m, &(_, d, r, _)| m.max(d + r),
         );
         let eps = 1e-9 * size;
-        let mut lists = Vec::new();
-        let mut starts = Vec::with_capacity(cols * rows + 1);
-        starts.push(0);
-        for ty in 0..rows {
+        // One row of tiles: every tile's list one after another, and where each ends.
+        let tile_row = |ty: usize| -> Option<(Vec<(f64, usize)>, Vec<usize>)> {
+            let (mut lists, mut ends) = (Vec::new(), Vec::with_capacity(cols));
             for tx in 0..cols {
                 let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
                 let (y0, y1) = (ty * TILE, ((ty + 1) * TILE).min(h));
@@ -101,14 +104,13 @@ impl<'s> EyeTiles<'s> {
                     return None;
                 }
                 let first = lists.len();
-                for (i, &(v, dist, r)) in spheres.iter().enumerate() {
+                for (i, &(v, dist, r, reach)) in spheres.iter().enumerate() {
                     let near = (dist - r) * (1.0 - 1e-6) - eps;
                     // A sphere that holds the centre (or nearly) is met by any ray.
                     let keep = if !(dist > r * (1.0 + 1e-6) + eps) {
                         true
                     } else {
                         let gamma = (dot(v, axis) / dist).clamp(-1.0, 1.0).acos();
-                        let reach = (r / dist).min(1.0).asin();
                         !(gamma > cone + reach + 1e-6)
                     };
                     if keep {
@@ -116,8 +118,23 @@ impl<'s> EyeTiles<'s> {
                     }
                 }
                 lists[first..].sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-                starts.push(lists.len());
+                ends.push(lists.len());
             }
+            Some((lists, ends))
+        };
+        // Rows in parallel (at 1280×720, 14 400 tiles each test every object, a sequential step
+        // before the pixels otherwise), concatenated in order: the lists do not depend on the
+        // thread count.
+        let done: Vec<_> = (0..rows)
+            .into_par_iter()
+            .map(tile_row)
+            .collect::<Option<_>>()?;
+        let mut lists = Vec::new();
+        let mut starts = Vec::with_capacity(cols * rows + 1);
+        starts.push(0);
+        for (row, ends) in done {
+            starts.extend(ends.iter().map(|e| lists.len() + e));
+            lists.extend(row);
         }
         // A ray `o + t·d` passes the sphere at the distance `√(|v|²|d|² − (v·d)²) / |d|` from its
         // centre; the bound keeps a relative margin on `r²` and one of `10⁻⁹·|v|²` against the
@@ -125,7 +142,7 @@ impl<'s> EyeTiles<'s> {
         let targets = spheres
             .iter()
             .enumerate()
-            .map(|(i, &(v, dist, r))| Target {
+            .map(|(i, &(v, dist, r, _))| Target {
                 origin: snap.inv[i].point(o),
                 inv: snap.inv[i],
                 shape: snap.shape(i),
