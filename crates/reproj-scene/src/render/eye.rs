@@ -20,14 +20,17 @@ use crate::shape::{Partial, Shape};
 /// Pixels per tile side.
 const TILE: usize = 8;
 
+/// An entry of a tile's list: the nearest distance of an object's bounding sphere from the
+/// camera centre, less a margin, and the object.
+type Entry = (f64, usize);
+
 /// Per screen tile of one camera at one instant, the objects its rays may meet.
 pub(crate) struct EyeTiles<'s> {
     /// Tiles per row.
     cols: usize,
     /// Every tile's list (row-major, one after another; tile `k`'s is `starts[k]..starts[k +
-    /// 1]`): `(nearest distance of the object's bounding sphere from the camera centre, less a
-    /// margin, object)`, nearest first.
-    lists: Vec<(f64, usize)>,
+    /// 1]`), nearest first.
+    lists: Vec<Entry>,
     starts: Vec<usize>,
     /// Per object, what a ray needs of it, in one place: the search reads nothing else.
     targets: Vec<Target<'s>>,
@@ -83,7 +86,7 @@ impl<'s> EyeTiles<'s> {
         );
         let eps = 1e-9 * size;
         // One row of tiles: every tile's list one after another, and where each ends.
-        let tile_row = |ty: usize| -> Option<(Vec<(f64, usize)>, Vec<usize>)> {
+        let tile_row = |ty: usize| -> Option<(Vec<Entry>, Vec<usize>)> {
             let (mut lists, mut ends) = (Vec::new(), Vec::with_capacity(cols));
             for tx in 0..cols {
                 let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
