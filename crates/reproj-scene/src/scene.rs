@@ -769,8 +769,10 @@ impl<'a> Snapshot<'a> {
         let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
         let origin = add(x, scale(n, 1e-5 * ext));
         // Candidates with the shadow ray's origin in their object space (the same for all 32
-        // rays, so it is transformed once per candidate instead of once per ray).
-        let mut candidates = [(0usize, [0.0f64; 3]); 16];
+        // rays, so it is transformed once per candidate instead of once per ray). Four in place
+        // (the array is zeroed at every evaluation, and the courtyard averages under one
+        // candidate per evaluation), more in `overflow`.
+        let mut candidates = [(0usize, [0.0f64; 3]); 4];
         let mut nc = 0;
         let mut overflow: Vec<(usize, V3)> = Vec::new();
         let mut consider = |i: usize| {
