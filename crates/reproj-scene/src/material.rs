@@ -3,7 +3,7 @@
 //! Every pattern carries detail at several scales down to a few centimetres (fine stripes, mortar
 //! lines, hashed per-cell noise), so resampling errors of the client show in the metrics.
 
-use crate::math::{hash, lerp, scale, V3};
+use crate::math::{floor, floor_i64, hash, lerp, scale, V3};
 
 /// The procedural pattern of a material, evaluated on the shape's UV (scaled by
 /// [`Material::uv_scale`]).
@@ -70,13 +70,13 @@ impl Material {
     pub fn albedo(&self, uv: [f64; 2]) -> V3 {
         let (u, v) = (uv[0] * self.uv_scale, uv[1] * self.uv_scale);
         let cell = |x: f64, y: f64, s: f64, salt: u64| {
-            hash(x.floor() as i64, y.floor() as i64, s.to_bits() ^ salt)
+            hash(floor_i64(x), floor_i64(y), s.to_bits() ^ salt)
         };
         match self.pattern {
             Pattern::Checker => {
-                let even = (u.floor() as i64 + v.floor() as i64).rem_euclid(2) == 0;
+                let even = (floor_i64(u) + floor_i64(v)).rem_euclid(2) == 0;
                 let base = if even { self.a } else { self.b };
-                let st = if (((u + v) * 8.0).floor() as i64) & 1 == 0 {
+                let st = if floor_i64((u + v) * 8.0) & 1 == 0 {
                     1.0
                 } else {
                     0.82
@@ -85,14 +85,14 @@ impl Material {
                 scale(base, st * (0.8 + 0.2 * n))
             }
             Pattern::Bricks => {
-                let row = (v * 2.0).floor();
+                let row = floor(v * 2.0);
                 let shift = if (row as i64).rem_euclid(2) == 1 {
                     0.5
                 } else {
                     0.0
                 };
                 let x = u + shift;
-                let (fx, fy) = (x - x.floor(), v * 2.0 - row);
+                let (fx, fy) = (x - floor(x), v * 2.0 - row);
                 if fx < 0.05 || fy < 0.1 {
                     let g = cell(u * 40.0, v * 40.0, 1.0, self.salt);
                     return scale(self.b, 0.85 + 0.15 * g);
@@ -102,7 +102,7 @@ impl Material {
                 scale(self.a, (0.75 + 0.25 * tint) * (0.88 + 0.12 * grain))
             }
             Pattern::Tiles => {
-                let (fx, fy) = (u - u.floor(), v - v.floor());
+                let (fx, fy) = (u - floor(u), v - floor(v));
                 if fx < 0.04 || fy < 0.04 {
                     return self.b;
                 }
@@ -129,7 +129,7 @@ impl Material {
 
 /// Bilinearly interpolated hashed lattice noise with a smoothstep fade, in `[0, 1)`.
 fn value_noise(x: f64, y: f64, salt: u64) -> f64 {
-    let (xi, yi) = (x.floor(), y.floor());
+    let (xi, yi) = (floor(x), floor(y));
     let (fx, fy) = (x - xi, y - yi);
     let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
     let (i, j) = (xi as i64, yi as i64);

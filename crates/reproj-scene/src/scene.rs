@@ -330,6 +330,9 @@ pub(crate) struct Snapshot<'a> {
     posed: Vec<Option<Shape>>,
     pub light: V3,
     samples: [V3; SHADOW_SAMPLES],
+    /// A bound on `dot(n, l)` above which no disc sample lies below the tangent plane of a
+    /// point with unit normal `n` ([`Snapshot::below_tangent_plane`]).
+    all_above: f64,
     /// `(sin, cos)` of the light's angular radius.
     light_sin_cos: (f64, f64),
     /// Per object: the light direction in object space and the object-space bounds, what the
@@ -351,10 +354,13 @@ pub(crate) struct Snapshot<'a> {
 /// the exact sphere test in [`Snapshot::shadow`] keeps only objects whose centre lies within
 /// `r + s·dist` of the line `x + t·l`; with `q` that lateral distance and `h` the distance along
 /// `l`, `dist ≤ |h| + q` gives `q ≤ (r + s·|h|) / (1 − s)`. Objects are sorted by one coordinate
-/// across the light, so a query reads only the window that bound allows for the largest ordinary
-/// radius and depth range; the few large objects (ground, walls) are always tested. Both the
-/// window and the per-object bound keep a 1 % margin plus an absolute one against rounding, so
-/// they never reject an object that the exact tests would keep: the candidate set is unchanged.
+/// across the light, in a few windows by size (ordinary objects, then houses and walls up to four
+/// times as wide), so a query reads only the part of each window that bound allows for the
+/// window's largest radius and the depth range; the few giant objects (the ground) are always
+/// tested. Both the windows and the per-object bound keep a 1 % margin plus an absolute one
+/// against rounding, so they never reject an object that the exact tests would keep: the
+/// candidate set is unchanged (its order is not, which decides only which occluder of a ray is
+/// found first, not whether one is).
 struct ShadowCull {
     /// Unit vectors across the light.
     e1: V3,
@@ -363,13 +369,13 @@ struct ShadowCull {
     s: Option<(f64, f64)>,
     /// Per object: centre's coordinates `(u, v, w)` along `e1`, `e2`, `l`.
     proj: Vec<V3>,
-    /// Ordinary shadow casters as `(u, index)`, sorted by `u`.
-    sorted: Vec<(f64, usize)>,
-    /// Shadow casters always tested (large, or every caster when the light is too wide).
+    /// Shadow casters by size, each window as `(u, index)` sorted by `u`, with its largest
+    /// radius.
+    windows: Vec<(Vec<(f64, usize)>, f64)>,
+    /// Shadow casters always tested (giant, or every caster when the light is too wide).
     big: Vec<usize>,
-    /// Largest radius among `sorted`, the range of `w` over all casters, and the scale of the
-    /// coordinates (for the absolute margin).
-    r_small: f64,
+    /// The range of `w` over all casters, and the scale of the coordinates (for the absolute
+    /// margin).
     w_range: (f64, f64),
     size: f64,
 }
@@ -402,28 +408,33 @@ impl ShadowCull {
             w_hi = w_hi.max(proj[i][2]);
             size = size.max(c.iter().fold(r, |m, x| m.max(x.abs() + r)));
         }
-        // An object wider than a sixteenth of the casters' spread would widen every window.
-        let big_r = (u_hi - u_lo) / 16.0;
-        let (mut sorted, mut big) = (Vec::new(), Vec::new());
-        let mut r_small = 0.0f64;
+        // An object wider than a sixteenth of the casters' spread would widen every window of
+        // the ordinary ones; up to four times that, it goes to a second window; beyond, it is
+        // tested always.
+        let limits = [1.0, 4.0].map(|f| f * (u_hi - u_lo) / 16.0);
+        let mut windows = limits.map(|_| (Vec::new(), 0.0f64));
+        let mut big = Vec::new();
         for &i in &casters {
             let r = spheres[i].1;
-            if s.is_none() || !(r <= big_r) || !proj[i].iter().all(|x| x.is_finite()) {
-                big.push(i);
-            } else {
-                r_small = r_small.max(r);
-                sorted.push((proj[i][0], i));
+            let window = limits.iter().position(|&limit| r <= limit);
+            match window {
+                Some(w) if s.is_some() && proj[i].iter().all(|x| x.is_finite()) => {
+                    windows[w].0.push((proj[i][0], i));
+                    windows[w].1 = windows[w].1.max(r);
+                }
+                _ => big.push(i),
             }
         }
-        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (sorted, _) in &mut windows {
+            sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        }
         ShadowCull {
             e1,
             e2,
             s,
             proj,
-            sorted,
+            windows: windows.into(),
             big,
-            r_small,
             w_range: (w_lo, w_hi),
             size,
         }
@@ -441,7 +452,7 @@ impl ShadowCull {
         if !p.iter().all(|c| c.is_finite()) {
             self.big
                 .iter()
-                .chain(self.sorted.iter().map(|e| &e.1))
+                .chain(self.windows.iter().flat_map(|w| w.0.iter().map(|e| &e.1)))
                 .for_each(|&i| visit(i));
             return;
         }
@@ -453,14 +464,16 @@ impl ShadowCull {
             }
         }
         let depth = (self.w_range.1 - p[2]).max(p[2] - self.w_range.0).max(0.0);
-        let half = (self.r_small + s * depth) * k + eps;
-        let start = self.sorted.partition_point(|e| e.0 < p[0] - half);
-        for &(u, i) in &self.sorted[start..] {
-            if u > p[0] + half {
-                break;
-            }
-            if may(i) {
-                visit(i);
+        for (sorted, r_max) in &self.windows {
+            let half = (r_max + s * depth) * k + eps;
+            let start = sorted.partition_point(|e| e.0 < p[0] - half);
+            for &(u, i) in &sorted[start..] {
+                if u > p[0] + half {
+                    break;
+                }
+                if may(i) {
+                    visit(i);
+                }
             }
         }
     }
@@ -537,11 +550,18 @@ impl<'a> Snapshot<'a> {
             .filter(|&i| scene.objects[i].casts_shadow && scene.moves(i))
             .collect();
         let samples = scene.light.samples(light);
+        // The sine of the widest angle between the light and a disc sample (each sample's
+        // component across `l`, over its length), plus a margin far above their rounding.
+        let all_above = samples.iter().fold(0.0f64, |m, s| {
+            let across = sub(*s, scale(light, dot(*s, light)));
+            m.max(length(across) / length(*s))
+        }) + 1e-6;
         let samples_obj = inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
         Snapshot {
             cull,
             moving_casters,
             samples_obj,
+            all_above,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
             scene,
@@ -741,18 +761,7 @@ impl<'a> Snapshot<'a> {
             return ALL_RAYS;
         }
         // `known` holds the rays below the tangent plane already, when it is given.
-        let mut hidden = match known {
-            Some(known) => known,
-            None => {
-                let mut below = 0u32;
-                for (k, s) in self.samples.iter().enumerate() {
-                    if dot(*s, n) <= 0.0 {
-                        below |= 1 << k;
-                    }
-                }
-                below
-            }
-        };
+        let mut hidden = known.unwrap_or_else(|| self.below_tangent_plane(n));
         if hidden == ALL_RAYS {
             return hidden;
         }
@@ -760,8 +769,10 @@ impl<'a> Snapshot<'a> {
         let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
         let origin = add(x, scale(n, 1e-5 * ext));
         // Candidates with the shadow ray's origin in their object space (the same for all 32
-        // rays, so it is transformed once per candidate instead of once per ray).
-        let mut candidates = [(0usize, [0.0f64; 3]); 16];
+        // rays, so it is transformed once per candidate instead of once per ray). Four in place
+        // (the array is zeroed at every evaluation, and the courtyard averages under one
+        // candidate per evaluation), more in `overflow`.
+        let mut candidates = [(0usize, [0.0f64; 3]); 4];
         let mut nc = 0;
         let mut overflow: Vec<(usize, V3)> = Vec::new();
         let mut consider = |i: usize| {
@@ -826,6 +837,32 @@ impl<'a> Snapshot<'a> {
         hidden
     }
 
+    /// The disc samples below the tangent plane of a point with unit normal `n` (`dot(s, n) ≤ 0`),
+    /// one bit each as in [`Snapshot::blocked_rays`].
+    ///
+    /// When the light is higher above the plane than the disc is wide, none is, and the 32 dot
+    /// products are skipped: with `θ` the angle between `n` and `l` and `φ` the widest angle of
+    /// a sample from `l` (`sin φ ≤ all_above − 10⁻⁶`), `cos θ > sin φ` gives `θ + φ < 90°`, so
+    /// every `dot(s, n)` is positive by about `10⁻⁶`, far beyond the rounding of the sum (about
+    /// `10⁻¹⁵` for unit vectors): the loop would have found no bit either.
+    fn below_tangent_plane(&self, n: V3) -> u32 {
+        if dot(n, self.light) > self.all_above * length(n) {
+            return 0;
+        }
+        self.below_each(n)
+    }
+
+    /// [`Snapshot::below_tangent_plane`] sample by sample.
+    fn below_each(&self, n: V3) -> u32 {
+        let mut below = 0u32;
+        for (k, s) in self.samples.iter().enumerate() {
+            if dot(*s, n) <= 0.0 {
+                below |= 1 << k;
+            }
+        }
+        below
+    }
+
     /// Shaded colour of albedo `albedo` with unit normal `n` under shadow fraction `f`, seen
     /// along the unit direction `view` (from the point toward the eye), on the RGB8 scale
     /// (`[0, 255]`, clamped as a display would) but not yet rounded, so that sub-samples can be
@@ -850,6 +887,40 @@ impl<'a> Snapshot<'a> {
 mod tests {
     use super::*;
     use crate::{builtin, Variant, SCENE_NAMES};
+
+    /// Skipping the per-sample test for normals well toward the light finds what the test finds
+    /// (no sample below the plane), for normals all around the light and crowded near the
+    /// threshold, where some samples are below.
+    #[test]
+    fn tangent_plane_shortcut_finds_what_each_sample_finds() {
+        let (mut skipped, mut some_below) = (0, 0);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3, 2.7] {
+                let snap = Snapshot::new(&scene, t);
+                let l = snap.light;
+                let e1 = normalize(cross(l, [0.3, 1.0, 0.2]));
+                let e2 = cross(l, e1);
+                // Angles from the light: a coarse sweep plus a fine one around 90° − φ.
+                let edge = (snap.all_above - 1e-6).asin();
+                let angles = (0..=90)
+                    .map(|k| k as f64 * PI / 90.0)
+                    .chain((-200..=200).map(|k| PI / 2.0 - edge + k as f64 * 1e-5));
+                for theta in angles {
+                    for k in 0..24 {
+                        let (s, c) = (k as f64 * PI / 12.0).sin_cos();
+                        let across = add(scale(e1, c), scale(e2, s));
+                        let n = normalize(add(scale(l, theta.cos()), scale(across, theta.sin())));
+                        let each = snap.below_each(n);
+                        assert_eq!(snap.below_tangent_plane(n), each, "{name} t={t} n={n:?}");
+                        skipped += usize::from(dot(n, l) > snap.all_above);
+                        some_below += usize::from(each != 0 && each != ALL_RAYS);
+                    }
+                }
+            }
+        }
+        assert!(skipped > 0 && some_below > 0, "{skipped} {some_below}");
+    }
 
     /// The shadow cull's pre-selection never drops an object that the exact bounding-sphere test
     /// keeps (so the candidate set, and the image, is unchanged), and it does drop some.

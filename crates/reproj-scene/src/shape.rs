@@ -98,6 +98,8 @@ impl Shape {
     }
 
     /// Whether the shape blocks `o + t·d` for any `t > 0` (shadow rays).
+    // Inlined into the shadow rays' candidate loop, for the reason `intersect_t` is.
+    #[inline(always)]
     pub(crate) fn occludes(&self, o: V3, d: V3) -> bool {
         match self {
             Shape::Mesh(m) => m.occludes(o, d),
@@ -127,6 +129,9 @@ impl Shape {
     /// [`Shape::intersect`] up to its ray parameter: what finding `t` produced, without the
     /// normal and texture coordinates of an analytic shape (an `atan2` and an `asin` on a
     /// sphere), which a closest-hit search needs only for its winner ([`Shape::finish`]).
+    // Inlined into the primary rays' candidate loop: most calls are a box or the ground quad,
+    // cheaper than the call with its spills and the `Partial` passed through memory.
+    #[inline(always)]
     pub(crate) fn intersect_t(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<Partial> {
         let p = match self {
             Shape::Sphere { radius } => {
@@ -147,6 +152,9 @@ impl Shape {
     }
 
     /// The full hit from [`Shape::intersect_t`]'s answer for the same `o` and `d`.
+    // Inlined into `Snapshot::finish_hit`, the renderer's one caller (left to itself, the
+    // compiler's choice changes with unrelated edits of the crate).
+    #[inline]
     pub(crate) fn finish(&self, o: V3, d: V3, p: Partial) -> LocalHit {
         match (self, p) {
             (_, Partial::Done(h)) => h,

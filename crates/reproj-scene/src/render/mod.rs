@@ -165,6 +165,7 @@ pub(crate) struct Sample {
     pub normal: V3,
     /// Unit direction from the point toward the eye.
     pub view: V3,
+    /// NaN where [`Needs::albedo`] was not asked for.
     pub albedo: V3,
     /// Continuous shadow fraction at the key time.
     pub shadow: f64,
@@ -177,7 +178,38 @@ pub(crate) fn sample(
     j: usize,
     with_shadow: bool,
 ) -> Sample {
-    sample_ray(snap, rays, rays.ray(i, j), with_shadow, None)
+    let needs = Needs {
+        shadow: with_shadow,
+        albedo: true,
+    };
+    sample_ray(snap, rays, rays.ray(i, j), needs, None)
+}
+
+/// What [`sample_ray`] computes besides the hit's geometry.
+#[derive(Clone, Copy)]
+pub(crate) struct Needs {
+    /// The shadow fraction at the key time (else 0).
+    pub shadow: bool,
+    /// The albedo (else NaN). The centre of an even sub-sample grid is not one of the colour
+    /// sub-samples, so nothing reads its albedo, and a texture look-up is saved per pixel.
+    pub albedo: bool,
+}
+
+impl Needs {
+    /// A colour sub-sample: the albedo, and the shadow is shared ([`footprint`]).
+    const COLOUR: Needs = Needs {
+        shadow: false,
+        albedo: true,
+    };
+
+    /// A pixel centre for `n×n` colour sub-samples: its albedo only where it is one of them
+    /// (odd `n`).
+    fn centre(shadow: bool, n: usize) -> Needs {
+        Needs {
+            shadow,
+            albedo: n % 2 == 1,
+        }
+    }
 }
 
 /// What the ray `d` from the camera centre sees; `eye`: the camera's tiles and the pixel `d`
@@ -186,19 +218,9 @@ fn sample_ray(
     snap: &Snapshot<'_>,
     rays: &Rays,
     d: V3,
-    with_shadow: bool,
-    eye: Option<(&EyeTiles, (usize, usize))>,
+    needs: Needs,
+    eye: Option<(&EyeTiles<'_>, (usize, usize))>,
 ) -> Sample {
-    let sky = Sample {
-        obj: None,
-        face: 0,
-        x: [0.0; 3],
-        n_obj: [0.0; 3],
-        normal: [0.0; 3],
-        view: [0.0; 3],
-        albedo: [0.0; 3],
-        shadow: 0.0,
-    };
     // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
     // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
     let far = snap.scene.far / snap.scene.near;
@@ -207,7 +229,7 @@ fn sample_ray(
         None => snap.trace(rays.origin, d, 1.0, far),
     };
     let Some(hit) = hit else {
-        return sky;
+        return Sample::SKY;
     };
     let x = add(rays.origin, scale(d, hit.t));
     let o = &snap.scene.objects[hit.obj];
@@ -218,7 +240,7 @@ fn sample_ray(
         n_obj = scale(n_obj, -1.0);
     }
     let normal = normalize(snap.world[hit.obj].vector(n_obj));
-    let shadow = if with_shadow {
+    let shadow = if needs.shadow {
         snap.shadow(hit.obj, x, normal)
     } else {
         0.0
@@ -230,10 +252,13 @@ fn sample_ray(
         n_obj,
         normal,
         view: normalize(scale(d, -1.0)),
-        albedo: o
-            .shape
-            .own_albedo(hit.local.face, hit.local.uv)
-            .unwrap_or_else(|| o.material.albedo(hit.local.uv)),
+        albedo: if needs.albedo {
+            o.shape
+                .own_albedo(hit.local.face, hit.local.uv)
+                .unwrap_or_else(|| o.material.albedo(hit.local.uv))
+        } else {
+            [f64::NAN; 3]
+        },
         shadow,
     }
 }
@@ -255,6 +280,20 @@ fn same_surface(a: &Sample, b: &Sample) -> bool {
     a.obj.is_some() && a.obj == b.obj && crate::math::dot(a.normal, b.normal) >= SAME_SURFACE_COS
 }
 
+impl Sample {
+    /// What a ray that meets nothing sees.
+    const SKY: Sample = Sample {
+        obj: None,
+        face: 0,
+        x: [0.0; 3],
+        n_obj: [0.0; 3],
+        normal: [0.0; 3],
+        view: [0.0; 3],
+        albedo: [0.0; 3],
+        shadow: 0.0,
+    };
+}
+
 /// One colour sub-sample of a pixel.
 struct SubSample {
     s: Sample,
@@ -271,7 +310,7 @@ struct SubSample {
 fn footprint(
     snap: &Snapshot<'_>,
     rays: &Rays,
-    eye: Option<&EyeTiles>,
+    eye: Option<&EyeTiles<'_>>,
     (i, j): (usize, usize),
     n: usize,
     centre: &Sample,
@@ -289,21 +328,29 @@ fn footprint(
                 continue;
             }
             let d = rays.sub_ray(i, j, a, b, n);
-            let mut s = sample_ray(snap, rays, d, false, eye.map(|e| (e, (i, j))));
-            let on_centre = same_surface(centre, &s);
-            if on_centre {
-                s.shadow = centre.shadow;
-            } else if let Some(obj) = s.obj {
-                s.shadow = match out.iter().find(|p| !p.on_centre && same_surface(&p.s, &s)) {
-                    Some(p) => p.s.shadow,
+            // Built in place (a sub-sample is some 180 bytes, and moving it cost two copies).
+            out.push(SubSample {
+                s: sample_ray(snap, rays, d, Needs::COLOUR, eye.map(|e| (e, (i, j)))),
+                on_centre: false,
+                key: [0.0; 3],
+            });
+            let k = out.len() - 1;
+            let (earlier, last) = out.split_at_mut(k);
+            let p = &mut last[0];
+            p.on_centre = same_surface(centre, &p.s);
+            if p.on_centre {
+                p.s.shadow = centre.shadow;
+            } else if let Some(obj) = p.s.obj {
+                let s = &p.s;
+                p.s.shadow = match earlier
+                    .iter()
+                    .find(|q| !q.on_centre && same_surface(&q.s, s))
+                {
+                    Some(q) => q.s.shadow,
                     None => snap.shadow(obj, s.x, s.normal),
                 };
             }
-            out.push(SubSample {
-                s,
-                on_centre,
-                key: key_color(snap, &s),
-            });
+            p.key = key_color(snap, &p.s);
         }
     }
 }

@@ -7,7 +7,7 @@ use reproj_core::{Camera, CameraBuffers};
 
 use super::{
     camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample_ray, EyeTiles,
-    Sample, ServerBuffers, SubSample, BLOCK_ROWS,
+    Needs, Sample, ServerBuffers, SubSample, BLOCK_ROWS,
 };
 use crate::error::{Result, SceneError};
 use crate::math::{normalize, V3};
@@ -149,7 +149,8 @@ pub fn render_server(
                     let k = r * w + i;
                     let j = b * BLOCK_ROWS + r;
                     let eye_px = eye.as_ref().map(|e| (e, (i, j)));
-                    let mut s = sample_ray(&key, &rays, rays.ray(i, j), false, eye_px);
+                    let mut s =
+                        sample_ray(&key, &rays, rays.ray(i, j), Needs::centre(false, n), eye_px);
                     let mut still = None;
                     if let Some(obj) = s.obj {
                         let (x, n) = (s.x, s.normal);

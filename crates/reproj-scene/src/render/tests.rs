@@ -438,7 +438,7 @@ fn supersampled_flat_colour_equals_the_point_sample() {
                         &snap,
                         &rays,
                         rays.sub_ray(i, j, q % n, q / n, n),
-                        false,
+                        Needs::COLOUR,
                         None,
                     );
                     s.obj == c.obj && s.face == c.face

@@ -6,24 +6,26 @@ use rayon::prelude::*;
 use reproj_core::Camera;
 
 use super::{
-    camera_rays, check_samples, footprint, pixel_color, sample, sample_ray, EyeTiles, Rays,
+    camera_rays, check_samples, footprint, pixel_color, sample, sample_ray, EyeTiles, Needs, Rays,
     BLOCK_ROWS,
 };
 use crate::error::Result;
 use crate::scene::Scene;
 
-/// Per-pixel map over row blocks in parallel, concatenated in order (thread-count independent).
-fn per_pixel<T: Copy + Default + Send, const C: usize>(
+/// Per-pixel map over row blocks in parallel, concatenated in order (thread-count independent);
+/// `f` gets a scratch value of its own per block (reused from pixel to pixel, not reallocated).
+fn per_pixel<T: Copy + Default + Send, S: Default, const C: usize>(
     rays: &Rays,
-    f: impl Fn(usize, usize) -> [T; C] + Sync,
+    f: impl Fn(&mut S, usize, usize) -> [T; C] + Sync,
 ) -> Vec<T> {
     let (w, h) = (rays.width, rays.height);
     let mut out = vec![T::default(); C * w * h];
     out.par_chunks_mut(C * w * BLOCK_ROWS)
         .enumerate()
         .for_each(|(b, chunk)| {
+            let mut scratch = S::default();
             for (k, px) in chunk.chunks_exact_mut(C).enumerate() {
-                px.copy_from_slice(&f(k % w, b * BLOCK_ROWS + k / w));
+                px.copy_from_slice(&f(&mut scratch, k % w, b * BLOCK_ROWS + k / w));
             }
         });
     out
@@ -46,12 +48,11 @@ pub fn render_ground_truth(
     let rays = camera_rays(camera, "client")?;
     let snap = scene.at(t);
     let eye = EyeTiles::new(&snap, camera, &rays);
-    Ok(per_pixel(&rays, |i, j| {
-        let mut fp = Vec::with_capacity(n * n);
+    Ok(per_pixel(&rays, |fp: &mut Vec<_>, i, j| {
         let eye_px = eye.as_ref().map(|e| (e, (i, j)));
-        let centre = sample_ray(&snap, &rays, rays.ray(i, j), true, eye_px);
-        footprint(&snap, &rays, eye.as_ref(), (i, j), n, &centre, &mut fp);
-        pixel_color(&fp)
+        let centre = sample_ray(&snap, &rays, rays.ray(i, j), Needs::centre(true, n), eye_px);
+        footprint(&snap, &rays, eye.as_ref(), (i, j), n, &centre, fp);
+        pixel_color(fp)
     }))
 }
 
@@ -63,7 +64,7 @@ pub fn render_ground_truth(
 pub fn render_shadow_fraction(scene: &Scene, camera: &Camera, t: f64) -> Result<Vec<f32>> {
     let rays = camera_rays(camera, "shadow")?;
     let snap = scene.at(t);
-    Ok(per_pixel(&rays, |i, j| {
+    Ok(per_pixel(&rays, |_: &mut (), i, j| {
         [sample(&snap, &rays, i, j, true).shadow as f32]
     }))
 }
