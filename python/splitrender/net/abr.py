@@ -9,7 +9,8 @@ builds a queue at once, long before loss, so the queue is the signal:
   got through (what the link carries now), at once;
 - queue below ``low_ms``: there is room; the target climbs by ``climb`` per second
   (multiplicative, so it takes a few seconds to double: probing, not jumping back into a
-  queue), after a backoff only up to the rate that got through then, which rises slowly;
+  queue), after a backoff only up to the rate that got through then, which rises slowly (and
+  which a later backoff can lower but not raise);
 - in between, or no frame since the previous report (``queue_ms`` < 0): hold.
 
 The target stays in ``[min_bps, max_bps]`` (``--min-bitrate``, ``--bitrate``). This is the
@@ -69,7 +70,12 @@ class RateController:
             pass  # no frame came since the last report: no news, hold
         elif queue_ms > self.high_ms and receive_bps > 0:
             self.target_bps = min(self.target_bps, self.backoff * receive_bps)
-            self.ceiling_bps = max(receive_bps, self.target_bps)
+            # The link's capacity as measured now. A later backoff never raises it: a queue
+            # means the link is full, and a rate measured above the ceiling then is the
+            # client reading a frame's bytes late and at once (a busy event loop), not a
+            # wider link, which shows as room and is found by the probe.
+            seen = max(receive_bps, self.target_bps)
+            self.ceiling_bps = seen if self.ceiling_bps is None else min(self.ceiling_bps, seen)
         elif queue_ms < self.low_ms:
             self.target_bps *= self.climb**dt
             if self.ceiling_bps is not None:
