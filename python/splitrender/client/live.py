@@ -418,9 +418,8 @@ class LiveClient:
         #: them to another method in the same conditions.
         self.arrivals: list[tuple[float, bytes]] = []
         #: Each frame's span (FrameHeader.span) by its seq, for the decoder (the packet does
-        #: not carry it), and by its index.
+        #: not carry it).
         self.spans: dict[int, int] = {}
-        self._span_of: dict[int, int] = {}
         self.order = FrameOrder(self._submit, self._request_key, self._stop_stream, 0.1)
 
     # -- network thread -------------------------------------------------------------------
@@ -470,7 +469,7 @@ class LiveClient:
         n.arrivals.append(arrival)
         n.targets.append((header.index, header.target_bps / 1e6, arrival, header.sent,
                           header.render_ms + header.encode_ms, size, header.span))
-        self.spans[header.seq] = self._span_of[header.index] = header.span
+        self.spans[header.seq] = header.span
         n.server_render_ms.append(header.render_ms)
         n.server_encode_ms.append(header.encode_ms)
         # One-way delay up to a constant (the two clocks' offset): its excess over the least
@@ -503,18 +502,17 @@ class LiveClient:
                 # (RateReport).
                 k = int(f.result())
                 usable = self._now()
-                loop.call_soon_threadsafe(self._made_usable, k, usable)
+                loop.call_soon_threadsafe(self._made_usable, k, header.span, usable)
 
         fut.add_done_callback(done)
 
-    def _made_usable(self, k: int, usable: float) -> None:
+    def _made_usable(self, k: int, span: int, usable: float) -> None:
         assert self.welcome is not None and self._loop is not None
         first = not self.usable_at
         self.usable_at[k] = usable
         if not first:
             # (The session's first frame is for the time it arrives: late by construction.)
-            m = self._span_of.get(k, 1)
-            self._usable.append(usable - (k - m) / self.welcome.server_fps)
+            self._usable.append(usable - (k - span) / self.welcome.server_fps)
 
     def _undecodable(self, index: int) -> None:
         self.net.decode_errors += 1
