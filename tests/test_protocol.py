@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 import splitrender.net.protocol as proto
 from splitrender.client.live import FrameOrder
 from splitrender.errors import InvalidInputError, ProtocolError, SplitRenderError
-from splitrender.net.abr import LeadController, RateController
+from splitrender.net.abr import LeadController, LinkPacer, RateController
 from splitrender.net.predict import ConstantVelocity, LastPose, make_predictor
 from splitrender.net.relay import Impairment, Relay, _Direction, check_loopback
 
@@ -322,6 +322,49 @@ def test_lead_follows_late_frames() -> None:
     for _ in range(200):
         lead.update(1, -1000.0)
     assert lead.lead_s == 0.0
+
+
+def test_link_pacer_drains_at_the_measured_rate() -> None:
+    pacer = LinkPacer()
+    pacer.sent(0.0, 10_000, 0.4e6)  # 80 kbit: 0.2 s at 0.4 Mb/s
+    assert pacer.free_at(0.0, 0.4e6) == pytest.approx(0.2)
+    assert pacer.free_at(0.1, 0.4e6) == pytest.approx(0.2)  # half of it crossed
+    pacer.sent(0.1, 5_000, 0.4e6)  # queued behind the rest
+    assert pacer.free_at(0.1, 0.4e6) == pytest.approx(0.3)
+    # A narrower link found later drains what is left more slowly (80 kbit at 0.2 Mb/s).
+    assert pacer.free_at(0.1, 0.2e6) == pytest.approx(0.5)
+    assert pacer.free_at(1.0, 0.2e6) == 1.0  # all crossed: free now
+    # Unmeasured (no backoff yet): nothing says the link is narrower than what is sent.
+    pacer.sent(1.0, 100_000, None)
+    assert pacer.free_at(1.0, None) == 1.0
+    rc = RateController(1e6, 1e5)
+    assert rc.link_bps is None
+    rc.update(0.4e6, 500.0)
+    assert rc.link_bps == 0.4e6
+
+
+def test_plan_after_a_large_frame_waits_for_the_link() -> None:
+    from splitrender.net.server import plan_frame
+
+    fs, after = 5.0, 0.01
+    base = dict(
+        client_now=10.0, offset=0.0, fs=fs, span=1, last=50, ahead=0.1 + after, after=after
+    )
+    # An empty link: the next frame of the grid (51, needed at 50/f_s = 10.0 s) cannot be
+    # there in time from 10.0 (0.11 s of work); 52 (needed at 10.2) can, started 10.09.
+    plan = plan_frame(**base, queued=0.0)
+    assert (plan.k, plan.skipped) == (52, 1) and plan.start == pytest.approx(10.09)
+    # The reopening key frame still on the link for 0.25 s: 52's bytes would queue behind it
+    # (free at 10.25 > 10.2 - owd). Planned for 53 instead, which arrives in time.
+    plan = plan_frame(**base, queued=0.25)
+    assert (plan.k, plan.skipped) == (53, 2)
+    assert 10.0 + 0.25 + after <= (plan.k - 1) / fs
+    assert plan.start == pytest.approx((plan.k - 1) / fs - 0.11)
+    # Span 2 keeps to its grid (even k); the first frame of a session is for when it arrives.
+    assert plan_frame(**{**base, "span": 2}, queued=0.25).k == 54
+    assert plan_frame(**{**base, "last": -1}, queued=0.0) == plan_frame(
+        **{**base, "last": -1}, queued=0.05
+    )
 
 
 def test_choose_span_fits_the_render_time_with_hysteresis() -> None:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from splitrender.errors import InvalidInputError
 
-__all__ = ["LeadController", "RateController"]
+__all__ = ["LeadController", "LinkPacer", "RateController"]
 
 
 @dataclass
@@ -84,6 +84,12 @@ class RateController:
         self.target_bps = min(max(self.target_bps, self.min_bps), self.max_bps)
         return self.target_bps
 
+    @property
+    def link_bps(self) -> float | None:
+        """The link's capacity as measured at the last backoff (probed upwards since), or
+        ``None`` before any: until a queue shows, nothing says the link is narrower than what
+        is sent."""
+        return self.ceiling_bps
 
 @dataclass
 class LeadController:
@@ -117,3 +123,37 @@ class LeadController:
             self.lead_s += excess if excess > 0 else self.decay * excess
             self.lead_s = min(max(self.lead_s, 0.0), self.max_s)
         return self.lead_s
+
+
+class LinkPacer:
+    """The bytes the server has sent that the link has not yet carried, as a queue drained
+    at the link's measured rate (:attr:`RateController.link_bps`, read at every step, so a
+    narrower link found later drains what is left more slowly; unmeasured: drained at once).
+
+    The server plans each frame to be sent no sooner than the previous ones can have crossed
+    (:meth:`free_at`) and holds it until then: a frame sent right behind a larger one (the key
+    frame that reopens the encoders after a drop) would queue at the bottleneck and arrive
+    late, where planned with the queue it is rendered for a later time (the frame between is
+    skipped) and arrives in time. The hold is before the frame's send time stamp, so the
+    client's queue measure, the adaptive bit-rate's signal, sees only the link's queue."""
+
+    def __init__(self) -> None:
+        self._bits = 0.0
+        self._at: float | None = None
+
+    def _drain(self, now: float, rate_bps: float | None) -> None:
+        if rate_bps is None:
+            self._bits = 0.0
+        elif self._at is not None and now > self._at:
+            self._bits = max(0.0, self._bits - (now - self._at) * rate_bps)
+        self._at = now if self._at is None else max(self._at, now)
+
+    def free_at(self, now: float, rate_bps: float | None) -> float:
+        """When (on ``now``'s clock) the link will have carried everything sent so far."""
+        self._drain(now, rate_bps)
+        return now + (self._bits / rate_bps if rate_bps else 0.0)
+
+    def sent(self, now: float, size_bytes: int, rate_bps: float | None) -> None:
+        """``size_bytes`` handed to the link at ``now``."""
+        self._drain(now, rate_bps)
+        self._bits += 8.0 * size_bytes

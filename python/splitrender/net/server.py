@@ -57,7 +57,7 @@ from aioquic.quic.events import (
 
 from splitrender.codec.coder import CodecConfig, StreamEncoder
 from splitrender.errors import ProtocolError
-from splitrender.net.abr import LeadController, RateController
+from splitrender.net.abr import LeadController, LinkPacer, RateController
 from splitrender.net.predict import make_predictor
 from splitrender.net.protocol import (
     ALPN,
@@ -138,6 +138,49 @@ def choose_span(
     return current, calm + 1
 
 
+@dataclass(frozen=True)
+class FramePlan:
+    """What the server renders next (:func:`plan_frame`): frame ``k`` (a multiple of its span),
+    started at ``start`` (the loop's clock), and how many frames of the grid it skips."""
+
+    k: int
+    start: float
+    skipped: int
+
+
+def plan_frame(
+    *,
+    client_now: float,
+    offset: float,
+    fs: float,
+    span: int,
+    last: int,
+    ahead: float,
+    queued: float,
+    after: float,
+) -> FramePlan:
+    """The next frame to render. Frame ``k`` is first needed at ``t_k − m/f_s`` (it closes the
+    pair (k−m, k), ``m`` = ``span``) and lies on its span's grid (``k`` a multiple of ``m``: the
+    time of a frame at f_s/m); the least such ``k`` after ``last`` (``-1``: none yet) that can be
+    there in time. It can be there ``ahead`` seconds after it is started (render + encode +
+    one-way delay + the client's reported lead), and no sooner than ``queued + after`` from
+    now: the link's queue of what was sent before it (:class:`~splitrender.net.abr.LinkPacer`)
+    plus what follows its send (one-way delay + lead). The first frame of a session is for
+    the time it arrives at (it can be shown at once, extrapolated); every later one is for
+    one span after that. ``offset``: client display time minus loop time. It starts as late
+    as it can (the freshest pose): ``ahead`` before it is needed. Frames that could not
+    arrive in time are skipped."""
+    m = span
+    sendable = max(ahead, queued + after)
+    k = m * math.ceil((math.ceil((client_now + sendable) * fs - 1e-9) + m * (last >= 0)) / m)
+    skipped = 0
+    if last >= 0:
+        following = m * (last // m + 1)  # the next frame on the grid after the last
+        skipped = max(0, (k - following) // m)
+        k = max(k, following)
+    return FramePlan(k, (k - m) / fs - ahead - offset, skipped)
+
+
 def self_signed_certificate(host: str = "localhost") -> tuple[Any, Any]:
     """A new ECDSA P-256 key and a self-signed certificate for ``host`` valid for 30 days
     (``cryptography`` objects, as :class:`QuicConfiguration` takes them)."""
@@ -205,6 +248,7 @@ class SessionStats:
     render_ms: list[float] = field(default_factory=list)
     encode_ms: list[float] = field(default_factory=list)
     target_mbps: list[float] = field(default_factory=list)
+    paced_ms: list[float] = field(default_factory=list)  # frames held for the link (LinkPacer)
     ended: str = ""
 
     def line(self) -> str:
@@ -213,7 +257,8 @@ class SessionStats:
 
         return (
             f"{self.frames_sent} frames sent ({self.key_frames} key, {self.frames_skipped} "
-            f"skipped, {self.streams_reset} reset, {self.frames_dropped} dropped on purpose), render {med(self.render_ms)} ms + encode "
+            f"skipped, {self.streams_reset} reset, {self.frames_dropped} dropped on purpose, "
+            f"{len(self.paced_ms)} held for the link), render {med(self.render_ms)} ms + encode "
             f"{med(self.encode_ms)} ms per frame (median), {self.key_requests} key requests, "
             f"{self.malformed_datagrams} malformed datagrams, {self.malformed_streams} "
             f"malformed streams; ended: {self.ended}"
@@ -239,6 +284,7 @@ class _Session(QuicConnectionProtocol):
         self._key_wanted = False
         self._abr = self.server.rate_controller()
         self._lead = LeadController(max_s=2.0 / self.server.options.fps)
+        self._pacer = LinkPacer()
         self._reported_at: float | None = None
         self._open: dict[int, tuple[int, bool]] = {}  # seq -> (stream id, key), in flight
         self._closed = asyncio.Event()
@@ -471,23 +517,27 @@ class _Session(QuicConnectionProtocol):
                 reopen, abr_key_at = self._take_target(
                     effective, abr_key_at, span, effective_span
                 )
-                client_now = loop.time() + self._offset
+                now = loop.time()
                 # What the plan leaves out (the client's decode and preparation, a capped
                 # link's transfer time, scheduling noise), from the client's reports.
-                ahead = max(proc, proc_key if reopen else 0.0) + owd + self._lead.lead_s
+                after = owd + self._lead.lead_s
                 m = span
-                # Frame k is first needed at t_k - m/f_s (it closes the pair (k-m, k)), and
-                # lies on its span's grid (k a multiple of m: the time of a frame at f_s/m).
-                # (The first frame of a session is for the time it arrives at: it can be shown
-                # at once, extrapolated; every later one is for one span after that.)
-                k = m * math.ceil(
-                    (math.ceil((client_now + ahead) * fs - 1e-9) + m * (last >= 0)) / m
+                plan = plan_frame(
+                    client_now=now + self._offset,
+                    offset=self._offset,
+                    fs=fs,
+                    span=m,
+                    last=last,
+                    ahead=max(proc, proc_key if reopen else 0.0) + after,
+                    # The frame goes out once the link has carried what was sent before it.
+                    queued=self._pacer.free_at(now, self._abr.link_bps) - now,
+                    after=after,
                 )
-                # Frames that could not arrive in time are skipped. The encoded sequence goes
-                # on (the packet's index is seq, not k), so a skip costs no key frame.
-                following = m * (last // m + 1)  # the next frame on the grid after the last
-                if k > following and last >= 0:
-                    self.stats.frames_skipped += (k - following) // m
+                k, start = plan.k, plan.start
+                # The encoded sequence goes on over a skip (the packet's index is seq, not k),
+                # so a skip costs no key frame.
+                if plan.skipped:
+                    self.stats.frames_skipped += plan.skipped
                     if not warned:
                         srv.log(
                             f"frames arrive too late at {fs / m:g} FPS "
@@ -495,8 +545,6 @@ class _Session(QuicConnectionProtocol):
                             "extrapolates"
                         )
                         warned = True
-                k = max(k, following) if last >= 0 else k
-                start = (k - m) / fs - ahead - self._offset  # loop time to start at
                 if start > loop.time():
                     await asyncio.sleep(start - loop.time())
                     # A target that came during the wait is taken now: this frame may be
@@ -543,6 +591,13 @@ class _Session(QuicConnectionProtocol):
                 ):
                     self.stats.frames_dropped += 1  # the injected loss (ServerOptions)
                     continue
+                # Held until the link has carried the frames before it (planned above; a
+                # frame that took longer than planned may find the queue drained already).
+                hold = self._pacer.free_at(loop.time(), self._abr.link_bps) - loop.time()
+                if hold > 0:
+                    self.stats.paced_ms.append(hold * 1e3)
+                    await asyncio.sleep(hold)
+                self._pacer.sent(loop.time(), len(packet) + FrameHeader.SIZE, self._abr.link_bps)
                 # (The link's rate the frame was encoded for: its encoder target over its span.)
                 self._send(
                     k, m, seq - 1, key, pose_time, packet, render_ms, encode_ms, effective / m
