@@ -122,6 +122,8 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
     bounds: Bounds,
     bvh: Bvh2,
+    /// Per triangle, the padded box its BVH leaf was built from ([`Mesh::occluded_rays`]).
+    tri_boxes: Vec<Aabb>,
 }
 
 impl fmt::Debug for Mesh {
@@ -158,6 +160,7 @@ impl Mesh {
             triangles,
             bounds,
             bvh,
+            tri_boxes: prims.into_iter().map(|t| t.0).collect(),
         }
     }
 
@@ -264,12 +267,17 @@ impl Mesh {
             }
             let first = node.first_index as usize;
             if node.is_leaf() {
-                let ids = &self.bvh.primitive_indices[first..first + node.prim_count as usize];
-                if nt + ids.len() > tris.len() {
-                    return each(todo);
+                // A leaf's triangles one by one, each with its own padded box (a leaf of one
+                // triangle would have had that box).
+                for &tri in &self.bvh.primitive_indices[first..first + node.prim_count as usize] {
+                    if meets(&self.tri_boxes[tri as usize]) {
+                        if nt == tris.len() {
+                            return each(todo);
+                        }
+                        tris[nt] = tri;
+                        nt += 1;
+                    }
                 }
-                tris[nt..nt + ids.len()].copy_from_slice(ids);
-                nt += ids.len();
             } else {
                 if sp + 2 > stack.len() {
                     return each(todo);
