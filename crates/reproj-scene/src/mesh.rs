@@ -122,6 +122,8 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
     bounds: Bounds,
     bvh: Bvh2,
+    /// Per triangle, the padded box its BVH leaf was built from ([`Mesh::occluded_rays`]).
+    tri_boxes: Vec<Aabb>,
 }
 
 impl fmt::Debug for Mesh {
@@ -158,6 +160,7 @@ impl Mesh {
             triangles,
             bounds,
             bvh,
+            tri_boxes: prims.into_iter().map(|t| t.0).collect(),
         }
     }
 
@@ -215,6 +218,98 @@ impl Mesh {
         })
     }
 
+    /// Which of the rays `o + t·dirs[k]`, `t > 0`, `k` in `todo`, the mesh blocks, as a mask: the
+    /// rays that [`Mesh::occludes`] finds blocked, found with one walk of the BVH for all of
+    /// them instead of one per ray.
+    ///
+    /// `cone = (axis, spread)`: every `dirs[k]` over its length lies within `spread` of the unit
+    /// `axis` (a chord: `|d̂ − axis| ≤ spread`). A point `p = o + u·d̂` of a box lies within
+    /// `u·spread ≤ D·spread` of the axis point `o + u·axis`, `D` the distance from `o` to the
+    /// box's farthest corner, so the axis ray meets the box grown by that much: a node it does
+    /// not meet holds no triangle any of the rays can hit. The growth keeps a relative margin and
+    /// an absolute one of `10⁻⁵` of the coordinates' size, far above the `f32` rounding of a
+    /// per-ray walk, so the triangles listed include every one that such a walk would test and
+    /// the `f64` test would hit (the per-ray walk's padded boxes never cull one either): each
+    /// ray's answer, whether some triangle's `f64` test hits it, is the same. Where more
+    /// triangles than fit in place are reachable, the rays are walked one by one.
+    pub(crate) fn occluded_rays(
+        &self,
+        o: V3,
+        dirs: &[V3; crate::scene::SHADOW_SAMPLES],
+        (axis, spread): (V3, f64),
+        todo: u32,
+    ) -> u32 {
+        let each = |todo: u32| {
+            bits(todo)
+                .filter(|&k| self.occludes(o, dirs[k]))
+                .fold(0u32, |m, k| m | 1 << k)
+        };
+        if self.triangles.is_empty() || todo == 0 {
+            return 0;
+        }
+        if !(o.iter().chain(&axis).all(|c| c.is_finite()) && spread.is_finite()) {
+            return each(todo);
+        }
+        let mut tris = [0u32; 64];
+        let mut nt = 0;
+        let mut stack = [0u32; 64];
+        let mut sp = 1;
+        let meets = |b: &Aabb| {
+            let lo = [b.min.x, b.min.y, b.min.z].map(f64::from);
+            let hi = [b.max.x, b.max.y, b.max.z].map(f64::from);
+            cone_meets(lo, hi, o, axis, spread)
+        };
+        while sp > 0 {
+            sp -= 1;
+            let node = &self.bvh.nodes[stack[sp] as usize];
+            if !meets(node.aabb()) {
+                continue;
+            }
+            let first = node.first_index as usize;
+            if node.is_leaf() {
+                // A leaf's triangles one by one, each with its own padded box (a leaf of one
+                // triangle would have had that box).
+                for &tri in &self.bvh.primitive_indices[first..first + node.prim_count as usize] {
+                    if meets(&self.tri_boxes[tri as usize]) {
+                        if nt == tris.len() {
+                            return each(todo);
+                        }
+                        tris[nt] = tri;
+                        nt += 1;
+                    }
+                }
+            } else {
+                if sp + 2 > stack.len() {
+                    return each(todo);
+                }
+                stack[sp] = first as u32;
+                stack[sp + 1] = first as u32 + 1;
+                sp += 2;
+            }
+        }
+        let tris = &tris[..nt];
+        let mut hidden = 0u32;
+        // Neighbouring rays mostly meet the same triangle: the last one that blocked is tried
+        // first.
+        let mut last: Option<u32> = None;
+        for k in bits(todo) {
+            let hits = |&tri: &u32| {
+                self.triangle_hit(tri, o, dirs[k], 0.0, f64::INFINITY)
+                    .is_some()
+            };
+            let hit = if last.as_ref().is_some_and(hits) {
+                last
+            } else {
+                tris.iter().find(|t| hits(t)).copied()
+            };
+            if hit.is_some() {
+                last = hit;
+                hidden |= 1 << k;
+            }
+        }
+        hidden
+    }
+
     /// Möller–Trumbore in `f64`: `(t, u, v)` for `t ∈ (tmin, tmax)`. Both sides count (the meshes
     /// are closed, and open ones are meant to be seen from both sides).
     pub(crate) fn triangle_hit(
@@ -247,6 +342,50 @@ impl Mesh {
         let t = dot(e2, q) * inv;
         (t > tmin && t < tmax).then_some((t, u, v))
     }
+}
+
+/// The set bits of `m`, lowest first.
+pub(crate) fn bits(mut m: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (m != 0).then(|| {
+            let k = m.trailing_zeros() as usize;
+            m &= m - 1;
+            k
+        })
+    })
+}
+
+/// Whether a ray `o + t·d`, `t > 0`, with `|d̂ − axis| ≤ spread` may pass through the box `[lo,
+/// hi]` ([`Mesh::occluded_rays`] has the argument).
+#[inline]
+fn cone_meets(lo: V3, hi: V3, o: V3, axis: V3, spread: f64) -> bool {
+    let mut far2 = 0.0;
+    let mut size = o.iter().fold(1.0f64, |m, c| m.max(c.abs()));
+    for k in 0..3 {
+        let (a, b) = (lo[k] - o[k], hi[k] - o[k]);
+        far2 += (a * a).max(b * b);
+        size = size.max(lo[k].abs()).max(hi[k].abs());
+    }
+    let far = far2.sqrt();
+    let grow = far * spread * 1.001 + 1e-5 * (size + far);
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for k in 0..3 {
+        let (lo, hi) = (lo[k] - grow, hi[k] + grow);
+        if axis[k] == 0.0 {
+            if o[k] < lo || o[k] > hi {
+                return false;
+            }
+            continue;
+        }
+        let (mut a, mut b) = ((lo - o[k]) / axis[k], (hi - o[k]) / axis[k]);
+        if a > b {
+            std::mem::swap(&mut a, &mut b);
+        }
+        t0 = t0.max(a);
+        t1 = t1.min(b);
+    }
+    // A NaN (no finite answer) keeps the box.
+    !(t0 > t1)
 }
 
 /// The `f32` ray `o + t·d`, `t ∈ [0, tmax]`, of a BVH traversal (the BVH only culls; every hit

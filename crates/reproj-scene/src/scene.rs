@@ -25,6 +25,20 @@ pub const SHADOW_SAMPLES: usize = 32;
 // One bit per shadow ray in the masks of `Snapshot::blocked_rays`.
 const _: () = assert!(SHADOW_SAMPLES > 0 && SHADOW_SAMPLES <= 32);
 
+/// Corners of the polygon around the light's disc whose rays decide a convex occluder's umbra
+/// ([`Snapshot::occluded_rays`]).
+///
+/// For a convex solid `K` and a ray origin `o`, the directions `l + w` (`w ⊥ l`) whose rays
+/// meet `K` form a convex set of `w`: the cone over `K − o` is convex, and so is its section
+/// by a plane. The disc samples' `w` lie within the radius `R₀` of the largest; the polygon's
+/// corners are those of a regular hexagon around the radius `R₀·(1 + 10⁻³)`. When the rays
+/// toward all six are blocked, so is every ray toward the polygon, and every sample lies inside
+/// it by at least `10⁻³·R₀` (`2·10⁻⁵` radians in the courtyard), far beyond where rounding could
+/// turn its own test (`Shape::occludes`, errors near `10⁻¹⁵` of the coordinates) the other
+/// way. Only the box and the sphere are used so: their tests are one slab or one quadratic,
+/// without seams between pieces.
+const UMBRA_SIDES: usize = 6;
+
 /// Every shadow ray of a shading point, as a mask of [`Snapshot::blocked_rays`].
 pub(crate) const ALL_RAYS: u32 = u32::MAX >> (32 - SHADOW_SAMPLES);
 
@@ -345,6 +359,11 @@ pub(crate) struct Snapshot<'a> {
     moving_casters: Vec<usize>,
     /// Per object: the shadow rays' directions (`samples`) in its object space.
     samples_obj: Vec<[V3; SHADOW_SAMPLES]>,
+    /// A bound on `|ŝ − l|` over the unit disc samples `ŝ` ([`crate::mesh::Mesh::occluded_rays`]).
+    spread: f64,
+    /// Per object: the directions toward the corners of the polygon around the disc
+    /// ([`UMBRA_SIDES`]) in its object space.
+    umbra_obj: Vec<[V3; UMBRA_SIDES]>,
 }
 
 /// A conservative pre-selection for the shadow cull, built once per instant.
@@ -479,6 +498,28 @@ impl ShadowCull {
     }
 }
 
+/// The directions toward the corners of the polygon of [`UMBRA_SIDES`] around the disc samples
+/// `samples` of the light `l`.
+fn umbra_corners(samples: &[V3; SHADOW_SAMPLES], l: V3) -> [V3; UMBRA_SIDES] {
+    // Each sample's point on the plane at unit distance along `l` (its ray's direction scaled to
+    // `l + w`), and the largest `|w|`.
+    let r0 = samples.iter().fold(0.0f64, |m, s| {
+        m.max(length(sub(scale(*s, 1.0 / dot(*s, l)), l)))
+    });
+    let e1 = normalize(if l[0].abs() < 0.9 {
+        cross(l, [1.0, 0.0, 0.0])
+    } else {
+        cross(l, [0.0, 1.0, 0.0])
+    });
+    let e2 = normalize(cross(l, e1));
+    // A regular polygon's corners lie at `1 / cos(π / sides)` of its inner radius.
+    let corner = r0 * (1.0 + 1e-3) / (PI / UMBRA_SIDES as f64).cos();
+    std::array::from_fn(|j| {
+        let (s, c) = (2.0 * PI * j as f64 / UMBRA_SIDES as f64).sin_cos();
+        add(l, add(scale(e1, corner * c), scale(e2, corner * s)))
+    })
+}
+
 /// The pre-selection of [`ShadowCull`] for one sphere: whether a sphere of radius `r` whose
 /// centre has the coordinates `q` across and along the light may shadow the point with the
 /// coordinates `p`, with `(s, k)` and `eps` as there.
@@ -557,7 +598,15 @@ impl<'a> Snapshot<'a> {
             m.max(length(across) / length(*s))
         }) + 1e-6;
         let samples_obj = inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
+        let spread = samples
+            .iter()
+            .fold(0.0f64, |m, s| m.max(length(sub(normalize(*s), light))))
+            * (1.0 + 1e-6);
+        let umbra = umbra_corners(&samples, light);
+        let umbra_obj = inv.iter().map(|m| umbra.map(|s| m.vector(s))).collect();
         Snapshot {
+            spread,
+            umbra_obj,
             cull,
             moving_casters,
             samples_obj,
@@ -810,31 +859,49 @@ impl<'a> Snapshot<'a> {
         if nc == 0 && overflow.is_empty() {
             return hidden;
         }
-        // The candidate that blocked the previous ray (neighbouring rays of the disc mostly meet
-        // the same occluder) is tried first.
-        let mut last: Option<(usize, V3)> = None;
-        for k in 0..SHADOW_SAMPLES {
-            if hidden & (1 << k) != 0 {
-                continue;
+        // Candidate by candidate: a ray is hidden when any candidate blocks it, so the order
+        // changes only the work (a candidate tests the rays that the ones before it left).
+        for &(i, o) in candidates[..nc].iter().chain(&overflow) {
+            let todo = ALL_RAYS & !hidden;
+            if todo == 0 {
+                break;
             }
-            let occludes =
-                |&(i, o): &(usize, V3)| self.shape(i).occludes(o, self.samples_obj[i][k]);
-            let hit = if last.as_ref().is_some_and(occludes) {
-                last
-            } else {
-                candidates[..nc]
-                    .iter()
-                    .chain(&overflow)
-                    .filter(|c| Some(c.0) != last.map(|l| l.0))
-                    .find(|c| occludes(c))
-                    .copied()
-            };
-            if hit.is_some() {
-                last = hit;
-                hidden |= 1 << k;
-            }
+            hidden |= self.occluded_rays(i, o, todo);
         }
         hidden
+    }
+
+    /// The rays among `todo` (a mask as in [`Snapshot::blocked_rays`]) that object `i` blocks,
+    /// the shadow rays' origin being `o` in its object space: exactly those for which
+    /// [`Shape::occludes`] is true ([`Snapshot::occluded_each`]), found with fewer tests.
+    fn occluded_rays(&self, i: usize, o: V3, todo: u32) -> u32 {
+        let dirs = &self.samples_obj[i];
+        let shape = self.shape(i);
+        let mesh = match shape {
+            Shape::Mesh(m) => Some(m.as_ref()),
+            Shape::Gltf(g) => Some(g.rest().as_ref()),
+            _ => None,
+        };
+        if let Some(m) = mesh {
+            return m.occluded_rays(o, dirs, (self.light_obj[i].0, self.spread), todo);
+        }
+        // A convex solid that blocks the rays toward every corner of the polygon around the
+        // light's disc blocks every ray of the disc (see `UMBRA_SIDES`).
+        if matches!(shape, Shape::Cuboid { .. } | Shape::Sphere { .. })
+            && todo.count_ones() as usize > UMBRA_SIDES
+            && self.umbra_obj[i].iter().all(|&d| shape.occludes(o, d))
+        {
+            return todo;
+        }
+        self.occluded_each(i, o, todo)
+    }
+
+    /// [`Snapshot::occluded_rays`] ray by ray.
+    fn occluded_each(&self, i: usize, o: V3, todo: u32) -> u32 {
+        let shape = self.shape(i);
+        crate::mesh::bits(todo)
+            .filter(|&k| shape.occludes(o, self.samples_obj[i][k]))
+            .fold(0u32, |m, k| m | 1 << k)
     }
 
     /// The disc samples below the tangent plane of a point with unit normal `n` (`dot(s, n) ≤ 0`),
@@ -920,6 +987,107 @@ mod tests {
             }
         }
         assert!(skipped > 0 && some_below > 0, "{skipped} {some_below}");
+    }
+
+    /// The shortcuts of `occluded_rays` (one BVH walk for all rays of a mesh, the umbra of a box
+    /// or sphere from the polygon's corners) find exactly the rays that the per-ray tests find,
+    /// at origins whose rays pass through and around every caster (its inside, its silhouette and
+    /// the umbra's edge), and every kind of answer occurs: umbra, penumbra, and none.
+    #[test]
+    fn occluded_rays_finds_what_each_ray_finds() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut umbra, mut partial, mut none, mut mesh_partial) = (0, 0, 0, 0);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3] {
+                let snap = Snapshot::new(&scene, t);
+                for i in 0..scene.objects.len() {
+                    let b = snap.light_obj[i].1;
+                    let is_mesh = !scene.objects[i].shape.is_convex();
+                    for _ in 0..150 {
+                        // A point in or near the object's box (object space), then back toward
+                        // the light's opposite side by a random distance: its shadow rays pass
+                        // near that point.
+                        let p: V3 = std::array::from_fn(|k| {
+                            let w = b.max[k] - b.min[k];
+                            b.min[k] - 0.1 * w + 1.2 * w * uniform()
+                        });
+                        let back = 0.02 + 10.0 * uniform() * uniform();
+                        let o = sub(p, scale(snap.light_obj[i].0, back));
+                        let todo = if uniform() < 0.3 {
+                            (uniform() * f64::from(u32::MAX)) as u32 & ALL_RAYS
+                        } else {
+                            ALL_RAYS
+                        };
+                        let each = snap.occluded_each(i, o, todo);
+                        assert_eq!(
+                            snap.occluded_rays(i, o, todo),
+                            each,
+                            "{name} t={t} object {i} o={o:?} todo={todo:#x}"
+                        );
+                        if todo == ALL_RAYS {
+                            match each {
+                                ALL_RAYS => umbra += 1,
+                                0 => none += 1,
+                                _ => {
+                                    partial += 1;
+                                    mesh_partial += usize::from(is_mesh);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            umbra > 100 && partial > 100 && none > 100 && mesh_partial > 10,
+            "umbra {umbra}, partial {partial}, none {none}, mesh partial {mesh_partial}"
+        );
+    }
+
+    /// The umbra shortcut at the edge of a box's umbra: origins stepped across it in small steps,
+    /// so that the six corners go from all blocked to some not, with samples on both sides.
+    #[test]
+    fn umbra_shortcut_agrees_across_the_umbra_edge() {
+        let scene = builtin("courtyard", Variant::Dynamic).unwrap();
+        let snap = Snapshot::new(&scene, 0.0);
+        let houses: Vec<usize> = (0..scene.objects.len())
+            .filter(|&i| scene.objects[i].name == "house")
+            .collect();
+        let (mut full, mut taken) = (0, 0);
+        for &i in &houses {
+            let (l, b) = snap.light_obj[i];
+            // Across the box's middle at half its height, 3 m back from it along the light.
+            let mid: V3 = std::array::from_fn(|k| 0.5 * (b.min[k] + b.max[k]));
+            let across = normalize(cross(l, [0.0, 1.0, 0.0]));
+            let half = (0..3).fold(0.0f64, |m, k| m.max(b.max[k] - b.min[k]));
+            for step in -4000..=4000 {
+                let o = sub(
+                    add(mid, scale(across, step as f64 * half / 3000.0)),
+                    scale(l, 3.0),
+                );
+                let each = snap.occluded_each(i, o, ALL_RAYS);
+                assert_eq!(
+                    snap.occluded_rays(i, o, ALL_RAYS),
+                    each,
+                    "house {i} step {step}"
+                );
+                full += usize::from(each == ALL_RAYS);
+                taken += usize::from(
+                    snap.umbra_obj[i]
+                        .iter()
+                        .all(|&d| snap.shape(i).occludes(o, d)),
+                );
+            }
+        }
+        // Some umbra points are decided by the corners, and near the edge some are not.
+        assert!(taken > 0 && taken < full, "taken {taken}, full {full}");
     }
 
     /// The shadow cull's pre-selection never drops an object that the exact bounding-sphere test
