@@ -44,10 +44,11 @@ struct Target<'s> {
     inv: Rigid,
     /// The object's shape at this instant.
     shape: &'s Shape,
-    /// Its bounding sphere's centre relative to the camera centre `v`, and the squared bound on
-    /// a ray's distance from it, over `|d|²` ([`EyeTiles::new`]); `None` where the camera
-    /// centre is inside the sphere (or about).
-    sphere: Option<(V3, f64)>,
+    /// Its bounding sphere's centre relative to the camera centre `v`, `|v|²` (the same for
+    /// every ray, so computed once), and the squared bound on a ray's distance from it, over
+    /// `|d|²` ([`EyeTiles::new`]); `None` where the camera centre is inside the sphere (or
+    /// about).
+    sphere: Option<(V3, f64, f64)>,
 }
 
 impl<'s> EyeTiles<'s> {
@@ -149,8 +150,11 @@ impl<'s> EyeTiles<'s> {
                 origin: snap.inv[i].point(o),
                 inv: snap.inv[i],
                 shape: snap.shape(i),
-                sphere: (dist > r * (1.0 + 1e-6) + eps)
-                    .then_some((v, r * r * (1.0 + 1e-6) + 1e-9 * dist * dist + eps * eps)),
+                sphere: (dist > r * (1.0 + 1e-6) + eps).then_some((
+                    v,
+                    dot(v, v),
+                    r * r * (1.0 + 1e-6) + 1e-9 * dist * dist + eps * eps,
+                )),
             })
             .collect();
         Some(EyeTiles {
@@ -184,19 +188,22 @@ impl Snapshot<'_> {
         }
         let mut best: Option<(usize, V3, V3, Partial)> = None;
         let mut limit = tmax;
+        // Every hit inside a sphere is at least `near` from the centre, so the search stops at
+        // the first entry with `near > stop` (`stop` follows `limit`: the same product, computed
+        // when `limit` changes rather than at every entry).
+        let mut stop = limit * dn * (1.0 + 1e-9);
         // The distance of a hit at exactly the nearest distance so far, from another object.
         let mut tie = f64::NAN;
         for &(near, obj) in list {
-            // Every hit inside the sphere is at least `near` from the centre.
-            if near > limit * dn * (1.0 + 1e-9) {
+            if near > stop {
                 break;
             }
             let target = &eye.targets[obj];
-            if let Some((v, bound)) = target.sphere {
+            if let Some((v, vv, bound)) = target.sphere {
                 // Skip a sphere behind the camera centre or wide of the ray (the bound's margins
                 // keep every ray that could touch it).
                 let b = dot(v, d);
-                if b < 0.0 || dot(v, v) * dd - b * b > bound * dd {
+                if b < 0.0 || vv * dd - b * b > bound * dd {
                     continue;
                 }
             }
@@ -210,6 +217,7 @@ impl Snapshot<'_> {
             if let Some(p) = target.shape.intersect_t(lo, ld, tmin, up) {
                 if p.t() < limit {
                     limit = p.t();
+                    stop = limit * dn * (1.0 + 1e-9);
                     best = Some((obj, lo, ld, p));
                 } else {
                     tie = p.t();
