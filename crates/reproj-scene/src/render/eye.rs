@@ -168,7 +168,8 @@ impl<'s> EyeTiles<'s> {
 
 impl Snapshot<'_> {
     /// [`Snapshot::trace`] of the primary ray `d` through pixel `(i, j)` (or a sub-sample of it)
-    /// from the camera of `eye`, the same answer (see the module documentation).
+    /// from the camera of `eye`, the same answer (see the module documentation), with `d` in the
+    /// hit object's space (the search has it already; the caller needs it for the normal).
     pub(crate) fn trace_eye(
         &self,
         eye: &EyeTiles<'_>,
@@ -177,14 +178,14 @@ impl Snapshot<'_> {
         d: V3,
         tmin: f64,
         tmax: f64,
-    ) -> Option<Hit> {
+    ) -> Option<(Hit, V3)> {
         let dn = length(d);
         let dd = dot(d, d);
         let tile = (j / TILE) * eye.cols + i / TILE;
         let list = &eye.lists[eye.starts[tile]..eye.starts[tile + 1]];
         // (`tmin ≥ 0` keeps every distance found positive, as `next_up` below needs.)
         if !(dn > 0.0 && dn.is_finite() && tmin >= 0.0) {
-            return self.trace(o, d, tmin, tmax);
+            return self.trace_dir(o, d, tmin, tmax);
         }
         let mut best: Option<(usize, V3, V3, Partial)> = None;
         let mut limit = tmax;
@@ -225,9 +226,16 @@ impl Snapshot<'_> {
             }
         }
         if tie == limit {
-            return self.trace(o, d, tmin, tmax);
+            return self.trace_dir(o, d, tmin, tmax);
         }
-        Some(self.finish_hit(best?))
+        let best = best?;
+        Some((self.finish_hit(best), best.2))
+    }
+
+    /// [`Snapshot::trace`], with `d` in the hit object's space.
+    fn trace_dir(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<(Hit, V3)> {
+        self.trace(o, d, tmin, tmax)
+            .map(|h| (h, self.inv[h.obj].vector(d)))
     }
 }
 
@@ -267,7 +275,9 @@ mod tests {
                 let subs = (0..4).map(|q| rays.sub_ray(i, j, q % 2, q / 2, 2));
                 for d in std::iter::once(rays.ray(i, j)).chain(subs) {
                     let a = snap.trace(rays.origin, d, 1.0, far);
-                    let b = snap.trace_eye(&eye, (i, j), rays.origin, d, 1.0, far);
+                    let b = snap
+                        .trace_eye(&eye, (i, j), rays.origin, d, 1.0, far)
+                        .map(|(h, _)| h);
                     let key = |h: Option<Hit>| h.map(|h| (h.obj, h.t.to_bits(), h.local.face));
                     assert_eq!(key(a), key(b), "{} pixel ({i}, {j})", scene.name);
                     on += usize::from(a.is_some_and(|h| objs.contains(&h.obj)));

@@ -224,17 +224,19 @@ fn sample_ray(
     // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
     // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
     let far = snap.scene.far / snap.scene.near;
+    // `d_obj`: `d` in the hit object's space (the tile search has it already).
     let hit = match eye {
         Some((tiles, px)) => snap.trace_eye(tiles, px, rays.origin, d, 1.0, far),
-        None => snap.trace(rays.origin, d, 1.0, far),
+        None => snap
+            .trace(rays.origin, d, 1.0, far)
+            .map(|h| (h, snap.inv[h.obj].vector(d))),
     };
-    let Some(hit) = hit else {
+    let Some((hit, d_obj)) = hit else {
         return Sample::SKY;
     };
     let x = add(rays.origin, scale(d, hit.t));
     let o = &snap.scene.objects[hit.obj];
     let mut n_obj = hit.local.normal;
-    let d_obj = snap.inv[hit.obj].vector(d);
     // Two-sided: the normal faces the side the point is seen from.
     if crate::math::dot(n_obj, d_obj) > 0.0 {
         n_obj = scale(n_obj, -1.0);
