@@ -265,12 +265,12 @@ fn cuboid_hit(o: V3, d: V3, min: V3, max: V3, t: f64, k: usize) -> LocalHit {
 fn cuboid_t(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<(f64, usize)> {
     let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
     let (mut a0, mut a1) = (0usize, 0usize);
-    for k in 0..3 {
+    // One slab, `false` where the ray runs parallel to it outside. Called for the three axes in
+    // turn rather than in a loop: the compiler left the loop rolled, with its state on the stack
+    // (the same operations in the same order, so the same answer).
+    let mut slab = |k: usize| {
         if d[k] == 0.0 {
-            if o[k] < min[k] || o[k] > max[k] {
-                return None;
-            }
-            continue;
+            return !(o[k] < min[k] || o[k] > max[k]);
         }
         let (mut a, mut b) = ((min[k] - o[k]) / d[k], (max[k] - o[k]) / d[k]);
         if a > b {
@@ -284,6 +284,10 @@ fn cuboid_t(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<(f64
             t1 = b;
             a1 = k;
         }
+        true
+    };
+    if !(slab(0) && slab(1) && slab(2)) {
+        return None;
     }
     if t0 > t1 {
         return None;
