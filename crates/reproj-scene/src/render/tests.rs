@@ -543,3 +543,39 @@ fn renders_are_pinned_byte_for_byte() {
     let expect: Vec<_> = pinned.to_vec();
     assert_eq!(got, expect, "renders differ from the pinned digests");
 }
+
+/// The colour filter's rounding without the library is the library's, for special values,
+/// every half-integer and its neighbours, and random values of every magnitude.
+#[test]
+fn rgb8_rounds_as_the_library_does() {
+    let lib = |x: f64| x.round().clamp(0.0, 255.0) as u8;
+    let mut xs = vec![
+        0.0,
+        -0.0,
+        f64::NAN,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::MIN_POSITIVE,
+        f64::MAX,
+        0.49999999999999994,
+    ];
+    for k in -4..600 {
+        let h = k as f64 * 0.5;
+        xs.extend([
+            h,
+            f64::from_bits(h.to_bits() + 1),
+            f64::from_bits(h.to_bits().wrapping_sub(1)),
+        ]);
+    }
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    for _ in 0..200_000 {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        xs.push(f64::from_bits(state));
+        xs.push((state >> 11) as f64 / (1u64 << 53) as f64 * 300.0 - 20.0);
+    }
+    for x in xs {
+        assert_eq!(rgb8(x), lib(x), "{x:e} ({:#x})", x.to_bits());
+    }
+}
