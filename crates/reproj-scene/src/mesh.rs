@@ -368,24 +368,33 @@ fn cone_meets(lo: V3, hi: V3, o: V3, axis: V3, spread: f64) -> bool {
     }
     let far = far2.sqrt();
     let grow = far * spread * 1.001 + 1e-5 * (size + far);
+    // A NaN (no finite answer) keeps the box.
+    grown_slabs(lo, hi, grow, o, axis).is_some_and(|(t0, t1)| !(t0 > t1))
+}
+
+/// The interval `(t0, t1)`, `t0 ≥ 0`, of the ray `o + t·d` inside the box `[lo, hi]` grown by
+/// `grow` on every side, by its three slabs (empty where `t0 > t1`), or `None` where the ray
+/// runs parallel to a slab outside it. Shared by the shadow cull's cone test
+/// ([`crate::scene`]) and [`cone_meets`], which read a NaN each their own way.
+#[inline]
+pub(crate) fn grown_slabs(lo: V3, hi: V3, grow: f64, o: V3, d: V3) -> Option<(f64, f64)> {
     let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
     for k in 0..3 {
         let (lo, hi) = (lo[k] - grow, hi[k] + grow);
-        if axis[k] == 0.0 {
+        if d[k] == 0.0 {
             if o[k] < lo || o[k] > hi {
-                return false;
+                return None;
             }
             continue;
         }
-        let (mut a, mut b) = ((lo - o[k]) / axis[k], (hi - o[k]) / axis[k]);
+        let (mut a, mut b) = ((lo - o[k]) / d[k], (hi - o[k]) / d[k]);
         if a > b {
             std::mem::swap(&mut a, &mut b);
         }
         t0 = t0.max(a);
         t1 = t1.min(b);
     }
-    // A NaN (no finite answer) keeps the box.
-    !(t0 > t1)
+    Some((t0, t1))
 }
 
 /// The `f32` ray `o + t·d`, `t ∈ [0, tmax]`, of a BVH traversal (the BVH only culls; every hit

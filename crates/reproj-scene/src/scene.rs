@@ -641,23 +641,7 @@ impl<'a> Snapshot<'a> {
     fn cone_may_hit(&self, i: usize, x: V3, grow: f64) -> bool {
         let (d, b) = &self.light_obj[i];
         let o = self.inv[i].point(x);
-        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-        for k in 0..3 {
-            let (lo, hi) = (b.min[k] - grow, b.max[k] + grow);
-            if d[k] == 0.0 {
-                if o[k] < lo || o[k] > hi {
-                    return false;
-                }
-                continue;
-            }
-            let (mut a, mut c) = ((lo - o[k]) / d[k], (hi - o[k]) / d[k]);
-            if a > c {
-                std::mem::swap(&mut a, &mut c);
-            }
-            t0 = t0.max(a);
-            t1 = t1.min(c);
-        }
-        t0 <= t1
+        crate::mesh::grown_slabs(b.min, b.max, grow, o, *d).is_some_and(|(t0, t1)| t0 <= t1)
     }
 
     /// The nearest surface along `o + t·d` with `t ∈ (tmin, tmax)`.
