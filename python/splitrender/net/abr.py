@@ -91,6 +91,7 @@ class RateController:
         is sent."""
         return self.ceiling_bps
 
+
 @dataclass
 class LeadController:
     """How much earlier than planned the server starts each frame (seconds), from the client's
