@@ -48,7 +48,13 @@ if [ "$fp" != "$FINGERPRINT" ]; then
 fi
 
 mkdir -p "$cache/rows" "$rows"
-cp -n "$rows"/*.json "$cache/rows/" 2>/dev/null || true
+# A row is copied under a temporary name and renamed into place: the sweep takes a row file's
+# existence for a finished task, so an interrupted copy must not leave half a row there.
+for f in "$rows"/*.json; do
+    [ -e "$f" ] || continue
+    dest="$cache/rows/$(basename "$f")"
+    [ -e "$dest" ] || { cp "$f" "$dest.part" && mv "$dest.part" "$dest"; }
+done
 args=(--out "$out" --scenes "$scenes" --scale 0.5 --seconds 3 --stereo --flip-every 25
       --executor local --jobs 2 --cache "$cache")
 if [ -n "$rd" ]; then

@@ -593,7 +593,8 @@ class _Session(QuicConnectionProtocol):
                     continue
                 # Held until the link has carried the frames before it (planned above; a
                 # frame that took longer than planned may find the queue drained already).
-                hold = self._pacer.free_at(loop.time(), self._abr.link_bps) - loop.time()
+                now = loop.time()
+                hold = self._pacer.free_at(now, self._abr.link_bps) - now
                 if hold > 0:
                     self.stats.paced_ms.append(hold * 1e3)
                     await asyncio.sleep(hold)
