@@ -56,7 +56,7 @@ use crate::error::{Result, SceneError};
 use crate::material::Material;
 use crate::math::{add, normalize, scale, V3};
 use crate::scene::Snapshot;
-use eye::EyeTiles;
+use eye::{EyeTile, EyeTiles};
 pub use server::render_server;
 pub use truth::{render_ground_truth, render_shadow_fraction};
 
@@ -212,21 +212,21 @@ impl Needs {
     }
 }
 
-/// What the ray `d` from the camera centre sees; `eye`: the camera's tiles and the pixel `d`
-/// passes through, for the faster search of [`EyeTiles`] (the same hit).
+/// What the ray `d` from the camera centre sees; `eye`: the camera's tile that `d` passes
+/// through, for the faster search of [`EyeTiles`] (the same hit).
 fn sample_ray(
     snap: &Snapshot<'_>,
     rays: &Rays,
     d: V3,
     needs: Needs,
-    eye: Option<(&EyeTiles<'_>, (usize, usize))>,
+    eye: Option<&EyeTile<'_, '_>>,
 ) -> Sample {
     // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
     // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
     let far = snap.scene.far / snap.scene.near;
     // `d_obj`: `d` in the hit object's space (the tile search has it already).
     let hit = match eye {
-        Some((tiles, px)) => snap.trace_eye(tiles, px, rays.origin, d, 1.0, far),
+        Some(tile) => snap.trace_eye(tile, rays.origin, d, 1.0, far),
         None => snap
             .trace(rays.origin, d, 1.0, far)
             .map(|h| (h, snap.inv[h.obj].vector(d))),
@@ -306,13 +306,13 @@ struct SubSample {
     key: V3,
 }
 
-/// The `n×n` colour sub-samples of pixel `(i, j)` whose centre sample (with its shadow) is
-/// `centre`, into `out` (cleared first), in a fixed order. Shadows are shared as the module
+/// The `n×n` colour sub-samples of pixel `(i, j)` (in the tile `eye`, where the camera has
+/// tiles) whose centre sample (with its shadow) is `centre`, into `out` (cleared first), in a fixed order. Shadows are shared as the module
 /// documentation says: the centre's on its own surface, the first sub-sample's on any other.
 fn footprint(
     snap: &Snapshot<'_>,
     rays: &Rays,
-    eye: Option<&EyeTiles<'_>>,
+    eye: Option<&EyeTile<'_, '_>>,
     (i, j): (usize, usize),
     n: usize,
     centre: &Sample,
@@ -332,7 +332,7 @@ fn footprint(
             let d = rays.sub_ray(i, j, a, b, n);
             // Built in place (a sub-sample is some 180 bytes, and moving it cost two copies).
             out.push(SubSample {
-                s: sample_ray(snap, rays, d, Needs::COLOUR, eye.map(|e| (e, (i, j)))),
+                s: sample_ray(snap, rays, d, Needs::COLOUR, eye),
                 on_centre: false,
                 key: [0.0; 3],
             });
