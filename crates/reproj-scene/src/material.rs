@@ -3,6 +3,8 @@
 //! Every pattern carries detail at several scales down to a few centimetres (fine stripes, mortar
 //! lines, hashed per-cell noise), so resampling errors of the client show in the metrics.
 
+use std::cell::Cell;
+
 use crate::math::{floor, floor_i64, hash, lerp, scale, V3};
 
 /// The procedural pattern of a material, evaluated on the shape's UV (scaled by
@@ -116,7 +118,7 @@ impl Material {
                 let mut amp = 0.5;
                 let mut f = 1.0;
                 for octave in 0..3 {
-                    n += amp * value_noise(u * f, v * f, self.salt + octave);
+                    n += amp * value_noise(u * f, v * f, self.salt + octave, octave as usize);
                     amp *= 0.5;
                     f *= 2.0;
                 }
@@ -127,16 +129,45 @@ impl Material {
     }
 }
 
-/// Bilinearly interpolated hashed lattice noise with a smoothstep fade, in `[0, 1)`.
-fn value_noise(x: f64, y: f64, salt: u64) -> f64 {
+/// The hashes of one lattice cell's four corners: whether it holds a cell yet, the cell `(i, j)`,
+/// the salt, and `[h00, h10, h01, h11]`.
+type Corners = (bool, i64, i64, u64, [f64; 4]);
+
+thread_local! {
+    /// Per octave of [`Pattern::Noise`], the corners of the cell last looked up on this thread.
+    /// A cell spans many pixels at every octave, so neighbouring sub-samples and pixels on the
+    /// same surface mostly fall in the cell before and reuse its four hashes (the same values:
+    /// a hash depends on the cell and salt alone) instead of computing them again.
+    static LAST_CELL: [Cell<Corners>; 3] =
+        const { [const { Cell::new((false, 0, 0, 0, [0.0; 4])) }; 3] };
+}
+
+/// The corner hashes of cell `(i, j)` under `salt`, through octave `slot`'s [`LAST_CELL`].
+fn corners(i: i64, j: i64, salt: u64, slot: usize) -> [f64; 4] {
+    LAST_CELL.with(|last| {
+        let (full, li, lj, ls, h) = last[slot].get();
+        if full && li == i && lj == j && ls == salt {
+            return h;
+        }
+        let h = [
+            hash(i, j, salt),
+            hash(i + 1, j, salt),
+            hash(i, j + 1, salt),
+            hash(i + 1, j + 1, salt),
+        ];
+        last[slot].set((true, i, j, salt, h));
+        h
+    })
+}
+
+/// Bilinearly interpolated hashed lattice noise with a smoothstep fade, in `[0, 1)`; `slot`
+/// (the octave) names the cell cache [`LAST_CELL`] to use.
+fn value_noise(x: f64, y: f64, salt: u64, slot: usize) -> f64 {
     let (xi, yi) = (floor(x), floor(y));
     let (fx, fy) = (x - xi, y - yi);
     let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
     let (i, j) = (xi as i64, yi as i64);
-    let h00 = hash(i, j, salt);
-    let h10 = hash(i + 1, j, salt);
-    let h01 = hash(i, j + 1, salt);
-    let h11 = hash(i + 1, j + 1, salt);
+    let [h00, h10, h01, h11] = corners(i, j, salt, slot);
     let top = h00 + (h10 - h00) * sx;
     let bot = h01 + (h11 - h01) * sx;
     top + (bot - top) * sy
