@@ -74,6 +74,10 @@ impl Material {
         let cell = |x: f64, y: f64, s: f64, salt: u64| {
             hash(floor_i64(x), floor_i64(y), s.to_bits() ^ salt)
         };
+        // The same hash where the floors are at hand: `floor(x) as i64` is `floor_i64(x)` for
+        // every `x` (see there).
+        let cell_at =
+            |fx: f64, fy: f64, s: f64, salt: u64| hash(fx as i64, fy as i64, s.to_bits() ^ salt);
         match self.pattern {
             Pattern::Checker => {
                 let even = (floor_i64(u) + floor_i64(v)).rem_euclid(2) == 0;
@@ -94,21 +98,23 @@ impl Material {
                     0.0
                 };
                 let x = u + shift;
-                let (fx, fy) = (x - floor(x), v * 2.0 - row);
+                let xi = floor(x);
+                let (fx, fy) = (x - xi, v * 2.0 - row);
                 if fx < 0.05 || fy < 0.1 {
                     let g = cell(u * 40.0, v * 40.0, 1.0, self.salt);
                     return scale(self.b, 0.85 + 0.15 * g);
                 }
-                let tint = cell(x, row, 2.0, self.salt);
+                let tint = cell_at(xi, row, 2.0, self.salt);
                 let grain = cell(u * 24.0, v * 24.0, 3.0, self.salt);
                 scale(self.a, (0.75 + 0.25 * tint) * (0.88 + 0.12 * grain))
             }
             Pattern::Tiles => {
-                let (fx, fy) = (u - floor(u), v - floor(v));
+                let (ui, vi) = (floor(u), floor(v));
+                let (fx, fy) = (u - ui, v - vi);
                 if fx < 0.04 || fy < 0.04 {
                     return self.b;
                 }
-                let tint = cell(u, v, 4.0, self.salt);
+                let tint = cell_at(ui, vi, 4.0, self.salt);
                 let speck = cell(u * 32.0, v * 32.0, 5.0, self.salt);
                 let base = lerp(self.a, scale(self.a, 0.7), tint);
                 scale(base, 0.9 + 0.1 * speck)
