@@ -3,6 +3,8 @@
 //! Every pattern carries detail at several scales down to a few centimetres (fine stripes, mortar
 //! lines, hashed per-cell noise), so resampling errors of the client show in the metrics.
 
+use std::cell::Cell;
+
 use crate::math::{floor, floor_i64, hash, lerp, scale, V3};
 
 /// The procedural pattern of a material, evaluated on the shape's UV (scaled by
@@ -72,6 +74,10 @@ impl Material {
         let cell = |x: f64, y: f64, s: f64, salt: u64| {
             hash(floor_i64(x), floor_i64(y), s.to_bits() ^ salt)
         };
+        // The same hash where the floors are at hand: `floor(x) as i64` is `floor_i64(x)` for
+        // every `x` (see there).
+        let cell_at =
+            |fx: f64, fy: f64, s: f64, salt: u64| hash(fx as i64, fy as i64, s.to_bits() ^ salt);
         match self.pattern {
             Pattern::Checker => {
                 let even = (floor_i64(u) + floor_i64(v)).rem_euclid(2) == 0;
@@ -92,21 +98,23 @@ impl Material {
                     0.0
                 };
                 let x = u + shift;
-                let (fx, fy) = (x - floor(x), v * 2.0 - row);
+                let xi = floor(x);
+                let (fx, fy) = (x - xi, v * 2.0 - row);
                 if fx < 0.05 || fy < 0.1 {
                     let g = cell(u * 40.0, v * 40.0, 1.0, self.salt);
                     return scale(self.b, 0.85 + 0.15 * g);
                 }
-                let tint = cell(x, row, 2.0, self.salt);
+                let tint = cell_at(xi, row, 2.0, self.salt);
                 let grain = cell(u * 24.0, v * 24.0, 3.0, self.salt);
                 scale(self.a, (0.75 + 0.25 * tint) * (0.88 + 0.12 * grain))
             }
             Pattern::Tiles => {
-                let (fx, fy) = (u - floor(u), v - floor(v));
+                let (ui, vi) = (floor(u), floor(v));
+                let (fx, fy) = (u - ui, v - vi);
                 if fx < 0.04 || fy < 0.04 {
                     return self.b;
                 }
-                let tint = cell(u, v, 4.0, self.salt);
+                let tint = cell_at(ui, vi, 4.0, self.salt);
                 let speck = cell(u * 32.0, v * 32.0, 5.0, self.salt);
                 let base = lerp(self.a, scale(self.a, 0.7), tint);
                 scale(base, 0.9 + 0.1 * speck)
@@ -116,7 +124,7 @@ impl Material {
                 let mut amp = 0.5;
                 let mut f = 1.0;
                 for octave in 0..3 {
-                    n += amp * value_noise(u * f, v * f, self.salt + octave);
+                    n += amp * value_noise(u * f, v * f, self.salt + octave, octave as usize);
                     amp *= 0.5;
                     f *= 2.0;
                 }
@@ -127,16 +135,45 @@ impl Material {
     }
 }
 
-/// Bilinearly interpolated hashed lattice noise with a smoothstep fade, in `[0, 1)`.
-fn value_noise(x: f64, y: f64, salt: u64) -> f64 {
+/// The hashes of one lattice cell's four corners: whether it holds a cell yet, the cell `(i, j)`,
+/// the salt, and `[h00, h10, h01, h11]`.
+type Corners = (bool, i64, i64, u64, [f64; 4]);
+
+thread_local! {
+    /// Per octave of [`Pattern::Noise`], the corners of the cell last looked up on this thread.
+    /// A cell spans many pixels at every octave, so neighbouring sub-samples and pixels on the
+    /// same surface mostly fall in the cell before and reuse its four hashes (the same values:
+    /// a hash depends on the cell and salt alone) instead of computing them again.
+    static LAST_CELL: [Cell<Corners>; 3] =
+        const { [const { Cell::new((false, 0, 0, 0, [0.0; 4])) }; 3] };
+}
+
+/// The corner hashes of cell `(i, j)` under `salt`, through octave `slot`'s [`LAST_CELL`].
+fn corners(i: i64, j: i64, salt: u64, slot: usize) -> [f64; 4] {
+    LAST_CELL.with(|last| {
+        let (full, li, lj, ls, h) = last[slot].get();
+        if full && li == i && lj == j && ls == salt {
+            return h;
+        }
+        let h = [
+            hash(i, j, salt),
+            hash(i + 1, j, salt),
+            hash(i, j + 1, salt),
+            hash(i + 1, j + 1, salt),
+        ];
+        last[slot].set((true, i, j, salt, h));
+        h
+    })
+}
+
+/// Bilinearly interpolated hashed lattice noise with a smoothstep fade, in `[0, 1)`; `slot`
+/// (the octave) names the cell cache [`LAST_CELL`] to use.
+fn value_noise(x: f64, y: f64, salt: u64, slot: usize) -> f64 {
     let (xi, yi) = (floor(x), floor(y));
     let (fx, fy) = (x - xi, y - yi);
     let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
     let (i, j) = (xi as i64, yi as i64);
-    let h00 = hash(i, j, salt);
-    let h10 = hash(i + 1, j, salt);
-    let h01 = hash(i, j + 1, salt);
-    let h11 = hash(i + 1, j + 1, salt);
+    let [h00, h10, h01, h11] = corners(i, j, salt, slot);
     let top = h00 + (h10 - h00) * sx;
     let bot = h01 + (h11 - h01) * sx;
     top + (bot - top) * sy

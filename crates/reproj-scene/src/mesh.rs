@@ -124,6 +124,10 @@ pub struct Mesh {
     bvh: Bvh2,
     /// Per triangle, the padded box its BVH leaf was built from ([`Mesh::occluded_rays`]).
     tri_boxes: Vec<Aabb>,
+    /// Per triangle, its first corner `a` and the edges `b − a` and `c − a` that
+    /// [`Mesh::triangle_hit`] starts from: the same values, formed once rather than at every
+    /// test (and read from one place rather than through three vertex indices).
+    tri_edges: Vec<[V3; 3]>,
 }
 
 impl fmt::Debug for Mesh {
@@ -155,12 +159,20 @@ impl Mesh {
             &mut Duration::default(),
         );
         let bounds = Bounds::around(vertices.iter().map(|v| v.position));
+        let tri_edges = triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| vertices[i as usize].position);
+                [a, sub(b, a), sub(c, a)]
+            })
+            .collect();
         Mesh {
             vertices,
             triangles,
             bounds,
             bvh,
             tri_boxes: prims.into_iter().map(|t| t.0).collect(),
+            tri_edges,
         }
     }
 
@@ -320,9 +332,7 @@ impl Mesh {
         tmin: f64,
         tmax: f64,
     ) -> Option<(f64, f64, f64)> {
-        let [a, b, c] = self.triangles[tri as usize].map(|i| self.vertices[i as usize].position);
-        let e1 = sub(b, a);
-        let e2 = sub(c, a);
+        let [a, e1, e2] = self.tri_edges[tri as usize];
         let p = cross(d, e2);
         let det = dot(e1, p);
         if det.abs() < 1e-300 {

@@ -673,6 +673,7 @@ impl<'a> Snapshot<'a> {
 
     /// The hit of a closest-hit search's winner: its object, the ray in its object space and
     /// what its distance came with (the normal and texture coordinates, for the winner only).
+    #[inline]
     pub(crate) fn finish_hit(&self, (obj, lo, ld, p): (usize, V3, V3, Partial)) -> Hit {
         let local = self.shape(obj).finish(lo, ld, p);
         Hit {

@@ -154,7 +154,7 @@ impl Shape {
     /// The full hit from [`Shape::intersect_t`]'s answer for the same `o` and `d`.
     // Inlined into `Snapshot::finish_hit`, the renderer's one caller (left to itself, the
     // compiler's choice changes with unrelated edits of the crate).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn finish(&self, o: V3, d: V3, p: Partial) -> LocalHit {
         match (self, p) {
             (_, Partial::Done(h)) => h,
@@ -263,12 +263,12 @@ fn cuboid_hit(o: V3, d: V3, min: V3, max: V3, t: f64, k: usize) -> LocalHit {
 /// face)`.
 #[inline]
 fn cuboid_t(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<(f64, usize)> {
-    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
-    let (mut a0, mut a1) = (0usize, 0usize);
+    // The entry and exit distances so far and the axes they came from.
+    let mut st = (f64::NEG_INFINITY, f64::INFINITY, 0usize, 0usize);
     // One slab, `false` where the ray runs parallel to it outside. Called for the three axes in
     // turn rather than in a loop: the compiler left the loop rolled, with its state on the stack
     // (the same operations in the same order, so the same answer).
-    let mut slab = |k: usize| {
+    let slab = |k: usize, (t0, t1, a0, a1): &mut (f64, f64, usize, usize)| {
         if d[k] == 0.0 {
             return !(o[k] < min[k] || o[k] > max[k]);
         }
@@ -276,19 +276,22 @@ fn cuboid_t(o: V3, d: V3, min: V3, max: V3, tmin: f64, tmax: f64) -> Option<(f64
         if a > b {
             std::mem::swap(&mut a, &mut b);
         }
-        if a > t0 {
-            t0 = a;
-            a0 = k;
+        if a > *t0 {
+            *t0 = a;
+            *a0 = k;
         }
-        if b < t1 {
-            t1 = b;
-            a1 = k;
+        if b < *t1 {
+            *t1 = b;
+            *a1 = k;
         }
         true
     };
-    if !(slab(0) && slab(1) && slab(2)) {
+    // A slab only raises the entry distance and lowers the exit, so a ray that has left the box
+    // after two slabs (most misses) misses it whatever the third says.
+    if !(slab(0, &mut st) && slab(1, &mut st)) || st.0 > st.1 || !slab(2, &mut st) {
         return None;
     }
+    let (t0, t1, a0, a1) = st;
     if t0 > t1 {
         return None;
     }

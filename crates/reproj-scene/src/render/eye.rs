@@ -36,6 +36,14 @@ pub(crate) struct EyeTiles<'s> {
     targets: Vec<Target<'s>>,
 }
 
+/// One tile's list and the objects' records: what [`Snapshot::trace_eye`] reads, looked up once
+/// per pixel for its centre and colour sub-sample rays (they all pass through the same tile).
+#[derive(Clone, Copy)]
+pub(crate) struct EyeTile<'t, 's> {
+    list: &'t [Entry],
+    targets: &'t [Target<'s>],
+}
+
 /// What a primary ray needs of one object ([`Snapshot::trace_eye`]).
 struct Target<'s> {
     /// The camera centre in the object's space.
@@ -164,16 +172,24 @@ impl<'s> EyeTiles<'s> {
             targets,
         })
     }
+
+    /// The tile that pixel `(i, j)` lies in.
+    pub(crate) fn tile(&self, (i, j): (usize, usize)) -> EyeTile<'_, 's> {
+        let tile = (j / TILE) * self.cols + i / TILE;
+        EyeTile {
+            list: &self.lists[self.starts[tile]..self.starts[tile + 1]],
+            targets: &self.targets,
+        }
+    }
 }
 
 impl Snapshot<'_> {
-    /// [`Snapshot::trace`] of the primary ray `d` through pixel `(i, j)` (or a sub-sample of it)
-    /// from the camera of `eye`, the same answer (see the module documentation), with `d` in the
+    /// [`Snapshot::trace`] of the primary ray `d` through a pixel of `eye` (its centre or a
+    /// sub-sample of it) from the camera centre `o`, the same answer (see the module documentation), with `d` in the
     /// hit object's space (the search has it already; the caller needs it for the normal).
     pub(crate) fn trace_eye(
         &self,
-        eye: &EyeTiles<'_>,
-        (i, j): (usize, usize),
+        eye: &EyeTile<'_, '_>,
         o: V3,
         d: V3,
         tmin: f64,
@@ -181,21 +197,23 @@ impl Snapshot<'_> {
     ) -> Option<(Hit, V3)> {
         let dn = length(d);
         let dd = dot(d, d);
-        let tile = (j / TILE) * eye.cols + i / TILE;
-        let list = &eye.lists[eye.starts[tile]..eye.starts[tile + 1]];
         // (`tmin ≥ 0` keeps every distance found positive, as `next_up` below needs.)
         if !(dn > 0.0 && dn.is_finite() && tmin >= 0.0) {
             return self.trace_dir(o, d, tmin, tmax);
         }
-        let mut best: Option<(usize, V3, V3, Partial)> = None;
+        // The winner so far: its object, `d` in its space and what its distance came with.
+        let mut best: Option<(usize, V3, Partial)> = None;
         let mut limit = tmax;
+        // A shape is tested up to `up`: before the first hit `tmax`, then up to and including
+        // the nearest distance so far (a positive finite number), to see ties.
+        let mut up = tmax;
         // Every hit inside a sphere is at least `near` from the centre, so the search stops at
         // the first entry with `near > stop` (`stop` follows `limit`: the same product, computed
         // when `limit` changes rather than at every entry).
         let mut stop = limit * dn * (1.0 + 1e-9);
         // The distance of a hit at exactly the nearest distance so far, from another object.
         let mut tie = f64::NAN;
-        for &(near, obj) in list {
+        for &(near, obj) in eye.list {
             if near > stop {
                 break;
             }
@@ -208,18 +226,13 @@ impl Snapshot<'_> {
                     continue;
                 }
             }
-            let (lo, ld) = (target.origin, target.inv.vector(d));
-            // Up to and including the nearest distance so far (a positive finite number), to see
-            // ties.
-            let up = match best {
-                Some(_) => next_up(limit),
-                None => tmax,
-            };
-            if let Some(p) = target.shape.intersect_t(lo, ld, tmin, up) {
+            let ld = target.inv.vector(d);
+            if let Some(p) = target.shape.intersect_t(target.origin, ld, tmin, up) {
                 if p.t() < limit {
                     limit = p.t();
                     stop = limit * dn * (1.0 + 1e-9);
-                    best = Some((obj, lo, ld, p));
+                    up = next_up(limit);
+                    best = Some((obj, ld, p));
                 } else {
                     tie = p.t();
                 }
@@ -228,8 +241,9 @@ impl Snapshot<'_> {
         if tie == limit {
             return self.trace_dir(o, d, tmin, tmax);
         }
-        let best = best?;
-        Some((self.finish_hit(best), best.2))
+        let (obj, ld, p) = best?;
+        let lo = eye.targets[obj].origin;
+        Some((self.finish_hit((obj, lo, ld, p)), ld))
     }
 
     /// [`Snapshot::trace`], with `d` in the hit object's space.
@@ -276,7 +290,7 @@ mod tests {
                 for d in std::iter::once(rays.ray(i, j)).chain(subs) {
                     let a = snap.trace(rays.origin, d, 1.0, far);
                     let b = snap
-                        .trace_eye(&eye, (i, j), rays.origin, d, 1.0, far)
+                        .trace_eye(&eye.tile((i, j)), rays.origin, d, 1.0, far)
                         .map(|(h, _)| h);
                     let key = |h: Option<Hit>| h.map(|h| (h.obj, h.t.to_bits(), h.local.face));
                     assert_eq!(key(a), key(b), "{} pixel ({i}, {j})", scene.name);

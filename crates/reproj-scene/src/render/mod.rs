@@ -56,7 +56,7 @@ use crate::error::{Result, SceneError};
 use crate::material::Material;
 use crate::math::{add, normalize, scale, V3};
 use crate::scene::Snapshot;
-use eye::EyeTiles;
+use eye::{EyeTile, EyeTiles};
 pub use server::render_server;
 pub use truth::{render_ground_truth, render_shadow_fraction};
 
@@ -212,27 +212,43 @@ impl Needs {
     }
 }
 
-/// What the ray `d` from the camera centre sees; `eye`: the camera's tiles and the pixel `d`
-/// passes through, for the faster search of [`EyeTiles`] (the same hit).
+/// What the ray `d` from the camera centre sees; `eye`: the camera's tile that `d` passes
+/// through, for the faster search of [`EyeTiles`] (the same hit).
 fn sample_ray(
     snap: &Snapshot<'_>,
     rays: &Rays,
     d: V3,
     needs: Needs,
-    eye: Option<(&EyeTiles<'_>, (usize, usize))>,
+    eye: Option<&EyeTile<'_, '_>>,
 ) -> Sample {
+    let mut s = Sample::SKY;
+    sample_ray_into(snap, rays, d, needs, eye, &mut s);
+    s
+}
+
+/// [`sample_ray`] into `out`: a colour sub-sample is written straight into its place in the
+/// pixel's list (returned, the sample was built aside and copied there, a `memcpy` call).
+fn sample_ray_into(
+    snap: &Snapshot<'_>,
+    rays: &Rays,
+    d: V3,
+    needs: Needs,
+    eye: Option<&EyeTile<'_, '_>>,
+    out: &mut Sample,
+) {
     // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
     // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
     let far = snap.scene.far / snap.scene.near;
     // `d_obj`: `d` in the hit object's space (the tile search has it already).
     let hit = match eye {
-        Some((tiles, px)) => snap.trace_eye(tiles, px, rays.origin, d, 1.0, far),
+        Some(tile) => snap.trace_eye(tile, rays.origin, d, 1.0, far),
         None => snap
             .trace(rays.origin, d, 1.0, far)
             .map(|h| (h, snap.inv[h.obj].vector(d))),
     };
     let Some((hit, d_obj)) = hit else {
-        return Sample::SKY;
+        *out = Sample::SKY;
+        return;
     };
     let x = add(rays.origin, scale(d, hit.t));
     let o = &snap.scene.objects[hit.obj];
@@ -247,7 +263,7 @@ fn sample_ray(
     } else {
         0.0
     };
-    Sample {
+    *out = Sample {
         obj: Some(hit.obj),
         face: hit.local.face,
         x,
@@ -262,7 +278,7 @@ fn sample_ray(
             [f64::NAN; 3]
         },
         shadow,
-    }
+    };
 }
 
 fn material<'s>(snap: &Snapshot<'s>, s: &Sample) -> Option<&'s Material> {
@@ -297,6 +313,7 @@ impl Sample {
 }
 
 /// One colour sub-sample of a pixel.
+#[derive(Clone, Copy)]
 struct SubSample {
     s: Sample,
     /// On the pixel centre's surface: it took the centre's shadow, and the shadow levels of the
@@ -306,39 +323,43 @@ struct SubSample {
     key: V3,
 }
 
-/// The `n×n` colour sub-samples of pixel `(i, j)` whose centre sample (with its shadow) is
-/// `centre`, into `out` (cleared first), in a fixed order. Shadows are shared as the module
-/// documentation says: the centre's on its own surface, the first sub-sample's on any other.
+/// The `n×n` colour sub-samples of pixel `(i, j)` (in the tile `eye`, where the camera has
+/// tiles) whose centre sample (with its shadow) is `centre`, into `out` (made `n²` long), in a
+/// fixed order. Shadows are shared as the module documentation says: the centre's on its own
+/// surface, the first sub-sample's on any other.
 fn footprint(
     snap: &Snapshot<'_>,
     rays: &Rays,
-    eye: Option<&EyeTiles<'_>>,
+    eye: Option<&EyeTile<'_, '_>>,
     (i, j): (usize, usize),
     n: usize,
     centre: &Sample,
     out: &mut Vec<SubSample>,
 ) {
-    out.clear();
+    // `n×n` entries from pixel to pixel, each overwritten in turn below, so that a sub-sample
+    // (some 180 bytes) is written straight into its place ([`sample_ray_into`]).
+    let unset = SubSample {
+        s: Sample::SKY,
+        on_centre: false,
+        key: [0.0; 3],
+    };
+    out.truncate(n * n);
+    out.resize(n * n, unset);
     for b in 0..n {
         for a in 0..n {
+            let k = b * n + a;
             if n % 2 == 1 && a == n / 2 && b == n / 2 {
-                out.push(SubSample {
+                out[k] = SubSample {
                     s: *centre,
                     on_centre: centre.obj.is_some(),
                     key: key_color(snap, centre),
-                });
+                };
                 continue;
             }
             let d = rays.sub_ray(i, j, a, b, n);
-            // Built in place (a sub-sample is some 180 bytes, and moving it cost two copies).
-            out.push(SubSample {
-                s: sample_ray(snap, rays, d, Needs::COLOUR, eye.map(|e| (e, (i, j)))),
-                on_centre: false,
-                key: [0.0; 3],
-            });
-            let k = out.len() - 1;
-            let (earlier, last) = out.split_at_mut(k);
-            let p = &mut last[0];
+            let (earlier, rest) = out.split_at_mut(k);
+            let p = &mut rest[0];
+            sample_ray_into(snap, rays, d, Needs::COLOUR, eye, &mut p.s);
             p.on_centre = same_surface(centre, &p.s);
             if p.on_centre {
                 p.s.shadow = centre.shadow;

@@ -148,9 +148,9 @@ pub fn render_server(
                 for i in 0..w {
                     let k = r * w + i;
                     let j = b * BLOCK_ROWS + r;
-                    let eye_px = eye.as_ref().map(|e| (e, (i, j)));
-                    let mut s =
-                        sample_ray(&key, &rays, rays.ray(i, j), Needs::centre(false, n), eye_px);
+                    let tile = eye.as_ref().map(|e| e.tile((i, j)));
+                    let centre = Needs::centre(false, n);
+                    let mut s = sample_ray(&key, &rays, rays.ray(i, j), centre, tile.as_ref());
                     let mut still = None;
                     if let Some(obj) = s.obj {
                         let (x, n) = (s.x, s.normal);
@@ -168,7 +168,7 @@ pub fn render_server(
                             key.shadow(obj, x, n)
                         };
                     }
-                    footprint(&key, &rays, eye.as_ref(), (i, j), n, &s, &mut fp);
+                    footprint(&key, &rays, tile.as_ref(), (i, j), n, &s, &mut fp);
                     blk.color[3 * k..3 * k + 3].copy_from_slice(&pixel_color(&fp));
                     let Some(obj) = s.obj else {
                         continue; // Sky: Z = 0, zero motion, no dynamic shadow.

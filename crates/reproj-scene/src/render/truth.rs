@@ -49,9 +49,15 @@ pub fn render_ground_truth(
     let snap = scene.at(t);
     let eye = EyeTiles::new(&snap, camera, &rays);
     Ok(per_pixel(&rays, |fp: &mut Vec<_>, i, j| {
-        let eye_px = eye.as_ref().map(|e| (e, (i, j)));
-        let centre = sample_ray(&snap, &rays, rays.ray(i, j), Needs::centre(true, n), eye_px);
-        footprint(&snap, &rays, eye.as_ref(), (i, j), n, &centre, fp);
+        let tile = eye.as_ref().map(|e| e.tile((i, j)));
+        let centre = sample_ray(
+            &snap,
+            &rays,
+            rays.ray(i, j),
+            Needs::centre(true, n),
+            tile.as_ref(),
+        );
+        footprint(&snap, &rays, tile.as_ref(), (i, j), n, &centre, fp);
         pixel_color(fp)
     }))
 }
