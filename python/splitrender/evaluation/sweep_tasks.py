@@ -173,15 +173,21 @@ def render_timewarp(task: Task, cache: Cache) -> None:
 
 
 def _timewarp_frames(path: Path) -> list[Any]:
+    """The frames :func:`render_timewarp` wrote. Each array is read from the archive once: an
+    ``NpzFile`` decompresses the whole stack at every ``z[name]``, and a frame's slice keeps
+    that copy alive, so indexing it per frame held N copies of each stack (N² memory: 13 GB
+    for the 60 FPS line at 320×180, beyond any machine at 1280×720)."""
     from splitrender.types import Camera, CameraFrame, ServerFrame
 
     with np.load(path) as z:
-        h, w = z["color"].shape[1:3]
-        return [
-            ServerFrame(int(z["index"][k]), float(z["time"][k]), CameraFrame(
-                Camera(z["view"][k], z["proj"][k], int(w), int(h)), z["color"][k], z["depth"][k]))
-            for k in range(len(z["index"]))
-        ]
+        index, time, view, proj, color, depth = (
+            z[k] for k in ("index", "time", "view", "proj", "color", "depth"))
+    h, w = color.shape[1:3]
+    return [
+        ServerFrame(int(index[k]), float(time[k]), CameraFrame(
+            Camera(view[k], proj[k], int(w), int(h)), color[k], depth[k]))
+        for k in range(len(index))
+    ]
 
 
 def _recording(task: Task, cache: Cache) -> Any:
