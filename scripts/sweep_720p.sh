@@ -56,12 +56,15 @@ for f in "$rows"/*.json; do
     [ -e "$dest" ] || { cp "$f" "$dest.part" && mv "$dest.part" "$dest"; }
 done
 args=(--out "$out" --scenes "$scenes" --scale 0.5 --seconds 3 --stereo --flip-every 25
-      --executor local --jobs 2 --cache "$cache")
+      --executor local --jobs "${SWEEP_JOBS:-2}" --cache "$cache")
 if [ -n "$rd" ]; then
     args+=(--bitrates 10,40,100 --rd-scenes "$rd")
 fi
 status=0
-(cd "$wt" && PYTHONPATH=python nice -n 19 python -m splitrender eval "${args[@]}") || status=$?
+# Through scripts/sweep_720p_fix.py: the pinned code with its one memory fix (that file says
+# why; the outputs and keys are the pinned code's).
+(cd "$wt" && PYTHONPATH="$wt/python" nice -n 19 python "$repo/scripts/sweep_720p_fix.py" eval \
+    "${args[@]}") || status=$?
 cp -n "$cache/rows"/*.json "$rows/" 2>/dev/null || true
 echo "sweep_720p: $(ls "$rows" | wc -l) rows in $rows; eval exited $status"
 exit "$status"
