@@ -305,3 +305,27 @@ def test_timewarp_frames_hold_one_copy_of_each_stack(tmp_path: Path) -> None:
     for name in ("color", "depth"):
         bases = {id(getattr(f.main, name).base) for f in frames}
         assert len(bases) == 1, f"{name}: {len(bases)} copies of the stack for {n} frames"
+
+
+def test_a_worker_that_dies_is_named_with_its_task(tmp_path: Path) -> None:
+    """A worker process killed while running a task (as the kernel's OOM killer does) fails the
+    sweep naming that task and what probably happened, not whichever task was queued."""
+    import sys
+
+    (tmp_path / "sweep_dying_worker.py").write_text(
+        "import os\n\ndef die(task, cache):\n    os._exit(9)\n")
+    sys.path.insert(0, str(tmp_path))  # the spawned workers get this process's sys.path
+    try:
+        cache = sweep.Cache(tmp_path / "cache")
+        cache.prepare()
+        dies = sweep.make_task("score", "sweep_dying_worker:die", {"n": 1},
+                               label="a task whose worker dies")
+        queued = [sweep.make_task("score", "operator:eq", {"n": k}, label=f"queued task {k}")
+                  for k in range(2, 6)]
+        with pytest.raises(sweep.TaskFailedError) as e:
+            sweep.run_graph([dies, *queued], cache, executor="local", jobs=2)
+    finally:
+        sys.path.remove(str(tmp_path))
+    message = str(e.value)
+    assert "a task whose worker dies" in message and "worker process running it died" in message
+    assert "--jobs" in message and "queued task 3" not in message

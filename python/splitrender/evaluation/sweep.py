@@ -262,10 +262,17 @@ class _Report:
 
 def _failed(task: Task, error: BaseException, cache: Cache, finished: int) -> TaskFailedError:
     inputs = ", ".join(f"{k}={v}" for k, v in sorted(task.paths.items()))
+    if isinstance(error, cf.process.BrokenProcessPool):
+        # The worker ended without an exception to report: a signal, most often the kernel's
+        # OOM killer (two large score tasks at once can outgrow the machine's memory).
+        what = ("the worker process running it died (killed by the operating system; running "
+                "out of memory is the usual cause: try fewer --jobs)")
+    else:
+        what = f"{type(error).__name__}: {error}"
     return TaskFailedError(
         f"task {task.stage} {task.key[:12]} ({task.label}{'; ' + inputs if inputs else ''}) "
-        f"failed: {type(error).__name__}: {error}. {finished} task(s) finished and are kept in "
-        f"the cache {cache.root}; run the same command again to resume from there"
+        f"failed: {what}. {finished} task(s) finished and are kept in the cache {cache.root}; "
+        f"run the same command again to resume from there"
     )
 
 
@@ -302,6 +309,10 @@ def run_local(todo: Sequence[Task], cache: Cache, jobs: int, report: _Report,
         while pending or running:
             if error is None:
                 for key, t in list(pending.items()):
+                    # No more submitted than there are workers: the tasks in `running` are the
+                    # ones being run, so a worker that dies is reported with its own task.
+                    if len(running) >= jobs:
+                        break
                     if not any(d in pending or d in {r.key for r in running.values()}
                                for d in t.deps):
                         if fault is not None:
