@@ -361,6 +361,8 @@ pub(crate) struct Snapshot<'a> {
     moving_casters: Vec<usize>,
     /// Per object: the shadow rays' directions (`samples`) in its object space.
     samples_obj: Vec<[V3; SHADOW_SAMPLES]>,
+    /// Per object: the least and the greatest `y` of `samples_obj` (a quad's normal axis).
+    samples_y: Vec<(f64, f64)>,
     /// A bound on `|ŝ − l|` over the unit disc samples `ŝ` ([`crate::mesh::Mesh::occluded_rays`]).
     spread: f64,
     /// Per object: the directions toward the corners of the polygon around the disc
@@ -641,7 +643,17 @@ impl<'a> Snapshot<'a> {
             let across = sub(*s, scale(light, dot(*s, light)));
             m.max(length(across) / length(*s))
         }) + 1e-6;
-        let samples_obj = inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
+        let samples_obj: Vec<[V3; SHADOW_SAMPLES]> =
+            inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
+        let samples_y = samples_obj
+            .iter()
+            .map(|dirs| {
+                dirs.iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| {
+                        (lo.min(d[1]), hi.max(d[1]))
+                    })
+            })
+            .collect();
         let spread = samples
             .iter()
             .fold(0.0f64, |m, s| m.max(length(sub(normalize(*s), light))))
@@ -655,6 +667,7 @@ impl<'a> Snapshot<'a> {
             cull,
             moving_casters,
             samples_obj,
+            samples_y,
             all_above,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
@@ -946,6 +959,16 @@ impl<'a> Snapshot<'a> {
         };
         if let Some(m) = mesh {
             return m.occluded_rays(o, dirs, (self.light_obj[i].0, self.spread), todo);
+        }
+        // A quad (the plane `y = 0`) blocks a ray only at `t = −o_y / d_y > 0`: an origin on
+        // the side every direction leaves toward (or on the plane) has `t ≤ 0` for each (the
+        // sign of the quotient is exact; `d_y = 0` is no hit either). In the courtyard, the
+        // ground is a candidate of the points near it on the houses and walls.
+        if matches!(shape, Shape::Quad { .. }) {
+            let (lo, hi) = self.samples_y[i];
+            if (o[1] >= 0.0 && lo >= 0.0) || (o[1] <= 0.0 && hi <= 0.0) {
+                return 0;
+            }
         }
         // A convex solid that blocks the rays toward every corner of the polygon around the
         // light's disc blocks every ray of the disc (see `UMBRA_SIDES`).
@@ -1244,5 +1267,42 @@ mod tests {
             }
         }
         assert!(edges > 0);
+    }
+
+    /// The quad shortcut finds what each ray finds, for origins on both sides of the plane, on
+    /// it (either zero) and just off it, over and beyond the quad, under every built-in light.
+    #[test]
+    fn quad_shortcut_finds_what_each_ray_finds() {
+        let (mut shortcut, mut blocked) = (0, 0);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3, 2.7] {
+                let snap = Snapshot::new(&scene, t);
+                for i in 0..scene.objects.len() {
+                    let Shape::Quad { half } = snap.shape(i) else {
+                        continue;
+                    };
+                    for y in [-2.0, -1e-300, -0.0, 0.0, 1e-300, 2.0] {
+                        for (fx, fz) in [(0.0, 0.0), (0.5, -0.3), (0.99, 0.99), (1.5, 0.2)] {
+                            let o = [fx * half[0], y, fz * half[1]];
+                            let each = snap.occluded_each(i, o, ALL_RAYS);
+                            assert_eq!(
+                                snap.occluded_rays(i, o, ALL_RAYS),
+                                each,
+                                "{name} t={t} object {i} o={o:?}"
+                            );
+                            let (lo, hi) = snap.samples_y[i];
+                            shortcut +=
+                                usize::from((y >= 0.0 && lo >= 0.0) || (y <= 0.0 && hi <= 0.0));
+                            blocked += usize::from(each != 0);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            shortcut > 0 && blocked > 0,
+            "shortcut {shortcut}, blocked {blocked}"
+        );
     }
 }
