@@ -892,12 +892,14 @@ impl<'a> Snapshot<'a> {
         match which {
             // A short list: the exact tests alone, without the cull's window.
             Occluders::Moving(list) => list.iter().for_each(|&i| consider(i)),
-            Occluders::All => self.near_casters(x, ext, consider),
-            Occluders::Still => self.near_casters(x, ext, |i| {
-                if !self.scene.moves(i) {
-                    consider(i);
-                }
-            }),
+            Occluders::All | Occluders::Still => {
+                let still = which == Occluders::Still;
+                self.near_casters(x, ext, |i| {
+                    if !(still && self.scene.moves(i)) {
+                        consider(i);
+                    }
+                })
+            }
         }
         if nc == 0 && overflow.is_empty() {
             return hidden;
