@@ -150,20 +150,20 @@ thread_local! {
 
 /// The corner hashes of cell `(i, j)` under `salt`, through octave `slot`'s [`LAST_CELL`].
 fn corners(i: i64, j: i64, salt: u64, slot: usize) -> [f64; 4] {
-    LAST_CELL.with(|last| {
-        let (full, li, lj, ls, h) = last[slot].get();
-        if full && li == i && lj == j && ls == salt {
-            return h;
-        }
-        let h = [
-            hash(i, j, salt),
-            hash(i + 1, j, salt),
-            hash(i, j + 1, salt),
-            hash(i + 1, j + 1, salt),
-        ];
-        last[slot].set((true, i, j, salt, h));
-        h
-    })
+    // The cache read and written in two small accesses, the hashing between them: with the
+    // hashing inside one access, the compiler may leave that access a call of its own.
+    let (full, li, lj, ls, h) = LAST_CELL.with(|last| last[slot].get());
+    if full && li == i && lj == j && ls == salt {
+        return h;
+    }
+    let h = [
+        hash(i, j, salt),
+        hash(i + 1, j, salt),
+        hash(i, j + 1, salt),
+        hash(i + 1, j + 1, salt),
+    ];
+    LAST_CELL.with(|last| last[slot].set((true, i, j, salt, h)));
+    h
 }
 
 /// Bilinearly interpolated hashed lattice noise with a smoothstep fade, in `[0, 1)`; `slot`

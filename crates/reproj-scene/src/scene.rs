@@ -334,6 +334,8 @@ pub(crate) struct Hit {
 /// A scene at one instant: world transforms, their inverses, bounding spheres, the top-level
 /// BVH over the instances (rebuilt per instant: a few dozen boxes, microseconds) and the light.
 pub(crate) struct Snapshot<'a> {
+    /// Unique to this snapshot (for [`NEAR_CASTERS`]).
+    id: u64,
     pub scene: &'a Scene,
     pub world: Vec<Rigid>,
     pub inv: Vec<Rigid>,
@@ -359,6 +361,8 @@ pub(crate) struct Snapshot<'a> {
     moving_casters: Vec<usize>,
     /// Per object: the shadow rays' directions (`samples`) in its object space.
     samples_obj: Vec<[V3; SHADOW_SAMPLES]>,
+    /// Per object: the least and the greatest `y` of `samples_obj` (a quad's normal axis).
+    samples_y: Vec<(f64, f64)>,
     /// A bound on `|ŝ − l|` over the unit disc samples `ŝ` ([`crate::mesh::Mesh::occluded_rays`]).
     spread: f64,
     /// Per object: the directions toward the corners of the polygon around the disc
@@ -397,7 +401,33 @@ struct ShadowCull {
     /// margin).
     w_range: (f64, f64),
     size: f64,
+    /// How far a shading point may lie from the point of a query with the radii grown by as
+    /// much ([`Snapshot::near_casters`]); 0 where queries are not shared.
+    reach: f64,
 }
+
+/// Per thread: the shadow casters that [`ShadowCull`] keeps for every point within the cull's
+/// `reach` of `x`, at the instant of the snapshot numbered `snap` ([`Snapshot::near_casters`]).
+struct NearCasters {
+    snap: u64,
+    x: V3,
+    list: Vec<usize>,
+}
+
+thread_local! {
+    /// Neighbouring pixels' shading points mostly lie within the cull's reach of each other, so
+    /// one query serves a run of them.
+    static NEAR_CASTERS: std::cell::RefCell<NearCasters> = const {
+        std::cell::RefCell::new(NearCasters {
+            snap: u64::MAX,
+            x: [0.0; 3],
+            list: Vec::new(),
+        })
+    };
+}
+
+/// Numbers the snapshots, so that [`NEAR_CASTERS`] is never read for another instant or scene.
+static NEXT_SNAPSHOT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 impl ShadowCull {
     fn new(objects: &[Object], spheres: &[(V3, f64)], l: V3, angular_radius: f64) -> ShadowCull {
@@ -447,6 +477,15 @@ impl ShadowCull {
         for (sorted, _) in &mut windows {
             sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
         }
+        // The ordinary casters' size limit: most runs of neighbouring pixels' points share one
+        // query, and the grown radii add few casters to it (of the reaches tried, a quarter to
+        // four times this, the fewest instructions in the courtyard).
+        let reach = limits[0];
+        let reach = if reach.is_finite() && reach > 0.0 {
+            reach
+        } else {
+            0.0
+        };
         ShadowCull {
             e1,
             e2,
@@ -456,13 +495,20 @@ impl ShadowCull {
             big,
             w_range: (w_lo, w_hi),
             size,
+            reach,
         }
     }
 
-    /// Calls `visit` on every shadow caster whose bounding sphere the exact test could keep for
-    /// a shadow evaluation at `x` (`ext` the largest coordinate of `x`, at least 1); `spheres`
-    /// are the objects' world bounding spheres.
-    fn visit(&self, x: V3, l: V3, ext: f64, spheres: &[(V3, f64)], mut visit: impl FnMut(usize)) {
+    /// Calls `visit` on every shadow caster whose bounding sphere, its radius grown by `grow`,
+    /// the exact test could keep for a shadow evaluation at `x` (`ext` the largest coordinate of
+    /// `x`, at least 1); `spheres` are the objects' world bounding spheres.
+    fn visit(
+        &self,
+        x: V3,
+        (l, ext, grow): (V3, f64, f64),
+        spheres: &[(V3, f64)],
+        mut visit: impl FnMut(usize),
+    ) {
         let Some((s, k)) = self.s else {
             self.big.iter().for_each(|&i| visit(i));
             return;
@@ -476,7 +522,7 @@ impl ShadowCull {
             return;
         }
         let eps = 1e-6 * (self.size + ext);
-        let may = |i: usize| may_shadow(&self.proj[i], spheres[i].1, &p, (s, k), eps);
+        let may = |i: usize| may_shadow(&self.proj[i], spheres[i].1 + grow, &p, (s, k), eps);
         for &i in &self.big {
             if may(i) {
                 visit(i);
@@ -484,7 +530,7 @@ impl ShadowCull {
         }
         let depth = (self.w_range.1 - p[2]).max(p[2] - self.w_range.0).max(0.0);
         for (sorted, r_max) in &self.windows {
-            let half = (r_max + s * depth) * k + eps;
+            let half = (r_max + grow + s * depth) * k + eps;
             let start = sorted.partition_point(|e| e.0 < p[0] - half);
             for &(u, i) in &sorted[start..] {
                 if u > p[0] + half {
@@ -597,7 +643,17 @@ impl<'a> Snapshot<'a> {
             let across = sub(*s, scale(light, dot(*s, light)));
             m.max(length(across) / length(*s))
         }) + 1e-6;
-        let samples_obj = inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
+        let samples_obj: Vec<[V3; SHADOW_SAMPLES]> =
+            inv.iter().map(|m| samples.map(|s| m.vector(s))).collect();
+        let samples_y = samples_obj
+            .iter()
+            .map(|dirs| {
+                dirs.iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| {
+                        (lo.min(d[1]), hi.max(d[1]))
+                    })
+            })
+            .collect();
         let spread = samples
             .iter()
             .fold(0.0f64, |m, s| m.max(length(sub(normalize(*s), light))))
@@ -605,11 +661,13 @@ impl<'a> Snapshot<'a> {
         let umbra = umbra_corners(&samples, light);
         let umbra_obj = inv.iter().map(|m| umbra.map(|s| m.vector(s))).collect();
         Snapshot {
+            id: NEXT_SNAPSHOT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             spread,
             umbra_obj,
             cull,
             moving_casters,
             samples_obj,
+            samples_y,
             all_above,
             light_sin_cos: scene.light.angular_radius.sin_cos(),
             light_obj,
@@ -834,12 +892,14 @@ impl<'a> Snapshot<'a> {
         match which {
             // A short list: the exact tests alone, without the cull's window.
             Occluders::Moving(list) => list.iter().for_each(|&i| consider(i)),
-            Occluders::All => self.cull.visit(x, l, ext, &self.spheres, consider),
-            Occluders::Still => self.cull.visit(x, l, ext, &self.spheres, |i| {
-                if !self.scene.moves(i) {
-                    consider(i);
-                }
-            }),
+            Occluders::All | Occluders::Still => {
+                let still = which == Occluders::Still;
+                self.near_casters(x, ext, |i| {
+                    if !(still && self.scene.moves(i)) {
+                        consider(i);
+                    }
+                })
+            }
         }
         if nc == 0 && overflow.is_empty() {
             return hidden;
@@ -856,6 +916,38 @@ impl<'a> Snapshot<'a> {
         hidden
     }
 
+    /// Calls `visit` on every shadow caster that [`ShadowCull::visit`] keeps at `x` (`ext` as
+    /// there), and on a few more, in the order of that visit: the casters kept for the grown
+    /// radii at a point within the cull's `reach` of `x`, the last such query of this thread.
+    ///
+    /// A ray `x + t·ŝ` (`t ≥ 0`) that meets a sphere `(c, r)` runs parallel to `x₀ + t·ŝ`, at
+    /// `|x − x₀|` from it, which meets `(c, r + |x − x₀|)`. So a sphere that the exact test
+    /// keeps at `x` is, grown by `reach ≥ |x − x₀|`, kept by the exact test at `x₀`, and hence by
+    /// the cull's bound there (grown alike, with the absolute margin of the larger coordinates
+    /// `ext + reach`): the list holds every caster the cull would keep at `x`. The extra ones
+    /// are rejected by the exact tests that follow (`blocked_rays`), and the windows and the
+    /// always-tested casters come in the same fixed order, so the candidates are those of a
+    /// query at `x`, in the same order.
+    fn near_casters(&self, x: V3, ext: f64, mut visit: impl FnMut(usize)) {
+        let (l, reach) = (self.light, self.cull.reach);
+        if reach == 0.0 || !x.iter().all(|c| c.is_finite()) {
+            return self.cull.visit(x, (l, ext, 0.0), &self.spheres, visit);
+        }
+        NEAR_CASTERS.with(|near| {
+            let mut near = near.borrow_mut();
+            let v = sub(x, near.x);
+            if near.snap != self.id || !(dot(v, v) <= reach * reach) {
+                let list = &mut near.list;
+                list.clear();
+                self.cull
+                    .visit(x, (l, ext + reach, reach), &self.spheres, |i| list.push(i));
+                near.snap = self.id;
+                near.x = x;
+            }
+            near.list.iter().for_each(|&i| visit(i));
+        });
+    }
+
     /// The rays among `todo` (a mask as in [`Snapshot::blocked_rays`]) that object `i` blocks,
     /// the shadow rays' origin being `o` in its object space: exactly those for which
     /// [`Shape::occludes`] is true ([`Snapshot::occluded_each`]), found with fewer tests.
@@ -869,6 +961,16 @@ impl<'a> Snapshot<'a> {
         };
         if let Some(m) = mesh {
             return m.occluded_rays(o, dirs, (self.light_obj[i].0, self.spread), todo);
+        }
+        // A quad (the plane `y = 0`) blocks a ray only at `t = −o_y / d_y > 0`: an origin on
+        // the side every direction leaves toward (or on the plane) has `t ≤ 0` for each (the
+        // sign of the quotient is exact; `d_y = 0` is no hit either). In the courtyard, the
+        // ground is a candidate of the points near it on the houses and walls.
+        if matches!(shape, Shape::Quad { .. }) {
+            let (lo, hi) = self.samples_y[i];
+            if (o[1] >= 0.0 && lo >= 0.0) || (o[1] <= 0.0 && hi <= 0.0) {
+                return 0;
+            }
         }
         // A convex solid that blocks the rays toward every corner of the polygon around the
         // light's disc blocks every ray of the disc (see `UMBRA_SIDES`).
@@ -919,6 +1021,9 @@ impl<'a> Snapshot<'a> {
     /// along the unit direction `view` (from the point toward the eye), on the RGB8 scale
     /// (`[0, 255]`, clamped as a display would) but not yet rounded, so that sub-samples can be
     /// averaged before the one rounding.
+    // Inlined into the colour filter's caller (`key_color`), as `trace_eye` is, for the same
+    // reason.
+    #[inline]
     pub fn shade(&self, m: &Material, albedo: V3, n: V3, view: V3, f: f64) -> V3 {
         let light = &self.scene.light;
         let l = self.light;
@@ -1101,7 +1206,7 @@ mod tests {
                     let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
                     let mut seen = vec![false; scene.objects.len()];
                     snap.cull
-                        .visit(x, snap.light, ext, &snap.spheres, |i| seen[i] = true);
+                        .visit(x, (snap.light, ext, 0.0), &snap.spheres, |i| seen[i] = true);
                     for &i in &casters {
                         total += 1;
                         visited += usize::from(seen[i]);
@@ -1116,6 +1221,90 @@ mod tests {
         assert!(
             kept > 0 && visited < total,
             "kept {kept}, visited {visited} of {total}"
+        );
+    }
+
+    /// A shared shadow-cull query keeps, for a point up to the cull's reach away, every caster
+    /// that the exact sphere test keeps there, at the edge of that test: each caster seen from
+    /// points just inside its reach across the light, with the query made a little less than the
+    /// reach farther out (so a growth of the radii cut below the reach fails).
+    #[test]
+    fn near_casters_keep_every_object_the_sphere_test_keeps_within_reach() {
+        let mut edges = 0usize;
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3] {
+                let snap = Snapshot::new(&scene, t);
+                let reach = snap.cull.reach;
+                assert!(reach > 0.0, "{name}: no reach");
+                let (l, e1, e2) = (snap.light, snap.cull.e1, snap.cull.e2);
+                for i in (0..scene.objects.len()).filter(|&i| scene.objects[i].casts_shadow) {
+                    let (c, r) = snap.spheres[i];
+                    for depth in [0.5, 3.0, 12.0, 40.0] {
+                        for e in [e1, e2, scale(e1, -1.0), scale(e2, -1.0)] {
+                            let at = |u: f64| add(sub(c, scale(l, r + depth)), scale(e, u));
+                            // The largest offset across the light that the exact test keeps.
+                            let (mut lo, mut hi) = (0.0, 4.0 * (r + depth));
+                            assert!(snap.sphere_may_shadow(i, at(lo)).is_some());
+                            assert!(snap.sphere_may_shadow(i, at(hi)).is_none());
+                            for _ in 0..60 {
+                                let mid = 0.5 * (lo + hi);
+                                if snap.sphere_may_shadow(i, at(mid)).is_some() {
+                                    lo = mid;
+                                } else {
+                                    hi = mid;
+                                }
+                            }
+                            let (x, x0) = (at(lo), at(lo + reach * (1.0 - 1e-9)));
+                            let ext = |x: V3| x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+                            snap.near_casters(x0, ext(x0), |_| {});
+                            let mut seen = false;
+                            snap.near_casters(x, ext(x), |j| seen |= j == i);
+                            NEAR_CASTERS.with(|near| assert_eq!(near.borrow().x, x0));
+                            assert!(seen, "{name} t={t} object {i} depth {depth}: dropped");
+                            edges += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(edges > 0);
+    }
+
+    /// The quad shortcut finds what each ray finds, for origins on both sides of the plane, on
+    /// it (either zero) and just off it, over and beyond the quad, under every built-in light.
+    #[test]
+    fn quad_shortcut_finds_what_each_ray_finds() {
+        let (mut shortcut, mut blocked) = (0, 0);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for t in [0.0, 1.3, 2.7] {
+                let snap = Snapshot::new(&scene, t);
+                for i in 0..scene.objects.len() {
+                    let Shape::Quad { half } = snap.shape(i) else {
+                        continue;
+                    };
+                    for y in [-2.0, -1e-300, -0.0, 0.0, 1e-300, 2.0] {
+                        for (fx, fz) in [(0.0, 0.0), (0.5, -0.3), (0.99, 0.99), (1.5, 0.2)] {
+                            let o = [fx * half[0], y, fz * half[1]];
+                            let each = snap.occluded_each(i, o, ALL_RAYS);
+                            assert_eq!(
+                                snap.occluded_rays(i, o, ALL_RAYS),
+                                each,
+                                "{name} t={t} object {i} o={o:?}"
+                            );
+                            let (lo, hi) = snap.samples_y[i];
+                            shortcut +=
+                                usize::from((y >= 0.0 && lo >= 0.0) || (y <= 0.0 && hi <= 0.0));
+                            blocked += usize::from(each != 0);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            shortcut > 0 && blocked > 0,
+            "shortcut {shortcut}, blocked {blocked}"
         );
     }
 }

@@ -17,8 +17,18 @@ use crate::math::{dot, length, normalize, sub, Rigid, V3};
 use crate::scene::{Hit, Snapshot};
 use crate::shape::{Partial, Shape};
 
-/// Pixels per tile side.
-const TILE: usize = 8;
+/// The base-2 logarithm of the pixels per tile side, by the image width: the wider tiles of
+/// wide images hold more pixels per list built and list a few more objects per ray. Counted over
+/// the courtyard's ground truth: at 128×72, 8 pixels gave fewer instructions than 4 or 16; at
+/// 640×360 and 1280×720, 16 fewer than 8 or 32. (A shift: a pixel's tile is looked up five times
+/// per pixel, and a division by a size known only at run time costs more.)
+fn tile_shift(width: usize) -> u32 {
+    if width >= 512 {
+        4
+    } else {
+        3
+    }
+}
 
 /// An entry of a tile's list: the nearest distance of an object's bounding sphere from the
 /// camera centre, less a margin, and the object.
@@ -26,6 +36,8 @@ type Entry = (f64, usize);
 
 /// Per screen tile of one camera at one instant, the objects its rays may meet.
 pub(crate) struct EyeTiles<'s> {
+    /// `log2` of the pixels per tile side ([`tile_shift`]).
+    shift: u32,
     /// Tiles per row.
     cols: usize,
     /// Every tile's list (row-major, one after another; tile `k`'s is `starts[k]..starts[k +
@@ -77,7 +89,9 @@ impl<'s> EyeTiles<'s> {
             let q = inv_vp.mul_vec([x, y, 1.0, 1.0]);
             normalize(sub([q[0] / q[3], q[1] / q[3], q[2] / q[3]], o))
         };
-        let (cols, rows) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let shift = tile_shift(w);
+        let tile = 1 << shift;
+        let (cols, rows) = (w.div_ceil(tile), h.div_ceil(tile));
         let n = snap.world.len();
         // Per object: its sphere's centre relative to the camera centre, its distance, radius,
         // and the angle its sphere subtends (the same for every tile).
@@ -98,8 +112,8 @@ impl<'s> EyeTiles<'s> {
         let tile_row = |ty: usize| -> Option<(Vec<Entry>, Vec<usize>)> {
             let (mut lists, mut ends) = (Vec::new(), Vec::with_capacity(cols));
             for tx in 0..cols {
-                let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
-                let (y0, y1) = (ty * TILE, ((ty + 1) * TILE).min(h));
+                let (x0, x1) = (tx * tile, ((tx + 1) * tile).min(w));
+                let (y0, y1) = (ty * tile, ((ty + 1) * tile).min(h));
                 let corners = [dir(x0, y0), dir(x1, y0), dir(x0, y1), dir(x1, y1)];
                 let axis = normalize(
                     corners
@@ -166,6 +180,7 @@ impl<'s> EyeTiles<'s> {
             })
             .collect();
         Some(EyeTiles {
+            shift,
             cols,
             lists,
             starts,
@@ -175,9 +190,9 @@ impl<'s> EyeTiles<'s> {
 
     /// The tile that pixel `(i, j)` lies in.
     pub(crate) fn tile(&self, (i, j): (usize, usize)) -> EyeTile<'_, 's> {
-        let tile = (j / TILE) * self.cols + i / TILE;
+        let k = (j >> self.shift) * self.cols + (i >> self.shift);
         EyeTile {
-            list: &self.lists[self.starts[tile]..self.starts[tile + 1]],
+            list: &self.lists[self.starts[k]..self.starts[k + 1]],
             targets: &self.targets,
         }
     }
@@ -187,6 +202,9 @@ impl Snapshot<'_> {
     /// [`Snapshot::trace`] of the primary ray `d` through a pixel of `eye` (its centre or a
     /// sub-sample of it) from the camera centre `o`, the same answer (see the module documentation), with `d` in the
     /// hit object's space (the search has it already; the caller needs it for the normal).
+    // Inlined into `sample_ray_into`, its one caller (left to itself, the compiler's choice
+    // changes with unrelated edits of the crate).
+    #[inline]
     pub(crate) fn trace_eye(
         &self,
         eye: &EyeTile<'_, '_>,
@@ -267,13 +285,13 @@ mod tests {
     use crate::scene::{Scene, Variant};
     use crate::scenes::{builtin, SCENE_NAMES};
 
-    /// For every pixel-centre ray and 2×2 sub-sample ray of a small main camera: the object,
+    /// For every pixel-centre ray and 2×2 sub-sample ray of a `w×h` main camera: the object,
     /// distance and face that `trace_eye` finds, and how many of them lie on `objs`.
-    fn compare(scene: &Scene, k: usize, objs: &[usize]) -> usize {
+    fn compare(scene: &Scene, k: usize, (w, h): (usize, usize), objs: &[usize]) -> usize {
         let cam = rig(
             &scene.path.server_pose(k, 10.0),
-            48,
-            27,
+            w,
+            h,
             scene.near,
             scene.far,
         )
@@ -306,9 +324,17 @@ mod tests {
         for name in SCENE_NAMES {
             let scene = builtin(name, Variant::Dynamic).unwrap();
             for k in [0, 14] {
-                compare(&scene, k, &[]);
+                compare(&scene, k, (48, 27), &[]);
             }
         }
+    }
+
+    /// The wider tiles of wide images ([`tile_shift`]) find the same hits.
+    #[test]
+    fn wide_tiles_find_the_bvh_hit_for_every_primary_ray() {
+        assert!(tile_shift(48) < tile_shift(520));
+        let scene = builtin("courtyard", Variant::Dynamic).unwrap();
+        compare(&scene, 14, (520, 293), &[]);
     }
 
     /// Two copies of a house at the same place meet a ray at exactly the same distance: the
@@ -325,7 +351,10 @@ mod tests {
             doubled.push(scene.objects.len() - 1);
         }
         scene.refresh().unwrap();
-        let seen: usize = [0, 14].iter().map(|&k| compare(&scene, k, &doubled)).sum();
+        let seen: usize = [0, 14]
+            .iter()
+            .map(|&k| compare(&scene, k, (48, 27), &doubled))
+            .sum();
         assert!(seen > 0, "no ray met a doubled house");
     }
 }
