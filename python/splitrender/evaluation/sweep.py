@@ -260,13 +260,16 @@ class _Report:
         self.progress.stage(f"{task.stage}: {task.label} done ({counts})")
 
 
-def _failed(task: Task, error: BaseException, cache: Cache, finished: int) -> TaskFailedError:
+def _failed(task: Task, error: BaseException, cache: Cache, finished: int,
+            beside: Sequence[Task] = ()) -> TaskFailedError:
     inputs = ", ".join(f"{k}={v}" for k, v in sorted(task.paths.items()))
     if isinstance(error, cf.process.BrokenProcessPool):
-        # The worker ended without an exception to report: a signal, most often the kernel's
-        # OOM killer (two large score tasks at once can outgrow the machine's memory).
+        # A worker ended without an exception to report: a signal, most often the kernel's OOM
+        # killer (two large score tasks at once can outgrow the machine's memory). The pool
+        # then fails every task it was running, and cannot say whose worker died.
+        others = "".join(f"; or the one running {t.label}" for t in beside)
         what = ("the worker process running it died (killed by the operating system; running "
-                "out of memory is the usual cause: try fewer --jobs)")
+                f"out of memory is the usual cause: try fewer --jobs){others}")
     else:
         what = f"{type(error).__name__}: {error}"
     return TaskFailedError(
@@ -329,7 +332,9 @@ def run_local(todo: Sequence[Task], cache: Cache, jobs: int, report: _Report,
                 exc = fut.exception()
                 if exc is not None:
                     if error is None:
-                        error = _failed(t, exc, cache, finished)
+                        error = _failed(t, exc, cache, finished, [
+                            r for r in running.values()
+                            if isinstance(exc, cf.process.BrokenProcessPool)])
                     continue
                 finished += 1
                 report.finished(t)
