@@ -7,7 +7,8 @@ slice keeps that copy alive, so reading N frames holds N copies of the stack (NÂ
 and the score workers were killed by the kernel's OOM killer. The fix (the same as on main
 since) reads each array once. The frames' values are the same, so every output byte is too;
 the pinned files stay untouched, so the cache keys (the code fingerprint hashes those files)
-stay those of the committed rows.
+stay those of the committed rows. A copy of main's function rather than an import of it, so that
+later changes on main cannot reach the pinned run.
 
 Run as a script, so that the `spawn` worker processes of `--executor local`, which import the
 parent's main module as `__mp_main__`, apply the same fix.

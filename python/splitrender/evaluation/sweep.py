@@ -313,7 +313,8 @@ def run_local(todo: Sequence[Task], cache: Cache, jobs: int, report: _Report,
             if error is None:
                 for key, t in list(pending.items()):
                     # No more submitted than there are workers: the tasks in `running` are the
-                    # ones being run, so a worker that dies is reported with its own task.
+                    # ones being run, so a worker that dies is reported among them, not a task
+                    # that was only queued.
                     if len(running) >= jobs:
                         break
                     if not any(d in pending or d in {r.key for r in running.values()}
