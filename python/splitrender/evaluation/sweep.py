@@ -262,6 +262,8 @@ class _Report:
 
 def _failed(task: Task, error: BaseException, cache: Cache, finished: int,
             beside: Sequence[Task] = ()) -> TaskFailedError:
+    """The error for ``task``; ``beside``: the other tasks running then (named only when a
+    worker died, since then any of them may be the one whose worker it was)."""
     inputs = ", ".join(f"{k}={v}" for k, v in sorted(task.paths.items()))
     if isinstance(error, cf.process.BrokenProcessPool):
         # A worker ended without an exception to report: a signal, most often the kernel's OOM
@@ -333,9 +335,7 @@ def run_local(todo: Sequence[Task], cache: Cache, jobs: int, report: _Report,
                 exc = fut.exception()
                 if exc is not None:
                     if error is None:
-                        error = _failed(t, exc, cache, finished, [
-                            r for r in running.values()
-                            if isinstance(exc, cf.process.BrokenProcessPool)])
+                        error = _failed(t, exc, cache, finished, list(running.values()))
                     continue
                 finished += 1
                 report.finished(t)

@@ -200,8 +200,9 @@ impl<'s> EyeTiles<'s> {
 
 impl Snapshot<'_> {
     /// [`Snapshot::trace`] of the primary ray `d` through a pixel of `eye` (its centre or a
-    /// sub-sample of it) from the camera centre `o`, the same answer (see the module documentation), with `d` in the
-    /// hit object's space (the search has it already; the caller needs it for the normal).
+    /// sub-sample of it) from the camera centre `o`, the same answer (see the module
+    /// documentation), with `d` in the hit object's space (the search has it already; the
+    /// caller needs it for the normal).
     // Inlined into `sample_ray_into`, its one caller (left to itself, the compiler's choice
     // changes with unrelated edits of the crate).
     #[inline]
