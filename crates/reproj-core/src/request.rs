@@ -108,26 +108,56 @@ impl<'a> Output<'a> {
     }
 }
 
-/// Runs `rows(j0, image, diag)` in parallel for every block of [`TILE`] rows of a `w`-wide output:
-/// `j0` is the block's first row, `image` its RGB8 rows, and `diag` (when diagnostics are asked for)
-/// its rows of [`Diagnostics::source`] and [`Diagnostics::error`]. The buffers' sizes are those
-/// [`Output::check`] accepts.
+/// Runs `rows(j0, image, diag)` in parallel for blocks of consecutive rows of a `w`-wide output
+/// that cover it: `j0` is the block's first row, `image` its RGB8 rows, and `diag` (when
+/// diagnostics are asked for) its rows of [`Diagnostics::source`] and [`Diagnostics::error`]. The
+/// buffers' sizes are those [`Output::check`] accepts. The blocks are [`TILE`] rows, and shorter
+/// towards the end ([`block_rows`]); `rows` must not depend on where a block starts or ends.
+///
+/// Each thread takes the next block from one queue, so the frame ends with the short blocks and
+/// the threads finish within about one of those of each other. Halving the rows among the threads
+/// (`par_chunks_mut`) left the last ranges of several blocks unsplittable, and one thread idle for
+/// up to two 16-row blocks (1–2 ms at 1280×720) while the other finished them.
 pub(crate) fn par_row_blocks<F>(out: Output, w: usize, rows: F)
 where
     F: Fn(usize, &mut [u8], Option<(&mut [u8], &mut [f32])>) + Sync,
 {
-    match out.diag {
-        Some(d) => out
-            .image
-            .par_chunks_mut(TILE * w * 3)
-            .zip(d.source.par_chunks_mut(TILE * w))
-            .zip(d.error.par_chunks_mut(TILE * w))
-            .enumerate()
-            .for_each(|(b, ((o, s), e))| rows(b * TILE, o, Some((s, e)))),
-        None => out
-            .image
-            .par_chunks_mut(TILE * w * 3)
-            .enumerate()
-            .for_each(|(b, o)| rows(b * TILE, o, None)),
+    let threads = rayon::current_num_threads();
+    let h = out.image.len() / (3 * w).max(1);
+    let mut image = out.image;
+    let mut diag = out.diag.map(|d| (&mut d.source[..], &mut d.error[..]));
+    let mut blocks = Vec::new();
+    let mut j0 = 0;
+    while j0 < h {
+        let n = block_rows(h - j0, threads);
+        let (o, rest) = std::mem::take(&mut image).split_at_mut(3 * n * w);
+        image = rest;
+        let d = diag.as_mut().map(|(s, e)| {
+            let (s0, s1) = std::mem::take(s).split_at_mut(n * w);
+            let (e0, e1) = std::mem::take(e).split_at_mut(n * w);
+            (*s, *e) = (s1, e1);
+            (s0, e0)
+        });
+        blocks.push((j0, o, d));
+        j0 += n;
     }
+    let queue = std::sync::Mutex::new(blocks.into_iter());
+    (0..threads).into_par_iter().for_each(|_| loop {
+        // The lock is released before the block runs.
+        let next = queue.lock().unwrap().next();
+        let Some((j0, o, d)) = next else { break };
+        rows(j0, o, d);
+    });
+}
+
+/// The rows of the next block of [`par_row_blocks`] when `left` rows remain: [`TILE`] while each
+/// of the `threads` has at least four such blocks ahead, then halved down to 2 rows (even, so that
+/// the blocks do not split the cells of a grid at half the output's resolution, which would be
+/// searched by both).
+fn block_rows(left: usize, threads: usize) -> usize {
+    let mut n = TILE;
+    while n > 2 && 4 * n * threads > left {
+        n /= 2;
+    }
+    n.min(left)
 }

@@ -447,79 +447,105 @@ pub(crate) fn run<'a>(
     ensure_pair(&sources, &inverses, mode, params, pair);
 
     let pair: &PairCache = pair;
-    // Pass 1: scene flow and splatting. Every source at once, each with its own parallel bands inside: one wait for the slowest
-    // task per frame instead of two per source (the small auxiliary grids have too few bands to
-    // keep both cores busy on their own).
-    sources.par_iter_mut().enumerate().for_each(|(k, src)| {
-        let w = match src.role {
-            Role::Older => alpha,
-            Role::Newer => 1.0 - alpha,
-        };
-        let to_client = NdcTransfer::new(&inverses[k], &client_vp);
-        let vis = (src.camera > 0).then(|| pair.sources[k].vis.as_slice());
-        scene_flow_and_splat(src, &to_client, w, vis);
-        window_min(src, params.window);
-    });
-
-    // Pass 2: resolve per output tile.
-    let (cw, ch) = (request.client.width, request.client.height);
-    let eps_scale = REFERENCE_SHORT_SIDE / cw.min(ch) as f32;
-    let ctx = Resolve {
-        params,
-        alpha,
-        client_w: cw,
-        client_h: ch,
-        sources: &sources,
-        n_cams: 1 + n_aux,
-        bidirectional,
-        eps_e: params.eps_e * eps_scale,
-        eps_e_aux: params.eps_e * eps_scale * params.aux_threshold_scale,
-        eps_z: params.eps_z,
-        eps_z_aux,
-        iterations: if mode == Mode::Ours {
-            params.fpi_iterations
-        } else {
-            0
-        },
-        aux: Vec::new(),
-        client_ndc: NdcTable::new(cw, ch),
-        pair,
-        palettes: sources
-            .iter()
-            .enumerate()
-            .map(|(k, s)| Palette {
-                color: s.view.color,
-                shadow: s
-                    .view
-                    .shadow
-                    .filter(|_| mode == Mode::Ours && params.use_shadows),
-                role: s.role,
-                partner: if blends {
-                    &pair.sources[k].partner
-                } else {
-                    &[]
-                },
-                other: k ^ 1,
-                texel: &pair.sources[k].texel,
-                omega: match s.role {
-                    Role::Older => 1.0 - alpha,
-                    Role::Newer => alpha,
-                },
-            })
-            .collect(),
-    };
     let mut aux_pool = AUX_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
-    let aux_grids = (1..ctx.n_cams)
-        .map(|cam| ctx.aux_grid(cam, aux_pool.pop().unwrap_or_default()))
+    let aux_bufs: Vec<Vec<u8>> = (0..n_aux)
+        .map(|_| aux_pool.pop().unwrap_or_default())
         .collect();
-    let ctx = Resolve {
-        aux: aux_grids,
-        ..ctx
-    };
-    par_row_blocks(out, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
+    // The rest of the frame is three parallel regions (pass 1, the auxiliary grids, pass 2) with
+    // a little serial work between them. Entered from a thread outside the pool (the client's),
+    // each region would be handed to the pool as a job, and the caller put to sleep and woken
+    // again at its end (tens of µs to over 100 µs each on a VM); as one job on the pool, the
+    // regions are forks of a worker while the other worker is still looking for work, and the
+    // caller waits once. The thread-local pools stay the caller's: what is taken from them is
+    // handed in and back.
+    let srcs = &mut sources;
+    let aux_bufs = rayon::scope(move |_| {
+        let sources = srcs;
+        // Pass 1: scene flow and splatting. Every source at once, each with its own parallel
+        // bands inside: one wait for the slowest task per frame instead of two per source (the
+        // small auxiliary grids have too few bands to keep both cores busy on their own). Every
+        // source and band is a job of its own (`with_max_len(1)`): rayon otherwise stops splitting
+        // a range after a few halvings, and a thread that finds nothing to steal waits while the
+        // other runs several bands in a row.
+        sources
+            .par_iter_mut()
+            .enumerate()
+            .with_max_len(1)
+            .for_each(|(k, src)| {
+                let w = match src.role {
+                    Role::Older => alpha,
+                    Role::Newer => 1.0 - alpha,
+                };
+                let to_client = NdcTransfer::new(&inverses[k], &client_vp);
+                let vis = (src.camera > 0).then(|| pair.sources[k].vis.as_slice());
+                scene_flow_and_splat(src, &to_client, w, vis);
+                window_min(src, params.window);
+            });
+        let sources: &[Src] = sources;
+
+        // Pass 2: resolve per output tile.
+        let (cw, ch) = (request.client.width, request.client.height);
+        let eps_scale = REFERENCE_SHORT_SIDE / cw.min(ch) as f32;
+        let ctx = Resolve {
+            params,
+            alpha,
+            client_w: cw,
+            client_h: ch,
+            sources,
+            bidirectional,
+            eps_e: params.eps_e * eps_scale,
+            eps_e_aux: params.eps_e * eps_scale * params.aux_threshold_scale,
+            eps_z: params.eps_z,
+            eps_z_aux,
+            iterations: if mode == Mode::Ours {
+                params.fpi_iterations
+            } else {
+                0
+            },
+            aux: Vec::new(),
+            client_ndc: NdcTable::new(cw, ch),
+            pair,
+            palettes: sources
+                .iter()
+                .enumerate()
+                .map(|(k, s)| Palette {
+                    color: s.view.color,
+                    shadow: s
+                        .view
+                        .shadow
+                        .filter(|_| mode == Mode::Ours && params.use_shadows),
+                    role: s.role,
+                    partner: if blends {
+                        &pair.sources[k].partner
+                    } else {
+                        &[]
+                    },
+                    other: k ^ 1,
+                    texel: &pair.sources[k].texel,
+                    omega: match s.role {
+                        Role::Older => 1.0 - alpha,
+                        Role::Newer => alpha,
+                    },
+                })
+                .collect(),
+        };
+        // The auxiliary cameras' grids side by side: each is a short row pass and column pass,
+        // and one after the other they were four waits for the slowest task instead of two.
+        let aux_grids = aux_bufs
+            .into_par_iter()
+            .enumerate()
+            .map(|(g, maybe)| ctx.aux_grid(1 + g, maybe))
+            .collect();
+        let ctx = Resolve {
+            aux: aux_grids,
+            ..ctx
+        };
+        par_row_blocks(out, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
+        ctx.aux.into_iter().map(|g| g.maybe).collect::<Vec<_>>()
+    });
     // Back to the pools in reverse, so that the next frame pops them in the same order and each
     // source gets a buffer of its own size again.
-    aux_pool.extend(ctx.aux.into_iter().rev().map(|g| g.maybe));
+    aux_pool.extend(aux_bufs.into_iter().rev());
     AUX_POOL.with(|p| *p.borrow_mut() = aux_pool);
     for src in sources.into_iter().rev() {
         pool.push(src.bufs);
@@ -595,7 +621,6 @@ struct Resolve<'a> {
     client_w: usize,
     client_h: usize,
     sources: &'a [Src<'a>],
-    n_cams: usize,
     bidirectional: bool,
     eps_e: f32,
     eps_e_aux: f32,

@@ -101,6 +101,8 @@ pub(super) fn scene_flow_and_splat(
         .zip(src.bufs.splat.par_chunks_mut(SPLAT_BAND * sw))
         .zip(spills.par_iter_mut())
         .enumerate()
+        // One job per band, so that an idle thread can always take one (see `run`).
+        .with_max_len(1)
         .for_each(|(b, (((rows, zrows), band), spill))| block(b, rows, zrows, band, spill));
     // The parallel pass has finished: every band is reset. The spilled points are applied by
     // one task per range of the grid (one per thread), each reading every list and taking the
@@ -405,6 +407,8 @@ pub(super) fn window_min(src: &mut Src, wr: usize) {
         .init
         .par_chunks_mut(TILE * sw)
         .enumerate()
+        // One job per block, as the bands of `scene_flow_and_splat`.
+        .with_max_len(1)
         .for_each(|(b, out)| {
             ROW_MIN.with(|cell| {
                 let first = SrcRow {
