@@ -34,7 +34,7 @@ struct AuxCell {
 /// match for one of its pixels, or where [`AuxGrid::maybe`] says it may override a main match. By
 /// §3.5 an auxiliary match replaces a main one only when it is not visible in the main camera; its
 /// reprojection error is below `ε_e·4`, so the point lies within `R` cells of the cell it matched
-/// (see [`Resolve::aux_grid`]), and `maybe` is the grid of cells within `R` of a point that is not
+/// (see [`AuxGrid::new`]), and `maybe` is the grid of cells within `R` of a point that is not
 /// visible in main. Elsewhere the search could not change a pixel, and skipping it gives the same
 /// bytes as searching every cell.
 #[derive(Debug)]
@@ -55,6 +55,79 @@ pub(super) struct AuxGrid {
     covered: std::ops::Range<usize>,
     /// NDC of the cell centres.
     ndc: NdcTable,
+}
+
+impl AuxGrid {
+    /// The grid of an auxiliary camera over a `cw × ch` client image, with the cells whose match
+    /// may override a main match: `srcs` are the camera's sources (older and newer, or newer
+    /// alone) after pass 1, `eps_e_aux` the auxiliary `ε_e` at the client's resolution
+    /// ([`Resolve::eps_e_aux`]), `every_cell` asks for every cell to be searched (tests:
+    /// [`eager_aux`] read on the caller's thread), and `maybe` is a buffer to reuse.
+    pub(super) fn new(
+        srcs: &[Src],
+        eps_e_aux: f32,
+        (cw, ch): (usize, usize),
+        every_cell: bool,
+        mut maybe: Vec<u8>,
+    ) -> AuxGrid {
+        // The newer frame's camera (the last source) is present in both modes; both frames share
+        // the rig.
+        let grid = &srcs[srcs.len() - 1];
+        let (w, h) = (grid.proj.width, grid.proj.height);
+        // An accepted auxiliary match has error e < ε_e·4 (aspect-scaled NDC, eq. 7), so each of
+        // its pixel offsets from the cell centre is below r = ε_e·4·min(W, H)/2 source pixels and
+        // its point lands within ⌈r⌉ cells of the cell; one more absorbs rounding.
+        let same_grid = srcs.iter().all(|s| (s.proj.width, s.proj.height) == (w, h));
+        let r = srcs
+            .iter()
+            .map(|s| eps_e_aux * s.proj.width.min(s.proj.height) as f32 / 2.0)
+            .fold(0.0f32, f32::max);
+        let reach = r.ceil() as usize + 1;
+        maybe.clear();
+        if !same_grid || !r.is_finite() || reach >= w.min(h) / 2 || every_cell {
+            // The bound does not apply (or covers everything): search every cell.
+            maybe.resize(w * h, 1);
+        } else {
+            maybe.resize(w * h, 0);
+            dilate_flags(srcs, w, h, reach, &mut maybe);
+        }
+        let lookup = |n: usize, f: &dyn Fn(usize) -> Option<usize>| -> Vec<u32> {
+            (0..n)
+                .map(|k| f(k).map_or(u32::MAX, |v| v as u32))
+                .collect()
+        };
+        // NDC x of a client pixel centre depends on its column only, y on its row only.
+        let col_of = lookup(cw, &|i| {
+            pixel_of_ndc(crate::camera::ndc_of_pixel(i, 0, cw, ch)[0], 0.0, w, h).map(|c| c.0)
+        });
+        let row_of = lookup(ch, &|j| {
+            pixel_of_ndc(0.0, crate::camera::ndc_of_pixel(0, j, cw, ch)[1], w, h).map(|c| c.1)
+        });
+        let mut cols_of_cell = vec![(0u32, 0u32); w];
+        let mut covered = cw..0;
+        for (i, &c) in col_of.iter().enumerate() {
+            if c == u32::MAX {
+                continue;
+            }
+            let r = &mut cols_of_cell[c as usize];
+            *r = if r.0 == r.1 {
+                (i as u32, i as u32 + 1)
+            } else {
+                (r.0, i as u32 + 1)
+            };
+            covered = covered.start.min(i)..covered.end.max(i + 1);
+        }
+        AuxGrid {
+            w,
+            h,
+            maybe,
+            col_of,
+            row_of,
+            cols_of_cell,
+            covered,
+            ndc: NdcTable::new(w, h),
+        }
+    }
 }
 
 /// The auxiliary cells resolved while one block of output rows is resolved, for the grid rows
@@ -233,76 +306,6 @@ impl Resolve<'_> {
         picks.list = list;
     }
 
-    /// The grid of auxiliary camera `cam` over the client image, with the cells whose match may
-    /// override a main match ([`AuxGrid`]); `maybe` is a buffer to reuse.
-    pub(super) fn aux_grid(&self, cam: usize, mut maybe: Vec<u8>) -> AuxGrid {
-        // The newer frame's camera is present in both modes; both frames share the rig.
-        let grid_src = if self.bidirectional { 2 * cam + 1 } else { cam };
-        let (w, h) = (
-            self.sources[grid_src].proj.width,
-            self.sources[grid_src].proj.height,
-        );
-        let srcs: &[Src] = if self.bidirectional {
-            &self.sources[2 * cam..2 * cam + 2]
-        } else {
-            &self.sources[cam..cam + 1]
-        };
-        // An accepted auxiliary match has error e < ε_e·4 (aspect-scaled NDC, eq. 7), so each of
-        // its pixel offsets from the cell centre is below r = ε_e·4·min(W, H)/2 source pixels and
-        // its point lands within ⌈r⌉ cells of the cell; one more absorbs rounding.
-        let same_grid = srcs.iter().all(|s| (s.proj.width, s.proj.height) == (w, h));
-        let r = srcs
-            .iter()
-            .map(|s| self.eps_e_aux * s.proj.width.min(s.proj.height) as f32 / 2.0)
-            .fold(0.0f32, f32::max);
-        let reach = r.ceil() as usize + 1;
-        maybe.clear();
-        if !same_grid || !r.is_finite() || reach >= w.min(h) / 2 || eager_aux() {
-            // The bound does not apply (or covers everything): search every cell.
-            maybe.resize(w * h, 1);
-        } else {
-            maybe.resize(w * h, 0);
-            dilate_flags(srcs, w, h, reach, &mut maybe);
-        }
-        let (cw, ch) = (self.client_w, self.client_h);
-        let lookup = |n: usize, f: &dyn Fn(usize) -> Option<usize>| -> Vec<u32> {
-            (0..n)
-                .map(|k| f(k).map_or(u32::MAX, |v| v as u32))
-                .collect()
-        };
-        // NDC x of a client pixel centre depends on its column only, y on its row only.
-        let col_of = lookup(cw, &|i| {
-            pixel_of_ndc(crate::camera::ndc_of_pixel(i, 0, cw, ch)[0], 0.0, w, h).map(|c| c.0)
-        });
-        let row_of = lookup(ch, &|j| {
-            pixel_of_ndc(0.0, crate::camera::ndc_of_pixel(0, j, cw, ch)[1], w, h).map(|c| c.1)
-        });
-        let mut cols_of_cell = vec![(0u32, 0u32); w];
-        let mut covered = cw..0;
-        for (i, &c) in col_of.iter().enumerate() {
-            if c == u32::MAX {
-                continue;
-            }
-            let r = &mut cols_of_cell[c as usize];
-            *r = if r.0 == r.1 {
-                (i as u32, i as u32 + 1)
-            } else {
-                (r.0, i as u32 + 1)
-            };
-            covered = covered.start.min(i)..covered.end.max(i + 1);
-        }
-        AuxGrid {
-            w,
-            h,
-            maybe,
-            col_of,
-            row_of,
-            cols_of_cell,
-            covered,
-            ndc: NdcTable::new(w, h),
-        }
-    }
-
     /// Algorithm 1 for auxiliary camera `cam` (`1 + grid index`) at cell `(ai, aj)` of its grid,
     /// searched on first use within the block.
     #[inline]
@@ -393,9 +396,10 @@ thread_local! {
     pub(super) static EAGER_AUX: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }
 
-/// Whether every auxiliary cell is to be searched (tests only).
+/// Whether every auxiliary cell is to be searched (tests only; read on the thread that calls
+/// [`reproject`](crate::reproject), as the tests set it there).
 #[inline]
-fn eager_aux() -> bool {
+pub(super) fn eager_aux() -> bool {
     #[cfg(test)]
     {
         EAGER_AUX.with(|e| e.get())

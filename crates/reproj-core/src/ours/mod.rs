@@ -458,34 +458,58 @@ pub(crate) fn run<'a>(
     // regions are forks of a worker while the other worker is still looking for work, and the
     // caller waits once. The thread-local pools stay the caller's: what is taken from them is
     // handed in and back.
+    let (cw, ch) = (request.client.width, request.client.height);
+    let eps_scale = REFERENCE_SHORT_SIDE / cw.min(ch) as f32;
+    let eps_e_aux = params.eps_e * eps_scale * params.aux_threshold_scale;
+    let every_cell = auxiliary::eager_aux();
     let srcs = &mut sources;
     let aux_bufs = rayon::scope(move |_| {
         let sources = srcs;
-        // Pass 1: scene flow and splatting. Every source at once, each with its own parallel
-        // bands inside: one wait for the slowest task per frame instead of two per source (the
-        // small auxiliary grids have too few bands to keep both cores busy on their own). Every
-        // source and band is a job of its own (`with_max_len(1)`): rayon otherwise stops splitting
-        // a range after a few halvings, and a thread that finds nothing to steal waits while the
-        // other runs several bands in a row.
-        sources
-            .par_iter_mut()
-            .enumerate()
-            .with_max_len(1)
-            .for_each(|(k, src)| {
-                let w = match src.role {
-                    Role::Older => alpha,
-                    Role::Newer => 1.0 - alpha,
-                };
-                let to_client = NdcTransfer::new(&inverses[k], &client_vp);
-                let vis = (src.camera > 0).then(|| pair.sources[k].vis.as_slice());
-                scene_flow_and_splat(src, &to_client, w, vis);
-                window_min(src, params.window);
-            });
+        // Pass 1: scene flow and splatting of one source.
+        let pass1 = |k: usize, src: &mut Src| {
+            let w = match src.role {
+                Role::Older => alpha,
+                Role::Newer => 1.0 - alpha,
+            };
+            let to_client = NdcTransfer::new(&inverses[k], &client_vp);
+            let vis = (src.camera > 0).then(|| pair.sources[k].vis.as_slice());
+            scene_flow_and_splat(src, &to_client, w, vis);
+            window_min(src, params.window);
+        };
+        // Every source at once, each with its own parallel bands inside: one wait for the slowest
+        // task per frame instead of two per source (the small auxiliary grids have too few bands
+        // to keep both cores busy on their own). Every source and band is a job of its own
+        // (`with_max_len(1)`): rayon otherwise stops splitting a range after a few halvings, and a
+        // thread that finds nothing to steal waits while the other runs several bands in a row.
+        // The auxiliary grids need only the auxiliary sources' pass 1, so they are built while
+        // the main sources' pass 1 still runs, instead of between the two passes.
+        let n_main = if bidirectional { 2 } else { 1 };
+        let (mains, auxes) = sources.split_at_mut(n_main);
+        let ((), aux_grids) = rayon::join(
+            || {
+                mains
+                    .par_iter_mut()
+                    .enumerate()
+                    .with_max_len(1)
+                    .for_each(|(k, src)| pass1(k, src))
+            },
+            || {
+                auxes
+                    .par_iter_mut()
+                    .enumerate()
+                    .with_max_len(1)
+                    .for_each(|(k, src)| pass1(n_main + k, src));
+                auxes
+                    .par_chunks(n_main)
+                    .zip(aux_bufs)
+                    .with_max_len(1)
+                    .map(|(srcs, maybe)| AuxGrid::new(srcs, eps_e_aux, (cw, ch), every_cell, maybe))
+                    .collect::<Vec<_>>()
+            },
+        );
         let sources: &[Src] = sources;
 
         // Pass 2: resolve per output tile.
-        let (cw, ch) = (request.client.width, request.client.height);
-        let eps_scale = REFERENCE_SHORT_SIDE / cw.min(ch) as f32;
         let ctx = Resolve {
             params,
             alpha,
@@ -494,7 +518,7 @@ pub(crate) fn run<'a>(
             sources,
             bidirectional,
             eps_e: params.eps_e * eps_scale,
-            eps_e_aux: params.eps_e * eps_scale * params.aux_threshold_scale,
+            eps_e_aux,
             eps_z: params.eps_z,
             eps_z_aux,
             iterations: if mode == Mode::Ours {
@@ -502,7 +526,7 @@ pub(crate) fn run<'a>(
             } else {
                 0
             },
-            aux: Vec::new(),
+            aux: aux_grids,
             client_ndc: NdcTable::new(cw, ch),
             pair,
             palettes: sources
@@ -528,17 +552,6 @@ pub(crate) fn run<'a>(
                     },
                 })
                 .collect(),
-        };
-        // The auxiliary cameras' grids side by side: each is a short row pass and column pass,
-        // and one after the other they were four waits for the slowest task instead of two.
-        let aux_grids = aux_bufs
-            .into_par_iter()
-            .enumerate()
-            .map(|(g, maybe)| ctx.aux_grid(1 + g, maybe))
-            .collect();
-        let ctx = Resolve {
-            aux: aux_grids,
-            ..ctx
         };
         par_row_blocks(out, cw, |j0, o, d| ctx.resolve_rows(j0, o, d));
         ctx.aux.into_iter().map(|g| g.maybe).collect::<Vec<_>>()

@@ -601,3 +601,60 @@ fn moving_object_is_extrapolated_along_its_motion() {
     }
     assert!(ok * 100 >= total * 98, "{ok} of {total}");
 }
+
+/// Pass 1's splat grid, with the points that its tasks splatted outside their own band (the spill
+/// lists) applied, and the window filter over it: a brute-force window minimum over every point's
+/// cell, for several window radii, with a vertical flow that spills many points.
+#[test]
+fn window_filter_with_spilled_points_equals_a_brute_force_minimum() {
+    let (w, h) = (100, 70);
+    let c = cam(0.0, w, h);
+    let (color, depth) = plane(&c, 3.0);
+    let view = CameraView {
+        camera: c,
+        color: &color,
+        depth: &depth,
+        motion: None,
+        shadow: None,
+    };
+    // The client looks up: the image moves down by about a third of its height.
+    let client = Camera::new(
+        Mat4::look_at([0.0, 0.0, 0.0], [0.0, 0.4, -1.0], [0.0, 1.0, 0.0]),
+        Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+        w,
+        h,
+        "client",
+    )
+    .unwrap();
+    let to_client = NdcTransfer::new(&c.view_proj().inverse().unwrap(), &client.view_proj());
+    let mut src = Src::new(view, c.projector("source").unwrap(), None, Role::Older, 0);
+    src.bufs.fit(w * h, 0);
+    scene_flow_and_splat(&mut src, &to_client, 0.0, None);
+    // The complete grid: the bands' own cells with the spilled points added (again: the minimum
+    // is idempotent).
+    let mut grid = src.bufs.splat.clone();
+    let mut spilled = 0;
+    for &(c, key) in src.bufs.spill.iter().flatten() {
+        grid[c as usize] = grid[c as usize].min(key);
+        spilled += 1;
+    }
+    assert!(spilled > w * h / 10, "only {spilled} points spilled");
+    for wr in 0..3 {
+        window_min(&mut src, wr);
+        for j in 0..h {
+            for i in 0..w {
+                let mut m = EMPTY_SPLAT;
+                for q in j.saturating_sub(wr)..(j + wr + 1).min(h) {
+                    for p in i.saturating_sub(wr)..(i + wr + 1).min(w) {
+                        m = m.min(grid[q * w + p]);
+                    }
+                }
+                assert_eq!(
+                    src.bufs.init[j * w + i],
+                    splat_index(m),
+                    "wr {wr} ({i}, {j})"
+                );
+            }
+        }
+    }
+}
