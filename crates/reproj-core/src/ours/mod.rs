@@ -461,6 +461,7 @@ pub(crate) fn run<'a>(
     let (cw, ch) = (request.client.width, request.client.height);
     let eps_scale = REFERENCE_SHORT_SIDE / cw.min(ch) as f32;
     let eps_e_aux = params.eps_e * eps_scale * params.aux_threshold_scale;
+    // Read here, not in the job: the tests set it on the thread that calls `reproject`.
     let every_cell = auxiliary::eager_aux();
     let srcs = &mut sources;
     let aux_bufs = rayon::scope(move |_| {
