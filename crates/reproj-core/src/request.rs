@@ -143,8 +143,9 @@ where
     }
     let queue = std::sync::Mutex::new(blocks.into_iter());
     (0..threads).into_par_iter().for_each(|_| loop {
-        // The lock is released before the block runs.
-        let next = queue.lock().unwrap().next();
+        // The lock is held only to take the next block, not while it runs, so a panic in `rows`
+        // cannot poison it (and the queue is still consistent if one ever did).
+        let next = queue.lock().unwrap_or_else(|e| e.into_inner()).next();
         let Some((j0, o, d)) = next else { break };
         rows(j0, o, d);
     });
