@@ -4,9 +4,9 @@
 //! Every primary ray of a camera leaves its centre, so an object's place relative to the rays is
 //! known once per camera: the objects a tile's pyramid of rays can meet (their bounding sphere
 //! within the tile's cone, their box not beyond one of its side planes) are listed once per tile,
-//! sorted by the distance to their boxes, and a ray tests them in that order until the next box
-//! lies beyond its nearest hit so far. That finds the same nearest distance as the
-//! BVH; which object wins a tie (two objects at exactly the same distance) depends on the order
+//! sorted by how near the tile's rays can meet their boxes, and a ray tests them in that order
+//! until the next box lies beyond its nearest hit so far. That finds the same nearest distance as
+//! the BVH; which object wins a tie (two objects at exactly the same distance) depends on the order
 //! they are tested in, so a ray that meets one falls back to [`Snapshot::trace`], whose order
 //! decides, and the answer is the BVH's in every case.
 
@@ -35,8 +35,9 @@ fn tile_shift(width: usize) -> u32 {
 /// into the corners `(x0, y0)`, `(x1, y0)`, `(x0, y1)`, `(x1, y1)`).
 const SIDES: [(usize, usize); 4] = [(0, 1), (1, 3), (3, 2), (2, 0)];
 
-/// An entry of a tile's list: the distance of an object's box from the camera centre, less a
-/// margin, and the object.
+/// An entry of a tile's list: a bound below the distance from the camera centre of every point
+/// of the object's box that a ray of the tile can reach (the box's distance, or farther along
+/// the tile's rays, see [`EyeTiles::new`]), less a margin, and the object.
 type Entry = (f64, usize);
 
 /// Per screen tile of one camera at one instant, the objects its rays may meet.
@@ -120,14 +121,15 @@ impl<'s> EyeTiles<'s> {
             })
             .collect();
         // Per object: the distance from the camera centre to its box (at least that to its
-        // sphere, as the sphere holds the box), which no hit is nearer than.
-        let box_dist: Vec<f64> = (0..n)
+        // sphere, as the sphere holds the box), which no hit is nearer than, and the centre's
+        // distance from each of the box's slabs in its space (0 inside the slab).
+        let box_dist: Vec<(f64, V3)> = (0..n)
             .map(|i| {
                 let b = snap.shape(i).bounds();
                 let p = snap.inv[i].point(o);
-                length(std::array::from_fn(|k| {
-                    p[k] - p[k].max(b.min[k]).min(b.max[k])
-                }))
+                let gaps: V3 =
+                    std::array::from_fn(|k| (p[k] - p[k].max(b.min[k]).min(b.max[k])).abs());
+                (length(gaps), gaps)
             })
             .collect();
         // One row of tiles: every tile's list one after another, and where each ends.
@@ -162,9 +164,10 @@ impl<'s> EyeTiles<'s> {
                         p
                     }
                 });
+                let (sin_c, cos_c) = (cone + 1e-6).sin_cos();
                 let first = lists.len();
                 for (i, &(v, dist, r, reach)) in spheres.iter().enumerate() {
-                    let near = box_dist[i] * (1.0 - 1e-6) - eps;
+                    let (bd, gaps) = box_dist[i];
                     // A sphere that holds the centre (or nearly) is met by any ray.
                     let keep = if !(dist > r * (1.0 + 1e-6) + eps) {
                         true
@@ -181,7 +184,23 @@ impl<'s> EyeTiles<'s> {
                             })
                     };
                     if keep {
-                        lists.push((near.max(0.0), i));
+                        // A ray of unit direction `d` (in the object's space) reaches a slab `k`
+                        // that the centre lies outside of no nearer than `gaps[k] / |d_k|`. With
+                        // `d` within `c' = cone + 10⁻⁶` of the axis `a` and `θ` the angle from
+                        // `a` to the axis `k`, `|d_k| ≤ cos(θ − c')` (1 where `θ ≤ c'`), which
+                        // is `cos θ cos c' + sin θ sin c'`; the entry's margin covers the
+                        // rounding of these few operations.
+                        let a = snap.inv[i].vector(axis);
+                        let slabs = (0..3).fold(bd, |m, k| {
+                            let c = a[k].abs().min(1.0);
+                            let top = if c >= cos_c {
+                                1.0
+                            } else {
+                                c * cos_c + (1.0 - c * c).sqrt() * sin_c
+                            };
+                            m.max(gaps[k] / top)
+                        });
+                        lists.push(((slabs * (1.0 - 1e-6) - eps).max(0.0), i));
                     }
                 }
                 lists[first..].sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
