@@ -1,11 +1,12 @@
-//! Primary rays without the scene BVH: per screen tile, the objects whose bounding spheres the
-//! tile's rays can reach, nearest first ([`EyeTiles`], [`Snapshot::trace_eye`]).
+//! Primary rays without the scene BVH: per screen tile, the objects whose boxes the tile's rays
+//! can reach, nearest first ([`EyeTiles`], [`Snapshot::trace_eye`]).
 //!
 //! Every primary ray of a camera leaves its centre, so an object's place relative to the rays is
-//! known once per camera: the objects a tile's cone of rays can meet are listed once per tile,
-//! sorted by the distance to their bounding spheres, and a ray tests them in that order until the
-//! next sphere lies beyond its nearest hit so far. That finds the same nearest distance as the
-//! BVH; which object wins a tie (two objects at exactly the same distance) depends on the order
+//! known once per camera: the objects a tile's pyramid of rays can meet (their bounding sphere
+//! within the tile's cone, their box not beyond one of its side planes) are listed once per tile,
+//! sorted by how near the tile's rays can meet their boxes, and a ray tests them in that order
+//! until the next box lies beyond its nearest hit so far. That finds the same nearest distance as
+//! the BVH; which object wins a tie (two objects at exactly the same distance) depends on the order
 //! they are tested in, so a ray that meets one falls back to [`Snapshot::trace`], whose order
 //! decides, and the answer is the BVH's in every case.
 
@@ -30,8 +31,13 @@ fn tile_shift(width: usize) -> u32 {
     }
 }
 
-/// An entry of a tile's list: the nearest distance of an object's bounding sphere from the
-/// camera centre, less a margin, and the object.
+/// A tile's side planes: each through the camera centre and two adjacent corner rays (indices
+/// into the corners `(x0, y0)`, `(x1, y0)`, `(x0, y1)`, `(x1, y1)`).
+const SIDES: [(usize, usize); 4] = [(0, 1), (1, 3), (3, 2), (2, 0)];
+
+/// An entry of a tile's list: a bound below the distance from the camera centre of every point
+/// of the object's box that a ray of the tile can reach (the box's distance, or farther along
+/// the tile's rays, see [`EyeTiles::new`]), less a margin, and the object.
 type Entry = (f64, usize);
 
 /// Per screen tile of one camera at one instant, the objects its rays may meet.
@@ -64,11 +70,6 @@ struct Target<'s> {
     inv: Rigid,
     /// The object's shape at this instant.
     shape: &'s Shape,
-    /// Its bounding sphere's centre relative to the camera centre `v`, `|v|²` (the same for
-    /// every ray, so computed once), and the squared bound on a ray's distance from it, over
-    /// `|d|²` ([`EyeTiles::new`]); `None` where the camera centre is inside the sphere (or
-    /// about).
-    sphere: Option<(V3, f64, f64)>,
 }
 
 impl<'s> EyeTiles<'s> {
@@ -108,6 +109,29 @@ impl<'s> EyeTiles<'s> {
             |m, &(_, d, r, _)| m.max(d + r),
         );
         let eps = 1e-9 * size;
+        // Per object: the corners of its object-space box in the world, relative to the camera
+        // centre, with their distances from it (the box holds every hit, as for the sphere).
+        let boxes: Vec<[(V3, f64); 8]> = (0..n)
+            .map(|i| {
+                let corners = snap.shape(i).bounds().corners();
+                corners.map(|c| {
+                    let q = sub(snap.world[i].point(c), o);
+                    (q, length(q))
+                })
+            })
+            .collect();
+        // Per object: the distance from the camera centre to its box (at least that to its
+        // sphere, as the sphere holds the box), which no hit is nearer than, and the centre's
+        // distance from each of the box's slabs in its space (0 inside the slab).
+        let box_dist: Vec<(f64, V3)> = (0..n)
+            .map(|i| {
+                let b = snap.shape(i).bounds();
+                let p = snap.inv[i].point(o);
+                let gaps: V3 =
+                    std::array::from_fn(|k| (p[k] - p[k].max(b.min[k]).min(b.max[k])).abs());
+                (length(gaps), gaps)
+            })
+            .collect();
         // One row of tiles: every tile's list one after another, and where each ends.
         let tile_row = |ty: usize| -> Option<(Vec<Entry>, Vec<usize>)> {
             let (mut lists, mut ends) = (Vec::new(), Vec::with_capacity(cols));
@@ -129,18 +153,54 @@ impl<'s> EyeTiles<'s> {
                 if !cone.is_finite() || !axis.iter().all(|a| a.is_finite()) {
                     return None;
                 }
+                // The tile's rays fill the pyramid from the camera centre over its four corner
+                // rays; its side planes through the centre, each normal pointing out.
+                let sides: [V3; 4] = std::array::from_fn(|k| {
+                    let (a, b) = (corners[SIDES[k].0], corners[SIDES[k].1]);
+                    let p = normalize(crate::math::cross(a, b));
+                    if dot(p, axis) > 0.0 {
+                        crate::math::scale(p, -1.0)
+                    } else {
+                        p
+                    }
+                });
+                let (sin_c, cos_c) = (cone + 1e-6).sin_cos();
                 let first = lists.len();
                 for (i, &(v, dist, r, reach)) in spheres.iter().enumerate() {
-                    let near = (dist - r) * (1.0 - 1e-6) - eps;
+                    let (bd, gaps) = box_dist[i];
                     // A sphere that holds the centre (or nearly) is met by any ray.
                     let keep = if !(dist > r * (1.0 + 1e-6) + eps) {
                         true
                     } else {
                         let gamma = (dot(v, axis) / dist).clamp(-1.0, 1.0).acos();
+                        // A box with every corner beyond one side plane (by a margin far above
+                        // the rounding of the planes and of the rays' directions) lies outside
+                        // the pyramid, so no ray of the tile meets it.
                         !(gamma > cone + reach + 1e-6)
+                            && !sides.iter().any(|&p| {
+                                boxes[i]
+                                    .iter()
+                                    .all(|&(q, len)| dot(p, q) > 1e-6 * len + eps)
+                            })
                     };
                     if keep {
-                        lists.push((near.max(0.0), i));
+                        // A ray of unit direction `d` (in the object's space) reaches a slab `k`
+                        // that the centre lies outside of no nearer than `gaps[k] / |d_k|`. With
+                        // `d` within `c' = cone + 10⁻⁶` of the axis `a` and `θ` the angle from
+                        // `a` to the axis `k`, `|d_k| ≤ cos(θ − c')` (1 where `θ ≤ c'`), which
+                        // is `cos θ cos c' + sin θ sin c'`; the entry's margin covers the
+                        // rounding of these few operations.
+                        let a = snap.inv[i].vector(axis);
+                        let slabs = (0..3).fold(bd, |m, k| {
+                            let c = a[k].abs().min(1.0);
+                            let top = if c >= cos_c {
+                                1.0
+                            } else {
+                                c * cos_c + (1.0 - c * c).sqrt() * sin_c
+                            };
+                            m.max(gaps[k] / top)
+                        });
+                        lists.push(((slabs * (1.0 - 1e-6) - eps).max(0.0), i));
                     }
                 }
                 lists[first..].sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
@@ -162,21 +222,11 @@ impl<'s> EyeTiles<'s> {
             starts.extend(ends.iter().map(|e| lists.len() + e));
             lists.extend(row);
         }
-        // A ray `o + t·d` passes the sphere at the distance `√(|v|²|d|² − (v·d)²) / |d|` from its
-        // centre; the bound keeps a relative margin on `r²` and one of `10⁻⁹·|v|²` against the
-        // cancellation in that difference, so that only rays that surely miss are skipped.
-        let targets = spheres
-            .iter()
-            .enumerate()
-            .map(|(i, &(v, dist, r, _))| Target {
+        let targets = (0..n)
+            .map(|i| Target {
                 origin: snap.inv[i].point(o),
                 inv: snap.inv[i],
                 shape: snap.shape(i),
-                sphere: (dist > r * (1.0 + 1e-6) + eps).then_some((
-                    v,
-                    dot(v, v),
-                    r * r * (1.0 + 1e-6) + 1e-9 * dist * dist + eps * eps,
-                )),
             })
             .collect();
         Some(EyeTiles {
@@ -215,7 +265,6 @@ impl Snapshot<'_> {
         tmax: f64,
     ) -> Option<(Hit, V3)> {
         let dn = length(d);
-        let dd = dot(d, d);
         // (`tmin ≥ 0` keeps every distance found positive, as `next_up` below needs.)
         if !(dn > 0.0 && dn.is_finite() && tmin >= 0.0) {
             return self.trace_dir(o, d, tmin, tmax);
@@ -226,7 +275,7 @@ impl Snapshot<'_> {
         // A shape is tested up to `up`: before the first hit `tmax`, then up to and including
         // the nearest distance so far (a positive finite number), to see ties.
         let mut up = tmax;
-        // Every hit inside a sphere is at least `near` from the centre, so the search stops at
+        // Every hit on an object is at least its `near` from the centre, so the search stops at
         // the first entry with `near > stop` (`stop` follows `limit`: the same product, computed
         // when `limit` changes rather than at every entry).
         let mut stop = limit * dn * (1.0 + 1e-9);
@@ -236,15 +285,9 @@ impl Snapshot<'_> {
             if near > stop {
                 break;
             }
+            // (A per-ray test against the object's bounding sphere here, which the lists by the
+            // tile's cone alone needed, now skips too few shape tests to pay for itself.)
             let target = &eye.targets[obj];
-            if let Some((v, vv, bound)) = target.sphere {
-                // Skip a sphere behind the camera centre or wide of the ray (the bound's margins
-                // keep every ray that could touch it).
-                let b = dot(v, d);
-                if b < 0.0 || vv * dd - b * b > bound * dd {
-                    continue;
-                }
-            }
             let ld = target.inv.vector(d);
             if let Some(p) = target.shape.intersect_t(target.origin, ld, tmin, up) {
                 if p.t() < limit {
@@ -328,6 +371,43 @@ mod tests {
                 compare(&scene, k, (48, 27), &[]);
             }
         }
+    }
+
+    /// Every object that a ray through a tile meets (not only the nearest) is in the tile's list,
+    /// no nearer than its entry says: the box planes drop only what no ray of the tile can hit,
+    /// and the box's distance bounds every hit's. Rays a sixteenth of a pixel from
+    /// each pixel's corners, so the tiles' edges are crossed closely from both sides.
+    #[test]
+    fn tile_lists_hold_every_object_a_ray_of_the_tile_meets() {
+        let scene = builtin("courtyard", Variant::Dynamic).unwrap();
+        let mut hits = 0;
+        for (k, (w, h)) in [(0, (48, 27)), (14, (48, 27)), (14, (520, 293))] {
+            let pose = scene.path.server_pose(k, 10.0);
+            let cam = rig(&pose, w, h, scene.near, scene.far).main;
+            let rays = camera_rays(&cam, "test").unwrap();
+            let snap = scene.at(k as f64 / 10.0);
+            let eye = EyeTiles::new(&snap, &cam, &rays).unwrap();
+            let far = scene.far / scene.near;
+            for j in 0..h {
+                for i in 0..w {
+                    let tile = eye.tile((i, j));
+                    for q in [0, 3, 12, 15] {
+                        let d = rays.sub_ray(i, j, q % 4, q / 4, 4);
+                        for (obj, target) in eye.targets.iter().enumerate() {
+                            let ld = target.inv.vector(d);
+                            if let Some(p) = target.shape.intersect_t(target.origin, ld, 1.0, far) {
+                                hits += 1;
+                                let entry = tile.list.iter().find(|e| e.1 == obj);
+                                let what = format!("object {obj}, pixel ({i}, {j}), {w}×{h}");
+                                let near = entry.unwrap_or_else(|| panic!("{what} missing")).0;
+                                assert!(p.t() * length(d) >= near, "{what} nearer");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(hits > 100_000, "{hits} hits");
     }
 
     /// The wider tiles of wide images ([`tile_shift`]) find the same hits.
