@@ -363,6 +363,17 @@ TABLE: dict[str, Entry] = {
         dict(rendered=THING, truth=THING, skip=[*COUNT], metrics=[None, "psnr", ["x"], 0],
              fps=POSITIVE, ppd=POSITIVE, progress=CALLABLE, flip_every=[*INT, 0, 1 << 21]),
     ),
+    "metrics.SequenceScorer": (
+        lambda f: sr.metrics.SequenceScorer,
+        lambda f: dict(n=3, skip=0, metrics=("psnr",)),
+        dict(n=[*COUNT, 0], skip=[*COUNT], metrics=[None, "psnr", ["x"], 0], fps=POSITIVE,
+             ppd=POSITIVE, progress=CALLABLE, flip_every=[*INT, 0, 1 << 21]),
+    ),
+    "metrics.SequenceScorer.add": (
+        lambda f: sr.metrics.SequenceScorer(3, 0, ("psnr",)).add,
+        lambda f: dict(rendered=f.img, truth=f.img),
+        dict(rendered=THING, truth=THING),
+    ),
 }
 
 #: Public callables without a row, and why.
@@ -396,6 +407,8 @@ EXEMPT: dict[str, str] = {
     "Trace": "made by load_trace(), which checks the file",
     "metrics.SequenceMetrics": "a result of evaluate_sequence(), not an input",
     "metrics.SequenceMetrics.to_dict": "takes no arguments",
+    "metrics.SequenceScorer.finish": "takes no arguments",
+    "metrics.SequenceScorer.close": "takes no arguments",
     "Recording.server_pose": "a recording's own pose table, indexed like a list",
     "RealtimeClient.submit": "covered by test_realtime (packets and frames, threads)",
     "RealtimeClient.wait": "covered by test_realtime",

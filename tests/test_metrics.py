@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -257,3 +260,68 @@ def test_vmaf_reports_an_ffmpeg_failure(monkeypatch: pytest.MonkeyPatch) -> None
     seq = moving_sequence(3)
     with pytest.raises(SplitRenderError, match="ffmpeg exited with status 1"):
         M.vmaf(seq, seq)
+
+
+def test_vmaf_of_one_stacked_input_equals_vmaf_of_two_inputs(tmp_path: Path) -> None:
+    """vmaf() gives ffmpeg each pair as one picture (distorted above reference) and crops the
+    two apart; libvmaf must score exactly what it scores with the two sequences as two inputs."""
+    truth = moving_sequence(9, 48, 80)
+    rng = np.random.default_rng(3)
+    dist = [np.clip(t.astype(int) + rng.integers(-30, 31, t.shape), 0, 255).astype(np.uint8)
+            for t in truth]
+    cmd = [M._ffmpeg(), "-hide_banner", "-nostdin", "-v", "error"]
+    for name, seq in (("d", dist), ("r", truth)):
+        (tmp_path / f"{name}.rgb").write_bytes(b"".join(f.tobytes() for f in seq))
+        cmd += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", "80x48", "-r", "120",
+                "-i", str(tmp_path / f"{name}.rgb")]
+    log = tmp_path / "log.json"
+    cmd += ["-lavfi", "[0:v]format=yuv444p[d];[1:v]format=yuv444p[r];"
+            f"[d][r]libvmaf=log_fmt=json:log_path={log}", "-f", "null", "-"]
+    subprocess.run(cmd, check=True, timeout=60)
+    frames = sorted(json.loads(log.read_text())["frames"], key=lambda f: int(f["frameNum"]))
+    two_inputs = [float(f["metrics"]["vmaf"]) for f in frames]
+    assert M.vmaf(dist, truth) == two_inputs
+    assert M.vmaf(truth, dist) != two_inputs  # the order (which is the reference) matters
+
+
+def test_vmaf_failing_after_more_frames_than_it_queues_does_not_hang(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # ffmpeg gone before it opened its input, and more frames than the feeding queue holds: the
+    # producer must not wait for a reader that never comes.
+    monkeypatch.setattr(M, "_ffmpeg", lambda: "false")
+    seq = moving_sequence(4 * M._VMAF_QUEUE)
+    with pytest.raises(SplitRenderError, match="ffmpeg exited with status 1"):
+        M.vmaf(seq, seq)
+
+
+def test_sequence_scorer_frame_by_frame_equals_evaluate_sequence() -> None:
+    truth = moving_sequence(30, 48, 64)
+    rendered = [np.clip(t.astype(int) + (i % 5) - 2, 0, 255).astype(np.uint8)
+                for i, t in enumerate(truth)]
+    whole = M.evaluate_sequence(rendered, truth, skip=3, flip_every=4)
+    with M.SequenceScorer(30, 3, flip_every=4) as scorer:
+        for r, t in zip(rendered, truth):
+            scorer.add(r, t)
+        res = scorer.finish()
+    assert res == whole
+    for row, i in zip(res.per_frame, res.frames):
+        assert row["ssim"] == M.ssim(rendered[i], truth[i])
+        assert row["psnr"] == M.psnr(rendered[i], truth[i])
+    with M.SequenceScorer(5, 1, ("psnr",)) as scorer:
+        scorer.add(truth[0], truth[0])
+        with pytest.raises(InvalidInputError, match="expected 5 frames, got 1"):
+            scorer.finish()
+
+
+def test_sequence_scorer_refuses_a_frame_of_another_shape_and_ends_ffmpeg() -> None:
+    seq = moving_sequence(6, 48, 64)
+    with pytest.raises(InvalidInputError, match=r"rendered\[3\]: expected the shape of frame 0"):
+        with M.SequenceScorer(6, 1) as scorer:
+            for i in range(3):
+                scorer.add(seq[i], seq[i])
+            vmaf = scorer._vmaf
+            assert vmaf is not None and vmaf._proc is not None
+            scorer.add(seq[3][:32], seq[3][:32])
+    # Leaving the block ended ffmpeg (it was waiting for more frames).
+    assert vmaf._proc.poll() is not None

@@ -228,7 +228,8 @@ def run(args: argparse.Namespace) -> int:
             scored = play_and_score_eyes(
                 server, cams, truth, args.method, network, rec.fc, metrics,
                 frame_sizes=sizes, bar=stages.bar, on_frame=on_frame, backend=args.backend,
-                options=ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes))
+                options=ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes),
+                keep_images=False)  # each frame is written out by on_frame
     except SplitRenderError as e:
         return fail(str(e))
     finally:

@@ -30,9 +30,9 @@ Settings, and where they differ from the reference (REFERENCE.md §6):
   error map. Argument order is ours: ``flip(test, reference)``.
 - **VMAF**: libvmaf inside the ffmpeg binary of the ``imageio-ffmpeg`` wheel, its default model
   (``vmaf_v0.6.1``), both sequences at 120 FPS. The reference feeds RGB PNGs and lets ffmpeg
-  convert; we feed raw ``rgb24`` and convert explicitly with ``format=yuv444p`` (swscale's default
-  BT.601 limited-range matrix, the same luma that the implicit conversion produces; VMAF reads
-  luma only). VMAF is computed over the whole sequence (its motion feature needs the preceding
+  convert; we feed raw ``rgb24`` (each pair of frames as one picture, cropped apart in the filter
+  graph) and convert explicitly with ``format=yuv444p`` (swscale's default BT.601 limited-range
+  matrix, the same luma that the implicit conversion produces; VMAF reads luma only). VMAF is computed over the whole sequence (its motion feature needs the preceding
   frame) and then sliced, as the reference does. Identical sequences score 100 on frames with
   motion and ≈ 97.4 where the motion feature is 0 (the first frame, static content).
 """
@@ -42,6 +42,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import queue
 import subprocess
 import tempfile
 import threading
@@ -73,6 +74,7 @@ __all__ = [
     "VMAF_FPS",
     "VMAF_MIN_SIDE",
     "SequenceMetrics",
+    "SequenceScorer",
     "evaluate_sequence",
     "flip",
     "flip_map",
@@ -310,76 +312,163 @@ def vmaf(
         )
     if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
         raise InvalidInputError(f"fps: expected a finite float > 0, got {fps!r}")
-    n_threads = threads if threads is not None else (os.cpu_count() or 1)
-    with tempfile.TemporaryDirectory(prefix="splitrender-vmaf-") as tmp:
-        log = os.path.join(tmp, "vmaf.json")
-        paths = {name: os.path.join(tmp, f"{name}.rgb") for name in ("distorted", "reference")}
-        cmd = [_ffmpeg(), "-hide_banner", "-nostdin", "-v", "error"]
-        for name in ("distorted", "reference"):  # libvmaf: input 0 distorted, 1 reference
-            cmd += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps}"]
-            cmd += ["-i", paths[name]]
-        # The log path sits in a directory we created; ':' and '\' would need filter escaping.
-        graph = (
-            "[0:v]format=yuv444p[d];[1:v]format=yuv444p[r];"
-            f"[d][r]libvmaf=log_fmt=json:log_path={_filter_escape(log)}:n_threads={n_threads}"
-        )
-        cmd += ["-lavfi", graph, "-f", "null", "-"]
-        proc = _run_streaming(cmd, {paths["distorted"]: d, paths["reference"]: r})
-        if proc.returncode != 0 or not os.path.exists(log):
-            tail = proc.stderr.strip()[-800:]
-            raise SplitRenderError(
-                f"vmaf: ffmpeg exited with status {proc.returncode} on {len(d)} frames of "
-                f"{w}x{h}: {tail or '(no output)'}"
-            )
-        with open(log, encoding="utf-8") as f:
-            data = json.load(f)
-    frames = data.get("frames", [])
-    if len(frames) != len(d):
-        raise SplitRenderError(
-            f"vmaf: expected {len(d)} frames in libvmaf's log, got {len(frames)}"
-        )
-    frames = sorted(frames, key=lambda fr: int(fr["frameNum"]))
-    return [float(fr["metrics"]["vmaf"]) for fr in frames]
-
-
-def _run_streaming(
-    cmd: list[str], inputs: dict[str, list[npt.NDArray[np.uint8]]]
-) -> subprocess.CompletedProcess[str]:
-    """Runs ``cmd`` with each ``inputs`` path filled with the raw bytes of its frames.
-
-    On POSIX the paths are FIFOs fed by one writer thread each, so a long 1280x720 sequence
-    (2.7 MB per frame and side) never lands on disk; elsewhere they are written as files first.
-    """
-    if not hasattr(os, "mkfifo"):
-        for path, seq in inputs.items():
-            with open(path, "wb") as f:
-                f.writelines(frame.tobytes() for frame in seq)
-        return subprocess.run(cmd, capture_output=True, text=True, check=False)
-
-    def feed(path: str, seq: list[npt.NDArray[np.uint8]]) -> None:
-        try:
-            with open(path, "wb") as f:  # blocks until ffmpeg opens its end
-                f.writelines(frame.tobytes() for frame in seq)
-        except BrokenPipeError:  # ffmpeg stopped reading (it failed; its status says why)
-            pass
-
-    threads = []
-    for path, seq in inputs.items():
-        os.mkfifo(path)
-        threads.append(threading.Thread(target=feed, args=(path, seq), daemon=True))
-    for t in threads:
-        t.start()
+    stream = _VmafStream(w, h, fps, threads)
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        for a, b in zip(d, r):
+            stream.add(a, b)
+        return stream.finish()
     finally:
-        for path, t in zip(inputs, threads):
-            if t.is_alive():
-                # ffmpeg never opened this FIFO (or stopped reading it): open and close the
-                # read end so the writer's open returns and its next write fails.
-                fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-                os.close(fd)
-            t.join()
-    return proc
+        stream.close()
+
+
+#: Frames :class:`_VmafStream` may hold while ffmpeg has not read them: enough for a producer
+#: that is sometimes faster than libvmaf, few enough to bound the memory.
+_VMAF_QUEUE = 8
+
+
+class _VmafStream:
+    """libvmaf (ffmpeg) over frames given one pair at a time, as they are made: a sequence is
+    never held whole (2.8 MB per 1280×720 frame and side; 11 MB at 2560×1440).
+
+    Each pair goes to ffmpeg as *one* raw picture, the distorted frame above the reference, and
+    the filter graph crops the two apart: with two inputs, ffmpeg reads the first while it
+    starts (its probe reads ahead, up to megabytes) before it opens the second, and a producer
+    that feeds both in step waits for it forever. The crops give libvmaf the same pixels as two
+    inputs would. On POSIX the input is a FIFO fed by a thread from a short queue
+    (:data:`_VMAF_QUEUE`); elsewhere the pictures go to a file and ffmpeg runs at
+    :meth:`finish`. :meth:`close` always ends ffmpeg and the thread (after a failure, too)."""
+
+    def __init__(self, w: int, h: int, fps: float, threads: int | None) -> None:
+        self._w, self._h, self._n = w, h, 0
+        self._tmp = tempfile.TemporaryDirectory(prefix="splitrender-vmaf-")
+        tmp = self._tmp.name
+        self._log = os.path.join(tmp, "vmaf.json")
+        self._err = os.path.join(tmp, "ffmpeg.txt")
+        self._path = os.path.join(tmp, "pairs.rgb")
+        n_threads = threads if threads is not None else (os.cpu_count() or 1)
+        # The log path sits in a directory we created; ':' and '\' would need filter escaping.
+        # libvmaf: its first input is the distorted frame, its second the reference.
+        graph = (
+            f"[0:v]split[top][bottom];[top]crop={w}:{h}:0:0,format=yuv444p[d];"
+            f"[bottom]crop={w}:{h}:0:{h},format=yuv444p[r];"
+            f"[d][r]libvmaf=log_fmt=json:log_path={_filter_escape(self._log)}:n_threads={n_threads}"
+        )
+        self._cmd = [
+            _ffmpeg(), "-hide_banner", "-nostdin", "-v", "error",
+            "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{2 * h}", "-r", f"{fps}",
+            "-i", self._path, "-lavfi", graph, "-f", "null", "-",
+        ]
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._queue: queue.Queue[bytes | None] | None = None
+        self._writer: threading.Thread | None = None
+        self._file: Any = None
+        if hasattr(os, "mkfifo"):
+            os.mkfifo(self._path)
+            self._queue = queue.Queue(maxsize=_VMAF_QUEUE)
+            self._writer = threading.Thread(target=self._feed, args=(self._path, self._queue),
+                                            daemon=True)
+            self._writer.start()
+            self._proc = self._start()
+        else:
+            self._file = open(self._path, "wb")  # noqa: SIM115
+
+    def _start(self) -> subprocess.Popen[bytes]:
+        with open(self._err, "wb") as err:  # ffmpeg's messages, for the error below
+            return subprocess.Popen(self._cmd, stdin=subprocess.DEVNULL,
+                                    stdout=subprocess.DEVNULL, stderr=err)
+
+    @staticmethod
+    def _feed(path: str, q: queue.Queue[bytes | None]) -> None:
+        """Writes the queue's pictures into the FIFO until ``None``; once ffmpeg stops reading,
+        the rest of the queue is taken and dropped, so that the producer never blocks."""
+        out = None
+        try:
+            out = open(path, "wb")  # noqa: SIM115 (blocks until ffmpeg opens its end)
+            while (data := q.get()) is not None:
+                out.write(data)
+        except OSError:  # ffmpeg stopped reading (BrokenPipeError; its status says why)
+            while q.get() is not None:
+                pass
+        finally:
+            if out is not None:
+                try:
+                    out.close()
+                except OSError:
+                    pass
+
+    def add(self, distorted: npt.NDArray[np.uint8], reference: npt.NDArray[np.uint8]) -> None:
+        """The next frame of both sequences (``uint8[h, w, 3]``; copied, so the caller may
+        reuse its arrays)."""
+        pair = np.concatenate((distorted, reference), axis=0).tobytes()
+        if self._queue is not None:
+            self._put(pair)
+        else:
+            self._file.write(pair)
+        self._n += 1
+
+    def _release(self) -> None:
+        """Opens and closes the FIFO's read end: a writer still waiting for ffmpeg to open it
+        (ffmpeg failed first) gets its open back, and its next write fails."""
+        fd = os.open(self._path, os.O_RDONLY | os.O_NONBLOCK)
+        os.close(fd)
+
+    def _put(self, item: bytes | None) -> None:
+        """Queues ``item``; should ffmpeg have exited (it failed; :meth:`finish` says why) with
+        the queue full, the writer is released (:meth:`_release`) and drops what it gets."""
+        assert self._queue is not None
+        while True:
+            try:
+                self._queue.put(item, timeout=0.25)
+                return
+            except queue.Full:
+                if self._proc is not None and self._proc.poll() is not None:
+                    self._release()
+
+    def _end_input(self) -> None:
+        if self._queue is not None and self._writer is not None:
+            self._put(None)
+            self._writer.join(timeout=0.5)
+            while self._writer.is_alive():
+                self._release()
+                self._writer.join(timeout=0.5)
+        self._queue = self._writer = None
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def finish(self) -> list[float]:
+        """Ends the input, waits for ffmpeg and returns the per-frame scores.
+
+        Raises :class:`SplitRenderError` when ffmpeg fails or its log lacks frames."""
+        self._end_input()
+        if self._proc is None:
+            self._proc = self._start()
+        status = self._proc.wait()
+        if status != 0 or not os.path.exists(self._log):
+            with open(self._err, encoding="utf-8", errors="replace") as f:
+                tail = f.read().strip()[-800:]
+            raise SplitRenderError(
+                f"vmaf: ffmpeg exited with status {status} on {self._n} frames of "
+                f"{self._w}x{self._h}: {tail or '(no output)'}"
+            )
+        with open(self._log, encoding="utf-8") as f:
+            data = json.load(f)
+        frames = data.get("frames", [])
+        if len(frames) != self._n:
+            raise SplitRenderError(
+                f"vmaf: expected {self._n} frames in libvmaf's log, got {len(frames)}"
+            )
+        frames = sorted(frames, key=lambda fr: int(fr["frameNum"]))
+        return [float(fr["metrics"]["vmaf"]) for fr in frames]
+
+    def close(self) -> None:
+        """Stops ffmpeg (if still running) and the feeding thread, and removes the files."""
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+        self._end_input()
+        if self._proc is not None:
+            self._proc.wait()
+        self._tmp.cleanup()
 
 
 def _filter_escape(path: str) -> str:
@@ -446,15 +535,6 @@ def evaluate_sequence(
             fewer than ``2·skip + 1`` frames.
         SplitRenderError: when VMAF's ffmpeg fails.
     """
-    if isinstance(metrics, str):
-        metrics = (metrics,)
-    unknown = [m for m in metrics if m not in METRICS]
-    if unknown or not metrics:
-        raise InvalidInputError(
-            f"metrics: expected a non-empty subset of {', '.join(METRICS)}, got {list(metrics)!r}"
-        )
-    if isinstance(skip, bool) or not isinstance(skip, int) or skip < 0:
-        raise InvalidInputError(f"skip: expected an int >= 0, got {skip!r}")
     r = _check_sequence("rendered", rendered)
     g = _check_sequence("truth", truth)
     if len(r) != len(g):
@@ -466,38 +546,147 @@ def evaluate_sequence(
             f"rendered and truth: expected the same frame shape, got {tuple(r[0].shape)} and "
             f"{tuple(g[0].shape)}"
         )
-    n = len(r)
-    if n <= 2 * skip:
-        raise InvalidInputError(f"rendered: expected more than 2*skip = {2 * skip} frames, got {n}")
-    kept = list(range(skip, n - skip))
-    per_frame: list[dict[str, float]] = [{} for _ in kept]
-    mses: list[float] = []
+    with SequenceScorer(len(r), skip, metrics, fps=fps, ppd=ppd, progress=progress,
+                        flip_every=flip_every) as scorer:
+        for a, b in zip(r, g):
+            scorer.add(a, b)
+        return scorer.finish()
 
-    def frame_psnr(t: Any, ref: Any) -> float:
-        mses.append(_mse(t, ref))
-        return psnr_of_mse(mses[-1])
 
-    funcs: dict[str, Callable[[Any, Any], float]] = {
-        "ssim": ssim,
-        "flip": lambda t, ref: flip(t, ref, ppd),
-        "psnr": frame_psnr,
-    }
-    ordered = [m for m in METRICS if m in metrics]
-    for m in ordered:
-        if m == "vmaf":
-            scores = vmaf(r, g, fps)  # whole sequence: the motion feature needs context
-            for row, i in zip(per_frame, kept):
+class SequenceScorer:
+    """:func:`evaluate_sequence` one frame at a time, as a client makes them: ``add(rendered,
+    truth)`` for each of the ``n`` frames in order, then :meth:`finish` gives the same
+    :class:`SequenceMetrics`, value for value. Only the frame in hand is kept (and a few
+    in flight to VMAF's ffmpeg, which runs beside the caller), so a long 1280×720 or 2560×1440
+    sequence need not be held whole: that was 1 GB per sequence and eye at 1280×720, 3 s.
+
+    Use it as a context manager (or call :meth:`close`): leaving ends ffmpeg also when a frame
+    failed. The arguments are :func:`evaluate_sequence`'s; ``progress(metric, done, total)``
+    is called after each frame's metric, and once with ``("vmaf", 1, 1)`` at the end.
+
+    Raises:
+        InvalidInputError: for unknown metrics, ``n <= 2·skip``, a frame that is not an image,
+            or one whose shape is not the first frame's; from :meth:`finish`, for fewer or more
+            than ``n`` frames.
+        SplitRenderError: when VMAF's ffmpeg fails (from :meth:`finish`).
+    """
+
+    @checked(
+        n=ints(1, (1 << 31) - 1), skip=ints(0, (1 << 31) - 1), metrics=items(strs()),
+        fps=floats(positive=True), ppd=floats(positive=True), progress=optional(CALLABLE),
+        flip_every=ints(1, 1 << 20),
+    )
+    def __init__(
+        self,
+        n: int,
+        skip: int = SKIP_FRAMES,
+        metrics: Sequence[str] = DEFAULT_METRICS,
+        *,
+        fps: float = VMAF_FPS,
+        ppd: float = FLIP_PPD,
+        progress: Progress | None = None,
+        flip_every: int = 1,
+    ) -> None:
+        unknown = [m for m in metrics if m not in METRICS]
+        if unknown or not metrics:
+            raise InvalidInputError(
+                f"metrics: expected a non-empty subset of {', '.join(METRICS)}, got "
+                f"{list(metrics)!r}"
+            )
+        if n <= 2 * skip:
+            raise InvalidInputError(
+                f"rendered: expected more than 2*skip = {2 * skip} frames, got {n}"
+            )
+        self._n, self._skip, self._fps, self._ppd = n, skip, fps, ppd
+        self._progress, self._flip_every = progress, flip_every
+        self._ordered = [m for m in METRICS if m in metrics]
+        self._kept = list(range(skip, n - skip))
+        self._per_frame: list[dict[str, float]] = [{} for _ in self._kept]
+        self._done = dict.fromkeys(self._ordered, 0)
+        self._mses: list[float] = []
+        self._count = 0
+        self._shape: tuple[int, ...] | None = None
+        self._vmaf: _VmafStream | None = None
+
+    def __enter__(self) -> SequenceScorer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _total(self, m: str) -> int:
+        if m == "flip":
+            return len(range(0, len(self._kept), self._flip_every))
+        return len(self._kept)
+
+    def add(self, rendered: npt.ArrayLike, truth: npt.ArrayLike) -> None:
+        """Scores the next frame (``(H, W, 3)`` images as :func:`evaluate_sequence` takes)."""
+        i = self._count
+        if i >= self._n:
+            raise InvalidInputError(f"rendered: expected {self._n} frames, got more")
+        a = _to_u8(f"rendered[{i}]", rendered)
+        b = _to_u8(f"truth[{i}]", truth)
+        if a.shape != b.shape:
+            raise InvalidInputError(
+                f"rendered[{i}] and truth[{i}]: expected the same frame shape, got "
+                f"{tuple(a.shape)} and {tuple(b.shape)}"
+            )
+        if self._shape is None:
+            self._shape = a.shape
+            if "vmaf" in self._ordered:
+                h, w = a.shape[:2]
+                if min(h, w) < VMAF_MIN_SIDE:
+                    raise InvalidInputError(
+                        f"vmaf: expected frames of at least {VMAF_MIN_SIDE}x{VMAF_MIN_SIDE} "
+                        f"pixels, got {w}x{h}"
+                    )
+                self._vmaf = _VmafStream(w, h, self._fps, None)
+        elif a.shape != self._shape:
+            raise InvalidInputError(
+                f"rendered[{i}]: expected the shape of frame 0, {tuple(self._shape)}, got "
+                f"{tuple(a.shape)}"
+            )
+        self._count += 1
+        if self._vmaf is not None:  # every frame: the motion feature needs context
+            self._vmaf.add(a, b)
+        j = i - self._skip
+        if not 0 <= j < len(self._kept):
+            return
+        row = self._per_frame[j]
+        for m in self._ordered:
+            if m == "vmaf" or (m == "flip" and j % self._flip_every):
+                continue
+            if m == "ssim":
+                row[m] = ssim(a, b)
+            elif m == "flip":
+                row[m] = flip(a, b, self._ppd)
+            else:
+                self._mses.append(_mse(a, b))
+                row[m] = psnr_of_mse(self._mses[-1])
+            self._done[m] += 1
+            if self._progress is not None:
+                self._progress(m, self._done[m], self._total(m))
+
+    def finish(self) -> SequenceMetrics:
+        """The metrics of the ``n`` frames added (VMAF's ffmpeg is waited for here)."""
+        if self._count != self._n:
+            raise InvalidInputError(f"rendered: expected {self._n} frames, got {self._count}")
+        if self._vmaf is not None:
+            scores = self._vmaf.finish()
+            for row, i in zip(self._per_frame, self._kept):
                 row["vmaf"] = scores[i]
-            if progress is not None:
-                progress("vmaf", 1, 1)
-            continue
-        scored = range(0, len(kept), flip_every if m == "flip" else 1)
-        for done, j in enumerate(scored, 1):
-            per_frame[j][m] = funcs[m](r[kept[j]], g[kept[j]])
-            if progress is not None:
-                progress(m, done, len(scored))
-    mean = {m: float(np.mean([row[m] for row in per_frame if m in row])) for m in ordered}
-    mse = float(np.mean(mses)) if mses else None
-    if mse is not None:
-        mean["psnr"] = psnr_of_mse(mse)
-    return SequenceMetrics(frames=kept, per_frame=per_frame, mean=mean, mse=mse)
+            if self._progress is not None:
+                self._progress("vmaf", 1, 1)
+        per_frame = self._per_frame
+        mean = {m: float(np.mean([row[m] for row in per_frame if m in row]))
+                for m in self._ordered}
+        mse = float(np.mean(self._mses)) if self._mses else None
+        if mse is not None:
+            mean["psnr"] = psnr_of_mse(mse)
+        return SequenceMetrics(frames=list(self._kept), per_frame=per_frame, mean=mean, mse=mse)
+
+    def close(self) -> None:
+        """Ends VMAF's ffmpeg and its threads if they still run (after a failure)."""
+        if self._vmaf is not None:
+            self._vmaf.close()
+            self._vmaf = None

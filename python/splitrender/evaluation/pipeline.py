@@ -3,8 +3,8 @@
 :func:`encode_decode` runs server frames through :class:`~splitrender.codec.coder.StreamEncoder` and
 :class:`~splitrender.codec.coder.StreamDecoder` (what the client sees of a compressed stream);
 :func:`play_and_score_eyes` plays one method through the network model and the client and scores
-its frames (of one eye or two) against the ground truth with
-:func:`~splitrender.evaluation.metrics.evaluate_sequence`.
+its frames (of one eye or two) against the ground truth as they are made
+(:class:`~splitrender.evaluation.metrics.SequenceScorer`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
 from splitrender.evaluation.metrics import (
     SKIP_FRAMES,
     SequenceMetrics,
-    evaluate_sequence,
+    SequenceScorer,
     psnr_of_mse,
 )
 from splitrender.net.model import NetworkModel
@@ -118,35 +118,44 @@ def play_and_score_eyes(
     options: ReprojectOptions | None = None,
     backend: str = "cpu",
     flip_every: int = 1,
+    keep_images: bool = True,
 ) -> list[Scored]:
     """Plays ``frames`` with ``method`` through ``network`` at each eye's client cameras
     (``cameras[e]``, ``fc`` FPS) and scores eye ``e``'s client frames against ``truth[e]``
     (first and last ``SKIP_FRAMES`` excluded); one :class:`Scored` per eye (one eye: mono; two:
     stereo, left then right). The same ``frames`` go through the same ``network`` for every
-    eye, so the eyes share their schedule. ``on_frame(eye, n, image, info)`` is called for
-    every client frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a
-    server at another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
-    (:class:`~splitrender.Client`); ``flip_every`` as in :func:`evaluate_sequence`.
-    :func:`mean_row` averages the result over the eyes."""
+    eye, so the eyes share their schedule (a recording's lazy frames will do: each is read
+    when the client needs it). ``on_frame(eye, n, image, info)`` is called for every client
+    frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a server at
+    another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
+    (:class:`~splitrender.Client`); ``flip_every`` as in
+    :func:`~splitrender.evaluation.metrics.evaluate_sequence`. :func:`mean_row` averages the
+    result over the eyes.
+
+    Each client frame is scored as it is made
+    (:class:`~splitrender.evaluation.metrics.SequenceScorer`; VMAF's ffmpeg runs beside the
+    client) and ``truth[e][n]`` is read when frame ``n`` is made: with ``keep_images=False``
+    (the playbacks then hold no images) and a lazy ``truth`` (a recording's frames), the
+    memory does not grow with the sequence's length."""
     out = []
     for eye, (eye_cams, eye_truth) in enumerate(zip(cameras, truth)):
         n_client = len(eye_cams)
+        with SequenceScorer(n_client, SKIP_FRAMES, metrics, fps=fc,
+                            flip_every=flip_every) as scorer:
 
-        def frame_done(n: int, image: _Image, info: Any) -> None:
-            if bar is not None:
-                bar(n + 1, n_client, "client frames")
-            if on_frame is not None:
-                on_frame(eye, n, image, info)
+            def frame_done(n: int, image: _Image, info: Any) -> None:
+                scorer.add(image, eye_truth[n])
+                if bar is not None:
+                    bar(n + 1, n_client, "client frames (played and scored)")
+                if on_frame is not None:
+                    on_frame(eye, n, image, info)
 
-        res = play(frames, eye_cams, network, fc, method, frame_sizes=frame_sizes,
-                   on_frame=frame_done, options=options, backend=backend)
-
-        def progress(metric: str, done: int, total: int) -> None:
-            if bar is not None:
-                bar(done, total, metric)
-
-        sm = evaluate_sequence(res.images, eye_truth, SKIP_FRAMES, metrics, fps=fc,
-                               progress=progress, flip_every=flip_every)
+            res = play(frames, eye_cams, network, fc, method, frame_sizes=frame_sizes,
+                       on_frame=frame_done, options=options, backend=backend,
+                       keep_images=keep_images)
+            if bar is not None and "vmaf" in metrics:
+                bar(0, 1, "vmaf (waiting for ffmpeg)")
+            sm = scorer.finish()
         out.append(Scored(res, sm))
     return out
 

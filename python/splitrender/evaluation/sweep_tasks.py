@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -213,12 +214,29 @@ def encode_stream(task: Task, cache: Cache) -> None:
     write_atomic(cache.stream_info(task.key), json.dumps(info) + "\n")
 
 
-def _eye(rec: Any, eye: int) -> tuple[list[Any], list[_Image]]:
-    cams, truth = [], []
-    for c in rec.client_frames:
-        cams.append(c.cameras[eye])
-        truth.append(c.ground_truths[eye])
-    return cams, truth
+class _Truths(Sequence[_Image]):
+    """Eye ``eye``'s ground truths of a recording's client frames, each read from its file when
+    asked for: a scored sequence never holds them all (1 GB per eye at 1280×720, 3 s)."""
+
+    def __init__(self, rec: Any, eye: int) -> None:
+        self._frames, self._eye = rec.client_frames, eye
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @overload
+    def __getitem__(self, n: int) -> _Image: ...
+    @overload
+    def __getitem__(self, n: slice) -> list[_Image]: ...
+    def __getitem__(self, n: int | slice) -> _Image | list[_Image]:
+        if isinstance(n, slice):
+            return [self[k] for k in range(*n.indices(len(self)))]
+        return self._frames[n].ground_truths[self._eye]  # type: ignore[no-any-return]
+
+
+def _eye(rec: Any, eye: int) -> tuple[list[Any], Sequence[_Image]]:
+    """Eye ``eye``'s client cameras and its ground truths (read lazily, :class:`_Truths`)."""
+    return [c.cameras[eye] for c in rec.client_frames], _Truths(rec, eye)
 
 
 def _write_part(task: Task, cache: Cache, metrics: Any, mbps: float) -> None:
@@ -233,18 +251,19 @@ def score_play(task: Task, cache: Cache) -> None:
     from splitrender.evaluation.pipeline import play_and_score_eyes, raw_mbps
     from splitrender.gpu import backend_for
     from splitrender.net.model import NetworkModel
-    from splitrender.types import ReprojectOptions
+    from splitrender.types import ReprojectOptions, ServerFrame
 
     p = task.params
     rec = _recording(task, cache)
     sizes: list[int] | None = None
+    server: Sequence[ServerFrame]
     if p["stream"]:
         key = task.deps[1]
         info = json.loads(cache.stream_info(key).read_text())
         server = decode_packets(list(read_stream(cache.stream(key))))
         sizes, mbps = [int(s) for s in info["sizes"]], float(info["mbps"])
     else:
-        server = list(rec.server_frames)
+        server = rec.server_frames  # read when the client needs each
         mbps = raw_mbps(server, rec.fs)
     options = (ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes)
                if p["own_rates"] else None)
@@ -253,7 +272,7 @@ def score_play(task: Task, cache: Cache) -> None:
     [scored] = play_and_score_eyes(server, [cams], [truth], p["method"], net, rec.fc,
                                    p["metrics"], frame_sizes=sizes, options=options,
                                    backend=backend_for(p["method"], p["backend"]),
-                                   flip_every=p["flip_every"])
+                                   flip_every=p["flip_every"], keep_images=False)
     _write_part(task, cache, scored.metrics, mbps)
 
 
@@ -312,5 +331,5 @@ def score_timewarp(task: Task, cache: Cache) -> None:
     net = NetworkModel(**p["network"], client_fps=rec.fc)
     [scored] = play_and_score_eyes(dec, [cams], [truth], "timewarp", net, rec.fc, p["metrics"],
                                    frame_sizes=sizes, options=ReprojectOptions(server_fps=fps),
-                                   flip_every=p["flip_every"])
+                                   flip_every=p["flip_every"], keep_images=False)
     _write_part(task, cache, scored.metrics, mbps)
