@@ -504,10 +504,14 @@ class SequenceMetrics:
         }
 
 
-@checked(
+#: The argument checks that :func:`evaluate_sequence` and :class:`SequenceScorer` share.
+_SEQUENCE_CHECKS = dict(
     skip=ints(0, (1 << 31) - 1), metrics=items(strs()), fps=floats(positive=True),
     ppd=floats(positive=True), progress=optional(CALLABLE), flip_every=ints(1, 1 << 20),
 )
+
+
+@checked(**_SEQUENCE_CHECKS)
 def evaluate_sequence(
     rendered: Sequence[npt.ArrayLike],
     truth: Sequence[npt.ArrayLike],
@@ -571,11 +575,7 @@ class SequenceScorer:
         SplitRenderError: when VMAF's ffmpeg fails (from :meth:`finish`).
     """
 
-    @checked(
-        n=ints(1, (1 << 31) - 1), skip=ints(0, (1 << 31) - 1), metrics=items(strs()),
-        fps=floats(positive=True), ppd=floats(positive=True), progress=optional(CALLABLE),
-        flip_every=ints(1, 1 << 20),
-    )
+    @checked(n=ints(1, (1 << 31) - 1), **_SEQUENCE_CHECKS)
     def __init__(
         self,
         n: int,
