@@ -283,9 +283,37 @@ impl Rays {
     /// middle sub-sample of an odd grid is the pixel-centre ray bit for bit.
     #[inline]
     pub fn sub_ray(&self, i: usize, j: usize, a: usize, b: usize, n: usize) -> [f64; 3] {
+        self.sub_ray_at(self.sub_ray_column(i, a, n), self.sub_ray_row(j, b, n))
+    }
+
+    /// What [`Rays::sub_ray`] takes from the grid column `n·i + a` alone: the products of `P⁻¹`'s
+    /// first column with its `x`. A renderer that casts many rays per column (every row's) computes
+    /// them once ([`Rays::sub_ray_at`]).
+    #[inline]
+    pub fn sub_ray_column(&self, i: usize, a: usize, n: usize) -> [f64; 4] {
         let x = (2 * n * i + 2 * a + 1) as f64 / (n * self.width) as f64 - 1.0;
+        self.inv_vp.0.map(|r| r[0] * x)
+    }
+
+    /// What [`Rays::sub_ray`] takes from the grid row `n·j + b` alone (as
+    /// [`Rays::sub_ray_column`], with `P⁻¹`'s second column and the row's `y`).
+    #[inline]
+    pub fn sub_ray_row(&self, j: usize, b: usize, n: usize) -> [f64; 4] {
         let y = 1.0 - (2 * n * j + 2 * b + 1) as f64 / (n * self.height) as f64;
-        let h = self.inv_vp.mul_vec([x, y, 1.0, 1.0]);
+        self.inv_vp.0.map(|r| r[1] * y)
+    }
+
+    /// The sub-sample ray of a grid column and row ([`Rays::sub_ray_column`],
+    /// [`Rays::sub_ray_row`]): `P⁻¹·(x, y, 1, 1)` summed term by term in [`Mat4::mul_vec`]'s order,
+    /// so the ray is that of `mul_vec` bit for bit.
+    #[inline]
+    pub fn sub_ray_at(&self, column: [f64; 4], row: [f64; 4]) -> [f64; 3] {
+        let m = &self.inv_vp.0;
+        let h: [f64; 4] = std::array::from_fn(|r| {
+            [column[r], row[r], m[r][2] * 1.0, m[r][3] * 1.0]
+                .iter()
+                .sum()
+        });
         let o = self.origin;
         [h[0] / h[3] - o[0], h[1] / h[3] - o[1], h[2] / h[3] - o[2]]
     }
@@ -449,6 +477,37 @@ mod tests {
         let t = v.mul_vec([4.0, 2.0, -1.0, 1.0]);
         assert!(t[0].abs() < 1e-12 && t[1].abs() < 1e-12);
         assert!((t[2] + 5.0).abs() < 1e-12);
+    }
+
+    /// The ray from a grid column's and row's shares is the one `mul_vec` gives for the grid
+    /// point, bit for bit (the renderers rely on it: tables of shares leave their images alone),
+    /// odd widths included (a column at `x = 0` exactly).
+    #[test]
+    fn sub_ray_from_shares_is_mul_vecs_ray() {
+        for (w, h, eye) in [(7, 5, [0.3, 1.7, 4.0]), (64, 36, [-12.5, 3.25, -0.75])] {
+            let view = Mat4::look_at(eye, [0.5, 0.2, -3.0], [0.0, 1.0, 0.0]);
+            let camera = Camera::new(view, Mat4::perspective(55.0, 1.6, 0.1, 80.0), w, h, "t");
+            let rays = Rays::new(&camera.unwrap()).unwrap();
+            for n in 1..=3 {
+                for (j, b, i, a) in
+                    (0..h * n).flat_map(|r| (0..w * n).map(move |c| (r / n, r % n, c / n, c % n)))
+                {
+                    let x = (2 * n * i + 2 * a + 1) as f64 / (n * w) as f64 - 1.0;
+                    let y = 1.0 - (2 * n * j + 2 * b + 1) as f64 / (n * h) as f64;
+                    let p = rays.inv_vp.mul_vec([x, y, 1.0, 1.0]);
+                    let o = rays.origin;
+                    let want = [0, 1, 2].map(|k| (p[k] / p[3] - o[k]).to_bits());
+                    let got =
+                        rays.sub_ray_at(rays.sub_ray_column(i, a, n), rays.sub_ray_row(j, b, n));
+                    assert_eq!(
+                        got.map(f64::to_bits),
+                        want,
+                        "{w}x{h} n={n} ({i},{j}) ({a},{b})"
+                    );
+                    assert_eq!(rays.sub_ray(i, j, a, b, n).map(f64::to_bits), want);
+                }
+            }
+        }
     }
 
     #[test]

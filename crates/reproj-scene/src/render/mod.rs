@@ -323,28 +323,67 @@ struct SubSample {
     key: V3,
 }
 
-/// The `n×n` colour sub-samples of pixel `(i, j)` (in the tile `eye`, where the camera has
-/// tiles) whose centre sample (with its shadow) is `centre`, into `out` (made `n²` long), in a
-/// fixed order. Shadows are shared as the module documentation says: the centre's on its own
-/// surface, the first sub-sample's on any other.
+/// The rays of one camera's `n×n` sub-sample grid per pixel ([`Rays::sub_ray`]), with each grid
+/// column's and grid row's share of the product with `P⁻¹` (a division and four products each)
+/// computed once per frame instead of once per ray: the same rays bit for bit
+/// ([`Rays::sub_ray_at`]). `n = 1` gives the pixel centres' rays ([`Rays::ray`]).
+struct SubRays<'r> {
+    rays: &'r Rays,
+    n: usize,
+    /// Grid column `n·i + a`'s share.
+    columns: Vec<[f64; 4]>,
+    /// Grid row `n·j + b`'s share.
+    rows: Vec<[f64; 4]>,
+}
+
+impl<'r> SubRays<'r> {
+    fn new(rays: &'r Rays, n: usize) -> SubRays<'r> {
+        SubRays {
+            rays,
+            n,
+            columns: (0..n * rays.width)
+                .map(|c| rays.sub_ray_column(c / n, c % n, n))
+                .collect(),
+            rows: (0..n * rays.height)
+                .map(|r| rays.sub_ray_row(r / n, r % n, n))
+                .collect(),
+        }
+    }
+
+    /// `rays.sub_ray(i, j, a, b, n)`.
+    #[inline]
+    fn ray(&self, (i, j): (usize, usize), a: usize, b: usize) -> V3 {
+        let n = self.n;
+        self.rays
+            .sub_ray_at(self.columns[n * i + a], self.rows[n * j + b])
+    }
+}
+
+/// The `n×n` colour sub-samples (`n = grid.n`) of pixel `(i, j)` (in the tile `eye`, where the
+/// camera has tiles) whose centre sample (with its shadow) is `centre`, into `out` (made `n²`
+/// long), in a fixed order. Shadows are shared as the module documentation says: the centre's on
+/// its own surface, the first sub-sample's on any other.
 fn footprint(
     snap: &Snapshot<'_>,
-    rays: &Rays,
+    grid: &SubRays<'_>,
     eye: Option<&EyeTile<'_, '_>>,
     (i, j): (usize, usize),
-    n: usize,
     centre: &Sample,
     out: &mut Vec<SubSample>,
 ) {
-    // `n×n` entries from pixel to pixel, each overwritten in turn below, so that a sub-sample
-    // (some 180 bytes) is written straight into its place ([`sample_ray_into`]).
-    let unset = SubSample {
-        s: Sample::SKY,
-        on_centre: false,
-        key: [0.0; 3],
-    };
-    out.truncate(n * n);
-    out.resize(n * n, unset);
+    let (rays, n) = (grid.rays, grid.n);
+    // `n×n` entries, kept from pixel to pixel: every field of each is overwritten below (the
+    // centre's copy, or `sample_ray_into`'s whole `Sample` then `on_centre` and `key`), so that a
+    // sub-sample (some 180 bytes) is written straight into its place and not cleared first.
+    if out.len() != n * n {
+        let unset = SubSample {
+            s: Sample::SKY,
+            on_centre: false,
+            key: [0.0; 3],
+        };
+        out.clear();
+        out.resize(n * n, unset);
+    }
     for b in 0..n {
         for a in 0..n {
             let k = b * n + a;
@@ -356,7 +395,7 @@ fn footprint(
                 };
                 continue;
             }
-            let d = rays.sub_ray(i, j, a, b, n);
+            let d = grid.ray((i, j), a, b);
             let (earlier, rest) = out.split_at_mut(k);
             let p = &mut rest[0];
             sample_ray_into(snap, rays, d, Needs::COLOUR, eye, &mut p.s);

@@ -7,7 +7,7 @@ use reproj_core::{Camera, CameraBuffers};
 
 use super::{
     camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample_ray, EyeTiles,
-    Needs, Sample, ServerBuffers, SubSample, BLOCK_ROWS,
+    Needs, Sample, ServerBuffers, SubRays, SubSample, BLOCK_ROWS,
 };
 use crate::error::{Result, SceneError};
 use crate::math::{normalize, V3};
@@ -137,6 +137,7 @@ pub fn render_server(
     let others: Vec<&Snapshot<'_>> = fwd.iter().chain(&bwd).collect();
     let swept = (scene.variant == Variant::Dynamic && others.iter().all(|s| key.same_light(s)))
         .then(|| key.swept_casters(&others));
+    let (centres, grid) = (SubRays::new(&rays, 1), SubRays::new(&rays, n));
     let blocks: Vec<CameraBuffers> = (0..h.div_ceil(BLOCK_ROWS))
         .into_par_iter()
         .map(|b| {
@@ -150,7 +151,13 @@ pub fn render_server(
                     let j = b * BLOCK_ROWS + r;
                     let tile = eye.as_ref().map(|e| e.tile((i, j)));
                     let centre = Needs::centre(false, n);
-                    let mut s = sample_ray(&key, &rays, rays.ray(i, j), centre, tile.as_ref());
+                    let mut s = sample_ray(
+                        &key,
+                        &rays,
+                        centres.ray((i, j), 0, 0),
+                        centre,
+                        tile.as_ref(),
+                    );
                     let mut still = None;
                     if let Some(obj) = s.obj {
                         let (x, n) = (s.x, s.normal);
@@ -168,7 +175,7 @@ pub fn render_server(
                             key.shadow(obj, x, n)
                         };
                     }
-                    footprint(&key, &rays, tile.as_ref(), (i, j), n, &s, &mut fp);
+                    footprint(&key, &grid, tile.as_ref(), (i, j), &s, &mut fp);
                     blk.color[3 * k..3 * k + 3].copy_from_slice(&pixel_color(&fp));
                     let Some(obj) = s.obj else {
                         continue; // Sky: Z = 0, zero motion, no dynamic shadow.

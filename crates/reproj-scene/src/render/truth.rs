@@ -7,6 +7,7 @@ use reproj_core::Camera;
 
 use super::{
     camera_rays, check_samples, footprint, pixel_color, sample, sample_ray, EyeTiles, Needs, Rays,
+    SubRays,
 };
 use crate::error::Result;
 use crate::scene::Scene;
@@ -57,16 +58,17 @@ pub fn render_ground_truth(
     let rays = camera_rays(camera, "client")?;
     let snap = scene.at(t);
     let eye = EyeTiles::new(&snap, camera, &rays);
+    let (centres, grid) = (SubRays::new(&rays, 1), SubRays::new(&rays, n));
     Ok(per_pixel(&rays, |fp: &mut Vec<_>, i, j| {
         let tile = eye.as_ref().map(|e| e.tile((i, j)));
         let centre = sample_ray(
             &snap,
             &rays,
-            rays.ray(i, j),
+            centres.ray((i, j), 0, 0),
             Needs::centre(true, n),
             tile.as_ref(),
         );
-        footprint(&snap, &rays, tile.as_ref(), (i, j), n, &centre, fp);
+        footprint(&snap, &grid, tile.as_ref(), (i, j), &centre, fp);
         pixel_color(fp)
     }))
 }
