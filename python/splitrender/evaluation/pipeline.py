@@ -153,12 +153,13 @@ def play_and_score_eyes(
             res = play(frames, eye_cams, network, fc, method, frame_sizes=frame_sizes,
                        on_frame=frame_done, options=options, backend=backend,
                        keep_images=keep_images)
-            wait_for_vmaf = bar is not None and "vmaf" in metrics
-            if bar is not None and wait_for_vmaf:
-                bar(0, 1, "vmaf (the rest of ffmpeg's work)")
+            # What VMAF's ffmpeg has still to do once the last frame is given to it.
+            vmaf_bar = bar if "vmaf" in metrics else None
+            if vmaf_bar is not None:
+                vmaf_bar(0, 1, "vmaf (the rest of ffmpeg's work)")
             sm = scorer.finish()
-            if bar is not None and wait_for_vmaf:
-                bar(1, 1, "vmaf (the rest of ffmpeg's work)")
+            if vmaf_bar is not None:
+                vmaf_bar(1, 1, "vmaf (the rest of ffmpeg's work)")
         out.append(Scored(res, sm))
     return out
 
