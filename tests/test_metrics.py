@@ -6,6 +6,7 @@ import itertools
 import json
 import math
 import subprocess
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -325,3 +326,23 @@ def test_sequence_scorer_refuses_a_frame_of_another_shape_and_ends_ffmpeg() -> N
             scorer.add(seq[3][:32], seq[3][:32])
     # Leaving the block ended ffmpeg (it was waiting for more frames).
     assert vmaf._proc.poll() is not None
+
+
+def test_vmaf_waits_for_an_ffmpeg_slow_to_start(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On a loaded machine ffmpeg may open its input long after the frames are queued: the
+    writer must keep waiting for it (releasing it early left ffmpeg waiting for a writer)."""
+    real = M._ffmpeg()
+    slow = tmp_path / "slow-ffmpeg"
+    slow.write_text(f'#!/bin/sh\nsleep 1.5\nexec "{real}" "$@"\n')
+    slow.chmod(0o755)
+    seq = moving_sequence(4)
+    expected = M.vmaf(seq, seq)
+    monkeypatch.setattr(M, "_ffmpeg", lambda: str(slow))
+    got: list[list[float]] = []
+    t = threading.Thread(target=lambda: got.append(M.vmaf(seq, seq)), daemon=True)
+    t.start()
+    t.join(60)
+    assert not t.is_alive(), "vmaf hung waiting for ffmpeg"
+    assert got == [expected]

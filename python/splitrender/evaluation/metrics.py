@@ -429,7 +429,12 @@ class _VmafStream:
             self._put(None)
             self._writer.join(timeout=0.5)
             while self._writer.is_alive():
-                self._release()
+                # Released only once ffmpeg has exited: while it runs, a writer still waiting in
+                # its open (ffmpeg slow to start on a loaded machine) is waiting for ffmpeg's
+                # open, and releasing it would make it write into a FIFO nobody reads yet, fail
+                # and leave ffmpeg waiting for a writer forever.
+                if self._proc is None or self._proc.poll() is not None:
+                    self._release()
                 self._writer.join(timeout=0.5)
         self._queue = self._writer = None
         if self._file is not None:
