@@ -19,7 +19,7 @@ import io
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, overload
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -214,29 +214,15 @@ def encode_stream(task: Task, cache: Cache) -> None:
     write_atomic(cache.stream_info(task.key), json.dumps(info) + "\n")
 
 
-class _Truths(Sequence[_Image]):
-    """Eye ``eye``'s ground truths of a recording's client frames, each read from its file when
-    asked for: a scored sequence never holds them all (1 GB per eye at 1280×720, 3 s)."""
-
-    def __init__(self, rec: Any, eye: int) -> None:
-        self._frames, self._eye = rec.client_frames, eye
-
-    def __len__(self) -> int:
-        return len(self._frames)
-
-    @overload
-    def __getitem__(self, n: int) -> _Image: ...
-    @overload
-    def __getitem__(self, n: slice) -> list[_Image]: ...
-    def __getitem__(self, n: int | slice) -> _Image | list[_Image]:
-        if isinstance(n, slice):
-            return [self[k] for k in range(*n.indices(len(self)))]
-        return self._frames[n].ground_truths[self._eye]  # type: ignore[no-any-return]
-
-
 def _eye(rec: Any, eye: int) -> tuple[list[Any], Sequence[_Image]]:
-    """Eye ``eye``'s client cameras and its ground truths (read lazily, :class:`_Truths`)."""
-    return [c.cameras[eye] for c in rec.client_frames], _Truths(rec, eye)
+    """Eye ``eye``'s client cameras and its ground truths, each read from its file when asked
+    for (the recording's own lazy frames): a scored sequence never holds them all (1 GB per eye
+    at 1280×720, 3 s)."""
+    from splitrender.scene.recording import _Frames
+
+    frames = rec.client_frames
+    truths: Sequence[_Image] = _Frames(len(frames), lambda n: frames[n].ground_truths[eye])
+    return [c.cameras[eye] for c in frames], truths
 
 
 def _write_part(task: Task, cache: Cache, metrics: Any, mbps: float) -> None:
