@@ -60,6 +60,8 @@ class Fixtures:
         self.client.receive(self.f1)
         self.img = np.zeros((H, W, 3), np.uint8)
         self.img32 = np.zeros((32, 32, 3), np.uint8)  # VMAF takes 32 pixels a side
+        self.rec = sr.load_recording(sr.write_recording(tmp / "rec1", "courtyard", seconds=0.1,
+                                                        scale=0.01))
 
 
 Entry = tuple[Callable[[Fixtures], Callable[..., Any]], Callable[[Fixtures], dict[str, Any]],
@@ -136,6 +138,8 @@ TABLE: dict[str, Entry] = {
     ),
     "load_recording": (lambda f: sr.load_recording, lambda f: dict(path=f.tmp),
                        dict(path=PATH)),
+    "Recording.eye": (lambda f: f.rec.eye, lambda f: dict(eye=0, n=2),
+                      dict(eye=[*COUNT, 2, 1], n=[*COUNT[1:], BIG])),
     "load_trace": (lambda f: sr.load_trace, lambda f: dict(path=f.trace_file), dict(path=PATH)),
     "write_recording": (
         lambda f: sr.write_recording,

@@ -402,3 +402,27 @@ def test_cli_render_shared_trace(tmp_path: Path) -> None:
     args = ["render", "lab", "--out", str(out), "--seconds", "0.05", "--scale", "0.04"]
     assert main([*args, "--trace", str(trace), "--trace-scale", "0.5", "--quiet"]) == 0
     assert load_recording(out).manifest["client_motion"]["translation_scale"] == 0.5
+
+
+def test_eye_reads_each_ground_truth_lazily(tmp_path: Path) -> None:
+    """``Recording.eye`` gives the recording's cameras and ground truths, eye by eye, the
+    truths read from the files when asked for rather than all held (the sweep's score tasks and
+    ``splitrender play`` score through it)."""
+    rec = load_recording(sr.write_recording(tmp_path / "rec", "courtyard", seconds=0.1,
+                                            scale=0.03, stereo=True))
+    for eye in (0, 1):
+        cams, truth = rec.eye(eye)
+        assert not isinstance(truth, list) and len(truth) == len(cams) == len(rec.client_frames)
+        for n, c in enumerate(rec.client_frames):
+            assert cams[n].view.tolist() == c.cameras[eye].view.tolist()
+            assert (truth[n] == c.ground_truths[eye]).all()
+        assert [t.tobytes() for t in truth[1:3]] == [truth[1].tobytes(), truth[2].tobytes()]
+    assert not (rec.eye(0)[1][5] == rec.eye(1)[1][5]).all()  # the eyes differ
+    cams, truth = rec.eye(1, 4)
+    assert len(cams) == len(truth) == 4
+    with pytest.raises(IndexError):
+        truth[4]
+    mono = load_recording(sr.write_recording(tmp_path / "mono", "courtyard", seconds=0.1,
+                                             scale=0.03))
+    with pytest.raises(sr.InvalidInputError, match="eye: 1 out of range; .* mono recording"):
+        mono.eye(1)

@@ -330,21 +330,3 @@ def test_a_worker_that_dies_is_named_with_its_task(tmp_path: Path) -> None:
     message = str(e.value)
     assert "a task whose worker dies" in message and "worker process running it died" in message
     assert "--jobs" in message
-
-
-def test_score_tasks_read_each_eyes_ground_truth_lazily(tmp_path: Path) -> None:
-    """The score tasks' ground truths (sweep_tasks._eye) are the recording's, eye by eye, read
-    from the files when asked for rather than all held for the whole sequence."""
-    from splitrender.evaluation.sweep_tasks import _eye
-    from splitrender.scene.recording import load_recording
-
-    rec = load_recording(sr.write_recording(tmp_path / "rec", "courtyard", seconds=0.1,
-                                            scale=0.03, stereo=True))
-    for eye in (0, 1):
-        cams, truth = _eye(rec, eye)
-        assert not isinstance(truth, list) and len(truth) == len(cams) == len(rec.client_frames)
-        for n, c in enumerate(rec.client_frames):
-            assert cams[n].view.tolist() == c.cameras[eye].view.tolist()
-            assert (truth[n] == c.ground_truths[eye]).all()
-        assert [t.tobytes() for t in truth[1:3]] == [truth[1].tobytes(), truth[2].tobytes()]
-    assert not (_eye(rec, 0)[1][5] == _eye(rec, 1)[1][5]).all()  # the eyes differ

@@ -165,10 +165,9 @@ def run(args: argparse.Namespace) -> int:
             return fail(f"--seconds: {seconds:g} s is {n_client} client frames; at least "
                         f"{2 * SKIP_FRAMES + 1} are needed ({SKIP_FRAMES} skipped at each end)")
         eyes = 2 if args.stereo else 1
-        clients = rec.client_frames[:n_client]
-        cams = [[c.cameras[e] for c in clients] for e in range(eyes)]
-        truth = [[c.ground_truths[e] for c in clients] for e in range(eyes)]
-        del clients
+        # The ground truths are read as they are scored: a play never holds them all.
+        per_eye = [rec.eye(e, n_client) for e in range(eyes)]
+        cams, truth = [c for c, _ in per_eye], [t for _, t in per_eye]
         w, h = cams[0][0].width, cams[0][0].height
         sizes: list[int] | None
         if stream_path is not None:

@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from splitrender.evaluation.sweep import Cache, Task
 from splitrender.files import write_atomic
@@ -40,9 +39,6 @@ __all__ = [
     "score_timewarp",
     "score_video_streaming",
 ]
-
-_Image = npt.NDArray[np.uint8]
-
 
 def _trace(task: Task) -> Any:
     from splitrender.scene.builtin import load_trace
@@ -214,17 +210,6 @@ def encode_stream(task: Task, cache: Cache) -> None:
     write_atomic(cache.stream_info(task.key), json.dumps(info) + "\n")
 
 
-def _eye(rec: Any, eye: int) -> tuple[list[Any], Sequence[_Image]]:
-    """Eye ``eye``'s client cameras and its ground truths, each read from its file when asked
-    for (the recording's own lazy frames): a scored sequence never holds them all (1 GB per eye
-    at 1280×720, 3 s)."""
-    from splitrender.scene.recording import _Frames
-
-    frames = rec.client_frames
-    truths: Sequence[_Image] = _Frames(len(frames), lambda n: frames[n].ground_truths[eye])
-    return [c.cameras[eye] for c in frames], truths
-
-
 def _write_part(task: Task, cache: Cache, metrics: Any, mbps: float) -> None:
     part = {**{m: metrics.mean.get(m) for m in ("ssim", "flip", "psnr", "vmaf")},
             "mse": metrics.mse, "frames": len(metrics.frames), "mbps": float(mbps)}
@@ -253,7 +238,7 @@ def score_play(task: Task, cache: Cache) -> None:
         mbps = raw_mbps(server, rec.fs)
     options = (ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes)
                if p["own_rates"] else None)
-    cams, truth = _eye(rec, p["eye"])
+    cams, truth = rec.eye(p["eye"])
     net = NetworkModel(**p["network"], client_fps=rec.fc)
     [scored] = play_and_score_eyes(server, [cams], [truth], p["method"], net, rec.fc,
                                    p["metrics"], frame_sizes=sizes, options=options,
@@ -275,7 +260,7 @@ def score_interp(task: Task, cache: Cache) -> None:
         mbps = colours[0].nbytes * 8 * rec.fs / 1e6
     else:
         colours, mbps = video_streaming(colours, p["bitrate"], rec.fs)
-    _, truth = _eye(rec, 0)
+    _, truth = rec.eye(0)
     frames = minterpolate(colours, rec.fs, rec.fc, len(truth))
     _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
                                                fps=rec.fc, flip_every=p["flip_every"]), mbps)
@@ -288,7 +273,7 @@ def score_video_streaming(task: Task, cache: Cache) -> None:
 
     p = task.params
     rec = _recording(task, cache)
-    _, truth = _eye(rec, 0)
+    _, truth = rec.eye(0)
     frames, mbps = video_streaming(truth, p["bitrate"], rec.fc)
     _write_part(task, cache, evaluate_sequence(frames, truth, SKIP_FRAMES, p["metrics"],
                                                fps=rec.fc, flip_every=p["flip_every"]), mbps)
@@ -313,7 +298,7 @@ def score_timewarp(task: Task, cache: Cache) -> None:
         server = [main_colour_depth(f) for f in rec.server_frames]
     twc = CodecConfig(bitrate_mbps=p["bitrate"], camera_shares=(1.0,), fps=fps, gop=int(fps))
     dec, sizes, mbps = encode_decode(server, twc, fps)
-    cams, truth = _eye(rec, 0)
+    cams, truth = rec.eye(0)
     net = NetworkModel(**p["network"], client_fps=rec.fc)
     [scored] = play_and_score_eyes(dec, [cams], [truth], "timewarp", net, rec.fc, p["metrics"],
                                    frame_sizes=sizes, options=ReprojectOptions(server_fps=fps),

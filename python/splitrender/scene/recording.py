@@ -55,7 +55,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender._native import __version__
-from splitrender.errors import SplitRenderError
+from splitrender.errors import InvalidInputError, SplitRenderError
 from splitrender.files import read_json_object, read_regular
 from splitrender.scene.builtin import (
     MAX_SAMPLES,
@@ -696,6 +696,23 @@ class Recording:
         lambda self: dict(self.manifest["samples"]),
         doc="Colour sub-samples per pixel side: ``{'main', 'aux', 'client'}``.",
     )
+
+    @checked(eye=ints(0, 1), n=optional(ints(0, MAX_FRAMES)))
+    def eye(
+        self, eye: int, n: int | None = None
+    ) -> tuple[list[Camera], Sequence[npt.NDArray[np.uint8]]]:
+        """Eye ``eye``'s client cameras and ground truths for the first ``n`` client frames (all
+        when ``None``). The cameras are read now; each ground truth is read from its file when
+        asked for, so a scored sequence never holds them all (1 GB per eye at 1280×720, 3 s)."""
+        if eye >= self._eyes:
+            raise InvalidInputError(f"eye: {eye} out of range; {self.path} is a mono recording "
+                                    "(one eye, 0)")
+        frames = self.client_frames
+        count = len(frames) if n is None else min(n, len(frames))
+        truths: Sequence[npt.NDArray[np.uint8]] = _Frames(
+            count, lambda k: frames[k].ground_truths[eye]
+        )
+        return [frames[k].cameras[eye] for k in range(count)], truths
 
     def server_pose(self, k: int) -> npt.NDArray[np.float64]:
         """The (predicted) head pose server frame ``k`` was rendered at."""
