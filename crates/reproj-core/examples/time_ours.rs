@@ -19,11 +19,12 @@
 //! same bytes (`ALPHA` sets α, default 0.5).
 //!
 //! `SIMD=avx2` (or `baseline`, `avx512`) caps the instruction set of the row loops
-//! ([`ours::set_simd_limit`]). With two or more tiers (`SIMD=avx2,avx512`) it then also times them
-//! against each other in this process, alternating frame by frame (the order rotated every
-//! frame), checks that every tier gives the same bytes, and prints the median of each tier's
-//! frame time over the first tier's in the same round: separate processes of the same binary
-//! spread by ±20 % on a shared machine, adjacent frames much less.
+//! ([`ours::set_simd_limit`]; the library's own `REPROJ_SIMD` does the same). With two or more
+//! tiers (`SIMD=avx2,avx512`) the first one is timed as above, and then the tiers against each
+//! other in this process, alternating frame by frame (the order rotated every round), each output
+//! checked to be the same bytes; it prints the median of each tier's frame time over the first
+//! tier's in the same round: separate processes of the same binary spread by ±20 % on a shared
+//! machine, adjacent frames much less.
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
 use reproj_core::*;
 

@@ -2,8 +2,9 @@
 //! functions, [`simd_method`] for methods of [`super::Resolve`]. Not a stage of the paper
 //! (seeds/000 §3): these only let the compiler use 256- and 512-bit vectors for the same IEEE
 //! arithmetic, without FMA contraction, so that the output bytes do not depend on the processor.
-//! [`set_simd_limit`] caps the instruction set, so that a test can compare the tiers' bytes on
-//! one processor and a benchmark can time them against each other in one process.
+//! [`set_simd_limit`] (or the environment variable `REPROJ_SIMD`) caps the instruction set, so
+//! that a test can compare the tiers' bytes on one processor and a benchmark can time them
+//! against each other.
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -18,12 +19,16 @@ pub enum Simd {
     Avx512 = 2,
 }
 
-/// The highest tier [`simd_tier`] may return (a [`Simd`] as `u8`).
-static LIMIT: AtomicU8 = AtomicU8::new(Simd::Avx512 as u8);
+/// The highest tier [`simd_tier`] may return (a [`Simd`] as `u8`), or [`UNSET`].
+static LIMIT: AtomicU8 = AtomicU8::new(UNSET);
+
+/// [`LIMIT`] before the first row: `REPROJ_SIMD` is read then.
+const UNSET: u8 = u8::MAX;
 
 /// Caps the instruction set of `ours`' row loops at `limit` for the whole process from the next
-/// row on (the default is [`Simd::Avx512`], i.e. the best the processor has). Every tier gives
-/// the same bytes; this is for tests that check that, and for timing one tier against another.
+/// row on. The default is `REPROJ_SIMD` (`baseline`, `avx2` or `avx512`, read once) where that is
+/// set, else [`Simd::Avx512`], i.e. the best the processor has. Every tier gives the same bytes;
+/// this is for tests that check that, and for timing one tier against another.
 pub fn set_simd_limit(limit: Simd) {
     LIMIT.store(limit as u8, Ordering::Relaxed);
 }
@@ -31,7 +36,10 @@ pub fn set_simd_limit(limit: Simd) {
 /// The tier the row loops use now: the best the processor has, at most [`set_simd_limit`]'s.
 #[inline]
 pub fn simd_tier() -> Simd {
-    let limit = LIMIT.load(Ordering::Relaxed);
+    let mut limit = LIMIT.load(Ordering::Relaxed);
+    if limit == UNSET {
+        limit = limit_from_env();
+    }
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::is_x86_feature_detected as has;
@@ -50,6 +58,21 @@ pub fn simd_tier() -> Simd {
     }
     let _ = limit;
     Simd::Baseline
+}
+
+/// The first [`simd_tier`]: [`LIMIT`] from `REPROJ_SIMD` (any other value caps nothing).
+#[cold]
+fn limit_from_env() -> u8 {
+    let limit = match std::env::var("REPROJ_SIMD").as_deref() {
+        Ok("baseline") => Simd::Baseline,
+        Ok("avx2") => Simd::Avx2,
+        _ => Simd::Avx512,
+    } as u8;
+    // A set_simd_limit that came first wins over the environment.
+    match LIMIT.compare_exchange(UNSET, limit, Ordering::Relaxed, Ordering::Relaxed) {
+        Ok(_) => limit,
+        Err(set) => set,
+    }
 }
 
 /// Defines `$name`, which runs the `#[inline(always)]` function `$imp` compiled for AVX-512 (as
