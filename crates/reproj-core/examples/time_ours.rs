@@ -17,6 +17,14 @@
 //! machine (run with `RAYON_NUM_THREADS=1` for a per-core figure), and a digest (FNV-1a) of the
 //! output colour and diagnostics, so that a change meant to be exact can be checked to give the
 //! same bytes (`ALPHA` sets α, default 0.5).
+//!
+//! `SIMD=avx2` (or `baseline`, `avx512`) caps the instruction set of the row loops
+//! ([`ours::set_simd_limit`]; the library's own `REPROJ_SIMD` does the same). With two or more
+//! tiers (`SIMD=avx2,avx512`) the first one is timed as above, and then the tiers against each
+//! other in this process, alternating frame by frame (the order rotated every round), each output
+//! checked to be the same bytes; it prints the median of each tier's frame time over the first
+//! tier's in the same round: separate processes of the same binary spread by ±20 % on a shared
+//! machine, adjacent frames much less.
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
 use reproj_core::*;
 
@@ -44,6 +52,19 @@ fn main() {
     };
     let mut out = vec![0u8; w * h * 3];
     let iters: usize = std::env::var("ITERS").map_or(6, |s| s.parse().unwrap());
+    let tiers: Vec<ours::Simd> = std::env::var("SIMD").map_or(Vec::new(), |s| {
+        s.split(',')
+            .map(|t| match t {
+                "baseline" => ours::Simd::Baseline,
+                "avx2" => ours::Simd::Avx2,
+                "avx512" => ours::Simd::Avx512,
+                _ => panic!("SIMD: {t} is not baseline, avx2 or avx512"),
+            })
+            .collect()
+    });
+    if let Some(&t) = tiers.first() {
+        ours::set_simd_limit(t);
+    }
     let methods: Vec<Method> = match std::env::args().nth(1) {
         Some(m) => vec![m.parse().unwrap()],
         None => vec![Method::Ours, Method::ForwardSplat],
@@ -125,6 +146,12 @@ fn main() {
                     e
                 }
             };
+            if tiers.len() >= 2 {
+                simd_ab(&tiers, iters, &out, |out| {
+                    frame(Output::new(out), keep.then_some(&mut history));
+                });
+                ours::set_simd_limit(tiers[0]);
+            }
             let n = iters.max(1) as f64;
             println!(
                 "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU, {:.0} page faults per call; digest {digest:016x}; pair builds {}",
@@ -134,6 +161,38 @@ fn main() {
                 history.pair_builds()
             );
         }
+    }
+}
+
+/// `SIMD` with several tiers: `iters` rounds of one frame per tier (the order rotated every
+/// round), each output compared with `expect`; prints each tier's median frame time and the
+/// median over rounds of its time over the first tier's.
+fn simd_ab(tiers: &[ours::Simd], iters: usize, expect: &[u8], mut frame: impl FnMut(&mut [u8])) {
+    let mut out = expect.to_vec();
+    let mut ms = vec![Vec::new(); tiers.len()];
+    for round in 0..iters {
+        for k in (0..tiers.len()).map(|k| (k + round) % tiers.len()) {
+            ours::set_simd_limit(tiers[k]);
+            let t = std::time::Instant::now();
+            frame(&mut out);
+            ms[k].push(t.elapsed().as_secs_f64() * 1000.0);
+            assert!(out == expect, "{:?} gave other bytes", tiers[k]);
+        }
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    for (k, &t) in tiers.iter().enumerate() {
+        ours::set_simd_limit(t);
+        let ratio: Vec<f64> = ms[k].iter().zip(&ms[0]).map(|(a, b)| a / b).collect();
+        println!(
+            "  {t:?} (runs as {:?}): median {:.2} ms, paired median over {:?} {:.3}",
+            ours::simd_tier(),
+            median(ms[k].clone()),
+            tiers[0],
+            median(ratio)
+        );
     }
 }
 

@@ -26,8 +26,8 @@
 //! per server-frame pair ([`PairCache`], kept in the client's history).
 //!
 //! The row loops of pass 1 and of the window filter are written without data-dependent branches
-//! and run in an AVX2 build on processors that have it (no FMA contraction, so the output bytes do
-//! not depend on the processor).
+//! and run in an AVX-512 or AVX2 build on processors that have it (no FMA contraction, so the output
+//! bytes do not depend on the processor; [`set_simd_limit`] caps the instruction set).
 //!
 //! Where we differ from the reference implementation on purpose (REFERENCE.md §8):
 //! - colours are rounded, not truncated;
@@ -43,7 +43,7 @@
 //! The stages live in one module each: `pass1` (scene flow, splatting and the window minimum),
 //! `search` (the window initialisation and the fixed-point iteration, eqs. 5, 7, 8), `select`
 //! (Algorithms 1 and 2), `auxiliary` (the auxiliary cameras and the merge rules of §3.5) and `pair`
-//! (the pair-level state, [`PairCache`]); `simd` holds the AVX2 dispatch of the row loops. This
+//! (the pair-level state, [`PairCache`]); `simd` holds the instruction-set dispatch of the row loops. This
 //! module holds what they share, the entry `run` and the driver of pass 2 (`Resolve`).
 
 mod auxiliary;
@@ -52,6 +52,8 @@ mod pass1;
 mod search;
 mod select;
 mod simd;
+
+pub use simd::{set_simd_limit, simd_tier, Simd};
 
 use std::sync::atomic::AtomicU8;
 
@@ -150,7 +152,7 @@ struct Src<'a> {
 }
 
 /// Row `j` of a `sw × sh` source image: where a row kernel ([`pass1`], [`pair`]) works. One
-/// value instead of three arguments, so that each kernel and its AVX2 dispatch name them once.
+/// value instead of three arguments, so that each kernel and its SIMD dispatch name them once.
 #[derive(Debug, Clone, Copy)]
 struct SrcRow {
     j: usize,

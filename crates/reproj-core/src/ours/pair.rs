@@ -10,7 +10,7 @@ use crate::camera::{pixel_of_ndc, NdcTransfer, Projector};
 use crate::frame::CameraView;
 use crate::params::{Params, TILE};
 
-use super::simd::avx2_dispatch;
+use super::simd::simd_dispatch;
 use super::{packed_cell, unpack_pixel, Mode, Src, SrcRow, NO_SPLAT};
 
 /// What `ours` computes once per server-frame pair and reuses for every client frame between the
@@ -356,13 +356,13 @@ struct FullCtx {
     oh: usize,
 }
 
-avx2_dispatch! {
+simd_dispatch! {
     /// The full scene flow of one source row (eqs. 2, 3): `[Δx, Δy, ΔZ, q]` with `q` the packed
     /// pixel ([`pack_pixel`](super::pack_pixel)) it lands on in the other camera, stored as `f32` bits
     /// ([`NO_SPLAT`] outside the image); NaN flow where invalid. [`correspondence`] reads it for
     /// the chosen match; computing every pixel with vector instructions is cheaper than two
     /// scalar evaluations per match.
-    fn full_flow_row / full_flow_row_avx2 => full_flow_row_impl(
+    fn full_flow_row / full_flow_row_avx2, full_flow_row_avx512 => full_flow_row_impl(
         row: SrcRow,
         depth: &[f32],
         motion: Option<&[f32]>,

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use crate::camera::NdcTransfer;
 use crate::params::TILE;
 
-use super::simd::avx2_dispatch;
+use super::simd::simd_dispatch;
 use super::{pack_pixel, splat_index, splat_key, Src, SrcRow, EMPTY_SPLAT, NO_SPLAT};
 
 /// Source rows per task of the splatting pass. Points that land outside their task's rows are
@@ -124,11 +124,11 @@ pub(super) fn scene_flow_and_splat(
     src.bufs.spill = spills;
 }
 
-avx2_dispatch! {
+simd_dispatch! {
     /// The splat keys ([`splat_key`]) of one source row from its key depths `kz` and the packed
     /// pixel of its first point `pk_row` ([`pack_pixel`]). Four keys per vector instruction here,
     /// against four scalar instructions per key in [`splat_row`].
-    fn row_keys / row_keys_avx2 => row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64])
+    fn row_keys / row_keys_avx2, row_keys_avx512 => row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64])
 }
 
 #[inline(always)]
@@ -214,13 +214,13 @@ struct RowOut<'a> {
     kz: &'a mut [f32],
 }
 
-avx2_dispatch! {
+simd_dispatch! {
     /// `M_cam` of one source row (eqs. 1, 12, 13) and where each point splats.
     ///
     /// Written without branches on the data so that the compiler vectorises it; on x86-64 it
-    /// runs in an AVX2 build where the processor has it (the same IEEE operations, no FMA
-    /// contraction, so the bytes do not depend on the processor).
-    fn flow_row / flow_row_avx2 => flow_row_impl(row: FlowRow, out: RowOut)
+    /// runs in an AVX-512 or AVX2 build where the processor has it (the same IEEE operations, no
+    /// FMA contraction, so the bytes do not depend on the processor).
+    fn flow_row / flow_row_avx2, flow_row_avx512 => flow_row_impl(row: FlowRow, out: RowOut)
 }
 
 #[inline(always)]
@@ -267,14 +267,14 @@ fn flow_row_impl(row: FlowRow, out: RowOut) {
     }
 }
 
-avx2_dispatch! {
+simd_dispatch! {
     /// For an auxiliary source, the cell each point of row `j` lands in as the resolve pass sees
     /// it, `pixel_of_ndc(x + M_cam)`, where the point is valid and not visible in the main camera
     /// (`vis`, one byte per pixel, from the pair), else [`NO_SPLAT`] ([`RowScratch::inv`]).
     /// Whether or not the point splats: the FPI can reach points that do not (e.g. nearer than
     /// the client's near plane). Points just outside the grid need no flag: the cells along the
     /// grid's border are always searched.
-    fn landing_row / landing_row_avx2 => landing_row_impl(
+    fn landing_row / landing_row_avx2, landing_row_avx512 => landing_row_impl(
         row: SrcRow,
         x: &[f32],
         flow: &[[f32; 2]],
@@ -421,9 +421,9 @@ pub(super) fn window_min(src: &mut Src, wr: usize) {
         });
 }
 
-avx2_dispatch! {
+simd_dispatch! {
     /// [`window_min`] for the output rows starting at `first`; `scratch` holds row minima.
-    fn window_block / window_block_avx2 => window_block_impl(
+    fn window_block / window_block_avx2, window_block_avx512 => window_block_impl(
         splat: &[u64],
         first: SrcRow,
         wr: usize,

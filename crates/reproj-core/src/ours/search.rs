@@ -7,7 +7,7 @@
 
 use crate::camera::pixel_of_ndc;
 
-use super::simd::avx2_method;
+use super::simd::simd_method;
 use super::{pack_pixel, packed_cell, unpack_pixel, Cell, Match, Resolve, NO_SPLAT};
 
 /// One output row's searches in one main source ([`Resolve::search_row`]), kept between rows.
@@ -61,7 +61,7 @@ pub(super) struct Targets<'a> {
 }
 
 impl Resolve<'_> {
-    avx2_method! {
+    simd_method! {
         /// [`Resolve::search`] in source `k` for every target of a row (the pixels of an output
         /// row for the main camera, the cells an output row needs for an auxiliary one), stage
         /// by stage: the windows' nearest splats and their flows for the whole row, then each
@@ -71,7 +71,7 @@ impl Resolve<'_> {
         /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
         /// the processor's reorder window holds less than one pixel's work and waits on each load.
         /// Row by row, every stage is a short loop over independent pixels whose loads overlap.
-        pub(super) fn search_row / search_row_avx2 => search_row_impl(&self, k: usize, t: &Targets, row: &mut SearchRow)
+        pub(super) fn search_row / search_row_avx2, search_row_avx512 => search_row_impl(&self, k: usize, t: &Targets, row: &mut SearchRow)
     }
 
     #[inline(always)]

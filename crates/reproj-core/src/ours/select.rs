@@ -10,7 +10,7 @@ use crate::shadow::{round_rgb4, shadow_color, Role};
 
 use super::pair::{TEXEL_BLEND, TEXEL_SHADOW};
 use super::search::SearchRow;
-use super::simd::avx2_method;
+use super::simd::simd_method;
 use super::{Cell, Choice, Match, Palette, Resolve, NO_SPLAT};
 
 /// "No source" in [`Picks::src`].
@@ -42,11 +42,11 @@ impl Picks {
 }
 
 impl Resolve<'_> {
-    avx2_method! {
+    simd_method! {
         /// Algorithm 1 for the main camera over a row, from the searches of
         /// [`Resolve::search_row`]: the same decisions as [`Resolve::choose`], written as selects
         /// (and vectorised by the compiler).
-        pub(super) fn choose_row / choose_row_avx2 => choose_row_impl(&self, sides: &[SearchRow], picks: &mut Picks)
+        pub(super) fn choose_row / choose_row_avx2, choose_row_avx512 => choose_row_impl(&self, sides: &[SearchRow], picks: &mut Picks)
     }
 
     #[inline(always)]
@@ -90,14 +90,14 @@ impl Resolve<'_> {
         }
     }
 
-    avx2_method! {
+    simd_method! {
         /// The colours of a row: Algorithm 2 ([`Resolve::second_chance`]) for every pixel that
         /// kept a match, then their rounding into `out` (the row's `3·W` bytes; a pixel without a
         /// match keeps the previous frame's colour there), and the diagnostics when asked. Two
         /// loops, so that the float-to-byte conversions of a pixel do not wait behind its colour
-        /// loads, compiled for AVX2 like the other stages (the colours' conversions and blends
-        /// are four-lane vectors).
-        pub(super) fn colour_row / colour_row_avx2 => colour_row_impl(&self, picks: &mut Picks, out: &mut [u8], diag: Option<(&mut [u8], &mut [f32])>)
+        /// loads, compiled for AVX-512 / AVX2 like the other stages (the colours' conversions and
+        /// blends are four-lane vectors).
+        pub(super) fn colour_row / colour_row_avx2, colour_row_avx512 => colour_row_impl(&self, picks: &mut Picks, out: &mut [u8], diag: Option<(&mut [u8], &mut [f32])>)
     }
 
     #[inline(always)]

@@ -1,61 +1,147 @@
-//! The AVX2 dispatch of the row loops of `ours`: [`avx2_dispatch`] for functions,
-//! [`avx2_method`] for methods of [`super::Resolve`]. Not a stage of the paper (seeds/000 §3):
-//! these only let the compiler use 256-bit vectors for the same IEEE arithmetic, without FMA
-//! contraction, so that the output bytes do not depend on the processor.
+//! The run-time dispatch of the row loops of `ours` by instruction set: [`simd_dispatch`] for
+//! functions, [`simd_method`] for methods of [`super::Resolve`]. Not a stage of the paper
+//! (seeds/000 §3): these only let the compiler use 256- and 512-bit vectors for the same IEEE
+//! arithmetic, without FMA contraction, so that the output bytes do not depend on the processor.
+//! [`set_simd_limit`] (or the environment variable `REPROJ_SIMD`) caps the instruction set, so
+//! that a test can compare the tiers' bytes on one processor and a benchmark can time them
+//! against each other.
 
-/// Defines `$name`, which runs the `#[inline(always)]` function `$imp` compiled for AVX2 (as
-/// `$avx`) where the processor has it and for the baseline otherwise. The body is written once;
-/// the AVX2 build lets the compiler use 256-bit vectors for its row loops. Neither build contracts
-/// multiplies and adds into FMA, so both give the same bytes.
-macro_rules! avx2_dispatch {
-    ($(#[$doc:meta])* fn $name:ident / $avx:ident => $imp:ident($($arg:ident: $ty:ty),* $(,)?)) => {
+use std::sync::atomic::{AtomicU8, Ordering};
+
+/// The instruction sets the row loops of `ours` are compiled for, lowest first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Simd {
+    /// The target's baseline (SSE2 on x86-64).
+    Baseline = 0,
+    /// AVX2 (256-bit vectors, gathers).
+    Avx2 = 1,
+    /// The AVX-512 of x86-64-v4: F, BW, CD, DQ and VL (512-bit vectors, masked loads and stores).
+    Avx512 = 2,
+}
+
+/// The highest tier [`simd_tier`] may return (a [`Simd`] as `u8`), or [`UNSET`].
+static LIMIT: AtomicU8 = AtomicU8::new(UNSET);
+
+/// [`LIMIT`] before the first row: `REPROJ_SIMD` is read then.
+const UNSET: u8 = u8::MAX;
+
+/// Caps the instruction set of `ours`' row loops at `limit` for the whole process from the next
+/// row on. The default is `REPROJ_SIMD` (`baseline`, `avx2` or `avx512`, read once) where that is
+/// set, else [`Simd::Avx512`], i.e. the best the processor has. Every tier gives the same bytes;
+/// this is for tests that check that, and for timing one tier against another.
+pub fn set_simd_limit(limit: Simd) {
+    LIMIT.store(limit as u8, Ordering::Relaxed);
+}
+
+/// The tier the row loops use now: the best the processor has, at most [`set_simd_limit`]'s.
+#[inline]
+pub fn simd_tier() -> Simd {
+    let mut limit = LIMIT.load(Ordering::Relaxed);
+    if limit == UNSET {
+        limit = limit_from_env();
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::is_x86_feature_detected as has;
+        if limit >= Simd::Avx512 as u8
+            && has!("avx512f")
+            && has!("avx512bw")
+            && has!("avx512cd")
+            && has!("avx512dq")
+            && has!("avx512vl")
+        {
+            return Simd::Avx512;
+        }
+        if limit >= Simd::Avx2 as u8 && has!("avx2") {
+            return Simd::Avx2;
+        }
+    }
+    let _ = limit;
+    Simd::Baseline
+}
+
+/// The first [`simd_tier`]: [`LIMIT`] from `REPROJ_SIMD` (any other value caps nothing).
+#[cold]
+fn limit_from_env() -> u8 {
+    let limit = match std::env::var("REPROJ_SIMD").as_deref() {
+        Ok("baseline") => Simd::Baseline,
+        Ok("avx2") => Simd::Avx2,
+        _ => Simd::Avx512,
+    } as u8;
+    // A set_simd_limit that came first wins over the environment.
+    match LIMIT.compare_exchange(UNSET, limit, Ordering::Relaxed, Ordering::Relaxed) {
+        Ok(_) => limit,
+        Err(set) => set,
+    }
+}
+
+/// Defines `$name`, which runs the `#[inline(always)]` function `$imp` compiled for AVX-512 (as
+/// `$avx512`) or AVX2 (as `$avx2`) where the processor has it ([`simd_tier`]) and for the baseline
+/// otherwise. The body is written once; the wider builds let the compiler use wider vectors (and
+/// masks) for its row loops. No build contracts multiplies and adds into FMA (Rust never does), so
+/// all give the same bytes.
+macro_rules! simd_dispatch {
+    ($(#[$doc:meta])* fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident($($arg:ident: $ty:ty),* $(,)?)) => {
         $(#[$doc])*
         #[inline]
         fn $name($($arg: $ty),*) {
             #[cfg(target_arch = "x86_64")]
-            {
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the processor supports AVX2 (checked just above).
-                    unsafe { $avx($($arg),*) };
-                    return;
-                }
+            match super::simd::simd_tier() {
+                // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
+                super::simd::Simd::Avx512 => return unsafe { $avx512($($arg),*) },
+                // SAFETY: the processor supports AVX2 (checked by simd_tier).
+                super::simd::Simd::Avx2 => return unsafe { $avx2($($arg),*) },
+                super::simd::Simd::Baseline => {}
             }
             $imp($($arg),*)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2")]
-        fn $avx($($arg: $ty),*) {
+        fn $avx2($($arg: $ty),*) {
+            $imp($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx512bw,avx512cd,avx512dq,avx512vl")]
+        fn $avx512($($arg: $ty),*) {
             $imp($($arg),*)
         }
     };
 }
 
-/// [`avx2_dispatch`] for a method of [`Resolve`](super::Resolve): `$name` runs the `#[inline(always)]` method
-/// `$imp` compiled for AVX2 (as `$avx`) where the processor has it.
-macro_rules! avx2_method {
-    ($(#[$doc:meta])* $vis:vis fn $name:ident / $avx:ident => $imp:ident(&self, $($arg:ident: $ty:ty),* $(,)?)) => {
+/// [`simd_dispatch`] for a method of [`Resolve`](super::Resolve): `$name` runs the
+/// `#[inline(always)]` method `$imp` compiled for AVX-512 (as `$avx512`) or AVX2 (as `$avx2`)
+/// where the processor has it.
+macro_rules! simd_method {
+    ($(#[$doc:meta])* $vis:vis fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident(&self, $($arg:ident: $ty:ty),* $(,)?)) => {
         $(#[$doc])*
         #[inline(never)]
         $vis fn $name(&self, $($arg: $ty),*) {
             #[cfg(target_arch = "x86_64")]
-            {
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the processor supports AVX2 (checked just above).
-                    unsafe { self.$avx($($arg),*) };
-                    return;
-                }
+            match super::simd::simd_tier() {
+                // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
+                super::simd::Simd::Avx512 => return unsafe { self.$avx512($($arg),*) },
+                // SAFETY: the processor supports AVX2 (checked by simd_tier).
+                super::simd::Simd::Avx2 => return unsafe { self.$avx2($($arg),*) },
+                super::simd::Simd::Baseline => {}
             }
             self.$imp($($arg),*)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2")]
-        fn $avx(&self, $($arg: $ty),*) {
+        fn $avx2(&self, $($arg: $ty),*) {
+            self.$imp($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx512bw,avx512cd,avx512dq,avx512vl")]
+        fn $avx512(&self, $($arg: $ty),*) {
             self.$imp($($arg),*)
         }
     };
 }
 
-pub(super) use avx2_dispatch;
-pub(super) use avx2_method;
+pub(super) use simd_dispatch;
+pub(super) use simd_method;

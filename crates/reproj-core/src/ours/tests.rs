@@ -658,3 +658,56 @@ fn window_filter_with_spilled_points_equals_a_brute_force_minimum() {
         }
     }
 }
+
+/// The row loops run in the best build the processor has (AVX-512, AVX2 or the baseline, see
+/// `simd`); every build must give the same bytes (colour, sources and errors), for `ours` with and
+/// without the pair state and for `forward_splat`. On a processor without AVX-512 the tiers above
+/// it run as the best one below, and the comparison covers what the processor has.
+#[test]
+fn every_simd_tier_gives_the_same_bytes() {
+    use crate::synthetic::{head_pose, rig};
+    use crate::BidirHistory;
+    let (w, h) = (192, 108);
+    let frames = three_frames(w, h);
+    let (older, newer) = (frames[0].view(true), frames[1].view(false));
+    let p = Params::default();
+    let frame = |method, alpha: f32, history: Option<&mut BidirHistory>| {
+        let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
+        e[0] += 0.2;
+        let req = Request {
+            client: rig(e, tg, w, h).0,
+            alpha,
+        };
+        let mut out = vec![7u8; w * h * 3];
+        let mut diag = Diagnostics::new(w * h);
+        let o = (alpha < 1.0).then_some(&older);
+        let sink = Output::with_diagnostics(&mut out, &mut diag);
+        reproject(method, o, &newer, &req, &p, sink, history).unwrap();
+        let errors: Vec<u32> = diag.error.iter().map(|e| e.to_bits()).collect();
+        (out, diag.source, errors)
+    };
+    let run = |tier: Simd| {
+        set_simd_limit(tier);
+        assert!(simd_tier() <= tier);
+        let mut history = BidirHistory::new();
+        let mut frames = Vec::new();
+        for alpha in [0.5f32, 1.4] {
+            frames.push(frame(Method::Ours, alpha, None));
+            // The second call of the pair uses the pair state the first one left.
+            for _ in 0..2 {
+                frames.push(frame(Method::Ours, alpha, Some(&mut history)));
+            }
+        }
+        // Unidirectional splatting from the newer frame: extrapolation only.
+        frames.push(frame(Method::ForwardSplat, 1.4, None));
+        frames
+    };
+    let baseline = run(Simd::Baseline);
+    for tier in [Simd::Avx2, Simd::Avx512] {
+        let wide = run(tier);
+        for (n, (a, b)) in baseline.iter().zip(&wide).enumerate() {
+            assert!(a == b, "{tier:?} (as {:?}), frame {n}", simd_tier());
+        }
+    }
+    set_simd_limit(Simd::Avx512);
+}
