@@ -241,8 +241,8 @@ TABLE: dict[str, Entry] = {
              color_share=NUMBER, depth_share=NUMBER, motion_share=NUMBER,
              shadow_color_share=NUMBER, chroma=[*STR, "x"], preset=[*STR, "x"],
              fps=POSITIVE, gop=[*COUNT, 0], vbv_buffer_s=POSITIVE, uncompressed=BOOL,
-             zstd_level=[*COUNT, 0], exact_static_motion=BOOL, rate_feedback=BOOL,
-             threads=COUNT),
+             zstd_level=[*COUNT, 0], lossless_share=[*NUMBER, -0.1, 1.5],
+             exact_static_motion=BOOL, rate_feedback=BOOL, threads=COUNT),
     ),
     "CodecConfig.scaled": (
         lambda f: sr.CodecConfig.scaled, lambda f: dict(width=W, height=H, paper_mbps=40.0),

@@ -544,6 +544,77 @@ def test_codec_config_bounds(field: str, value: float) -> None:
     assert CodecConfig(bitrate_mbps=100_000.0, fps=1000.0, vbv_buffer_s=60.0).fps == 1000.0
 
 
+def _without_shadows(f: sr.ServerFrame, cams: set[int]) -> sr.ServerFrame:
+    """``f`` with the shadow bitfields of ``cams`` all zero (no moving shadows there)."""
+    def strip(ci: int, cf: sr.CameraFrame) -> sr.CameraFrame:
+        if ci not in cams:
+            return cf
+        return dataclasses.replace(cf, **{
+            f"shadow_{d}": dataclasses.replace(s, bits=np.zeros_like(s.bits))
+            for d in ("fwd", "bwd") if (s := getattr(cf, f"shadow_{d}")) is not None})
+    main, *aux = (strip(ci, cf) for ci, cf in enumerate(_cams(f)))
+    return dataclasses.replace(f, main=main, aux=tuple(aux))
+
+
+def _encode(frames: list[sr.ServerFrame], **cfg: float) -> tuple[list[bytes], list[tuple[int, ...]]]:
+    with StreamEncoder(CodecConfig(bitrate_mbps=BITRATE, gop=6, **cfg)) as enc:
+        packets, left = [], []
+        for f in frames:
+            packets.append(enc.encode(f))
+            left.append(enc.last.shadows_left_out)
+    return packets, left
+
+
+def test_shadow_bitfields_beyond_the_lossless_share_are_coded_as_no_shadows(
+    frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]]
+) -> None:
+    """With no room for lossless parts (``lossless_share=0``) every camera's shadow bitfields
+    are left out, auxiliary cameras first, and each packet is byte for byte the packet of the
+    same frame without moving shadows in those cameras; with room (the default at this rate)
+    nothing is left out and the packets are those of a share of 1."""
+    with_bits = [ci for ci, cf in enumerate(_cams(frames[0]))
+                 if any(s is not None and s.bits.any() for s in (cf.shadow_fwd, cf.shadow_bwd))]
+    assert with_bits, "the synthetic scene should have moving shadows"
+    packets, left = _encode(frames, lossless_share=0.0)
+    assert left[0] == tuple(sorted(with_bits, key=lambda ci: (ci == 0, -ci)))
+    stripped = [_without_shadows(f, set(ls)) for f, ls in zip(frames, left)]
+    assert packets == _encode(stripped, lossless_share=0.0)[0]
+    with StreamDecoder() as dec:
+        for p, ls in zip(packets, left):
+            decoded = _cams(dec.decode(p))
+            for ci in ls:
+                assert not decoded[ci].shadow_fwd.bits.any()
+                assert not decoded[ci].shadow_bwd.bits.any()
+    default, left_default = _encode(frames)
+    assert not any(left_default)
+    assert default == coded[0] == _encode(frames, lossless_share=1.0)[0]
+
+
+def test_the_main_cameras_bitfields_go_only_after_the_auxiliary_ones(
+    frames: list[sr.ServerFrame],
+) -> None:
+    """Every share leaves out a prefix of (last auxiliary camera, …, main camera), and a cap
+    just below the frame's lossless cost (found by bisection to ~10 bytes, less than any
+    camera's bitfields here) leaves out only the last auxiliary camera's."""
+    def left(share: float) -> tuple[int, ...]:
+        lo = _encode(frames[:1], lossless_share=share)[1][0]
+        assert lo == (2, 1, 0)[: len(lo)], (share, lo)
+        return lo
+
+    lo, hi = 0.0, 0.1
+    assert left(lo) == (2, 1, 0) and left(hi) == ()
+    for _ in range(8):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if left(mid) else (lo, mid)
+    assert left(lo) == (2,)
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.5, float("nan"), "x"])
+def test_lossless_share_is_a_fraction(value: object) -> None:
+    with pytest.raises(InvalidInputError, match="CodecConfig.lossless_share"):
+        CodecConfig(lossless_share=value)  # type: ignore[arg-type]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("paper_mbps", [20.0, 40.0, 80.0])
 def test_bitrate_within_ten_percent(paper_mbps: float) -> None:

@@ -155,6 +155,8 @@ _SHADOW = {
     "fwd": (_K.SHADOW_FWD_BITS, _K.SHADOW_FWD_MIN, _K.SHADOW_FWD_MAX),
     "bwd": (_K.SHADOW_BWD_BITS, _K.SHADOW_BWD_MIN, _K.SHADOW_BWD_MAX),
 }
+_SHADOW_BITS = {v[0] for v in _SHADOW.values()}
+_SHADOW_OF = {v[0]: v for v in _SHADOW.values()}  # a bitfield's kind -> its three kinds
 
 
 #: Largest ``CodecConfig.bitrate_mbps`` (100 Gb/s, beyond any link the stream is meant for):
@@ -187,7 +189,14 @@ class CodecConfig:
     stream expects), but since stream format 3 every picture holds all cameras and x265 splits
     its bits between their tiles by content. ``chroma`` is that of the colour and shadow
     pictures; 4:2:0 by default since format 3 (half the decode time of the colour picture,
-    docs/codec-results.md)."""
+    docs/codec-results.md).
+
+    ``lossless_share`` is the most of the target that a frame's lossless parts (masks, shadow
+    bitfields, headers) may take: beyond it the shadow bitfields of the auxiliary cameras, then
+    of the main camera, are left out of that frame (sent as ZERO, as for a camera without moving
+    shadows), so that the pictures keep the rest. Without it a scene whose soft shadows move
+    over ~1 % of the pixels spent more than a 2.5 Mb/s target on the bitfields alone at
+    1280×720 and left the colour 3 % of the stream (docs/codec-results.md)."""
 
     bitrate_mbps: float = 10.0
     camera_shares: tuple[float, ...] = (0.6, 0.2, 0.2)
@@ -202,6 +211,7 @@ class CodecConfig:
     vbv_buffer_s: float = 0.3
     uncompressed: bool = False
     zstd_level: int = 10
+    lossless_share: float = 0.5
     exact_static_motion: bool = True
     rate_feedback: bool = True
     threads: int = 0
@@ -219,6 +229,8 @@ class CodecConfig:
                 )
         for name in ("color_share", "depth_share", "motion_share", "shadow_color_share"):
             object.__setattr__(self, name, check_float(f"CodecConfig.{name}", getattr(self, name)))
+        object.__setattr__(self, "lossless_share", check_float(
+            "CodecConfig.lossless_share", self.lossless_share, lo=0.0, hi=1.0))
         shares = (
             self.color_share,
             self.depth_share,
@@ -378,6 +390,11 @@ def _put(atlas: npt.NDArray[Any], t: _Tile, a: npt.NDArray[Any]) -> None:
         atlas[t.y : y1, x1:x2] = atlas[t.y : y1, x1 - 1 : x1]
     if y2 > y1:
         atlas[y1:y2, t.x : x2] = atlas[y1 - 1 : y1, t.x : x2]
+
+
+def _clear(atlas: npt.NDArray[Any], t: _Tile) -> None:
+    """Zeros a tile's whole slot (what an unwritten tile holds)."""
+    atlas[t.y : t.y + _aligned(t.h), t.x : t.x + _aligned(t.w)] = 0
 
 
 def _block_mean(
@@ -705,6 +722,8 @@ class EncodeStats:
     packet_bytes: int = 0
     lossless_bytes: int = 0
     hevc_targets_bps: dict[str, float] = field(default_factory=dict)
+    #: The cameras whose shadow bitfields were left out (``CodecConfig.lossless_share``).
+    shadows_left_out: tuple[int, ...] = ()
 
 
 class _WorkerThreads:
@@ -820,13 +839,12 @@ class StreamEncoder(_WorkerThreads):
                     if pic == _PIC_GEOMETRY
                     else np.zeros((ph, pw, 3), np.uint8)
                 )
-        jobs: list[_Job] = []
-        for ci, cf in enumerate(cams):
-            jobs += (
-                self._raw_jobs(ci, cf)
-                if cfg.uncompressed
-                else self._camera_jobs(ci, cf, atlases)
-            )
+        per_camera = [
+            self._raw_jobs(ci, cf) if cfg.uncompressed else self._camera_jobs(ci, cf, atlases)
+            for ci, cf in enumerate(cams)
+        ]
+        left_out = () if cfg.uncompressed else self._leave_out_shadows(per_camera, atlases)
+        jobs = [j for cj in per_camera for j in cj]
         used = {TILE_PICTURE[j.kind] for j in jobs if j.codec == Codec.TILE}
         motion = any(
             j.codec == Codec.TILE and j.kind in (_K.MOTION_FWD, _K.MOTION_BWD)
@@ -884,6 +902,7 @@ class StreamEncoder(_WorkerThreads):
             len(packet),
             len(packet) - hevc,
             {buffer_name(0, k): s.target_bps for k, s in self._streams.items()},
+            left_out,
         )
         return packet
 
@@ -986,6 +1005,49 @@ class StreamEncoder(_WorkerThreads):
         self._lowered = False
 
     # -- buffers --------------------------------------------------------------------------------
+
+    def _leave_out_shadows(
+        self, per_camera: list[list[_Job]], atlases: dict[BufferKind, npt.NDArray[Any]]
+    ) -> tuple[int, ...]:
+        """Leaves out the shadow bitfields (and so the shadow colours) of the auxiliary cameras,
+        the last first, then of the main camera, while this frame's lossless parts exceed
+        ``lossless_share`` of the target; returns the cameras left out. A camera left out is
+        coded exactly as one without moving shadows: ZERO entries and zero tiles. Below the cap
+        nothing changes, byte for byte.
+
+        Why these: the bitfields are lossless and cost what the shadows' motion makes them cost
+        whatever the target (~1.5 % of the pixels of a scene with moving soft shadows, some
+        9 kB per direction and 1280×720 camera), while without them a pixel only loses the
+        change of its shadow between the two server frames (its colour is that of the frame it
+        comes from); the auxiliary cameras fill disocclusions only, so theirs go first."""
+        cfg = self.config
+        n_buffers = sum(len(cj) for cj in per_camera)
+        # The packet header as the rate control estimates it (about 10 bytes per buffer, 250
+        # for the cameras), with the pictures' entries.
+        cost = 10 * (n_buffers + len(PICTURE_KINDS)) + 250 + sum(
+            len(j.payload) for cj in per_camera for j in cj if isinstance(j.payload, bytes)
+        )
+        cap = cfg.lossless_share * cfg.bitrate_mbps * 1e6 / (8 * cfg.fps)
+        assert self._layout is not None
+        shadow_tiles, _, _ = _layout(_PIC_SHADOW, self._layout)
+        left_out: list[int] = []
+        for ci in [*range(len(per_camera) - 1, 0, -1), 0]:
+            if cost <= cap:
+                break
+            bits = [j for j in per_camera[ci] if j.kind in _SHADOW_BITS and j.codec == Codec.ZSTD]
+            if not bits:
+                continue
+            cost -= sum(len(j.payload) for j in bits if isinstance(j.payload, bytes))
+            shadows = {k for j in bits for k in _SHADOW_OF[j.kind]}
+            for j in per_camera[ci]:
+                if j.kind in shadows and j.codec == Codec.TILE:
+                    _clear(atlases[_PIC_SHADOW], shadow_tiles[(ci, j.kind, 0)])
+            per_camera[ci] = [
+                _Job(ci, j.kind, j.w, j.h, Codec.ZERO) if j.kind in shadows else j
+                for j in per_camera[ci]
+            ]
+            left_out.append(ci)
+        return tuple(left_out)
 
     def _raw_jobs(self, ci: int, cf: CameraFrame) -> list[_Job]:
         """Every buffer as its bytes (``uncompressed``)."""
