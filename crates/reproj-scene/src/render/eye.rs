@@ -52,6 +52,8 @@ pub(crate) struct EyeTiles<'s> {
     starts: Vec<usize>,
     /// Per object, what a ray needs of it, in one place: the search reads nothing else.
     targets: Vec<Target<'s>>,
+    /// [`super::far_s`] of the snapshot.
+    far: f64,
 }
 
 /// One tile's list and the objects' records: what [`Snapshot::trace_eye`] reads, looked up once
@@ -60,6 +62,8 @@ pub(crate) struct EyeTiles<'s> {
 pub(crate) struct EyeTile<'t, 's> {
     list: &'t [Entry],
     targets: &'t [Target<'s>],
+    /// [`super::far_s`] of the snapshot (a division once per frame instead of once per ray).
+    pub far: f64,
 }
 
 /// What a primary ray needs of one object ([`Snapshot::trace_eye`]).
@@ -239,6 +243,7 @@ impl<'s> EyeTiles<'s> {
             lists,
             starts,
             targets,
+            far: super::far_s(snap),
         })
     }
 
@@ -248,6 +253,7 @@ impl<'s> EyeTiles<'s> {
         EyeTile {
             list: &self.lists[self.starts[k]..self.starts[k + 1]],
             targets: &self.targets,
+            far: self.far,
         }
     }
 }

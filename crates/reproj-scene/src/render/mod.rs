@@ -240,14 +240,12 @@ fn sample_ray_into(
     like: Option<&Sample>,
     out: &mut Sample,
 ) {
-    // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
-    // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
-    let far = snap.scene.far / snap.scene.near;
+    // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0).
     // `d_obj`: `d` in the hit object's space (the tile search has it already).
     let hit = match eye {
-        Some(tile) => snap.trace_eye(tile, rays.origin, d, 1.0, far),
+        Some(tile) => snap.trace_eye(tile, rays.origin, d, 1.0, tile.far),
         None => snap
-            .trace(rays.origin, d, 1.0, far)
+            .trace(rays.origin, d, 1.0, far_s(snap))
             .map(|h| (h, snap.inv[h.obj].vector(d))),
     };
     let Some((hit, d_obj)) = hit else {
@@ -293,6 +291,12 @@ fn sample_ray_into(
         },
         shadow,
     };
+}
+
+/// The far plane's parameter `s` along a primary ray `o + s·d` ([`Rays`]): the ray at `s = 1` is
+/// on the near plane and view depth is linear in `s`, so the far plane is at `far / near`.
+fn far_s(snap: &Snapshot<'_>) -> f64 {
+    snap.scene.far / snap.scene.near
 }
 
 fn material<'s>(snap: &Snapshot<'s>, s: &Sample) -> Option<&'s Material> {
