@@ -1018,26 +1018,61 @@ impl<'a> Snapshot<'a> {
     }
 
     /// Shaded colour of albedo `albedo` with unit normal `n` under shadow fraction `f`, seen
-    /// along the unit direction `view` (from the point toward the eye), on the RGB8 scale
-    /// (`[0, 255]`, clamped as a display would) but not yet rounded, so that sub-samples can be
-    /// averaged before the one rounding.
+    /// along the primary ray's direction `dir` (from the eye toward the point, any length), on
+    /// the RGB8 scale (`[0, 255]`, clamped as a display would) but not yet rounded, so that
+    /// sub-samples can be averaged before the one rounding.
     // Inlined into the colour filter's caller (`key_color`), as `trace_eye` is, for the same
     // reason.
     #[inline]
-    pub fn shade(&self, m: &Material, albedo: V3, n: V3, view: V3, f: f64) -> V3 {
+    pub fn shade(&self, m: &Material, albedo: V3, n: V3, dir: V3, f: f64) -> V3 {
+        self.shade_lit(m, albedo, n, dir, self.light_at(n, f))
+    }
+
+    /// What [`Snapshot::shade`] computes of the light alone, for unit normal `n` under shadow
+    /// fraction `f`: the same for every sample with the same `n` and `f` (the sub-samples on
+    /// one plane of a pixel), so that it can be computed once for them.
+    #[inline]
+    pub(crate) fn light_at(&self, n: V3, f: f64) -> LightAt {
         let light = &self.scene.light;
-        let l = self.light;
         let lit = 1.0 - f;
-        let nl = dot(n, l).max(0.0);
+        let nl = dot(n, self.light).max(0.0);
         let amb = lerp(light.ambient_ground, light.ambient_sky, 0.5 + 0.5 * n[1]);
-        let mut c = mul(albedo, add(amb, scale(light.color, lit * nl)));
-        if m.specular > 0.0 && nl > 0.0 {
+        LightAt {
+            lit,
+            nl,
+            diffuse: add(amb, scale(light.color, lit * nl)),
+        }
+    }
+
+    /// [`Snapshot::shade`] with its light terms `e` (from [`Snapshot::light_at`] for `n` and
+    /// the shadow fraction): Lambert (ambient by the normal's height plus the direct light
+    /// `lit·max(n·l, 0)`) and a Blinn–Phong highlight.
+    #[inline]
+    pub(crate) fn shade_lit(&self, m: &Material, albedo: V3, n: V3, dir: V3, e: LightAt) -> V3 {
+        let l = self.light;
+        let mut c = mul(albedo, e.diffuse);
+        if m.specular > 0.0 && e.nl > 0.0 {
+            // The unit view direction (toward the eye) only here: most materials are matte, and
+            // a square root and a division per sample go unread there.
+            let view = normalize(scale(dir, -1.0));
             let h = normalize(add(l, view));
-            let s = m.specular * lit * dot(n, h).max(0.0).powf(m.shininess);
-            c = add(c, scale(light.color, s));
+            let s = m.specular * e.lit * dot(n, h).max(0.0).powf(m.shininess);
+            c = add(c, scale(self.scene.light.color, s));
         }
         c.map(|v| (v * 255.0).clamp(0.0, 255.0))
     }
+}
+
+/// The light terms of [`Snapshot::shade`] at one normal and shadow fraction
+/// ([`Snapshot::light_at`]).
+#[derive(Clone, Copy)]
+pub(crate) struct LightAt {
+    /// `1 − f`, the unshadowed part of the light's disc.
+    lit: f64,
+    /// `max(n·l, 0)`.
+    nl: f64,
+    /// The ambient term plus the direct light, `lit·nl` times the light's colour.
+    diffuse: V3,
 }
 
 #[cfg(test)]

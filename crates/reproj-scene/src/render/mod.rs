@@ -163,8 +163,9 @@ pub(crate) struct Sample {
     pub n_obj: V3,
     /// World normal (facing the camera).
     pub normal: V3,
-    /// Unit direction from the point toward the eye.
-    pub view: V3,
+    /// The primary ray's direction from the eye (not unit; [`Snapshot::shade`] forms the unit
+    /// view direction from it where a highlight needs one).
+    pub dir: V3,
     /// NaN where [`Needs::albedo`] was not asked for.
     pub albedo: V3,
     /// Continuous shadow fraction at the key time.
@@ -222,28 +223,29 @@ fn sample_ray(
     eye: Option<&EyeTile<'_, '_>>,
 ) -> Sample {
     let mut s = Sample::SKY;
-    sample_ray_into(snap, rays, d, needs, eye, &mut s);
+    sample_ray_into(snap, rays, d, needs, eye, None, &mut s);
     s
 }
 
 /// [`sample_ray`] into `out`: a colour sub-sample is written straight into its place in the
 /// pixel's list (returned, the sample was built aside and copied there, a `memcpy` call).
+/// `like`: a sample of the same snapshot (the pixel centre's) whose world normal is taken where
+/// the hit has its object and object-space normal.
 fn sample_ray_into(
     snap: &Snapshot<'_>,
     rays: &Rays,
     d: V3,
     needs: Needs,
     eye: Option<&EyeTile<'_, '_>>,
+    like: Option<&Sample>,
     out: &mut Sample,
 ) {
-    // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0): the ray at
-    // s = 1 is on the near plane and view depth is linear in s, so the far plane is at far/near.
-    let far = snap.scene.far / snap.scene.near;
+    // s ≥ 1: beyond the near plane; below the far plane (beyond it is sky at Z = 0).
     // `d_obj`: `d` in the hit object's space (the tile search has it already).
     let hit = match eye {
-        Some(tile) => snap.trace_eye(tile, rays.origin, d, 1.0, far),
+        Some(tile) => snap.trace_eye(tile, rays.origin, d, 1.0, tile.far),
         None => snap
-            .trace(rays.origin, d, 1.0, far)
+            .trace(rays.origin, d, 1.0, far_s(snap))
             .map(|h| (h, snap.inv[h.obj].vector(d))),
     };
     let Some((hit, d_obj)) = hit else {
@@ -257,7 +259,17 @@ fn sample_ray_into(
     if crate::math::dot(n_obj, d_obj) > 0.0 {
         n_obj = scale(n_obj, -1.0);
     }
-    let normal = normalize(snap.world[hit.obj].vector(n_obj));
+    // The world normal depends on the object and `n_obj` alone: a sub-sample on the centre's
+    // plane (a box face, the ground: the same `n_obj` bit for bit) takes the centre's instead of
+    // transforming and normalising it again.
+    let normal = match like {
+        Some(c)
+            if c.obj == Some(hit.obj) && c.n_obj.map(f64::to_bits) == n_obj.map(f64::to_bits) =>
+        {
+            c.normal
+        }
+        _ => normalize(snap.world[hit.obj].vector(n_obj)),
+    };
     let shadow = if needs.shadow {
         snap.shadow(hit.obj, x, normal)
     } else {
@@ -269,7 +281,7 @@ fn sample_ray_into(
         x,
         n_obj,
         normal,
-        view: normalize(scale(d, -1.0)),
+        dir: d,
         albedo: if needs.albedo {
             o.shape
                 .own_albedo(hit.local.face, hit.local.uv)
@@ -281,6 +293,12 @@ fn sample_ray_into(
     };
 }
 
+/// The far plane's parameter `s` along a primary ray `o + s·d` ([`Rays`]): the ray at `s = 1` is
+/// on the near plane and view depth is linear in `s`, so the far plane is at `far / near`.
+fn far_s(snap: &Snapshot<'_>) -> f64 {
+    snap.scene.far / snap.scene.near
+}
+
 fn material<'s>(snap: &Snapshot<'s>, s: &Sample) -> Option<&'s Material> {
     s.obj.map(|o| &snap.scene.objects[o].material)
 }
@@ -288,7 +306,7 @@ fn material<'s>(snap: &Snapshot<'s>, s: &Sample) -> Option<&'s Material> {
 /// A sample's colour at the key time on the RGB8 scale (unrounded).
 fn key_color(snap: &Snapshot<'_>, s: &Sample) -> V3 {
     match material(snap, s) {
-        Some(m) => snap.shade(m, s.albedo, s.normal, s.view, s.shadow),
+        Some(m) => snap.shade(m, s.albedo, s.normal, s.dir, s.shadow),
         None => snap.scene.sky.map(f64::from),
     }
 }
@@ -306,7 +324,7 @@ impl Sample {
         x: [0.0; 3],
         n_obj: [0.0; 3],
         normal: [0.0; 3],
-        view: [0.0; 3],
+        dir: [0.0; 3],
         albedo: [0.0; 3],
         shadow: 0.0,
     };
@@ -384,21 +402,29 @@ fn footprint(
         out.clear();
         out.resize(n * n, unset);
     }
+    // The middle sub-sample of an odd grid is the centre itself, the same at every `(a, b)`.
+    let mid = (n % 2 == 1).then_some(n * n / 2);
+    if let Some(k) = mid {
+        out[k] = SubSample {
+            s: *centre,
+            on_centre: centre.obj.is_some(),
+            key: key_color(snap, centre),
+        };
+    }
+    // The light terms of the centre's normal and shadow, computed at the first sub-sample that
+    // has both: the sub-samples on the centre's plane have its normal bit for bit (taken from it
+    // in `sample_ray_into`) and its shadow, so their terms are the centre's.
+    let mut centre_light = None;
     for b in 0..n {
         for a in 0..n {
             let k = b * n + a;
-            if n % 2 == 1 && a == n / 2 && b == n / 2 {
-                out[k] = SubSample {
-                    s: *centre,
-                    on_centre: centre.obj.is_some(),
-                    key: key_color(snap, centre),
-                };
+            if mid == Some(k) {
                 continue;
             }
             let d = grid.ray((i, j), a, b);
             let (earlier, rest) = out.split_at_mut(k);
             let p = &mut rest[0];
-            sample_ray_into(snap, rays, d, Needs::COLOUR, eye, &mut p.s);
+            sample_ray_into(snap, rays, d, Needs::COLOUR, eye, Some(centre), &mut p.s);
             p.on_centre = same_surface(centre, &p.s);
             if p.on_centre {
                 p.s.shadow = centre.shadow;
@@ -412,7 +438,17 @@ fn footprint(
                     None => snap.shadow(obj, s.x, s.normal),
                 };
             }
-            p.key = key_color(snap, &p.s);
+            p.key = match material(snap, &p.s) {
+                Some(m)
+                    if p.on_centre
+                        && p.s.normal.map(f64::to_bits) == centre.normal.map(f64::to_bits) =>
+                {
+                    let e = *centre_light
+                        .get_or_insert_with(|| snap.light_at(centre.normal, centre.shadow));
+                    snap.shade_lit(m, p.s.albedo, p.s.normal, p.s.dir, e)
+                }
+                _ => key_color(snap, &p.s),
+            };
         }
     }
 }

@@ -87,7 +87,7 @@ fn shadow_field(
     let at = |l: u32| {
         mean_rgb8(fp.iter().map(|p| {
             if p.on_centre {
-                key.shade(m, p.s.albedo, p.s.normal, p.s.view, l as f64 / 3.0)
+                key.shade(m, p.s.albedo, p.s.normal, p.s.dir, l as f64 / 3.0)
             } else {
                 p.key
             }
