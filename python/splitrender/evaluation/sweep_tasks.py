@@ -40,6 +40,7 @@ __all__ = [
     "score_video_streaming",
 ]
 
+
 def _trace(task: Task) -> Any:
     from splitrender.scene.builtin import load_trace
 
