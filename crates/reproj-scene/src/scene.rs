@@ -771,11 +771,13 @@ impl<'a> Snapshot<'a> {
         Some(dist)
     }
 
-    /// Whether object `i` may pass [`Snapshot::sphere_may_shadow`] at some point `x` with
-    /// `|x − x₀| ≤ reach` (as [`Snapshot::near_casters`] checks it): false only where it surely
-    /// fails at every such `x`. The same test at `x₀` with the sphere's radius grown to
-    /// `R = (r + reach)(1 + 10⁻⁹)`, the light's disc widened by [`NEAR_ANGLE`] (`δ`) and a slack
-    /// of `10⁻⁶` instead of `10⁻⁹`.
+    /// Whether object `i` may pass [`Snapshot::sphere_may_shadow`] and then the box test of
+    /// [`Snapshot::blocked_rays`] ([`Snapshot::cone_may_hit`]) at some point `x` with
+    /// `|x − x₀| ≤ reach` (as [`Snapshot::near_casters`] checks it): false only where they surely
+    /// fail at every such `x`. First the same sphere test at `x₀` with the sphere's radius grown
+    /// to `R = (r + reach)(1 + 10⁻⁹)`, the light's disc widened by [`NEAR_ANGLE`] (`δ`) and a
+    /// slack of `10⁻⁶` instead of `10⁻⁹`; then the same box test at `x₀` with the box grown
+    /// more (below).
     ///
     /// Why it keeps what the test at `x` keeps (`u` the unit roundoff, about `10⁻¹⁶`; `|x − x₀|`
     /// is at most `reach(1 + 4u)`, as its square was compared):
@@ -794,14 +796,25 @@ impl<'a> Snapshot<'a> {
     ///   with `b₀ = asin(R / |c − x₀|)`, which the computed test, off by under `4·10⁻⁸`, passes
     ///   with its slack of `10⁻⁶`.
     ///
+    /// The box test at `x` asks whether the ray `o + t·d` (`o` the object-space `x`, `d` the
+    /// light there, `t ≥ 0`) comes within `g = (|c − x| + r)·sin a / cos a` (per axis) of the
+    /// object's box. The transform is rigid, so `o₀` (the object-space `x₀`) is within
+    /// `|x − x₀| ≤ reach(1 + 4u)` of `o` on each axis, and `o₀ + t·d` within `g + reach(1 + 4u)`
+    /// of the box wherever `o + t·d` is within `g`; and `|c − x| ≤ |c − x₀| + reach(1 + 4u)`. So
+    /// the grown box here, `((|c − x₀| + reach + r)·sin a / cos a + reach)(1 + 10⁻⁶)` plus
+    /// `10⁻⁶` of the coordinates' size, holds that ray with a margin far above the rounding of
+    /// both slab tests (a slab's bound `(lo − o)/d` is rounded twice and `lo` once, a few `u` of
+    /// the coordinates in space) and of the two transforms. A ray parallel to a slab and outside
+    /// it at `x₀` (no interval) is outside by the margin at `x` as well.
+    ///
     /// A NaN anywhere keeps the object.
     #[inline]
     fn may_shadow_near(&self, i: usize, x0: V3, reach: f64) -> bool {
         let Some((sin_a, cos_a)) = self.cull.near_sin_cos else {
             return true;
         };
-        let (c, r) = self.spheres[i];
-        let r = (r + reach) * (1.0 + 1e-9);
+        let (c, r0) = self.spheres[i];
+        let r = (r0 + reach) * (1.0 + 1e-9);
         let v = sub(c, x0);
         let dist = length(v);
         if dist > r {
@@ -812,7 +825,18 @@ impl<'a> Snapshot<'a> {
                 return false;
             }
         }
-        true
+        // The box test, as said above (`sin a`, `cos a` of the light's own radius, as at `x`).
+        let (sa, ca) = self.light_sin_cos;
+        let (d, b) = &self.light_obj[i];
+        let o = self.inv[i].point(x0);
+        let size = [o, b.min, b.max]
+            .iter()
+            .flatten()
+            .fold(dist, |m, v| m.max(v.abs()))
+            + r
+            + reach;
+        let grow = ((dist + reach + r0) * sa / ca + reach) * (1.0 + 1e-6) + 1e-6 * size;
+        crate::mesh::grown_slabs(b.min, b.max, grow, o, *d).is_some_and(|(t0, t1)| !(t0 > t1))
     }
 
     /// Fraction of the light's disc hidden from the point `x` with unit normal `n` (facing the
@@ -1320,14 +1344,14 @@ mod tests {
     }
 
     /// A shared shadow-cull query keeps, for a point up to the cull's reach away, every caster
-    /// that the exact sphere test keeps there, at the edge of that test: each caster seen from
-    /// points just inside its reach across the light, with the query made a little less than the
-    /// reach farther out (so a growth of the radii cut below the reach fails) or as far in
-    /// another direction across or along the light, and from points on its sphere, with the
-    /// query as far out from the centre: the edges that the filter of the shared list
-    /// (`may_shadow_near`) must keep.
+    /// that the exact tests of `blocked_rays` keep there, at the edge of those tests (the sphere
+    /// test alone, and with the box test): each caster seen from points just inside its reach
+    /// across the light, with the query made a little less than the reach farther out (so a
+    /// growth of the radii cut below the reach fails) or as far in another direction across or
+    /// along the light, and from points on its sphere, with the query as far out from the
+    /// centre: the edges that the filter of the shared list (`may_shadow_near`) must keep.
     #[test]
-    fn near_casters_keep_every_object_the_sphere_test_keeps_within_reach() {
+    fn near_casters_keep_every_object_the_exact_tests_keep_within_reach() {
         let ext = |x: V3| x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
         // A query at `x0`, not served by the last one (which may lie within reach of it).
         let prime = |snap: &Snapshot<'_>, x0: V3| {
@@ -1342,24 +1366,39 @@ mod tests {
                 let reach = snap.cull.reach;
                 assert!(reach > 0.0, "{name}: no reach");
                 let (l, e1, e2) = (snap.light, snap.cull.e1, snap.cull.e2);
+                let (sin_a, cos_a) = snap.light_sin_cos;
                 for i in (0..scene.objects.len()).filter(|&i| scene.objects[i].casts_shadow) {
                     let (c, r) = snap.spheres[i];
-                    for depth in [0.5, 3.0, 12.0, 40.0] {
+                    // `blocked_rays`' exact tests at `x`: the sphere's, and (`both`) the box's.
+                    let keeps = |x: V3, both: bool| {
+                        snap.sphere_may_shadow(i, x).is_some_and(|dist| {
+                            !both || snap.cone_may_hit(i, x, (dist + r) * sin_a / cos_a)
+                        })
+                    };
+                    for (depth, both) in [0.5, 3.0, 12.0, 40.0]
+                        .into_iter()
+                        .flat_map(|depth| [(depth, false), (depth, true)])
+                    {
                         for e in [e1, e2, scale(e1, -1.0), scale(e2, -1.0)] {
                             let at = |u: f64| add(sub(c, scale(l, r + depth)), scale(e, u));
-                            // The largest offset across the light that the exact test keeps.
+                            // The largest offset across the light that the exact tests keep.
                             let (mut lo, mut hi) = (0.0, 4.0 * (r + depth));
-                            assert!(snap.sphere_may_shadow(i, at(lo)).is_some());
-                            assert!(snap.sphere_may_shadow(i, at(hi)).is_none());
+                            assert!(keeps(at(lo), both));
+                            assert!(!keeps(at(hi), both));
                             for _ in 0..60 {
                                 let mid = 0.5 * (lo + hi);
-                                if snap.sphere_may_shadow(i, at(mid)).is_some() {
+                                if keeps(at(mid), both) {
                                     lo = mid;
                                 } else {
                                     hi = mid;
                                 }
                             }
                             let x = at(lo);
+                            // At the sphere test's edge the box test may fail (the list need
+                            // not hold the caster there).
+                            if !keeps(x, true) {
+                                continue;
+                            }
                             let far = at(lo + reach * (1.0 - 1e-9));
                             let step = |w: V3| add(x, scale(w, reach * (1.0 - 1e-9)));
                             let sides =
@@ -1381,7 +1420,7 @@ mod tests {
                             add(c, scale(w, r)),
                             add(c, scale(w, r + reach * (1.0 - 1e-9))),
                         );
-                        if snap.sphere_may_shadow(i, x).is_none() {
+                        if !keeps(x, true) {
                             continue;
                         }
                         prime(&snap, x0);
