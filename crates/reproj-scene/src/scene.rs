@@ -404,7 +404,16 @@ struct ShadowCull {
     /// How far a shading point may lie from the point of a query with the radii grown by as
     /// much ([`Snapshot::near_casters`]); 0 where queries are not shared.
     reach: f64,
+    /// `(sin, cos)` of the light's angular radius plus [`NEAR_ANGLE`], for the exact test that
+    /// filters a shared query's list ([`Snapshot::may_shadow_near`]); `None` for a light so wide
+    /// (as `s`) that the list is not filtered.
+    near_sin_cos: Option<(f64, f64)>,
 }
+
+/// The angle (radians) by which [`Snapshot::may_shadow_near`] widens the light's disc: it covers
+/// the slack and the rounding of the exact test ([`Snapshot::sphere_may_shadow`]) at the point
+/// itself, see there.
+const NEAR_ANGLE: f64 = 1e-3;
 
 /// Per thread: the shadow casters that [`ShadowCull`] keeps for every point within the cull's
 /// `reach` of `x`, at the instant of the snapshot numbered `snap` ([`Snapshot::near_casters`]).
@@ -477,10 +486,12 @@ impl ShadowCull {
         for (sorted, _) in &mut windows {
             sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
         }
-        // The ordinary casters' size limit: most runs of neighbouring pixels' points share one
-        // query, and the grown radii add few casters to it (of the reaches tried, a quarter to
-        // four times this, the fewest instructions in the courtyard).
-        let reach = limits[0];
+        // Half the ordinary casters' size limit: most runs of neighbouring pixels' points share
+        // one query, and the grown radii and box add few casters to it. With the list filtered
+        // by the exact tests (`may_shadow_near`), of the reaches tried (a quarter to all of the
+        // limit) half gave the fewest instructions in the courtyard's ground truth; before the
+        // filter, the whole limit did (of a quarter to four times it).
+        let reach = limits[0] * 0.5;
         let reach = if reach.is_finite() && reach > 0.0 {
             reach
         } else {
@@ -496,6 +507,7 @@ impl ShadowCull {
             w_range: (w_lo, w_hi),
             size,
             reach,
+            near_sin_cos: (angular_radius < 0.5).then(|| (angular_radius + NEAR_ANGLE).sin_cos()),
         }
     }
 
@@ -761,6 +773,74 @@ impl<'a> Snapshot<'a> {
         Some(dist)
     }
 
+    /// Whether object `i` may pass [`Snapshot::sphere_may_shadow`] and then the box test of
+    /// [`Snapshot::blocked_rays`] ([`Snapshot::cone_may_hit`]) at some point `x` with
+    /// `|x − x₀| ≤ reach` (as [`Snapshot::near_casters`] checks it): false only where they surely
+    /// fail at every such `x`. First the same sphere test at `x₀` with the sphere's radius grown
+    /// to `R = (r + reach)(1 + 10⁻⁹)`, the light's disc widened by [`NEAR_ANGLE`] (`δ`) and a
+    /// slack of `10⁻⁶` instead of `10⁻⁹`; then the same box test at `x₀` with the box grown
+    /// more (below).
+    ///
+    /// Why it keeps what the test at `x` keeps (`u` the unit roundoff, about `10⁻¹⁶`; `|x − x₀|`
+    /// is at most `reach(1 + 4u)`, as its square was compared):
+    /// - Kept at `x` with the computed distance `≤ r`: truly `|c − x| ≤ r(1 + 4u)`, so
+    ///   `|c − x₀| ≤ (r + reach)(1 + 4u)`, computed at most `(r + reach)(1 + 8u) < R`: kept.
+    /// - Kept at `x` otherwise, `x` truly outside the sphere (else as above): with `γ` the angle
+    ///   between `l` and `c − x`, `b = asin(r / |c − x|)` and `a` the light's angular radius, the
+    ///   test passed `cos γ ≥ cos(a + b) − 10⁻⁹`, up to its rounding (`cos b = √(1 − sin² b)`
+    ///   can be off by `√(4u) < 3.2·10⁻⁸`): truly `cos γ ≥ cos(a + b) − η` with `η < 4·10⁻⁸`.
+    ///   As `cos θ − cos(θ + δ) ≥ 2 sin²(δ/2) = 5·10⁻⁷ > η` for `0 ≤ θ ≤ π − δ` (here
+    ///   `θ = a + b < 0.5 + π/2`), `γ ≤ a + δ + b`: the caps of radius `a + δ` around `l` and `b`
+    ///   around `c − x` overlap, and a direction `ŝ` in both leaves `x` into the sphere
+    ///   (`t ≥ 0`). The parallel ray from `x₀` passes within `|x − x₀|` of that point, so it
+    ///   meets the sphere `(c, r + reach(1 + 4u))`, inside `(c, R)`: either `x₀` lies within
+    ///   that sphere (computed distance `< R`, kept) or `γ₀ ≤ a + δ + b₀` holds exactly at `x₀`
+    ///   with `b₀ = asin(R / |c − x₀|)`, which the computed test, off by under `4·10⁻⁸`, passes
+    ///   with its slack of `10⁻⁶`.
+    ///
+    /// The box test at `x` asks whether the ray `o + t·d` (`o` the object-space `x`, `d` the
+    /// light there, `t ≥ 0`) comes within `g = (|c − x| + r)·sin a / cos a` (per axis) of the
+    /// object's box. The transform is rigid, so `o₀` (the object-space `x₀`) is within
+    /// `|x − x₀| ≤ reach(1 + 4u)` of `o` on each axis, and `o₀ + t·d` within `g + reach(1 + 4u)`
+    /// of the box wherever `o + t·d` is within `g`; and `|c − x| ≤ |c − x₀| + reach(1 + 4u)`. So
+    /// the grown box here, `((|c − x₀| + reach + r)·sin a / cos a + reach)(1 + 10⁻⁶)` plus
+    /// `10⁻⁶` of the coordinates' size, holds that ray with a margin far above the rounding of
+    /// both slab tests (a slab's bound `(lo − o)/d` is rounded twice and `lo` once, a few `u` of
+    /// the coordinates in space) and of the two transforms. A ray parallel to a slab and outside
+    /// it at `x₀` (no interval) is outside by the margin at `x` as well.
+    ///
+    /// A NaN anywhere keeps the object.
+    #[inline]
+    fn may_shadow_near(&self, i: usize, x0: V3, reach: f64) -> bool {
+        let Some((sin_a, cos_a)) = self.cull.near_sin_cos else {
+            return true;
+        };
+        let (c, r0) = self.spheres[i];
+        let r = (r0 + reach) * (1.0 + 1e-9);
+        let v = sub(c, x0);
+        let dist = length(v);
+        if dist > r {
+            let cos_gamma = dot(v, self.light) / dist;
+            let sin_b = r / dist;
+            let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
+            if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-6 {
+                return false;
+            }
+        }
+        // The box test, as said above (`sin a`, `cos a` of the light's own radius, as at `x`).
+        let (sa, ca) = self.light_sin_cos;
+        let (d, b) = &self.light_obj[i];
+        let o = self.inv[i].point(x0);
+        let size = [o, b.min, b.max]
+            .iter()
+            .flatten()
+            .fold(dist, |m, v| m.max(v.abs()))
+            + r
+            + reach;
+        let grow = ((dist + reach + r0) * sa / ca + reach) * (1.0 + 1e-6) + 1e-6 * size;
+        crate::mesh::grown_slabs(b.min, b.max, grow, o, *d).is_some_and(|(t0, t1)| !(t0 > t1))
+    }
+
     /// Fraction of the light's disc hidden from the point `x` with unit normal `n` (facing the
     /// side it is seen from) on object `obj`: 0 lit … 1 fully shadowed.
     ///
@@ -918,7 +998,8 @@ impl<'a> Snapshot<'a> {
 
     /// Calls `visit` on every shadow caster that [`ShadowCull::visit`] keeps at `x` (`ext` as
     /// there), and on a few more, in the order of that visit: the casters kept for the grown
-    /// radii at a point within the cull's `reach` of `x`, the last such query of this thread.
+    /// radii at a point within the cull's `reach` of `x`, the last such query of this thread,
+    /// and among them those that [`Snapshot::may_shadow_near`] keeps there.
     ///
     /// A ray `x + t·ŝ` (`t ≥ 0`) that meets a sphere `(c, r)` runs parallel to `x₀ + t·ŝ`, at
     /// `|x − x₀|` from it, which meets `(c, r + |x − x₀|)`. So a sphere that the exact test
@@ -927,7 +1008,8 @@ impl<'a> Snapshot<'a> {
     /// `ext + reach`): the list holds every caster the cull would keep at `x`. The extra ones
     /// are rejected by the exact tests that follow (`blocked_rays`), and the windows and the
     /// always-tested casters come in the same fixed order, so the candidates are those of a
-    /// query at `x`, in the same order.
+    /// query at `x`, in the same order. The filter keeps every caster that the exact sphere
+    /// test keeps at any such `x` (see [`Snapshot::may_shadow_near`]), so it changes neither.
     fn near_casters(&self, x: V3, ext: f64, mut visit: impl FnMut(usize)) {
         let (l, reach) = (self.light, self.cull.reach);
         if reach == 0.0 || !x.iter().all(|c| c.is_finite()) {
@@ -940,7 +1022,11 @@ impl<'a> Snapshot<'a> {
                 let list = &mut near.list;
                 list.clear();
                 self.cull
-                    .visit(x, (l, ext + reach, reach), &self.spheres, |i| list.push(i));
+                    .visit(x, (l, ext + reach, reach), &self.spheres, |i| {
+                        if self.may_shadow_near(i, x, reach) {
+                            list.push(i);
+                        }
+                    });
                 near.snap = self.id;
                 near.x = x;
             }
@@ -1260,11 +1346,20 @@ mod tests {
     }
 
     /// A shared shadow-cull query keeps, for a point up to the cull's reach away, every caster
-    /// that the exact sphere test keeps there, at the edge of that test: each caster seen from
-    /// points just inside its reach across the light, with the query made a little less than the
-    /// reach farther out (so a growth of the radii cut below the reach fails).
+    /// that the exact tests of `blocked_rays` keep there, at the edge of those tests (the sphere
+    /// test alone, and with the box test): each caster seen from points just inside its reach
+    /// across the light, with the query made a little less than the reach farther out (so a
+    /// growth of the radii cut below the reach fails) or as far in another direction across or
+    /// along the light, and from points on its sphere, with the query as far out from the
+    /// centre: the edges that the filter of the shared list (`may_shadow_near`) must keep.
     #[test]
-    fn near_casters_keep_every_object_the_sphere_test_keeps_within_reach() {
+    fn near_casters_keep_every_object_the_exact_tests_keep_within_reach() {
+        let ext = |x: V3| x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+        // A query at `x0`, not served by the last one (which may lie within reach of it).
+        let prime = |snap: &Snapshot<'_>, x0: V3| {
+            NEAR_CASTERS.with(|near| near.borrow_mut().snap = u64::MAX);
+            snap.near_casters(x0, ext(x0), |_| {});
+        };
         let mut edges = 0usize;
         for name in SCENE_NAMES {
             let scene = builtin(name, Variant::Dynamic).unwrap();
@@ -1273,32 +1368,69 @@ mod tests {
                 let reach = snap.cull.reach;
                 assert!(reach > 0.0, "{name}: no reach");
                 let (l, e1, e2) = (snap.light, snap.cull.e1, snap.cull.e2);
+                let (sin_a, cos_a) = snap.light_sin_cos;
                 for i in (0..scene.objects.len()).filter(|&i| scene.objects[i].casts_shadow) {
                     let (c, r) = snap.spheres[i];
-                    for depth in [0.5, 3.0, 12.0, 40.0] {
+                    // `blocked_rays`' exact tests at `x`: the sphere's, and (`both`) the box's.
+                    let keeps = |x: V3, both: bool| {
+                        snap.sphere_may_shadow(i, x).is_some_and(|dist| {
+                            !both || snap.cone_may_hit(i, x, (dist + r) * sin_a / cos_a)
+                        })
+                    };
+                    for (depth, both) in [0.5, 3.0, 12.0, 40.0]
+                        .into_iter()
+                        .flat_map(|depth| [(depth, false), (depth, true)])
+                    {
                         for e in [e1, e2, scale(e1, -1.0), scale(e2, -1.0)] {
                             let at = |u: f64| add(sub(c, scale(l, r + depth)), scale(e, u));
-                            // The largest offset across the light that the exact test keeps.
+                            // The largest offset across the light that the exact tests keep.
                             let (mut lo, mut hi) = (0.0, 4.0 * (r + depth));
-                            assert!(snap.sphere_may_shadow(i, at(lo)).is_some());
-                            assert!(snap.sphere_may_shadow(i, at(hi)).is_none());
+                            assert!(keeps(at(lo), both));
+                            assert!(!keeps(at(hi), both));
                             for _ in 0..60 {
                                 let mid = 0.5 * (lo + hi);
-                                if snap.sphere_may_shadow(i, at(mid)).is_some() {
+                                if keeps(at(mid), both) {
                                     lo = mid;
                                 } else {
                                     hi = mid;
                                 }
                             }
-                            let (x, x0) = (at(lo), at(lo + reach * (1.0 - 1e-9)));
-                            let ext = |x: V3| x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
-                            snap.near_casters(x0, ext(x0), |_| {});
-                            let mut seen = false;
-                            snap.near_casters(x, ext(x), |j| seen |= j == i);
-                            NEAR_CASTERS.with(|near| assert_eq!(near.borrow().x, x0));
-                            assert!(seen, "{name} t={t} object {i} depth {depth}: dropped");
-                            edges += 1;
+                            let x = at(lo);
+                            // At the sphere test's edge the box test may fail (the list need
+                            // not hold the caster there).
+                            if !keeps(x, true) {
+                                continue;
+                            }
+                            let far = at(lo + reach * (1.0 - 1e-9));
+                            let step = |w: V3| add(x, scale(w, reach * (1.0 - 1e-9)));
+                            let sides =
+                                [e1, e2, l, scale(e1, -1.0), scale(e2, -1.0), scale(l, -1.0)];
+                            for x0 in std::iter::once(far).chain(sides.map(step)) {
+                                prime(&snap, x0);
+                                let mut seen = false;
+                                snap.near_casters(x, ext(x), |j| seen |= j == i);
+                                NEAR_CASTERS.with(|near| assert_eq!(near.borrow().x, x0));
+                                assert!(seen, "{name} t={t} object {i} depth {depth}: dropped");
+                                edges += 1;
+                            }
                         }
+                    }
+                    // Points on the sphere (kept by its distance, or by the cone where that is
+                    // rounded above `r`), the query a reach farther out from the centre.
+                    for w in [e1, e2, l, scale(e1, -1.0), scale(e2, -1.0), scale(l, -1.0)] {
+                        let (x, x0) = (
+                            add(c, scale(w, r)),
+                            add(c, scale(w, r + reach * (1.0 - 1e-9))),
+                        );
+                        if !keeps(x, true) {
+                            continue;
+                        }
+                        prime(&snap, x0);
+                        let mut seen = false;
+                        snap.near_casters(x, ext(x), |j| seen |= j == i);
+                        NEAR_CASTERS.with(|near| assert_eq!(near.borrow().x, x0));
+                        assert!(seen, "{name} t={t} object {i} on its sphere: dropped");
+                        edges += 1;
                     }
                 }
             }

@@ -79,6 +79,19 @@ struct Target<'s> {
     unrotated: bool,
 }
 
+impl Target<'_> {
+    /// The primary ray's direction `d` in the object's space; `plain`: no component of `d` is
+    /// zero ([`Snapshot::trace_eye`]).
+    #[inline]
+    fn direction(&self, d: V3, plain: bool) -> V3 {
+        if plain && self.unrotated {
+            d
+        } else {
+            self.inv.vector(d)
+        }
+    }
+}
+
 impl<'s> EyeTiles<'s> {
     /// The tiles of `camera` (whose rays are `rays`) at the instant `snap`; `None` where the
     /// camera's geometry is not finite (the BVH then serves every ray).
@@ -279,8 +292,10 @@ impl Snapshot<'_> {
         if !(dn > 0.0 && dn.is_finite() && tmin >= 0.0) {
             return self.trace_dir(o, d, tmin, tmax);
         }
-        // The winner so far: its object, `d` in its space and what its distance came with.
-        let mut best: Option<(usize, V3, Partial)> = None;
+        // The winner so far: its object and what its distance came with (`d` in its space is
+        // formed again for the winner alone: the same expression on the same values, and fewer
+        // values to keep at each closer hit).
+        let mut best: Option<(usize, Partial)> = None;
         let mut limit = tmax;
         // A shape is tested up to `up`: before the first hit `tmax`, then up to and including
         // the nearest distance so far (a positive finite number), to see ties.
@@ -304,17 +319,13 @@ impl Snapshot<'_> {
             // (A per-ray test against the object's bounding sphere here, which the lists by the
             // tile's cone alone needed, now skips too few shape tests to pay for itself.)
             let target = &eye.targets[obj];
-            let ld = if plain && target.unrotated {
-                d
-            } else {
-                target.inv.vector(d)
-            };
+            let ld = target.direction(d, plain);
             if let Some(p) = target.shape.intersect_t(target.origin, ld, tmin, up) {
                 if p.t() < limit {
                     limit = p.t();
                     stop = limit * dn * (1.0 + 1e-9);
                     up = next_up(limit);
-                    best = Some((obj, ld, p));
+                    best = Some((obj, p));
                 } else {
                     tie = p.t();
                 }
@@ -323,8 +334,9 @@ impl Snapshot<'_> {
         if tie == limit {
             return self.trace_dir(o, d, tmin, tmax);
         }
-        let (obj, ld, p) = best?;
-        let lo = eye.targets[obj].origin;
+        let (obj, p) = best?;
+        let target = &eye.targets[obj];
+        let (lo, ld) = (target.origin, target.direction(d, plain));
         Some((self.finish_hit((obj, lo, ld, p)), ld))
     }
 
