@@ -758,19 +758,38 @@ impl<'a> Snapshot<'a> {
     /// cannot shadow `x`).
     #[inline]
     fn sphere_may_shadow(&self, i: usize, x: V3) -> Option<f64> {
-        let (sin_a, cos_a) = self.light_sin_cos;
         let (c, r) = self.spheres[i];
         let v = sub(c, x);
         let dist = length(v);
+        self.discs_may_overlap(v, dist, r, self.light_sin_cos, 1e-9)
+            .then_some(dist)
+    }
+
+    /// Whether a sphere of radius `r` whose centre lies at `v` from a point (`dist = |v|`) may
+    /// overlap the light's disc seen from there: its angular disc (radius `b = asin(r / dist)`
+    /// around `v`) and the light's (`sin_cos` of its angular radius `a`, around the light
+    /// direction) meet when the angle `γ` between their centres is at most `a + b`, tested as
+    /// `cos γ ≥ cos(a + b) − slack`; true where the point is inside the sphere (or a value is
+    /// NaN). The exact test ([`Snapshot::sphere_may_shadow`]) and the shared lists' filter
+    /// ([`Snapshot::may_shadow_near`], with its margins) are this one test.
+    #[inline(always)]
+    fn discs_may_overlap(
+        &self,
+        v: V3,
+        dist: f64,
+        r: f64,
+        (sin_a, cos_a): (f64, f64),
+        slack: f64,
+    ) -> bool {
         if dist > r {
             let cos_gamma = dot(v, self.light) / dist;
             let sin_b = r / dist;
             let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
-            if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-9 {
-                return None;
+            if cos_gamma < cos_a * cos_b - sin_a * sin_b - slack {
+                return false;
             }
         }
-        Some(dist)
+        true
     }
 
     /// Whether object `i` may pass [`Snapshot::sphere_may_shadow`] and then the box test of
@@ -819,13 +838,8 @@ impl<'a> Snapshot<'a> {
         let r = (r0 + reach) * (1.0 + 1e-9);
         let v = sub(c, x0);
         let dist = length(v);
-        if dist > r {
-            let cos_gamma = dot(v, self.light) / dist;
-            let sin_b = r / dist;
-            let cos_b = (1.0 - sin_b * sin_b).max(0.0).sqrt();
-            if cos_gamma < cos_a * cos_b - sin_a * sin_b - 1e-6 {
-                return false;
-            }
+        if !self.discs_may_overlap(v, dist, r, (sin_a, cos_a), 1e-6) {
+            return false;
         }
         // The box test, as said above (`sin a`, `cos a` of the light's own radius, as at `x`).
         let (sa, ca) = self.light_sin_cos;
