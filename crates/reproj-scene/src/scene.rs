@@ -1369,10 +1369,15 @@ mod tests {
     #[test]
     fn near_casters_keep_every_object_the_exact_tests_keep_within_reach() {
         let ext = |x: V3| x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
-        // A query at `x0`, not served by the last one (which may lie within reach of it).
-        let prime = |snap: &Snapshot<'_>, x0: V3| {
+        // Whether a query made at `x0` (not served by the last one, which may lie within reach
+        // of it) serves `x` and lists caster `i` there.
+        let listed = |snap: &Snapshot<'_>, i: usize, x0: V3, x: V3| {
             NEAR_CASTERS.with(|near| near.borrow_mut().snap = u64::MAX);
             snap.near_casters(x0, ext(x0), |_| {});
+            let mut seen = false;
+            snap.near_casters(x, ext(x), |j| seen |= j == i);
+            NEAR_CASTERS.with(|near| assert_eq!(near.borrow().x, x0));
+            seen
         };
         let mut edges = 0usize;
         for name in SCENE_NAMES {
@@ -1420,10 +1425,7 @@ mod tests {
                             let sides =
                                 [e1, e2, l, scale(e1, -1.0), scale(e2, -1.0), scale(l, -1.0)];
                             for x0 in std::iter::once(far).chain(sides.map(step)) {
-                                prime(&snap, x0);
-                                let mut seen = false;
-                                snap.near_casters(x, ext(x), |j| seen |= j == i);
-                                NEAR_CASTERS.with(|near| assert_eq!(near.borrow().x, x0));
+                                let seen = listed(&snap, i, x0, x);
                                 assert!(seen, "{name} t={t} object {i} depth {depth}: dropped");
                                 edges += 1;
                             }
@@ -1439,10 +1441,7 @@ mod tests {
                         if !keeps(x, true) {
                             continue;
                         }
-                        prime(&snap, x0);
-                        let mut seen = false;
-                        snap.near_casters(x, ext(x), |j| seen |= j == i);
-                        NEAR_CASTERS.with(|near| assert_eq!(near.borrow().x, x0));
+                        let seen = listed(&snap, i, x0, x);
                         assert!(seen, "{name} t={t} object {i} on its sphere: dropped");
                         edges += 1;
                     }
