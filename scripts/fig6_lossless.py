@@ -61,7 +61,8 @@ def main() -> None:
                     # (getattr: the same script runs on code from before the field existed)
                     left_out.append(getattr(enc.last, "shadows_left_out", ()))
                     decoded.append(dec.decode(packets[-1]))
-            by = stream_stats(packets, rec.fs).mbps_by_buffer()
+            stats = stream_stats(packets, rec.fs)
+            by = stats.mbps_by_buffer()
             [scored] = play_and_score_eyes(
                 decoded, [cams], [truth], "ours", NetworkModel(client_fps=rec.fc), rec.fc,
                 ["ssim", "psnr", "vmaf"], frame_sizes=[len(p) for p in packets],
@@ -70,7 +71,7 @@ def main() -> None:
             score = scored.row()
             row = {
                 "scene": scene, "paper_mbps": paper, "target_mbps": cfg.bitrate_mbps,
-                "mbps": stream_stats(packets, rec.fs).mbps_total(),
+                "mbps": stats.mbps_total(),
                 "lossless_mbps": sum(v for k, v in by.items() if not k.startswith("picture.")),
                 "colour_mbps": by.get("picture.color", 0.0),
                 "left_out": sorted({c for lo in left_out for c in lo}),

@@ -54,12 +54,7 @@ fn main() {
     let iters: usize = std::env::var("ITERS").map_or(6, |s| s.parse().unwrap());
     let tiers: Vec<ours::Simd> = std::env::var("SIMD").map_or(Vec::new(), |s| {
         s.split(',')
-            .map(|t| match t {
-                "baseline" => ours::Simd::Baseline,
-                "avx2" => ours::Simd::Avx2,
-                "avx512" => ours::Simd::Avx512,
-                _ => panic!("SIMD: {t} is not baseline, avx2 or avx512"),
-            })
+            .map(|t| t.parse().unwrap_or_else(|e| panic!("SIMD: {e}")))
             .collect()
     });
     if let Some(&t) = tiers.first() {

@@ -394,6 +394,13 @@ def _put(atlas: npt.NDArray[Any], t: _Tile, a: npt.NDArray[Any]) -> None:
         atlas[y1:y2, t.x : x2] = atlas[y1 - 1 : y1, t.x : x2]
 
 
+def _with_header(payload_bytes: int, entries: int) -> int:
+    """``payload_bytes`` plus the rate control's estimate of a packet's header with ``entries``
+    buffer entries (stream format version 4: about 10 bytes per entry and 250 for the
+    cameras)."""
+    return payload_bytes + 10 * entries + 250
+
+
 def _clear(atlas: npt.NDArray[Any], t: _Tile) -> None:
     """Zeros a tile's whole slot (what an unwritten tile holds)."""
     atlas[t.y : t.y + _aligned(t.h), t.x : t.x + _aligned(t.w)] = 0
@@ -989,9 +996,8 @@ class StreamEncoder(_WorkerThreads):
                 # while a shortfall is corrected at the next update.
                 self._gain = min(self._gain, 1.0)
         elif not self._streams:
-            # First frame: this frame's lossless bytes plus an estimate of the packet header
-            # (stream format version 4: about 10 bytes per buffer and 250 for the cameras).
-            self._lossless_bps = 8 * (lossless + 10 * len(jobs) + 250) * cfg.fps
+            # First frame: this frame's lossless bytes and its packet header.
+            self._lossless_bps = 8 * _with_header(lossless, len(jobs)) * cfg.fps
         budget = max(total - self._lossless_bps, 0.05 * total) * self._gain
         shares = {k: _group_share(cfg, k, motion) for k in lossy}
         norm = sum(shares.values()) or 1.0
@@ -1040,11 +1046,10 @@ class StreamEncoder(_WorkerThreads):
         apart, ``_update_rates``.)"""
         cfg = self.config
         assert self._layout is not None
-        n_buffers = sum(len(cj) for cj in per_camera)
-        # The packet header as the rate control estimates it (about 10 bytes per buffer, 250
-        # for the cameras), with the pictures' entries.
-        cost = 10 * (n_buffers + len(PICTURE_KINDS)) + 250 + sum(
-            len(j.payload) for cj in per_camera for j in cj if isinstance(j.payload, bytes)
+        # The lossless payloads and the packet header, the pictures' entries included.
+        cost = _with_header(
+            sum(len(j.payload) for cj in per_camera for j in cj if isinstance(j.payload, bytes)),
+            sum(len(cj) for cj in per_camera) + len(PICTURE_KINDS),
         )
         cap = cfg.lossless_share * cfg.bitrate_mbps * 1e6 / (8 * cfg.fps)
         shadow_tiles, _, _ = _layout(_PIC_SHADOW, self._layout)

@@ -19,6 +19,20 @@ pub enum Simd {
     Avx512 = 2,
 }
 
+impl std::str::FromStr for Simd {
+    type Err = String;
+
+    /// `baseline`, `avx2` or `avx512` (as `REPROJ_SIMD` names them).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "baseline" => Ok(Simd::Baseline),
+            "avx2" => Ok(Simd::Avx2),
+            "avx512" => Ok(Simd::Avx512),
+            _ => Err(format!("{s:?} is not baseline, avx2 or avx512")),
+        }
+    }
+}
+
 /// The highest tier [`simd_tier`] may return (a [`Simd`] as `u8`), or [`UNSET`].
 static LIMIT: AtomicU8 = AtomicU8::new(UNSET);
 
@@ -63,11 +77,10 @@ pub fn simd_tier() -> Simd {
 /// The first [`simd_tier`]: [`LIMIT`] from `REPROJ_SIMD` (any other value caps nothing).
 #[cold]
 fn limit_from_env() -> u8 {
-    let limit = match std::env::var("REPROJ_SIMD").as_deref() {
-        Ok("baseline") => Simd::Baseline,
-        Ok("avx2") => Simd::Avx2,
-        _ => Simd::Avx512,
-    } as u8;
+    let limit = std::env::var("REPROJ_SIMD")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(Simd::Avx512) as u8;
     // A set_simd_limit that came first wins over the environment.
     match LIMIT.compare_exchange(UNSET, limit, Ordering::Relaxed, Ordering::Relaxed) {
         Ok(_) => limit,
