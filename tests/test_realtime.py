@@ -155,6 +155,44 @@ def test_display_extrapolates_while_the_new_pair_is_prepared(scene, frames, monk
     assert all(f.prepared for f in later)
 
 
+def test_a_frame_interpolates_once_its_pair_is_prepared_before_its_extrapolation_pair(
+    scene, frames, monkeypatch
+):
+    # The pair (0, 1) is what frame 1 is first needed for; (None, 1) only if frame 2 is late.
+    release = threading.Event()
+    entered = threading.Event()
+    real = rt.prepare_pair
+    order = []
+
+    def slow_prepare(older, newer, *a, **kw):  # type: ignore[no-untyped-def]
+        order.append((None if older is None else older.index, newer.index))
+        if newer.index == 1 and older is None:
+            entered.set()
+            assert release.wait(10.0)
+        return real(older, newer, *a, **kw)
+
+    monkeypatch.setattr(rt, "prepare_pair", slow_prepare)
+    clock = FakeClock()
+    with loop(clock) as c:
+        c.submit(frames[0])
+        c.wait()
+        c.submit(frames[1])
+        assert entered.wait(10.0)
+        # Frame 1 is usable with its interpolation pair while (None, 1) is being prepared.
+        during = c.run(pose_of(scene), 0.05).frames
+        assert {(f.mode, f.older, f.newer) for f in during} == {("interpolate", 0, 1)}
+        assert all(f.prepared for f in during)
+        assert not c.client.was_prepared(None, 1)
+        release.set()
+        c.wait()
+        assert c.client.was_prepared(None, 1)
+        # Past frame 1's time with frame 2 not there: extrapolated from the prepared pair.
+        after = c.run(pose_of(scene), 0.02, start_time=0.11).frames
+    assert {(f.mode, f.newer) for f in after} == {("extrapolate", 1)}
+    assert all(f.prepared for f in after)
+    assert order == [(None, 0), (0, 1), (None, 1)]
+
+
 def test_prepared_pairs_give_the_same_images_and_no_pair_work_on_the_display(scene, frames):
     plain = Client("ours")
     clock = FakeClock()
@@ -268,6 +306,7 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "frame_ms_max",
         "decode_ms_per_server_frame",
         "prepare_ms_per_server_frame",
+        "usable_ms_per_server_frame",
         "cpu_utilisation",
         "modes",
     ):

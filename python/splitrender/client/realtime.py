@@ -8,9 +8,11 @@ Three things happen at once, and only the last is on the display path:
 2. **Prepare.** On the same worker, right after decoding frame ``k``, the pair-level work of the
    method (Algorithm 2's correspondences, the auxiliary cameras' visibility in main:
    :func:`splitrender.prepare_pair`) is done for the pairs the frame opens: ``(k − 1, k)`` to
-   interpolate and ``(None, k)`` to extrapolate from it. Only then does the frame become usable:
-   until it is, the display extrapolates from the frames it has (that is the method's answer to
-   a late frame, seeds/000 §3.5), so no display frame waits for a decoder or pays the pair work.
+   interpolate, then ``(None, k)`` to extrapolate from it. The frame becomes usable as soon as
+   its first pair is prepared (the second is needed only if frame ``k + 1`` is late, a server
+   period later): until then the display extrapolates from the frames it has (that is the
+   method's answer to a late frame, seeds/000 §3.5), so no display frame waits for a decoder or
+   pays the pair work.
 3. **Display.** :meth:`RealtimeClient.run` is driven by a monotonic clock at ``f_c``: display
    frame ``n`` starts at refresh ``n`` (clock ``t0 + n / f_c``) with the pose of its display
    time, is rendered by :meth:`Client.render` from the usable frames, and is due at the next
@@ -145,6 +147,7 @@ class RealtimeReport:
     dropped: int = 0
     decode_ms: list[float] = field(default_factory=list)
     prepare_ms: list[float] = field(default_factory=list)
+    usable_ms: list[float] = field(default_factory=list)
     server_frames_received: int = 0
     server_frames_late: int = 0
     wall_s: float = 0.0
@@ -158,7 +161,9 @@ class RealtimeReport:
     def summary(self) -> dict[str, Any]:
         """One flat object: ``frames``, ``deadline_misses`` (count and ``_pct``), ``dropped``,
         ``frame_ms_p50/p95/p99/max`` (render time), ``modes`` (count per mode), ``decode_ms_per_
-        server_frame`` and ``prepare_ms_per_server_frame`` (medians), the server frames received
+        server_frame``, ``prepare_ms_per_server_frame`` (both pairs) and ``usable_ms_per_server_
+        frame`` (from the worker taking the packet until the frame is usable: its decode and
+        first pair; all medians), the server frames received
         and late, ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per
         second of the run) and ``cpu_utilisation`` (process CPU seconds per wall second and core,
         0–1). Times that have no sample are ``None``."""
@@ -180,6 +185,7 @@ class RealtimeReport:
             "prepared_pct": 100.0 * sum(f.prepared for f in self.frames) / n if n else 0.0,
             "decode_ms_per_server_frame": _median(self.decode_ms),
             "prepare_ms_per_server_frame": _median(self.prepare_ms),
+            "usable_ms_per_server_frame": _median(self.usable_ms),
             "server_frames_received": self.server_frames_received,
             "server_frames_late": self.server_frames_late,
             "server_age_ms_p50": _median(ages),
@@ -358,35 +364,24 @@ class RealtimeClient:
             # so it is handed over at once and the worker's time goes to catching up; a display
             # frame that still renders its pair does the pair work itself.
             behind = self._queued > 0
-        prepared: list[tuple[int | None, _native.BidirHistory]] = []
+        pairs: list[ServerFrame | None] = []
         if self.method in _PREPARED_METHODS and not behind:
-            pairs: list[ServerFrame | None] = [None]
-            if older is not None and self._interpolates:
-                pairs.append(older)
-            for o in pairs:
-                history = spare.pop() if spare else _native.BidirHistory()
-                history.reset()
-                prepare_pair(
-                    o,
-                    frame,
-                    camera,
-                    self.method,
-                    options=self.client.options,
-                    history=history,
-                    threads=self.prepare_threads,
-                )
-                prepared.append((None if o is None else o.index, history))
+            # The pair that makes the frame usable first: to interpolate towards it when the
+            # method does and the older frame is held, else to extrapolate from it. The
+            # extrapolation pair is needed only when the next frame is late, a server period
+            # from now, so it is prepared after the frame is handed over.
+            pairs = [older, None] if older is not None and self._interpolates else [None]
+        first = self._prepare(pairs[:1], frame, camera, spare)
         t2 = time.perf_counter()
         with self._lock:
             if not isinstance(packet, ServerFrame):
                 self._report.decode_ms.append((t1 - t0) * 1e3)
-            if prepared:
-                self._report.prepare_ms.append((t2 - t1) * 1e3)
             if not self.client.receive(frame):
                 return None
-            for older_index, history in prepared:
+            for older_index, history in first:
                 self.client.adopt_prepared(older_index, frame.index, history)
             self._report.server_frames_received += 1
+            self._report.usable_ms.append((t2 - t0) * 1e3)
             self._ready_at[frame.index] = self.clock.now()
             self._frame_time[frame.index] = frame.time
             self._pose_time[frame.index] = (
@@ -395,7 +390,43 @@ class RealtimeClient:
                 else pose_time
             )
             self._period[frame.index] = frame.span / self.client.server_fps
+            rest = pairs[1:] if self._queued == 0 else []
+        later = self._prepare(rest, frame, camera, spare)
+        t3 = time.perf_counter()
+        with self._lock:
+            # Adopted only while the frame is held (else the history would wait in the
+            # client until its next render retires it).
+            if self.client.held_frame(frame.index) is not None:
+                for older_index, history in later:
+                    self.client.adopt_prepared(older_index, frame.index, history)
+            if first or later:
+                self._report.prepare_ms.append((t2 - t1 + t3 - t2) * 1e3)
         return frame.index
+
+    def _prepare(
+        self,
+        olders: list[ServerFrame | None],
+        frame: ServerFrame,
+        camera: Camera,
+        spare: list[_native.BidirHistory],
+    ) -> list[tuple[int | None, _native.BidirHistory]]:
+        """The pair state of ``(older, frame)`` for each of ``olders`` (``None``: to extrapolate
+        from ``frame``), in histories taken from ``spare`` or new ones."""
+        out: list[tuple[int | None, _native.BidirHistory]] = []
+        for o in olders:
+            history = spare.pop() if spare else _native.BidirHistory()
+            history.reset()
+            prepare_pair(
+                o,
+                frame,
+                camera,
+                self.method,
+                options=self.client.options,
+                history=history,
+                threads=self.prepare_threads,
+            )
+            out.append((None if o is None else o.index, history))
+        return out
 
     # -- display ---------------------------------------------------------------------------
 

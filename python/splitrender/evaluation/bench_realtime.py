@@ -235,7 +235,8 @@ def format_realtime(b: RealtimeBench) -> str:
             f"  modes: {modes}; pairs prepared off the display path: "
             f"{s['prepared_pct']:.1f} % of frames",
             f"  decode {ms('decode_ms_per_server_frame')} and pair preparation "
-            f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread, median); "
+            f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread, median; "
+            f"usable after {ms('usable_ms_per_server_frame')}); "
             f"server frames {s['server_frames_received']} received, "
             f"{s['server_frames_late']} late",
             f"  newest server frame's age at display: p50 {ms('server_age_ms_p50')}, "
