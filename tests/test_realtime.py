@@ -193,6 +193,31 @@ def test_a_frame_interpolates_once_its_pair_is_prepared_before_its_extrapolation
     assert order == [(None, 0), (0, 1), (None, 1)]
 
 
+def test_exclusive_run_waits_for_the_worker_off_the_clock(scene, frames, monkeypatch):
+    # Each preparation "takes" 30 ms of the fake clock, on the worker's thread.
+    clock = FakeClock()
+    real = rt.prepare_pair
+
+    def slow_prepare(*a, **kw):  # type: ignore[no-untyped-def]
+        clock.advance(0.03)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(rt, "prepare_pair", slow_prepare)
+    feed = [(k / FS - 1 / FS, frames[k]) for k in range(3)]
+    with loop(clock) as c:
+        report = c.run(pose_of(scene), 0.2, feed=feed, exclusive=True)
+    f = report.frames
+    assert len(f) == 24 and report.deadline_misses == 0 and report.dropped == 0
+    # Frames 0 and 1 arrived before refresh 0, frame 2 at refresh 12 (display time 0.1).
+    assert {(x.mode, x.older, x.newer) for x in f[:12]} == {("interpolate", 0, 1)}
+    assert {(x.mode, x.older, x.newer) for x in f[12:]} == {("interpolate", 1, 2)}
+    assert all(x.prepared for x in f)
+    # The refreshes after frame 2's arrival moved on by its two preparations (60 ms).
+    assert f[12].start - f[11].start == pytest.approx(PERIOD + 0.06)
+    assert f[13].start - f[12].start == pytest.approx(PERIOD)
+    assert report.server_frames_late == 0
+
+
 def test_prepared_pairs_give_the_same_images_and_no_pair_work_on_the_display(scene, frames):
     plain = Client("ours")
     clock = FakeClock()
@@ -366,15 +391,37 @@ def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames
                  "0.5", "--methods", "ours_extrapolate", "--json", str(out), "--quiet"]) == 0
     r = json.loads(out.read_text())
     assert (r["method"], r["width"], r["height"], r["looped"]) == ("ours_extrapolate", W, H, True)
+    assert r["exclusive"] is False
     # 0.5 s at 10 FPS: frames 0..5 sent, the 3 packets of the file twice.
     assert r["server_frames_received"] == 6
     assert "source looped" in capsys.readouterr().out
+
+
+def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
+    tmp_path, scene, frames, capsys
+):
+    import json
+
+    from splitrender.cli.main import main
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+
+    with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
+        sr.write_stream(tmp_path / "s.srs", [enc.encode(f) for f in frames[:3]])
+    out = tmp_path / "rt.json"
+    assert main(["bench", "--realtime", "--exclusive", "--stream", str(tmp_path / "s.srs"),
+                 "--seconds", "0.25", "--json", str(out), "--quiet"]) == 0
+    r = json.loads(out.read_text())
+    assert r["exclusive"] is True and r["server_frames_late"] == 0
+    # Each frame was usable before the display went on: no frame extrapolated or held.
+    assert r["modes"]["interpolate"] == r["frames"] and r["prepared_pct"] == 100.0
+    assert "exclusive" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
         (["--stream", "x.srs"], "--stream goes with --realtime"),
+        (["--exclusive"], "--exclusive goes with --realtime"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu"], "--backend wgpu"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),

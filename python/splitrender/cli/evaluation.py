@@ -269,6 +269,11 @@ def add_bench(sub: Any) -> None:
         help="with --realtime: seconds of display (default: %(default)s)",
     )
     be.add_argument(
+        "--exclusive", action="store_true",
+        help="with --realtime: the display waits, off the clock, until the worker has decoded "
+        "and prepared each arriving frame, so that the deadlines measure the display alone",
+    )
+    be.add_argument(
         "--stream", type=Path, default=None, metavar="FILE",
         help="with --realtime: play this stream file instead of the built-in --scene",
     )
@@ -291,7 +296,7 @@ def bench(args: argparse.Namespace) -> int:
 
     if args.realtime:
         return _bench_realtime(args)
-    for flag, given in (("--stream", args.stream is not None),):
+    for flag, given in (("--stream", args.stream is not None), ("--exclusive", args.exclusive)):
         if given:
             return fail(f"{flag} goes with --realtime")
     try:
@@ -325,7 +330,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
     try:
         result = run_realtime_bench(
             args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
-            stream=args.stream, progress=not args.quiet,
+            stream=args.stream, progress=not args.quiet, exclusive=args.exclusive,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

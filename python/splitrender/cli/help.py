@@ -166,7 +166,9 @@ DESCRIPTION: dict[str, str] = {
         "a worker thread while the display renders every refresh at the client's pose. Prints "
         "frame-time p50/p95/p99/max, deadline misses (count and %), dropped refreshes, modes, "
         "decode and pair-preparation ms per server frame, the newest server frame's age at "
-        "display and CPU use."
+        "display and CPU use. --exclusive: the display waits, off the clock, until the worker "
+        "has decoded and prepared each arriving frame, so that the deadlines measure the "
+        "display frames alone (what the reprojection costs without decoding beside it)."
     ),
     "serve": (
         "Serve live split rendering sessions over QUIC (docs/protocol.md, docs/live.md), one at "

@@ -39,6 +39,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from concurrent.futures import wait as futures_wait
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -458,6 +459,7 @@ class RealtimeClient:
         feed: Iterable[tuple[float, bytes | memoryview | ServerFrame]] = (),
         start_time: float = 0.0,
         on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+        exclusive: bool = False,
     ) -> RealtimeReport:
         """Shows ``seconds`` of display frames at ``f_c`` from display time ``start_time``:
         frame ``n`` at the camera ``pose(start_time + n / f_c)``. ``feed`` (optional) is the
@@ -466,7 +468,13 @@ class RealtimeClient:
         thread instead). ``on_frame(image, record)`` is called after each frame (the caller's
         present; its time counts against the frame's deadline only if it runs past the next
         refresh). Returns the report of the run: its display frames, and what the worker did
-        since the previous run returned (or since the client was made)."""
+        since the previous run returned (or since the client was made).
+
+        ``exclusive`` (a diagnostic; a live client cannot wait): after each arrival the display
+        waits until the worker has received it (decoded and prepared, or refused) and the
+        schedule of refreshes moves on by the time waited, so that no display frame shares the
+        cores with the worker. The deadlines then measure the display frames alone, and no
+        server frame is late."""
         fc = self.display_fps
         valid = not isinstance(seconds, bool) and isinstance(seconds, (int, float))
         # Checked before rounding: round() of NaN or infinity raises a ValueError of its own.
@@ -484,13 +492,16 @@ class RealtimeClient:
         interval = sys.getswitchinterval()
         sys.setswitchinterval(min(interval, 0.0005))
         try:
-            self._display(report, t0, n_frames, pose, iter(feed), start_time, on_frame)
+            self._display(
+                report, t0, n_frames, pose, iter(feed), start_time, on_frame, exclusive
+            )
         finally:
             sys.setswitchinterval(interval)
         report.wall_s = self.clock.now() - t0
         report.cpu_s = time.process_time() - cpu0
         report.cpus = os.cpu_count() or 1
-        self._count_late(t0, start_time)
+        if not exclusive:
+            self._count_late(t0, start_time)
         with self._lock:
             self._report = RealtimeReport(self.display_fps)
             self._ready_at.clear()
@@ -505,8 +516,10 @@ class RealtimeClient:
         arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]],
         start_time: float,
         on_frame: Callable[[_Image, DisplayFrame], None] | None,
+        exclusive: bool,
     ) -> None:
-        """The display loop of :meth:`run` (refresh ``n`` at clock ``t0 + n / f_c``)."""
+        """The display loop of :meth:`run` (refresh ``n`` at clock ``t0 + n / f_c``; with
+        ``exclusive``, ``t0`` moves on by the time waited for the worker)."""
         period = 1.0 / self.display_fps
         nxt = next(arrivals, None)
         n = 0
@@ -514,8 +527,15 @@ class RealtimeClient:
             tick = t0 + n * period
             while nxt is not None and t0 + (nxt[0] - start_time) <= tick:
                 self.clock.sleep_until(t0 + (nxt[0] - start_time))
-                self.submit(nxt[1])
+                # Read before submitting: the worker starts at once.
+                waited = self.clock.now()
+                received = self.submit(nxt[1])
                 nxt = next(arrivals, None)
+                if exclusive:
+                    # Whatever its outcome (a bad packet is skipped here as it is otherwise).
+                    futures_wait([received])
+                    t0 += self.clock.now() - waited
+                    tick = t0 + n * period
             self.clock.sleep_until(tick)
             t = start_time + n * period
             camera = pose(t)
