@@ -252,14 +252,9 @@ fn flow_row_impl(row: FlowRow, out: RowOut) {
     // of its motion bits are clear (−0.0 is not: it takes the general path); each run of chunks
     // of one kind is one loop: a loop per chunk cost 0.5 M instructions more per 640×360 frame
     // (bounds checks and loop set-up).
-    let end = |s: usize| (s + STILL_CHUNK).min(sw);
     let mut s = 0;
     while s < sw {
-        let moving = chunk_moving(mo, s, sw);
-        let mut e = end(s);
-        while e < sw && moving == chunk_moving(mo, e, sw) {
-            e = end(e);
-        }
+        let (e, moving) = motion_run(mo, s, sw);
         let out = RowOut {
             flow: &mut out.flow[s..e],
             zc: &mut out.zc[s..e],
@@ -270,6 +265,20 @@ fn flow_row_impl(row: FlowRow, out: RowOut) {
         flow_span(&k, &x[s..e], &depth[s..e], m, out);
         s = e;
     }
+}
+
+/// The run of chunks of one kind (still: every motion bit clear; or moving) that starts at point
+/// `s` of a row of `sw` points with motion `mo` (3 values per point): its end, and whether it
+/// moves.
+#[inline(always)]
+pub(super) fn motion_run(mo: &[f32], s: usize, sw: usize) -> (usize, bool) {
+    let end = |s: usize| (s + STILL_CHUNK).min(sw);
+    let moving = chunk_moving(mo, s, sw);
+    let mut e = end(s);
+    while e < sw && moving == chunk_moving(mo, e, sw) {
+        e = end(e);
+    }
+    (e, moving)
 }
 
 /// Whether any motion value of the chunk of points `s..` of a row of `sw` (`mo`, 3 per point)

@@ -714,7 +714,7 @@ fn every_simd_tier_gives_the_same_bytes() {
 
 /// The flow of still points (motion +0, every bit clear), which `flow_row` computes with one
 /// transfer instead of two, is the general path's to the byte: flow, client depth and cell, and
-/// the key depth wherever there is a cell. Rows mix still and moving runs (chunks of either kind
+/// the key depth wherever there is a cell; and so is `full_flow_row`'s, which skips their motion. Rows mix still and moving runs (chunks of either kind
 /// and chunks with both), with ±0, NaN and infinite depths and motions, a middle column and row
 /// at NDC +0, `w` of both signs, and besides the cameras' transfer, transfers of sparse small
 /// entries whose sums are signed zeros and whose divisors are zero.
@@ -753,7 +753,7 @@ fn still_points_flow_as_the_general_path() {
         let kz = (p.2 != NO_SPLAT).then_some(p.3.to_bits());
         (p.0.map(f32::to_bits), p.1.to_bits(), p.2, kz)
     };
-    let (mut splats, mut signed_zeros) = (0, 0);
+    let (mut splats, mut signed_zeros, mut landed) = (0, 0, 0);
     for case in 0..600 {
         let to_client = if case % 4 == 0 {
             real
@@ -793,11 +793,21 @@ fn still_points_flow_as_the_general_path() {
                 splats += usize::from(a.2 != NO_SPLAT);
                 signed_zeros += usize::from(a.1 == 0.0 && a.2 != NO_SPLAT);
             }
+            // The full scene flow of the pair (Algorithm 2) skips the motion of still runs too.
+            let other = (sw + 2 * (case % 2), sh);
+            let [fast, general] =
+                pair::full_flow_row_and_general(row, &depth, m, &to_client, other);
+            for (i, (a, b)) in fast.iter().zip(&general).enumerate() {
+                let (a, b) = (a.map(f32::to_bits), b.map(f32::to_bits));
+                assert_eq!(a, b, "case {case}, point {i}: full flow");
+                landed += usize::from(a[3] != NO_SPLAT);
+            }
         }
     }
-    // The cases reach what they are meant to: points that splat, at client depth ±0 too.
+    // The cases reach what they are meant to: points that splat, at client depth ±0 too, and
+    // full flows that land in the other image.
     assert!(
-        splats > 10_000 && signed_zeros > 100,
-        "{splats} {signed_zeros}"
+        splats > 10_000 && signed_zeros > 100 && landed > 10_000,
+        "{splats} {signed_zeros} {landed}"
     );
 }
