@@ -711,3 +711,103 @@ fn every_simd_tier_gives_the_same_bytes() {
     }
     set_simd_limit(Simd::Avx512);
 }
+
+/// The flow of still points (motion +0, every bit clear), which `flow_row` computes with one
+/// transfer instead of two, is the general path's to the byte: flow, client depth and cell, and
+/// the key depth wherever there is a cell; and so is `full_flow_row`'s, which skips their motion. Rows mix still and moving runs (chunks of either kind
+/// and chunks with both), with ±0, NaN and infinite depths and motions, a middle column and row
+/// at NDC +0, `w` of both signs, and besides the cameras' transfer, transfers of sparse small
+/// entries whose sums are signed zeros and whose divisors are zero.
+#[test]
+fn still_points_flow_as_the_general_path() {
+    let (sw, sh) = (3 * 32 + 13, 61);
+    let x: Vec<f32> = (0..sw)
+        .map(|i| crate::camera::ndc_of_pixel(i, 0, sw, sh)[0])
+        .collect();
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let mut rnd = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    let pick = |r: u64, v: &[f32]| v[(r % v.len() as u64) as usize];
+    let from_inv = cam(0.0, sw, sh).view_proj().inverse().unwrap();
+    let real = NdcTransfer::new(&from_inv, &cam(0.3, sw, sh).view_proj());
+    let depths = [
+        -0.0,
+        0.0,
+        0.25,
+        0.9,
+        1.0,
+        1.000_001,
+        -0.5,
+        1e-40,
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+    ];
+    let motions = [0.01, -0.02, 1e-3, 0.3, 0.0, -0.0, f32::NAN, f32::INFINITY];
+    let entries = [0.0, -0.0, 1.0, -1.0, 0.5, -2.0];
+    let bits = |p: &([f32; 2], f32, u32, f32)| {
+        let kz = (p.2 != NO_SPLAT).then_some(p.3.to_bits());
+        (p.0.map(f32::to_bits), p.1.to_bits(), p.2, kz)
+    };
+    let (mut splats, mut signed_zeros, mut landed) = (0, 0, 0);
+    for case in 0..600 {
+        let to_client = if case % 4 == 0 {
+            real
+        } else {
+            let mut t = real;
+            for e in t.m.0.iter_mut().chain(t.w_row.iter_mut()) {
+                *e = pick(rnd(), &entries);
+            }
+            t
+        };
+        let w = pick(rnd(), &[0.5, 0.0, -0.0, -0.4, 1.5, 1.0]);
+        let j = [0, sh / 2, sh - 1][case % 3];
+        let depth: Vec<f32> = (0..sw)
+            .map(|_| match rnd() {
+                r if r % 3 == 0 => pick(r >> 8, &depths),
+                r => (r >> 40) as f32 / (1u64 << 24) as f32,
+            })
+            .collect();
+        // Runs of 1 to 64 still or moving points (all still in every fifth case).
+        let mut motion = vec![0.0f32; 3 * sw];
+        let mut i = 0;
+        while i < sw {
+            let r = rnd();
+            let n = 1 + (r % 64) as usize;
+            if (r >> 8) & 1 == 1 && case % 5 != 0 {
+                for v in &mut motion[3 * i..3 * (i + n).min(sw)] {
+                    *v = pick(rnd(), &motions);
+                }
+            }
+            i += n;
+        }
+        let row = SrcRow { j, sw, sh };
+        for m in [Some(&motion[..]), None] {
+            let [fast, general] = pass1::flow_row_and_general(row, &x, &depth, m, &to_client, w);
+            for (i, (a, b)) in fast.iter().zip(&general).enumerate() {
+                assert_eq!(bits(a), bits(b), "case {case}, point {i}: {a:?} {b:?}");
+                splats += usize::from(a.2 != NO_SPLAT);
+                signed_zeros += usize::from(a.1 == 0.0 && a.2 != NO_SPLAT);
+            }
+            // The full scene flow of the pair (Algorithm 2) skips the motion of still runs too.
+            let other = (sw + 2 * (case % 2), sh);
+            let [fast, general] =
+                pair::full_flow_row_and_general(row, &depth, m, &to_client, other);
+            for (i, (a, b)) in fast.iter().zip(&general).enumerate() {
+                let (a, b) = (a.map(f32::to_bits), b.map(f32::to_bits));
+                assert_eq!(a, b, "case {case}, point {i}: full flow");
+                landed += usize::from(a[3] != NO_SPLAT);
+            }
+        }
+    }
+    // The cases reach what they are meant to: points that splat, at client depth ±0 too, and
+    // full flows that land in the other image.
+    assert!(
+        splats > 10_000 && signed_zeros > 100 && landed > 10_000,
+        "{splats} {signed_zeros} {landed}"
+    );
+}
