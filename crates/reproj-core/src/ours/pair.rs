@@ -242,7 +242,7 @@ impl PairCache {
 /// the partners' colours and kinds, then the own shadow bits (a pixel with shadow bits, its own or
 /// its partner's, takes [`TEXEL_SHADOW`] whatever else the texel holds). One loop per pixel with
 /// those tests inside cost ~90 instructions per pixel, half the pair's other work.
-fn texels(s: &Src, blend: Option<(&[u32], &Src)>, out: &mut Vec<u64>) {
+pub(super) fn texels(s: &Src, blend: Option<(&[u32], &Src)>, out: &mut Vec<u64>) {
     let sw = s.proj.width;
     out.resize(sw * s.proj.height, 0);
     let own_bits = s.view.shadow.map(|sh| sh.bits);

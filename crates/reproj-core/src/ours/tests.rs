@@ -811,3 +811,183 @@ fn still_points_flow_as_the_general_path() {
         "{splats} {signed_zeros} {landed}"
     );
 }
+
+/// The colour stage takes each match's colour from its texel and blends the row as vectors,
+/// sending the pixels without a match or with shadow bits (own or the partner's) to a scalar
+/// path: at every tier it must give the bytes and diagnostics of the full path
+/// (`Resolve::second_chance`, rounded; the previous colour where there is no match), for rows
+/// that mix every case in chunks with and without rare pixels, a width that is not a multiple of
+/// the vectors or chunks, and weights `ω` and `α` that are ±0, negative, above 1, infinite or NaN.
+#[test]
+fn colour_row_equals_the_full_path() {
+    use super::pair::{texels, PairCache};
+    use super::select::NO_SOURCE;
+    use crate::shadow::round_rgb4;
+    let (sw, sh, cw) = (12, 6, 70);
+    let n = sw * sh;
+    // xorshift64: a draw in `0..k`, and `len` random bytes.
+    let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+    let mut rng = move |k: u64| {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed % k
+    };
+    fn bytes(rng: &mut impl FnMut(u64) -> u64, len: usize) -> Vec<u8> {
+        (0..len).map(|_| rng(256) as u8).collect()
+    }
+    let colours: Vec<Vec<u8>> = (0..4).map(|_| bytes(&mut rng, 3 * n)).collect();
+    let (s_min, s_max) = (bytes(&mut rng, 3 * n), bytes(&mut rng, 3 * n));
+    let depth = vec![0.5f32; n];
+    let p = Params::default();
+    let camera = cam(0.0, sw, sh);
+    // Per trial: how many output pixels in 256 have no source, how many source pixels in 256
+    // carry shadow bits, `ω` of the older and the newer sources, and `α`.
+    for (trial, (none_in, shadow_in, omega, alpha)) in [
+        (0, 0, [0.5f32, 0.5], 0.5f32),
+        (0, 16, [0.25, 0.75], 0.25),
+        (64, 0, [-0.0, 0.0], 1.5),
+        (8, 4, [1.5, -0.5], 1.5),
+        (128, 128, [f32::NAN, f32::INFINITY], f32::NAN),
+        (4, 64, [f32::NEG_INFINITY, 1e-30], 0.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        // Source 2 has no shadow buffers.
+        let bits: Vec<Vec<u32>> = (0..4)
+            .map(|_| {
+                (0..n)
+                    .map(|_| {
+                        let hit = rng(256) < shadow_in;
+                        if hit {
+                            1 + rng(u64::from(u32::MAX)) as u32
+                        } else {
+                            0
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let views: Vec<CameraView> = (0..4)
+            .map(|k| CameraView {
+                camera,
+                color: &colours[k],
+                depth: &depth,
+                motion: None,
+                shadow: (k != 2).then(|| ShadowView {
+                    bits: &bits[k],
+                    s_min: &s_min,
+                    s_max: &s_max,
+                }),
+            })
+            .collect();
+        let roles = [Role::Older, Role::Newer];
+        let sources: Vec<Src> = views
+            .iter()
+            .enumerate()
+            .map(|(k, v)| {
+                Src::new(
+                    *v,
+                    camera.projector("test").unwrap(),
+                    None,
+                    roles[k % 2],
+                    k / 2,
+                )
+            })
+            .collect();
+        // The main pair blends (partners in the other frame or none); the auxiliary pair does not.
+        let partners: Vec<Vec<u32>> = (0..2)
+            .map(|_| {
+                (0..n)
+                    .map(|_| {
+                        if rng(3) == 0 {
+                            NO_SPLAT
+                        } else {
+                            rng(n as u64) as u32
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut texel: Vec<Vec<u64>> = vec![Vec::new(); 4];
+        for (k, t) in texel.iter_mut().enumerate() {
+            let blend = (k < 2).then(|| (&partners[k][..], &sources[k ^ 1]));
+            texels(&sources[k], blend, t);
+        }
+        let pair = PairCache::default();
+        let r = Resolve {
+            params: &p,
+            alpha,
+            client_w: cw,
+            client_h: 1,
+            sources: &sources,
+            bidirectional: true,
+            eps_e: 1.0,
+            eps_e_aux: 1.0,
+            eps_z: 1.0,
+            eps_z_aux: 1.0,
+            iterations: 0,
+            aux: Vec::new(),
+            client_ndc: NdcTable::new(cw, 1),
+            pair: &pair,
+            palettes: (0..4)
+                .map(|k| Palette {
+                    color: &colours[k],
+                    shadow: views[k].shadow,
+                    role: roles[k % 2],
+                    partner: if k < 2 { &partners[k] } else { &[] },
+                    other: k ^ 1,
+                    texel: &texel[k],
+                    omega: omega[k % 2],
+                })
+                .collect(),
+        };
+        let mut picks = super::select::Picks {
+            src: (0..cw)
+                .map(|_| {
+                    if rng(256) < none_in {
+                        NO_SOURCE
+                    } else {
+                        rng(4) as u8
+                    }
+                })
+                .collect(),
+            p: (0..cw).map(|_| rng(n as u64) as u32).collect(),
+            e: (0..cw).map(|_| rng(1000) as f32 * 1e-3).collect(),
+            z: vec![0.0; cw],
+            ..Default::default()
+        };
+        let previous = bytes(&mut rng, 3 * cw);
+        // The full path, pixel by pixel.
+        let mut want = (previous.clone(), vec![0u8; cw], vec![0u32; cw]);
+        for i in 0..cw {
+            let s = picks.src[i];
+            if s == NO_SOURCE {
+                (want.1[i], want.2[i]) = (Diagnostics::NONE, f32::NAN.to_bits());
+                continue;
+            }
+            let (c, blended) = r.second_chance(usize::from(s), picks.p[i] as usize);
+            want.0[3 * i..3 * i + 3].copy_from_slice(&round_rgb4(c)[..3]);
+            (want.1[i], want.2[i]) = (r.code_of(usize::from(s), blended), picks.e[i].to_bits());
+        }
+        for tier in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+            set_simd_limit(tier);
+            let mut out = previous.clone();
+            let (mut codes, mut err) = (vec![0u8; cw], vec![0f32; cw]);
+            r.colour_row(&mut picks, &mut out, Some((&mut codes, &mut err)));
+            let err: Vec<u32> = err.iter().map(|e| e.to_bits()).collect();
+            assert!(
+                (&out, &codes, &err) == (&want.0, &want.1, &want.2),
+                "trial {trial}, {tier:?}"
+            );
+            let mut plain = previous.clone();
+            r.colour_row(&mut picks, &mut plain, None);
+            assert_eq!(
+                plain, want.0,
+                "trial {trial}, {tier:?}, without diagnostics"
+            );
+        }
+    }
+    set_simd_limit(Simd::Avx512);
+}
