@@ -26,9 +26,7 @@ pub(super) struct Picks {
     pub(super) z: Vec<f32>,
     /// The colour of each kept match ([`Resolve::second_chance`]).
     pub(super) rgb: Vec<[f32; 4]>,
-    /// Scratch of [`Resolve::aux_row`]: which auxiliary grids may matter per pixel, and the list
-    /// of pixels where they do.
-    pub(super) need: Vec<u8>,
+    /// Scratch of [`Resolve::aux_row`]: the pixels without a main match.
     pub(super) list: Vec<u32>,
 }
 
