@@ -37,9 +37,7 @@ pub(super) struct Picks {
     pub(super) texel: Vec<[u32; 2]>,
     pub(super) omega: Vec<f32>,
     pub(super) rgb: Vec<u32>,
-    /// Scratch of [`Resolve::aux_row`]: which auxiliary grids may matter per pixel, and the list
-    /// of pixels where they do.
-    pub(super) need: Vec<u8>,
+    /// Scratch of [`Resolve::aux_row`]: the pixels without a main match.
     pub(super) list: Vec<u32>,
 }
 

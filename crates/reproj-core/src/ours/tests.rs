@@ -991,3 +991,78 @@ fn colour_row_equals_the_full_path() {
     }
     set_simd_limit(Simd::Avx512);
 }
+
+/// [`Resolve::aux_row`](super::Resolve) merges the auxiliary cameras in runs of client columns
+/// that fall in the same flagged cells of every grid, and in test builds checks every pixel
+/// against the merge pixel by pixel (`check_merge`). Grids of different sizes make runs that end
+/// inside another grid's cell (a 37×29 camera beside a 131×71 one, finer than the 96×54 client,
+/// so that some of its cells hold no client column), and a hole in the main camera's depth leaves
+/// pixels without a main match; with the lazy and the eager search, with and without the older
+/// frame.
+#[test]
+fn auxiliary_merge_in_runs_with_grids_of_different_sizes() {
+    use crate::frame::CameraBuffers;
+    use crate::synthetic::{head_pose, rig, SyntheticScene};
+    let (w, h) = (96, 54);
+    let scene = SyntheticScene::new(true);
+    let frame = |t: f64| -> Vec<(Camera, CameraBuffers)> {
+        let (eye, target) = head_pose(t);
+        let (main, [left, right]) = rig(eye, target, w, h);
+        let sized = |c: Camera, width, height| Camera { width, height, ..c };
+        [main, sized(left, 37, 29), sized(right, 131, 71)]
+            .into_iter()
+            .map(|c| {
+                let mut b = scene.render_server(&c, t, 0.1, 4);
+                if c.width == w {
+                    for row in b.depth.chunks_mut(w).skip(20).take(14) {
+                        row[40..60].fill(f32::NAN);
+                    }
+                }
+                (c, b)
+            })
+            .collect()
+    };
+    fn view(f: &[(Camera, CameraBuffers)], forward: bool) -> FrameView<'_> {
+        FrameView {
+            main: f[0].1.view(f[0].0, forward),
+            aux: f[1..].iter().map(|(c, b)| b.view(*c, forward)).collect(),
+        }
+    }
+    let (f0, f1) = (frame(0.0), frame(0.1));
+    let (older, newer) = (view(&f0, true), view(&f1, false));
+    // Pixels per auxiliary camera, inside the hole and outside it.
+    let mut from = [[0usize; 2]; 2];
+    for (alpha, pair) in [(0.35f32, true), (1.4, false)] {
+        let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
+        e[0] += 0.25;
+        e[1] -= 0.1;
+        let req = Request {
+            client: rig(e, tg, w, h).0,
+            alpha,
+        };
+        let mut runs = Vec::new();
+        for eager in [false, true] {
+            EAGER_AUX.with(|x| x.set(eager));
+            let p = Params::default();
+            runs.push(with_sources(
+                Method::Ours,
+                pair.then_some(&older),
+                &newer,
+                &req,
+                &p,
+                None,
+            ));
+            EAGER_AUX.with(|x| x.set(false));
+        }
+        assert!(runs[0] == runs[1], "lazy and eager search, alpha {alpha}");
+        for (k, &code) in runs[0].1.iter().enumerate() {
+            let code = code & !Diagnostics::BLENDED;
+            if code >= Diagnostics::AUX_BASE {
+                let (i, j) = (k % w, k / w);
+                let hole = (40..60).contains(&i) && (20..34).contains(&j);
+                from[usize::from((code - Diagnostics::AUX_BASE) / 2)][usize::from(hole)] += 1;
+            }
+        }
+    }
+    assert!(from.iter().flatten().all(|&n| n > 0), "{from:?}");
+}
