@@ -6,6 +6,7 @@ time."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import threading
 from concurrent.futures import Executor, Future
 from typing import Any
@@ -345,6 +346,31 @@ def test_bad_display_rate_is_refused(fps):
         RealtimeClient(display_fps=fps)
 
 
+@pytest.mark.parametrize("priority", ["", "IDLE", "realtime", 10, None])
+def test_unknown_worker_priority_is_refused(priority):
+    with pytest.raises(InvalidInputError, match="worker_priority"):
+        RealtimeClient(worker_priority=priority)
+
+
+def _policy_and_nice() -> tuple[int, int]:
+    tid = threading.get_native_id()
+    return os.sched_getscheduler(tid), os.getpriority(os.PRIO_PROCESS, tid)
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="needs Linux scheduling policies")
+def test_the_worker_thread_runs_at_the_priority_asked():
+    here = _policy_and_nice()
+    got = {}
+    for priority in rt.WORKER_PRIORITIES:
+        with RealtimeClient(clock=FakeClock(), worker_priority=priority) as c:
+            got[priority] = c._worker.submit(_policy_and_nice).result(timeout=30)
+    assert here[0] == os.SCHED_OTHER  # the display thread keeps its own
+    assert got["normal"] == here
+    if here[1] <= 10:  # else lowering to 10 would be raising
+        assert got["low"] == (os.SCHED_OTHER, 10)
+    assert got["idle"][0] == os.SCHED_IDLE
+
+
 @pytest.mark.parametrize("seconds", [0.001, 0.0, -1.0, float("nan"), float("inf"), "1", True])
 def test_run_needs_at_least_one_frame(scene, seconds):
     with RealtimeClient(clock=FakeClock()) as c, pytest.raises(InvalidInputError, match="seconds"):
@@ -391,7 +417,7 @@ def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames
                  "0.5", "--methods", "ours_extrapolate", "--json", str(out), "--quiet"]) == 0
     r = json.loads(out.read_text())
     assert (r["method"], r["width"], r["height"], r["looped"]) == ("ours_extrapolate", W, H, True)
-    assert r["exclusive"] is False
+    assert r["exclusive"] is False and r["worker_priority"] == "idle"
     # 0.5 s at 10 FPS: frames 0..5 sent, the 3 packets of the file twice.
     assert r["server_frames_received"] == 6
     assert "source looped" in capsys.readouterr().out
@@ -409,9 +435,11 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         sr.write_stream(tmp_path / "s.srs", [enc.encode(f) for f in frames[:3]])
     out = tmp_path / "rt.json"
     assert main(["bench", "--realtime", "--exclusive", "--stream", str(tmp_path / "s.srs"),
-                 "--seconds", "0.25", "--json", str(out), "--quiet"]) == 0
+                 "--seconds", "0.25", "--worker-priority", "low", "--json", str(out),
+                 "--quiet"]) == 0
     r = json.loads(out.read_text())
     assert r["exclusive"] is True and r["server_frames_late"] == 0
+    assert r["worker_priority"] == "low"
     # Each frame was usable before the display went on: no frame extrapolated or held.
     assert r["modes"]["interpolate"] == r["frames"] and r["prepared_pct"] == 100.0
     assert "exclusive" in capsys.readouterr().out
@@ -422,6 +450,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
     [
         (["--stream", "x.srs"], "--stream goes with --realtime"),
         (["--exclusive"], "--exclusive goes with --realtime"),
+        (["--worker-priority", "low"], "--worker-priority goes with --realtime"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu"], "--backend wgpu"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),

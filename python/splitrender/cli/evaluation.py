@@ -31,6 +31,7 @@ from splitrender.cli.args import (
     seconds,
     video_fps,
 )
+from splitrender.client.realtime import WORKER_PRIORITIES
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.progress import Progress
@@ -274,6 +275,12 @@ def add_bench(sub: Any) -> None:
         "and prepared each arriving frame, so that the deadlines measure the display alone",
     )
     be.add_argument(
+        "--worker-priority", choices=WORKER_PRIORITIES, default=None,
+        help="with --realtime: how the decoding and preparing worker yields the cores to the "
+        "display: idle (Linux SCHED_IDLE: only cores the display leaves idle), low (nice 10) "
+        "or normal (default: idle)",
+    )
+    be.add_argument(
         "--stream", type=Path, default=None, metavar="FILE",
         help="with --realtime: play this stream file instead of the built-in --scene",
     )
@@ -296,7 +303,11 @@ def bench(args: argparse.Namespace) -> int:
 
     if args.realtime:
         return _bench_realtime(args)
-    for flag, given in (("--stream", args.stream is not None), ("--exclusive", args.exclusive)):
+    for flag, given in (
+        ("--stream", args.stream is not None),
+        ("--exclusive", args.exclusive),
+        ("--worker-priority", args.worker_priority is not None),
+    ):
         if given:
             return fail(f"{flag} goes with --realtime")
     try:
@@ -331,6 +342,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
         result = run_realtime_bench(
             args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
             stream=args.stream, progress=not args.quiet, exclusive=args.exclusive,
+            worker_priority=args.worker_priority or "idle",
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

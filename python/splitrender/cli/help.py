@@ -168,7 +168,10 @@ DESCRIPTION: dict[str, str] = {
         "decode and pair-preparation ms per server frame, the newest server frame's age at "
         "display and CPU use. --exclusive: the display waits, off the clock, until the worker "
         "has decoded and prepared each arriving frame, so that the deadlines measure the "
-        "display frames alone (what the reprojection costs without decoding beside it)."
+        "display frames alone (what the reprojection costs without decoding beside it). "
+        "--worker-priority idle|low|normal: how the worker yields the cores to the display "
+        "(default idle: Linux SCHED_IDLE, it runs only on cores the display leaves idle; low: "
+        "nice 10)."
     ),
     "serve": (
         "Serve live split rendering sessions over QUIC (docs/protocol.md, docs/live.md), one at "

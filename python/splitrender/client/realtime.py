@@ -60,6 +60,7 @@ from splitrender.types import (  # argument checks
     instances,
     ints,
     optional,
+    strs,
 )
 
 if TYPE_CHECKING:
@@ -197,13 +198,38 @@ class RealtimeReport:
         }
 
 
-def _yield_to_display() -> None:
-    """Lowers the receive worker's scheduling priority (Linux: per thread; the decoder's and the
-    preparation pool's threads it starts inherit it), so that on a busy machine the display
-    thread, whose frames have deadlines, gets the cores first and the worker the rest. Lowering
-    needs no privilege; where the platform cannot, nothing changes."""
+#: How the receive worker yields the cores to the display (``RealtimeClient(worker_priority=)``).
+WORKER_PRIORITIES = ("idle", "low", "normal")
+
+
+def _yield_to_display(priority: str) -> None:
+    """Lowers the receive worker's scheduling priority, per thread (Linux; the decoder's and the
+    preparation pool's threads it starts inherit it), so that the display thread, whose frames
+    have deadlines, gets the cores first:
+
+    - ``"idle"``: the ``SCHED_IDLE`` policy. The worker runs only on a core the display leaves
+      idle (between its frames, ~1/3 of each refresh at 640×360 here), and a display thread that
+      wakes takes the core back at once. Where the platform has no ``SCHED_IDLE``, as ``"low"``.
+    - ``"low"``: ``nice`` 10. The scheduler still gives the worker a share of a busy core, and a
+      display frame that overlaps the worker's decoding can lose part of a core for a while.
+    - ``"normal"``: unchanged.
+
+    On 2 cores, ``idle`` against ``low`` (``splitrender bench --realtime --scale 0.25``, three
+    rounds alternating, docs/realtime.md): 1.7–8.1 % deadline misses against 14.2–15.8 %, the
+    worker's time until a frame is usable about the same. ``idle`` can starve the worker only
+    if the display never sleeps, and a display that never sleeps has missed its deadlines
+    anyway. Lowering needs no privilege; where the platform cannot, nothing changes."""
+    if priority == "normal":
+        return
+    tid = threading.get_native_id()
+    if priority == "idle" and hasattr(os, "SCHED_IDLE"):
+        try:
+            os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
+            return
+        except OSError:
+            pass  # e.g. a sandbox that refuses the call: fall back to nice
     try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+        os.setpriority(os.PRIO_PROCESS, tid, 10)
     except (AttributeError, OSError):
         pass
 
@@ -233,8 +259,10 @@ class RealtimeClient:
     ``display_fps`` is ``f_c``; ``clock`` defaults to :class:`MonotonicClock`; ``client`` (else
     a new :class:`Client` of ``method``, ``options``, ``capacity``) renders the frames.
     ``prepare_threads`` is how many threads the pair preparation uses (its own pool, so that it
-    does not queue behind the display's frames; ``None``: the shared pool). ``executor`` runs
-    the receive side (default: one worker thread; it must run jobs in order). Use as a context
+    does not queue behind the display's frames; ``None``: the shared pool). ``worker_priority``
+    (one of :data:`WORKER_PRIORITIES`, default ``"idle"``) is how the default worker thread
+    yields the cores to the display (:func:`_yield_to_display`). ``executor`` runs the receive
+    side instead (it must run jobs in order; its threads keep their priority). Use as a context
     manager, or call :meth:`close`.
 
     Raises:
@@ -246,7 +274,7 @@ class RealtimeClient:
         display_fps=floats(positive=True, hi=MAX_RATE), clock=optional(_clock),
         client=optional(instances(Client)), capacity=ints(2, 1 << 16),
         prepare_threads=optional(ints(0, 1 << 16)), decoder=optional(_decoder),
-        executor=optional(instances(Executor)),
+        executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
     )
     def __init__(
         self,
@@ -260,6 +288,7 @@ class RealtimeClient:
         prepare_threads: int | None = 1,
         decoder: StreamDecoder | None = None,
         executor: Executor | None = None,
+        worker_priority: str = "idle",
     ) -> None:
         if (
             isinstance(display_fps, bool)
@@ -274,6 +303,7 @@ class RealtimeClient:
         self.display_fps = float(display_fps)
         self.clock: Clock = clock if clock is not None else MonotonicClock()
         self.prepare_threads = prepare_threads
+        self.worker_priority = worker_priority
         self._decoder = decoder
         self._lock = threading.Lock()
         # One worker: packets are decoded in order (each depends on the previous one's
@@ -282,7 +312,10 @@ class RealtimeClient:
             executor
             if executor is not None
             else ThreadPoolExecutor(
-                1, thread_name_prefix="splitrender-receive", initializer=_yield_to_display
+                1,
+                thread_name_prefix="splitrender-receive",
+                initializer=_yield_to_display,
+                initargs=(worker_priority,),
             )
         )
         self._queued = 0  # packets submitted and not yet being received

@@ -72,6 +72,8 @@ class RealtimeBench:
     looped: bool
     #: The display waited for the worker after each arrival (``--exclusive``).
     exclusive: bool
+    #: How the worker yielded the cores to the display (``--worker-priority``).
+    worker_priority: str
     summary: dict[str, Any]
 
     def to_json(self) -> dict[str, Any]:
@@ -142,10 +144,12 @@ def run_realtime_bench(
     display_fps: float = 120.0,
     progress: bool = True,
     exclusive: bool = False,
+    worker_priority: str = "idle",
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``exclusive``: the display waits for the worker after each arrival, off the clock
     (:meth:`RealtimeClient.run`), so that the deadlines measure the display frames alone.
+    ``worker_priority``: how the worker yields the cores to the display (``RealtimeClient``).
 
     Raises:
         InvalidInputError: for arguments that cannot work.
@@ -212,11 +216,16 @@ def run_realtime_bench(
         f"running {method} in real time for {seconds:g} s at {display_fps:g} FPS, "
         f"{main.width}x{main.height} + aux" + (" (the source loops)" if looped else "")
     )
-    with RealtimeClient(client=Client(method, server_fps=fs), display_fps=display_fps) as client:
+    with RealtimeClient(
+        client=Client(method, server_fps=fs),
+        display_fps=display_fps,
+        worker_priority=worker_priority,
+    ) as client:
         report = client.run(pose, seconds, feed=feed, start_time=0.0, exclusive=exclusive)
     stages.close()
     return RealtimeBench(
-        method, source, main.width, main.height, looped, exclusive, report.summary()
+        method, source, main.width, main.height, looped, exclusive, worker_priority,
+        report.summary(),
     )
 
 
@@ -235,7 +244,8 @@ def format_realtime(b: RealtimeBench) -> str:
             f"{s['display_fps']:g} FPS for {s['wall_s']:.1f} s"
             + (" (source looped)" if b.looped else "")
             + (" (exclusive: the display waited for the worker off the clock)"
-               if b.exclusive else ""),
+               if b.exclusive else "")
+            + f"; worker priority {b.worker_priority}",
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
             f"({s['deadline_misses_pct']:.2f} %), dropped refreshes {s['dropped']}, "
             f"achieved {s['achieved_fps']:.1f} FPS",
