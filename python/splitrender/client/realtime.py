@@ -214,9 +214,9 @@ def _yield_to_display(priority: str) -> None:
       display frame that overlaps the worker's decoding can lose part of a core for a while.
     - ``"normal"``: unchanged.
 
-    On 2 cores, ``idle`` against ``low`` (``splitrender bench --realtime --scale 0.25``, three
-    rounds alternating, docs/realtime.md): 1.7–8.1 % deadline misses against 14.2–15.8 %, the
-    worker's time until a frame is usable about the same. ``idle`` can starve the worker only
+    On 2 cores, ``idle`` against ``low`` (``splitrender bench --realtime --scale 0.25``, two
+    sets of three rounds alternating, docs/realtime.md): 1.7–12.9 % deadline misses against
+    13.5–18.0 %, lower in every pair of rounds; frames become usable 2–4 ms later. ``idle`` can starve the worker only
     if the display never sleeps, and a display that never sleeps has missed its deadlines
     anyway. Lowering needs no privilege; where the platform cannot, nothing changes."""
     if priority == "normal":
