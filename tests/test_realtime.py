@@ -127,18 +127,29 @@ def test_a_late_frame_is_a_miss_and_the_loop_resumes_on_the_next_free_refresh(sc
     assert s["deadline_misses_pct"] == pytest.approx(10.0)
 
 
-def test_display_extrapolates_while_the_new_pair_is_prepared(scene, frames, monkeypatch):
+def _hold_preparation(monkeypatch, held):  # type: ignore[no-untyped-def]
+    """Makes the worker's preparation of each pair ``(older index or None, newer index)`` for
+    which ``held`` is true wait until ``release`` is set (``entered`` is set when it starts);
+    ``order`` lists the pairs prepared. Returns ``(entered, release, order)``."""
     release = threading.Event()
     entered = threading.Event()
     real = rt.prepare_pair
+    order = []
 
     def slow_prepare(older, newer, *a, **kw):  # type: ignore[no-untyped-def]
-        if newer.index == 1:
+        pair = (None if older is None else older.index, newer.index)
+        order.append(pair)
+        if held(pair):
             entered.set()
             assert release.wait(10.0)
         return real(older, newer, *a, **kw)
 
     monkeypatch.setattr(rt, "prepare_pair", slow_prepare)
+    return entered, release, order
+
+
+def test_display_extrapolates_while_the_new_pair_is_prepared(scene, frames, monkeypatch):
+    entered, release, _ = _hold_preparation(monkeypatch, lambda pair: pair[1] == 1)
     clock = FakeClock()
     with loop(clock) as c:
         c.submit(frames[0])
@@ -160,19 +171,7 @@ def test_a_frame_interpolates_once_its_pair_is_prepared_before_its_extrapolation
     scene, frames, monkeypatch
 ):
     # The pair (0, 1) is what frame 1 is first needed for; (None, 1) only if frame 2 is late.
-    release = threading.Event()
-    entered = threading.Event()
-    real = rt.prepare_pair
-    order = []
-
-    def slow_prepare(older, newer, *a, **kw):  # type: ignore[no-untyped-def]
-        order.append((None if older is None else older.index, newer.index))
-        if newer.index == 1 and older is None:
-            entered.set()
-            assert release.wait(10.0)
-        return real(older, newer, *a, **kw)
-
-    monkeypatch.setattr(rt, "prepare_pair", slow_prepare)
+    entered, release, order = _hold_preparation(monkeypatch, lambda pair: pair == (None, 1))
     clock = FakeClock()
     with loop(clock) as c:
         c.submit(frames[0])

@@ -279,11 +279,24 @@ fn extrapolation_of_a_static_scene_is_the_identity() {
     }
 }
 
+/// The synthetic scene's client at `alpha` of the pair, moved off the server's path (0.25 right,
+/// 0.1 down), so that it sees what the main camera did not and the auxiliary cameras matter.
+fn off_path_request(alpha: f32, w: usize, h: usize) -> Request {
+    use crate::synthetic::{head_pose, rig};
+    let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
+    e[0] += 0.25;
+    e[1] -= 0.1;
+    Request {
+        client: rig(e, tg, w, h).0,
+        alpha,
+    }
+}
+
 /// The lazy auxiliary search ([`AuxGrid`]) skips cells whose match cannot reach the output;
 /// it must give the same bytes as searching every cell, with and without the older frame.
 #[test]
 fn lazy_auxiliary_search_equals_searching_every_cell() {
-    use crate::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+    use crate::synthetic::{SyntheticFrame, SyntheticScene};
     let (w, h) = (192, 108);
     let scene = SyntheticScene::new(true);
     let f0 = SyntheticFrame::render(&scene, 0.0, w, h, 0.1, 4);
@@ -291,14 +304,7 @@ fn lazy_auxiliary_search_equals_searching_every_cell() {
     let (older, newer) = (f0.view(true), f1.view(false));
     let mut aux_pixels = 0;
     for (alpha, pair) in [(0.35f32, true), (0.8, true), (1.4, false)] {
-        // Off the server path, so that the client sees what the main camera did not.
-        let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
-        e[0] += 0.25;
-        e[1] -= 0.1;
-        let req = Request {
-            client: rig(e, tg, w, h).0,
-            alpha,
-        };
+        let req = off_path_request(alpha, w, h);
         let run = |eager: bool| {
             EAGER_AUX.with(|x| x.set(eager));
             let mut out = vec![9u8; w * h * 3];
@@ -1033,13 +1039,7 @@ fn auxiliary_merge_in_runs_with_grids_of_different_sizes() {
     // Pixels per auxiliary camera, inside the hole and outside it.
     let mut from = [[0usize; 2]; 2];
     for (alpha, pair) in [(0.35f32, true), (1.4, false)] {
-        let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
-        e[0] += 0.25;
-        e[1] -= 0.1;
-        let req = Request {
-            client: rig(e, tg, w, h).0,
-            alpha,
-        };
+        let req = off_path_request(alpha, w, h);
         let mut runs = Vec::new();
         for eager in [false, true] {
             EAGER_AUX.with(|x| x.set(eager));
