@@ -148,14 +148,19 @@ def _hold_preparation(monkeypatch, held):  # type: ignore[no-untyped-def]
     return entered, release, order
 
 
+def _submit_until_held(c: RealtimeClient, frames: list[Any], entered: threading.Event) -> None:
+    """Frame 0 received, then frame 1 submitted until its held preparation has started."""
+    c.submit(frames[0])
+    c.wait()
+    c.submit(frames[1])
+    assert entered.wait(10.0)
+
+
 def test_display_extrapolates_while_the_new_pair_is_prepared(scene, frames, monkeypatch):
     entered, release, _ = _hold_preparation(monkeypatch, lambda pair: pair[1] == 1)
     clock = FakeClock()
     with loop(clock) as c:
-        c.submit(frames[0])
-        c.wait()
-        c.submit(frames[1])
-        assert entered.wait(10.0)
+        _submit_until_held(c, frames, entered)
         # Frame 1 is decoded but its pair is still being prepared: not usable yet.
         first = c.run(pose_of(scene), 0.05)
         assert {(f.mode, f.newer) for f in first.frames} == {("extrapolate", 0)}
@@ -174,10 +179,7 @@ def test_a_frame_interpolates_once_its_pair_is_prepared_before_its_extrapolation
     entered, release, order = _hold_preparation(monkeypatch, lambda pair: pair == (None, 1))
     clock = FakeClock()
     with loop(clock) as c:
-        c.submit(frames[0])
-        c.wait()
-        c.submit(frames[1])
-        assert entered.wait(10.0)
+        _submit_until_held(c, frames, entered)
         # Frame 1 is usable with its interpolation pair while (None, 1) is being prepared.
         during = c.run(pose_of(scene), 0.05).frames
         assert {(f.mode, f.older, f.newer) for f in during} == {("interpolate", 0, 1)}
