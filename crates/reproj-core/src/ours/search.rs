@@ -172,7 +172,7 @@ impl Resolve<'_> {
             } else {
                 if !listed {
                     // The pixels that moved in the last whole-row iteration (marked in `prev`).
-                    let m = list_moving(&row.prev[..cw], &mut row.moving[..cw]);
+                    let m = g.list(&row.prev[..cw], &mut row.moving[..cw]);
                     debug_assert_eq!(m, n);
                     row.dm.resize(n, [0.0; 2]);
                     row.dx.resize(n, 0.0);
@@ -323,11 +323,12 @@ fn fixed_point_step(
 
 /// The indices `i` with `q[i] != NO_SPLAT`, in order, written to `out[..n]`; returns `n`.
 ///
-/// A mask per eight entries (one vector compare), then a step per set bit: the pixels still
-/// moving after a few iterations are few, so this reads the row at a fraction of an instruction
-/// per pixel where a branch-free write per pixel costs several.
+/// A mask per eight entries (`mask8`: bit `l` set where entry `l` is not [`NO_SPLAT`]), then a
+/// step per set bit: the pixels still moving after a few iterations are few, so this reads the
+/// row at a fraction of an instruction per pixel where a branch-free write per pixel costs
+/// several.
 #[inline(always)]
-fn list_moving(q: &[u32], out: &mut [u32]) -> usize {
+fn list_moving(q: &[u32], out: &mut [u32], mask8: impl Fn(&[u32; 8]) -> u32) -> usize {
     let mut n = 0;
     let chunks = q.chunks_exact(8);
     let tail = chunks.remainder();
@@ -339,18 +340,20 @@ fn list_moving(q: &[u32], out: &mut [u32]) -> usize {
         }
     };
     for (c, chunk) in chunks.enumerate() {
-        let mut bits = 0u32;
-        for (l, &v) in chunk.iter().enumerate() {
-            bits |= u32::from(v != NO_SPLAT) << l;
-        }
-        put(8 * c, bits);
+        put(8 * c, mask8(chunk.try_into().unwrap()));
     }
+    put(q.len() - tail.len(), live_bits(tail));
+    n
+}
+
+/// Bit `l` set where `q[l]` is not [`NO_SPLAT`] (`q` of at most 32 entries).
+#[inline(always)]
+fn live_bits(q: &[u32]) -> u32 {
     let mut bits = 0u32;
-    for (l, &v) in tail.iter().enumerate() {
+    for (l, &v) in q.iter().enumerate() {
         bits |= u32::from(v != NO_SPLAT) << l;
     }
-    put(q.len() - tail.len(), bits);
-    n
+    bits
 }
 
 /// The loops of [`Resolve::search_row`] that load by source pixel (gathers): the flow `M_cam` at
@@ -386,6 +389,9 @@ trait Gathers: Copy {
 
     /// `zg[i] = zc[pix(pks[i])]`, NaN where `pks[i] == NO_SPLAT`.
     fn depths(self, zc: &[f32], sw: usize, pks: &[u32], zg: &mut [f32]);
+
+    /// [`list_moving`]: the indices of the entries of `q` that are not [`NO_SPLAT`].
+    fn list(self, q: &[u32], out: &mut [u32]) -> usize;
 }
 
 /// [`Gathers`] in plain Rust, for every processor.
@@ -447,6 +453,11 @@ impl Gathers for Portable {
             };
         }
     }
+
+    #[inline(always)]
+    fn list(self, q: &[u32], out: &mut [u32]) -> usize {
+        list_moving(q, out, |c| live_bits(c))
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -501,6 +512,12 @@ mod x86 {
         fn depths(self, zc: &[f32], sw: usize, pks: &[u32], zg: &mut [f32]) {
             // SAFETY: as in `moves`.
             unsafe { depths(zc, sw, pks, zg) }
+        }
+
+        #[inline(always)]
+        fn list(self, q: &[u32], out: &mut [u32]) -> usize {
+            // SAFETY: as in `moves`.
+            unsafe { list(q, out) }
         }
     }
 
@@ -599,6 +616,19 @@ mod x86 {
             .map(|&c| c.unsigned_abs() as usize)
             .sum::<usize>();
         n + portable(&next[body..], &mut pks[body..], &mut ms[body..])
+    }
+
+    /// [`Gathers::list`]: the mask of eight entries from one compare.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn list(q: &[u32], out: &mut [u32]) -> usize {
+        let none = _mm256_set1_epi32(NO_SPLAT as i32);
+        super::list_moving(q, out, |c| {
+            // SAFETY: `c` is 8 entries, 32 bytes.
+            let v = unsafe { _mm256_loadu_si256(c.as_ptr().cast()) };
+            let stay = _mm256_castsi256_ps(_mm256_cmpeq_epi32(v, none));
+            _mm256_movemask_ps(stay) as u32 ^ 0xFF
+        })
     }
 
     /// [`Gathers::depths`].
