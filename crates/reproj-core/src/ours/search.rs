@@ -145,20 +145,17 @@ impl Resolve<'_> {
         }
         // Stage 2: the fixed-point iteration p ← pix(T − M_cam[p]) (eq. 5 with the flows of eqs.
         // 12/13). Once p maps to itself every further iteration would too, so a pixel leaves the
-        // iteration there (most converge after one step). An iteration is a step for every
-        // pixel still moving, one loop of arithmetic without branches (vectorised,
-        // [`fixed_point_step`]), then their moves ([`Gathers::moves`]). While many move (nearly
-        // all do once: the window's nearest splat is usually a neighbour of the fixed point;
-        // about one in twelve twice) these run over the whole row; once few do, over a list of
-        // those with their state packed densely. A pixel that stopped never moves again, so the
-        // list only shrinks.
+        // iteration there (most converge after one step). An iteration is a step, one loop of
+        // arithmetic without branches (vectorised, [`fixed_point_step`]), then the moves
+        // ([`Gathers::moves`]). While many pixels move (nearly all do once: the window's nearest
+        // splat is usually a neighbour of the fixed point; about one in fifty twice), both run
+        // over the whole row; once few do, over a list of those with their state packed densely.
+        // A pixel that stopped never moves again, so the list only shrinks.
         let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
-        // `prev[i] != NO_SPLAT`: pixel `i` is still iterating (it has a splat, and moved in the
-        // last iteration).
-        row.prev[..cw].copy_from_slice(pks);
         let mut n = cw;
         // Whether `moving[..n]` lists the pixels that moved in the last iteration, with their
-        // pixels, flows and targets in `prev`, `dm` and `dx`.
+        // pixels, flows and targets in `prev`, `dm` and `dx`. Before, the whole row iterates (the
+        // first iteration always does), and `prev` marks the pixels that moved in the last one.
         let mut listed = false;
         for _ in 0..self.iterations {
             if n == 0 {
@@ -166,7 +163,7 @@ impl Resolve<'_> {
             }
             if 4 * n > cw {
                 let next = &mut row.next[..cw];
-                fixed_point_step(pks, ms, tx, ty, &row.prev[..cw], next, wf, hf);
+                fixed_point_step(pks, ms, tx, ty, next, wf, hf);
                 n = g.moves(flow, sw, next, pks, ms);
                 std::mem::swap(&mut row.next, &mut row.prev);
             } else {
@@ -185,8 +182,7 @@ impl Resolve<'_> {
                 let (moving, dpk, next) =
                     (&mut row.moving[..n], &mut row.prev[..n], &mut row.next[..n]);
                 let (dm, dx) = (&mut row.dm[..n], &mut row.dx[..n]);
-                // Every listed pixel has a splat, so its own pixel marks it as iterating.
-                fixed_point_step(dpk, dm, dx, ty, dpk, next, wf, hf);
+                fixed_point_step(dpk, dm, dx, ty, next, wf, hf);
                 g.moves(flow, sw, next, dpk, dm);
                 // Back into the row, and the list without the pixels that stopped.
                 let mut kept = 0;
@@ -291,33 +287,30 @@ impl Resolve<'_> {
 
 /// One fixed-point step p ← pix(T − M_cam[p]) for targets at NDC `(x[i], y)` from the source
 /// pixels `pks` with flows `ms`: `next[i]` is the packed pixel of `T − m` where that is inside
-/// the `wf × hf` source, not `pks[i]`, and the target still iterates (`live[i] != NO_SPLAT`),
-/// else [`NO_SPLAT`]. The arithmetic of [`pixel_of_ndc`], without branches.
-#[allow(clippy::too_many_arguments)]
+/// the `wf × hf` source and not `pks[i]`, else [`NO_SPLAT`]. The arithmetic of [`pixel_of_ndc`],
+/// without branches.
+///
+/// A target that stopped (or has no splat: its flow is NaN) stops again: the step depends on
+/// its pixel and flow alone, which stay. So the whole row needs no mask of those still moving.
 #[inline(always)]
 fn fixed_point_step(
     pks: &[u32],
     ms: &[[f32; 2]],
     x: &[f32],
     y: f32,
-    live: &[u32],
     next: &mut [u32],
     wf: f32,
     hf: f32,
 ) {
     let len = next.len();
-    let (pks, ms, x, live) = (&pks[..len], &ms[..len], &x[..len], &live[..len]);
+    let (pks, ms, x) = (&pks[..len], &ms[..len], &x[..len]);
     for i in 0..len {
         let (pk, m) = (pks[i], ms[i]);
         let fx = (x[i] - m[0] + 1.0) * 0.5 * wf;
         let fy = (1.0 - (y - m[1])) * 0.5 * hf;
         let inside = fx >= 0.0 && fy >= 0.0 && fx < wf && fy < hf;
         let c = packed_cell(inside, fx, fy);
-        next[i] = if inside & (live[i] != NO_SPLAT) & (c != pk) {
-            c
-        } else {
-            NO_SPLAT
-        };
+        next[i] = if inside & (c != pk) { c } else { NO_SPLAT };
     }
 }
 
