@@ -656,3 +656,283 @@ mod x86 {
         Portable.depths(zc, sw, &pks[body..], &mut zg[body..]);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::pair::PairCache;
+    use super::super::{Cell, NdcTable, Params, Resolve, Src};
+    use super::{Gathers, Portable, SearchRow, Targets, NO_SPLAT};
+    use crate::camera::{Camera, Mat4};
+    use crate::frame::CameraView;
+    use crate::ours::{set_simd_limit, simd_tier, Simd};
+    use crate::shadow::Role;
+
+    /// xorshift64: a draw in `0..k`.
+    fn rng(seed: &mut u64, k: u64) -> u64 {
+        *seed ^= *seed << 13;
+        *seed ^= *seed >> 7;
+        *seed ^= *seed << 17;
+        *seed % k
+    }
+
+    /// [`Resolve::search_row`] at every SIMD tier gives what [`Resolve::search`] gives for each
+    /// target alone, to the bit (pixel, error, depth, visibility), for every way a row meets the
+    /// source (the same grid by column, the same grid at listed cells, another grid by NDC,
+    /// with NDC at the edges, ±0, ±∞ and NaN) and 0, 1, 3 and 32 iterations. The flows are
+    /// random fields of a few pixels (so targets move once, several times or around a cycle)
+    /// mixed with NaN, ±∞, ±0 and far-outside components; the depths mix NaN, ∞ and ±0; the
+    /// windows have no splat for one cell in six. Rows of 37, 21 and 50 targets leave tails
+    /// outside the vector loops, and the auxiliary source's matches carry visibility flags.
+    #[test]
+    fn search_row_equals_the_search_per_target_at_every_tier() {
+        let (sw, sh) = (37, 23);
+        let n = sw * sh;
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        let camera = Camera::new(
+            Mat4::look_at([0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
+            Mat4::perspective(60.0, sw as f64 / sh as f64, 0.1, 100.0),
+            sw,
+            sh,
+            "test",
+        )
+        .unwrap();
+        let (color, depth) = (vec![0u8; 3 * n], vec![0.5f32; n]);
+        let view = CameraView {
+            camera,
+            color: &color,
+            depth: &depth,
+            motion: None,
+            shadow: None,
+        };
+        let special = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            1e30,
+            -1e30,
+            1.0,
+            -1.0,
+            2.0,
+        ];
+        let sources: Vec<Src> = (0..2)
+            .map(|k| {
+                let mut s = Src::new(
+                    view,
+                    camera.projector("test").unwrap(),
+                    None,
+                    Role::Older,
+                    k,
+                );
+                s.bufs.fit(n, k);
+                for p in 0..n {
+                    let f = |seed: &mut u64, side: usize| {
+                        if rng(seed, 12) == 0 {
+                            special[rng(seed, special.len() as u64) as usize]
+                        } else {
+                            (rng(seed, 1201) as f32 - 600.0) / 100.0 * 2.0 / side as f32
+                        }
+                    };
+                    s.bufs.flow[p] = [f(&mut seed, sw), f(&mut seed, sh)];
+                    s.bufs.zc[p] = if rng(&mut seed, 8) == 0 {
+                        special[rng(&mut seed, 5) as usize]
+                    } else {
+                        rng(&mut seed, 1000) as f32 / 1000.0
+                    };
+                    s.bufs.init[p] = if rng(&mut seed, 6) == 0 {
+                        NO_SPLAT
+                    } else {
+                        let (i, j) = (p % sw, p / sw);
+                        let near = |seed: &mut u64, c: usize, side: usize| {
+                            (c + rng(seed, 5) as usize).saturating_sub(2).min(side - 1)
+                        };
+                        super::super::pack_pixel(near(&mut seed, i, sw), near(&mut seed, j, sh))
+                    };
+                }
+                s
+            })
+            .collect();
+        let mut pair = PairCache::default();
+        pair.sources = vec![Default::default(), Default::default()];
+        pair.sources[1].vis = (0..n).map(|_| rng(&mut seed, 2) as u8).collect();
+        let p = Params::default();
+        let resolve = |iterations| Resolve {
+            params: &p,
+            alpha: 0.5,
+            client_w: sw,
+            client_h: sh,
+            sources: &sources,
+            bidirectional: false,
+            eps_e: 1.0,
+            eps_e_aux: 1.0,
+            eps_z: 1.0,
+            eps_z_aux: 1.0,
+            iterations,
+            aux: Vec::new(),
+            client_ndc: NdcTable::new(sw, sh),
+            pair: &pair,
+            palettes: Vec::new(),
+        };
+        // The rows: the source's own grid by column and at listed cells, and a 50×31 grid
+        // found from NDC, whose targets include edge and special values.
+        let own = NdcTable::new(sw, sh);
+        let (gw, gh) = (50, 31);
+        let other = NdcTable::new(gw, gh);
+        let cols: Vec<u32> = (0..21).map(|_| rng(&mut seed, sw as u64) as u32).collect();
+        let listed_x: Vec<f32> = cols.iter().map(|&c| own.x[c as usize]).collect();
+        let mut other_x = other.x.clone();
+        for (t, v) in [-1.0, 1.0, -0.0, 0.0, f32::NAN, f32::INFINITY, 0.999_999_9]
+            .into_iter()
+            .enumerate()
+        {
+            other_x[7 * t] = v;
+        }
+        let mut checked = 0;
+        for iterations in [0, 1, 3, 32] {
+            let r = resolve(iterations);
+            for tier in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+                set_simd_limit(tier);
+                let mut row = SearchRow::default();
+                for k in 0..2 {
+                    for j in 0..gh {
+                        let mut cases = vec![(&other_x[..], other.y[j], j, gw, gh, None)];
+                        if j < sh {
+                            cases.push((&own.x[..], own.y[j], j, sw, sh, None));
+                            cases.push((&listed_x[..], own.y[j], j, sw, sh, Some(&cols[..])));
+                        }
+                        // Once with a special y.
+                        if j == gh - 1 {
+                            cases.push((&other_x[..], f32::NAN, 0, gw, gh, None));
+                            cases.push((&other_x[..], -1.0, 0, gw, gh, None));
+                        }
+                        for (x, y, j, gw, gh, cols) in cases {
+                            let t = Targets {
+                                x,
+                                y,
+                                j,
+                                gw,
+                                gh,
+                                cols,
+                            };
+                            r.search_row(k, &t, &mut row);
+                            for (m, &xm) in x.iter().enumerate() {
+                                let i = cols.map_or(m, |c| c[m] as usize);
+                                let want = r.search(k, [xm, y], Cell { i, j, gw, gh });
+                                let got = row.found(m);
+                                let bits = |o: Option<super::super::Match>| {
+                                    o.map(|o| (o.p, o.e.to_bits(), o.z.to_bits(), o.vis))
+                                };
+                                assert_eq!(
+                                    bits(got),
+                                    bits(want),
+                                    "{tier:?} (as {:?}), {iterations} iterations, source {k}, \
+                                     row {j} of {gw}×{gh}, target {m}",
+                                    simd_tier()
+                                );
+                                checked += usize::from(want.is_some());
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        set_simd_limit(Simd::Avx512);
+        // The random fields leave most targets with a match.
+        assert!(checked > 10_000, "{checked}");
+    }
+
+    /// The gathers of the AVX2 build ([`super::x86::Avx2`]) give the portable loops' results and
+    /// counts, on rows of every length up to 40 (tails of every size) that mix targets with and
+    /// without a pixel, and the list of those that are not [`NO_SPLAT`] is theirs.
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn avx2_gathers_equal_the_portable_loops() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        // SAFETY: the processor has AVX2 (checked above).
+        let g = unsafe { super::x86::Avx2::new() };
+        let (sw, sh) = (29, 7);
+        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+        let flow: Vec<[f32; 2]> = (0..sw * sh)
+            .map(|_| [rng(&mut seed, 1000) as f32, -(rng(&mut seed, 1000) as f32)])
+            .collect();
+        let zc: Vec<f32> = (0..sw * sh).map(|_| rng(&mut seed, 1000) as f32).collect();
+        for len in 0..=40 {
+            for none_in in [0, 3, 8] {
+                let pixels: Vec<u32> = (0..len)
+                    .map(|_| {
+                        if rng(&mut seed, 8) < none_in {
+                            NO_SPLAT
+                        } else {
+                            let (i, j) = (rng(&mut seed, sw as u64), rng(&mut seed, sh as u64));
+                            super::super::pack_pixel(i as usize, j as usize)
+                        }
+                    })
+                    .collect();
+                let start: Vec<u32> = (0..len).map(|_| rng(&mut seed, 99) as u32).collect();
+                // Moves from `start` (or firsts), then the depths at the pixels and the list.
+                let outcome = |g: &dyn Gathers2, first: bool| {
+                    let (mut pk, mut m) = (start.clone(), vec![[0.5f32, -0.0]; len]);
+                    let (mut z, mut list) = (vec![0f32; len], vec![0u32; len]);
+                    let moved = if first {
+                        g.firsts(&flow, sw, &pixels, &mut pk, &mut m);
+                        0
+                    } else {
+                        g.moves(&flow, sw, &pixels, &mut pk, &mut m)
+                    };
+                    g.depths(&zc, sw, &pk, &mut z);
+                    let listed = g.list(&pixels, &mut list);
+                    let m: Vec<[u32; 2]> = m.iter().map(|m| m.map(f32::to_bits)).collect();
+                    let z: Vec<u32> = z.iter().map(|z| z.to_bits()).collect();
+                    (pk, m, z, list, moved, listed)
+                };
+                for first in [false, true] {
+                    assert_eq!(
+                        outcome(&g, first),
+                        outcome(&Portable, first),
+                        "{len} targets, {none_in} in 8 without a pixel, first {first}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// [`Gathers`] as a trait object, so that one closure runs both builds.
+    trait Gathers2 {
+        fn moves(
+            &self,
+            f: &[[f32; 2]],
+            sw: usize,
+            q: &[u32],
+            pk: &mut [u32],
+            m: &mut [[f32; 2]],
+        ) -> usize;
+        fn firsts(&self, f: &[[f32; 2]], sw: usize, q: &[u32], pk: &mut [u32], m: &mut [[f32; 2]]);
+        fn depths(&self, zc: &[f32], sw: usize, pk: &[u32], z: &mut [f32]);
+        fn list(&self, q: &[u32], out: &mut [u32]) -> usize;
+    }
+
+    impl<G: Gathers> Gathers2 for G {
+        fn moves(
+            &self,
+            f: &[[f32; 2]],
+            sw: usize,
+            q: &[u32],
+            pk: &mut [u32],
+            m: &mut [[f32; 2]],
+        ) -> usize {
+            Gathers::moves(*self, f, sw, q, pk, m)
+        }
+        fn firsts(&self, f: &[[f32; 2]], sw: usize, q: &[u32], pk: &mut [u32], m: &mut [[f32; 2]]) {
+            Gathers::firsts(*self, f, sw, q, pk, m);
+        }
+        fn depths(&self, zc: &[f32], sw: usize, pk: &[u32], z: &mut [f32]) {
+            Gathers::depths(*self, zc, sw, pk, z);
+        }
+        fn list(&self, q: &[u32], out: &mut [u32]) -> usize {
+            Gathers::list(*self, q, out)
+        }
+    }
+}
