@@ -75,18 +75,12 @@ pub(super) fn scene_flow_and_splat(
                     kz: &mut scratch.kz,
                 };
                 flow_row(input, out);
-                row_keys(&scratch.kz, pack_pixel(0, j), &mut scratch.key);
-                splat_row(&scratch.cell, &scratch.key, base, band, spill);
+                splat_row(j, &scratch.cell, &scratch.kz, base, band, spill);
                 if let Some(vis) = vis {
                     // Auxiliary sources: flag where the points not visible in main land.
                     let v = &vis[j * sw..(j + 1) * sw];
                     landing_row(SrcRow { j, sw, sh }, xs, row, v, &mut scratch.inv);
-                    for &c in &scratch.inv {
-                        if c != NO_SPLAT {
-                            // A plain store on x86-64: setting a flag needs no read-modify-write.
-                            invisible[c as usize].store(1, Ordering::Relaxed);
-                        }
-                    }
+                    flag_cells(&scratch.inv, invisible);
                 }
             }
         });
@@ -115,37 +109,128 @@ pub(super) fn scene_flow_and_splat(
         .enumerate()
         .for_each(|(q, cells)| {
             let lo = (q * part) as u32;
-            for &(c, key) in spills.iter().flatten() {
-                if let Some(s) = cells.get_mut(c.wrapping_sub(lo) as usize) {
-                    *s = key_min(*s, key);
+            // Nested loops, not `flatten`: its state check per point cost as much as the update.
+            for spill in &spills {
+                for &(c, key) in spill {
+                    if let Some(s) = cells.get_mut(c.wrapping_sub(lo) as usize) {
+                        *s = key_min(*s, key);
+                    }
                 }
             }
         });
     src.bufs.spill = spills;
 }
 
+/// Points per chunk of [`flag_cells`]: one AVX2 vector.
+const FLAG_CHUNK: usize = 8;
+
 simd_dispatch! {
-    /// The splat keys ([`splat_key`]) of one source row from its key depths `kz` and the packed
-    /// pixel of its first point `pk_row` ([`pack_pixel`]). Four keys per vector instruction here,
-    /// against four scalar instructions per key in [`splat_row`].
-    fn row_keys / row_keys_avx2, row_keys_avx512 => row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64])
+    /// Sets the flag of every cell of `inv` ([`RowScratch::inv`]) other than [`NO_SPLAT`] in
+    /// `invisible`. Few points of an auxiliary source are not visible in the main camera (4 % in
+    /// time_ours's scene, and 94 % of the chunks of 8 have none), so whole chunks without any
+    /// are skipped after one test.
+    fn flag_cells / flag_cells_avx2, flag_cells_avx512 => flag_cells_impl(
+        inv: &[u32],
+        invisible: &[std::sync::atomic::AtomicU8],
+    )
 }
 
 #[inline(always)]
-fn row_keys_impl(kz: &[f32], pk_row: u32, key: &mut [u64]) {
-    for (i, (k, z)) in key.iter_mut().zip(kz).enumerate() {
-        *k = splat_key(*z, pk_row | i as u32);
+fn flag_cells_impl(inv: &[u32], invisible: &[std::sync::atomic::AtomicU8]) {
+    let flag = |c: &[u32]| {
+        for &c in c {
+            if c != NO_SPLAT {
+                // A plain store on x86-64: setting a flag needs no read-modify-write.
+                invisible[c as usize].store(1, Ordering::Relaxed);
+            }
+        }
+    };
+    let chunks = inv.chunks_exact(FLAG_CHUNK);
+    let tail = chunks.remainder();
+    for c in chunks {
+        // One vector compare and test (a fold was done in scalars, a longer array with a call).
+        if *c != [NO_SPLAT; FLAG_CHUNK] {
+            flag(c);
+        }
+    }
+    flag(tail);
+}
+
+/// Points per chunk of [`splat_row`]: one vector of cells, two of keys on AVX2.
+const SPLAT_CHUNK: usize = 8;
+
+simd_dispatch! {
+    /// Splats one source row `j` whose points' cells and key depths are `cell` and `kz`
+    /// ([`RowScratch`]): into `band`, the cells `base..` of the grid, or else onto `spill`.
+    ///
+    /// Neighbouring points of a row mostly land in neighbouring cells: in time_ours's scene, 93 %
+    /// of the chunks of 8 points of a main source land in 8 consecutive cells of their band, and
+    /// 47 % of those of an auxiliary source do not splat at all. Such a chunk is one vector
+    /// minimum with the band's cells (its keys put together in vectors too), or nothing; the
+    /// others take the point by point path ([`splat_points`]). The minimum does not depend on the
+    /// order of the updates, so the grid is the same. Per 640×360 frame (AVX2), 4.9 M
+    /// instructions against 10.8 M for the keys and the splat point by point.
+    fn splat_row / splat_row_avx2, splat_row_avx512 => splat_row_impl(
+        j: usize,
+        cell: &[u32],
+        kz: &[f32],
+        base: u32,
+        band: &mut [u64],
+        spill: &mut Vec<(u32, u64)>,
+    )
+}
+
+#[inline(always)]
+fn splat_row_impl(
+    j: usize,
+    cell: &[u32],
+    kz: &[f32],
+    base: u32,
+    band: &mut [u64],
+    spill: &mut Vec<(u32, u64)>,
+) {
+    let cells = cell.chunks_exact(SPLAT_CHUNK);
+    let done = cell.len() - cells.remainder().len();
+    // The packed pixels of the chunk's points.
+    let mut pks: [u64; SPLAT_CHUNK] = std::array::from_fn(|i| u64::from(pack_pixel(i, j)));
+    for (c, z) in cells.zip(kz.chunks_exact(SPLAT_CHUNK)) {
+        // Whole-array comparisons: one vector compare and test each.
+        let c: &[u32; SPLAT_CHUNK] = c.try_into().unwrap();
+        let z: &[f32; SPLAT_CHUNK] = z.try_into().unwrap();
+        let next = pks.map(|p| p + SPLAT_CHUNK as u64);
+        let pks = std::mem::replace(&mut pks, next);
+        if *c == [NO_SPLAT; SPLAT_CHUNK] {
+            continue;
+        }
+        // `splat_key(z, pk)`, with the packed pixels kept in 64-bit lanes across chunks.
+        let key: [u64; SPLAT_CHUNK] = std::array::from_fn(|i| splat_key(z[i], 0) | pks[i]);
+        let run: [u32; SPLAT_CHUNK] = std::array::from_fn(|i| c[0].wrapping_add(i as u32));
+        // A run that wraps past NO_SPLAT starts more than 2³¹ − 8 cells from every band.
+        let rel = c[0].wrapping_sub(base) as usize;
+        if *c == run {
+            if let Some(dst) = band.get_mut(rel..rel + SPLAT_CHUNK) {
+                for (d, &k) in dst.iter_mut().zip(&key) {
+                    *d = key_min(*d, k);
+                }
+                continue;
+            }
+        }
+        splat_points(c, &key, base, band, spill);
+    }
+    for (i, (&c, &z)) in cell.iter().zip(kz).enumerate().skip(done) {
+        splat_points(&[c], &[splat_key(z, pack_pixel(i, j))], base, band, spill);
     }
 }
 
-/// Splats one source row whose points' cells and keys are `cell` and `key` ([`RowScratch`]):
-/// into `band`, the cells `base..` of the grid, or else onto `spill`.
-///
-/// A function of its own, not inlined: inside the closure of [`scene_flow_and_splat`] the
-/// compiler kept the band's pointer, length and base on the stack and reloaded them for every
-/// point.
-#[inline(never)]
-fn splat_row(cell: &[u32], key: &[u64], base: u32, band: &mut [u64], spill: &mut Vec<(u32, u64)>) {
+/// [`splat_row`] point by point, for the points in `cell` with keys `key` ([`splat_key`]).
+#[inline(always)]
+fn splat_points(
+    cell: &[u32],
+    key: &[u64],
+    base: u32,
+    band: &mut [u64],
+    spill: &mut Vec<(u32, u64)>,
+) {
     for (&c, &key) in cell.iter().zip(key) {
         // NO_SPLAT wraps to beyond every band (grids have fewer than 2³¹ cells).
         let rel = c.wrapping_sub(base) as usize;
@@ -161,7 +246,7 @@ fn splat_row(cell: &[u32], key: &[u64], base: u32, band: &mut [u64], spill: &mut
 thread_local! {
     /// Splat targets of one source row ([`RowScratch`]), reused.
     static ROW_SCRATCH: std::cell::RefCell<RowScratch> = const {
-        std::cell::RefCell::new(RowScratch { cell: Vec::new(), kz: Vec::new(), key: Vec::new(), inv: Vec::new() })
+        std::cell::RefCell::new(RowScratch { cell: Vec::new(), kz: Vec::new(), inv: Vec::new() })
     };
 }
 
@@ -172,11 +257,9 @@ struct RowScratch {
     /// [`NO_SPLAT`].
     cell: Vec<u32>,
     /// Its key depth, the `z` of [`splat_key`] (unspecified where `cell` is [`NO_SPLAT`]). The
-    /// key itself is put together by [`row_keys`]: 64-bit lanes in [`flow_row`] made the
+    /// key itself is put together by [`splat_row`]: 64-bit lanes in [`flow_row`] made the
     /// compiler halve its vector width.
     kz: Vec<f32>,
-    /// The splat keys ([`row_keys`]).
-    key: Vec<u64>,
     /// Auxiliary sources: the cell the point lands in when it is valid and not visible in the
     /// main camera (whether or not it splats; see [`Buffers::invisible`](super::Buffers::invisible)), else [`NO_SPLAT`].
     inv: Vec<u32>,
@@ -186,7 +269,6 @@ impl RowScratch {
     fn resize(&mut self, n: usize) {
         self.cell.resize(n, NO_SPLAT);
         self.kz.resize(n, 0.0);
-        self.key.resize(n, EMPTY_SPLAT);
         self.inv.resize(n, NO_SPLAT);
     }
 }
@@ -671,5 +753,148 @@ fn min3(src: &[u64], dst: &mut [u64]) {
         .zip(src[..n - 2].iter().zip(&src[1..n - 1]).zip(&src[2..]))
     {
         *d = key_min(key_min(*a, *b), *c);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{set_simd_limit, Simd};
+    use super::*;
+    use std::sync::atomic::AtomicU8;
+
+    /// A xorshift generator: the cases are the same on every run.
+    struct Rng(u64);
+
+    impl Rng {
+        fn below(&mut self, n: u64) -> u64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            self.0 % n
+        }
+    }
+
+    /// [`splat_row`] at every tier leaves the band and the spill list (as a multiset) of the
+    /// plain splat, point by point: the nearest key per cell of the band, the points of other
+    /// cells kept aside, those without a cell dropped. The rows mix every kind of chunk: runs of
+    /// consecutive cells inside the band, across its first or last cell and outside it, no
+    /// splat, repeated or skipped cells (points that spread out or crowd), cells in another band,
+    /// runs that wrap past [`NO_SPLAT`], and a run broken by one point; key depths include ±0,
+    /// ±∞, NaN and subnormals, and equal depths (ties go to the smaller pixel); rows of every
+    /// length modulo the chunk.
+    #[test]
+    fn splat_row_equals_the_point_by_point_splat_at_every_tier() {
+        let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+        let (base, n) = (400u32, 300usize);
+        let depths = [
+            0.0,
+            -0.0,
+            1.0,
+            0.25,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE / 4.0,
+        ];
+        // Chunks that took the vector path and chunks without a splat, over all rows.
+        let (mut runs, mut empty) = (0, 0);
+        for trial in 0..300 {
+            let sw = [203, 5, 64, 8, 1 + rng.below(120) as usize][trial % 5];
+            let j = rng.below(1 << 14) as usize;
+            let mut cell = Vec::with_capacity(sw + 32);
+            while cell.len() < sw {
+                let len = 1 + rng.below(24) as usize;
+                let start = (base as u64 + rng.below(n as u64 + 40)) as u32 - 20;
+                match rng.below(7) {
+                    0 | 1 => cell.extend((0..len as u32).map(|k| start + k)),
+                    2 => cell.extend(std::iter::repeat_n(NO_SPLAT, len)),
+                    3 => {
+                        let step = [0.0, 0.5, 1.5, 2.0, -1.0][rng.below(5) as usize];
+                        cell.extend((0..len).map(|k| (start as f32 + k as f32 * step) as u32));
+                    }
+                    4 => cell.extend((0..len).map(|_| rng.below(3 * n as u64) as u32)),
+                    5 => {
+                        let from = NO_SPLAT - rng.below(10) as u32;
+                        cell.extend((0..len as u32).map(|k| from.wrapping_add(k)));
+                    }
+                    _ => {
+                        let at = cell.len() + rng.below(len as u64) as usize;
+                        cell.extend((0..len as u32).map(|k| start + k));
+                        cell[at] = [NO_SPLAT, base + n as u32 + 7][rng.below(2) as usize];
+                    }
+                }
+            }
+            cell.truncate(sw);
+            let kz: Vec<f32> = (0..sw)
+                .map(|_| match rng.below(3) {
+                    0 => depths[rng.below(depths.len() as u64) as usize],
+                    _ => rng.below(1 << 10) as f32 / 1024.0,
+                })
+                .collect();
+            let start: Vec<u64> = (0..n)
+                .map(|c| match rng.below(3) {
+                    0 => EMPTY_SPLAT,
+                    _ => splat_key(rng.below(1 << 10) as f32 / 1024.0, c as u32),
+                })
+                .collect();
+            let (mut band, mut spill) = (start.clone(), Vec::new());
+            for (i, (&c, &z)) in cell.iter().zip(&kz).enumerate() {
+                let key = splat_key(z, pack_pixel(i, j));
+                match (c.wrapping_sub(base) as usize) < n {
+                    true => band[(c - base) as usize] = key_min(band[(c - base) as usize], key),
+                    false if c != NO_SPLAT => spill.push((c, key)),
+                    false => {}
+                }
+            }
+            spill.sort_unstable();
+            for c in cell.chunks_exact(SPLAT_CHUNK) {
+                let inside = (c[0].wrapping_sub(base) as usize) + SPLAT_CHUNK <= n;
+                runs += usize::from(inside && c.windows(2).all(|p| p[1] == p[0] + 1));
+                empty += usize::from(c.iter().all(|&c| c == NO_SPLAT));
+            }
+            for tier in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+                set_simd_limit(tier);
+                let (mut got, mut got_spill) = (start.clone(), Vec::new());
+                splat_row(j, &cell, &kz, base, &mut got, &mut got_spill);
+                got_spill.sort_unstable();
+                assert!(got == band, "trial {trial}, {tier:?}: band");
+                assert!(got_spill == spill, "trial {trial}, {tier:?}: spill");
+            }
+        }
+        set_simd_limit(Simd::Avx512);
+        assert!(runs > 300 && empty > 100, "{runs} {empty}");
+    }
+
+    /// [`flag_cells`] at every tier sets exactly the flags of the cells in the row other than
+    /// [`NO_SPLAT`], for rows of every length modulo the chunk, with chunks that have none, one
+    /// or several such cells (repeated ones too).
+    #[test]
+    fn flag_cells_flags_exactly_the_cells_of_the_row() {
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        let cells = 500;
+        for trial in 0..200 {
+            let len = rng.below(70) as usize;
+            let sparse = rng.below(4);
+            let inv: Vec<u32> = (0..len)
+                .map(|_| match rng.below(16) < sparse {
+                    true => rng.below(cells) as u32,
+                    false => NO_SPLAT,
+                })
+                .collect();
+            for tier in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+                set_simd_limit(tier);
+                let flags: Vec<AtomicU8> = (0..cells).map(|_| AtomicU8::new(0)).collect();
+                flag_cells(&inv, &flags);
+                for (c, f) in flags.iter().enumerate() {
+                    let want = inv.contains(&(c as u32));
+                    assert_eq!(
+                        f.load(Ordering::Relaxed),
+                        u8::from(want),
+                        "trial {trial}, {tier:?}, cell {c}"
+                    );
+                }
+            }
+        }
+        set_simd_limit(Simd::Avx512);
     }
 }
