@@ -208,17 +208,19 @@ def _yield_to_display(priority: str) -> None:
     have deadlines, gets the cores first:
 
     - ``"idle"``: the ``SCHED_IDLE`` policy. The worker runs only on a core the display leaves
-      idle (between its frames, ~1/3 of each refresh at 640×360 here), and a display thread that
-      wakes takes the core back at once. Where the platform has no ``SCHED_IDLE``, as ``"low"``.
+      idle (between its frames: about 40 % of each refresh at 640×360 here), and a display
+      thread that wakes takes the core back at once. Where the platform has no ``SCHED_IDLE``,
+      as ``"low"``.
     - ``"low"``: ``nice`` 10. The scheduler still gives the worker a share of a busy core, and a
       display frame that overlaps the worker's decoding can lose part of a core for a while.
     - ``"normal"``: unchanged.
 
     On 2 cores, ``idle`` against ``low`` (``splitrender bench --realtime --scale 0.25``, two
     sets of three rounds alternating, docs/realtime.md): 1.7–12.9 % deadline misses against
-    13.5–18.0 %, lower in every pair of rounds; frames become usable 2–4 ms later. ``idle`` can starve the worker only
-    if the display never sleeps, and a display that never sleeps has missed its deadlines
-    anyway. Lowering needs no privilege; where the platform cannot, nothing changes."""
+    13.5–18.0 %, lower in every pair of rounds; frames become usable 2–4 ms later. ``idle`` can
+    starve the worker only if the display never sleeps, and a display that never sleeps has
+    missed its deadlines anyway. Lowering needs no privilege; where the platform cannot,
+    nothing changes."""
     if priority == "normal":
         return
     tid = threading.get_native_id()
