@@ -503,7 +503,7 @@ pub(crate) fn run<'a>(
                     .with_max_len(1)
                     .for_each(|(k, src)| pass1(n_main + k, src));
                 auxes
-                    .par_chunks(n_main)
+                    .par_chunks_mut(n_main)
                     .zip(aux_bufs)
                     .with_max_len(1)
                     .map(|(srcs, maybe)| AuxGrid::new(srcs, eps_e_aux, (cw, ch), every_cell, maybe))

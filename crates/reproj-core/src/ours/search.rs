@@ -356,8 +356,9 @@ fn live_bits(q: &[u32]) -> u32 {
 /// [`NO_SPLAT`]), and the compiler does not vectorise them for AVX2: LLVM emits gathers there
 /// only for processors it tunes as having fast ones, which no target feature turns on. [`Portable`]
 /// is the scalar loop, [`x86::Avx2`] the gather instructions; both load the same values, so every
-/// build gives the same bytes.
-trait Gathers: Copy {
+/// build gives the same bytes. [`Resolve::gather_texels`](super::Resolve) loads the texels of a
+/// row with them too ([`Gathers::texels`]).
+pub(super) trait Gathers: Copy {
     /// Where `next[i] != NO_SPLAT` the target moves there: `pks[i] = next[i]` and
     /// `ms[i] = flow[pix(next[i])]`; elsewhere both are kept. Returns how many moved.
     fn moves(
@@ -385,11 +386,15 @@ trait Gathers: Copy {
 
     /// [`list_moving`]: the indices of the entries of `q` that are not [`NO_SPLAT`].
     fn list(self, q: &[u32], out: &mut [u32]) -> usize;
+
+    /// `out[i] = table[p[i]]` as two words, low first (the texels of a run of pixels with one
+    /// source, [`texel`](super::pair::texel)). Every `p[i]` is below `table.len()`.
+    fn texels(self, table: &[u64], p: &[u32], out: &mut [[u32; 2]]);
 }
 
 /// [`Gathers`] in plain Rust, for every processor.
 #[derive(Clone, Copy)]
-struct Portable;
+pub(super) struct Portable;
 
 impl Gathers for Portable {
     #[inline(always)]
@@ -451,10 +456,18 @@ impl Gathers for Portable {
     fn list(self, q: &[u32], out: &mut [u32]) -> usize {
         list_moving(q, out, |c| live_bits(c))
     }
+
+    #[inline(always)]
+    fn texels(self, table: &[u64], p: &[u32], out: &mut [[u32; 2]]) {
+        for (t, &p) in out.iter_mut().zip(p) {
+            let tex = table[p as usize];
+            *t = [tex as u32, (tex >> 32) as u32];
+        }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
-mod x86 {
+pub(super) mod x86 {
     use std::arch::x86_64::*;
 
     use super::{Gathers, Portable, NO_SPLAT};
@@ -463,13 +476,13 @@ mod x86 {
     /// as [`Portable`]). Only code compiled for AVX2 can make one ([`Avx2::new`]), and such code
     /// runs only where the processor has it, so holding one proves the instructions exist.
     #[derive(Clone, Copy)]
-    pub(super) struct Avx2 {
+    pub(in crate::ours) struct Avx2 {
         _private: (),
     }
 
     impl Avx2 {
         #[target_feature(enable = "avx2")]
-        pub(super) fn new() -> Self {
+        pub(in crate::ours) fn new() -> Self {
             Avx2 { _private: () }
         }
     }
@@ -511,6 +524,12 @@ mod x86 {
         fn list(self, q: &[u32], out: &mut [u32]) -> usize {
             // SAFETY: as in `moves`.
             unsafe { list(q, out) }
+        }
+
+        #[inline(always)]
+        fn texels(self, table: &[u64], p: &[u32], out: &mut [[u32; 2]]) {
+            // SAFETY: as in `moves`.
+            unsafe { texels(table, p, out) }
         }
     }
 
@@ -654,6 +673,37 @@ mod x86 {
             }
         }
         Portable.depths(zc, sw, &pks[body..], &mut zg[body..]);
+    }
+
+    /// [`Gathers::texels`]: eight texels (64 bytes) per two gathers. An index past the table,
+    /// where the portable loop would panic, is clamped to its last entry instead.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn texels(table: &[u64], p: &[u32], out: &mut [[u32; 2]]) {
+        let len = p.len();
+        let out = &mut out[..len];
+        if !gatherable(table.len()) {
+            return Portable.texels(table, p, out);
+        }
+        let last = _mm256_set1_epi32((table.len() - 1) as i32);
+        let base = table.as_ptr().cast::<i64>();
+        let body = len - len % 8;
+        for o in (0..body).step_by(8) {
+            // SAFETY: `o + 8 ≤ len`, the length of both slices, so the load (8 indices) and the
+            // stores (8 texels, 64 bytes) stay inside them; the gathers load 8 bytes at indices
+            // `≤ last < table.len()` (unsigned minimum, so no index is negative as `i32`). A
+            // texel `[lo, hi]` as two `u32` is the `u64`'s little-endian bytes.
+            unsafe {
+                let idx = _mm256_loadu_si256(p.as_ptr().add(o).cast());
+                let idx = _mm256_min_epu32(idx, last);
+                let lo = _mm256_i32gather_epi64::<8>(base, _mm256_castsi256_si128(idx));
+                let hi = _mm256_i32gather_epi64::<8>(base, _mm256_extracti128_si256::<1>(idx));
+                let op = out.as_mut_ptr().add(o).cast::<__m256i>();
+                _mm256_storeu_si256(op, lo);
+                _mm256_storeu_si256(op.add(1), hi);
+            }
+        }
+        Portable.texels(table, &p[body..], &mut out[body..]);
     }
 }
 
