@@ -7,7 +7,7 @@
 
 use crate::camera::pixel_of_ndc;
 
-use super::simd::{simd_tier, Simd};
+use super::simd::simd_method;
 use super::{packed_cell, unpack_pixel, Cell, Match, Resolve, NO_SPLAT};
 
 /// One output row's searches in one main source ([`Resolve::search_row`]), kept between rows.
@@ -64,42 +64,19 @@ pub(super) struct Targets<'a> {
 }
 
 impl Resolve<'_> {
-    /// [`Resolve::search`] in source `k` for every target of a row (the pixels of an output row
-    /// for the main camera, the cells an output row needs for an auxiliary one), stage by stage:
-    /// the windows' nearest splats and their flows for the whole row, then each fixed-point
-    /// iteration for the targets still moving, then the errors and depths.
-    ///
-    /// The same arithmetic as one search per pixel, in another order. A search is a chain of
-    /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
-    /// the processor's reorder window holds less than one pixel's work and waits on each load.
-    /// Row by row, every stage is a short loop over independent pixels whose loads overlap.
-    ///
-    /// Dispatched by instruction set as [`simd_method`](super::simd::simd_method) does, and
-    /// besides the wider vectors, the AVX2 and AVX-512 builds load by source pixel with gather
-    /// instructions ([`Gathers`]).
-    #[inline(never)]
-    pub(super) fn search_row(&self, k: usize, t: &Targets, row: &mut SearchRow) {
-        #[cfg(target_arch = "x86_64")]
-        match simd_tier() {
-            // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
-            Simd::Avx512 => return unsafe { self.search_row_avx512(k, t, row) },
-            // SAFETY: the processor supports AVX2 (checked by simd_tier).
-            Simd::Avx2 => return unsafe { self.search_row_avx2(k, t, row) },
-            Simd::Baseline => {}
-        }
-        self.search_row_impl(Portable, k, t, row);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn search_row_avx2(&self, k: usize, t: &Targets, row: &mut SearchRow) {
-        self.search_row_impl(x86::Avx2::new(), k, t, row);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx512bw,avx512cd,avx512dq,avx512vl")]
-    fn search_row_avx512(&self, k: usize, t: &Targets, row: &mut SearchRow) {
-        self.search_row_impl(x86::Avx2::new(), k, t, row);
+    simd_method! {
+        /// [`Resolve::search`] in source `k` for every target of a row (the pixels of an output
+        /// row for the main camera, the cells an output row needs for an auxiliary one), stage
+        /// by stage: the windows' nearest splats and their flows for the whole row, then each
+        /// fixed-point iteration for the targets still moving, then the errors and depths.
+        ///
+        /// The same arithmetic as one search per pixel, in another order. A search is a chain of
+        /// dependent loads (init → flow → pixel → flow) of ~100 instructions; done pixel by pixel,
+        /// the processor's reorder window holds less than one pixel's work and waits on each load.
+        /// Row by row, every stage is a short loop over independent pixels whose loads overlap.
+        /// Besides the wider vectors, the AVX2 and AVX-512 builds load by source pixel with gather
+        /// instructions ([`Gathers`]).
+        pub(super) fn search_row / search_row_avx2, search_row_avx512 => search_row_impl(&self, gathers, k: usize, t: &Targets, row: &mut SearchRow)
     }
 
     #[inline(always)]

@@ -10,9 +10,8 @@ use crate::shadow::{round_rgb4, shadow_color, Role};
 
 use super::pair::{TEXEL_BLEND, TEXEL_SHADOW};
 #[cfg(target_arch = "x86_64")]
-use super::search::x86::Avx2;
-use super::search::{Gathers, Portable, SearchRow};
-use super::simd::{simd_method, simd_tier, Simd};
+use super::search::{Gathers, SearchRow};
+use super::simd::{simd_dispatch, simd_method};
 use super::{Cell, Choice, Match, Palette, Resolve, NO_SPLAT};
 
 /// "No source" in [`Picks::src`].
@@ -340,47 +339,17 @@ impl Resolve<'_> {
     }
 }
 
-/// [`Resolve::gather_texels`] with the palettes `pal`, by instruction set.
-fn gather_texels(
-    pal: &[Palette],
-    src: &[u8],
-    p: &[u32],
-    texels: &mut [[u32; 2]],
-    omega: &mut [f32],
-) {
-    #[cfg(target_arch = "x86_64")]
-    match simd_tier() {
-        // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
-        Simd::Avx512 => return unsafe { gather_texels_avx512(pal, src, p, texels, omega) },
-        // SAFETY: the processor supports AVX2 (checked by simd_tier).
-        Simd::Avx2 => return unsafe { gather_texels_avx2(pal, src, p, texels, omega) },
-        Simd::Baseline => {}
-    }
-    gather_texels_impl(Portable, pal, src, p, texels, omega);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn gather_texels_avx2(
-    pal: &[Palette],
-    src: &[u8],
-    p: &[u32],
-    texels: &mut [[u32; 2]],
-    omega: &mut [f32],
-) {
-    gather_texels_impl(Avx2::new(), pal, src, p, texels, omega);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bw,avx512cd,avx512dq,avx512vl")]
-fn gather_texels_avx512(
-    pal: &[Palette],
-    src: &[u8],
-    p: &[u32],
-    texels: &mut [[u32; 2]],
-    omega: &mut [f32],
-) {
-    gather_texels_impl(Avx2::new(), pal, src, p, texels, omega);
+simd_dispatch! {
+    /// [`Resolve::gather_texels`] with the palettes `pal`, by instruction set (the AVX2 and
+    /// AVX-512 builds with gather instructions).
+    fn gather_texels / gather_texels_avx2, gather_texels_avx512 => gather_texels_impl(
+        gathers,
+        pal: &[Palette],
+        src: &[u8],
+        p: &[u32],
+        texels: &mut [[u32; 2]],
+        omega: &mut [f32],
+    )
 }
 
 /// [`Resolve::gather_texels`] run by run of pixels with one source.
@@ -447,9 +416,10 @@ fn blend(omega: f32, base: [f32; 4], oc: [f32; 4]) -> [f32; 4] {
 
 #[cfg(test)]
 mod tests {
+    use super::super::search::Portable;
     use super::super::simd::{set_simd_limit, simd_tier, Simd};
     use super::super::Palette;
-    use super::{gather_texels, gather_texels_impl, run_len, Portable, NO_SOURCE};
+    use super::{gather_texels, gather_texels_impl, run_len, NO_SOURCE};
     use crate::shadow::Role;
 
     /// A build of [`gather_texels`], as its arguments without the palettes.
@@ -522,7 +492,7 @@ mod tests {
                 #[cfg(target_arch = "x86_64")]
                 if std::arch::is_x86_feature_detected!("avx2") {
                     // SAFETY: the processor has AVX2 (checked above).
-                    let g = unsafe { super::Avx2::new() };
+                    let g = unsafe { super::super::search::x86::Avx2::new() };
                     let gathered =
                         outcome(&|s, p, t, w| gather_texels_impl(g, &pal, s, p, t, w), &src);
                     assert_eq!(gathered, portable, "AVX2, {src:?}");

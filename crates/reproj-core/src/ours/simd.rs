@@ -93,9 +93,12 @@ fn limit_from_env() -> u8 {
 /// otherwise. The body is written once; the wider builds let the compiler use wider vectors (and
 /// masks) for its row loops. No build contracts multiplies and adds into FMA (Rust never does), so
 /// all give the same bytes.
+///
+/// With `$imp(gathers, …)`, `$imp` also takes a [`Gathers`](super::search::Gathers) first: the
+/// portable loops for the baseline, the AVX2 gather instructions for both wider builds.
 macro_rules! simd_dispatch {
-    ($(#[$doc:meta])* fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident($($arg:ident: $ty:ty),* $(,)?)) => {
-        $(#[$doc])*
+    (@gen [$($doc:tt)*] $name:ident $avx2:ident $avx512:ident $imp:ident [$($base:tt)*] [$($wide:tt)*] $($arg:ident: $ty:ty),*) => {
+        $($doc)*
         #[inline]
         fn $name($($arg: $ty),*) {
             #[cfg(target_arch = "x86_64")]
@@ -106,29 +109,36 @@ macro_rules! simd_dispatch {
                 super::simd::Simd::Avx2 => return unsafe { $avx2($($arg),*) },
                 super::simd::Simd::Baseline => {}
             }
-            $imp($($arg),*)
+            $imp($($base)* $($arg),*)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2")]
         fn $avx2($($arg: $ty),*) {
-            $imp($($arg),*)
+            $imp($($wide)* $($arg),*)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx512f,avx512bw,avx512cd,avx512dq,avx512vl")]
         fn $avx512($($arg: $ty),*) {
-            $imp($($arg),*)
+            $imp($($wide)* $($arg),*)
         }
+    };
+    ($(#[$doc:meta])* fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident(gathers, $($arg:ident: $ty:ty),* $(,)?)) => {
+        simd_dispatch!(@gen [$(#[$doc])*] $name $avx2 $avx512 $imp
+            [super::search::Portable,] [super::search::x86::Avx2::new(),] $($arg: $ty),*);
+    };
+    ($(#[$doc:meta])* fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident($($arg:ident: $ty:ty),* $(,)?)) => {
+        simd_dispatch!(@gen [$(#[$doc])*] $name $avx2 $avx512 $imp [] [] $($arg: $ty),*);
     };
 }
 
 /// [`simd_dispatch`] for a method of [`Resolve`](super::Resolve): `$name` runs the
 /// `#[inline(always)]` method `$imp` compiled for AVX-512 (as `$avx512`) or AVX2 (as `$avx2`)
-/// where the processor has it.
+/// where the processor has it; `$imp(&self, gathers, …)` as in [`simd_dispatch`].
 macro_rules! simd_method {
-    ($(#[$doc:meta])* $vis:vis fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident(&self, $($arg:ident: $ty:ty),* $(,)?)) => {
-        $(#[$doc])*
+    (@gen [$($doc:tt)*] $vis:vis $name:ident $avx2:ident $avx512:ident $imp:ident [$($base:tt)*] [$($wide:tt)*] $($arg:ident: $ty:ty),*) => {
+        $($doc)*
         #[inline(never)]
         $vis fn $name(&self, $($arg: $ty),*) {
             #[cfg(target_arch = "x86_64")]
@@ -139,20 +149,27 @@ macro_rules! simd_method {
                 super::simd::Simd::Avx2 => return unsafe { self.$avx2($($arg),*) },
                 super::simd::Simd::Baseline => {}
             }
-            self.$imp($($arg),*)
+            self.$imp($($base)* $($arg),*)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2")]
         fn $avx2(&self, $($arg: $ty),*) {
-            self.$imp($($arg),*)
+            self.$imp($($wide)* $($arg),*)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx512f,avx512bw,avx512cd,avx512dq,avx512vl")]
         fn $avx512(&self, $($arg: $ty),*) {
-            self.$imp($($arg),*)
+            self.$imp($($wide)* $($arg),*)
         }
+    };
+    ($(#[$doc:meta])* $vis:vis fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident(&self, gathers, $($arg:ident: $ty:ty),* $(,)?)) => {
+        simd_method!(@gen [$(#[$doc])*] $vis $name $avx2 $avx512 $imp
+            [super::search::Portable,] [super::search::x86::Avx2::new(),] $($arg: $ty),*);
+    };
+    ($(#[$doc:meta])* $vis:vis fn $name:ident / $avx2:ident, $avx512:ident => $imp:ident(&self, $($arg:ident: $ty:ty),* $(,)?)) => {
+        simd_method!(@gen [$(#[$doc])*] $vis $name $avx2 $avx512 $imp [] [] $($arg: $ty),*);
     };
 }
 
