@@ -433,9 +433,9 @@ pub(crate) fn run<'a>(
     let inverses = inverses(&sources)?;
     let mut pool = BUFFER_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));
     for src in &mut sources {
-        src.bufs = pool.pop().unwrap_or_default();
-        src.bufs
-            .fit(src.view.camera.width * src.view.camera.height, src.camera);
+        let n = src.view.camera.width * src.view.camera.height;
+        src.bufs = take_buffers(&mut pool, n, src.camera > 0);
+        src.bufs.fit(n, src.camera);
     }
 
     // What does not depend on the client pose or α: computed once per server-frame pair when the
@@ -600,6 +600,24 @@ impl<'a> Src<'a> {
             bufs: Buffers::default(),
         }
     }
+}
+
+/// The buffers in `pool` that fit a source of `n` pixels (an auxiliary one if `aux`) best: the
+/// same size and kind, else the same size, else any (resized by [`Buffers::fit`]).
+///
+/// A client alternates between frames with both main sources and frames with one (interpolating,
+/// then extrapolating while the next pair is prepared), so the pool does not hold the buffers in
+/// the order of the next frame's sources. Taken by position, a main source would get an
+/// auxiliary source's buffers after every switch, and reallocating them costs more than the
+/// frame (first-touch page faults, see [`BUFFER_POOL`]).
+fn take_buffers(pool: &mut Vec<Buffers>, n: usize, aux: bool) -> Buffers {
+    let fits = |b: &Buffers| b.flow.len() == n;
+    let at = pool
+        .iter()
+        .rposition(|b| fits(b) && b.invisible.is_empty() != aux)
+        .or_else(|| pool.iter().rposition(fits))
+        .or_else(|| pool.len().checked_sub(1));
+    at.map(|i| pool.remove(i)).unwrap_or_default()
 }
 
 impl Buffers {

@@ -1066,3 +1066,54 @@ fn auxiliary_merge_in_runs_with_grids_of_different_sizes() {
     }
     assert!(from.iter().flatten().all(|&n| n > 0), "{from:?}");
 }
+
+/// A client alternates between frames with both main sources (interpolating) and frames with one
+/// (extrapolating while the next pair is prepared): every source of either kind of frame must
+/// find buffers of its own size in the pool, so that no frame reallocates (and page-faults) them.
+#[test]
+fn buffer_pool_fits_sources_across_interpolation_and_extrapolation() {
+    let (main, aux) = (64 * 36, 32 * 18);
+    // (pixels, auxiliary) of each source, in the order of `sources`.
+    let interpolate = [
+        (main, false),
+        (main, false),
+        (aux, true),
+        (aux, true),
+        (aux, true),
+        (aux, true),
+    ];
+    let extrapolate = [(main, false), (aux, true), (aux, true)];
+    let mut pool: Vec<Buffers> = Vec::new();
+    for (round, frame) in [
+        &interpolate[..],
+        &extrapolate,
+        &interpolate,
+        &extrapolate,
+        &interpolate,
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mut taken = Vec::new();
+        for &(n, is_aux) in frame {
+            let mut b = take_buffers(&mut pool, n, is_aux);
+            if round > 0 {
+                assert_eq!(
+                    b.flow.len(),
+                    n,
+                    "round {round}: a source got another size's buffers"
+                );
+                assert_eq!(
+                    b.invisible.len(),
+                    if is_aux { n } else { 0 },
+                    "round {round}"
+                );
+            }
+            b.fit(n, usize::from(is_aux));
+            taken.push(b);
+        }
+        // As `run` hands them back.
+        pool.extend(taken.into_iter().rev());
+    }
+    assert_eq!(pool.len(), interpolate.len());
+}
