@@ -277,7 +277,7 @@ TABLE: dict[str, Entry] = {
         dict(method=[*STR, "x"], options=OPTIONAL_THING, display_fps=POSITIVE,
              clock=OPTIONAL_THING, client=OPTIONAL_THING, capacity=[*COUNT, 0],
              prepare_threads=[*INT[1:], -1], decoder=OPTIONAL_THING, executor=OPTIONAL_THING,
-             worker_priority=[*STR, "x", "IDLE"]),
+             worker_priority=[*STR, "x", "IDLE"], display_priority=[*STR, "x", "idle"]),
     ),
     "Scene": (lambda f: sr.Scene, lambda f: dict(name="courtyard"),
               dict(name=[*STR, "x"], variant=[*STR, "x"], models=[*SEQUENCE, ["x"]])),

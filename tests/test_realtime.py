@@ -336,6 +336,8 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "usable_ms_per_server_frame",
         "cpu_utilisation",
         "modes",
+        "display_scheduling",
+        "warm_up_ms",
     ):
         assert key in s
     assert s["decode_ms_per_server_frame"] is None  # frames handed over decoded
@@ -370,6 +372,73 @@ def test_the_worker_thread_runs_at_the_priority_asked():
     if here[1] <= 10:  # else lowering to 10 would be raising
         assert got["low"] == (os.SCHED_OTHER, 10)
     assert got["idle"][0] == os.SCHED_IDLE
+
+
+@pytest.mark.parametrize("priority", ["", "REALTIME", "idle", 99, None])
+def test_unknown_display_priority_is_refused(priority):
+    with pytest.raises(InvalidInputError, match="display_priority"):
+        RealtimeClient(display_priority=priority)
+
+
+def _display_policies() -> list[int]:
+    """The policies of the calling thread and of the threads ``reproject`` runs on."""
+    return [os.sched_getscheduler(t)
+            for t in (threading.get_native_id(), *sr._native.render_thread_ids())]
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_RR"), reason="needs Linux scheduling policies")
+def test_display_threads_are_real_time_during_a_run_and_restored_after(scene, frames):
+    before = _display_policies()
+    assert len(before) >= 2  # the display thread and at least one render thread
+    seen: dict[str, list[list[int]]] = {}
+    reports = {}
+    for priority in rt.DISPLAY_PRIORITIES:
+        clock = FakeClock()
+        c = RealtimeClient(
+            client=CostClient(clock, lambda n: 0.002), clock=clock, display_fps=FC,
+            display_priority=priority,
+        )
+        with c:
+            c.submit(frames[0])
+            c.wait()
+            seen[priority] = []
+            reports[priority] = c.run(
+                pose_of(scene), 0.02, on_frame=lambda im, rec: seen[priority].append(
+                    _display_policies()))
+        # Whatever the run got, it gave it back.
+        assert _display_policies() == before
+    assert reports["normal"].display_scheduling == "normal"
+    assert all(p == before for p in seen["normal"])
+    got = reports["realtime"].display_scheduling
+    if got == "realtime":
+        assert seen["realtime"] and all(
+            set(p) == {os.SCHED_RR} for p in seen["realtime"])
+    else:  # refused (no CAP_SYS_NICE and no RLIMIT_RTPRIO): said so, and nothing changed
+        assert got.startswith("normal (real-time scheduling refused")
+        assert all(p == before for p in seen["realtime"])
+
+
+def test_warm_up_receives_the_due_frames_and_renders_one_frame_off_the_record(scene, frames):
+    feed = [(k / FS - 1 / FS, frames[k]) for k in range(3)]
+    clock = FakeClock()
+    with loop(clock) as c:
+        report = c.run(pose_of(scene), 0.2, feed=feed, warm_up=True)
+        calls = c.client.calls
+        # Frame 2 was submitted on the clock (at refresh 12), as without a warm-up.
+        c.wait()
+        assert 2 in c.client.held
+    f = report.frames
+    assert len(f) == 24 and report.deadline_misses == 0
+    # Frames 0 and 1 (due at -0.1 and 0) were in before refresh 0: no frame held.
+    assert {(x.mode, x.older, x.newer) for x in f[:12]} == {("interpolate", 0, 1)}
+    # One render more than the frames recorded, and it cost 2 ms of the clock before it began.
+    assert calls == len(f) + 1
+    assert report.warm_up_ms == pytest.approx(2.0)
+    assert f[0].start >= 100.0 + 0.002
+    without = loop(FakeClock())
+    with without as c:
+        plain = c.run(pose_of(scene), 0.2, feed=feed)
+    assert plain.warm_up_ms is None and plain.summary()["warm_up_ms"] is None
 
 
 @pytest.mark.parametrize("seconds", [0.001, 0.0, -1.0, float("nan"), float("inf"), "1", True])
@@ -419,6 +488,9 @@ def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames
     r = json.loads(out.read_text())
     assert (r["method"], r["width"], r["height"], r["looped"]) == ("ours_extrapolate", W, H, True)
     assert r["exclusive"] is False and r["worker_priority"] == "idle"
+    assert r["display_priority"] == "realtime" and r["display_scheduling"].startswith(
+        ("realtime", "normal (real-time scheduling refused"))
+    assert r["warm_up_ms"] > 0
     # 0.5 s at 10 FPS: frames 0..5 sent, the 3 packets of the file twice.
     assert r["server_frames_received"] == 6
     assert "source looped" in capsys.readouterr().out
@@ -436,11 +508,12 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         sr.write_stream(tmp_path / "s.srs", [enc.encode(f) for f in frames[:3]])
     out = tmp_path / "rt.json"
     assert main(["bench", "--realtime", "--exclusive", "--stream", str(tmp_path / "s.srs"),
-                 "--seconds", "0.25", "--worker-priority", "low", "--json", str(out),
-                 "--quiet"]) == 0
+                 "--seconds", "0.25", "--worker-priority", "low", "--display-priority",
+                 "normal", "--json", str(out), "--quiet"]) == 0
     r = json.loads(out.read_text())
     assert r["exclusive"] is True and r["server_frames_late"] == 0
     assert r["worker_priority"] == "low"
+    assert (r["display_priority"], r["display_scheduling"]) == ("normal", "normal")
     # Each frame was usable before the display went on: no frame extrapolated or held.
     assert r["modes"]["interpolate"] == r["frames"] and r["prepared_pct"] == 100.0
     assert "exclusive" in capsys.readouterr().out
@@ -452,6 +525,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--stream", "x.srs"], "--stream goes with --realtime"),
         (["--exclusive"], "--exclusive goes with --realtime"),
         (["--worker-priority", "low"], "--worker-priority goes with --realtime"),
+        (["--display-priority", "normal"], "--display-priority goes with --realtime"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu"], "--backend wgpu"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),

@@ -36,6 +36,7 @@ __all__ = [
     "apply_shadows",
     "perspective",
     "look_at",
+    "render_thread_ids",
     "dequantise_depth",
     "dequantise_motion",
     "shadow_colour",
@@ -108,6 +109,7 @@ def apply_shadows(
 ) -> _U8: ...
 def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> _F64: ...
 def look_at(eye: _Vec3, target: _Vec3, up: _Vec3 | None = None) -> _F64: ...
+def render_thread_ids() -> list[int]: ...
 def dequantise_depth(
     codes: npt.NDArray[np.uint16],
     x: int,

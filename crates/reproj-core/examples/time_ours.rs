@@ -18,6 +18,11 @@
 //! output colour and diagnostics, so that a change meant to be exact can be checked to give the
 //! same bytes (`ALPHA` sets α, default 0.5).
 //!
+//! `PERIOD_MS=8.33` paces the timed calls as a display at 120 Hz does (each starts at its
+//! refresh, the thread sleeps in between) and prints their median, p99 and maximum: a frame after
+//! an idle gap costs more than one right after another, and a background job (a decoder at idle
+//! priority) shows here.
+//!
 //! `SIMD=avx2` (or `baseline`, `avx512`) caps the instruction set of the row loops
 //! ([`ours::set_simd_limit`]; the library's own `REPROJ_SIMD` does the same). With two or more
 //! tiers (`SIMD=avx2,avx512`) the first one is timed as above, and then the tiers against each
@@ -52,6 +57,9 @@ fn main() {
     };
     let mut out = vec![0u8; w * h * 3];
     let iters: usize = std::env::var("ITERS").map_or(6, |s| s.parse().unwrap());
+    let period = std::env::var("PERIOD_MS")
+        .ok()
+        .map(|s| std::time::Duration::from_secs_f64(s.parse::<f64>().unwrap() / 1000.0));
     let tiers: Vec<ours::Simd> = std::env::var("SIMD").map_or(Vec::new(), |s| {
         s.split(',')
             .map(|t| t.parse().unwrap_or_else(|e| panic!("SIMD: {e}")))
@@ -98,14 +106,26 @@ fn main() {
                     continue;
                 }
             }
-            let timed = |history: &mut BidirHistory, out: &mut [u8]| {
+            let mut calls_ms: Vec<f64> = Vec::new();
+            let mut timed = |history: &mut BidirHistory, out: &mut [u8]| {
                 let (cpu0, faults0) = (cpu_seconds(), minor_faults());
                 let t = std::time::Instant::now();
-                for _ in 0..iters {
+                let mut busy = std::time::Duration::ZERO;
+                for k in 0..iters {
+                    if let Some(p) = period {
+                        // Paced like a display: call k starts at its refresh, not at once.
+                        let tick = t + p * k as u32;
+                        std::thread::sleep(
+                            tick.saturating_duration_since(std::time::Instant::now()),
+                        );
+                    }
+                    let c = std::time::Instant::now();
                     let h = keep.then_some(&mut *history);
                     frame(Output::new(out), h);
+                    busy += c.elapsed();
+                    calls_ms.push(c.elapsed().as_secs_f64() * 1000.0);
                 }
-                (t.elapsed(), cpu_seconds() - cpu0, minor_faults() - faults0)
+                (busy, cpu_seconds() - cpu0, minor_faults() - faults0)
             };
             // After a prepare the timed calls come first, so that the first of them is the
             // pair's first client frame (instruction counts: `ITERS=1` minus `ITERS=0`).
@@ -148,6 +168,18 @@ fn main() {
                 ours::set_simd_limit(tiers[0]);
             }
             let n = iters.max(1) as f64;
+            if period.is_some() {
+                calls_ms.sort_by(f64::total_cmp);
+                let at = |q: f64| calls_ms[((calls_ms.len() - 1) as f64 * q).round() as usize];
+                if !calls_ms.is_empty() {
+                    println!(
+                        "  paced calls: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+                        at(0.5),
+                        at(0.99),
+                        at(1.0)
+                    );
+                }
+            }
             println!(
                 "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU, {:.0} page faults per call; digest {digest:016x}; pair builds {}",
                 elapsed.as_secs_f64() * 1000.0 / n,

@@ -44,6 +44,26 @@ pub fn install<T: Send>(
     Ok(pool.install(f))
 }
 
+/// The operating system's thread ids (Linux `gettid`) of the threads of rayon's global pool,
+/// where `reproject` runs a client frame, in pool order (the pool is started if it was not).
+/// Empty on other systems.
+///
+/// A real-time client gives these threads, and its display thread, a real-time scheduling policy
+/// while it shows frames (`splitrender.client.realtime`): Linux's fair scheduler can run a
+/// lower-priority thread (even one of policy `SCHED_IDLE`) for up to a tick before a runnable
+/// display thread, which takes a display frame past its deadline.
+pub fn global_thread_ids() -> Vec<i64> {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: gettid has no preconditions and cannot fail.
+        rayon::broadcast(|_| i64::from(unsafe { libc::gettid() }))
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        Vec::new()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -61,5 +81,24 @@ mod tests {
             .filter(|(n, _)| *n == 3)
             .count();
         assert_eq!(kept, 1);
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn global_thread_ids_are_the_pool_threads() {
+        let ids = global_thread_ids();
+        assert_eq!(ids.len(), rayon::current_num_threads());
+        // Distinct, and none of them the calling thread (which is not in the pool).
+        let mut sorted = ids.clone();
+        sorted.sort_unstable();
+        sorted.dedup();
+        assert_eq!(sorted.len(), ids.len());
+        // SAFETY: as in `global_thread_ids`.
+        let me = i64::from(unsafe { libc::gettid() });
+        assert!(!ids.contains(&me));
+        // Each is a thread of this process.
+        for id in ids {
+            assert!(std::path::Path::new(&format!("/proc/self/task/{id}")).exists());
+        }
     }
 }

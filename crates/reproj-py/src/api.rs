@@ -443,3 +443,13 @@ pub fn look_at(
         mat(py, &m)
     })
 }
+
+/// The operating system's thread ids of the threads `reproject` runs on (rayon's global pool,
+/// started if it was not; empty where the platform gives none), for a caller that sets their
+/// scheduling policy (`splitrender.client.realtime`).
+#[pyfunction]
+pub fn render_thread_ids(py: Python<'_>) -> PyResult<Vec<i64>> {
+    guarded("render_thread_ids", || {
+        Ok(py.detach(reproj_core::pool::global_thread_ids))
+    })
+}

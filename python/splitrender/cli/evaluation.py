@@ -31,7 +31,7 @@ from splitrender.cli.args import (
     seconds,
     video_fps,
 )
-from splitrender.client.realtime import WORKER_PRIORITIES
+from splitrender.client.realtime import DISPLAY_PRIORITIES, WORKER_PRIORITIES
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.progress import Progress
@@ -281,6 +281,12 @@ def add_bench(sub: Any) -> None:
         "or normal (default: idle)",
     )
     be.add_argument(
+        "--display-priority", choices=DISPLAY_PRIORITIES, default=None,
+        help="with --realtime: how the display's threads are scheduled while they show frames: "
+        "realtime (Linux SCHED_RR, where permitted; else normal, and the report says why) or "
+        "normal (default: realtime)",
+    )
+    be.add_argument(
         "--stream", type=Path, default=None, metavar="FILE",
         help="with --realtime: play this stream file instead of the built-in --scene",
     )
@@ -307,6 +313,7 @@ def bench(args: argparse.Namespace) -> int:
         ("--stream", args.stream is not None),
         ("--exclusive", args.exclusive),
         ("--worker-priority", args.worker_priority is not None),
+        ("--display-priority", args.display_priority is not None),
     ):
         if given:
             return fail(f"{flag} goes with --realtime")
@@ -343,6 +350,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
             stream=args.stream, progress=not args.quiet, exclusive=args.exclusive,
             worker_priority=args.worker_priority or "idle",
+            display_priority=args.display_priority or "realtime",
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

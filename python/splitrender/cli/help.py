@@ -171,7 +171,10 @@ DESCRIPTION: dict[str, str] = {
         "display frames alone (what the reprojection costs without decoding beside it). "
         "--worker-priority idle|low|normal: how the worker yields the cores to the display "
         "(default idle: Linux SCHED_IDLE, it runs only on cores the display leaves idle; low: "
-        "nice 10)."
+        "nice 10). --display-priority realtime|normal: how the display's threads are "
+        "scheduled while they show frames (default realtime: Linux SCHED_RR where permitted, so "
+        "that no other thread takes their core in the middle of a frame; the report's display "
+        "scheduling says what they got)."
     ),
     "serve": (
         "Serve live split rendering sessions over QUIC (docs/protocol.md, docs/live.md), one at "

@@ -32,6 +32,7 @@ are left to ``splitrender bench --realtime``.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import sys
@@ -67,6 +68,8 @@ if TYPE_CHECKING:
     from splitrender.codec.coder import StreamDecoder
 
 __all__ = [
+    "DISPLAY_PRIORITIES",
+    "WORKER_PRIORITIES",
     "Clock",
     "DisplayFrame",
     "MonotonicClock",
@@ -155,6 +158,11 @@ class RealtimeReport:
     wall_s: float = 0.0
     cpu_s: float = 0.0
     cpus: int = 1
+    #: The warm-up before the clock started (``RealtimeClient.run(warm_up=True)``), ms.
+    warm_up_ms: float | None = None
+    #: How the display's threads were scheduled (:func:`_raise_display`): ``"realtime"``,
+    #: ``"normal"``, or ``"normal"`` with the reason real-time scheduling was refused.
+    display_scheduling: str = "normal"
 
     @property
     def deadline_misses(self) -> int:
@@ -168,7 +176,8 @@ class RealtimeReport:
         first pair; all medians), the server frames received
         and late, ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per
         second of the run) and ``cpu_utilisation`` (process CPU seconds per wall second and core,
-        0–1). Times that have no sample are ``None``."""
+        0–1), ``display_scheduling`` (how the display's threads were scheduled) and
+        ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample are ``None``."""
         render = [f.render_ms for f in self.frames]
         ages = [f.server_age_ms for f in self.frames if f.server_age_ms is not None]
         n = len(self.frames)
@@ -195,6 +204,8 @@ class RealtimeReport:
             "achieved_fps": (n - misses) / self.wall_s if self.wall_s > 0 else 0.0,
             "wall_s": self.wall_s,
             "cpu_utilisation": self.cpu_s / (self.wall_s * self.cpus) if self.wall_s > 0 else 0.0,
+            "display_scheduling": self.display_scheduling,
+            "warm_up_ms": self.warm_up_ms,
         }
 
 
@@ -236,6 +247,65 @@ def _yield_to_display(priority: str) -> None:
         pass
 
 
+#: How :meth:`RealtimeClient.run` schedules the display's threads
+#: (``RealtimeClient(display_priority=)``).
+DISPLAY_PRIORITIES = ("realtime", "normal")
+
+#: The real-time priority of the display's threads: the lowest, above every normal thread and
+#: below the system's own real-time threads.
+_DISPLAY_RT_PRIORITY = 1
+
+_Saved = list[tuple[int, int, int]]  # (thread id, policy, priority) to restore
+
+
+def _raise_display(priority: str) -> tuple[str, _Saved]:
+    """Gives the calling (display) thread and the threads ``reproject`` runs on
+    (:func:`splitrender._native.render_thread_ids`) the ``SCHED_RR`` policy at priority 1 for
+    ``priority == "realtime"``; returns how they are now scheduled and what to restore
+    (:func:`_restore`).
+
+    Why: Linux's fair scheduler (EEVDF) does not keep a runnable normal thread ahead of a
+    ``SCHED_IDLE`` one. When one of the display's threads is switched out while runnable (it
+    yields while looking for work, or a thread it wakes takes its core for a moment), the
+    scheduler can pick the receive worker (decoding, preparing a pair) and run it until the
+    next tick, 4 ms at 250 Hz: half a refresh at 120 Hz. A ``perf sched`` trace shows a
+    display thread runnable and waiting 5.3 ms while the worker ran; a ``SCHED_IDLE`` busy loop
+    beside the kernel (``PERIOD_MS=8.33 time_ours ours 640``) raises the paced frame's p99 from
+    4.2 to 7.2–8.7 ms, and with the display's threads at ``SCHED_RR`` to 3.7–4.0 ms
+    (docs/realtime.md). A real-time thread is never preempted by a normal one, so the worker
+    gets exactly the time the display leaves idle.
+
+    Real-time scheduling needs ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO`` of at least 1; where it
+    is refused, nothing changes and the returned text says why. The display thread sleeps
+    between frames, so the worker keeps the rest of each refresh; a display that never sleeps
+    (frames longer than a refresh) would leave it only the kernel's reserve for normal threads
+    (5 % by default)."""
+    if priority == "normal":
+        return "normal", []
+    if not hasattr(os, "SCHED_RR"):
+        return "normal (no real-time scheduling on this platform)", []
+    threads = [threading.get_native_id(), *_native.render_thread_ids()]
+    saved: _Saved = []
+    try:
+        for tid in threads:
+            old = (tid, os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+            os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(_DISPLAY_RT_PRIORITY))
+            saved.append(old)
+    except OSError as e:
+        _restore(saved)
+        return f"normal (real-time scheduling refused: {e.strerror or e})", []
+    return "realtime", saved
+
+
+def _restore(saved: _Saved) -> None:
+    """Gives each thread of ``saved`` its policy and priority back (:func:`_raise_display`)."""
+    for tid, policy, prio in reversed(saved):
+        try:
+            os.sched_setscheduler(tid, policy, os.sched_param(prio))
+        except OSError:
+            pass  # the thread has exited, or the process lost the privilege: nothing to undo
+
+
 #: Methods whose client frames use pair-level state that :func:`prepare_pair` can compute.
 _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 
@@ -263,7 +333,10 @@ class RealtimeClient:
     ``prepare_threads`` is how many threads the pair preparation uses (its own pool, so that it
     does not queue behind the display's frames; ``None``: the shared pool). ``worker_priority``
     (one of :data:`WORKER_PRIORITIES`, default ``"idle"``) is how the default worker thread
-    yields the cores to the display (:func:`_yield_to_display`). ``executor`` runs the receive
+    yields the cores to the display (:func:`_yield_to_display`). ``display_priority`` (one of
+    :data:`DISPLAY_PRIORITIES`, default ``"realtime"``) is how :meth:`run` schedules the
+    display thread and the threads it renders on while it shows frames (:func:`_raise_display`;
+    restored when it returns; the report's ``display_scheduling`` says what it got). ``executor`` runs the receive
     side instead (it must run jobs in order; its threads keep their priority). Use as a context
     manager, or call :meth:`close`.
 
@@ -277,6 +350,7 @@ class RealtimeClient:
         client=optional(instances(Client)), capacity=ints(2, 1 << 16),
         prepare_threads=optional(ints(0, 1 << 16)), decoder=optional(_decoder),
         executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
+        display_priority=strs(*DISPLAY_PRIORITIES),
     )
     def __init__(
         self,
@@ -291,6 +365,7 @@ class RealtimeClient:
         decoder: StreamDecoder | None = None,
         executor: Executor | None = None,
         worker_priority: str = "idle",
+        display_priority: str = "realtime",
     ) -> None:
         if (
             isinstance(display_fps, bool)
@@ -306,6 +381,7 @@ class RealtimeClient:
         self.clock: Clock = clock if clock is not None else MonotonicClock()
         self.prepare_threads = prepare_threads
         self.worker_priority = worker_priority
+        self.display_priority = display_priority
         self._decoder = decoder
         self._lock = threading.Lock()
         # One worker: packets are decoded in order (each depends on the previous one's
@@ -495,6 +571,7 @@ class RealtimeClient:
         start_time: float = 0.0,
         on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
         exclusive: bool = False,
+        warm_up: bool = False,
     ) -> RealtimeReport:
         """Shows ``seconds`` of display frames at ``f_c`` from display time ``start_time``:
         frame ``n`` at the camera ``pose(start_time + n / f_c)``. ``feed`` (optional) is the
@@ -509,7 +586,13 @@ class RealtimeClient:
         waits until the worker has received it (decoded and prepared, or refused) and the
         schedule of refreshes moves on by the time waited, so that no display frame shares the
         cores with the worker. The deadlines then measure the display frames alone, and no
-        server frame is late."""
+        server frame is late.
+
+        ``warm_up``: before the clock starts, the arrivals due by ``start_time`` are received
+        (decoded and prepared) and one frame is rendered at ``pose(start_time)``, off the record
+        (its time is the report's ``warm_up_ms``), as a headset shows nothing until its first
+        frame is in. The display's buffers then exist before the first recorded frame, which
+        would otherwise pay their first-touch page faults (about 4 ms at 640×360 here)."""
         fc = self.display_fps
         valid = not isinstance(seconds, bool) and isinstance(seconds, (int, float))
         # Checked before rounding: round() of NaN or infinity raises a ValueError of its own.
@@ -519,6 +602,15 @@ class RealtimeClient:
             )
         n_frames = int(round(seconds * fc))
         report = self._report
+        # Before the clock starts: the first call may start the render threads.
+        report.display_scheduling, saved = _raise_display(self.display_priority)
+        arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]] = iter(feed)
+        try:
+            if warm_up:
+                arrivals = self._warm_up(report, pose, arrivals, start_time)
+        except BaseException:
+            _restore(saved)
+            raise
         t0 = self.clock.now()
         cpu0 = time.process_time()
         # Python hands the GIL to a waiting thread only every switch interval (5 ms by
@@ -528,9 +620,10 @@ class RealtimeClient:
         sys.setswitchinterval(min(interval, 0.0005))
         try:
             self._display(
-                report, t0, n_frames, pose, iter(feed), start_time, on_frame, exclusive
+                report, t0, n_frames, pose, arrivals, start_time, on_frame, exclusive
             )
         finally:
+            _restore(saved)
             sys.setswitchinterval(interval)
         report.wall_s = self.clock.now() - t0
         report.cpu_s = time.process_time() - cpu0
@@ -541,6 +634,25 @@ class RealtimeClient:
             self._report = RealtimeReport(self.display_fps)
             self._ready_at.clear()
         return report
+
+    def _warm_up(
+        self,
+        report: RealtimeReport,
+        pose: Callable[[float], Camera],
+        arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]],
+        start_time: float,
+    ) -> Iterator[tuple[float, bytes | memoryview | ServerFrame]]:
+        """The warm-up of :meth:`run` (``warm_up``); returns the arrivals not yet submitted."""
+        begin = self.clock.now()
+        received = []
+        nxt = next(arrivals, None)
+        while nxt is not None and nxt[0] <= start_time:
+            received.append(self.submit(nxt[1]))
+            nxt = next(arrivals, None)
+        futures_wait(received)  # a packet that failed is skipped here as in the run
+        self._render(pose(start_time), start_time)
+        report.warm_up_ms = (self.clock.now() - begin) * 1e3
+        return arrivals if nxt is None else itertools.chain([nxt], arrivals)
 
     def _display(
         self,

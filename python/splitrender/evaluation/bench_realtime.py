@@ -74,6 +74,9 @@ class RealtimeBench:
     exclusive: bool
     #: How the worker yielded the cores to the display (``--worker-priority``).
     worker_priority: str
+    #: How the display's threads were to be scheduled (``--display-priority``; the summary's
+    #: ``display_scheduling`` says what they got).
+    display_priority: str
     summary: dict[str, Any]
 
     def to_json(self) -> dict[str, Any]:
@@ -145,11 +148,13 @@ def run_realtime_bench(
     progress: bool = True,
     exclusive: bool = False,
     worker_priority: str = "idle",
+    display_priority: str = "realtime",
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``exclusive``: the display waits for the worker after each arrival, off the clock
     (:meth:`RealtimeClient.run`), so that the deadlines measure the display frames alone.
-    ``worker_priority``: how the worker yields the cores to the display (``RealtimeClient``).
+    ``worker_priority``: how the worker yields the cores to the display, ``display_priority``:
+    how the display's threads are scheduled (both ``RealtimeClient``).
 
     Raises:
         InvalidInputError: for arguments that cannot work.
@@ -220,12 +225,17 @@ def run_realtime_bench(
         client=Client(method, server_fps=fs),
         display_fps=display_fps,
         worker_priority=worker_priority,
+        display_priority=display_priority,
     ) as client:
-        report = client.run(pose, seconds, feed=feed, start_time=0.0, exclusive=exclusive)
+        # Warmed up: the first packets are received and one frame rendered before the clock
+        # starts, so that the run measures the steady state (the summary's warm_up_ms).
+        report = client.run(
+            pose, seconds, feed=feed, start_time=0.0, exclusive=exclusive, warm_up=True
+        )
     stages.close()
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
-        report.summary(),
+        display_priority, report.summary(),
     )
 
 
@@ -245,7 +255,8 @@ def format_realtime(b: RealtimeBench) -> str:
             + (" (source looped)" if b.looped else "")
             + (" (exclusive: the display waited for the worker off the clock)"
                if b.exclusive else "")
-            + f"; worker priority {b.worker_priority}",
+            + f"; worker priority {b.worker_priority}; display scheduling "
+            + s["display_scheduling"],
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
             f"({s['deadline_misses_pct']:.2f} %), dropped refreshes {s['dropped']}, "
             f"achieved {s['achieved_fps']:.1f} FPS",
@@ -260,7 +271,9 @@ def format_realtime(b: RealtimeBench) -> str:
             f"{s['server_frames_late']} late",
             f"  newest server frame's age at display: p50 {ms('server_age_ms_p50')}, "
             f"max {ms('server_age_ms_max')}; CPU {100 * s['cpu_utilisation']:.0f} % "
-            f"of {os.cpu_count() or 1} cores",
+            f"of {os.cpu_count() or 1} cores"
+            + ("" if s.get("warm_up_ms") is None
+               else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
         ]
     )
 
