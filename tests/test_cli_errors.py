@@ -174,6 +174,31 @@ def test_internal_failure_exits_1_and_says_it_is_a_bug(
     assert err.splitlines()[-1].startswith("splitrender: internal error: KeyError")
 
 
+def test_a_reader_that_goes_away_ends_the_command_quietly() -> None:
+    # `splitrender ... | head`: the pipe breaks when the command next writes. In a subprocess,
+    # so that its stdout is a real pipe.
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import splitrender.cli.example as example\n"
+        "def broken(args):\n"
+        "    print('x' * 100000)\n"  # more than a pipe holds: blocks until the reader is gone
+        "example.run = broken\n"
+        "from splitrender.cli.main import main\n"
+        "sys.exit(main(['example']))\n"
+    )
+    with subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE) as proc:
+        assert proc.stdout is not None and proc.stderr is not None
+        proc.stdout.read(10)
+        proc.stdout.close()
+        err = proc.stderr.read().decode()
+        assert proc.wait(timeout=60) == 141, err
+    assert err == ""
+
+
 @pytest.mark.parametrize(
     "error, user",
     [

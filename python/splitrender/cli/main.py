@@ -59,7 +59,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     an unreadable or malformed input, a refused destination ...), one ``splitrender: error:``
     line naming it, as argparse does for a bad option. 1: a failure that is not the caller's
     (``SplitRenderError`` itself: an external tool or the device; any other exception: a bug,
-    said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted."""
+    said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted. 141: the
+    reader of the output went away (a broken pipe), said nothing."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -68,6 +69,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader of our output went away (`splitrender ... | head`): not an error of ours
+        # or theirs. Python would report the pipe again when it flushes stdout at exit, so
+        # stdout is pointed at /dev/null first (the Python documentation's recipe, signal
+        # module, "Note on SIGPIPE"). 141 is what a shell reports for a process that SIGPIPE
+        # ended.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
     except Exception as e:
         if is_user_error(e):
             print(f"{PROG}: error: {_describe(e)}", file=sys.stderr)
