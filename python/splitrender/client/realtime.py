@@ -218,9 +218,10 @@ def _yield_to_display(priority: str) -> None:
     preparation pool's threads it starts inherit it), so that the display thread, whose frames
     have deadlines, gets the cores first:
 
-    - ``"idle"``: the ``SCHED_IDLE`` policy. The worker runs only on a core the display leaves
+    - ``"idle"``: the ``SCHED_IDLE`` policy. The worker runs mostly on a core the display leaves
       idle (between its frames: about 40 % of each refresh at 640×360 here), and a display
-      thread that wakes takes the core back at once. Where the platform has no ``SCHED_IDLE``,
+      thread that wakes takes the core back at once; the fair scheduler can still run it for
+      up to a tick before a display thread that is runnable (:func:`_raise_display`). Where the platform has no ``SCHED_IDLE``,
       as ``"low"``.
     - ``"low"``: ``nice`` 10. The scheduler still gives the worker a share of a busy core, and a
       display frame that overlaps the worker's decoding can lose part of a core for a while.
