@@ -34,12 +34,17 @@ pub(super) fn scene_flow_and_splat(
 ) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     let view = src.view;
+    // Set before the splat: a frame that stops half-way leaves keys of its own epoch, which the
+    // next frame's (a later one) ignores.
+    let epoch = src.bufs.epoch.next();
+    src.bufs.epoch = epoch;
+    let stored = epoch.stored();
     let invisible = &src.bufs.invisible;
     let xs = &src.ndc.x;
     // The splat is a minimum per cell, so the order of the updates does not matter. Each task owns
-    // the splat cells of its own SPLAT_BAND rows (its band): it resets them (while they are hot
-    // in its cache, instead of a separate pass over the grid) and updates them with plain loads
-    // and stores. A point that lands in another band is kept aside and applied after the parallel
+    // the splat cells of its own SPLAT_BAND rows (its band): it resets them when the epoch fills
+    // the grid ([`SplatEpoch`](super::SplatEpoch); while they are hot in its cache, instead of a separate pass over
+    // the grid) and updates them with plain loads and stores. A point that lands in another band is kept aside and applied after the parallel
     // pass, when every band is reset. A `lock cmpxchg` per point would cost more than the point's
     // whole scene flow.
     let block = |b: usize,
@@ -47,7 +52,9 @@ pub(super) fn scene_flow_and_splat(
                  zrows: &mut [f32],
                  band: &mut [u64],
                  spill: &mut Vec<(u32, u64)>| {
-        band.fill(EMPTY_SPLAT);
+        if epoch.fills() {
+            band.fill(EMPTY_SPLAT);
+        }
         spill.clear();
         // Row-major cell indices order like the packed pixels: the band is one range of them.
         let base = (b * SPLAT_BAND * sw) as u32;
@@ -75,7 +82,7 @@ pub(super) fn scene_flow_and_splat(
                     kz: &mut scratch.kz,
                 };
                 flow_row(input, out);
-                splat_row(j, &scratch.cell, &scratch.kz, base, band, spill);
+                splat_row(j, &scratch.cell, &scratch.kz, stored, base, band, spill);
                 if let Some(vis) = vis {
                     // Auxiliary sources: flag where the points not visible in main land.
                     let v = &vis[j * sw..(j + 1) * sw];
@@ -98,7 +105,8 @@ pub(super) fn scene_flow_and_splat(
         // One job per band, so that an idle thread can always take one (see `run`).
         .with_max_len(1)
         .for_each(|(b, (((rows, zrows), band), spill))| block(b, rows, zrows, band, spill));
-    // The parallel pass has finished: every band is reset. The spilled points are applied by
+    // The parallel pass has finished: every band is reset (or holds only earlier epochs' keys).
+    // The spilled points are applied by
     // one task per range of the grid (one per thread), each reading every list and taking the
     // cells of its own range, so that no two tasks write the same cell.
     let parts = rayon::current_num_threads().clamp(1, 16);
@@ -161,7 +169,8 @@ const SPLAT_CHUNK: usize = 8;
 
 simd_dispatch! {
     /// Splats one source row `j` whose points' cells and key depths are `cell` and `kz`
-    /// ([`RowScratch`]): into `band`, the cells `base..` of the grid, or else onto `spill`.
+    /// ([`RowScratch`]): into `band`, the cells `base..` of the grid, or else onto `spill`, each
+    /// key in its stored form (`key ^ stored`, [`SplatEpoch::stored`](super::SplatEpoch::stored)).
     ///
     /// Neighbouring points of a row mostly land in neighbouring cells: in time_ours's scene, 93 %
     /// of the chunks of 8 points of a main source land in 8 consecutive cells of their band, and
@@ -174,6 +183,7 @@ simd_dispatch! {
         j: usize,
         cell: &[u32],
         kz: &[f32],
+        stored: u64,
         base: u32,
         band: &mut [u64],
         spill: &mut Vec<(u32, u64)>,
@@ -185,6 +195,7 @@ fn splat_row_impl(
     j: usize,
     cell: &[u32],
     kz: &[f32],
+    stored: u64,
     base: u32,
     band: &mut [u64],
     spill: &mut Vec<(u32, u64)>,
@@ -203,7 +214,8 @@ fn splat_row_impl(
             continue;
         }
         // `splat_key(z, pk)`, with the packed pixels kept in 64-bit lanes across chunks.
-        let key: [u64; SPLAT_CHUNK] = std::array::from_fn(|i| splat_key(z[i], 0) | pks[i]);
+        let key: [u64; SPLAT_CHUNK] =
+            std::array::from_fn(|i| (splat_key(z[i], 0) | pks[i]) ^ stored);
         let run: [u32; SPLAT_CHUNK] = std::array::from_fn(|i| c[0].wrapping_add(i as u32));
         // A run that wraps past NO_SPLAT starts more than 2³¹ − 8 cells from every band.
         let rel = c[0].wrapping_sub(base) as usize;
@@ -218,11 +230,12 @@ fn splat_row_impl(
         splat_points(c, &key, base, band, spill);
     }
     for (i, (&c, &z)) in cell.iter().zip(kz).enumerate().skip(done) {
-        splat_points(&[c], &[splat_key(z, pack_pixel(i, j))], base, band, spill);
+        let key = splat_key(z, pack_pixel(i, j)) ^ stored;
+        splat_points(&[c], &[key], base, band, spill);
     }
 }
 
-/// [`splat_row`] point by point, for the points in `cell` with keys `key` ([`splat_key`]).
+/// [`splat_row`] point by point, for the points in `cell` with stored keys `key`.
 #[inline(always)]
 fn splat_points(
     cell: &[u32],
@@ -635,7 +648,8 @@ thread_local! {
 }
 
 /// The window search of every cell at once: `init[c]` = the packed source pixel of the smallest
-/// splat key in the `(2W+1)²` window around cell `c` (clipped to the grid), or [`NO_SPLAT`].
+/// splat key of the grid's epoch in the `(2W+1)²` window around cell `c` (clipped to the grid),
+/// or [`NO_SPLAT`].
 ///
 /// Searching per output pixel reads nine keys for each of the two frames; the minimum is
 /// separable, so a row pass and a column pass give every cell's answer with about `4W+2`
@@ -643,6 +657,7 @@ thread_local! {
 pub(super) fn window_min(src: &mut Src, wr: usize) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     let splat = &src.bufs.splat;
+    let bound = src.bufs.epoch.bound();
     src.bufs
         .init
         .par_chunks_mut(TILE * sw)
@@ -656,15 +671,17 @@ pub(super) fn window_min(src: &mut Src, wr: usize) {
                     sw,
                     sh,
                 };
-                window_block(splat, first, wr, out, &mut cell.borrow_mut())
+                window_block(splat, bound, first, wr, out, &mut cell.borrow_mut())
             })
         });
 }
 
 simd_dispatch! {
-    /// [`window_min`] for the output rows starting at `first`; `scratch` holds row minima.
+    /// [`window_min`] for the output rows starting at `first`; `scratch` holds row minima. A
+    /// minimum at or above `bound` ([`SplatEpoch::bound`](super::SplatEpoch::bound)) is an empty window.
     fn window_block / window_block_avx2, window_block_avx512 => window_block_impl(
         splat: &[u64],
+        bound: i64,
         first: SrcRow,
         wr: usize,
         out: &mut [u32],
@@ -675,6 +692,7 @@ simd_dispatch! {
 #[inline(always)]
 fn window_block_impl(
     splat: &[u64],
+    bound: i64,
     first: SrcRow,
     wr: usize,
     out: &mut [u32],
@@ -706,12 +724,19 @@ fn window_block_impl(
         let j = j0 + r;
         let (a, z) = (j.saturating_sub(wr) - lo, (j + wr).min(sh - 1) - lo);
         let row = |q: usize| &rows[q * sw..(q + 1) * sw];
-        // The low half of a key is its packed pixel, and that of EMPTY_SPLAT is NO_SPLAT (packed
-        // pixels stay below 2³⁰).
+        // The low half of a key is its packed pixel; a minimum of earlier epochs or EMPTY_SPLAT
+        // is no splat.
+        let init = |m: u64| {
+            if (m as i64) < bound {
+                splat_index(m)
+            } else {
+                NO_SPLAT
+            }
+        };
         if z == a + 2 {
             // Three rows (wr = 1 away from the border): one pass, no accumulator.
             for (d, ((x, y), w)) in o.iter_mut().zip(row(a).iter().zip(row(a + 1)).zip(row(z))) {
-                *d = splat_index(key_min(key_min(*x, *y), *w));
+                *d = init(key_min(key_min(*x, *y), *w));
             }
         } else {
             acc.copy_from_slice(row(a));
@@ -721,20 +746,17 @@ fn window_block_impl(
                 }
             }
             for (d, m) in o.iter_mut().zip(acc.iter()) {
-                *d = splat_index(*m);
+                *d = init(*m);
             }
         }
     }
 }
 
-/// The smaller of two splat keys ([`splat_key`] or [`EMPTY_SPLAT`]).
-///
-/// Every such key has its top bit set (the high half is `!z.to_bits()` with `0 ≤ z ≤ 1`, whose
-/// bits are below 2³¹), and among integers that share the top bit the signed order is the
-/// unsigned one. AVX2 has a signed 64-bit compare but no unsigned one, so comparing as `i64`
-/// saves flipping the sign bit of both operands.
+/// The smaller of two stored splat keys ([`SplatEpoch`]) or [`EMPTY_SPLAT`], compared as `i64`
+/// (the stored form makes the signed order the one the splat needs; AVX2 has a signed 64-bit
+/// compare but no unsigned one).
 #[inline(always)]
-fn key_min(a: u64, b: u64) -> u64 {
+pub(super) fn key_min(a: u64, b: u64) -> u64 {
     (a as i64).min(b as i64) as u64
 }
 
@@ -781,7 +803,8 @@ mod tests {
     /// splat, repeated or skipped cells (points that spread out or crowd), cells in another band,
     /// runs that wrap past [`NO_SPLAT`], and a run broken by one point; key depths include ±0,
     /// ±∞, NaN and subnormals, and equal depths (ties go to the smaller pixel); rows of every
-    /// length modulo the chunk.
+    /// length modulo the chunk; keys stored in every epoch, over a band that holds empty cells
+    /// and keys of the epoch.
     #[test]
     fn splat_row_equals_the_point_by_point_splat_at_every_tier() {
         let mut rng = Rng(0x2545_f491_4f6c_dd1d);
@@ -831,15 +854,16 @@ mod tests {
                     _ => rng.below(1 << 10) as f32 / 1024.0,
                 })
                 .collect();
+            let stored = super::super::SplatEpoch(rng.below(4) as u8).stored();
             let start: Vec<u64> = (0..n)
                 .map(|c| match rng.below(3) {
                     0 => EMPTY_SPLAT,
-                    _ => splat_key(rng.below(1 << 10) as f32 / 1024.0, c as u32),
+                    _ => splat_key(rng.below(1 << 10) as f32 / 1024.0, c as u32) ^ stored,
                 })
                 .collect();
             let (mut band, mut spill) = (start.clone(), Vec::new());
             for (i, (&c, &z)) in cell.iter().zip(&kz).enumerate() {
-                let key = splat_key(z, pack_pixel(i, j));
+                let key = splat_key(z, pack_pixel(i, j)) ^ stored;
                 match (c.wrapping_sub(base) as usize) < n {
                     true => band[(c - base) as usize] = key_min(band[(c - base) as usize], key),
                     false if c != NO_SPLAT => spill.push((c, key)),
@@ -855,7 +879,7 @@ mod tests {
             for tier in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
                 set_simd_limit(tier);
                 let (mut got, mut got_spill) = (start.clone(), Vec::new());
-                splat_row(j, &cell, &kz, base, &mut got, &mut got_spill);
+                splat_row(j, &cell, &kz, stored, base, &mut got, &mut got_spill);
                 got_spill.sort_unstable();
                 assert!(got == band, "trial {trial}, {tier:?}: band");
                 assert!(got_spill == spill, "trial {trial}, {tier:?}: spill");

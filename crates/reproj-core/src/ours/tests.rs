@@ -665,6 +665,65 @@ fn window_filter_with_spilled_points_equals_a_brute_force_minimum() {
     }
 }
 
+/// The splat grid is filled once every four frames ([`SplatEpoch`]): over frames whose client
+/// poses differ (so that each leaves keys in cells where the next splats nothing), the window
+/// search of a source whose buffers carry over equals that of fresh buffers every frame, through
+/// two fills.
+#[test]
+fn window_search_ignores_the_keys_of_earlier_frames() {
+    let (w, h) = (100, 70);
+    let c = cam(0.0, w, h);
+    let (color, depth) = plane(&c, 3.0);
+    let view = CameraView {
+        camera: c,
+        color: &color,
+        depth: &depth,
+        motion: None,
+        shadow: None,
+    };
+    let source = || {
+        let mut src = Src::new(view, c.projector("source").unwrap(), None, Role::Older, 0);
+        src.bufs.fit(w * h, 0);
+        src
+    };
+    let mut kept = source();
+    let mut frames_with_old_keys = 0;
+    for (f, up) in [0.4, -0.3, 0.0, 0.6, -0.5, 0.2, 0.5, -0.2, 0.1]
+        .into_iter()
+        .enumerate()
+    {
+        let client = Camera::new(
+            Mat4::look_at([0.0, 0.0, 0.0], [0.0, up, -1.0], [0.0, 1.0, 0.0]),
+            Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+            w,
+            h,
+            "client",
+        )
+        .unwrap();
+        let to_client = NdcTransfer::new(&c.view_proj().inverse().unwrap(), &client.view_proj());
+        let mut fresh = source();
+        scene_flow_and_splat(&mut kept, &to_client, 0.0, None);
+        scene_flow_and_splat(&mut fresh, &to_client, 0.0, None);
+        assert_eq!(kept.bufs.epoch, SplatEpoch(f as u8 % 4), "frame {f}");
+        let bound = kept.bufs.epoch.bound();
+        frames_with_old_keys += usize::from(
+            kept.bufs
+                .splat
+                .iter()
+                .any(|&k| k != EMPTY_SPLAT && k as i64 >= bound),
+        );
+        for wr in 0..2 {
+            window_min(&mut kept, wr);
+            window_min(&mut fresh, wr);
+            assert!(kept.bufs.init == fresh.bufs.init, "frame {f}, wr {wr}");
+        }
+        assert!(fresh.bufs.init.iter().any(|&p| p != NO_SPLAT));
+    }
+    // Most frames between the fills (frames 0 and 4 fill) splat nothing in some cells where an
+    // earlier frame did, so that their search had old keys to ignore (5 of the 7 here).
+    assert!(frames_with_old_keys >= 4, "{frames_with_old_keys}");
+}
+
 /// The row loops run in the best build the processor has (AVX-512, AVX2 or the baseline, see
 /// `simd`); every build must give the same bytes (colour, sources and errors), for `ours` with and
 /// without the pair state and for `forward_splat`. On a processor without AVX-512 the tiers above
