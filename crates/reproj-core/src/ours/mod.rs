@@ -531,7 +531,8 @@ pub(crate) fn run<'a>(
             };
             let to_client = NdcTransfer::new(&inverses[k], &client_vp);
             let vis = (src.camera > 0).then(|| pair.sources[k].vis.as_slice());
-            scene_flow_and_splat(src, &to_client, w, vis);
+            let moving = Some(pair.sources[k].moving.as_slice()).filter(|m| !m.is_empty());
+            scene_flow_and_splat(src, &to_client, w, vis, moving);
             window_min(src, params.window);
         };
         // Every source at once, each with its own parallel bands inside: one wait for the slowest
@@ -832,7 +833,7 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
     let to_client = NdcTransfer::new(&inv, &client.view_proj());
     let mut src = Src::new(*view, proj, None, Role::Older, 0);
     src.bufs.fit(view.camera.width * view.camera.height, 0);
-    scene_flow_and_splat(&mut src, &to_client, w, None);
+    scene_flow_and_splat(&mut src, &to_client, w, None, None);
     Ok(src
         .bufs
         .flow

@@ -45,6 +45,9 @@ pub(super) struct PairSource {
     pub(super) partner: Vec<u32>,
     /// Auxiliary sources: 1 where the point is visible in main, else 0; empty for main sources.
     pub(super) vis: Vec<u8>,
+    /// Which chunks of each row move ([`moving_chunks`](super::pass1::moving_chunks)), so that
+    /// pass 1 reads the motion of those only; empty when the source has no motion.
+    pub(super) moving: Vec<u8>,
     /// What the colour stage reads of each pixel, in one load ([`texel`]): its colour, its
     /// partner's colour and which of the two Algorithm 2 takes. Without it the stage loaded the
     /// colour, the shadow bits and the partner of the match, then (depending on the partner) the
@@ -162,9 +165,20 @@ impl PairCache {
         self.sources
             .par_iter_mut()
             .zip(sources.par_iter().zip(vis_ctx.par_iter()))
-            .for_each(|(ps, (src, ctx))| match ctx {
-                Some(ctx) => visible_in_main_flags(src, ctx, &mut ps.vis),
-                None => ps.vis.clear(),
+            .for_each(|(ps, (src, ctx))| {
+                match ctx {
+                    Some(ctx) => visible_in_main_flags(src, ctx, &mut ps.vis),
+                    None => ps.vis.clear(),
+                }
+                match src.view.motion {
+                    Some(mo) => super::pass1::moving_chunks(
+                        mo,
+                        src.proj.width,
+                        src.proj.height,
+                        &mut ps.moving,
+                    ),
+                    None => ps.moving.clear(),
+                }
             });
         if !blends {
             self.sources.iter_mut().for_each(|ps| ps.partner.clear());
@@ -388,7 +402,7 @@ fn full_flow_row_impl(
     // instructions in time_ours's `PREPARE=only` at 640 (AVX2, 1 thread).
     let mut s = 0;
     while s < row.sw {
-        let (e, moving) = super::pass1::motion_run(mo, s, row.sw);
+        let (e, moving) = super::pass1::motion_run(mo, s, row.sw, None);
         let m = moving.then_some(&mo[3 * s..3 * e]);
         full_span(&k, s, &depth[s..e], m, &mut out[s..e]);
         s = e;

@@ -25,12 +25,14 @@ const SPLAT_BAND: usize = 32;
 /// Pass 1 for one source image: `M_cam` (eqs. 1, 12, 13) and the depth-aware splat.
 ///
 /// `w` is the fraction of the object motion applied: `α` for the older frame, `1−α` for the newer
-/// one (negative when extrapolating).
+/// one (negative when extrapolating). `moving`: the source's [`moving_chunks`] when the caller
+/// has them (from the pair), else they are tested on the motion as the rows go.
 pub(super) fn scene_flow_and_splat(
     src: &mut Src,
     to_client: &NdcTransfer,
     w: f32,
     vis: Option<&[u8]>,
+    moving: Option<&[u8]>,
 ) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     let view = src.view;
@@ -41,6 +43,7 @@ pub(super) fn scene_flow_and_splat(
     let stored = epoch.stored();
     let invisible = &src.bufs.invisible;
     let xs = &src.ndc.x;
+    let nc = sw.div_ceil(STILL_CHUNK);
     // The splat is a minimum per cell, so the order of the updates does not matter. Each task owns
     // the splat cells of its own SPLAT_BAND rows (its band): it resets them when the epoch fills
     // the grid ([`SplatEpoch`](super::SplatEpoch); while they are hot in its cache, instead of a separate pass over
@@ -72,6 +75,7 @@ pub(super) fn scene_flow_and_splat(
                     x: xs,
                     depth,
                     motion,
+                    moving: moving.map(|m| &m[j * nc..(j + 1) * nc]),
                     to_client,
                     w,
                 };
@@ -296,6 +300,8 @@ struct FlowRow<'a> {
     depth: &'a [f32],
     /// The row's object motion, `3·sw` values, or `None` for a static frame.
     motion: Option<&'a [f32]>,
+    /// The row's [`moving_chunks`], when known: the motion is then read only where it moves.
+    moving: Option<&'a [u8]>,
     to_client: &'a NdcTransfer,
     w: f32,
 }
@@ -334,6 +340,7 @@ fn flow_row_impl(row: FlowRow, out: RowOut) {
         x,
         depth,
         motion,
+        moving,
         to_client,
         w,
     } = row;
@@ -349,7 +356,7 @@ fn flow_row_impl(row: FlowRow, out: RowOut) {
     // (bounds checks and loop set-up).
     let mut s = 0;
     while s < sw {
-        let (e, moving) = motion_run(mo, s, sw);
+        let (e, moving) = motion_run(mo, s, sw, moving);
         let out = RowOut {
             flow: &mut out.flow[s..e],
             zc: &mut out.zc[s..e],
@@ -364,16 +371,40 @@ fn flow_row_impl(row: FlowRow, out: RowOut) {
 
 /// The run of chunks of one kind (still: every motion bit clear; or moving) that starts at point
 /// `s` of a row of `sw` points with motion `mo` (3 values per point): its end, and whether it
-/// moves.
+/// moves. `flags`: the row's [`moving_chunks`], read instead of the motion when given.
 #[inline(always)]
-pub(super) fn motion_run(mo: &[f32], s: usize, sw: usize) -> (usize, bool) {
+pub(super) fn motion_run(mo: &[f32], s: usize, sw: usize, flags: Option<&[u8]>) -> (usize, bool) {
     let end = |s: usize| (s + STILL_CHUNK).min(sw);
-    let moving = chunk_moving(mo, s, sw);
+    let test = |s: usize| match flags {
+        Some(f) => f[s / STILL_CHUNK] != 0,
+        None => chunk_moving(mo, s, sw),
+    };
+    let moving = test(s);
     let mut e = end(s);
-    while e < sw && moving == chunk_moving(mo, e, sw) {
+    while e < sw && moving == test(e) {
         e = end(e);
     }
     (e, moving)
+}
+
+/// Whether each chunk of [`STILL_CHUNK`] points of each row of an `sw × sh` source with motion
+/// `mo` (3 values per point) moves (1) or is still (0: every motion bit clear), row by row
+/// (`sw.div_ceil(STILL_CHUNK)` per row) into `out`.
+///
+/// What [`flow_row`] would otherwise test every client frame, reading the whole motion buffer
+/// (12 bytes per point, most of a still point's input) to find the few points that move; it
+/// depends on the frame alone, so the pair computes it once ([`PairSource::moving`](super::pair::PairSource::moving)).
+pub(super) fn moving_chunks(mo: &[f32], sw: usize, sh: usize, out: &mut Vec<u8>) {
+    let nc = sw.div_ceil(STILL_CHUNK);
+    out.clear();
+    out.resize(nc * sh, 0);
+    out.par_chunks_mut(nc)
+        .zip(mo.par_chunks(3 * sw))
+        .for_each(|(flags, m)| {
+            for (c, f) in flags.iter_mut().enumerate() {
+                *f = u8::from(chunk_moving(m, c * STILL_CHUNK, sw));
+            }
+        });
 }
 
 /// Whether any motion value of the chunk of points `s..` of a row of `sw` (`mo`, 3 per point)
@@ -434,24 +465,48 @@ pub(super) fn flow_row_and_general(
     let SrcRow { j, sw, sh } = row;
     let (mut flow, mut zc) = (vec![[0.0; 2]; sw], vec![0.0; sw]);
     let (mut cell, mut kz) = (vec![0; sw], vec![0.0; sw]);
-    let input = FlowRow {
-        j,
-        sw,
-        sh,
-        x,
-        depth,
-        motion,
-        to_client,
-        w,
+    let mut flags = Vec::new();
+    if let Some(m) = motion {
+        moving_chunks(m, sw, 1, &mut flags);
+    }
+    let mut fast = Vec::new();
+    // With the chunks tested as the row goes, and with them from `moving_chunks`.
+    for moving in [None, motion.map(|_| &flags[..])] {
+        let input = FlowRow {
+            j,
+            sw,
+            sh,
+            x,
+            depth,
+            motion,
+            moving,
+            to_client,
+            w,
+        };
+        let out = RowOut {
+            flow: &mut flow,
+            zc: &mut zc,
+            cell: &mut cell,
+            kz: &mut kz,
+        };
+        flow_row(input, out);
+        fast.push(
+            (0..sw)
+                .map(|i| (flow[i], zc[i], cell[i], kz[i]))
+                .collect::<Vec<_>>(),
+        );
+    }
+    let bits = |v: &[([f32; 2], f32, u32, f32)]| {
+        v.iter()
+            .map(|(f, z, c, k)| (f.map(f32::to_bits), z.to_bits(), *c, k.to_bits()))
+            .collect::<Vec<_>>()
     };
-    let out = RowOut {
-        flow: &mut flow,
-        zc: &mut zc,
-        cell: &mut cell,
-        kz: &mut kz,
-    };
-    flow_row(input, out);
-    let fast = (0..sw).map(|i| (flow[i], zc[i], cell[i], kz[i])).collect();
+    let with_flags = fast.pop().unwrap();
+    let fast = fast.pop().unwrap();
+    assert!(
+        bits(&fast) == bits(&with_flags),
+        "flow_row with moving_chunks differs"
+    );
     let k = PointCtx::new(row, to_client, w);
     let general = (0..sw)
         .map(|i| {

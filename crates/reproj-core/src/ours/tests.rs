@@ -635,7 +635,7 @@ fn window_filter_with_spilled_points_equals_a_brute_force_minimum() {
     let to_client = NdcTransfer::new(&c.view_proj().inverse().unwrap(), &client.view_proj());
     let mut src = Src::new(view, c.projector("source").unwrap(), None, Role::Older, 0);
     src.bufs.fit(w * h, 0);
-    scene_flow_and_splat(&mut src, &to_client, 0.0, None);
+    scene_flow_and_splat(&mut src, &to_client, 0.0, None, None);
     // The complete grid: the bands' own cells with the spilled points added (again: the minimum
     // is idempotent).
     let mut grid = src.bufs.splat.clone();
@@ -702,8 +702,8 @@ fn window_search_ignores_the_keys_of_earlier_frames() {
         .unwrap();
         let to_client = NdcTransfer::new(&c.view_proj().inverse().unwrap(), &client.view_proj());
         let mut fresh = source();
-        scene_flow_and_splat(&mut kept, &to_client, 0.0, None);
-        scene_flow_and_splat(&mut fresh, &to_client, 0.0, None);
+        scene_flow_and_splat(&mut kept, &to_client, 0.0, None, None);
+        scene_flow_and_splat(&mut fresh, &to_client, 0.0, None, None);
         assert_eq!(kept.bufs.epoch, SplatEpoch(f as u8 % 4), "frame {f}");
         let bound = kept.bufs.epoch.bound();
         frames_with_old_keys += usize::from(
