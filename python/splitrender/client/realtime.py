@@ -221,8 +221,8 @@ def _yield_to_display(priority: str) -> None:
     - ``"idle"``: the ``SCHED_IDLE`` policy. The worker runs mostly on a core the display leaves
       idle (between its frames: about 40 % of each refresh at 640×360 here), and a display
       thread that wakes takes the core back at once; the fair scheduler can still run it for
-      up to a tick before a display thread that is runnable (:func:`_raise_display`). Where the platform has no ``SCHED_IDLE``,
-      as ``"low"``.
+      up to a tick before a display thread that is runnable (:func:`_raise_display`). Where
+      the platform has no ``SCHED_IDLE``, as ``"low"``.
     - ``"low"``: ``nice`` 10. The scheduler still gives the worker a share of a busy core, and a
       display frame that overlaps the worker's decoding can lose part of a core for a while.
     - ``"normal"``: unchanged.
@@ -337,9 +337,9 @@ class RealtimeClient:
     yields the cores to the display (:func:`_yield_to_display`). ``display_priority`` (one of
     :data:`DISPLAY_PRIORITIES`, default ``"realtime"``) is how :meth:`run` schedules the
     display thread and the threads it renders on while it shows frames (:func:`_raise_display`;
-    restored when it returns; the report's ``display_scheduling`` says what it got). ``executor`` runs the receive
-    side instead (it must run jobs in order; its threads keep their priority). Use as a context
-    manager, or call :meth:`close`.
+    restored when it returns; the report's ``display_scheduling`` says what it got).
+    ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
+    their priority). Use as a context manager, or call :meth:`close`.
 
     Raises:
         InvalidInputError: for an unknown method, invalid options or a ``display_fps`` that is

@@ -46,10 +46,10 @@ pub(super) fn scene_flow_and_splat(
     let nc = sw.div_ceil(STILL_CHUNK);
     // The splat is a minimum per cell, so the order of the updates does not matter. Each task owns
     // the splat cells of its own SPLAT_BAND rows (its band): it resets them when the epoch fills
-    // the grid ([`SplatEpoch`](super::SplatEpoch); while they are hot in its cache, instead of a separate pass over
-    // the grid) and updates them with plain loads and stores. A point that lands in another band is kept aside and applied after the parallel
-    // pass, when every band is reset. A `lock cmpxchg` per point would cost more than the point's
-    // whole scene flow.
+    // the grid (SplatEpoch; while they are hot in its cache, instead of a separate pass over the
+    // grid) and updates them with plain loads and stores. A point that lands in another band is
+    // kept aside and applied after the parallel pass, when every band is reset. A `lock cmpxchg`
+    // per point would cost more than the point's whole scene flow.
     let block = |b: usize,
                  rows: &mut [[f32; 2]],
                  zrows: &mut [f32],
@@ -110,9 +110,9 @@ pub(super) fn scene_flow_and_splat(
         .with_max_len(1)
         .for_each(|(b, (((rows, zrows), band), spill))| block(b, rows, zrows, band, spill));
     // The parallel pass has finished: every band is reset (or holds only earlier epochs' keys).
-    // The spilled points are applied by
-    // one task per range of the grid (one per thread), each reading every list and taking the
-    // cells of its own range, so that no two tasks write the same cell.
+    // The spilled points are applied by one task per range of the grid (one per thread), each
+    // reading every list and taking the cells of its own range, so that no two tasks write the
+    // same cell.
     let parts = rayon::current_num_threads().clamp(1, 16);
     let part = (sw * sh).div_ceil(parts).max(1);
     src.bufs
