@@ -50,17 +50,31 @@ pub(super) fn scene_flow_and_splat(
     // grid) and updates them with plain loads and stores. A point that lands in another band is
     // kept aside and applied after the parallel pass, when every band is reset. A `lock cmpxchg`
     // per point would cost more than the point's whole scene flow.
+    //
+    // A task's band is where most of its SPLAT_BAND source rows land ([`band_starts`]), so that
+    // a head turn that moves the image vertically, or an auxiliary camera's wider view, does not
+    // make the points of every band land in another one.
+    let nb = sh.div_ceil(SPLAT_BAND);
+    let starts = band_starts(src, to_client, w, nb);
+    let mut bands: Vec<(usize, &mut [u64])> = Vec::with_capacity(nb);
+    let mut rest = &mut src.bufs.splat[..];
+    for (b, &start) in starts.iter().enumerate() {
+        let end = starts.get(b + 1).map_or(sh, |&e| e.max(start));
+        let (band, tail) = rest.split_at_mut((end - start) * sw);
+        bands.push((start, band));
+        rest = tail;
+    }
     let block = |b: usize,
                  rows: &mut [[f32; 2]],
                  zrows: &mut [f32],
-                 band: &mut [u64],
+                 (start, band): (usize, &mut [u64]),
                  spill: &mut Vec<(u32, u64)>| {
         if epoch.fills() {
             band.fill(EMPTY_SPLAT);
         }
         spill.clear();
         // Row-major cell indices order like the packed pixels: the band is one range of them.
-        let base = (b * SPLAT_BAND * sw) as u32;
+        let base = (start * sw) as u32;
         ROW_SCRATCH.with(|cell| {
             let scratch = &mut *cell.borrow_mut();
             scratch.resize(sw);
@@ -98,12 +112,12 @@ pub(super) fn scene_flow_and_splat(
     };
     // One spill list per block, kept with the buffers (see BUFFER_POOL on page faults).
     let mut spills = std::mem::take(&mut src.bufs.spill);
-    spills.resize_with(sh.div_ceil(SPLAT_BAND), Vec::new);
+    spills.resize_with(nb, Vec::new);
     src.bufs
         .flow
         .par_chunks_mut(SPLAT_BAND * sw)
         .zip(src.bufs.zc.par_chunks_mut(SPLAT_BAND * sw))
-        .zip(src.bufs.splat.par_chunks_mut(SPLAT_BAND * sw))
+        .zip(bands.into_par_iter())
         .zip(spills.par_iter_mut())
         .enumerate()
         // One job per band, so that an idle thread can always take one (see `run`).
@@ -131,6 +145,57 @@ pub(super) fn scene_flow_and_splat(
             }
         });
     src.bufs.spill = spills;
+}
+
+/// Sample points per row [`band_starts`] looks at.
+const SHIFT_SAMPLES: usize = 9;
+
+/// The first client row of each of the `nb` splat bands of a source (the first is 0, they do
+/// not decrease, the last band ends at the grid's last row): where band `b`'s first source row,
+/// `b · SPLAT_BAND`, lands in the client image, the median over sample points of that row of
+/// `M_cam`'s vertical part (unchanged where none is valid).
+///
+/// Pass 1 owns the splat cells by bands of rows; a point that lands outside its task's band is
+/// set aside and applied afterwards, one random access to the grid per point. With the bands at
+/// the source rows, a head turn that moves the image `d` rows vertically sends about
+/// `d / SPLAT_BAND` of the points to the next band, and an auxiliary camera, whose wider view
+/// lands stretched in the client grid, sends most of its points elsewhere. The grid is the same
+/// whichever task applies a point, so the estimate only has to be typical.
+fn band_starts(src: &Src, to_client: &NdcTransfer, w: f32, nb: usize) -> Vec<usize> {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    let view = src.view;
+    let mut dy: Vec<f32> = Vec::with_capacity(SHIFT_SAMPLES);
+    let mut starts = Vec::with_capacity(nb);
+    let mut prev = 0;
+    for b in 0..nb {
+        let j = b * SPLAT_BAND;
+        let k = PointCtx::new(SrcRow { j, sw, sh }, to_client, w);
+        dy.clear();
+        for si in 0..SHIFT_SAMPLES {
+            let i = (2 * si + 1) * sw / (2 * SHIFT_SAMPLES);
+            let p = j * sw + i;
+            let o = view
+                .motion
+                .map_or([0.0; 3], |m| [m[3 * p], m[3 * p + 1], m[3 * p + 2]]);
+            let f = flow_point(&k, src.ndc.x[i], view.depth[p], o).flow[1];
+            // NDC y points up, rows down.
+            let rows = -f * 0.5 * sh as f32;
+            if rows.is_finite() {
+                dy.push(rows);
+            }
+        }
+        let start = if b == 0 || dy.is_empty() {
+            j
+        } else {
+            let mid = dy.len() / 2;
+            let (_, m, _) = dy.select_nth_unstable_by(mid, f32::total_cmp);
+            (j as f32 + m.round()).clamp(0.0, sh as f32) as usize
+        };
+        // The first band starts the grid; none starts before the one above it.
+        prev = if b == 0 { 0 } else { start.max(prev) };
+        starts.push(prev);
+    }
+    starts
 }
 
 /// Points per chunk of [`flag_cells`]: one AVX2 vector.
