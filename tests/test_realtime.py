@@ -418,6 +418,30 @@ def test_display_threads_are_real_time_during_a_run_and_restored_after(scene, fr
         assert all(p == before for p in seen["realtime"])
 
 
+@pytest.mark.skipif(not hasattr(os, "SCHED_RR"), reason="needs Linux scheduling policies")
+def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frames):
+    # Every frame takes 1.5 refreshes: late, every time.
+    clock = FakeClock()
+    before = _display_policies()
+    policies: list[list[int]] = []
+    with loop(clock, cost=lambda n: 1.5 * PERIOD) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(pose_of(scene), 1.0,
+                       on_frame=lambda im, rec: policies.append(_display_policies()))
+    assert _display_policies() == before
+    if not report.display_scheduling.startswith("realtime"):
+        pytest.skip(f"real-time scheduling not permitted here: {report.display_scheduling}")
+    n = rt._OVERRUN_FRAMES
+    assert report.deadline_misses == len(report.frames) > n
+    # Raised for the first late frames, normal from the n-th late frame in a row on.
+    assert all(set(p) == {os.SCHED_RR} for p in policies[: n - 1])
+    assert all(p == before for p in policies[n - 1:])
+    assert report.display_scheduling == (
+        f"realtime until frame {report.frames[n - 1].index}, then normal ({n} late frames in a "
+        "row)")
+
+
 def test_warm_up_receives_the_due_frames_and_renders_one_frame_off_the_record(scene, frames):
     feed = [(k / FS - 1 / FS, frames[k]) for k in range(3)]
     clock = FakeClock()

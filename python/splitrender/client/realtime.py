@@ -258,6 +258,12 @@ _DISPLAY_RT_PRIORITY = 1
 
 _Saved = list[tuple[int, int, int]]  # (thread id, policy, priority) to restore
 
+#: Late display frames in a row after which :meth:`RealtimeClient.run` gives the display's
+#: threads their normal policy back (0.2 s at 120 Hz): a display that cannot keep up never
+#: sleeps, and at real-time priority it would leave the worker, the network and every other
+#: normal thread only the kernel's small reserve.
+_OVERRUN_FRAMES = 24
+
 
 def _raise_display(priority: str) -> tuple[str, _Saved]:
     """Gives the calling (display) thread and the threads ``reproject`` runs on
@@ -280,7 +286,8 @@ def _raise_display(priority: str) -> tuple[str, _Saved]:
     is refused, nothing changes and the returned text says why. The display thread sleeps
     between frames, so the worker keeps the rest of each refresh; a display that never sleeps
     (frames longer than a refresh) would leave it only the kernel's reserve for normal threads
-    (5 % by default)."""
+    (5 % by default), so :meth:`RealtimeClient.run` restores the normal policy after
+    :data:`_OVERRUN_FRAMES` late frames in a row."""
     if priority == "normal":
         return "normal", []
     if not hasattr(os, "SCHED_RR"):
@@ -621,7 +628,7 @@ class RealtimeClient:
         sys.setswitchinterval(min(interval, 0.0005))
         try:
             self._display(
-                report, t0, n_frames, pose, arrivals, start_time, on_frame, exclusive
+                report, t0, n_frames, pose, arrivals, start_time, on_frame, exclusive, saved
             )
         finally:
             _restore(saved)
@@ -665,12 +672,16 @@ class RealtimeClient:
         start_time: float,
         on_frame: Callable[[_Image, DisplayFrame], None] | None,
         exclusive: bool,
+        raised: _Saved,
     ) -> None:
         """The display loop of :meth:`run` (refresh ``n`` at clock ``t0 + n / f_c``; with
-        ``exclusive``, ``t0`` moves on by the time waited for the worker)."""
+        ``exclusive``, ``t0`` moves on by the time waited for the worker). ``raised``: the
+        threads :func:`_raise_display` raised, restored (and emptied) after
+        :data:`_OVERRUN_FRAMES` late frames in a row."""
         period = 1.0 / self.display_fps
         nxt = next(arrivals, None)
         n = 0
+        late_in_a_row = 0
         while n < n_frames:
             tick = t0 + n * period
             while nxt is not None and t0 + (nxt[0] - start_time) <= tick:
@@ -706,6 +717,14 @@ class RealtimeClient:
                 prepared=prepared,
             )
             report.frames.append(record)
+            late_in_a_row = 0 if record.met else late_in_a_row + 1
+            if raised and late_in_a_row >= _OVERRUN_FRAMES:
+                _restore(raised)
+                raised.clear()
+                report.display_scheduling = (
+                    f"realtime until frame {n}, then normal ({_OVERRUN_FRAMES} late frames "
+                    "in a row)"
+                )
             if on_frame is not None:
                 on_frame(image, record)
             after = self.clock.now()
