@@ -796,6 +796,25 @@ pub(super) fn window_min(src: &mut Src, wr: usize) {
         });
 }
 
+/// [`window_min`] for the `rows` cells rows from `j0` only, into `out` (`rows · W` entries):
+/// what pass 2 reads for a block of output rows of a source whose grid is the client's.
+pub(super) fn window_rows(src: &Src, j0: usize, rows: usize, wr: usize, out: &mut Vec<u32>) {
+    let (sw, sh) = (src.proj.width, src.proj.height);
+    out.resize(rows * sw, NO_SPLAT);
+    let first = SrcRow { j: j0, sw, sh };
+    let bound = src.bufs.epoch.bound();
+    ROW_MIN.with(|cell| {
+        window_block(
+            &src.bufs.splat,
+            bound,
+            first,
+            wr,
+            &mut out[..rows * sw],
+            &mut cell.borrow_mut(),
+        )
+    });
+}
+
 simd_dispatch! {
     /// [`window_min`] for the output rows starting at `first`; `scratch` holds row minima. A
     /// minimum at or above `bound` ([`SplatEpoch::bound`](super::SplatEpoch::bound)) is an empty window.

@@ -36,6 +36,11 @@ pub(super) struct SearchRow {
     prev: Vec<u32>,
     /// Auxiliary sources: whether each match is visible in main (empty for main sources).
     vis: Vec<bool>,
+    /// The window search of the source for the rows of the current block of output rows, from
+    /// row `block_j0`, when pass 2 computes it per block ([`Src::window_in_blocks`](super::Src));
+    /// else `block_j0` is `None` and the search reads the source's `init`.
+    pub(super) block: Vec<u32>,
+    pub(super) block_j0: Option<usize>,
 }
 
 impl SearchRow {
@@ -100,7 +105,10 @@ impl Resolve<'_> {
         // Stage 1: the nearest splat in the window around each pixel's source cell (the same cell
         // when the grids agree, else found from NDC) and its flow.
         if (t.gw, t.gh) == (sw, sh) {
-            let cells = &init[t.j * sw..(t.j + 1) * sw];
+            let cells = match row.block_j0 {
+                Some(j0) => &row.block[(t.j - j0) * sw..(t.j - j0 + 1) * sw],
+                None => &init[t.j * sw..(t.j + 1) * sw],
+            };
             match t.cols {
                 None => {
                     g.firsts(flow, sw, &cells[..cw], pks, ms);
