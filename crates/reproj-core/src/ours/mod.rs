@@ -10,7 +10,8 @@
 //!    for the newer frame). The point is splatted into a grid over the client image at the source's
 //!    resolution with a minimum of the 64-bit key `(depth, source pixel)`, so the nearest point
 //!    wins. The 3×3 window search is then done for every cell at once, as a separable minimum
-//!    filter over the splat grid ([`window_min`]).
+//!    filter over the splat grid ([`window_min`]; for a main source whose grid is the client's,
+//!    by each block of pass 2 for its own rows).
 //! 2. **Resolve**, per output pixel over blocks of 16 rows: the nearest splat in the window
 //!    initialises the fixed-point iteration `p ← pix(T − M_cam[p])` (eq. 5 with eqs. 12/13), then
 //!    the reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary
@@ -277,7 +278,8 @@ struct Buffers {
     epoch: SplatEpoch,
     /// The window search done for every cell at once ([`window_min`]): the packed source pixel
     /// of the smallest splat key in the `(2W+1)²` window around the cell, or [`NO_SPLAT`].
-    /// Every entry is rewritten each frame.
+    /// Every entry is rewritten each frame, except for a source whose window search pass 2
+    /// does per block ([`Src::window_in_blocks`]), which leaves it unused.
     init: Vec<u32>,
     /// Auxiliary sources only: 1 where a point that is *not* visible in the main camera lands in
     /// the client grid (its splat cell), else 0; reset every frame. An auxiliary match can only
