@@ -419,6 +419,35 @@ def test_display_threads_are_real_time_during_a_run_and_restored_after(scene, fr
 
 
 @pytest.mark.skipif(not hasattr(os, "SCHED_RR"), reason="needs Linux scheduling policies")
+def test_refused_real_time_scheduling_changes_nothing_and_says_so(scene, frames, monkeypatch):
+    # As for a user without CAP_SYS_NICE or an RLIMIT_RTPRIO: the second thread is refused.
+    real = os.sched_setscheduler
+    calls: list[int] = []
+
+    def refuse_after_one(tid: int, policy: int, param: os.sched_param) -> None:
+        calls.append(policy)
+        if policy == os.SCHED_RR and len(calls) > 1:
+            raise PermissionError(1, "Operation not permitted")
+        real(tid, policy, param)
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse_after_one)
+    before = _display_policies()
+    seen: list[list[int]] = []
+    clock = FakeClock()
+    with loop(clock) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(pose_of(scene), 0.02,
+                       on_frame=lambda im, rec: seen.append(_display_policies()))
+    assert report.display_scheduling == (
+        "normal (real-time scheduling refused: Operation not permitted)")
+    assert report.summary()["display_scheduling"] == report.display_scheduling
+    # The one thread raised before the refusal was given its policy back at once.
+    assert seen and all(p == before for p in seen)
+    assert _display_policies() == before
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_RR"), reason="needs Linux scheduling policies")
 def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frames):
     # Every frame takes 1.5 refreshes: late, every time.
     clock = FakeClock()
