@@ -805,12 +805,7 @@ mod tests {
     fn dilated_flags_are_the_cells_near_a_flag_or_the_border() {
         use std::sync::atomic::AtomicU8;
         let mut seed = 0x9E37_79B9_7F4A_7C15u64;
-        let mut rng = |n: u64| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed % n
-        };
+        let mut rng = |n: u64| crate::ours::draw(&mut seed, n);
         for (w, h) in [(1, 1), (3, 9), (17, 5), (33, 21), (40, 40)] {
             for reach in 0..4 {
                 for (n_src, dense) in [(1, 2), (2, 30), (2, 200), (1, 1000)] {

@@ -867,5 +867,21 @@ pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32
         .collect())
 }
 
+/// The tests' xorshift64 generator (shifts 13, 7, 17): the next state of `seed`, so that every
+/// run draws the same cases.
+#[cfg(test)]
+fn xorshift(seed: &mut u64) -> u64 {
+    *seed ^= *seed << 13;
+    *seed ^= *seed >> 7;
+    *seed ^= *seed << 17;
+    *seed
+}
+
+/// A draw in `0..n` from [`xorshift`].
+#[cfg(test)]
+fn draw(seed: &mut u64, n: u64) -> u64 {
+    xorshift(seed) % n
+}
+
 #[cfg(test)]
 mod tests;

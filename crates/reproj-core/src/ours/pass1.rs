@@ -923,15 +923,12 @@ mod tests {
     use super::*;
     use std::sync::atomic::AtomicU8;
 
-    /// A xorshift generator: the cases are the same on every run.
+    /// The tests' generator ([`draw`](super::super::draw)) around its state.
     struct Rng(u64);
 
     impl Rng {
         fn below(&mut self, n: u64) -> u64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            self.0 % n
+            super::super::draw(&mut self.0, n)
         }
     }
 

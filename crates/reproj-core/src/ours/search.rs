@@ -702,13 +702,7 @@ mod tests {
     use crate::ours::{set_simd_limit, simd_tier, Simd};
     use crate::shadow::Role;
 
-    /// xorshift64: a draw in `0..k`.
-    fn rng(seed: &mut u64, k: u64) -> u64 {
-        *seed ^= *seed << 13;
-        *seed ^= *seed >> 7;
-        *seed ^= *seed << 17;
-        *seed % k
-    }
+    use crate::ours::draw as rng;
 
     /// [`Resolve::search_row`] at every SIMD tier gives what [`Resolve::search`] gives for each
     /// target alone, to the bit (pixel, error, depth, visibility), for every way a row meets the

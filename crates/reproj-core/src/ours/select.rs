@@ -431,12 +431,7 @@ mod tests {
     #[test]
     fn gathered_texels_equal_the_portable_loop() {
         let mut seed = 0x2545_F491_4F6C_DD1Du64;
-        let mut rng = |n: u64| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed % n
-        };
+        let mut rng = |n: u64| crate::ours::draw(&mut seed, n);
         // Two sources of different sizes, texels with distinct high and low words.
         let tables: Vec<Vec<u64>> = [37usize, 101]
             .iter()

@@ -808,12 +808,7 @@ fn still_points_flow_as_the_general_path() {
         .map(|i| crate::camera::ndc_of_pixel(i, 0, sw, sh)[0])
         .collect();
     let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-    let mut rnd = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        seed
-    };
+    let mut rnd = move || xorshift(&mut seed);
     let pick = |r: u64, v: &[f32]| v[(r % v.len() as u64) as usize];
     let from_inv = cam(0.0, sw, sh).view_proj().inverse().unwrap();
     let real = NdcTransfer::new(&from_inv, &cam(0.3, sw, sh).view_proj());
@@ -908,14 +903,9 @@ fn colour_row_equals_the_full_path() {
     use crate::shadow::round_rgb4;
     let (sw, sh, cw) = (12, 6, 70);
     let n = sw * sh;
-    // xorshift64: a draw in `0..k`, and `len` random bytes.
+    // A draw in `0..k`, and `len` random bytes.
     let mut seed = 0x9E37_79B9_7F4A_7C15u64;
-    let mut rng = move |k: u64| {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        seed % k
-    };
+    let mut rng = move |k: u64| draw(&mut seed, k);
     fn bytes(rng: &mut impl FnMut(u64) -> u64, len: usize) -> Vec<u8> {
         (0..len).map(|_| rng(256) as u8).collect()
     }
