@@ -608,22 +608,32 @@ fn moving_object_is_extrapolated_along_its_motion() {
     assert!(ok * 100 >= total * 98, "{ok} of {total}");
 }
 
-/// Pass 1 of a plane seen by a client that looks `up` (the image moves down) and rolls (`roll`:
-/// the x of its up vector): the splat grid, with the points that its tasks splatted outside
-/// their own band (the spill lists) applied, and the window filter over it, against a
-/// brute-force window minimum over every point's cell, for several window radii. Returns how
-/// many points were spilled (out of 100 × 70).
-fn window_filter_against_brute_force(up: f64, roll: f64) -> usize {
-    let (w, h) = (100, 70);
-    let c = cam(0.0, w, h);
+/// The pass 1 tests' source: a 100 × 70 camera over a textured plane at depth 3 ([`plane`]),
+/// handed to `f` as a view.
+fn with_plane_view<R>(f: impl FnOnce(CameraView) -> R) -> R {
+    let c = cam(0.0, 100, 70);
     let (color, depth) = plane(&c, 3.0);
-    let view = CameraView {
+    f(CameraView {
         camera: c,
         color: &color,
         depth: &depth,
         motion: None,
         shadow: None,
-    };
+    })
+}
+
+/// A source of `view` with buffers of its size, as `run` makes it.
+fn source_of(view: CameraView) -> Src {
+    let c = view.camera;
+    let mut src = Src::new(view, c.projector("source").unwrap(), None, Role::Older, 0);
+    src.bufs.fit(c.width * c.height, 0);
+    src
+}
+
+/// The NDC transfer from camera `c` to a client of its size at the origin that looks `up` (the y
+/// of its direction: the image moves down) and rolls (`roll`: the x of its up vector).
+fn to_client_looking(c: &Camera, up: f64, roll: f64) -> NdcTransfer {
+    let (w, h) = (c.width, c.height);
     let client = Camera::new(
         Mat4::look_at([0.0, 0.0, 0.0], [0.0, up, -1.0], [roll, 1.0, 0.0]),
         Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
@@ -632,9 +642,23 @@ fn window_filter_against_brute_force(up: f64, roll: f64) -> usize {
         "client",
     )
     .unwrap();
-    let to_client = NdcTransfer::new(&c.view_proj().inverse().unwrap(), &client.view_proj());
-    let mut src = Src::new(view, c.projector("source").unwrap(), None, Role::Older, 0);
-    src.bufs.fit(w * h, 0);
+    NdcTransfer::new(&c.view_proj().inverse().unwrap(), &client.view_proj())
+}
+
+/// Pass 1 of a plane seen by a client that looks `up` (the image moves down) and rolls (`roll`:
+/// the x of its up vector): the splat grid, with the points that its tasks splatted outside
+/// their own band (the spill lists) applied, and the window filter over it, against a
+/// brute-force window minimum over every point's cell, for several window radii. Returns how
+/// many points were spilled (out of 100 × 70).
+fn window_filter_against_brute_force(up: f64, roll: f64) -> usize {
+    with_plane_view(|view| window_filter_of(view, up, roll))
+}
+
+/// [`window_filter_against_brute_force`] of `view`.
+fn window_filter_of(view: CameraView, up: f64, roll: f64) -> usize {
+    let (w, h) = (view.camera.width, view.camera.height);
+    let to_client = to_client_looking(&view.camera, up, roll);
+    let mut src = source_of(view);
     scene_flow_and_splat(&mut src, &to_client, 0.0, None, None);
     // The complete grid: the bands' own cells with the spilled points added (again: the minimum
     // is idempotent).
@@ -689,37 +713,19 @@ fn splat_bands_follow_a_vertical_shift_of_the_image() {
 /// two fills.
 #[test]
 fn window_search_ignores_the_keys_of_earlier_frames() {
-    let (w, h) = (100, 70);
-    let c = cam(0.0, w, h);
-    let (color, depth) = plane(&c, 3.0);
-    let view = CameraView {
-        camera: c,
-        color: &color,
-        depth: &depth,
-        motion: None,
-        shadow: None,
-    };
-    let source = || {
-        let mut src = Src::new(view, c.projector("source").unwrap(), None, Role::Older, 0);
-        src.bufs.fit(w * h, 0);
-        src
-    };
-    let mut kept = source();
+    with_plane_view(window_search_over_frames);
+}
+
+/// [`window_search_ignores_the_keys_of_earlier_frames`] with `view`.
+fn window_search_over_frames(view: CameraView) {
+    let mut kept = source_of(view);
     let mut frames_with_old_keys = 0;
     for (f, up) in [0.4, -0.3, 0.0, 0.6, -0.5, 0.2, 0.5, -0.2, 0.1]
         .into_iter()
         .enumerate()
     {
-        let client = Camera::new(
-            Mat4::look_at([0.0, 0.0, 0.0], [0.0, up, -1.0], [0.0, 1.0, 0.0]),
-            Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
-            w,
-            h,
-            "client",
-        )
-        .unwrap();
-        let to_client = NdcTransfer::new(&c.view_proj().inverse().unwrap(), &client.view_proj());
-        let mut fresh = source();
+        let to_client = to_client_looking(&view.camera, up, 0.0);
+        let mut fresh = source_of(view);
         scene_flow_and_splat(&mut kept, &to_client, 0.0, None, None);
         scene_flow_and_splat(&mut fresh, &to_client, 0.0, None, None);
         assert_eq!(kept.bufs.epoch, SplatEpoch(f as u8 % 4), "frame {f}");
