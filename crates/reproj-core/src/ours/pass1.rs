@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use crate::camera::NdcTransfer;
 use crate::params::TILE;
 
-use super::simd::{prefetch, simd_dispatch};
+use super::simd::simd_dispatch;
 use super::{pack_pixel, splat_index, splat_key, Src, SrcRow, EMPTY_SPLAT, NO_SPLAT};
 
 /// Source rows per task of the splatting pass. Points that land outside their task's rows are
@@ -76,16 +76,8 @@ pub(super) fn scene_flow_and_splat(
         // Row-major cell indices order like the packed pixels: the band is one range of them.
         let base = (start * sw) as u32;
         ROW_SCRATCH.with(|cell| {
-            let [one, two] = &mut *cell.borrow_mut();
-            one.resize(sw);
-            two.resize(sw);
-            // Each row is splatted after the next row's scene flow, with the grid lines it
-            // splats into prefetched in between: outside the frames that fill the grid
-            // (SplatEpoch), those lines were last touched a frame ago and the splat's loads
-            // waited for them (a third of `splat_row`'s time in a profile at 1280×720). The
-            // splat is a minimum per cell, so the order of the rows does not change the grid.
-            let (mut cur, mut prev) = (one, two);
-            let mut pending = None;
+            let scratch = &mut *cell.borrow_mut();
+            scratch.resize(sw);
             for (r, (row, zrow)) in rows.chunks_mut(sw).zip(zrows.chunks_mut(sw)).enumerate() {
                 let j = b * SPLAT_BAND + r;
                 let depth = &view.depth[j * sw..(j + 1) * sw];
@@ -104,30 +96,17 @@ pub(super) fn scene_flow_and_splat(
                 let out = RowOut {
                     flow: row,
                     zc: zrow,
-                    cell: &mut cur.cell,
-                    kz: &mut cur.kz,
+                    cell: &mut scratch.cell,
+                    kz: &mut scratch.kz,
                 };
                 flow_row(input, out);
-                // A chunk of 8 points mostly lands in 8 consecutive cells, one line of keys.
-                for &c in cur.cell.iter().step_by(8) {
-                    if let Some(line) = band.get(c.wrapping_sub(base) as usize) {
-                        prefetch(line);
-                    }
-                }
-                if let Some(pj) = pending {
-                    splat_row(pj, &prev.cell, &prev.kz, stored, base, band, spill);
-                }
-                pending = Some(j);
+                splat_row(j, &scratch.cell, &scratch.kz, stored, base, band, spill);
                 if let Some(vis) = vis {
                     // Auxiliary sources: flag where the points not visible in main land.
                     let v = &vis[j * sw..(j + 1) * sw];
-                    landing_row(SrcRow { j, sw, sh }, xs, row, v, &mut cur.inv);
-                    flag_cells(&cur.inv, invisible);
+                    landing_row(SrcRow { j, sw, sh }, xs, row, v, &mut scratch.inv);
+                    flag_cells(&scratch.inv, invisible);
                 }
-                std::mem::swap(&mut cur, &mut prev);
-            }
-            if let Some(pj) = pending {
-                splat_row(pj, &prev.cell, &prev.kz, stored, base, band, spill);
             }
         });
     };
@@ -347,10 +326,9 @@ fn splat_points(
 }
 
 thread_local! {
-    /// Splat targets of two source rows ([`RowScratch`]: the row being computed and the one
-    /// waiting for its splat), reused.
-    static ROW_SCRATCH: std::cell::RefCell<[RowScratch; 2]> = const {
-        std::cell::RefCell::new([RowScratch::EMPTY, RowScratch::EMPTY])
+    /// Splat targets of one source row ([`RowScratch`]), reused.
+    static ROW_SCRATCH: std::cell::RefCell<RowScratch> = const {
+        std::cell::RefCell::new(RowScratch { cell: Vec::new(), kz: Vec::new(), inv: Vec::new() })
     };
 }
 
@@ -370,12 +348,6 @@ struct RowScratch {
 }
 
 impl RowScratch {
-    const EMPTY: RowScratch = RowScratch {
-        cell: Vec::new(),
-        kz: Vec::new(),
-        inv: Vec::new(),
-    };
-
     fn resize(&mut self, n: usize) {
         self.cell.resize(n, NO_SPLAT);
         self.kz.resize(n, 0.0);
