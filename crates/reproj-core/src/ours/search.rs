@@ -11,8 +11,14 @@ use super::simd::{prefetch, simd_method};
 use super::{packed_cell, unpack_pixel, Cell, Match, Resolve, NO_SPLAT};
 
 /// How many output rows ahead [`Resolve::prefetch_ahead`] prefetches (1, 2 and 4 rows gave
-/// 4–8 % at 1280×720, 2 the most).
+/// 4–8 % of the frame at 1280×720 in one hour, 2 the most; 2.5–3.8 % in another).
 const PREFETCH_ROWS: usize = 2;
+
+/// The smallest main source (pixels) for which [`Resolve::prefetch_ahead`] prefetches. Measured
+/// here, paired in one process, with and without: at 1280×720 (921,600 pixels) without is
+/// 1.025–1.038 of the frame time with, at 640×360 (230,400) 0.968–0.979: there the lines are
+/// more often still cached, and the prefetches only cost instructions and fill buffers.
+const PREFETCH_MIN_PIXELS: usize = 1 << 19;
 
 /// One output row's searches in one main source ([`Resolve::search_row`]), kept between rows.
 #[derive(Debug, Default)]
@@ -225,8 +231,8 @@ impl Resolve<'_> {
     /// Prefetches, for the searches of output row `j + PREFETCH_ROWS` in main source `k`, what
     /// they load by source pixel: the flow and texel at the window's nearest splat of every
     /// eighth pixel (one cache line of flows or texels holds eight pixels), the client depth of
-    /// every sixteenth, when pass 2 computes the window search per block ([`SearchRow::block`])
-    /// and that row is in the block.
+    /// every sixteenth, when pass 2 computes the window search per block ([`SearchRow::block`]),
+    /// that row is in the block and the source has at least [`PREFETCH_MIN_PIXELS`].
     ///
     /// Why: the searches gather from buffers of 4–8 bytes per source pixel (at 1280×720, 7.4 MB
     /// of flows, 3.7 MB of depths and 7.4 MB of texels per main source) that pass 1 wrote or the
@@ -246,6 +252,9 @@ impl Resolve<'_> {
             return;
         };
         let (flow, zc) = (&s.bufs.flow[..], &s.bufs.zc[..]);
+        if flow.len() < PREFETCH_MIN_PIXELS {
+            return;
+        }
         let texel = &self.pair.sources[k].texel[..];
         for (n, &q) in cells.iter().step_by(8).enumerate() {
             let (qi, qj) = unpack_pixel(q);
