@@ -285,8 +285,8 @@ struct Buffers {
     /// the client grid (its splat cell), else 0; reset every frame. An auxiliary match can only
     /// override a main match near such a cell (see [`AuxGrid::maybe`]).
     invisible: Vec<AtomicU8>,
-    /// Per block of 16 source rows, the splats that land outside the block's own rows
-    /// (see [`scene_flow_and_splat`]).
+    /// Per splat band (`SPLAT_BAND` source rows), its points that land outside the band's own rows
+    /// of the grid (see [`scene_flow_and_splat`]).
     spill: Vec<Vec<(u32, u64)>>,
 }
 
