@@ -768,7 +768,7 @@ fn cell_index(inside: bool, fx: f32, fy: f32, sw: u32) -> u32 {
 }
 
 thread_local! {
-    /// Row minima of one block of [`window_min`], reused across blocks and frames.
+    /// The working rows of [`window_block`], reused across blocks and frames.
     static ROW_MIN: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
@@ -777,7 +777,7 @@ thread_local! {
 /// or [`NO_SPLAT`].
 ///
 /// Searching per output pixel reads nine keys for each of the two frames; the minimum is
-/// separable, so a row pass and a column pass give every cell's answer with about `4W+2`
+/// separable, so a column pass and a row pass give every cell's answer with about `4W+2`
 /// comparisons on sequential memory, and the resolve pass then reads one `u32` per search.
 pub(super) fn window_min(src: &mut Src, wr: usize) {
     let (sw, sh) = (src.proj.width, src.proj.height);
@@ -821,7 +821,7 @@ pub(super) fn window_rows(src: &Src, j0: usize, rows: usize, wr: usize, out: &mu
 }
 
 simd_dispatch! {
-    /// [`window_min`] for the output rows starting at `first`; `scratch` holds row minima. A
+    /// [`window_min`] for the output rows starting at `first`; `scratch` holds two working rows. A
     /// minimum at or above `bound` ([`SplatEpoch::bound`](super::SplatEpoch::bound)) is an empty window.
     fn window_block / window_block_avx2, window_block_avx512 => window_block_impl(
         splat: &[u64],
@@ -843,44 +843,35 @@ fn window_block_impl(
     scratch: &mut Vec<u64>,
 ) {
     let SrcRow { j: j0, sw, sh } = first;
-    let j1 = j0 + out.len() / sw;
-    let (lo, hi) = (j0.saturating_sub(wr), (j1 + wr).min(sh));
-    // Layout: the horizontal minima of rows lo..hi, then two rows of working space. Every entry
-    // is written before it is read, so the buffer needs no fill.
-    scratch.resize((hi - lo + 2) * sw, EMPTY_SPLAT);
-    let (rows, work) = scratch.split_at_mut((hi - lo) * sw);
-    let (acc, tmp) = work.split_at_mut(sw);
-    for (r, dst) in rows.chunks_mut(sw).enumerate() {
-        let src = &splat[(lo + r) * sw..(lo + r + 1) * sw];
-        // Each step widens the minimum by one pixel on both sides; the first reads the grid
-        // directly (the default window, wr = 1, needs no copy).
-        if wr == 0 {
-            dst.copy_from_slice(src);
+    // Each output row: the minimum down the window's rows of the grid first, into one row of
+    // working space, then across it. The rows read for one output row are read again for the
+    // next two, while they are in L1, and the working row stays there too. (The order the other
+    // way round, a row pass over all the block's grid rows into a buffer of row minima and then
+    // the minimum down it, wrote and read back 200 KB per block at 1280×720: paired in one
+    // process, this order took 0.958–0.965 of the frame there, 0.946 on one thread.) The minimum
+    // of integers is exact in any order, so the result is the same.
+    scratch.resize(2 * sw, EMPTY_SPLAT);
+    let (acc, tmp) = scratch.split_at_mut(sw);
+    let row = |q: usize| &splat[q * sw..(q + 1) * sw];
+    // The low half of a key is its packed pixel; a minimum of earlier epochs or EMPTY_SPLAT is
+    // no splat.
+    let init = |m: u64| {
+        if (m as i64) < bound {
+            splat_index(m)
         } else {
-            min3(src, dst);
+            NO_SPLAT
         }
-        for _ in 1..wr {
-            tmp.copy_from_slice(dst);
-            min3(tmp, dst);
-        }
-    }
+    };
     for (r, o) in out.chunks_mut(sw).enumerate() {
         let j = j0 + r;
-        let (a, z) = (j.saturating_sub(wr) - lo, (j + wr).min(sh - 1) - lo);
-        let row = |q: usize| &rows[q * sw..(q + 1) * sw];
-        // The low half of a key is its packed pixel; a minimum of earlier epochs or EMPTY_SPLAT
-        // is no splat.
-        let init = |m: u64| {
-            if (m as i64) < bound {
-                splat_index(m)
-            } else {
-                NO_SPLAT
-            }
-        };
+        let (a, z) = (j.saturating_sub(wr), (j + wr).min(sh - 1));
         if z == a + 2 {
-            // Three rows (wr = 1 away from the border): one pass, no accumulator.
-            for (d, ((x, y), w)) in o.iter_mut().zip(row(a).iter().zip(row(a + 1)).zip(row(z))) {
-                *d = init(key_min(key_min(*x, *y), *w));
+            // Three rows (wr = 1 away from the border): one pass.
+            for (d, ((x, y), w)) in acc
+                .iter_mut()
+                .zip(row(a).iter().zip(row(a + 1)).zip(row(z)))
+            {
+                *d = key_min(key_min(*x, *y), *w);
             }
         } else {
             acc.copy_from_slice(row(a));
@@ -889,8 +880,25 @@ fn window_block_impl(
                     *m = key_min(*m, *v);
                 }
             }
+        }
+        // Each step across widens the minimum by one pixel on both sides; the last one writes
+        // the output.
+        for _ in 1..wr {
+            tmp.copy_from_slice(acc);
+            min3(tmp, acc);
+        }
+        if wr == 0 || sw < 2 {
             for (d, m) in o.iter_mut().zip(acc.iter()) {
                 *d = init(*m);
+            }
+        } else {
+            o[0] = init(key_min(acc[0], acc[1]));
+            o[sw - 1] = init(key_min(acc[sw - 2], acc[sw - 1]));
+            for (d, ((x, y), w)) in o[1..sw - 1]
+                .iter_mut()
+                .zip(acc[..sw - 2].iter().zip(&acc[1..sw - 1]).zip(&acc[2..]))
+            {
+                *d = init(key_min(key_min(*x, *y), *w));
             }
         }
     }
