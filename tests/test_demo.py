@@ -73,6 +73,8 @@ def test_bench_json_rows_have_exactly_the_keys(
         assert list(r) == list(BENCH_KEYS)
         assert r["backend"] == "cpu" and (r["width"], r["height"]) == (102, 58)
         assert r["ms_per_frame"] > 0 and r["ns_per_pixel"] > 0
+        # The slowest of the timed frames is at least their median.
+        assert r["ms_per_frame_max"] >= r["ms_per_frame"]
         assert r["decode_ms_per_server_frame"] > 0
 
 

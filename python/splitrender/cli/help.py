@@ -150,7 +150,7 @@ DESCRIPTION: dict[str, str] = {
         "--scale, encode them at the paper's 40 Mb/s scaled by pixel count and time their "
         "decoding (median ms per server frame), then time reproject() between the two "
         "decoded frames per method on --frames client frames (median, after one warm-up). "
-        "Prints per method: ms per client frame, FPS, ns per output pixel, MB touched and "
+        "Prints per method: ms per client frame (median, and the slowest), FPS, ns per output pixel, MB touched and "
         "effective GB/s, where bytes touched = the source buffers the method reads (ours: "
         "colour, depth, one motion and one shadow direction of every camera of both frames) "
         "+ the output written (W*H*3), intermediates not counted. With --backend wgpu the "
