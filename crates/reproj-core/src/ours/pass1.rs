@@ -769,7 +769,7 @@ fn cell_index(inside: bool, fx: f32, fy: f32, sw: u32) -> u32 {
 
 thread_local! {
     /// The working rows of [`window_block`], reused across blocks and frames.
-    static ROW_MIN: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
+    static WINDOW_ROWS: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// The window search of every cell at once: `init[c]` = the packed source pixel of the smallest
@@ -790,7 +790,7 @@ pub(super) fn window_min(src: &mut Src, wr: usize) {
         // One job per block, as the bands of `scene_flow_and_splat`.
         .with_max_len(1)
         .for_each(|(b, out)| {
-            ROW_MIN.with(|cell| {
+            WINDOW_ROWS.with(|cell| {
                 let first = SrcRow {
                     j: b * TILE,
                     sw,
@@ -808,7 +808,7 @@ pub(super) fn window_rows(src: &Src, j0: usize, rows: usize, wr: usize, out: &mu
     out.resize(rows * sw, NO_SPLAT);
     let first = SrcRow { j: j0, sw, sh };
     let bound = src.bufs.epoch.bound();
-    ROW_MIN.with(|cell| {
+    WINDOW_ROWS.with(|cell| {
         window_block(
             &src.bufs.splat,
             bound,

@@ -246,15 +246,15 @@ impl Resolve<'_> {
             return;
         };
         let s = &self.sources[k];
+        let (flow, zc) = (&s.bufs.flow[..], &s.bufs.zc[..]);
+        if flow.len() < PREFETCH_MIN_PIXELS {
+            return;
+        }
         let sw = s.proj.width;
         let r = j + PREFETCH_ROWS - j0;
         let Some(cells) = row.block.get(r * sw..(r + 1) * sw) else {
             return;
         };
-        let (flow, zc) = (&s.bufs.flow[..], &s.bufs.zc[..]);
-        if flow.len() < PREFETCH_MIN_PIXELS {
-            return;
-        }
         let texel = &self.pair.sources[k].texel[..];
         for (n, &q) in cells.iter().step_by(8).enumerate() {
             let (qi, qj) = unpack_pixel(q);
