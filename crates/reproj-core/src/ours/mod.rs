@@ -799,6 +799,9 @@ impl Resolve<'_> {
                 pass1::window_rows(s, j0, rows, self.params.window, &mut side.block);
             }
         }
+        for (k, side) in sides.iter().enumerate() {
+            self.prefetch_block_start(k, side);
+        }
         // Scanlines inside the block of 16 rows: the reads of `init`, `flow` and the colours then
         // run along rows of the sources, a few sequential streams that the hardware prefetcher
         // follows, where a 16×16 tile order starts 16 new rows every 16 pixels.

@@ -242,16 +242,34 @@ impl Resolve<'_> {
     /// Into L2, not L1: a row's lines for both main sources, two rows ahead, are ~100 KB.
     #[inline(always)]
     pub(super) fn prefetch_ahead(&self, k: usize, j: usize, row: &SearchRow) {
-        let Some(j0) = row.block_j0 else {
-            return;
-        };
+        if let Some(j0) = row.block_j0 {
+            self.prefetch_block_row(k, j + PREFETCH_ROWS - j0, row);
+        }
+    }
+
+    /// [`Resolve::prefetch_ahead`] for the first `PREFETCH_ROWS` rows of a block, which no row
+    /// before them prefetches: called once the block's window search is done, before its first
+    /// row is searched. The second row's lines then have a row's time to arrive (the first's
+    /// hardly any). Paired in one process at 1280×720, with against without: 0.980–0.997 (six
+    /// runs), 0.988 on one thread.
+    #[inline(always)]
+    pub(super) fn prefetch_block_start(&self, k: usize, row: &SearchRow) {
+        if row.block_j0.is_some() {
+            for r in 0..PREFETCH_ROWS {
+                self.prefetch_block_row(k, r, row);
+            }
+        }
+    }
+
+    /// The prefetches of [`Resolve::prefetch_ahead`] for row `r` of the block in `row`.
+    #[inline(always)]
+    fn prefetch_block_row(&self, k: usize, r: usize, row: &SearchRow) {
         let s = &self.sources[k];
         let (flow, zc) = (&s.bufs.flow[..], &s.bufs.zc[..]);
         if flow.len() < PREFETCH_MIN_PIXELS {
             return;
         }
         let sw = s.proj.width;
-        let r = j + PREFETCH_ROWS - j0;
         let Some(cells) = row.block.get(r * sw..(r + 1) * sw) else {
             return;
         };
