@@ -250,7 +250,7 @@ impl Resolve<'_> {
     /// [`Resolve::prefetch_ahead`] for the first `PREFETCH_ROWS` rows of a block, which no row
     /// before them prefetches: called once the block's window search is done, before its first
     /// row is searched. The second row's lines then have a row's time to arrive (the first's
-    /// hardly any). Paired in one process at 1280×720, with against without: 0.980–0.997 (six
+    /// hardly any). Paired in one process at 1280×720, with against without: 0.980–0.998 (ten
     /// runs), 0.988 on one thread.
     #[inline(always)]
     pub(super) fn prefetch_block_start(&self, k: usize, row: &SearchRow) {
