@@ -613,24 +613,21 @@ class RealtimeClient:
         # Before the clock starts: the first call may start the render threads.
         report.display_scheduling, saved = _raise_display(self.display_priority)
         arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]] = iter(feed)
+        interval = sys.getswitchinterval()
         try:
             if warm_up:
                 arrivals = self._warm_up(report, pose, arrivals, start_time)
-        except BaseException:
-            _restore(saved)
-            raise
-        t0 = self.clock.now()
-        cpu0 = time.process_time()
-        # Python hands the GIL to a waiting thread only every switch interval (5 ms by
-        # default): the display thread could wait that long behind the worker's Python code
-        # between two native calls. 0.5 ms keeps that wait well inside a frame.
-        interval = sys.getswitchinterval()
-        sys.setswitchinterval(min(interval, 0.0005))
-        try:
+            t0 = self.clock.now()
+            cpu0 = time.process_time()
+            # Python hands the GIL to a waiting thread only every switch interval (5 ms by
+            # default): the display thread could wait that long behind the worker's Python code
+            # between two native calls. 0.5 ms keeps that wait well inside a frame.
+            sys.setswitchinterval(min(interval, 0.0005))
             self._display(
                 report, t0, n_frames, pose, arrivals, start_time, on_frame, exclusive, saved
             )
         finally:
+            # Whatever ended the run (the warm-up's or a frame's error included).
             _restore(saved)
             sys.setswitchinterval(interval)
         report.wall_s = self.clock.now() - t0
