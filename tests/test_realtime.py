@@ -561,10 +561,12 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         sr.write_stream(tmp_path / "s.srs", [enc.encode(f) for f in frames[:3]])
     out = tmp_path / "rt.json"
     assert main(["bench", "--realtime", "--exclusive", "--stream", str(tmp_path / "s.srs"),
-                 "--seconds", "0.25", "--worker-priority", "low", "--display-priority",
-                 "normal", "--json", str(out), "--quiet"]) == 0
+                 "--seconds", "0.25", "--fps", "40", "--worker-priority", "low",
+                 "--display-priority", "normal", "--json", str(out), "--quiet"]) == 0
     r = json.loads(out.read_text())
     assert r["exclusive"] is True and r["server_frames_late"] == 0
+    # --fps sets the display rate: 0.25 s at 40 FPS is 10 refreshes.
+    assert r["display_fps"] == 40.0 and r["frames"] + r["dropped"] == 10
     assert r["worker_priority"] == "low"
     assert (r["display_priority"], r["display_scheduling"]) == ("normal", "normal")
     # Each frame was usable before the display went on: no frame extrapolated or held.
@@ -579,6 +581,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--exclusive"], "--exclusive goes with --realtime"),
         (["--worker-priority", "low"], "--worker-priority goes with --realtime"),
         (["--display-priority", "normal"], "--display-priority goes with --realtime"),
+        (["--fps", "60"], "--fps goes with --realtime"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu"], "--backend wgpu"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),

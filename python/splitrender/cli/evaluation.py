@@ -28,6 +28,7 @@ from splitrender.cli.args import (
     names,
     network_model,
     out_file,
+    rate,
     seconds,
     video_fps,
 )
@@ -262,12 +263,17 @@ def add_bench(sub: Any) -> None:
     )
     be.add_argument(
         "--realtime", action="store_true",
-        help="run the real-time client loop at wall-clock 120 FPS instead (decoding and pair "
+        help="run the real-time client loop at wall-clock --fps instead (decoding and pair "
         "preparation on a worker thread) and report frame times and deadline misses",
     )
     be.add_argument(
         "--seconds", type=seconds, default=10.0, metavar="S",
         help="with --realtime: seconds of display (default: %(default)s)",
+    )
+    be.add_argument(
+        "--fps", type=rate, default=None, metavar="FC",
+        help="with --realtime: display frames per second, f_c (default: 120; a headset "
+        "that cannot hold 120 runs at 90, 72 or 60)",
     )
     be.add_argument(
         "--exclusive", action="store_true",
@@ -311,6 +317,7 @@ def bench(args: argparse.Namespace) -> int:
         return _bench_realtime(args)
     for flag, given in (
         ("--stream", args.stream is not None),
+        ("--fps", args.fps is not None),
         ("--exclusive", args.exclusive),
         ("--worker-priority", args.worker_priority is not None),
         ("--display-priority", args.display_priority is not None),
@@ -348,7 +355,8 @@ def _bench_realtime(args: argparse.Namespace) -> int:
     try:
         result = run_realtime_bench(
             args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
-            stream=args.stream, progress=not args.quiet, exclusive=args.exclusive,
+            stream=args.stream, display_fps=120.0 if args.fps is None else args.fps,
+            progress=not args.quiet, exclusive=args.exclusive,
             worker_priority=args.worker_priority or "idle",
             display_priority=args.display_priority or "realtime",
         )

@@ -159,7 +159,7 @@ DESCRIPTION: dict[str, str] = {
         "the same run) and the frame time's ratio to it. Time on 2 cores at the default scale "
         "0.5 (1280x720, the Targets' size): about 30 s the first time (rendering), about 15 s "
         "with the cache. With --realtime: the real-time client loop instead, for --seconds at "
-        "wall-clock 120 FPS, on --scene's server frames (rendered and encoded once at the "
+        "wall-clock --fps (default 120 FPS), on --scene's server frames (rendered and encoded once at the "
         "paper's rate scaled by pixel count, cached in the temporary directory; looped when "
         "--seconds is longer than the scene) or on --stream FILE; each server frame arrives "
         "when the server would send it (one server frame ahead) and is decoded and prepared on "
