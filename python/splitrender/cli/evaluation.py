@@ -32,7 +32,7 @@ from splitrender.cli.args import (
     seconds,
     video_fps,
 )
-from splitrender.client.realtime import DISPLAY_PRIORITIES, WORKER_PRIORITIES
+from splitrender.client.realtime import DISPLAY_FPS, DISPLAY_PRIORITIES, WORKER_PRIORITIES
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.progress import Progress
@@ -272,8 +272,8 @@ def add_bench(sub: Any) -> None:
     )
     be.add_argument(
         "--fps", type=rate, default=None, metavar="FC",
-        help="with --realtime: display frames per second, f_c (default: 120; a headset "
-        "that cannot hold 120 runs at 90, 72 or 60)",
+        help=f"with --realtime: display frames per second, f_c (default: {DISPLAY_FPS:g}; a "
+        "headset that cannot hold 120 runs at 90, 72 or 60)",
     )
     be.add_argument(
         "--exclusive", action="store_true",
@@ -355,7 +355,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
     try:
         result = run_realtime_bench(
             args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
-            stream=args.stream, display_fps=120.0 if args.fps is None else args.fps,
+            stream=args.stream, display_fps=DISPLAY_FPS if args.fps is None else args.fps,
             progress=not args.quiet, exclusive=args.exclusive,
             worker_priority=args.worker_priority or "idle",
             display_priority=args.display_priority or "realtime",

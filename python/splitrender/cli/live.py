@@ -31,6 +31,7 @@ from splitrender.cli.args import (
     rate,
     seconds,
 )
+from splitrender.client.realtime import DISPLAY_FPS
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.reproject import METHODS
@@ -180,7 +181,7 @@ def add_connect(sub: Any) -> None:
                    help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
     p.add_argument("--seconds", type=seconds, default=5.0, metavar="S",
                    help="session length (default: %(default)s)")
-    p.add_argument("--fps", type=rate, default=120.0, metavar="FC",
+    p.add_argument("--fps", type=rate, default=DISPLAY_FPS, metavar="FC",
                    help="display frames per second, f_c (default: %(default)s)")
     add_trace(p)
     add_out(p)

@@ -43,7 +43,7 @@ from aioquic.quic.events import (
 )
 
 from splitrender.client.client import Client
-from splitrender.client.realtime import DisplayFrame, RealtimeClient
+from splitrender.client.realtime import DISPLAY_FPS, DisplayFrame, RealtimeClient
 from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import ProtocolError
 from splitrender.net.protocol import (
@@ -95,7 +95,7 @@ class ConnectOptions:
     token: str = ""
     fingerprint: str | None = None
     method: str = "ours"
-    display_fps: float = 120.0
+    display_fps: float = DISPLAY_FPS
     connect_timeout: float = 10.0
     version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
 

@@ -68,6 +68,7 @@ if TYPE_CHECKING:
     from splitrender.codec.coder import StreamDecoder
 
 __all__ = [
+    "DISPLAY_FPS",
     "DISPLAY_PRIORITIES",
     "WORKER_PRIORITIES",
     "Clock",
@@ -78,6 +79,9 @@ __all__ = [
 ]
 
 _Image = npt.NDArray[np.uint8]
+
+#: The default display rate ``f_c`` (FPS): the headsets' 120 Hz that the method targets.
+DISPLAY_FPS = 120.0
 
 
 class Clock(Protocol):
@@ -365,7 +369,7 @@ class RealtimeClient:
         method: str = "ours",
         options: ReprojectOptions | None = None,
         *,
-        display_fps: float = 120.0,
+        display_fps: float = DISPLAY_FPS,
         clock: Clock | None = None,
         client: Client | None = None,
         capacity: int = 4,

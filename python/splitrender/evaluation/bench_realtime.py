@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from splitrender.client.realtime import DISPLAY_FPS
 from splitrender.codec.stream import (
     PACKET_VERSION,
     CameraRecord,
@@ -144,7 +145,7 @@ def run_realtime_bench(
     method: str = "ours",
     *,
     stream: str | os.PathLike[str] | None = None,
-    display_fps: float = 120.0,
+    display_fps: float = DISPLAY_FPS,
     progress: bool = True,
     exclusive: bool = False,
     worker_priority: str = "idle",
