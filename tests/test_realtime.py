@@ -582,6 +582,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--worker-priority", "low"], "--worker-priority goes with --realtime"),
         (["--display-priority", "normal"], "--display-priority goes with --realtime"),
         (["--fps", "60"], "--fps goes with --realtime"),
+        (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu"], "--backend wgpu"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),

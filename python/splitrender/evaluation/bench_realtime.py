@@ -126,7 +126,7 @@ def _camera(rec: CameraRecord) -> Camera:
     return Camera(rec.view, rec.proj, rec.width, rec.height)
 
 
-def check_realtime_args(method: str, seconds: float, scale: float) -> None:
+def check_realtime_args(method: str, seconds: float, scale: float, display_fps: float) -> None:
     if method not in METHODS:
         raise InvalidInputError(
             f"--methods: --realtime runs one method; expected one of: {', '.join(METHODS)}, "
@@ -136,6 +136,12 @@ def check_realtime_args(method: str, seconds: float, scale: float) -> None:
         raise InvalidInputError(f"--seconds: expected 0 < S <= 3600, got {seconds:g}")
     if not math.isfinite(scale) or scale <= 0.0:
         raise InvalidInputError(f"--scale: expected a positive number, got {scale:g}")
+    # Checked before the scene is rendered; the loop counts round(seconds · f_c) refreshes.
+    if not math.isfinite(display_fps) or round(seconds * display_fps) < 1:
+        raise InvalidInputError(
+            f"--seconds {seconds:g} at --fps {display_fps:g}: expected at least one display "
+            "frame (--seconds times --fps rounds to 0)"
+        )
 
 
 def run_realtime_bench(
@@ -165,7 +171,7 @@ def run_realtime_bench(
     from splitrender.client.realtime import RealtimeClient
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
-    check_realtime_args(method, seconds, scale)
+    check_realtime_args(method, seconds, scale, display_fps)
     stages = Progress(3 if stream is None else 2, progress)
     if stream is None:
         if scene not in SCENE_NAMES:
