@@ -14,7 +14,9 @@
 //!   caller's device).
 //! - [`Reprojector`]: loads a pair of server frames onto the device once
 //!   ([`Reprojector::load`]), then renders client frames from a pose and `α`
-//!   ([`Reprojector::render`]), downloading the image or leaving it on the device.
+//!   ([`Reprojector::render`]), downloading the image or leaving it on the device. A real-time
+//!   client uploads the next pair on its receiving thread ([`Uploader::upload`]) and makes it
+//!   current between two display frames ([`Reprojector::install`]).
 //!
 //! ```no_run
 //! # fn main() -> Result<(), reproj_wgpu::GpuError> {
@@ -40,5 +42,6 @@ pub mod shaders;
 pub use context::{ContextOptions, GpuContext};
 pub use error::{GpuError, Result};
 pub use reprojector::{
-    Atomics, Previous, Reprojector, ReprojectorOptions, MAX_CAMERAS, MAX_OUTPUTS,
+    Atomics, Previous, Reprojector, ReprojectorOptions, UploadedPair, Uploader, MAX_CAMERAS,
+    MAX_OUTPUTS,
 };

@@ -2,7 +2,10 @@
 //!
 //! A pair of server frames is uploaded once ([`Reprojector::load`]); each client frame then uploads
 //! only its pose-dependent uniforms (the client transfers, `α`) and, when asked, downloads the
-//! image ([`Reprojector::render`]). Per client frame the GPU runs:
+//! image ([`Reprojector::render`]). A real-time client uploads the next pair on another thread
+//! while this one renders ([`Uploader::upload`], from [`Reprojector::uploader`]) and makes it
+//! current between two frames ([`Reprojector::install`], no copy), so that no display frame pays
+//! the upload. Per client frame the GPU runs:
 //!
 //! 1. a buffer clear of the splat grid;
 //! 2. pass 1, scene flow and splatting over every active source slot (one dispatch layer per slot;
@@ -15,9 +18,9 @@
 //! two on the built-in scenes.
 
 use std::borrow::Cow;
+use std::sync::{mpsc, Arc, Mutex};
 
 use bytemuck::Zeroable;
-use std::sync::mpsc;
 
 use reproj_core::method::MAX_ALPHA;
 use reproj_core::params::TILE;
@@ -94,16 +97,48 @@ struct Slot {
     inv: Mat4,
 }
 
-/// The device buffers of a loaded pair.
+/// A pair of server frames on the device ([`Uploader::upload`]): the texels of every source
+/// slot and the uniforms that stay fixed while the pair is current. Made current with
+/// [`Reprojector::install`]; the device memory is freed when the last handle is dropped.
 #[derive(Debug)]
-struct Pair {
+pub struct UploadedPair {
     slots: [Option<Slot>; MAX_SLOTS],
     n_aux: usize,
+    /// Source points over every slot (the flow and splat scratch need as many entries).
+    points: usize,
+    /// Auxiliary cells (the newer frame's auxiliary cameras).
+    cells: usize,
     texels: wgpu::Buffer,
+    sources: wgpu::Buffer,
+}
+
+impl UploadedPair {
+    /// Whether the pair holds the older frame (`F_t`), i.e. can interpolate.
+    pub fn has_older(&self) -> bool {
+        self.slots[0].is_some()
+    }
+
+    /// Bytes of device memory the pair holds (texels and uniforms).
+    pub fn device_bytes(&self) -> u64 {
+        self.texels.size() + self.sources.size()
+    }
+}
+
+/// The per-frame working buffers of the current pair (written every client frame), kept across
+/// pairs while they fit.
+#[derive(Debug)]
+struct Scratch {
     flow: wgpu::Buffer,
     splat: wgpu::Buffer,
     cells: wgpu::Buffer,
-    /// Bumped whenever the buffers are reallocated, so output bind groups are rebuilt.
+}
+
+/// The current pair: what [`Reprojector::render`] reads.
+#[derive(Debug)]
+struct Current {
+    pair: Arc<UploadedPair>,
+    scratch: Scratch,
+    /// Bumped on every install, so that output bind groups are rebuilt.
     generation: u64,
 }
 
@@ -141,15 +176,34 @@ pub struct Reprojector {
     aux_grid: wgpu::ComputePipeline,
     resolve: wgpu::ComputePipeline,
     frame_ub: wgpu::Buffer,
-    sources_ub: wgpu::Buffer,
-    pair: Option<Pair>,
+    current: Option<Current>,
+    /// The scratch of the last pair, kept for the next one after [`Reprojector::load`] drops it.
+    spare: Option<Scratch>,
     outputs: Vec<Option<Output>>,
     generation: u64,
 }
 
+/// Uploads pairs to a reprojector's device ([`Reprojector::uploader`]); cheap to clone, and usable
+/// from any thread while the reprojector renders on another (wgpu's device and queue are shared
+/// handles).
+#[derive(Debug, Clone)]
+pub struct Uploader {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+}
+
+/// Error scopes are a stack per device in wgpu 26, not per thread: two threads inside
+/// [`scoped`] at once would pop each other's scopes and report each other's errors. Every scoped
+/// section in the process takes this lock; they are short (buffer creation, encoding and submitting
+/// a frame), and an upload fills its buffers outside them ([`Uploader::upload`]).
+static SCOPES: Mutex<()> = Mutex::new(());
+
 /// Runs `f` inside validation and out-of-memory error scopes; an error of either becomes
 /// [`GpuError::Device`] with `what` in front.
 fn scoped<T>(device: &wgpu::Device, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    // A panic cannot happen while the lock is held (`f` returns errors), but a poisoned lock
+    // guards nothing that could be left inconsistent: take it anyway.
+    let _one_at_a_time = SCOPES.lock().unwrap_or_else(|e| e.into_inner());
     device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
     device.push_error_scope(wgpu::ErrorFilter::Validation);
     let r = f();
@@ -297,8 +351,8 @@ impl Reprojector {
                 aux_grid,
                 resolve,
                 frame_ub: ub("frame", std::mem::size_of::<FrameU>()),
-                sources_ub: ub("sources", MAX_SLOTS * std::mem::size_of::<SourceU>()),
-                pair: None,
+                current: None,
+                spare: None,
                 outputs: (0..MAX_OUTPUTS).map(|_| None).collect(),
                 generation: 0,
             })
@@ -310,158 +364,86 @@ impl Reprojector {
         self.atomics
     }
 
-    /// Uploads the server frames of a pair: `older` is `F_t` (with its forward motion and
-    /// shadows), `newer` is `F_{t+1}` (with its backward motion and shadows), as
-    /// [`reproj_core::reproject`] takes them. `older` may be `None` (extrapolation only).
-    /// Device buffers are reused when the new pair fits in them.
+    /// Uploads the server frames of a pair and makes it current: `older` is `F_t` (with its
+    /// forward motion and shadows), `newer` is `F_{t+1}` (with its backward motion and shadows), as
+    /// [`reproj_core::reproject`] takes them. `older` may be `None` (extrapolation only). The
+    /// previous pair is dropped first (its device memory freed, unless an [`UploadedPair`] handle
+    /// keeps it) and its per-frame buffers are reused when the new pair fits in them.
     ///
     /// # Errors
-    /// The CPU path's input errors ([`GpuError::Input`]: buffer sizes, camera mismatch, singular
-    /// matrices); [`GpuError::Unsupported`] for more than [`MAX_CAMERAS`] cameras per frame;
-    /// [`GpuError::Device`] when the buffers exceed the device's limits or memory.
+    /// As [`Uploader::upload`].
     pub fn load(&mut self, older: Option<&FrameView>, newer: &FrameView) -> Result<()> {
-        FrameView::validate_pair(older, newer)?;
-        let n_cams = 1 + newer.aux.len();
-        if n_cams > MAX_CAMERAS {
-            return Err(GpuError::Unsupported(format!(
-                "the wgpu backend takes at most {} auxiliary cameras per frame, got {}",
-                MAX_CAMERAS - 1,
-                newer.aux.len()
-            )));
+        if let Some(c) = self.current.take() {
+            self.spare = Some(c.scratch);
         }
-        // Slot views and projectors (a singular matrix is reported before any upload).
-        let mut views: [Option<CameraView>; MAX_SLOTS] = [None; MAX_SLOTS];
-        let mut slots: [Option<Slot>; MAX_SLOTS] = [None; MAX_SLOTS];
-        let mut vps: [Option<Mat4>; MAX_SLOTS] = [None; MAX_SLOTS];
-        for cam in 0..n_cams {
-            for (role, frame) in [(0, older), (1, Some(newer))] {
-                let Some(f) = frame else { continue };
-                let which = if role == 0 { "older" } else { "newer" };
-                let (view, name) = if cam == 0 {
-                    (f.main, format!("{which}.main"))
-                } else {
-                    (f.aux[cam - 1], format!("{which}.aux[{}]", cam - 1))
-                };
-                view.camera.projector(&name)?;
-                let vp = view.camera.view_proj();
-                let inv = vp
-                    .inverse()
-                    .ok_or(ReprojError::SingularMatrix { what: name })?;
-                let s = 2 * cam + role;
-                views[s] = Some(view);
-                vps[s] = Some(vp);
-                slots[s] = Some(Slot {
-                    width: view.camera.width,
-                    height: view.camera.height,
-                    inv,
-                });
-            }
+        let pair = self.uploader().upload(older, newer)?;
+        self.install(Arc::new(pair))
+    }
+
+    /// What uploads pairs to this reprojector's device from another thread.
+    pub fn uploader(&self) -> Uploader {
+        Uploader {
+            device: self.device.clone(),
+            queue: self.queue.clone(),
         }
-        // Static uniforms and the concatenated texels.
-        let mut su = [SourceU::zeroed(); MAX_SLOTS];
-        let mut total = 0usize;
-        let mut cells = 0usize;
-        for s in 0..MAX_SLOTS {
-            let (Some(slot), Some(vp)) = (slots[s], vps[s]) else {
-                continue;
-            };
-            let u = &mut su[s];
-            u.offset = total as u32;
-            u.width = slot.width as u32;
-            u.height = slot.height as u32;
-            u.present = 1;
-            total += slot.width * slot.height;
-            if s >= 2 && s % 2 == 1 {
-                u.cell_offset = cells as u32;
-                cells += slot.width * slot.height;
-            }
-            let other = s ^ 1;
-            if let (Some(o), Some(ovp)) = (slots[other], vps[other]) {
-                u.to_other = TransferU::from(&NdcTransfer::new(&slot.inv, &ovp));
-                u.from_other = TransferU::from(&NdcTransfer::new(&o.inv, &vp));
-            }
-            let role = s % 2;
-            if let Some(mvp) = vps[role] {
-                u.to_main_same = TransferU::from(&NdcTransfer::new(&slot.inv, &mvp));
-            }
-            if let Some(mvp) = vps[1 - role] {
-                u.to_main_other = TransferU::from(&NdcTransfer::new(&slot.inv, &mvp));
-            }
-        }
-        let mut texels = Vec::with_capacity(total);
-        for view in views.iter().flatten() {
-            pack_texels(view, &mut texels);
-        }
-        let limits = self.device.limits();
+    }
+
+    /// Makes an uploaded pair current: the following [`Reprojector::render`] calls read it. Nothing
+    /// is copied; the per-frame buffers are reused when the pair fits in them (else allocated, the
+    /// first time and when a pair is larger).
+    ///
+    /// # Errors
+    /// [`GpuError::Device`] when the per-frame buffers cannot be allocated, or the pair was uploaded
+    /// to another device.
+    pub fn install(&mut self, pair: Arc<UploadedPair>) -> Result<()> {
         let need = [
-            (
-                "texels",
-                total as u64 * std::mem::size_of::<TexelU>() as u64,
-            ),
-            ("flow", total as u64 * FLOW_BYTES),
-            ("splat", total as u64 * SPLAT_BYTES),
-            ("auxiliary cells", cells.max(1) as u64 * AUX_CELL_BYTES),
+            pair.points as u64 * FLOW_BYTES,
+            pair.points as u64 * SPLAT_BYTES,
+            pair.cells.max(1) as u64 * AUX_CELL_BYTES,
         ];
-        let max = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size.min(u64::from(u32::MAX)) as u32) as u64;
-        for (name, bytes) in need {
-            if bytes > max {
-                return Err(GpuError::Device(format!(
-                    "the {name} buffer of this pair needs {bytes} bytes, above this device's \
-                     storage binding limit of {max} bytes; use smaller frames or backend 'cpu'"
-                )));
+        let old = self.current.take().map(|c| c.scratch).or(self.spare.take());
+        let scratch = match old {
+            Some(s)
+                if s.flow.size() >= need[0]
+                    && s.splat.size() >= need[1]
+                    && s.cells.size() >= need[2] =>
+            {
+                s
             }
-        }
-        let device = self.device.clone();
-        let reuse = self.pair.as_ref().is_some_and(|p| {
-            p.texels.size() >= need[0].1
-                && p.flow.size() >= need[1].1
-                && p.splat.size() >= need[2].1
-                && p.cells.size() >= need[3].1
-        });
-        scoped(&device, "uploading the server frames", || {
-            if !reuse {
-                // Drop the old buffers first so that both pairs never coexist in device memory.
-                drop(self.pair.take());
-                let buf = |label: &str, size: u64, usage: wgpu::BufferUsages| {
-                    device.create_buffer(&wgpu::BufferDescriptor {
-                        label: Some(label),
-                        size,
-                        usage,
-                        mapped_at_creation: false,
+            old => {
+                // Free the smaller buffers before allocating the larger ones.
+                drop(old);
+                let device = self.device.clone();
+                scoped(&device, "allocating the per-frame buffers", || {
+                    let buf = |label: &str, size: u64| {
+                        device.create_buffer(&wgpu::BufferDescriptor {
+                            label: Some(label),
+                            size,
+                            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                            mapped_at_creation: false,
+                        })
+                    };
+                    Ok(Scratch {
+                        flow: buf("flow", need[0]),
+                        splat: buf("splat", need[1]),
+                        cells: buf("aux cells", need[2]),
                     })
-                };
-                let st = wgpu::BufferUsages::STORAGE;
-                let dst = wgpu::BufferUsages::COPY_DST;
-                self.generation += 1;
-                self.pair = Some(Pair {
-                    slots,
-                    n_aux: n_cams - 1,
-                    texels: buf("texels", need[0].1, st | dst),
-                    flow: buf("flow", need[1].1, st),
-                    splat: buf("splat", need[2].1, st | dst),
-                    cells: buf("aux cells", need[3].1, st),
-                    generation: self.generation,
-                });
+                })?
             }
-            let Some(pair) = self.pair.as_mut() else {
-                return Err(GpuError::State("pair buffers missing".into()));
-            };
-            pair.slots = slots;
-            pair.n_aux = n_cams - 1;
-            self.queue
-                .write_buffer(&pair.texels, 0, bytemuck::cast_slice(&texels));
-            self.queue
-                .write_buffer(&self.sources_ub, 0, bytemuck::cast_slice(&su));
-            self.queue.submit([]);
-            Ok(())
-        })
+        };
+        self.generation += 1;
+        self.current = Some(Current {
+            pair,
+            scratch,
+            generation: self.generation,
+        });
+        Ok(())
     }
 
     /// Drops the loaded pair and every output slot (device memory is freed).
     pub fn unload(&mut self) {
-        self.pair = None;
+        self.current = None;
+        self.spare = None;
         self.outputs.iter_mut().for_each(|o| *o = None);
     }
 
@@ -528,14 +510,15 @@ impl Reprojector {
                 "output slot {slot}: expected 0..{MAX_OUTPUTS}"
             )));
         }
-        let Some(pair) = self.pair.as_ref() else {
+        let Some(current) = self.current.as_ref() else {
             return Err(GpuError::State(
-                "no server frames on the device: call load() before render()".into(),
+                "no server frames on the device: call load() or install() before render()".into(),
             ));
         };
-        let has_older = pair.slots[0].is_some();
+        let (pair, generation) = (current.pair.clone(), current.generation);
+        let has_older = pair.has_older();
         let (mode, bidirectional) = plan(method, has_older, request.alpha, params)?;
-        let frame = self.frame_uniform(pair, mode, bidirectional, request, params);
+        let frame = self.frame_uniform(&pair, mode, bidirectional, request, params);
         let n_aux = frame.n_aux as usize;
         let active: Vec<usize> = (0..=n_aux)
             .flat_map(|c| {
@@ -560,7 +543,6 @@ impl Reprojector {
                 ah = ah.max(sl.height);
             }
         }
-        let generation = pair.generation;
         let device = self.device.clone();
         let want_image = out.is_some();
         let want_diag = diag.is_some();
@@ -569,7 +551,7 @@ impl Reprojector {
             let Some(o) = self.outputs[slot].as_ref() else {
                 return Err(GpuError::State("output slot missing".into()));
             };
-            let Some(pair) = self.pair.as_ref() else {
+            let Some(current) = self.current.as_ref() else {
                 return Err(GpuError::State("pair buffers missing".into()));
             };
             let Some((_, bind_group)) = o.bind_group.as_ref() else {
@@ -588,7 +570,7 @@ impl Reprojector {
                     q.write_buffer(&o.rgb, 0, bytemuck::cast_slice(&packed));
                 }
             }
-            enc.clear_buffer(&pair.splat, 0, None);
+            enc.clear_buffer(&current.scratch.splat, 0, None);
             {
                 let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                     label: Some("reproject"),
@@ -688,7 +670,7 @@ impl Reprojector {
 
     fn frame_uniform(
         &self,
-        pair: &Pair,
+        pair: &UploadedPair,
         mode: Mode,
         bidirectional: bool,
         request: &Request,
@@ -765,7 +747,7 @@ impl Reprojector {
                 bind_group: None,
             });
         }
-        let Some(pair) = self.pair.as_ref() else {
+        let Some(current) = self.current.as_ref() else {
             return Err(GpuError::State("no pair".into()));
         };
         let Some(o) = self.outputs[slot].as_mut() else {
@@ -777,11 +759,11 @@ impl Reprojector {
                 layout: &self.layout,
                 entries: &[
                     entry(0, &self.frame_ub),
-                    entry(1, &self.sources_ub),
-                    entry(2, &pair.texels),
-                    entry(3, &pair.flow),
-                    entry(4, &pair.splat),
-                    entry(5, &pair.cells),
+                    entry(1, &current.pair.sources),
+                    entry(2, &current.pair.texels),
+                    entry(3, &current.scratch.flow),
+                    entry(4, &current.scratch.splat),
+                    entry(5, &current.scratch.cells),
                     entry(6, &o.rgb),
                     entry(7, &o.diag),
                 ],
@@ -792,11 +774,163 @@ impl Reprojector {
     }
 }
 
-/// Appends the texels of one source image (colour, depth, motion, shadows; zeros where absent,
-/// which the kernels treat exactly as "no motion" and "no dynamic shadow").
-fn pack_texels(view: &CameraView, out: &mut Vec<TexelU>) {
-    let n = view.camera.width * view.camera.height;
-    for k in 0..n {
+impl Uploader {
+    /// Uploads the server frames of a pair as [`Reprojector::load`] takes them, without making it
+    /// current ([`Reprojector::install`] does, between two frames). Callable from another thread
+    /// while a reprojector of the same device renders: the texels are packed straight into buffers
+    /// mapped at creation, outside any error scope, so a frame waits at most for the creation of the
+    /// two buffers.
+    ///
+    /// # Errors
+    /// The CPU path's input errors ([`GpuError::Input`]: buffer sizes, camera mismatch, singular
+    /// matrices); [`GpuError::Unsupported`] for more than [`MAX_CAMERAS`] cameras per frame;
+    /// [`GpuError::Device`] when the buffers exceed the device's limits or memory.
+    pub fn upload(&self, older: Option<&FrameView>, newer: &FrameView) -> Result<UploadedPair> {
+        FrameView::validate_pair(older, newer)?;
+        let n_cams = 1 + newer.aux.len();
+        if n_cams > MAX_CAMERAS {
+            return Err(GpuError::Unsupported(format!(
+                "the wgpu backend takes at most {} auxiliary cameras per frame, got {}",
+                MAX_CAMERAS - 1,
+                newer.aux.len()
+            )));
+        }
+        // Slot views and projectors (a singular matrix is reported before any upload).
+        let mut views: [Option<CameraView>; MAX_SLOTS] = [None; MAX_SLOTS];
+        let mut slots: [Option<Slot>; MAX_SLOTS] = [None; MAX_SLOTS];
+        let mut vps: [Option<Mat4>; MAX_SLOTS] = [None; MAX_SLOTS];
+        for cam in 0..n_cams {
+            for (role, frame) in [(0, older), (1, Some(newer))] {
+                let Some(f) = frame else { continue };
+                let which = if role == 0 { "older" } else { "newer" };
+                let (view, name) = if cam == 0 {
+                    (f.main, format!("{which}.main"))
+                } else {
+                    (f.aux[cam - 1], format!("{which}.aux[{}]", cam - 1))
+                };
+                view.camera.projector(&name)?;
+                let vp = view.camera.view_proj();
+                let inv = vp
+                    .inverse()
+                    .ok_or(ReprojError::SingularMatrix { what: name })?;
+                let s = 2 * cam + role;
+                views[s] = Some(view);
+                vps[s] = Some(vp);
+                slots[s] = Some(Slot {
+                    width: view.camera.width,
+                    height: view.camera.height,
+                    inv,
+                });
+            }
+        }
+        // Static uniforms and the concatenated texels.
+        let mut su = [SourceU::zeroed(); MAX_SLOTS];
+        let mut total = 0usize;
+        let mut cells = 0usize;
+        for s in 0..MAX_SLOTS {
+            let (Some(slot), Some(vp)) = (slots[s], vps[s]) else {
+                continue;
+            };
+            let u = &mut su[s];
+            u.offset = total as u32;
+            u.width = slot.width as u32;
+            u.height = slot.height as u32;
+            u.present = 1;
+            total += slot.width * slot.height;
+            if s >= 2 && s % 2 == 1 {
+                u.cell_offset = cells as u32;
+                cells += slot.width * slot.height;
+            }
+            let other = s ^ 1;
+            if let (Some(o), Some(ovp)) = (slots[other], vps[other]) {
+                u.to_other = TransferU::from(&NdcTransfer::new(&slot.inv, &ovp));
+                u.from_other = TransferU::from(&NdcTransfer::new(&o.inv, &vp));
+            }
+            let role = s % 2;
+            if let Some(mvp) = vps[role] {
+                u.to_main_same = TransferU::from(&NdcTransfer::new(&slot.inv, &mvp));
+            }
+            if let Some(mvp) = vps[1 - role] {
+                u.to_main_other = TransferU::from(&NdcTransfer::new(&slot.inv, &mvp));
+            }
+        }
+        let limits = self.device.limits();
+        let need = [
+            (
+                "texels",
+                total as u64 * std::mem::size_of::<TexelU>() as u64,
+            ),
+            ("flow", total as u64 * FLOW_BYTES),
+            ("splat", total as u64 * SPLAT_BYTES),
+            ("auxiliary cells", cells.max(1) as u64 * AUX_CELL_BYTES),
+        ];
+        let max = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size.min(u64::from(u32::MAX)) as u32) as u64;
+        for (name, bytes) in need {
+            if bytes > max {
+                return Err(GpuError::Device(format!(
+                    "the {name} buffer of this pair needs {bytes} bytes, above this device's \
+                     storage binding limit of {max} bytes; use smaller frames or backend 'cpu'"
+                )));
+            }
+        }
+        let device = &self.device;
+        let (texels, sources) = scoped(device, "uploading the server frames", || {
+            let buf = |label: &str, size: u64, usage: wgpu::BufferUsages| {
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size,
+                    usage,
+                    mapped_at_creation: true,
+                })
+            };
+            Ok((
+                buf("texels", need[0].1, wgpu::BufferUsages::STORAGE),
+                buf(
+                    "sources",
+                    std::mem::size_of_val(&su) as u64,
+                    wgpu::BufferUsages::UNIFORM,
+                ),
+            ))
+        })?;
+        {
+            let mut mapped = texels.slice(..).get_mapped_range_mut();
+            let mut rest: &mut [TexelU] = bytemuck::cast_slice_mut(&mut mapped);
+            for view in views.iter().flatten() {
+                let (this, next) = rest.split_at_mut(view.camera.width * view.camera.height);
+                pack_texels(view, this);
+                rest = next;
+            }
+            sources
+                .slice(..)
+                .get_mapped_range_mut()
+                .copy_from_slice(bytemuck::cast_slice(&su));
+        }
+        scoped(device, "uploading the server frames", || {
+            texels.unmap();
+            sources.unmap();
+            // Nothing to run: the submit hands the unmapped buffers' contents to the device now,
+            // on this thread, rather than with the next frame's submit on the display's.
+            self.queue.submit([]);
+            Ok(())
+        })?;
+        Ok(UploadedPair {
+            slots,
+            n_aux: n_cams - 1,
+            points: total,
+            cells,
+            texels,
+            sources,
+        })
+    }
+}
+
+/// Writes the texels of one source image into `out` (one per pixel): colour, depth, motion,
+/// shadows; zeros where absent, which the kernels treat exactly as "no motion" and "no dynamic
+/// shadow".
+fn pack_texels(view: &CameraView, out: &mut [TexelU]) {
+    for (k, t) in out.iter_mut().enumerate() {
         let (bits, s_min, s_max) = match &view.shadow {
             Some(s) => (
                 s.bits[k],
@@ -805,14 +939,14 @@ fn pack_texels(view: &CameraView, out: &mut Vec<TexelU>) {
             ),
             None => (0, 0, 0),
         };
-        out.push(TexelU {
+        *t = TexelU {
             color: pack_rgb(&view.color[3 * k..3 * k + 3]),
             depth: view.depth[k],
             motion: view.motion_at(k),
             bits,
             s_min,
             s_max,
-        });
+        };
     }
 }
 

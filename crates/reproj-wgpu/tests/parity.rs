@@ -351,3 +351,111 @@ fn device_resident_frames_and_errors() {
         Err(GpuError::Input(reproj_core::ReprojError::BufferSize { .. }))
     ));
 }
+
+/// A pair uploaded on another thread while the reprojector renders, then installed, gives the
+/// same bytes as loading it; installing pairs back and forth needs no upload, and each install
+/// renders its own pair (the bind groups follow it).
+#[test]
+fn uploaded_pairs_render_as_loaded_ones() {
+    let Some(ctx) = context() else { return };
+    let scene = builtin("courtyard", Variant::Dynamic).expect("built-in scene");
+    let frames: Vec<_> = (1..4)
+        .map(|k| render_server_frame(&scene, k, SCALE, FS, SUBFRAMES).expect("render"))
+        .collect();
+    let (w, h) = (frames[0].main.buffers.width, frames[0].main.buffers.height);
+    let p = Params::default();
+    // Client frame `n` of the pair that ends at frame `k` (α = n/12 after frame k − 1).
+    let request = |k: usize, n: usize| {
+        let alpha = n as f32 / 12.0;
+        let t = (k as f64 - 1.0 + f64::from(alpha)) / FS;
+        Request {
+            client: mono(&scene.path.client_pose(t), w, h, scene.near, scene.far),
+            alpha,
+        }
+    };
+    let render = |gpu: &mut Reprojector, k: usize, n: usize| {
+        let mut img = vec![0u8; w * h * 3];
+        let r = request(k, n);
+        gpu.render(
+            0,
+            Method::Ours,
+            &r,
+            &p,
+            Previous::Black,
+            Some(&mut img),
+            None,
+        )
+        .expect("render");
+        img
+    };
+    // What loading each pair gives (pair a: frames 1, 2; pair b: frames 2, 3).
+    let mut loaded = Reprojector::new(ctx, &ReprojectorOptions::default()).expect("pipelines");
+    loaded
+        .load(Some(&frames[0].view(true)), &frames[1].view(false))
+        .expect("load");
+    let want_a = render(&mut loaded, 2, 5);
+    loaded
+        .load(Some(&frames[1].view(true)), &frames[2].view(false))
+        .expect("load");
+    let want_b = render(&mut loaded, 3, 5);
+    assert_ne!(want_a, want_b, "the two pairs must give different images");
+
+    let mut gpu = Reprojector::new(ctx, &ReprojectorOptions::default()).expect("pipelines");
+    let uploader = gpu.uploader();
+    let a = std::sync::Arc::new(
+        uploader
+            .upload(Some(&frames[0].view(true)), &frames[1].view(false))
+            .expect("upload a"),
+    );
+    assert!(a.has_older());
+    assert!(a.device_bytes() >= (w * h * 2 * 32) as u64);
+    gpu.install(a.clone()).expect("install a");
+    // Pair b goes up on another thread while this one renders pair a.
+    let b = std::thread::scope(|s| {
+        let up = s.spawn(|| uploader.upload(Some(&frames[1].view(true)), &frames[2].view(false)));
+        for n in 1..6 {
+            render(&mut gpu, 2, n);
+        }
+        up.join().expect("upload thread").expect("upload b")
+    });
+    let b = std::sync::Arc::new(b);
+    assert_eq!(render(&mut gpu, 2, 5), want_a);
+    gpu.install(b.clone()).expect("install b");
+    assert_eq!(render(&mut gpu, 3, 5), want_b);
+    gpu.install(a).expect("install a again");
+    assert_eq!(render(&mut gpu, 2, 5), want_a);
+    // An extrapolation-only pair (no older frame) installs the same way.
+    let only = uploader
+        .upload(None, &frames[2].view(false))
+        .expect("upload");
+    assert!(!only.has_older());
+    gpu.install(std::sync::Arc::new(only)).expect("install");
+    let mut img = vec![0u8; w * h * 3];
+    let r = Request {
+        alpha: 1.25,
+        ..request(3, 0)
+    };
+    gpu.render(
+        0,
+        Method::Ours,
+        &r,
+        &p,
+        Previous::Black,
+        Some(&mut img),
+        None,
+    )
+    .expect("extrapolate");
+    // Interpolating needs the older frame: the CPU path's error, not a panic.
+    assert!(matches!(
+        gpu.render(
+            0,
+            Method::Ours,
+            &request(3, 5),
+            &p,
+            Previous::Black,
+            Some(&mut img),
+            None
+        ),
+        Err(GpuError::Input(reproj_core::ReprojError::MissingFrame(_)))
+    ));
+}
