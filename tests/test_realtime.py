@@ -584,7 +584,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--fps", "60"], "--fps goes with --realtime"),
         (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
-        (["--realtime", "--backend", "wgpu"], "--backend wgpu"),
+        (["--realtime", "--backend", "wgpu", "--methods", "timewarp"], "no wgpu kernel"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),
     ],
 )
@@ -594,3 +594,105 @@ def test_bench_realtime_argument_errors_exit_2(argv, message, tmp_path, monkeypa
     monkeypatch.chdir(tmp_path)
     assert main(["bench", *argv, "--quiet"]) == 2
     assert message in capsys.readouterr().err
+
+
+# -- the GPU display: pairs uploaded on the worker, made current with no copy -----------------
+
+needs_gpu = pytest.mark.skipif(
+    not sr.gpu.available(),
+    reason="no wgpu adapter (apt-get install mesa-vulkan-drivers gives Mesa's lavapipe)",
+)
+
+
+@needs_gpu
+def test_gpu_display_uses_pairs_uploaded_on_the_worker_and_loads_none_itself(
+    scene, frames, monkeypatch
+):
+    from splitrender.gpu import GpuReprojector
+
+    # Which reprojector loaded a pair on the display path (GpuReprojector._load), and on which
+    # thread each pair was uploaded.
+    loads: list[GpuReprojector] = []
+    uploads: list[str] = []
+    real_load, real_upload = GpuReprojector._load, GpuReprojector.upload
+
+    def load(self, *a, **kw):  # type: ignore[no-untyped-def]
+        loads.append(self)
+        return real_load(self, *a, **kw)
+
+    def upload(self, *a, **kw):  # type: ignore[no-untyped-def]
+        uploads.append(threading.current_thread().name)
+        return real_upload(self, *a, **kw)
+
+    monkeypatch.setattr(GpuReprojector, "_load", load)
+    monkeypatch.setattr(GpuReprojector, "upload", upload)
+    plain = Client("ours", backend="wgpu")
+    clock = FakeClock()
+    with RealtimeClient("ours", clock=clock, display_fps=FC, backend="wgpu") as c:
+        assert c.client.backend == "wgpu"
+        for f in frames[:3]:
+            plain.receive(f)
+            c.submit(f)
+            c.wait()
+        # The worker thread uploaded every pair the frames open.
+        assert set(c.client._uploaded) == {(None, 0), (0, 1), (None, 1), (1, 2), (None, 2)}
+        assert len(uploads) == 5
+        assert all(n.startswith("splitrender-receive") for n in uploads)
+        pairs = set()
+        for n in range(1, 24):
+            t = n / FC
+            cam = scene.rig(t, W, H)[0]
+            image = c.render(cam, t)
+            info = c.client.last_info
+            pairs.add((info.older, info.newer))
+            assert c.client.was_prepared(info.older, info.newer)
+            # The same bytes as a GPU client that loads each pair on its first frame.
+            np.testing.assert_array_equal(image, plain.render(cam, t))
+        assert pairs == {(0, 1), (1, 2)}
+        # Every pair was made current from its upload: the display loaded none itself.
+        assert c.client.gpu not in loads and plain.gpu in loads
+    # No pair went up twice on the worker (the plain client's loads upload on this thread).
+    assert sum(n.startswith("splitrender-receive") for n in uploads) == 5
+
+
+@needs_gpu
+def test_uploaded_pairs_are_dropped_with_their_frames_and_refused_on_the_cpu(scene, frames):
+    gpu_client = Client("ours", backend="wgpu", capacity=2)
+    for f in frames[:2]:
+        gpu_client.receive(f)
+    assert gpu_client.gpu is not None
+    pair = gpu_client.gpu.upload(frames[0], frames[1])
+    assert pair.has_older and pair.device_bytes > 0
+    gpu_client.adopt_uploaded(0, 1, pair)
+    assert gpu_client.was_prepared(0, 1)
+    with pytest.raises(InvalidInputError, match="expected held frames"):
+        gpu_client.adopt_uploaded(1, 2, pair)
+    # Frame 2 arrives and displaces frame 0 once the display moves past it: the pair goes.
+    gpu_client.receive(frames[2])
+    gpu_client.render(scene.rig(0.15, W, H)[0], 0.15)
+    assert not gpu_client.was_prepared(0, 1)
+    cpu_client = Client("ours")
+    cpu_client.receive(frames[0])
+    with pytest.raises(InvalidInputError, match="renders on the CPU"):
+        cpu_client.adopt_uploaded(None, 0, pair)
+    with pytest.raises(InvalidInputError, match="pair: expected"):
+        gpu_client.gpu.install("not a pair")  # type: ignore[arg-type]
+
+
+@needs_gpu
+def test_bench_realtime_on_the_gpu_uploads_on_the_worker(tmp_path, monkeypatch, capsys):
+    import json
+    import tempfile
+
+    from splitrender.cli.main import main
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the stream cache
+    out = tmp_path / "rt.json"
+    assert main(["bench", "--realtime", "--backend", "wgpu", "--scale", "0.05", "--seconds",
+                 "0.25", "--exclusive", "--json", str(out), "--quiet"]) == 0
+    r = json.loads(out.read_text())
+    assert r["backend"] == "wgpu" and r["adapter"] == sr.gpu.adapter()
+    assert r["frames"] + r["dropped"] == 30 and r["server_frames_late"] == 0
+    # Every frame rendered a pair uploaded by the worker.
+    assert r["prepared_pct"] == 100.0 and r["prepare_ms_per_server_frame"] > 0
+    assert "pair upload" in capsys.readouterr().out

@@ -222,6 +222,15 @@ class Scene:
 
 def wgpu_adapter() -> str: ...
 @final
+class WgpuPair:
+    """A pair of server frames on the device (``WgpuReprojector.upload``)."""
+
+    @property
+    def has_older(self) -> bool: ...
+    @property
+    def device_bytes(self) -> int: ...
+
+@final
 class WgpuReprojector:
     """The client reprojection on the GPU (reproj-wgpu), server frames kept on the device."""
 
@@ -231,6 +240,8 @@ class WgpuReprojector:
     @property
     def atomics(self) -> str: ...
     def load(self, older: _Frame | None, newer: _Frame) -> None: ...
+    def upload(self, older: _Frame | None, newer: _Frame) -> WgpuPair: ...
+    def install(self, pair: WgpuPair) -> None: ...
     def render(
         self,
         method: str,

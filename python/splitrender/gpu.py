@@ -5,7 +5,10 @@ line) runs ``ours``, ``ours_extrapolate`` and ``forward_splat`` on the GPU with 
 semantics (the parity tests compare them pixel for pixel). :class:`GpuReprojector` is the
 device-resident form: :meth:`~GpuReprojector.load` uploads a pair of server frames once, then each
 :meth:`~GpuReprojector.render` uploads only the client pose and ``α`` and downloads the image (or
-leaves it on the device).
+leaves it on the device). A real-time client uploads the next pair on its receiving thread
+(:meth:`~GpuReprojector.upload`, which does not wait for a frame being rendered) and makes it
+current between two display frames (:meth:`~GpuReprojector.install`, no copy), so that no
+display frame pays the upload.
 
 Without a GPU, Mesa's software Vulkan driver lavapipe works (Debian/Ubuntu:
 ``apt-get install mesa-vulkan-drivers``); without any adapter, asking for the wgpu backend raises
@@ -35,6 +38,7 @@ from splitrender.types import (
 __all__ = [
     "BACKENDS",
     "GPU_METHODS",
+    "GpuPair",
     "GpuReprojector",
     "GpuUnavailableError",
     "adapter",
@@ -49,6 +53,10 @@ BACKENDS: tuple[str, ...] = ("cpu", "wgpu")
 GPU_METHODS: tuple[str, ...] = ("ours", "ours_extrapolate", "forward_splat")
 
 _Image = npt.NDArray[np.uint8]
+
+#: A pair of server frames on the device (:meth:`GpuReprojector.upload`): ``has_older`` says
+#: whether it can interpolate, ``device_bytes`` what it holds; freed when the last reference goes.
+GpuPair = _native.WgpuPair
 
 
 def check_backend(backend: object, method: str | None = None) -> str:
@@ -140,26 +148,56 @@ class GpuReprojector:
         paths: tuple[str, str] = ("older", "newer"),
     ) -> None:
         """:meth:`load`, naming the frames ``paths`` in messages."""
+        with self._lock:
+            self._native.install(self.upload(older, newer, _paths=paths))
+
+    def upload(
+        self,
+        older: ServerFrame | None,
+        newer: ServerFrame,
+        *,
+        _paths: tuple[str, str] = ("older", "newer"),
+    ) -> GpuPair:
+        """Uploads a pair as :meth:`load` does, without making it current: from any thread,
+        while another renders (it does not take the lock a frame holds). :meth:`install` makes
+        it current.
+
+        Raises:
+            InvalidInputError: for invalid frames (naming the buffer).
+        """
         if older is not None and not isinstance(older, ServerFrame):
             raise InvalidInputError(
-                f"{paths[0]}: expected a ServerFrame or None, got {type(older).__name__}"
+                f"{_paths[0]}: expected a ServerFrame or None, got {type(older).__name__}"
             )
         if not isinstance(newer, ServerFrame):
             raise InvalidInputError(
-                f"{paths[1]}: expected a ServerFrame, got {type(newer).__name__}"
+                f"{_paths[1]}: expected a ServerFrame, got {type(newer).__name__}"
             )
         frames = (
-            FrameArgument("older", paths[0], older, "fwd"),
-            FrameArgument("newer", paths[1], newer, "bwd"),
+            FrameArgument("older", _paths[0], older, "fwd"),
+            FrameArgument("newer", _paths[1], newer, "bwd"),
         )
         precheck_frames(frames)
+        try:
+            return self._native.upload(
+                None if older is None else older.to_native("fwd"), newer.to_native("bwd")
+            )
+        except InvalidInputError as e:
+            raise native_error(e, frames) from None
+
+    def install(self, pair: GpuPair) -> None:
+        """Makes an uploaded pair current (:meth:`upload`): the following :meth:`render` calls
+        read it. Nothing is copied.
+
+        Raises:
+            InvalidInputError: when ``pair`` is not a :data:`GpuPair`.
+        """
+        if not isinstance(pair, GpuPair):
+            raise InvalidInputError(
+                f"pair: expected a GpuPair from GpuReprojector.upload, got {type(pair).__name__}"
+            )
         with self._lock:
-            try:
-                self._native.load(
-                    None if older is None else older.to_native("fwd"), newer.to_native("bwd")
-                )
-            except InvalidInputError as e:
-                raise native_error(e, frames) from None
+            self._native.install(pair)
 
     @overload
     def render(

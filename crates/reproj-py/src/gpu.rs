@@ -8,13 +8,14 @@
 //! One device per process ([`context`]), created on first use and shared by every reprojector:
 //! creating a device costs far more than a client frame (pipelines compile per reprojector).
 
-use std::sync::{Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use reproj_core::{Diagnostics, Method, Request};
 use reproj_wgpu::{
-    ContextOptions, GpuContext, GpuError, Previous, Reprojector, ReprojectorOptions, MAX_OUTPUTS,
+    ContextOptions, GpuContext, GpuError, Previous, Reprojector, ReprojectorOptions, UploadedPair,
+    Uploader, MAX_OUTPUTS,
 };
 
 use crate::api::{rgb, shaped};
@@ -60,7 +61,41 @@ pub fn wgpu_adapter(py: Python<'_>) -> PyResult<String> {
 #[derive(Debug)]
 pub struct WgpuReprojector {
     inner: Mutex<Reprojector>,
+    /// Uploads without the lock, so that a receiving thread's upload never waits for (or holds
+    /// up) the display thread's frame.
+    uploader: Uploader,
     adapter: String,
+}
+
+/// A pair of server frames on the device (`WgpuReprojector.upload`), made current with
+/// `WgpuReprojector.install`; freed when the last reference goes.
+#[pyclass(module = "splitrender._native", frozen)]
+#[derive(Debug)]
+pub struct WgpuPair {
+    inner: Arc<UploadedPair>,
+}
+
+#[pymethods]
+impl WgpuPair {
+    /// Whether the pair holds the older frame (can interpolate).
+    #[getter]
+    fn has_older(&self) -> bool {
+        self.inner.has_older()
+    }
+
+    /// Bytes of device memory the pair holds.
+    #[getter]
+    fn device_bytes(&self) -> u64 {
+        self.inner.device_bytes()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "WgpuPair(has_older={}, device_bytes={})",
+            self.inner.has_older(),
+            self.inner.device_bytes()
+        )
+    }
 }
 
 #[pymethods]
@@ -77,6 +112,7 @@ impl WgpuReprojector {
                 .detach(|| Reprojector::new(ctx, &options))
                 .map_err(map_gpu_error)?;
             Ok(WgpuReprojector {
+                uploader: inner.uploader(),
                 inner: Mutex::new(inner),
                 adapter: ctx.describe(),
             })
@@ -114,6 +150,41 @@ impl WgpuReprojector {
             let older_view = older.as_ref().map(FrameArrays::view).transpose()?;
             let newer_view = newer.view()?;
             py.detach(|| self.lock_detached()?.load(older_view.as_ref(), &newer_view))
+                .map_err(map_gpu_error)
+        })
+    }
+
+    /// Uploads a pair as `load` does without making it current (any thread, without waiting for
+    /// a frame being rendered); `install` makes it current.
+    #[pyo3(signature = (older, newer))]
+    fn upload<'py>(
+        &self,
+        py: Python<'py>,
+        older: Option<&Bound<'py, PyAny>>,
+        newer: &Bound<'py, PyAny>,
+    ) -> PyResult<WgpuPair> {
+        guarded("WgpuReprojector.upload", || {
+            let older = match older.filter(|o| !o.is_none()) {
+                Some(o) => Some(FrameArrays::extract(o, "older")?),
+                None => None,
+            };
+            let newer = FrameArrays::extract(newer, "newer")?;
+            let older_view = older.as_ref().map(FrameArrays::view).transpose()?;
+            let newer_view = newer.view()?;
+            let pair = py
+                .detach(|| self.uploader.upload(older_view.as_ref(), &newer_view))
+                .map_err(map_gpu_error)?;
+            Ok(WgpuPair {
+                inner: Arc::new(pair),
+            })
+        })
+    }
+
+    /// Makes an uploaded pair current (no copy).
+    fn install(&self, py: Python<'_>, pair: &Bound<'_, WgpuPair>) -> PyResult<()> {
+        guarded("WgpuReprojector.install", || {
+            let pair = pair.get().inner.clone();
+            py.detach(|| self.lock_detached()?.install(pair))
                 .map_err(map_gpu_error)
         })
     }

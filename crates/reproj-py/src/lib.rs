@@ -68,6 +68,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
         py.get_type::<gpu::GpuUnavailableError>(),
     )?;
     m.add_class::<gpu::WgpuReprojector>()?;
+    m.add_class::<gpu::WgpuPair>()?;
     m.add_function(wrap_pyfunction!(gpu::wgpu_adapter, m)?)?;
     m.add_class::<api::BidirHistory>()?;
     m.add_function(wrap_pyfunction!(api::reproject, m)?)?;

@@ -304,7 +304,10 @@ def add_bench(sub: Any) -> None:
         "height, frames, deadline_misses, frame_ms_p50, frame_ms_p99, "
         "decode_ms_per_server_frame)",
     )
-    add_backend(be, "ours, ours_extrapolate and forward_splat only; not with --realtime")
+    add_backend(
+        be, "ours, ours_extrapolate and forward_splat only; with --realtime the display renders "
+        "on the GPU and the worker uploads each pair there",
+    )
     add_quiet(be)
 
 
@@ -347,8 +350,6 @@ def _bench_realtime(args: argparse.Namespace) -> int:
         write_realtime_json,
     )
 
-    if args.backend != "cpu":
-        return fail("--realtime runs the CPU client; --backend wgpu is not supported with it")
     chosen = args.methods or ("ours",)
     if len(chosen) != 1:
         return fail(f"--methods: --realtime runs one method, got {len(chosen)}")
@@ -358,7 +359,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             stream=args.stream, display_fps=DISPLAY_FPS if args.fps is None else args.fps,
             progress=not args.quiet, exclusive=args.exclusive,
             worker_priority=args.worker_priority or "idle",
-            display_priority=args.display_priority or "realtime",
+            display_priority=args.display_priority or "realtime", backend=args.backend,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

@@ -19,7 +19,7 @@ import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.errors import InvalidInputError
-from splitrender.gpu import GpuReprojector, check_backend
+from splitrender.gpu import GpuPair, GpuReprojector, check_backend
 from splitrender.net.model import (
     ClientFrameInfo,
     FrameBuffer,
@@ -56,8 +56,9 @@ class Client:
     extrapolating.
 
     ``backend="wgpu"`` reprojects on the GPU (:mod:`splitrender.gpu`): the pair is uploaded once
-    when it changes, each client frame uploads only its pose, and the previous output of each eye
-    stays on the device for hole filling.
+    when it changes (or was uploaded beforehand, off the display path: :meth:`adopt_uploaded`),
+    each client frame uploads only its pose, and the previous output of each eye stays on the
+    device for hole filling.
 
     Raises:
         InvalidInputError: for an unknown method, invalid options, a ``server_fps`` that
@@ -111,6 +112,8 @@ class Client:
         # that can no longer be used, for the preparing side to reuse (their buffers are warm).
         self._prepared: dict[_Pair, _native.BidirHistory] = {}
         self._retired: list[_native.BidirHistory] = []
+        # The wgpu backend's counterpart: pairs uploaded off the display path (adopt_uploaded).
+        self._uploaded: dict[_Pair, GpuPair] = {}
         self.last_info: ClientFrameInfo | None = None
         """How the last rendered frame was made (frames used, ``α``, mode)."""
         self._gpu = GpuReprojector() if self.backend == "wgpu" else None
@@ -122,6 +125,13 @@ class Client:
     @property
     def server_fps(self) -> float:
         return self.options.server_fps
+
+    @property
+    def gpu(self) -> GpuReprojector | None:
+        """The device-resident reprojector of ``backend="wgpu"`` (``None`` on the CPU): what
+        uploads a pair off the display path (:meth:`GpuReprojector.upload`) for
+        :meth:`adopt_uploaded`."""
+        return self._gpu
 
     @property
     def held(self) -> tuple[int, ...]:
@@ -215,6 +225,10 @@ class Client:
             del self._paths[j]
         for pair in [p for p in self._prepared if p[1] not in self._frames]:
             self._retired.append(self._prepared.pop(pair))
+        # A device pair whose frames are gone is dropped at once (its device memory with it,
+        # unless it is the one installed).
+        for pair in [p for p in self._uploaded if not self._holds(p)]:
+            del self._uploaded[pair]
         self.last_info = info
         return image
 
@@ -247,6 +261,33 @@ class Client:
         ``backward_bidir`` keeps its own per-eye history (its state depends on the pose)."""
         self._prepared[(older, newer)] = history
 
+    @checked(
+        older=optional(ints(-(1 << 63), (1 << 63) - 1)), newer=ints(-(1 << 63), (1 << 63) - 1),
+        pair=instances(GpuPair),
+    )
+    def adopt_uploaded(self, older: int | None, newer: int, pair: GpuPair) -> None:
+        """Uses ``pair``, the held frames ``(older, newer)`` uploaded off the display path
+        (``client.gpu.upload(...)``, :meth:`GpuReprojector.upload`), when client frames first
+        render that pair: it is made current with no copy, so that the first of them costs no
+        more than the others. ``backend="wgpu"`` only.
+
+        Raises:
+            InvalidInputError: on the CPU backend, or when the frames are not held.
+        """
+        if self._gpu is None:
+            raise InvalidInputError(
+                "adopt_uploaded: this client renders on the CPU (backend='cpu'); a pair uploaded "
+                "to the GPU is for backend='wgpu' (use adopt_prepared with prepare_pair)"
+            )
+        if not self._holds((older, newer)):
+            raise InvalidInputError(
+                f"adopt_uploaded: expected held frames, got ({older}, {newer}); held: {self.held}"
+            )
+        self._uploaded[(older, newer)] = pair
+
+    def _holds(self, pair: _Pair) -> bool:
+        return pair[1] in self._frames and (pair[0] is None or pair[0] in self._frames)
+
     @checked(index=ints(-(1 << 63), (1 << 63) - 1))
     def held_frame(self, index: int) -> ServerFrame | None:
         """The held server frame ``index``, or ``None``."""
@@ -257,7 +298,9 @@ class Client:
     )
     def was_prepared(self, older: int | None, newer: int) -> bool:
         """Whether client frames of the pair ``(older, newer)`` use a history adopted with
-        :meth:`adopt_prepared`."""
+        :meth:`adopt_prepared` (on the GPU: a pair adopted with :meth:`adopt_uploaded`)."""
+        if self._gpu is not None:
+            return (older, newer) in self._uploaded
         return self.method != "backward_bidir" and (older, newer) in self._prepared
 
     def retired_histories(self) -> list[_native.BidirHistory]:
@@ -280,8 +323,12 @@ class Client:
         pair = (older_index, newer_index)
         if pair != self._gpu_pair:
             self._gpu_pair = None
-            paths = self._paths_of(older_index, newer_index)
-            self._gpu._load(older, self._frames[newer_index], paths)
+            uploaded = self._uploaded.get(pair)
+            if uploaded is not None:
+                self._gpu.install(uploaded)
+            else:
+                paths = self._paths_of(older_index, newer_index)
+                self._gpu._load(older, self._frames[newer_index], paths)
             self._gpu_pair = pair
         # The eye's output slot on the device holds exactly `prev` (the last frame returned for
         # this eye at this size), so nothing needs to go up but the pose.
@@ -307,5 +354,6 @@ class Client:
         self._own.clear()
         self._prepared.clear()
         self._retired.clear()
+        self._uploaded.clear()
         self.last_info = None
         self._gpu_pair = None

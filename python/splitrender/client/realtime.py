@@ -7,7 +7,8 @@ Three things happen at once, and only the last is on the display path:
    decoded on a worker thread (:class:`~splitrender.codec.coder.StreamDecoder`).
 2. **Prepare.** On the same worker, right after decoding frame ``k``, the pair-level work of the
    method (Algorithm 2's correspondences, the auxiliary cameras' visibility in main:
-   :func:`splitrender.prepare_pair`) is done for the pairs the frame opens: ``(k − 1, k)`` to
+   :func:`splitrender.prepare_pair`; on the GPU, ``backend="wgpu"``, the upload of the pair:
+   :meth:`~splitrender.gpu.GpuReprojector.upload`) is done for the pairs the frame opens: ``(k − 1, k)`` to
    interpolate, then ``(None, k)`` to extrapolate from it. The frame becomes usable as soon as
    its first pair is prepared (the second is needed only if frame ``k + 1`` is late, a server
    period later): until then the display extrapolates from the frames it has (that is the
@@ -50,6 +51,7 @@ import numpy.typing as npt
 import splitrender._native as _native
 from splitrender.client.client import Client
 from splitrender.errors import InvalidInputError
+from splitrender.gpu import BACKENDS, GpuPair
 from splitrender.net.model import MODES
 from splitrender.reproject import prepare_pair
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
@@ -341,9 +343,11 @@ class RealtimeClient:
     per refresh out (:meth:`run`, or :meth:`render` for a caller with its own display loop).
 
     ``display_fps`` is ``f_c``; ``clock`` defaults to :class:`MonotonicClock`; ``client`` (else
-    a new :class:`Client` of ``method``, ``options``, ``capacity``) renders the frames.
-    ``prepare_threads`` is how many threads the pair preparation uses (its own pool, so that it
-    does not queue behind the display's frames; ``None``: the shared pool). ``worker_priority``
+    a new :class:`Client` of ``method``, ``options``, ``capacity`` and ``backend``) renders the
+    frames. On the GPU (``backend="wgpu"``) the worker uploads each pair
+    (:meth:`~splitrender.gpu.GpuReprojector.upload`) and the display makes it current with no
+    copy. ``prepare_threads`` is how many threads the CPU's pair preparation uses (its own pool,
+    so that it does not queue behind the display's frames; ``None``: the shared pool). ``worker_priority``
     (one of :data:`WORKER_PRIORITIES`, default ``"idle"``) is how the default worker thread
     yields the cores to the display (:func:`_yield_to_display`). ``display_priority`` (one of
     :data:`DISPLAY_PRIORITIES`, default ``"realtime"``) is how :meth:`run` schedules the
@@ -353,8 +357,9 @@ class RealtimeClient:
     their priority). Use as a context manager, or call :meth:`close`.
 
     Raises:
-        InvalidInputError: for an unknown method, invalid options or a ``display_fps`` that is
-            not a positive finite number.
+        InvalidInputError: for an unknown method, invalid options, a method the backend cannot
+            run or a ``display_fps`` that is not a positive finite number.
+        GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
 
     @checked(
@@ -362,7 +367,7 @@ class RealtimeClient:
         client=optional(instances(Client)), capacity=ints(2, 1 << 16),
         prepare_threads=optional(ints(0, 1 << 16)), decoder=optional(_decoder),
         executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
-        display_priority=strs(*DISPLAY_PRIORITIES),
+        display_priority=strs(*DISPLAY_PRIORITIES), backend=strs(*BACKENDS),
     )
     def __init__(
         self,
@@ -378,6 +383,7 @@ class RealtimeClient:
         executor: Executor | None = None,
         worker_priority: str = "idle",
         display_priority: str = "realtime",
+        backend: str = "cpu",
     ) -> None:
         if (
             isinstance(display_fps, bool)
@@ -388,7 +394,11 @@ class RealtimeClient:
             raise InvalidInputError(
                 f"display_fps: expected a positive finite number, got {display_fps!r}"
             )
-        self.client = client if client is not None else Client(method, options, capacity=capacity)
+        self.client = (
+            client
+            if client is not None
+            else Client(method, options, capacity=capacity, backend=backend)
+        )
         self.display_fps = float(display_fps)
         self.clock: Clock = clock if clock is not None else MonotonicClock()
         self.prepare_threads = prepare_threads
@@ -502,8 +512,8 @@ class RealtimeClient:
                 self._report.decode_ms.append((t1 - t0) * 1e3)
             if not self.client.receive(frame):
                 return None
-            for older_index, history in first:
-                self.client.adopt_prepared(older_index, frame.index, history)
+            for older_index, state in first:
+                self._adopt(older_index, frame.index, state)
             self._report.server_frames_received += 1
             self._report.usable_ms.append((t2 - t0) * 1e3)
             self._ready_at[frame.index] = self.clock.now()
@@ -521,8 +531,8 @@ class RealtimeClient:
             # Adopted only while the frame is held (else the history would wait in the
             # client until its next render retires it).
             if self.client.held_frame(frame.index) is not None:
-                for older_index, history in later:
-                    self.client.adopt_prepared(older_index, frame.index, history)
+                for older_index, state in later:
+                    self._adopt(older_index, frame.index, state)
             if first or later:
                 self._report.prepare_ms.append((t2 - t1 + t3 - t2) * 1e3)
         return frame.index
@@ -533,24 +543,39 @@ class RealtimeClient:
         frame: ServerFrame,
         camera: Camera,
         spare: list[_native.BidirHistory],
-    ) -> list[tuple[int | None, _native.BidirHistory]]:
+    ) -> list[tuple[int | None, _native.BidirHistory | GpuPair]]:
         """The pair state of ``(older, frame)`` for each of ``olders`` (``None``: to extrapolate
-        from ``frame``), in histories taken from ``spare`` or new ones."""
-        out: list[tuple[int | None, _native.BidirHistory]] = []
+        from ``frame``): on the CPU, histories taken from ``spare`` or new ones; on the GPU, the
+        pair uploaded to the device."""
+        out: list[tuple[int | None, _native.BidirHistory | GpuPair]] = []
+        gpu = self.client.gpu
         for o in olders:
-            history = spare.pop() if spare else _native.BidirHistory()
-            history.reset()
-            prepare_pair(
-                o,
-                frame,
-                camera,
-                self.method,
-                options=self.client.options,
-                history=history,
-                threads=self.prepare_threads,
-            )
-            out.append((None if o is None else o.index, history))
+            state: _native.BidirHistory | GpuPair
+            if gpu is not None:
+                state = gpu.upload(o, frame)
+            else:
+                state = spare.pop() if spare else _native.BidirHistory()
+                state.reset()
+                prepare_pair(
+                    o,
+                    frame,
+                    camera,
+                    self.method,
+                    options=self.client.options,
+                    history=state,
+                    threads=self.prepare_threads,
+                )
+            out.append((None if o is None else o.index, state))
         return out
+
+    def _adopt(
+        self, older: int | None, newer: int, state: _native.BidirHistory | GpuPair
+    ) -> None:
+        """Hands a prepared pair (:meth:`_prepare`) to the client (under the lock)."""
+        if isinstance(state, _native.BidirHistory):
+            self.client.adopt_prepared(older, newer, state)
+        else:
+            self.client.adopt_uploaded(older, newer, state)
 
     # -- display ---------------------------------------------------------------------------
 

@@ -6,7 +6,8 @@ once (at the paper's 40 Mb/s scaled by pixel count) into a stream file cached in
 directory. Each server frame ``k`` (time ``t_k = k / f_s``) is handed to the client when the
 model's server would send it over an ideal link, at display time ``t_k − 1 / f_s``
 (:mod:`splitrender.net.model`), and decoded and prepared on the client's worker thread while
-the display loop renders every refresh at the client's pose. A run longer than the source
+the display loop renders every refresh at the client's pose. With ``backend="wgpu"`` the display
+renders on the GPU and the worker uploads each pair there instead of preparing it on the CPU. A run longer than the source
 loops it: packet ``k mod N`` is sent again as frame ``k`` (its header re-stamped; packet 0 is a
 key frame, so the decoder starts over cleanly), and the pose follows the scene's path modulo
 its length, so the seam is one jump of the content, nothing else.
@@ -40,6 +41,7 @@ from splitrender.codec.stream import (
 )
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import write_atomic
+from splitrender.gpu import check_backend
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import Camera
@@ -79,6 +81,10 @@ class RealtimeBench:
     #: ``display_scheduling`` says what they got).
     display_priority: str
     summary: dict[str, Any]
+    #: Where the display renders: ``cpu`` or ``wgpu``.
+    backend: str = "cpu"
+    #: The wgpu adapter in words (``None`` on the CPU).
+    adapter: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         """What ran (every field but the summary), then the summary's keys."""
@@ -126,12 +132,15 @@ def _camera(rec: CameraRecord) -> Camera:
     return Camera(rec.view, rec.proj, rec.width, rec.height)
 
 
-def check_realtime_args(method: str, seconds: float, scale: float, display_fps: float) -> None:
+def check_realtime_args(
+    method: str, seconds: float, scale: float, display_fps: float, backend: str = "cpu"
+) -> None:
     if method not in METHODS:
         raise InvalidInputError(
             f"--methods: --realtime runs one method; expected one of: {', '.join(METHODS)}, "
             f"got {method!r}"
         )
+    check_backend(backend, method)
     if not math.isfinite(seconds) or not 0.0 < seconds <= 3600.0:
         raise InvalidInputError(f"--seconds: expected 0 < S <= 3600, got {seconds:g}")
     if not math.isfinite(scale) or scale <= 0.0:
@@ -156,22 +165,28 @@ def run_realtime_bench(
     exclusive: bool = False,
     worker_priority: str = "idle",
     display_priority: str = "realtime",
+    backend: str = "cpu",
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``exclusive``: the display waits for the worker after each arrival, off the clock
     (:meth:`RealtimeClient.run`), so that the deadlines measure the display frames alone.
     ``worker_priority``: how the worker yields the cores to the display, ``display_priority``:
-    how the display's threads are scheduled (both ``RealtimeClient``).
+    how the display's threads are scheduled (both ``RealtimeClient``). ``backend``: where the
+    display renders (``"wgpu"``: the GPU, the worker uploading each pair).
 
     Raises:
         InvalidInputError: for arguments that cannot work.
         StreamError: for a stream file that cannot be read.
+        GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
     from splitrender.client.client import Client
     from splitrender.client.realtime import RealtimeClient
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
-    check_realtime_args(method, seconds, scale, display_fps)
+    check_realtime_args(method, seconds, scale, display_fps, backend)
+    # Before anything is rendered: a missing adapter fails here, not after the scene.
+    display = Client(method, server_fps=_FS, backend=backend)
+    adapter = None if display.gpu is None else display.gpu.adapter
     stages = Progress(3 if stream is None else 2, progress)
     if stream is None:
         if scene not in SCENE_NAMES:
@@ -227,9 +242,12 @@ def run_realtime_bench(
     stages.stage(
         f"running {method} in real time for {seconds:g} s at {display_fps:g} FPS, "
         f"{main.width}x{main.height} + aux" + (" (the source loops)" if looped else "")
+        + ("" if adapter is None else f" on {adapter}")
     )
+    if fs != _FS:
+        display = Client(method, server_fps=fs, backend=backend)
     with RealtimeClient(
-        client=Client(method, server_fps=fs),
+        client=display,
         display_fps=display_fps,
         worker_priority=worker_priority,
         display_priority=display_priority,
@@ -242,7 +260,7 @@ def run_realtime_bench(
     stages.close()
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
-        display_priority, report.summary(),
+        display_priority, report.summary(), backend, adapter,
     )
 
 
@@ -259,6 +277,7 @@ def format_realtime(b: RealtimeBench) -> str:
         [
             f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
             f"{s['display_fps']:g} FPS for {s['wall_s']:.1f} s"
+            + ("" if b.adapter is None else f", rendered on the GPU ({b.adapter})")
             + (" (source looped)" if b.looped else "")
             + (" (exclusive: the display waited for the worker off the clock)"
                if b.exclusive else "")
@@ -271,8 +290,9 @@ def format_realtime(b: RealtimeBench) -> str:
             f"p99 {ms('frame_ms_p99')}, max {ms('frame_ms_max')}",
             f"  modes: {modes}; pairs prepared off the display path: "
             f"{s['prepared_pct']:.1f} % of frames",
-            f"  decode {ms('decode_ms_per_server_frame')} and pair preparation "
-            f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread, median; "
+            f"  decode {ms('decode_ms_per_server_frame')} and pair "
+            + ("preparation " if b.backend == "cpu" else "upload ")
+            + f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread, median; "
             f"usable after {ms('usable_ms_per_server_frame')}); "
             f"server frames {s['server_frames_received']} received, "
             f"{s['server_frames_late']} late",
