@@ -153,6 +153,22 @@ def test_session(server: _Server, tmp_path: Path) -> None:
     server.wait_log("session ended", 10)
 
 
+@pytest.mark.skipif(
+    not __import__("splitrender").gpu.available(),
+    reason="no wgpu adapter (apt-get install mesa-vulkan-drivers gives Mesa's lavapipe)",
+)
+def test_session_rendered_on_the_gpu(server: _Server, tmp_path: Path) -> None:
+    done = _connect(server.port, tmp_path, "--seconds", "2", "--backend", "wgpu",
+                    fingerprint=server.fingerprint)
+    assert done.returncode == 0, done.stderr
+    r = _report(tmp_path)
+    _all_refreshes(r, 2.0)
+    assert r["backend"] == "wgpu" and r["adapter"]
+    assert r["server_frames_received"] >= 2
+    assert r["modes"]["interpolate"] + r["modes"]["extrapolate"] > 0
+    server.wait_log("session ended", 10)
+
+
 async def _raw_session(port: int, seconds: float) -> tuple[int, int]:
     """A hand-made client: hello, then 5 malformed datagrams and 1 malformed stream among
     valid poses. Returns (frame streams completed before the garbage, after it)."""

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from splitrender.cli.args import (
     MAX_SECONDS,
+    add_backend,
     add_no_vmaf,
     add_out,
     add_quiet,
@@ -34,6 +35,8 @@ from splitrender.cli.args import (
 from splitrender.client.realtime import DISPLAY_FPS
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
+from splitrender.gpu import adapter as gpu_adapter
+from splitrender.gpu import check_backend
 from splitrender.reproject import METHODS
 from splitrender.types import MAX_SPAN
 
@@ -192,6 +195,8 @@ def add_connect(sub: Any) -> None:
                    help="with --score: afterwards, replay the packets this session decoded, "
                    "at the same arrival times and poses, through method M and score it too "
                    "(report.json's compare): the two methods in the same conditions")
+    add_backend(p, "ours, ours_extrapolate and forward_splat; the display renders on the GPU "
+                "and the receiving worker uploads each pair there")
     add_no_vmaf(p)
     add_quiet(p)
     p.add_argument("--protocol-version", type=lambda t: integer(t, 0, 65535), default=None,
@@ -215,11 +220,15 @@ def run_connect(args: argparse.Namespace) -> int:
     try:
         pinned = None if args.fingerprint is None else normalise_fingerprint(args.fingerprint)
         trace = None if args.trace is None else load_trace(args.trace)
+        # Before connecting: a method without a GPU kernel, or no adapter, fails here.
+        check_backend(args.backend, args.method)
+        if args.backend == "wgpu":
+            gpu_adapter()
     except SplitRenderError as e:
         return fail(str(e))
     host, port = args.server
     opts = ConnectOptions(
-        host, port, args.token, pinned, args.method, args.fps,
+        host, port, args.token, pinned, args.method, args.fps, backend=args.backend,
         version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
     )
     client = LiveClient(opts)

@@ -46,6 +46,7 @@ from splitrender.client.client import Client
 from splitrender.client.realtime import DISPLAY_FPS, DisplayFrame, RealtimeClient
 from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import ProtocolError
+from splitrender.gpu import backend_for
 from splitrender.net.protocol import (
     ALPN,
     CLOSE_BYE,
@@ -88,7 +89,8 @@ IDLE_TIMEOUT_S = 3.0
 class ConnectOptions:
     """What ``splitrender connect`` is told. ``fingerprint``: the pinned SHA-256 of the server's
     DER certificate (64 hex digits, :func:`~splitrender.net.protocol.normalise_fingerprint`);
-    ``None`` accepts any certificate (``--insecure``)."""
+    ``None`` accepts any certificate (``--insecure``). ``backend``: where the display renders
+    (``"wgpu"``: on the GPU, each pair uploaded by the receiving worker)."""
 
     host: str
     port: int
@@ -97,6 +99,7 @@ class ConnectOptions:
     method: str = "ours"
     display_fps: float = DISPLAY_FPS
     connect_timeout: float = 10.0
+    backend: str = "cpu"
     version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
 
 
@@ -437,7 +440,9 @@ class LiveClient:
         self.welcome = welcome
         self.order.give_up = 1.0 / welcome.server_fps
         self.realtime = RealtimeClient(
-            client=Client(self.options.method, server_fps=welcome.server_fps),
+            client=Client(
+                self.options.method, server_fps=welcome.server_fps, backend=self.options.backend
+            ),
             display_fps=self.options.display_fps,
             decoder=_TimeIndexed(welcome.server_fps, self.spans),
         )
@@ -715,7 +720,9 @@ class LiveClient:
             return Camera(view, proj, w.width, w.height)
 
         with RealtimeClient(
-            client=Client(method, server_fps=w.server_fps),
+            client=Client(
+                method, server_fps=w.server_fps, backend=backend_for(method, self.options.backend)
+            ),
             display_fps=self.options.display_fps,
             decoder=_TimeIndexed(w.server_fps, dict(self.spans)),
         ) as rt:
@@ -734,7 +741,10 @@ class LiveClient:
         def med(v: list[float]) -> float | None:
             return float(np.median(v)) if v else None
 
+        gpu = None if self.realtime is None else self.realtime.client.gpu
         s.update(
+            backend=self.options.backend,
+            adapter=None if gpu is None else gpu.adapter,
             pose_to_display_ms_p50=s.get("server_age_ms_p50"),
             # time.monotonic() at display time 0 (the same clock in every process of the
             # machine: events elsewhere, e.g. a relay's bandwidth step, can be placed on
