@@ -667,10 +667,14 @@ def test_uploaded_pairs_are_dropped_with_their_frames_and_refused_on_the_cpu(sce
     assert gpu_client.was_prepared(0, 1)
     with pytest.raises(InvalidInputError, match="expected held frames"):
         gpu_client.adopt_uploaded(1, 2, pair)
-    # Frame 2 arrives and displaces frame 0 once the display moves past it: the pair goes.
+    gpu_client.render(scene.rig(0.05, W, H)[0], 0.05)  # installs the pair
+    # Frame 2 arrives and displaces frame 0 once the display moves past it: the pair is
+    # retired, for the uploading side to drop, and no longer used.
     gpu_client.receive(frames[2])
     gpu_client.render(scene.rig(0.15, W, H)[0], 0.15)
     assert not gpu_client.was_prepared(0, 1)
+    retired = gpu_client.retired_uploads()
+    assert pair in retired and gpu_client.retired_uploads() == []
     cpu_client = Client("ours")
     cpu_client.receive(frames[0])
     with pytest.raises(InvalidInputError, match="renders on the CPU"):

@@ -185,9 +185,10 @@ class GpuReprojector:
         except InvalidInputError as e:
             raise native_error(e, frames) from None
 
-    def install(self, pair: GpuPair) -> None:
+    def install(self, pair: GpuPair) -> GpuPair | None:
         """Makes an uploaded pair current (:meth:`upload`): the following :meth:`render` calls
-        read it. Nothing is copied.
+        read it. Nothing is copied. Returns the pair that was current (``None`` if none), so that
+        the caller can let it go where freeing its device memory costs no frame.
 
         Raises:
             InvalidInputError: when ``pair`` is not a :data:`GpuPair`.
@@ -197,7 +198,7 @@ class GpuReprojector:
                 f"pair: expected a GpuPair from GpuReprojector.upload, got {type(pair).__name__}"
             )
         with self._lock:
-            self._native.install(pair)
+            return self._native.install(pair)
 
     @overload
     def render(

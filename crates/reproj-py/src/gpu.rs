@@ -180,12 +180,14 @@ impl WgpuReprojector {
         })
     }
 
-    /// Makes an uploaded pair current (no copy).
-    fn install(&self, py: Python<'_>, pair: &Bound<'_, WgpuPair>) -> PyResult<()> {
+    /// Makes an uploaded pair current (no copy); returns the pair that was current.
+    fn install(&self, py: Python<'_>, pair: &Bound<'_, WgpuPair>) -> PyResult<Option<WgpuPair>> {
         guarded("WgpuReprojector.install", || {
             let pair = pair.get().inner.clone();
-            py.detach(|| self.lock_detached()?.install(pair))
-                .map_err(map_gpu_error)
+            let previous = py
+                .detach(|| self.lock_detached()?.install(pair))
+                .map_err(map_gpu_error)?;
+            Ok(previous.map(|inner| WgpuPair { inner }))
         })
     }
 

@@ -377,7 +377,7 @@ impl Reprojector {
             self.spare = Some(c.scratch);
         }
         let pair = self.uploader().upload(older, newer)?;
-        self.install(Arc::new(pair))
+        self.install(Arc::new(pair)).map(drop)
     }
 
     /// What uploads pairs to this reprojector's device from another thread.
@@ -390,18 +390,22 @@ impl Reprojector {
 
     /// Makes an uploaded pair current: the following [`Reprojector::render`] calls read it. Nothing
     /// is copied; the per-frame buffers are reused when the pair fits in them (else allocated, the
-    /// first time and when a pair is larger).
+    /// first time and when a pair is larger). Returns the pair that was current, so that the
+    /// caller can drop it where freeing its device memory costs no frame (a receiving thread).
     ///
     /// # Errors
-    /// [`GpuError::Device`] when the per-frame buffers cannot be allocated, or the pair was uploaded
-    /// to another device.
-    pub fn install(&mut self, pair: Arc<UploadedPair>) -> Result<()> {
+    /// [`GpuError::Device`] when the per-frame buffers cannot be allocated. A pair uploaded to
+    /// another device fails at the next render, as [`GpuError::Device`].
+    pub fn install(&mut self, pair: Arc<UploadedPair>) -> Result<Option<Arc<UploadedPair>>> {
         let need = [
             pair.points as u64 * FLOW_BYTES,
             pair.points as u64 * SPLAT_BYTES,
             pair.cells.max(1) as u64 * AUX_CELL_BYTES,
         ];
-        let old = self.current.take().map(|c| c.scratch).or(self.spare.take());
+        let (old, previous) = match self.current.take() {
+            Some(c) => (Some(c.scratch), Some(c.pair)),
+            None => (self.spare.take(), None),
+        };
         let scratch = match old {
             Some(s)
                 if s.flow.size() >= need[0]
@@ -437,7 +441,7 @@ impl Reprojector {
             scratch,
             generation: self.generation,
         });
-        Ok(())
+        Ok(previous)
     }
 
     /// Drops the loaded pair and every output slot (device memory is freed).

@@ -409,7 +409,7 @@ fn uploaded_pairs_render_as_loaded_ones() {
     );
     assert!(a.has_older());
     assert!(a.device_bytes() >= (w * h * 2 * 32) as u64);
-    gpu.install(a.clone()).expect("install a");
+    assert!(gpu.install(a.clone()).expect("install a").is_none());
     // Pair b goes up on another thread while this one renders pair a.
     let b = std::thread::scope(|s| {
         let up = s.spawn(|| uploader.upload(Some(&frames[1].view(true)), &frames[2].view(false)));
@@ -420,7 +420,12 @@ fn uploaded_pairs_render_as_loaded_ones() {
     });
     let b = std::sync::Arc::new(b);
     assert_eq!(render(&mut gpu, 2, 5), want_a);
-    gpu.install(b.clone()).expect("install b");
+    // Installing hands back the pair that was current.
+    let previous = gpu
+        .install(b.clone())
+        .expect("install b")
+        .expect("a was current");
+    assert!(std::sync::Arc::ptr_eq(&previous, &a));
     assert_eq!(render(&mut gpu, 3, 5), want_b);
     gpu.install(a).expect("install a again");
     assert_eq!(render(&mut gpu, 2, 5), want_a);

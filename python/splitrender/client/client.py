@@ -41,6 +41,8 @@ __all__ = ["Client"]
 _Image = npt.NDArray[np.uint8]
 #: A server-frame pair by index: ``(older, newer)``; ``older`` is ``None`` when extrapolating.
 _Pair = tuple[int | None, int]
+#: Most device pairs a client keeps for :meth:`Client.retired_uploads`.
+_MAX_RETIRED = 8
 
 
 class Client:
@@ -112,8 +114,10 @@ class Client:
         # that can no longer be used, for the preparing side to reuse (their buffers are warm).
         self._prepared: dict[_Pair, _native.BidirHistory] = {}
         self._retired: list[_native.BidirHistory] = []
-        # The wgpu backend's counterpart: pairs uploaded off the display path (adopt_uploaded).
+        # The wgpu backend's counterpart: pairs uploaded off the display path (adopt_uploaded),
+        # and those no longer used, for the uploading side to drop (retired_uploads).
         self._uploaded: dict[_Pair, GpuPair] = {}
+        self._retired_pairs: list[GpuPair] = []
         self.last_info: ClientFrameInfo | None = None
         """How the last rendered frame was made (frames used, ``α``, mode)."""
         self._gpu = GpuReprojector() if self.backend == "wgpu" else None
@@ -225,10 +229,10 @@ class Client:
             del self._paths[j]
         for pair in [p for p in self._prepared if p[1] not in self._frames]:
             self._retired.append(self._prepared.pop(pair))
-        # A device pair whose frames are gone is dropped at once (its device memory with it,
-        # unless it is the one installed).
+        # A device pair whose frames are gone is retired: the uploading side drops it
+        # (retired_uploads), so that freeing its device memory costs no display frame.
         for pair in [p for p in self._uploaded if not self._holds(p)]:
-            del self._uploaded[pair]
+            self._retire(self._uploaded.pop(pair))
         self.last_info = info
         return image
 
@@ -285,6 +289,19 @@ class Client:
             )
         self._uploaded[(older, newer)] = pair
 
+    def retired_uploads(self) -> list[GpuPair]:
+        """Takes the device pairs adopted with :meth:`adopt_uploaded` that this client no longer
+        uses; dropping them (on the uploading thread) frees their device memory."""
+        out, self._retired_pairs = self._retired_pairs, []
+        return out
+
+    def _retire(self, pair: GpuPair | None) -> None:
+        """Keeps ``pair`` for :meth:`retired_uploads`; at most :data:`_MAX_RETIRED` (beyond
+        them, for a caller that never takes them, the oldest is dropped here)."""
+        if pair is not None:
+            self._retired_pairs.append(pair)
+            del self._retired_pairs[:-_MAX_RETIRED]
+
     def _holds(self, pair: _Pair) -> bool:
         return pair[1] in self._frames and (pair[0] is None or pair[0] in self._frames)
 
@@ -325,7 +342,7 @@ class Client:
             self._gpu_pair = None
             uploaded = self._uploaded.get(pair)
             if uploaded is not None:
-                self._gpu.install(uploaded)
+                self._retire(self._gpu.install(uploaded))
             else:
                 paths = self._paths_of(older_index, newer_index)
                 self._gpu._load(older, self._frames[newer_index], paths)
@@ -355,5 +372,6 @@ class Client:
         self._prepared.clear()
         self._retired.clear()
         self._uploaded.clear()
+        self._retired_pairs.clear()
         self.last_info = None
         self._gpu_pair = None

@@ -494,10 +494,14 @@ class RealtimeClient:
                 older = None
             camera = self._camera if self._camera is not None else frame.main.camera
             spare = self.client.retired_histories()
+            # Device pairs the display no longer uses: dropped below, on this thread, so that
+            # freeing their memory costs no display frame.
+            retired = self.client.retired_uploads()
             # Behind (a newer packet is already waiting): this frame is about to be superseded,
             # so it is handed over at once and the worker's time goes to catching up; a display
             # frame that still renders its pair does the pair work itself.
             behind = self._queued > 0
+        del retired
         pairs: list[ServerFrame | None] = []
         if self.method in _PREPARED_METHODS and not behind:
             # The pair that makes the frame usable first: to interpolate towards it when the
