@@ -49,6 +49,7 @@ __all__ = [
     "scene_names",
     "default_samples",
     "MAX_SAMPLES",
+    "WgpuPair",
     "WgpuReprojector",
     "wgpu_adapter",
     "_panic_for_test",
