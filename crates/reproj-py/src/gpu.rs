@@ -55,8 +55,8 @@ pub fn wgpu_adapter(py: Python<'_>) -> PyResult<String> {
     guarded("wgpu_adapter", || Ok(context(py)?.describe()))
 }
 
-/// The client reprojection on the GPU with the server frames kept on the device: `load` a pair
-/// once, then `render` client frames from a pose and `alpha`.
+/// The client reprojection on the GPU with the server frames kept on the device: `upload` a pair
+/// once and `install` it, then `render` client frames from a pose and `alpha`.
 #[pyclass(module = "splitrender._native")]
 #[derive(Debug)]
 pub struct WgpuReprojector {
@@ -133,29 +133,9 @@ impl WgpuReprojector {
         })
     }
 
-    /// Uploads a pair: `older` (forward buffers) may be None, `newer` (backward buffers).
-    #[pyo3(signature = (older, newer))]
-    fn load<'py>(
-        &self,
-        py: Python<'py>,
-        older: Option<&Bound<'py, PyAny>>,
-        newer: &Bound<'py, PyAny>,
-    ) -> PyResult<()> {
-        guarded("WgpuReprojector.load", || {
-            let older = match older.filter(|o| !o.is_none()) {
-                Some(o) => Some(FrameArrays::extract(o, "older")?),
-                None => None,
-            };
-            let newer = FrameArrays::extract(newer, "newer")?;
-            let older_view = older.as_ref().map(FrameArrays::view).transpose()?;
-            let newer_view = newer.view()?;
-            py.detach(|| self.lock_detached()?.load(older_view.as_ref(), &newer_view))
-                .map_err(map_gpu_error)
-        })
-    }
-
-    /// Uploads a pair as `load` does without making it current (any thread, without waiting for
-    /// a frame being rendered); `install` makes it current.
+    /// Uploads a pair, `older` (forward buffers; None to extrapolate only) and `newer` (backward
+    /// buffers), without making it current (any thread, without waiting for a frame being
+    /// rendered); `install` makes it current.
     #[pyo3(signature = (older, newer))]
     fn upload<'py>(
         &self,

@@ -373,13 +373,12 @@ fn uploaded_pairs_render_as_loaded_ones() {
             alpha,
         }
     };
-    let render = |gpu: &mut Reprojector, k: usize, n: usize| {
+    let render = |gpu: &mut Reprojector, r: &Request| {
         let mut img = vec![0u8; w * h * 3];
-        let r = request(k, n);
         gpu.render(
             0,
             Method::Ours,
-            &r,
+            r,
             &p,
             Previous::Black,
             Some(&mut img),
@@ -393,11 +392,11 @@ fn uploaded_pairs_render_as_loaded_ones() {
     loaded
         .load(Some(&frames[0].view(true)), &frames[1].view(false))
         .expect("load");
-    let want_a = render(&mut loaded, 2, 5);
+    let want_a = render(&mut loaded, &request(2, 5));
     loaded
         .load(Some(&frames[1].view(true)), &frames[2].view(false))
         .expect("load");
-    let want_b = render(&mut loaded, 3, 5);
+    let want_b = render(&mut loaded, &request(3, 5));
     assert_ne!(want_a, want_b, "the two pairs must give different images");
 
     let mut gpu = Reprojector::new(ctx, &ReprojectorOptions::default()).expect("pipelines");
@@ -414,42 +413,33 @@ fn uploaded_pairs_render_as_loaded_ones() {
     let b = std::thread::scope(|s| {
         let up = s.spawn(|| uploader.upload(Some(&frames[1].view(true)), &frames[2].view(false)));
         for n in 1..6 {
-            render(&mut gpu, 2, n);
+            render(&mut gpu, &request(2, n));
         }
         up.join().expect("upload thread").expect("upload b")
     });
     let b = std::sync::Arc::new(b);
-    assert_eq!(render(&mut gpu, 2, 5), want_a);
+    assert_eq!(render(&mut gpu, &request(2, 5)), want_a);
     // Installing hands back the pair that was current.
     let previous = gpu
         .install(b.clone())
         .expect("install b")
         .expect("a was current");
     assert!(std::sync::Arc::ptr_eq(&previous, &a));
-    assert_eq!(render(&mut gpu, 3, 5), want_b);
+    assert_eq!(render(&mut gpu, &request(3, 5)), want_b);
     gpu.install(a).expect("install a again");
-    assert_eq!(render(&mut gpu, 2, 5), want_a);
+    assert_eq!(render(&mut gpu, &request(2, 5)), want_a);
     // An extrapolation-only pair (no older frame) installs the same way.
     let only = uploader
         .upload(None, &frames[2].view(false))
         .expect("upload");
     assert!(!only.has_older());
     gpu.install(std::sync::Arc::new(only)).expect("install");
-    let mut img = vec![0u8; w * h * 3];
-    let r = Request {
+    let extrapolated = Request {
         alpha: 1.25,
         ..request(3, 0)
     };
-    gpu.render(
-        0,
-        Method::Ours,
-        &r,
-        &p,
-        Previous::Black,
-        Some(&mut img),
-        None,
-    )
-    .expect("extrapolate");
+    render(&mut gpu, &extrapolated);
+    let mut img = vec![0u8; w * h * 3];
     // Interpolating needs the older frame: the CPU path's error, not a panic.
     assert!(matches!(
         gpu.render(
