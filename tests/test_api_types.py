@@ -394,9 +394,9 @@ EXEMPT: dict[str, str] = {
     "NetworkModel.link": "takes no arguments",
     "Client.retired_histories": "takes no arguments",
     "Client.retired_uploads": "takes no arguments",
-    "Client.adopt_uploaded": "needs a wgpu client and a pair on its device (tests/test_realtime.py: "
-    "refused on the CPU and for frames not held); its arguments go through the same checks as "
-    "adopt_prepared's",
+    "Client.adopt_uploaded": "needs a wgpu client and a pair on its device "
+    "(tests/test_realtime.py: refused on the CPU and for frames not held); its arguments go "
+    "through the same checks as adopt_prepared's",
     "Client.reset": "takes no arguments",
     "RealtimeClient.close": "takes no arguments",
     "StreamEncoder.request_key_frame": "takes no arguments",

@@ -782,8 +782,8 @@ impl Uploader {
     /// Uploads the server frames of a pair as [`Reprojector::load`] takes them, without making it
     /// current ([`Reprojector::install`] does, between two frames). Callable from another thread
     /// while a reprojector of the same device renders: the texels are packed straight into buffers
-    /// mapped at creation, outside any error scope, so a frame waits at most for the creation of the
-    /// two buffers.
+    /// mapped at creation, outside any error scope, so a frame waits at most for the creation of
+    /// the two buffers.
     ///
     /// # Errors
     /// The CPU path's input errors ([`GpuError::Input`]: buffer sizes, camera mismatch, singular

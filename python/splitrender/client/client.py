@@ -41,8 +41,10 @@ __all__ = ["Client"]
 _Image = npt.NDArray[np.uint8]
 #: A server-frame pair by index: ``(older, newer)``; ``older`` is ``None`` when extrapolating.
 _Pair = tuple[int | None, int]
-#: Most device pairs a client keeps for :meth:`Client.retired_uploads`.
-_MAX_RETIRED = 8
+#: Most device pairs a client keeps for :meth:`Client.retired_uploads` (a real-time client takes
+#: them once per server frame, after two or three; a caller that never does holds no more device
+#: memory than this many pairs).
+_MAX_RETIRED = 4
 
 
 class Client:
@@ -290,8 +292,9 @@ class Client:
         self._uploaded[(older, newer)] = pair
 
     def retired_uploads(self) -> list[GpuPair]:
-        """Takes the device pairs adopted with :meth:`adopt_uploaded` that this client no longer
-        uses; dropping them (on the uploading thread) frees their device memory."""
+        """Takes the device pairs this client no longer uses (those adopted with
+        :meth:`adopt_uploaded` whose frames are gone, and each pair an adopted one replaced on the
+        device); dropping them (on the uploading thread) frees their device memory."""
         out, self._retired_pairs = self._retired_pairs, []
         return out
 

@@ -8,12 +8,12 @@ Three things happen at once, and only the last is on the display path:
 2. **Prepare.** On the same worker, right after decoding frame ``k``, the pair-level work of the
    method (Algorithm 2's correspondences, the auxiliary cameras' visibility in main:
    :func:`splitrender.prepare_pair`; on the GPU, ``backend="wgpu"``, the upload of the pair:
-   :meth:`~splitrender.gpu.GpuReprojector.upload`) is done for the pairs the frame opens: ``(k − 1, k)`` to
-   interpolate, then ``(None, k)`` to extrapolate from it. The frame becomes usable as soon as
-   its first pair is prepared (the second is needed only if frame ``k + 1`` is late, a server
-   period later): until then the display extrapolates from the frames it has (that is the
-   method's answer to a late frame, seeds/000 §3.5), so no display frame waits for a decoder or
-   pays the pair work.
+   :meth:`~splitrender.gpu.GpuReprojector.upload`) is done for the pairs the frame opens:
+   ``(k − 1, k)`` to interpolate, then ``(None, k)`` to extrapolate from it. The frame becomes
+   usable as soon as its first pair is prepared (the second is needed only if frame ``k + 1`` is
+   late, a server period later): until then the display extrapolates from the frames it has
+   (that is the method's answer to a late frame, seeds/000 §3.5), so no display frame waits for
+   a decoder or pays the pair work.
 3. **Display.** :meth:`RealtimeClient.run` is driven by a monotonic clock at ``f_c``: display
    frame ``n`` starts at refresh ``n`` (clock ``t0 + n / f_c``) with the pose of its display
    time, is rendered by :meth:`Client.render` from the usable frames, and is due at the next
@@ -347,12 +347,13 @@ class RealtimeClient:
     frames. On the GPU (``backend="wgpu"``) the worker uploads each pair
     (:meth:`~splitrender.gpu.GpuReprojector.upload`) and the display makes it current with no
     copy. ``prepare_threads`` is how many threads the CPU's pair preparation uses (its own pool,
-    so that it does not queue behind the display's frames; ``None``: the shared pool). ``worker_priority``
-    (one of :data:`WORKER_PRIORITIES`, default ``"idle"``) is how the default worker thread
-    yields the cores to the display (:func:`_yield_to_display`). ``display_priority`` (one of
-    :data:`DISPLAY_PRIORITIES`, default ``"realtime"``) is how :meth:`run` schedules the
-    display thread and the threads it renders on while it shows frames (:func:`_raise_display`;
-    restored when it returns; the report's ``display_scheduling`` says what it got).
+    so that it does not queue behind the display's frames; ``None``: the shared pool).
+    ``worker_priority`` (one of :data:`WORKER_PRIORITIES`, default ``"idle"``) is how the default
+    worker thread yields the cores to the display (:func:`_yield_to_display`).
+    ``display_priority`` (one of :data:`DISPLAY_PRIORITIES`, default ``"realtime"``) is how
+    :meth:`run` schedules the display thread and the threads it renders on while it shows frames
+    (:func:`_raise_display`; restored when it returns; the report's ``display_scheduling`` says
+    what it got).
     ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
     their priority). Use as a context manager, or call :meth:`close`.
 

@@ -6,8 +6,8 @@ once (at the paper's 40 Mb/s scaled by pixel count) into a stream file cached in
 directory. Each server frame ``k`` (time ``t_k = k / f_s``) is handed to the client when the
 model's server would send it over an ideal link, at display time ``t_k − 1 / f_s``
 (:mod:`splitrender.net.model`), and decoded and prepared on the client's worker thread while
-the display loop renders every refresh at the client's pose. With ``backend="wgpu"`` the display
-renders on the GPU and the worker uploads each pair there instead of preparing it on the CPU. A run longer than the source
+the display loop renders every refresh at the client's pose (with ``backend="wgpu"`` on the GPU,
+the worker uploading each pair there instead of preparing it). A run longer than the source
 loops it: packet ``k mod N`` is sent again as frame ``k`` (its header re-stamped; packet 0 is a
 key frame, so the decoder starts over cleanly), and the pose follows the scene's path modulo
 its length, so the seam is one jump of the content, nothing else.
@@ -41,6 +41,7 @@ from splitrender.codec.stream import (
 )
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import write_atomic
+from splitrender.gpu import adapter as gpu_adapter
 from splitrender.gpu import check_backend
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -185,8 +186,7 @@ def run_realtime_bench(
 
     check_realtime_args(method, seconds, scale, display_fps, backend)
     # Before anything is rendered: a missing adapter fails here, not after the scene.
-    display = Client(method, server_fps=_FS, backend=backend)
-    adapter = None if display.gpu is None else display.gpu.adapter
+    adapter = gpu_adapter() if backend == "wgpu" else None
     stages = Progress(3 if stream is None else 2, progress)
     if stream is None:
         if scene not in SCENE_NAMES:
@@ -244,10 +244,8 @@ def run_realtime_bench(
         f"{main.width}x{main.height} + aux" + (" (the source loops)" if looped else "")
         + ("" if adapter is None else f" on {adapter}")
     )
-    if fs != _FS:
-        display = Client(method, server_fps=fs, backend=backend)
     with RealtimeClient(
-        client=display,
+        client=Client(method, server_fps=fs, backend=backend),
         display_fps=display_fps,
         worker_priority=worker_priority,
         display_priority=display_priority,
