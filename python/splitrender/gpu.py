@@ -45,6 +45,7 @@ __all__ = [
     "available",
     "backend_for",
     "check_backend",
+    "require",
 ]
 
 #: The backends every method entry point accepts.
@@ -76,6 +77,17 @@ def check_backend(backend: object, method: str | None = None) -> str:
             f"{', '.join(GPU_METHODS)}); use backend='cpu' for it"
         )
     return backend
+
+
+def require(backend: str, method: str) -> str | None:
+    """Checks that ``method`` can run on ``backend`` before any work starts: ``None`` for the CPU,
+    the adapter in words for ``"wgpu"``.
+
+    Raises:
+        InvalidInputError: for an unknown backend or a method the backend cannot run.
+        GpuUnavailableError: for ``"wgpu"`` without an adapter.
+    """
+    return adapter() if check_backend(backend, method) == "wgpu" else None
 
 
 def backend_for(method: str, backend: str) -> str:

@@ -35,8 +35,7 @@ from splitrender.cli.args import (
 from splitrender.client.realtime import DISPLAY_FPS
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
-from splitrender.gpu import adapter as gpu_adapter
-from splitrender.gpu import check_backend
+from splitrender.gpu import require as require_backend
 from splitrender.reproject import METHODS
 from splitrender.types import MAX_SPAN
 
@@ -221,9 +220,7 @@ def run_connect(args: argparse.Namespace) -> int:
         pinned = None if args.fingerprint is None else normalise_fingerprint(args.fingerprint)
         trace = None if args.trace is None else load_trace(args.trace)
         # Before connecting: a method without a GPU kernel, or no adapter, fails here.
-        check_backend(args.backend, args.method)
-        if args.backend == "wgpu":
-            gpu_adapter()
+        require_backend(args.backend, args.method)
     except SplitRenderError as e:
         return fail(str(e))
     host, port = args.server

@@ -495,8 +495,8 @@ class RealtimeClient:
                 older = None
             camera = self._camera if self._camera is not None else frame.main.camera
             spare = self.client.retired_histories()
-            # Device pairs the display no longer uses: dropped below, on this thread, so that
-            # freeing their memory costs no display frame.
+            # Device pairs the display no longer uses: dropped below, on this thread and outside
+            # the lock the display takes, so that freeing their memory costs no display frame.
             retired = self.client.retired_uploads()
             # Behind (a newer packet is already waiting): this frame is about to be superseded,
             # so it is handed over at once and the worker's time goes to catching up; a display

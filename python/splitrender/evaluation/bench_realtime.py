@@ -41,8 +41,7 @@ from splitrender.codec.stream import (
 )
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import write_atomic
-from splitrender.gpu import adapter as gpu_adapter
-from splitrender.gpu import check_backend
+from splitrender.gpu import require as require_backend
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import Camera
@@ -133,15 +132,12 @@ def _camera(rec: CameraRecord) -> Camera:
     return Camera(rec.view, rec.proj, rec.width, rec.height)
 
 
-def check_realtime_args(
-    method: str, seconds: float, scale: float, display_fps: float, backend: str = "cpu"
-) -> None:
+def check_realtime_args(method: str, seconds: float, scale: float, display_fps: float) -> None:
     if method not in METHODS:
         raise InvalidInputError(
             f"--methods: --realtime runs one method; expected one of: {', '.join(METHODS)}, "
             f"got {method!r}"
         )
-    check_backend(backend, method)
     if not math.isfinite(seconds) or not 0.0 < seconds <= 3600.0:
         raise InvalidInputError(f"--seconds: expected 0 < S <= 3600, got {seconds:g}")
     if not math.isfinite(scale) or scale <= 0.0:
@@ -184,9 +180,9 @@ def run_realtime_bench(
     from splitrender.client.realtime import RealtimeClient
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
-    check_realtime_args(method, seconds, scale, display_fps, backend)
-    # Before anything is rendered: a missing adapter fails here, not after the scene.
-    adapter = gpu_adapter() if backend == "wgpu" else None
+    check_realtime_args(method, seconds, scale, display_fps)
+    # Before anything is rendered: a method without a GPU kernel or a missing adapter fails here.
+    adapter = require_backend(backend, method)
     stages = Progress(3 if stream is None else 2, progress)
     if stream is None:
         if scene not in SCENE_NAMES:
