@@ -4,6 +4,7 @@
 //! `cargo run --release -p reproj-core --example time_ours [METHOD] [WIDTH]`; environment:
 //! `ITERS` (timed calls, default 6), `SHADOWS=1` (keep the dynamic shadows, as the bench does),
 //! `NOBLEND=1` (no Algorithm 2), `AUX_ONLY=1` (skip the run without auxiliary cameras),
+//! `MAIN_ONLY=1` (skip the run with them; against `AUX_ONLY=1`, what the auxiliary cameras cost),
 //! `PAIR=1` (keep one `BidirHistory` across the calls, as a client does within a server-frame
 //! pair, so the pair-level work is done once instead of per call), `PREPARE=1` (with `PAIR`: compute
 //! the pair state with `prepare_pair` before the first call, as a real-time client does off the
@@ -75,6 +76,9 @@ fn main() {
     for method in methods {
         for use_aux in [false, true] {
             if !use_aux && std::env::var_os("AUX_ONLY").is_some() {
+                continue;
+            }
+            if use_aux && std::env::var_os("MAIN_ONLY").is_some() {
                 continue;
             }
             let p = Params {
