@@ -544,8 +544,11 @@ def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames
     assert r["display_priority"] == "realtime" and r["display_scheduling"].startswith(
         ("realtime", "normal (real-time scheduling refused"))
     assert r["warm_up_ms"] > 0
-    # 0.5 s at 10 FPS: frames 0..5 sent, the 3 packets of the file twice.
-    assert r["server_frames_received"] == 6
+    # 0.5 s at 10 FPS: frames 0..5 sent, the 3 packets of the file twice, each a server period
+    # before its time. Frames 3.. are the file's packets again: at least one of them must have
+    # been received. The last one, sent 0.1 s before the run ends, may still be decoding then on
+    # a loaded machine (the worker runs at idle priority), so it is not required.
+    assert 4 <= r["server_frames_received"] <= 6
     assert "source looped" in capsys.readouterr().out
 
 
