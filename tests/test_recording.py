@@ -426,3 +426,37 @@ def test_eye_reads_each_ground_truth_lazily(tmp_path: Path) -> None:
                                              scale=0.03))
     with pytest.raises(sr.InvalidInputError, match="eye: 1 out of range; .* mono recording"):
         mono.eye(1)
+
+
+def test_eye_reads_the_cameras_without_the_images(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``Recording.eye`` reads each client file once for its cameras, without the images' data
+    (read once more, in full, when a ground truth is asked for), and still checks the file."""
+    import splitrender.scene.recording as recording
+
+    rec = load_recording(sr.write_recording(tmp_path / "rec", "courtyard", seconds=0.05,
+                                            scale=0.03, stereo=True))
+    reads: list[tuple[str, object]] = []
+    real = recording._read_npz
+
+    def counted(root, entry, spec, only=None):  # type: ignore[no-untyped-def]
+        out = real(root, entry, spec, only)
+        reads.append((entry["file"], None if only is None else sorted(out)))
+        return out
+
+    monkeypatch.setattr(recording, "_read_npz", counted)
+    cams, truth = rec.eye(1)
+    n = len(rec.manifest["client_frames"])
+    assert len(cams) == n and reads == [
+        (f"client/{k:06d}.npz", ["eye1.proj", "eye1.view"]) for k in range(n)]
+    reads.clear()
+    assert truth[2].shape == (*rec.manifest["cameras"]["client"][::-1], 3)
+    assert reads == [("client/000002.npz", None)]
+    # The checksum is checked all the same.
+    f = tmp_path / "rec" / "client" / "000001.npz"
+    data = bytearray(f.read_bytes())
+    data[-100] ^= 0xFF
+    f.write_bytes(bytes(data))
+    with pytest.raises(RecordingError, match="000001.npz: SHA-256"):
+        rec.eye(0)

@@ -46,7 +46,7 @@ import shutil
 import tokenize
 import zipfile
 import zlib
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic, TypeVar, overload
@@ -541,9 +541,12 @@ def _size(v: Any, what: str, where: Path) -> tuple[int, int]:
     return (v[0], v[1])
 
 
-def _read_npz(root: Path, entry: dict[str, Any], spec: Spec) -> dict[str, npt.NDArray[Any]]:
+def _read_npz(
+    root: Path, entry: dict[str, Any], spec: Spec, only: Collection[str] | None = None
+) -> dict[str, npt.NDArray[Any]]:
     """Reads one frame file, checking size, checksum, members, dtypes and shapes (each array's
-    header is checked before its data is read)."""
+    header is checked before its data is read). With ``only``, every check is made but only
+    those members' data are read and returned."""
     path = root / entry["file"]
     limit = sum(int(np.prod(shape)) * dt.itemsize + _MEMBER_OVERHEAD for dt, shape in spec.values())
     if entry["bytes"] > limit:
@@ -580,6 +583,8 @@ def _read_npz(root: Path, entry: dict[str, Any], spec: Spec) -> dict[str, npt.ND
                             f"{key}: {dt} {tuple(shp)}{' (Fortran order)' if fortran else ''}, "
                             f"expected {dtype} {shape}",
                         )
+                    if only is not None and key not in only:
+                        continue
                     raw = fh.read(int(np.prod(shape)) * dtype.itemsize)
                     a = np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
                     out[key] = a
@@ -712,7 +717,8 @@ class Recording:
         truths: Sequence[npt.NDArray[np.uint8]] = _Frames(
             count, lambda k: frames[k].ground_truths[eye]
         )
-        return [frames[k].cameras[eye] for k in range(count)], truths
+        # The cameras alone: the images are read (again) when asked for.
+        return [self._client_camera(k, eye) for k in range(count)], truths
 
     def server_pose(self, k: int) -> npt.NDArray[np.float64]:
         """The (predicted) head pose server frame ``k`` was rendered at."""
@@ -757,8 +763,7 @@ class Recording:
             raise _fail(self.path / entry["file"], str(e)) from None
         return ServerFrame(entry["index"], entry["time"], frames[0], tuple(frames[1:]))
 
-    def _client(self, n: int) -> ClientFrame:
-        entry = self.manifest["client_frames"][n]
+    def _client_spec(self) -> Spec:
         w, h = self.manifest["cameras"]["client"]
         m44 = (np.dtype(np.float64), (4, 4))
         spec: Spec = {"pose": m44}
@@ -766,15 +771,30 @@ class Recording:
             spec[f"eye{e}.view"] = m44
             spec[f"eye{e}.proj"] = m44
             spec[f"eye{e}.color"] = (np.dtype(np.uint8), (h, w, 3))
-        a = _read_npz(self.path, entry, spec)
+        return spec
+
+    def _cameras(self, entry: dict[str, Any], a: dict[str, Any], eyes: range) -> list[Camera]:
+        """The client cameras of ``eyes`` in frame file ``a`` (of manifest ``entry``)."""
+        w, h = self.manifest["cameras"]["client"]
         try:
-            cams = tuple(
-                Camera(a[f"eye{e}.view"], a[f"eye{e}.proj"], w, h) for e in range(self._eyes)
-            )
+            return [Camera(a[f"eye{e}.view"], a[f"eye{e}.proj"], w, h) for e in eyes]
         except SplitRenderError as e:
             raise _fail(self.path / entry["file"], str(e)) from None
+
+    def _client(self, n: int) -> ClientFrame:
+        entry = self.manifest["client_frames"][n]
+        a = _read_npz(self.path, entry, self._client_spec())
+        cams = tuple(self._cameras(entry, a, range(self._eyes)))
         imgs = tuple(a[f"eye{e}.color"] for e in range(self._eyes))
         return ClientFrame(entry["index"], entry["time"], a["pose"], cams, imgs)
+
+    def _client_camera(self, n: int, eye: int) -> Camera:
+        """Client frame ``n``'s camera of ``eye``, the file checked as :meth:`_client` does
+        but its images not read."""
+        entry = self.manifest["client_frames"][n]
+        a = _read_npz(self.path, entry, self._client_spec(), only={f"eye{eye}.view",
+                                                                    f"eye{eye}.proj"})
+        return self._cameras(entry, a, range(eye, eye + 1))[0]
 
     def verify(self) -> None:
         """Reads and checks every frame file; raises :class:`RecordingError` on the first bad
