@@ -792,8 +792,8 @@ class Recording:
         """Client frame ``n``'s camera of ``eye``, the file checked as :meth:`_client` does
         but its images not read."""
         entry = self.manifest["client_frames"][n]
-        a = _read_npz(self.path, entry, self._client_spec(), only={f"eye{eye}.view",
-                                                                    f"eye{eye}.proj"})
+        only = {f"eye{eye}.view", f"eye{eye}.proj"}
+        a = _read_npz(self.path, entry, self._client_spec(), only)
         return self._cameras(entry, a, range(eye, eye + 1))[0]
 
     def verify(self) -> None:
