@@ -397,11 +397,7 @@ impl Reprojector {
     /// [`GpuError::Device`] when the per-frame buffers cannot be allocated. A pair uploaded to
     /// another device fails at the next render, as [`GpuError::Device`].
     pub fn install(&mut self, pair: Arc<UploadedPair>) -> Result<Option<Arc<UploadedPair>>> {
-        let need = [
-            pair.points as u64 * FLOW_BYTES,
-            pair.points as u64 * SPLAT_BYTES,
-            pair.cells.max(1) as u64 * AUX_CELL_BYTES,
-        ];
+        let need = scratch_bytes(pair.points, pair.cells);
         let (old, previous) = match self.current.take() {
             Some(c) => (Some(c.scratch), Some(c.pair)),
             None => (self.spare.take(), None),
@@ -859,14 +855,16 @@ impl Uploader {
             }
         }
         let limits = self.device.limits();
+        // The pair's texels, and the per-frame buffers [`Reprojector::install`] sizes for it.
+        let [flow, splat, aux_cells] = scratch_bytes(total, cells);
         let need = [
             (
                 "texels",
                 total as u64 * std::mem::size_of::<TexelU>() as u64,
             ),
-            ("flow", total as u64 * FLOW_BYTES),
-            ("splat", total as u64 * SPLAT_BYTES),
-            ("auxiliary cells", cells.max(1) as u64 * AUX_CELL_BYTES),
+            ("flow", flow),
+            ("splat", splat),
+            ("auxiliary cells", aux_cells),
         ];
         let max = limits
             .max_storage_buffer_binding_size
@@ -928,6 +926,17 @@ impl Uploader {
             sources,
         })
     }
+}
+
+/// Bytes of the per-frame buffers (flow, splat, auxiliary cells) of a pair with `points` source
+/// points and `cells` auxiliary cells: what [`Uploader::upload`] checks against the device's
+/// limits and [`Reprojector::install`] allocates.
+fn scratch_bytes(points: usize, cells: usize) -> [u64; 3] {
+    [
+        points as u64 * FLOW_BYTES,
+        points as u64 * SPLAT_BYTES,
+        cells.max(1) as u64 * AUX_CELL_BYTES,
+    ]
 }
 
 /// Writes the texels of one source image into `out` (one per pixel): colour, depth, motion,
