@@ -9,7 +9,7 @@ import pytest
 
 import splitrender as sr
 from splitrender.cli import main
-from splitrender.codec.coder import decode_packets
+from splitrender.codec.coder import DecodedStream, StreamDecoder, decode_packets
 from splitrender.codec.encode import encode_recording
 
 
@@ -39,6 +39,55 @@ def test_encode_round_trip_gives_every_frame_in_order(recording: Path, tmp_path:
     # Stream format 3: colour travels in the colour picture; the tiles have no bytes of their own
     assert "picture.color" in stats.mbps_by_buffer() and "main.color" not in stats.mbps_by_buffer()
     assert stats.mbps_total() > 0
+
+
+def _same_frames(got: list[sr.ServerFrame], want: list[sr.ServerFrame]) -> None:
+    assert [f.index for f in got] == [f.index for f in want]
+    for g, w in zip(got, want):
+        for gc, wc in zip([g.main, *g.aux], [w.main, *w.aux], strict=True):
+            np.testing.assert_array_equal(gc.color, wc.color)
+            np.testing.assert_array_equal(gc.depth, wc.depth)
+
+
+def test_decoded_stream_decodes_each_frame_when_it_is_asked_for(
+    recording: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "courtyard.srs"
+    encode_recording(recording, out, bitrate_mbps=0.5)
+    packets = list(sr.read_stream(out))
+    assert len(packets) >= 2
+    whole = decode_packets(packets)
+    calls: list[int] = []
+    decode = StreamDecoder.decode
+
+    def counted(self: StreamDecoder, data: bytes) -> sr.ServerFrame:
+        calls.append(1)
+        return decode(self, data)
+
+    monkeypatch.setattr(StreamDecoder, "decode", counted)
+    stream = DecodedStream(packets)
+    assert len(stream) == len(packets) and not calls
+    it = iter(stream)
+    first = next(it)
+    assert len(calls) == 1  # the first frame only, not the run
+    _same_frames([first, *it], whole)
+    assert len(calls) == len(packets)
+    # Every pass decodes anew, from the key frame, to the same frames.
+    _same_frames(list(stream), whole)
+    assert len(calls) == 2 * len(packets)
+
+
+def test_decoded_stream_refuses_what_is_not_a_packet(recording: Path, tmp_path: Path) -> None:
+    with pytest.raises(sr.InvalidInputError, match=r"packets\[1\]: expected bytes, got int"):
+        DecodedStream([b"", 3])  # type: ignore[list-item]
+    out = tmp_path / "courtyard.srs"
+    encode_recording(recording, out, bitrate_mbps=0.5)
+    packets = list(sr.read_stream(out))
+    broken = DecodedStream([packets[0], packets[1][: len(packets[1]) // 2]])
+    it = iter(broken)
+    next(it)
+    with pytest.raises(sr.StreamError):
+        next(it)
 
 
 def test_encode_failure_leaves_no_stream(recording: Path, tmp_path: Path) -> None:

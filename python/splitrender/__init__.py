@@ -18,6 +18,7 @@ from splitrender._native import BidirHistory, __version__
 from splitrender.client import Client, PlaybackResult, RealtimeClient, play
 from splitrender.codec import (
     CodecConfig,
+    DecodedStream,
     StreamDecoder,
     StreamEncoder,
     StreamStats,
@@ -75,6 +76,7 @@ __all__ = [
     "ClientFrame",
     "ClientRequest",
     "CodecConfig",
+    "DecodedStream",
     "DatasetError",
     "InvalidInputError",
     "ModelPlacement",

@@ -31,6 +31,7 @@ from splitrender.types import Camera, ReprojectOptions, ServerFrame
 __all__ = [
     "Scored",
     "encode_decode",
+    "encode_packets",
     "mean_of_eyes",
     "mean_row",
     "network_json",
@@ -44,22 +45,37 @@ _Image = npt.NDArray[np.uint8]
 Bar = Callable[[int, int, str], None]
 
 
+def encode_packets(
+    frames: Iterable[ServerFrame], config: CodecConfig, fps: float, bar: Bar | None = None,
+    total: int = 0,
+) -> tuple[list[bytes], float]:
+    """Encodes every frame; returns ``(packets, achieved Mb/s at fps)``. The packets play
+    through :class:`~splitrender.codec.coder.DecodedStream`, decoded as the client needs each."""
+    packets: list[bytes] = []
+    with StreamEncoder(config) as enc:
+        for k, f in enumerate(frames):
+            packets.append(enc.encode(f))
+            if bar is not None:
+                bar(k + 1, total, "server frames encoded")
+    return packets, stream_stats(packets, fps).mbps_total()
+
+
 def encode_decode(
     frames: Iterable[ServerFrame], config: CodecConfig, fps: float, bar: Bar | None = None,
     total: int = 0,
 ) -> tuple[list[ServerFrame], list[int], float]:
     """Encodes and decodes every frame; returns ``(decoded frames, packet sizes, achieved Mb/s
-    at fps)``."""
-    packets: list[bytes] = []
+    at fps)``. The decoded frames are held whole, for several plays of them (a frame of
+    1280x720 with its auxiliary cameras is about 60 MB); one play needs only
+    :func:`encode_packets` and a :class:`~splitrender.codec.coder.DecodedStream`."""
+    packets, mbps = encode_packets(frames, config, fps, bar, total)
     decoded: list[ServerFrame] = []
-    with StreamEncoder(config) as enc, StreamDecoder() as dec:
-        for k, f in enumerate(frames):
-            p = enc.encode(f)
-            packets.append(p)
+    with StreamDecoder() as dec:
+        for k, p in enumerate(packets):
             decoded.append(dec.decode(p))
             if bar is not None:
-                bar(k + 1, total, "server frames")
-    return decoded, [len(p) for p in packets], stream_stats(packets, fps).mbps_total()
+                bar(k + 1, len(packets), "server frames decoded")
+    return decoded, [len(p) for p in packets], mbps
 
 
 def raw_mbps(frames: Sequence[ServerFrame], fps: float) -> float:
@@ -104,7 +120,7 @@ def network_json(network: NetworkModel) -> dict[str, Any]:
 
 
 def play_and_score_eyes(
-    frames: Sequence[ServerFrame],
+    frames: Iterable[ServerFrame],
     cameras: Sequence[Sequence[Camera]],
     truth: Sequence[Sequence[_Image]],
     method: str,
@@ -124,8 +140,9 @@ def play_and_score_eyes(
     (``cameras[e]``, ``fc`` FPS) and scores eye ``e``'s client frames against ``truth[e]``
     (first and last ``SKIP_FRAMES`` excluded); one :class:`Scored` per eye (one eye: mono; two:
     stereo, left then right). The same ``frames`` go through the same ``network`` for every
-    eye, so the eyes share their schedule (a recording's lazy frames will do: each is read
-    when the client needs it). ``on_frame(eye, n, image, info)`` is called for every client
+    eye, so the eyes share their schedule; they are iterated once per eye, so they must iterate
+    again (a list, a recording's lazy frames, each read when the client needs it, or a
+    :class:`~splitrender.codec.coder.DecodedStream`, decoded when the client needs it). ``on_frame(eye, n, image, info)`` is called for every client
     frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a server at
     another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
     (:class:`~splitrender.Client`); ``flip_every`` as in

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -218,7 +218,7 @@ def _write_part(task: Task, cache: Cache, metrics: Any, mbps: float) -> None:
 
 
 def score_play(task: Task, cache: Cache) -> None:
-    from splitrender.codec.coder import decode_packets
+    from splitrender.codec.coder import DecodedStream
     from splitrender.codec.stream import read_stream
     from splitrender.evaluation.pipeline import play_and_score_eyes, raw_mbps
     from splitrender.gpu import backend_for
@@ -228,15 +228,17 @@ def score_play(task: Task, cache: Cache) -> None:
     p = task.params
     rec = _recording(task, cache)
     sizes: list[int] | None = None
-    server: Sequence[ServerFrame]
+    server: Iterable[ServerFrame]
     if p["stream"]:
         key = task.deps[1]
         info = json.loads(cache.stream_info(key).read_text())
-        server = decode_packets(list(read_stream(cache.stream(key))))
+        # Decoded as the client needs each frame: held whole, a 1280x720 run would take
+        # about 60 MB per server frame in every task running at once.
+        server = DecodedStream(list(read_stream(cache.stream(key))))
         sizes, mbps = [int(s) for s in info["sizes"]], float(info["mbps"])
     else:
         server = rec.server_frames  # read when the client needs each
-        mbps = raw_mbps(server, rec.fs)
+        mbps = raw_mbps(rec.server_frames, rec.fs)
     options = (ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes)
                if p["own_rates"] else None)
     cams, truth = rec.eye(p["eye"])
@@ -284,24 +286,27 @@ def score_timewarp(task: Task, cache: Cache) -> None:
     """A timewarp line: the main colour and depth at ``fps`` streamed at ``bitrate`` and
     timewarped at the client poses. ``deps``: the recording, then the timewarp frames (when
     ``source`` is ``"timewarp"``; else the recording's own server frames)."""
-    from splitrender.codec.coder import CodecConfig
+    from splitrender.codec.coder import CodecConfig, DecodedStream
     from splitrender.evaluation.references import main_colour_depth
-    from splitrender.evaluation.pipeline import encode_decode, play_and_score_eyes
+    from splitrender.evaluation.pipeline import encode_packets, play_and_score_eyes
     from splitrender.net.model import NetworkModel
     from splitrender.types import ReprojectOptions
 
     p = task.params
     rec = _recording(task, cache)
     fps = float(p["fps"])
+    server: Iterable[Any]
     if p["source"] == "timewarp":
         server = _timewarp_frames(cache.timewarp(task.deps[1]))
     else:
-        server = [main_colour_depth(f) for f in rec.server_frames]
+        server = (main_colour_depth(f) for f in rec.server_frames)  # one read at a time
     twc = CodecConfig(bitrate_mbps=p["bitrate"], camera_shares=(1.0,), fps=fps, gop=int(fps))
-    dec, sizes, mbps = encode_decode(server, twc, fps)
+    packets, mbps = encode_packets(server, twc, fps)
     cams, truth = rec.eye(0)
     net = NetworkModel(**p["network"], client_fps=rec.fc)
-    [scored] = play_and_score_eyes(dec, [cams], [truth], "timewarp", net, rec.fc, p["metrics"],
-                                   frame_sizes=sizes, options=ReprojectOptions(server_fps=fps),
+    # The packets are decoded as the client needs each frame (DecodedStream), not held decoded.
+    [scored] = play_and_score_eyes(DecodedStream(packets), [cams], [truth], "timewarp", net,
+                                   rec.fc, p["metrics"], frame_sizes=[len(q) for q in packets],
+                                   options=ReprojectOptions(server_fps=fps),
                                    flip_every=p["flip_every"], keep_images=False)
     _write_part(task, cache, scored.metrics, mbps)
