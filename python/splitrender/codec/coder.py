@@ -1629,9 +1629,9 @@ class DecodedStream:
     iterated: what :func:`~splitrender.client.playback.play` consumes for a compressed stream
     without holding it decoded.
 
-    A decoded 1280x720 server frame with its auxiliary cameras is about 60 MB: a 10 s run at
-    10 FPS held whole (:func:`decode_packets`) is 6 GB per process, where a client holds its
-    pair. Iterated, one frame is decoded when the next is asked for, and the decoder's arrays
+    A decoded 1280x720 server frame with its auxiliary cameras takes about 50 MB (docs/sweeps.md):
+    a 10 s run at 10 FPS held whole (:func:`decode_packets`) is 5 GB per process, where a client
+    holds its pair. Iterated, one frame is decoded when the next is asked for, and the decoder's arrays
     are reused once the frames before are dropped (``_Outputs``). Each iteration decodes the
     packets anew with its own :class:`StreamDecoder` (closed when the iteration ends or is
     dropped): a second eye or method pays the decoding again instead of the memory.

@@ -65,9 +65,9 @@ def encode_decode(
     total: int = 0,
 ) -> tuple[list[ServerFrame], list[int], float]:
     """Encodes and decodes every frame; returns ``(decoded frames, packet sizes, achieved Mb/s
-    at fps)``. The decoded frames are held whole, for several plays of them (a frame of
-    1280x720 with its auxiliary cameras is about 60 MB); one play needs only
-    :func:`encode_packets` and a :class:`~splitrender.codec.coder.DecodedStream`."""
+    at fps)``. The decoded frames are held whole, for several plays of them (a 1280x720 frame
+    with its auxiliary cameras takes about 50 MB); one play needs only :func:`encode_packets`
+    and a :class:`~splitrender.codec.coder.DecodedStream`."""
     packets, mbps = encode_packets(frames, config, fps, bar, total)
     decoded: list[ServerFrame] = []
     with StreamDecoder() as dec:
@@ -140,10 +140,10 @@ def play_and_score_eyes(
     (``cameras[e]``, ``fc`` FPS) and scores eye ``e``'s client frames against ``truth[e]``
     (first and last ``SKIP_FRAMES`` excluded); one :class:`Scored` per eye (one eye: mono; two:
     stereo, left then right). The same ``frames`` go through the same ``network`` for every
-    eye, so the eyes share their schedule; they are iterated once per eye, so they must iterate
-    again (a list, a recording's lazy frames, each read when the client needs it, or a
-    :class:`~splitrender.codec.coder.DecodedStream`, decoded when the client needs it). ``on_frame(eye, n, image, info)`` is called for every client
-    frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a server at
+    eye, so the eyes share their schedule. They are iterated once per eye: a list, a
+    recording's lazy frames (each read when the client needs it) or a
+    :class:`~splitrender.codec.coder.DecodedStream` (each decoded when the client needs it).
+    ``on_frame(eye, n, image, info)`` is called for every client frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a server at
     another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
     (:class:`~splitrender.Client`); ``flip_every`` as in
     :func:`~splitrender.evaluation.metrics.evaluate_sequence`. :func:`mean_row` averages the

@@ -233,7 +233,7 @@ def score_play(task: Task, cache: Cache) -> None:
         key = task.deps[1]
         info = json.loads(cache.stream_info(key).read_text())
         # Decoded as the client needs each frame: held whole, a 1280x720 run would take
-        # about 60 MB per server frame in every task running at once.
+        # about 50 MB per server frame in every task running at once.
         server = DecodedStream(list(read_stream(cache.stream(key))))
         sizes, mbps = [int(s) for s in info["sizes"]], float(info["mbps"])
     else:
