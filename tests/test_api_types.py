@@ -308,6 +308,8 @@ TABLE: dict[str, Entry] = {
     ),
     "Scene.path_motion": (lambda f: sr.Scene("courtyard").path_motion, lambda f: {},
                           dict(prediction_delay=[*NUMBER[1:], -1.0])),
+    "DecodedStream": (lambda f: sr.DecodedStream, lambda f: dict(packets=f.packets),
+                      dict(packets=[*SEQUENCE, [None], ["x"], [b"", 0]])),
     "StreamDecoder": (lambda f: sr.StreamDecoder, lambda f: {},
                       dict(threads=COUNT, max_pixels=[*COUNT, 0])),
     "StreamDecoder.decode": (lambda f: sr.StreamDecoder().decode,

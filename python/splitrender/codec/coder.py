@@ -124,6 +124,7 @@ from splitrender.types import (  # argument checks
     floats,
     instances,
     ints,
+    items,
     optional,
 )
 
@@ -1639,13 +1640,9 @@ class DecodedStream:
     # Errors
     As :meth:`StreamDecoder.decode`, raised by the iteration at the packet that fails."""
 
+    @checked(packets=items(instances((bytes, bytearray, memoryview))))
     def __init__(self, packets: Sequence[bytes]) -> None:
         self._packets = list(packets)
-        for k, p in enumerate(self._packets):
-            if not isinstance(p, (bytes, bytearray, memoryview)):
-                raise InvalidInputError(
-                    f"packets[{k}]: expected bytes, got {type(p).__name__}"
-                )
 
     def __len__(self) -> int:
         return len(self._packets)
