@@ -64,7 +64,7 @@ def add(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from splitrender.codec.coder import CodecConfig, StreamDecoder
+    from splitrender.codec.coder import CodecConfig, DecodedStream
     from splitrender.codec.stream import StreamFile, stream_stats
     from splitrender.evaluation.demo import (
         DemoArgumentError,
@@ -178,11 +178,10 @@ def run(args: argparse.Namespace) -> int:
                 # Scoring nothing but held black frames would report a result for no content.
                 return fail(f"{stream_path}: the stream has no frames; expected at least one "
                             "server frame")
-            with StreamDecoder() as dec:
-                server = []
-                for k, p in enumerate(packets):
-                    server.append(dec.decode(p))
-                    stages.bar(k + 1, len(packets), "server frames")
+            server = []
+            for k, f in enumerate(DecodedStream(packets)):
+                server.append(f)
+                stages.bar(k + 1, len(packets), "server frames")
             sizes = [len(p) for p in packets]
             mbps, bitrate = stream_stats(packets, rec.fs).mbps_total(), None
         else:

@@ -1620,9 +1620,9 @@ def _lossless(
 
 
 def decode_packets(packets: Sequence[bytes]) -> list[ServerFrame]:
-    """Decodes a whole run of packets (starting at a key frame) with one decoder."""
-    with StreamDecoder() as d:
-        return [d.decode(p) for p in packets]
+    """Decodes a whole run of packets (starting at a key frame) with one decoder, every frame
+    held (one pass of :class:`DecodedStream`)."""
+    return list(DecodedStream(packets))
 
 
 class DecodedStream:

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.client.playback import PlaybackResult, frame_nbytes, play
-from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.codec.coder import CodecConfig, DecodedStream, StreamEncoder
 from splitrender.evaluation.metrics import (
     SKIP_FRAMES,
     SequenceMetrics,
@@ -70,11 +70,10 @@ def encode_decode(
     and a :class:`~splitrender.codec.coder.DecodedStream`."""
     packets, mbps = encode_packets(frames, config, fps, bar, total)
     decoded: list[ServerFrame] = []
-    with StreamDecoder() as dec:
-        for k, p in enumerate(packets):
-            decoded.append(dec.decode(p))
-            if bar is not None:
-                bar(k + 1, len(packets), "server frames decoded")
+    for k, f in enumerate(DecodedStream(packets)):
+        decoded.append(f)
+        if bar is not None:
+            bar(k + 1, len(packets), "server frames decoded")
     return decoded, [len(p) for p in packets], mbps
 
 
