@@ -258,6 +258,67 @@ def test_play_recording_with_bitrate_encodes_and_decodes_on_the_fly(
     assert any((a != b).any() for a, b in zip(png_frames(out), png_frames(played_raw)))
 
 
+@pytest.mark.parametrize("how", ["stream", "bitrate", "raw"])
+def test_play_reads_each_server_frame_when_the_client_needs_it(
+    recording: Path, stream: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, how: str
+) -> None:
+    # It used to decode (or read) the whole run before the first client frame: about 50 MB per
+    # 1280x720 server frame held for the whole play.
+    from splitrender.cli import play as play_cli
+    from splitrender.codec.coder import StreamDecoder
+    from splitrender.scene.recording import Recording
+
+    events: list[tuple[str, int]] = []
+    decode, read, write_png = StreamDecoder.decode, Recording._server, play_cli.write_png
+
+    def spy_decode(self: StreamDecoder, data: bytes | memoryview) -> sr.ServerFrame:
+        f = decode(self, data)
+        events.append(("decoded", f.index))
+        return f
+
+    def spy_read(self: Recording, k: int) -> sr.ServerFrame:
+        events.append(("read", k))
+        return read(self, k)
+
+    def spy_png(path: Path, image: Image8) -> None:
+        events.append(("png", int(path.stem)))
+        write_png(path, image)
+
+    monkeypatch.setattr(StreamDecoder, "decode", spy_decode)
+    monkeypatch.setattr(Recording, "_server", spy_read)
+    monkeypatch.setattr(play_cli, "write_png", spy_png)
+    argv = {"stream": [str(stream), "--recording", str(recording)],
+            "bitrate": [str(recording), "--bitrate", str(BITRATE)],
+            "raw": [str(recording)]}[how]
+    run_cli("play", *argv, "--no-vmaf", "--out", str(tmp_path / "out"))
+    assert [n for e, n in events if e == "png"] == list(range(N_CLIENT))
+    first = events.index(("png", 0))
+    # The first client frame needs the first pair; the last server frame comes later.
+    made = "read" if how == "raw" else "decoded"
+    later = [n for e, n in events[first:] if e == made]
+    assert later and later[-1] == N_SERVER - 1, events
+    if how != "raw":  # each packet decoded once, the last after the first client frame
+        assert sorted(n for e, n in events if e == "decoded") == list(range(N_SERVER))
+        assert ("decoded", N_SERVER - 1) not in events[:first], events
+
+
+def test_play_refuses_a_damaged_stream_before_it_writes_anything(
+    recording: Path, stream: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The frames are decoded as the client plays, so a damaged packet must be caught before.
+    data = bytearray(stream.read_bytes())
+    third = list(sr.read_stream(stream))[2]
+    data[data.find(third) + len(third) // 2] ^= 0x55
+    damaged = tmp_path / "damaged.srs"
+    damaged.write_bytes(data)
+    out = tmp_path / "out"
+    argv = ["play", str(damaged), "--recording", str(recording), "--no-vmaf", "--out", str(out)]
+    assert main([*argv, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("splitrender: error: frame 2: packet CRC mismatch"), err
+    assert not out.exists()
+
+
 def test_play_video_writes_client_mp4_with_every_client_frame(
     recording: Path, stream: Path, played_stream: Path
 ) -> None:

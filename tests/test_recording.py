@@ -15,6 +15,7 @@ import splitrender as sr
 from splitrender.cli import main
 from splitrender.scene.recording import (
     ClientFrame,
+    Recording,
     RecordingError,
     load_recording,
     plan,
@@ -89,6 +90,29 @@ def test_round_trip(recorded: Path) -> None:
     # Plain numpy reads the frame files too.
     with np.load(recorded / "server" / "000001.npz") as z:
         assert z["main.color"].shape == (58, 102, 3)
+
+
+def test_a_slice_of_frames_reads_each_frame_when_it_is_asked_for(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    read: list[int] = []
+    load = Recording._server
+
+    def spy(self: Recording, k: int) -> sr.ServerFrame:
+        read.append(k)
+        return load(self, k)
+
+    # Before the recording is opened: its frame views hold the bound loader.
+    monkeypatch.setattr(Recording, "_server", spy)
+    rec = load_recording(recorded)
+    part = rec.server_frames[1:4]
+    assert len(part) == 3 and read == []  # a view: nothing read yet
+    assert part[-1].time == rec.server_frames[3].time and read == [3, 3]
+    assert [f.time for f in part] == [f.time for f in rec.server_frames[1:]]
+    assert read == [3, 3, 1, 2, 3, 1, 2, 3]
+    assert len(part[::2]) == 2 and part[::2][1].time == rec.server_frames[3].time
+    with pytest.raises(IndexError):
+        part[3]
 
 
 def test_deterministic(recorded: Path, tmp_path: Path) -> None:

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -29,6 +30,9 @@ from splitrender.files import check_apart, write_atomic
 from splitrender.imageio import write_png
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
+
+if TYPE_CHECKING:
+    from splitrender.types import ServerFrame
 
 
 def add(sub: Any) -> None:
@@ -76,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from splitrender.evaluation.metrics import SKIP_FRAMES
     from splitrender.evaluation.pipeline import (
-        encode_decode,
+        encode_packets,
         mean_row,
         network_json,
         play_and_score_eyes,
@@ -169,31 +173,34 @@ def run(args: argparse.Namespace) -> int:
         per_eye = [rec.eye(e, n_client) for e in range(eyes)]
         cams, truth = [c for c, _ in per_eye], [t for _, t in per_eye]
         w, h = cams[0][0].width, cams[0][0].height
+        # The server frames are decoded (or read) when the client needs each, not before the
+        # play: a 1280x720 server frame with its auxiliary cameras is about 50 MB decoded, so a
+        # 10 s run held whole would be 5 GB (per eye's pass nothing more is held).
         sizes: list[int] | None
+        server: Sequence[ServerFrame] | DecodedStream
         if stream_path is not None:
-            stages.stage(f"decoding {stream_path}")
+            stages.stage(f"reading {stream_path}")
             sf = StreamFile(stream_path)
             packets = list(sf.packets())[:n_server]
             if not packets:
                 # Scoring nothing but held black frames would report a result for no content.
                 return fail(f"{stream_path}: the stream has no frames; expected at least one "
                             "server frame")
-            server = []
-            for k, f in enumerate(DecodedStream(packets)):
-                server.append(f)
-                stages.bar(k + 1, len(packets), "server frames")
-            sizes = [len(p) for p in packets]
+            # Every packet's structure and CRC, before anything is written: a damaged stream
+            # file is refused here, not half-way through the play.
             mbps, bitrate = stream_stats(packets, rec.fs).mbps_total(), None
+            server, sizes = DecodedStream(packets), [len(p) for p in packets]
         else:
-            server = list(rec.server_frames[:n_server])
+            frames = rec.server_frames[:n_server]
             if args.bitrate is not None:
-                stages.stage(f"encoding and decoding at {args.bitrate:g} Mb/s")
-                server, sizes, mbps = encode_decode(
-                    server, CodecConfig(bitrate_mbps=args.bitrate), rec.fs, stages.bar,
-                    len(server))
+                stages.stage(f"encoding at {args.bitrate:g} Mb/s (decoded as the client plays)")
+                packets, mbps = encode_packets(
+                    frames, CodecConfig(bitrate_mbps=args.bitrate), rec.fs, stages.bar,
+                    len(frames))
+                server, sizes = DecodedStream(packets), [len(p) for p in packets]
             else:
                 stages.stage("uncompressed server frames")
-                sizes, mbps = None, raw_mbps(server, rec.fs)
+                server, sizes, mbps = frames, None, raw_mbps(frames, rec.fs)
             bitrate = args.bitrate
         metrics = metric_names(not args.no_vmaf, w, h, note=False)
         network = network_model(args, rec.fc)

@@ -634,7 +634,9 @@ T = TypeVar("T")
 
 
 class _Frames(Sequence[T], Generic[T]):
-    """Frames loaded from disk on access (each access reads and checks the file again)."""
+    """Frames loaded from disk on access (each access reads and checks the file again). A
+    slice is another such view, of the frames it names: ``rec.server_frames[:n]`` reads nothing
+    until a frame is asked for, so a play of the first ``n`` never holds them all."""
 
     __slots__ = ("_load", "_n")
 
@@ -647,10 +649,12 @@ class _Frames(Sequence[T], Generic[T]):
     @overload
     def __getitem__(self, i: int) -> T: ...
     @overload
-    def __getitem__(self, i: slice) -> list[T]: ...
-    def __getitem__(self, i: int | slice) -> T | list[T]:
+    def __getitem__(self, i: slice) -> _Frames[T]: ...
+    def __getitem__(self, i: int | slice) -> T | _Frames[T]:
         if isinstance(i, slice):
-            return [self._load(j) for j in range(*i.indices(self._n))]
+            picked = range(*i.indices(self._n))
+            load = self._load
+            return _Frames(len(picked), lambda j: load(picked[j]))
         if not -self._n <= i < self._n:
             raise IndexError(f"frame {i} out of range (0..{self._n - 1})")
         return self._load(i % self._n)
