@@ -512,10 +512,14 @@ def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypa
 
     from splitrender.cli.main import main
 
+    from PIL import Image
+
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the stream cache
-    out = tmp_path / "rt.json"
+    out, plot = tmp_path / "rt.json", tmp_path / "rt.png"
     assert main(["bench", "--realtime", "--scale", "0.05", "--seconds", "0.25",
-                 "--json", str(out), "--quiet"]) == 0
+                 "--json", str(out), "--plot", str(plot), "--quiet"]) == 0
+    with Image.open(plot) as im:
+        assert im.format == "PNG" and im.size == (1200, 672)  # 10 x 5.6 in at 120 dpi
     r = json.loads(out.read_text())
     assert list(r)[:5] == ["method", "source", "width", "height", "looped"]
     assert "summary" not in r
@@ -589,6 +593,13 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu", "--methods", "timewarp"], "no wgpu kernel"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),
+        (["--plot", "p.png"], "--plot goes with --realtime"),
+        (["--json", "."], "--json: . is a directory; expected a file name"),
+        # The outputs are checked before the run: a result that cannot be written is not made.
+        (["--realtime", "--plot", "."], "--plot: . is a directory; expected a file name"),
+        (["--realtime", "--stream", "s.srs", "--plot", "s.srs"],
+         "--plot s.srs: the output is the stream s.srs"),
+        (["--realtime", "--json", "a", "--plot", "./a"], "--plot: a is the --json file too"),
     ],
 )
 def test_bench_realtime_argument_errors_exit_2(argv, message, tmp_path, monkeypatch, capsys):
@@ -597,6 +608,58 @@ def test_bench_realtime_argument_errors_exit_2(argv, message, tmp_path, monkeypa
     monkeypatch.chdir(tmp_path)
     assert main(["bench", *argv, "--quiet"]) == 2
     assert message in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_realtime_figure_draws_every_frame_and_marks_each_miss():
+    from splitrender.client.realtime import DisplayFrame, RealtimeReport
+    from splitrender.evaluation.bench_realtime import MODE_COLOURS, RealtimeBench, realtime_figure
+
+    fps = 120.0
+    period = 1.0 / fps
+    # (mode, ms from the refresh to the start, render ms): frame 3 renders too long, frame 5
+    # starts late, frame 8 far beyond the plotted range (four periods: the p99 of 150 frames
+    # is below that); the rest fit.
+    plan = [("interpolate", 0.1, 2.0)] * 3 + [("interpolate", 0.1, 9.0)] + [
+        ("extrapolate", 0.2, 3.0), ("extrapolate", 6.0, 3.0), ("hold", 0.1, 0.5),
+        ("extrapolate", 0.1, 3.0), ("extrapolate", 0.1, 200.0)]
+    plan += [("interpolate", 0.1, 2.0)] * (150 - len(plan))
+    report = RealtimeReport(display_fps=fps)
+    for n, (mode, wait, render) in enumerate(plan):
+        tick = n * period
+        start = tick + wait / 1e3
+        report.frames.append(DisplayFrame(
+            index=n, time=n * period, start=start, done=start + render / 1e3,
+            deadline=tick + period, mode=mode, older=None, newer=0, alpha=None,
+            server_age_ms=None if n == 0 else 10.0 * n, prepared=True))
+    b = RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", report.summary(),
+                      frames=tuple(report.frames))
+    fig = realtime_figure(b)
+    top, low = fig.axes
+    points = {}
+    for c in top.collections:
+        points[c.get_label()] = [tuple(xy) for xy in np.asarray(c.get_offsets())]
+    missed = [(n, wait + render) for n, (_, wait, render) in enumerate(plan)
+              if wait + render > 1e3 * period]
+    assert [n for n, _ in missed] == [3, 5, 8]
+    cross = points["deadline missed (3)"]
+    ceiling = top.get_ylim()[1] / 1.05
+    assert [x for x, _ in cross] == pytest.approx([n * period for n, _ in missed])
+    # Each at its time from the refresh to done; frame 8 at the top edge of the range.
+    assert [y for _, y in cross] == pytest.approx([9.1, 9.0, ceiling])
+    assert ceiling == pytest.approx(4e3 * period)
+    for mode in MODE_COLOURS:
+        count = sum(m == mode for m, _, _ in plan)
+        drawn = points[f"{mode} ({count})"]
+        frames = [n for n, (m, _, r) in enumerate(plan) if m == mode and r < 100]
+        assert [x for x, _ in drawn] == pytest.approx([n * period for n in frames])
+    # The refresh period as the line every miss is above.
+    (line,) = [ln for ln in top.get_lines() if ln.get_label().startswith("refresh period")]
+    assert list(line.get_ydata()) == pytest.approx([1e3 * period] * 2)
+    # Below: the newest server frame's age of every frame that had one.
+    (age,) = low.get_lines()
+    assert list(age.get_ydata()) == [10.0 * n for n in range(1, len(plan))]
+    assert "3 deadline misses" in top.get_title()
 
 
 # -- the GPU display: pairs uploaded on the worker, made current with no copy -----------------

@@ -304,6 +304,12 @@ def add_bench(sub: Any) -> None:
         "height, frames, deadline_misses, frame_ms_p50, frame_ms_p99, "
         "decode_ms_per_server_frame)",
     )
+    be.add_argument(
+        "--plot", type=out_file, default=None, metavar="FILE",
+        help="with --realtime: also draw the run as a PNG: each display frame's render time "
+        "by mode against the refresh period, the deadline misses, and the age of the newest "
+        "server frame",
+    )
     add_backend(
         be, "ours, ours_extrapolate and forward_splat only; with --realtime the display renders "
         "on the GPU and the worker uploads each pair there",
@@ -324,9 +330,12 @@ def bench(args: argparse.Namespace) -> int:
         ("--exclusive", args.exclusive),
         ("--worker-priority", args.worker_priority is not None),
         ("--display-priority", args.display_priority is not None),
+        ("--plot", args.plot is not None),
     ):
         if given:
             return fail(f"{flag} goes with --realtime")
+    if args.json is not None and args.json.is_dir():
+        return fail(f"--json: {args.json} is a directory; expected a file name")
     try:
         rows = run_bench(
             args.scene, tuple(args.methods or METHODS),
@@ -348,11 +357,26 @@ def _bench_realtime(args: argparse.Namespace) -> int:
         format_realtime,
         run_realtime_bench,
         write_realtime_json,
+        write_realtime_plot,
     )
+    from splitrender.files import check_apart
 
     chosen = args.methods or ("ours",)
     if len(chosen) != 1:
         return fail(f"--methods: --realtime runs one method, got {len(chosen)}")
+    # The outputs are checked before the run, which takes --seconds and more: a result that
+    # cannot be written would be lost.
+    outputs = {k: v for k, v in (("--json", args.json), ("--plot", args.plot)) if v is not None}
+    for flag, path in outputs.items():
+        if path.is_dir():
+            return fail(f"{flag}: {path} is a directory; expected a file name")
+        inputs = {} if args.stream is None else {"stream": args.stream}
+        try:
+            check_apart(path, inputs)
+        except InvalidInputError as e:
+            return fail(f"{flag} {e}")
+    if len(outputs) == 2 and args.json.resolve() == args.plot.resolve():
+        return fail(f"--plot: {args.plot} is the --json file too; expected another file")
     try:
         result = run_realtime_bench(
             args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
@@ -367,4 +391,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
     if args.json is not None:
         write_realtime_json(args.json, result)
         print(f"wrote {args.json}")
+    if args.plot is not None:
+        write_realtime_plot(args.plot, result)
+        print(f"wrote {args.plot}")
     return 0

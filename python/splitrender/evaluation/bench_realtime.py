@@ -24,13 +24,13 @@ import math
 import os
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from splitrender.client.realtime import DISPLAY_FPS
+from splitrender.client.realtime import DISPLAY_FPS, DisplayFrame
 from splitrender.codec.stream import (
     PACKET_VERSION,
     CameraRecord,
@@ -46,7 +46,17 @@ from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import Camera
 
-__all__ = ["REALTIME_KEYS", "RealtimeBench", "format_realtime", "run_realtime_bench"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = [
+    "REALTIME_KEYS",
+    "RealtimeBench",
+    "format_realtime",
+    "realtime_figure",
+    "run_realtime_bench",
+    "write_realtime_plot",
+]
 
 #: The keys ``--json`` always writes (the whole :meth:`RealtimeReport.summary` follows them).
 REALTIME_KEYS: tuple[str, ...] = (
@@ -85,11 +95,15 @@ class RealtimeBench:
     backend: str = "cpu"
     #: The wgpu adapter in words (``None`` on the CPU).
     adapter: str | None = None
+    #: Every display frame of the run, in order (what :func:`realtime_figure` draws; not in
+    #: the JSON, whose summary is made of them).
+    frames: tuple[DisplayFrame, ...] = field(default=(), repr=False)
 
     def to_json(self) -> dict[str, Any]:
-        """What ran (every field but the summary), then the summary's keys."""
+        """What ran (every field but the summary and the frames), then the summary's keys."""
         head = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         summary = head.pop("summary")
+        del head["frames"]
         return {**head, **summary}
 
 
@@ -254,7 +268,7 @@ def run_realtime_bench(
     stages.close()
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
-        display_priority, report.summary(), backend, adapter,
+        display_priority, report.summary(), backend, adapter, tuple(report.frames),
     )
 
 
@@ -303,3 +317,87 @@ def write_realtime_json(path: Path, b: RealtimeBench) -> None:
     import json
 
     write_atomic(path, json.dumps(b.to_json(), indent=1) + "\n")
+
+
+#: The colour of each mode in :func:`realtime_figure`.
+MODE_COLOURS = {"interpolate": "tab:blue", "extrapolate": "tab:orange", "hold": "0.55"}
+
+
+def realtime_figure(b: RealtimeBench) -> Figure:
+    """The run as a frame-time graph (matplotlib, not shown), display time along x:
+
+    - above, each display frame's time from its refresh to done (the render time plus any
+      wait before it started: what its deadline, the next refresh, is judged on), coloured by
+      its mode, against the refresh period; every frame above that line missed its deadline
+      and is marked by a red cross; a frame beyond the plotted range (four periods, or the
+      p99 if higher) sits at its top edge as a triangle;
+    - below, the age of the newest server frame it used (display time minus the time that
+      frame's pose was taken): the latency reprojection hides.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = b.summary
+    period = 1e3 / s["display_fps"]
+    fig, (top, low) = plt.subplots(
+        2, 1, figsize=(10, 5.6), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
+    )
+    times = np.array([f.time for f in b.frames], np.float64)
+    ms = np.array([(f.done - f.deadline) * 1e3 + period for f in b.frames], np.float64)
+    ceiling = max(4.0 * period, 1.15 * float(np.percentile(ms, 99)) if len(ms) else 0.0)
+    shown = np.minimum(ms, ceiling)
+    for mode, colour in MODE_COLOURS.items():
+        pick = np.array([f.mode == mode for f in b.frames], bool)
+        if not pick.any():
+            continue
+        inside = pick & (ms <= ceiling)
+        top.scatter(times[inside], shown[inside], s=6, color=colour, label=f"{mode} ({pick.sum()})",
+                    zorder=2)
+        over = pick & (ms > ceiling)
+        if over.any():
+            top.scatter(times[over], shown[over], s=22, marker="^", color=colour, zorder=2)
+    missed = np.array([not f.met for f in b.frames], bool)
+    if missed.any():
+        top.scatter(times[missed], shown[missed], s=30, marker="x", color="tab:red", zorder=3,
+                    label=f"deadline missed ({missed.sum()})")
+    top.axhline(period, color="tab:red", linestyle="--", linewidth=1,
+                label=f"refresh period {period:.2f} ms")
+    top.set_ylim(0, ceiling * 1.05)
+    top.set_ylabel("refresh to done (ms)")
+    top.grid(alpha=0.3)
+    top.legend(fontsize=7, loc="upper right", markerscale=2)
+    pct = s["deadline_misses_pct"]
+    p50, p99 = s.get("frame_ms_p50"), s.get("frame_ms_p99")
+    top.set_title(
+        f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
+        f"{s['display_fps']:g} FPS, {b.backend}\n{s['frames']} frames, "
+        f"{s['deadline_misses']} deadline misses ({pct:.1f} %), render time p50 "
+        + ("n/a" if p50 is None else f"{p50:.2f} ms")
+        + ("" if p99 is None else f", p99 {p99:.2f} ms"),
+        fontsize=9,
+    )
+    aged = [(f.time, f.server_age_ms) for f in b.frames if f.server_age_ms is not None]
+    if aged:
+        low.plot([t for t, _ in aged], [a for _, a in aged], color="tab:green", linewidth=1)
+    low.set_ylabel("newest server\nframe's age (ms)")
+    low.set_xlabel("display time (s)")
+    low.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def write_realtime_plot(path: str | os.PathLike[str], b: RealtimeBench) -> None:
+    """:func:`realtime_figure` as a PNG at ``path``, written atomically."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    fig = realtime_figure(b)
+    try:
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=120)
+    finally:
+        plt.close(fig)
+    write_atomic(path, buf.getvalue())
