@@ -306,9 +306,9 @@ def add_bench(sub: Any) -> None:
     )
     be.add_argument(
         "--plot", type=out_file, default=None, metavar="FILE",
-        help="with --realtime: also draw the run as a PNG: each display frame's render time "
-        "by mode against the refresh period, the deadline misses, and the age of the newest "
-        "server frame",
+        help="with --realtime: also draw the run as a PNG: each display frame's time from its "
+        "refresh to done, by mode, against the refresh period, the deadline misses, and the age "
+        "of the newest server frame",
     )
     add_backend(
         be, "ours, ours_extrapolate and forward_splat only; with --realtime the display renders "

@@ -175,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         w, h = cams[0][0].width, cams[0][0].height
         # The server frames are decoded (or read) when the client needs each, not before the
         # play: a 1280x720 server frame with its auxiliary cameras is about 50 MB decoded, so a
-        # 10 s run held whole would be 5 GB (per eye's pass nothing more is held).
+        # 10 s run held whole would be 5 GB (a second eye decodes them again instead).
         sizes: list[int] | None
         server: Sequence[ServerFrame] | DecodedStream
         if stream_path is not None:

@@ -353,8 +353,8 @@ def realtime_figure(b: RealtimeBench) -> Figure:
         if not pick.any():
             continue
         inside = pick & (ms <= ceiling)
-        top.scatter(times[inside], shown[inside], s=6, color=colour, label=f"{mode} ({pick.sum()})",
-                    zorder=2)
+        top.scatter(times[inside], shown[inside], s=6, color=colour,
+                    label=f"{mode} ({pick.sum()})", zorder=2)
         over = pick & (ms > ceiling)
         if over.any():
             top.scatter(times[over], shown[over], s=22, marker="^", color=colour, zorder=2)
