@@ -16,6 +16,7 @@ from splitrender.codec.stream import StreamFile
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import (
     check_apart,
+    check_output_file,
     check_name,
     joined,
     read_json,
@@ -81,6 +82,20 @@ def test_writers_refuse_to_replace_a_fifo_or_device(tmp_path: Path) -> None:
     write_atomic(link, b"y")
     assert not link.is_symlink() and link.read_bytes() == b"y"
     assert Path("/dev/null").is_char_device()
+
+
+def test_check_output_file_refuses_what_a_file_cannot_be_renamed_over(tmp_path: Path) -> None:
+    os.mkfifo(tmp_path / "pipe")
+    (tmp_path / "dir").mkdir()
+    with pytest.raises(InvalidInputError, match="dir is a directory; expected a file name"):
+        check_output_file(tmp_path / "dir")
+    with pytest.raises(InvalidInputError, match="FIFO"):
+        check_output_file(tmp_path / "pipe")
+    (tmp_path / "file").write_bytes(b"x")
+    (tmp_path / "link").symlink_to("/dev/null")
+    for ok in ("file", "link", "new"):
+        check_output_file(tmp_path / ok)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir", "file", "link", "pipe"]
 
 
 def test_read_regular_refuses_a_fifo_without_blocking(tmp_path: Path) -> None:

@@ -165,15 +165,31 @@ def temporary_beside(path: str | os.PathLike[str]) -> Path:
     replaced the device with a regular file; found by the fuzz suite). A link is replaced as a
     link, so it is allowed whatever it points to."""
     dest = Path(path)
+    _check_not_special(dest)
+    return dest.with_name(f".{dest.name}.partial-{os.getpid()}-{next(_serial)}")
+
+
+def _check_not_special(dest: Path) -> None:
+    """Raises :class:`~splitrender.errors.InvalidInputError` when ``dest`` is a device, FIFO or
+    socket (see :func:`temporary_beside`)."""
     try:
         mode = dest.lstat().st_mode
     except OSError:
-        mode = None  # missing (or unreadable: the write itself will say why)
-    if mode is not None and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode) or stat.S_ISLNK(mode)):
+        return  # missing (or unreadable: the write itself will say why)
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode) or stat.S_ISLNK(mode)):
         raise InvalidInputError(
             f"{dest}: the output is {_kind(mode)}; expected a regular file or a new name"
         )
-    return dest.with_name(f".{dest.name}.partial-{os.getpid()}-{next(_serial)}")
+
+
+def check_output_file(path: str | os.PathLike[str]) -> None:
+    """Raises :class:`~splitrender.errors.InvalidInputError` when a file cannot be renamed into
+    place at ``path`` (:func:`write_atomic`): an existing directory, or a device, FIFO or
+    socket. For a command to check its output before its work, not after."""
+    dest = Path(path)
+    if dest.is_dir():
+        raise InvalidInputError(f"{path} is a directory; expected a file name")
+    _check_not_special(dest)
 
 
 class AtomicWriter:

@@ -33,8 +33,8 @@ from splitrender.cli.args import (
     video_fps,
 )
 from splitrender.client.realtime import DISPLAY_FPS, DISPLAY_PRIORITIES, WORKER_PRIORITIES
-from splitrender.errors import SplitRenderError
-from splitrender.files import write_atomic
+from splitrender.errors import InvalidInputError, SplitRenderError
+from splitrender.files import check_apart, check_output_file, write_atomic
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 
@@ -334,8 +334,11 @@ def bench(args: argparse.Namespace) -> int:
     ):
         if given:
             return fail(f"{flag} goes with --realtime")
-    if args.json is not None and args.json.is_dir():
-        return fail(f"--json: {args.json} is a directory; expected a file name")
+    if args.json is not None:
+        try:
+            check_output_file(args.json)
+        except InvalidInputError as e:
+            return fail(f"--json: {e}")
     try:
         rows = run_bench(
             args.scene, tuple(args.methods or METHODS),
@@ -352,14 +355,13 @@ def bench(args: argparse.Namespace) -> int:
 
 
 def _bench_realtime(args: argparse.Namespace) -> int:
-    from splitrender.errors import InvalidInputError, StreamError
+    from splitrender.errors import StreamError
     from splitrender.evaluation.bench_realtime import (
         format_realtime,
         run_realtime_bench,
         write_realtime_json,
         write_realtime_plot,
     )
-    from splitrender.files import check_apart
 
     chosen = args.methods or ("ours",)
     if len(chosen) != 1:
@@ -368,11 +370,12 @@ def _bench_realtime(args: argparse.Namespace) -> int:
     # cannot be written would be lost.
     outputs = {k: v for k, v in (("--json", args.json), ("--plot", args.plot)) if v is not None}
     for flag, path in outputs.items():
-        if path.is_dir():
-            return fail(f"{flag}: {path} is a directory; expected a file name")
-        inputs = {} if args.stream is None else {"stream": args.stream}
         try:
-            check_apart(path, inputs)
+            check_output_file(path)
+        except InvalidInputError as e:
+            return fail(f"{flag}: {e}")
+        try:
+            check_apart(path, {} if args.stream is None else {"stream": args.stream})
         except InvalidInputError as e:
             return fail(f"{flag} {e}")
     if len(outputs) == 2 and args.json.resolve() == args.plot.resolve():
