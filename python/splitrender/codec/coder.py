@@ -1632,8 +1632,8 @@ class DecodedStream:
 
     A decoded 1280x720 server frame with its auxiliary cameras takes about 50 MB (docs/sweeps.md):
     a 10 s run at 10 FPS held whole (:func:`decode_packets`) is 5 GB per process, where a client
-    holds its pair. Iterated, one frame is decoded when the next is asked for, and the decoder's arrays
-    are reused once the frames before are dropped (``_Outputs``). Each iteration decodes the
+    holds its pair. Iterated, one frame is decoded when the next is asked for, and the decoder's
+    arrays are reused once the frames before are dropped (``_Outputs``). Each iteration decodes the
     packets anew with its own :class:`StreamDecoder` (closed when the iteration ends or is
     dropped): a second eye or method pays the decoding again instead of the memory.
 

@@ -1,7 +1,9 @@
 """Pieces of the split-rendering pipeline shared by ``demo``, ``play`` and ``eval``.
 
-:func:`encode_decode` runs server frames through :class:`~splitrender.codec.coder.StreamEncoder` and
-:class:`~splitrender.codec.coder.StreamDecoder` (what the client sees of a compressed stream);
+:func:`encode_packets` runs server frames through :class:`~splitrender.codec.coder.StreamEncoder`;
+the packets play through :class:`~splitrender.codec.coder.DecodedStream`, each frame decoded when
+the client needs it (what the client sees of a compressed stream; ``play`` and ``eval``), or
+:func:`encode_decode` decodes them all at once for several plays of the same frames (``demo``);
 :func:`play_and_score_eyes` plays one method through the network model and the client and scores
 its frames (of one eye or two) against the ground truth as they are made
 (:class:`~splitrender.evaluation.metrics.SequenceScorer`).
@@ -142,9 +144,9 @@ def play_and_score_eyes(
     eye, so the eyes share their schedule. They are iterated once per eye: a list, a
     recording's lazy frames (each read when the client needs it) or a
     :class:`~splitrender.codec.coder.DecodedStream` (each decoded when the client needs it).
-    ``on_frame(eye, n, image, info)`` is called for every client frame of every eye. ``options`` go to the client (e.g. ``server_fps`` for a server at
-    another rate than 10 FPS); ``backend`` is ``"cpu"`` or ``"wgpu"``
-    (:class:`~splitrender.Client`); ``flip_every`` as in
+    ``on_frame(eye, n, image, info)`` is called for every client frame of every eye.
+    ``options`` go to the client (e.g. ``server_fps`` for a server at another rate than 10 FPS);
+    ``backend`` is ``"cpu"`` or ``"wgpu"`` (:class:`~splitrender.Client`); ``flip_every`` as in
     :func:`~splitrender.evaluation.metrics.evaluate_sequence`. :func:`mean_row` averages the
     result over the eyes.
 
