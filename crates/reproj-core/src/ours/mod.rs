@@ -52,7 +52,7 @@ mod pair;
 mod pass1;
 mod search;
 mod select;
-mod simd;
+pub(crate) mod simd;
 
 pub use simd::{set_simd_limit, simd_tier, Simd};
 

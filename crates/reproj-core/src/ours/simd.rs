@@ -1,5 +1,6 @@
-//! The run-time dispatch of the row loops of `ours` by instruction set: [`simd_dispatch`] for
-//! functions, [`simd_method`] for methods of [`super::Resolve`]. Not a stage of the paper
+//! The run-time dispatch of the row loops of `ours` (and of `timewarp`'s, which uses
+//! [`simd_dispatch`] too) by instruction set: [`simd_dispatch`] for functions, [`simd_method`]
+//! for methods of [`super::Resolve`]. Not a stage of the paper
 //! (seeds/000 §3): these only let the compiler use 256- and 512-bit vectors for the same IEEE
 //! arithmetic, without FMA contraction, so that the output bytes do not depend on the processor.
 //! [`set_simd_limit`] (or the environment variable `REPROJ_SIMD`) caps the instruction set, so
@@ -8,7 +9,7 @@
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
-/// The instruction sets the row loops of `ours` are compiled for, lowest first.
+/// The instruction sets the row loops of `ours` and `timewarp` are compiled for, lowest first.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Simd {
     /// The target's baseline (SSE2 on x86-64).
@@ -39,10 +40,11 @@ static LIMIT: AtomicU8 = AtomicU8::new(UNSET);
 /// [`LIMIT`] before the first row: `REPROJ_SIMD` is read then.
 const UNSET: u8 = u8::MAX;
 
-/// Caps the instruction set of `ours`' row loops at `limit` for the whole process from the next
-/// row on. The default is `REPROJ_SIMD` (`baseline`, `avx2` or `avx512`, read once) where that is
-/// set, else [`Simd::Avx512`], i.e. the best the processor has. Every tier gives the same bytes;
-/// this is for tests that check that, and for timing one tier against another.
+/// Caps the instruction set of the row loops of `ours` and `timewarp` at `limit` for the whole
+/// process from the next row on. The default is `REPROJ_SIMD` (`baseline`, `avx2` or `avx512`,
+/// read once) where that is set, else [`Simd::Avx512`], i.e. the best the processor has. Every
+/// tier gives the same bytes; this is for tests that check that, and for timing one tier against
+/// another.
 pub fn set_simd_limit(limit: Simd) {
     LIMIT.store(limit as u8, Ordering::Relaxed);
 }
@@ -102,12 +104,12 @@ macro_rules! simd_dispatch {
         #[inline]
         fn $name($($arg: $ty),*) {
             #[cfg(target_arch = "x86_64")]
-            match super::simd::simd_tier() {
+            match $crate::ours::simd::simd_tier() {
                 // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
-                super::simd::Simd::Avx512 => return unsafe { $avx512($($arg),*) },
+                $crate::ours::simd::Simd::Avx512 => return unsafe { $avx512($($arg),*) },
                 // SAFETY: the processor supports AVX2 (checked by simd_tier).
-                super::simd::Simd::Avx2 => return unsafe { $avx2($($arg),*) },
-                super::simd::Simd::Baseline => {}
+                $crate::ours::simd::Simd::Avx2 => return unsafe { $avx2($($arg),*) },
+                $crate::ours::simd::Simd::Baseline => {}
             }
             $imp($($base)* $($arg),*)
         }
@@ -173,7 +175,7 @@ macro_rules! simd_method {
     };
 }
 
-pub(super) use simd_dispatch;
+pub(crate) use simd_dispatch;
 pub(super) use simd_method;
 
 /// Asks the processor to bring the cache line holding `p` into its L2 cache (x86-64's
