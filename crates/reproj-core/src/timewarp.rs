@@ -89,18 +89,50 @@ pub fn run(frame: &FrameView, request: &Request, params: &Params, out: Output) -
 /// result does not depend on how rayon splits the work (a parallel `f32` reduction, as the
 /// reference's atomic float sum, would change with the thread count).
 fn mean_depth(depth: &[f32], width: usize) -> Option<f64> {
-    let rows: Vec<(f64, u64)> = depth
-        .par_chunks(width.max(1))
-        .map(|row| {
-            row.iter()
-                .filter(|z| valid_depth(**z))
-                .fold((0.0f64, 0u64), |(s, n), &z| (s + f64::from(z), n + 1))
-        })
+    let width = width.max(1);
+    let rows: Vec<[(f64, u64); SUM_ROWS]> = depth
+        .par_chunks(SUM_ROWS * width)
+        .map(|rows| row_sums(rows, width))
         .collect();
     let (sum, count) = rows
         .iter()
+        .flatten()
         .fold((0.0f64, 0u64), |(s, n), &(rs, rn)| (s + rs, n + rn));
     (count > 0).then(|| sum / count as f64)
+}
+
+/// Rows whose sums [`row_sums`] runs side by side.
+const SUM_ROWS: usize = 4;
+
+/// The `f64` sum of the valid depths of each of the (up to [`SUM_ROWS`]) rows of `rows`, each in
+/// pixel order, and their count; `(0, 0)` for the rows past its end.
+///
+/// One row's sum is a chain of dependent `f64` additions (4 cycles each); the rows' chains are
+/// independent, so running them side by side overlaps them, with each row's additions in the same
+/// order as alone. An invalid depth adds `+0.0`, which leaves the sum's bits as they are: the sum
+/// starts at `+0.0` and only grows (a valid `−0.0` gives `+0.0 + −0.0 = +0.0`).
+fn row_sums(rows: &[f32], width: usize) -> [(f64, u64); SUM_ROWS] {
+    let mut out = [(0.0f64, 0u64); SUM_ROWS];
+    if rows.len() == SUM_ROWS * width {
+        let (a, rest) = rows.split_at(width);
+        let (b, rest) = rest.split_at(width);
+        let (c, d) = rest.split_at(width);
+        for (((a, b), c), d) in a.iter().zip(b).zip(c).zip(d) {
+            for (o, &z) in out.iter_mut().zip([a, b, c, d]) {
+                let valid = valid_depth(z);
+                o.0 += if valid { f64::from(z) } else { 0.0 };
+                o.1 += u64::from(valid);
+            }
+        }
+    } else {
+        for (o, row) in out.iter_mut().zip(rows.chunks(width)) {
+            for &z in row.iter().filter(|z| valid_depth(**z)) {
+                o.0 += f64::from(z);
+                o.1 += 1;
+            }
+        }
+    }
+    out
 }
 
 /// The plane through `Q = P⁻¹(0, 0, Z̄)` (with the perspective division) whose normal is the
@@ -640,6 +672,22 @@ mod tests {
             .unwrap()
             .install(|| mean_depth(&depth, 997));
         assert_eq!(a.unwrap().to_bits(), b.unwrap().to_bits());
+        // The rows side by side (13 = 3 blocks of 4 and one row alone) add in the order of
+        // each row alone, then of the rows; invalid depths (here every 10th) are skipped.
+        let mut depth = depth;
+        for (k, z) in depth.iter_mut().enumerate().step_by(10) {
+            *z = [f32::NAN, -0.0, 1.5, f32::INFINITY][k % 4];
+        }
+        let (mut sum, mut n) = (0.0f64, 0u64);
+        for row in depth.chunks(997) {
+            let mut s = 0.0f64;
+            for &z in row.iter().filter(|z| valid_depth(**z)) {
+                (s, n) = (s + f64::from(z), n + 1);
+            }
+            sum += s;
+        }
+        let want = sum / n as f64;
+        assert_eq!(mean_depth(&depth, 997).unwrap().to_bits(), want.to_bits());
         assert_eq!(mean_depth(&[f32::NAN, 2.0], 2), None);
     }
 
