@@ -40,7 +40,7 @@
 
 use rayon::prelude::*;
 
-use crate::camera::{pixel_of_ndc, Projector};
+use crate::camera::{ndc_of_pixel, pixel_of_ndc, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
 use crate::ours::PairCache;
@@ -211,6 +211,8 @@ pub fn run(
             eps_z: params.eps_z,
             scale: [w as f32 / short, h as f32 / short],
             latest,
+            xs: (0..w).map(|i| ndc_of_pixel(i, 0, w, h)[0]).collect(),
+            ys: (0..h).map(|j| ndc_of_pixel(0, j, w, h)[1]).collect(),
         };
         match out.diag {
             Some(d) => out
@@ -334,6 +336,14 @@ struct Found {
     z: f32,
 }
 
+/// A pixel of the server images: its column, row and flat index `j·W + i`.
+#[derive(Debug, Clone, Copy)]
+struct Px {
+    i: usize,
+    j: usize,
+    p: usize,
+}
+
 impl Found {
     #[inline(always)]
     fn valid(&self) -> bool {
@@ -367,6 +377,11 @@ struct Bidir<'a> {
     /// Aspect scaling of the error: `(W, H) / min(W, H)`.
     scale: [f32; 2],
     latest: Option<Latest<'a>>,
+    /// NDC x of each column's and y of each row's pixel centres ([`crate::camera::ndc_of_pixel`]
+    /// is separable): a search's pixel is kept as its column and row, so that its NDC needs no
+    /// division of the flat index.
+    xs: Vec<f32>,
+    ys: Vec<f32>,
 }
 
 impl Bidir<'_> {
@@ -409,28 +424,50 @@ impl Bidir<'_> {
 
     #[inline(always)]
     fn pixel_index(&self, x: f32, y: f32) -> Option<usize> {
-        pixel_of_ndc(x, y, self.width, self.height).map(|(i, j)| j * self.width + i)
+        self.pixel(x, y).map(|q| q.p)
     }
 
+    /// The pixel containing NDC `(x, y)` ([`pixel_of_ndc`]).
     #[inline(always)]
-    fn ndc(&self, p: usize) -> [f32; 2] {
-        crate::camera::ndc_of_pixel(p % self.width, p / self.width, self.width, self.height)
+    fn pixel(&self, x: f32, y: f32) -> Option<Px> {
+        pixel_of_ndc(x, y, self.width, self.height).map(|(i, j)| Px {
+            i,
+            j,
+            p: j * self.width + i,
+        })
+    }
+
+    /// NDC of the centre of pixel `q` (the same values as [`ndc_of_pixel`]).
+    #[inline(always)]
+    fn ndc(&self, q: Px) -> [f32; 2] {
+        [self.xs[q.i], self.ys[q.j]]
+    }
+
+    /// [`Px`] of the flat index `p` (one division: for the few pixels that need it).
+    #[inline(always)]
+    fn px(&self, p: usize) -> Px {
+        Px {
+            i: p % self.width,
+            j: p / self.width,
+            p,
+        }
     }
 
     /// The iterative search of seeds/001 eqs. 5 / 9 in `side` from `p0`: `p ← pix(T − w·V[p].xy)`,
     /// keeping `p` when the step leaves the image (or `V[p]` is invalid), then the depth (eq. 6/11)
     /// and aspect-scaled error (eq. 7/12) of the final point.
     #[inline]
-    fn search(&self, side: &Side, t: [f32; 2], p0: usize) -> Found {
-        let mut p = p0;
+    fn search(&self, side: &Side, t: [f32; 2], p0: Px) -> Found {
+        let mut q = p0;
         for _ in 0..self.iterations {
-            let v = side.flow[p];
-            if let Some(q) = self.pixel_index(t[0] - side.w * v[0], t[1] - side.w * v[1]) {
-                p = q;
+            let v = side.flow[q.p];
+            if let Some(next) = self.pixel(t[0] - side.w * v[0], t[1] - side.w * v[1]) {
+                q = next;
             }
         }
+        let p = q.p;
         let v = side.flow[p];
-        let [px, py] = self.ndc(p);
+        let [px, py] = self.ndc(q);
         let ex = (px + side.w * v[0] - t[0]) * self.scale[0];
         let ey = (py + side.w * v[1] - t[1]) * self.scale[1];
         let e = (ex * ex + ey * ey).sqrt();
@@ -469,8 +506,8 @@ impl Bidir<'_> {
         let (side, other) = self.side(dir);
         let tp = j * self.width + i;
         // Default initialisation p_0 = T (eqs. 4, 8).
-        let mut best = self.search(side, t, tp);
-        let mut consider = |p0: usize| {
+        let mut best = self.search(side, t, Px { i, j, p: tp });
+        let mut consider = |p0: Px| {
             let c = self.search(side, t, p0);
             if self.better(&c, &best) {
                 best = c;
@@ -479,7 +516,7 @@ impl Bidir<'_> {
         // Dual initialisation (eqs. 16, 17): the opposing frame's velocity at T, scaled to this
         // side's time distance, guesses where the point was before this frame's flow is known.
         let vo = other.flow[tp];
-        if let Some(p0) = self.pixel_index(t[0] + side.w * vo[0], t[1] + side.w * vo[1]) {
+        if let Some(p0) = self.pixel(t[0] + side.w * vo[0], t[1] + side.w * vo[1]) {
             consider(p0);
         }
         // Latest-frame initialisation (eqs. 18, 19).
@@ -493,21 +530,20 @@ impl Bidir<'_> {
     /// neighbourhood of `(i, j)`, scaled to this `α`, the one whose initial point is nearest
     /// (largest reversed depth at `t+α`), which lets pixels near a silhouette pick up the motion of
     /// the occluding object (seeds/001 §5.3).
-    fn latest_init(&self, dir: Dir, side: &Side, i: usize, j: usize, t: [f32; 2]) -> Option<usize> {
+    fn latest_init(&self, dir: Dir, side: &Side, i: usize, j: usize, t: [f32; 2]) -> Option<Px> {
         let latest = self.latest.as_ref()?;
         let (scale, k) = match dir {
             Dir::Forward => (latest.scale_f?, 0),
             Dir::Backward => (latest.scale_b, 2),
         };
-        let mut best: Option<(f32, usize)> = None;
+        let mut best: Option<(f32, Px)> = None;
         for qj in j.saturating_sub(1)..=(j + 1).min(self.height - 1) {
             for qi in i.saturating_sub(1)..=(i + 1).min(self.width - 1) {
                 let d = latest.offsets[qj * self.width + qi];
-                let Some(p0) = self.pixel_index(t[0] - scale * d[k], t[1] - scale * d[k + 1])
-                else {
+                let Some(p0) = self.pixel(t[0] - scale * d[k], t[1] - scale * d[k + 1]) else {
                     continue; // NaN offsets land here too
                 };
-                let z = side.view.depth[p0] + side.w * side.flow[p0][2];
+                let z = side.view.depth[p0.p] + side.w * side.flow[p0.p][2];
                 // NaN depth fails the comparison; ties keep the first in scan order.
                 if z.is_finite() && best.is_none_or(|(bz, _)| z > bz) {
                     best = Some((z, p0));
@@ -525,7 +561,7 @@ impl Bidir<'_> {
         let (side, other) = self.side(dir);
         let base = side.color(m.p);
         let v = side.flow[m.p];
-        let [x, y] = self.ndc(m.p);
+        let [x, y] = self.ndc(self.px(m.p));
         let Some(q) = self.pixel_index(x + v[0], y + v[1]) else {
             return (base, false);
         };
@@ -557,7 +593,11 @@ impl Bidir<'_> {
     /// The whole per-pixel decision: the pixel's [`Resolved`] (`None`: not written) and its
     /// offsets `[dᶠ.x, dᶠ.y, dᵇ.x, dᵇ.y]` for the history.
     fn resolve_pixel(&self, i: usize, j: usize) -> (Option<Resolved>, [f32; 4]) {
-        let t = self.ndc(j * self.width + i);
+        let t = self.ndc(Px {
+            i,
+            j,
+            p: j * self.width + i,
+        });
         let f = self.direction(Dir::Forward, i, j, t);
         let b = self.direction(Dir::Backward, i, j, t);
         // The offset d_m = w·V[p_m].xy of eq. 5 / 9, i.e. T − p for the converged continuous
