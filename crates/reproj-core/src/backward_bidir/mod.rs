@@ -57,8 +57,9 @@ use crate::shadow::round_rgb;
 /// ([`BidirHistory::reset`] or a fresh [`BidirHistory::new`]) whenever the pair changes. Within a
 /// pair it is used only when the new `α` is larger than `α₀` and the output size is unchanged.
 ///
-/// The same object carries `ours`' pair-level work ([`PairCache`]): despite the name (kept for
-/// the API), it is the client's history for one server-frame pair, whatever the method.
+/// The same object carries `ours`' pair-level work ([`PairCache`]) and this method's full flows
+/// of the pair: despite the name (kept for the API), it is the client's history for one
+/// server-frame pair, whatever the method.
 #[derive(Debug, Clone, Default)]
 pub struct BidirHistory {
     width: usize,
@@ -68,6 +69,42 @@ pub struct BidirHistory {
     offsets: Vec<[f32; 4]>,
     /// `ours`' per-pair state.
     ours: PairCache,
+    /// `backward_bidir`'s full flows of the pair, and a spare buffer for the offsets.
+    flows: PairFlows,
+}
+
+/// The full flows `Vᶠ`, `Vᵇ` of a server-frame pair (pass 1 of [`run`]), kept in the history
+/// for the pair's next client frames: they depend on the two frames alone, not on `α`, and were
+/// a sixth of a 1280×720 frame's time. Also the buffer the next frame writes its offsets into
+/// (the offsets of the frame before it), so that no frame allocates and first-touches 40 MB.
+#[derive(Debug, Clone, Default)]
+struct PairFlows {
+    /// What `vf` and `vb` were computed from; `None`: nothing (a new or reset history).
+    key: Option<FlowKey>,
+    vf: Vec<[f32; 3]>,
+    vb: Vec<[f32; 3]>,
+    spare: Vec<[f32; 4]>,
+}
+
+/// What the full flows depend on: per main camera (older, newer), its view-projection matrix
+/// and size, and its depth and motion buffers' addresses and lengths (as [`PairCache`] keys
+/// `ours`' pair state; the caller resets the history when the pair changes, and a pair's buffers
+/// do not change while it is shown).
+#[derive(Debug, Clone, PartialEq)]
+struct FlowKey([([[f64; 4]; 4], [usize; 6]); 2]);
+
+impl FlowKey {
+    fn of(views: [&CameraView; 2]) -> FlowKey {
+        FlowKey(views.map(|v| {
+            let (mp, ml) = v.motion.map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
+            let size = [v.camera.width, v.camera.height];
+            let depth = [v.depth.as_ptr() as usize, v.depth.len()];
+            (
+                v.camera.view_proj().0,
+                [size[0], size[1], depth[0], depth[1], mp, ml],
+            )
+        }))
+    }
 }
 
 impl BidirHistory {
@@ -81,8 +118,12 @@ impl BidirHistory {
     pub fn reset(&mut self) {
         let mut ours = std::mem::take(&mut self.ours);
         ours.reset();
+        let mut flows = std::mem::take(&mut self.flows);
+        flows.key = None;
+        flows.spare = std::mem::take(&mut self.offsets);
         *self = Self {
             ours,
+            flows,
             ..Self::default()
         };
     }
@@ -105,15 +146,14 @@ impl BidirHistory {
         (!self.offsets.is_empty()).then_some(self.alpha)
     }
 
-    /// The offsets stored for a `width × height` output at a later `alpha`, if they apply.
-    fn usable(&self, width: usize, height: usize, alpha: f32) -> Option<(&[[f32; 4]], f32)> {
-        let ok = !self.offsets.is_empty()
+    /// Whether the stored offsets apply to a `width × height` output at a later `alpha`.
+    fn usable(&self, width: usize, height: usize, alpha: f32) -> bool {
+        !self.offsets.is_empty()
             && self.width == width
             && self.height == height
             && self.offsets.len() == width * height
             && self.alpha.is_finite()
-            && self.alpha < alpha;
-        ok.then_some((&self.offsets[..], self.alpha))
+            && self.alpha < alpha
     }
 }
 
@@ -144,7 +184,7 @@ pub fn run(
     request: &Request,
     params: &Params,
     out: Output,
-    history: Option<&mut BidirHistory>,
+    mut history: Option<&mut BidirHistory>,
 ) -> Result<()> {
     older.validate("older")?;
     newer.validate("newer")?;
@@ -174,33 +214,48 @@ pub fn run(
     let op = ov.camera.projector("older.main camera")?;
     let np = nv.camera.projector("newer.main camera")?;
 
-    // Pass 1: full flows Vᶠ (older → newer camera) and Vᵇ (newer → older camera).
-    let vf = full_flow(&ov, &op, &np);
-    let vb = full_flow(&nv, &np, &op);
-
-    // Pass 2: per output pixel, in row blocks of TILE rows.
+    // Nothing can fail from here on: the history's buffers are taken and given back at the end.
     let n = w * h;
-    let mut offsets = vec![[f32::NAN; 4]; n];
+    // `prev`: the previous frame's offsets; `a0`: its α where they apply (eqs. 18, 19).
+    let (mut flows, prev, a0) = match history.as_deref_mut() {
+        Some(hist) => {
+            let a0 = hist.usable(w, h, alpha).then_some(hist.alpha);
+            let offsets = std::mem::take(&mut hist.offsets);
+            (std::mem::take(&mut hist.flows), offsets, a0)
+        }
+        None => (PairFlows::default(), Vec::new(), None),
+    };
+
+    // Pass 1: full flows Vᶠ (older → newer camera) and Vᵇ (newer → older camera), once per pair.
+    let key = FlowKey::of([&ov, &nv]);
+    if flows.key.as_ref() != Some(&key) {
+        full_flow(&ov, &op, &np, &mut flows.vf);
+        full_flow(&nv, &np, &op, &mut flows.vb);
+        flows.key = Some(key);
+    }
+
+    // Pass 2: per output pixel, in row blocks of TILE rows. Every offset is written.
+    let mut offsets = std::mem::take(&mut flows.spare);
+    offsets.resize(n, [f32::NAN; 4]);
+    offsets.truncate(n);
     {
-        let latest = history
-            .as_deref()
-            .and_then(|hist| hist.usable(w, h, alpha))
-            .map(|(d, a0)| Latest {
-                offsets: d,
-                // α₀ = 0 stores zero forward offsets, which carry no motion and cannot be scaled.
-                scale_f: (a0 > 0.0).then(|| alpha / a0),
-                scale_b: (1.0 - alpha) / (1.0 - a0),
-            });
+        let (vf, vb) = (&flows.vf, &flows.vb);
+        let latest = a0.map(|a0| Latest {
+            offsets: &prev,
+            // α₀ = 0 stores zero forward offsets, which carry no motion and cannot be scaled.
+            scale_f: (a0 > 0.0).then(|| alpha / a0),
+            scale_b: (1.0 - alpha) / (1.0 - a0),
+        });
         let short = w.min(h) as f32;
         let ctx = Bidir {
             older: Side {
                 view: ov,
-                flow: &vf,
+                flow: vf,
                 w: alpha,
             },
             newer: Side {
                 view: nv,
-                flow: &vb,
+                flow: vb,
                 w: 1.0 - alpha,
             },
             width: w,
@@ -235,12 +290,15 @@ pub fn run(
     }
     if let Some(hist) = history {
         let ours = std::mem::take(&mut hist.ours);
+        // The previous offsets' buffer becomes the next frame's.
+        flows.spare = prev;
         *hist = BidirHistory {
             width: w,
             height: h,
             alpha,
             offsets,
             ours,
+            flows,
         };
     }
     Ok(())
@@ -254,10 +312,11 @@ fn valid_depth(z: f32) -> bool {
 
 /// The full flow of every pixel of `view` into camera `to` (seeds/000 eqs. 2, 3): the pixel moved
 /// by its object motion in its own NDC, unprojected with its own camera, projected with `to`.
-/// `[Δx, Δy, ΔZ]` per pixel; NaN for invalid pixels.
-fn full_flow(view: &CameraView, from: &Projector, to: &Projector) -> Vec<[f32; 3]> {
+/// `[Δx, Δy, ΔZ]` per pixel into `flow` (resized; every entry written); NaN for invalid pixels.
+fn full_flow(view: &CameraView, from: &Projector, to: &Projector, flow: &mut Vec<[f32; 3]>) {
     let w = from.width;
-    let mut flow = vec![[f32::NAN; 3]; w * from.height];
+    flow.resize(w * from.height, [f32::NAN; 3]);
+    flow.truncate(w * from.height);
     flow.par_chunks_mut(TILE * w)
         .enumerate()
         .for_each(|(b, rows)| {
@@ -268,7 +327,6 @@ fn full_flow(view: &CameraView, from: &Projector, to: &Projector) -> Vec<[f32; 3
                 }
             }
         });
-    flow
 }
 
 /// The full flow of pixel `(i, j)`, or `None` when it is invalid.

@@ -250,6 +250,44 @@ fn backward_bidir_latest_frame_history() {
     assert_eq!(hist.alpha(), None);
 }
 
+/// The full flows are computed once per pair and kept in the history: a second frame of the pair
+/// uses the first's (poisoned here, it shows), a history whose flows are recomputed before every
+/// frame gives the same bytes as one that keeps them, and a new pair (other buffers) or a reset
+/// recomputes them.
+#[test]
+fn backward_bidir_flows_are_kept_for_the_pair() {
+    let (older, newer) = square_pair();
+    let alphas = [0.2f32, 0.45, 0.7];
+    let (mut kept, mut fresh) = (BidirHistory::new(), BidirHistory::new());
+    for &alpha in &alphas {
+        fresh.flows.key = None;
+        let a = run_bb(&older, &newer, alpha, Some(&mut kept));
+        let b = run_bb(&older, &newer, alpha, Some(&mut fresh));
+        assert!(a.0 == b.0 && a.1.source == b.1.source, "α = {alpha}");
+        assert!(kept.flows.key.is_some());
+    }
+    // Reused: NaN flows left in the history make the next frame of the pair write nothing.
+    let mut poisoned = kept.clone();
+    poisoned.flows.vf.fill([f32::NAN; 3]);
+    poisoned.flows.vb.fill([f32::NAN; 3]);
+    let (_, diag) = run_bb(&older, &newer, 0.9, Some(&mut poisoned));
+    assert!(diag.source.iter().all(|&s| s == Diagnostics::NONE));
+    // Another pair (other buffers, the square elsewhere) at a smaller α, so that the
+    // stored offsets do not apply: the flows are the new pair's, with or without a reset.
+    let (o2, n2) = (
+        square_frame((A.0 + 2, A.1), 1.0),
+        square_frame((A.0 + 2 + SHIFT.0, A.1 + SHIFT.1), -1.0),
+    );
+    let want = run_bb(&o2, &n2, 0.1, None);
+    let mut not_reset = poisoned.clone();
+    let got = run_bb(&o2, &n2, 0.1, Some(&mut not_reset));
+    assert!(got.0 == want.0 && got.1.source == want.1.source);
+    poisoned.reset();
+    assert!(poisoned.flows.key.is_none());
+    let got = run_bb(&o2, &n2, 0.1, Some(&mut poisoned));
+    assert!(got.0 == want.0 && got.1.source == want.1.source);
+}
+
 #[test]
 fn backward_bidir_invalid_inputs_never_reach_output() {
     let (mut older, mut newer) = square_pair();
