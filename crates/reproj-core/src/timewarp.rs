@@ -240,7 +240,8 @@ simd_dispatch! {
     /// root and five divisions per pixel). It runs in an AVX-512 or AVX2 build where the
     /// processor has it, with the same IEEE operations (no FMA contraction), so the bytes do not
     /// depend on the processor.
-    fn locate_row / locate_row_avx2, locate_row_avx512 => locate_row_impl(r: &Rays, j: usize, out: &mut [u32])
+    fn locate_row / locate_row_avx2, locate_row_avx512 =>
+        locate_row_impl(r: &Rays, j: usize, out: &mut [u32])
 }
 
 #[inline(always)]
@@ -304,9 +305,10 @@ impl<'a> Warp<'a> {
         }))
     }
 
-    /// Warps the output rows starting at `j0` (a block of at most [`TILE`](crate::TILE) rows), row by row:
-    /// [`locate_row`] finds the main pixel of every output pixel of the row, then each is sampled
-    /// (and the few whose hit lies outside main go through [`Warp::warp_pixel`]).
+    /// Warps the output rows starting at `j0` (a block of at most [`TILE`](crate::TILE) rows),
+    /// row by row: [`locate_row`] finds the main pixel of every output pixel of the row, then
+    /// each is sampled (and the few whose hit lies outside main go through
+    /// [`Warp::warp_pixel`]).
     fn warp_rows(&self, j0: usize, out: &mut [u8], mut diag: Option<(&mut [u8], &mut [f32])>) {
         let cw = self.rays.client.width;
         let rows = out.len() / (3 * cw);

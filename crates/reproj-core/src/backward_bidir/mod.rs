@@ -75,8 +75,9 @@ pub struct BidirHistory {
 
 /// The full flows `Vᶠ`, `Vᵇ` of a server-frame pair (pass 1 of [`run`]), kept in the history
 /// for the pair's next client frames: they depend on the two frames alone, not on `α`, and were
-/// a sixth of a 1280×720 frame's time. Also the buffer the next frame writes its offsets into
-/// (the offsets of the frame before it), so that no frame allocates and first-touches 40 MB.
+/// a sixth of a 1280×720 frame's time. Also a spare buffer for the next frame's offsets (it
+/// reads the previous frame's), so that no frame allocates and first-touches the 37 MB of flows
+/// and offsets at that size.
 #[derive(Debug, Clone, Default)]
 struct PairFlows {
     /// What `vf` and `vb` were computed from; `None`: nothing (a new or reset history).
