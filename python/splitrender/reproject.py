@@ -161,11 +161,13 @@ def reproject_alpha(
     without a match keep its colour (black when ``None``). It is copied, never modified.
     ``history`` (a :class:`BidirHistory`, one per server-frame pair, ``reset()`` when the pair
     changes) carries state between the client frames of one pair: ``backward_bidir``'s previous
-    B-frame, and for ``ours``, ``ours_extrapolate`` and ``forward_splat`` the work that does not
-    depend on the client pose (Algorithm 2's correspondences, the auxiliary cameras' visibility in
-    main), which is then done once per pair instead of once per call. The images are the same
-    with or without it; without it each call does that work again. Do not modify a frame's
-    arrays in place while a history holds its pair.
+    B-frame and its full flows of the pair, and for ``ours``, ``ours_extrapolate`` and
+    ``forward_splat`` the work that does not depend on the client pose (Algorithm 2's
+    correspondences, the auxiliary cameras' visibility in main), which is then done once per pair
+    instead of once per call. For those three the images are the same with or without it
+    (without it each call does that work again); for ``backward_bidir`` the previous B-frame
+    seeds the search (seeds/001's latest-frame initialisation). Do not modify a frame's arrays
+    in place while a history holds its pair.
     ``backend`` is ``"cpu"`` (reproj-core) or ``"wgpu"`` (the GPU path, :mod:`splitrender.gpu`:
     ``ours``, ``ours_extrapolate`` and ``forward_splat``, the same images; this per-call form
     uploads the frames every time, :class:`splitrender.gpu.GpuReprojector` keeps them on the
