@@ -429,6 +429,26 @@ pub fn pixel_of_ndc(x: f32, y: f32, w: usize, h: usize) -> Option<(usize, usize)
     }
 }
 
+/// [`pixel_of_ndc`] without branches, for row loops that must vectorise: whether a `w × h` image
+/// (`wf`, `hf`: its sides as floats) has a pixel containing NDC `(x, y)` (`false` outside it and
+/// for NaN), and that pixel's row-major index `⌊fy⌋·w + ⌊fx⌋` (0 when there is none, for the
+/// caller to discard).
+///
+/// A saturating `f32 as i32` costs a compare and a blend per lane for NaN and overflow; selecting
+/// an in-range value first lets the truncation be the single conversion instruction.
+#[inline(always)]
+pub(crate) fn pixel_index_of_ndc(x: f32, y: f32, wf: f32, hf: f32, w: u32) -> (bool, u32) {
+    let fx = (x + 1.0) * 0.5 * wf;
+    let fy = (1.0 - y) * 0.5 * hf;
+    // `&`, not `&&`: short-circuit branches keep a row loop from vectorising.
+    let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < wf) & (fy < hf);
+    let (fx, fy) = if inside { (fx, fy) } else { (0.0, 0.0) };
+    // SAFETY: both are in `[0, 2¹⁶)` here (sides are at most 16384), so finite and in i32 range;
+    // the truncation is the floor of these non-negative values.
+    let (qi, qj) = unsafe { (fx.to_int_unchecked::<i32>(), fy.to_int_unchecked::<i32>()) };
+    (inside, qj as u32 * w + qi as u32)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

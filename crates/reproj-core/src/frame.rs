@@ -113,7 +113,24 @@ impl CameraView<'_> {
             None => [0.0; 3],
         }
     }
+
+    /// What state derived from this view's geometry and kept across calls (`ours`' pair state,
+    /// `backward_bidir`'s full flows) depends on: the view-projection matrix, the size, and the
+    /// depth and motion buffers' addresses and lengths. The buffers are compared by address, not
+    /// content: a caller that rewrites them in place with another frame resets that state.
+    pub(crate) fn geometry_key(&self) -> GeometryKey {
+        let (mp, ml) = self
+            .motion
+            .map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
+        let (dp, dl) = (self.depth.as_ptr() as usize, self.depth.len());
+        let (w, h) = (self.camera.width, self.camera.height);
+        GeometryKey(self.camera.view_proj().0, [w, h, dp, dl, mp, ml])
+    }
 }
+
+/// [`CameraView::geometry_key`].
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct GeometryKey([[f64; 4]; 4], [usize; 6]);
 
 /// The dynamic-shadow buffers of one direction, owned (DESIGN.md "Dynamic shadows"); borrowed as a
 /// [`ShadowView`].

@@ -24,6 +24,7 @@ pub mod params;
 pub mod pool;
 pub mod request;
 pub mod shadow;
+mod simd;
 pub mod ssim;
 pub mod synthetic;
 pub mod timewarp;

@@ -31,12 +31,12 @@
 
 use rayon::prelude::*;
 
-use crate::camera::{pixel_of_ndc, Camera, Projector};
+use crate::camera::{pixel_index_of_ndc, pixel_of_ndc, Camera, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView};
-use crate::ours::simd::simd_dispatch;
 use crate::params::Params;
 use crate::request::{par_row_blocks, Diagnostics, Output, Request};
+use crate::simd::simd_dispatch;
 
 /// Rays more parallel to the plane than this (`|ray·N|`, unit vectors) are not written.
 const PARALLEL_EPS: f32 = 1e-6;
@@ -251,15 +251,8 @@ fn locate_row_impl(r: &Rays, j: usize, out: &mut [u32]) {
     for (i, code) in out.iter_mut().enumerate() {
         let (_, h, ok) = ray_hit(r, i, j);
         let (sx, sy) = (h[0] / h[3], h[1] / h[3]);
-        // `pixel_of_ndc` without branches (as `Warp::warp_pixel` calls it).
-        let fx = (sx + 1.0) * 0.5 * wf;
-        let fy = (1.0 - sy) * 0.5 * hf;
-        let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < wf) & (fy < hf);
-        let (fx, fy) = if inside { (fx, fy) } else { (0.0, 0.0) };
-        // SAFETY: `0 ≤ fx < wf ≤ 2¹⁴` and the same for `fy` (or both 0), so finite and in i32's
-        // range; the truncation is the floor of these non-negative values.
-        let (pi, pj) = unsafe { (fx.to_int_unchecked::<i32>(), fy.to_int_unchecked::<i32>()) };
-        let idx = pj as u32 * mw as u32 + pi as u32;
+        // The pixel `Warp::warp_pixel` finds with `pixel_of_ndc`, without branches.
+        let (inside, idx) = pixel_index_of_ndc(sx, sy, wf, hf, mw as u32);
         *code = if !ok {
             NOT_WRITTEN
         } else if inside {

@@ -42,7 +42,7 @@ use rayon::prelude::*;
 
 use crate::camera::{ndc_of_pixel, pixel_of_ndc, Projector};
 use crate::error::{ReprojError, Result};
-use crate::frame::{CameraView, FrameView};
+use crate::frame::{CameraView, FrameView, GeometryKey};
 use crate::ours::PairCache;
 use crate::params::{Params, TILE};
 use crate::request::{Diagnostics, Output, Request};
@@ -87,26 +87,9 @@ struct PairFlows {
     spare: Vec<[f32; 4]>,
 }
 
-/// What the full flows depend on: per main camera (older, newer), its view-projection matrix
-/// and size, and its depth and motion buffers' addresses and lengths (as [`PairCache`] keys
-/// `ours`' pair state; the caller resets the history when the pair changes, and a pair's buffers
-/// do not change while it is shown).
-#[derive(Debug, Clone, PartialEq)]
-struct FlowKey([([[f64; 4]; 4], [usize; 6]); 2]);
-
-impl FlowKey {
-    fn of(views: [&CameraView; 2]) -> FlowKey {
-        FlowKey(views.map(|v| {
-            let (mp, ml) = v.motion.map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
-            let size = [v.camera.width, v.camera.height];
-            let depth = [v.depth.as_ptr() as usize, v.depth.len()];
-            (
-                v.camera.view_proj().0,
-                [size[0], size[1], depth[0], depth[1], mp, ml],
-            )
-        }))
-    }
-}
+/// What the full flows depend on: the two main cameras' [`CameraView::geometry_key`] (older,
+/// newer), as [`PairCache`] keys `ours`' pair state.
+type FlowKey = [GeometryKey; 2];
 
 impl BidirHistory {
     /// An empty history (the first B-frame of a pair).
@@ -228,7 +211,7 @@ pub fn run(
     };
 
     // Pass 1: full flows Vᶠ (older → newer camera) and Vᵇ (newer → older camera), once per pair.
-    let key = FlowKey::of([&ov, &nv]);
+    let key = [ov.geometry_key(), nv.geometry_key()];
     if flows.key.as_ref() != Some(&key) {
         full_flow(&ov, &op, &np, &mut flows.vf);
         full_flow(&nv, &np, &op, &mut flows.vb);
@@ -390,7 +373,7 @@ struct Latest<'a> {
 /// `e = ∞` marks a search that ended on an invalid pixel.
 #[derive(Debug, Clone, Copy)]
 struct Found {
-    p: usize,
+    q: Px,
     e: f32,
     z: f32,
 }
@@ -481,11 +464,6 @@ impl Bidir<'_> {
         }
     }
 
-    #[inline(always)]
-    fn pixel_index(&self, x: f32, y: f32) -> Option<usize> {
-        self.pixel(x, y).map(|q| q.p)
-    }
-
     /// The pixel containing NDC `(x, y)` ([`pixel_of_ndc`]).
     #[inline(always)]
     fn pixel(&self, x: f32, y: f32) -> Option<Px> {
@@ -502,16 +480,6 @@ impl Bidir<'_> {
         [self.xs[q.i], self.ys[q.j]]
     }
 
-    /// [`Px`] of the flat index `p` (one division: for the few pixels that need it).
-    #[inline(always)]
-    fn px(&self, p: usize) -> Px {
-        Px {
-            i: p % self.width,
-            j: p / self.width,
-            p,
-        }
-    }
-
     /// The iterative search of seeds/001 eqs. 5 / 9 in `side` from `p0`: `p ← pix(T − w·V[p].xy)`,
     /// keeping `p` when the step leaves the image (or `V[p]` is invalid), then the depth (eq. 6/11)
     /// and aspect-scaled error (eq. 7/12) of the final point.
@@ -524,18 +492,17 @@ impl Bidir<'_> {
                 q = next;
             }
         }
-        let p = q.p;
-        let v = side.flow[p];
+        let v = side.flow[q.p];
         let [px, py] = self.ndc(q);
         let ex = (px + side.w * v[0] - t[0]) * self.scale[0];
         let ey = (py + side.w * v[1] - t[1]) * self.scale[1];
         let e = (ex * ex + ey * ey).sqrt();
-        let z = side.view.depth[p] + side.w * v[2];
+        let z = side.view.depth[q.p] + side.w * v[2];
         if e.is_finite() && z.is_finite() {
-            Found { p, e, z }
+            Found { q, e, z }
         } else {
             Found {
-                p,
+                q,
                 e: f32::INFINITY,
                 z: f32::NAN,
             }
@@ -618,14 +585,14 @@ impl Bidir<'_> {
     /// Returns the colour and whether it blended.
     fn second_chance(&self, dir: Dir, m: Found) -> ([f32; 3], bool) {
         let (side, other) = self.side(dir);
-        let base = side.color(m.p);
-        let v = side.flow[m.p];
-        let [x, y] = self.ndc(self.px(m.p));
-        let Some(q) = self.pixel_index(x + v[0], y + v[1]) else {
+        let base = side.color(m.q.p);
+        let v = side.flow[m.q.p];
+        let [x, y] = self.ndc(m.q);
+        let Some(q) = self.pixel(x + v[0], y + v[1]).map(|q| q.p) else {
             return (base, false);
         };
         let zq = other.view.depth[q];
-        let predicted = side.view.depth[m.p] + v[2];
+        let predicted = side.view.depth[m.q.p] + v[2];
         // An invalid pixel at q never lends its colour; a NaN difference fails `<`.
         if !(other.valid(q) && 2.0 * (zq - predicted).abs() < self.eps_z) {
             return (base, false);
@@ -652,11 +619,7 @@ impl Bidir<'_> {
     /// The whole per-pixel decision: the pixel's [`Resolved`] (`None`: not written) and its
     /// offsets `[dᶠ.x, dᶠ.y, dᵇ.x, dᵇ.y]` for the history.
     fn resolve_pixel(&self, i: usize, j: usize) -> (Option<Resolved>, [f32; 4]) {
-        let t = self.ndc(Px {
-            i,
-            j,
-            p: j * self.width + i,
-        });
+        let t = [self.xs[i], self.ys[j]];
         let f = self.direction(Dir::Forward, i, j, t);
         let b = self.direction(Dir::Backward, i, j, t);
         // The offset d_m = w·V[p_m].xy of eq. 5 / 9, i.e. T − p for the converged continuous
@@ -665,7 +628,7 @@ impl Bidir<'_> {
         // there and stay zero however far eq. 18 scales them.
         let offset = |side: &Side, m: Found| -> [f32; 2] {
             if m.valid() {
-                let v = side.flow[m.p];
+                let v = side.flow[m.q.p];
                 [side.w * v[0], side.w * v[1]]
             } else {
                 [f32::NAN; 2]
@@ -709,7 +672,7 @@ impl Bidir<'_> {
         // Rule 3: neither search converged; blend what they found (eq. 13).
         let res = match (f.valid(), b.valid()) {
             (true, true) => {
-                let rgb = self.blend(self.older.color(f.p), self.newer.color(b.p));
+                let rgb = self.blend(self.older.color(f.q.p), self.newer.color(b.q.p));
                 let dir = if f.e <= b.e {
                     Dir::Forward
                 } else {
@@ -721,8 +684,8 @@ impl Bidir<'_> {
                     f.e.min(b.e),
                 ))
             }
-            (true, false) => Some((code(Dir::Forward), round_rgb(self.older.color(f.p)), f.e)),
-            (false, true) => Some((code(Dir::Backward), round_rgb(self.newer.color(b.p)), b.e)),
+            (true, false) => Some((code(Dir::Forward), round_rgb(self.older.color(f.q.p)), f.e)),
+            (false, true) => Some((code(Dir::Backward), round_rgb(self.newer.color(b.q.p)), b.e)),
             (false, false) => None,
         };
         (res, offsets)

@@ -7,11 +7,11 @@
 use rayon::prelude::*;
 
 use crate::camera::{pixel_of_ndc, NdcTransfer, Projector};
-use crate::frame::CameraView;
+use crate::frame::{CameraView, GeometryKey};
 use crate::params::{Params, TILE};
 
-use super::simd::simd_dispatch;
 use super::{packed_cell, unpack_pixel, Mode, Src, SrcRow, NO_SPLAT};
+use crate::simd::simd_dispatch;
 
 /// What `ours` computes once per server-frame pair and reuses for every client frame between the
 /// two server frames (12 at 120/10 Hz): none of it depends on the client pose or `α`.
@@ -85,12 +85,10 @@ pub(super) struct PairKey {
 }
 
 /// What a [`PairKey`] records of one source: its camera matrix, size, and the depth and motion
-/// buffers' addresses and lengths.
+/// buffers' addresses and lengths ([`CameraView::geometry_key`]).
 #[derive(Debug, Clone, PartialEq)]
 struct SourceKey {
-    view_proj: [[f64; 4]; 4],
-    size: [usize; 2],
-    buffers: [usize; 4],
+    geometry: GeometryKey,
     /// The colour and shadow-bit buffers' addresses and lengths (the texels copy them).
     colours: [usize; 4],
 }
@@ -109,14 +107,11 @@ impl PairKey {
                 .iter()
                 .map(|s| {
                     let v = &s.view;
-                    let (mp, ml) = v.motion.map_or((0, 0), |m| (m.as_ptr() as usize, m.len()));
                     let (bp, bl) = v
                         .shadow
                         .map_or((0, 0), |sh| (sh.bits.as_ptr() as usize, sh.bits.len()));
                     SourceKey {
-                        view_proj: v.camera.view_proj().0,
-                        size: [s.proj.width, s.proj.height],
-                        buffers: [v.depth.as_ptr() as usize, v.depth.len(), mp, ml],
+                        geometry: v.geometry_key(),
                         colours: [v.color.as_ptr() as usize, v.color.len(), bp, bl],
                     }
                 })

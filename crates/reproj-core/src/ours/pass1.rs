@@ -11,11 +11,11 @@ use std::sync::atomic::Ordering;
 
 use rayon::prelude::*;
 
-use crate::camera::NdcTransfer;
+use crate::camera::{pixel_index_of_ndc, NdcTransfer};
 use crate::params::TILE;
 
-use super::simd::simd_dispatch;
 use super::{pack_pixel, splat_index, splat_key, Src, SrcRow, EMPTY_SPLAT, NO_SPLAT};
+use crate::simd::simd_dispatch;
 
 /// Source rows per task of the splatting pass. Points that land outside their task's rows are
 /// applied after the parallel pass; taller bands leave fewer of them (a vertical flow of `d` rows
@@ -609,12 +609,8 @@ fn landing_row_impl(row: SrcRow, x: &[f32], flow: &[[f32; 2]], vis: &[u8], inv: 
     let (y, sw, sh) = (row.ndc_y(), row.sw, row.sh);
     let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
     for (d, ((x, f), v)) in inv.iter_mut().zip(x.iter().zip(flow).zip(vis)) {
-        // `pixel_of_ndc` without branches; NaN (invalid) flow fails every comparison.
-        let fx = (x + f[0] + 1.0) * 0.5 * wf;
-        let fy = (1.0 - (y + f[1])) * 0.5 * hf;
-        // `&`, not `&&`: short-circuit branches here keep the loop from vectorising.
-        let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < wf) & (fy < hf);
-        let c = cell_index(inside, fx, fy, sw as u32);
+        // NaN (invalid) flow lands nowhere.
+        let (inside, c) = pixel_index_of_ndc(x + f[0], y + f[1], wf, hf, sw as u32);
         *d = if inside & (*v == 0) { c } else { NO_SPLAT };
     }
 }
@@ -739,32 +735,15 @@ fn point_of_clip(k: &PointCtx, x: f32, z: f32, h: [f32; 4], motion_ok: bool) -> 
     // In front of the client and not nearer than its near plane (with a margin for the f32 round
     // trip of points on it). Points at or beyond the far plane (the background lies at Z = 0) are
     // kept, their key depth clamped to exactly +0 (−0 or negative bits would sort as nearest).
-    // The target cell is `pixel_of_ndc` without branches.
-    let fx = (cc[0] + 1.0) * 0.5 * k.wf;
-    let fy = (1.0 - cc[1]) * 0.5 * k.hf;
-    let inside = (fx >= 0.0) & (fy >= 0.0) & (fx < k.wf) & (fy < k.hf);
+    let (inside, cell) = pixel_index_of_ndc(cc[0], cc[1], k.wf, k.hf, k.sw);
     let splats = ok & inside & (cc[2] <= 1.0 + 1e-5);
     let kz = if cc[2] > 0.0 { cc[2].min(1.0) } else { 0.0 };
     FlowPoint {
         flow: f,
         zc,
-        cell: if splats {
-            cell_index(inside, fx, fy, k.sw)
-        } else {
-            NO_SPLAT
-        },
+        cell: if splats { cell } else { NO_SPLAT },
         kz,
     }
-}
-
-/// The row-major index `⌊fy⌋·sw + ⌊fx⌋` when `inside` (`0 ≤ fx < sw`, `0 ≤ fy < H`), else an
-/// unspecified value the caller discards (see [`packed_cell`](super::packed_cell)).
-#[inline(always)]
-fn cell_index(inside: bool, fx: f32, fy: f32, sw: u32) -> u32 {
-    let (fx, fy) = if inside { (fx, fy) } else { (0.0, 0.0) };
-    // SAFETY: both are in `[0, 2¹⁶)` here (sides are at most 16384), so finite and in i32 range.
-    let (qi, qj) = unsafe { (fx.to_int_unchecked::<i32>(), fy.to_int_unchecked::<i32>()) };
-    qj as u32 * sw + qi as u32
 }
 
 thread_local! {

@@ -7,8 +7,8 @@
 
 use crate::camera::pixel_of_ndc;
 
-use super::simd::{prefetch, simd_method};
 use super::{packed_cell, unpack_pixel, Cell, Match, Resolve, NO_SPLAT};
+use crate::simd::{prefetch, simd_method};
 
 /// How many output rows ahead [`Resolve::prefetch_ahead`] prefetches (1, 2 and 4 rows gave
 /// 4–8 % of the frame at 1280×720 in one hour, 2 the most; 2.5–3.8 % in another).

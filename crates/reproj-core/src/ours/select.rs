@@ -11,8 +11,8 @@ use crate::shadow::{round_rgb4, shadow_color, Role};
 use super::pair::{TEXEL_BLEND, TEXEL_SHADOW};
 #[cfg(target_arch = "x86_64")]
 use super::search::{Gathers, SearchRow};
-use super::simd::{simd_dispatch, simd_method};
 use super::{Cell, Choice, Match, Palette, Resolve, NO_SPLAT};
+use crate::simd::{simd_dispatch, simd_method};
 
 /// "No source" in [`Picks::src`].
 pub(super) const NO_SOURCE: u8 = u8::MAX;
@@ -417,10 +417,10 @@ fn blend(omega: f32, base: [f32; 4], oc: [f32; 4]) -> [f32; 4] {
 #[cfg(test)]
 mod tests {
     use super::super::search::Portable;
-    use super::super::simd::{set_simd_limit, simd_tier, Simd};
     use super::super::Palette;
     use super::{gather_texels, gather_texels_impl, run_len, NO_SOURCE};
     use crate::shadow::Role;
+    use crate::simd::{set_simd_limit, simd_tier, Simd};
 
     /// A build of [`gather_texels`], as its arguments without the palettes.
     type Gather<'a> = &'a dyn Fn(&[u8], &[u32], &mut [[u32; 2]], &mut [f32]);

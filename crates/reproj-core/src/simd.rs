@@ -1,7 +1,6 @@
-//! The run-time dispatch of the row loops of `ours` (and of `timewarp`'s, which uses
-//! [`simd_dispatch`] too) by instruction set: [`simd_dispatch`] for functions, [`simd_method`]
-//! for methods of [`super::Resolve`]. Not a stage of the paper
-//! (seeds/000 §3): these only let the compiler use 256- and 512-bit vectors for the same IEEE
+//! The run-time dispatch of the row loops of `ours` and `timewarp` by instruction set:
+//! [`simd_dispatch`] for functions, [`simd_method`] for methods of `ours`' `Resolve`. Not a stage
+//! of the paper (seeds/000 §3): these only let the compiler use 256- and 512-bit vectors for the same IEEE
 //! arithmetic, without FMA contraction, so that the output bytes do not depend on the processor.
 //! [`set_simd_limit`] (or the environment variable `REPROJ_SIMD`) caps the instruction set, so
 //! that a test can compare the tiers' bytes on one processor and a benchmark can time them
@@ -96,7 +95,7 @@ fn limit_from_env() -> u8 {
 /// masks) for its row loops. No build contracts multiplies and adds into FMA (Rust never does), so
 /// all give the same bytes.
 ///
-/// With `$imp(gathers, …)`, `$imp` also takes a [`Gathers`](super::search::Gathers) first: the
+/// With `$imp(gathers, …)`, `$imp` also takes a `Gathers` (`ours/search.rs`) first: the
 /// portable loops for the baseline, the AVX2 gather instructions for both wider builds.
 macro_rules! simd_dispatch {
     (@gen [$($doc:tt)*] $name:ident $avx2:ident $avx512:ident $imp:ident [$($base:tt)*] [$($wide:tt)*] $($arg:ident: $ty:ty),*) => {
@@ -104,12 +103,12 @@ macro_rules! simd_dispatch {
         #[inline]
         fn $name($($arg: $ty),*) {
             #[cfg(target_arch = "x86_64")]
-            match $crate::ours::simd::simd_tier() {
+            match $crate::simd::simd_tier() {
                 // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
-                $crate::ours::simd::Simd::Avx512 => return unsafe { $avx512($($arg),*) },
+                $crate::simd::Simd::Avx512 => return unsafe { $avx512($($arg),*) },
                 // SAFETY: the processor supports AVX2 (checked by simd_tier).
-                $crate::ours::simd::Simd::Avx2 => return unsafe { $avx2($($arg),*) },
-                $crate::ours::simd::Simd::Baseline => {}
+                $crate::simd::Simd::Avx2 => return unsafe { $avx2($($arg),*) },
+                $crate::simd::Simd::Baseline => {}
             }
             $imp($($base)* $($arg),*)
         }
@@ -135,7 +134,7 @@ macro_rules! simd_dispatch {
     };
 }
 
-/// [`simd_dispatch`] for a method of [`Resolve`](super::Resolve): `$name` runs the
+/// [`simd_dispatch`] for a method of `ours`' `Resolve`: `$name` runs the
 /// `#[inline(always)]` method `$imp` compiled for AVX-512 (as `$avx512`) or AVX2 (as `$avx2`)
 /// where the processor has it; `$imp(&self, gathers, …)` as in [`simd_dispatch`].
 macro_rules! simd_method {
@@ -144,12 +143,12 @@ macro_rules! simd_method {
         #[inline(never)]
         $vis fn $name(&self, $($arg: $ty),*) {
             #[cfg(target_arch = "x86_64")]
-            match super::simd::simd_tier() {
+            match $crate::simd::simd_tier() {
                 // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
-                super::simd::Simd::Avx512 => return unsafe { self.$avx512($($arg),*) },
+                $crate::simd::Simd::Avx512 => return unsafe { self.$avx512($($arg),*) },
                 // SAFETY: the processor supports AVX2 (checked by simd_tier).
-                super::simd::Simd::Avx2 => return unsafe { self.$avx2($($arg),*) },
-                super::simd::Simd::Baseline => {}
+                $crate::simd::Simd::Avx2 => return unsafe { self.$avx2($($arg),*) },
+                $crate::simd::Simd::Baseline => {}
             }
             self.$imp($($base)* $($arg),*)
         }
@@ -176,13 +175,13 @@ macro_rules! simd_method {
 }
 
 pub(crate) use simd_dispatch;
-pub(super) use simd_method;
+pub(crate) use simd_method;
 
 /// Asks the processor to bring the cache line holding `p` into its L2 cache (x86-64's
 /// `prefetcht1`; nothing elsewhere). A hint only: it loads nothing the program sees and cannot
 /// fault, whatever the address, so the bytes never depend on it.
 #[inline(always)]
-pub(super) fn prefetch<T>(p: *const T) {
+pub(crate) fn prefetch<T>(p: *const T) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: `prefetcht1` is SSE, which every x86-64 processor has; it never faults and has no
     // effect visible to the program.
