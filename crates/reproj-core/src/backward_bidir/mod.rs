@@ -486,13 +486,18 @@ impl Bidir<'_> {
     #[inline]
     fn search(&self, side: &Side, t: [f32; 2], p0: Px) -> Found {
         let mut q = p0;
+        let mut v = side.flow[q.p];
         for _ in 0..self.iterations {
-            let v = side.flow[q.p];
-            if let Some(next) = self.pixel(t[0] - side.w * v[0], t[1] - side.w * v[1]) {
-                q = next;
+            // A step that stays on `q` (or leaves the image) would do so at every later one: the
+            // step depends on `q` alone.
+            match self.pixel(t[0] - side.w * v[0], t[1] - side.w * v[1]) {
+                Some(next) if next.p != q.p => {
+                    q = next;
+                    v = side.flow[q.p];
+                }
+                _ => break,
             }
         }
-        let v = side.flow[q.p];
         let [px, py] = self.ndc(q);
         let ex = (px + side.w * v[0] - t[0]) * self.scale[0];
         let ey = (py + side.w * v[1] - t[1]) * self.scale[1];
@@ -533,7 +538,16 @@ impl Bidir<'_> {
         let tp = j * self.width + i;
         // Default initialisation p_0 = T (eqs. 4, 8).
         let mut best = self.search(side, t, Px { i, j, p: tp });
+        // The initial pixels searched so far. A search depends on its initial pixel alone, and
+        // `better` is antisymmetric (never both `better(a, b)` and `better(b, a)`, nor
+        // `better(a, a)`), so a result found again can never replace `best`: its search is
+        // skipped. The dual and latest-frame guesses often fall on `T`'s own pixel.
+        let mut tried = [tp, usize::MAX];
         let mut consider = |p0: Px| {
+            if tried.contains(&p0.p) {
+                return;
+            }
+            tried[1] = p0.p;
             let c = self.search(side, t, p0);
             if self.better(&c, &best) {
                 best = c;

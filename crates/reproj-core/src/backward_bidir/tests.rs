@@ -411,3 +411,199 @@ fn backward_bidir_same_result_for_1_and_4_threads() {
     };
     assert_eq!(bits(&ha), bits(&hb));
 }
+
+/// A pass-2 context over random flows for the search tests: `w × h` images whose flows are zero
+/// at about half of the pixels (so that searches stop at once and guesses repeat), small
+/// elsewhere, NaN at some and large (leaving the image) at others, with latest-frame offsets of
+/// the same kinds.
+struct SearchCase {
+    img: Img,
+    vf: Vec<[f32; 3]>,
+    vb: Vec<[f32; 3]>,
+    offsets: Vec<[f32; 4]>,
+}
+
+impl SearchCase {
+    fn new(w: usize, h: usize, seed: u32) -> SearchCase {
+        let mut seed = seed;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed as f32 / u32::MAX as f32
+        };
+        let mut flow = |_| {
+            let kind = rnd();
+            let s = if kind < 0.4 {
+                0.0
+            } else if kind < 0.9 {
+                0.3
+            } else {
+                3.0
+            };
+            let v = [(rnd() - 0.5) * s, (rnd() - 0.5) * s, (rnd() - 0.5) * 0.01];
+            if kind > 0.97 {
+                [f32::NAN; 3]
+            } else {
+                v
+            }
+        };
+        let vf: Vec<[f32; 3]> = (0..w * h).map(&mut flow).collect();
+        let vb: Vec<[f32; 3]> = (0..w * h).map(&mut flow).collect();
+        let offsets = (0..w * h)
+            .map(|_| {
+                let [a, b, _] = flow(0);
+                let [c, d, _] = flow(0);
+                [a, b, c, d]
+            })
+            .collect();
+        let img = Img {
+            cam: camera(w, h),
+            color: vec![0; w * h * 3],
+            depth: (0..w * h)
+                .map(|_| z_of(2.0 + 8.0 * f64::from(rnd())))
+                .collect(),
+            motion: vec![0.0; w * h * 3],
+        };
+        SearchCase {
+            img,
+            vf,
+            vb,
+            offsets,
+        }
+    }
+
+    /// `tol_px`: the error tolerance in pixels (the method's is 1).
+    fn context(&self, alpha: f32, iterations: usize, tol_px: f32) -> Bidir<'_> {
+        let (w, h) = (self.img.cam.width, self.img.cam.height);
+        let view = self.img.frame().main;
+        let short = w.min(h) as f32;
+        Bidir {
+            older: Side {
+                view,
+                flow: &self.vf,
+                w: alpha,
+            },
+            newer: Side {
+                view,
+                flow: &self.vb,
+                w: 1.0 - alpha,
+            },
+            width: w,
+            height: h,
+            alpha,
+            iterations,
+            tol_e: tol_px * 2.0 / short,
+            eps_z: Params::default().eps_z,
+            scale: [w as f32 / short, h as f32 / short],
+            latest: Some(Latest {
+                offsets: &self.offsets,
+                scale_f: Some(1.5),
+                scale_b: 0.5,
+            }),
+            xs: (0..w).map(|i| ndc_of_pixel(i, 0, w, h)[0]).collect(),
+            ys: (0..h).map(|j| ndc_of_pixel(0, j, w, h)[1]).collect(),
+        }
+    }
+}
+
+/// `Bidir::search` leaves the iteration once a step stays on its pixel (or would leave the
+/// image): it ends on the pixel that every one of the `iterations` steps, taken to the end,
+/// reaches.
+#[test]
+fn backward_bidir_search_ends_where_all_its_steps_would() {
+    let (w, h) = (29, 17);
+    let case = SearchCase::new(w, h, 0x9e37_79b9);
+    let mut stopped_early = 0;
+    for iterations in [0, 1, 3, 7] {
+        let ctx = case.context(0.35, iterations, 1.0);
+        for dir in [Dir::Forward, Dir::Backward] {
+            let (side, _) = ctx.side(dir);
+            for (n, p) in (0..w * h).enumerate() {
+                let t = [ctx.xs[p % w], ctx.ys[p / w]];
+                // Start away from the target's pixel too.
+                let p0 = (p * 7 + n % 5) % (w * h);
+                let p0 = Px {
+                    i: p0 % w,
+                    j: p0 / w,
+                    p: p0,
+                };
+                let (mut q, mut steps) = (p0, 0);
+                for _ in 0..iterations {
+                    let v = side.flow[q.p];
+                    if let Some(next) = ctx.pixel(t[0] - side.w * v[0], t[1] - side.w * v[1]) {
+                        steps += usize::from(next.p != q.p);
+                        q = next;
+                    }
+                }
+                stopped_early += usize::from(steps < iterations);
+                let found = ctx.search(side, t, p0);
+                assert_eq!((found.q.i, found.q.j, found.q.p), (q.i, q.j, q.p));
+            }
+        }
+    }
+    assert!(
+        stopped_early > 1000,
+        "the case must have searches that stop: {stopped_early}"
+    );
+}
+
+/// `Bidir::better` is antisymmetric, and `Bidir::direction`, which skips the search of an
+/// initial pixel already searched, gives what searching every initialisation gives.
+#[test]
+fn backward_bidir_direction_skips_only_repeated_searches() {
+    let (w, h) = (61, 37);
+    let case = SearchCase::new(w, h, 0x1234_5677);
+    let ctx = case.context(0.6, 3, 3.0);
+    let mut repeats = 0;
+    let mut latest_decides = 0;
+    for dir in [Dir::Forward, Dir::Backward] {
+        let (side, other) = ctx.side(dir);
+        for p in 0..w * h {
+            let (i, j) = (p % w, p / w);
+            let t = [ctx.xs[i], ctx.ys[j]];
+            let vo = other.flow[p];
+            let guesses = [
+                Some(Px { i, j, p }),
+                ctx.pixel(t[0] + side.w * vo[0], t[1] + side.w * vo[1]),
+                ctx.latest_init(dir, side, i, j, t),
+            ];
+            let found: Vec<Found> = guesses
+                .iter()
+                .flatten()
+                .map(|&p0| ctx.search(side, t, p0))
+                .collect();
+            for a in &found {
+                assert!(!ctx.better(a, a));
+                for b in &found {
+                    assert!(!(ctx.better(a, b) && ctx.better(b, a)));
+                }
+            }
+            let mut best = found[0];
+            for c in &found[1..] {
+                if ctx.better(c, &best) {
+                    best = *c;
+                }
+            }
+            // The latest-frame guess decides where it differs from both others and beats them.
+            if let [Some(a), Some(b), Some(c)] = guesses {
+                let distinct = a.p != b.p && c.p != a.p && c.p != b.p;
+                let beats = ctx.better(&found[2], &found[1]) && ctx.better(&found[2], &found[0]);
+                latest_decides += usize::from(distinct && beats);
+            }
+            let got = ctx.direction(dir, i, j, t);
+            assert_eq!(got.q.p, best.q.p);
+            assert_eq!(
+                (got.e.to_bits(), got.z.to_bits()),
+                (best.e.to_bits(), best.z.to_bits())
+            );
+            let ps: Vec<usize> = guesses.iter().flatten().map(|q| q.p).collect();
+            repeats += usize::from(ps[1..].iter().any(|q| ps[..1].contains(q)));
+        }
+    }
+    // The case must have both: repeated guesses (skipped) and decisive distinct ones (searched).
+    assert!(
+        repeats > 300 && latest_decides > 100,
+        "{repeats} repeats, {latest_decides} decisive"
+    );
+}
