@@ -577,12 +577,20 @@ impl Bidir<'_> {
             Dir::Backward => (latest.scale_b, 2),
         };
         let mut best: Option<(f32, Px)> = None;
+        // The pixel whose depth was loaded last. Neighbours' offsets are nearly equal where the
+        // motion is smooth, so most of the nine land on the same pixel; one already weighed has
+        // the same depth, which cannot win (ties keep the first), so its loads are skipped.
+        let mut last = usize::MAX;
         for qj in j.saturating_sub(1)..=(j + 1).min(self.height - 1) {
             for qi in i.saturating_sub(1)..=(i + 1).min(self.width - 1) {
                 let d = latest.offsets[qj * self.width + qi];
                 let Some(p0) = self.pixel(t[0] - scale * d[k], t[1] - scale * d[k + 1]) else {
                     continue; // NaN offsets land here too
                 };
+                if p0.p == last {
+                    continue;
+                }
+                last = p0.p;
                 let z = side.view.depth[p0.p] + side.w * side.flow[p0.p][2];
                 // NaN depth fails the comparison; ties keep the first in scan order.
                 if z.is_finite() && best.is_none_or(|(bz, _)| z > bz) {

@@ -607,3 +607,48 @@ fn backward_bidir_direction_skips_only_repeated_searches() {
         "{repeats} repeats, {latest_decides} decisive"
     );
 }
+
+/// `Bidir::latest_init`, which weighs a pixel that the previous neighbour also landed on only
+/// once, picks what weighing all nine neighbours' landing pixels picks: the largest finite
+/// reversed depth at `t+α`, the first in scan order on ties.
+#[test]
+fn backward_bidir_latest_init_is_the_nearest_of_the_nine() {
+    let (w, h) = (61, 37);
+    let case = SearchCase::new(w, h, 0x0bad_cafe);
+    let ctx = case.context(0.4, 3, 1.0);
+    let latest = ctx.latest.as_ref().unwrap();
+    let (mut repeats, mut chosen) = (0, 0);
+    for (dir, scale, k) in [
+        (Dir::Forward, latest.scale_f.unwrap(), 0),
+        (Dir::Backward, latest.scale_b, 2),
+    ] {
+        let (side, _) = ctx.side(dir);
+        for p in 0..w * h {
+            let (i, j) = (p % w, p / w);
+            let t = [ctx.xs[i], ctx.ys[j]];
+            let mut want: Option<(f32, usize)> = None;
+            let mut landed = Vec::new();
+            for qj in j.saturating_sub(1)..=(j + 1).min(h - 1) {
+                for qi in i.saturating_sub(1)..=(i + 1).min(w - 1) {
+                    let d = latest.offsets[qj * w + qi];
+                    let Some(p0) = ctx.pixel(t[0] - scale * d[k], t[1] - scale * d[k + 1]) else {
+                        continue;
+                    };
+                    repeats += usize::from(landed.last() == Some(&p0.p));
+                    landed.push(p0.p);
+                    let z = side.view.depth[p0.p] + side.w * side.flow[p0.p][2];
+                    if z.is_finite() && want.is_none_or(|(bz, _)| z > bz) {
+                        want = Some((z, p0.p));
+                    }
+                }
+            }
+            let got = ctx.latest_init(dir, side, i, j, t);
+            assert_eq!(got.map(|q| q.p), want.map(|(_, q)| q), "pixel {p}, {dir:?}");
+            chosen += usize::from(got.is_some());
+        }
+    }
+    assert!(
+        repeats > 1000 && chosen > 1000,
+        "{repeats} repeats, {chosen} chosen"
+    );
+}
