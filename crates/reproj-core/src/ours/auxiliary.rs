@@ -342,7 +342,8 @@ impl Resolve<'_> {
     /// that competes with it is the best of the flagged cells that cover the pixel, the same for
     /// every pixel of a run that falls in the same cells (two or more client pixels per cell), and
     /// only one that is not visible in main (rule 2) can replace main at all, so most runs need no
-    /// per-pixel work. The pixels without a main match are merged one by one.
+    /// per-pixel work. The pixels without a main match are merged one by one, except that one in
+    /// the same cells as the pixel before it takes that pixel's result.
     #[inline(never)]
     pub(super) fn aux_row(
         &self,
@@ -481,19 +482,31 @@ impl Resolve<'_> {
                 }
             }
         });
-        // Where main found nothing (rule 1): the best auxiliary match of any covering grid.
+        // Where main found nothing (rule 1): the best auxiliary match of any covering grid. A
+        // pixel in the same cell of every grid as the pixel before it (a cell covers two or more
+        // client columns) takes that pixel's result: the cells were searched for it, so the
+        // merge would read and combine the same values again.
+        let mut last: Option<(usize, Option<AuxCell>)> = None;
         for &i in &none {
             let i = i as usize;
-            let mut aux: Option<AuxCell> = None;
-            for (g, (grid, block)) in self.aux.iter().zip(blocks.iter_mut()).enumerate() {
-                let (ai, aj) = (grid.col_of[i], grid.row_of[j]);
-                if ai == u32::MAX || aj == u32::MAX {
-                    continue;
+            let aux = match last {
+                Some((l, aux)) if self.aux.iter().all(|g| g.col_of[i] == g.col_of[l]) => aux,
+                _ => {
+                    let mut aux: Option<AuxCell> = None;
+                    for (g, (grid, block)) in self.aux.iter().zip(blocks.iter_mut()).enumerate() {
+                        let (ai, aj) = (grid.col_of[i], grid.row_of[j]);
+                        if ai == u32::MAX || aj == u32::MAX {
+                            continue;
+                        }
+                        let c = self.aux_cell(1 + g, grid, block, ai as usize, aj as usize);
+                        if let Some(c) = c {
+                            aux = Some(*better_aux(aux.as_ref(), &c, eps_z));
+                        }
+                    }
+                    aux
                 }
-                if let Some(c) = self.aux_cell(1 + g, grid, block, ai as usize, aj as usize) {
-                    aux = Some(*better_aux(aux.as_ref(), &c, eps_z));
-                }
-            }
+            };
+            last = Some((i, aux));
             if let Some(a) = aux {
                 (src[i], p[i], e[i], z[i]) = (a.src, a.p, a.e, a.z);
             }
