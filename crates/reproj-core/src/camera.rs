@@ -408,6 +408,29 @@ pub fn ndc_of_pixel(i: usize, j: usize, w: usize, h: usize) -> [f32; 2] {
     ]
 }
 
+/// The NDC of every pixel centre of a `W × H` image, by column (x) and by row (y): the same values
+/// as [`ndc_of_pixel`] (which is separable), looked up instead of divided for each search.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct NdcTable {
+    pub(crate) x: Vec<f32>,
+    pub(crate) y: Vec<f32>,
+}
+
+impl NdcTable {
+    pub(crate) fn new(w: usize, h: usize) -> NdcTable {
+        NdcTable {
+            x: (0..w).map(|i| ndc_of_pixel(i, 0, w, h)[0]).collect(),
+            y: (0..h).map(|j| ndc_of_pixel(0, j, w, h)[1]).collect(),
+        }
+    }
+
+    /// The NDC of the centre of pixel `(i, j)`.
+    #[inline(always)]
+    pub(crate) fn at(&self, i: usize, j: usize) -> [f32; 2] {
+        [self.x[i], self.y[j]]
+    }
+}
+
 /// The pixel of a `w × h` image that contains NDC `(x, y)`: `i = ⌊(x+1)·W/2⌋`,
 /// `j = ⌊(1−y)·H/2⌋`; `None` outside the image or for NaN.
 #[inline(always)]

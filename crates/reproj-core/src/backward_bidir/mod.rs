@@ -40,7 +40,7 @@
 
 use rayon::prelude::*;
 
-use crate::camera::{ndc_of_pixel, pixel_of_ndc, Projector};
+use crate::camera::{pixel_of_ndc, NdcTable, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, GeometryKey};
 use crate::ours::PairCache;
@@ -230,29 +230,7 @@ pub fn run(
             scale_f: (a0 > 0.0).then(|| alpha / a0),
             scale_b: (1.0 - alpha) / (1.0 - a0),
         });
-        let short = w.min(h) as f32;
-        let ctx = Bidir {
-            older: Side {
-                view: ov,
-                flow: vf,
-                w: alpha,
-            },
-            newer: Side {
-                view: nv,
-                flow: vb,
-                w: 1.0 - alpha,
-            },
-            width: w,
-            height: h,
-            alpha,
-            iterations: params.bidir_iterations,
-            tol_e: 2.0 / short,
-            eps_z: params.eps_z,
-            scale: [w as f32 / short, h as f32 / short],
-            latest,
-            xs: (0..w).map(|i| ndc_of_pixel(i, 0, w, h)[0]).collect(),
-            ys: (0..h).map(|j| ndc_of_pixel(0, j, w, h)[1]).collect(),
-        };
+        let ctx = Bidir::new([(ov, vf), (nv, vb)], alpha, params, latest);
         match out.diag {
             Some(d) => out
                 .image
@@ -419,14 +397,44 @@ struct Bidir<'a> {
     /// Aspect scaling of the error: `(W, H) / min(W, H)`.
     scale: [f32; 2],
     latest: Option<Latest<'a>>,
-    /// NDC x of each column's and y of each row's pixel centres ([`crate::camera::ndc_of_pixel`]
-    /// is separable): a search's pixel is kept as its column and row, so that its NDC needs no
-    /// division of the flat index.
-    xs: Vec<f32>,
-    ys: Vec<f32>,
+    /// The NDC of the pixel centres: a search's pixel is kept as its column and row, so that its
+    /// NDC needs no division of the flat index.
+    ndc: NdcTable,
 }
 
-impl Bidir<'_> {
+impl<'a> Bidir<'a> {
+    /// The context at `alpha` for the two I-frames (of the same size) with their full flows:
+    /// `[(older, Vᶠ), (newer, Vᵇ)]`.
+    fn new(
+        [(ov, vf), (nv, vb)]: [(CameraView<'a>, &'a [[f32; 3]]); 2],
+        alpha: f32,
+        params: &Params,
+        latest: Option<Latest<'a>>,
+    ) -> Bidir<'a> {
+        let (w, h) = (ov.camera.width, ov.camera.height);
+        let short = w.min(h) as f32;
+        Bidir {
+            older: Side {
+                view: ov,
+                flow: vf,
+                w: alpha,
+            },
+            newer: Side {
+                view: nv,
+                flow: vb,
+                w: 1.0 - alpha,
+            },
+            width: w,
+            height: h,
+            alpha,
+            iterations: params.bidir_iterations,
+            tol_e: 2.0 / short,
+            eps_z: params.eps_z,
+            scale: [w as f32 / short, h as f32 / short],
+            latest,
+            ndc: NdcTable::new(w, h),
+        }
+    }
     /// Resolves the output rows starting at `j0`, in 16×16 tiles, writing colours, the offsets for
     /// the history and the diagnostics.
     fn resolve_rows(
@@ -474,10 +482,11 @@ impl Bidir<'_> {
         })
     }
 
-    /// NDC of the centre of pixel `q` (the same values as [`ndc_of_pixel`]).
+    /// NDC of the centre of pixel `q` (the same values as
+    /// [`ndc_of_pixel`](crate::camera::ndc_of_pixel)).
     #[inline(always)]
     fn ndc(&self, q: Px) -> [f32; 2] {
-        [self.xs[q.i], self.ys[q.j]]
+        self.ndc.at(q.i, q.j)
     }
 
     /// The iterative search of seeds/001 eqs. 5 / 9 in `side` from `p0`: `p ← pix(T − w·V[p].xy)`,
@@ -641,7 +650,7 @@ impl Bidir<'_> {
     /// The whole per-pixel decision: the pixel's [`Resolved`] (`None`: not written) and its
     /// offsets `[dᶠ.x, dᶠ.y, dᵇ.x, dᵇ.y]` for the history.
     fn resolve_pixel(&self, i: usize, j: usize) -> (Option<Resolved>, [f32; 4]) {
-        let t = [self.xs[i], self.ys[j]];
+        let t = self.ndc.at(i, j);
         let f = self.direction(Dir::Forward, i, j, t);
         let b = self.direction(Dir::Backward, i, j, t);
         // The offset d_m = w·V[p_m].xy of eq. 5 / 9, i.e. T − p for the converged continuous

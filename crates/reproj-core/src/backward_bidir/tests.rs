@@ -22,6 +22,16 @@ fn z_of(d: f64) -> f32 {
     (0.1 * (100.0 - d) / (d * (100.0 - 0.1))) as f32
 }
 
+/// A xorshift generator of uniform values in `[0, 1]` from `seed` (not 0).
+fn xorshift(mut seed: u32) -> impl FnMut() -> f32 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed as f32 / u32::MAX as f32
+    }
+}
+
 /// Owned buffers of one synthetic I-frame.
 #[derive(Clone)]
 struct Img {
@@ -360,13 +370,7 @@ fn backward_bidir_rejects_size_mismatch() {
 fn backward_bidir_same_result_for_1_and_4_threads() {
     let (w, h) = (67, 45);
     let cam = camera(w, h);
-    let mut seed = 0x2545_f491_u32;
-    let mut rnd = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 17;
-        seed ^= seed << 5;
-        seed as f32 / u32::MAX as f32
-    };
+    let mut rnd = xorshift(0x2545_f491);
     let mut img = || Img {
         cam,
         color: (0..w * h * 3).map(|_| (rnd() * 255.0) as u8).collect(),
@@ -425,13 +429,7 @@ struct SearchCase {
 
 impl SearchCase {
     fn new(w: usize, h: usize, seed: u32) -> SearchCase {
-        let mut seed = seed;
-        let mut rnd = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed as f32 / u32::MAX as f32
-        };
+        let mut rnd = xorshift(seed);
         let mut flow = |_| {
             let kind = rnd();
             let s = if kind < 0.4 {
@@ -475,35 +473,24 @@ impl SearchCase {
 
     /// `tol_px`: the error tolerance in pixels (the method's is 1).
     fn context(&self, alpha: f32, iterations: usize, tol_px: f32) -> Bidir<'_> {
-        let (w, h) = (self.img.cam.width, self.img.cam.height);
         let view = self.img.frame().main;
-        let short = w.min(h) as f32;
-        Bidir {
-            older: Side {
-                view,
-                flow: &self.vf,
-                w: alpha,
-            },
-            newer: Side {
-                view,
-                flow: &self.vb,
-                w: 1.0 - alpha,
-            },
-            width: w,
-            height: h,
+        let params = Params {
+            bidir_iterations: iterations,
+            ..Params::default()
+        };
+        let latest = Latest {
+            offsets: &self.offsets,
+            scale_f: Some(1.5),
+            scale_b: 0.5,
+        };
+        let mut ctx = Bidir::new(
+            [(view, &self.vf), (view, &self.vb)],
             alpha,
-            iterations,
-            tol_e: tol_px * 2.0 / short,
-            eps_z: Params::default().eps_z,
-            scale: [w as f32 / short, h as f32 / short],
-            latest: Some(Latest {
-                offsets: &self.offsets,
-                scale_f: Some(1.5),
-                scale_b: 0.5,
-            }),
-            xs: (0..w).map(|i| ndc_of_pixel(i, 0, w, h)[0]).collect(),
-            ys: (0..h).map(|j| ndc_of_pixel(0, j, w, h)[1]).collect(),
-        }
+            &params,
+            Some(latest),
+        );
+        ctx.tol_e *= tol_px;
+        ctx
     }
 }
 
@@ -520,7 +507,7 @@ fn backward_bidir_search_ends_where_all_its_steps_would() {
         for dir in [Dir::Forward, Dir::Backward] {
             let (side, _) = ctx.side(dir);
             for (n, p) in (0..w * h).enumerate() {
-                let t = [ctx.xs[p % w], ctx.ys[p / w]];
+                let t = ctx.ndc.at(p % w, p / w);
                 // Start away from the target's pixel too.
                 let p0 = (p * 7 + n % 5) % (w * h);
                 let p0 = Px {
@@ -561,7 +548,7 @@ fn backward_bidir_direction_skips_only_repeated_searches() {
         let (side, other) = ctx.side(dir);
         for p in 0..w * h {
             let (i, j) = (p % w, p / w);
-            let t = [ctx.xs[i], ctx.ys[j]];
+            let t = ctx.ndc.at(i, j);
             let vo = other.flow[p];
             let guesses = [
                 Some(Px { i, j, p }),
@@ -625,7 +612,7 @@ fn backward_bidir_latest_init_is_the_nearest_of_the_nine() {
         let (side, _) = ctx.side(dir);
         for p in 0..w * h {
             let (i, j) = (p % w, p / w);
-            let t = [ctx.xs[i], ctx.ys[j]];
+            let t = ctx.ndc.at(i, j);
             let mut want: Option<(f32, usize)> = None;
             let mut landed = Vec::new();
             for qj in j.saturating_sub(1)..=(j + 1).min(h - 1) {

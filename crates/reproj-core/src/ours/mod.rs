@@ -59,7 +59,7 @@ use std::sync::atomic::AtomicU8;
 
 use rayon::prelude::*;
 
-use crate::camera::{Camera, Mat4, NdcTransfer, Projector};
+use crate::camera::{Camera, Mat4, NdcTable, NdcTransfer, Projector};
 use crate::error::{ReprojError, Result};
 use crate::frame::{CameraView, FrameView, ShadowView};
 use crate::params::Params;
@@ -221,32 +221,6 @@ impl SrcRow {
     #[inline(always)]
     fn ndc_y(self) -> f32 {
         crate::camera::ndc_of_pixel(0, self.j, self.sw, self.sh)[1]
-    }
-}
-
-/// The NDC of every pixel centre of a `W × H` image, by column (x) and by row (y): the same values
-/// as [`crate::camera::ndc_of_pixel`], looked up instead of divided for each search.
-#[derive(Debug, Clone, Default)]
-struct NdcTable {
-    x: Vec<f32>,
-    y: Vec<f32>,
-}
-
-impl NdcTable {
-    fn new(w: usize, h: usize) -> NdcTable {
-        NdcTable {
-            x: (0..w)
-                .map(|i| crate::camera::ndc_of_pixel(i, 0, w, h)[0])
-                .collect(),
-            y: (0..h)
-                .map(|j| crate::camera::ndc_of_pixel(0, j, w, h)[1])
-                .collect(),
-        }
-    }
-
-    #[inline(always)]
-    fn at(&self, i: usize, j: usize) -> [f32; 2] {
-        [self.x[i], self.y[j]]
     }
 }
 

@@ -365,7 +365,7 @@ struct FlowRow<'a> {
     j: usize,
     sw: usize,
     sh: usize,
-    /// NDC x of the pixel centres ([`NdcTable`](super::NdcTable)).
+    /// NDC x of the pixel centres ([`NdcTable`](crate::camera::NdcTable)).
     x: &'a [f32],
     depth: &'a [f32],
     /// The row's object motion, `3·sw` values, or `None` for a static frame.
