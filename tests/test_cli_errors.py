@@ -175,6 +175,20 @@ def test_internal_failure_exits_1_and_says_it_is_a_bug(
     assert err.splitlines()[-1].startswith("splitrender: internal error: KeyError")
 
 
+def test_a_full_disk_exits_1_with_one_line_and_is_not_called_a_bug(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    import splitrender.cli.example as example
+
+    def full(args: Any) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "video.mp4"))
+
+    monkeypatch.setattr(example, "run", full)
+    code, err = run(["example", "--out", str(tmp_path / "e")], capsys)
+    assert code == 1
+    assert err == f"splitrender: error: {tmp_path / 'video.mp4'}: No space left on device\n"
+
+
 def test_a_reader_that_goes_away_ends_the_command_quietly() -> None:
     # `splitrender ... | head`: the pipe breaks when the command next writes. In a subprocess,
     # so that its stdout is a real pipe.

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 from pathlib import Path
 
 import pytest
 from splitrender.evaluation.bench import BENCH_KEYS
 from splitrender.cli import main
 import numpy as np
-from splitrender.evaluation.demo import DEFAULT_METHODS, ROW_KEYS, _Video, colormap
+from splitrender.evaluation.demo import DEFAULT_METHODS, ROW_KEYS, TruthStore, _Video, colormap
 
 av = pytest.importorskip("av")
 
@@ -140,3 +142,71 @@ def test_a_failed_video_leaves_the_previous_one_and_no_temporary(tmp_path: Path)
     assert path.read_bytes() == good
     assert [p.name for p in tmp_path.iterdir()] == ["video.mp4"]
 
+
+
+def test_truth_store_holds_the_frames_in_an_unlinked_file(tmp_path: Path) -> None:
+    # The demo's ground truth lives in a file mapped into memory, not in the heap, and the file
+    # is gone from the directory from the start: nothing is left however the run ends.
+    rng = np.random.default_rng(7)
+    frames = rng.integers(0, 256, (2, 5, 6, 8, 3), dtype=np.uint8)
+    with TruthStore(tmp_path, 2, 5, 6, 8) as store:
+        assert isinstance(store.frames, np.memmap)
+        assert list(tmp_path.iterdir()) == []
+        for e in range(2):
+            for n in range(5):
+                store.frames[e, n] = frames[e, n]
+        for e in range(2):
+            eye = store.eye(e)
+            assert len(eye) == 5
+            assert all((eye[n] == frames[e, n]).all() for n in range(5))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_truth_store_on_a_full_disk_names_the_size_and_leaves_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def full(fd: int, offset: int, size: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", full)
+    with pytest.raises(OSError, match=r"cannot reserve 0\.14 GB for the 200 ground-truth") as e:
+        TruthStore(tmp_path, 2, 100, 360, 640)
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(tmp_path)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_demo_plays_from_the_packets_and_holds_no_sequence_of_frames(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The demo's memory must not grow with its length: it used to hold every decoded server
+    # frame, ground truth and video frame of the run (5 GB for 4 s at 1280x720). Each play now
+    # decodes the packets as the client needs them, reads the ground truth from the file on
+    # disk, and keeps no client frame (they go to the scorer, the stills and the video).
+    import splitrender.evaluation.pipeline as pipeline
+    from splitrender.codec.coder import DecodedStream
+    from splitrender.evaluation.demo import DemoConfig, run_demo
+
+    seen: list[dict[str, object]] = []
+    play = pipeline.play_and_score_eyes
+
+    def spy(frames: object, cameras: object, truth: list[object], *a: object,
+            **k: object) -> object:
+        seen.append({"frames": frames, "truth": truth, **k})
+        return play(frames, cameras, truth, *a, **k)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(pipeline, "play_and_score_eyes", spy)
+    res = run_demo(DemoConfig(out=tmp_path / "o", scale=0.04, seconds=0.3, vmaf=False,
+                              methods=("timewarp", "ours"), progress=False))
+    assert [r["method"] for r in res.rows] == ["timewarp", "ours"]
+    assert len(seen) == 2
+    for call in seen:
+        assert isinstance(call["frames"], DecodedStream)
+        assert call["keep_images"] is False
+        [truth] = call["truth"]  # type: ignore[misc]
+        assert isinstance(truth, np.memmap) and len(truth) == 36
+    # The video (of `ours`, written as it was played) has every client frame; the ground truth's
+    # file is gone.
+    with av.open(str(tmp_path / "o" / "video.mp4")) as c:
+        assert sum(1 for _ in c.decode(video=0)) == 36
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [
+        "stills", "summary.json", "summary.md", "video.mp4"]

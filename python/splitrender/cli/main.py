@@ -8,6 +8,7 @@ module only dispatches.
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 import traceback
@@ -20,6 +21,12 @@ from splitrender.errors import SplitRenderError, is_user_error
 from splitrender.reproject import METHODS
 
 __all__ = ["main"]
+
+#: ``errno`` values of an :class:`OSError` that is the machine's, not a bug: the disk or the
+#: quota is full, the device failed, the process or the system ran out of files or memory.
+_MACHINE_ERRNOS = frozenset({
+    errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EMFILE, errno.ENFILE, errno.ENOMEM,
+})
 
 #: Set (to anything but empty or 0) to print the traceback of an internal error.
 DEBUG_ENV = "SPLITRENDER_DEBUG"
@@ -58,7 +65,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     0: done. 2: the caller's error (:func:`~splitrender.errors.is_user_error`: a bad argument,
     an unreadable or malformed input, a refused destination ...), one ``splitrender: error:``
     line naming it, as argparse does for a bad option. 1: a failure that is not the caller's
-    (``SplitRenderError`` itself: an external tool or the device; any other exception: a bug,
+    (``SplitRenderError`` itself: an external tool or the device; an ``OSError`` of the machine,
+    such as a full disk, one line too; any other exception: a bug,
     said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted. 141: the
     reader of the output went away (a broken pipe), said nothing."""
     parser = build_parser()
@@ -82,7 +90,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if is_user_error(e):
             print(f"{PROG}: error: {_describe(e)}", file=sys.stderr)
             return 2
-        if isinstance(e, SplitRenderError):
+        if isinstance(e, SplitRenderError) or (
+            isinstance(e, OSError) and e.errno in _MACHINE_ERRNOS
+        ):
             print(f"{PROG}: error: {_describe(e)}", file=sys.stderr)
             return 1
         if os.environ.get(DEBUG_ENV, "") not in ("", "0"):

@@ -3,20 +3,25 @@
 Stages (progress on stderr, the summary table on stdout at the end):
 
 1. render the server frames (10 FPS, main + two auxiliary cameras, every buffer, at the scene's
-   predicted pose) and the ground-truth client frames (120 FPS, at the client's actual pose);
-2. encode every server frame with :class:`~splitrender.codec.coder.StreamEncoder` at the bitrate
-   (default: the paper's 40 Mb/s scaled by pixel count, :meth:`CodecConfig.scaled`, but at least
-   1.6 Mb/s, see :data:`MIN_DEMO_BITRATE_MBPS`) and decode it
-   with :class:`~splitrender.codec.coder.StreamDecoder`; the client only sees the decoded frames;
-3. per method: :func:`~splitrender.play` through the network model (default: ideal link,
-   ``l = 0``, no loss; the packets' real sizes), then
-   :func:`~splitrender.evaluation.metrics.evaluate_sequence` against the ground truth (first and last 12
-   client frames excluded);
-4. write ``video.mp4`` (ground truth | ``ours`` | FLIP error map of ``ours``), still PNGs,
-   ``summary.md`` and ``summary.json``.
+   predicted pose), each encoded as it is made with
+   :class:`~splitrender.codec.coder.StreamEncoder` at the bitrate (default: the paper's 40 Mb/s
+   scaled by pixel count, :meth:`CodecConfig.scaled`, but at least 1.6 Mb/s, see
+   :data:`MIN_DEMO_BITRATE_MBPS`); only the packets are kept;
+2. render the ground-truth client frames (120 FPS, at the client's actual pose) into a
+   :class:`TruthStore` on disk;
+3. per method: :func:`~splitrender.play` of the packets, decoded as the client needs each
+   (:class:`~splitrender.codec.coder.DecodedStream`: the client only sees decoded frames),
+   through the network model (default: ideal link, ``l = 0``, no loss; the packets' real sizes),
+   each client frame scored as it is made against the ground truth
+   (:func:`~splitrender.evaluation.pipeline.play_and_score_eyes`; first and last 12 client
+   frames excluded), its stills written, and for ``ours`` (else the first method) its frame of
+   ``video.mp4`` (ground truth | ``ours`` | FLIP error map of ``ours``);
+4. write ``summary.md`` and ``summary.json``.
 
-Only one method's client frames are held at a time (plus the video's and the stills'), so memory
-stays at a few sequences whatever the number of methods.
+Memory does not grow with the run's length or the number of methods: no sequence of frames is
+held (the packets, a few MB a second, are). The ground truth takes ``eyes x frames x W x H x 3``
+bytes of disk in the output directory while the demo runs (1.3 GB per eye for 4 s at 1280x720),
+and nothing once it ends.
 """
 
 from __future__ import annotations
@@ -27,10 +32,10 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -363,14 +368,62 @@ def default_bitrate_mbps(width: int, height: int) -> float:
     return max(scaled, MIN_DEMO_BITRATE_MBPS)
 
 
+class TruthStore:
+    """The ground-truth client frames of a run (``eyes x n`` images of ``height x width`` RGB8)
+    in a file on disk, mapped into memory: the demo renders them once and every method is scored
+    against them, but they are never all resident (a 4 s run at 1280x720 is 1.3 GB per eye; the
+    pages are the file's, which the kernel drops under pressure and reads back when needed).
+
+    The file is created in ``directory`` (the run's output directory: a temporary directory may
+    be a RAM disk) already unlinked, so nothing is left behind however the run ends, and its
+    blocks are reserved at once: a disk too full for it raises :class:`OSError` (``ENOSPC``) here
+    with the size in the message, not a crash on a write to the mapping later."""
+
+    def __init__(self, directory: Path, eyes: int, n: int, height: int, width: int) -> None:
+        import tempfile
+
+        shape = (eyes, n, height, width, 3)
+        size = math.prod(shape)
+        self._file = tempfile.TemporaryFile(dir=directory, prefix=".demo-truth-")
+        try:
+            if hasattr(os, "posix_fallocate"):
+                os.posix_fallocate(self._file.fileno(), 0, max(size, 1))
+            else:  # pragma: no cover - not Linux: a sparse file
+                self._file.truncate(max(size, 1))
+        except OSError as e:
+            self._file.close()
+            raise OSError(
+                e.errno, f"cannot reserve {size / 1e9:.2f} GB for the {eyes * n} ground-truth "
+                f"frames ({e.strerror or e})", str(directory)
+            ) from None
+        self.frames: np.memmap[Any, np.dtype[np.uint8]] = np.memmap(
+            self._file, np.uint8, "r+", shape=shape
+        )
+
+    def eye(self, e: int) -> Sequence[_Image]:
+        """Eye ``e``'s frames (views of the file, read when indexed)."""
+        return cast(Sequence[_Image], self.frames[e])
+
+    def close(self) -> None:
+        """Closes the file. The mapping lasts while an array of it does (unmapping it under a
+        view would crash its reader); the file system frees the blocks when it ends."""
+        self._file.close()
+
+    def __enter__(self) -> TruthStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Runs the demo (see the module docstring) and writes its files to ``cfg.out``."""
     from dataclasses import replace
 
-    from splitrender.codec.coder import CodecConfig
+    from splitrender.codec.coder import CodecConfig, DecodedStream
     from splitrender.gpu import backend_for
     from splitrender.evaluation.pipeline import (
-        encode_decode,
+        encode_packets,
         mean_row,
         network_json,
         network_text,
@@ -393,85 +446,97 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     (out / "stills").mkdir(exist_ok=True)
     files: list[Path] = []
     t0 = time.perf_counter()
-
-    # 1. render
-    stages.stage(
-        f"rendering {scene.name} (dynamic) at {w}x{h}: {n_server} server frames at {FS:g} FPS, "
-        f"{n_client} ground-truth client frames at {FC:g} FPS{' per eye' if cfg.stereo else ''}"
-    )
-    total = n_server + n_client
-    server: list[ServerFrame] = []
-    for k in range(n_server):
-        server.append(scene.server_frame(k, cfg.scale, FS))
-        stages.bar(k + 1, total, "frames")
-    cameras: list[list[Any]] = [[] for _ in range(eyes)]
-    truths: list[list[_Image]] = [[] for _ in range(eyes)]
-    for n in range(n_client):
-        for e, (cam, img) in enumerate(scene.client_frames(n, cfg.scale, FC, cfg.stereo)):
-            cameras[e].append(cam)
-            truths[e].append(img)
-        stages.bar(n_server + n + 1, total, "frames")
-    truth = truths[0]  # the video and the stills show the (left) eye
-
-    # 2. encode + decode
     codec_cfg = (
         CodecConfig(bitrate_mbps=default_bitrate_mbps(w, h))
         if cfg.bitrate_mbps is None
         else CodecConfig(bitrate_mbps=cfg.bitrate_mbps)
     )
+
+    # 1. render the server frames, each encoded as it is made: only the packets are kept, and
+    # every method's play decodes them again as the client needs each frame (DecodedStream), so
+    # that no decoded run (about 50 MB per 1280x720 server frame) is ever held whole.
     stages.stage(
-        f"encoding {n_server} server frames at {codec_cfg.bitrate_mbps:.3g} Mb/s and decoding them"
+        f"rendering {scene.name} (dynamic) at {w}x{h}: {n_server} server frames at {FS:g} FPS, "
+        f"encoded at {codec_cfg.bitrate_mbps:.3g} Mb/s"
     )
-    decoded, sizes, mbps = encode_decode(server, codec_cfg, FS, stages.bar, n_server)
-    del server
+
+    def rendered() -> Iterator[ServerFrame]:
+        for k in range(n_server):
+            yield scene.server_frame(k, cfg.scale, FS)
+
+    packets, mbps = encode_packets(rendered(), codec_cfg, FS, stages.bar, n_server)
+    sizes = [len(p) for p in packets]
     network = replace(cfg.network or NetworkModel(), extra_delay_frames=cfg.delay_frames,
                       client_fps=FC)
 
     lo, hi = SKIP_FRAMES, n_client - SKIP_FRAMES - 1
     still_idx = sorted({round(lo + (hi - lo) * (i + 1) / (cfg.stills + 1)) for i in range(cfg.stills)})
     video_method = "ours" if "ours" in cfg.methods else cfg.methods[0]
-    video_frames: list[_Image] = []
     rows: list[dict[str, Any]] = []
-
-    # 3. per method: play + evaluate
-    for method in cfg.methods:
-        stages.stage(f"{method}: playing {n_client} client frames, then {', '.join(metrics)}")
-
-        scored = play_and_score_eyes(
-            decoded, cameras, truths, method, network, FC, metrics, frame_sizes=sizes,
-            bar=stages.bar, backend=backend_for(method, cfg.backend),
-        )
-        res = scored[0].playback
-        row: dict[str, Any] = {"method": method, **mean_row(scored), "mbps": mbps}
-        row = {k: row[k] for k in ROW_KEYS} | {"modes": res.summary()}
-        if cfg.stereo:
-            row["eyes"] = [s.row() for s in scored]
-        rows.append(row)
-        for n in still_idx:
-            still = out / "stills" / f"frame{n:04d}_{method}.png"
-            write_png(still, res.images[n])
-            files.append(still)
-        if method == video_method:
-            video_frames = res.images
-        del res, scored
-
-    # 4. video + stills + summary
-    stages.stage(f"writing video.mp4 (ground truth | {video_method} | FLIP map), stills, summary")
-    vw, vh = _side_by_side([truth[0]] * 3).shape[1::-1]
     video_path = out / "video.mp4"
-    with _Video(video_path, vw, vh, cfg.video_fps) as video:
+
+    with TruthStore(out, eyes, n_client, h, w) as store:
+        # 2. the ground truth at the client's actual pose, into the store on disk
+        stages.stage(
+            f"rendering {n_client} ground-truth client frames at {FC:g} FPS"
+            f"{' per eye' if cfg.stereo else ''}"
+        )
+        cameras: list[list[Any]] = [[] for _ in range(eyes)]
         for n in range(n_client):
-            err = colormap(flip_map(video_frames[n], truth[n]))
-            video.write(_side_by_side([truth[n], video_frames[n], err]))
-            if n in still_idx:
-                for name, img in (("ground_truth", truth[n]), (f"flip_{video_method}", err)):
-                    still = out / "stills" / f"frame{n:04d}_{name}.png"
-                    write_png(still, img)
-                    files.append(still)
-                still = out / "stills" / f"frame{n:04d}_side_by_side.png"
-                write_png(still, _side_by_side([truth[n], video_frames[n], err]))
-                files.append(still)
-            stages.bar(n + 1, n_client, "video frames")
+            for e, (cam, img) in enumerate(scene.client_frames(n, cfg.scale, FC, cfg.stereo)):
+                cameras[e].append(cam)
+                store.frames[e, n] = img
+            stages.bar(n + 1, n_client, "frames")
+        truths = [store.eye(e) for e in range(eyes)]
+        truth = truths[0]  # the video and the stills show the (left) eye
+
+        # 3. per method: play + evaluate; each client frame is scored as it is made and dropped
+        # (keep_images=False), its still and its video frame written from `on_frame`.
+        for method in cfg.methods:
+            stages.stage(f"{method}: playing {n_client} client frames, then {', '.join(metrics)}"
+                         + (f"; writing video.mp4 (ground truth | {method} | FLIP map)"
+                            if method == video_method else ""))
+            with contextlib.ExitStack() as stack:
+                video: _Video | None = None
+                if method == video_method:
+                    vw, vh = _side_by_side([truth[0]] * 3).shape[1::-1]
+                    video = stack.enter_context(_Video(video_path, vw, vh, cfg.video_fps))
+
+                def on_frame(eye: int, n: int, image: _Image, info: Any) -> None:
+                    if eye != 0:
+                        return
+                    if n in still_idx:
+                        still = out / "stills" / f"frame{n:04d}_{method}.png"
+                        write_png(still, image)
+                        files.append(still)
+                    if video is None:
+                        return
+                    err = colormap(flip_map(image, truth[n]))
+                    video.write(_side_by_side([truth[n], image, err]))
+                    if n in still_idx:
+                        for name, img in (("ground_truth", truth[n]), (f"flip_{method}", err)):
+                            still = out / "stills" / f"frame{n:04d}_{name}.png"
+                            write_png(still, img)
+                            files.append(still)
+                        still = out / "stills" / f"frame{n:04d}_side_by_side.png"
+                        write_png(still, _side_by_side([truth[n], image, err]))
+                        files.append(still)
+
+                scored = play_and_score_eyes(
+                    DecodedStream(packets), cameras, truths, method, network, FC, metrics,
+                    frame_sizes=sizes, bar=stages.bar, on_frame=on_frame,
+                    backend=backend_for(method, cfg.backend), keep_images=False,
+                )
+            res = scored[0].playback
+            row: dict[str, Any] = {"method": method, **mean_row(scored), "mbps": mbps}
+            row = {k: row[k] for k in ROW_KEYS} | {"modes": res.summary()}
+            if cfg.stereo:
+                row["eyes"] = [s.row() for s in scored]
+            rows.append(row)
+            del res, scored
+
+    # 4. summary
+    stages.stage("writing summary.md and summary.json")
     files.insert(0, video_path)
     elapsed = time.perf_counter() - t0
     result = DemoResult(w, h, n_server, n_client, codec_cfg.bitrate_mbps, mbps, rows, files, elapsed)
