@@ -6,6 +6,7 @@ import errno
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 from splitrender.evaluation.bench import BENCH_KEYS
@@ -175,38 +176,81 @@ def test_truth_store_on_a_full_disk_names_the_size_and_leaves_nothing(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_demo_plays_from_the_packets_and_holds_no_sequence_of_frames(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    # The demo's memory must not grow with its length: it used to hold every decoded server
-    # frame, ground truth and video frame of the run (5 GB for 4 s at 1280x720). Each play now
-    # decodes the packets as the client needs them, reads the ground truth from the file on
-    # disk, and keeps no client frame (they go to the scorer, the stills and the video).
+def _most_alive_in_demo(
+    out: Path, seconds: float, monkeypatch: pytest.MonkeyPatch
+) -> tuple[dict[str, int], Any]:
+    """Runs a tiny demo (``timewarp`` and ``ours``) and counts, with weak references (the arrays
+    are the native module's, outside what ``tracemalloc`` sees), the most ground truths and
+    client images alive at once, and the decodings of the stream (``decodes``) with the frames
+    each gave (``decoded``; the decoder reuses its arrays, so their life says nothing)."""
+    import gc
+    import weakref
+
     import splitrender.evaluation.pipeline as pipeline
     from splitrender.codec.coder import DecodedStream
     from splitrender.evaluation.demo import DemoConfig, run_demo
+    from splitrender.scene.builtin import Scene
 
-    seen: list[dict[str, object]] = []
-    play = pipeline.play_and_score_eyes
+    now = {"truth": 0, "image": 0}
+    most = {**now, "decodes": 0, "decoded": 0}
 
-    def spy(frames: object, cameras: object, truth: list[object], *a: object,
-            **k: object) -> object:
-        seen.append({"frames": frames, "truth": truth, **k})
-        return play(frames, cameras, truth, *a, **k)  # type: ignore[arg-type]
+    def track(kind: str, a: Any) -> None:
+        now[kind] += 1
+        most[kind] = max(most[kind], now[kind])
+        weakref.finalize(a, lambda: now.__setitem__(kind, now[kind] - 1))
 
-    monkeypatch.setattr(pipeline, "play_and_score_eyes", spy)
-    res = run_demo(DemoConfig(out=tmp_path / "o", scale=0.04, seconds=0.3, vmaf=False,
-                              methods=("timewarp", "ours"), progress=False))
+    render, decode, play = Scene.client_frames, DecodedStream.__iter__, pipeline.play_and_score_eyes
+
+    def rendered(self: Scene, *a: Any, **k: Any) -> Any:
+        eyes = render(self, *a, **k)
+        for _, img in eyes:
+            track("truth", img)
+        return eyes
+
+    def decoded(self: DecodedStream) -> Any:
+        most["decodes"] += 1
+        for f in decode(self):
+            most["decoded"] += 1
+            yield f
+
+    def played(*a: Any, on_frame: Any = None, **k: Any) -> Any:
+        def seen(eye: int, n: int, image: Any, info: Any) -> None:
+            track("image", image)
+            if on_frame is not None:
+                on_frame(eye, n, image, info)
+
+        return play(*a, on_frame=seen, **k)
+
+    with monkeypatch.context() as m:
+        m.setattr(Scene, "client_frames", rendered)
+        m.setattr(DecodedStream, "__iter__", decoded)
+        m.setattr(pipeline, "play_and_score_eyes", played)
+        gc.collect()
+        res = run_demo(DemoConfig(out=out, scale=0.04, seconds=seconds, vmaf=False,
+                                  methods=("timewarp", "ours"), progress=False))
+    return most, res
+
+
+def test_demo_holds_a_bounded_number_of_frames_whatever_the_length(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The demo used to hold every ground truth, decoded server frame and client frame of `ours`
+    # of the run (5 GB for 4 s at 1280x720). It now renders the ground truth into a file on
+    # disk, decodes the packets as each play needs them and writes every client frame out as it
+    # is made.
+    short, _ = _most_alive_in_demo(tmp_path / "short", 0.3, monkeypatch)  # 4 + 36 frames
+    long, res = _most_alive_in_demo(tmp_path / "long", 1.0, monkeypatch)  # 11 + 120
     assert [r["method"] for r in res.rows] == ["timewarp", "ours"]
-    assert len(seen) == 2
-    for call in seen:
-        assert isinstance(call["frames"], DecodedStream)
-        assert call["keep_images"] is False
-        [truth] = call["truth"]  # type: ignore[misc]
-        assert isinstance(truth, np.memmap) and len(truth) == 36
+    assert res.server_frames == 11 and res.client_frames == 120
+    assert long["truth"] == short["truth"] <= 2 and long["image"] == short["image"] <= 2, (
+        short, long)
+    # Each play decodes the stream as it goes (none is decoded up front and held), and stops
+    # once its last client frame is made: at most the 11 frames, and the pair of the last.
+    assert long["decodes"] == short["decodes"] == 2
+    assert 2 * 10 <= long["decoded"] <= 2 * 11
     # The video (of `ours`, written as it was played) has every client frame; the ground truth's
     # file is gone.
-    with av.open(str(tmp_path / "o" / "video.mp4")) as c:
-        assert sum(1 for _ in c.decode(video=0)) == 36
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [
+    with av.open(str(tmp_path / "long" / "video.mp4")) as c:
+        assert sum(1 for _ in c.decode(video=0)) == 120
+    assert sorted(p.name for p in (tmp_path / "long").iterdir()) == [
         "stills", "summary.json", "summary.md", "video.mp4"]

@@ -115,6 +115,30 @@ def test_a_slice_of_frames_reads_each_frame_when_it_is_asked_for(
         part[3]
 
 
+def test_raw_rate_comes_from_the_manifest_and_equals_the_frames_bytes(
+    recorded: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The uncompressed rate of a play or of Table 1 read every server frame once more only to
+    # sum its buffers' sizes; the manifest's camera sizes give the same count.
+    from splitrender.client.playback import frame_nbytes
+    from splitrender.evaluation.pipeline import raw_mbps
+
+    read: list[int] = []
+    load = Recording._server
+
+    def spy(self: Recording, k: int) -> sr.ServerFrame:
+        read.append(k)
+        return load(self, k)
+
+    monkeypatch.setattr(Recording, "_server", spy)
+    rec = load_recording(recorded)
+    mbps = raw_mbps(rec)
+    assert read == []
+    sizes = {frame_nbytes(f) for f in rec.server_frames}
+    assert sizes == {rec.server_nbytes} and rec.server_nbytes > 51 * 102 * 58
+    assert mbps == pytest.approx(rec.server_nbytes * 8 * rec.fs / 1e6)
+
+
 def test_deterministic(recorded: Path, tmp_path: Path) -> None:
     again = write_recording(tmp_path / "again", "lab", seconds=SECONDS, scale=SCALE)
     assert _files(again) == _files(recorded)

@@ -200,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
                 server, sizes = DecodedStream(packets), [len(p) for p in packets]
             else:
                 stages.stage("uncompressed server frames")
-                server, sizes, mbps = frames, None, raw_mbps(frames, rec.fs)
+                server, sizes, mbps = frames, None, raw_mbps(rec)
             bitrate = args.bitrate
         metrics = metric_names(not args.no_vmaf, w, h, note=False)
         network = network_model(args, rec.fc)

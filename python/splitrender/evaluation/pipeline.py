@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from splitrender.client.playback import PlaybackResult, frame_nbytes, play
+from splitrender.client.playback import PlaybackResult, play
 from splitrender.codec.coder import CodecConfig, DecodedStream, StreamEncoder
 from splitrender.evaluation.metrics import (
     SKIP_FRAMES,
@@ -28,6 +28,7 @@ from splitrender.evaluation.metrics import (
 )
 from splitrender.net.model import NetworkModel
 from splitrender.codec.stream import stream_stats
+from splitrender.scene.recording import Recording
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 
 __all__ = [
@@ -79,11 +80,11 @@ def encode_decode(
     return decoded, [len(p) for p in packets], mbps
 
 
-def raw_mbps(frames: Sequence[ServerFrame], fps: float) -> float:
-    """The rate of the uncompressed frames (every buffer's bytes) in Mb/s at ``fps``."""
-    if not frames:
-        return 0.0
-    return sum(frame_nbytes(f) for f in frames) * 8 * fps / len(frames) / 1e6
+def raw_mbps(rec: Recording) -> float:
+    """The rate of ``rec``'s server frames uncompressed (every buffer's bytes,
+    :func:`~splitrender.client.playback.frame_nbytes`) in Mb/s at its server frame rate, from
+    its manifest (no frame is read)."""
+    return float(rec.server_nbytes * 8 * rec.fs / 1e6)
 
 
 @dataclass

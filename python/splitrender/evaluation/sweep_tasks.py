@@ -238,7 +238,7 @@ def score_play(task: Task, cache: Cache) -> None:
         sizes, mbps = [int(s) for s in info["sizes"]], float(info["mbps"])
     else:
         server = rec.server_frames  # read when the client needs each
-        mbps = raw_mbps(rec.server_frames, rec.fs)
+        mbps = raw_mbps(rec)
     options = (ReprojectOptions(server_fps=rec.fs, shadow_subframes=rec.subframes)
                if p["own_rates"] else None)
     cams, truth = rec.eye(p["eye"])

@@ -706,6 +706,18 @@ class Recording:
         doc="Colour sub-samples per pixel side: ``{'main', 'aux', 'client'}``.",
     )
 
+    @property
+    def server_nbytes(self) -> int:
+        """Bytes of the buffers of one server frame uncompressed (every camera's colour, depth,
+        both motions and both shadows' bits and colours): what
+        :func:`~splitrender.client.playback.frame_nbytes` gives for each of its frames, which all
+        hold every buffer, from the manifest alone (without reading a frame)."""
+        return sum(
+            dt.itemsize * math.prod(shape)
+            for name, (dt, shape) in self._server_spec().items()
+            if name.rsplit(".", 1)[-1] not in ("pose", "view", "proj")
+        )
+
     @checked(eye=ints(0, 1), n=optional(ints(0, MAX_FRAMES)))
     def eye(
         self, eye: int, n: int | None = None
