@@ -486,28 +486,43 @@ impl Resolve<'_> {
         // pixel in the same cell of every grid as the pixel before it (a cell covers two or more
         // client columns) takes that pixel's result: the cells were searched for it, so the
         // merge would read and combine the same values again.
-        let mut last: Option<(usize, Option<AuxCell>)> = None;
+        //
+        // The best cell is kept as (grid, index) and its fields are read where they lie, one at
+        // a time: a copy of the whole cell loads 16 bytes that the search has just stored field
+        // by field, which waits for those stores to complete (no store forwarding); that wait
+        // took about a sixth of this function in `forward_splat`, whose main camera leaves the
+        // most pixels without a match.
+        let mut last: Option<(usize, Option<(usize, usize)>)> = None;
         for &i in &none {
             let i = i as usize;
-            let aux = match last {
-                Some((l, aux)) if self.aux.iter().all(|g| g.col_of[i] == g.col_of[l]) => aux,
+            let best = match last {
+                Some((l, best)) if self.aux.iter().all(|g| g.col_of[i] == g.col_of[l]) => best,
                 _ => {
-                    let mut aux: Option<AuxCell> = None;
-                    for (g, (grid, block)) in self.aux.iter().zip(blocks.iter_mut()).enumerate() {
+                    let mut best: Option<(usize, usize)> = None;
+                    for (g, grid) in self.aux.iter().enumerate() {
                         let (ai, aj) = (grid.col_of[i], grid.row_of[j]);
                         if ai == u32::MAX || aj == u32::MAX {
                             continue;
                         }
-                        let c = self.aux_cell(1 + g, grid, block, ai as usize, aj as usize);
-                        if let Some(c) = c {
-                            aux = Some(*better_aux(aux.as_ref(), &c, eps_z));
+                        let k = self.searched_cell(
+                            1 + g,
+                            grid,
+                            &mut blocks[g],
+                            ai as usize,
+                            aj as usize,
+                        );
+                        if let Some(c) = &blocks[g].cells[k] {
+                            let b = best.and_then(|(bg, bk)| blocks[bg].cells[bk].as_ref());
+                            if std::ptr::eq(better_aux(b, c, eps_z), c) {
+                                best = Some((g, k));
+                            }
                         }
                     }
-                    aux
+                    best
                 }
             };
-            last = Some((i, aux));
-            if let Some(a) = aux {
+            last = Some((i, best));
+            if let Some(a) = best.and_then(|(g, k)| blocks[g].cells[k].as_ref()) {
                 (src[i], p[i], e[i], z[i]) = (a.src, a.p, a.e, a.z);
             }
         }
@@ -518,7 +533,7 @@ impl Resolve<'_> {
 
     /// Algorithm 1 for auxiliary camera `cam` (`1 + grid index`) at cell `(ai, aj)` of its grid,
     /// searched on first use within the block.
-    #[inline]
+    #[cfg(test)]
     fn aux_cell(
         &self,
         cam: usize,
@@ -527,6 +542,21 @@ impl Resolve<'_> {
         ai: usize,
         aj: usize,
     ) -> Option<AuxCell> {
+        let k = self.searched_cell(cam, grid, block, ai, aj);
+        block.cells[k]
+    }
+
+    /// The index in `block.cells` of cell `(ai, aj)` of auxiliary camera `cam`'s grid (`1 +
+    /// grid index`), whose Algorithm 1 result is searched on first use within the block.
+    #[inline]
+    fn searched_cell(
+        &self,
+        cam: usize,
+        grid: &AuxGrid,
+        block: &mut AuxBlock,
+        ai: usize,
+        aj: usize,
+    ) -> usize {
         let k = (aj - block.row0) * grid.w + ai;
         if block.done[k] == 0 {
             let t = grid.ndc.at(ai, aj);
@@ -541,7 +571,7 @@ impl Resolve<'_> {
                 .map(AuxCell::new);
             block.done[k] = 1;
         }
-        block.cells[k]
+        k
     }
 }
 
