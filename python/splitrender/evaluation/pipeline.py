@@ -2,8 +2,8 @@
 
 :func:`encode_packets` runs server frames through :class:`~splitrender.codec.coder.StreamEncoder`;
 the packets play through :class:`~splitrender.codec.coder.DecodedStream`, each frame decoded when
-the client needs it (what the client sees of a compressed stream; ``play`` and ``eval``), or
-:func:`encode_decode` decodes them all at once for several plays of the same frames (``demo``);
+the client needs it (what the client sees of a compressed stream; ``demo``, ``play`` and
+``eval``, each play decoding them again rather than holding them decoded);
 :func:`play_and_score_eyes` plays one method through the network model and the client and scores
 its frames (of one eye or two) against the ground truth as they are made
 (:class:`~splitrender.evaluation.metrics.SequenceScorer`).
@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.client.playback import PlaybackResult, play
-from splitrender.codec.coder import CodecConfig, DecodedStream, StreamEncoder
+from splitrender.codec.coder import CodecConfig, StreamEncoder
 from splitrender.evaluation.metrics import (
     SKIP_FRAMES,
     SequenceMetrics,
@@ -33,7 +33,6 @@ from splitrender.types import Camera, ReprojectOptions, ServerFrame
 
 __all__ = [
     "Scored",
-    "encode_decode",
     "encode_packets",
     "mean_of_eyes",
     "mean_row",
@@ -61,23 +60,6 @@ def encode_packets(
             if bar is not None:
                 bar(k + 1, total, "server frames encoded")
     return packets, stream_stats(packets, fps).mbps_total()
-
-
-def encode_decode(
-    frames: Iterable[ServerFrame], config: CodecConfig, fps: float, bar: Bar | None = None,
-    total: int = 0,
-) -> tuple[list[ServerFrame], list[int], float]:
-    """Encodes and decodes every frame; returns ``(decoded frames, packet sizes, achieved Mb/s
-    at fps)``. The decoded frames are held whole, for several plays of them (a 1280x720 frame
-    with its auxiliary cameras takes about 50 MB); one play needs only :func:`encode_packets`
-    and a :class:`~splitrender.codec.coder.DecodedStream`."""
-    packets, mbps = encode_packets(frames, config, fps, bar, total)
-    decoded: list[ServerFrame] = []
-    for k, f in enumerate(DecodedStream(packets)):
-        decoded.append(f)
-        if bar is not None:
-            bar(k + 1, len(packets), "server frames decoded")
-    return decoded, [len(p) for p in packets], mbps
 
 
 def raw_mbps(rec: Recording) -> float:
