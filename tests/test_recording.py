@@ -92,9 +92,9 @@ def test_round_trip(recorded: Path) -> None:
         assert z["main.color"].shape == (58, 102, 3)
 
 
-def test_a_slice_of_frames_reads_each_frame_when_it_is_asked_for(
-    recorded: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+@pytest.fixture
+def server_reads(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The indices of the server frames read from the recordings opened after it, in order."""
     read: list[int] = []
     load = Recording._server
 
@@ -104,6 +104,13 @@ def test_a_slice_of_frames_reads_each_frame_when_it_is_asked_for(
 
     # Before the recording is opened: its frame views hold the bound loader.
     monkeypatch.setattr(Recording, "_server", spy)
+    return read
+
+
+def test_a_slice_of_frames_reads_each_frame_when_it_is_asked_for(
+    recorded: Path, server_reads: list[int]
+) -> None:
+    read = server_reads
     rec = load_recording(recorded)
     part = rec.server_frames[1:4]
     assert len(part) == 3 and read == []  # a view: nothing read yet
@@ -116,24 +123,16 @@ def test_a_slice_of_frames_reads_each_frame_when_it_is_asked_for(
 
 
 def test_raw_rate_comes_from_the_manifest_and_equals_the_frames_bytes(
-    recorded: Path, monkeypatch: pytest.MonkeyPatch
+    recorded: Path, server_reads: list[int]
 ) -> None:
     # The uncompressed rate of a play or of Table 1 read every server frame once more only to
     # sum its buffers' sizes; the manifest's camera sizes give the same count.
     from splitrender.client.playback import frame_nbytes
     from splitrender.evaluation.pipeline import raw_mbps
 
-    read: list[int] = []
-    load = Recording._server
-
-    def spy(self: Recording, k: int) -> sr.ServerFrame:
-        read.append(k)
-        return load(self, k)
-
-    monkeypatch.setattr(Recording, "_server", spy)
     rec = load_recording(recorded)
     mbps = raw_mbps(rec)
-    assert read == []
+    assert server_reads == []
     sizes = {frame_nbytes(f) for f in rec.server_frames}
     assert sizes == {rec.server_nbytes} and rec.server_nbytes > 51 * 102 * 58
     assert mbps == pytest.approx(rec.server_nbytes * 8 * rec.fs / 1e6)

@@ -531,21 +531,6 @@ impl Resolve<'_> {
         self.check_merge(j, main, picks, blocks);
     }
 
-    /// Algorithm 1 for auxiliary camera `cam` (`1 + grid index`) at cell `(ai, aj)` of its grid,
-    /// searched on first use within the block.
-    #[cfg(test)]
-    fn aux_cell(
-        &self,
-        cam: usize,
-        grid: &AuxGrid,
-        block: &mut AuxBlock,
-        ai: usize,
-        aj: usize,
-    ) -> Option<AuxCell> {
-        let k = self.searched_cell(cam, grid, block, ai, aj);
-        block.cells[k]
-    }
-
     /// The index in `block.cells` of cell `(ai, aj)` of auxiliary camera `cam`'s grid (`1 +
     /// grid index`), whose Algorithm 1 result is searched on first use within the block.
     #[inline]
@@ -605,7 +590,8 @@ impl Resolve<'_> {
             }
             // `aux_row` searched every cell that a pixel of the row can take.
             assert!(block.done[(aj - block.row0) * grid.w + ai] != 0);
-            if let Some(c) = self.aux_cell(1 + g, grid, block, ai, aj) {
+            let k = self.searched_cell(1 + g, grid, block, ai, aj);
+            if let Some(c) = block.cells[k] {
                 aux = Some(*better_aux(aux.as_ref(), &c, self.eps_z_aux));
             }
         }
