@@ -218,10 +218,10 @@ pub fn run(
         flows.key = Some(key);
     }
 
-    // Pass 2: per output pixel, in row blocks of TILE rows. Every offset is written.
+    // Pass 2: per output pixel, in row blocks of TILE rows. Every offset is written (`resize`
+    // also shortens a longer spare).
     let mut offsets = std::mem::take(&mut flows.spare);
     offsets.resize(n, [f32::NAN; 4]);
-    offsets.truncate(n);
     {
         let (vf, vb) = (&flows.vf, &flows.vb);
         let latest = a0.map(|a0| Latest {
@@ -278,7 +278,6 @@ fn valid_depth(z: f32) -> bool {
 fn full_flow(view: &CameraView, from: &Projector, to: &Projector, flow: &mut Vec<[f32; 3]>) {
     let w = from.width;
     flow.resize(w * from.height, [f32::NAN; 3]);
-    flow.truncate(w * from.height);
     flow.par_chunks_mut(TILE * w)
         .enumerate()
         .for_each(|(b, rows)| {

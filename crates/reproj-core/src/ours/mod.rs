@@ -44,8 +44,9 @@
 //! The stages live in one module each: `pass1` (scene flow, splatting and the window minimum),
 //! `search` (the window initialisation and the fixed-point iteration, eqs. 5, 7, 8), `select`
 //! (Algorithms 1 and 2), `auxiliary` (the auxiliary cameras and the merge rules of §3.5) and `pair`
-//! (the pair-level state, [`PairCache`]); `crate::simd` holds the instruction-set dispatch of the row loops. This
-//! module holds what they share, the entry `run` and the driver of pass 2 (`Resolve`).
+//! (the pair-level state, [`PairCache`]); `crate::simd` holds the instruction-set dispatch of the
+//! row loops. This module holds what they share, the entry `run` and the driver of pass 2
+//! (`Resolve`).
 
 mod auxiliary;
 mod pair;
