@@ -2,8 +2,8 @@
 //!
 //! Every function here is thin: it checks its inputs (dtype, shape, contiguity and sizes, naming
 //! the offending buffer), allocates the output, runs the kernel with the GIL released
-//! (`py.detach`), and maps the core's errors onto the exception hierarchy of [`errors`]. Every body
-//! runs inside [`guarded`], so a Rust panic surfaces as `SplitRenderError("internal error in …")`
+//! (`py.detach`), and maps the core's errors onto the exception hierarchy of `errors`. Every body
+//! runs inside `guarded`, so a Rust panic surfaces as `SplitRenderError("internal error in …")`
 //! instead of pyo3's `PanicException` (a `BaseException` that ordinary `except` clauses miss).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};

@@ -13,9 +13,9 @@
 //! 3. the auxiliary grids (`resolve.wgsl`, `aux_grid`, one layer per auxiliary camera);
 //! 4. the resolve of every output pixel (`resolve.wgsl`, `resolve`).
 //!
-//! The semantics are reproj-core's ([`reproj_core::reproject`] with `ours`, `ours_extrapolate` and
-//! `forward_splat`), including its input checks and error messages; `tests/parity.rs` compares the
-//! two on the built-in scenes.
+//! The semantics are reproj-core's ([`reproj_core::reproject()`] with `ours`, `ours_extrapolate`
+//! and `forward_splat`), including its input checks and error messages; `tests/parity.rs`
+//! compares the two on the built-in scenes.
 
 use std::borrow::Cow;
 use std::sync::{mpsc, Arc, Mutex};
@@ -37,7 +37,7 @@ use crate::layout::{
 };
 use crate::shaders::Module;
 
-/// Most cameras per frame (main + 3 auxiliary): two frames fill the [`MAX_SLOTS`] source slots.
+/// Most cameras per frame (main + 3 auxiliary): two frames fill the `MAX_SLOTS` source slots.
 pub const MAX_CAMERAS: usize = MAX_SLOTS / 2;
 /// Most output slots (e.g. one per eye) a reprojector keeps on the device.
 pub const MAX_OUTPUTS: usize = 8;
@@ -164,7 +164,7 @@ enum SplatPipelines {
     },
 }
 
-/// The GPU twin of [`reproj_core::reproject`] for `ours`, `ours_extrapolate` and `forward_splat`,
+/// The GPU twin of [`reproj_core::reproject()`] for `ours`, `ours_extrapolate` and `forward_splat`,
 /// with the server frames kept on the device between client frames.
 #[derive(Debug)]
 pub struct Reprojector {
@@ -366,7 +366,7 @@ impl Reprojector {
 
     /// Uploads the server frames of a pair and makes it current: `older` is `F_t` (with its
     /// forward motion and shadows), `newer` is `F_{t+1}` (with its backward motion and shadows), as
-    /// [`reproj_core::reproject`] takes them. `older` may be `None` (extrapolation only). The
+    /// [`reproj_core::reproject()`] takes them. `older` may be `None` (extrapolation only). The
     /// previous pair is dropped first (its device memory freed, unless an [`UploadedPair`] handle
     /// keeps it) and its per-frame buffers are reused when the new pair fits in them.
     ///
@@ -633,7 +633,7 @@ impl Reprojector {
         Ok(())
     }
 
-    /// [`reproj_core::reproject`]'s signature on the GPU: `out` holds the previous client frame
+    /// [`reproj_core::reproject()`]'s signature on the GPU: `out` holds the previous client frame
     /// on entry and the new one on return (output slot 0).
     ///
     /// # Errors
@@ -984,7 +984,7 @@ fn read_buffer(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u32>>
 }
 
 /// Which pipeline `method` runs and whether bidirectionally, with the checks and messages of
-/// [`reproj_core::reproject`] (`method.rs`) for `α` and missing frames.
+/// [`reproj_core::reproject()`] (`method.rs`) for `α` and missing frames.
 fn plan(method: Method, has_older: bool, alpha: f32, params: &Params) -> Result<(Mode, bool)> {
     let range_err = |range: &str| {
         GpuError::Input(ReprojError::AlphaRange {

@@ -119,7 +119,7 @@ impl BidirHistory {
 
     /// How many times the pair-level state of `ours`, `ours_extrapolate` or `forward_splat` was
     /// computed into this history ([`crate::prepare_pair`], or lazily by
-    /// [`crate::reproject`] when the history did not hold the call's pair); not reset by
+    /// [`crate::reproject()`] when the history did not hold the call's pair); not reset by
     /// [`BidirHistory::reset`].
     pub fn pair_builds(&self) -> u64 {
         self.ours.builds()

@@ -10,15 +10,15 @@
 //!    for the newer frame). The point is splatted into a grid over the client image at the source's
 //!    resolution with a minimum of the 64-bit key `(depth, source pixel)`, so the nearest point
 //!    wins. The 3×3 window search is then done for every cell at once, as a separable minimum
-//!    filter over the splat grid ([`window_min`]; for a main source whose grid is the client's,
+//!    filter over the splat grid (`window_min`; for a main source whose grid is the client's,
 //!    by each block of pass 2 for its own rows).
 //! 2. **Resolve**, per output pixel over blocks of 16 rows: the nearest splat in the window
 //!    initialises the fixed-point iteration `p ← pix(T − M_cam[p])` (eq. 5 with eqs. 12/13), then
 //!    the reprojection error and depth (eqs. 7, 8) feed Algorithm 1 per camera, the auxiliary
 //!    cameras (searched once per cell of their own grid, and only where the result can reach the
-//!    output, see [`AuxGrid`]) are merged (§3.5 rules 1–3), and Algorithm 2 blends in the other
+//!    output, see `AuxGrid`) are merged (§3.5 rules 1–3), and Algorithm 2 blends in the other
 //!    frame for the match that was kept. Each row goes through these steps as stages, each a
-//!    short loop over the row's pixels ([`Resolve::resolve_rows`]), so that the dependent loads
+//!    short loop over the row's pixels (`Resolve::resolve_rows`), so that the dependent loads
 //!    of neighbouring pixels overlap and the arithmetic vectorises.
 //!
 //! What does not depend on the client pose or α — Algorithm 2's correspondences from the full
@@ -86,11 +86,11 @@ pub(crate) enum Mode {
 /// Short side of the paper's main camera (2560×1440). `ε_e` is given at this resolution.
 pub const REFERENCE_SHORT_SIDE: f32 = 1440.0;
 
-/// An empty splat cell: larger than every real key of every epoch ([`SplatEpoch`]) as the
+/// An empty splat cell: larger than every real key of every epoch (`SplatEpoch`) as the
 /// signed integers the splat compares them as, and its low half is [`NO_SPLAT`].
 pub const EMPTY_SPLAT: u64 = i64::MAX as u64;
 
-/// No splat in the window of a cell (see [`Buffers::init`]).
+/// No splat in the window of a cell (see `Buffers::init`).
 pub const NO_SPLAT: u32 = u32::MAX;
 
 /// A source pixel `(i, j)` packed as `j << 16 | i` (sides are at most 16384). Packed pixels order

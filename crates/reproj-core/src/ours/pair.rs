@@ -22,7 +22,7 @@ use crate::simd::simd_dispatch;
 ///   (`‖M_full_s(p) + M_full_o(q)‖ < ε_O`) and the depths agree (`< ε_z`, `ε_z·4` for the
 ///   auxiliary cameras);
 /// - for the auxiliary cameras, whether each point is visible in the main camera (§3.5 rule 2);
-/// - each pixel's colour beside its partner's colour ([`texel`]), so that the colour stage reads
+/// - each pixel's colour beside its partner's colour (`texel`), so that the colour stage reads
 ///   one value per match.
 ///
 /// The cache recomputes itself when the cameras, the buffers (depth, motion, colour and shadow

@@ -25,6 +25,9 @@ impl GltfModel {
     /// [`SceneError::Gltf`] for an unreadable or malformed file, a missing buffer or texture file
     /// or an out-of-range index; [`SceneError::GltfUnsupported`] for features the renderer does
     /// not implement. Both name the file.
+    ///
+    /// [`SceneError::Gltf`]: crate::SceneError::Gltf
+    /// [`SceneError::GltfUnsupported`]: crate::SceneError::GltfUnsupported
     pub fn load(path: impl AsRef<Path>) -> Result<GltfModel> {
         let path = path.as_ref();
         let bytes = source::read_file(path, path, "the model file", MAX_FILE_BYTES)?;

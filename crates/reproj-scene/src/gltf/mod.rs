@@ -18,6 +18,10 @@
 //!   and barycentrics on the mesh posed then, which makes non-rigid motion and shadow tracking
 //!   exact.
 //!
+//! [`Object`]: crate::Object
+//! [`Shape::Gltf`]: crate::Shape::Gltf
+//! [`Anim::Keyframes`]: crate::Anim::Keyframes
+//!
 //! Colours: the base-colour factor times the base-colour texture (bilinear, repeat wrap), both
 //! taken as the renderer's linear `[0,1]` albedo like every procedural material (the renderer does
 //! no sRGB conversion anywhere). Morph targets are not applied (their weight channels are

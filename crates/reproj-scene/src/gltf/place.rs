@@ -58,6 +58,8 @@ impl Default for Placement {
 /// non-positive scale, non-finite timing, a placement or geometry reaching beyond
 /// `MAX_COORD` (1e15 m) from the origin at any time of the animation, a model without triangles, or
 /// more hierarchy work than `MAX_HIERARCHY_WORK`.
+///
+/// [`SceneError::Gltf`]: crate::SceneError::Gltf
 pub fn place_gltf(
     scene: &mut Scene,
     path: impl AsRef<Path>,

@@ -105,6 +105,8 @@ fn shadow_field(
 /// [`SceneError::BadSubframes`] when `subframes ∉ 1..=16`; [`SceneError::BadSamples`] when
 /// `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when the camera's size is out of range
 /// or its matrices cannot be inverted.
+///
+/// [`default_samples`]: super::default_samples
 pub fn render_server(
     scene: &Scene,
     camera: &Camera,

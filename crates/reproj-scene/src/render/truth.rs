@@ -48,6 +48,9 @@ fn per_pixel<T: Copy + Default + Send, S: Default, const C: usize>(
 /// # Errors
 /// [`SceneError::BadSamples`] when `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when
 /// the camera's size is out of range or its matrices cannot be inverted.
+///
+/// [`SceneError::BadSamples`]: crate::SceneError::BadSamples
+/// [`SceneError::BadCamera`]: crate::SceneError::BadCamera
 pub fn render_ground_truth(
     scene: &Scene,
     camera: &Camera,
