@@ -23,11 +23,15 @@ image written (``W·H·3``), divided by the median time. The buffers read per me
 
 - ``ours``: every camera (main + 2 auxiliary) of both frames: colour, depth, the older frame's
   forward and the newer frame's backward motion and shadow buffers (bits, min, max);
-- ``ours_extrapolate``: every camera of the newer frame: colour, depth, backward motion and
-  shadows;
-- ``forward_splat``: the newer frame's main camera: colour, depth, backward motion;
-- ``timewarp``: the newer frame's main camera: colour, depth;
+- ``ours_extrapolate``: every camera of the frame it extrapolates from: colour, depth, backward
+  motion and shadows;
+- ``forward_splat``: every camera of that frame (its auxiliary cameras fill what the main one
+  leaves): colour, depth, backward motion;
+- ``timewarp``: that frame's main camera: colour, depth;
 - ``backward_bidir``: the main camera of both frames: colour, depth, the directional motion.
+
+The unidirectional methods extrapolate from the newest frame at or before the client time: in
+the bench, whose client frames lie between the two server frames, the older one.
 
 Intermediate buffers (splat grids, history) are not counted, so it is a lower bound of the
 traffic.
@@ -115,17 +119,18 @@ def _nbytes(cf: CameraFrame, direction: str, *, motion: bool, shadows: bool) -> 
 
 
 def bytes_touched(method: str, older: ServerFrame, newer: ServerFrame) -> int:
-    """The estimate of bytes one client frame of ``method`` reads and writes (module docstring)."""
+    """The estimate of bytes one client frame of ``method`` reads and writes (module docstring),
+    for a client time between ``older`` and ``newer``."""
     out = newer.main.color.nbytes
     if method == "ours":
         src = sum(_nbytes(c, "fwd", motion=True, shadows=True) for c in (older.main, *older.aux))
         src += sum(_nbytes(c, "bwd", motion=True, shadows=True) for c in (newer.main, *newer.aux))
     elif method == "ours_extrapolate":
-        src = sum(_nbytes(c, "bwd", motion=True, shadows=True) for c in (newer.main, *newer.aux))
+        src = sum(_nbytes(c, "bwd", motion=True, shadows=True) for c in (older.main, *older.aux))
     elif method == "forward_splat":
-        src = _nbytes(newer.main, "bwd", motion=True, shadows=False)
+        src = sum(_nbytes(c, "bwd", motion=True, shadows=False) for c in (older.main, *older.aux))
     elif method == "timewarp":
-        src = _nbytes(newer.main, "bwd", motion=False, shadows=False)
+        src = _nbytes(older.main, "bwd", motion=False, shadows=False)
     else:  # backward_bidir
         src = _nbytes(older.main, "fwd", motion=True, shadows=False)
         src += _nbytes(newer.main, "bwd", motion=True, shadows=False)

@@ -1,0 +1,69 @@
+"""``splitrender bench``'s accounting: the bytes each method touches, whose copy is the floor its
+time is compared with."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import splitrender as sr
+from conftest import Pair
+from splitrender.evaluation.bench import bytes_touched
+from splitrender.types import ShadowBuffers
+
+FIELDS = ("color", "depth", "motion_fwd", "motion_bwd", "shadow_fwd", "shadow_bwd")
+
+
+def _perturbed(value, field: str):
+    """The buffer with every value changed and still valid."""
+    if field == "color":
+        return 255 - value
+    if field == "depth":
+        return (value * np.float32(0.97)).astype(np.float32)
+    if field.startswith("motion"):
+        return (value + np.float32(0.02)).astype(np.float32)
+    return ShadowBuffers(value.bits, 255 - value.s_min, 255 - value.s_max)
+
+
+def _nbytes(value) -> int:
+    if isinstance(value, ShadowBuffers):
+        return value.bits.nbytes + value.s_min.nbytes + value.s_max.nbytes
+    return int(value.nbytes)
+
+
+def _buffers_read(pair: Pair, method: str) -> dict[str, int]:
+    """Every buffer of the pair whose change changes ``method``'s output, with its size."""
+    base = sr.reproject(pair.older, pair.newer, pair.request, method)
+    read = {}
+    for which, frame in (("older", pair.older), ("newer", pair.newer)):
+        cams = (frame.main, *frame.aux)
+        for k, cam in enumerate(cams):
+            for field in FIELDS:
+                value = getattr(cam, field)
+                if value is None:
+                    continue
+                changed = list(cams)
+                changed[k] = dataclasses.replace(cam, **{field: _perturbed(value, field)})
+                frame2 = dataclasses.replace(frame, main=changed[0], aux=tuple(changed[1:]))
+                older, newer = (frame2, pair.newer) if which == "older" else (pair.older, frame2)
+                out = sr.reproject(older, newer, pair.request, method)
+                if not np.array_equal(out, base):
+                    read[f"{which}.cam{k}.{field}"] = _nbytes(value)
+    return read
+
+
+@pytest.mark.parametrize("method", sr.METHODS)
+def test_bytes_touched_counts_every_buffer_the_output_depends_on(pair: Pair, method: str) -> None:
+    """The estimate is a lower bound of the traffic (module docstring): at least the output
+    image and every source buffer the output changes with."""
+    read = _buffers_read(pair, method)
+    assert read, "the perturbations changed nothing: the test would prove nothing"
+    floor = pair.newer.main.color.nbytes + sum(read.values())
+    assert bytes_touched(method, pair.older, pair.newer) >= floor, read
+
+
+def test_forward_splat_reads_its_auxiliary_cameras(pair: Pair) -> None:
+    """Why ``forward_splat`` counts them: its main camera leaves pixels that they fill."""
+    read = _buffers_read(pair, "forward_splat")
+    assert any(".cam1." in k or ".cam2." in k for k in read), read
