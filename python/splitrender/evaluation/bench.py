@@ -122,13 +122,16 @@ def bytes_touched(method: str, older: ServerFrame, newer: ServerFrame) -> int:
     """The estimate of bytes one client frame of ``method`` reads and writes (module docstring),
     for a client time between ``older`` and ``newer``."""
     out = newer.main.color.nbytes
+
+    def every_camera(f: ServerFrame, direction: str, *, shadows: bool) -> int:
+        return sum(_nbytes(c, direction, motion=True, shadows=shadows) for c in (f.main, *f.aux))
+
     if method == "ours":
-        src = sum(_nbytes(c, "fwd", motion=True, shadows=True) for c in (older.main, *older.aux))
-        src += sum(_nbytes(c, "bwd", motion=True, shadows=True) for c in (newer.main, *newer.aux))
+        src = every_camera(older, "fwd", shadows=True) + every_camera(newer, "bwd", shadows=True)
     elif method == "ours_extrapolate":
-        src = sum(_nbytes(c, "bwd", motion=True, shadows=True) for c in (older.main, *older.aux))
+        src = every_camera(older, "bwd", shadows=True)
     elif method == "forward_splat":
-        src = sum(_nbytes(c, "bwd", motion=True, shadows=False) for c in (older.main, *older.aux))
+        src = every_camera(older, "bwd", shadows=False)
     elif method == "timewarp":
         src = _nbytes(older.main, "bwd", motion=False, shadows=False)
     else:  # backward_bidir
