@@ -82,10 +82,14 @@ def pose_of(scene: sr.SyntheticScene) -> Any:
 
 
 def loop(
-    clock: FakeClock, cost: Any = lambda n: 0.002, executor: Executor | None = None
+    clock: FakeClock,
+    cost: Any = lambda n: 0.002,
+    executor: Executor | None = None,
+    max_divisor: int = rt.MAX_DIVISOR,
 ) -> RealtimeClient:
     return RealtimeClient(
-        client=CostClient(clock, cost), clock=clock, display_fps=FC, executor=executor
+        client=CostClient(clock, cost), clock=clock, display_fps=FC, executor=executor,
+        max_divisor=max_divisor,
     )
 
 
@@ -125,6 +129,84 @@ def test_a_late_frame_is_a_miss_and_the_loop_resumes_on_the_next_free_refresh(sc
     s = report.summary()
     assert s["deadline_misses"] == 1 and s["frames"] == 10
     assert s["deadline_misses_pct"] == pytest.approx(10.0)
+    # One late frame does not divide the rate.
+    assert s["full_rate_pct"] == 100.0 and s["repeated"] == 0
+
+
+def test_frames_that_do_not_fit_the_refresh_halve_the_rate_and_then_meet_their_deadlines(
+    scene, frames
+):
+    clock = FakeClock()
+    # Every frame takes 1.5 refreshes: late at 120 Hz, on time at 60.
+    with loop(clock, lambda n: 1.5 * PERIOD) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(pose_of(scene), 0.5)
+    down = rt.RateGovernor.DOWN_MISSES
+    # The first `down` frames miss (each then starts on the first refresh not yet passed) ...
+    assert [f.met for f in report.frames[:down]] == [False] * down
+    assert all(f.divisor == 1 for f in report.frames[:down])
+    # ... then every frame is at half rate: two refreshes apart, due two refreshes after its
+    # start, and on time.
+    after = report.frames[down:]
+    assert len(after) > 20
+    assert all(f.divisor == 2 and f.met for f in after)
+    for a, b in zip(after, after[1:]):
+        assert b.index == a.index + 2
+        assert b.start == pytest.approx(a.start + 2 * PERIOD)
+    assert all(f.deadline == pytest.approx(f.start + 2 * PERIOD) for f in after)
+    s = report.summary()
+    assert s["deadline_misses"] == down
+    assert s["frames_by_divisor"] == {"1": down, "2": len(after)}
+    # Each half-rate frame is shown twice, except where the run ends after its first refresh.
+    assert s["repeated"] in (len(after), len(after) - 1)
+    assert s["dropped"] == down  # each late full-rate frame overran one refresh
+
+
+def test_the_rate_goes_back_up_after_a_second_of_frames_that_fit_the_refresh(scene, frames):
+    clock = FakeClock()
+    # Slow for the first 12 frames, then a quarter of a refresh.
+    with loop(clock, lambda n: 1.5 * PERIOD if n < 12 else 0.25 * PERIOD) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(pose_of(scene), 2.0)
+    divisors = [f.divisor for f in report.frames]
+    first_half = divisors.index(2)
+    back = divisors.index(1, first_half)
+    # Halved once, and back at full rate only after a second (60 frames at 60 Hz) of frames
+    # that fit; it stays there.
+    slow_until = 12 - first_half  # the half-rate frames that were still slow
+    assert back - first_half == slow_until + int(FC / 2)
+    assert set(divisors[back:]) == {1}
+    assert all(f.met for f in report.frames[back:])
+
+
+def test_a_display_that_fits_no_rate_stays_at_its_lowest(scene, frames):
+    clock = FakeClock()
+    # 2.5 refreshes: late even at half rate.
+    with loop(clock, lambda n: 2.5 * PERIOD) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(pose_of(scene), 0.5)
+    assert {f.divisor for f in report.frames[rt.RateGovernor.DOWN_MISSES:]} == {2}
+    assert report.deadline_misses == len(report.frames)
+
+
+def test_max_divisor_one_keeps_the_full_rate(scene, frames):
+    clock = FakeClock()
+    with loop(clock, lambda n: 1.5 * PERIOD, max_divisor=1) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(pose_of(scene), 0.25)
+    assert {f.divisor for f in report.frames} == {1}
+    assert report.deadline_misses == len(report.frames)
+    assert report.summary()["repeated"] == 0
+
+
+@pytest.mark.parametrize("divisor", [0, -1, 17, 1.5, "2", None])
+def test_bad_max_divisor_is_refused(divisor):
+    with pytest.raises(InvalidInputError, match="max_divisor"):
+        RealtimeClient(max_divisor=divisor)
 
 
 def _hold_preparation(monkeypatch, held):  # type: ignore[no-untyped-def]
@@ -338,6 +420,9 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "modes",
         "display_scheduling",
         "warm_up_ms",
+        "full_rate_pct",
+        "frames_by_divisor",
+        "repeated",
     ):
         assert key in s
     assert s["decode_ms_per_server_frame"] is None  # frames handed over decoded
@@ -453,7 +538,8 @@ def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frame
     clock = FakeClock()
     before = _display_policies()
     policies: list[list[int]] = []
-    with loop(clock, cost=lambda n: 1.5 * PERIOD) as c:
+    # At its full rate only: at half rate these frames would be on time.
+    with loop(clock, cost=lambda n: 1.5 * PERIOD, max_divisor=1) as c:
         c.submit(frames[0])
         c.wait()
         report = c.run(pose_of(scene), 1.0,
@@ -525,8 +611,11 @@ def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypa
     assert "summary" not in r
     assert all(k in r for k in REALTIME_KEYS)
     assert (r["method"], r["width"], r["height"]) == ("ours", 128, 72)
-    # Every refresh of the run either got a frame or was dropped after a late one.
-    assert r["frames"] + r["dropped"] == 30
+    # Every refresh of the run got a frame, was dropped after a late one, or repeated a frame
+    # at a divided rate.
+    assert r["frames"] + r["dropped"] + r["repeated"] == 30
+    assert r["max_divisor"] == 2
+    assert sum(r["frames_by_divisor"].values()) == r["frames"]
     assert r["server_frames_received"] >= 3 and r["decode_ms_per_server_frame"] > 0
     assert sum(r["modes"].values()) == r["frames"]
 
@@ -569,11 +658,13 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
     out = tmp_path / "rt.json"
     assert main(["bench", "--realtime", "--exclusive", "--stream", str(tmp_path / "s.srs"),
                  "--seconds", "0.25", "--fps", "40", "--worker-priority", "low",
-                 "--display-priority", "normal", "--json", str(out), "--quiet"]) == 0
+                 "--display-priority", "normal", "--max-divisor", "1", "--json", str(out),
+                 "--quiet"]) == 0
     r = json.loads(out.read_text())
     assert r["exclusive"] is True and r["server_frames_late"] == 0
-    # --fps sets the display rate: 0.25 s at 40 FPS is 10 refreshes.
+    # --fps sets the display rate: 0.25 s at 40 FPS is 10 refreshes; --max-divisor 1 holds it.
     assert r["display_fps"] == 40.0 and r["frames"] + r["dropped"] == 10
+    assert r["max_divisor"] == 1 and r["full_rate_pct"] == 100.0 and r["repeated"] == 0
     assert r["worker_priority"] == "low"
     assert (r["display_priority"], r["display_scheduling"]) == ("normal", "normal")
     # Each frame was usable before the display went on: no frame extrapolated or held.
@@ -589,6 +680,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--worker-priority", "low"], "--worker-priority goes with --realtime"),
         (["--display-priority", "normal"], "--display-priority goes with --realtime"),
         (["--fps", "60"], "--fps goes with --realtime"),
+        (["--max-divisor", "2"], "--max-divisor goes with --realtime"),
         (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu", "--methods", "timewarp"], "no wgpu kernel"),
@@ -660,6 +752,38 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
     (age,) = low.get_lines()
     assert list(age.get_ydata()) == [10.0 * n for n in range(1, len(plan))]
     assert "3 deadline misses" in top.get_title()
+
+
+def test_realtime_figure_judges_half_rate_frames_on_their_own_deadline():
+    from splitrender.client.realtime import DisplayFrame, RealtimeReport
+    from splitrender.evaluation.bench_realtime import RealtimeBench, realtime_figure
+
+    period = 1.0 / 120.0
+    report = RealtimeReport(display_fps=120.0)
+    # Four full-rate frames of 12 ms (all late), then half-rate frames of 12 ms (on time) and
+    # one of 20 ms (late at half rate too).
+    renders = [(1, 12.0)] * 4 + [(2, 12.0)] * 10 + [(2, 20.0)]
+    n = 0
+    for d, render in renders:
+        tick = n * period
+        report.frames.append(DisplayFrame(
+            index=n, time=tick, start=tick, done=tick + render / 1e3,
+            deadline=tick + d * period, mode="extrapolate", older=None, newer=0, alpha=None,
+            server_age_ms=None, prepared=True, divisor=d))
+        n += 2 if d == 2 else 1
+    b = RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", report.summary(),
+                      frames=tuple(report.frames))
+    top, _ = realtime_figure(b).axes
+    points = {c.get_label(): np.asarray(c.get_offsets()) for c in top.collections}
+    # Every frame at its time from its refresh; the misses are the four full-rate frames and
+    # the last one, not the half-rate frames of 12 ms.
+    assert list(points["extrapolate (15)"][:, 1]) == pytest.approx([r for _, r in renders])
+    cross = points["deadline missed (5)"]
+    assert list(cross[:, 1]) == pytest.approx([12.0] * 4 + [20.0])
+    labels = [ln.get_label() for ln in top.get_lines()]
+    (half,) = [ln for ln in top.get_lines() if ln.get_label().startswith("deadline at 60 FPS")]
+    assert list(half.get_ydata()) == pytest.approx([2e3 * period] * 2)
+    assert "deadline at 60 FPS (11 frames)" in labels
 
 
 # -- the GPU display: pairs uploaded on the worker, made current with no copy -----------------

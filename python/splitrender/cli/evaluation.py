@@ -32,7 +32,12 @@ from splitrender.cli.args import (
     seconds,
     video_fps,
 )
-from splitrender.client.realtime import DISPLAY_FPS, DISPLAY_PRIORITIES, WORKER_PRIORITIES
+from splitrender.client.realtime import (
+    DISPLAY_FPS,
+    DISPLAY_PRIORITIES,
+    MAX_DIVISOR,
+    WORKER_PRIORITIES,
+)
 from splitrender.errors import InvalidInputError, SplitRenderError
 from splitrender.files import check_apart, check_output_file, write_atomic
 from splitrender.progress import Progress
@@ -293,6 +298,12 @@ def add_bench(sub: Any) -> None:
         "normal (default: realtime)",
     )
     be.add_argument(
+        "--max-divisor", type=int, choices=(1, 2, 3, 4), default=None, metavar="D",
+        help="with --realtime: the most the display may divide --fps by when its frames do not "
+        "fit the refresh (2: half rate, as headset runtimes do; 1: hold --fps whatever the "
+        f"frames cost; default: {MAX_DIVISOR})",
+    )
+    be.add_argument(
         "--stream", type=Path, default=None, metavar="FILE",
         help="with --realtime: play this stream file instead of the built-in --scene",
     )
@@ -330,6 +341,7 @@ def bench(args: argparse.Namespace) -> int:
         ("--exclusive", args.exclusive),
         ("--worker-priority", args.worker_priority is not None),
         ("--display-priority", args.display_priority is not None),
+        ("--max-divisor", args.max_divisor is not None),
         ("--plot", args.plot is not None),
     ):
         if given:
@@ -387,6 +399,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             progress=not args.quiet, exclusive=args.exclusive,
             worker_priority=args.worker_priority or "idle",
             display_priority=args.display_priority or "realtime", backend=args.backend,
+            max_divisor=MAX_DIVISOR if args.max_divisor is None else args.max_divisor,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

@@ -289,7 +289,8 @@ def run_connect(args: argparse.Namespace) -> int:
             report["compare"] = {"method": args.compare, **summary}
     write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
-    print(f"{report['frames']} frames, {report['deadline_misses']} deadline misses, modes "
+    print(f"{report['frames']} frames ({report['full_rate_pct']:.0f} % at the full rate), "
+          f"{report['deadline_misses']} deadline misses, modes "
           f"{report['modes']}, {report['server_frames_received']} server frames "
           f"({net['frames_lost']} lost, {net['key_recoveries']} key-frame recoveries), "
           f"pose-to-display p50 {report['pose_to_display_ms_p50'] or 0:.0f} ms, "

@@ -19,7 +19,9 @@ Three things happen at once, and only the last is on the display path:
    time, is rendered by :meth:`Client.render` from the usable frames, and is due at the next
    refresh. A frame that finishes after it is *late* (a deadline miss); the loop then starts
    again at the first refresh not yet passed, so one slow frame never makes the following ones
-   late (the refreshes in between are *dropped*: the display repeats its image).
+   late (the refreshes in between are *dropped*: the display repeats its image). A display
+   whose frames do not fit the refresh goes on at half the rate (:class:`RateGovernor`, as
+   headset runtimes do), on time, and back to the full rate once its frames fit again.
 
 Every display frame is recorded (:class:`DisplayFrame`): deadline met or missed, render time,
 mode (interpolate, extrapolate, hold), the server frames used, and the age of the newest server
@@ -74,8 +76,10 @@ __all__ = [
     "DISPLAY_PRIORITIES",
     "WORKER_PRIORITIES",
     "Clock",
+    "MAX_DIVISOR",
     "DisplayFrame",
     "MonotonicClock",
+    "RateGovernor",
     "RealtimeClient",
     "RealtimeReport",
 ]
@@ -112,7 +116,8 @@ class DisplayFrame:
 
     ``index`` is the display refresh it started on, ``time`` its display time (content seconds,
     the time of its pose), ``start``/``done``/``deadline`` clock seconds (``deadline`` is the
-    next refresh). ``server_age_ms`` is the display time minus the time the pose of the newest
+    refresh after the ``divisor`` it is shown for: the next one at the full rate, the one after
+    at half rate, :class:`RateGovernor`). ``server_age_ms`` is the display time minus the time the pose of the newest
     usable server frame was taken (``None`` before the first). ``prepared``: the pair it used
     was prepared off the display path (``False`` for ``hold``, and for a pair the display had
     to prepare itself)."""
@@ -128,6 +133,7 @@ class DisplayFrame:
     alpha: float | None
     server_age_ms: float | None
     prepared: bool
+    divisor: int = 1
 
     @property
     def render_ms(self) -> float:
@@ -150,12 +156,13 @@ def _median(values: list[float]) -> float | None:
 @dataclass
 class RealtimeReport:
     """What :meth:`RealtimeClient.run` did: every display frame, the refreshes dropped after a
-    late frame, the worker's decode and preparation times (ms per server frame), and the wall
+    late frame and those repeated at a divided rate (:class:`RateGovernor`), the worker's decode and preparation times (ms per server frame), and the wall
     and CPU seconds of the run (CPU: the whole process, every thread)."""
 
     display_fps: float
     frames: list[DisplayFrame] = field(default_factory=list)
     dropped: int = 0
+    repeated: int = 0
     decode_ms: list[float] = field(default_factory=list)
     prepare_ms: list[float] = field(default_factory=list)
     usable_ms: list[float] = field(default_factory=list)
@@ -176,7 +183,9 @@ class RealtimeReport:
 
     def summary(self) -> dict[str, Any]:
         """One flat object: ``frames``, ``deadline_misses`` (count and ``_pct``), ``dropped``,
-        ``frame_ms_p50/p95/p99/max`` (render time), ``modes`` (count per mode), ``decode_ms_per_
+        ``repeated`` (refreshes that showed a frame again because the rate was divided),
+        ``full_rate_pct`` (frames at ``f_c``) and ``frames_by_divisor`` (how many at ``f_c / d``,
+        keyed by ``d`` as text), ``frame_ms_p50/p95/p99/max`` (render time), ``modes`` (count per mode), ``decode_ms_per_
         server_frame``, ``prepare_ms_per_server_frame`` (both pairs) and ``usable_ms_per_server_
         frame`` (from the worker taking the packet until the frame is usable: its decode and
         first pair; all medians), the server frames received
@@ -194,6 +203,12 @@ class RealtimeReport:
             "deadline_misses": misses,
             "deadline_misses_pct": 100.0 * misses / n if n else 0.0,
             "dropped": self.dropped,
+            "repeated": self.repeated,
+            "full_rate_pct": 100.0 * sum(f.divisor == 1 for f in self.frames) / n if n else 0.0,
+            "frames_by_divisor": {
+                str(d): sum(f.divisor == d for f in self.frames)
+                for d in sorted({f.divisor for f in self.frames})
+            },
             "frame_ms_p50": _percentile(render, 50),
             "frame_ms_p95": _percentile(render, 95),
             "frame_ms_p99": _percentile(render, 99),
@@ -213,6 +228,71 @@ class RealtimeReport:
             "display_scheduling": self.display_scheduling,
             "warm_up_ms": self.warm_up_ms,
         }
+
+
+#: The most :class:`RateGovernor` divides the display rate by, by default
+#: (``RealtimeClient(max_divisor=)``): half rate.
+MAX_DIVISOR = 2
+
+
+class RateGovernor:
+    """Which refreshes the display renders: every ``divisor``-th, each frame shown for
+    ``divisor`` refreshes and due at the refresh after them (``f_c / divisor`` frames per
+    second).
+
+    Why: a display frame longer than the refresh misses nearly every deadline (at 1280×720 on
+    2 cores, ~10–14 ms against 8.33 ms at 120 Hz: 78–98 % missed, 1–14 frames a second on
+    time, docs/realtime.md), and each late frame shows its refresh's pose a refresh late.
+    Headset runtimes answer a late application the same way: they lock it to half the refresh
+    rate and fill the other refreshes themselves (Oculus's asynchronous spacewarp at 45 of
+    90 Hz, SteamVR's motion smoothing). Here the client is the part that synthesises frames,
+    so it halves its own rate: each frame is on time at ``f_c / 2`` and the compositor repeats
+    (or re-projects) it once.
+
+    - **Down** by one (up to ``max_divisor``) when :data:`DOWN_MISSES` of the last
+      :data:`WINDOW` frames at the current divisor missed their deadline. A lone late frame
+      (a page fault, another process) changes nothing.
+    - **Up** by one when every frame of the last second at the current divisor (``f_c /
+      divisor`` frames) finished within :data:`HEADROOM` of the deadline it would have had at
+      the divisor below. The headroom and the second keep it from switching back and forth at
+      the edge.
+
+    ``max_divisor = 1`` keeps the full rate whatever the frames cost."""
+
+    #: Frames at one divisor over which misses are counted.
+    WINDOW = 8
+    #: Misses among the last :data:`WINDOW` frames that divide the rate further.
+    DOWN_MISSES = 4
+    #: The share of the lower divisor's deadline every frame of a second must fit in before
+    #: the rate goes back up.
+    HEADROOM = 0.75
+
+    def __init__(self, display_fps: float, max_divisor: int = MAX_DIVISOR) -> None:
+        self.period = 1.0 / display_fps
+        self.display_fps = display_fps
+        self.max_divisor = max_divisor
+        self.divisor = 1
+        self._missed: list[bool] = []  # the last WINDOW frames at this divisor
+        self._fitting = 0  # frames in a row at this divisor that would fit the one below
+
+    def update(self, frame_s: float, met: bool) -> int:
+        """Records a frame at the current divisor: ``frame_s`` seconds from its refresh until
+        the next frame could start, ``met`` whether it was done by its deadline. Returns the
+        divisor of the next frame."""
+        d = self.divisor
+        self._missed = [*self._missed[-(self.WINDOW - 1):], not met]
+        fits_below = d > 1 and frame_s <= self.HEADROOM * (d - 1) * self.period
+        self._fitting = self._fitting + 1 if fits_below else 0
+        if d < self.max_divisor and sum(self._missed) >= self.DOWN_MISSES:
+            self._switch(d + 1)
+        elif d > 1 and self._fitting >= math.ceil(self.display_fps / d):
+            self._switch(d - 1)
+        return self.divisor
+
+    def _switch(self, divisor: int) -> None:
+        self.divisor = divisor
+        self._missed = []
+        self._fitting = 0
 
 
 #: How the receive worker yields the cores to the display (``RealtimeClient(worker_priority=)``).
@@ -353,7 +433,9 @@ class RealtimeClient:
     ``display_priority`` (one of :data:`DISPLAY_PRIORITIES`, default ``"realtime"``) is how
     :meth:`run` schedules the display thread and the threads it renders on while it shows frames
     (:func:`_raise_display`; restored when it returns; the report's ``display_scheduling`` says
-    what it got).
+    what it got). ``max_divisor`` is the most :meth:`run` may divide the display rate by when
+    its frames do not fit the refresh (:class:`RateGovernor`; default 2, half rate; 1 keeps
+    ``f_c`` whatever the frames cost).
     ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
     their priority). Use as a context manager, or call :meth:`close`.
 
@@ -369,6 +451,7 @@ class RealtimeClient:
         prepare_threads=optional(ints(0, 1 << 16)), decoder=optional(_decoder),
         executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
         display_priority=strs(*DISPLAY_PRIORITIES), backend=strs(*BACKENDS),
+        max_divisor=ints(1, 16),
     )
     def __init__(
         self,
@@ -385,6 +468,7 @@ class RealtimeClient:
         worker_priority: str = "idle",
         display_priority: str = "realtime",
         backend: str = "cpu",
+        max_divisor: int = MAX_DIVISOR,
     ) -> None:
         if (
             isinstance(display_fps, bool)
@@ -405,6 +489,7 @@ class RealtimeClient:
         self.prepare_threads = prepare_threads
         self.worker_priority = worker_priority
         self.display_priority = display_priority
+        self.max_divisor = max_divisor
         self._decoder = decoder
         self._lock = threading.Lock()
         # One worker: packets are decoded in order (each depends on the previous one's
@@ -710,10 +795,12 @@ class RealtimeClient:
         threads :func:`_raise_display` raised, restored (and emptied) after
         :data:`_OVERRUN_FRAMES` late frames in a row."""
         period = 1.0 / self.display_fps
+        governor = RateGovernor(self.display_fps, self.max_divisor)
         nxt = next(arrivals, None)
         n = 0
         late_in_a_row = 0
         while n < n_frames:
+            d = governor.divisor
             tick = t0 + n * period
             while nxt is not None and t0 + (nxt[0] - start_time) <= tick:
                 self.clock.sleep_until(t0 + (nxt[0] - start_time))
@@ -739,13 +826,14 @@ class RealtimeClient:
                 time=t,
                 start=start,
                 done=done,
-                deadline=tick + period,
+                deadline=tick + d * period,
                 mode=info.mode,
                 older=info.older,
                 newer=info.newer,
                 alpha=info.alpha,
                 server_age_ms=None if newest is None else (t - newest) * 1e3,
                 prepared=prepared,
+                divisor=d,
             )
             report.frames.append(record)
             late_in_a_row = 0 if record.met else late_in_a_row + 1
@@ -759,10 +847,14 @@ class RealtimeClient:
             if on_frame is not None:
                 on_frame(image, record)
             after = self.clock.now()
-            # The next frame starts at the first refresh not yet passed (a late frame drops
-            # the refreshes it overran instead of making every later frame late too).
-            following = max(n + 1, math.ceil((after - t0) / period - 1e-9))
-            report.dropped += min(following, n_frames) - n - 1
+            governor.update(after - tick, record.met)
+            # The frame is shown for its `d` refreshes; the next starts after them, or at the
+            # first refresh not yet passed (a late frame drops the refreshes it overran instead
+            # of making every later frame late too).
+            shown = min(n + d, n_frames)
+            following = max(n + d, math.ceil((after - t0) / period - 1e-9))
+            report.repeated += shown - n - 1
+            report.dropped += min(following, n_frames) - shown
             n = following
 
     def _count_late(self, t0: float, start_time: float) -> None:

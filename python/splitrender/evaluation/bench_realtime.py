@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from splitrender.client.realtime import DISPLAY_FPS, DisplayFrame
+from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR, DisplayFrame
 from splitrender.codec.stream import (
     PACKET_VERSION,
     CameraRecord,
@@ -98,6 +98,9 @@ class RealtimeBench:
     #: Every display frame of the run, in order (what :func:`realtime_figure` draws; not in
     #: the JSON, whose summary is made of them).
     frames: tuple[DisplayFrame, ...] = field(default=(), repr=False)
+    #: The most the display could divide its rate by (``--max-divisor``; the summary's
+    #: ``full_rate_pct`` and ``frames_by_divisor`` say what it did).
+    max_divisor: int = MAX_DIVISOR
 
     def to_json(self) -> dict[str, Any]:
         """What ran (every field but the summary and the frames), then the summary's keys."""
@@ -177,13 +180,16 @@ def run_realtime_bench(
     worker_priority: str = "idle",
     display_priority: str = "realtime",
     backend: str = "cpu",
+    max_divisor: int = MAX_DIVISOR,
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``exclusive``: the display waits for the worker after each arrival, off the clock
     (:meth:`RealtimeClient.run`), so that the deadlines measure the display frames alone.
     ``worker_priority``: how the worker yields the cores to the display, ``display_priority``:
-    how the display's threads are scheduled (both ``RealtimeClient``). ``backend``: where the
-    display renders (``"wgpu"``: the GPU, the worker uploading each pair).
+    how the display's threads are scheduled, ``max_divisor``: the most the display may divide
+    its rate by when its frames do not fit the refresh (all three ``RealtimeClient``).
+    ``backend``: where the display renders (``"wgpu"``: the GPU, the worker uploading each
+    pair).
 
     Raises:
         InvalidInputError: for arguments that cannot work.
@@ -259,6 +265,7 @@ def run_realtime_bench(
         display_fps=display_fps,
         worker_priority=worker_priority,
         display_priority=display_priority,
+        max_divisor=max_divisor,
     ) as client:
         # Warmed up: the first packets are received and one frame rendered before the clock
         # starts, so that the run measures the steady state (the summary's warm_up_ms).
@@ -269,6 +276,7 @@ def run_realtime_bench(
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
+        max_divisor,
     )
 
 
@@ -281,6 +289,11 @@ def format_realtime(b: RealtimeBench) -> str:
         return "n/a" if v is None else f"{v:.2f} ms"
 
     modes = ", ".join(f"{k} {v}" for k, v in s["modes"].items())
+    fc = s["display_fps"]
+    rates = ", ".join(
+        f"{fc / int(d):g} FPS {100 * v / max(s['frames'], 1):.1f} %"
+        for d, v in s["frames_by_divisor"].items()
+    )
     return "\n".join(
         [
             f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
@@ -294,6 +307,11 @@ def format_realtime(b: RealtimeBench) -> str:
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
             f"({s['deadline_misses_pct']:.2f} %), dropped refreshes {s['dropped']}, "
             f"achieved {s['achieved_fps']:.1f} FPS",
+            f"  display rate (frames at each): {rates or 'n/a'}; "
+            + (f"the rate may halve (--max-divisor {b.max_divisor})" if b.max_divisor == 2
+               else "held at the full rate (--max-divisor 1)" if b.max_divisor == 1
+               else f"the rate may fall to 1/{b.max_divisor} (--max-divisor {b.max_divisor})")
+            + f"; refreshes repeated at a divided rate {s['repeated']}",
             f"  frame time p50 {ms('frame_ms_p50')}, p95 {ms('frame_ms_p95')}, "
             f"p99 {ms('frame_ms_p99')}, max {ms('frame_ms_max')}",
             f"  modes: {modes}; pairs prepared off the display path: "
@@ -328,9 +346,10 @@ def realtime_figure(b: RealtimeBench) -> Figure:
 
     - above, each display frame's time from its refresh to done (the render time plus any
       wait before it started: what its deadline, the next refresh, is judged on), coloured by
-      its mode, against the refresh period; every frame above that line missed its deadline
-      and is marked by a red cross; a frame beyond the plotted range (four periods, or the
-      p99 if higher) sits at its top edge as a triangle;
+      its mode, against the refresh period (and, where the rate was halved, two periods: the
+      deadline of those frames); every frame that missed its deadline is marked by a red
+      cross; a frame beyond the plotted range (four periods, or the p99 if higher) sits at its
+      top edge as a triangle;
     - below, the age of the newest server frame it used (display time minus the time that
       frame's pose was taken): the latency reprojection hides.
     """
@@ -345,7 +364,9 @@ def realtime_figure(b: RealtimeBench) -> Figure:
         2, 1, figsize=(10, 5.6), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
     )
     times = np.array([f.time for f in b.frames], np.float64)
-    ms = np.array([(f.done - f.deadline) * 1e3 + period for f in b.frames], np.float64)
+    ms = np.array(
+        [(f.done - f.deadline) * 1e3 + f.divisor * period for f in b.frames], np.float64
+    )
     ceiling = max(4.0 * period, 1.15 * float(np.percentile(ms, 99)) if len(ms) else 0.0)
     shown = np.minimum(ms, ceiling)
     for mode, colour in MODE_COLOURS.items():
@@ -364,6 +385,10 @@ def realtime_figure(b: RealtimeBench) -> Figure:
                     label=f"deadline missed ({missed.sum()})")
     top.axhline(period, color="tab:red", linestyle="--", linewidth=1,
                 label=f"refresh period {period:.2f} ms")
+    for d in sorted({f.divisor for f in b.frames} - {1}):
+        n_d = sum(f.divisor == d for f in b.frames)
+        top.axhline(d * period, color="tab:purple", linestyle=":", linewidth=1,
+                    label=f"deadline at {s['display_fps'] / d:g} FPS ({n_d} frames)")
     top.set_ylim(0, ceiling * 1.05)
     top.set_ylabel("refresh to done (ms)")
     top.grid(alpha=0.3)
