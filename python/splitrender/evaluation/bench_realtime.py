@@ -397,7 +397,9 @@ def realtime_figure(b: RealtimeBench) -> Figure:
     p50, p99 = s.get("frame_ms_p50"), s.get("frame_ms_p99")
     top.set_title(
         f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
-        f"{s['display_fps']:g} FPS, {b.backend}\n{s['frames']} frames, "
+        f"{s['display_fps']:g} FPS, {b.backend}\n{s['frames']} frames"
+        + ("" if s["full_rate_pct"] == 100.0 else f" ({s['full_rate_pct']:.1f} % at full rate)")
+        + ", "
         f"{s['deadline_misses']} deadline misses ({pct:.1f} %), render time p50 "
         + ("n/a" if p50 is None else f"{p50:.2f} ms")
         + ("" if p99 is None else f", p99 {p99:.2f} ms"),
