@@ -278,7 +278,7 @@ TABLE: dict[str, Entry] = {
              clock=OPTIONAL_THING, client=OPTIONAL_THING, capacity=[*COUNT, 0],
              prepare_threads=[*INT[1:], -1], decoder=OPTIONAL_THING, executor=OPTIONAL_THING,
              worker_priority=[*STR, "x", "IDLE"], display_priority=[*STR, "x", "idle"],
-             backend=[*STR, "x", "WGPU"]),
+             backend=[*STR, "x", "WGPU"], max_divisor=[*COUNT, 0, 17]),
     ),
     "Scene": (lambda f: sr.Scene, lambda f: dict(name="courtyard"),
               dict(name=[*STR, "x"], variant=[*STR, "x"], models=[*SEQUENCE, ["x"]])),

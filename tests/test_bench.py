@@ -67,3 +67,29 @@ def test_forward_splat_reads_its_auxiliary_cameras(pair: Pair) -> None:
     """Why ``forward_splat`` counts them: its main camera leaves pixels that they fill."""
     read = _buffers_read(pair, "forward_splat")
     assert any(".cam1." in k or ".cam2." in k for k in read), read
+
+
+def test_time_frames_warms_up_for_its_time_then_times_each_frame_from_the_first_request() -> None:
+    from splitrender.evaluation.bench import time_frames
+
+    now = [0.0]
+    calls: list[str] = []
+
+    def one(req: str) -> None:
+        calls.append(req)
+        now[0] += 0.125  # every call takes 125 ms of the fake clock
+
+    samples = time_frames(one, ["a", "b", "c"], 4, warm_up_s=0.5, clock=lambda: now[0])
+    # Four untimed calls fill the half second (cycling through the requests), then the four
+    # timed ones start again from the first request.
+    assert calls == ["a", "b", "c", "a", "a", "b", "c", "a"]
+    assert samples == [0.125] * 4
+
+
+def test_time_frames_warms_up_with_at_least_one_call() -> None:
+    from splitrender.evaluation.bench import time_frames
+
+    calls: list[int] = []
+    samples = time_frames(calls.append, [7], 2, warm_up_s=0.0)
+    assert calls == [7, 7, 7] and len(samples) == 2
+
