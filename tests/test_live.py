@@ -150,6 +150,7 @@ def test_session(server: _Server, tmp_path: Path) -> None:
     assert r["modes"]["interpolate"] + r["modes"]["extrapolate"] > 0
     assert 0 < r["pose_to_display_ms_p50"] < 5000
     assert r["mbps"] > 0 and r["network"]["frames_lost"] == 0
+    assert r["max_divisor"] == 2  # the default: half rate allowed
     assert (tmp_path / "video.mp4").stat().st_size > 0
     server.wait_log("session ended", 10)
 
@@ -236,9 +237,13 @@ def test_client_killed_then_next_session(server: _Server, tmp_path: Path) -> Non
     while server.log.read_text().count("session ended") <= n and time.monotonic() < end:
         time.sleep(0.1)
     assert server.log.read_text().count("session ended") == n + 1
-    done = _connect(server.port, tmp_path / "next", "--seconds", "1", fingerprint=fp)
+    done = _connect(server.port, tmp_path / "next", "--seconds", "1", "--max-divisor", "1",
+                    fingerprint=fp)
     assert done.returncode == 0, done.stderr
-    _all_refreshes(_report(tmp_path / "next"), 1.0)
+    r = _report(tmp_path / "next")
+    _all_refreshes(r, 1.0)
+    # --max-divisor 1 holds the display rate.
+    assert r["max_divisor"] == 1 and r["full_rate_pct"] == 100.0 and r["repeated"] == 0
 
 
 def _relay(server: _Server, tmp_path: Path, *impairments: str) -> tuple[_Proc, int]:

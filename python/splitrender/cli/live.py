@@ -32,7 +32,7 @@ from splitrender.cli.args import (
     rate,
     seconds,
 )
-from splitrender.client.realtime import DISPLAY_FPS
+from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR
 from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
@@ -185,6 +185,10 @@ def add_connect(sub: Any) -> None:
                    help="session length (default: %(default)s)")
     p.add_argument("--fps", type=rate, default=DISPLAY_FPS, metavar="FC",
                    help="display frames per second, f_c (default: %(default)s)")
+    p.add_argument("--max-divisor", type=int, choices=(1, 2, 3, 4), default=MAX_DIVISOR,
+                   metavar="D",
+                   help="the most the display may divide --fps by when its frames do not fit "
+                   "the refresh (2: half rate; 1: hold --fps) (default: %(default)s)")
     add_trace(p)
     add_out(p)
     p.add_argument("--score", action="store_true",
@@ -227,6 +231,7 @@ def run_connect(args: argparse.Namespace) -> int:
     opts = ConnectOptions(
         host, port, args.token, pinned, args.method, args.fps, backend=args.backend,
         version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
+        max_divisor=args.max_divisor,
     )
     client = LiveClient(opts)
     try:

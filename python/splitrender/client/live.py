@@ -43,7 +43,12 @@ from aioquic.quic.events import (
 )
 
 from splitrender.client.client import Client
-from splitrender.client.realtime import DISPLAY_FPS, DisplayFrame, RealtimeClient
+from splitrender.client.realtime import (
+    DISPLAY_FPS,
+    MAX_DIVISOR,
+    DisplayFrame,
+    RealtimeClient,
+)
 from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import ProtocolError
 from splitrender.gpu import backend_for
@@ -90,7 +95,9 @@ class ConnectOptions:
     """What ``splitrender connect`` is told. ``fingerprint``: the pinned SHA-256 of the server's
     DER certificate (64 hex digits, :func:`~splitrender.net.protocol.normalise_fingerprint`);
     ``None`` accepts any certificate (``--insecure``). ``backend``: where the display renders
-    (``"wgpu"``: on the GPU, each pair uploaded by the receiving worker)."""
+    (``"wgpu"``: on the GPU, each pair uploaded by the receiving worker). ``max_divisor``: the
+    most the display may divide ``display_fps`` by when its frames do not fit the refresh
+    (:class:`~splitrender.client.realtime.RateGovernor`; 1 holds the rate)."""
 
     host: str
     port: int
@@ -101,6 +108,7 @@ class ConnectOptions:
     connect_timeout: float = 10.0
     backend: str = "cpu"
     version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
+    max_divisor: int = MAX_DIVISOR
 
 
 class FrameOrder:
@@ -444,6 +452,7 @@ class LiveClient:
                 self.options.method, server_fps=welcome.server_fps, backend=self.options.backend
             ),
             display_fps=self.options.display_fps,
+            max_divisor=self.options.max_divisor,
             decoder=_TimeIndexed(welcome.server_fps, self.spans),
         )
         self._ready.set()
@@ -724,6 +733,7 @@ class LiveClient:
                 method, server_fps=w.server_fps, backend=backend_for(method, self.options.backend)
             ),
             display_fps=self.options.display_fps,
+            max_divisor=self.options.max_divisor,
             decoder=_TimeIndexed(w.server_fps, dict(self.spans)),
         ) as rt:
             return rt.run(pose, seconds, feed=self.arrivals, on_frame=on_frame).summary()
@@ -745,6 +755,7 @@ class LiveClient:
         s.update(
             backend=self.options.backend,
             adapter=None if gpu is None else gpu.adapter,
+            max_divisor=self.options.max_divisor,
             pose_to_display_ms_p50=s.get("server_age_ms_p50"),
             # time.monotonic() at display time 0 (the same clock in every process of the
             # machine: events elsewhere, e.g. a relay's bandwidth step, can be placed on
