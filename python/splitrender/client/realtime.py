@@ -117,10 +117,10 @@ class DisplayFrame:
     ``index`` is the display refresh it started on, ``time`` its display time (content seconds,
     the time of its pose), ``start``/``done``/``deadline`` clock seconds (``deadline`` is the
     refresh after the ``divisor`` it is shown for: the next one at the full rate, the one after
-    at half rate, :class:`RateGovernor`). ``server_age_ms`` is the display time minus the time the pose of the newest
-    usable server frame was taken (``None`` before the first). ``prepared``: the pair it used
-    was prepared off the display path (``False`` for ``hold``, and for a pair the display had
-    to prepare itself)."""
+    at half rate, :class:`RateGovernor`). ``server_age_ms`` is the display time minus the time
+    the pose of the newest usable server frame was taken (``None`` before the first).
+    ``prepared``: the pair it used was prepared off the display path (``False`` for ``hold``,
+    and for a pair the display had to prepare itself)."""
 
     index: int
     time: float
@@ -156,8 +156,9 @@ def _median(values: list[float]) -> float | None:
 @dataclass
 class RealtimeReport:
     """What :meth:`RealtimeClient.run` did: every display frame, the refreshes dropped after a
-    late frame and those repeated at a divided rate (:class:`RateGovernor`), the worker's decode and preparation times (ms per server frame), and the wall
-    and CPU seconds of the run (CPU: the whole process, every thread)."""
+    late frame and those repeated at a divided rate (:class:`RateGovernor`), the worker's
+    decode and preparation times (ms per server frame), and the wall and CPU seconds of the
+    run (CPU: the whole process, every thread)."""
 
     display_fps: float
     frames: list[DisplayFrame] = field(default_factory=list)
@@ -185,10 +186,10 @@ class RealtimeReport:
         """One flat object: ``frames``, ``deadline_misses`` (count and ``_pct``), ``dropped``,
         ``repeated`` (refreshes that showed a frame again because the rate was divided),
         ``full_rate_pct`` (frames at ``f_c``) and ``frames_by_divisor`` (how many at ``f_c / d``,
-        keyed by ``d`` as text), ``frame_ms_p50/p95/p99/max`` (render time), ``modes`` (count per mode), ``decode_ms_per_
-        server_frame``, ``prepare_ms_per_server_frame`` (both pairs) and ``usable_ms_per_server_
-        frame`` (from the worker taking the packet until the frame is usable: its decode and
-        first pair; all medians), the server frames received
+        keyed by ``d`` as text), ``frame_ms_p50/p95/p99/max`` (render time), ``modes`` (count
+        per mode), ``decode_ms_per_server_frame``, ``prepare_ms_per_server_frame`` (both
+        pairs) and ``usable_ms_per_server_frame`` (from the worker taking the packet until the
+        frame is usable: its decode and first pair; all medians), the server frames received
         and late, ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per
         second of the run) and ``cpu_utilisation`` (process CPU seconds per wall second and core,
         0–1), ``display_scheduling`` (how the display's threads were scheduled) and
@@ -241,7 +242,7 @@ class RateGovernor:
     second).
 
     Why: a display frame longer than the refresh misses nearly every deadline (at 1280×720 on
-    2 cores, ~10–14 ms against 8.33 ms at 120 Hz: 78–98 % missed, 1–14 frames a second on
+    2 cores, ~9–14 ms against 8.33 ms at 120 Hz: 75–99 % missed, 1–16 frames a second on
     time, docs/realtime.md), and each late frame shows its refresh's pose a refresh late.
     Headset runtimes answer a late application the same way: they lock it to half the refresh
     rate and fill the other refreshes themselves (Oculus's asynchronous spacewarp at 45 of

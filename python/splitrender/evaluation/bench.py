@@ -11,8 +11,9 @@ client poses (:func:`~splitrender.reproject.reproject`, no previous frame) with 
 a second of untimed calls (the first also does the pair-level work of ``ours``, done once per
 server-frame pair; :func:`time_frames` says why half a second), then ``frames`` timed calls
 cycling through the client frames; the figure is the median, i.e. the cost of a client frame
-inside a pair, in the steady state of a client that renders without pause, and ``ms_per_frame_max`` the slowest of them (a
-display must hold every frame under its refresh, not the median one).
+inside a pair, in the steady state of a client that renders without pause, and
+``ms_per_frame_max`` the slowest of them (a display must hold every frame under its refresh,
+not the median one).
 
 With ``backend="wgpu"`` (:mod:`splitrender.gpu`) the pair a method uses is uploaded to the device
 once, and each timed call uploads the client pose, runs the frame and downloads the image (the
