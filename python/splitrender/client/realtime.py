@@ -269,7 +269,6 @@ class RateGovernor:
     HEADROOM = 0.75
 
     def __init__(self, display_fps: float, max_divisor: int = MAX_DIVISOR) -> None:
-        self.period = 1.0 / display_fps
         self.display_fps = display_fps
         self.max_divisor = max_divisor
         self.divisor = 1
@@ -282,7 +281,7 @@ class RateGovernor:
         divisor of the next frame."""
         d = self.divisor
         self._missed = [*self._missed[-(self.WINDOW - 1):], not met]
-        fits_below = d > 1 and frame_s <= self.HEADROOM * (d - 1) * self.period
+        fits_below = d > 1 and frame_s <= self.HEADROOM * (d - 1) / self.display_fps
         self._fitting = self._fitting + 1 if fits_below else 0
         if d < self.max_divisor and sum(self._missed) >= self.DOWN_MISSES:
             self._switch(d + 1)

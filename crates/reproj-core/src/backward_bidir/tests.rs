@@ -494,6 +494,15 @@ impl SearchCase {
     }
 }
 
+/// Every target of a `w × h` [`SearchCase`]: its pixel index, column, row and pixel-centre NDC.
+fn targets<'a>(
+    ctx: &'a Bidir<'_>,
+    w: usize,
+    h: usize,
+) -> impl Iterator<Item = (usize, usize, usize, [f32; 2])> + 'a {
+    (0..w * h).map(move |p| (p, p % w, p / w, ctx.ndc.at(p % w, p / w)))
+}
+
 /// `Bidir::search` leaves the iteration once a step stays on its pixel (or would leave the
 /// image): it ends on the pixel that every one of the `iterations` steps, taken to the end,
 /// reaches.
@@ -506,10 +515,9 @@ fn backward_bidir_search_ends_where_all_its_steps_would() {
         let ctx = case.context(0.35, iterations, 1.0);
         for dir in [Dir::Forward, Dir::Backward] {
             let (side, _) = ctx.side(dir);
-            for (n, p) in (0..w * h).enumerate() {
-                let t = ctx.ndc.at(p % w, p / w);
+            for (p, _, _, t) in targets(&ctx, w, h) {
                 // Start away from the target's pixel too.
-                let p0 = (p * 7 + n % 5) % (w * h);
+                let p0 = (p * 7 + p % 5) % (w * h);
                 let p0 = Px {
                     i: p0 % w,
                     j: p0 / w,
@@ -546,9 +554,7 @@ fn backward_bidir_direction_skips_only_repeated_searches() {
     let mut latest_decides = 0;
     for dir in [Dir::Forward, Dir::Backward] {
         let (side, other) = ctx.side(dir);
-        for p in 0..w * h {
-            let (i, j) = (p % w, p / w);
-            let t = ctx.ndc.at(i, j);
+        for (p, i, j, t) in targets(&ctx, w, h) {
             let vo = other.flow[p];
             let guesses = [
                 Some(Px { i, j, p }),
@@ -610,9 +616,7 @@ fn backward_bidir_latest_init_is_the_nearest_of_the_nine() {
         (Dir::Backward, latest.scale_b, 2),
     ] {
         let (side, _) = ctx.side(dir);
-        for p in 0..w * h {
-            let (i, j) = (p % w, p / w);
-            let t = ctx.ndc.at(i, j);
+        for (p, i, j, t) in targets(&ctx, w, h) {
             let mut want: Option<(f32, usize)> = None;
             let mut landed = Vec::new();
             for qj in j.saturating_sub(1)..=(j + 1).min(h - 1) {
