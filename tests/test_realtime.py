@@ -207,6 +207,14 @@ def test_max_divisor_one_keeps_the_full_rate(scene, frames):
 def test_bad_max_divisor_is_refused(divisor):
     with pytest.raises(InvalidInputError, match="max_divisor"):
         RealtimeClient(max_divisor=divisor)
+    with pytest.raises(InvalidInputError, match="max_divisor"):
+        rt.RateGovernor(FC, divisor)
+
+
+@pytest.mark.parametrize("fps", [0, -1.0, float("nan"), float("inf"), "120", None])
+def test_rate_governor_refuses_a_bad_display_rate(fps):
+    with pytest.raises(InvalidInputError, match="display_fps"):
+        rt.RateGovernor(fps)
 
 
 def _hold_preparation(monkeypatch, held):  # type: ignore[no-untyped-def]

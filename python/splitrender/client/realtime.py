@@ -268,8 +268,9 @@ class RateGovernor:
     #: the rate goes back up.
     HEADROOM = 0.75
 
+    @checked(display_fps=floats(positive=True, hi=MAX_RATE), max_divisor=ints(1, 16))
     def __init__(self, display_fps: float, max_divisor: int = MAX_DIVISOR) -> None:
-        self.display_fps = display_fps
+        self.display_fps = float(display_fps)
         self.max_divisor = max_divisor
         self.divisor = 1
         self._missed: list[bool] = []  # the last WINDOW frames at this divisor
