@@ -17,6 +17,7 @@ import splitrender as sr
 import splitrender.client.realtime as rt
 from splitrender.client import Client
 from splitrender.client.realtime import RealtimeClient
+from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import InvalidInputError, StreamError
 
 W, H = 64, 36
@@ -408,6 +409,102 @@ def test_a_worker_that_is_behind_hands_frames_over_without_preparing_them(scene,
         assert c.client.was_prepared(1, 2) and c.client.was_prepared(None, 2)
 
 
+def _clocked_preparation(monkeypatch, clock, pair_s, extrapolation_s):  # type: ignore[no-untyped-def]
+    """Makes each preparation take ``pair_s`` (an interpolation pair) or ``extrapolation_s``
+    (``(None, k)``) seconds of the fake clock; returns the list of pairs prepared."""
+    real = rt.prepare_pair
+    order = []
+
+    def slow_prepare(older, newer, *a, **kw):  # type: ignore[no-untyped-def]
+        order.append((None if older is None else older.index, newer.index))
+        clock.advance(extrapolation_s if older is None else pair_s)
+        return real(older, newer, *a, **kw)
+
+    monkeypatch.setattr(rt, "prepare_pair", slow_prepare)
+    return order
+
+
+def test_a_pair_that_would_be_ready_too_late_is_skipped_and_its_frame_used_from_its_time(
+    scene, frames, monkeypatch
+):
+    # An interpolation pair takes 150 ms, longer than its 100 ms interval; frames arrive when
+    # their pair's interval starts (as splitrender bench --realtime sends them).
+    clock = FakeClock()
+    order = _clocked_preparation(monkeypatch, clock, 0.15, 0.01)
+    feed = [(k / FS - 1 / FS, frames[k]) for k in range(4)]
+    with loop(clock, executor=InlineExecutor()) as c:
+        report = c.run(pose_of(scene), 0.35, feed=feed)
+        # The first pair was prepared (nothing to estimate from) and ready too late to be
+        # shown; the next frames' pairs were not prepared, only their extrapolations.
+        assert order[:3] == [(None, 0), (0, 1), (None, 1)]
+        assert (1, 2) not in order and (2, 3) not in order
+        assert c.client.held == (3,) and c.client.was_prepared(None, 3)
+    f = [x for x in report.frames if x.mode != "hold"]
+    assert report.pairs_skipped == 2 and report.summary()["pairs_skipped"] == 2
+    # Frame 2 was usable from display time 0.2 on, not before (where the display would have
+    # interpolated towards it and done the pair's work itself), and every frame rendered a
+    # pair prepared on the worker.
+    assert all(x.newer != 2 for x in f if x.time < 0.2 - 1e-9)
+    assert all(x.newer == 2 and x.mode == "extrapolate" for x in f if 0.2 <= x.time < 0.3)
+    assert all(x.prepared for x in f)
+
+
+def test_a_pair_that_is_ready_in_time_is_prepared(scene, frames, monkeypatch):
+    clock = FakeClock()
+    order = _clocked_preparation(monkeypatch, clock, 0.03, 0.01)
+    feed = [(k / FS - 1 / FS, frames[k]) for k in range(4)]
+    with loop(clock, executor=InlineExecutor()) as c:
+        report = c.run(pose_of(scene), 0.35, feed=feed)
+    assert report.pairs_skipped == 0
+    assert [p for p in order if p[0] is not None] == [(0, 1), (1, 2), (2, 3)]
+    modes = {(x.mode, x.older, x.newer) for x in report.frames if x.time < 0.3}
+    assert modes >= {("interpolate", 1, 2), ("interpolate", 2, 3)}
+
+
+class ClockedDecoder(StreamDecoder):
+    """Decodes packet ``b"k"`` into ``frames[k]`` in ``decode_s[k]`` seconds of the fake
+    clock."""
+
+    def __init__(self, clock: FakeClock, frames: list[Any], decode_s: list[float]) -> None:
+        super().__init__()
+        self.clock, self.frames, self.decode_s = clock, frames, decode_s
+
+    def decode(self, data: bytes | memoryview) -> Any:
+        k = int(bytes(data))
+        self.clock.advance(self.decode_s[k])
+        return self.frames[k]
+
+
+def test_the_pair_estimate_follows_the_decode_time(scene, frames, monkeypatch):
+    # A 20 ms pair after a 10 ms decode fits its interval; the same pair after a 40 ms decode
+    # (the worker four times slower: the display took more of the cores) is estimated at
+    # 80 ms, which would leave less than a quarter of the interval, and skipped. Taken as
+    # measured (20 ms), it would have been prepared.
+    clock = FakeClock()
+    order = _clocked_preparation(monkeypatch, clock, 0.02, 0.0)
+    decoder = ClockedDecoder(clock, frames, [0.01, 0.01, 0.01, 0.04])
+    feed = [(k / FS - 1 / FS, str(k).encode()) for k in range(4)]
+    with RealtimeClient(
+        client=CostClient(clock, lambda n: 0.001), clock=clock, display_fps=FC,
+        executor=InlineExecutor(), decoder=decoder,
+    ) as c:
+        report = c.run(pose_of(scene), 0.35, feed=feed)
+    assert [p for p in order if p[0] is not None] == [(0, 1), (1, 2)]
+    assert report.pairs_skipped == 1
+
+
+def test_no_pair_is_skipped_outside_a_run(scene, frames, monkeypatch):
+    # A caller with its own display loop (render) gives the worker no display clock: every
+    # pair is prepared whatever it costs.
+    clock = FakeClock()
+    order = _clocked_preparation(monkeypatch, clock, 0.5, 0.01)
+    with loop(clock, executor=InlineExecutor()) as c:
+        for f in frames:
+            c.submit(f)
+        assert c.client.held == (0, 1, 2, 3)
+    assert [p for p in order if p[0] is not None] == [(0, 1), (1, 2), (2, 3)]
+
+
 def test_summary_has_the_keys_the_bench_reports(scene, frames):
     clock = FakeClock()
     with loop(clock) as c:
@@ -431,6 +528,7 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "full_rate_pct",
         "frames_by_divisor",
         "repeated",
+        "pairs_skipped",
     ):
         assert key in s
     assert s["decode_ms_per_server_frame"] is None  # frames handed over decoded

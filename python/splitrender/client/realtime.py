@@ -13,7 +13,10 @@ Three things happen at once, and only the last is on the display path:
    usable as soon as its first pair is prepared (the second is needed only if frame ``k + 1`` is
    late, a server period later): until then the display extrapolates from the frames it has
    (that is the method's answer to a late frame, seeds/000 §3.5), so no display frame waits for
-   a decoder or pays the pair work.
+   a decoder or pays the pair work. A pair that would be ready too late to be shown for much
+   of its interval (:data:`MIN_PAIR_USE`, estimated from the last one prepared) is not
+   prepared: the frame is prepared to extrapolate from and used from its own time on, so a
+   worker that cannot keep up with the pairs still keeps the content fresh.
 3. **Display.** :meth:`RealtimeClient.run` is driven by a monotonic clock at ``f_c``: display
    frame ``n`` starts at refresh ``n`` (clock ``t0 + n / f_c``) with the pose of its display
    time, is rendered by :meth:`Client.render` from the usable frames, and is due at the next
@@ -54,7 +57,7 @@ import splitrender._native as _native
 from splitrender.client.client import Client
 from splitrender.errors import InvalidInputError
 from splitrender.gpu import BACKENDS, GpuPair
-from splitrender.net.model import MODES
+from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import prepare_pair
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 from splitrender.types import (  # argument checks
@@ -77,6 +80,7 @@ __all__ = [
     "WORKER_PRIORITIES",
     "Clock",
     "MAX_DIVISOR",
+    "MIN_PAIR_USE",
     "DisplayFrame",
     "MonotonicClock",
     "RateGovernor",
@@ -169,6 +173,9 @@ class RealtimeReport:
     usable_ms: list[float] = field(default_factory=list)
     server_frames_received: int = 0
     server_frames_late: int = 0
+    #: Server frames whose interpolation pair was not prepared because it would have been ready
+    #: too late to be shown (:data:`MIN_PAIR_USE`); each became usable at its own time.
+    pairs_skipped: int = 0
     wall_s: float = 0.0
     cpu_s: float = 0.0
     cpus: int = 1
@@ -190,7 +197,8 @@ class RealtimeReport:
         per mode), ``decode_ms_per_server_frame``, ``prepare_ms_per_server_frame`` (both
         pairs) and ``usable_ms_per_server_frame`` (from the worker taking the packet until the
         frame is usable: its decode and first pair; all medians), the server frames received
-        and late, ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per
+        and late, ``pairs_skipped`` (interpolation pairs not prepared because they would have
+        come too late), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per
         second of the run) and ``cpu_utilisation`` (process CPU seconds per wall second and core,
         0–1), ``display_scheduling`` (how the display's threads were scheduled) and
         ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample are ``None``."""
@@ -221,6 +229,7 @@ class RealtimeReport:
             "usable_ms_per_server_frame": _median(self.usable_ms),
             "server_frames_received": self.server_frames_received,
             "server_frames_late": self.server_frames_late,
+            "pairs_skipped": self.pairs_skipped,
             "server_age_ms_p50": _median(ages),
             "server_age_ms_max": max(ages) if ages else None,
             "achieved_fps": (n - misses) / self.wall_s if self.wall_s > 0 else 0.0,
@@ -404,6 +413,29 @@ def _restore(saved: _Saved) -> None:
 #: Methods whose client frames use pair-level state that :func:`prepare_pair` can compute.
 _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 
+#: The least part of its interval an interpolation pair must still have ahead of it, once
+#: prepared, for the worker to prepare it. The pair ``(k − 1, k)`` is shown from display time
+#: ``t_{k−1}`` to ``t_k``; where the worker's estimate of its preparation
+#: (:meth:`RealtimeClient._pair_too_late`) leaves less than this share of that interval, the pair
+#: would cost the worker its time and show in few frames or none, while the frame waited for it.
+#: The frame is then prepared to extrapolate from and becomes usable at its own time ``t_k``.
+MIN_PAIR_USE = 0.25
+
+_Prepared = tuple[int | None, "_native.BidirHistory | GpuPair"]
+
+
+@dataclass
+class _Received:
+    """A server frame the worker has decoded and prepared, waiting to be handed to the client
+    (:meth:`RealtimeClient._release_due`), in the order received: from display time
+    ``release_at`` on (``-inf``: at once)."""
+
+    frame: ServerFrame
+    states: list[_Prepared]
+    release_at: float
+    pose_time: float | None
+    usable_ms: float
+
 
 def _clock(where: str, value: object) -> Any:
     if not all(callable(getattr(value, m, None)) for m in ("now", "sleep_until")):
@@ -512,6 +544,13 @@ class RealtimeClient:
         self._ready_at: dict[int, float] = {}
         self._frame_time: dict[int, float] = {}
         self._period: dict[int, float] = {}  # seconds each frame's pair spans (its span / f_s)
+        # Received frames not yet handed to the client, oldest first (_release_due).
+        self._received: list[_Received] = []
+        # The clock at display time 0 while run() shows frames (None otherwise): what tells the
+        # worker how much of a pair's interval is left.
+        self._origin: float | None = None
+        # The wall seconds of the last interpolation pair prepared, and of its frame's decode.
+        self._pair_cost: tuple[float, float | None] | None = None
         self._report = RealtimeReport(self.display_fps)
         opts = self.client.options
         self._interpolates = self.method == "ours" or (
@@ -541,7 +580,8 @@ class RealtimeClient:
     ) -> Future[int | None]:
         """Hands over a server packet (or an already decoded :class:`ServerFrame`) as it
         arrives; returns at once. The worker decodes it, prepares its pairs and then makes it
-        usable; the future gives its index (``None``: the client refused it, e.g. stale). A
+        usable (or, without its interpolation pair, :data:`MIN_PAIR_USE`, due at its own
+        time); the future gives its index (``None``: the client refused it, e.g. stale). A
         packet that cannot be decoded sets the future's exception (a
         :class:`~splitrender.errors.StreamError`) and is otherwise ignored: the display goes on
         extrapolating. ``pose_time``: when the pose of this frame was taken (default: the
@@ -553,8 +593,8 @@ class RealtimeClient:
         return fut
 
     def wait(self, timeout: float | None = None) -> None:
-        """Blocks until every packet submitted so far is usable or refused (re-raises the first
-        error)."""
+        """Blocks until every packet submitted so far is usable, refused or due at its own
+        time (:data:`MIN_PAIR_USE`; re-raises the first error)."""
         pending, self._pending = self._pending, []
         for fut in pending:
             fut.result(timeout)
@@ -571,12 +611,15 @@ class RealtimeClient:
     ) -> int | None:
         with self._lock:
             self._queued -= 1
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), self.clock.now()
         frame = packet if isinstance(packet, ServerFrame) else self._decode(packet)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), self.clock.now()
+        # On the run's clock, which is what the estimate of a pair's preparation is held to.
+        decode_s = None if isinstance(packet, ServerFrame) else c1 - c0
         with self._lock:
-            # The frame it closes a pair with (ServerFrame.span: equal spans, that far apart).
-            older = self.client.held_frame(frame.index - frame.span)
+            # The frame it closes a pair with (ServerFrame.span: equal spans, that far apart),
+            # held or still waiting to be handed over.
+            older = self._held_or_received(frame.index - frame.span)
             if older is not None and older.span != frame.span:
                 older = None
             camera = self._camera if self._camera is not None else frame.main.camera
@@ -588,45 +631,101 @@ class RealtimeClient:
             # so it is handed over at once and the worker's time goes to catching up; a display
             # frame that still renders its pair does the pair work itself.
             behind = self._queued > 0
+            prepares = self.method in _PREPARED_METHODS and not behind
+            interpolates = older is not None and self._interpolates
+            skip = prepares and interpolates and self._pair_too_late(frame, decode_s)
         del retired
         pairs: list[ServerFrame | None] = []
-        if self.method in _PREPARED_METHODS and not behind:
+        if prepares:
             # The pair that makes the frame usable first: to interpolate towards it when the
             # method does and the older frame is held, else to extrapolate from it. The
             # extrapolation pair is needed only when the next frame is late, a server period
             # from now, so it is prepared after the frame is handed over.
-            pairs = [older, None] if older is not None and self._interpolates else [None]
+            pairs = [older, None] if interpolates and not skip else [None]
         first = self._prepare(pairs[:1], frame, camera, spare)
         t2 = time.perf_counter()
         with self._lock:
-            if not isinstance(packet, ServerFrame):
+            if older is not None and pairs[:1] == [older]:
+                self._pair_cost = (self.clock.now() - c1, decode_s)
+            if decode_s is not None:
                 self._report.decode_ms.append((t1 - t0) * 1e3)
-            if not self.client.receive(frame):
-                return None
-            for older_index, state in first:
-                self._adopt(older_index, frame.index, state)
-            self._report.server_frames_received += 1
-            self._report.usable_ms.append((t2 - t0) * 1e3)
-            self._ready_at[frame.index] = self.clock.now()
-            self._frame_time[frame.index] = frame.time
-            self._pose_time[frame.index] = (
-                frame.time - frame.span / self.client.server_fps
-                if pose_time is None
-                else pose_time
+            # Without its interpolation pair the frame is used from its own time on, to
+            # extrapolate from: handed over earlier, the display would interpolate towards it
+            # and do the pair's work itself.
+            entry = _Received(
+                frame, first, frame.time if skip else -math.inf, pose_time, (t2 - t0) * 1e3
             )
-            self._period[frame.index] = frame.span / self.client.server_fps
+            self._report.pairs_skipped += skip
+            self._received.append(entry)
+            handed = self._release_due(self._display_now())
+            if handed.get(frame.index) is False:
+                return None
             rest = pairs[1:] if self._queued == 0 else []
         later = self._prepare(rest, frame, camera, spare)
         t3 = time.perf_counter()
         with self._lock:
+            if any(e is entry for e in self._received):
+                entry.states.extend(later)
             # Adopted only while the frame is held (else the history would wait in the
             # client until its next render retires it).
-            if self.client.held_frame(frame.index) is not None:
+            elif self.client.held_frame(frame.index) is not None:
                 for older_index, state in later:
                     self._adopt(older_index, frame.index, state)
             if first or later:
                 self._report.prepare_ms.append((t2 - t1 + t3 - t2) * 1e3)
         return frame.index
+
+    def _held_or_received(self, index: int) -> ServerFrame | None:
+        """Frame ``index``, held by the client or received and waiting (under the lock)."""
+        held = self.client.held_frame(index)
+        if held is not None:
+            return held
+        return next((e.frame for e in self._received if e.frame.index == index), None)
+
+    def _display_now(self) -> float:
+        """The display time now while :meth:`run` shows frames, else ``-inf`` (under the
+        lock)."""
+        return -math.inf if self._origin is None else self.clock.now() - self._origin
+
+    def _pair_too_late(self, frame: ServerFrame, decode_s: float | None) -> bool:
+        """Whether the interpolation pair that ``frame`` closes would be ready with less than
+        :data:`MIN_PAIR_USE` of its interval ahead (under the lock). The estimate is the last
+        such pair's preparation, scaled by this frame's decode time against that one's: both
+        run on the worker in the cycles the display leaves, so the ratio follows the display's
+        load. Without an estimate, or outside :meth:`run`, the pair is prepared."""
+        if self._origin is None or self._pair_cost is None:
+            return False
+        pair_s, decode_then = self._pair_cost
+        if decode_s is not None and decode_then is not None and decode_then > 1e-3:
+            pair_s *= decode_s / decode_then
+        period = frame.span / self.client.server_fps
+        left = self._origin + frame.time - (self.clock.now() + pair_s)
+        return left < MIN_PAIR_USE * period
+
+    def _release_due(self, display_time: float) -> dict[int, bool]:
+        """Hands the received frames due by ``display_time`` to the client, oldest first, and
+        stops at the first that is not (under the lock). Returns whether the client accepted
+        each frame handed over, by index."""
+        handed: dict[int, bool] = {}
+        while self._received and self._received[0].release_at <= display_time + TIME_EPS:
+            entry = self._received.pop(0)
+            frame = entry.frame
+            handed[frame.index] = accepted = self.client.receive(frame)
+            if not accepted:
+                continue
+            for older_index, state in entry.states:
+                self._adopt(older_index, frame.index, state)
+            self._report.server_frames_received += 1
+            self._report.usable_ms.append(entry.usable_ms)
+            self._ready_at[frame.index] = self.clock.now()
+            self._frame_time[frame.index] = frame.time
+            self._pose_time[frame.index] = (
+                frame.time - frame.span / self.client.server_fps
+                if entry.pose_time is None
+                else entry.pose_time
+            )
+            self._period[frame.index] = frame.span / self.client.server_fps
+        return handed
 
     def _prepare(
         self,
@@ -682,6 +781,7 @@ class RealtimeClient:
         between) whether its pair was prepared and the pose time of the newest usable frame."""
         with self._lock:
             self._camera = camera
+            self._release_due(time)
             image = self.client.render(camera, time, eye=eye)
             info = self.client.last_info
             assert info is not None
@@ -739,6 +839,10 @@ class RealtimeClient:
                 arrivals = self._warm_up(report, pose, arrivals, start_time)
             t0 = self.clock.now()
             cpu0 = time.process_time()
+            if not exclusive:
+                # An exclusive run waits for the worker, so no pair is ever late there.
+                with self._lock:
+                    self._origin = t0 - start_time
             # Python hands the GIL to a waiting thread only every switch interval (5 ms by
             # default): the display thread could wait that long behind the worker's Python code
             # between two native calls. 0.5 ms keeps that wait well inside a frame.
@@ -748,6 +852,8 @@ class RealtimeClient:
             )
         finally:
             # Whatever ended the run (the warm-up's or a frame's error included).
+            with self._lock:
+                self._origin = None
             _restore(saved)
             sys.setswitchinterval(interval)
         report.wall_s = self.clock.now() - t0

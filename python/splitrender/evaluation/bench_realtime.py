@@ -321,7 +321,10 @@ def format_realtime(b: RealtimeBench) -> str:
             + f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread, median; "
             f"usable after {ms('usable_ms_per_server_frame')}); "
             f"server frames {s['server_frames_received']} received, "
-            f"{s['server_frames_late']} late",
+            f"{s['server_frames_late']} late"
+            + ("" if not s["pairs_skipped"]
+               else f", {s['pairs_skipped']} without their interpolation pair (it would have "
+               "come too late: used from their own time, to extrapolate)"),
             f"  newest server frame's age at display: p50 {ms('server_age_ms_p50')}, "
             f"max {ms('server_age_ms_max')}; CPU {100 * s['cpu_utilisation']:.0f} % "
             f"of {os.cpu_count() or 1} cores"
