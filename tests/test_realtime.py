@@ -409,7 +409,9 @@ def test_a_worker_that_is_behind_hands_frames_over_without_preparing_them(scene,
         assert c.client.was_prepared(1, 2) and c.client.was_prepared(None, 2)
 
 
-def _clocked_preparation(monkeypatch, clock, pair_s, extrapolation_s):  # type: ignore[no-untyped-def]
+def _clocked_preparation(  # type: ignore[no-untyped-def]
+    monkeypatch, clock, pair_s, extrapolation_s
+):
     """Makes each preparation take ``pair_s`` (an interpolation pair) or ``extrapolation_s``
     (``(None, k)``) seconds of the fake clock; returns the list of pairs prepared."""
     real = rt.prepare_pair

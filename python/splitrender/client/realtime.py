@@ -198,9 +198,9 @@ class RealtimeReport:
         pairs) and ``usable_ms_per_server_frame`` (from the worker taking the packet until the
         frame is usable: its decode and first pair; all medians), the server frames received
         and late, ``pairs_skipped`` (interpolation pairs not prepared because they would have
-        come too late), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per
-        second of the run) and ``cpu_utilisation`` (process CPU seconds per wall second and core,
-        0–1), ``display_scheduling`` (how the display's threads were scheduled) and
+        come too late), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their
+        deadline per second of the run) and ``cpu_utilisation`` (process CPU seconds per wall
+        second and core, 0–1), ``display_scheduling`` (how the display's threads were scheduled) and
         ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample are ``None``."""
         render = [f.render_ms for f in self.frames]
         ages = [f.server_age_ms for f in self.frames if f.server_age_ms is not None]
@@ -421,7 +421,8 @@ _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 #: The frame is then prepared to extrapolate from and becomes usable at its own time ``t_k``.
 MIN_PAIR_USE = 0.25
 
-_Prepared = tuple[int | None, "_native.BidirHistory | GpuPair"]
+#: A prepared pair: the older frame's index (``None``: to extrapolate) and its state.
+_Prepared = tuple[int | None, _native.BidirHistory | GpuPair]
 
 
 @dataclass
@@ -549,7 +550,8 @@ class RealtimeClient:
         # The clock at display time 0 while run() shows frames (None otherwise): what tells the
         # worker how much of a pair's interval is left.
         self._origin: float | None = None
-        # The wall seconds of the last interpolation pair prepared, and of its frame's decode.
+        # The seconds (on the clock) of the last interpolation pair prepared, and of its
+        # frame's decode (None: handed over decoded).
         self._pair_cost: tuple[float, float | None] | None = None
         self._report = RealtimeReport(self.display_fps)
         opts = self.client.options
@@ -645,7 +647,7 @@ class RealtimeClient:
         first = self._prepare(pairs[:1], frame, camera, spare)
         t2 = time.perf_counter()
         with self._lock:
-            if older is not None and pairs[:1] == [older]:
+            if pairs and pairs[0] is not None:
                 self._pair_cost = (self.clock.now() - c1, decode_s)
             if decode_s is not None:
                 self._report.decode_ms.append((t1 - t0) * 1e3)
