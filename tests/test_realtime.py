@@ -463,6 +463,23 @@ def test_a_pair_that_is_ready_in_time_is_prepared(scene, frames, monkeypatch):
     assert modes >= {("interpolate", 1, 2), ("interpolate", 2, 3)}
 
 
+def test_a_frame_due_later_whose_time_contradicts_the_held_frames_is_dropped(
+    scene, frames, monkeypatch
+):
+    # Frame 2 claims a time just before frame 1's, and its pair would be late (80 ms from
+    # display time 0.08), so it waits for its time, 0.099. The client refuses it there, on the
+    # display thread: the run goes on without it.
+    clock = FakeClock()
+    _clocked_preparation(monkeypatch, clock, 0.08, 0.0)
+    bad = dataclasses.replace(frames[2], time=0.099)
+    feed = [(-0.1, frames[0]), (0.0, frames[1]), (0.0, bad)]
+    with loop(clock, executor=InlineExecutor()) as c:
+        report = c.run(pose_of(scene), 0.2, feed=feed)
+        assert 2 not in c.client.held
+    assert report.pairs_skipped == 1 and report.server_frames_received == 2
+    assert all(f.newer != 2 for f in report.frames)
+
+
 class ClockedDecoder(StreamDecoder):
     """Decodes packet ``b"k"`` into ``frames[k]`` in ``decode_s[k]`` seconds of the fake
     clock."""

@@ -200,8 +200,9 @@ class RealtimeReport:
         and late, ``pairs_skipped`` (interpolation pairs not prepared because they would have
         come too late), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their
         deadline per second of the run) and ``cpu_utilisation`` (process CPU seconds per wall
-        second and core, 0–1), ``display_scheduling`` (how the display's threads were scheduled) and
-        ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample are ``None``."""
+        second and core, 0–1), ``display_scheduling`` (how the display's threads were
+        scheduled) and ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample
+        are ``None``."""
         render = [f.render_ms for f in self.frames]
         ages = [f.server_age_ms for f in self.frames if f.server_age_ms is not None]
         n = len(self.frames)
@@ -659,7 +660,7 @@ class RealtimeClient:
             )
             self._report.pairs_skipped += skip
             self._received.append(entry)
-            handed = self._release_due(self._display_now())
+            handed = self._release_due(self._display_now(), own=frame.index)
             if handed.get(frame.index) is False:
                 return None
             rest = pairs[1:] if self._queued == 0 else []
@@ -704,15 +705,26 @@ class RealtimeClient:
         left = self._origin + frame.time - (self.clock.now() + pair_s)
         return left < MIN_PAIR_USE * period
 
-    def _release_due(self, display_time: float) -> dict[int, bool]:
+    def _release_due(
+        self, display_time: float, own: int | None = None
+    ) -> dict[int, bool]:
         """Hands the received frames due by ``display_time`` to the client, oldest first, and
         stops at the first that is not (under the lock). Returns whether the client accepted
-        each frame handed over, by index."""
+        each frame handed over, by index. A frame the client rejects with an error (its time
+        contradicts the frames held) is dropped as refused, unless it is ``own`` (the worker's
+        current frame), whose error is raised for its future as before: a frame from the wire
+        must not stop the display thread."""
         handed: dict[int, bool] = {}
         while self._received and self._received[0].release_at <= display_time + TIME_EPS:
             entry = self._received.pop(0)
             frame = entry.frame
-            handed[frame.index] = accepted = self.client.receive(frame)
+            try:
+                accepted = self.client.receive(frame)
+            except InvalidInputError:
+                if frame.index == own:
+                    raise
+                accepted = False
+            handed[frame.index] = accepted
             if not accepted:
                 continue
             for older_index, state in entry.states:
