@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 from splitrender.cli.help import DESCRIPTION, HELP
+from splitrender.client.realtime import MAX_DIVISOR
 from splitrender.errors import SplitRenderError
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -267,6 +268,19 @@ def add_trace(p: argparse.ArgumentParser, rate: str = "") -> None:
     p.add_argument("--trace-scale", type=lambda t: number(t, 0.0, 1000.0), default=1.0,
                    metavar="F",
                    help="scale of the trace's translation (default: %(default)s)")
+
+
+def add_max_divisor(p: Any, default: int | None, when: str = "") -> None:
+    """``--max-divisor D`` (1–4): the most the display may divide ``--fps`` by when its frames
+    do not fit the refresh (:class:`~splitrender.client.realtime.RateGovernor`). ``default``
+    ``None`` lets the caller see whether it was given; ``when`` (e.g. ``"with --realtime: "``)
+    opens its help."""
+    p.add_argument(
+        "--max-divisor", type=int, choices=(1, 2, 3, 4), default=default, metavar="D",
+        help=f"{when}the most the display may divide --fps by when its frames do not fit the "
+        "refresh (2: half rate, as headset runtimes do; 1: hold --fps whatever the frames "
+        f"cost; default: {MAX_DIVISOR})",
+    )
 
 
 def add_samples(p: argparse.ArgumentParser, more: str = "") -> None:

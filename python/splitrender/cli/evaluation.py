@@ -8,6 +8,7 @@ from typing import Any
 
 from splitrender.cli.args import (
     add_backend,
+    add_max_divisor,
     add_network,
     add_no_vmaf,
     add_out,
@@ -297,12 +298,7 @@ def add_bench(sub: Any) -> None:
         "realtime (Linux SCHED_RR, where permitted; else normal, and the report says why) or "
         "normal (default: realtime)",
     )
-    be.add_argument(
-        "--max-divisor", type=int, choices=(1, 2, 3, 4), default=None, metavar="D",
-        help="with --realtime: the most the display may divide --fps by when its frames do not "
-        "fit the refresh (2: half rate, as headset runtimes do; 1: hold --fps whatever the "
-        f"frames cost; default: {MAX_DIVISOR})",
-    )
+    add_max_divisor(be, None, "with --realtime: ")
     be.add_argument(
         "--stream", type=Path, default=None, metavar="FILE",
         help="with --realtime: play this stream file instead of the built-in --scene",

@@ -18,6 +18,7 @@ import numpy.typing as npt
 from splitrender.cli.args import (
     MAX_SECONDS,
     add_backend,
+    add_max_divisor,
     add_no_vmaf,
     add_out,
     add_quiet,
@@ -185,10 +186,7 @@ def add_connect(sub: Any) -> None:
                    help="session length (default: %(default)s)")
     p.add_argument("--fps", type=rate, default=DISPLAY_FPS, metavar="FC",
                    help="display frames per second, f_c (default: %(default)s)")
-    p.add_argument("--max-divisor", type=int, choices=(1, 2, 3, 4), default=MAX_DIVISOR,
-                   metavar="D",
-                   help="the most the display may divide --fps by when its frames do not fit "
-                   "the refresh (2: half rate; 1: hold --fps) (default: %(default)s)")
+    add_max_divisor(p, MAX_DIVISOR)
     add_trace(p)
     add_out(p)
     p.add_argument("--score", action="store_true",

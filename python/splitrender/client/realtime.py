@@ -44,6 +44,7 @@ import os
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from concurrent.futures import wait as futures_wait
@@ -283,7 +284,7 @@ class RateGovernor:
         self.display_fps = float(display_fps)
         self.max_divisor = max_divisor
         self.divisor = 1
-        self._missed: list[bool] = []  # the last WINDOW frames at this divisor
+        self._missed: deque[bool] = deque(maxlen=self.WINDOW)  # the last frames at this divisor
         self._fitting = 0  # frames in a row at this divisor that would fit the one below
 
     def update(self, frame_s: float, met: bool) -> int:
@@ -291,7 +292,7 @@ class RateGovernor:
         the next frame could start, ``met`` whether it was done by its deadline. Returns the
         divisor of the next frame."""
         d = self.divisor
-        self._missed = [*self._missed[-(self.WINDOW - 1):], not met]
+        self._missed.append(not met)
         fits_below = d > 1 and frame_s <= self.HEADROOM * (d - 1) / self.display_fps
         self._fitting = self._fitting + 1 if fits_below else 0
         if d < self.max_divisor and sum(self._missed) >= self.DOWN_MISSES:
@@ -302,7 +303,7 @@ class RateGovernor:
 
     def _switch(self, divisor: int) -> None:
         self.divisor = divisor
-        self._missed = []
+        self._missed.clear()
         self._fitting = 0
 
 
@@ -731,14 +732,13 @@ class RealtimeClient:
                 self._adopt(older_index, frame.index, state)
             self._report.server_frames_received += 1
             self._report.usable_ms.append(entry.usable_ms)
+            period = frame.span / self.client.server_fps
             self._ready_at[frame.index] = self.clock.now()
             self._frame_time[frame.index] = frame.time
             self._pose_time[frame.index] = (
-                frame.time - frame.span / self.client.server_fps
-                if entry.pose_time is None
-                else entry.pose_time
+                frame.time - period if entry.pose_time is None else entry.pose_time
             )
-            self._period[frame.index] = frame.span / self.client.server_fps
+            self._period[frame.index] = period
         return handed
 
     def _prepare(

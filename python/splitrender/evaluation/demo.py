@@ -512,15 +512,16 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
                     if video is None:
                         return
                     err = colormap(flip_map(image, truth[n]))
-                    video.write(_side_by_side([truth[n], image, err]))
+                    side = _side_by_side([truth[n], image, err])
+                    video.write(side)
                     if n in still_idx:
-                        for name, img in (("ground_truth", truth[n]), (f"flip_{method}", err)):
+                        for name, img in (
+                            ("ground_truth", truth[n]), (f"flip_{method}", err),
+                            ("side_by_side", side),
+                        ):
                             still = out / "stills" / f"frame{n:04d}_{name}.png"
                             write_png(still, img)
                             files.append(still)
-                        still = out / "stills" / f"frame{n:04d}_side_by_side.png"
-                        write_png(still, _side_by_side([truth[n], image, err]))
-                        files.append(still)
 
                 scored = play_and_score_eyes(
                     DecodedStream(packets), cameras, truths, method, network, FC, metrics,
