@@ -4,6 +4,9 @@ time is compared with."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -93,3 +96,30 @@ def test_time_frames_warms_up_with_at_least_one_call() -> None:
     samples = time_frames(calls.append, [7], 2, warm_up_s=0.0)
     assert calls == [7, 7, 7] and len(samples) == 2
 
+
+
+@pytest.mark.parametrize(("n", "k"), [(10, 1), (10, 3), (83_000_001, 2), (2, 5)])
+def test_equal_parts_cover_every_byte_once(n: int, k: int) -> None:
+    from splitrender.evaluation.bench import equal_parts
+
+    parts = equal_parts(n, k)
+    assert len(parts) == k
+    assert parts[0][0] == 0 and parts[-1][1] == n
+    assert all(a[1] == b[0] for a, b in zip(parts, parts[1:]))
+    lengths = [b - a for a, b in parts]
+    assert max(lengths) - min(lengths) <= 1
+
+
+def test_the_copy_floor_uses_the_kernels_thread_count() -> None:
+    """The floor's threads are rayon's pool's, which ``RAYON_NUM_THREADS`` sets: a floor of one
+    thread beside a frame on two would flatter the frame."""
+    code = (
+        "from splitrender.evaluation.bench import copy_floor_s, kernel_threads\n"
+        "n = kernel_threads()\n"
+        "s, t = copy_floor_s(1 << 20, n, repeats=2)\n"
+        "print(n, t in (1, n) and s > 0)\n"
+    )
+    env = {**os.environ, "RAYON_NUM_THREADS": "3"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=60, check=True).stdout.split()
+    assert out == ["3", "True"]

@@ -39,10 +39,15 @@ Intermediate buffers (splat grids, history) are not counted, so it is a lower bo
 traffic.
 
 The memory-copy floor is measured in the same run, right after each method: the median time of
-one ``memcpy`` (:func:`numpy.copyto`, one thread) of as many bytes as the method touches,
-between two buffers already in memory. No method can touch its bytes faster than they can be
-copied, so ``ms_per_frame / copy_floor_ms`` says how far a method is from the hardware on this
-machine today (this VM's speed drifts from day to day; the ratio much less).
+a copy (:func:`numpy.copyto`) of as many bytes as the method touches, between two buffers already
+in memory, on as many threads as the CPU methods run on (rayon's pool, ``copy_threads``; the
+bytes in as many equal parts copied at once), or on one where that is faster (a small copy, whose
+threads cost more to start than they save). No method can touch its bytes faster than they can
+be copied with the cores it has, so ``ms_per_frame / copy_floor_ms`` says how far a method is
+from the hardware on this machine today (this VM's speed drifts from day to day; the ratio much
+less). Until 2026-12-05 the floor was one thread's copy, which on the Intel Xeon of that day
+took 1.2–1.4× as long as two threads' (docs/performance.md, "The copy floor on the kernel's
+threads").
 """
 
 from __future__ import annotations
@@ -53,6 +58,7 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -85,6 +91,7 @@ BENCH_KEYS: tuple[str, ...] = (
     "ns_per_pixel",
     "decode_ms_per_server_frame",
     "copy_floor_ms",
+    "copy_threads",
     "ratio_to_floor",
 )
 
@@ -106,6 +113,7 @@ class BenchRow:
     gb_per_s: float
     mb_touched: float
     copy_floor_ms: float
+    copy_threads: int = 1
 
     @property
     def ratio_to_floor(self) -> float:
@@ -185,18 +193,47 @@ def time_frames(
     return samples
 
 
-def copy_floor_s(nbytes: int, repeats: int = 5) -> float:
-    """The memory-copy floor of ``nbytes`` (module docstring): median seconds of ``repeats``
-    copies between two buffers touched beforehand (a first touch of fresh pages costs far more
-    than a copy on this VM, and would not be the floor)."""
+def copy_floor_s(nbytes: int, threads: int = 1, repeats: int = 5) -> tuple[float, int]:
+    """The memory-copy floor of ``nbytes`` (module docstring) and the threads it was reached
+    with: the smaller of two medians of ``repeats`` copies between two buffers touched
+    beforehand (a first touch of fresh pages costs far more than a copy on this VM, and would
+    not be the floor), one on one thread and one with the bytes in ``threads`` equal parts
+    copied at once on as many threads (numpy releases the GIL while it copies)."""
     src = np.ones(max(int(nbytes), 1), np.uint8)
     dst = np.zeros_like(src)
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        np.copyto(dst, src)
-        samples.append(time.perf_counter() - t0)
-    return statistics.median(samples)
+
+    def median_copy(n: int, pool: ThreadPoolExecutor | None) -> float:
+        parts = [(dst[a:b], src[a:b]) for a, b in equal_parts(len(src), n)]
+        samples = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            if pool is None:
+                np.copyto(dst, src)
+            else:
+                for f in [pool.submit(np.copyto, d, s) for d, s in parts]:
+                    f.result()
+            samples.append(time.perf_counter() - t0)
+        return statistics.median(samples)
+
+    best = (median_copy(1, None), 1)
+    if threads > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            median_copy(threads, pool)  # starts the pool's threads
+            best = min(best, (median_copy(threads, pool), threads))
+    return best
+
+
+def equal_parts(n: int, k: int) -> list[tuple[int, int]]:
+    """``[0, n)`` in ``k`` consecutive ranges ``(start, end)`` whose lengths differ by at most 1."""
+    bounds = [n * i // k for i in range(k + 1)]
+    return list(zip(bounds, bounds[1:]))
+
+
+def kernel_threads() -> int:
+    """How many threads the CPU methods run a client frame on: rayon's global pool."""
+    from splitrender._native import render_thread_ids
+
+    return len(render_thread_ids()) or os.cpu_count() or 1
 
 
 def _cache_dir(scene: str, scale: float) -> Path:
@@ -278,6 +315,7 @@ def run_bench(
 
     check_args(scene, methods, scale, frames, backend)
     gpu_run = _GpuRun() if backend == "wgpu" else None
+    threads = kernel_threads()
 
     # One stage line each: the recording, the codec, every method.
     stages = Progress(2 + len(methods), progress)
@@ -323,7 +361,7 @@ def run_bench(
             samples = time_frames(one, requests, frames)
         sec = statistics.median(samples)
         touched = bytes_touched(method, older, newer)
-        floor = copy_floor_s(touched)
+        floor, copy_threads = copy_floor_s(touched, threads)
         row = BenchRow(
             method=method,
             backend=backend,
@@ -336,6 +374,7 @@ def run_bench(
             gb_per_s=touched / sec / 1e9,
             mb_touched=touched / 1e6,
             copy_floor_ms=floor * 1e3,
+            copy_threads=copy_threads,
         )
         rows.append(row)
     return rows
@@ -393,7 +432,7 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
         ),
         (
             f"{'method':<18} {'ms/frame':>9} {'max ms':>8} {'FPS':>7} {'ns/pixel':>9} "
-            f"{'MB touched':>11} {'GB/s':>7} {'copy floor':>11} {'x floor':>8}"
+            f"{'MB touched':>11} {'GB/s':>7} {'copy floor':>11} {'threads':>7} {'x floor':>8}"
         ),
     ]
     for r in rows:
@@ -401,7 +440,7 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
         lines.append(
             f"{r.method:<18} {r.ms_per_frame:9.2f} {r.ms_per_frame_max:8.2f} {fps:7.1f} "
             f"{r.ns_per_pixel:9.2f} {r.mb_touched:11.2f} {r.gb_per_s:7.2f} "
-            f"{r.copy_floor_ms:8.2f} ms {r.ratio_to_floor:8.1f}"
+            f"{r.copy_floor_ms:8.2f} ms {r.copy_threads:7d} {r.ratio_to_floor:8.1f}"
         )
     return "\n".join(lines)
 
