@@ -392,6 +392,19 @@ def test_a_server_frame_that_becomes_usable_after_it_was_needed_counts_as_late(s
     assert report.frames[0].server_age_ms == pytest.approx(100.0)
 
 
+def test_the_client_keeps_no_state_for_the_frames_it_has_dropped(scene):
+    """A headset runs for hours: what the loop keeps per server frame goes with the frame."""
+    many = [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(11)]
+    clock = FakeClock()
+    with loop(clock, executor=InlineExecutor()) as c:
+        feed = [(f.time - 1 / FS, f) for f in many]
+        report = c.run(pose_of(scene), 1.0, feed=feed)
+        held = c.client.held
+        kept = set(c._pose_time)
+    assert report.server_frames_received == 11 and report.server_frames_late == 0
+    assert 0 < len(held) < 11 and kept == set(held)
+
+
 def test_a_worker_that_is_behind_hands_frames_over_without_preparing_them(scene, frames):
     from concurrent.futures import ThreadPoolExecutor
 

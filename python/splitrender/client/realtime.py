@@ -543,15 +543,15 @@ class RealtimeClient:
         self._queued = 0  # packets submitted and not yet being received
         self._pending: list[Future[int | None]] = []
         self._camera: Camera | None = None
+        # The pose time of each frame the client holds (its entries go with the frames, so that
+        # a client that runs for hours keeps no state per frame it has dropped).
         self._pose_time: dict[int, float] = {}
-        self._ready_at: dict[int, float] = {}
-        self._frame_time: dict[int, float] = {}
-        self._period: dict[int, float] = {}  # seconds each frame's pair spans (its span / f_s)
         # Received frames not yet handed to the client, oldest first (_release_due).
         self._received: list[_Received] = []
         # The clock at display time 0 while run() shows frames (None otherwise): what tells the
-        # worker how much of a pair's interval is left.
+        # worker how much of a pair's interval is left; and the clock when that run started.
         self._origin: float | None = None
+        self._run_t0 = 0.0
         # The seconds (on the clock) of the last interpolation pair prepared, and of its
         # frame's decode (None: handed over decoded).
         self._pair_cost: tuple[float, float | None] | None = None
@@ -733,13 +733,27 @@ class RealtimeClient:
             self._report.server_frames_received += 1
             self._report.usable_ms.append(entry.usable_ms)
             period = frame.span / self.client.server_fps
-            self._ready_at[frame.index] = self.clock.now()
-            self._frame_time[frame.index] = frame.time
+            if self._origin is not None and self._late(frame.time, period):
+                self._report.server_frames_late += 1
+            self._forget_dropped(self.client.held)
             self._pose_time[frame.index] = (
                 frame.time - period if entry.pose_time is None else entry.pose_time
             )
-            self._period[frame.index] = period
         return handed
+
+    def _forget_dropped(self, held: tuple[int, ...]) -> None:
+        """Drops the pose times of the frames the client no longer holds (under the lock)."""
+        if not set(self._pose_time) <= set(held):
+            self._pose_time = {i: t for i, t in self._pose_time.items() if i in held}
+
+    def _late(self, frame_time: float, period: float) -> bool:
+        """Whether a frame at ``frame_time`` whose pair spans ``period`` seconds is late, handed
+        over now during :meth:`run` (under the lock): after the display first needed it, one
+        period before its time, when the pair it closes starts. A frame needed before the run
+        began counts from the start of the run."""
+        assert self._origin is not None
+        needed = max(self._run_t0, self._origin + frame_time - period)
+        return self.clock.now() > needed
 
     def _prepare(
         self,
@@ -801,6 +815,7 @@ class RealtimeClient:
             assert info is not None
             prepared = info.newer is not None and self.client.was_prepared(info.older, info.newer)
             held = self.client.held
+            self._forget_dropped(held)
             newest = self._pose_time[max(held)] if held else None
         return image, prepared, newest
 
@@ -857,6 +872,7 @@ class RealtimeClient:
                 # An exclusive run waits for the worker, so no pair is ever late there.
                 with self._lock:
                     self._origin = t0 - start_time
+                    self._run_t0 = t0
             # Python hands the GIL to a waiting thread only every switch interval (5 ms by
             # default): the display thread could wait that long behind the worker's Python code
             # between two native calls. 0.5 ms keeps that wait well inside a frame.
@@ -873,11 +889,8 @@ class RealtimeClient:
         report.wall_s = self.clock.now() - t0
         report.cpu_s = time.process_time() - cpu0
         report.cpus = os.cpu_count() or 1
-        if not exclusive:
-            self._count_late(t0, start_time)
         with self._lock:
             self._report = RealtimeReport(self.display_fps)
-            self._ready_at.clear()
         return report
 
     def _warm_up(
@@ -977,14 +990,3 @@ class RealtimeClient:
             report.repeated += shown - n - 1
             report.dropped += min(following, n_frames) - shown
             n = following
-
-    def _count_late(self, t0: float, start_time: float) -> None:
-        """A server frame is late when it became usable after the display first needed it:
-        one period of its span before its time, when the pair it closes starts."""
-        with self._lock:
-            # A frame needed before the run began counts from the start of the run.
-            self._report.server_frames_late = sum(
-                ready
-                > max(t0, t0 + (self._frame_time[index] - self._period[index] - start_time))
-                for index, ready in self._ready_at.items()
-            )
