@@ -46,7 +46,7 @@ threads cost more to start than they save). No method can touch its bytes faster
 be copied with the cores it has, so ``ms_per_frame / copy_floor_ms`` says how far a method is
 from the hardware on this machine today (this VM's speed drifts from day to day; the ratio much
 less). Until 2026-12-05 the floor was one thread's copy, which on the Intel Xeon of that day
-took 1.2–1.4× as long as two threads' (docs/performance.md, "The copy floor on the kernel's
+took 2–2.7× as long as two threads' (docs/performance.md, "The copy floor on the kernel's
 threads").
 """
 
@@ -202,24 +202,24 @@ def copy_floor_s(nbytes: int, threads: int = 1, repeats: int = 5) -> tuple[float
     src = np.ones(max(int(nbytes), 1), np.uint8)
     dst = np.zeros_like(src)
 
-    def median_copy(n: int, pool: ThreadPoolExecutor | None) -> float:
-        parts = [(dst[a:b], src[a:b]) for a, b in equal_parts(len(src), n)]
+    def median_copy(pool: ThreadPoolExecutor | None) -> float:
         samples = []
         for _ in range(repeats):
             t0 = time.perf_counter()
             if pool is None:
                 np.copyto(dst, src)
             else:
-                for f in [pool.submit(np.copyto, d, s) for d, s in parts]:
+                parts = equal_parts(len(src), threads)
+                for f in [pool.submit(np.copyto, dst[a:b], src[a:b]) for a, b in parts]:
                     f.result()
             samples.append(time.perf_counter() - t0)
         return statistics.median(samples)
 
-    best = (median_copy(1, None), 1)
+    best = (median_copy(None), 1)
     if threads > 1:
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            median_copy(threads, pool)  # starts the pool's threads
-            best = min(best, (median_copy(threads, pool), threads))
+            median_copy(pool)  # starts the pool's threads
+            best = min(best, (median_copy(pool), threads))
     return best
 
 
