@@ -8,6 +8,15 @@
 //! call inside a one-thread rayon pool: the naive baseline the tiled parallel kernels are measured
 //! against.
 //!
+//! `copy_floor_ours` is the memory-copy floor of `ours` in the same run: a copy of as many bytes
+//! as one `ours` client frame reads and writes (as `splitrender bench` counts them: every
+//! camera's colour, depth, motion and shadow buffers of the direction it reads, in both frames,
+//! and the output image), split in equal parts over rayon's threads, the ones the frame runs on;
+//! `copy_floor_ours_1thread` the same copy on one thread. No frame can touch its bytes faster
+//! than they can be copied, so `ours` over `copy_floor_ours` is how far it is from the machine,
+//! a ratio that drifts much less than either time (criterion prints the copies in bytes per
+//! second).
+//!
 //! Throughput is output pixels, so criterion reports pixels per second beside the time per frame.
 //! `cargo bench -p reproj-core` runs in about two minutes on two cores.
 
@@ -15,8 +24,11 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use rayon::prelude::*;
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
-use reproj_core::{reproject, BidirHistory, FrameView, Method, Output, Params, Request};
+use reproj_core::{
+    reproject, BidirHistory, CameraView, FrameView, Method, Output, Params, Request,
+};
 
 /// Server frame interval (f_s = 10) and dynamic-shadow subframes (f_d = 40).
 const DT: f64 = 0.1;
@@ -58,6 +70,21 @@ fn client_frame(
         Output::new(black_box(out)),
         Some(history),
     )
+}
+
+/// The bytes one `ours` client frame of `w × h` reads and writes, as `splitrender bench` counts
+/// them: every camera of both frames (the views hold the direction each frame is read in) and
+/// the output image.
+fn ours_bytes(older: &FrameView, newer: &FrameView, w: usize, h: usize) -> usize {
+    let camera = |c: &CameraView| {
+        let motion = c.motion.map_or(0, |m| 4 * m.len());
+        let shadow = c
+            .shadow
+            .map_or(0, |s| 4 * s.bits.len() + s.s_min.len() + s.s_max.len());
+        c.color.len() + 4 * c.depth.len() + motion + shadow
+    };
+    let cameras = |f: &FrameView| camera(&f.main) + f.aux.iter().map(camera).sum::<usize>();
+    cameras(older) + cameras(newer) + 3 * w * h
 }
 
 fn bench_size(c: &mut Criterion, w: usize, h: usize) {
@@ -140,6 +167,23 @@ fn bench_size(c: &mut Criterion, w: usize, h: usize) {
     let mut history = BidirHistory::new();
     group.bench_function(BenchmarkId::new("ours_1thread", &size), |b| {
         b.iter(|| one.install(|| ours(&mut history)))
+    });
+
+    // The copy floor (module doc), between two buffers touched beforehand.
+    let n = ours_bytes(&older, &newer, w, h);
+    let src = vec![1u8; n];
+    let mut dst = vec![0u8; n];
+    let part = n.div_ceil(rayon::current_num_threads());
+    group.throughput(Throughput::Bytes(n as u64));
+    group.bench_function(BenchmarkId::new("copy_floor_ours", &size), |b| {
+        b.iter(|| {
+            dst.par_chunks_mut(part)
+                .zip(src.par_chunks(part))
+                .for_each(|(d, s)| d.copy_from_slice(black_box(s)))
+        })
+    });
+    group.bench_function(BenchmarkId::new("copy_floor_ours_1thread", &size), |b| {
+        b.iter(|| dst.copy_from_slice(black_box(&src)))
     });
     group.finish();
 }
