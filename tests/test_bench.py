@@ -97,7 +97,6 @@ def test_time_frames_warms_up_with_at_least_one_call() -> None:
     assert calls == [7, 7, 7] and len(samples) == 2
 
 
-
 @pytest.mark.parametrize(("n", "k"), [(10, 1), (10, 3), (83_000_001, 2), (2, 5)])
 def test_equal_parts_cover_every_byte_once(n: int, k: int) -> None:
     from splitrender.evaluation.bench import equal_parts
@@ -110,16 +109,39 @@ def test_equal_parts_cover_every_byte_once(n: int, k: int) -> None:
     assert max(lengths) - min(lengths) <= 1
 
 
-def test_the_copy_floor_uses_the_kernels_thread_count() -> None:
-    """The floor's threads are rayon's pool's, which ``RAYON_NUM_THREADS`` sets: a floor of one
-    thread beside a frame on two would flatter the frame."""
-    code = (
-        "from splitrender.evaluation.bench import copy_floor_s, kernel_threads\n"
-        "n = kernel_threads()\n"
-        "s, t = copy_floor_s(1 << 20, n, repeats=2)\n"
-        "print(n, t in (1, n) and s > 0)\n"
-    )
+def test_kernel_threads_are_rayons_pool() -> None:
+    """The floor's threads are those of rayon's pool, which ``RAYON_NUM_THREADS`` sets: a floor
+    of one thread beside a frame on two would flatter the frame."""
+    code = "from splitrender.evaluation.bench import kernel_threads\nprint(kernel_threads())\n"
     env = {**os.environ, "RAYON_NUM_THREADS": "3"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          timeout=60, check=True).stdout.split()
-    assert out == ["3", "True"]
+    assert out == ["3"]
+
+
+def test_the_copy_floor_copies_every_byte_in_equal_parts_on_the_threads_asked(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import threading
+
+    from splitrender.evaluation.bench import copy_floor_s
+
+    calls: list[tuple[int, int]] = []
+    real = np.copyto
+
+    def copyto(dst: np.ndarray, src: np.ndarray) -> None:
+        calls.append((threading.get_ident(), len(src)))
+        real(dst, src)
+
+    monkeypatch.setattr(np, "copyto", copyto)
+    seconds, threads = copy_floor_s(1001, 3, repeats=2)
+    main = threading.get_ident()
+    whole = [t for t, n in calls if n == 1001]
+    parts = [(t, n) for t, n in calls if n != 1001]
+    # One thread: the whole copy, on the caller's thread, twice.
+    assert whole == [main, main]
+    # Three threads: the pool's start and then the timed copies, two rounds each of three
+    # parts (333 + 334 + 334 bytes), none on the caller's thread.
+    assert sorted(n for _, n in parts) == [333] * 4 + [334] * 8
+    assert main not in {t for t, _ in parts}
+    assert seconds > 0 and threads in (1, 3)
