@@ -201,6 +201,7 @@ def copy_floor_s(nbytes: int, threads: int = 1, repeats: int = 5) -> tuple[float
     copied at once on as many threads (numpy releases the GIL while it copies)."""
     src = np.ones(max(int(nbytes), 1), np.uint8)
     dst = np.zeros_like(src)
+    parts = [(dst[a:b], src[a:b]) for a, b in equal_parts(len(src), threads)]
 
     def median_copy(pool: ThreadPoolExecutor | None) -> float:
         samples = []
@@ -209,8 +210,7 @@ def copy_floor_s(nbytes: int, threads: int = 1, repeats: int = 5) -> tuple[float
             if pool is None:
                 np.copyto(dst, src)
             else:
-                parts = equal_parts(len(src), threads)
-                for f in [pool.submit(np.copyto, dst[a:b], src[a:b]) for a, b in parts]:
+                for f in [pool.submit(np.copyto, d, s) for d, s in parts]:
                     f.result()
             samples.append(time.perf_counter() - t0)
         return statistics.median(samples)
