@@ -91,23 +91,25 @@ impl AuxGrid {
         // the rig.
         let grid = &srcs[srcs.len() - 1];
         let (w, h) = (grid.proj.width, grid.proj.height);
-        // An accepted auxiliary match has error e < ε_e·4 (aspect-scaled NDC, eq. 7), so each of
-        // its pixel offsets from the cell centre is below r = ε_e·4·min(W, H)/2 source pixels and
-        // its point lands within ⌈r⌉ cells of the cell; one more absorbs rounding.
+        // An accepted auxiliary match has error e < ε_e·4 (aspect-scaled NDC, eq. 7): its point
+        // lies less than r cells from the cell's centre ([`Reach::radius`]), so it lands in a
+        // cell near that one ([`Reach`]), or outside the grid near its edge.
         let same_grid = srcs.iter().all(|s| (s.proj.width, s.proj.height) == (w, h));
         let r = srcs
             .iter()
-            .map(|s| eps_e_aux * s.proj.width.min(s.proj.height) as f32 / 2.0)
+            .map(|s| Reach::radius(eps_e_aux, s.proj.width, s.proj.height))
             .fold(0.0f32, f32::max);
-        let reach = r.ceil() as usize + 1;
+        // A border as deep as half the grid would flag every cell anyway.
+        let reach = Reach::new(r).filter(|k| k.border < w.min(h) / 2);
         maybe.clear();
-        if !same_grid || !r.is_finite() || reach >= w.min(h) / 2 || every_cell {
+        match reach {
+            Some(reach) if same_grid && !every_cell => {
+                maybe.resize(w * h, 0);
+                let flags = srcs.iter_mut().map(|s| s.bufs.invisible.as_mut_slice());
+                dilate_flags(flags, w, h, &reach, &mut maybe);
+            }
             // The bound does not apply (or covers everything): search every cell.
-            maybe.resize(w * h, 1);
-        } else {
-            maybe.resize(w * h, 0);
-            let flags = srcs.iter_mut().map(|s| s.bufs.invisible.as_mut_slice());
-            dilate_flags(flags, w, h, reach, &mut maybe);
+            _ => maybe.resize(w * h, 1),
         }
         let lookup = |n: usize, f: &dyn Fn(usize) -> Option<usize>| -> Vec<u32> {
             (0..n)
@@ -142,6 +144,44 @@ impl AuxGrid {
             cols_of_cell,
             ndc: NdcTable::new(w, h),
         }
+    }
+}
+
+/// For more than two auxiliary cameras, makes the grids' [`AuxGrid::maybe`] one set: a cell is
+/// flagged in every grid when it is in any (grids of different sizes cover the client image with
+/// different cells, so all of theirs are searched).
+///
+/// Why: the merge takes the best auxiliary match over every grid (§3.5) before it asks whether
+/// that match is visible in main, and "best" (the nearer unless the depths are similar, then the
+/// smaller error; [`better_aux`]) is not transitive. A cell that is not flagged holds no match
+/// that could override main itself, but its match can still change which of the others is best.
+/// With two grids that can only turn an override into none, which [`Resolve::aux_row`] rechecks
+/// where it happens; with three or more, the best of the flagged cells can differ from the best
+/// of every cell either way. Flagging a cell in every grid or in none makes the matches the
+/// merge compares over each pixel those of every cell. (At 1280×720 that searches about twice
+/// the cells.)
+pub(super) fn unite_maybe(grids: &mut [AuxGrid]) {
+    if grids.len() <= 2 {
+        return;
+    }
+    let Some(first) = grids.first() else {
+        return;
+    };
+    let (w, h) = (first.w, first.h);
+    if grids.iter().any(|g| (g.w, g.h) != (w, h)) {
+        for g in grids.iter_mut() {
+            g.maybe.fill(1);
+        }
+        return;
+    }
+    let (head, rest) = grids.split_first_mut().expect("not empty");
+    for g in rest.iter() {
+        for (m, v) in head.maybe.iter_mut().zip(&g.maybe) {
+            *m |= v;
+        }
+    }
+    for g in rest {
+        g.maybe.copy_from_slice(&head.maybe);
     }
 }
 
@@ -192,6 +232,8 @@ pub(super) struct AuxRow {
     x: Vec<f32>,
     sides: [SearchRow; 2],
     grids: Vec<GridRow>,
+    /// The pixels whose override of main is decided over every grid's cell ([`Resolve::aux_row`]).
+    recheck: Vec<u32>,
 }
 
 /// A cell of an auxiliary grid that may override main: the client columns `s..e` that fall in it
@@ -235,6 +277,14 @@ impl GridRow {
         self.cur = spans.get(self.next).copied().unwrap_or(Span::PAST);
         self.next += 1;
     }
+}
+
+/// Rule 2 of §3.5 for an auxiliary match `a` that is not visible in main, over a pixel whose main
+/// match has depth `z`: it overrides main when nearer and at another depth.
+#[inline(always)]
+fn overrides_main(a: &AuxCell, z: f32, eps_z_aux: f32) -> bool {
+    let sim = 2.0 * (a.z - z).abs() < eps_z_aux;
+    !sim && a.z > z
 }
 
 /// The best of two auxiliary matches for one pixel (§3.5): the nearer if the depths differ, else
@@ -373,6 +423,7 @@ impl Resolve<'_> {
             x,
             sides,
             grids,
+            recheck,
         } = batch;
         grids.clear();
         // Per grid, the flagged cells (whose client columns may take the auxiliary match over
@@ -463,63 +514,55 @@ impl Resolve<'_> {
         );
         // Where main found a match (§3.5 rule 2): main wins unless the auxiliary point is not
         // visible in the main camera, nearer, and at another depth.
+        //
+        // The best match of the flagged cells over a pixel is the best of every cell over it
+        // except where a grid's cell over it is not flagged: that cell's match, if any, is
+        // visible in main and cannot override main itself, but it may be the better one (the
+        // order of `better_aux` is not transitive) and so keep the flagged cell's match from
+        // overriding. With two grids that changes an override into none and nothing else, so an
+        // override is rechecked over every grid's cell where one of them is not flagged (rare:
+        // overrides are); with more grids the flags are one set ([`unite_maybe`]) and the
+        // recheck never happens.
+        recheck.clear();
+        let flagged_everywhere = |i: usize| {
+            self.aux.iter().all(|g| {
+                let (ai, aj) = (g.col_of[i], g.row_of[j]);
+                ai == u32::MAX || aj == u32::MAX || g.maybe[aj as usize * g.w + ai as usize] != 0
+            })
+        };
         for_each_run(grids, blocks, eps_z, |run, aux| {
             let Some(&a) = aux.filter(|a| !a.visible_in_main) else {
                 return;
             };
-            for (((s, p), e), z) in src[run.clone()]
-                .iter_mut()
-                .zip(&mut p[run.clone()])
-                .zip(&mut e[run.clone()])
-                .zip(&mut z[run])
-            {
-                if *s == NO_SOURCE {
-                    continue;
-                }
-                let sim = 2.0 * (a.z - *z).abs() < eps_z;
-                if !sim && a.z > *z {
-                    (*s, *p, *e, *z) = (a.src, a.p, a.e, a.z);
+            for i in run {
+                if src[i] != NO_SOURCE && overrides_main(&a, z[i], eps_z) {
+                    if flagged_everywhere(i) {
+                        (src[i], p[i], e[i], z[i]) = (a.src, a.p, a.e, a.z);
+                    } else {
+                        recheck.push(i as u32);
+                    }
                 }
             }
         });
+        for &i in recheck.iter() {
+            let i = i as usize;
+            let best = self.best_of_every_grid(i, j, blocks);
+            if let Some(a) = best.and_then(|(g, k)| blocks[g].cells[k].as_ref()) {
+                if !a.visible_in_main && overrides_main(a, z[i], eps_z) {
+                    (src[i], p[i], e[i], z[i]) = (a.src, a.p, a.e, a.z);
+                }
+            }
+        }
         // Where main found nothing (rule 1): the best auxiliary match of any covering grid. A
         // pixel in the same cell of every grid as the pixel before it (a cell covers two or more
         // client columns) takes that pixel's result: the cells were searched for it, so the
         // merge would read and combine the same values again.
-        //
-        // The best cell is kept as (grid, index) and its fields are read where they lie, one at
-        // a time: a copy of the whole cell loads 16 bytes that the search has just stored field
-        // by field, which waits for those stores to complete (no store forwarding); that wait
-        // took about a sixth of this function in `forward_splat`, whose main camera leaves the
-        // most pixels without a match.
         let mut last: Option<(usize, Option<(usize, usize)>)> = None;
         for &i in &none {
             let i = i as usize;
             let best = match last {
                 Some((l, best)) if self.aux.iter().all(|g| g.col_of[i] == g.col_of[l]) => best,
-                _ => {
-                    let mut best: Option<(usize, usize)> = None;
-                    for (g, grid) in self.aux.iter().enumerate() {
-                        let (ai, aj) = (grid.col_of[i], grid.row_of[j]);
-                        if ai == u32::MAX || aj == u32::MAX {
-                            continue;
-                        }
-                        let k = self.searched_cell(
-                            1 + g,
-                            grid,
-                            &mut blocks[g],
-                            ai as usize,
-                            aj as usize,
-                        );
-                        if let Some(c) = &blocks[g].cells[k] {
-                            let b = best.and_then(|(bg, bk)| blocks[bg].cells[bk].as_ref());
-                            if std::ptr::eq(better_aux(b, c, eps_z), c) {
-                                best = Some((g, k));
-                            }
-                        }
-                    }
-                    best
-                }
+                _ => self.best_of_every_grid(i, j, blocks),
             };
             last = Some((i, best));
             if let Some(a) = best.and_then(|(g, k)| blocks[g].cells[k].as_ref()) {
@@ -529,6 +572,36 @@ impl Resolve<'_> {
         picks.list = none;
         #[cfg(test)]
         self.check_merge(j, main, picks, blocks);
+    }
+
+    /// The best auxiliary match over client pixel `(i, j)` of every grid's cell that covers it
+    /// (searched where the block has not yet), as (grid, index in its block's cells), or `None`.
+    ///
+    /// Its fields are read where they lie, one at a time: a copy of the whole cell loads 16
+    /// bytes that the search has just stored field by field, which waits for those stores to
+    /// complete (no store forwarding); that wait took about a sixth of `aux_row` in
+    /// `forward_splat`, whose main camera leaves the most pixels without a match.
+    fn best_of_every_grid(
+        &self,
+        i: usize,
+        j: usize,
+        blocks: &mut [AuxBlock],
+    ) -> Option<(usize, usize)> {
+        let mut best: Option<(usize, usize)> = None;
+        for (g, grid) in self.aux.iter().enumerate() {
+            let (ai, aj) = (grid.col_of[i], grid.row_of[j]);
+            if ai == u32::MAX || aj == u32::MAX {
+                continue;
+            }
+            let k = self.searched_cell(1 + g, grid, &mut blocks[g], ai as usize, aj as usize);
+            if let Some(c) = &blocks[g].cells[k] {
+                let b = best.and_then(|(bg, bk)| blocks[bg].cells[bk].as_ref());
+                if std::ptr::eq(better_aux(b, c, self.eps_z_aux), c) {
+                    best = Some((g, k));
+                }
+            }
+        }
+        best
     }
 
     /// The index in `block.cells` of cell `(ai, aj)` of auxiliary camera `cam`'s grid (`1 +
@@ -583,14 +656,9 @@ impl Resolve<'_> {
             if ai == u32::MAX || aj == u32::MAX {
                 continue;
             }
-            let (ai, aj) = (ai as usize, aj as usize);
-            // Where main found a match, only a cell that may override it can matter.
-            if main.is_some() && grid.maybe[aj * grid.w + ai] == 0 {
-                continue;
-            }
-            // `aux_row` searched every cell that a pixel of the row can take.
-            assert!(block.done[(aj - block.row0) * grid.w + ai] != 0);
-            let k = self.searched_cell(1 + g, grid, block, ai, aj);
+            // Every cell over the pixel, flagged or not (searched here where `aux_row` did not):
+            // the merge must decide as if every cell were searched.
+            let k = self.searched_cell(1 + g, grid, block, ai as usize, aj as usize);
             if let Some(c) = block.cells[k] {
                 aux = Some(*better_aux(aux.as_ref(), &c, self.eps_z_aux));
             }
@@ -666,92 +734,191 @@ pub(super) fn eager_aux() -> bool {
     }
 }
 
-/// `maybe[c] = 1` for every cell `c` of the `w × h` grid within `reach` cells (Chebyshev distance)
-/// of a cell flagged in any source's `invisible` buffer (`flags`, one per source), or within
-/// `reach` of the grid's border (points just outside the grid are not flagged); `maybe` arrives
-/// zeroed.
+/// Which cells a point can be matched from: the cells whose centre lies less than `r` cells
+/// from some position in the cell the point lands in, i.e. the offsets `(di, dj)` with
+/// `max(|di| − ½, 0)² + max(|dj| − ½, 0)² < r'²` for `r' = r +` [`Reach::MARGIN`], a disk with
+/// square corners; and the cells whose centre lies less than `r'` from the grid's edge, which
+/// points just outside the grid can reach (pass 1 flags only points that land inside it). The
+/// search's error is the Euclidean distance of the matched point from the cell centre (eq. 7),
+/// so the set is round: at the default thresholds and 1280×720 (r = 2.88 cells) it holds 37
+/// cells and the border is 3 cells deep, where the square of side `2⌈r⌉ + 3` that `maybe` was
+/// dilated by before held 81 cells, and its border was 4 deep.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(super) struct Reach {
+    /// The stencil as a union of centred rectangles of half-widths `(a, b)`: `a` across the row,
+    /// `b` down the column, `a` rising and `b` falling.
+    rects: Vec<(usize, usize)>,
+    /// Cells from each edge of the grid that points outside it can reach.
+    border: usize,
+}
+
+impl Reach {
+    /// How far, in cells, the computed positions may be from where exact arithmetic puts them:
+    /// the search's error and the landing cell are each a few f32 roundings of NDC values of
+    /// magnitude about 1 (about 10⁻⁴ of a cell at 16384 cells across); a hundredth of a cell
+    /// covers them with room to spare.
+    const MARGIN: f64 = 0.01;
+
+    /// The distance `r` in cells of a `w × h` grid below which an auxiliary match with error
+    /// below `eps_e_aux` lies from its cell's centre: the error (eq. 7) is aspect-scaled NDC, in
+    /// which a cell measures `2 / min(w, h)` on both axes.
+    pub(super) fn radius(eps_e_aux: f32, w: usize, h: usize) -> f32 {
+        eps_e_aux * w.min(h) as f32 / 2.0
+    }
+
+    /// The reach of matches less than `r` cells from their cell's centre, or `None` when `r` is
+    /// not finite.
+    pub(super) fn new(r: f32) -> Option<Reach> {
+        if !r.is_finite() {
+            return None;
+        }
+        let r2 = (f64::from(r.max(0.0)) + Reach::MARGIN).powi(2);
+        let gap = |d: usize| (d as f64 - 0.5).max(0.0);
+        // Half-width `b` down the column at half-width `a` across the row: the largest with
+        // the corner (a, b) inside.
+        let down = |a: usize| -> Option<usize> {
+            let da = gap(a).powi(2);
+            (da < r2).then(|| {
+                let mut b = 0;
+                while da + gap(b + 1).powi(2) < r2 {
+                    b += 1;
+                }
+                b
+            })
+        };
+        let mut rects: Vec<(usize, usize)> = Vec::new();
+        let mut a = 0;
+        while let Some(b) = down(a) {
+            // A wider rectangle of the same height contains the narrower one.
+            if rects.last().is_some_and(|&(_, pb)| pb == b) {
+                rects.pop();
+            }
+            rects.push((a, b));
+            a += 1;
+        }
+        let mut border = 0;
+        while (border as f64 + 0.5).powi(2) < r2 {
+            border += 1;
+        }
+        Some(Reach { rects, border })
+    }
+
+    /// The largest offset on either axis (the stencil is symmetric).
+    #[cfg(test)]
+    fn widest(&self) -> usize {
+        self.rects.last().map_or(0, |r| r.0)
+    }
+
+    /// Whether offset `(di, dj)` is in the stencil.
+    #[cfg(test)]
+    fn covers(&self, di: usize, dj: usize) -> bool {
+        self.rects.iter().any(|&(a, b)| di <= a && dj <= b)
+    }
+}
+
+/// `maybe[c] = 1` for every cell `c` of the `w × h` grid that `reach` reaches from a cell
+/// flagged in any source's `invisible` buffer (`flags`, one per source), or from outside the
+/// grid (points just outside it are not flagged); `maybe` arrives zeroed.
 fn dilate_flags<'a>(
     flags: impl IntoIterator<Item = &'a mut [AtomicU8]>,
     w: usize,
     h: usize,
-    reach: usize,
+    reach: &Reach,
     maybe: &mut [u8],
 ) {
-    // The flags are 0 or 1, so "any" is a bitwise or; both passes are ors of whole rows (shifted
-    // for the row pass), which vectorise, instead of a search per cell.
+    // The flags are 0 or 1, so "any" is a bitwise or: each output row is the or of whole input
+    // rows, shifted across for the widening, which vectorise, instead of a search per cell.
     //
-    // The sources' flags first, or'ed into `maybe` (as scratch). Pass 1 wrote them atomically
-    // from its bands; it is over, and with `&mut` access (`AtomicU8::get_mut`) they are plain
-    // bytes, so this loop vectorises. Read with atomic loads (byte by byte, inside the parallel
-    // row pass) they cost 0.6 M instructions per 640×360 frame; here too few to measure.
-    for invisible in flags {
-        for (f, v) in maybe.iter_mut().zip(&mut invisible[..w * h]) {
-            *f |= *v.get_mut();
-        }
-    }
+    // The sources' flags first, or'ed into `base`. Pass 1 wrote them atomically from its bands;
+    // it is over, and with `&mut` access (`AtomicU8::get_mut`) they are plain bytes, so this
+    // loop vectorises. Read with atomic loads (byte by byte, inside the parallel row pass) they
+    // cost 0.6 M instructions per 640×360 frame; here too few to measure.
     DILATE_SCRATCH.with(|cell| {
-        let mut widened = cell.borrow_mut();
-        widened.resize(w * h, 0);
-        // Row pass: the flagged cells of each row widened by `reach` on both sides (into
-        // `widened`).
+        let base = &mut *cell.borrow_mut();
+        base.clear();
+        base.resize(w * h, 0);
+        for invisible in flags {
+            for (f, v) in base.iter_mut().zip(&mut invisible[..w * h]) {
+                *f |= *v.get_mut();
+            }
+        }
+        let base = &base[..];
         maybe
-            .par_chunks(w)
-            .zip(widened.par_chunks_mut(w))
+            .par_chunks_mut(w)
+            .enumerate()
             .with_min_len(16)
-            .for_each(|(flags, out)| widen_row(flags, reach, out));
-        column_pass(&widened, w, h, reach, maybe);
+            .for_each_init(
+                || vec![0u8; w],
+                |col, (j, out)| dilate_row(base, (w, h), j, &reach.rects, col, out),
+            );
     });
+    mark_border(w, h, reach.border, maybe);
 }
 
-/// `out[i]` = the or of `flags` over `i − reach ..= i + reach` (clipped to the row).
-fn widen_row(flags: &[u8], reach: usize, out: &mut [u8]) {
-    let n = flags.len();
-    out.copy_from_slice(flags);
-    for d in 1..=reach.min(n.saturating_sub(1)) {
-        for (o, f) in out[..n - d].iter_mut().zip(&flags[d..]) {
-            *o |= f;
-        }
-        for (o, f) in out[d..].iter_mut().zip(&flags[..n - d]) {
-            *o |= f;
-        }
+/// `maybe[c] = 1` for the cells less than `border` cells from an edge of the `w × h` grid.
+fn mark_border(w: usize, h: usize, border: usize, maybe: &mut [u8]) {
+    let (bw, bh) = (border.min(w), border.min(h));
+    maybe[..bh * w].fill(1);
+    maybe[(h - bh) * w..].fill(1);
+    for row in maybe.chunks_mut(w) {
+        row[..bw].fill(1);
+        row[w - bw..].fill(1);
     }
 }
 
 thread_local! {
-    /// The row-widened flags of [`dilate_flags`], reused.
+    /// The sources' flags of [`dilate_flags`], reused.
     static DILATE_SCRATCH: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// The column half of [`dilate_flags`]: `maybe[c]` = any `widened` flag within `reach` rows, or
-/// `c` within `reach` of the border.
-fn column_pass(widened: &[u8], w: usize, h: usize, reach: usize, maybe: &mut [u8]) {
-    maybe
-        .par_chunks_mut(w)
-        .enumerate()
-        .with_min_len(16)
-        .for_each(|(j, row)| {
-            let (lo, hi) = (j.saturating_sub(reach), (j + reach).min(h - 1));
-            if j < reach || j + reach >= h {
-                row.fill(1);
-                return;
+/// Row `j` of [`dilate_flags`] into `out`: the or over the rectangles `(a, b)` (`a` rising, `b`
+/// falling) of the flags in `base` of rows `j − b ..= j + b`, widened by `a` across the row.
+/// `col` is scratch of one row. The rows are or'ed into `col` as `b` grows (the rectangles in
+/// reverse), so each input row is read once.
+fn dilate_row(
+    base: &[u8],
+    (w, h): (usize, usize),
+    j: usize,
+    rects: &[(usize, usize)],
+    col: &mut [u8],
+    out: &mut [u8],
+) {
+    let row = |q: usize| &base[q * w..(q + 1) * w];
+    let or = |acc: &mut [u8], r: &[u8]| {
+        for (m, v) in acc.iter_mut().zip(r) {
+            *m |= v;
+        }
+    };
+    col.copy_from_slice(row(j));
+    out.fill(0);
+    let mut rows = 0;
+    for &(a, b) in rects.iter().rev() {
+        while rows < b {
+            rows += 1;
+            if let Some(q) = j.checked_sub(rows) {
+                or(col, row(q));
             }
-            row.copy_from_slice(&widened[lo * w..(lo + 1) * w]);
-            for q in lo + 1..=hi {
-                for (m, v) in row.iter_mut().zip(&widened[q * w..(q + 1) * w]) {
-                    *m |= v;
-                }
+            if j + rows < h {
+                or(col, row(j + rows));
             }
-            let r = reach.min(w);
-            row[..r].fill(1);
-            row[w - r..].fill(1);
-        });
+        }
+        // `out |=` the or of `col` over `i − a ..= i + a` (clipped to the row).
+        or(out, col);
+        for d in 1..=a.min(w.saturating_sub(1)) {
+            or(&mut out[..w - d], &col[d..]);
+            or(&mut out[d..], &col[..w - d]);
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use proptest::prelude::*;
 
-    use super::{better_aux, dilate_flags, for_each_run, AuxBlock, AuxCell, GridRow, Span};
+    use super::{
+        better_aux, dilate_flags, for_each_run, unite_maybe, AuxBlock, AuxCell, AuxGrid, GridRow,
+        Reach, Span,
+    };
 
     /// A cell of a test grid: how many client columns fall in it, whether it is flagged, and
     /// its match's depth and error (in tenths), if it has one.
@@ -828,15 +995,219 @@ mod tests {
         }
     }
 
-    /// [`dilate_flags`] flags exactly the cells within `reach` (Chebyshev) of a cell flagged in
-    /// either source or of the border, on grids of many shapes with sparse and dense flags.
+    /// A cell of a test grid for the merge: its match's depth and error (in tenths) and whether
+    /// it is visible in main, if it has one, and whether it is flagged besides (a cell whose
+    /// match is not visible in main always is, as [`AuxGrid::maybe`](super::AuxGrid) flags it).
+    type MergeCell = (Option<(u8, u8, bool)>, bool);
+
+    fn merge_grid(cells: usize) -> impl Strategy<Value = Vec<MergeCell>> {
+        prop::collection::vec(
+            (
+                prop::option::of((0u8..4, 0u8..3, any::<bool>())),
+                any::<bool>(),
+            ),
+            cells,
+        )
+    }
+
+    /// Rule 2 of §3.5 over a pixel whose main match has depth `main_z`: the best auxiliary match
+    /// overrides it when it is not visible in main, nearer and at another depth.
+    fn overrides(best: Option<&AuxCell>, main_z: f32, eps_z: f32) -> bool {
+        best.is_some_and(|a| {
+            let sim = 2.0 * (a.z - main_z).abs() < eps_z;
+            !a.visible_in_main && !sim && a.z > main_z
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+        /// What [`Resolve::aux_row`]'s merge where main found a match relies on: the merge of the
+        /// flagged cells decides every pixel as the merge of every cell does, although the best
+        /// match ([`better_aux`]) is not transitive, except where it overrides main over a cell
+        /// of some grid that is not flagged (which `aux_row` rechecks over every cell), and
+        /// with more than two grids only once the flags are one set ([`unite_maybe`]).
+        #[test]
+        fn flagged_cells_merge_as_every_cell_does_but_for_the_rechecked(
+            lens in prop::collection::vec(1usize..4, 1..12),
+            grids in prop::collection::vec(merge_grid(12), 1..4),
+            main in prop::collection::vec(0u8..4, 40),
+        ) {
+            let eps_z = 0.15;
+            let n: usize = lens.iter().sum();
+            let w = lens.len();
+            let mut maybe: Vec<AuxGrid> = grids
+                .iter()
+                .map(|cells| AuxGrid {
+                    w,
+                    h: 1,
+                    maybe: cells[..w]
+                        .iter()
+                        .map(|&(m, f)| u8::from(f || m.is_some_and(|(_, _, vis)| !vis)))
+                        .collect(),
+                    col_of: Vec::new(),
+                    row_of: Vec::new(),
+                    cols_of_cell: Vec::new(),
+                    ndc: crate::camera::NdcTable::new(w, 1),
+                })
+                .collect();
+            unite_maybe(&mut maybe);
+            let decide = |flagged: &dyn Fn(usize, usize) -> bool| -> Vec<bool> {
+                let mut blocks = Vec::new();
+                for (g, cells) in grids.iter().enumerate() {
+                    let mut block = AuxBlock::default();
+                    let mut s = 0;
+                    for (k, &(m, _)) in cells[..w].iter().enumerate() {
+                        let e = s + lens[k];
+                        block.cells.push(m.map(|(z, e, vis)| AuxCell {
+                            src: g as u8,
+                            visible_in_main: vis,
+                            p: k as u32,
+                            e: f32::from(e) * 0.1,
+                            z: f32::from(z) * 0.1,
+                        }));
+                        block.done.push(1);
+                        if flagged(g, k) {
+                            block.spans.push(Span { s: s as u32, e: e as u32, k: k as u32 });
+                        }
+                        s = e;
+                    }
+                    blocks.push(block);
+                }
+                let mut rows: Vec<GridRow> =
+                    blocks.iter().map(|b| GridRow::new(&b.spans)).collect();
+                let mut out = vec![false; n];
+                for_each_run(&mut rows, &blocks, eps_z, |run, aux| {
+                    for i in run {
+                        out[i] = overrides(aux, f32::from(main[i]) * 0.1, eps_z);
+                    }
+                });
+                out
+            };
+            let lazy = decide(&|g, k| maybe[g].maybe[k] != 0);
+            let eager = decide(&|_, _| true);
+            // The cell of each column (the grids share their cells).
+            let cell: Vec<usize> = lens.iter().enumerate().flat_map(|(k, &l)| vec![k; l]).collect();
+            for i in 0..n {
+                let everywhere = maybe.iter().all(|g| g.maybe[cell[i]] != 0);
+                prop_assert!(
+                    lazy[i] == eager[i] || (lazy[i] && !everywhere && grids.len() <= 2),
+                    "column {}: flagged cells {}, every cell {}", i, lazy[i], eager[i]
+                );
+            }
+        }
+    }
+
+    /// [`unite_maybe`] flags a cell in every grid of three or more when any flags it, and every
+    /// cell when the grids differ in size; two grids keep their own flags.
     #[test]
-    fn dilated_flags_are_the_cells_near_a_flag_or_the_border() {
+    fn united_flags_are_the_union_or_every_cell() {
+        let grid = |w: usize, h: usize, maybe: Vec<u8>| AuxGrid {
+            w,
+            h,
+            maybe,
+            col_of: Vec::new(),
+            row_of: Vec::new(),
+            cols_of_cell: Vec::new(),
+            ndc: crate::camera::NdcTable::new(w, h),
+        };
+        let three = |last: usize| {
+            let mut g = vec![grid(3, 1, vec![1, 0, 0]), grid(3, 1, vec![0, 0, 1])];
+            g.push(grid(last, 1, vec![0; last]));
+            g
+        };
+        let mut same = three(3);
+        unite_maybe(&mut same);
+        assert!(same.iter().all(|g| g.maybe == [1, 0, 1]));
+        let mut mixed = three(2);
+        unite_maybe(&mut mixed);
+        assert!(mixed.iter().all(|g| g.maybe.iter().all(|&m| m == 1)));
+        // Two grids keep their own flags (the merge rechecks instead).
+        let mut two = three(3);
+        two.pop();
+        unite_maybe(&mut two);
+        assert_eq!(
+            (&two[0].maybe[..], &two[1].maybe[..]),
+            (&[1, 0, 0][..], &[0, 0, 1][..])
+        );
+    }
+
+    /// [`Reach`] is the set its docs define: an offset is covered exactly when the square cell
+    /// that far away comes nearer than `r` plus the margin to the cell's centre, the border is
+    /// the cells whose centre is that near the grid's edge, and the rectangles are the fewest
+    /// (`a` rising, `b` falling).
+    #[test]
+    fn reach_is_the_cells_a_match_can_lie_in() {
+        let gap = |d: usize| (d as f64 - 0.5).max(0.0);
+        for r in [0.0f32, 0.2, 0.5, 0.6, 1.0, 1.49, 2.0, 2.88, 3.5, 6.25] {
+            let k = Reach::new(r).unwrap();
+            let r2 = (f64::from(r) + Reach::MARGIN).powi(2);
+            for di in 0..12 {
+                for dj in 0..12 {
+                    let want = gap(di).powi(2) + gap(dj).powi(2) < r2;
+                    assert_eq!(k.covers(di, dj), want, "r {r}, offset ({di}, {dj})");
+                }
+            }
+            let border = (0..12).filter(|&i| (i as f64 + 0.5).powi(2) < r2).count();
+            assert_eq!(k.border, border, "r {r}");
+            for p in k.rects.windows(2) {
+                assert!(p[0].0 < p[1].0 && p[0].1 > p[1].1, "r {r}: {:?}", k.rects);
+            }
+        }
+        let k = Reach::new(2.88).unwrap();
+        assert_eq!((k.rects, k.border), (vec![(1, 3), (2, 2), (3, 1)], 3));
+        assert_eq!(Reach::new(f32::NAN), None);
+        assert_eq!(Reach::new(f32::INFINITY), None);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 1024, ..ProptestConfig::default() })]
+
+        /// What [`AuxGrid::maybe`](super::AuxGrid) relies on: a point less than `r` cells from
+        /// the centre of a cell (as the search's error measures it, eq. 7) lands in a cell of
+        /// the grid from which [`Reach`] covers that one, found from its NDC as pass 1 finds it
+        /// ([`pixel_index_of_ndc`](crate::camera::pixel_index_of_ndc)), or outside the grid with
+        /// that cell in the border.
+        #[test]
+        fn a_point_near_a_cell_centre_lands_where_the_reach_covers_it(
+            r in 0.0f32..6.0,
+            (w, h) in (1usize..50, 1usize..40),
+            (ci, cj) in (0usize..50, 0usize..40),
+            (angle, frac) in (0.0f64..std::f64::consts::TAU, 0.0f64..1.0),
+        ) {
+            let (ci, cj) = (ci % w, cj % h);
+            let k = Reach::new(r).unwrap();
+            // A point at distance frac·r from the centre of cell (ci, cj), in cell units, then in
+            // NDC as the search measures it.
+            let d = frac * f64::from(r);
+            let (px, py) = (ci as f64 + 0.5 + d * angle.cos(), cj as f64 + 0.5 + d * angle.sin());
+            let (x, y) = ((2.0 * px / w as f64 - 1.0) as f32, (1.0 - 2.0 * py / h as f64) as f32);
+            let (inside, c) =
+                crate::camera::pixel_index_of_ndc(x, y, w as f32, h as f32, w as u32);
+            if inside {
+                let (li, lj) = (c as usize % w, c as usize / w);
+                prop_assert!(
+                    k.covers(ci.abs_diff(li), cj.abs_diff(lj)),
+                    "{:?} lands in ({}, {}), out of reach of ({}, {})", (px, py), li, lj, ci, cj
+                );
+            } else {
+                let edge = ci.min(w - 1 - ci).min(cj).min(h - 1 - cj);
+                prop_assert!(edge < k.border, "{:?} outside, ({}, {}) not in the border", (px, py), ci, cj);
+            }
+        }
+    }
+
+    /// [`dilate_flags`] flags exactly the cells that [`Reach`] covers from a cell flagged in any
+    /// source, or its border, on grids of many shapes with sparse and dense flags.
+    #[test]
+    fn dilated_flags_are_the_cells_a_flag_or_the_border_reaches() {
         use std::sync::atomic::AtomicU8;
         let mut seed = 0x9E37_79B9_7F4A_7C15u64;
         let mut rng = |n: u64| crate::ours::draw(&mut seed, n);
         for (w, h) in [(1, 1), (3, 9), (17, 5), (33, 21), (40, 40)] {
-            for reach in 0..4 {
+            for r in [0.0f32, 0.7, 1.6, 2.88, 3.3] {
+                let reach = Reach::new(r).unwrap();
+                let (b, far) = (reach.border, reach.widest() + 1);
                 for (n_src, dense) in [(1, 2), (2, 30), (2, 200), (1, 1000)] {
                     let mut flags: Vec<Vec<AtomicU8>> = (0..n_src)
                         .map(|_| {
@@ -851,19 +1222,20 @@ mod tests {
                         .collect();
                     let mut maybe = vec![0u8; w * h];
                     let views = flags.iter_mut().map(|f| f.as_mut_slice());
-                    dilate_flags(views, w, h, reach, &mut maybe);
+                    dilate_flags(views, w, h, &reach, &mut maybe);
                     for j in 0..h {
                         for i in 0..w {
-                            let border = i < reach || i + reach >= w || j < reach || j + reach >= h;
-                            let near =
-                                (j.saturating_sub(reach)..=(j + reach).min(h - 1)).any(|q| {
-                                    (i.saturating_sub(reach)..=(i + reach).min(w - 1))
-                                        .any(|p| set.iter().any(|s| s[q * w + p] == 1))
-                                });
+                            let border = i < b || i + b >= w || j < b || j + b >= h;
+                            let near = (j.saturating_sub(far)..(j + far).min(h)).any(|q| {
+                                (i.saturating_sub(far)..(i + far).min(w)).any(|p| {
+                                    reach.covers(i.abs_diff(p), j.abs_diff(q))
+                                        && set.iter().any(|s| s[q * w + p] == 1)
+                                })
+                            });
                             assert_eq!(
                                 maybe[j * w + i],
                                 u8::from(border || near),
-                                "{w}x{h}, reach {reach}, cell ({i}, {j}), {n_src} sources"
+                                "{w}x{h}, r {r}, cell ({i}, {j}), {n_src} sources"
                             );
                         }
                     }

@@ -533,7 +533,7 @@ pub(crate) fn run<'a>(
         // the main sources' pass 1 still runs, instead of between the two passes.
         let n_main = if bidirectional { 2 } else { 1 };
         let (mains, auxes) = sources.split_at_mut(n_main);
-        let ((), aux_grids) = rayon::join(
+        let ((), mut aux_grids) = rayon::join(
             || {
                 mains
                     .par_iter_mut()
@@ -555,6 +555,7 @@ pub(crate) fn run<'a>(
                     .collect::<Vec<_>>()
             },
         );
+        auxiliary::unite_maybe(&mut aux_grids);
         let sources: &[Src] = sources;
 
         // Pass 2: resolve per output tile.
