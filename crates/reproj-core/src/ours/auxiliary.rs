@@ -920,6 +920,18 @@ mod tests {
         Reach, Span,
     };
 
+    /// The match of cell `k` of test grid `g` with depth and error in tenths and its visibility
+    /// in main.
+    fn test_cell(g: usize, k: usize, (z, e, vis): (u8, u8, bool)) -> AuxCell {
+        AuxCell {
+            src: g as u8,
+            visible_in_main: vis,
+            p: k as u32,
+            e: f32::from(e) * 0.1,
+            z: f32::from(z) * 0.1,
+        }
+    }
+
     /// A cell of a test grid: how many client columns fall in it, whether it is flagged, and
     /// its match's depth and error (in tenths), if it has one.
     type TestCell = (usize, bool, Option<(u8, u8)>);
@@ -954,13 +966,7 @@ mod tests {
                 let mut s = 0;
                 for (k, &(len, flagged, m)) in cells.iter().enumerate() {
                     let e = (s + len).min(n);
-                    block.cells.push(m.map(|(z, e)| AuxCell {
-                        src: g as u8,
-                        visible_in_main: false,
-                        p: k as u32,
-                        e: f32::from(e) * 0.1,
-                        z: f32::from(z) * 0.1,
-                    }));
+                    block.cells.push(m.map(|(z, e)| test_cell(g, k, (z, e, false))));
                     block.done.push(1);
                     if flagged && s < e {
                         block.spans.push(Span { s: s as u32, e: e as u32, k: k as u32 });
@@ -1059,13 +1065,7 @@ mod tests {
                     let mut s = 0;
                     for (k, &(m, _)) in cells[..w].iter().enumerate() {
                         let e = s + lens[k];
-                        block.cells.push(m.map(|(z, e, vis)| AuxCell {
-                            src: g as u8,
-                            visible_in_main: vis,
-                            p: k as u32,
-                            e: f32::from(e) * 0.1,
-                            z: f32::from(z) * 0.1,
-                        }));
+                        block.cells.push(m.map(|m| test_cell(g, k, m)));
                         block.done.push(1);
                         if flagged(g, k) {
                             block.spans.push(Span { s: s as u32, e: e as u32, k: k as u32 });
