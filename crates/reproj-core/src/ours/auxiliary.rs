@@ -833,25 +833,27 @@ fn dilate_flags<'a>(
     // it is over, and with `&mut` access (`AtomicU8::get_mut`) they are plain bytes, so this
     // loop vectorises. Read with atomic loads (byte by byte, inside the parallel row pass) they
     // cost 0.6 M instructions per 640×360 frame; here too few to measure.
-    DILATE_SCRATCH.with(|cell| {
-        let base = &mut *cell.borrow_mut();
-        base.clear();
-        base.resize(w * h, 0);
-        for invisible in flags {
-            for (f, v) in base.iter_mut().zip(&mut invisible[..w * h]) {
-                *f |= *v.get_mut();
-            }
+    //
+    // The scratch is taken out of its thread-local, not borrowed across the parallel rows: a
+    // thread waiting for them may run another grid's `AuxGrid::new`, which would find it
+    // borrowed.
+    let mut base = DILATE_SCRATCH.with(|cell| std::mem::take(&mut *cell.borrow_mut()));
+    base.clear();
+    base.resize(w * h, 0);
+    for invisible in flags {
+        for (f, v) in base.iter_mut().zip(&mut invisible[..w * h]) {
+            *f |= *v.get_mut();
         }
-        let base = &base[..];
-        maybe
-            .par_chunks_mut(w)
-            .enumerate()
-            .with_min_len(16)
-            .for_each_init(
-                || vec![0u8; w],
-                |col, (j, out)| dilate_row(base, (w, h), j, &reach.rects, col, out),
-            );
-    });
+    }
+    maybe
+        .par_chunks_mut(w)
+        .enumerate()
+        .with_min_len(16)
+        .for_each_init(
+            || vec![0u8; w],
+            |col, (j, out)| dilate_row(&base, (w, h), j, &reach.rects, col, out),
+        );
+    DILATE_SCRATCH.with(|cell| *cell.borrow_mut() = base);
     mark_border(w, h, reach.border, maybe);
 }
 
