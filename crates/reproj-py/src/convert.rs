@@ -84,7 +84,7 @@ pub fn array<'py, T: Element>(
         .map_err(|e| invalid(format!("{what}: cannot borrow the array: {e}")))
 }
 
-/// Borrows `obj` for writing, with the checks of [`array`]; also refused: a read-only array
+/// Borrows `obj` for writing, with the checks of [`array()`]; also refused: a read-only array
 /// and one that overlaps an array borrowed elsewhere in the same call (an input).
 ///
 /// # Errors
@@ -142,7 +142,7 @@ fn checked_array<'a, 'py, T: Element>(
     obj.cast::<PyArrayDyn<T>>().map_err(|_| mismatch())
 }
 
-/// The contiguous data of an array checked by [`array`].
+/// The contiguous data of an array checked by [`array()`].
 pub fn slice<'a, T: Element>(a: &'a PyReadonlyArrayDyn<'_, T>, what: &str) -> PyResult<&'a [T]> {
     a.as_slice()
         .map_err(|_| invalid(format!("{what}: expected a C-contiguous array")))

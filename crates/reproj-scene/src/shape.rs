@@ -126,8 +126,8 @@ impl Shape {
             .map(|p| self.finish(o, d, p))
     }
 
-    /// [`Shape::intersect`] up to its ray parameter: what finding `t` produced, without the
-    /// normal and texture coordinates of an analytic shape (an `atan2` and an `asin` on a
+    /// The tests' `Shape::intersect` up to its ray parameter: what finding `t` produced, without
+    /// the normal and texture coordinates of an analytic shape (an `atan2` and an `asin` on a
     /// sphere), which a closest-hit search needs only for its winner ([`Shape::finish`]).
     // Inlined into the primary rays' candidate loop: most calls are a box or the ground quad,
     // cheaper than the call with its spills and the `Partial` passed through memory.

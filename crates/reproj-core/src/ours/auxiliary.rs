@@ -714,7 +714,7 @@ thread_local! {
 }
 
 /// Whether every auxiliary cell is to be searched (tests only; read on the thread that calls
-/// [`reproject`](crate::reproject), as the tests set it there).
+/// [`reproject`](crate::reproject()), as the tests set it there).
 #[inline]
 pub(super) fn eager_aux() -> bool {
     #[cfg(test)]

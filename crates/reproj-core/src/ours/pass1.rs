@@ -883,7 +883,7 @@ fn window_block_impl(
     }
 }
 
-/// The smaller of two stored splat keys ([`SplatEpoch`]) or [`EMPTY_SPLAT`], compared as `i64`
+/// The smaller of two stored splat keys ([`SplatEpoch`](super::SplatEpoch)) or [`EMPTY_SPLAT`], compared as `i64`
 /// (the stored form makes the signed order the one the splat needs; AVX2 has a signed 64-bit
 /// compare but no unsigned one).
 #[inline(always)]

@@ -344,7 +344,7 @@ impl Resolve<'_> {
     }
 }
 
-/// One fixed-point step p ← pix(T − M_cam[p]) for targets at NDC `(x[i], y)` from the source
+/// One fixed-point step p ← pix(T − M_cam\[p\]) for targets at NDC `(x[i], y)` from the source
 /// pixels `pks` with flows `ms`: `next[i]` is the packed pixel of `T − m` where that is inside
 /// the `wf × hf` source and not `pks[i]`, else [`NO_SPLAT`]. The arithmetic of [`pixel_of_ndc`],
 /// without branches.

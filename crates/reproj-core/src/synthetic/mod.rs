@@ -406,7 +406,8 @@ impl SyntheticScene {
         self.carry_between(obj, x, &self.pose(from), &self.pose(to))
     }
 
-    /// [`SyntheticScene::carry`] between two precomputed poses.
+    /// Where the material point at `x` on `obj` at pose `p0` is at pose `p1` (the tests' `carry`
+    /// between two precomputed poses).
     fn carry_between(&self, obj: Obj, x: V3, p0: &Pose, p1: &Pose) -> V3 {
         if !self.dynamic || !obj.moves() {
             return x;
