@@ -883,9 +883,9 @@ fn window_block_impl(
     }
 }
 
-/// The smaller of two stored splat keys ([`SplatEpoch`](super::SplatEpoch)) or [`EMPTY_SPLAT`], compared as `i64`
-/// (the stored form makes the signed order the one the splat needs; AVX2 has a signed 64-bit
-/// compare but no unsigned one).
+/// The smaller of two stored splat keys ([`SplatEpoch`](super::SplatEpoch)) or [`EMPTY_SPLAT`],
+/// compared as `i64` (the stored form makes the signed order the one the splat needs; AVX2 has a
+/// signed 64-bit compare but no unsigned one).
 #[inline(always)]
 pub(super) fn key_min(a: u64, b: u64) -> u64 {
     (a as i64).min(b as i64) as u64
