@@ -735,10 +735,12 @@ class RealtimeClient:
             period = frame.span / self.client.server_fps
             if self._origin is not None and self._late(frame.time, period):
                 self._report.server_frames_late += 1
-            self._forget_dropped(self.client.held)
             self._pose_time[frame.index] = (
                 frame.time - period if entry.pose_time is None else entry.pose_time
             )
+        if handed:
+            # Once for all the frames handed over: a later one may have retired an earlier one.
+            self._forget_dropped(self.client.held)
         return handed
 
     def _forget_dropped(self, held: tuple[int, ...]) -> None:

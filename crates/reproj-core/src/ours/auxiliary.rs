@@ -927,6 +927,20 @@ mod tests {
         }
     }
 
+    /// A `w × h` test grid with the flags `maybe` and no client pixels mapped to it (the merge
+    /// tests give the cells' client columns themselves).
+    fn flag_grid(w: usize, h: usize, maybe: Vec<u8>) -> AuxGrid {
+        AuxGrid {
+            w,
+            h,
+            maybe,
+            col_of: Vec::new(),
+            row_of: Vec::new(),
+            cols_of_cell: Vec::new(),
+            ndc: crate::camera::NdcTable::new(w, h),
+        }
+    }
+
     /// A cell of a test grid: how many client columns fall in it, whether it is flagged, and
     /// its match's depth and error (in tenths), if it has one.
     type TestCell = (usize, bool, Option<(u8, u8)>);
@@ -1030,17 +1044,11 @@ mod tests {
             let w = lens.len();
             let mut maybe: Vec<AuxGrid> = grids
                 .iter()
-                .map(|cells| AuxGrid {
-                    w,
-                    h: 1,
-                    maybe: cells[..w]
+                .map(|cells| {
+                    let flags = cells[..w]
                         .iter()
-                        .map(|&(m, f)| u8::from(f || m.is_some_and(|(_, _, vis)| !vis)))
-                        .collect(),
-                    col_of: Vec::new(),
-                    row_of: Vec::new(),
-                    cols_of_cell: Vec::new(),
-                    ndc: crate::camera::NdcTable::new(w, 1),
+                        .map(|&(m, f)| u8::from(f || m.is_some_and(|(_, _, vis)| !vis)));
+                    flag_grid(w, 1, flags.collect())
                 })
                 .collect();
             unite_maybe(&mut maybe);
@@ -1092,18 +1100,12 @@ mod tests {
     /// cell when the grids differ in size; two grids keep their own flags.
     #[test]
     fn united_flags_are_the_union_or_every_cell() {
-        let grid = |w: usize, h: usize, maybe: Vec<u8>| AuxGrid {
-            w,
-            h,
-            maybe,
-            col_of: Vec::new(),
-            row_of: Vec::new(),
-            cols_of_cell: Vec::new(),
-            ndc: crate::camera::NdcTable::new(w, h),
-        };
         let three = |last: usize| {
-            let mut g = vec![grid(3, 1, vec![1, 0, 0]), grid(3, 1, vec![0, 0, 1])];
-            g.push(grid(last, 1, vec![0; last]));
+            let mut g = vec![
+                flag_grid(3, 1, vec![1, 0, 0]),
+                flag_grid(3, 1, vec![0, 0, 1]),
+            ];
+            g.push(flag_grid(last, 1, vec![0; last]));
             g
         };
         let mut same = three(3);
