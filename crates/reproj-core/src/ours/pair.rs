@@ -6,7 +6,9 @@
 
 use rayon::prelude::*;
 
-use crate::camera::{pixel_of_ndc, NdcTransfer, Projector};
+#[cfg(test)]
+use crate::camera::pixel_of_ndc;
+use crate::camera::{pixel_index_of_ndc, NdcTransfer, Projector};
 use crate::frame::{CameraView, GeometryKey};
 use crate::params::{Params, TILE};
 
@@ -300,30 +302,168 @@ fn full_flows(src: &Src, ctx: &FullCtx, full: &mut Vec<[f32; 4]>) {
 
 /// Whether each point of auxiliary source `src` is visible in the main camera (§3.5 rule 2),
 /// tested at the source's time and at the other frame's time: 1 or 0 per pixel.
+///
+/// Row by row in two stages per test: where the row's points land in the main camera
+/// ([`main_landing_row`]: two transfers' arithmetic and three divisions per point, without
+/// branches, so that it vectorises), then the main depth at those pixels ([`not_occluded`], one
+/// load each). One test per point with early returns (`visible_in`, now the tests' reference)
+/// ran as scalar code: on one thread at 1280×720 (courtyard), the extrapolation pair (one test
+/// per point) took 5.9–6.5 ms with it and 2.7–2.9 ms with these stages, the interpolation pair
+/// 53.1–53.3 and 48.9–49.6 ms.
 fn visible_in_main_flags(src: &Src, ctx: &VisCtx, vis: &mut Vec<u8>) {
     let (sw, sh) = (src.proj.width, src.proj.height);
     vis.resize(sw * sh, 0);
     let view = src.view;
-    vis.par_chunks_mut(sw).enumerate().for_each(|(j, row)| {
-        for (i, v) in row.iter_mut().enumerate() {
-            let idx = j * sw + i;
-            let [x, y] = src.ndc.at(i, j);
-            let z = view.depth[idx];
-            let o = view.motion_at(idx);
-            let c = [x, y, z];
-            let c2 = [x + o[0], y + o[1], z + o[2]];
-            let visible = ctx
-                .same
-                .as_ref()
-                .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c), ctx.eps_z))
-                || ctx
-                    .other
-                    .as_ref()
-                    .is_some_and(|(mv, mp, t)| visible_in(mv, mp, t.clip(c2), ctx.eps_z));
-            *v = u8::from(visible);
-        }
-    });
+    let tests = [(&ctx.same, false), (&ctx.other, true)];
+    vis.par_chunks_mut(sw).enumerate().for_each_init(
+        || (vec![NO_SPLAT; sw], vec![0.0f32; sw]),
+        |(idx, cz), (j, row)| {
+            row.fill(0);
+            let r = j * sw..(j + 1) * sw;
+            let input = LandingInput {
+                x: &src.ndc.x,
+                y: src.ndc.y[j],
+                depth: &view.depth[r.clone()],
+                motion: view.motion.map(|m| &m[3 * r.start..3 * r.end]),
+            };
+            for (test, moved) in tests {
+                let Some((mv, mp, t)) = test else { continue };
+                main_landing_row(&input, moved, t, (mp.width, mp.height), idx, cz);
+                not_occluded(idx, cz, mv.depth, ctx.eps_z, row);
+            }
+        },
+    );
 }
+
+/// The second stage of [`visible_in_main_flags`]: `v[i] |= 1` where point `i` landed in the
+/// main camera (`idx[i]`, [`main_landing_row`]) and main saw nothing nearer there (larger reversed
+/// depth) by more than `eps_z` (NDC units).
+#[inline]
+fn not_occluded(idx: &[u32], cz: &[f32], main_depth: &[f32], eps_z: f32, v: &mut [u8]) {
+    for (v, (&q, &z)) in v.iter_mut().zip(idx.iter().zip(cz)) {
+        if q != NO_SPLAT {
+            let zm = main_depth[q as usize];
+            *v |= u8::from(!(2.0 * (zm - z) > eps_z));
+        }
+    }
+}
+
+/// For the tests: whether each point of an auxiliary source row (NDC x `x`, y `y`, `depth`,
+/// `motion`, optionally `moved` by it) is visible in a main camera of `size` with `main_depth`,
+/// as [`visible_in_main_flags`] finds it, and as [`visible_in`] does point by point.
+#[cfg(test)]
+#[allow(clippy::too_many_arguments)]
+pub(super) fn visibility_row_and_reference(
+    x: &[f32],
+    y: f32,
+    depth: &[f32],
+    motion: Option<&[f32]>,
+    moved: bool,
+    t: &NdcTransfer,
+    size: (usize, usize),
+    main_depth: &[f32],
+    eps_z: f32,
+) -> [Vec<bool>; 2] {
+    let n = depth.len();
+    let (mut idx, mut cz, mut v) = (vec![0; n], vec![0.0; n], vec![0u8; n]);
+    let input = LandingInput {
+        x,
+        y,
+        depth,
+        motion,
+    };
+    main_landing_row(&input, moved, t, size, &mut idx, &mut cz);
+    not_occluded(&idx, &cz, main_depth, eps_z, &mut v);
+    let reference = (0..n).map(|i| {
+        let o = motion.map_or([0.0; 3], |m| [m[3 * i], m[3 * i + 1], m[3 * i + 2]]);
+        let c = if moved {
+            [x[i] + o[0], y + o[1], depth[i] + o[2]]
+        } else {
+            [x[i], y, depth[i]]
+        };
+        visible_in(main_depth, size, t.clip(c), eps_z)
+    });
+    [v.iter().map(|&b| b != 0).collect(), reference.collect()]
+}
+
+/// One auxiliary source row for [`main_landing_row`]: the NDC x of its columns, the row's NDC
+/// y, and its depths and motions (3 per point).
+struct LandingInput<'a> {
+    x: &'a [f32],
+    y: f32,
+    depth: &'a [f32],
+    motion: Option<&'a [f32]>,
+}
+
+simd_dispatch! {
+    /// Where the points of an auxiliary source row land in a main camera of `size` (whose
+    /// transfer from the source's NDC is `t`), as the per-point test `visible_in` finds it:
+    /// `idx[i]` the main pixel (row-major) where the point is in front of the camera and strictly
+    /// inside its frustum, else [`NO_SPLAT`], and `cz[i]` its main NDC depth. `moved`: the point
+    /// moved by its object motion first (`X + O`, +0 without motion), as at the other frame's
+    /// time.
+    fn main_landing_row / main_landing_row_avx2, main_landing_row_avx512 => main_landing_row_impl(
+        input: &LandingInput,
+        moved: bool,
+        t: &NdcTransfer,
+        size: (usize, usize),
+        idx: &mut [u32],
+        cz: &mut [f32],
+    )
+}
+
+#[inline(always)]
+fn main_landing_row_impl(
+    input: &LandingInput,
+    moved: bool,
+    t: &NdcTransfer,
+    (mw, mh): (usize, usize),
+    idx: &mut [u32],
+    cz: &mut [f32],
+) {
+    let (wf, hf) = (mw as i32 as f32, mh as i32 as f32);
+    let y = input.y;
+    let n = input.depth.len();
+    let (xs, zs, idx, cz) = (&input.x[..n], input.depth, &mut idx[..n], &mut cz[..n]);
+    // The arithmetic of `visible_in` without its early returns: every test is computed, and a
+    // point that fails one gets no pixel.
+    let land = |c: [f32; 3]| -> (u32, f32) {
+        let h = t.clip(c);
+        let c = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
+        let (inside, q) = pixel_index_of_ndc(c[0], c[1], wf, hf, mw as u32);
+        let ok = (h[3] > 0.0)
+            & (c[0].abs() < FRUSTUM_LIMIT)
+            & (c[1].abs() < FRUSTUM_LIMIT)
+            & (c[2] > 0.0)
+            & (c[2] < 1.0)
+            & inside;
+        (if ok { q } else { NO_SPLAT }, c[2])
+    };
+    let out = idx.iter_mut().zip(cz.iter_mut());
+    match (input.motion, moved) {
+        (Some(mo), true) => {
+            for ((d, z), ((x, z0), o)) in out.zip(xs.iter().zip(zs).zip(mo.chunks_exact(3))) {
+                (*d, *z) = land([x + o[0], y + o[1], z0 + o[2]]);
+            }
+        }
+        // Without motion the moved point is `X + 0`, as in the per-point test (a depth of −0
+        // becomes +0).
+        (None, true) => {
+            for ((d, z), (x, z0)) in out.zip(xs.iter().zip(zs)) {
+                (*d, *z) = land([x + 0.0, y + 0.0, z0 + 0.0]);
+            }
+        }
+        (_, false) => {
+            for ((d, z), (x, z0)) in out.zip(xs.iter().zip(zs)) {
+                (*d, *z) = land([*x, y, *z0]);
+            }
+        }
+    }
+}
+
+/// "Inside the frustum" for the visibility test: strictly within ±0.999 in NDC x and y, as the
+/// reference.
+const FRUSTUM_LIMIT: f32 = 0.999;
 
 /// What "visible in main" is tested against for an auxiliary source.
 pub(super) struct VisCtx<'a> {
@@ -336,20 +476,20 @@ pub(super) struct VisCtx<'a> {
 
 /// Whether the point with clip coordinates `h` in the main camera is inside its frustum
 /// (strictly inside ±0.999, as the reference) and not behind its depth buffer by more than `eps_z`
-/// (NDC units).
-#[inline]
-fn visible_in(view: &CameraView, proj: &Projector, h: [f32; 4], eps_z: f32) -> bool {
+/// (NDC units). The tests' reference for [`visible_in_main_flags`].
+#[cfg(test)]
+fn visible_in(main_depth: &[f32], (w, h_px): (usize, usize), h: [f32; 4], eps_z: f32) -> bool {
     if !(h[3] > 0.0) {
         return false;
     }
     let c = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
-    const LIM: f32 = 0.999;
+    const LIM: f32 = FRUSTUM_LIMIT;
     if !(c[0].abs() < LIM && c[1].abs() < LIM && c[2] > 0.0 && c[2] < 1.0) {
         return false;
     }
-    match pixel_of_ndc(c[0], c[1], proj.width, proj.height) {
+    match pixel_of_ndc(c[0], c[1], w, h_px) {
         Some((i, j)) => {
-            let zm = view.depth[j * proj.width + i];
+            let zm = main_depth[j * w + i];
             // Occluded when main saw something nearer (larger reversed depth) at that pixel.
             !(2.0 * (zm - c[2]) > eps_z)
         }

@@ -903,6 +903,93 @@ fn still_points_flow_as_the_general_path() {
     );
 }
 
+/// "Visible in main" (§3.5 rule 2), which the pair computes for every auxiliary point in row
+/// stages (where the points land in main, then main's depth there), is the per-point test's
+/// (`visible_in`) at every tier: for the point where it is and moved by its motion (+0 without
+/// one), with ±0, NaN, infinite and out-of-range depths and motions, main depths with NaN, a row
+/// width that is not a multiple of the vectors, and besides a real transfer between two cameras,
+/// transfers of sparse small entries (points behind the camera, zero and non-finite divisors).
+#[test]
+fn visibility_in_main_is_the_per_point_test() {
+    let (sw, sh) = (3 * 32 + 13, 61);
+    let (mw, mh) = (2 * sw + 3, 2 * sh + 1);
+    let x: Vec<f32> = (0..sw)
+        .map(|i| crate::camera::ndc_of_pixel(i, 0, sw, sh)[0])
+        .collect();
+    let mut seed = 0x51f1_5e3d_2c4b_a987u64;
+    let mut rnd = move || xorshift(&mut seed);
+    let pick = |r: u64, v: &[f32]| v[(r % v.len() as u64) as usize];
+    let from_inv = cam(0.0, sw, sh).view_proj().inverse().unwrap();
+    let real = NdcTransfer::new(&from_inv, &cam(0.3, mw, mh).view_proj());
+    let depths = [
+        -0.0,
+        0.0,
+        0.25,
+        0.9,
+        1.0,
+        1.5,
+        -0.5,
+        f32::NAN,
+        f32::INFINITY,
+    ];
+    let motions = [0.01, -0.02, 0.3, 0.0, -0.0, f32::NAN, f32::NEG_INFINITY];
+    let entries = [0.0, -0.0, 1.0, -1.0, 0.5, -2.0];
+    let main_depth: Vec<f32> = (0..mw * mh)
+        .map(|_| match rnd() {
+            r if r % 50 == 0 => f32::NAN,
+            r => (r >> 40) as f32 / (1u64 << 24) as f32,
+        })
+        .collect();
+    let (mut seen, mut hidden) = (0, 0);
+    for tier in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+        set_simd_limit(tier);
+        for case in 0..300 {
+            let t = if case % 3 != 2 {
+                real
+            } else {
+                let mut t = real;
+                for e in t.m.0.iter_mut().chain(t.w_row.iter_mut()) {
+                    *e = pick(rnd(), &entries);
+                }
+                t
+            };
+            let y = crate::camera::ndc_of_pixel(0, [0, sh / 2, sh - 1][case % 3], sw, sh)[1];
+            let depth: Vec<f32> = (0..sw)
+                .map(|_| match rnd() {
+                    r if r % 4 == 0 => pick(r >> 8, &depths),
+                    r => (r >> 40) as f32 / (1u64 << 24) as f32,
+                })
+                .collect();
+            let motion: Vec<f32> = (0..3 * sw)
+                .map(|_| match rnd() {
+                    r if r % 3 == 0 => pick(r >> 8, &motions),
+                    _ => 0.0,
+                })
+                .collect();
+            let eps_z = pick(rnd(), &[0.004, 0.0, 1.0]);
+            for (m, moved) in [(Some(&motion[..]), true), (None, true), (None, false)] {
+                let [rows, reference] = pair::visibility_row_and_reference(
+                    &x,
+                    y,
+                    &depth,
+                    m,
+                    moved,
+                    &t,
+                    (mw, mh),
+                    &main_depth,
+                    eps_z,
+                );
+                assert_eq!(rows, reference, "{tier:?}, case {case}, moved {moved}");
+                seen += rows.iter().filter(|&&v| v).count();
+                hidden += rows.iter().filter(|&&v| !v).count();
+            }
+        }
+    }
+    set_simd_limit(Simd::Avx512);
+    // Both answers occur often.
+    assert!(seen > 10_000 && hidden > 10_000, "{seen} {hidden}");
+}
+
 /// The colour stage takes each match's colour from its texel and blends the row as vectors,
 /// sending the pixels without a match or with shadow bits (own or the partner's) to a scalar
 /// path: at every tier it must give the bytes and diagnostics of the full path
