@@ -808,6 +808,32 @@ fn every_simd_tier_gives_the_same_bytes() {
     set_simd_limit(Simd::Avx512);
 }
 
+/// The NDC x of the pixel centres of a row of a `sw × sh` source.
+fn row_ndc_x(sw: usize, sh: usize) -> Vec<f32> {
+    (0..sw)
+        .map(|i| crate::camera::ndc_of_pixel(i, 0, sw, sh)[0])
+        .collect()
+}
+
+/// One of `v`, drawn by `r`.
+fn pick(r: u64, v: &[f32]) -> f32 {
+    v[(r % v.len() as u64) as usize]
+}
+
+/// A transfer of sparse small entries (±0, ±1, 0.5, −2) drawn by `rnd`: sums that are signed
+/// zeros, divisors that are zero, points behind the camera.
+fn sparse_transfer(rnd: &mut impl FnMut() -> u64) -> NdcTransfer {
+    let entries = [0.0, -0.0, 1.0, -1.0, 0.5, -2.0];
+    let mut t = NdcTransfer {
+        m: crate::camera::M4([0.0; 16]),
+        w_row: [0.0; 4],
+    };
+    for e in t.m.0.iter_mut().chain(t.w_row.iter_mut()) {
+        *e = pick(rnd(), &entries);
+    }
+    t
+}
+
 /// The flow of still points (motion +0, every bit clear), which `flow_row` computes with one
 /// transfer instead of two, is the general path's to the byte: flow, client depth and cell, and
 /// the key depth wherever there is a cell; and so is `full_flow_row`'s, which skips their motion. Rows mix still and moving runs (chunks of either kind
@@ -817,12 +843,9 @@ fn every_simd_tier_gives_the_same_bytes() {
 #[test]
 fn still_points_flow_as_the_general_path() {
     let (sw, sh) = (3 * 32 + 13, 61);
-    let x: Vec<f32> = (0..sw)
-        .map(|i| crate::camera::ndc_of_pixel(i, 0, sw, sh)[0])
-        .collect();
+    let x = row_ndc_x(sw, sh);
     let mut seed = 0x9e37_79b9_7f4a_7c15u64;
     let mut rnd = move || xorshift(&mut seed);
-    let pick = |r: u64, v: &[f32]| v[(r % v.len() as u64) as usize];
     let from_inv = cam(0.0, sw, sh).view_proj().inverse().unwrap();
     let real = NdcTransfer::new(&from_inv, &cam(0.3, sw, sh).view_proj());
     let depths = [
@@ -839,7 +862,6 @@ fn still_points_flow_as_the_general_path() {
         f32::NEG_INFINITY,
     ];
     let motions = [0.01, -0.02, 1e-3, 0.3, 0.0, -0.0, f32::NAN, f32::INFINITY];
-    let entries = [0.0, -0.0, 1.0, -1.0, 0.5, -2.0];
     let bits = |p: &([f32; 2], f32, u32, f32)| {
         let kz = (p.2 != NO_SPLAT).then_some(p.3.to_bits());
         (p.0.map(f32::to_bits), p.1.to_bits(), p.2, kz)
@@ -849,11 +871,7 @@ fn still_points_flow_as_the_general_path() {
         let to_client = if case % 4 == 0 {
             real
         } else {
-            let mut t = real;
-            for e in t.m.0.iter_mut().chain(t.w_row.iter_mut()) {
-                *e = pick(rnd(), &entries);
-            }
-            t
+            sparse_transfer(&mut rnd)
         };
         let w = pick(rnd(), &[0.5, 0.0, -0.0, -0.4, 1.5, 1.0]);
         let j = [0, sh / 2, sh - 1][case % 3];
@@ -913,12 +931,9 @@ fn still_points_flow_as_the_general_path() {
 fn visibility_in_main_is_the_per_point_test() {
     let (sw, sh) = (3 * 32 + 13, 61);
     let (mw, mh) = (2 * sw + 3, 2 * sh + 1);
-    let x: Vec<f32> = (0..sw)
-        .map(|i| crate::camera::ndc_of_pixel(i, 0, sw, sh)[0])
-        .collect();
+    let x = row_ndc_x(sw, sh);
     let mut seed = 0x51f1_5e3d_2c4b_a987u64;
     let mut rnd = move || xorshift(&mut seed);
-    let pick = |r: u64, v: &[f32]| v[(r % v.len() as u64) as usize];
     let from_inv = cam(0.0, sw, sh).view_proj().inverse().unwrap();
     let real = NdcTransfer::new(&from_inv, &cam(0.3, mw, mh).view_proj());
     let depths = [
@@ -933,7 +948,6 @@ fn visibility_in_main_is_the_per_point_test() {
         f32::INFINITY,
     ];
     let motions = [0.01, -0.02, 0.3, 0.0, -0.0, f32::NAN, f32::NEG_INFINITY];
-    let entries = [0.0, -0.0, 1.0, -1.0, 0.5, -2.0];
     let main_depth: Vec<f32> = (0..mw * mh)
         .map(|_| match rnd() {
             r if r % 50 == 0 => f32::NAN,
@@ -947,11 +961,7 @@ fn visibility_in_main_is_the_per_point_test() {
             let t = if case % 3 != 2 {
                 real
             } else {
-                let mut t = real;
-                for e in t.m.0.iter_mut().chain(t.w_row.iter_mut()) {
-                    *e = pick(rnd(), &entries);
-                }
-                t
+                sparse_transfer(&mut rnd)
             };
             let y = crate::camera::ndc_of_pixel(0, [0, sh / 2, sh - 1][case % 3], sw, sh)[1];
             let depth: Vec<f32> = (0..sw)
