@@ -815,6 +815,22 @@ fn row_ndc_x(sw: usize, sh: usize) -> Vec<f32> {
         .collect()
 }
 
+/// Depths at and beyond the edges of a source's range `[0, 1]`: signed zeros, just above 1, a
+/// subnormal, negative, NaN and infinite, which the row tests mix into their rows.
+const EDGE_DEPTHS: [f32; 11] = [
+    -0.0,
+    0.0,
+    0.25,
+    0.9,
+    1.0,
+    1.000_001,
+    -0.5,
+    1e-40,
+    f32::NAN,
+    f32::INFINITY,
+    f32::NEG_INFINITY,
+];
+
 /// One of `v`, drawn by `r`.
 fn pick(r: u64, v: &[f32]) -> f32 {
     v[(r % v.len() as u64) as usize]
@@ -848,19 +864,6 @@ fn still_points_flow_as_the_general_path() {
     let mut rnd = move || xorshift(&mut seed);
     let from_inv = cam(0.0, sw, sh).view_proj().inverse().unwrap();
     let real = NdcTransfer::new(&from_inv, &cam(0.3, sw, sh).view_proj());
-    let depths = [
-        -0.0,
-        0.0,
-        0.25,
-        0.9,
-        1.0,
-        1.000_001,
-        -0.5,
-        1e-40,
-        f32::NAN,
-        f32::INFINITY,
-        f32::NEG_INFINITY,
-    ];
     let motions = [0.01, -0.02, 1e-3, 0.3, 0.0, -0.0, f32::NAN, f32::INFINITY];
     let bits = |p: &([f32; 2], f32, u32, f32)| {
         let kz = (p.2 != NO_SPLAT).then_some(p.3.to_bits());
@@ -877,7 +880,7 @@ fn still_points_flow_as_the_general_path() {
         let j = [0, sh / 2, sh - 1][case % 3];
         let depth: Vec<f32> = (0..sw)
             .map(|_| match rnd() {
-                r if r % 3 == 0 => pick(r >> 8, &depths),
+                r if r % 3 == 0 => pick(r >> 8, &EDGE_DEPTHS),
                 r => (r >> 40) as f32 / (1u64 << 24) as f32,
             })
             .collect();
@@ -936,17 +939,6 @@ fn visibility_in_main_is_the_per_point_test() {
     let mut rnd = move || xorshift(&mut seed);
     let from_inv = cam(0.0, sw, sh).view_proj().inverse().unwrap();
     let real = NdcTransfer::new(&from_inv, &cam(0.3, mw, mh).view_proj());
-    let depths = [
-        -0.0,
-        0.0,
-        0.25,
-        0.9,
-        1.0,
-        1.5,
-        -0.5,
-        f32::NAN,
-        f32::INFINITY,
-    ];
     let motions = [0.01, -0.02, 0.3, 0.0, -0.0, f32::NAN, f32::NEG_INFINITY];
     let main_depth: Vec<f32> = (0..mw * mh)
         .map(|_| match rnd() {
@@ -967,7 +959,7 @@ fn visibility_in_main_is_the_per_point_test() {
             let y = crate::camera::ndc_of_pixel(0, [0, sh / 2, sh - 1][case / 3 % 3], sw, sh)[1];
             let depth: Vec<f32> = (0..sw)
                 .map(|_| match rnd() {
-                    r if r % 4 == 0 => pick(r >> 8, &depths),
+                    r if r % 4 == 0 => pick(r >> 8, &EDGE_DEPTHS),
                     r => (r >> 40) as f32 / (1u64 << 24) as f32,
                 })
                 .collect();
