@@ -260,12 +260,15 @@ pub(super) fn texels(s: &Src, blend: Option<(&[u32], &Src)>, out: &mut Vec<u64>)
         }
         if let Some((partner, oc, ob)) = other {
             let partner = &partner[r.clone()];
-            // The partners' colours are scattered over the other image: the lines of every
-            // sixteenth are asked for before the row's loop reads them (the loop went slower
-            // with the requests inside it).
+            // The partners' colours and shadow bits are scattered over the other image: the
+            // lines of every sixteenth are asked for before the row's loop reads them (the loop
+            // went slower with the requests inside it). NO_SPLAT is past both: no request.
             for &q in partner.iter().step_by(16) {
                 if let Some(c) = oc.get(3 * q as usize) {
                     prefetch(c);
+                }
+                if let Some(b) = ob.and_then(|b| b.get(q as usize)) {
+                    prefetch(b);
                 }
             }
             for (t, &q) in row.iter_mut().zip(partner) {
