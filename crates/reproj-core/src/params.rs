@@ -72,6 +72,12 @@ fn bad(name: &str, value: impl ToString, expected: &str) -> ReprojError {
 }
 
 impl Params {
+    /// `ε_z` of the auxiliary cameras: `ε_z · aux_threshold_scale` (the one product every stage
+    /// that compares auxiliary depths uses, so that they agree to the bit).
+    pub fn eps_z_aux(&self) -> f32 {
+        self.eps_z * self.aux_threshold_scale
+    }
+
     /// Checks every option's domain.
     ///
     /// # Errors

@@ -704,7 +704,7 @@ impl Reprojector {
         f.eps_e = params.eps_e * eps_scale;
         f.eps_e_aux = params.eps_e * eps_scale * params.aux_threshold_scale;
         f.eps_z = params.eps_z;
-        f.eps_z_aux = params.eps_z * params.aux_threshold_scale;
+        f.eps_z_aux = params.eps_z_aux();
         f.eps_o = params.eps_o;
         for (s, slot) in pair.slots.iter().enumerate() {
             if let Some(sl) = slot {

@@ -423,7 +423,7 @@ fn ensure_pair<'a>(
                     .iter()
                     .find(|m| m.role != src.role)
                     .map(|m| to_main(k, m)),
-                eps_z: params.eps_z * params.aux_threshold_scale,
+                eps_z: params.eps_z_aux(),
             })
         })
         .collect();
@@ -463,7 +463,7 @@ pub(crate) fn run<'a>(
     let bidirectional = older.is_some();
     let mut sources = sources(older, newer, params)?;
     let n_aux = if params.use_aux { newer.aux.len() } else { 0 };
-    let eps_z_aux = params.eps_z * params.aux_threshold_scale;
+    let eps_z_aux = params.eps_z_aux();
     let client_vp = request.client.view_proj();
     let inverses = inverses(&sources)?;
     let mut pool = BUFFER_POOL.with(|p| std::mem::take(&mut *p.borrow_mut()));

@@ -206,7 +206,7 @@ impl PairCache {
             let eps_z = if s.camera == 0 {
                 params.eps_z
             } else {
-                params.eps_z * params.aux_threshold_scale
+                params.eps_z_aux()
             };
             let ctx = CorrCtx {
                 s_depth: s.view.depth,
@@ -489,8 +489,8 @@ fn visible_in(main_depth: &[f32], (w, h_px): (usize, usize), h: [f32; 4], eps_z:
         return false;
     }
     let c = [h[0] / h[3], h[1] / h[3], h[2] / h[3]];
-    const LIM: f32 = FRUSTUM_LIMIT;
-    if !(c[0].abs() < LIM && c[1].abs() < LIM && c[2] > 0.0 && c[2] < 1.0) {
+    let lim = FRUSTUM_LIMIT;
+    if !(c[0].abs() < lim && c[1].abs() < lim && c[2] > 0.0 && c[2] < 1.0) {
         return false;
     }
     match pixel_of_ndc(c[0], c[1], w, h_px) {
