@@ -752,7 +752,7 @@ def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypa
     # Every refresh of the run got a frame, was dropped after a late one, or repeated a frame
     # at a divided rate.
     assert r["frames"] + r["dropped"] + r["repeated"] == 30
-    assert r["max_divisor"] == 2
+    assert r["max_divisor"] == 2 and r["prepare_threads"] == rt.PREPARE_THREADS == 1
     assert sum(r["frames_by_divisor"].values()) == r["frames"]
     assert r["server_frames_received"] >= 3 and r["decode_ms_per_server_frame"] > 0
     assert sum(r["modes"].values()) == r["frames"]
@@ -784,7 +784,7 @@ def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames
 
 
 def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
-    tmp_path, scene, frames, capsys
+    tmp_path, scene, frames, capsys, monkeypatch
 ):
     import json
 
@@ -793,12 +793,21 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
 
     with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
         sr.write_stream(tmp_path / "s.srs", [enc.encode(f) for f in frames[:3]])
+    # --prepare-threads reaches every preparation the worker does.
+    threads = []
+
+    def prepare_pair(*args, threads_=threads, **kw):
+        threads_.append(kw["threads"])
+        return sr.prepare_pair(*args, **kw)
+
+    monkeypatch.setattr(rt, "prepare_pair", prepare_pair)
     out = tmp_path / "rt.json"
     assert main(["bench", "--realtime", "--exclusive", "--stream", str(tmp_path / "s.srs"),
                  "--seconds", "0.25", "--fps", "40", "--worker-priority", "low",
-                 "--display-priority", "normal", "--max-divisor", "1", "--json", str(out),
-                 "--quiet"]) == 0
+                 "--display-priority", "normal", "--max-divisor", "1", "--prepare-threads",
+                 "3", "--json", str(out), "--quiet"]) == 0
     r = json.loads(out.read_text())
+    assert r["prepare_threads"] == 3 and threads and set(threads) == {3}
     assert r["exclusive"] is True and r["server_frames_late"] == 0
     # --fps sets the display rate: 0.25 s at 40 FPS is 10 refreshes; --max-divisor 1 holds it.
     assert r["display_fps"] == 40.0 and r["frames"] + r["dropped"] == 10
@@ -819,6 +828,9 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--display-priority", "normal"], "--display-priority goes with --realtime"),
         (["--fps", "60"], "--fps goes with --realtime"),
         (["--max-divisor", "2"], "--max-divisor goes with --realtime"),
+        (["--prepare-threads", "2"], "--prepare-threads goes with --realtime"),
+        (["--realtime", "--backend", "wgpu", "--prepare-threads", "2"],
+         "--prepare-threads goes with --backend cpu"),
         (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),
         (["--realtime", "--methods", "ours,timewarp"], "one method"),
         (["--realtime", "--backend", "wgpu", "--methods", "timewarp"], "no wgpu kernel"),

@@ -211,6 +211,10 @@ def count(text: str) -> int:
     return integer(text, 1, 100000)
 
 
+def prepare_threads(text: str) -> int:
+    return integer(text, 1, 256, "a thread count")
+
+
 def frames_delay(text: str) -> int:
     return integer(text, 0, 1000)
 

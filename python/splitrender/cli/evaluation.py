@@ -29,6 +29,7 @@ from splitrender.cli.args import (
     names,
     network_model,
     out_file,
+    prepare_threads,
     rate,
     seconds,
     video_fps,
@@ -37,6 +38,7 @@ from splitrender.client.realtime import (
     DISPLAY_FPS,
     DISPLAY_PRIORITIES,
     MAX_DIVISOR,
+    PREPARE_THREADS,
     WORKER_PRIORITIES,
 )
 from splitrender.errors import InvalidInputError, SplitRenderError
@@ -298,6 +300,11 @@ def add_bench(sub: Any) -> None:
         "realtime (Linux SCHED_RR, where permitted; else normal, and the report says why) or "
         "normal (default: realtime)",
     )
+    be.add_argument(
+        "--prepare-threads", type=prepare_threads, default=None, metavar="N",
+        help="with --realtime: threads of the worker's pair preparation (CPU backend; they "
+        f"run at the worker's priority; default: {PREPARE_THREADS})",
+    )
     add_max_divisor(be, None, "with --realtime: ")
     be.add_argument(
         "--stream", type=Path, default=None, metavar="FILE",
@@ -338,6 +345,7 @@ def bench(args: argparse.Namespace) -> int:
         ("--worker-priority", args.worker_priority is not None),
         ("--display-priority", args.display_priority is not None),
         ("--max-divisor", args.max_divisor is not None),
+        ("--prepare-threads", args.prepare_threads is not None),
         ("--plot", args.plot is not None),
     ):
         if given:
@@ -374,6 +382,11 @@ def _bench_realtime(args: argparse.Namespace) -> int:
     chosen = args.methods or ("ours",)
     if len(chosen) != 1:
         return fail(f"--methods: --realtime runs one method, got {len(chosen)}")
+    if args.prepare_threads is not None and args.backend != "cpu":
+        return fail(
+            "--prepare-threads goes with --backend cpu (on the GPU the worker uploads each "
+            "pair instead of preparing it)"
+        )
     # The outputs are checked before the run, which takes --seconds and more: a result that
     # cannot be written would be lost.
     outputs = {k: v for k, v in (("--json", args.json), ("--plot", args.plot)) if v is not None}
@@ -396,6 +409,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             worker_priority=args.worker_priority or "idle",
             display_priority=args.display_priority or "realtime", backend=args.backend,
             max_divisor=MAX_DIVISOR if args.max_divisor is None else args.max_divisor,
+            prepare_threads=args.prepare_threads or PREPARE_THREADS,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

@@ -82,6 +82,7 @@ __all__ = [
     "Clock",
     "MAX_DIVISOR",
     "MIN_PAIR_USE",
+    "PREPARE_THREADS",
     "DisplayFrame",
     "MonotonicClock",
     "RateGovernor",
@@ -412,6 +413,13 @@ def _restore(saved: _Saved) -> None:
             pass  # the thread has exited, or the process lost the privilege: nothing to undo
 
 
+#: The threads of the worker's pair preparation by default (``RealtimeClient(prepare_threads=)``).
+#: At idle priority two of them take both cores whenever the display leaves them, and on the
+#: project's 2-core machine at 640×360 and 120 Hz a pair was usable 3–4 ms sooner with two; but
+#: runs missed a deadline three times as often (docs/realtime.md, "The pair prepared on two
+#: threads"), so the default is one.
+PREPARE_THREADS = 1
+
 #: Methods whose client frames use pair-level state that :func:`prepare_pair` can compute.
 _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 
@@ -463,7 +471,8 @@ class RealtimeClient:
     frames. On the GPU (``backend="wgpu"``) the worker uploads each pair
     (:meth:`~splitrender.gpu.GpuReprojector.upload`) and the display makes it current with no
     copy. ``prepare_threads`` is how many threads the CPU's pair preparation uses (its own pool,
-    so that it does not queue behind the display's frames; ``None``: the shared pool).
+    so that it does not queue behind the display's frames; default :data:`PREPARE_THREADS`;
+    ``None``: the shared pool).
     ``worker_priority`` (one of :data:`WORKER_PRIORITIES`, default ``"idle"``) is how the default
     worker thread yields the cores to the display (:func:`_yield_to_display`).
     ``display_priority`` (one of :data:`DISPLAY_PRIORITIES`, default ``"realtime"``) is how
@@ -498,7 +507,7 @@ class RealtimeClient:
         clock: Clock | None = None,
         client: Client | None = None,
         capacity: int = 4,
-        prepare_threads: int | None = 1,
+        prepare_threads: int | None = PREPARE_THREADS,
         decoder: StreamDecoder | None = None,
         executor: Executor | None = None,
         worker_priority: str = "idle",

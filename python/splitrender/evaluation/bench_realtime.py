@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR, DisplayFrame
+from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR, PREPARE_THREADS, DisplayFrame
 from splitrender.codec.stream import (
     PACKET_VERSION,
     CameraRecord,
@@ -101,6 +101,8 @@ class RealtimeBench:
     #: The most the display could divide its rate by (``--max-divisor``; the summary's
     #: ``full_rate_pct`` and ``frames_by_divisor`` say what it did).
     max_divisor: int = MAX_DIVISOR
+    #: The threads of the worker's pair preparation (``--prepare-threads``; CPU backend).
+    prepare_threads: int = PREPARE_THREADS
 
     def to_json(self) -> dict[str, Any]:
         """What ran (every field but the summary and the frames), then the summary's keys."""
@@ -181,13 +183,15 @@ def run_realtime_bench(
     display_priority: str = "realtime",
     backend: str = "cpu",
     max_divisor: int = MAX_DIVISOR,
+    prepare_threads: int = PREPARE_THREADS,
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``exclusive``: the display waits for the worker after each arrival, off the clock
     (:meth:`RealtimeClient.run`), so that the deadlines measure the display frames alone.
     ``worker_priority``: how the worker yields the cores to the display, ``display_priority``:
     how the display's threads are scheduled, ``max_divisor``: the most the display may divide
-    its rate by when its frames do not fit the refresh (all three ``RealtimeClient``).
+    its rate by when its frames do not fit the refresh, ``prepare_threads``: the threads of the
+    worker's pair preparation (all four ``RealtimeClient``).
     ``backend``: where the display renders (``"wgpu"``: the GPU, the worker uploading each
     pair).
 
@@ -266,6 +270,7 @@ def run_realtime_bench(
         worker_priority=worker_priority,
         display_priority=display_priority,
         max_divisor=max_divisor,
+        prepare_threads=prepare_threads,
     ) as client:
         # Warmed up: the first packets are received and one frame rendered before the clock
         # starts, so that the run measures the steady state (the summary's warm_up_ms).
@@ -276,7 +281,7 @@ def run_realtime_bench(
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
-        max_divisor,
+        max_divisor, prepare_threads,
     )
 
 
@@ -318,7 +323,10 @@ def format_realtime(b: RealtimeBench) -> str:
             f"{s['prepared_pct']:.1f} % of frames",
             f"  decode {ms('decode_ms_per_server_frame')} and pair "
             + ("preparation " if b.backend == "cpu" else "upload ")
-            + f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread, median; "
+            + f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread"
+            + (f", preparing on {b.prepare_threads} thread"
+               + ("s" if b.prepare_threads != 1 else "") if b.backend == "cpu" else "")
+            + "; median; "
             f"usable after {ms('usable_ms_per_server_frame')}); "
             f"server frames {s['server_frames_received']} received, "
             f"{s['server_frames_late']} late"
