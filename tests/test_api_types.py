@@ -87,7 +87,7 @@ TABLE: dict[str, Entry] = {
         lambda f: dict(older=f.f0, newer=f.f1, camera=f.cam, method="ours", options=None,
                        history=sr.BidirHistory(), threads=None),
         dict(older=OPTIONAL_THING, newer=THING, camera=THING, method=[*STR, "x"],
-             options=OPTIONAL_THING, history=THING, threads=[*INT[1:], -1]),
+             options=OPTIONAL_THING, history=THING, threads=[*INT[1:], -1, 0, 257]),
     ),
     "reproject": (
         lambda f: sr.reproject,
@@ -276,7 +276,7 @@ TABLE: dict[str, Entry] = {
         lambda f: lambda **k: sr.RealtimeClient(**k).close(), lambda f: {},
         dict(method=[*STR, "x"], options=OPTIONAL_THING, display_fps=POSITIVE,
              clock=OPTIONAL_THING, client=OPTIONAL_THING, capacity=[*COUNT, 0],
-             prepare_threads=[*INT[1:], -1], decoder=OPTIONAL_THING, executor=OPTIONAL_THING,
+             prepare_threads=[*INT[1:], -1, 0, 257], decoder=OPTIONAL_THING, executor=OPTIONAL_THING,
              worker_priority=[*STR, "x", "IDLE"], display_priority=[*STR, "x", "idle"],
              backend=[*STR, "x", "WGPU"], max_divisor=[*COUNT, 0, 17]),
     ),

@@ -48,6 +48,7 @@ __all__ = [
     "Scene",
     "scene_names",
     "default_samples",
+    "MAX_PREPARE_THREADS",
     "MAX_SAMPLES",
     "WgpuPair",
     "WgpuReprojector",
@@ -58,6 +59,7 @@ __all__ = [
 __version__: str
 METHODS: list[str]
 MAX_SAMPLES: int
+MAX_PREPARE_THREADS: int
 
 class SplitRenderError(Exception): ...
 class InvalidInputError(SplitRenderError, ValueError): ...

@@ -41,6 +41,7 @@ from splitrender.types import (  # argument checks
 )
 
 __all__ = [
+    "MAX_PREPARE_THREADS",
     "METHODS",
     "apply_shadows",
     "prepare_pair",
@@ -51,6 +52,9 @@ __all__ = [
 
 #: Every method, by name, in the order of the paper's tables.
 METHODS: tuple[str, ...] = tuple(_native.METHODS)
+
+#: The most threads :func:`prepare_pair` runs its pool on (the native module's bound).
+MAX_PREPARE_THREADS: int = _native.MAX_PREPARE_THREADS
 
 _Image = npt.NDArray[np.uint8]
 _T = TypeVar("_T")
@@ -280,7 +284,7 @@ def _call_native(
         raise native_error(e, frames, client=camera_path) from None
 
 
-@checked(threads=optional(ints(0, 1 << 16)))
+@checked(threads=optional(ints(1, MAX_PREPARE_THREADS)))
 def prepare_pair(
     older: ServerFrame | None,
     newer: ServerFrame,
@@ -311,9 +315,9 @@ def prepare_pair(
     ``camera`` (it is only checked). ``timewarp`` and ``backward_bidir`` have no pair work: the
     call only checks its arguments.
 
-    ``threads`` runs the work on a dedicated pool of that many threads (kept for later calls), so
-    that it neither waits behind nor delays the display frames on the default pool; ``None``
-    uses the default pool. The CPU backend only.
+    ``threads`` (1 to :data:`MAX_PREPARE_THREADS`) runs the work on a dedicated pool of that
+    many threads (kept for later calls), so that it neither waits behind nor delays the display
+    frames on the default pool; ``None`` uses the default pool. The CPU backend only.
 
     Raises:
         InvalidInputError: for any invalid argument (it names the argument or buffer), or a

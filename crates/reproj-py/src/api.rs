@@ -84,7 +84,7 @@ pub struct BidirHistory {
 }
 
 /// The most threads `BidirHistory.prepare` accepts for its pool.
-const MAX_PREPARE_THREADS: i64 = 256;
+pub(crate) const MAX_PREPARE_THREADS: i64 = 256;
 
 #[pymethods]
 impl BidirHistory {

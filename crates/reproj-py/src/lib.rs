@@ -89,6 +89,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::scene_names, m)?)?;
     m.add_function(wrap_pyfunction!(scene::default_samples, m)?)?;
     m.add("MAX_SAMPLES", reproj_scene::MAX_SAMPLES)?;
+    m.add("MAX_PREPARE_THREADS", api::MAX_PREPARE_THREADS)?;
     m.add_function(wrap_pyfunction!(_panic_for_test, m)?)?;
     Ok(())
 }

@@ -13,7 +13,7 @@ from splitrender.cli.help import DESCRIPTION, HELP
 from splitrender.client.realtime import MAX_DIVISOR
 from splitrender.errors import SplitRenderError
 from splitrender.progress import Progress
-from splitrender.reproject import METHODS
+from splitrender.reproject import MAX_PREPARE_THREADS, METHODS
 from splitrender.types import MAX_SIDE
 
 if TYPE_CHECKING:
@@ -212,7 +212,7 @@ def count(text: str) -> int:
 
 
 def prepare_threads(text: str) -> int:
-    return integer(text, 1, 256, "a thread count")
+    return integer(text, 1, MAX_PREPARE_THREADS, "a thread count")
 
 
 def frames_delay(text: str) -> int:

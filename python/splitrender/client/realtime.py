@@ -59,7 +59,7 @@ from splitrender.client.client import Client
 from splitrender.errors import InvalidInputError
 from splitrender.gpu import BACKENDS, GpuPair
 from splitrender.net.model import MODES, TIME_EPS
-from splitrender.reproject import prepare_pair
+from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 from splitrender.types import (  # argument checks
     MAX_RATE,
@@ -493,7 +493,7 @@ class RealtimeClient:
     @checked(
         display_fps=floats(positive=True, hi=MAX_RATE), clock=optional(_clock),
         client=optional(instances(Client)), capacity=ints(2, 1 << 16),
-        prepare_threads=optional(ints(0, 1 << 16)), decoder=optional(_decoder),
+        prepare_threads=optional(ints(1, MAX_PREPARE_THREADS)), decoder=optional(_decoder),
         executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
         display_priority=strs(*DISPLAY_PRIORITIES), backend=strs(*BACKENDS),
         max_divisor=ints(1, 16),

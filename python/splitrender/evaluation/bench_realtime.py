@@ -324,8 +324,8 @@ def format_realtime(b: RealtimeBench) -> str:
             f"  decode {ms('decode_ms_per_server_frame')} and pair "
             + ("preparation " if b.backend == "cpu" else "upload ")
             + f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread"
-            + (f", preparing on {b.prepare_threads} thread"
-               + ("s" if b.prepare_threads != 1 else "") if b.backend == "cpu" else "")
+            + (f", preparing on {b.prepare_threads} thread{'s' * (b.prepare_threads != 1)}"
+               if b.backend == "cpu" else "")
             + "; median; "
             f"usable after {ms('usable_ms_per_server_frame')}); "
             f"server frames {s['server_frames_received']} received, "
