@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 import threading
 from concurrent.futures import Executor, Future
 from typing import Any
@@ -561,9 +562,70 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "frames_by_divisor",
         "repeated",
         "pairs_skipped",
+        "deadline_misses_by_cause",
+        "frame_cpu_ms_p50",
+        "frame_cpu_ms_max",
     ):
         assert key in s
     assert s["decode_ms_per_server_frame"] is None  # frames handed over decoded
+
+
+def test_frames_record_their_refresh_and_the_display_threads_cpu(scene, frames):
+    clock = FakeClock()
+    with loop(clock) as c:
+        for f in frames[:2]:
+            c.submit(f)
+            c.wait()
+        report = c.run(pose_of(scene), 0.1)
+    for f in report.frames:
+        # The refresh each started on: the deadline is the next one.
+        assert f.refresh == pytest.approx(f.deadline - PERIOD)
+        assert f.start_delay_ms == pytest.approx(0.0, abs=1e-6)
+    cpu = [f.cpu_ms for f in report.frames]
+    if not sys.platform.startswith("linux"):
+        assert cpu == [None] * len(cpu)
+        return
+    # Real CPU time (the fake clock moves only the wall time): every frame renders, on the
+    # display thread or the render threads, so each used some, and none more than the whole
+    # process did meanwhile.
+    assert all(c is not None and c > 0.0 for c in cpu)
+    assert sum(cpu) <= 1e3 * report.cpu_s + 1.0
+    assert report.summary()["frame_cpu_ms_p50"] == pytest.approx(float(np.median(cpu)))
+
+
+def test_misses_are_put_down_to_a_late_start_more_cpu_or_waiting():
+    from splitrender.client.realtime import DisplayFrame, RealtimeReport
+
+    report = RealtimeReport(display_fps=FC)
+    # (mode, ms from the refresh to the start, render ms, CPU ms): medians of CPU 7 ms
+    # (interpolate) and 4 ms (extrapolate).
+    plan = [("interpolate", 0.2, 3.5, 7.0)] * 20 + [("extrapolate", 0.2, 2.0, 4.0)] * 20 + [
+        ("interpolate", 2.0, 7.0, 7.0),  # late start
+        ("interpolate", 3.0, 6.0, 20.0),  # late start, though it used more CPU too
+        ("interpolate", 0.2, 9.0, 14.0),  # twice the median CPU
+        ("extrapolate", 0.2, 9.0, 6.5),  # 1.6x its own mode's median (below interpolate's)
+        ("interpolate", 0.2, 9.0, 9.0),  # 1.3x the median: the threads waited
+        ("interpolate", 0.9, 8.0, 7.0),  # started within LATE_START_MS: waited
+    ]
+    for n, (mode, delay, render, cpu) in enumerate(plan):
+        tick = 1.0 + n * PERIOD
+        start = tick + delay / 1e3
+        report.frames.append(DisplayFrame(
+            index=n, time=n * PERIOD, start=start, done=start + render / 1e3,
+            deadline=tick + PERIOD, mode=mode, older=0, newer=1, alpha=0.5,
+            server_age_ms=None, prepared=True, refresh=tick, cpu_ms=cpu))
+    causes = {"late_start": 2, "more_cpu": 2, "waited": 2}
+    assert report.deadline_misses == 6
+    assert report.miss_causes() == causes
+    s = report.summary()
+    assert s["deadline_misses_by_cause"] == causes
+    assert s["frame_cpu_ms_max"] == 20.0
+    # Frames without a refresh or a CPU time (off Linux, or recorded before these existed):
+    # only the tests they allow; a miss of them all is put down to waiting.
+    bare = RealtimeReport(display_fps=FC)
+    bare.frames = [dataclasses.replace(f, refresh=None, cpu_ms=None) for f in report.frames]
+    assert bare.miss_causes() == {"late_start": 0, "more_cpu": 0, "waited": 6}
+    assert bare.summary()["frame_cpu_ms_p50"] is None
 
 
 @pytest.mark.parametrize("fps", [0, -1.0, float("nan"), "120"])

@@ -126,7 +126,11 @@ class DisplayFrame:
     at half rate, :class:`RateGovernor`). ``server_age_ms`` is the display time minus the time
     the pose of the newest usable server frame was taken (``None`` before the first).
     ``prepared``: the pair it used was prepared off the display path (``False`` for ``hold``,
-    and for a pair the display had to prepare itself)."""
+    and for a pair the display had to prepare itself). ``refresh`` is the clock time of the
+    refresh it started on (``start`` is later by the wait for the display thread to run);
+    ``cpu_ms`` the CPU time the display's threads (the display thread and the render threads)
+    spent from ``start`` to ``done`` (``None`` where threads' CPU clocks cannot be read: off
+    Linux)."""
 
     index: int
     time: float
@@ -140,6 +144,8 @@ class DisplayFrame:
     server_age_ms: float | None
     prepared: bool
     divisor: int = 1
+    refresh: float | None = None
+    cpu_ms: float | None = None
 
     @property
     def render_ms(self) -> float:
@@ -149,6 +155,49 @@ class DisplayFrame:
     def met(self) -> bool:
         """Whether the frame was done by its deadline."""
         return self.done <= self.deadline
+
+    @property
+    def start_delay_ms(self) -> float | None:
+        """From its refresh to its start, ms (``None`` without ``refresh``)."""
+        return None if self.refresh is None else (self.start - self.refresh) * 1e3
+
+
+#: A missed frame that started more than this after its refresh (ms) missed because it
+#: started late (:meth:`RealtimeReport.miss_causes`). Frames start 0.1–0.3 ms after their
+#: refresh on the project's machine.
+LATE_START_MS = 1.0
+
+#: A missed frame whose display threads used more than this times the run's median CPU time
+#: of frames of its mode missed because its work took longer (:meth:`RealtimeReport.miss_causes`).
+MORE_CPU = 1.5
+
+#: The causes :meth:`RealtimeReport.miss_causes` tells apart, in the order it tries them.
+MISS_CAUSES = ("late_start", "more_cpu", "waited")
+
+
+def _thread_cpu_clocks(tids: list[int]) -> list[int] | None:
+    """The CPU-time clocks of the threads ``tids`` (kernel thread ids) for
+    :func:`time.clock_gettime`, or ``None`` off Linux.
+
+    Linux names a thread's CPU clock by its id: ``((~tid) << 3) | 6`` is the kernel's
+    ``MAKE_THREAD_CPUCLOCK(tid, CPUCLOCK_SCHED)``, what glibc's ``pthread_getcpuclockid``
+    returns. The render threads were not started by Python, so :func:`time.pthread_getcpuclockid`
+    cannot name them. Reading the three clocks costs about a microsecond, and no system call
+    here lets the display thread's GIL go (a read of ``/proc`` would)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    return [((~tid) << 3) | 6 for tid in tids]
+
+
+def _cpu_s(clocks: list[int] | None) -> float | None:
+    """The CPU seconds of ``clocks`` (:func:`_thread_cpu_clocks`) together, or ``None`` where
+    one cannot be read (a thread that exited)."""
+    if clocks is None:
+        return None
+    try:
+        return sum(time.clock_gettime(c) for c in clocks)
+    except OSError:
+        return None
 
 
 def _percentile(values: list[float], q: float) -> float | None:
@@ -191,11 +240,45 @@ class RealtimeReport:
     def deadline_misses(self) -> int:
         return sum(not f.met for f in self.frames)
 
+    def miss_causes(self) -> dict[str, int]:
+        """The missed frames by what made them late (:data:`MISS_CAUSES`), each counted once,
+        by the first that applies:
+
+        - ``late_start``: it started more than :data:`LATE_START_MS` after its refresh (the
+          display thread did not run at its refresh: its sleep overran, or it waited for the
+          GIL or the lock that the worker held);
+        - ``more_cpu``: its display threads used more than :data:`MORE_CPU` times the run's
+          median CPU time of frames of its mode (the work itself took longer: a pair prepared
+          on the display path, page faults, or a slower processor for a while);
+        - ``waited``: neither; its threads were runnable but off the cores, or blocked (on
+          the GIL after the native call, say).
+
+        Frames without a refresh or a CPU time skip the tests that need them."""
+        cpu: dict[str, list[float]] = {}
+        for f in self.frames:
+            if f.cpu_ms is not None:
+                cpu.setdefault(f.mode, []).append(f.cpu_ms)
+        median = {m: float(np.median(v)) for m, v in cpu.items()}
+        causes = dict.fromkeys(MISS_CAUSES, 0)
+        for f in self.frames:
+            if f.met:
+                continue
+            delay = f.start_delay_ms
+            if delay is not None and delay > LATE_START_MS:
+                causes["late_start"] += 1
+            elif f.cpu_ms is not None and f.cpu_ms > MORE_CPU * median[f.mode]:
+                causes["more_cpu"] += 1
+            else:
+                causes["waited"] += 1
+        return causes
+
     def summary(self) -> dict[str, Any]:
         """One flat object: ``frames``, ``deadline_misses`` (count and ``_pct``), ``dropped``,
-        ``repeated`` (refreshes that showed a frame again because the rate was divided),
+        ``deadline_misses_by_cause`` (:meth:`miss_causes`), ``repeated`` (refreshes that
+        showed a frame again because the rate was divided),
         ``full_rate_pct`` (frames at ``f_c``) and ``frames_by_divisor`` (how many at ``f_c / d``,
-        keyed by ``d`` as text), ``frame_ms_p50/p95/p99/max`` (render time), ``modes`` (count
+        keyed by ``d`` as text), ``frame_ms_p50/p95/p99/max`` (render time),
+        ``frame_cpu_ms_p50/max`` (the display threads' CPU time per frame), ``modes`` (count
         per mode), ``decode_ms_per_server_frame``, ``prepare_ms_per_server_frame`` (both
         pairs) and ``usable_ms_per_server_frame`` (from the worker taking the packet until the
         frame is usable: its decode and first pair; all medians), the server frames received
@@ -206,6 +289,7 @@ class RealtimeReport:
         scheduled) and ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample
         are ``None``."""
         render = [f.render_ms for f in self.frames]
+        cpu = [f.cpu_ms for f in self.frames if f.cpu_ms is not None]
         ages = [f.server_age_ms for f in self.frames if f.server_age_ms is not None]
         n = len(self.frames)
         misses = self.deadline_misses
@@ -214,6 +298,7 @@ class RealtimeReport:
             "display_fps": self.display_fps,
             "deadline_misses": misses,
             "deadline_misses_pct": 100.0 * misses / n if n else 0.0,
+            "deadline_misses_by_cause": self.miss_causes(),
             "dropped": self.dropped,
             "repeated": self.repeated,
             "full_rate_pct": 100.0 * sum(f.divisor == 1 for f in self.frames) / n if n else 0.0,
@@ -225,6 +310,8 @@ class RealtimeReport:
             "frame_ms_p95": _percentile(render, 95),
             "frame_ms_p99": _percentile(render, 99),
             "frame_ms_max": max(render) if render else None,
+            "frame_cpu_ms_p50": _median(cpu),
+            "frame_cpu_ms_max": max(cpu) if cpu else None,
             "modes": {m: sum(f.mode == m for f in self.frames) for m in MODES},
             "prepared_pct": 100.0 * sum(f.prepared for f in self.frames) / n if n else 0.0,
             "decode_ms_per_server_frame": _median(self.decode_ms),
@@ -941,6 +1028,7 @@ class RealtimeClient:
         :data:`_OVERRUN_FRAMES` late frames in a row."""
         period = 1.0 / self.display_fps
         governor = RateGovernor(self.display_fps, self.max_divisor)
+        clocks = _thread_cpu_clocks([threading.get_native_id(), *_native.render_thread_ids()])
         nxt = next(arrivals, None)
         n = 0
         late_in_a_row = 0
@@ -962,7 +1050,9 @@ class RealtimeClient:
             t = start_time + n * period
             camera = pose(t)
             start = self.clock.now()
+            used = _cpu_s(clocks)
             image, prepared, newest = self._render(camera, t)
+            after = _cpu_s(clocks)
             done = self.clock.now()
             info = self.client.last_info
             assert info is not None
@@ -979,6 +1069,8 @@ class RealtimeClient:
                 server_age_ms=None if newest is None else (t - newest) * 1e3,
                 prepared=prepared,
                 divisor=d,
+                refresh=tick,
+                cpu_ms=None if used is None or after is None else (after - used) * 1e3,
             )
             report.frames.append(record)
             late_in_a_row = 0 if record.met else late_in_a_row + 1

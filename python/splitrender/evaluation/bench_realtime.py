@@ -310,15 +310,19 @@ def format_realtime(b: RealtimeBench) -> str:
             + f"; worker priority {b.worker_priority}; display scheduling "
             + s["display_scheduling"],
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
-            f"({s['deadline_misses_pct']:.2f} %), dropped refreshes {s['dropped']}, "
-            f"achieved {s['achieved_fps']:.1f} FPS",
+            f"({s['deadline_misses_pct']:.2f} %"
+            + ("" if not s["deadline_misses"] else "; " + _causes(s["deadline_misses_by_cause"]))
+            + f"), dropped refreshes {s['dropped']}, achieved {s['achieved_fps']:.1f} FPS",
             f"  display rate (frames at each): {rates or 'n/a'}; "
             + (f"the rate may halve (--max-divisor {b.max_divisor})" if b.max_divisor == 2
                else "held at the full rate (--max-divisor 1)" if b.max_divisor == 1
                else f"the rate may fall to 1/{b.max_divisor} (--max-divisor {b.max_divisor})")
             + f"; refreshes repeated at a divided rate {s['repeated']}",
             f"  frame time p50 {ms('frame_ms_p50')}, p95 {ms('frame_ms_p95')}, "
-            f"p99 {ms('frame_ms_p99')}, max {ms('frame_ms_max')}",
+            f"p99 {ms('frame_ms_p99')}, max {ms('frame_ms_max')}"
+            + ("" if s["frame_cpu_ms_p50"] is None
+               else f"; display threads' CPU per frame p50 {ms('frame_cpu_ms_p50')}, "
+               f"max {ms('frame_cpu_ms_max')}"),
             f"  modes: {modes}; pairs prepared off the display path: "
             f"{s['prepared_pct']:.1f} % of frames",
             f"  decode {ms('decode_ms_per_server_frame')} and pair "
@@ -340,6 +344,19 @@ def format_realtime(b: RealtimeBench) -> str:
                else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
         ]
     )
+
+
+#: How the text report names each cause of :meth:`RealtimeReport.miss_causes`.
+_CAUSE_WORDS = {
+    "late_start": "started late",
+    "more_cpu": "more CPU than the median",
+    "waited": "threads waited",
+}
+
+
+def _causes(causes: dict[str, int]) -> str:
+    """The misses' causes as text: ``1 started late, 2 threads waited``."""
+    return ", ".join(f"{n} {_CAUSE_WORDS[c]}" for c, n in causes.items() if n)
 
 
 def write_realtime_json(path: Path, b: RealtimeBench) -> None:
