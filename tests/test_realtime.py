@@ -620,6 +620,12 @@ def test_misses_are_put_down_to_a_late_start_more_cpu_or_waiting():
     s = report.summary()
     assert s["deadline_misses_by_cause"] == causes
     assert s["frame_cpu_ms_max"] == 20.0
+    from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
+
+    text = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", s))
+    assert "deadline misses 6 (13.04 %; 2 started late, 2 more CPU than the median, " \
+        "2 threads waited)" in text
+    assert "display threads' CPU per frame p50 7.00 ms, max 20.00 ms" in text
     # Frames without a refresh or a CPU time (off Linux, or recorded before these existed):
     # only the tests they allow; a miss of them all is put down to waiting.
     bare = RealtimeReport(display_fps=FC)

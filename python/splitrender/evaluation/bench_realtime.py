@@ -311,7 +311,8 @@ def format_realtime(b: RealtimeBench) -> str:
             + s["display_scheduling"],
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
             f"({s['deadline_misses_pct']:.2f} %"
-            + ("" if not s["deadline_misses"] else "; " + _causes(s["deadline_misses_by_cause"]))
+            + ("" if not s["deadline_misses"] or "deadline_misses_by_cause" not in s
+               else "; " + _causes(s["deadline_misses_by_cause"]))
             + f"), dropped refreshes {s['dropped']}, achieved {s['achieved_fps']:.1f} FPS",
             f"  display rate (frames at each): {rates or 'n/a'}; "
             + (f"the rate may halve (--max-divisor {b.max_divisor})" if b.max_divisor == 2
@@ -320,7 +321,7 @@ def format_realtime(b: RealtimeBench) -> str:
             + f"; refreshes repeated at a divided rate {s['repeated']}",
             f"  frame time p50 {ms('frame_ms_p50')}, p95 {ms('frame_ms_p95')}, "
             f"p99 {ms('frame_ms_p99')}, max {ms('frame_ms_max')}"
-            + ("" if s["frame_cpu_ms_p50"] is None
+            + ("" if s.get("frame_cpu_ms_p50") is None
                else f"; display threads' CPU per frame p50 {ms('frame_cpu_ms_p50')}, "
                f"max {ms('frame_cpu_ms_max')}"),
             f"  modes: {modes}; pairs prepared off the display path: "
