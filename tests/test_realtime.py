@@ -95,13 +95,19 @@ def loop(
     )
 
 
-def test_every_frame_meets_its_deadline_when_rendering_fits_the_period(scene, frames):
+def run_after_receiving(scene: sr.SyntheticScene, frames: list[sr.ServerFrame],
+                        seconds: float) -> rt.RealtimeReport:
+    """A run of ``seconds`` on the fake clock after every one of ``frames`` was received."""
     clock = FakeClock()
     with loop(clock) as c:
-        for f in frames[:3]:
+        for f in frames:
             c.submit(f)
             c.wait()
-        report = c.run(pose_of(scene), 0.2)
+        return c.run(pose_of(scene), seconds)
+
+
+def test_every_frame_meets_its_deadline_when_rendering_fits_the_period(scene, frames):
+    report = run_after_receiving(scene, frames[:3], 0.2)
     assert len(report.frames) == 24 and report.dropped == 0
     assert report.deadline_misses == 0
     # One frame per refresh, each started on its refresh and due at the next.
@@ -571,12 +577,7 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
 
 
 def test_frames_record_their_refresh_and_the_display_threads_cpu(scene, frames):
-    clock = FakeClock()
-    with loop(clock) as c:
-        for f in frames[:2]:
-            c.submit(f)
-            c.wait()
-        report = c.run(pose_of(scene), 0.1)
+    report = run_after_receiving(scene, frames[:2], 0.1)
     for f in report.frames:
         # The refresh each started on: the deadline is the next one.
         assert f.refresh == pytest.approx(f.deadline - PERIOD)
