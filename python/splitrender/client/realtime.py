@@ -451,11 +451,10 @@ _Saved = list[tuple[int, int, int]]  # (thread id, policy, priority) to restore
 _OVERRUN_FRAMES = 24
 
 
-def _raise_display(priority: str) -> tuple[str, _Saved]:
-    """Gives the calling (display) thread and the threads ``reproject`` runs on
-    (:func:`splitrender._native.render_thread_ids`) the ``SCHED_RR`` policy at priority 1 for
-    ``priority == "realtime"``; returns how they are now scheduled and what to restore
-    (:func:`_restore`).
+def _raise_display(priority: str, threads: list[int]) -> tuple[str, _Saved]:
+    """Gives the display's ``threads`` (:func:`_display_threads`) the ``SCHED_RR`` policy at
+    priority 1 for ``priority == "realtime"``; returns how they are now scheduled and what to
+    restore (:func:`_restore`).
 
     Why: Linux's fair scheduler (EEVDF) does not keep a runnable normal thread ahead of a
     ``SCHED_IDLE`` one. When one of the display's threads is switched out while runnable (it
@@ -478,7 +477,6 @@ def _raise_display(priority: str) -> tuple[str, _Saved]:
         return "normal", []
     if not hasattr(os, "SCHED_RR"):
         return "normal (no real-time scheduling on this platform)", []
-    threads = [threading.get_native_id(), *_native.render_thread_ids()]
     saved: _Saved = []
     try:
         for tid in threads:
@@ -489,6 +487,13 @@ def _raise_display(priority: str) -> tuple[str, _Saved]:
         _restore(saved)
         return f"normal (real-time scheduling refused: {e.strerror or e})", []
     return "realtime", saved
+
+
+def _display_threads() -> list[int]:
+    """The kernel thread ids of the display's threads: the calling (display) thread and the
+    threads ``reproject`` runs on (:func:`splitrender._native.render_thread_ids`, which starts
+    them on its first call)."""
+    return [threading.get_native_id(), *_native.render_thread_ids()]
 
 
 def _restore(saved: _Saved) -> None:
@@ -958,7 +963,8 @@ class RealtimeClient:
         n_frames = int(round(seconds * fc))
         report = self._report
         # Before the clock starts: the first call may start the render threads.
-        report.display_scheduling, saved = _raise_display(self.display_priority)
+        threads = _display_threads()
+        report.display_scheduling, saved = _raise_display(self.display_priority, threads)
         arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]] = iter(feed)
         interval = sys.getswitchinterval()
         try:
@@ -976,7 +982,8 @@ class RealtimeClient:
             # between two native calls. 0.5 ms keeps that wait well inside a frame.
             sys.setswitchinterval(min(interval, 0.0005))
             self._display(
-                report, t0, n_frames, pose, arrivals, start_time, on_frame, exclusive, saved
+                report, t0, n_frames, pose, arrivals, start_time, on_frame, exclusive, saved,
+                _thread_cpu_clocks(threads),
             )
         finally:
             # Whatever ended the run (the warm-up's or a frame's error included).
@@ -1021,14 +1028,15 @@ class RealtimeClient:
         on_frame: Callable[[_Image, DisplayFrame], None] | None,
         exclusive: bool,
         raised: _Saved,
+        clocks: list[int] | None,
     ) -> None:
         """The display loop of :meth:`run` (refresh ``n`` at clock ``t0 + n / f_c``; with
         ``exclusive``, ``t0`` moves on by the time waited for the worker). ``raised``: the
         threads :func:`_raise_display` raised, restored (and emptied) after
-        :data:`_OVERRUN_FRAMES` late frames in a row."""
+        :data:`_OVERRUN_FRAMES` late frames in a row; ``clocks``: the display threads' CPU
+        clocks (:func:`_thread_cpu_clocks`), read around each frame."""
         period = 1.0 / self.display_fps
         governor = RateGovernor(self.display_fps, self.max_divisor)
-        clocks = _thread_cpu_clocks([threading.get_native_id(), *_native.render_thread_ids()])
         nxt = next(arrivals, None)
         n = 0
         late_in_a_row = 0

@@ -311,7 +311,7 @@ def format_realtime(b: RealtimeBench) -> str:
             + s["display_scheduling"],
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
             f"({s['deadline_misses_pct']:.2f} %"
-            + ("" if not s["deadline_misses"] or "deadline_misses_by_cause" not in s
+            + ("" if not s["deadline_misses"] or s.get("deadline_misses_by_cause") is None
                else "; " + _causes(s["deadline_misses_by_cause"]))
             + f"), dropped refreshes {s['dropped']}, achieved {s['achieved_fps']:.1f} FPS",
             f"  display rate (frames at each): {rates or 'n/a'}; "
