@@ -471,6 +471,56 @@ def test_a_pair_that_would_be_ready_too_late_is_skipped_and_its_frame_used_from_
     assert all(x.prepared for x in f)
 
 
+def _every_frame(scene: Any, n: int) -> list[Any]:
+    return [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n)]
+
+
+def test_a_skipped_pair_is_measured_again_and_interpolation_comes_back(scene, monkeypatch):
+    # The first interpolation pair takes 150 ms (slow by itself: start-up, say), the later ones
+    # 20 ms. The estimate from the first skips the next pairs; after PAIR_PROBE_AFTER skipped
+    # in a row one is prepared to measure it, fits, and every later pair is prepared again.
+    many = _every_frame(scene, 8)
+    monkeypatch.setattr(rt, "PAIR_PROBE_AFTER", 2)
+    clock = FakeClock()
+    order = _clocked_preparation(monkeypatch, clock, 0.02, 0.01)
+    real = rt.prepare_pair
+
+    def first_slow(older, newer, *a, **kw):  # type: ignore[no-untyped-def]
+        if (None if older is None else older.index, newer.index) == (0, 1):
+            clock.advance(0.13)
+        return real(older, newer, *a, **kw)
+
+    monkeypatch.setattr(rt, "prepare_pair", first_slow)
+    feed = [(k / FS - 1 / FS, many[k]) for k in range(8)]
+    with loop(clock, executor=InlineExecutor()) as c:
+        report = c.run(pose_of(scene), 0.75, feed=feed)
+    assert [p for p in order if p[0] is not None] == [(0, 1), (3, 4), (4, 5), (5, 6), (6, 7)]
+    assert report.pairs_skipped == 2 and report.pairs_probed == 1
+    s = report.summary()
+    assert (s["pairs_skipped"], s["pairs_probed"]) == (2, 1)
+    from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
+
+    text = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", s))
+    assert "2 without their interpolation pair" in text
+    assert "1 such pair prepared anyway to measure it again" in text
+    modes = {(x.mode, x.older, x.newer) for x in report.frames}
+    assert {("interpolate", 4, 5), ("interpolate", 5, 6)} <= modes
+
+
+def test_a_pair_measured_again_and_still_too_late_waits_twice_as_long(scene, monkeypatch):
+    # Every interpolation pair takes 150 ms: measured after 2 skipped, then after 4.
+    many = _every_frame(scene, 10)
+    monkeypatch.setattr(rt, "PAIR_PROBE_AFTER", 2)
+    monkeypatch.setattr(rt, "PAIR_PROBE_MAX", 4)
+    clock = FakeClock()
+    order = _clocked_preparation(monkeypatch, clock, 0.15, 0.01)
+    feed = [(k / FS - 1 / FS, many[k]) for k in range(10)]
+    with loop(clock, executor=InlineExecutor()) as c:
+        report = c.run(pose_of(scene), 0.95, feed=feed)
+    assert [p for p in order if p[0] is not None] == [(0, 1), (3, 4), (8, 9)]
+    assert report.pairs_skipped == 6 and report.pairs_probed == 2
+
+
 def test_a_pair_that_is_ready_in_time_is_prepared(scene, frames, monkeypatch):
     clock = FakeClock()
     order = _clocked_preparation(monkeypatch, clock, 0.03, 0.01)
@@ -568,6 +618,7 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "frames_by_divisor",
         "repeated",
         "pairs_skipped",
+        "pairs_probed",
         "deadline_misses_by_cause",
         "frame_cpu_ms_p50",
         "frame_cpu_ms_max",

@@ -227,6 +227,9 @@ class RealtimeReport:
     #: Server frames whose interpolation pair was not prepared because it would have been ready
     #: too late to be shown (:data:`MIN_PAIR_USE`); each became usable at its own time.
     pairs_skipped: int = 0
+    #: Interpolation pairs estimated too late but prepared to measure them again
+    #: (:data:`PAIR_PROBE_AFTER`).
+    pairs_probed: int = 0
     wall_s: float = 0.0
     cpu_s: float = 0.0
     cpus: int = 1
@@ -283,7 +286,8 @@ class RealtimeReport:
         pairs) and ``usable_ms_per_server_frame`` (from the worker taking the packet until the
         frame is usable: its decode and first pair; all medians), the server frames received
         and late, ``pairs_skipped`` (interpolation pairs not prepared because they would have
-        come too late), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their
+        come too late) and ``pairs_probed`` (such pairs prepared anyway, to measure them
+        again), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their
         deadline per second of the run) and ``cpu_utilisation`` (process CPU seconds per wall
         second and core, 0–1), ``display_scheduling`` (how the display's threads were
         scheduled) and ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample
@@ -320,6 +324,7 @@ class RealtimeReport:
             "server_frames_received": self.server_frames_received,
             "server_frames_late": self.server_frames_late,
             "pairs_skipped": self.pairs_skipped,
+            "pairs_probed": self.pairs_probed,
             "server_age_ms_p50": _median(ages),
             "server_age_ms_max": max(ages) if ages else None,
             "achieved_fps": (n - misses) / self.wall_s if self.wall_s > 0 else 0.0,
@@ -523,6 +528,19 @@ _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 #: The frame is then prepared to extrapolate from and becomes usable at its own time ``t_k``.
 MIN_PAIR_USE = 0.25
 
+#: After this many interpolation pairs skipped in a row, the worker prepares the next one
+#: anyway, to measure it again (:meth:`RealtimeClient._pair_too_late`); each such pair that is
+#: still too late doubles the count, up to :data:`PAIR_PROBE_MAX`. Why: the estimate is taken
+#: from the last pair prepared, so once one pair is skipped no later one is measured. Its
+#: scaling by the decode time follows the display's load, but not a pair that was slow by
+#: itself (the first after start-up, a page-fault storm): without a new measurement, one such
+#: pair would keep interpolation off for the rest of the session.
+PAIR_PROBE_AFTER = 10
+
+#: The most pairs skipped in a row between two measurements (:data:`PAIR_PROBE_AFTER`): at
+#: 10 server frames per second, one pair in 8 s where pairs never fit.
+PAIR_PROBE_MAX = 80
+
 #: A prepared pair: the older frame's index (``None``: to extrapolate) and its state.
 _Prepared = tuple[int | None, _native.BidirHistory | GpuPair]
 
@@ -656,6 +674,10 @@ class RealtimeClient:
         # The seconds (on the clock) of the last interpolation pair prepared, and of its
         # frame's decode (None: handed over decoded).
         self._pair_cost: tuple[float, float | None] | None = None
+        # Interpolation pairs skipped since the last one prepared, and how many make the worker
+        # prepare the next to measure it again (PAIR_PROBE_AFTER).
+        self._skipped_in_a_row = 0
+        self._probe_after = PAIR_PROBE_AFTER
         self._report = RealtimeReport(self.display_fps)
         opts = self.client.options
         self._interpolates = self.method == "ours" or (
@@ -794,10 +816,12 @@ class RealtimeClient:
 
     def _pair_too_late(self, frame: ServerFrame, decode_s: float | None) -> bool:
         """Whether the interpolation pair that ``frame`` closes would be ready with less than
-        :data:`MIN_PAIR_USE` of its interval ahead (under the lock). The estimate is the last
-        such pair's preparation, scaled by this frame's decode time against that one's: both
-        run on the worker in the cycles the display leaves, so the ratio follows the display's
-        load. Without an estimate, or outside :meth:`run`, the pair is prepared."""
+        :data:`MIN_PAIR_USE` of its interval ahead, and is not due to be measured again
+        (under the lock). The estimate is the last such pair's preparation, scaled by this
+        frame's decode time against that one's: both run on the worker in the cycles the
+        display leaves, so the ratio follows the display's load. Without an estimate, or
+        outside :meth:`run`, the pair is prepared; so is the one after
+        :data:`PAIR_PROBE_AFTER` skipped in a row (doubling each time it is still too late)."""
         if self._origin is None or self._pair_cost is None:
             return False
         pair_s, decode_then = self._pair_cost
@@ -805,7 +829,17 @@ class RealtimeClient:
             pair_s *= decode_s / decode_then
         period = frame.span / self.client.server_fps
         left = self._origin + frame.time - (self.clock.now() + pair_s)
-        return left < MIN_PAIR_USE * period
+        if left >= MIN_PAIR_USE * period:
+            self._skipped_in_a_row = 0
+            self._probe_after = PAIR_PROBE_AFTER
+            return False
+        if self._skipped_in_a_row >= self._probe_after:
+            self._skipped_in_a_row = 0
+            self._probe_after = min(2 * self._probe_after, PAIR_PROBE_MAX)
+            self._report.pairs_probed += 1
+            return False
+        self._skipped_in_a_row += 1
+        return True
 
     def _release_due(
         self, display_time: float, own: int | None = None

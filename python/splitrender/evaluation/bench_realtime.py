@@ -337,7 +337,11 @@ def format_realtime(b: RealtimeBench) -> str:
             f"{s['server_frames_late']} late"
             + ("" if not s["pairs_skipped"]
                else f", {s['pairs_skipped']} without their interpolation pair (it would have "
-               "come too late: used from their own time, to extrapolate)"),
+               "come too late: used from their own time, to extrapolate)")
+            + ("" if not s.get("pairs_probed")
+               else f", {s['pairs_probed']} such "
+               + ("pair prepared anyway to measure it again" if s["pairs_probed"] == 1
+                  else "pairs prepared anyway to measure them again")),
             f"  newest server frame's age at display: p50 {ms('server_age_ms_p50')}, "
             f"max {ms('server_age_ms_max')}; CPU {100 * s['cpu_utilisation']:.0f} % "
             f"of {os.cpu_count() or 1} cores"
