@@ -1024,7 +1024,8 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
     assert "3 deadline misses" in top.get_title()
 
 
-def test_realtime_figure_judges_half_rate_frames_on_their_own_deadline():
+@pytest.mark.parametrize("with_refresh", [True, False])
+def test_realtime_figure_judges_half_rate_frames_on_their_own_deadline(with_refresh):
     from splitrender.client.realtime import DisplayFrame, RealtimeReport
     from splitrender.evaluation.bench_realtime import RealtimeBench, realtime_figure
 
@@ -1039,7 +1040,9 @@ def test_realtime_figure_judges_half_rate_frames_on_their_own_deadline():
         report.frames.append(DisplayFrame(
             index=n, time=tick, start=tick, done=tick + render / 1e3,
             deadline=tick + d * period, mode="extrapolate", older=None, newer=0, alpha=None,
-            server_age_ms=None, prepared=True, divisor=d))
+            server_age_ms=None, prepared=True, divisor=d,
+            # Without its refresh (frames recorded before it existed), from the deadline.
+            refresh=tick if with_refresh else None))
         n += 2 if d == 2 else 1
     b = RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", report.summary(),
                       frames=tuple(report.frames))
