@@ -399,9 +399,14 @@ def test_a_server_frame_that_becomes_usable_after_it_was_needed_counts_as_late(s
     assert report.frames[0].server_age_ms == pytest.approx(100.0)
 
 
+def _every_frame(scene: Any, n: int) -> list[Any]:
+    """Server frames 0 … n − 1 of ``scene``, a server period apart."""
+    return [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n)]
+
+
 def test_the_client_keeps_no_state_for_the_frames_it_has_dropped(scene):
     """A headset runs for hours: what the loop keeps per server frame goes with the frame."""
-    many = [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(11)]
+    many = _every_frame(scene, 11)
     clock = FakeClock()
     with loop(clock, executor=InlineExecutor()) as c:
         feed = [(f.time - 1 / FS, f) for f in many]
@@ -469,10 +474,6 @@ def test_a_pair_that_would_be_ready_too_late_is_skipped_and_its_frame_used_from_
     assert all(x.newer != 2 for x in f if x.time < 0.2 - 1e-9)
     assert all(x.newer == 2 and x.mode == "extrapolate" for x in f if 0.2 <= x.time < 0.3)
     assert all(x.prepared for x in f)
-
-
-def _every_frame(scene: Any, n: int) -> list[Any]:
-    return [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n)]
 
 
 def test_a_skipped_pair_is_measured_again_and_interpolation_comes_back(scene, monkeypatch):
