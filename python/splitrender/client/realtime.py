@@ -529,7 +529,7 @@ _PREPARED_METHODS = ("ours", "ours_extrapolate", "forward_splat")
 MIN_PAIR_USE = 0.25
 
 #: After this many interpolation pairs skipped in a row, the worker prepares the next one
-#: anyway, to measure it again (:meth:`RealtimeClient._pair_too_late`); each such pair that is
+#: anyway, to measure it again (:meth:`RealtimeClient._skip_pair`); each such pair that is
 #: still too late doubles the count, up to :data:`PAIR_PROBE_MAX`. Why: the estimate is taken
 #: from the last pair prepared, so once one pair is skipped no later one is measured. Its
 #: scaling by the decode time follows the display's load, but not a pair that was slow by
@@ -760,7 +760,7 @@ class RealtimeClient:
             behind = self._queued > 0
             prepares = self.method in _PREPARED_METHODS and not behind
             interpolates = older is not None and self._interpolates
-            skip = prepares and interpolates and self._pair_too_late(frame, decode_s)
+            skip = prepares and interpolates and self._skip_pair(frame, decode_s)
         del retired
         pairs: list[ServerFrame | None] = []
         if prepares:
@@ -816,12 +816,10 @@ class RealtimeClient:
 
     def _pair_too_late(self, frame: ServerFrame, decode_s: float | None) -> bool:
         """Whether the interpolation pair that ``frame`` closes would be ready with less than
-        :data:`MIN_PAIR_USE` of its interval ahead, and is not due to be measured again
-        (under the lock). The estimate is the last such pair's preparation, scaled by this
-        frame's decode time against that one's: both run on the worker in the cycles the
-        display leaves, so the ratio follows the display's load. Without an estimate, or
-        outside :meth:`run`, the pair is prepared; so is the one after
-        :data:`PAIR_PROBE_AFTER` skipped in a row (doubling each time it is still too late)."""
+        :data:`MIN_PAIR_USE` of its interval ahead (under the lock). The estimate is the last
+        such pair's preparation, scaled by this frame's decode time against that one's: both
+        run on the worker in the cycles the display leaves, so the ratio follows the display's
+        load. Without an estimate, or outside :meth:`run`, the pair is prepared."""
         if self._origin is None or self._pair_cost is None:
             return False
         pair_s, decode_then = self._pair_cost
@@ -829,7 +827,15 @@ class RealtimeClient:
             pair_s *= decode_s / decode_then
         period = frame.span / self.client.server_fps
         left = self._origin + frame.time - (self.clock.now() + pair_s)
-        if left >= MIN_PAIR_USE * period:
+        return left < MIN_PAIR_USE * period
+
+    def _skip_pair(self, frame: ServerFrame, decode_s: float | None) -> bool:
+        """Whether the worker skips the interpolation pair that ``frame`` closes (under the
+        lock): where it would be too late (:meth:`_pair_too_late`), unless
+        :data:`PAIR_PROBE_AFTER` pairs were skipped in a row, when it is prepared to be
+        measured again and the count doubles (up to :data:`PAIR_PROBE_MAX`). A pair that fits
+        resets the count."""
+        if not self._pair_too_late(frame, decode_s):
             self._skipped_in_a_row = 0
             self._probe_after = PAIR_PROBE_AFTER
             return False
