@@ -399,6 +399,15 @@ def test_a_server_frame_that_becomes_usable_after_it_was_needed_counts_as_late(s
     assert report.frames[0].server_age_ms == pytest.approx(100.0)
 
 
+def text_report(summary: dict[str, Any]) -> str:
+    """The bench's text report (``format_realtime``) of a run with ``summary``."""
+    from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
+
+    return format_realtime(
+        RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", summary)
+    )
+
+
 def _every_frame(scene: Any, n: int) -> list[Any]:
     """Server frames 0 … n − 1 of ``scene``, a server period apart."""
     return [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n)]
@@ -499,9 +508,7 @@ def test_a_skipped_pair_is_measured_again_and_interpolation_comes_back(scene, mo
     assert report.pairs_skipped == 2 and report.pairs_probed == 1
     s = report.summary()
     assert (s["pairs_skipped"], s["pairs_probed"]) == (2, 1)
-    from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
-
-    text = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", s))
+    text = text_report(s)
     assert "2 without their interpolation pair" in text
     assert "1 such pair prepared anyway to measure it again" in text
     modes = {(x.mode, x.older, x.newer) for x in report.frames}
@@ -673,9 +680,7 @@ def test_misses_are_put_down_to_a_late_start_more_cpu_or_waiting():
     s = report.summary()
     assert s["deadline_misses_by_cause"] == causes
     assert s["frame_cpu_ms_max"] == 20.0
-    from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
-
-    text = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", s))
+    text = text_report(s)
     assert "deadline misses 6 (13.04 %; 2 started late, 2 more CPU than the median, " \
         "2 threads waited)" in text
     assert "display threads' CPU per frame p50 7.00 ms, max 20.00 ms" in text
