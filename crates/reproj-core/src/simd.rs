@@ -1,7 +1,8 @@
 //! The run-time dispatch of the row loops of `ours` and `timewarp` by instruction set:
 //! [`simd_dispatch`] for functions, [`simd_method`] for methods of `ours`' `Resolve`. Not a stage
 //! of the paper (seeds/000 §3): these only let the compiler use 256- and 512-bit vectors for the same IEEE
-//! arithmetic, without FMA contraction, so that the output bytes do not depend on the processor.
+//! arithmetic, without FMA contraction, so that the output bytes do not depend on the processor
+//! (the one fused multiply-add written out, `camera::centre_quotient`, gives the division's bytes).
 //! [`set_simd_limit`] (or the environment variable `REPROJ_SIMD`) caps the instruction set, so
 //! that a test can compare the tiers' bytes on one processor and a benchmark can time them
 //! against each other.
@@ -13,7 +14,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 pub enum Simd {
     /// The target's baseline (SSE2 on x86-64).
     Baseline = 0,
-    /// AVX2 (256-bit vectors, gathers).
+    /// AVX2 with FMA (256-bit vectors, gathers).
     Avx2 = 1,
     /// The AVX-512 of x86-64-v4: F, BW, CD, DQ and VL (512-bit vectors, masked loads and stores).
     Avx512 = 2,
@@ -67,7 +68,7 @@ pub fn simd_tier() -> Simd {
         {
             return Simd::Avx512;
         }
-        if limit >= Simd::Avx2 as u8 && has!("avx2") {
+        if limit >= Simd::Avx2 as u8 && has!("avx2") && has!("fma") {
             return Simd::Avx2;
         }
     }
@@ -93,7 +94,9 @@ fn limit_from_env() -> u8 {
 /// `$avx512`) or AVX2 (as `$avx2`) where the processor has it ([`simd_tier`]) and for the baseline
 /// otherwise. The body is written once; the wider builds let the compiler use wider vectors (and
 /// masks) for its row loops. No build contracts multiplies and adds into FMA (Rust never does), so
-/// all give the same bytes.
+/// all give the same bytes. Both wider builds have FMA instructions (AVX-512 F implies them), for
+/// the `mul_add`s written out (`camera::centre_quotient`), which give the same bytes as the
+/// baseline's division.
 ///
 /// With `$imp(gathers, …)`, `$imp` also takes a `Gathers` (`ours/search.rs`) first: the
 /// portable loops for the baseline, the AVX2 gather instructions for both wider builds.
@@ -106,7 +109,7 @@ macro_rules! simd_dispatch {
             match $crate::simd::simd_tier() {
                 // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
                 $crate::simd::Simd::Avx512 => return unsafe { $avx512($($arg),*) },
-                // SAFETY: the processor supports AVX2 (checked by simd_tier).
+                // SAFETY: the processor supports AVX2 and FMA (checked by simd_tier).
                 $crate::simd::Simd::Avx2 => return unsafe { $avx2($($arg),*) },
                 $crate::simd::Simd::Baseline => {}
             }
@@ -114,7 +117,7 @@ macro_rules! simd_dispatch {
         }
 
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2")]
+        #[target_feature(enable = "avx2,fma")]
         fn $avx2($($arg: $ty),*) {
             $imp($($wide)* $($arg),*)
         }
@@ -146,7 +149,7 @@ macro_rules! simd_method {
             match $crate::simd::simd_tier() {
                 // SAFETY: the processor supports AVX-512 F/BW/CD/DQ/VL (checked by simd_tier).
                 $crate::simd::Simd::Avx512 => return unsafe { self.$avx512($($arg),*) },
-                // SAFETY: the processor supports AVX2 (checked by simd_tier).
+                // SAFETY: the processor supports AVX2 and FMA (checked by simd_tier).
                 $crate::simd::Simd::Avx2 => return unsafe { self.$avx2($($arg),*) },
                 $crate::simd::Simd::Baseline => {}
             }
@@ -154,7 +157,7 @@ macro_rules! simd_method {
         }
 
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2")]
+        #[target_feature(enable = "avx2,fma")]
         fn $avx2(&self, $($arg: $ty),*) {
             self.$imp($($wide)* $($arg),*)
         }

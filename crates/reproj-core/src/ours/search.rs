@@ -5,7 +5,7 @@
 //! compares. [`Resolve::search_row`] searches a row of targets in stages,
 //! [`Resolve::search`] one target.
 
-use crate::camera::pixel_of_ndc;
+use crate::camera::{centre_quotient, pixel_of_ndc};
 
 use super::{packed_cell, unpack_pixel, Cell, Match, Resolve, NO_SPLAT};
 use crate::simd::{prefetch, simd_method};
@@ -95,7 +95,7 @@ impl Resolve<'_> {
     }
 
     #[inline(always)]
-    fn search_row_impl(&self, g: impl Gathers, k: usize, t: &Targets, row: &mut SearchRow) {
+    fn search_row_impl<G: Gathers>(&self, g: G, k: usize, t: &Targets, row: &mut SearchRow) {
         self.prefetch_ahead(k, t.j, row);
         let s = &self.sources[k];
         let (sw, sh) = (s.proj.width, s.proj.height);
@@ -198,6 +198,7 @@ impl Resolve<'_> {
         let zg = &mut row.zg[..cw];
         g.depths(&s.bufs.zc, sw, pks, zg);
         let (wf, hf) = (sw as i32 as f32, sh as i32 as f32);
+        let (rw, rh) = (1.0 / wf, 1.0 / hf);
         let [ax, ay] = s.aspect;
         // Inputs and outputs in different arrays: an output written back over its input became
         // masked stores, which are slow on some processors.
@@ -206,9 +207,15 @@ impl Resolve<'_> {
         for i in 0..cw {
             let (pk, m, x, z) = (pks[i], ms[i], tx[i], zg[i]);
             let (pi, pj) = ((pk & 0xFFFF) as i32, (pk >> 16) as i32);
-            // The pixel centre's NDC as [`crate::camera::ndc_of_pixel`] computes it.
-            let px = (2 * pi + 1) as f32 / wf - 1.0;
-            let py = 1.0 - (2 * pj + 1) as f32 / hf;
+            // The pixel centre's NDC as [`crate::camera::ndc_of_pixel`] computes it (the same
+            // quotients with or without FMA).
+            let (oi, oj) = ((2 * pi + 1) as f32, (2 * pj + 1) as f32);
+            let (qx, qy) = if G::FMA {
+                (centre_quotient(oi, wf, rw), centre_quotient(oj, hf, rh))
+            } else {
+                (oi / wf, oj / hf)
+            };
+            let (px, py) = (qx - 1.0, 1.0 - qy);
             let ex = (px + m[0] - x) * ax;
             let ey = (py + m[1] - ty) * ay;
             let er = (ex * ex + ey * ey).sqrt();
@@ -418,6 +425,11 @@ fn live_bits(q: &[u32]) -> u32 {
 /// build gives the same bytes. [`Resolve::gather_texels`](super::Resolve) loads the texels of a
 /// row with them too ([`Gathers::texels`]).
 pub(super) trait Gathers: Copy {
+    /// Whether the build that holds this has fused multiply-add instructions (the AVX2 and
+    /// AVX-512 tiers, which both use [`x86::Avx2`]): then the search's last stage divides by the
+    /// source's sides with [`centre_quotient`], else with the divider.
+    const FMA: bool;
+
     /// Where `next[i] != NO_SPLAT` the target moves there: `pks[i] = next[i]` and
     /// `ms[i] = flow[pix(next[i])]`; elsewhere both are kept. Returns how many moved.
     fn moves(
@@ -456,6 +468,8 @@ pub(super) trait Gathers: Copy {
 pub(super) struct Portable;
 
 impl Gathers for Portable {
+    const FMA: bool = false;
+
     #[inline(always)]
     fn moves(
         self,
@@ -547,6 +561,10 @@ pub(super) mod x86 {
     }
 
     impl Gathers for Avx2 {
+        // Both tiers that hold an `Avx2` are built with FMA (`simd_method`), and `simd_tier`
+        // picks them only where the processor has it.
+        const FMA: bool = true;
+
         #[inline(always)]
         fn moves(
             self,
