@@ -2,7 +2,7 @@
 //! [`simd_dispatch`] for functions, [`simd_method`] for methods of `ours`' `Resolve`. Not a stage
 //! of the paper (seeds/000 §3): these only let the compiler use 256- and 512-bit vectors for the same IEEE
 //! arithmetic, without FMA contraction, so that the output bytes do not depend on the processor
-//! (the one fused multiply-add written out, `camera::centre_quotient`, gives the division's bytes).
+//! (the fused multiply-adds written out, in `camera::centre_quotient`, give the division's bytes).
 //! [`set_simd_limit`] (or the environment variable `REPROJ_SIMD`) caps the instruction set, so
 //! that a test can compare the tiers' bytes on one processor and a benchmark can time them
 //! against each other.

@@ -426,8 +426,8 @@ fn live_bits(q: &[u32]) -> u32 {
 /// row with them too ([`Gathers::texels`]).
 pub(super) trait Gathers: Copy {
     /// Whether the build that holds this has fused multiply-add instructions (the AVX2 and
-    /// AVX-512 tiers, which both use [`x86::Avx2`]): then the search's last stage divides by the
-    /// source's sides with [`centre_quotient`], else with the divider.
+    /// AVX-512 tiers, which both use [`x86::Avx2`]): then the search's last stage computes its
+    /// quotients by the source's sides with [`centre_quotient`], else with the divider.
     const FMA: bool;
 
     /// Where `next[i] != NO_SPLAT` the target moves there: `pks[i] = next[i]` and
