@@ -408,6 +408,23 @@ def text_report(summary: dict[str, Any]) -> str:
     )
 
 
+def test_the_text_report_names_the_preparation_threads_on_the_cpu_only() -> None:
+    from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
+
+    report = rt.RealtimeReport(display_fps=120.0)
+    report.frames.append(rt.DisplayFrame(
+        index=0, time=0.0, start=0.0, done=0.004, deadline=1 / 120, mode="extrapolate",
+        older=None, newer=0, alpha=None, server_age_ms=None, prepared=True))
+    s = report.summary()
+    cpu = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", s,
+                                        prepare_threads=2))
+    assert "pair preparation" in cpu and "preparing on 2 threads" in cpu
+    # The GPU backend uploads each pair: no preparation pool, none recorded or named.
+    gpu = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", s,
+                                        backend="wgpu", prepare_threads=None))
+    assert "pair upload" in gpu and "preparing on" not in gpu
+
+
 def _every_frame(scene: Any, n: int) -> list[Any]:
     """Server frames 0 … n − 1 of ``scene``, a server period apart."""
     return [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n)]

@@ -101,8 +101,9 @@ class RealtimeBench:
     #: The most the display could divide its rate by (``--max-divisor``; the summary's
     #: ``full_rate_pct`` and ``frames_by_divisor`` say what it did).
     max_divisor: int = MAX_DIVISOR
-    #: The threads of the worker's pair preparation (``--prepare-threads``; CPU backend).
-    prepare_threads: int = PREPARE_THREADS
+    #: The threads of the worker's pair preparation (``--prepare-threads``); ``None`` on the
+    #: GPU backend, where the worker uploads each pair instead of preparing it.
+    prepare_threads: int | None = PREPARE_THREADS
 
     def to_json(self) -> dict[str, Any]:
         """What ran (every field but the summary and the frames), then the summary's keys."""
@@ -281,7 +282,7 @@ def run_realtime_bench(
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
-        max_divisor, prepare_threads,
+        max_divisor, prepare_threads if backend == "cpu" else None,
     )
 
 
@@ -329,8 +330,8 @@ def format_realtime(b: RealtimeBench) -> str:
             f"  decode {ms('decode_ms_per_server_frame')} and pair "
             + ("preparation " if b.backend == "cpu" else "upload ")
             + f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread"
-            + (f", preparing on {b.prepare_threads} thread{'s' * (b.prepare_threads != 1)}"
-               if b.backend == "cpu" else "")
+            + ("" if b.prepare_threads is None
+               else f", preparing on {b.prepare_threads} thread{'s' * (b.prepare_threads != 1)}")
             + "; median; "
             f"usable after {ms('usable_ms_per_server_frame')}); "
             f"server frames {s['server_frames_received']} received, "
