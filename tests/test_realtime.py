@@ -425,6 +425,18 @@ def test_the_text_report_names_the_preparation_threads_on_the_cpu_only() -> None
     assert "pair upload" in gpu and "preparing on" not in gpu
 
 
+def test_the_api_refuses_preparation_threads_for_the_gpu_backend(monkeypatch) -> None:
+    from splitrender.evaluation import bench_realtime
+
+    # Refused before the backend is looked for or anything rendered: no GPU is needed to see it.
+    def no_backend(*_: Any) -> None:
+        raise AssertionError("the backend was looked for before the arguments were checked")
+
+    monkeypatch.setattr(bench_realtime, "require_backend", no_backend)
+    with pytest.raises(InvalidInputError, match="--prepare-threads goes with --backend cpu"):
+        bench_realtime.run_realtime_bench(seconds=0.1, backend="wgpu", prepare_threads=2)
+
+
 def _every_frame(scene: Any, n: int) -> list[Any]:
     """Server frames 0 … n − 1 of ``scene``, a server period apart."""
     return [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n)]

@@ -382,11 +382,6 @@ def _bench_realtime(args: argparse.Namespace) -> int:
     chosen = args.methods or ("ours",)
     if len(chosen) != 1:
         return fail(f"--methods: --realtime runs one method, got {len(chosen)}")
-    if args.prepare_threads is not None and args.backend != "cpu":
-        return fail(
-            "--prepare-threads goes with --backend cpu (on the GPU the worker uploads each "
-            "pair instead of preparing it)"
-        )
     # The outputs are checked before the run, which takes --seconds and more: a result that
     # cannot be written would be lost.
     outputs = {k: v for k, v in (("--json", args.json), ("--plot", args.plot)) if v is not None}
@@ -409,7 +404,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             worker_priority=args.worker_priority or "idle",
             display_priority=args.display_priority or "realtime", backend=args.backend,
             max_divisor=MAX_DIVISOR if args.max_divisor is None else args.max_divisor,
-            prepare_threads=args.prepare_threads or PREPARE_THREADS,
+            prepare_threads=args.prepare_threads,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

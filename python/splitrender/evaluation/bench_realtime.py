@@ -184,15 +184,17 @@ def run_realtime_bench(
     display_priority: str = "realtime",
     backend: str = "cpu",
     max_divisor: int = MAX_DIVISOR,
-    prepare_threads: int = PREPARE_THREADS,
+    prepare_threads: int | None = None,
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``exclusive``: the display waits for the worker after each arrival, off the clock
     (:meth:`RealtimeClient.run`), so that the deadlines measure the display frames alone.
     ``worker_priority``: how the worker yields the cores to the display, ``display_priority``:
     how the display's threads are scheduled, ``max_divisor``: the most the display may divide
-    its rate by when its frames do not fit the refresh, ``prepare_threads``: the threads of the
-    worker's pair preparation (all four ``RealtimeClient``).
+    its rate by when its frames do not fit the refresh (all three ``RealtimeClient``),
+    ``prepare_threads``: the threads of the worker's pair preparation on the CPU (``None``:
+    :data:`~splitrender.client.realtime.PREPARE_THREADS`; refused with ``backend="wgpu"``,
+    where the worker uploads each pair instead).
     ``backend``: where the display renders (``"wgpu"``: the GPU, the worker uploading each
     pair).
 
@@ -206,6 +208,14 @@ def run_realtime_bench(
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
     check_realtime_args(method, seconds, scale, display_fps)
+    if prepare_threads is not None and backend != "cpu":
+        # Said rather than ignored: no preparation pool runs on the GPU path.
+        raise InvalidInputError(
+            "--prepare-threads goes with --backend cpu (on the GPU the worker uploads each "
+            "pair instead of preparing it)"
+        )
+    if backend == "cpu" and prepare_threads is None:
+        prepare_threads = PREPARE_THREADS
     # Before anything is rendered: a method without a GPU kernel or a missing adapter fails here.
     adapter = require_backend(backend, method)
     stages = Progress(3 if stream is None else 2, progress)
@@ -282,7 +292,7 @@ def run_realtime_bench(
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
-        max_divisor, prepare_threads if backend == "cpu" else None,
+        max_divisor, prepare_threads,
     )
 
 
