@@ -408,15 +408,10 @@ def realtime_figure(b: RealtimeBench) -> Figure:
         2, 1, figsize=(10, 5.6), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
     )
     times = np.array([f.time for f in b.frames], np.float64)
-    # From the frame's refresh; frames recorded without one: their deadline less its periods.
+    # From the frame's refresh, which is its deadline less its periods (every frame has a
+    # deadline; `refresh` is missing from frames recorded before it existed).
     ms = np.array(
-        [
-            (f.done - f.refresh) * 1e3
-            if f.refresh is not None
-            else (f.done - f.deadline) * 1e3 + f.divisor * period
-            for f in b.frames
-        ],
-        np.float64,
+        [(f.done - f.deadline) * 1e3 + f.divisor * period for f in b.frames], np.float64
     )
     ceiling = max(4.0 * period, 1.15 * float(np.percentile(ms, 99)) if len(ms) else 0.0)
     shown = np.minimum(ms, ceiling)
