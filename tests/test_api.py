@@ -295,6 +295,15 @@ def test_reproject_time_to_alpha(pair: Pair) -> None:
     np.testing.assert_array_equal(a, b)
 
 
+def test_alpha_is_refused_as_given_not_as_rounded(pair: Pair) -> None:
+    # Narrowed to float32 first, 1e308 was reported as "inf" and 3.0000001 passed as 3.
+    cam = pair.request.camera
+    for alpha, shown in ((1e308, "1e308"), (3.0000001, "3.0000001"), (-1e-300, "-1e-300")):
+        with pytest.raises(sr.InvalidInputError, match=f"alpha = {shown} is outside"):
+            sr.reproject_alpha(pair.older, pair.newer, cam, alpha, "ours")
+    sr.reproject_alpha(pair.older, pair.newer, cam, 3.0, "ours")
+
+
 def test_reproject_time_errors(pair: Pair) -> None:
     early = sr.ClientRequest(pair.request.camera, pair.older.time - 0.01)
     with pytest.raises(sr.InvalidInputError, match="before every frame"):

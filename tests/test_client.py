@@ -218,6 +218,13 @@ def test_client_errors(frames: list[sr.ServerFrame], cameras: list[sr.Camera]) -
         client.render("camera", 0.0)  # type: ignore[arg-type]
     with pytest.raises(InvalidInputError, match="time"):
         client.render(cameras[0], float("nan"))
+    # A render while another thread's runs (held here as that render holds it) is refused in
+    # words about the client; it was refused as a BidirHistory "in use by another call".
+    client.receive(frames[0])
+    with client._rendering:
+        with pytest.raises(InvalidInputError, match="rendering a frame in another thread"):
+            client.render(cameras[0], 0.0)
+    assert client.render(cameras[0], 0.0).shape == (*cameras[0].shape, 3)
     with pytest.raises(InvalidInputError, match="client_fps"):
         play(frames, cameras, NetworkModel(client_fps=90.0), fps=FC)
     with pytest.raises(InvalidInputError, match="frame_sizes"):

@@ -195,6 +195,21 @@ def test_static_motion_decodes_to_exact_zero(
                 assert static.any() and (mb[static] == 0.0).all()
 
 
+def test_motion_near_the_largest_float32_encodes(recwarn: pytest.WarningsRecorder) -> None:
+    # Four such values overflowed the float32 sum of the half-size mean: RuntimeWarnings, then
+    # a StreamError about the scale for a frame the caller made correctly.
+    scene = sr.SyntheticScene(dynamic=True)
+    f = scene.server_frame(0, 0.0, W, H)
+    m = f.main.motion_fwd.copy()
+    m[:2, :2, 0] = 1e38
+    f = dataclasses.replace(f, main=dataclasses.replace(f.main, motion_fwd=m))
+    with StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc, StreamDecoder() as dec:
+        out = dec.decode(enc.encode(f))
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+    assert out.main.motion_fwd is not None and np.isfinite(out.main.motion_fwd).all()
+    assert out.main.motion_fwd[0, 0, 0] == pytest.approx(1e38, rel=1e-3)
+
+
 def test_static_scene_motion_costs_nothing() -> None:
     scene = sr.SyntheticScene(dynamic=False)
     f = scene.server_frame(0, 0.0, W, H)
@@ -543,9 +558,16 @@ def test_layout_change_is_invalid_input(frames: list[sr.ServerFrame]) -> None:
     ],
 )
 def test_codec_config_bounds(field: str, value: float) -> None:
-    with pytest.raises(InvalidInputError, match=f"CodecConfig.{field}: expected a number > 0"):
+    with pytest.raises(InvalidInputError, match=f"CodecConfig.{field}: expected a "):
         CodecConfig(**{field: value})
     assert CodecConfig(bitrate_mbps=100_000.0, fps=1000.0, vbv_buffer_s=60.0).fps == 1000.0
+
+
+def test_codec_config_takes_numpy_scalars_as_floats() -> None:
+    # Every other float check of the package took them; this one refused np.float32(2.0).
+    cfg = CodecConfig(bitrate_mbps=np.float32(2.0), fps=np.int64(10), vbv_buffer_s=np.float64(0.5))
+    assert (cfg.bitrate_mbps, cfg.fps, cfg.vbv_buffer_s) == (2.0, 10.0, 0.5)
+    assert all(type(v) is float for v in (cfg.bitrate_mbps, cfg.fps, cfg.vbv_buffer_s))
 
 
 def _without_shadows(f: sr.ServerFrame, cams: set[int]) -> sr.ServerFrame:

@@ -35,6 +35,22 @@ def test_write_atomic_replaces_the_file_and_leaves_no_temporary(tmp_path: Path) 
     assert [p.name for p in tmp_path.iterdir()] == ["results.json"]
 
 
+def test_a_write_into_a_missing_folder_names_the_path_given(tmp_path: Path) -> None:
+    # The error named the hidden temporary file (".x.srs.partial-<pid>-<n>"), never given.
+    from splitrender.codec.stream import write_stream
+
+    for write in (lambda p: write_atomic(p, b"x"), lambda p: write_stream(p, [])):
+        dest = tmp_path / "nope" / "x.srs"
+        with pytest.raises(FileNotFoundError, match="its folder .* does not exist") as e:
+            write(dest)
+        assert e.value.filename == str(dest)
+        (tmp_path / "file").write_bytes(b"")
+        with pytest.raises(NotADirectoryError, match="is not a folder") as e:
+            write(tmp_path / "file" / "x.srs")
+        assert e.value.filename == str(tmp_path / "file" / "x.srs")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
 def test_a_failed_write_keeps_the_previous_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -81,6 +81,18 @@ def test_ssim_of_a_constant_shift_follows_the_formula_with_zero_padding() -> Non
     assert M.ssim(a, b) == pytest.approx(float(expect.mean()), abs=1e-12)
 
 
+def test_metrics_take_strided_views() -> None:
+    # ssim and ssim_map refused a transposed image ("x: expected a C-contiguous array, got a
+    # non-contiguous float64 view") that psnr and flip took.
+    a = textured(48, 64, seed=1)
+    b = textured(48, 64, seed=2)
+    at, bt = a.transpose(1, 0, 2), b.transpose(1, 0, 2)
+    assert not at.flags.c_contiguous
+    assert M.ssim(at, bt) == M.ssim(at.copy(), bt.copy())
+    np.testing.assert_array_equal(M.ssim_map(at, bt), M.ssim_map(at.copy(), bt.copy()))
+    assert M.ssim(a[::2], b[::2]) == M.ssim(a[::2].copy(), b[::2].copy())
+
+
 def test_ssim_interior_matches_scikit_image() -> None:
     skm = pytest.importorskip("skimage.metrics")
     a = textured(48, 64, seed=1)

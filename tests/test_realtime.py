@@ -879,6 +879,45 @@ def test_run_needs_at_least_one_frame(scene, seconds):
         c.run(pose_of(scene), seconds)
 
 
+@pytest.mark.parametrize(
+    ("call", "named"),
+    [
+        (lambda c, f, pose: c.submit(f, pose_time="x"), "pose_time"),
+        (lambda c, f, pose: c.submit(f, pose_time=float("nan")), "pose_time"),
+        (lambda c, f, pose: c.submit(3), "packet"),
+        (lambda c, f, pose: c.submit(memoryview(b"ab" * 40)[::2]), "C-contiguous"),
+        (lambda c, f, pose: c.run(None, 0.02), "pose"),
+        (lambda c, f, pose: c.run(pose, 0.02, feed=None), "feed"),
+        (lambda c, f, pose: c.run(pose, 0.02, start_time=float("inf")), "start_time"),
+        (lambda c, f, pose: c.run(pose, 0.02, on_frame=3), "on_frame"),
+        (lambda c, f, pose: c.run(pose, 0.02, warm_up="yes"), "warm_up"),
+        # The items of the feed as the run takes them (it may be a generator: not read ahead).
+        (lambda c, f, pose: c.run(pose, 0.02, feed=[1, 2]), r"feed\[0\]"),
+        (lambda c, f, pose: c.run(pose, 0.02, feed=[(0.0, f), ("x", f)]), r"feed\[1\]\[0\]"),
+        (lambda c, f, pose: c.run(pose, 0.02, feed=[(0.0, 5)]), r"feed\[0\]\[1\]"),
+    ],
+)
+def test_submit_and_run_refuse_bad_arguments_before_the_worker_sees_them(
+    scene, frames, call, named
+):
+    # A bad pose_time was taken and failed later inside run() with a bare TypeError; a bad
+    # pose or feed item did the same.
+    with RealtimeClient(clock=FakeClock(), executor=InlineExecutor()) as c:
+        with pytest.raises(InvalidInputError, match=named):
+            call(c, frames[0], pose_of(scene))
+        # The client still works after the refusal.
+        c.submit(frames[0]).result()
+        assert len(c.run(pose_of(scene), 2 * PERIOD).frames) == 2
+
+
+def test_a_closed_realtime_client_refuses_work(scene, frames):
+    c = RealtimeClient(clock=FakeClock(), executor=InlineExecutor())
+    c.close()
+    for call in (lambda: c.submit(frames[0]), lambda: c.run(pose_of(scene), 0.02)):
+        with pytest.raises(InvalidInputError, match="closed"):
+            call()
+
+
 # -- splitrender bench --realtime ---------------------------------------------------------------
 
 REALTIME_KEYS = ("method", "source", "width", "height", "frames", "deadline_misses",

@@ -35,6 +35,19 @@ def test_names_and_metadata(lab: Scene) -> None:
     assert repr(lab) == "Scene('lab', 'dynamic')"
 
 
+def test_a_scale_out_of_range_is_named_in_short(lab: Scene) -> None:
+    # 1e300 and 1e-300 were written out in full (300-odd digits), and the sides of 1e300 as
+    # the saturated 18446744073709551615.
+    for scale, words in (
+        (1e-300, r"scale 1e-300 gives a 0×0 main camera"),
+        (1e300, r"scale 1e300 gives a 2\.560e303×1\.440e303 main camera"),
+        (10.0, r"scale 10\.0 gives a 25600×14400 main camera"),
+    ):
+        with pytest.raises(sr.InvalidInputError, match=words) as e:
+            lab.main_size(scale)
+        assert len(str(e.value)) < 120
+
+
 def test_unknown_scene_lists_valid_names() -> None:
     with pytest.raises(sr.InvalidInputError, match="valid scenes: courtyard, colonnade, lab"):
         Scene("atrium")

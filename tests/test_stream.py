@@ -226,6 +226,39 @@ def test_wrong_version_and_magic() -> None:
         unpack_packet(b"XXXX" + bytes(data[4:]))
 
 
+def test_a_frame_index_beyond_an_i64_is_a_stream_error() -> None:
+    # A crafted index of 2^63 passed the parser and failed after the whole decode, as an
+    # InvalidInputError of ServerFrame.index (the caller's class for the wire's fault).
+    data = bytearray(pack_packet(_packet()))
+    for index in (2**63, 2**64 - 1):
+        data[8:16] = struct.pack("<Q", index)
+        with pytest.raises(StreamError, match=f"frame {index}: the index is beyond"):
+            unpack_packet(_refresh_crc(bytes(data)))
+    data[8:16] = struct.pack("<Q", 2**63 - 1)
+    assert unpack_packet(_refresh_crc(bytes(data))).index == 2**63 - 1
+
+
+def test_packets_as_memoryviews(tmp_path: Path) -> None:
+    data = pack_packet(_packet())
+    # Any C-contiguous view is taken as its bytes (a 2-D one's len() counts its rows).
+    rows = memoryview(np.frombuffer(data, np.uint8).reshape(1, -1))
+    assert len(rows) == 1
+    assert unpack_packet(memoryview(data)).index == 7
+    write_stream(tmp_path / "s.srs", [memoryview(data), rows])
+    assert [bytes(p) for p in read_stream(tmp_path / "s.srs")] == [data, data]
+    assert stream_stats([rows]).frames == 1
+    # A strided view raised a bare TypeError (decode, stats) or BufferError (write).
+    strided = memoryview(bytes(b for b in data for _ in range(2)))[::2]
+    assert bytes(strided) == data
+    for call in (
+        lambda: stream_stats([strided]),
+        lambda: write_stream(tmp_path / "t.srs", [strided]),
+    ):
+        with pytest.raises(InvalidInputError, match="packet: expected a C-contiguous buffer"):
+            call()
+    assert not (tmp_path / "t.srs").exists()
+
+
 def test_absurd_sizes_rejected_before_allocation() -> None:
     head, block, payloads = _split(pack_packet(_packet()))
     b = bytearray(block)

@@ -168,8 +168,27 @@ def test_wgpu_errors_are_the_cpu_errors(
         g._native.render("ours", camera.to_native(), 0.5, {"nope": 1})
     with pytest.raises(InvalidInputError, match=r"previous: expected uint8 array of shape \(32, 48, 3\)"):
         g.render(camera, 0.5, previous=np.zeros((4, 4, 3), np.uint8))
-    with pytest.raises(InvalidInputError, match="slot"):
-        g.render(camera, 0.5, slot=8)
+    # The arguments are checked before the device is asked (they raised bare ValueError,
+    # TypeError and OverflowError, and slot 8 was refused as outside "0..8").
+    for kwargs, named in (
+        (dict(alpha="x"), "alpha: expected a float"),
+        (dict(alpha=10**400), "alpha: expected a finite float"),
+        (dict(alpha=1e308), "alpha = 1e308 is outside"),
+        (dict(slot=8), r"slot: expected an int in \[0, 7\], got 8"),
+        (dict(slot=1.5), "slot: expected an int"),
+        (dict(method=None), "method: expected a str"),
+        (dict(camera=None), "camera: expected Camera"),
+        (dict(diagnostics="x"), "diagnostics: expected a bool"),
+    ):
+        with pytest.raises(InvalidInputError, match=named):
+            g.render(**{"camera": camera, "alpha": 0.5, **kwargs})
+    assert gpu.OUTPUT_SLOTS == 8
+    g.render(camera, 0.5, slot=gpu.OUTPUT_SLOTS - 1)
+    # Rendering with no pair loaded is the caller's mistake (it was a bare SplitRenderError,
+    # which the command line treats as an internal failure).
+    g.unload()
+    with pytest.raises(InvalidInputError, match="no server frames on the device"):
+        g.render(camera, 0.5)
 
 
 @pytest.fixture(scope="module")

@@ -23,6 +23,7 @@ input or lies inside one (writing it would destroy what is being read).
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import os
@@ -44,6 +45,7 @@ __all__ = [
     "check_name",
     "joined",
     "open_regular",
+    "open_temporary",
     "read_json",
     "read_regular",
     "temporary_beside",
@@ -169,6 +171,28 @@ def temporary_beside(path: str | os.PathLike[str]) -> Path:
     return dest.with_name(f".{dest.name}.partial-{os.getpid()}-{next(_serial)}")
 
 
+def open_temporary(path: str | os.PathLike[str]) -> tuple[Path, BinaryIO]:
+    """A :func:`temporary_beside` file of ``path``, opened for binary writing, and its name.
+
+    Why not ``open`` alone: where the folder is missing or not writable, the error would name
+    the hidden temporary file, which the caller never gave; it names ``path`` instead, with
+    the folder as the reason (the same ``OSError`` class and ``errno``)."""
+    dest = Path(path)
+    tmp = temporary_beside(dest)
+    try:
+        return tmp, open(tmp, "wb")  # noqa: SIM115 - the caller closes it
+    except OSError as e:
+        if e.filename != str(tmp):
+            raise
+        why = {
+            errno.ENOENT: f"its folder {str(dest.parent)!r} does not exist",
+            errno.ENOTDIR: f"{str(dest.parent)!r} is not a folder",
+            errno.EACCES: f"no permission to write in its folder {str(dest.parent)!r}",
+            errno.EROFS: f"its folder {str(dest.parent)!r} is on a read-only file system",
+        }.get(e.errno or 0, e.strerror or str(e))
+        raise type(e)(e.errno, f"cannot write the file: {why}", str(path)) from None
+
+
 def _check_not_special(dest: Path) -> None:
     """Raises :class:`~splitrender.errors.InvalidInputError` when ``dest`` is a device, FIFO or
     socket (see :func:`temporary_beside`)."""
@@ -224,10 +248,10 @@ def write_atomic(path: str | os.PathLike[str], data: bytes | str) -> None:
     """Writes ``data`` (``str``: as UTF-8) to ``path`` through a temporary file beside it and a
     rename; on any failure the temporary file is removed and ``path`` is as it was."""
     dest = Path(path)
-    tmp = temporary_beside(dest)
     raw = data.encode("utf-8") if isinstance(data, str) else data
+    tmp, f = open_temporary(dest)
     try:
-        with open(tmp, "wb") as f:
+        with f:
             f.write(raw)
         os.replace(tmp, dest)
     except BaseException:

@@ -34,6 +34,15 @@ from splitrender.types import (
     native_error,
     precheck_frames,
 )
+from splitrender.types import (  # argument checks
+    BOOL,
+    checked,
+    floats,
+    instances,
+    ints,
+    optional,
+    strs,
+)
 
 __all__ = [
     "BACKENDS",
@@ -41,6 +50,7 @@ __all__ = [
     "GpuPair",
     "GpuReprojector",
     "GpuUnavailableError",
+    "OUTPUT_SLOTS",
     "adapter",
     "available",
     "backend_for",
@@ -52,6 +62,9 @@ __all__ = [
 BACKENDS: tuple[str, ...] = ("cpu", "wgpu")
 #: The methods the wgpu backend runs (``timewarp`` and ``backward_bidir`` are CPU only).
 GPU_METHODS: tuple[str, ...] = ("ours", "ours_extrapolate", "forward_splat")
+
+#: Output slots a :class:`GpuReprojector` holds on the device (``reproj_wgpu::MAX_OUTPUTS``).
+OUTPUT_SLOTS = 8
 
 _Image = npt.NDArray[np.uint8]
 
@@ -236,6 +249,9 @@ class GpuReprojector:
         slot: int = ...,
         diagnostics: Literal[True],
     ) -> Reprojection: ...
+    @checked(camera=instances(Camera), alpha=floats(finite=False), method=strs(),
+             options=optional(instances(ReprojectOptions)), slot=ints(0, OUTPUT_SLOTS - 1),
+             diagnostics=BOOL)
     def render(
         self,
         camera: Camera,
@@ -248,23 +264,19 @@ class GpuReprojector:
         diagnostics: bool = False,
     ) -> _Image | Reprojection:
         """One client frame at ``camera`` and ``alpha`` from the loaded pair (the semantics of
-        :func:`splitrender.reproject_alpha`) into output ``slot`` (0–7, e.g. one per eye).
+        :func:`splitrender.reproject_alpha`) into output ``slot`` (0 to
+        :data:`OUTPUT_SLOTS` − 1, e.g. one per eye).
 
         ``previous`` is what unmatched pixels keep: an image (uploaded), ``"keep"`` (the slot's
         last frame, already on the device; black for a new slot or a new size) or ``None``
         (black).
 
         Raises:
-            InvalidInputError: for invalid arguments, or a method without a GPU kernel.
-            SplitRenderError: when no pair is loaded, or for a device error.
+            InvalidInputError: for invalid arguments, a method without a GPU kernel, or when no
+                pair is loaded.
+            SplitRenderError: for a device error.
         """
-        if not isinstance(camera, Camera):
-            raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
         opts = ReprojectOptions() if options is None else options
-        if not isinstance(opts, ReprojectOptions):
-            raise InvalidInputError(
-                f"options: expected ReprojectOptions or None, got {type(opts).__name__}"
-            )
         keep = isinstance(previous, str)
         if keep and previous != "keep":
             raise InvalidInputError(

@@ -31,6 +31,7 @@ import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 
 __all__ = [
+    "MAX_INDEX",
     "MAX_SIDE",
     "MAX_SPAN",
     "Camera",
@@ -42,6 +43,8 @@ __all__ = [
     "ShadowBuffers",
 ]
 
+#: Largest server-frame index (:attr:`ServerFrame.index`): an i64 for the kernels.
+MAX_INDEX = 2**63 - 1
 #: Largest image side the kernels accept (``reproj_core::MAX_SIDE``).
 MAX_SIDE = 16384
 #: Most server-frame periods a frame's motion may span (:attr:`ServerFrame.span`): a server
@@ -192,6 +195,27 @@ def check_iterable(where: str, value: object) -> object:
     return value
 
 
+def check_buffer(where: str, value: object, also: tuple[type, ...] = ()) -> Any:
+    """``value`` as the bytes of a packet: ``bytes``, a ``bytearray`` or a C-contiguous
+    ``memoryview`` (then as a flat view of its bytes, so that ``len`` counts bytes), or as it
+    is when it is an instance of one of ``also``."""
+    if isinstance(value, (bytes, bytearray)) or (also and isinstance(value, also)):
+        return value
+    if isinstance(value, memoryview):
+        try:
+            contiguous = value.c_contiguous
+        except ValueError:  # released
+            raise InvalidInputError(f"{where}: the memoryview was released") from None
+        if not contiguous:
+            raise InvalidInputError(
+                f"{where}: expected a C-contiguous buffer, got a non-contiguous memoryview "
+                "(copy it with bytes(...))"
+            )
+        return value if value.format == "B" and value.ndim == 1 else value.cast("B")
+    names = ", ".join(["bytes", "bytearray", "memoryview", *(c.__name__ for c in also)])
+    raise InvalidInputError(f"{where}: expected one of {names}, got {describe(value)}")
+
+
 def check_callable(where: str, value: object) -> object:
     if not callable(value):
         raise InvalidInputError(f"{where}: expected a callable, got {describe(value)}")
@@ -231,6 +255,11 @@ def strs(*choices: str) -> Check:
 
 def instances(cls: type | tuple[type, ...]) -> Check:
     return lambda where, v: check_instance(where, v, cls)
+
+
+def buffers(*also: type) -> Check:
+    """:func:`check_buffer`, with instances of ``also`` allowed as they are."""
+    return lambda where, v: check_buffer(where, v, also)
 
 
 def items(item: Check | None = None) -> Check:
@@ -435,7 +464,7 @@ class ServerFrame:
 
     def __post_init__(self) -> None:
         object.__setattr__(
-            self, "index", check_int("ServerFrame.index", self.index, 0, 2**63 - 1)
+            self, "index", check_int("ServerFrame.index", self.index, 0, MAX_INDEX)
         )
         object.__setattr__(self, "span", check_int("ServerFrame.span", self.span, 1, MAX_SPAN))
         object.__setattr__(self, "time", check_float("ServerFrame.time", self.time))

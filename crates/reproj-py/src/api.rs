@@ -177,6 +177,20 @@ impl BidirHistory {
 
 /// `history` as a `BidirHistory` borrowed for writing, or the error `reproject` and
 /// `BidirHistory.prepare` give for another object or one in use by another call.
+/// `alpha` as the kernels take it (f32), refused while it is still the caller's f64 where it is
+/// not finite or outside `[0, MAX_ALPHA]`: narrowed first, 1e308 was reported as `inf` and
+/// 3.0000001 passed as 3. (`{:?}` prints large and tiny values with an exponent, not in full.)
+pub(crate) fn kernel_alpha(alpha: f64, method: Method) -> PyResult<f32> {
+    if alpha.is_finite() && (0.0..=f64::from(MAX_ALPHA)).contains(&alpha) {
+        Ok(alpha as f32)
+    } else {
+        Err(invalid(format!(
+            "alpha = {alpha:?} is outside the supported range [0, {MAX_ALPHA}] for method '{}'",
+            method.name()
+        )))
+    }
+}
+
 fn history_mut<'py>(h: &Bound<'py, PyAny>) -> PyResult<PyRefMut<'py, BidirHistory>> {
     let h = h.cast::<BidirHistory>().map_err(|_| {
         invalid(format!(
@@ -264,7 +278,7 @@ pub fn reproject<'py>(
         let newer_view = newer.view()?;
         let request = Request {
             client,
-            alpha: alpha as f32,
+            alpha: kernel_alpha(alpha, method)?,
         };
         // The kernel only reads the borrowed arrays. As everywhere with numpy, Python code in
         // another thread that writes to them meanwhile would race with it; we do not copy to
@@ -365,7 +379,7 @@ pub fn apply_shadows<'py>(
         let s_max = array::<u8>(s_max, "s_max", &hw3d)?;
         if !(alpha.is_finite() && (0.0..=f64::from(MAX_ALPHA)).contains(&alpha)) {
             return Err(invalid(format!(
-                "alpha = {alpha} is outside the supported range [0, {MAX_ALPHA}]"
+                "alpha = {alpha:?} is outside the supported range [0, {MAX_ALPHA}]"
             )));
         }
         let s = convert::subframes(subframes)?;

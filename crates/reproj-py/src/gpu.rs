@@ -18,7 +18,7 @@ use reproj_wgpu::{
     Uploader, MAX_OUTPUTS,
 };
 
-use crate::api::{rgb, shaped};
+use crate::api::{kernel_alpha, rgb, shaped};
 use crate::convert::{self, array, slice, Dim, FrameArrays};
 use crate::errors::{invalid, map_reproj_error, SplitRenderError};
 use crate::guarded;
@@ -35,7 +35,7 @@ says how to install one (Mesa's lavapipe needs no GPU)."
 fn map_gpu_error(e: GpuError) -> PyErr {
     match e {
         GpuError::Input(e) => map_reproj_error(e),
-        GpuError::Unsupported(msg) => invalid(msg),
+        GpuError::Unsupported(msg) | GpuError::Order(msg) => invalid(msg),
         GpuError::NoAdapter(_) => GpuUnavailableError::new_err(e.to_string()),
         GpuError::Device(_) | GpuError::State(_) => SplitRenderError::new_err(e.to_string()),
     }
@@ -195,7 +195,8 @@ impl WgpuReprojector {
                 Ok(s) if s < MAX_OUTPUTS => s,
                 _ => {
                     return Err(invalid(format!(
-                        "slot: expected 0..{MAX_OUTPUTS}, got {slot}"
+                        "slot: expected an int in [0, {}], got {slot}",
+                        MAX_OUTPUTS - 1
                     )))
                 }
             };
@@ -219,7 +220,7 @@ impl WgpuReprojector {
             };
             let request = Request {
                 client,
-                alpha: alpha as f32,
+                alpha: kernel_alpha(alpha, method)?,
             };
             let mut out = download.then(|| vec![0u8; n * 3]);
             let mut diag = diagnostics.then(|| Diagnostics::new(n));

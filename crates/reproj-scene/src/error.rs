@@ -32,14 +32,18 @@ pub enum SceneError {
         max: usize,
     },
     /// A render scale that gives an empty or oversized image.
-    #[error("scale {scale} gives a {width}×{height} main camera (each side must be in 2..={max})")]
+    #[error(
+        "scale {scale:?} gives a {}×{} main camera (each side must be in 2..={max})",
+        side(*.width),
+        side(*.height)
+    )]
     BadScale {
         /// The scale asked for.
         scale: f64,
-        /// Resulting width.
-        width: usize,
+        /// Resulting width (rounded; beyond any `usize` for an absurd scale, NaN for NaN).
+        width: f64,
         /// Resulting height.
-        height: usize,
+        height: f64,
         /// Largest side accepted.
         max: usize,
     },
@@ -82,3 +86,13 @@ pub enum SceneError {
 
 /// `Result` with [`SceneError`].
 pub type Result<T, E = SceneError> = std::result::Result<T, E>;
+
+/// A side of [`SceneError::BadScale`] in words: a whole number as such, one too large to write
+/// out (1e300) with an exponent.
+fn side(v: f64) -> String {
+    if v.is_finite() && v.abs() < 1e15 {
+        format!("{v}")
+    } else {
+        format!("{v:.3e}")
+    }
+}

@@ -173,17 +173,10 @@ pub fn main_size(scale: f64) -> Result<(usize, usize)> {
     let max = reproj_core::MAX_SIDE;
     let ok = |v: f64| v.is_finite() && v >= 2.0 && v <= max as f64;
     if !ok(w) || !ok(h) {
-        let clampu = |v: f64| {
-            if v.is_finite() {
-                v.max(0.0) as usize
-            } else {
-                0
-            }
-        };
         return Err(SceneError::BadScale {
             scale,
-            width: clampu(w),
-            height: clampu(h),
+            width: w,
+            height: h,
             max,
         });
     }

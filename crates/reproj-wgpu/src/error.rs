@@ -18,7 +18,10 @@ pub enum GpuError {
     /// The device reported an error (out of memory, a lost device, a limit exceeded).
     #[error("wgpu device error: {0}")]
     Device(String),
-    /// A call out of order (e.g. rendering before any frames were loaded).
+    /// A call out of order (rendering before any frames were loaded): the caller's to fix.
+    #[error("{0}")]
+    Order(String),
+    /// An inconsistent state inside the reprojector (a buffer it made is missing): a bug.
     #[error("{0}")]
     State(String),
 }

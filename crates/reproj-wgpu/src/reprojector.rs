@@ -456,7 +456,7 @@ impl Reprojector {
     ///
     /// # Errors
     /// The CPU path's input errors for the method, `α`, options and camera (same messages);
-    /// [`GpuError::Unsupported`] for `timewarp` and `backward_bidir`; [`GpuError::State`] when no
+    /// [`GpuError::Unsupported`] for `timewarp` and `backward_bidir`; [`GpuError::Order`] when no
     /// pair is loaded; [`GpuError::Device`] for device errors.
     pub fn render(
         &mut self,
@@ -507,11 +507,12 @@ impl Reprojector {
         }
         if slot >= MAX_OUTPUTS {
             return Err(GpuError::Unsupported(format!(
-                "output slot {slot}: expected 0..{MAX_OUTPUTS}"
+                "output slot {slot}: expected 0 to {}",
+                MAX_OUTPUTS - 1
             )));
         }
         let Some(current) = self.current.as_ref() else {
-            return Err(GpuError::State(
+            return Err(GpuError::Order(
                 "no server frames on the device: call load() or install() before render()".into(),
             ));
         };

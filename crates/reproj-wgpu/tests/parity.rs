@@ -270,7 +270,7 @@ fn device_resident_frames_and_errors() {
             Some(&mut img),
             None
         ),
-        Err(GpuError::State(_))
+        Err(GpuError::Order(_))
     ));
     gpu.load(Some(&older), &newer).expect("load");
     let mut cpu = vec![0u8; w * h * 3];

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import threading
 
 import numpy as np
 import numpy.typing as npt
@@ -64,6 +65,9 @@ class Client:
     each client frame uploads only its pose, and the previous output of each eye stays on the
     device for hole filling.
 
+    A client renders one frame at a time: :meth:`render` from a second thread while one runs
+    raises :class:`~splitrender.errors.InvalidInputError` (use a client per thread, or a lock).
+
     Raises:
         InvalidInputError: for an unknown method, invalid options, a ``server_fps`` that
             contradicts ``options.server_fps``, or a method the backend cannot run.
@@ -107,6 +111,8 @@ class Client:
         # What the caller knows each held frame by, for messages: "frame(index=3)", "frames[3]".
         self._paths: dict[int, str] = {}
         self._previous: dict[int, _Image] = {}
+        # Held while a frame renders: a second thread's render is refused (render_busy).
+        self._rendering = threading.Lock()
         # Per eye: the pair last rendered, its history, and the eye's own history (reset and
         # reused when the pair changes; never one that was adopted, which the preparing side
         # may reuse once retired).
@@ -192,12 +198,25 @@ class Client:
         previous output of that eye, or black.
 
         Raises:
-            InvalidInputError: for an invalid camera or time.
+            InvalidInputError: for an invalid camera or time, or while another thread renders
+                with this client.
         """
         if not isinstance(camera, Camera):
             raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
         if isinstance(time, bool) or not isinstance(time, numbers.Real) or not math.isfinite(time):
             raise InvalidInputError(f"time: expected a finite float, got {time!r}")
+        if not self._rendering.acquire(blocking=False):
+            raise InvalidInputError(
+                "Client.render: this client is rendering a frame in another thread; a client "
+                "renders one frame at a time (use one client per thread, or a lock)"
+            )
+        try:
+            return self._render(camera, float(time), eye)
+        finally:
+            self._rendering.release()
+
+    def _render(self, camera: Camera, time: float, eye: int) -> _Image:
+        """:meth:`render` with its arguments checked, one thread at a time."""
         info = self.choose(time)
         prev = self._previous.get(eye)
         if prev is not None and prev.shape[:2] != camera.shape:

@@ -62,9 +62,16 @@ from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 from splitrender.types import (  # argument checks
+    BOOL,
+    CALLABLE,
+    ITERABLE,
     MAX_RATE,
+    buffers,
+    check_buffer,
+    check_float,
     check_instance,
     checked,
+    describe,
     floats,
     instances,
     ints,
@@ -404,6 +411,23 @@ class RateGovernor:
 WORKER_PRIORITIES = ("idle", "low", "normal")
 
 
+def _arrivals(
+    feed: Iterable[tuple[float, bytes | memoryview | ServerFrame]],
+) -> Iterator[tuple[float, bytes | memoryview | ServerFrame]]:
+    """The items of :meth:`RealtimeClient.run`'s ``feed``, each checked as it is taken (the feed
+    may be a generator of packets as they arrive, so it is not read ahead)."""
+    for i, item in enumerate(feed):
+        where = f"feed[{i}]"
+        if not isinstance(item, (tuple, list)) or len(item) != 2:
+            raise InvalidInputError(
+                f"{where}: expected a pair (display time, packet), got {describe(item)}"
+            )
+        yield (
+            check_float(f"{where}[0]", item[0]),
+            check_buffer(f"{where}[1]", item[1], (ServerFrame,)),
+        )
+
+
 def _yield_to_display(priority: str) -> None:
     """Lowers the receive worker's scheduling priority, per thread (Linux; the decoder's and the
     preparation pool's threads it starts inherit it), so that the display thread, whose frames
@@ -659,6 +683,7 @@ class RealtimeClient:
                 initargs=(worker_priority,),
             )
         )
+        self._closed = False
         self._queued = 0  # packets submitted and not yet being received
         self._pending: list[Future[int | None]] = []
         self._camera: Camera | None = None
@@ -696,12 +721,14 @@ class RealtimeClient:
 
     def close(self) -> None:
         """Stops the worker (after the packets already submitted) and the decoder."""
+        self._closed = True
         self._worker.shutdown(wait=True)
         if self._decoder is not None:
             self._decoder.close()
 
     # -- receive and prepare (worker thread) -----------------------------------------------
 
+    @checked(packet=buffers(ServerFrame), pose_time=optional(floats()))
     def submit(
         self, packet: bytes | memoryview | ServerFrame, *, pose_time: float | None = None
     ) -> Future[int | None]:
@@ -712,12 +739,22 @@ class RealtimeClient:
         packet that cannot be decoded sets the future's exception (a
         :class:`~splitrender.errors.StreamError`) and is otherwise ignored: the display goes on
         extrapolating. ``pose_time``: when the pose of this frame was taken (default: the
-        frame's time minus the period it spans, when the model's server sends it)."""
+        frame's time minus the period it spans, when the model's server sends it).
+
+        Raises:
+            InvalidInputError: for a packet that is not bytes, a bytearray, a C-contiguous
+                memoryview or a :class:`ServerFrame`, a ``pose_time`` that is not a finite
+                float, or a client that was closed."""
+        self._check_open()
         with self._lock:
             self._queued += 1
         fut = self._worker.submit(self._receive, packet, pose_time)
         self._pending.append(fut)
         return fut
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise InvalidInputError("RealtimeClient: the client is closed (close() was called)")
 
     def wait(self, timeout: float | None = None) -> None:
         """Blocks until every packet submitted so far is usable, refused or due at its own
@@ -962,6 +999,8 @@ class RealtimeClient:
             newest = self._pose_time[max(held)] if held else None
         return image, prepared, newest
 
+    @checked(pose=CALLABLE, feed=ITERABLE, start_time=floats(), on_frame=optional(CALLABLE),
+             exclusive=BOOL, warm_up=BOOL)
     def run(
         self,
         pose: Callable[[float], Camera],
@@ -992,7 +1031,13 @@ class RealtimeClient:
         (decoded and prepared) and one frame is rendered at ``pose(start_time)``, off the record
         (its time is the report's ``warm_up_ms``), as a headset shows nothing until its first
         frame is in. The display's buffers then exist before the first recorded frame, which
-        would otherwise pay their first-touch page faults (about 4 ms at 640×360 here)."""
+        would otherwise pay their first-touch page faults (about 4 ms at 640×360 here).
+
+        Raises:
+            InvalidInputError: for arguments of the wrong type, ``seconds`` shorter than one
+                display frame, an item of ``feed`` that is not a pair ``(finite display time,
+                packet)`` (raised when the run reaches it), or a client that was closed."""
+        self._check_open()
         fc = self.display_fps
         valid = not isinstance(seconds, bool) and isinstance(seconds, (int, float))
         # Checked before rounding: round() of NaN or infinity raises a ValueError of its own.
@@ -1005,7 +1050,7 @@ class RealtimeClient:
         # Before the clock starts: the first call may start the render threads.
         threads = _display_threads()
         report.display_scheduling, saved = _raise_display(self.display_priority, threads)
-        arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]] = iter(feed)
+        arrivals = _arrivals(feed)
         interval = sys.getswitchinterval()
         try:
             if warm_up:

@@ -115,6 +115,7 @@ from splitrender.types import (
 )
 from splitrender.types import (  # argument checks
     MAX_SIDE,
+    buffers,
     check_bool,
     check_float,
     check_int,
@@ -225,11 +226,13 @@ class CodecConfig:
             ("fps", MIN_FPS, MAX_FPS),
             ("vbv_buffer_s", 0.0, MAX_VBV_BUFFER_S),
         ):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and low < v <= top):
+            # Any real number (numpy scalars too), as a float; then the range, open below.
+            v = check_float(f"CodecConfig.{name}", getattr(self, name))
+            if not low < v <= top:
                 raise InvalidInputError(
                     f"CodecConfig.{name}: expected a number > {low:g} and <= {top:g}, got {v!r}"
                 )
+            object.__setattr__(self, name, v)
         for name in ("color_share", "depth_share", "motion_share", "shadow_color_share"):
             object.__setattr__(self, name, check_float(f"CodecConfig.{name}", getattr(self, name)))
         object.__setattr__(self, "lossless_share", check_float(
@@ -411,7 +414,9 @@ def _block_mean(
     a: npt.NDArray[np.float32], weight: npt.NDArray[np.bool_]
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
     """Per 2x2 block (odd sizes padded): the mean of ``a`` over the pixels where ``weight`` is set
-    (0 where none is), and whether any is set. ``a`` is ``(h, w, c)``."""
+    (0 where none is), and whether any is set. ``a`` is ``(h, w, c)``. The sums are taken in
+    float64: four finite float32 values near the largest one overflow a float32 sum, and their
+    mean is finite."""
     h, w = weight.shape
     hh, hw = _half(h), _half(w)
     wp = np.zeros((2 * hh, 2 * hw), np.float32)
@@ -419,7 +424,7 @@ def _block_mean(
     ap = np.zeros((2 * hh, 2 * hw, a.shape[2]), np.float32)
     ap[:h, :w] = a
     ap *= wp[..., None]
-    sums = ap.reshape(hh, 2, hw, 2, -1).sum(axis=(1, 3))
+    sums = ap.reshape(hh, 2, hw, 2, -1).sum(axis=(1, 3), dtype=np.float64)
     counts = wp.reshape(hh, 2, hw, 2).sum(axis=(1, 3))
     mean = sums / np.maximum(counts, 1)[..., None]
     return mean.astype(np.float32), counts > 0
@@ -1266,7 +1271,7 @@ class StreamDecoder(_WorkerThreads):
         self._out = _Outputs()
         self.max_pixels = max_pixels
 
-    @checked(data=instances((bytes, bytearray, memoryview)))
+    @checked(data=buffers())
     def decode(self, data: bytes | memoryview) -> ServerFrame:
         """The server frame held by one packet."""
         with self._lock:
@@ -1640,7 +1645,7 @@ class DecodedStream:
     # Errors
     As :meth:`StreamDecoder.decode`, raised by the iteration at the packet that fails."""
 
-    @checked(packets=items(instances((bytes, bytearray, memoryview))))
+    @checked(packets=items(buffers()))
     def __init__(self, packets: Sequence[bytes]) -> None:
         self._packets = list(packets)
 

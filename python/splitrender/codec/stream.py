@@ -79,17 +79,18 @@ import numpy.typing as npt
 import zstandard
 
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.files import AtomicWriter, open_regular, temporary_beside
+from splitrender.files import AtomicWriter, open_regular, open_temporary
 from splitrender.types import (  # argument checks
     ITERABLE,
+    MAX_INDEX,
     MAX_RATE,
     PATH,
+    buffers,
+    check_buffer,
     check_float,
-    check_instance,
     check_int,
     checked,
     floats,
-    instances,
     ints,
     optional,
 )
@@ -421,7 +422,8 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
 
     # Errors
     :class:`StreamError` when the bytes do not start with a version-4 packet header (an older
-    version: a message that says to re-encode)."""
+    version: a message that says to re-encode), or its index is beyond
+    :data:`~splitrender.types.MAX_INDEX`."""
     if len(data) < _FIXED.size:
         raise StreamError(
             f"frame ?: packet of {len(data)} bytes is shorter than the {_FIXED.size}-byte header"
@@ -431,6 +433,8 @@ def peek_header(data: bytes | memoryview) -> tuple[int, bool]:
         raise StreamError(f"frame ?: not a splitrender packet (magic {bytes(magic)!r})")
     if version != PACKET_VERSION:
         raise StreamError(f"frame {index}: {_version_message('packet', version)}")
+    if index > MAX_INDEX:
+        raise StreamError(f"frame {index}: the index is beyond {MAX_INDEX} (2^63 - 1)")
     return int(index), bool(flags & FLAG_KEY)
 
 
@@ -640,8 +644,7 @@ class StreamWriter(AtomicWriter):
                 f"{path}: the output is not a regular file (a device, FIFO or socket); "
                 "expected a regular file or a new name"
             )
-        self._tmp = temporary_beside(self.path)
-        self._file: BinaryIO = open(self._tmp, "wb")  # noqa: SIM115 - closed by close()/abort()
+        self._tmp, self._file = open_temporary(self.path)  # closed by close() or abort()
         self._index: list[IndexEntry] = []
         self.fps = fps
         try:
@@ -654,7 +657,7 @@ class StreamWriter(AtomicWriter):
         """Appends one packet (as :func:`pack_packet` or ``StreamEncoder.encode`` made it)."""
         if self._file.closed:
             raise ValueError(f"{self.path}: the stream writer is closed")
-        check_instance("packet", packet, (bytes, bytearray, memoryview))
+        packet = check_buffer("packet", packet)
         frame, key = peek_header(packet)
         if len(packet) > MAX_PACKET:
             raise StreamError(
@@ -908,7 +911,7 @@ class StreamStats:
         for k, v in self.bytes_by_buffer.items():
             check_int(f"StreamStats.bytes_by_buffer[{k!r}]", v, 0, 1 << 62)
 
-    @checked(packet=instances((bytes, bytearray, memoryview, Packet)))
+    @checked(packet=buffers(Packet))
     def add(self, packet: bytes | memoryview | Packet) -> None:
         p = packet if isinstance(packet, Packet) else unpack_packet(packet)
         self.frames += 1

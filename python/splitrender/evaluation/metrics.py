@@ -150,9 +150,10 @@ def _pair(a: object, b: object, names: tuple[str, str]) -> tuple[_F64, _F64]:
 
 
 def _unit(img: npt.NDArray[Any]) -> _F64:
-    if img.dtype == np.uint8:
-        return img.astype(np.float64) / 255.0
-    return img.astype(np.float64)
+    """``img`` in ``[0, 1]`` as a C-contiguous float64 array (the SSIM kernel's input, which
+    ``astype`` alone does not give for a transposed or strided view)."""
+    x = np.ascontiguousarray(img, dtype=np.float64)
+    return x / 255.0 if img.dtype == np.uint8 else x
 
 
 def _to_u8(where: str, img: object) -> npt.NDArray[np.uint8]:
