@@ -115,6 +115,19 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("contradictory options", ["play", "{stream}", "--recording", "{rec}", "--bitrate", "1",
                                "--out", "{tmp}/p"],
      ("--bitrate",)),
+    # An empty token let in a client that sends none (connect's default); a rate below what a
+    # client accepts made every client refuse the welcome; a hello that cannot be encoded
+    # ended in a traceback on the network thread, then an idle timeout read as a refusal.
+    ("empty token", ["serve", "--token", "", "--port", "0"], ("--token", "non-empty")),
+    ("server rate no client takes", ["serve", "--fps", "0.05", "--port", "0"],
+     ("--fps", "at least 0.1")),
+    ("token too long", ["connect", "127.0.0.1:9", "--insecure", "--out", "{tmp}/c", "--token",
+                        "a" * 65],
+     ("--token", "at most 64 bytes")),
+    ("display rate below a hello's", ["connect", "127.0.0.1:9", "--insecure", "--out",
+                                      "{tmp}/c", "--fps", "0.5"],
+     ("--fps", "at least 1")),
+    ("all lost", ["relay", "--loss", "1", "--seconds", "0.1"], ("--loss", "below 1")),
     # A reserved name (RFC 2606), refused before any lookup: nothing is contacted.
     ("address not on loopback", ["relay", "--listen", "relay.invalid:0", "--seconds", "0.1"],
      ("relay.invalid",)),

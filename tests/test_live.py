@@ -19,6 +19,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -201,8 +202,12 @@ async def _raw_session(port: int, seconds: float) -> tuple[int, int]:
             q.send_datagram_frame(proto.PoseSample(seq, t, np.eye(4)).encode())
             if phase[0] == 0 and t > seconds / 2:
                 phase[0] = 1
+                # The last two decode, but no frame can follow them: a time far ahead of the
+                # client's clock (it moved every later frame) and one before any frame.
                 for junk in (b"", b"\x10" * 300, b"\x7f\x00", b"\x10" + b"\x00" * 108,
-                             proto.PoseSample(0, 0, np.eye(4)).encode()[:-3]):
+                             proto.PoseSample(0, 0, np.eye(4)).encode()[:-3],
+                             proto.PoseSample(seq, 1e8, np.eye(4)).encode(),
+                             proto.PoseSample(seq, -5.0, np.eye(4)).encode()):
                     q.send_datagram_frame(junk)
                 uni = q.get_next_available_stream_id(is_unidirectional=True)
                 q.send_stream_data(uni, b"garbage", end_stream=True)
@@ -217,8 +222,184 @@ def test_malformed_input_is_counted_and_the_session_goes_on(
 ) -> None:
     before, after = asyncio.run(asyncio.wait_for(_raw_session(server.port, 6.0), 60))
     assert before >= 1 and after >= 1
-    log = server.wait_log("5 malformed datagrams, 1 malformed streams", 15)
+    log = server.wait_log("7 malformed datagrams, 1 malformed streams", 15)
     assert "Traceback" not in log
+
+
+async def _peer(port: int, act: Any, seconds: float) -> str:
+    """A hand-made client that runs ``act(connection)`` and returns the reason the server
+    closed the connection with ("" if it did not within ``seconds``)."""
+    from aioquic.asyncio import QuicConnectionProtocol, connect
+    from aioquic.quic.configuration import QuicConfiguration
+    from aioquic.quic.events import ConnectionTerminated, QuicEvent
+
+    reason: list[str] = []
+    closed = asyncio.Event()
+
+    class Raw(QuicConnectionProtocol):
+        def quic_event_received(self, event: QuicEvent) -> None:
+            if isinstance(event, ConnectionTerminated):
+                reason.append(event.reason_phrase)
+                closed.set()
+
+    cfg = QuicConfiguration(is_client=True, alpn_protocols=[proto.ALPN], idle_timeout=10.0,
+                            max_datagram_frame_size=proto.MAX_DATAGRAM, verify_mode=ssl.CERT_NONE)
+    async with connect("127.0.0.1", port, configuration=cfg, create_protocol=Raw) as c:
+        task = asyncio.ensure_future(act(c))
+        try:
+            await asyncio.wait_for(closed.wait(), seconds)
+        except asyncio.TimeoutError:
+            pass
+        task.cancel()
+        if task.done() and not task.cancelled() and task.exception() is not None:
+            raise task.exception()  # type: ignore[misc]
+    return reason[0] if reason else ""
+
+
+def _hello(token: str = TOKEN) -> bytes:
+    return proto.frame_control(proto.Hello(token).encode())
+
+
+def test_a_peer_cannot_inflate_the_servers_receive_windows(server: _Server) -> None:
+    """Before any hello, one byte at the far edge of each stream's window: aioquic doubled the
+    windows for it (it counts the highest offset, not what arrived) and zero-filled the gaps,
+    so that eleven such packets held a gigabyte of the server's memory."""
+    from splitrender.net.server import HELLO_TIMEOUT_S, RECEIVE_WINDOW
+
+    seen: list[tuple[int, int]] = []
+
+    async def gaps(c: Any) -> None:
+        q = c._quic
+        sids = []
+        for _ in range(4):  # together they fill the connection's window
+            sids.append(q.get_next_available_stream_id())
+            q.send_stream_data(sids[-1], b"")
+        for _ in range(6):
+            for sid in sids:
+                stream = q._streams[sid]
+                edge = min(stream.max_stream_data_remote, q._remote_max_data) - 1
+                s = stream.sender  # the attacker's own sender, moved to the edge
+                s._buffer, s._buffer_start, s._buffer_stop = bytearray(), edge, edge
+                s.write(b"x")
+            c.transmit()
+            await c.ping()
+            seen.append((max(q._streams[s].max_stream_data_remote for s in sids),
+                         q._remote_max_data))
+
+    reason = asyncio.run(_peer(server.port, gaps, 10.0))
+    assert len(seen) == 6
+    assert set(seen) == {(RECEIVE_WINDOW // 4, RECEIVE_WINDOW)}
+    assert reason == f"no hello within {HELLO_TIMEOUT_S:g} s"
+
+
+def test_before_its_hello_a_client_gets_nothing_but_a_refusal(server: _Server) -> None:
+    from splitrender.net.server import HELLO_TIMEOUT_S, MAX_PENDING
+
+    sessions = server.log.read_text().count("session from")
+
+    async def silent(c: Any) -> None:
+        pass
+
+    async def other_stream(c: Any) -> None:
+        q = c._quic
+        for _ in range(20):  # stray streams (each one gave a traceback on the server)
+            q.send_stream_data(q.get_next_available_stream_id(is_unidirectional=True), b"junk",
+                               end_stream=True)
+        c.transmit()
+
+    async def two_hellos(c: Any) -> None:
+        # A refused hello and a right one in one write: the second one made a session.
+        q = c._quic
+        q.send_stream_data(q.get_next_available_stream_id(), _hello("wrong") + _hello())
+        c.transmit()
+
+    async def all_of_them() -> list[str]:
+        return list(await asyncio.gather(*(
+            _peer(server.port, act, 10.0) for act in (silent, other_stream, two_hellos)
+        )))
+
+    assert asyncio.run(all_of_them()) == [
+        f"no hello within {HELLO_TIMEOUT_S:g} s",
+        "bad hello: a stream other than the control stream",
+        "wrong token",
+    ]
+    # More connections waiting for a hello than the server keeps: the one over is refused.
+
+    async def over_the_cap() -> list[str]:
+        return list(await asyncio.gather(*(
+            _peer(server.port, silent, 10.0) for _ in range(MAX_PENDING + 1)
+        )))
+
+    many = asyncio.run(asyncio.wait_for(over_the_cap(), 30))
+    busy = f"busy: {MAX_PENDING} connections are waiting for a hello"
+    assert sorted(set(many)) == sorted({busy, f"no hello within {HELLO_TIMEOUT_S:g} s"})
+    assert many.count(busy) == 1
+    log = server.log.read_text()
+    assert log.count("session from") == sessions and "Traceback" not in log
+    assert "refused 127.0.0.1:" in log  # the peer's address, not "client"
+
+
+def test_a_session_without_poses_ends_and_frees_the_server(server: _Server) -> None:
+    # Rate reports (or pings, or malformed poses) kept the session, and every other client
+    # was refused as busy, for as long as they came.
+    from splitrender.net.server import IDLE_TIMEOUT_S
+
+    async def reports_only(c: Any) -> None:
+        q = c._quic
+        q.send_stream_data(q.get_next_available_stream_id(), _hello())
+        seq = 0
+        while True:
+            seq += 1
+            q.send_datagram_frame(proto.RateReport(seq, 0.0, 1e6, 0.5, 0.0, 0, 0, 0, 0.0).encode())
+            c.transmit()
+            await asyncio.sleep(0.05)
+
+    t0 = time.monotonic()
+    reason = asyncio.run(_peer(server.port, reports_only, 3 * IDLE_TIMEOUT_S))
+    assert reason == f"no pose for {IDLE_TIMEOUT_S:g} s"
+    assert time.monotonic() - t0 < 3 * IDLE_TIMEOUT_S
+    server.wait_log("0 frames sent", 10)
+
+
+def test_a_server_that_never_welcomes_is_named(tmp_path: Path) -> None:
+    """A server that takes the hello and says nothing: the client said "refused by the
+    server: Idle timeout"."""
+    from aioquic.asyncio import QuicConnectionProtocol, serve
+    from aioquic.quic.configuration import QuicConfiguration
+
+    from splitrender.client.live import WELCOME_TIMEOUT_S, ConnectOptions, LiveClient
+    from splitrender.errors import ProtocolError
+    from splitrender.net.server import self_signed_certificate
+
+    ready: queue.Queue[int] = queue.Queue()
+    stop = threading.Event()
+
+    class Mute(QuicConnectionProtocol):
+        def quic_event_received(self, event: Any) -> None:
+            pass  # takes the handshake (aioquic's part), reads nothing, answers nothing
+
+    async def mute() -> None:
+        cfg = QuicConfiguration(is_client=False, alpn_protocols=[proto.ALPN], idle_timeout=30.0,
+                                max_datagram_frame_size=proto.MAX_DATAGRAM)
+        cfg.certificate, cfg.private_key = self_signed_certificate()
+        srv = await serve("127.0.0.1", 0, configuration=cfg,
+                          create_protocol=Mute)
+        ready.put(srv._transport.get_extra_info("sockname")[1])
+        while not stop.is_set():
+            await asyncio.sleep(0.05)
+        srv.close()
+
+    t = threading.Thread(target=lambda: asyncio.run(mute()), daemon=True)
+    t.start()
+    try:
+        port = ready.get(timeout=10)
+        client = LiveClient(ConnectOptions("127.0.0.1", port, TOKEN, None, connect_timeout=20))
+        with pytest.raises(ProtocolError, match=f"no welcome from the server within "
+                           f"{WELCOME_TIMEOUT_S:g} s of the hello"):
+            client.connect()
+    finally:
+        stop.set()
+        t.join(10)
 
 
 def test_client_killed_then_next_session(server: _Server, tmp_path: Path) -> None:

@@ -278,6 +278,17 @@ def test_last_pose_and_names() -> None:
         make_predictor("oracle")
 
 
+def test_the_link_rate_is_never_below_the_least_target() -> None:
+    # A report of 1e-300 b/s became the link's rate, and the pacer held the next frame for
+    # about 1e304 s: the session sent nothing more while poses kept coming.
+    rc = RateController(1e6, 1e5, high_ms=50, low_ms=10)
+    rc.update(1e-300, 500.0)
+    assert rc.target_bps == 1e5 and rc.link_bps == 1e5
+    pacer = LinkPacer()
+    pacer.sent(0.0, 100_000, rc.link_bps)
+    assert pacer.free_at(0.0, rc.link_bps) == pytest.approx(8.0)
+
+
 def test_rate_controller_backs_off_and_climbs() -> None:
     rc = RateController(1e6, 1e5, high_ms=50, low_ms=10)
     assert rc.update(0.9e6, 0.0) == 1e6  # room, already at the top

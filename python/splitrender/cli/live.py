@@ -38,6 +38,7 @@ from splitrender.errors import SplitRenderError
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
 from splitrender.reproject import METHODS
+from splitrender.net.protocol import MAX_TOKEN, MIN_DISPLAY_FPS, MIN_SERVER_FPS
 from splitrender.types import MAX_SPAN
 
 __all__ = ["add_connect", "add_relay", "add_serve"]
@@ -127,8 +128,14 @@ def run_serve(args: argparse.Namespace) -> int:
     ):
         return fail(f"--min-bitrate {args.min_bitrate:g} is above --bitrate {args.bitrate:g}")
     token = args.token if args.token is not None else secrets.token_urlsafe(16)
-    if len(token.encode()) > 64:
-        return fail("--token: at most 64 bytes")
+    if len(token.encode()) > MAX_TOKEN:
+        return fail(f"--token: at most {MAX_TOKEN} bytes")
+    if not token:
+        # A client that sends none (connect's default) would be let in.
+        return fail("--token: expected a non-empty token (leave it out for a random one)")
+    if args.fps < MIN_SERVER_FPS:
+        return fail(f"--fps: expected at least {MIN_SERVER_FPS:g} FPS (the least a client "
+                    f"accepts), got {args.fps:g}")
     try:
         if args.scene in SCENE_NAMES:
             scene = Scene(args.scene)
@@ -218,6 +225,10 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail("--compare: needs --score")
     if args.fingerprint is None and not args.insecure:
         return fail("--fingerprint: expected the server's certificate fingerprint (or --insecure)")
+    if len(args.token.encode()) > MAX_TOKEN:
+        return fail(f"--token: at most {MAX_TOKEN} bytes")
+    if args.fps < MIN_DISPLAY_FPS:
+        return fail(f"--fps: expected at least {MIN_DISPLAY_FPS:g} FPS, got {args.fps:g}")
     try:
         pinned = None if args.fingerprint is None else normalise_fingerprint(args.fingerprint)
         trace = None if args.trace is None else load_trace(args.trace)
@@ -380,7 +391,8 @@ def add_relay(sub: Any) -> None:
     p.add_argument("--jitter", type=milliseconds, default=0.0, metavar="MS",
                    help="plus a uniform jitter in [-MS, MS] per datagram (default: %(default)s)")
     p.add_argument("--loss", type=loss, default=0.0, metavar="P",
-                   help="datagram loss probability per direction: 0.01 or 1%% (default: 0)")
+                   help="datagram loss probability per direction, below 1: 0.01 or 1%% "
+                   "(default: 0)")
     p.add_argument("--bandwidth", type=bitrate, default=None, metavar="MBPS",
                    help="cap of the server-to-client direction (default: none)")
     p.add_argument("--bandwidth-at", type=_step, action="append", default=[],
@@ -399,6 +411,8 @@ def add_relay(sub: Any) -> None:
 def run_relay(args: argparse.Namespace) -> int:
     from splitrender.net.relay import Impairment, Relay
 
+    if args.loss >= 1.0:
+        return fail("--loss: expected below 1 (at 100 % no datagram crosses), got 1")
     try:
         up = Impairment(args.delay, args.jitter, args.loss)
         down = Impairment(args.delay, args.jitter, args.loss, args.bandwidth or 0.0,

@@ -50,7 +50,7 @@ from splitrender.client.realtime import (
     RealtimeClient,
 )
 from splitrender.codec.coder import StreamDecoder
-from splitrender.errors import ProtocolError
+from splitrender.errors import InvalidInputError, ProtocolError
 from splitrender.gpu import backend_for
 from splitrender.net.protocol import (
     ALPN,
@@ -59,6 +59,9 @@ from splitrender.net.protocol import (
     KEY_START,
     KEY_UNDECODABLE,
     MAX_DATAGRAM,
+    MAX_FPS,
+    MAX_TOKEN,
+    MIN_DISPLAY_FPS,
     PROTOCOL_VERSION,
     ControlReader,
     FrameHeader,
@@ -71,7 +74,8 @@ from splitrender.net.protocol import (
     fingerprint_hex,
     frame_control,
 )
-from splitrender.types import Camera, ServerFrame
+from splitrender.net.quic import ReceiveWindows
+from splitrender.types import Camera, ServerFrame, check_float
 
 __all__ = ["ConnectOptions", "FrameOrder", "LiveClient"]
 
@@ -88,6 +92,9 @@ RATE_WINDOW_S = 0.5
 TICK_S = 0.05
 #: Seconds without any packet from the server after which the connection counts as lost.
 IDLE_TIMEOUT_S = 3.0
+#: How long the client waits for the server's welcome after its hello (the server answers at
+#: once; it closes a connection without a hello after 2 s).
+WELCOME_TIMEOUT_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -109,6 +116,13 @@ class ConnectOptions:
     backend: str = "cpu"
     version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
     max_divisor: int = MAX_DIVISOR
+
+    def __post_init__(self) -> None:
+        # What the hello carries, checked here: on the network thread a hello that does not
+        # encode ended in a traceback and, seconds later, an idle timeout read as a refusal.
+        if not isinstance(self.token, str) or len(self.token.encode()) > MAX_TOKEN:
+            raise InvalidInputError(f"token: expected a str of at most {MAX_TOKEN} bytes")
+        check_float("display_fps", self.display_fps, lo=MIN_DISPLAY_FPS, hi=MAX_FPS)
 
 
 class FrameOrder:
@@ -270,6 +284,8 @@ class _Connection(QuicConnectionProtocol):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        self._windows = ReceiveWindows(self._quic)
+        self._welcome_timer: asyncio.TimerHandle | None = None
         self._control_id: int | None = None
         self._control = ControlReader()
         self._bufs: dict[int, bytearray] = {}
@@ -278,6 +294,7 @@ class _Connection(QuicConnectionProtocol):
 
     def quic_event_received(self, event: QuicEvent) -> None:
         o = self.owner
+        self._windows.delivered(event)
         if isinstance(event, HandshakeCompleted):
             self._handshake()
         elif isinstance(event, StreamDataReceived):
@@ -318,6 +335,17 @@ class _Connection(QuicConnectionProtocol):
         hello = Hello(o.options.token, 0, 0, o.options.display_fps, o.options.version)
         self._quic.send_stream_data(self._control_id, frame_control(hello.encode()))
         self.transmit()
+        self._welcome_timer = asyncio.get_running_loop().call_later(
+            WELCOME_TIMEOUT_S, self._no_welcome
+        )
+
+    def _no_welcome(self) -> None:
+        """A server that took the hello and said nothing: a session cannot start."""
+        o = self.owner
+        if o.welcome is None:
+            o.refuse(f"no welcome from the server within {WELCOME_TIMEOUT_S:g} s of the hello")
+            self._quic.close(error_code=CLOSE_BYE, reason_phrase="no welcome")
+            self.transmit()
 
     def _control_data(self, data: bytes) -> None:
         o = self.owner

@@ -74,7 +74,9 @@ class RateController:
             # means the link is full, and a rate measured above the ceiling then is the
             # client reading a frame's bytes late and at once (a busy event loop), not a
             # wider link, which shows as room and is found by the probe.
-            seen = max(receive_bps, self.target_bps)
+            # Never below the least target: the server sends that much whatever is reported,
+            # and a pacer draining at a rate near 0 (a report of 1e-300 b/s) held every frame.
+            seen = max(receive_bps, self.target_bps, self.min_bps)
             self.ceiling_bps = seen if self.ceiling_bps is None else min(self.ceiling_bps, seen)
         elif queue_ms < self.low_ms:
             self.target_bps *= self.climb**dt

@@ -45,9 +45,12 @@ __all__ = [
     "CLOSE_VERSION",
     "MAX_CONTROL",
     "MAX_DATAGRAM",
+    "MAX_FPS",
     "MAX_FRAME_PAYLOAD",
     "MAX_SPAN",
     "MAX_TOKEN",
+    "MIN_DISPLAY_FPS",
+    "MIN_SERVER_FPS",
     "PROTOCOL_VERSION",
     "ControlReader",
     "FrameHeader",
@@ -79,6 +82,10 @@ MAX_CONTROL = 1024
 MAX_DATAGRAM = 256
 #: Longest token, in bytes (UTF-8).
 MAX_TOKEN = 64
+#: The range of a hello's display rate and of a welcome's server rate (frames per second).
+MIN_DISPLAY_FPS = 1.0
+MIN_SERVER_FPS = 0.1
+MAX_FPS = 1000.0
 #: Largest stream-format packet behind a frame header: 64 MiB, far above a 2560x1440 frame at
 #: the paper's rates (about 0.5 MB) and small enough that a lying header cannot exhaust memory.
 MAX_FRAME_PAYLOAD = 64 << 20
@@ -170,7 +177,7 @@ class Hello:
         for name, v in (("width", self.width), ("height", self.height)):
             if not 0 <= v <= MAX_SIDE:
                 raise ProtocolError(f"hello.{name}: expected 0..{MAX_SIDE}, got {v}")
-        _finite("hello.display_fps", self.display_fps, 1.0, 1000.0)
+        _finite("hello.display_fps", self.display_fps, MIN_DISPLAY_FPS, MAX_FPS)
         return (
             _HELLO.pack(T_HELLO, HELLO_MAGIC, self.version, len(token))
             + token
@@ -197,7 +204,7 @@ class Hello:
             raise ProtocolError(
                 f"hello: display size {w}x{h}: expected 0x0 or 1..{MAX_SIDE} on each side"
             )
-        fc = _finite("hello.display_fps", fc, 1.0, 1000.0)
+        fc = _finite("hello.display_fps", fc, MIN_DISPLAY_FPS, MAX_FPS)
         return cls(token, w, h, fc, version)
 
 
@@ -269,7 +276,7 @@ class Welcome:
                 f"welcome: protocol version {version}, expected {PROTOCOL_VERSION}"
             )
         _expect("welcome", data, _WELCOME.size + n)
-        fs = _finite("welcome.server_fps", fs, 0.1, 1000.0)
+        fs = _finite("welcome.server_fps", fs, MIN_SERVER_FPS, MAX_FPS)
         scale = _finite("welcome.scale", scale, 1e-6, 16.0)
         if not (1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE):
             raise ProtocolError(f"welcome: size {w}x{h}: expected 1..{MAX_SIDE} on each side")

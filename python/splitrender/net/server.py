@@ -50,6 +50,7 @@ from aioquic.quic.configuration import QuicConfiguration
 from aioquic.quic.events import (
     ConnectionTerminated,
     DatagramFrameReceived,
+    HandshakeCompleted,
     QuicEvent,
     StreamDataReceived,
     StreamReset,
@@ -82,6 +83,7 @@ from splitrender.net.protocol import (
     hello_version,
     unsupported_version,
 )
+from splitrender.net.quic import ReceiveWindows
 from splitrender.scene.builtin import Scene
 from splitrender.types import MAX_SPAN, ServerFrame
 
@@ -101,8 +103,22 @@ QUIC_MAX_DATAGRAM = 65535
 ABR_KEY_INTERVAL_S = 2.0
 #: Smallest relative change of the adaptive target that is passed to the encoder.
 ABR_STEP = 0.2
-#: A session whose client sent no pose for this long ends (its QUIC idle timeout is the same).
+#: A session whose client sent no pose for this long ends, counted from when it was accepted
+#: (its QUIC idle timeout is the same).
 IDLE_TIMEOUT_S = 3.0
+#: How far a pose's time may run ahead of the client's clock as its earlier poses gave it (the
+#: offset is the largest seen, so one sample far in the future would move every later frame).
+MAX_CLOCK_STEP_S = 1.0
+#: A connection that has sent no valid hello this long after it opened is closed.
+HELLO_TIMEOUT_S = 2.0
+#: Most connections that may wait for their hello at once; more are refused as busy (each holds
+#: up to its receive windows, :data:`RECEIVE_WINDOW`).
+MAX_PENDING = 16
+#: The receive windows the server grants a client (QUIC max_data; per stream, a quarter): its
+#: only stream is the control stream (a hello, then a few bytes per key request), and they grow
+#: as the server reads it (splitrender.net.quic), so that the memory a client can make the
+#: server hold before its hello is this much.
+RECEIVE_WINDOW = 64 * 1024
 #: Share of a span's period that rendering + encoding a frame may take: the rest is slack for
 #: one slower frame and for a client that shares the machine.
 SPAN_LOAD = 0.8
@@ -272,6 +288,10 @@ class _Session(QuicConnectionProtocol):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        self._windows = ReceiveWindows(self._quic)
+        self._addr: Any = None  # the client's address, from its first datagram
+        self._pending = False  # counted in LiveServer.pending (until a hello is taken)
+        self._hello_timer: asyncio.TimerHandle | None = None
         self._control = ControlReader()
         self._control_id: int | None = None
         self.accepted = False
@@ -291,8 +311,52 @@ class _Session(QuicConnectionProtocol):
 
     # -- events ---------------------------------------------------------------------------
 
+    def connection_made(self, transport: Any) -> None:
+        super().connection_made(transport)
+        # From the first packet: a handshake that never completes is closed by it too.
+        self._hello_timer = asyncio.get_running_loop().call_later(
+            HELLO_TIMEOUT_S, self._hello_deadline
+        )
+
+    def _handshake_done(self) -> None:
+        """Counts the connection among those waiting for a hello, or refuses it as busy. Not
+        before the handshake: a close sent then carries no reason (RFC 9000 §10.2.3) and the
+        client's retransmitted Initial opens a new connection."""
+        srv = self.server
+        if self.accepted or self._refused:
+            return
+        if srv.pending >= MAX_PENDING:
+            self._refuse(CLOSE_BUSY, f"busy: {MAX_PENDING} connections are waiting for a hello")
+            return
+        srv.pending += 1
+        self._pending = True
+
+    def datagram_received(self, data: bytes | str, addr: Any) -> None:
+        if self._addr is None:
+            self._addr = addr
+        super().datagram_received(data, addr)
+
+    def _hello_deadline(self) -> None:
+        self._hello_timer = None
+        if not self.accepted:
+            self._refuse(CLOSE_BAD_HELLO, f"no hello within {HELLO_TIMEOUT_S:g} s")
+
+    def _not_pending(self) -> None:
+        """The connection no longer waits for its hello (taken, refused or gone)."""
+        if self._hello_timer is not None:
+            self._hello_timer.cancel()
+            self._hello_timer = None
+        if self._pending:
+            self._pending = False
+            self.server.pending -= 1
+
     def quic_event_received(self, event: QuicEvent) -> None:
-        if isinstance(event, StreamDataReceived):
+        self._windows.delivered(event)
+        if self._refused and not isinstance(event, ConnectionTerminated):
+            return  # nothing more is read from a connection being closed
+        if isinstance(event, HandshakeCompleted):
+            self._handshake_done()
+        elif isinstance(event, StreamDataReceived):
             self._stream_data(event)
         elif isinstance(event, DatagramFrameReceived):
             if self.accepted:
@@ -308,6 +372,7 @@ class _Session(QuicConnectionProtocol):
         if self._refused:
             return
         self._refused = True
+        self._not_pending()
         self.server.log(f"refused {self._peer()}: {reason}" if not self.accepted else reason)
         if not self.accepted:
             self.server.refused += 1
@@ -315,7 +380,8 @@ class _Session(QuicConnectionProtocol):
         self.transmit()
 
     def _peer(self) -> str:
-        peer = self._transport.get_extra_info("peername") if self._transport else None
+        # The server's socket is not connected (no peername): the address of the datagrams.
+        peer = self._addr
         return f"{peer[0]}:{peer[1]}" if peer else "client"
 
     def _stream_data(self, event: StreamDataReceived) -> None:
@@ -323,15 +389,21 @@ class _Session(QuicConnectionProtocol):
         if self._control_id is None and sid % 4 == 0:
             self._control_id = sid  # the client's first bidirectional stream
         if sid != self._control_id:
-            # Clients open no other stream: drop it, count it, and stop it being sent.
+            # Clients open no other stream. Before a hello that is not a client of ours;
+            # after it, the stream is dropped, counted and stopped being sent (one that aioquic
+            # has already let go of, finished, needs nothing).
+            if not self.accepted:
+                self._refuse(CLOSE_BAD_HELLO, "bad hello: a stream other than the control stream")
+                return
             self.stats.malformed_streams += 1
-            if sid % 4 == 0 or sid % 4 == 2:
+            if (sid % 4 == 0 or sid % 4 == 2) and sid in self._quic._streams:
                 self._quic.stop_stream(sid, RESET_STALE)
-            self.transmit()
             return
         try:
             messages = self._control.feed(event.data)
             for raw in messages:
+                if self._refused:
+                    break  # e.g. a second hello behind a refused one
                 self._control_message(raw)
         except ProtocolError as e:
             if not self.accepted:
@@ -377,6 +449,8 @@ class _Session(QuicConnectionProtocol):
             self._refuse(CLOSE_BUSY, "busy: the server is serving another session")
             return
         self.accepted = True
+        self._not_pending()
+        self._last_pose_at = asyncio.get_running_loop().time()  # IDLE_TIMEOUT_S from here
         self.server.active = self
         self.server.log(f"session from {self._peer()}: display {hello.display_fps:g} FPS")
         assert self._control_id is not None
@@ -391,6 +465,9 @@ class _Session(QuicConnectionProtocol):
             self.stats.malformed_datagrams += 1
             return
         now = asyncio.get_running_loop().time()
+        if isinstance(msg, PoseSample) and not self._plausible(msg.time, now):
+            self.stats.malformed_datagrams += 1
+            return
         if isinstance(msg, PoseSample):
             self.stats.poses += 1
             self._predictor.add(msg.time, msg.pose)
@@ -415,7 +492,18 @@ class _Session(QuicConnectionProtocol):
                 )
             self._lead.update(msg.usable, msg.late_ms)
 
+    def _plausible(self, t: float, now: float) -> bool:
+        """Whether a pose at client time ``t`` can be served: the frames it leads to have
+        indices the renderer takes (``0 <= k < 2^31``, with room for a session of years), and
+        it is not ahead of the client's clock as estimated so far by more than
+        :data:`MAX_CLOCK_STEP_S`."""
+        fs = self.server.options.fps
+        if not 0.0 <= t <= (2**31 - 1) / (2 * fs):
+            return False
+        return self._offset is None or t - now <= self._offset + MAX_CLOCK_STEP_S
+
     def _terminated(self, reason: str) -> None:
+        self._not_pending()
         if self._task is not None:
             self._task.cancel()
         self._closed.set()
@@ -498,11 +586,13 @@ class _Session(QuicConnectionProtocol):
         warned = False
         try:
             while True:
-                if self._offset is None or loop.time() - self._last_pose_at > IDLE_TIMEOUT_S:
-                    if self._offset is not None:
-                        self._quic.close(reason_phrase="no pose for 3 s")
-                        self.transmit()
-                        return
+                # From the session's start: a client that only reports, pings or sends
+                # malformed poses does not hold the server.
+                if loop.time() - self._last_pose_at > IDLE_TIMEOUT_S:
+                    self._quic.close(reason_phrase=f"no pose for {IDLE_TIMEOUT_S:g} s")
+                    self.transmit()
+                    return
+                if self._offset is None:
                     await asyncio.sleep(0.01)
                     continue
                 owd = self._rtt() / 2
@@ -699,6 +789,7 @@ class LiveServer:
         self.fingerprint = fingerprint_hex(certificate.public_bytes(Encoding.DER))
         self._log = log if log is not None else sys.stderr
         self.active: _Session | None = None
+        self.pending = 0  # connections waiting for their hello (MAX_PENDING)
         self.refused = 0
         self.sessions: list[SessionStats] = []
         self.port = 0
@@ -780,6 +871,8 @@ class LiveServer:
             # instead, so that an oversized one is dropped and counted, not fatal.
             max_datagram_frame_size=QUIC_MAX_DATAGRAM,
             idle_timeout=IDLE_TIMEOUT_S,
+            max_data=RECEIVE_WINDOW,
+            max_stream_data=RECEIVE_WINDOW // 4,
         )
         cfg.certificate = self.certificate
         cfg.private_key = self.private_key
