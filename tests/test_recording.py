@@ -441,6 +441,39 @@ def test_cli_render_refuses_an_output_that_is_or_holds_an_input(
     assert trace.read_text() == "0 0 0 0 0 0 0\n"
 
 
+def test_force_replaces_only_a_recording_or_an_empty_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # --force removed any folder given as --out: notes, or a recording's own subfolder.
+    argv = ["render", "courtyard", "--seconds", "0.01", "--scale", "0.02", "--quiet", "--force"]
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "todo.txt").write_text("important")
+    rec = tmp_path / "rec"
+    assert main([*argv, "--out", str(rec)]) == 0
+    before = sorted(p.name for p in rec.rglob("*"))
+    for out in (notes, rec / "server"):
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err == (f"splitrender: error: {out}: is not a recording (no manifest.json) and "
+                       "not empty; --force replaces only a recording or an empty folder\n")
+    assert (notes / "todo.txt").read_text() == "important"
+    assert sorted(p.name for p in rec.rglob("*")) == before
+    # The working directory, or one above it: refused before the render (it was an internal
+    # error for ".", and after the whole render for "..").
+    monkeypatch.chdir(rec)
+    for out in (".", str(rec), ".."):
+        assert main([*argv, "--out", out]) == 2
+        assert "is the current directory or holds it" in capsys.readouterr().err
+    # A recording, and an empty folder, are replaced.
+    monkeypatch.chdir(tmp_path)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for out in (rec, empty):
+        assert main([*argv, "--out", str(out)]) == 0
+        assert sr.load_recording(out).scene == "courtyard"
+
+
 def test_cli_render_shared_trace(tmp_path: Path) -> None:
     trace = TRACES / "robot_lab_path.txt"
     if not trace.is_file():

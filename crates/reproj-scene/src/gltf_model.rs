@@ -355,9 +355,11 @@ impl GltfShape {
         }
     }
 
-    /// The object-space vertices at scene (animation) time `t`.
-    fn vertices(&self, t: f64) -> Vec<Vertex> {
-        let world = self.placed.world(t);
+    /// The object-space vertices under `world`, the world matrix of every node of the model
+    /// (`PlacedNode::world`) at the time they are wanted: computed once by a caller that poses
+    /// many nodes at one time, it costs each node its own vertices only (each computing it
+    /// made placing a model of n mesh nodes O(n²)).
+    fn vertices(&self, world: &[DMat4]) -> Vec<Vertex> {
         let node = self.placed.get();
         let prims = &self.placed.model.meshes[node.mesh.expect("mesh node")];
         let s = self.placed.scale;
@@ -432,7 +434,12 @@ impl GltfShape {
 
     /// The mesh posed at scene time `t` with its BVH built (deforming kind only).
     pub(crate) fn posed(&self, t: f64) -> Mesh {
-        Mesh::new(self.vertices(t), self.triangles())
+        self.posed_in(&self.placed.world(t))
+    }
+
+    /// [`GltfShape::posed`] under the world matrices of every node at the time wanted.
+    pub(crate) fn posed_in(&self, world: &[DMat4]) -> Mesh {
+        Mesh::new(self.vertices(world), self.triangles())
     }
 }
 

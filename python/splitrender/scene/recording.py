@@ -393,7 +393,8 @@ def write_recording(
 
 def check_destination(out: Path, overwrite: bool) -> None:
     """Raises :class:`RecordingError` when ``out`` exists and not ``overwrite``, or exists and
-    is not a directory (a file or a symbolic link), even with ``overwrite``: the check
+    is not a recording directory or an empty one (a file, a symbolic link, another folder),
+    or is the current directory or above it, even with ``overwrite``: the check
     :func:`write_frames` makes, for callers to make before long work."""
     # Only a directory is replaced: write_frames moves the old one aside and removes it with
     # rmtree, which a file or a link would only fail at after the rename, all frames written.
@@ -402,8 +403,24 @@ def check_destination(out: Path, overwrite: bool) -> None:
             f"{out}: exists and is not a directory; expected a new path or a recording "
             "directory to replace"
         )
-    if out.exists() and not overwrite:
+    if not out.exists():
+        return
+    if not overwrite:
         raise RecordingError(f"{out}: already exists (choose another --out or pass --force)")
+    # The rename that moves the old one aside cannot move the working directory or a folder
+    # above it ("." failed as an internal error, ".." after the whole render).
+    here, target = Path.cwd().resolve(), out.resolve()
+    if target == here or target in here.parents:
+        raise RecordingError(
+            f"{out}: is the current directory or holds it; expected a folder beside or below it"
+        )
+    # --force replaces a recording, not whatever folder is given: a folder of notes, or one of
+    # a recording's own subfolders, was removed with everything in it.
+    if not (out / _MANIFEST).is_file() and any(out.iterdir()):
+        raise RecordingError(
+            f"{out}: is not a recording (no {_MANIFEST}) and not empty; --force replaces only "
+            "a recording or an empty folder"
+        )
 
 
 def write_frames(
