@@ -128,6 +128,9 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
                                       "{tmp}/c", "--fps", "0.5"],
      ("--fps", "at least 1")),
     ("all lost", ["relay", "--loss", "1", "--seconds", "0.1"], ("--loss", "below 1")),
+    # One datagram went round 186,000 times in 1.5 s.
+    ("relay to itself", ["relay", "--listen", "127.0.0.1:47330", "--target", "localhost:47330",
+                         "--seconds", "0.1"], ("listen and target", "forward to itself")),
     # A reserved name (RFC 2606), refused before any lookup: nothing is contacted.
     ("address not on loopback", ["relay", "--listen", "relay.invalid:0", "--seconds", "0.1"],
      ("relay.invalid",)),
@@ -188,6 +191,34 @@ def test_internal_failure_exits_1_and_says_it_is_a_bug(
     code, err = run(["example", "--out", str(tmp_path / "e")], capsys)
     assert code == 1 and err.startswith("Traceback") and "in broken" in err
     assert err.splitlines()[-1].startswith("splitrender: internal error: KeyError")
+
+
+def test_sigterm_unwinds_as_an_interrupt_and_leaves_no_temporary_file(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    # `timeout` and service managers send SIGTERM: an encode left its `.partial` file and a
+    # render its folder (Ctrl-C cleaned both up).
+    import signal
+    import time
+
+    import splitrender.cli.example as example
+    from splitrender.codec.stream import StreamWriter
+
+    before = signal.getsignal(signal.SIGTERM)
+
+    def terminated_while_writing(args: Any) -> int:
+        with StreamWriter(tmp_path / "x.srs"):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)  # the handler raises in here
+        return 0
+
+    monkeypatch.setattr(example, "run", terminated_while_writing)
+    t0 = time.monotonic()
+    code, err = run(["example", "--out", str(tmp_path / "e")], capsys)
+    assert (code, err) == (143, "splitrender: terminated\n")
+    assert time.monotonic() - t0 < 4
+    assert list(tmp_path.iterdir()) == []  # neither the stream nor its temporary file
+    assert signal.getsignal(signal.SIGTERM) == before  # main() gave the handler back
 
 
 def test_a_full_disk_exits_1_with_one_line_and_is_not_called_a_bug(

@@ -10,9 +10,12 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Sequence
+from typing import Any
 
 from splitrender._native import __version__
 from splitrender.cli import dataset, evaluation, example, live, play, recording
@@ -67,13 +70,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     line naming it, as argparse does for a bad option. 1: a failure that is not the caller's
     (``SplitRenderError`` itself: an external tool or the device; an ``OSError`` of the machine,
     such as a full disk, one line too; any other exception: a bug,
-    said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted. 141: the
+    said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted (143: by
+    SIGTERM, unwound the same way). 141: the
     reader of the output went away (a broken pipe), said nothing."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    # SIGTERM (what `timeout` and service managers send) ends the command as Ctrl-C does, so
+    # that its temporary files go (an encode left its `.partial` file, a render its folder).
+    previous = _on_sigterm()
     try:
         status: int = args.run(args)
         return status
+    except _Terminated:
+        print(f"{PROG}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
@@ -100,6 +110,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: internal error: {type(e).__name__}: {_describe(e)} (this is a bug; "
               f"please report it with the traceback that {DEBUG_ENV}=1 prints)", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the main thread is, and unwound as an interrupt is."""
+
+
+def _on_sigterm() -> Any:
+    """Installs the SIGTERM handler of :func:`main` (main thread only: elsewhere Python takes
+    no handler) and returns what it replaced (``None``: nothing installed)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def terminate(signum: int, frame: object) -> None:
+        raise _Terminated()
+
+    return signal.signal(signal.SIGTERM, terminate)
 
 
 def _describe(error: BaseException) -> str:
