@@ -952,6 +952,36 @@ def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypa
     assert sum(r["modes"].values()) == r["frames"]
 
 
+def test_bench_realtime_refuses_a_stream_whose_packets_do_not_decode(
+    tmp_path, frames, capsys
+):
+    # It showed held frames, "decode n/a" and exited 0: a live display goes on past such a
+    # packet, but a benchmark of the stream measures nothing of it.
+    from splitrender.cli.main import main
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+
+    with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
+        packets = [enc.encode(f) for f in frames[:3]]
+    # Well-formed packets, but the first is not a key frame: none can be decoded.
+    sr.write_stream(tmp_path / "s.srs", packets[1:])
+    out = tmp_path / "rt.json"
+    assert main(["bench", "--realtime", "--stream", str(tmp_path / "s.srs"), "--seconds",
+                 "0.25", "--display-priority", "normal", "--json", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"splitrender: error: {tmp_path / 's.srs'}: ") and len(err.splitlines()) == 1
+    assert "packets did not decode; the first: frame 0: not a key frame" in err
+    assert not out.exists()
+
+
+def test_the_report_counts_the_packets_that_did_not_decode(scene, frames):
+    with RealtimeClient(clock=FakeClock(), executor=InlineExecutor()) as c:
+        assert isinstance(c.submit(b"garbage").exception(), StreamError)
+        c.submit(frames[0]).result()
+        report = c.run(pose_of(scene), 2 * PERIOD)
+    assert report.summary()["packets_undecodable"] == 1
+    assert report.undecodable == ["frame ?: packet of 7 bytes is shorter than the 32-byte header"]
+
+
 def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames, capsys):
     import json
 

@@ -56,7 +56,7 @@ import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.client.client import Client
-from splitrender.errors import InvalidInputError
+from splitrender.errors import InvalidInputError, StreamError
 from splitrender.gpu import BACKENDS, GpuPair
 from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
@@ -240,6 +240,8 @@ class RealtimeReport:
     wall_s: float = 0.0
     cpu_s: float = 0.0
     cpus: int = 1
+    #: Why each packet that did not decode was refused (the StreamError's message), in order.
+    undecodable: list[str] = field(default_factory=list)
     #: The warm-up before the clock started (``RealtimeClient.run(warm_up=True)``), ms.
     warm_up_ms: float | None = None
     #: How the display's threads were scheduled (:func:`_raise_display`): ``"realtime"``,
@@ -292,7 +294,8 @@ class RealtimeReport:
         per mode), ``decode_ms_per_server_frame``, ``prepare_ms_per_server_frame`` (both
         pairs) and ``usable_ms_per_server_frame`` (from the worker taking the packet until the
         frame is usable: its decode and first pair; all medians), the server frames received
-        and late, ``pairs_skipped`` (interpolation pairs not prepared because they would have
+        and late, ``packets_undecodable`` (packets the decoder refused; :attr:`undecodable`
+        says why), ``pairs_skipped`` (interpolation pairs not prepared because they would have
         come too late) and ``pairs_probed`` (such pairs prepared anyway, to measure them
         again), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their
         deadline per second of the run) and ``cpu_utilisation`` (process CPU seconds per wall
@@ -332,6 +335,7 @@ class RealtimeReport:
             "server_frames_late": self.server_frames_late,
             "pairs_skipped": self.pairs_skipped,
             "pairs_probed": self.pairs_probed,
+            "packets_undecodable": len(self.undecodable),
             "server_age_ms_p50": _median(ages),
             "server_age_ms_max": max(ages) if ages else None,
             "achieved_fps": (n - misses) / self.wall_s if self.wall_s > 0 else 0.0,
@@ -776,7 +780,13 @@ class RealtimeClient:
         with self._lock:
             self._queued -= 1
         t0, c0 = time.perf_counter(), self.clock.now()
-        frame = packet if isinstance(packet, ServerFrame) else self._decode(packet)
+        try:
+            frame = packet if isinstance(packet, ServerFrame) else self._decode(packet)
+        except StreamError as e:
+            # The display goes on without it (the future holds the error); the report says so.
+            with self._lock:
+                self._report.undecodable.append(str(e))
+            raise
         t1, c1 = time.perf_counter(), self.clock.now()
         # On the run's clock, which is what the estimate of a pair's preparation is held to.
         decode_s = None if isinstance(packet, ServerFrame) else c1 - c0

@@ -200,7 +200,8 @@ def run_realtime_bench(
 
     Raises:
         InvalidInputError: for arguments that cannot work.
-        StreamError: for a stream file that cannot be read.
+        StreamError: for a stream file that cannot be read, or one of whose packets does not
+            decode.
         GpuUnavailableError: for ``backend="wgpu"`` without a GPU adapter.
     """
     from splitrender.client.client import Client
@@ -289,6 +290,13 @@ def run_realtime_bench(
             pose, seconds, feed=feed, start_time=0.0, exclusive=exclusive, warm_up=True
         )
     stages.close()
+    if report.undecodable:
+        # A live display goes on extrapolating past such a packet; a benchmark of a stream
+        # that does not decode measures nothing of it (it showed 60 held frames and rc 0).
+        raise StreamError(
+            f"{source}: {len(report.undecodable)} packets did not decode; the first: "
+            f"{report.undecodable[0]}"
+        )
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
