@@ -166,7 +166,9 @@ TABLE: dict[str, Entry] = {
     "Camera": (
         lambda f: sr.Camera,
         lambda f: dict(view=f.cam.view, proj=f.cam.proj, width=W, height=H),
-        dict(view=[None, "x", [[BIG] * 4] * 4, np.zeros(3)], proj=[None, "x", [[1] * 4] * 3],
+        # A complex matrix was cast to real with a warning (its imaginary part dropped).
+        dict(view=[None, "x", [[BIG] * 4] * 4, np.zeros(3), np.eye(4, dtype=complex)],
+             proj=[None, "x", [[1] * 4] * 3, np.eye(4) + 1j],
              width=[*COUNT, 0, 16385], height=[*COUNT, 0]),
     ),
     "Camera.look_at": (

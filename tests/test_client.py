@@ -229,3 +229,7 @@ def test_client_errors(frames: list[sr.ServerFrame], cameras: list[sr.Camera]) -
         play(frames, cameras, NetworkModel(client_fps=90.0), fps=FC)
     with pytest.raises(InvalidInputError, match="frame_sizes"):
         play(frames, cameras, NetworkModel(), fps=FC, frame_sizes=[1])
+    # Frames out of order are named (the network model said "send time: expected
+    # non-decreasing times, got -0.1 after 0.0").
+    with pytest.raises(InvalidInputError, match=r"frames\[1\]: time 0 s is before frames\[0\]"):
+        play([frames[1], frames[0]], cameras, NetworkModel(), fps=FC)

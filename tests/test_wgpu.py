@@ -8,6 +8,7 @@ every adapter, so it runs everywhere.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -189,6 +190,24 @@ def test_wgpu_errors_are_the_cpu_errors(
     g.unload()
     with pytest.raises(InvalidInputError, match="no server frames on the device"):
         g.render(camera, 0.5)
+
+
+@needs_gpu
+def test_an_unused_older_frame_is_not_uploaded(
+    pair_synthetic: tuple[sr.ServerFrame, sr.ServerFrame],
+) -> None:
+    # Extrapolating, the CPU path does not look into the older frame's matrices; the GPU path
+    # uploaded it and refused a singular camera there alone.
+    f0, f1 = pair_synthetic
+    bad = dataclasses.replace(f0, main=dataclasses.replace(
+        f0.main, camera=sr.Camera(np.zeros((4, 4)), f0.main.camera.proj, 48, 32)))
+    for method in ("ours_extrapolate", "forward_splat"):
+        opts = sr.ReprojectOptions(splat_bidirectional=False)
+        cpu, gpu_ = (sr.reproject_alpha(bad, f1, f1.main.camera, 1.5, method, options=opts,
+                                        backend=b) for b in ("cpu", "wgpu"))
+        assert cpu.shape == gpu_.shape
+    with pytest.raises(InvalidInputError, match="older.main"):
+        sr.reproject_alpha(bad, f1, f1.main.camera, 0.5, "ours", backend="wgpu")
 
 
 @pytest.fixture(scope="module")

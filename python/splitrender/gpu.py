@@ -31,6 +31,7 @@ from splitrender.types import (
     Reprojection,
     ReprojectOptions,
     ServerFrame,
+    check_server_frame,
     native_error,
     precheck_frames,
 )
@@ -320,6 +321,17 @@ class GpuReprojector:
         using this reprojector: what :func:`splitrender.reproject_alpha` runs for
         ``backend="wgpu"``. Uploads the pair every call; a caller that renders several client
         frames from one pair should :meth:`load` once instead."""
+        opts = ReprojectOptions() if options is None else options
+        if method == "ours_extrapolate" or (
+            method == "forward_splat" and isinstance(opts, ReprojectOptions)
+            and not opts.splat_bidirectional
+        ):
+            # These read the newer frame only, and the CPU path does not look into the older
+            # one's matrices: neither is it uploaded here (a singular older camera was refused
+            # on the GPU alone). Its buffers are still checked, as the CPU path checks them.
+            if older is not None:
+                check_server_frame(_paths[0], older, ("fwd",))
+            older = None
         with self._lock:
             self._load(older, newer, _paths)
             if diagnostics:

@@ -313,6 +313,9 @@ def checked(**checks: Check) -> Callable[[_F], _F]:
 
 def _matrix(where: str, value: object) -> npt.NDArray[np.float64]:
     try:
+        # Complex values are refused, not cast (numpy drops the imaginary part with a warning).
+        if np.asarray(value).dtype.kind == "c":
+            raise TypeError
         m = np.array(value, dtype=np.float64, copy=True)
     except (TypeError, ValueError, OverflowError):
         raise InvalidInputError(

@@ -128,6 +128,8 @@ def play(
     pending: tuple[ServerFrame, float | None, int] | None = None
     exhausted = False
 
+    last_time = [0.0]  # the time of the frame taken before
+
     def next_frame() -> tuple[ServerFrame, float | None, int] | None:
         k = len(sends)
         try:
@@ -135,6 +137,12 @@ def play(
         except StopIteration:
             return None
         check_server_frame(f"frames[{k}]", f)
+        if k and f.time < last_time[0]:
+            raise InvalidInputError(
+                f"frames[{k}]: time {f.time:g} s is before frames[{k - 1}]'s "
+                f"{last_time[0]:g} s; expected the frames in time order"
+            )
+        last_time[0] = f.time
         if sizes is not None:
             if k >= len(sizes):
                 raise InvalidInputError(
