@@ -111,7 +111,7 @@ class Client:
         # What the caller knows each held frame by, for messages: "frame(index=3)", "frames[3]".
         self._paths: dict[int, str] = {}
         self._previous: dict[int, _Image] = {}
-        # Held while a frame renders: a second thread's render is refused (render_busy).
+        # Held while a frame renders: a render from another thread meanwhile is refused.
         self._rendering = threading.Lock()
         # Per eye: the pair last rendered, its history, and the eye's own history (reset and
         # reused when the pair changes; never one that was adopted, which the preparing side
