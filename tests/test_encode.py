@@ -78,7 +78,7 @@ def test_decoded_stream_decodes_each_frame_when_it_is_asked_for(
 
 
 def test_decoded_stream_refuses_what_is_not_a_packet(recording: Path, tmp_path: Path) -> None:
-    with pytest.raises(sr.InvalidInputError, match=r"packets\[1\]: expected bytes or bytearray"):
+    with pytest.raises(sr.InvalidInputError, match=r"packets\[1\]: expected one of bytes, bytearray"):
         DecodedStream([b"", 3])  # type: ignore[list-item]
     out = tmp_path / "courtyard.srs"
     encode_recording(recording, out, bitrate_mbps=0.5)
