@@ -32,6 +32,7 @@ from splitrender.types import (
     ReprojectOptions,
     ServerFrame,
     check_server_frame,
+    interpolates,
     native_error,
     precheck_frames,
 )
@@ -322,10 +323,8 @@ class GpuReprojector:
         ``backend="wgpu"``. Uploads the pair every call; a caller that renders several client
         frames from one pair should :meth:`load` once instead."""
         opts = ReprojectOptions() if options is None else options
-        if method == "ours_extrapolate" or (
-            method == "forward_splat" and isinstance(opts, ReprojectOptions)
-            and not opts.splat_bidirectional
-        ):
+        bidirectional = isinstance(opts, ReprojectOptions) and opts.splat_bidirectional
+        if method in GPU_METHODS and not interpolates(method, bidirectional):
             # These read the newer frame only, and the CPU path does not look into the older
             # one's matrices: neither is it uploaded here (a singular older camera was refused
             # on the GPU alone). Its buffers are still checked, as the CPU path checks them.

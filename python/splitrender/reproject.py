@@ -28,6 +28,7 @@ from splitrender.types import (
     check_camera_frame,
     check_image,
     check_shadow,
+    interpolates,
     native_error,
     precheck_frames,
 )
@@ -344,9 +345,7 @@ def prepare_pair(
 
 
 def _unidirectional(method: str, opts: ReprojectOptions, older: ServerFrame | None) -> bool:
-    if method in ("ours_extrapolate", "timewarp"):
-        return True
-    if method == "forward_splat" and not opts.splat_bidirectional:
+    if not interpolates(method, opts.splat_bidirectional):
         return True
     # `ours` (and bidirectional splatting) without the older frame extrapolate from the newest.
     return older is None and method in ("ours", "forward_splat")

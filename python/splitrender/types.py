@@ -508,6 +508,17 @@ class ClientRequest:
         object.__setattr__(self, "time", check_float("ClientRequest.time", self.time))
 
 
+#: Methods that interpolate a pair when they have one (``forward_splat`` only with
+#: ``ReprojectOptions.splat_bidirectional``: :func:`interpolates`).
+BIDIRECTIONAL_METHODS: tuple[str, ...] = ("ours", "backward_bidir")
+
+
+def interpolates(method: str, splat_bidirectional: bool) -> bool:
+    """Whether ``method`` interpolates between a pair of server frames when it has both, and so
+    reads the older one; the others extrapolate from the newest frame alone."""
+    return method in BIDIRECTIONAL_METHODS or (method == "forward_splat" and splat_bidirectional)
+
+
 @dataclass(frozen=True, slots=True)
 class ReprojectOptions:
     """Options of the reprojection methods, with the defaults of shared/DESIGN.md. Each option

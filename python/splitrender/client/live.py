@@ -285,7 +285,6 @@ class _Connection(QuicConnectionProtocol):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._windows = ReceiveWindows(self._quic)
-        self._welcome_timer: asyncio.TimerHandle | None = None
         self._control_id: int | None = None
         self._control = ControlReader()
         self._bufs: dict[int, bytearray] = {}
@@ -335,9 +334,8 @@ class _Connection(QuicConnectionProtocol):
         hello = Hello(o.options.token, 0, 0, o.options.display_fps, o.options.version)
         self._quic.send_stream_data(self._control_id, frame_control(hello.encode()))
         self.transmit()
-        self._welcome_timer = asyncio.get_running_loop().call_later(
-            WELCOME_TIMEOUT_S, self._no_welcome
-        )
+        # Not cancelled on the welcome: _no_welcome does nothing once there is one.
+        asyncio.get_running_loop().call_later(WELCOME_TIMEOUT_S, self._no_welcome)
 
     def _no_welcome(self) -> None:
         """A server that took the hello and said nothing: a session cannot start."""

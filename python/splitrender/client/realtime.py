@@ -60,7 +60,7 @@ from splitrender.errors import InvalidInputError, StreamError
 from splitrender.gpu import BACKENDS, GpuPair
 from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
-from splitrender.types import Camera, ReprojectOptions, ServerFrame
+from splitrender.types import Camera, ReprojectOptions, ServerFrame, interpolates
 from splitrender.types import (  # argument checks
     BOOL,
     CALLABLE,
@@ -708,10 +708,7 @@ class RealtimeClient:
         self._skipped_in_a_row = 0
         self._probe_after = PAIR_PROBE_AFTER
         self._report = RealtimeReport(self.display_fps)
-        opts = self.client.options
-        self._interpolates = self.method == "ours" or (
-            self.method == "forward_splat" and opts.splat_bidirectional
-        )
+        self._interpolates = interpolates(self.method, self.client.options.splat_bidirectional)
 
     @property
     def method(self) -> str:

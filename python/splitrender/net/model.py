@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from splitrender.errors import InvalidInputError
+from splitrender.types import BIDIRECTIONAL_METHODS, interpolates
 from splitrender.types import (  # argument checks
     BOOL,
     check_float,
@@ -71,9 +72,6 @@ MAX_ALPHA = 3.0
 TIME_EPS = 1e-9
 #: The modes a client frame can be rendered in.
 MODES: tuple[str, ...] = ("interpolate", "extrapolate", "hold")
-#: Methods that interpolate a pair when they have one (``forward_splat`` only with
-#: ``ReprojectOptions.splat_bidirectional``).
-BIDIRECTIONAL_METHODS: tuple[str, ...] = ("ours", "backward_bidir")
 _METHODS = ("ours", "ours_extrapolate", "forward_splat", "timewarp", "backward_bidir")
 
 
@@ -285,7 +283,7 @@ def choose_frames(
     ``α = 1 + (t − t_k) · f_s / m``."""
     method = _check_method(method)
     t = float(time)
-    bidir = method in BIDIRECTIONAL_METHODS or (method == "forward_splat" and splat_bidirectional)
+    bidir = interpolates(method, splat_bidirectional)
     held_ix = tuple(sorted(held))
     past = [j for j in held_ix if held[j] <= t + TIME_EPS]
     if past:
