@@ -219,6 +219,93 @@ def test_play_of_a_stream_without_frames_is_refused(
     assert not (tmp_path / "out").exists()
 
 
+def _restamped(packet: bytes, **fields: Any) -> bytes:
+    """``packet`` with ``fields`` replaced (its payloads kept), packed again with a fresh CRC."""
+    from dataclasses import replace
+
+    from splitrender.codec.stream import pack_packet, unpack_packet
+
+    return pack_packet(replace(unpack_packet(packet), **fields))
+
+
+def _moved(packet: bytes) -> bytes:
+    """``packet`` with its main camera moved 1 cm: a stream of another take."""
+    from dataclasses import replace
+
+    from splitrender.codec.stream import unpack_packet
+
+    cams = unpack_packet(packet).cameras
+    view = cams[0].view.copy()
+    view[0, 3] += 0.01
+    return _restamped(packet, cameras=(replace(cams[0], view=view), *cams[1:]))
+
+
+@pytest.mark.parametrize("case", ["fps", "shifted", "moved", "short"])
+def test_play_refuses_a_stream_not_encoded_from_the_recording(
+    recording: Path, stream: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    case: str,
+) -> None:
+    # A stream of another scene or take used to be scored against the recording's ground
+    # truth without complaint (a lab stream against a courtyard recording: SSIM 0.19, exit 0).
+    packets = list(sr.read_stream(stream))
+    fps, expected = 10.0, ""
+    if case == "fps":
+        fps = 20.0
+        expected = "the stream is at 20 server frames per second, the recording at 10"
+    elif case == "shifted":
+        packets = packets[1:] + [_restamped(packets[-1], index=N_SERVER, time=N_SERVER / 10)]
+        expected = "its frame 0 is server frame 1 at 0.1 s, the recording's is 0 at 0 s"
+    elif case == "moved":
+        packets[2] = _moved(packets[2])
+        expected = ("frame 2's main camera has another view matrix (a stream of another scene, "
+                    "take or scale?)")
+    foreign = tmp_path / "foreign.srs"
+    if case == "short":
+        sr.write_stream(foreign, packets[:2], fps)
+    else:
+        sr.write_stream(foreign, packets, fps)
+        expected = f"foreign.srs was not encoded from {recording}: {expected}"
+    if case == "short":
+        expected = (f"{foreign}: the stream has 2 server frames, {SECONDS} s of the recording "
+                    f"need {N_SERVER}; give --seconds 0.1 or less")
+    out = tmp_path / "out"
+    argv = ["play", str(foreign), "--recording", str(recording), "--no-vmaf", "--out", str(out)]
+    assert main([*argv, "--quiet"]) == 2
+    assert capsys.readouterr().err == f"splitrender: error: {expected}\n"
+    assert not out.exists()
+
+
+def test_a_play_into_a_used_folder_replaces_its_outputs_or_leaves_them_as_they_were(
+    recording: Path, stream: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A failed play wrote new frame PNGs as it went, beside the previous run's play.json.
+    from splitrender.cli import play as play_cli
+
+    out = tmp_path / "out"
+    argv = ["play", str(stream), "--recording", str(recording), "--no-vmaf", "--out", str(out)]
+    run_cli(*argv, "--video")
+    (out / "notes.txt").write_text("mine")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert sorted(before) == ["client.mp4", "notes.txt", "play.json"]
+    write_png, written = play_cli.write_png, []
+
+    def interrupted(path: Path, image: Image8) -> None:
+        if len(written) == 5:
+            raise KeyboardInterrupt
+        write_png(path, image)
+        written.append(path)
+
+    monkeypatch.setattr(play_cli, "write_png", interrupted)
+    assert main([*argv, "--quiet"]) == 130  # "interrupted"
+    assert len(written) == 5
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    monkeypatch.undo()
+    # A complete play replaces every output of a play: the video of the run before goes too.
+    run_cli(*argv)
+    assert sorted(p.name for p in out.iterdir()) == ["frames", "notes.txt", "play.json"]
+    assert len(png_frames(out)) == N_CLIENT
+
+
 def test_play_stream_file_scores_the_frames_it_writes(
     recording: Path, stream: Path, played_stream: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -15,6 +15,7 @@ import pytest
 from splitrender.codec.stream import StreamFile
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import (
+    OutputFolder,
     check_apart,
     check_output_file,
     check_name,
@@ -219,3 +220,81 @@ def test_check_apart(tmp_path: Path) -> None:
     ]:
         with pytest.raises(InvalidInputError, match=f"the output {problem} {rec}; expected"):
             check_apart(out, {"recording": rec}, replaced=True)
+
+
+def _tree(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): p.read_text() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+def _run(out: Path, frames: list[str], summary: str | None, fail: bool = False) -> None:
+    """A command writing ``frames`` and then ``summary`` through an OutputFolder."""
+    with OutputFolder(out, ("frames", "video.mp4", "summary.json")) as stage:
+        (stage / "frames").mkdir()
+        for name in frames:
+            (stage / "frames" / name).write_text(f"new {name}")
+        if fail:
+            raise KeyboardInterrupt
+        if summary is not None:
+            (stage / "summary.json").write_text(summary)
+
+
+def test_output_folder_replaces_the_outputs_together(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "video.mp4").write_text("old video")  # of an earlier run: not made by this one
+    (out / "frames").mkdir()
+    (out / "frames" / "0009.png").write_text("old 9")
+    _run(out, ["0000.png", "0001.png"], "run 2")
+    # Every owned name is this run's (the old video and frame 9 gone), the rest left alone,
+    # and no staging folder remains.
+    assert _tree(out) == {"frames/0000.png": "new 0000.png", "frames/0001.png": "new 0001.png",
+                          "notes.txt": "mine", "summary.json": "run 2"}
+    assert sorted(p.name for p in out.iterdir()) == ["frames", "notes.txt", "summary.json"]
+
+
+def test_an_interrupted_output_folder_keeps_the_previous_outputs(tmp_path: Path) -> None:
+    # A failed play wrote its frames into OUT as it went, beside the old play.json.
+    out = tmp_path / "out"
+    _run(out, ["0000.png", "0001.png"], "run 1")
+    before = _tree(out)
+    with pytest.raises(KeyboardInterrupt):
+        _run(out, ["0000.png"], "run 2", fail=True)
+    assert _tree(out) == before
+    assert sorted(p.name for p in out.iterdir()) == ["frames", "summary.json"]
+    # A folder made for the run that failed is removed again.
+    fresh = tmp_path / "fresh"
+    with pytest.raises(KeyboardInterrupt):
+        _run(fresh, ["0000.png"], None, fail=True)
+    assert not fresh.exists()
+
+
+def test_output_folder_puts_the_old_outputs_back_when_a_move_fails(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "out"
+    _run(out, ["0000.png"], "run 1")
+    before = _tree(out)
+    rename = os.rename
+
+    def fail_on_summary(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+        # The new summary's move fails (the old one's move back is let through).
+        if Path(dst) == out / "summary.json" and Path(src).read_text() == "run 2":
+            raise OSError(5, "Input/output error")
+        rename(src, dst)
+
+    monkeypatch.setattr(os, "rename", fail_on_summary)
+    with pytest.raises(OSError, match="Input/output error"):
+        _run(out, ["0000.png", "0001.png"], "run 2")
+    assert _tree(out) == before
+    assert sorted(p.name for p in out.iterdir()) == ["frames", "summary.json"]
+
+
+def test_output_folder_refuses_a_file_as_the_folder(tmp_path: Path) -> None:
+    # mkdir said only "[Errno 17] File exists".
+    file = tmp_path / "out"
+    file.write_text("a file")
+    with pytest.raises(InvalidInputError, match="exists and is not a folder; expected a folder"):
+        _run(file, [], "x")
+    assert file.read_text() == "a file"

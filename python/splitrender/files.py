@@ -15,7 +15,9 @@ number of bytes, and every parse failure (including nesting too deep for the par
 integers no float can hold) as the caller's own exception class. Stream files, read in parts,
 are opened by :func:`open_regular`.
 :func:`temporary_beside` names such a temporary file for writers that stream (the stream file,
-the videos), which derive from :class:`AtomicWriter`.
+the videos), which derive from :class:`AtomicWriter`. :class:`OutputFolder` does the same for
+the several files and folders one command writes into a folder (``play``'s frames and
+``play.json``, ``demo``'s video, stills and summaries).
 :func:`check_name` and :func:`joined` keep names that come from data or arguments from
 escaping the folder they are joined under, and :func:`check_apart` refuses an output that is an
 input or lies inside one (writing it would destroy what is being read).
@@ -27,9 +29,11 @@ import errno
 import itertools
 import json
 import os
+import shutil
 import stat
 import sys
-from collections.abc import Callable, Mapping
+import tempfile
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, BinaryIO
@@ -41,6 +45,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AtomicWriter",
+    "OutputFolder",
     "check_apart",
     "check_name",
     "joined",
@@ -242,6 +247,88 @@ class AtomicWriter:
             self.close()
         else:
             self.abort()
+
+
+class OutputFolder:
+    """The outputs of one command in folder ``out``, replaced together when the command ends.
+
+    ``with OutputFolder(out, owned) as stage:`` creates ``out`` if needed and a hidden staging
+    folder inside it, into which the command writes everything. A clean exit moves the old
+    entries named in ``owned`` (the names the command writes; those this run did not make are
+    removed as well, e.g. ``frames/`` of a run before when this one wrote ``client.mp4``) aside,
+    moves every staged entry into ``out`` in ``owned``'s order (its last name, the summary that
+    says a run is complete, goes last), and removes the old ones. An exception (Ctrl-C, a full
+    disk) removes the staging folder instead: ``out`` keeps the previous run's outputs as they
+    were, never some of each, and a folder it created for this run is removed again if empty.
+    Entries of ``out`` not in ``owned`` are left alone.
+
+    Raises :class:`~splitrender.errors.InvalidInputError` on entry when ``out`` exists and is
+    not a folder (``mkdir`` said only "File exists")."""
+
+    def __init__(self, out: str | os.PathLike[str], owned: Collection[str]) -> None:
+        self.out = Path(out)
+        self.owned = [check_name(n, "owned output") for n in owned]
+        self._created = False
+        self._stage: Path | None = None
+
+    def __enter__(self) -> Path:
+        if self.out.exists() and not self.out.is_dir():
+            raise InvalidInputError(f"{self.out}: exists and is not a folder; expected a folder "
+                                    "for the outputs (new or existing)")
+        self._created = not self.out.exists()
+        self.out.mkdir(parents=True, exist_ok=True)
+        self._stage = Path(tempfile.mkdtemp(prefix=".partial-", dir=self.out))
+        return self._stage
+
+    def final(self, path: str | os.PathLike[str]) -> Path:
+        """Where ``path`` (in the staging folder) will lie once the outputs are in place."""
+        assert self._stage is not None, "final() inside the with block"
+        return self.out / Path(path).relative_to(self._stage)
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        stage, self._stage = self._stage, None
+        assert stage is not None
+        try:
+            if exc_type is None:
+                self._commit(stage)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
+            if exc_type is not None and self._created:
+                try:
+                    self.out.rmdir()  # only if empty: a folder made for this run, nothing else
+                except OSError:
+                    pass
+
+    def _commit(self, stage: Path) -> None:
+        made = {p.name for p in stage.iterdir()}
+        # The summary (owned's last name) goes last: until it is in place the folder does not
+        # claim a complete run.
+        last = self.owned[-1:]
+        order = sorted(made, key=lambda n: (n in last, n))
+        old = stage / ".old"
+        old.mkdir()
+        aside: list[str] = []
+        placed: list[str] = []
+        try:
+            for name in sorted({*self.owned, *made}):
+                if os.path.lexists(self.out / name):
+                    os.rename(self.out / name, old / name)
+                    aside.append(name)
+            for name in order:
+                os.rename(stage / name, self.out / name)
+                placed.append(name)
+        except BaseException:
+            # Back as it was: this run's entries out again, the old ones in.
+            for name in placed:
+                os.rename(self.out / name, stage / name)
+            for name in aside:
+                os.rename(old / name, self.out / name)
+            raise
 
 
 def write_atomic(path: str | os.PathLike[str], data: bytes | str) -> None:

@@ -52,8 +52,8 @@ def add_demo(sub: Any) -> None:
 
     de = command(sub, "demo", demo)
     add_scene(de)
-    add_out(de, "output directory, created if missing; files in it are replaced "
-            "(default: %(default)s)", default=Path("splitrender-demo"))
+    add_out(de, "output directory, created if missing; its outputs are replaced when the run "
+            "completes (default: %(default)s)", default=Path("splitrender-demo"))
     add_scale(de, 0.1)
     de.add_argument(
         "--seconds", type=seconds, default=1.0, metavar="S",

@@ -41,7 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.errors import InvalidInputError
-from splitrender.files import AtomicWriter, temporary_beside, write_atomic
+from splitrender.files import AtomicWriter, OutputFolder, temporary_beside, write_atomic
 from splitrender.net.model import NetworkModel
 from splitrender.progress import Progress
 from splitrender.imageio import write_png
@@ -416,8 +416,28 @@ class TruthStore:
         self.close()
 
 
+#: What a demo writes into its folder, replaced together (:class:`~splitrender.files.OutputFolder`),
+#: ``summary.json`` last.
+_OUTPUTS = ("stills", "video.mp4", "summary.md", "summary.json")
+
+
 def run_demo(cfg: DemoConfig) -> DemoResult:
-    """Runs the demo (see the module docstring) and writes its files to ``cfg.out``."""
+    """Runs the demo (see the module docstring) and writes its files to ``cfg.out``.
+
+    They are written into a staging folder inside ``cfg.out`` and moved into place when the
+    run completes (:class:`~splitrender.files.OutputFolder`): a failed or interrupted demo
+    leaves the previous run's video, stills and summaries as they were."""
+    check_config(cfg)
+    check_gpu(cfg.backend)
+    outputs = OutputFolder(cfg.out, _OUTPUTS)
+    with outputs as stage:
+        result = _demo(cfg, stage)
+        result.files = [outputs.final(p) for p in result.files]
+    return result
+
+
+def _demo(cfg: DemoConfig, out: Path) -> DemoResult:
+    """The demo, every file written into ``out`` (the staging folder)."""
     from dataclasses import replace
 
     from splitrender.codec.coder import CodecConfig, DecodedStream
@@ -433,17 +453,13 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     from splitrender.scene.builtin import Scene
     from splitrender.types import ServerFrame
 
-    check_config(cfg)
-    check_gpu(cfg.backend)
     scene = Scene(cfg.scene, "dynamic")
     w, h = scene.main_size(cfg.scale)
     n_server, n_client = plan(cfg.seconds, FS, FC)
     metrics = metric_names(cfg.vmaf, w, h, cfg.progress)
     stages = Progress(3 + len(cfg.methods), cfg.progress)
     eyes = 2 if cfg.stereo else 1
-    out = cfg.out
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "stills").mkdir(exist_ok=True)
+    (out / "stills").mkdir()
     files: list[Path] = []
     t0 = time.perf_counter()
     codec_cfg = (

@@ -11,6 +11,7 @@ its frames (of one eye or two) against the ground truth as they are made
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -27,12 +28,14 @@ from splitrender.evaluation.metrics import (
     psnr_of_mse,
 )
 from splitrender.net.model import NetworkModel
-from splitrender.codec.stream import stream_stats
+from splitrender.codec.stream import stream_stats, unpack_packet
+from splitrender.errors import InvalidInputError
 from splitrender.scene.recording import Recording
 from splitrender.types import Camera, ReprojectOptions, ServerFrame
 
 __all__ = [
     "Scored",
+    "check_stream_of",
     "encode_packets",
     "mean_of_eyes",
     "mean_row",
@@ -60,6 +63,49 @@ def encode_packets(
             if bar is not None:
                 bar(k + 1, total, "server frames encoded")
     return packets, stream_stats(packets, fps).mbps_total()
+
+
+def check_stream_of(packets: Sequence[bytes], fps: float, rec: Recording, name: str) -> None:
+    """Checks that ``packets`` (of the stream file ``name``, at ``fps`` server frames per
+    second) were encoded from ``rec``'s first server frames: the same rate, and packet ``k`` of
+    server frame ``k``'s index and time, with its cameras' sizes and matrices. A stream is
+    played at the recording's client cameras and scored against its ground truth, so a stream
+    of another scene or take would be scored without complaint (a lab stream against a
+    courtyard recording scored SSIM 0.19).
+
+    # Errors
+    :class:`InvalidInputError` naming the first frame and field that differ; a malformed
+    packet raises :class:`StreamError` (:func:`~splitrender.codec.stream.unpack_packet`)."""
+    here = f"{name} was not encoded from {rec.path}"
+    if not math.isclose(fps, rec.fs, rel_tol=1e-9):
+        raise InvalidInputError(f"{here}: the stream is at {fps:g} server frames per second, "
+                                f"the recording at {rec.fs:g}")
+    entries = rec.manifest["server_frames"]
+    if len(packets) > len(entries):
+        raise InvalidInputError(f"{here}: the stream has {len(packets)} frames, the recording "
+                                f"{len(entries)} server frames")
+    for k, data in enumerate(packets):
+        p, entry = unpack_packet(data), entries[k]
+        if p.index != entry["index"] or p.time != entry["time"]:
+            raise InvalidInputError(
+                f"{here}: its frame {k} is server frame {p.index} at {p.time:g} s, the "
+                f"recording's is {entry['index']} at {entry['time']:g} s")
+        cams = rec.server_cameras(k)
+        if len(p.cameras) != len(cams):
+            raise InvalidInputError(f"{here}: frame {p.index} has {len(p.cameras)} cameras, "
+                                    f"the recording's {len(cams)}")
+        for c, (got, want) in enumerate(zip(p.cameras, cams)):
+            what = "main camera" if c == 0 else f"auxiliary camera {c - 1}"
+            if (got.width, got.height) != (want.width, want.height):
+                raise InvalidInputError(
+                    f"{here}: frame {p.index}'s {what} is {got.width}x{got.height}, the "
+                    f"recording's {want.width}x{want.height}")
+            # The packet carries the float64 matrices the encoder was given: equal, not close.
+            for m in ("view", "proj"):
+                if not np.array_equal(getattr(got, m), getattr(want, m)):
+                    raise InvalidInputError(
+                        f"{here}: frame {p.index}'s {what} has another {m} matrix (a stream "
+                        "of another scene, take or scale?)")
 
 
 def raw_mbps(rec: Recording) -> float:

@@ -758,6 +758,18 @@ class Recording:
         entry = self.manifest["server_frames"][k]
         return _read_npz(self.path, entry, self._server_spec())["pose"]
 
+    def server_cameras(self, k: int) -> tuple[Camera, ...]:
+        """Server frame ``k``'s cameras, main then auxiliary: the frame file is checked whole
+        (size, SHA-256, members) but only the matrices are read."""
+        entry = self.manifest["server_frames"][k]
+        only = {f"{cam}.{m}" for cam in _CAMERAS for m in ("view", "proj")}
+        a = _read_npz(self.path, entry, self._server_spec(), only)
+        try:
+            return tuple(Camera(a[f"{cam}.view"], a[f"{cam}.proj"], w, h)
+                         for cam, (w, h) in zip(_CAMERAS, self._sizes))
+        except SplitRenderError as e:
+            raise _fail(self.path / entry["file"], str(e)) from None
+
     def _server_spec(self) -> Spec:
         spec: Spec = {"pose": (np.dtype(np.float64), (4, 4))}
         for cam, (w, h) in zip(_CAMERAS, self._sizes):
