@@ -413,3 +413,158 @@ def test_error_bad_matrix(handmade: Path) -> None:
     p.write_text(json.dumps(cj))
     with pytest.raises(DatasetError, match=r"cam\.json: frames\[1\]\.proj: e23"):
         sr.import_dataset(handmade, aux=())
+
+
+def _edit_cam(root: Path, cam: str, **fields: object) -> dict:
+    """Rewrites ``root/cam/cam.json`` with ``fields`` replaced; returns the new document."""
+    p = root / cam / "cam.json"
+    doc = {**json.loads(p.read_text()), **fields}
+    p.write_text(json.dumps(doc))
+    return doc
+
+
+def _recording_ready(root: Path) -> None:
+    """Makes the handmade dataset importable as a recording: two aux cameras, ground truth."""
+    for a in ("left", "right"):
+        shutil.copytree(root / "main", root / a)
+    _write_png(root / "client_ol" / "color" / "0007.png", np.zeros((4, 4, 3), np.uint8))
+
+
+def test_error_duplicate_idx(handmade: Path) -> None:
+    # Two frames with one idx read the same colour, depth and pair files: accepted before.
+    frames = json.loads((handmade / "main" / "cam.json").read_text())["frames"]
+    _edit_cam(handmade, "main", frames=[frames[0], {**frames[1], "idx": 7}])
+    with pytest.raises(
+        DatasetError,
+        match=r"main[/\\]cam\.json: frames\[0\] and frames\[1\] both have idx 7, expected a "
+        r"distinct idx per frame",
+    ):
+        sr.import_dataset(handmade, aux=())
+    with pytest.raises(DatasetError, match=r"both have idx 7"):
+        dataset_info(handmade, client=None)
+    # The client's idx names its ground truth alone: repeated without ground truth it reads no
+    # file (the reference ignores it), with ground truth two client frames would share one.
+    _edit_cam(handmade, "main", frames=frames)
+    _edit_cam(handmade, "client_ol", frames=[frames[0], frames[0]])
+    assert len(sr.import_dataset(handmade, aux=()).client_requests) == 2
+    _write_png(handmade / "client_ol" / "color" / "0007.png", np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(
+        DatasetError, match=r"client_ol[/\\]cam\.json: frames\[0\] and frames\[1\] both have idx 7"
+    ):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_idx_may_decrease(handmade: Path) -> None:
+    # Time and pairing follow the list order, the idx only names files (REFERENCE.md §1.2): the
+    # handmade frames numbered 8, 7 read 0008 then 0007, and the pair (0, 1) the files 0008.
+    main = handmade / "main"
+    for kind in ("forwardFlowField", "backwardFlowField"):
+        (main / kind / "0007.exr").rename(main / kind / "0008.exr")
+    for kind in ("forwardShadowInfo", "forwardShadowColorA", "forwardShadowColorB"):
+        (main / kind / "0007.png").rename(main / kind / "0008.png")
+    frames = json.loads((main / "cam.json").read_text())["frames"]
+    _edit_cam(handmade, "main", frames=[{**frames[0], "idx": 8}, {**frames[1], "idx": 7}])
+    imp = sr.import_dataset(handmade, aux=())
+    f0, f1 = imp.server_frames[0].main, imp.server_frames[1].main
+    assert f0.motion_fwd is not None and f1.motion_bwd is not None and f0.shadow_fwd is not None
+
+
+def _set(m: np.ndarray, r: int, c: int, v: float) -> np.ndarray:
+    out = m.copy()
+    out[r, c] = v
+    return out
+
+
+_GL = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, -(F + N) / (F - N), -2 * F * N / (F - N)],
+                [0, 0, -1.0, 0]])  # OpenGL, depth [-1, 1] not reversed
+
+
+@pytest.mark.parametrize(
+    ("proj", "problem"),
+    [
+        (np.zeros((4, 4)), r"bottom row \(0, 0, 0, 0\), expected \(0, 0, -1, 0\): a perspective"),
+        (np.diag([1.0, 1.0, -0.5, 1.0]), r"bottom row \(0, 0, 0, 1\), expected \(0, 0, -1, 0\)"),
+        (_set(PROJ, 1, 1, 0.0), "singular matrix, expected an invertible perspective"),
+        (_GL, r"near plane 3 and far plane 1\.5 \(from e22, e23\), expected a reversed-Z \[0, 1\]"),
+        (_set(PROJ, 2, 2, 0.0), r"near plane 1\.5 and far plane inf .* 0 < near < far < inf"),
+        (_set(PROJ, 2, 2, -1.0), r"near plane inf and far plane -1\.5"),
+    ],
+    ids=["zero", "orthographic", "singular", "opengl", "infinite-far", "near-infinite"],
+)
+def test_error_proj_not_a_reversed_z_perspective(
+    handmade: Path, proj: np.ndarray, problem: str
+) -> None:
+    # Accepted before: play failed much later, or near/far fell back to 0.1 / 1000 unannounced.
+    for cam in ("main", "client_ol"):
+        p = handmade / cam / "cam.json"
+        original = p.read_text()
+        doc = json.loads(original)
+        doc["frames"][-1]["proj"] = matrix_to_unity(proj)
+        p.write_text(json.dumps(doc))
+        k = len(doc["frames"]) - 1
+        where = rf"{cam}[/\\]cam\.json: frames\[{k}\]\.proj: "
+        with pytest.raises(DatasetError, match=where + problem):
+            sr.import_dataset(handmade, aux=())
+        p.write_text(original)
+
+
+def test_error_singular_w2c(handmade: Path, tmp_path: Path) -> None:
+    # Accepted by import_dataset; the recording import's np.linalg.inv raised LinAlgError.
+    _recording_ready(handmade)
+    for cam in ("main", "left", "right"):
+        frames = json.loads((handmade / cam / "cam.json").read_text())["frames"]
+        frames[0]["w2c"] = matrix_to_unity(np.zeros((4, 4)))
+        _edit_cam(handmade, cam, frames=frames)
+    match = r"main[/\\]cam\.json: frames\[0\]\.w2c: singular matrix, expected an invertible"
+    with pytest.raises(DatasetError, match=match):
+        sr.import_dataset(handmade)
+    with pytest.raises(DatasetError, match=match):
+        import_dataset_as_recording(handmade, tmp_path / "rec")
+    assert not (tmp_path / "rec").exists()
+
+
+@pytest.mark.parametrize(
+    ("shadow_fps", "server_fps", "s"),
+    [(5, 10, 0), (9.99, 10, 0), (130, 10, 13), (1000, 10, 100), (0.05, 0.1, 0)],
+)
+def test_error_shadow_subframes_out_of_range(
+    handmade: Path, tmp_path: Path, shadow_fps: float, server_fps: float, s: int
+) -> None:
+    # S = floor(shadowFps / serverFps) was clamped into 1..16 without a word; the 24-bit
+    # ShadowInfo holds 12 subframes, and S = 0 contradicts the shadow buffers this dataset has.
+    _edit_cam(handmade, "main", shadowFps=shadow_fps, serverFps=server_fps)
+    match = (
+        rf"main[/\\]cam\.json: shadowFps: {shadow_fps:g} at serverFps {server_fps:g} gives "
+        rf"floor\(shadowFps / serverFps\) = {s} shadow subframes, expected 1\.\.12 "
+        rf"\(shadowFps from {server_fps:g} to below {13 * server_fps:g}\)"
+    )
+    with pytest.raises(DatasetError, match=match):
+        dataset_info(handmade, client=None)
+    _recording_ready(handmade)
+    with pytest.raises(DatasetError, match=match):
+        import_dataset_as_recording(handmade, tmp_path / "rec")
+    assert not (tmp_path / "rec").exists()
+
+
+@pytest.mark.parametrize(
+    ("shadow_fps", "server_fps", "s"), [(10, 10, 1), (129.9, 10, 12), (0.7, 0.1, 7), (45, 10, 4)]
+)
+def test_shadow_subframes_floor_like_the_reference(
+    handmade: Path, tmp_path: Path, shadow_fps: float, server_fps: float, s: int
+) -> None:
+    # REFERENCE.md §1.6 floors (0.7 / 0.1 is 6.999... in floats); the recording keeps S as is.
+    _edit_cam(handmade, "main", shadowFps=shadow_fps, serverFps=server_fps)
+    assert dataset_info(handmade, client=None).subframes == s
+    _recording_ready(handmade)
+    _edit_cam(handmade, "client_ol", clientFps=4 * server_fps)
+    assert sr.load_recording(import_dataset_as_recording(handmade, tmp_path / "rec")).subframes == s
+
+
+def test_no_shadow_subframes_without_shadow_buffers_is_taken_as_one(handmade: Path) -> None:
+    # The reference plays such a dataset (without shadows); one subframe changes nothing.
+    for d in handmade.iterdir():
+        for sub in ("forward", "backward"):
+            for kind in ("Info", "ColorA", "ColorB"):
+                shutil.rmtree(d / f"{sub}Shadow{kind}", ignore_errors=True)
+    _edit_cam(handmade, "main", shadowFps=5, serverFps=10)
+    assert dataset_info(handmade, client=None).subframes == 1

@@ -434,6 +434,22 @@ pub fn perspective(
     })
 }
 
+/// Which of a camera's matrices the reprojection cannot invert, in words (`"singular
+/// view-projection"`, checked first, or `"singular view"`), or `None`: the kernels' own test
+/// (`Mat4::inverse` of `proj · view` and of `view`), for readers of files to refuse such a
+/// camera where they read it.
+#[pyfunction]
+#[pyo3(signature = (view, proj))]
+pub fn singular_camera(
+    view: &Bound<'_, PyAny>,
+    proj: &Bound<'_, PyAny>,
+) -> PyResult<Option<&'static str>> {
+    guarded("singular_camera", || {
+        let camera = convert::camera(view, proj, 1, 1, "camera")?;
+        Ok(reproj_core::Rays::new(&camera).err())
+    })
+}
+
 /// The world→camera matrix of a camera at `eye` looking at `target`, `float64[4, 4]`;
 /// `up` defaults to `(0, 1, 0)`.
 #[pyfunction]

@@ -43,7 +43,7 @@ import numpy.typing as npt
 import OpenEXR  # type: ignore[import-not-found]  # compiled module, no stubs
 from PIL import Image
 
-from splitrender._native import __version__
+from splitrender._native import __version__, singular_camera
 from splitrender.errors import SplitRenderError
 from splitrender.files import check_apart, check_name, joined, read_json_object, temporary_beside
 from splitrender.imageio import write_png
@@ -87,6 +87,10 @@ __all__ = [
 
 _MAX_JSON_BYTES = 64 * 1024 * 1024
 _FPS_RANGE = (1e-3, 1e4)
+# S = floor(shadowFps / serverFps) shadow subframes: 2 bits each of the 24-bit ShadowInfo
+# (R, G, B; REFERENCE.md §1.6), so at most 12; subframe 0 is the key frame itself, so at least 1.
+_SUBFRAMES = (1, 12)
+_EYE = np.eye(4)
 _KEYS = [f"e{r}{c}" for r in range(4) for c in range(4)]
 _EXR_HEADER = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
 _FLOW = {"fwd": "forwardFlowField", "bwd": "backwardFlowField"}
@@ -273,7 +277,47 @@ class _Cam:
         return (self.width, self.height)
 
 
-def _read_cam(path: Path, *, need_resolution: bool = True) -> _Cam:
+def _near_far(proj: npt.NDArray[np.float64]) -> tuple[float, float]:
+    """Near and far planes of a reversed-Z perspective projection with bottom row
+    ``(0, 0, -1, 0)`` (``z' = A z + B``, ``w' = -z``: ``near = B / (1 + A)``, ``far = B / A``);
+    NaN or an infinity where they do not exist. :func:`_check_proj` refuses those."""
+    a, b = float(proj[2, 2]), float(proj[2, 3])
+    with np.errstate(all="ignore"):
+        near = float(np.float64(b) / np.float64(1.0 + a))
+        far = float(np.float64(b) / np.float64(a))
+    return near, far
+
+
+def _check_proj(proj: npt.NDArray[np.float64], where: str) -> None:
+    """Refuses a ``proj`` that is not a reversed-Z ``[0, 1]`` perspective projection (REFERENCE.md
+    §1.3): the reprojection inverts it, and the recording's ``near``/``far`` are read from it
+    (:func:`_near_far`). An all-zero or orthographic matrix was accepted here and only failed
+    in ``splitrender play``, far from the file that held it."""
+    row = proj[3]
+    # Unity writes this row exactly; the tolerance only absorbs a decimal round trip.
+    if np.abs(row - (0.0, 0.0, -1.0, 0.0)).max() > 1e-6:
+        got = ", ".join(f"{v + 0.0:g}" for v in row)  # + 0.0: -0 reads as 0
+        raise _fail(
+            where,
+            f"bottom row ({got}), expected (0, 0, -1, 0): a perspective projection (w = -z)",
+        )
+    if singular_camera(_EYE, proj) is not None:  # the kernels' own test of P = proj · view
+        raise _fail(where, "singular matrix, expected an invertible perspective projection")
+    near, far = _near_far(proj)
+    # far <= near also catches a projection that is not reversed-Z: OpenGL's [-1, 1] and the
+    # conventional [0, 1] projection both give near = f and far < f here.
+    if not (math.isfinite(near) and math.isfinite(far) and 0.0 < near < far):
+        raise _fail(
+            where,
+            f"near plane {near:g} and far plane {far:g} (from e22, e23), expected a reversed-Z "
+            "[0, 1] projection (depth 1 at the near plane, 0 at the far one) with "
+            "0 < near < far < inf",
+        )
+
+
+def _read_cam(path: Path, *, need_resolution: bool = True, distinct: bool = True) -> _Cam:
+    """``distinct``: refuse two frames with the same ``idx`` (they would read the same files;
+    for the client only the ground truth is read by idx)."""
     m = _read_json(path)
     res = m.get("resolution")
     w = h = 0
@@ -289,19 +333,37 @@ def _read_cam(path: Path, *, need_resolution: bool = True) -> _Cam:
     if not isinstance(frames, list) or not frames:
         raise _fail(path, "frames: expected a non-empty array")
     out = []
+    seen: dict[int, int] = {}
     for i, fr in enumerate(frames):
         if not isinstance(fr, dict):
             raise _fail(path, f"frames[{i}]: expected an object")
         idx = fr.get("idx")
         if isinstance(idx, bool) or not isinstance(idx, int) or idx < 0:
             raise _fail(path, f"frames[{i}].idx: expected an int >= 0, got {idx!r}")
-        out.append(
-            (
-                idx,
-                matrix_from_unity(fr.get("w2c"), f"{path}: frames[{i}].w2c"),
-                matrix_from_unity(fr.get("proj"), f"{path}: frames[{i}].proj"),
+        # Two frames with one idx read the same colour and depth, and the pairs (k, k+1) they
+        # start the same flow and shadow files. The idx need not increase: time and pairing
+        # follow the position in the list (REFERENCE.md §1.2), the idx only names files.
+        if distinct and idx in seen:
+            raise _fail(
+                path,
+                f"frames[{seen[idx]}] and frames[{i}] both have idx {idx}, expected a distinct "
+                "idx per frame (each frame reads the files numbered by its idx)",
             )
-        )
+        seen.setdefault(idx, i)
+        view = matrix_from_unity(fr.get("w2c"), f"{path}: frames[{i}].w2c")
+        if singular_camera(view, _EYE) is not None:
+            # The import inverts it for the recording's poses (numpy raised LinAlgError) and the
+            # reprojection for every pixel.
+            raise _fail(
+                path,
+                f"frames[{i}].w2c: singular matrix, expected an invertible world-to-camera matrix",
+            )
+        proj = matrix_from_unity(fr.get("proj"), f"{path}: frames[{i}].proj")
+        _check_proj(proj, f"{path}: frames[{i}].proj")
+        if singular_camera(view, proj) is not None:  # each invertible, their product not
+            raise _fail(path, f"frames[{i}]: proj · w2c is singular, expected an invertible "
+                        "view-projection")
+        out.append((idx, view, proj))
     return _Cam(path, w, h, out, m)
 
 
@@ -453,20 +515,48 @@ class DatasetInfo:
 
     @property
     def subframes(self) -> int:
-        """``S = ⌊shadowFps / serverFps⌋`` (REFERENCE.md §1.6), at least 1."""
-        return max(1, int(math.floor(self.shadow_fps / self.server_fps + 1e-9)))
+        """``S = ⌊shadowFps / serverFps⌋`` (REFERENCE.md §1.6); :func:`dataset_info` refuses rates
+        for which it is not in 1..12 (0 is taken as 1 where there are no shadow buffers)."""
+        return max(1, _subframes(self.shadow_fps, self.server_fps))
+
+
+def _subframes(shadow_fps: float, server_fps: float) -> int:
+    # The reference floors; 1e-9 keeps a quotient such as 0.7 / 0.1 = 6.9999... at 7.
+    return int(math.floor(shadow_fps / server_fps + 1e-9))
 
 
 def dataset_info(in_dir: str | os.PathLike[str], client: str | None = "client_ol") -> DatasetInfo:
-    """The :class:`DatasetInfo` of the dataset in ``in_dir``."""
+    """The :class:`DatasetInfo` of the dataset in ``in_dir``.
+
+    Raises:
+        DatasetError: as :func:`import_dataset` for ``main/cam.json``, a rate out of range, or
+            ``shadowFps`` that gives more than 12 shadow subframes, or none where the dataset
+            has shadow buffers.
+    """
     root = Path(in_dir)
     main = _read_cam(root / "main" / "cam.json")
     fc_src = main.raw
     if client is not None:
         fc_src = _read_json(root / client / "cam.json")
+    fs = _number(main.raw, "serverFps", 10.0, main.path)
+    fd = _number(main.raw, "shadowFps", 60.0, main.path)
+    s, (lo, hi) = _subframes(fd, fs), _SUBFRAMES
+    shadows = any((d / _SHADOW[k][0]).is_dir() for d in root.iterdir() if d.is_dir()
+                  for k in _SHADOW)
+    if not lo <= s <= hi and (shadows or s > hi):
+        # Clamped before. Above 12 the subframes past the 24 bits read as level 0, at other
+        # times than those rendered. S = 0 (shadowFps below serverFps) contradicts shadow
+        # buffers (subframe 0 is the key frame itself); without any it changes nothing and is
+        # taken as 1 (the reference plays such a dataset, without shadows).
+        raise _fail(
+            main.path,
+            f"shadowFps: {fd:g} at serverFps {fs:g} gives floor(shadowFps / serverFps) = {s} "
+            f"shadow subframes, expected {lo}..{hi} (shadowFps from {lo * fs:g} to below "
+            f"{(hi + 1) * fs:g})",
+        )
     return DatasetInfo(
-        _number(main.raw, "serverFps", 10.0, main.path),
-        _number(main.raw, "shadowFps", 60.0, main.path),
+        fs,
+        fd,
         _number(fc_src, "clientFps", 60.0, root / (client or "main") / "cam.json"),
         main.width,
         main.height,
@@ -556,7 +646,10 @@ def import_dataset(
     Raises:
         DatasetError: naming the file, for a missing directory, ``cam.json`` or buffer file, a
             file whose resolution differs from its ``cam.json``, malformed JSON or matrices,
-            aux frame lists of another length than main's, or unreadable images.
+            a singular ``w2c``, a ``proj`` that is not an invertible reversed-Z perspective
+            projection with 0 < near < far < inf, two frames of one camera with the same
+            ``idx`` (the client's only when it has ground truth), aux frame lists of another
+            length than main's, or unreadable images.
     """
     root = Path(in_dir)
     if not root.is_dir():
@@ -586,10 +679,11 @@ def import_dataset(
         cd = root / client
         if not cd.is_dir():
             raise _fail(cd, "missing client directory")
-        cc = _read_cam(cd / "cam.json", need_resolution=False)
+        has_gt = (cd / "color").is_dir()
+        # Without ground truth the client's idx reads no file (the reference ignores it).
+        cc = _read_cam(cd / "cam.json", need_resolution=False, distinct=has_gt)
         fc = _number(cc.raw, "clientFps", 60.0, cc.path)
         w, h = cc.size if cc.width else info_main.size
-        has_gt = (cd / "color").is_dir()
         for n, (idx, view, proj) in enumerate(cc.frames):
             try:
                 requests.append(ClientRequest(Camera(view, proj, w, h), n / fc))
@@ -601,19 +695,6 @@ def import_dataset(
                 else None
             )
     return ImportedDataset(server, requests, truth)
-
-
-def _near_far(proj: npt.NDArray[np.float64]) -> tuple[float, float]:
-    """Near and far planes of a reversed-Z perspective projection (``z' = A z + B``,
-    ``near = B / (1 + A)``, ``far = B / A``); 0.1 / 1000 when they cannot be read from it."""
-    a, b = float(proj[2, 2]), float(proj[2, 3])
-    near = b / (1.0 + a) if 1.0 + a != 0 else math.nan
-    far = b / a if a != 0 else math.inf
-    if not (math.isfinite(near) and near > 0):
-        near = 0.1
-    if not (math.isfinite(far) and far > near):
-        far = 1000.0
-    return near, far
 
 
 def import_dataset_as_recording(
@@ -671,7 +752,7 @@ def import_dataset_as_recording(
         assert truth is not None
         pose = np.linalg.inv(cam.view).astype(np.float64)
         clients.append(ClientFrame(n, n / fc, pose, (cam,), (truth,)))
-    near, far = _near_far(data.server_frames[0].main.camera.proj)
+    near, far = _near_far(data.server_frames[0].main.camera.proj)  # checked by _read_cam
     fields = {
         "generator": f"splitrender {__version__} (dataset import)",
         "scene": root.resolve().name,
@@ -679,7 +760,7 @@ def import_dataset_as_recording(
         "scale": w / 2560,
         "fs": fs,
         "fc": fc,
-        "subframes": min(16, info.subframes),
+        "subframes": info.subframes,  # in 1..12: dataset_info refuses others
         "seconds": n_client / fc,
         "stereo": False,
         "samples": {"main": 1, "aux": 1, "client": 1},

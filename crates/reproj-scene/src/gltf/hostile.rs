@@ -542,6 +542,67 @@ fn non_regular_files_are_refused() {
     }
 }
 
+#[test]
+fn absolute_uris_are_refused() {
+    // `base.join` of an absolute URI, plain or percent-encoded, discarded the model's folder and
+    // read any file on the machine: this one, which lies outside the folder, loaded.
+    let dir = super::tests::test_dir().join(format!("reproj-gltf-{}-uris", std::process::id()));
+    let models = dir.join("models");
+    std::fs::create_dir_all(&models).unwrap();
+    let m = base_model();
+    let shared = dir.join("shared.bin");
+    std::fs::write(&shared, &m.bin).unwrap();
+    let write = |uri: &str| {
+        let mut json = m.json.clone();
+        json["buffers"][0]["uri"] = Value::from(uri);
+        let p = models.join("model.gltf");
+        std::fs::write(&p, gltf::json::serialize::to_vec(&json).unwrap()).unwrap();
+        p
+    };
+    // Real assets share files through "..": a relative path still reads outside the folder.
+    for uri in [
+        "../shared.bin",
+        "..%2Fshared.bin",
+        "../models/../shared.bin",
+    ] {
+        GltfModel::load(write(uri)).unwrap_or_else(|e| panic!("{uri}: {e}"));
+    }
+    let absolute = std::fs::canonicalize(&shared).unwrap();
+    let plain = absolute.to_str().unwrap().to_string();
+    let encoded = plain.replace('/', "%2F");
+    assert!(
+        plain.starts_with('/') && encoded.starts_with("%2F"),
+        "{plain}"
+    );
+    // Windows roots, drives and UNC names are refused on every host, where they would be
+    // absolute (written with %5C and %3A: a raw ':' is refused as a scheme).
+    let windows = [
+        "%5Cshared.bin",
+        "C%3Ashared.bin",
+        "c%3A%5Cx.bin",
+        "%5C%5Cserver%5Cshare%5Cx.bin",
+        "//server/share/x.bin",
+    ];
+    for uri in [plain.as_str(), encoded.as_str()]
+        .into_iter()
+        .chain(windows)
+    {
+        let p = write(uri);
+        let e = GltfModel::load(&p).unwrap_err();
+        assert!(matches!(e, SceneError::Gltf { .. }), "{uri}: {e:?}");
+        let msg = e.to_string();
+        for part in [
+            p.display().to_string(),
+            format!("URI {uri:?}"),
+            "is an absolute path, expected a relative path or a data: URI".to_string(),
+        ] {
+            assert!(msg.contains(&part), "{msg:?} does not contain {part:?}");
+        }
+    }
+    let e = GltfModel::load(write(&encoded)).unwrap_err().to_string();
+    assert!(e.contains(&format!("(decoded {plain:?})")), "{e}");
+}
+
 /// JSON fields the mutations rewrite: every count, offset, stride, length, type and index kind
 /// the loader reads.
 const FIELDS: &[&str] = &[

@@ -5,7 +5,7 @@
 
 use std::collections::HashMap;
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 use std::sync::Arc;
 
 use super::err;
@@ -178,7 +178,36 @@ fn parse_uri(path: &Path, base: &Path, uri: &str) -> Result<Uri> {
             format!("URI {uri:?}: expected a relative path or a data: URI"),
         ));
     }
-    Ok(Uri::File(base.join(percent_decode(path, uri)?)))
+    let name = percent_decode(path, uri)?;
+    if is_absolute(&name) {
+        // `base.join` of an absolute path discards the base: "/etc/passwd" (or
+        // "%2Fetc%2Fpasswd") would read any file on the machine. glTF 2.0 resolves a URI
+        // against the model's folder; ".." stays allowed, as real assets share textures so.
+        let decoded = if name == uri {
+            String::new()
+        } else {
+            format!(" (decoded {name:?})")
+        };
+        return Err(err(
+            path,
+            format!(
+                "URI {uri:?}{decoded} is an absolute path, expected a relative path or a data: URI"
+            ),
+        ));
+    }
+    Ok(Uri::File(base.join(name)))
+}
+
+/// Whether `name` (a decoded URI) would not stay relative to the model's folder, on this host
+/// (`Path::has_root`, a Windows prefix) or on Windows: a leading '/' or '\' (root, UNC) or a
+/// drive letter ("C:", written "C%3A" to pass the ':' check above). A model is refused alike
+/// on every host rather than read here and refused there.
+fn is_absolute(name: &str) -> bool {
+    let p = Path::new(name);
+    let drive = matches!(name.as_bytes(), [l, b':', ..] if l.is_ascii_alphabetic());
+    // A prefix ("C:", "\\server\share") can only be the first component.
+    let prefix = matches!(p.components().next(), Some(Component::Prefix(_)));
+    name.starts_with(['/', '\\']) || drive || p.has_root() || prefix
 }
 
 /// `%XX` escapes of a relative URI, decoded; the result must be UTF-8.

@@ -62,7 +62,7 @@ fn strip_rest(i: usize) -> [f32; 3] {
 
 /// Where the tests write their models: under the workspace's `target/`, so that repeated
 /// runs do not litter the system's temporary directory and `cargo clean` removes them.
-fn test_dir() -> PathBuf {
+pub(super) fn test_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/test-tmp")
 }
 
