@@ -98,8 +98,22 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
      ("models", "expected an array")),
     ("output under a file", ["encode", "{rec}", "--out", "{garbage}/a.srs"],
      ("--out", "not a directory")),
+    # mkdir's "File exists" named no folder that was expected.
     ("directory output that is a file", ["example", "--out", "{garbage}"],
-     ("garbage: File exists",)),
+     ("garbage: exists and is not a folder; expected a folder for the outputs",)),
+    ("play into a file", ["play", "{rec}", "--out", "{garbage}", "--no-vmaf"],
+     ("garbage: exists and is not a folder",)),
+    ("demo into a file", ["demo", "--out", "{garbage}", "--scale", "0.03"],
+     ("garbage: exists and is not a folder",)),
+    # Path("") is the current directory, which was then read as the input.
+    ("empty input path", ["encode", "", "--out", "{tmp}/a.srs"],
+     ("REC", "expected a path, got ''")),
+    ("empty source", ["play", "", "--out", "{tmp}/p"], ("SOURCE", "got ''")),
+    ("empty trace", ["render", "courtyard", "--out", "{tmp}/r", "--trace", ""],
+     ("--trace", "expected a path, got ''")),
+    # Any file was called a stream file, and --recording asked for.
+    ("not a stream file", ["play", "{garbage}", "--out", "{tmp}/p"],
+     ("garbage", "expected a recording folder, a stream file or a built-in scene")),
     ("output inside the input", ["encode", "{rec}", "--out", "{rec}/manifest.json"],
      ("expected a path outside it",)),
     ("refused destination", ["render", "courtyard", "--out", "{rec}", "--scale", "0.03",

@@ -521,6 +521,24 @@ def test_zstd_bomb_rejected(coded: tuple[list[bytes], list[sr.ServerFrame]]) -> 
         dec.decode(bad)
 
 
+def test_a_zstd_payload_without_its_size_is_named_so(
+    coded: tuple[list[bytes], list[sr.ServerFrame]],
+) -> None:
+    # The message said "declares -1 bytes" (zstandard's code for a size left out).
+    import zstandard
+
+    packets, _ = coded
+    unsized = zstandard.ZstdCompressor(write_content_size=False).compress(b"\0" * 64)
+    assert zstandard.frame_content_size(unsized) == -1
+    bad = _replace_payload(packets[0], "main.shadow_fwd.bits", unsized)
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match="main.shadow_fwd.bits: zstd payload does not declare "
+                      r"its size \(expected a frame that declares it, at most \d+ bytes\)"),
+    ):
+        dec.decode(bad)
+
+
 def test_truncated_packet_raises(
     coded: tuple[list[bytes], list[sr.ServerFrame]],
 ) -> None:

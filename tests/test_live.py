@@ -593,3 +593,58 @@ def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:
             assert f["sent"] + carry > needed, (followed, f, frames)
     log = server.log.read_text()
     assert "adaptive target" in log and "Traceback" not in log
+
+
+def _pem_pair(folder: Path, name: str) -> tuple[Path, Path]:
+    """A new self-signed certificate and its key, written as PEM files."""
+    from cryptography.hazmat.primitives import serialization
+
+    from splitrender.net.server import self_signed_certificate
+
+    cert, key = self_signed_certificate()
+    cert_path, key_path = folder / f"{name}.crt", folder / f"{name}.key"
+    cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    key_path.write_bytes(key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption()))
+    return cert_path, key_path
+
+
+def test_load_certificate_names_the_file_that_is_wrong(tmp_path: Path) -> None:
+    # cryptography's "Unable to load PEM file. See https://... MalformedFraming" named no file,
+    # and a key of another certificate was taken (the handshake would fail without a reason).
+    from cryptography.hazmat.primitives import serialization
+
+    from splitrender.errors import InvalidInputError
+    from splitrender.net.server import load_certificate
+
+    cert, key = _pem_pair(tmp_path, "a")
+    _, other_key = _pem_pair(tmp_path, "b")
+    loaded_cert, loaded_key = load_certificate(cert, key)
+    assert loaded_cert.public_bytes(serialization.Encoding.PEM) == cert.read_bytes()
+    both = tmp_path / "both.pem"
+    both.write_bytes(cert.read_bytes() + key.read_bytes())
+    assert load_certificate(both)[0] == loaded_cert  # the key from the same file
+    junk = tmp_path / "junk.pem"
+    junk.write_text("not a PEM file\n")
+    locked = tmp_path / "locked.key"
+    locked.write_bytes(loaded_key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+        serialization.BestAvailableEncryption(b"secret")))
+    for args, message in [
+        ((junk, key), f"{junk}: expected a PEM certificate (-----BEGIN CERTIFICATE-----), "
+                      "found none that parses"),
+        ((cert, junk), f"{junk}: expected an unencrypted PEM private key (-----BEGIN PRIVATE "
+                       "KEY-----), found none that parses"),
+        ((cert, locked), f"{locked}: expected an unencrypted PEM private key (-----BEGIN "
+                         "PRIVATE KEY-----), found an encrypted one"),
+        ((cert, other_key), f"{other_key}: the private key is not the key of the certificate "
+                            f"in {cert}"),
+        ((cert, tmp_path / "missing.key"), f"{tmp_path / 'missing.key'}: cannot read the "
+                                           "private key (PEM): No such file or directory"),
+        ((tmp_path, key), f"{tmp_path}: certificate (PEM) is a directory, expected a regular "
+                          "file"),
+    ]:
+        with pytest.raises(InvalidInputError) as e:
+            load_certificate(*args)
+        assert str(e.value) == message

@@ -1063,6 +1063,9 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--realtime", "--backend", "wgpu", "--methods", "timewarp"], "no wgpu kernel"),
         (["--realtime", "--stream", "missing.srs"], "missing.srs"),
         (["--plot", "p.png"], "--plot goes with --realtime"),
+        # It used to time five frames per method and say nothing of --seconds.
+        (["--seconds", "2"], "--seconds goes with --realtime"),
+        (["--realtime", "--frames", "3"], "--frames: not with --realtime, which runs for"),
         (["--json", "."], "--json: . is a directory; expected a file name"),
         # The outputs are checked before the run: a result that cannot be written is not made.
         (["--realtime", "--plot", "."], "--plot: . is a directory; expected a file name"),

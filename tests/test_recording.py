@@ -253,6 +253,14 @@ def _edit_manifest(root: Path, **changes: object) -> None:
         ({"subframes": 0}, "subframes"),
         ({"cameras": {"main": [0, 5]}}, "cameras.main"),
         ({"server_frames": []}, "server_frames: empty"),
+        # In JSON's terms, not Python's ("expected <class 'int'>, got str"), and naming the
+        # entry of a frame list.
+        ({"fs": "10"}, "field 'fs': expected a number, got a string$"),
+        ({"subframes": 2.5}, "field 'subframes': expected an integer, got a number$"),
+        ({"stereo": 0}, "field 'stereo': expected true or false, got an integer$"),
+        ({"cameras": [1]}, "field 'cameras': expected an object, got an array$"),
+        ({"client_frames": [{"index": None}]},
+         "field 'client_frames\\[0\\].index': expected an integer, got null$"),
     ],
 )
 def test_bad_manifest(copy: Path, changes: dict[str, object], problem: str) -> None:

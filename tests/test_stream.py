@@ -502,6 +502,17 @@ def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
     )  # mid third record, no index
     with pytest.raises(StreamError, match="after frame 1"):
         list(read_stream(cut))
+    # Cut inside the index (4 records of 4 written): every record is whole and read. The
+    # scan used to take the index magic for a record length and refuse the file.
+    end = raw.rindex(b"SRIX")
+    for size in (end + 4, end + 10, len(raw) - 1):
+        cut.write_bytes(raw[:size])
+        assert list(read_stream(cut)) == packets, size
+    # Not an index: a record whose length field reads "SRIX" with more bytes after it than an
+    # index of that many entries takes is still a record that runs past the end.
+    cut.write_bytes(raw[:end] + b"SRIX" + bytes(200))
+    with pytest.raises(StreamError, match="after frame 3: record at byte"):
+        list(read_stream(cut))
     bad = tmp_path / "v.srs"
     bad.write_bytes(raw[:8] + struct.pack("<H", 9) + raw[10:])
     with pytest.raises(StreamError, match="unsupported stream version 9"):

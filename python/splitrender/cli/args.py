@@ -157,6 +157,14 @@ def bitrate(text: str) -> float:
     return number(text, MIN_BITRATE_MBPS, MAX_BITRATE_MBPS, "Mb/s")
 
 
+def in_path(text: str) -> Path:
+    """An input file or folder; the empty string is refused (``Path("")`` is the current
+    directory, which was then read as a recording, a dataset or a trace)."""
+    if text == "":
+        raise argparse.ArgumentTypeError("expected a path, got ''")
+    return Path(text)
+
+
 def out_dir(text: str) -> Path:
     """An output directory: it may be missing (it is created, with its parents), but the
     nearest existing path above it must be a directory (a file there cannot hold it). The path
@@ -266,7 +274,7 @@ def add_scale(p: argparse.ArgumentParser, default: float | None, shown: str = ""
 def add_trace(p: argparse.ArgumentParser, rate: str = "") -> None:
     """``--trace FILE`` (a head trace as client motion; ``rate``, e.g. `` (60 Hz)``, in its help)
     and ``--trace-scale``."""
-    p.add_argument("--trace", type=Path, default=None, metavar="FILE",
+    p.add_argument("--trace", type=in_path, default=None, metavar="FILE",
                    help=f"head trace 'px py pz pitch yaw roll t_ms' per line{rate} as client "
                    "motion")
     p.add_argument("--trace-scale", type=lambda t: number(t, 0.0, 1000.0), default=1.0,

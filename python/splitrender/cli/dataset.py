@@ -6,7 +6,15 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from splitrender.cli.args import add_out, add_quiet, command, names, run_stages, wrote_dir
+from splitrender.cli.args import (
+    add_out,
+    add_quiet,
+    command,
+    in_path,
+    names,
+    run_stages,
+    wrote_dir,
+)
 from splitrender.progress import Progress
 
 __all__ = ["add"]
@@ -20,11 +28,11 @@ def add(sub: Any) -> None:
     dsub = ds.add_subparsers(dest="dataset_command", metavar="ACTION", parser_class=type(ds))
     dsub.required = True
     ex = command(dsub, "export", export, key="dataset export")
-    ex.add_argument("recording", metavar="REC", type=Path, help="recording directory")
+    ex.add_argument("recording", metavar="REC", type=in_path, help="recording directory")
     add_out(ex, "dataset directory to write (missing or empty)")
     _add_layout_options(ex, "--aux-names")
     im = command(dsub, "import", import_, key="dataset import")
-    im.add_argument("dataset", metavar="DIR", type=Path, help="dataset directory")
+    im.add_argument("dataset", metavar="DIR", type=in_path, help="dataset directory")
     add_out(im, "recording directory to write", "REC")
     im.add_argument("--force", action="store_true", help="replace REC if it exists")
     _add_layout_options(im, "--aux")

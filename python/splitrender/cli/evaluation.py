@@ -24,6 +24,7 @@ from splitrender.cli.args import (
     delays,
     eval_methods,
     fail,
+    in_path,
     integer,
     methods,
     names,
@@ -126,7 +127,7 @@ def add_eval(sub: Any) -> None:
 
     ev = command(sub, "eval", eval_)
     add_out(ev)
-    ev.add_argument("--dataset", type=Path, default=None, metavar="DIR",
+    ev.add_argument("--dataset", type=in_path, default=None, metavar="DIR",
                     help="evaluate a dataset in the authors' layout instead of the built-in "
                     "scenes (Table 1 only; not with --scenes, --variants, --delays, --bitrate, "
                     "--bitrates, --rd-scenes, --stereo, --scale, --seconds, --trace, --samples)")
@@ -179,7 +180,7 @@ def add_eval(sub: Any) -> None:
     sw.add_argument("--address", default=None, metavar="ADDR",
                     help="with --executor ray: join this running cluster (HOST:PORT, "
                     "ray://HOST:PORT or auto) instead of starting a local Ray")
-    sw.add_argument("--cache", type=Path, default=None, metavar="DIR",
+    sw.add_argument("--cache", type=in_path, default=None, metavar="DIR",
                     help="content-addressed cache of recordings, streams and score rows, "
                     "reused by later runs and by a resumed one (a shared path on a cluster; "
                     "default: $SPLITRENDER_CACHE, else $XDG_CACHE_HOME/splitrender, else "
@@ -266,8 +267,9 @@ def add_bench(sub: Any) -> None:
     )
     add_scale(be, None, "0.5 = 1280x720; with --realtime 0.25 = 640x360")
     be.add_argument(
-        "--frames", type=count, default=5, metavar="N",
-        help="timed client frames per method (median) (default: %(default)s)",
+        "--frames", type=count, default=None, metavar="N",
+        help="timed client frames per method (median) (default: 5; not with --realtime, which "
+        "runs for --seconds)",
     )
     be.add_argument(
         "--realtime", action="store_true",
@@ -275,8 +277,8 @@ def add_bench(sub: Any) -> None:
         "preparation on a worker thread) and report frame times and deadline misses",
     )
     be.add_argument(
-        "--seconds", type=seconds, default=10.0, metavar="S",
-        help="with --realtime: seconds of display (default: %(default)s)",
+        "--seconds", type=seconds, default=None, metavar="S",
+        help="with --realtime: seconds of display (default: 10)",
     )
     be.add_argument(
         "--fps", type=rate, default=None, metavar="FC",
@@ -307,7 +309,7 @@ def add_bench(sub: Any) -> None:
     )
     add_max_divisor(be, None, "with --realtime: ")
     be.add_argument(
-        "--stream", type=Path, default=None, metavar="FILE",
+        "--stream", type=in_path, default=None, metavar="FILE",
         help="with --realtime: play this stream file instead of the built-in --scene",
     )
     be.add_argument(
@@ -338,7 +340,10 @@ def bench(args: argparse.Namespace) -> int:
 
     if args.realtime:
         return _bench_realtime(args)
+    # Each option of the other mode is refused, not ignored: `bench --seconds 2` timed five
+    # frames per method and said nothing.
     for flag, given in (
+        ("--seconds", args.seconds is not None),
         ("--stream", args.stream is not None),
         ("--fps", args.fps is not None),
         ("--exclusive", args.exclusive),
@@ -358,7 +363,7 @@ def bench(args: argparse.Namespace) -> int:
     try:
         rows = run_bench(
             args.scene, tuple(args.methods or METHODS),
-            0.5 if args.scale is None else args.scale, args.frames,
+            0.5 if args.scale is None else args.scale, 5 if args.frames is None else args.frames,
             progress=not args.quiet, backend=args.backend,
         )
     except BenchArgumentError as e:
@@ -379,6 +384,8 @@ def _bench_realtime(args: argparse.Namespace) -> int:
         write_realtime_plot,
     )
 
+    if args.frames is not None:
+        return fail("--frames: not with --realtime, which runs for --seconds")
     chosen = args.methods or ("ours",)
     if len(chosen) != 1:
         return fail(f"--methods: --realtime runs one method, got {len(chosen)}")
@@ -398,7 +405,8 @@ def _bench_realtime(args: argparse.Namespace) -> int:
         return fail(f"--plot: {args.plot} is the --json file too; expected another file")
     try:
         result = run_realtime_bench(
-            args.scene, 0.25 if args.scale is None else args.scale, args.seconds, chosen[0],
+            args.scene, 0.25 if args.scale is None else args.scale,
+            10.0 if args.seconds is None else args.seconds, chosen[0],
             stream=args.stream, display_fps=DISPLAY_FPS if args.fps is None else args.fps,
             progress=not args.quiet, exclusive=args.exclusive,
             worker_priority=args.worker_priority or "idle",

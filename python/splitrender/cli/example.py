@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from splitrender.cli.args import add_out, command, side
+from splitrender.files import OutputFolder
 from splitrender.imageio import write_png
 from splitrender.reproject import METHODS, reproject
 from splitrender.scene.synthetic import SyntheticScene
@@ -58,8 +59,18 @@ def _montage(
 
 
 def run(args: argparse.Namespace) -> int:
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    # The PNGs are moved into OUT together once all are made (montage.png last): an interrupted
+    # run leaves the previous ones.
+    outputs = OutputFolder(args.out, ("ground_truth.png", *(f"{m}.png" for m in METHODS),
+                                      "montage.png"))
+    with outputs as stage:
+        lines = _run(args, stage)
+    print("\n".join(lines))
+    return 0
+
+
+def _run(args: argparse.Namespace, out: Path) -> list[str]:
+    """The example, its PNGs written into ``out``; returns the lines to print."""
     fps, client_fps, n = 10.0, 120.0, 7
     t = n / client_fps
     scene = SyntheticScene(dynamic=not args.static)
@@ -88,12 +99,13 @@ def run(args: argparse.Namespace) -> int:
         images.append(r.image)
         results.append((method, mae, coverage, ms))
     write_png(out / "montage.png", _montage(images, columns=3))
-    print(f"done in {time.perf_counter() - t0:.1f} s; wrote {len(images) + 1} PNGs to {out}/")
-    print(f"montage.png, row by row: ground_truth, {', '.join(METHODS)}")
-    print(f"client frame {n} at t = {t:.4f} s (alpha = {t * fps:.3f}); MAE against ground truth:")
-    print(f"  {'method':<18} {'MAE':>7} {'matched':>8} {'time':>9}")
-    for method, mae, coverage, ms in results:
-        print(f"  {method:<18} {mae:7.2f} {coverage:8.1%} {ms:7.1f} ms")
-    return 0
+    return [
+        f"done in {time.perf_counter() - t0:.1f} s; wrote {len(images) + 1} PNGs to {args.out}/",
+        f"montage.png, row by row: ground_truth, {', '.join(METHODS)}",
+        f"client frame {n} at t = {t:.4f} s (alpha = {t * fps:.3f}); MAE against ground truth:",
+        f"  {'method':<18} {'MAE':>7} {'matched':>8} {'time':>9}",
+        *(f"  {method:<18} {mae:7.2f} {coverage:8.1%} {ms:7.1f} ms"
+          for method, mae, coverage, ms in results),
+    ]
 
 

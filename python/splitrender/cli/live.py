@@ -26,6 +26,7 @@ from splitrender.cli.args import (
     add_trace,
     command,
     fail,
+    in_path,
     integer,
     loss,
     milliseconds,
@@ -105,9 +106,9 @@ def add_serve(sub: Any) -> None:
                    "rate control, which is slow)")
     p.add_argument("--token", default=None,
                    help="session token the client must send (default: a random one, printed)")
-    p.add_argument("--cert", type=Path, default=None, metavar="PEM",
+    p.add_argument("--cert", type=in_path, default=None, metavar="PEM",
                    help="certificate (PEM); with --key. Default: a new self-signed one")
-    p.add_argument("--key", type=Path, default=None, metavar="PEM", help="private key (PEM)")
+    p.add_argument("--key", type=in_path, default=None, metavar="PEM", help="private key (PEM)")
     p.add_argument("--predictor", choices=PREDICTORS, default="constant-velocity",
                    help="head-pose predictor (default: %(default)s)")
     p.add_argument("--sessions", type=lambda t: integer(t, 0, 1000000), default=0, metavar="N",

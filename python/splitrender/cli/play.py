@@ -20,12 +20,13 @@ from splitrender.cli.args import (
     add_quiet,
     command,
     fail,
+    in_path,
     network_model,
     bitrate,
     scale,
     seconds,
 )
-from splitrender.errors import InvalidInputError, SplitRenderError
+from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
 from splitrender.files import OutputFolder, check_apart, write_atomic
 from splitrender.imageio import write_png
 from splitrender.progress import Progress
@@ -44,11 +45,11 @@ def add(sub: Any) -> None:
     pl = command(sub, "play", run)
     pl.add_argument("source", metavar="SOURCE", nargs="?",
                     help="recording directory, stream file or scene (or --dataset)")
-    pl.add_argument("--dataset", type=Path, default=None, metavar="DIR",
+    pl.add_argument("--dataset", type=in_path, default=None, metavar="DIR",
                     help="play a dataset in the authors' layout (main/, left/, right/, "
                     "client_ol/) instead of SOURCE; imported into OUT/recording first")
     add_out(pl)
-    pl.add_argument("--recording", type=Path, metavar="REC",
+    pl.add_argument("--recording", type=in_path, metavar="REC",
                     help="the recording a stream file was encoded from (needed for a stream)")
     pl.add_argument("--method", default="ours", choices=METHODS, metavar="M",
                     help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
@@ -102,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
         return fail(f"--backend: {e}")
     if (args.source is None) == (args.dataset is None):
         return fail("expected SOURCE or --dataset DIR (one of them)")
+    if args.source == "":  # Path("") is the current directory
+        return fail("SOURCE: expected a recording, stream file or scene, got ''")
     if args.dataset is not None:
         for flag, given in (("--recording", args.recording is not None),
                             ("--scale", args.scale is not None)):
@@ -186,6 +189,12 @@ def _play(args: argparse.Namespace, src: Path, stage: Path, final: Callable[[Pat
                 "recording, which has its own client poses and ground truth")
         rec_path = src
     elif src.is_file():
+        try:  # any other file was called a stream file, and --recording asked for
+            StreamFile(src)
+        except StreamError as e:
+            raise InvalidInputError(
+                f"{src}: expected a recording folder, a stream file or a built-in scene; {e}"
+            ) from None
         if args.recording is None:
             raise InvalidInputError(
                 f"{src} is a stream file; --recording REC must give its recording")

@@ -14,6 +14,7 @@ from splitrender.cli.args import (
     add_trace,
     bitrate,
     command,
+    in_path,
     seconds,
     run_stages,
     wrote_dir,
@@ -97,7 +98,7 @@ def render(args: argparse.Namespace) -> int:
 
 def add_encode(sub: Any) -> None:
     en = command(sub, "encode", encode)
-    en.add_argument("recording", metavar="REC", type=Path, help="recording directory")
+    en.add_argument("recording", metavar="REC", type=in_path, help="recording directory")
     add_out(en, "stream file to write", "FILE")
     en.add_argument(
         "--bitrate",

@@ -608,7 +608,12 @@ def _unzstd(where: str, payload: bytes | memoryview, limit: int) -> bytes:
         raise StreamError(
             f"{where}: zstd payload of {len(data)} bytes is not a zstd frame ({e})"
         ) from None
-    if size < 0 or size > limit:
+    if size < 0:  # -1: the frame leaves its size out (streaming compression does)
+        raise StreamError(
+            f"{where}: zstd payload does not declare its size (expected a frame that declares "
+            f"it, at most {limit} bytes)"
+        )
+    if size > limit:
         raise StreamError(
             f"{where}: zstd payload declares {size} bytes (expected at most {limit})"
         )

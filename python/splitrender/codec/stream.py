@@ -58,7 +58,8 @@ Container file (version 4; it holds version-4 packets)::
 
 The index lets a reader start at any key frame without scanning; a file without a valid trailer
 (a writer that did not finish, a truncated copy) is still read sequentially, and a record that
-runs past the end of the file raises :class:`StreamError`.
+runs past the end of the file raises :class:`StreamError`. A file cut inside its index ends its
+records where the index begins.
 """
 
 from __future__ import annotations
@@ -802,6 +803,14 @@ class StreamFile:
         out: list[IndexEntry] = []
         pos = _FILE_HEADER.size
         while pos < self._size:
+            f.seek(pos)
+            index_size = _INDEX_HEAD.size + len(out) * _INDEX_ENTRY.size + 4 + _TRAILER.size
+            if f.read(len(_INDEX_MAGIC)) == _INDEX_MAGIC and self._size - pos < index_size:
+                # The records end where an index of as many entries begins: a file cut inside
+                # its index (a writer stopped while closing it, a truncated copy) holds every
+                # record whole. Read as a record length, the magic claimed 1.48 GB and the
+                # file was refused.
+                break
             f.seek(pos)
             packet, n = self._read_record(
                 f, pos, out[-1].frame if out else None, peek=True

@@ -57,7 +57,8 @@ from aioquic.quic.events import (
 )
 
 from splitrender.codec.coder import CodecConfig, StreamEncoder
-from splitrender.errors import ProtocolError
+from splitrender.errors import InvalidInputError, ProtocolError
+from splitrender.files import read_regular
 from splitrender.net.abr import LeadController, LinkPacer, RateController
 from splitrender.net.predict import make_predictor
 from splitrender.net.protocol import (
@@ -904,8 +905,47 @@ class LiveServer:
             self.encoder.close()
 
 
-def load_certificate(cert: Path, key: Path) -> tuple[Any, Any]:
-    """A PEM certificate and private key from files (``--cert``/``--key``)."""
-    cfg = QuicConfiguration(is_client=False)
-    cfg.load_cert_chain(cert, key)
-    return cfg.certificate, cfg.private_key
+#: The most bytes read from a PEM file (a certificate chain is a few kB).
+MAX_PEM_BYTES = 1 << 20
+
+
+def load_certificate(cert: Path, key: Path | None = None) -> tuple[Any, Any]:
+    """A PEM certificate and its private key from files (``--cert``/``--key``; without ``key``,
+    from ``cert`` as well), as :class:`QuicConfiguration` takes them.
+
+    # Errors
+    :class:`InvalidInputError` naming the file that cannot be read or holds no certificate or
+    key (cryptography's own message named neither), and a key that is not the certificate's
+    (a client would fail the handshake with no word why)."""
+    from cryptography import x509
+    from cryptography.exceptions import UnsupportedAlgorithm
+    from cryptography.hazmat.primitives import serialization
+
+    def read(path: Path, what: str) -> bytes:
+        try:
+            return read_regular(path, MAX_PEM_BYTES, what, InvalidInputError)
+        except OSError as e:
+            raise InvalidInputError(f"{path}: cannot read the {what}: {e.strerror or e}") from None
+
+    cert_pem = read(cert, "certificate (PEM)")
+    try:
+        chain = x509.load_pem_x509_certificates(cert_pem)
+    except ValueError:
+        raise InvalidInputError(f"{cert}: expected a PEM certificate (-----BEGIN CERTIFICATE-----)"
+                                ", found none that parses") from None
+    key_path = cert if key is None else key
+    key_pem = cert_pem if key is None else read(key, "private key (PEM)")
+    try:
+        private = serialization.load_pem_private_key(key_pem, password=None)
+    except (ValueError, TypeError, UnsupportedAlgorithm) as e:
+        # TypeError: the key is encrypted (no passphrase is asked for).
+        found = "an encrypted one" if isinstance(e, TypeError) else "none that parses"
+        raise InvalidInputError(f"{key_path}: expected an unencrypted PEM private key "
+                                f"(-----BEGIN PRIVATE KEY-----), found {found}") from None
+    public = serialization.PublicFormat.SubjectPublicKeyInfo
+    der = serialization.Encoding.DER
+    if private.public_key().public_bytes(der, public) != chain[0].public_key().public_bytes(
+            der, public):
+        raise InvalidInputError(f"{key_path}: the private key is not the key of the "
+                                f"certificate in {cert}")
+    return chain[0], private

@@ -533,14 +533,32 @@ def _fail(where: Path | str, problem: str) -> RecordingError:
     return RecordingError(f"{where}: {problem}")
 
 
-def _get(m: dict[str, Any], key: str, kind: type | tuple[type, ...], where: Path) -> Any:
+#: JSON's names for the Python types a manifest field may have.
+_JSON_KIND = {bool: "true or false", int: "an integer", float: "a number", str: "a string",
+              list: "an array", dict: "an object", type(None): "null"}
+
+
+def _json_kind(kind: type | tuple[type, ...]) -> str:
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if set(kinds) == {int, float}:
+        return "a number"
+    return " or ".join(_JSON_KIND.get(k, k.__name__) for k in kinds)
+
+
+def _get(m: dict[str, Any], key: str, kind: type | tuple[type, ...], where: Path,
+         within: str = "") -> Any:
+    """Field ``key`` of the object ``m`` (``within`` names ``m``, e.g. ``server_frames[3]``),
+    checked to be of ``kind``; the message names both in JSON's terms ("expected an integer,
+    got a string"), not Python's (``<class 'int'>``)."""
+    name = f"{within}.{key}" if within else key
     if key not in m:
-        raise _fail(where, f"missing field {key!r}")
+        raise _fail(where, f"missing field {name!r}")
     v = m[key]
     if isinstance(v, bool) and kind is not bool:
-        raise _fail(where, f"field {key!r}: expected {kind}, got {v!r}")
+        raise _fail(where, f"field {name!r}: expected {_json_kind(kind)}, got {v!r}")
     if not isinstance(v, kind):
-        raise _fail(where, f"field {key!r}: expected {kind}, got {type(v).__name__}")
+        got = _JSON_KIND.get(type(v), type(v).__name__)
+        raise _fail(where, f"field {name!r}: expected {_json_kind(kind)}, got {got}")
     return v
 
 
@@ -859,9 +877,9 @@ def _check_frames(m: dict[str, Any], key: str, rate: float, where: Path) -> None
         if not isinstance(e, dict):
             raise _fail(where, f"{w}: expected an object")
         for field, kind in (("index", int), ("time", (int, float)), ("file", str)):
-            _get(e, field, kind, where)
-        b = _get(e, "bytes", int, where)
-        s = _get(e, "sha256", str, where)
+            _get(e, field, kind, where, w)
+        b = _get(e, "bytes", int, where, w)
+        s = _get(e, "sha256", str, where, w)
         if e["index"] != i or not math.isclose(e["time"], i / rate, abs_tol=1e-9):
             raise _fail(where, f"{w}: index/time {e['index']}/{e['time']} out of sequence")
         if e["file"] != f"{key.split('_')[0]}/{i:06d}.npz":
