@@ -116,6 +116,12 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
      ("garbage", "expected a recording folder, a stream file or a built-in scene")),
     ("output inside the input", ["encode", "{rec}", "--out", "{rec}/manifest.json"],
      ("expected a path outside it",)),
+    # eval wrote its results, its imported recording or its cache into the dataset it read.
+    ("eval output inside the dataset", ["eval", "--dataset", "{dir}", "--out", "{dir}/e"],
+     ("--out", "lies inside the dataset", "expected a path outside it")),
+    ("eval cache inside the dataset", ["eval", "--dataset", "{dir}", "--out", "{tmp}/e",
+                                       "--cache", "{dir}/cache"],
+     ("--cache", "lies inside the dataset")),
     ("refused destination", ["render", "courtyard", "--out", "{rec}", "--scale", "0.03",
                              "--seconds", "0.1"],
      ("already exists",)),

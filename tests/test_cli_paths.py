@@ -306,6 +306,25 @@ def test_a_play_into_a_used_folder_replaces_its_outputs_or_leaves_them_as_they_w
     assert len(png_frames(out)) == N_CLIENT
 
 
+def test_a_play_in_which_no_server_frame_arrives_is_refused(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # With --delay 40 on 30 client frames every scored frame was black, scored (SSIM 0.001)
+    # and written with exit 0.
+    out = tmp_path / "out"
+    argv = ["play", str(recording), "--no-vmaf", "--delay", "40", "--out", str(out), "--quiet"]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == (
+        "splitrender: error: no server frame reached the client by its last scored frame "
+        f"({(N_CLIENT - SKIP_FRAMES - 1) / 120:g} s; l = 40, ideal link (no loss)): every "
+        "scored frame would be black; expected a shorter delay or latency, less loss, or a "
+        "longer --seconds\n")
+    assert not out.exists()
+    # A delay that leaves some scored frames black is what the model is for: played.
+    run_cli("play", str(recording), "--no-vmaf", "--delay", "16", "--out", str(out))
+    assert read_json(out / "play.json")["modes"]["hold"] > 0
+
+
 def test_play_stream_file_scores_the_frames_it_writes(
     recording: Path, stream: Path, played_stream: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -528,6 +528,20 @@ def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
     bad.write_bytes(b"nonsense")
     with pytest.raises(StreamError):
         StreamFile(bad)
+    # The file header has no CRC: its reserved fields must be 0 and its rate one the package
+    # takes (1e300 failed later as the caller's argument error of stream_stats).
+    for offset, fmt, value, message in [
+        (10, "<H", 1, "reserved header fields are 1 and 0, expected 0"),
+        (12, "<I", 7, "reserved header fields are 0 and 7, expected 0"),
+        (16, "<d", 1e300, r"server rate 1e\+300 frames per second, expected a finite value in "
+         r"\(0, 1000\]"),
+        (16, "<d", 0.0, "server rate 0.0 frames per second"),
+        (16, "<d", float("nan"), "server rate nan frames per second"),
+    ]:
+        end = offset + struct.calcsize(fmt)
+        bad.write_bytes(raw[:offset] + struct.pack(fmt, value) + raw[end:])
+        with pytest.raises(StreamError, match=f"v.srs: {message}"):
+            StreamFile(bad)
 
 
 def test_stream_stats() -> None:

@@ -209,6 +209,16 @@ def eval_(args: argparse.Namespace) -> int:
     d = EvalConfig()
     recording: Path | None = None
     scenes = d.scenes if args.scenes is None else args.scenes
+    # The results, the imported recording and the cache's entries written into the dataset or
+    # over the trace would mix into (or replace) what is being read.
+    inputs = {k: v for k, v in (("dataset", args.dataset), ("trace", args.trace))
+              if v is not None and v.exists()}
+    for flag, path in (("--out", args.out), ("--cache", args.cache)):
+        if path is not None:
+            try:
+                check_apart(path, inputs)
+            except InvalidInputError as e:
+                return fail(f"{flag} {e}")
     if args.dataset is not None:
         for flag, value in (("--scenes", args.scenes), ("--variants", args.variants),
                             ("--delays", args.delays), ("--bitrate", args.bitrate),

@@ -739,15 +739,22 @@ class StreamFile:
                 raise StreamError(
                     f"{self._name}: file of {self._size} bytes has no header"
                 )
-            magic, version, _, _, fps = _FILE_HEADER.unpack(head)
+            magic, version, reserved16, reserved32, fps = _FILE_HEADER.unpack(head)
             if magic != _FILE_MAGIC:
                 raise StreamError(
                     f"{self._name}: not a splitrender stream ({bytes(magic)!r})"
                 )
             if version != STREAM_VERSION:
                 raise StreamError(f"{self._name}: {_version_message('stream', version)}")
-            if not (math.isfinite(fps) and fps > 0):
-                raise StreamError(f"{self._name}: invalid fps {fps}")
+            # The file header has no CRC: what a writer leaves zero is checked to be, and the
+            # rate to be one the package takes (1e300 passed here and failed later, as the
+            # caller's argument error of stream_stats).
+            if reserved16 or reserved32:
+                raise StreamError(f"{self._name}: reserved header fields are {reserved16} and "
+                                  f"{reserved32}, expected 0 (a damaged file?)")
+            if not (math.isfinite(fps) and 0 < fps <= MAX_RATE):
+                raise StreamError(f"{self._name}: server rate {fps!r} frames per second, "
+                                  f"expected a finite value in (0, {MAX_RATE:g}]")
             self.fps = float(fps)
             self._end = self._size
             self._end, self.index = self._read_index(f)

@@ -200,6 +200,7 @@ def play_and_score_eyes(
             res = play(frames, eye_cams, network, fc, method, frame_sizes=frame_sizes,
                        on_frame=frame_done, options=options, backend=backend,
                        keep_images=keep_images)
+            _check_shown(res, n_client, fc, network)
             # What VMAF's ffmpeg has still to do once the last frame is given to it.
             vmaf_bar = bar if "vmaf" in metrics else None
             if vmaf_bar is not None:
@@ -209,6 +210,19 @@ def play_and_score_eyes(
                 vmaf_bar(1, 1, "vmaf (the rest of ffmpeg's work)")
         out.append(Scored(res, sm))
     return out
+
+
+def _check_shown(res: PlaybackResult, n_client: int, fc: float, network: NetworkModel) -> None:
+    """Raises :class:`InvalidInputError` when no scored client frame had a server frame to show
+    (all black): the network model's delay, latency or loss is longer than the session, and
+    its scores (SSIM 0.001 with `--delay 40` on 30 frames) would measure nothing of the method."""
+    scored = res.info[SKIP_FRAMES:n_client - SKIP_FRAMES]
+    if scored and all(i.newer is None for i in scored):
+        last = (n_client - SKIP_FRAMES - 1) / fc
+        raise InvalidInputError(
+            f"no server frame reached the client by its last scored frame ({last:g} s; "
+            f"{network_text(network)}): every scored frame would be black; expected a shorter "
+            "delay or latency, less loss, or a longer --seconds")
 
 
 def mean_row(scored: Sequence[Scored]) -> dict[str, Any]:
