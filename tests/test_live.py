@@ -648,3 +648,38 @@ def test_load_certificate_names_the_file_that_is_wrong(tmp_path: Path) -> None:
         with pytest.raises(InvalidInputError) as e:
             load_certificate(*args)
         assert str(e.value) == message
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("host", "", "host: expected a host name or address, got ''"),
+        ("port", 70000, r"port: expected an int in \[1, 65535\], got 70000"),
+        ("port", 0, r"port: expected an int in \[1, 65535\], got 0"),
+        ("fingerprint", "ab:cd", "fingerprint: expected the SHA-256 of the certificate"),
+        ("method", "nosuch", "method: expected one of 'ours'"),
+        ("connect_timeout", 0.0, "connect_timeout: expected a finite float > 0"),
+        ("backend", "metal", "unknown backend 'metal'"),
+        ("max_divisor", 0, r"max_divisor: expected an int in \[1, 16\], got 0"),
+    ],
+)
+def test_connect_options_are_checked_where_they_are_given(
+    field: str, value: object, message: str
+) -> None:
+    # They failed on the network thread or later: a port inside asyncio, a method when the
+    # welcome came.
+    from splitrender.client.live import ConnectOptions
+    from splitrender.errors import InvalidInputError
+
+    given: dict[str, object] = {"host": "127.0.0.1", "port": 4433, field: value}
+    with pytest.raises(InvalidInputError, match=message):
+        ConnectOptions(**given)  # type: ignore[arg-type]
+
+
+def test_a_fingerprint_is_pinned_as_certificate_tools_print_it() -> None:
+    # With colons and capitals it never matched the server's lower-case hex digest.
+    from splitrender.client.live import ConnectOptions
+
+    digest = "ab" * 32
+    printed = ":".join(digest[i:i + 2] for i in range(0, 64, 2)).upper()
+    assert ConnectOptions("127.0.0.1", 4433, fingerprint=printed).fingerprint == digest

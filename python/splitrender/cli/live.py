@@ -238,11 +238,14 @@ def run_connect(args: argparse.Namespace) -> int:
     except SplitRenderError as e:
         return fail(str(e))
     host, port = args.server
-    opts = ConnectOptions(
-        host, port, args.token, pinned, args.method, args.fps, backend=args.backend,
-        version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
-        max_divisor=args.max_divisor,
-    )
+    try:
+        opts = ConnectOptions(
+            host, port, args.token, pinned, args.method, args.fps, backend=args.backend,
+            version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
+            max_divisor=args.max_divisor,
+        )
+    except SplitRenderError as e:
+        return fail(str(e))
     client = LiveClient(opts)
     try:
         welcome = client.connect()

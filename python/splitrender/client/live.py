@@ -51,7 +51,7 @@ from splitrender.client.realtime import (
 )
 from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import InvalidInputError, ProtocolError
-from splitrender.gpu import backend_for
+from splitrender.gpu import backend_for, check_backend
 from splitrender.net.protocol import (
     ALPN,
     CLOSE_BYE,
@@ -73,9 +73,11 @@ from splitrender.net.protocol import (
     decode_control,
     fingerprint_hex,
     frame_control,
+    normalise_fingerprint,
 )
 from splitrender.net.quic import ReceiveWindows
-from splitrender.types import Camera, ServerFrame, check_float
+from splitrender.reproject import METHODS
+from splitrender.types import Camera, ServerFrame, check_float, check_int, check_str
 
 __all__ = ["ConnectOptions", "FrameOrder", "LiveClient"]
 
@@ -123,6 +125,24 @@ class ConnectOptions:
         if not isinstance(self.token, str) or len(self.token.encode()) > MAX_TOKEN:
             raise InvalidInputError(f"token: expected a str of at most {MAX_TOKEN} bytes")
         check_float("display_fps", self.display_fps, lo=MIN_DISPLAY_FPS, hi=MAX_FPS)
+        # The rest failed on the network thread or later still: a port out of range inside
+        # asyncio, an unknown method when the welcome came, and a fingerprint with colons or
+        # capitals (as certificate tools print it) never matched the server's.
+        if not check_str("host", self.host):
+            raise InvalidInputError("host: expected a host name or address, got ''")
+        check_int("port", self.port, 1, 65535)
+        if self.fingerprint is not None:
+            try:
+                fingerprint = normalise_fingerprint(check_str("fingerprint", self.fingerprint))
+            except ProtocolError as e:
+                raise InvalidInputError(str(e)) from None
+            object.__setattr__(self, "fingerprint", fingerprint)
+        check_str("method", self.method, METHODS)
+        # threading.Event.wait takes at most about 49 days; an hour is more than any connect.
+        check_float("connect_timeout", self.connect_timeout, positive=True, hi=3600.0)
+        check_backend(self.backend)
+        check_int("version", self.version, 0, 0xFFFF)
+        check_int("max_divisor", self.max_divisor, 1, 16)  # RateGovernor's range
 
 
 class FrameOrder:
