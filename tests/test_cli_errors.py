@@ -116,6 +116,10 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
      ("garbage", "expected a recording folder, a stream file or a built-in scene")),
     ("output inside the input", ["encode", "{rec}", "--out", "{rec}/manifest.json"],
      ("expected a path outside it",)),
+    # Every scored frame would be black: refused before the render, not by a task after it.
+    ("eval delay past the session", ["eval", "--out", "{tmp}/e", "--seconds", "0.25",
+                                     "--delays", "0,40"],
+     ("--delays", "40 client frames is past the last scored frame", "expected at most 17")),
     # eval wrote its results, its imported recording or its cache into the dataset it read.
     ("eval output inside the dataset", ["eval", "--dataset", "{dir}", "--out", "{dir}/e"],
      ("--out", "lies inside the dataset", "expected a path outside it")),

@@ -330,3 +330,32 @@ def test_a_worker_that_dies_is_named_with_its_task(tmp_path: Path) -> None:
     message = str(e.value)
     assert "a task whose worker dies" in message and "worker process running it died" in message
     assert "--jobs" in message
+
+
+def test_a_failing_task_in_one_process_is_named_not_an_internal_error(tmp_path: Path) -> None:
+    # With --jobs 1 no process pool is made, so `concurrent.futures.process` was never imported
+    # and naming the failure raised AttributeError: every failed task of `eval` (a run whose
+    # frames all arrive too late, say) became "internal error". A fresh interpreter, since the
+    # test session has imported the submodule long before.
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from pathlib import Path\n"
+        "from splitrender.evaluation import sweep\n"
+        "t = sweep.Task('k' * 64, 'score', 'm:f', {}, label='a task')\n"
+        "print(sweep._failed(t, ValueError('bad'), sweep.Cache(Path(sys.argv[1])), 0))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True,
+                         text=True, timeout=60, check=False)
+    assert out.returncode == 0, out.stderr
+    assert "task score kkkkkkkkkkkk (a task) failed: ValueError: bad." in out.stdout
+    # The caller's error fails the same way again: the advice says to fix it first.
+    from splitrender.errors import InvalidInputError
+
+    task = sweep.Task("k" * 64, "score", "m:f", {}, label="a task")
+    message = str(sweep._failed(task, InvalidInputError("bad"), sweep.Cache(tmp_path), 3))
+    assert message.endswith("3 task(s) finished and are kept in the cache "
+                            f"{tmp_path}; run the command again once that is fixed to resume "
+                            "from there")

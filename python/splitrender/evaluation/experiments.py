@@ -210,6 +210,17 @@ def check_config(cfg: EvalConfig) -> None:
         raise EvalArgumentError("--delays: expected distinct integers >= 0")
     check_run_args(cfg.scenes, cfg.methods, cfg.seconds, cfg.scale, EvalArgumentError,
                    extra_methods=(VIDEO_INTERP,))
+    from splitrender.scene.recording import plan
+
+    # A delay past the last scored client frame leaves every scored frame black: refused here,
+    # before the render, not by the score task after it (pipeline._check_shown).
+    _, n_client = plan(cfg.seconds, FS, FC)
+    last = n_client - SKIP_FRAMES - 1
+    if cfg.delays and max(cfg.delays) > last:
+        raise EvalArgumentError(
+            f"--delays: {max(cfg.delays)} client frames is past the last scored frame of "
+            f"{cfg.seconds:g} s ({n_client} client frames, {SKIP_FRAMES} skipped at each end); "
+            f"expected at most {last}, or a longer --seconds")
     if not cfg.variants or any(v not in ("static", "dynamic") for v in cfg.variants) or len(
         set(cfg.variants)
     ) != len(cfg.variants):

@@ -34,11 +34,12 @@ import os
 import socket
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from splitrender.errors import SplitRenderError
+from splitrender.errors import SplitRenderError, is_user_error
 from splitrender.progress import Progress
 
 __all__ = [
@@ -265,7 +266,9 @@ def _failed(task: Task, error: BaseException, cache: Cache, finished: int,
     """The error for ``task``; ``beside``: the other tasks running then (named only when a
     worker died, since then any of them may be the one whose worker it was)."""
     inputs = ", ".join(f"{k}={v}" for k, v in sorted(task.paths.items()))
-    if isinstance(error, cf.process.BrokenProcessPool):
+    # Imported by name: `cf.process` exists only once something imported the submodule, so
+    # with --jobs 1 (no pool made) every failed task became an internal AttributeError.
+    if isinstance(error, BrokenProcessPool):
         # A worker ended without an exception to report: a signal, most often the kernel's OOM
         # killer (two large score tasks at once can outgrow the machine's memory). The pool
         # then fails every task it was running, and cannot say whose worker died.
@@ -274,10 +277,13 @@ def _failed(task: Task, error: BaseException, cache: Cache, finished: int,
                 f"out of memory is the usual cause: try fewer --jobs){others}")
     else:
         what = f"{type(error).__name__}: {error}"
+    # The same command fails the same way on the caller's error: it resumes once that is fixed.
+    again = ("run the command again once that is fixed to resume from there"
+             if is_user_error(error) else "run the same command again to resume from there")
     return TaskFailedError(
         f"task {task.stage} {task.key[:12]} ({task.label}{'; ' + inputs if inputs else ''}) "
         f"failed: {what}. {finished} task(s) finished and are kept in the cache {cache.root}; "
-        f"run the same command again to resume from there"
+        f"{again}"
     )
 
 
