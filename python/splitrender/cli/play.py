@@ -72,27 +72,6 @@ def add(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
-    from splitrender.codec.coder import CodecConfig, DecodedStream
-    from splitrender.codec.stream import StreamFile, stream_stats
-    from splitrender.evaluation.demo import (
-        DemoArgumentError,
-        _json_number,
-        _Video,
-        check_run_args,
-        format_table,
-        metric_names,
-    )
-    from splitrender.evaluation.metrics import SKIP_FRAMES
-    from splitrender.evaluation.pipeline import (
-        check_stream_of,
-        encode_packets,
-        mean_row,
-        network_json,
-        play_and_score_eyes,
-        raw_mbps,
-    )
     from splitrender.gpu import check_backend
     from splitrender.scene.builtin import SCENE_NAMES
     from splitrender.scene.recording import check_destination
