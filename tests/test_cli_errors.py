@@ -148,6 +148,9 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("token too long", ["connect", "127.0.0.1:9", "--insecure", "--out", "{tmp}/c", "--token",
                         "a" * 65],
      ("--token", "at most 64 bytes")),
+    # Found after the whole session, which was lost.
+    ("connect into a file", ["connect", "127.0.0.1:9", "--insecure", "--out", "{garbage}"],
+     ("--out", "garbage: exists and is not a folder")),
     ("display rate below a hello's", ["connect", "127.0.0.1:9", "--insecure", "--out",
                                       "{tmp}/c", "--fps", "0.5"],
      ("--fps", "at least 1")),

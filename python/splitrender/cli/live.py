@@ -36,7 +36,7 @@ from splitrender.cli.args import (
 )
 from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR
 from splitrender.errors import SplitRenderError
-from splitrender.files import write_atomic
+from splitrender.files import OutputFolder, write_atomic
 from splitrender.gpu import require as require_backend
 from splitrender.reproject import METHODS
 from splitrender.net.protocol import MAX_TOKEN, MIN_DISPLAY_FPS, MIN_SERVER_FPS
@@ -230,6 +230,10 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail(f"--token: at most {MAX_TOKEN} bytes")
     if args.fps < MIN_DISPLAY_FPS:
         return fail(f"--fps: expected at least {MIN_DISPLAY_FPS:g} FPS, got {args.fps:g}")
+    if args.out.exists() and not args.out.is_dir():
+        # Found after the whole session, it lost the session's results.
+        return fail(f"--out {args.out}: exists and is not a folder; expected a folder for the "
+                    "outputs (new or existing)")
     try:
         pinned = None if args.fingerprint is None else normalise_fingerprint(args.fingerprint)
         trace = None if args.trace is None else load_trace(args.trace)
@@ -288,24 +292,27 @@ def run_connect(args: argparse.Namespace) -> int:
         client.close()
         return fail(str(e))
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    _write_video(out / "video.mp4", [img for _, img in frames], args.fps / stride[0])
-    if args.score:
-        # Scored from the first frame made from a server frame on: before it every method
-        # shows the same black start-up (no server frame yet); holds after it count.
-        start = first_shown[0] if first_shown else math.inf
-        picked = _pick([f for f in frames if f[0] >= start])
-        report.update(_score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf))
-        if args.compare is not None:
-            other: list[tuple[float, npt.NDArray[np.uint8]]] = []
-            summary = client.replay(args.compare, motion, args.seconds,
-                                    on_frame=lambda img, rec: other.append((rec.time, img.copy())))
-            # The same display times as the live method's score: what each display showed
-            # then (a refresh whose frame was late repeats the one before, as it did live).
-            summary.update(_score(scene, welcome.scale, args.fps, motion,
-                                  _shown(other, [t for t, _ in picked]), args.no_vmaf))
-            report["compare"] = {"method": args.compare, **summary}
-    write_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
+    # The video and the report replace the previous run's together, the report last; an
+    # interrupted score leaves the previous pair (files.OutputFolder).
+    with OutputFolder(out, ("video.mp4", "report.json")) as stage:
+        _write_video(stage / "video.mp4", [img for _, img in frames], args.fps / stride[0])
+        if args.score:
+            # Scored from the first frame made from a server frame on: before it every method
+            # shows the same black start-up (no server frame yet); holds after it count.
+            start = first_shown[0] if first_shown else math.inf
+            picked = _pick([f for f in frames if f[0] >= start])
+            report.update(_score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf))
+            if args.compare is not None:
+                other: list[tuple[float, npt.NDArray[np.uint8]]] = []
+                summary = client.replay(
+                    args.compare, motion, args.seconds,
+                    on_frame=lambda img, rec: other.append((rec.time, img.copy())))
+                # The same display times as the live method's score: what each display showed
+                # then (a refresh whose frame was late repeats the one before, as it did live).
+                summary.update(_score(scene, welcome.scale, args.fps, motion,
+                                      _shown(other, [t for t, _ in picked]), args.no_vmaf))
+                report["compare"] = {"method": args.compare, **summary}
+        write_atomic(stage / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
     print(f"{report['frames']} frames ({report['full_rate_pct']:.0f} % at the full rate), "
           f"{report['deadline_misses']} deadline misses, modes "
