@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -127,6 +128,10 @@ def test_eval_reuses_matching_recordings(
     from the cache and only its new rows are computed."""
     cache = json.loads((eval_out / "run-info.json").read_text())["cache"]
     out = tmp_path / "again"
+    # Into a copy of the first run's folder: its plots must not stay beside this run's results
+    # (this run has no Figure 6, so no rate_distortion.png).
+    shutil.copytree(eval_out, out, symlinks=True)
+    (out / "notes.txt").write_text("mine")
     args = ["eval", "--scale", "0.03", "--seconds", "0.3", "--scenes", "courtyard",
             "--methods", "timewarp", "--delays", "0", "--no-vmaf", "--out", str(out),
             "--cache", cache]
@@ -136,6 +141,10 @@ def test_eval_reuses_matching_recordings(
     assert info["computed"]["render"] == 0 and info["cached"]["score"] >= 2
     err = capsys.readouterr().err
     assert "render:" not in err and "in the cache" in err
+    assert not (out / "rate_distortion.png").exists()
+    assert (out / "delays.png").read_bytes() != (eval_out / "delays.png").read_bytes()
+    assert (out / "notes.txt").read_text() == "mine" and (out / "recordings").is_dir()
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]
 
 
 def test_minterpolate_output_n_is_client_frame_n() -> None:

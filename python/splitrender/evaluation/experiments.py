@@ -65,7 +65,7 @@ from splitrender.evaluation.demo import (
     check_run_args,
     metric_names,
 )
-from splitrender.files import write_atomic
+from splitrender.files import OutputFolder, write_atomic
 from splitrender.progress import Progress
 from splitrender.evaluation.metrics import PSNR_CAP_DB, SKIP_FRAMES
 from splitrender.evaluation.references import minterpolate
@@ -172,6 +172,10 @@ class EvalResult:
     summary: list[str] = field(default_factory=list)
     #: Tasks of the sweep per stage: in the graph, found in the cache, run now.
     stats: SweepStats | None = None
+
+
+#: What ``eval`` writes into its folder besides ``recordings/``, replaced together.
+_OUTPUTS = ("tables.md", "delays.png", "rate_distortion.png", "run-info.json", "results.json")
 
 
 def _check_recording_config(cfg: EvalConfig) -> None:
@@ -631,42 +635,49 @@ def run_eval(
             f6_rows, ("scene", "bitrate_mbps", "method"), ("scene", "bitrate_mbps"),
         ))
 
-    data = [{k: (_json_number(r[k]) if k in ("ssim", "flip", "psnr", "vmaf", "mbps")
-                 else r[k]) for k in ROW_KEYS} for r in rows]
-    write_atomic(out / "results.json", json.dumps(data, indent=1, allow_nan=False) + "\n")
-    files = [out / "results.json"]
-    motion = (f"the recording {cfg.recording}'s client poses" if given is not None
-              else "the scenes head paths" if trace is None else f"head trace {cfg.trace}")
-    flip_note = ("" if cfg.flip_every == 1 else
-                 f"; FLIP on every {cfg.flip_every}th of those frames only (--flip-every)")
-    md = [
-        f"# splitrender eval: {', '.join(cfg.scenes)} at {w}x{h}",
-        "",
-        f"{seconds:g} s per scene: {n_server} server frames at {fs:g} FPS, {n_client} client "
-        f"frames at {fc:g} FPS; per-frame means against the ground truth at the client pose, "
-        f"first and last {SKIP_FRAMES} client frames excluded (PSNR: of the mean squared "
-        f"error over those frames, capped at {PSNR_CAP_DB:g} dB)"
-        f"{'' if use_vmaf else '; VMAF not computed'}"
-        f"{flip_note}. Client motion: {motion}. Network: "
-        f"{network_text(network)}{' (Table 2: l as given)' if t2 else ''}.",
-        "",
-    ]
-    for title, note, trows, keys, group in done_tables:
-        md += [f"## {title}", "", note, "", format_rows(trows, keys, group), ""]
-    write_atomic(out / "tables.md", "\n".join(md))
-    files.append(out / "tables.md")
-    png = _plot_delays(out / "delays.png", t2_rows, metrics) if t2_rows else None
-    if png is not None:
-        files.append(png)
-    if f6_rows:
-        png = _plot_rate_distortion(out / "rate_distortion.png", f6_rows, t1_rows, metrics)
+    # The results replace the previous run's together, results.json last (files.OutputFolder):
+    # a plot of a run before (delays.png where this one has no Table 2) does not stay beside
+    # them, and an interrupted write leaves the previous set.
+    outputs = OutputFolder(out, _OUTPUTS)
+    with outputs as stage:
+        data = [{k: (_json_number(r[k]) if k in ("ssim", "flip", "psnr", "vmaf", "mbps")
+                     else r[k]) for k in ROW_KEYS} for r in rows]
+        write_atomic(stage / "results.json", json.dumps(data, indent=1, allow_nan=False) + "\n")
+        files = [stage / "results.json"]
+        motion = (f"the recording {cfg.recording}'s client poses" if given is not None
+                  else "the scenes head paths" if trace is None else f"head trace {cfg.trace}")
+        flip_note = ("" if cfg.flip_every == 1 else
+                     f"; FLIP on every {cfg.flip_every}th of those frames only (--flip-every)")
+        md = [
+            f"# splitrender eval: {', '.join(cfg.scenes)} at {w}x{h}",
+            "",
+            f"{seconds:g} s per scene: {n_server} server frames at {fs:g} FPS, {n_client} "
+            f"client frames at {fc:g} FPS; per-frame means against the ground truth at the "
+            "client pose, "
+            f"first and last {SKIP_FRAMES} client frames excluded (PSNR: of the mean squared "
+            f"error over those frames, capped at {PSNR_CAP_DB:g} dB)"
+            f"{'' if use_vmaf else '; VMAF not computed'}"
+            f"{flip_note}. Client motion: {motion}. Network: "
+            f"{network_text(network)}{' (Table 2: l as given)' if t2 else ''}.",
+            "",
+        ]
+        for title, note, trows, keys, group in done_tables:
+            md += [f"## {title}", "", note, "", format_rows(trows, keys, group), ""]
+        write_atomic(stage / "tables.md", "\n".join(md))
+        files.append(stage / "tables.md")
+        png = _plot_delays(stage / "delays.png", t2_rows, metrics) if t2_rows else None
         if png is not None:
             files.append(png)
-    # What made the results, apart from them: results.json holds nothing of the run itself.
-    info = {"executor": cfg.executor, "jobs": jobs, "address": cfg.address,
-            "cache": str(cache.root), "host": platform.node(), **stats.to_json()}
-    write_atomic(out / "run-info.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
-    files.append(out / "run-info.json")
+        if f6_rows:
+            png = _plot_rate_distortion(stage / "rate_distortion.png", f6_rows, t1_rows, metrics)
+            if png is not None:
+                files.append(png)
+        # What made the results, apart from them: results.json holds nothing of the run itself.
+        info = {"executor": cfg.executor, "jobs": jobs, "address": cfg.address,
+                "cache": str(cache.root), "host": platform.node(), **stats.to_json()}
+        write_atomic(stage / "run-info.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
+        files.append(stage / "run-info.json")
+        files = [outputs.final(p) for p in files]
     return EvalResult(rows, files, w, h, bitrate, summary, stats)
 
 
