@@ -256,8 +256,8 @@ class OutputFolder:
     folder inside it, into which the command writes everything. A clean exit moves the old
     entries named in ``owned`` (the names the command writes; those this run did not make are
     removed as well, e.g. ``frames/`` of a run before when this one wrote ``client.mp4``) aside,
-    moves every staged entry into ``out`` in ``owned``'s order (its last name, the summary that
-    says a run is complete, goes last), and removes the old ones. An exception (Ctrl-C, a full
+    moves every staged entry into ``out`` (``owned``'s last name, the summary that says a run
+    is complete, last of all), and removes the old ones. An exception (Ctrl-C, a full
     disk) removes the staging folder instead: ``out`` keeps the previous run's outputs as they
     were, never some of each, and a folder it created for this run is removed again if empty.
     Entries of ``out`` not in ``owned`` are left alone.

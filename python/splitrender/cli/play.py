@@ -195,7 +195,7 @@ def _play(args: argparse.Namespace, src: Path, stage: Path, final: Callable[[Pat
         try:
             check_run_args([args.source], [args.method], seconds, scale, DemoArgumentError)
         except DemoArgumentError as e:
-            raise InvalidInputError(str(e))
+            raise InvalidInputError(str(e)) from None
         stages.stage(f"rendering {args.source} (dynamic) at scale {scale:g} into "
                      f"{final(rec_path)}")
         write_recording(rec_path, Scene(args.source, "dynamic"), seconds=seconds,

@@ -416,8 +416,8 @@ class TruthStore:
         self.close()
 
 
-#: What a demo writes into its folder, replaced together (:class:`~splitrender.files.OutputFolder`),
-#: ``summary.json`` last.
+#: What a demo writes into its folder, replaced together
+#: (:class:`~splitrender.files.OutputFolder`), ``summary.json`` last.
 _OUTPUTS = ("stills", "video.mp4", "summary.md", "summary.json")
 
 
