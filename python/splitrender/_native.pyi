@@ -36,6 +36,7 @@ __all__ = [
     "apply_shadows",
     "perspective",
     "look_at",
+    "singular_camera",
     "render_thread_ids",
     "dequantise_depth",
     "dequantise_motion",
