@@ -271,10 +271,15 @@ class OutputFolder:
         self._created = False
         self._stage: Path | None = None
 
-    def __enter__(self) -> Path:
+    def check(self) -> None:
+        """Raises :class:`~splitrender.errors.InvalidInputError` when ``out`` exists and is not
+        a folder: what entering checks, for a command to check before long work."""
         if self.out.exists() and not self.out.is_dir():
             raise InvalidInputError(f"{self.out}: exists and is not a folder; expected a folder "
                                     "for the outputs (new or existing)")
+
+    def __enter__(self) -> Path:
+        self.check()
         self._created = not self.out.exists()
         self.out.mkdir(parents=True, exist_ok=True)
         self._stage = Path(tempfile.mkdtemp(prefix=".partial-", dir=self.out))

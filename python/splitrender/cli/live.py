@@ -219,7 +219,7 @@ def _even(img: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
 
 def run_connect(args: argparse.Namespace) -> int:
     from splitrender.client.live import ConnectOptions, LiveClient
-    from splitrender.net.protocol import PROTOCOL_VERSION, normalise_fingerprint
+    from splitrender.net.protocol import PROTOCOL_VERSION
     from splitrender.scene.builtin import SCENE_NAMES, Scene, TraceMotion, load_trace
 
     if args.compare is not None and not args.score:
@@ -230,12 +230,15 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail(f"--token: at most {MAX_TOKEN} bytes")
     if args.fps < MIN_DISPLAY_FPS:
         return fail(f"--fps: expected at least {MIN_DISPLAY_FPS:g} FPS, got {args.fps:g}")
-    if args.out.exists() and not args.out.is_dir():
-        # Found after the whole session, it lost the session's results.
-        return fail(f"--out {args.out}: exists and is not a folder; expected a folder for the "
-                    "outputs (new or existing)")
+    # The video and the report replace the previous run's together, the report last; an
+    # interrupted score leaves the previous pair.
+    outputs = OutputFolder(args.out, ("video.mp4", "report.json"))
     try:
-        pinned = None if args.fingerprint is None else normalise_fingerprint(args.fingerprint)
+        # Checked before the session: found after it, a file there lost the session's results.
+        outputs.check()
+    except SplitRenderError as e:
+        return fail(f"--out {e}")
+    try:
         trace = None if args.trace is None else load_trace(args.trace)
         # Before connecting: a method without a GPU kernel, or no adapter, fails here.
         require_backend(args.backend, args.method)
@@ -244,7 +247,7 @@ def run_connect(args: argparse.Namespace) -> int:
     host, port = args.server
     try:
         opts = ConnectOptions(
-            host, port, args.token, pinned, args.method, args.fps, backend=args.backend,
+            host, port, args.token, args.fingerprint, args.method, args.fps, backend=args.backend,
             version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
             max_divisor=args.max_divisor,
         )
@@ -292,9 +295,7 @@ def run_connect(args: argparse.Namespace) -> int:
         client.close()
         return fail(str(e))
     out: Path = args.out
-    # The video and the report replace the previous run's together, the report last; an
-    # interrupted score leaves the previous pair (files.OutputFolder).
-    with OutputFolder(out, ("video.mp4", "report.json")) as stage:
+    with outputs as stage:
         _write_video(stage / "video.mp4", [img for _, img in frames], args.fps / stride[0])
         if args.score:
             # Scored from the first frame made from a server frame on: before it every method

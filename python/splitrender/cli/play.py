@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     # new frames beside an old play.json.
     try:
         with outputs as stage:
-            report = _play(args, src, stage, outputs.final, stages)
+            report = _play(args, src, rendered, stage, outputs.final, stages)
     except SplitRenderError as e:
         return fail(str(e))
     finally:
@@ -122,8 +122,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _play(args: argparse.Namespace, src: Path, stage: Path, final: Callable[[Path], Path],
-          stages: Progress) -> str:
+def _play(args: argparse.Namespace, src: Path, rendered: bool, stage: Path,
+          final: Callable[[Path], Path], stages: Progress) -> str:
     """The play itself, every output written into ``stage``; returns the text to print once
     they are in place. ``final`` gives a staged path's place in OUT. A refusal found on the way
     (a stream of another recording, --seconds too long) is raised as InvalidInputError, which
@@ -154,8 +154,7 @@ def _play(args: argparse.Namespace, src: Path, stage: Path, final: Callable[[Pat
     from splitrender.scene.recording import load_recording, plan, write_recording
     from splitrender.types import ReprojectOptions
 
-    rendered = args.source in SCENE_NAMES and not src.exists()
-    stream_path: Path | None = None
+    stream: StreamFile | None = None
     if args.dataset is not None:
         rec_path = stage / "recording"
         import_dataset_as_recording(args.dataset, rec_path, overwrite=True, stages=stages)
@@ -169,7 +168,7 @@ def _play(args: argparse.Namespace, src: Path, stage: Path, final: Callable[[Pat
         rec_path = src
     elif src.is_file():
         try:  # any other file was called a stream file, and --recording asked for
-            StreamFile(src)
+            stream = StreamFile(src)
         except StreamError as e:
             raise InvalidInputError(
                 f"{src}: expected a recording folder, a stream file or a built-in scene; {e}"
@@ -179,7 +178,7 @@ def _play(args: argparse.Namespace, src: Path, stage: Path, final: Callable[[Pat
                 f"{src} is a stream file; --recording REC must give its recording")
         if args.bitrate is not None:
             raise InvalidInputError("--bitrate: a stream file is played as encoded")
-        stream_path, rec_path = src, args.recording
+        rec_path = args.recording
     elif rendered:
         if args.recording is not None:
             raise InvalidInputError(
@@ -234,27 +233,26 @@ def _play(args: argparse.Namespace, src: Path, stage: Path, final: Callable[[Pat
     # 10 s run held whole would be 5 GB (a second eye decodes them again instead).
     sizes: list[int] | None
     server: Sequence[ServerFrame] | DecodedStream
-    if stream_path is not None:
-        stages.stage(f"reading {stream_path}")
-        sf = StreamFile(stream_path)
-        packets = list(sf.packets())[:n_server]
+    if stream is not None:
+        stages.stage(f"reading {src}")
+        packets = list(stream.packets())[:n_server]
         if not packets:
             # Scoring nothing but held black frames would report a result for no content.
             raise InvalidInputError(
-                f"{stream_path}: the stream has no frames; expected at least one "
+                f"{src}: the stream has no frames; expected at least one "
                 "server frame")
         if len(packets) < n_server:
             # The client would extrapolate the rest from the last frame, scored as if the
             # stream had covered it.
             raise InvalidInputError(
-                f"{stream_path}: the stream has {len(packets)} server frames, "
+                f"{src}: the stream has {len(packets)} server frames, "
                 f"{seconds:g} s of the recording need {n_server}; give --seconds "
                 f"{(len(packets) - 1) / rec.fs:g} or less")
         # Every packet's structure and CRC, and that it was encoded from this recording,
         # before anything is written: a damaged or foreign stream file is refused here, not
         # half-way through the play.
         mbps, bitrate = stream_stats(packets, rec.fs).mbps_total(), None
-        check_stream_of(packets, sf.fps, rec, stream_path.name)
+        check_stream_of(packets, stream.fps, rec, src.name)
         server, sizes = DecodedStream(packets), [len(p) for p in packets]
     else:
         frames = rec.server_frames[:n_server]

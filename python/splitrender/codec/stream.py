@@ -810,13 +810,13 @@ class StreamFile:
         out: list[IndexEntry] = []
         pos = _FILE_HEADER.size
         while pos < self._size:
-            f.seek(pos)
             index_size = _INDEX_HEAD.size + len(out) * _INDEX_ENTRY.size + 4 + _TRAILER.size
-            if f.read(len(_INDEX_MAGIC)) == _INDEX_MAGIC and self._size - pos < index_size:
-                # The records end where an index of as many entries begins: a file cut inside
-                # its index (a writer stopped while closing it, a truncated copy) holds every
-                # record whole. Read as a record length, the magic claimed 1.48 GB and the
-                # file was refused.
+            # The records end where an index of as many entries begins: a file cut inside its
+            # index (a writer stopped while closing it, a truncated copy) holds every record
+            # whole. Read as a record length, the magic claimed 1.48 GB and the file was
+            # refused. Only the bytes where such an index could begin are looked at.
+            f.seek(pos)
+            if self._size - pos < index_size and f.read(len(_INDEX_MAGIC)) == _INDEX_MAGIC:
                 break
             f.seek(pos)
             packet, n = self._read_record(

@@ -942,10 +942,11 @@ def load_certificate(cert: Path, key: Path | None = None) -> tuple[Any, Any]:
         found = "an encrypted one" if isinstance(e, TypeError) else "none that parses"
         raise InvalidInputError(f"{key_path}: expected an unencrypted PEM private key "
                                 f"(-----BEGIN PRIVATE KEY-----), found {found}") from None
-    public = serialization.PublicFormat.SubjectPublicKeyInfo
-    der = serialization.Encoding.DER
-    if private.public_key().public_bytes(der, public) != chain[0].public_key().public_bytes(
-            der, public):
+    def spki(public: Any) -> bytes:
+        return bytes(public.public_bytes(serialization.Encoding.DER,
+                                         serialization.PublicFormat.SubjectPublicKeyInfo))
+
+    if spki(private.public_key()) != spki(chain[0].public_key()):
         raise InvalidInputError(f"{key_path}: the private key is not the key of the "
                                 f"certificate in {cert}")
     return chain[0], private
