@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import struct
@@ -541,10 +542,47 @@ def test_eye_reads_the_cameras_without_the_images(
     reads.clear()
     assert truth[2].shape == (*rec.manifest["cameras"]["client"][::-1], 3)
     assert reads == [("client/000002.npz", None)]
-    # The checksum is checked all the same.
+    # The matrices read are checked by the member's CRC-32; the images, not read, by the
+    # file's SHA-256 when the ground truth is read.
     f = tmp_path / "rec" / "client" / "000001.npz"
-    data = bytearray(f.read_bytes())
-    data[-100] ^= 0xFF
-    f.write_bytes(bytes(data))
-    with pytest.raises(RecordingError, match="000001.npz: SHA-256"):
-        rec.eye(0)
+    good = f.read_bytes()
+    for member, cameras_fail in (("eye0.view.npy", True), ("eye0.color.npy", False)):
+        data = bytearray(good)
+        data[_member_data(good, member) + 130] ^= 0x01  # past the npy header: an array byte
+        f.write_bytes(bytes(data))
+        if cameras_fail:
+            with pytest.raises(RecordingError, match="000001.npz: not a valid npz: .*CRC-32"):
+                rec.eye(0)
+        else:
+            _, truth = rec.eye(0)
+            with pytest.raises(RecordingError, match="000001.npz: SHA-256"):
+                truth[1]
+
+
+def _member_data(npz: bytes, name: str) -> int:
+    """The offset in ``npz`` (a stored zip) of member ``name``'s data."""
+    info = zipfile.ZipFile(io.BytesIO(npz)).getinfo(name)
+    o = info.header_offset
+    n, extra = struct.unpack("<HH", npz[o + 26:o + 30])
+    return o + 30 + n + extra
+
+
+def test_a_member_longer_than_its_array_is_refused(tmp_path: Path) -> None:
+    """A member with bytes after its array is refused, whole or matrices only: otherwise the
+    reader stops before the member's end, where zipfile checks its CRC-32."""
+    rec = load_recording(sr.write_recording(tmp_path / "rec", "courtyard", seconds=0.05,
+                                            scale=0.03))
+    f = tmp_path / "rec" / "client" / "000000.npz"
+    src = zipfile.ZipFile(io.BytesIO(f.read_bytes()))
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as out:
+        for info in src.infolist():
+            extra = b"\0" * 8 if info.filename == "eye0.view.npy" else b""
+            out.writestr(info, src.read(info) + extra)
+    data = buf.getvalue()
+    f.write_bytes(data)
+    entry = rec.manifest["client_frames"][0]
+    entry["bytes"], entry["sha256"] = len(data), hashlib.sha256(data).hexdigest()
+    for read in (lambda: rec.client_frames[0], lambda: rec.eye(0)):
+        with pytest.raises(RecordingError, match="000000.npz: eye0.view: more bytes than"):
+            read()
