@@ -746,6 +746,13 @@ class RealtimeClient:
             InvalidInputError: for a packet that is not bytes, a bytearray, a C-contiguous
                 memoryview or a :class:`ServerFrame`, a ``pose_time`` that is not a finite
                 float, or a client that was closed."""
+        return self._submit(packet, pose_time)
+
+    def _submit(
+        self, packet: bytes | memoryview | ServerFrame, pose_time: float | None = None
+    ) -> Future[int | None]:
+        """:meth:`submit` without its argument checks, for :meth:`run`'s arrivals, which
+        :func:`_arrivals` has checked."""
         self._check_open()
         with self._lock:
             self._queued += 1
@@ -1102,7 +1109,7 @@ class RealtimeClient:
         received = []
         nxt = next(arrivals, None)
         while nxt is not None and nxt[0] <= start_time:
-            received.append(self.submit(nxt[1]))
+            received.append(self._submit(nxt[1]))
             nxt = next(arrivals, None)
         futures_wait(received)  # a packet that failed is skipped here as in the run
         self._render(pose(start_time), start_time)
@@ -1139,7 +1146,7 @@ class RealtimeClient:
                 self.clock.sleep_until(t0 + (nxt[0] - start_time))
                 # Read before submitting: the worker starts at once.
                 waited = self.clock.now()
-                received = self.submit(nxt[1])
+                received = self._submit(nxt[1])
                 nxt = next(arrivals, None)
                 if exclusive:
                     # Whatever its outcome (a bad packet is skipped here as it is otherwise).
