@@ -359,3 +359,109 @@ def test_a_failing_task_in_one_process_is_named_not_an_internal_error(tmp_path: 
     assert message.endswith("3 task(s) finished and are kept in the cache "
                             f"{tmp_path}; run the command again once that is fixed to resume "
                             "from there")
+
+
+def _damaged_cache(serial: Path, tmp_path: Path) -> Path:
+    """A copy of the serial sweep's cache, to damage."""
+    import shutil
+
+    cache = tmp_path / "cache"
+    shutil.copytree(serial.parent / "cache", cache, symlinks=True)
+    return cache
+
+
+def _eval(cache: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    code = main([*SWEEP, "--jobs", "1", "--cache", str(cache), "--out", str(out)])
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("content", ['{"ssim": 0.5}\n', '{"ssim": "0.5", "flip": null, "psnr":'
+                                     ' null, "vmaf": null, "mse": null, "frames": 3, "mbps": 1}',
+                                     "not json"])
+def test_a_damaged_cached_row_is_named_with_what_to_remove(
+    serial: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], content: str
+) -> None:
+    """A cached row that is not what a score task writes (missing or mistyped fields, not
+    JSON) is named, with the entry to remove: it was an internal KeyError or numpy's TypeError.
+    Removed as told, the next run computes it again and gives the sweep's bytes."""
+    cache = _damaged_cache(serial, tmp_path)
+    row = sorted((cache / "rows").glob("*.json"))[0]
+    row.write_text(content)
+    code, err = _eval(cache, tmp_path / "out", capsys)
+    assert code == 2 and "internal error" not in err
+    assert f"{row}: " in err and f"damaged cache entry (changed after it was written); " \
+        f"remove {row} and run the same command again" in err
+    assert not (tmp_path / "out" / "results.json").exists()
+    row.unlink()
+    assert _eval(cache, tmp_path / "out", capsys)[0] == 0
+    assert (tmp_path / "out" / "results.json").read_bytes() == \
+        (serial / "results.json").read_bytes()
+
+
+def test_a_damaged_cached_stream_or_recording_names_the_entry(
+    serial: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Stream information that is not what an encode task writes, and a cached recording whose
+    ground truth fails its SHA-256, fail the task that reads them naming the cache entry to
+    remove (a recording's folder, not the frame file)."""
+    cache = _damaged_cache(serial, tmp_path)
+    for row in (cache / "rows").glob("*.json"):
+        row.unlink()  # the score tasks run again and read the stream and the recording
+    [info] = (cache / "streams").glob("*.json")
+    good = info.read_text()
+    info.write_text('{"sizes": [1, -2], "mbps": 3.0}\n')
+    code, err = _eval(cache, tmp_path / "out", capsys)
+    assert code == 2 and f"{info}: expected " in err and f"remove {info} and run" in err
+
+    info.write_text(good)
+    for row in (cache / "rows").glob("*.json"):
+        row.unlink()  # those that ran before the stream's task failed
+    [rec] = (cache / "recordings").iterdir()
+    frame = rec / "client" / "000010.npz"  # a ground truth every score task reads
+    data = bytearray(frame.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    frame.write_bytes(bytes(data))
+    code, err = _eval(cache, tmp_path / "out", capsys)
+    assert code == 2 and "internal error" not in err
+    assert f"{frame}: SHA-256 does not match" in err and f"remove {rec} and run" in err
+
+
+def test_damaged_timewarp_frames_are_refused_before_reading(tmp_path: Path) -> None:
+    """The timewarp lines' frames whose npy headers disagree (another frame count, another
+    size, another dtype) or claim more than their member holds are refused naming the file,
+    before numpy allocates what a header says."""
+    import numpy as np
+    from splitrender.evaluation.sweep_tasks import _timewarp_frames
+    from splitrender.scene.recording import RecordingError
+
+    n, h, w = 3, 5, 6
+    good = dict(index=np.arange(n, dtype=np.int64), time=np.arange(n) / 30.0,
+                view=np.stack([np.eye(4)] * n),
+                proj=np.stack([np.diag([1.0, 1.0, -1.0, 0.0])] * n),
+                color=np.zeros((n, h, w, 3), np.uint8), depth=np.zeros((n, h, w), np.float32))
+    path = tmp_path / "tw.npz"
+    np.savez(path, **good)
+    assert len(_timewarp_frames(path)) == n
+    for name, bad in (("depth", np.zeros((n, h + 1, w), np.float32)),
+                      ("time", np.arange(n + 1) / 30.0),
+                      ("color", np.zeros((n, h, w, 3), np.uint16))):
+        np.savez(path, **{**good, name: bad})
+        with pytest.raises(RecordingError, match=f"{path}: "):
+            _timewarp_frames(path)
+    # A depth header that claims 90 G elements in a member of 360 bytes (its CRC-32 right).
+    import io
+    import zipfile
+
+    member = io.BytesIO()
+    np.lib.format.write_array(member, good["depth"], version=(1, 0))
+    header, huge = b"'shape': (3, 5, 6), }" + b" " * 9, b"'shape': (3, 5, 6000000000), }"
+    assert member.getvalue().count(header) == 1 and len(huge) == len(header)  # its padding
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, a in good.items():
+            if name == "depth":
+                zf.writestr("depth.npy", member.getvalue().replace(header, huge))
+            else:
+                with zf.open(f"{name}.npy", "w") as f:
+                    np.lib.format.write_array(f, a, version=(1, 0))
+    with pytest.raises(RecordingError, match=f"{path}: depth: float32 \\(3, 5, 6000000000\\)"):
+        _timewarp_frames(path)

@@ -29,6 +29,7 @@ import concurrent.futures as cf
 import hashlib
 import importlib
 import json
+import math
 import multiprocessing
 import os
 import socket
@@ -46,6 +47,7 @@ __all__ = [
     "STAGES",
     "Cache",
     "ClusterUnreachableError",
+    "DamagedCacheError",
     "RayMissingError",
     "SweepStats",
     "Task",
@@ -86,6 +88,12 @@ class ClusterUnreachableError(SweepError):
 
 class TaskFailedError(SweepError):
     """A task of the sweep raised; the message names the task and its inputs."""
+
+
+class DamagedCacheError(SweepError):
+    """An entry of the :class:`Cache` that does not read back as a task wrote it (a file
+    changed or damaged after the fact: the writes are atomic). The message names the entry and
+    says to remove it, which makes the next run compute it anew."""
 
 
 @dataclass(frozen=True)
@@ -168,7 +176,7 @@ class Cache:
 
     def prepare(self) -> None:
         """Creates the folders (raises ``OSError`` when ``root`` cannot be one)."""
-        for sub in ("chunks", "recordings", "timewarp", "streams", "rows"):
+        for sub in _SUBFOLDERS:
             (self.root / sub).mkdir(parents=True, exist_ok=True)
 
     def recording(self, key: str) -> Path:
@@ -207,12 +215,107 @@ class Cache:
         return task.stage == "render" and "given" in task.params or self.marker(task).is_file()
 
     def read_row(self, key: str) -> dict[str, Any]:
+        """The row a score task wrote (``sweep_tasks._write_part``): ``ssim``, ``flip``,
+        ``psnr``, ``vmaf`` and ``mse`` (each a finite number or null), ``frames`` (an integer
+        ≥ 0) and ``mbps`` (a finite number ≥ 0), and nothing else.
+
+        Raises:
+            DamagedCacheError: for a file that is not such an object."""
+        path = self.row(key)
+        data = self._read_json(path, "row")
+        if not isinstance(data, dict) or set(data) != _ROW_FIELDS:
+            keys = sorted(data) if isinstance(data, dict) else _json_kind(data)
+            raise self.damaged(path, f"expected an object with {sorted(_ROW_FIELDS)}, "
+                                     f"got {keys}")
+        for name, value in sorted(data.items()):
+            ok = (_count(value) if name == "frames"
+                  else _finite(value) and value >= 0 if name == "mbps"
+                  else value is None or _finite(value))
+            if not ok:
+                raise self.damaged(path, f"{name} is {value!r}")
+        return data
+
+    def read_stream_info(self, key: str) -> tuple[list[int], float]:
+        """What an encode task wrote beside its stream: each packet's size in bytes and the
+        stream's Mb/s.
+
+        Raises:
+            DamagedCacheError: for a file that is not ``{"sizes": [int ≥ 0, ...], "mbps":
+                number ≥ 0}``."""
+        path = self.stream_info(key)
+        data = self._read_json(path, "stream information")
+        if not (isinstance(data, dict) and set(data) == {"sizes", "mbps"}
+                and isinstance(data["sizes"], list) and all(map(_count, data["sizes"]))
+                and _finite(data["mbps"]) and data["mbps"] >= 0):
+            raise self.damaged(path, 'expected {"sizes": [integers >= 0], "mbps": a number '
+                                     ">= 0}")
+        return list(data["sizes"]), float(data["mbps"])
+
+    def read_chunk_info(self, key: str) -> tuple[str, list[float], list[list[int]]]:
+        """What a render task wrote last into its chunk (``sweep_tasks.render_chunk``): the
+        part (``"server"`` or ``"client"``), each frame's time and the auxiliary cameras'
+        sizes.
+
+        Raises:
+            DamagedCacheError: for a file that is not ``{"part", "times": [numbers], "aux":
+                [[int, int], ...]}``."""
+        path = self.chunk(key) / "entries.json"
+        data = self._read_json(path, "chunk entries")
+        if not (isinstance(data, dict) and set(data) == {"part", "times", "aux"}
+                and data["part"] in ("server", "client")
+                and isinstance(data["times"], list) and all(map(_finite, data["times"]))
+                and isinstance(data["aux"], list)
+                and all(isinstance(a, list) and len(a) == 2 and all(map(_count, a))
+                        for a in data["aux"])):
+            raise self.damaged(path, 'expected {"part": "server" or "client", "times": '
+                                     '[numbers], "aux": [[width, height], ...]}')
+        return data["part"], list(data["times"]), list(data["aux"])
+
+    def _read_json(self, path: Path, what: str) -> Any:
         from splitrender.files import read_json
 
-        data = read_json(self.row(key), 1 << 20, "cached row", SweepError)
-        if not isinstance(data, dict):
-            raise SweepError(f"{self.row(key)}: expected a JSON object")
-        return data
+        try:
+            return read_json(path, 1 << 24, f"cached {what}", DamagedCacheError)
+        except DamagedCacheError as e:
+            raise self.damaged(path, str(e).removeprefix(f"{path}: ")) from None
+
+    def entry(self, path: str | os.PathLike[str]) -> Path | None:
+        """The entry of the cache that ``path`` is, or is in (``recordings/KEY``,
+        ``streams/KEY.stream``, ...); ``None`` for a path outside the cache's folders."""
+        try:
+            rel = Path(path).relative_to(self.root)
+        except ValueError:
+            return None
+        if len(rel.parts) < 2 or rel.parts[0] not in _SUBFOLDERS:
+            return None
+        return self.root / rel.parts[0] / rel.parts[1]
+
+    def damaged(self, path: str | os.PathLike[str], problem: str) -> DamagedCacheError:
+        """The error for the cache's file ``path`` that reads back wrong."""
+        entry = self.entry(path) or Path(path)
+        return DamagedCacheError(
+            f"{path}: {problem}: a damaged cache entry (changed after it was written); remove "
+            f"{entry} and run the same command again to compute it anew")
+
+
+#: The cache's folders, one per kind of entry (:class:`Cache`).
+_SUBFOLDERS = ("chunks", "recordings", "timewarp", "streams", "rows")
+#: The fields of a score task's row in the cache.
+_ROW_FIELDS = {"ssim", "flip", "psnr", "vmaf", "mse", "frames", "mbps"}
+
+
+def _finite(value: object) -> bool:
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
+def _count(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _json_kind(value: object) -> str:
+    return {list: "an array", str: "a string", bool: "true or false", type(None): "null"}.get(
+        type(value), "a number")
 
 
 @dataclass
@@ -230,12 +333,24 @@ class SweepStats:
 
 
 def run_task(root: str, task: Task) -> str:
-    """Runs ``task`` (in whichever process) unless its output already exists; returns its key."""
+    """Runs ``task`` (in whichever process) unless its output already exists; returns its key.
+
+    A recording or stream in the cache that fails its checks when the task reads it (each
+    error names the file first) is a :class:`DamagedCacheError`, naming the entry to remove."""
+    from splitrender.errors import StreamError
+    from splitrender.scene.recording import RecordingError
+
     cache = Cache(root)
     if not cache.has(task):
         module, name = task.fn.split(":")
         fn: Callable[[Task, Cache], None] = getattr(importlib.import_module(module), name)
-        fn(task, cache)
+        try:
+            fn(task, cache)
+        except (RecordingError, StreamError) as e:
+            path, sep, problem = str(e).partition(": ")
+            if not sep or cache.entry(path) is None:
+                raise
+            raise cache.damaged(path, problem) from None
     return task.key
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -123,18 +124,19 @@ def render_recording(task: Task, cache: Cache) -> None:
     aux: list[list[int]] = []
     for key in task.deps:
         folder = cache.chunk(key)
-        info = json.loads((folder / "entries.json").read_text())
+        part, times, chunk_aux = cache.read_chunk_info(key)
         files = sorted(folder.glob("*.npz"))
-        if len(files) != len(info["times"]):
-            raise ValueError(f"{folder}: {len(files)} frames, expected {len(info['times'])}")
-        if info["part"] == "server":
-            aux = aux or info["aux"]
-            server += zip(info["times"], files)
+        if len(files) != len(times):
+            raise cache.damaged(folder, f"{len(files)} frames, expected {len(times)}")
+        if part == "server":
+            aux = aux or chunk_aux
+            server += zip(times, files)
         else:
-            client += zip(info["times"], files)
+            client += zip(times, files)
     if (len(server), len(client)) != (r.n_server, r.n_client):
-        raise ValueError(f"chunks hold {len(server)} server and {len(client)} client frames, "
-                         f"expected {r.n_server} and {r.n_client}")
+        raise cache.damaged(cache.chunk(task.deps[0]),
+                            f"the chunks hold {len(server)} server and {len(client)} client "
+                            f"frames, expected {r.n_server} and {r.n_client}")
     write_entries(cache.recording(task.key), r.fields(aux),
                   [(t, f.read_bytes()) for t, f in server],
                   [(t, f.read_bytes()) for t, f in client], overwrite=True)
@@ -177,15 +179,60 @@ def _timewarp_frames(path: Path) -> list[Any]:
     for the 60 FPS line at 320×180, beyond any machine at 1280×720)."""
     from splitrender.types import Camera, CameraFrame, ServerFrame
 
+    n, h, w = _timewarp_shape(path)
     with np.load(path) as z:
         index, time, view, proj, color, depth = (
             z[k] for k in ("index", "time", "view", "proj", "color", "depth"))
-    h, w = color.shape[1:3]
     return [
         ServerFrame(int(index[k]), float(time[k]), CameraFrame(
             Camera(view[k], proj[k], int(w), int(h)), color[k], depth[k]))
         for k in range(len(index))
     ]
+
+
+def _timewarp_shape(path: Path) -> tuple[int, int, int]:
+    """The frames, height and width of :func:`render_timewarp`'s file ``path``, from its
+    members' npy headers, checked before any array is read: the members and dtypes it writes,
+    shapes that agree (``index``, ``time``: (n,); ``view``, ``proj``: (n, 4, 4); ``color``:
+    (n, h, w, 3); ``depth``: (n, h, w)), each array within its stored member's bytes.
+
+    Raises:
+        RecordingError: naming ``path`` (:func:`run_task` makes it a damaged cache entry)."""
+    import tokenize
+    import zipfile
+
+    from splitrender.files import open_regular
+    from splitrender.scene.recording import RecordingError
+
+    dtypes = {"index": np.int64, "time": np.float64, "view": np.float64, "proj": np.float64,
+              "color": np.uint8, "depth": np.float32}
+    shapes: dict[str, tuple[int, ...]] = {}
+    try:
+        with open_regular(path, "cached timewarp frames", RecordingError) as f, \
+                zipfile.ZipFile(f) as zf:
+            if sorted(zf.namelist()) != sorted(f"{k}.npy" for k in dtypes):
+                raise RecordingError(f"{path}: members {sorted(zf.namelist())}")
+            for key, dtype in dtypes.items():
+                info = zf.getinfo(f"{key}.npy")
+                with zf.open(info) as fh:
+                    if np.lib.format.read_magic(fh) != (1, 0):
+                        raise RecordingError(f"{path}: {key}: not npy format 1.0")
+                    shape, fortran, dt = np.lib.format.read_array_header_1_0(fh)
+                    size = math.prod(shape) * dt.itemsize
+                    if dt != dtype or fortran or info.compress_type != zipfile.ZIP_STORED \
+                            or size > info.file_size:
+                        raise RecordingError(f"{path}: {key}: {dt} {shape}")
+                    shapes[key] = tuple(shape)
+    except (zipfile.BadZipFile, ValueError, EOFError, SyntaxError, tokenize.TokenError,
+            OSError) as e:
+        raise RecordingError(f"{path}: not a valid npz: {type(e).__name__}: {e}") from None
+    n = shapes["index"][0] if len(shapes["index"]) == 1 else -1
+    hw = shapes["depth"][1:]
+    want = {"index": (n,), "time": (n,), "view": (n, 4, 4), "proj": (n, 4, 4),
+            "color": (n, *hw, 3), "depth": (n, *hw)}
+    if n < 1 or len(hw) != 2 or shapes != want:
+        raise RecordingError(f"{path}: shapes {shapes} do not agree")
+    return n, hw[0], hw[1]
 
 
 def _recording(task: Task, cache: Cache) -> Any:
@@ -231,11 +278,14 @@ def score_play(task: Task, cache: Cache) -> None:
     server: Iterable[ServerFrame]
     if p["stream"]:
         key = task.deps[1]
-        info = json.loads(cache.stream_info(key).read_text())
+        sizes, mbps = cache.read_stream_info(key)
         # Decoded as the client needs each frame: held whole, a 1280x720 run would take
         # about 50 MB per server frame in every task running at once.
-        server = DecodedStream(list(read_stream(cache.stream(key))))
-        sizes, mbps = [int(s) for s in info["sizes"]], float(info["mbps"])
+        packets = list(read_stream(cache.stream(key)))
+        if len(packets) != len(sizes) or [len(q) for q in packets] != sizes:
+            raise cache.damaged(cache.stream_info(key), "the sizes of another stream than "
+                                f"{cache.stream(key).name}")
+        server = DecodedStream(packets)
     else:
         server = rec.server_frames  # read when the client needs each
         mbps = raw_mbps(rec)
