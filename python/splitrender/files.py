@@ -45,6 +45,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AtomicWriter",
+    "JSON_KINDS",
     "OutputFolder",
     "check_apart",
     "check_name",
@@ -61,6 +62,14 @@ __all__ = [
 # largest float, and a longer one that the package converted with float() or math.isfinite()
 # could raise OverflowError (and above 4300 digits int() itself refuses it).
 _MAX_INT_DIGITS = sys.float_info.max_10_exp
+
+
+#: JSON's names for the Python types that :func:`read_json` gives, for messages in JSON's terms
+#: ("expected an integer, got a string", not ``<class 'int'>``).
+JSON_KINDS: dict[type, str] = {
+    bool: "true or false", int: "an integer", float: "a number", str: "a string",
+    list: "an array", dict: "an object", type(None): "null",
+}
 
 
 def open_regular(path: str | os.PathLike[str], what: str, error: type[Exception]) -> BinaryIO:

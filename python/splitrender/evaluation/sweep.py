@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.errors import SplitRenderError, is_user_error
+from splitrender.files import JSON_KINDS, read_json
 from splitrender.progress import Progress
 
 __all__ = [
@@ -224,7 +225,7 @@ class Cache:
         path = self.row(key)
         data = self._read_json(path, "row")
         if not isinstance(data, dict) or set(data) != _ROW_FIELDS:
-            keys = sorted(data) if isinstance(data, dict) else _json_kind(data)
+            keys = sorted(data) if isinstance(data, dict) else JSON_KINDS[type(data)]
             raise self.damaged(path, f"expected an object with {sorted(_ROW_FIELDS)}, "
                                      f"got {keys}")
         for name, value in sorted(data.items()):
@@ -272,8 +273,6 @@ class Cache:
         return data["part"], list(data["times"]), list(data["aux"])
 
     def _read_json(self, path: Path, what: str) -> Any:
-        from splitrender.files import read_json
-
         try:
             return read_json(path, 1 << 24, f"cached {what}", DamagedCacheError)
         except DamagedCacheError as e:
@@ -311,11 +310,6 @@ def _finite(value: object) -> bool:
 
 def _count(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
-def _json_kind(value: object) -> str:
-    return {list: "an array", str: "a string", bool: "true or false", type(None): "null"}.get(
-        type(value), "a number")
 
 
 @dataclass

@@ -56,7 +56,7 @@ import numpy.typing as npt
 
 from splitrender._native import __version__
 from splitrender.errors import InvalidInputError, SplitRenderError
-from splitrender.files import open_regular, read_json_object, read_regular
+from splitrender.files import JSON_KINDS, open_regular, read_json_object, read_regular
 from splitrender.scene.builtin import (
     MAX_SAMPLES,
     ClientMotion,
@@ -533,16 +533,11 @@ def _fail(where: Path | str, problem: str) -> RecordingError:
     return RecordingError(f"{where}: {problem}")
 
 
-#: JSON's names for the Python types a manifest field may have.
-_JSON_KIND = {bool: "true or false", int: "an integer", float: "a number", str: "a string",
-              list: "an array", dict: "an object", type(None): "null"}
-
-
 def _json_kind(kind: type | tuple[type, ...]) -> str:
     kinds = kind if isinstance(kind, tuple) else (kind,)
     if set(kinds) == {int, float}:
         return "a number"
-    return " or ".join(_JSON_KIND.get(k, k.__name__) for k in kinds)
+    return " or ".join(JSON_KINDS.get(k, k.__name__) for k in kinds)
 
 
 def _get(m: dict[str, Any], key: str, kind: type | tuple[type, ...], where: Path,
@@ -557,7 +552,7 @@ def _get(m: dict[str, Any], key: str, kind: type | tuple[type, ...], where: Path
     if isinstance(v, bool) and kind is not bool:
         raise _fail(where, f"field {name!r}: expected {_json_kind(kind)}, got {v!r}")
     if not isinstance(v, kind):
-        got = _JSON_KIND.get(type(v), type(v).__name__)
+        got = JSON_KINDS.get(type(v), type(v).__name__)
         raise _fail(where, f"field {name!r}: expected {_json_kind(kind)}, got {got}")
     return v
 
