@@ -470,3 +470,25 @@ def test_damaged_timewarp_frames_are_refused_before_reading(tmp_path: Path) -> N
                     np.lib.format.write_array(f, a, version=(1, 0))
     with pytest.raises(RecordingError, match=f"{path}: depth: float32 \\(3, 5, 6000000000\\)"):
         _timewarp_frames(path)
+
+
+def test_a_damaged_chunk_is_not_assembled_into_a_recording(tmp_path: Path) -> None:
+    """A chunk's frame file changed before the recording is assembled from it is refused: the
+    recording's manifest takes the SHA-256 of the bytes it is given, so the damage would pass
+    every later check."""
+    def stop_at_assembly(task: sweep.Task) -> None:
+        if task.fn.endswith(":render_recording"):
+            raise RuntimeError("stopped before the assembly")
+
+    cache, out = tmp_path / "cache", tmp_path / "out"
+    with pytest.raises(sweep.TaskFailedError, match="stopped before the assembly"):
+        run_eval(_config(out, cache), fault=stop_at_assembly)
+    frame = sorted((cache / "chunks").glob("*/000001.npz"))[0]
+    data = bytearray(frame.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    frame.write_bytes(bytes(data))
+    with pytest.raises(sweep.TaskFailedError) as e:
+        run_eval(_config(out, cache))
+    assert f"{frame}: SHA-256 does not match the chunk's entries.json" in str(e.value)
+    assert f"remove {frame.parent} and run" in str(e.value)
+    assert not any((cache / "recordings").iterdir())

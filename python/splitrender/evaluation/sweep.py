@@ -32,6 +32,7 @@ import json
 import math
 import multiprocessing
 import os
+import re
 import socket
 import time
 from collections.abc import Callable, Sequence
@@ -252,25 +253,29 @@ class Cache:
                                      ">= 0}")
         return list(data["sizes"]), float(data["mbps"])
 
-    def read_chunk_info(self, key: str) -> tuple[str, list[float], list[list[int]]]:
+    def read_chunk_info(self, key: str) -> tuple[str, list[float], list[str], list[list[int]]]:
         """What a render task wrote last into its chunk (``sweep_tasks.render_chunk``): the
-        part (``"server"`` or ``"client"``), each frame's time and the auxiliary cameras'
-        sizes.
+        part (``"server"`` or ``"client"``), each frame's time and its file's SHA-256 (hex),
+        and the auxiliary cameras' sizes.
 
         Raises:
-            DamagedCacheError: for a file that is not ``{"part", "times": [numbers], "aux":
-                [[int, int], ...]}``."""
+            DamagedCacheError: for a file that is not ``{"part", "times": [numbers],
+                "sha256": [64 hex digits, one per time], "aux": [[int, int], ...]}``."""
         path = self.chunk(key) / "entries.json"
         data = self._read_json(path, "chunk entries")
-        if not (isinstance(data, dict) and set(data) == {"part", "times", "aux"}
+        if not (isinstance(data, dict) and set(data) == {"part", "times", "sha256", "aux"}
                 and data["part"] in ("server", "client")
                 and isinstance(data["times"], list) and all(map(_finite, data["times"]))
+                and isinstance(data["sha256"], list)
+                and len(data["sha256"]) == len(data["times"])
+                and all(isinstance(d, str) and _SHA256.fullmatch(d) for d in data["sha256"])
                 and isinstance(data["aux"], list)
                 and all(isinstance(a, list) and len(a) == 2 and all(map(_count, a))
                         for a in data["aux"])):
             raise self.damaged(path, 'expected {"part": "server" or "client", "times": '
-                                     '[numbers], "aux": [[width, height], ...]}')
-        return data["part"], list(data["times"]), list(data["aux"])
+                                     '[numbers], "sha256": [one per time], "aux": [[width, '
+                                     "height], ...]}")
+        return data["part"], list(data["times"]), list(data["sha256"]), list(data["aux"])
 
     def _read_json(self, path: Path, what: str) -> Any:
         try:
@@ -301,6 +306,7 @@ class Cache:
 _SUBFOLDERS = ("chunks", "recordings", "timewarp", "streams", "rows")
 #: The fields of a score task's row in the cache.
 _ROW_FIELDS = {"ssim", "flip", "psnr", "vmaf", "mse", "frames", "mbps"}
+_SHA256 = re.compile("[0-9a-f]{64}")
 
 
 def _finite(value: object) -> bool:

@@ -15,6 +15,7 @@ one output atomically under ``task.key``.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
@@ -88,6 +89,7 @@ def render_chunk(task: Task, cache: Cache) -> None:
     tmp.mkdir(parents=True)
     try:
         times: list[float] = []
+        digests: list[str] = []
         aux: list[list[int]] = []
         for i in range(p["start"], p["stop"]):
             if p["part"] == "server":
@@ -96,7 +98,9 @@ def render_chunk(task: Task, cache: Cache) -> None:
                 t, data = r.client_entry(i)
             (tmp / f"{i:06d}.npz").write_bytes(data)
             times.append(t)
-        write_atomic(tmp / "entries.json", json.dumps({"part": p["part"], "times": times, "aux": aux}) + "\n")
+            digests.append(hashlib.sha256(data).hexdigest())
+        entries = {"part": p["part"], "times": times, "sha256": digests, "aux": aux}
+        write_atomic(tmp / "entries.json", json.dumps(entries) + "\n")
         if dest.exists():  # an earlier partial attempt cannot be there (renamed whole): a twin
             shutil.rmtree(tmp)
         else:
@@ -119,27 +123,36 @@ def render_recording(task: Task, cache: Cache) -> None:
     from splitrender.scene.recording import write_entries
 
     r = _renderer(task)
-    server: list[tuple[float, Path]] = []
-    client: list[tuple[float, Path]] = []
+    server: list[tuple[float, Path, str]] = []
+    client: list[tuple[float, Path, str]] = []
     aux: list[list[int]] = []
     for key in task.deps:
         folder = cache.chunk(key)
-        part, times, chunk_aux = cache.read_chunk_info(key)
+        part, times, digests, chunk_aux = cache.read_chunk_info(key)
         files = sorted(folder.glob("*.npz"))
         if len(files) != len(times):
             raise cache.damaged(folder, f"{len(files)} frames, expected {len(times)}")
         if part == "server":
             aux = aux or chunk_aux
-            server += zip(times, files)
+            server += zip(times, files, digests)
         else:
-            client += zip(times, files)
+            client += zip(times, files, digests)
     if (len(server), len(client)) != (r.n_server, r.n_client):
         raise cache.damaged(cache.chunk(task.deps[0]),
                             f"the chunks hold {len(server)} server and {len(client)} client "
                             f"frames, expected {r.n_server} and {r.n_client}")
+
+    def checked(t: float, f: Path, digest: str) -> tuple[float, bytes]:
+        # The recording's manifest gets the SHA-256 of these bytes: checked against the one
+        # the chunk's task wrote, or a frame damaged in the chunk would pass every later check.
+        data = f.read_bytes()
+        if hashlib.sha256(data).hexdigest() != digest:
+            raise cache.damaged(f, "SHA-256 does not match the chunk's entries.json")
+        return t, data
+
     write_entries(cache.recording(task.key), r.fields(aux),
-                  [(t, f.read_bytes()) for t, f in server],
-                  [(t, f.read_bytes()) for t, f in client], overwrite=True)
+                  [checked(*e) for e in server], [checked(*e) for e in client],
+                  overwrite=True)
     for key in task.deps:
         shutil.rmtree(cache.chunk(key), ignore_errors=True)
 
