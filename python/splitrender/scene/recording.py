@@ -384,8 +384,8 @@ def write_recording(
     return write_entries(
         out,
         lambda: r.fields(aux_size),  # after the frames: the auxiliary cameras' size
-        _Frames(r.n_server, server_entry),
-        _Frames(r.n_client, r.client_entry),
+        LazyFrames(r.n_server, server_entry),
+        LazyFrames(r.n_client, r.client_entry),
         overwrite=overwrite,
         progress=progress,
     )
@@ -456,8 +456,8 @@ def write_frames(
         c = client_frames[n]
         return c.time, _npz_bytes(_client_arrays(c))
 
-    return write_entries(out, fields, _Frames(len(server_frames), server),
-                         _Frames(len(client_frames), client), overwrite=overwrite,
+    return write_entries(out, fields, LazyFrames(len(server_frames), server),
+                         LazyFrames(len(client_frames), client), overwrite=overwrite,
                          progress=progress)
 
 
@@ -687,7 +687,7 @@ class ClientFrame:
 T = TypeVar("T")
 
 
-class _Frames(Sequence[T], Generic[T]):
+class LazyFrames(Sequence[T], Generic[T]):
     """Frames loaded from disk on access (each access reads and checks the file again). A
     slice is another such view, of the frames it names: ``rec.server_frames[:n]`` reads nothing
     until a frame is asked for, so a play of the first ``n`` never holds them all."""
@@ -703,12 +703,12 @@ class _Frames(Sequence[T], Generic[T]):
     @overload
     def __getitem__(self, i: int) -> T: ...
     @overload
-    def __getitem__(self, i: slice) -> _Frames[T]: ...
-    def __getitem__(self, i: int | slice) -> T | _Frames[T]:
+    def __getitem__(self, i: slice) -> LazyFrames[T]: ...
+    def __getitem__(self, i: int | slice) -> T | LazyFrames[T]:
         if isinstance(i, slice):
             picked = range(*i.indices(self._n))
             load = self._load
-            return _Frames(len(picked), lambda j: load(picked[j]))
+            return LazyFrames(len(picked), lambda j: load(picked[j]))
         if not -self._n <= i < self._n:
             raise IndexError(f"frame {i} out of range (0..{self._n - 1})")
         return self._load(i % self._n)
@@ -735,10 +735,10 @@ class Recording:
         cams = manifest["cameras"]
         self._sizes = [tuple(cams["main"]), *(tuple(a) for a in cams["aux"])]
         self._eyes = int(cams["eyes"])
-        self.server_frames: Sequence[ServerFrame] = _Frames(
+        self.server_frames: Sequence[ServerFrame] = LazyFrames(
             len(manifest["server_frames"]), self._server
         )
-        self.client_frames: Sequence[ClientFrame] = _Frames(
+        self.client_frames: Sequence[ClientFrame] = LazyFrames(
             len(manifest["client_frames"]), self._client
         )
 
@@ -784,7 +784,7 @@ class Recording:
                                     "(one eye, 0)")
         frames = self.client_frames
         count = len(frames) if n is None else min(n, len(frames))
-        truths: Sequence[npt.NDArray[np.uint8]] = _Frames(
+        truths: Sequence[npt.NDArray[np.uint8]] = LazyFrames(
             count, lambda k: frames[k].ground_truths[eye]
         )
         # The cameras alone: the images are read (again) when asked for.
