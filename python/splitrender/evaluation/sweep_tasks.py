@@ -138,7 +138,8 @@ def render_recording(task: Task, cache: Cache) -> None:
         else:
             client += zip(times, files, digests)
     if (len(server), len(client)) != (r.n_server, r.n_client):
-        raise cache.damaged(cache.chunk(task.deps[0]),
+        # Which chunk is wrong cannot be told (each agrees with its entries.json): all go.
+        raise cache.damaged(cache.root / "chunks",
                             f"the chunks hold {len(server)} server and {len(client)} client "
                             f"frames, expected {r.n_server} and {r.n_client}")
 
@@ -194,7 +195,7 @@ def _timewarp_frames(path: Path) -> list[Any]:
     for the 60 FPS line at 320×180, beyond any machine at 1280×720)."""
     from splitrender.types import Camera, CameraFrame, ServerFrame
 
-    n, h, w = _timewarp_shape(path)
+    _, h, w = _timewarp_shape(path)
     with np.load(path) as z:
         index, time, view, proj, color, depth = (
             z[k] for k in ("index", "time", "view", "proj", "color", "depth"))
@@ -226,7 +227,8 @@ def _timewarp_shape(path: Path) -> tuple[int, int, int]:
         with open_regular(path, "cached timewarp frames", RecordingError) as f, \
                 zipfile.ZipFile(f) as zf:
             if sorted(zf.namelist()) != sorted(f"{k}.npy" for k in dtypes):
-                raise RecordingError(f"{path}: members {sorted(zf.namelist())}")
+                raise RecordingError(f"{path}: members {sorted(zf.namelist())}, expected "
+                                     f"{sorted(f'{k}.npy' for k in dtypes)}")
             for key, dtype in dtypes.items():
                 info = zf.getinfo(f"{key}.npy")
                 with zf.open(info) as fh:
