@@ -688,9 +688,11 @@ T = TypeVar("T")
 
 
 class LazyFrames(Sequence[T], Generic[T]):
-    """Frames loaded from disk on access (each access reads and checks the file again). A
-    slice is another such view, of the frames it names: ``rec.server_frames[:n]`` reads nothing
-    until a frame is asked for, so a play of the first ``n`` never holds them all."""
+    """Frames made on access by ``load(i)``, never held: a recording's frames read from disk
+    (each access reads and checks the file again), or the entries :func:`write_entries` is
+    given, rendered or read one at a time. A slice is another such view, of the frames it
+    names: ``rec.server_frames[:n]`` reads nothing until a frame is asked for, so a play of the
+    first ``n`` never holds them all."""
 
     __slots__ = ("_load", "_n")
 
