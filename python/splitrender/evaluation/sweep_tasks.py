@@ -214,11 +214,10 @@ def _timewarp_shape(path: Path) -> tuple[int, int, int]:
 
     Raises:
         RecordingError: naming ``path`` (:func:`run_task` makes it a damaged cache entry)."""
-    import tokenize
     import zipfile
 
     from splitrender.files import open_regular
-    from splitrender.scene.recording import RecordingError
+    from splitrender.scene.recording import NPZ_ERRORS, RecordingError, npy_header
 
     dtypes = {"index": np.int64, "time": np.float64, "view": np.float64, "proj": np.float64,
               "color": np.uint8, "depth": np.float32}
@@ -232,16 +231,13 @@ def _timewarp_shape(path: Path) -> tuple[int, int, int]:
             for key, dtype in dtypes.items():
                 info = zf.getinfo(f"{key}.npy")
                 with zf.open(info) as fh:
-                    if np.lib.format.read_magic(fh) != (1, 0):
-                        raise RecordingError(f"{path}: {key}: not npy format 1.0")
-                    shape, fortran, dt = np.lib.format.read_array_header_1_0(fh)
+                    shape, fortran, dt = npy_header(fh, path, key)
                     size = math.prod(shape) * dt.itemsize
                     if dt != dtype or fortran or info.compress_type != zipfile.ZIP_STORED \
                             or size > info.file_size:
                         raise RecordingError(f"{path}: {key}: {dt} {shape}")
-                    shapes[key] = tuple(shape)
-    except (zipfile.BadZipFile, ValueError, EOFError, SyntaxError, tokenize.TokenError,
-            OSError) as e:
+                    shapes[key] = shape
+    except NPZ_ERRORS as e:
         raise RecordingError(f"{path}: not a valid npz: {type(e).__name__}: {e}") from None
     n = shapes["index"][0] if len(shapes["index"]) == 1 else -1
     hw = shapes["depth"][1:]

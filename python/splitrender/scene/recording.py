@@ -49,7 +49,7 @@ import zlib
 from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO, Generic, TypeVar, overload
+from typing import IO, Any, BinaryIO, Generic, TypeVar, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -624,10 +624,7 @@ def _npz_members(
                 raise _fail(path, f"members {sorted(names)}, expected {sorted(want)}")
             for key, (dtype, shape) in spec.items():
                 with zf.open(f"{key}.npy") as fh:
-                    version = np.lib.format.read_magic(fh)
-                    if version != (1, 0):
-                        raise _fail(path, f"{key}: npy format {version}, expected (1, 0)")
-                    shp, fortran, dt = np.lib.format.read_array_header_1_0(fh)
+                    shp, fortran, dt = npy_header(fh, path, key)
                     if dt != dtype or tuple(shp) != shape or fortran:
                         raise _fail(
                             path,
@@ -642,15 +639,28 @@ def _npz_members(
                     if fh.read(1):
                         raise _fail(path, f"{key}: more bytes than its {dtype} {shape} array")
                     out[key] = np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
-    except (zipfile.BadZipFile, ValueError, EOFError, SyntaxError, tokenize.TokenError,
-            RecursionError, NotImplementedError, RuntimeError, OSError, zlib.error) as e:
-        # numpy parses the npy header with tokenize and ast.literal_eval, which report a
-        # malformed one as TokenError or SyntaxError (found by the fuzz suite, issue 15);
-        # zipfile reports an unknown compression method as NotImplementedError, an encrypted
-        # member as RuntimeError and broken compressed data as zlib.error, OSError (bzip2)
-        # or lzma.LZMAError (an OSError).
+    except NPZ_ERRORS as e:
         raise _fail(path, f"not a valid npz: {type(e).__name__}: {e}") from None
     return out
+
+
+#: What reading a malformed npz raises: numpy parses the npy header with tokenize and
+#: ast.literal_eval, which report a malformed one as TokenError or SyntaxError (found by the
+#: fuzz suite, issue 15); zipfile reports an unknown compression method as
+#: NotImplementedError, an encrypted member as RuntimeError and broken compressed data as
+#: zlib.error, OSError (bzip2) or lzma.LZMAError (an OSError).
+NPZ_ERRORS = (zipfile.BadZipFile, ValueError, EOFError, SyntaxError, tokenize.TokenError,
+              RecursionError, NotImplementedError, RuntimeError, OSError, zlib.error)
+
+
+def npy_header(fh: IO[bytes], path: Path, key: str) -> tuple[tuple[int, ...], bool, np.dtype[Any]]:
+    """``(shape, fortran_order, dtype)`` from the npy header of member ``key`` of the npz file
+    ``path``, open as ``fh``; only npy format 1.0 (what the package writes) is read."""
+    version = np.lib.format.read_magic(fh)
+    if version != (1, 0):
+        raise _fail(path, f"{key}: npy format {version}, expected (1, 0)")
+    shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+    return tuple(shape), bool(fortran), dtype
 
 
 @dataclass(frozen=True, slots=True, eq=False)
