@@ -472,10 +472,12 @@ def test_damaged_timewarp_frames_are_refused_before_reading(tmp_path: Path) -> N
         _timewarp_frames(path)
 
 
-def test_a_damaged_chunk_is_not_assembled_into_a_recording(tmp_path: Path) -> None:
+@pytest.mark.parametrize("damage", ["flipped", "grown"])
+def test_a_damaged_chunk_is_not_assembled_into_a_recording(tmp_path: Path, damage: str) -> None:
     """A chunk's frame file changed before the recording is assembled from it is refused: the
     recording's manifest takes the SHA-256 of the bytes it is given, so the damage would pass
-    every later check."""
+    every later check. A file longer than such a frame can be is refused by its size, before
+    it is read whole (and hashed)."""
     def stop_at_assembly(task: sweep.Task) -> None:
         if task.fn.endswith(":render_recording"):
             raise RuntimeError("stopped before the assembly")
@@ -485,10 +487,15 @@ def test_a_damaged_chunk_is_not_assembled_into_a_recording(tmp_path: Path) -> No
         run_eval(_config(out, cache), fault=stop_at_assembly)
     frame = sorted((cache / "chunks").glob("*/000001.npz"))[0]
     data = bytearray(frame.read_bytes())
-    data[len(data) // 2] ^= 0x01
+    if damage == "flipped":
+        data[len(data) // 2] ^= 0x01
+        problem = "SHA-256 does not match the chunk's entries.json"
+    else:  # twice its size: more than its arrays and any header can take
+        data += bytes(len(data))
+        problem = "chunk frame is more than "
     frame.write_bytes(bytes(data))
     with pytest.raises(sweep.TaskFailedError) as e:
         run_eval(_config(out, cache))
-    assert f"{frame}: SHA-256 does not match the chunk's entries.json" in str(e.value)
+    assert f"{frame}: {problem}" in str(e.value)
     assert f"remove {frame.parent} and run" in str(e.value)
     assert not any((cache / "recordings").iterdir())

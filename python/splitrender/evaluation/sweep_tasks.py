@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from splitrender.evaluation.sweep import Cache, Task
-from splitrender.files import write_atomic
+from splitrender.evaluation.sweep import Cache, DamagedCacheError, Task
+from splitrender.files import read_regular, write_atomic
 
 __all__ = [
     "CLIENT_CHUNK",
@@ -120,7 +120,7 @@ def render_recording(task: Task, cache: Cache) -> None:
     chunks, in frame order); the chunks are removed once it is in place."""
     import shutil
 
-    from splitrender.scene.recording import LazyFrames, write_entries
+    from splitrender.scene.recording import LazyFrames, frame_bytes_limit, write_entries
 
     r = _renderer(task)
     server: list[tuple[float, Path, str]] = []
@@ -143,19 +143,27 @@ def render_recording(task: Task, cache: Cache) -> None:
                             f"the chunks hold {len(server)} server and {len(client)} client "
                             f"frames, expected {r.n_server} and {r.n_client}")
 
-    def checked(t: float, f: Path, digest: str) -> tuple[float, bytes]:
-        # The recording's manifest gets the SHA-256 of these bytes: checked against the one
-        # the chunk's task wrote, or a frame damaged in the chunk would pass every later check.
-        data = f.read_bytes()
+    fields = r.fields(aux)
+    limits = {part: frame_bytes_limit(fields, part) for part in ("server", "client")}
+
+    def checked(part: str, t: float, f: Path, digest: str) -> tuple[float, bytes]:
+        # Read with the most bytes such a frame takes (a damaged file is not read whole), then
+        # checked against the SHA-256 the chunk's task wrote: the recording's manifest gets the
+        # SHA-256 of these bytes, so a frame damaged in the chunk would pass every later check.
+        try:
+            data = read_regular(f, limits[part], "chunk frame", DamagedCacheError)
+        except DamagedCacheError as e:
+            raise cache.damaged(f, str(e).removeprefix(f"{f}: ")) from None
         if hashlib.sha256(data).hexdigest() != digest:
             raise cache.damaged(f, "SHA-256 does not match the chunk's entries.json")
         return t, data
 
     # Read as they are written: held in lists, the frame files of a 3 s stereo recording at
     # 1280x720 would take about 4 GB (31 server frames of 70 MB, 720 images of 2.7 MB).
-    write_entries(cache.recording(task.key), r.fields(aux),
-                  LazyFrames(len(server), lambda k: checked(*server[k])),
-                  LazyFrames(len(client), lambda n: checked(*client[n])), overwrite=True)
+    write_entries(cache.recording(task.key), fields,
+                  LazyFrames(len(server), lambda k: checked("server", *server[k])),
+                  LazyFrames(len(client), lambda n: checked("client", *client[n])),
+                  overwrite=True)
     for key in task.deps:
         shutil.rmtree(cache.chunk(key), ignore_errors=True)
 

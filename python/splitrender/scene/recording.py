@@ -584,7 +584,7 @@ def _read_npz(
     110 ms per server frame. Whatever is read whole (a frame's buffers, a ground truth) is
     checked against the SHA-256 when it is read."""
     path = root / entry["file"]
-    limit = sum(int(np.prod(shape)) * dt.itemsize + _MEMBER_OVERHEAD for dt, shape in spec.values())
+    limit = _bytes_limit(spec)
     if entry["bytes"] > limit:
         raise _fail(
             path,
@@ -651,6 +651,44 @@ def _npz_members(
 #: zlib.error, OSError (bzip2) or lzma.LZMAError (an OSError).
 NPZ_ERRORS = (zipfile.BadZipFile, ValueError, EOFError, SyntaxError, tokenize.TokenError,
               RecursionError, NotImplementedError, RuntimeError, OSError, zlib.error)
+
+
+def _server_spec(sizes: Sequence[Sequence[int]]) -> Spec:
+    """The members of a server frame's file whose cameras (main, then auxiliary) have
+    ``sizes`` (``[width, height]`` each)."""
+    spec: Spec = {"pose": (np.dtype(np.float64), (4, 4))}
+    for cam, (w, h) in zip(_CAMERAS, sizes):
+        for name, dt, ch in _SERVER_ARRAYS:
+            spec[f"{cam}.{name}"] = (np.dtype(dt), _shape(ch, w, h))
+    return spec
+
+
+def _client_spec(size: Sequence[int], eyes: int) -> Spec:
+    """The members of a client frame's file with ``eyes`` images of ``size`` (width, height)."""
+    w, h = size
+    m44 = (np.dtype(np.float64), (4, 4))
+    spec: Spec = {"pose": m44}
+    for e in range(eyes):
+        spec[f"eye{e}.view"] = m44
+        spec[f"eye{e}.proj"] = m44
+        spec[f"eye{e}.color"] = (np.dtype(np.uint8), (h, w, 3))
+    return spec
+
+
+def _bytes_limit(spec: Spec) -> int:
+    """The most bytes a frame file with the members ``spec`` takes: its arrays' bytes and, per
+    member, room for the npy header and the zip's own records."""
+    return sum(int(np.prod(shape)) * dt.itemsize + _MEMBER_OVERHEAD for dt, shape in spec.values())
+
+
+def frame_bytes_limit(fields: dict[str, Any], part: str) -> int:
+    """The most bytes a ``part`` (``"server"`` or ``"client"``) frame file of a recording whose
+    manifest has ``fields`` (:meth:`RecordingRender.fields`) takes: a bound to read such a file
+    with before anything else about it is known."""
+    cams = fields["cameras"]
+    spec = (_server_spec([cams["main"], *cams["aux"]]) if part == "server"
+            else _client_spec(cams["client"], cams["eyes"]))
+    return _bytes_limit(spec)
 
 
 def npy_header(fh: IO[bytes], path: Path, key: str) -> tuple[tuple[int, ...], bool, np.dtype[Any]]:
@@ -821,11 +859,7 @@ class Recording:
             raise _fail(self.path / entry["file"], str(e)) from None
 
     def _server_spec(self) -> Spec:
-        spec: Spec = {"pose": (np.dtype(np.float64), (4, 4))}
-        for cam, (w, h) in zip(_CAMERAS, self._sizes):
-            for name, dt, ch in _SERVER_ARRAYS:
-                spec[f"{cam}.{name}"] = (np.dtype(dt), _shape(ch, w, h))
-        return spec
+        return _server_spec(self._sizes)
 
     def _server(self, k: int) -> ServerFrame:
         entry = self.manifest["server_frames"][k]
@@ -859,14 +893,7 @@ class Recording:
         return ServerFrame(entry["index"], entry["time"], frames[0], tuple(frames[1:]))
 
     def _client_spec(self) -> Spec:
-        w, h = self.manifest["cameras"]["client"]
-        m44 = (np.dtype(np.float64), (4, 4))
-        spec: Spec = {"pose": m44}
-        for e in range(self._eyes):
-            spec[f"eye{e}.view"] = m44
-            spec[f"eye{e}.proj"] = m44
-            spec[f"eye{e}.color"] = (np.dtype(np.uint8), (h, w, 3))
-        return spec
+        return _client_spec(self.manifest["cameras"]["client"], self._eyes)
 
     def _cameras(self, entry: dict[str, Any], a: dict[str, Any], eyes: range) -> list[Camera]:
         """The client cameras of ``eyes`` in frame file ``a`` (of manifest ``entry``)."""
