@@ -314,7 +314,9 @@ class _Plan:
         if self.given is not None:
             import hashlib
 
-            manifest = (Path(self.given.path) / "manifest.json").read_bytes()
+            # The manifest as load_recording read and checked it (not a second read of the
+            # file): with every frame file's SHA-256 in it, it names the recording's bytes.
+            manifest = json.dumps(self.given.manifest, sort_keys=True).encode()
             return self.add("render", "render_recording",
                             {"given": hashlib.sha256(manifest).hexdigest()},
                             label=f"{scene} (the recording {self.given.path})")
