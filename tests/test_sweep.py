@@ -383,7 +383,8 @@ def test_a_damaged_cached_row_is_named_with_what_to_remove(
 ) -> None:
     """A cached row that is not what a score task writes (missing or mistyped fields, not
     JSON) is named, with the entry to remove: it was an internal KeyError or numpy's TypeError.
-    Removed as told, the next run computes it again and gives the sweep's bytes."""
+    The failed run writes no outputs and no links to its recordings. Removed as told, the next
+    run computes it again and gives the sweep's bytes."""
     import re
 
     cache = _damaged_cache(serial, tmp_path)
@@ -396,6 +397,7 @@ def test_a_damaged_cached_row_is_named_with_what_to_remove(
                       r"written\); remove (\S+) and run the same command again", err)
     assert named is not None and named[1] == named[2] and Path(named[1]) in rows, err
     assert not (tmp_path / "out" / "results.json").exists()
+    assert not (tmp_path / "out" / "recordings").exists()
     for row in rows:
         row.unlink()
     assert _eval(cache, tmp_path / "out", capsys)[0] == 0

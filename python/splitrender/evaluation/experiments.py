@@ -573,7 +573,6 @@ def run_eval(
                       address=cfg.address, progress=stages, fault=fault, ray_init=ray_init)
     stages.close()
 
-    _link_recordings(out / "recordings", {n: cache.recording(k) for k, n in g.names.items()})
     parts: dict[str, Row] = {}
 
     def row(p: _Planned) -> Row:
@@ -680,6 +679,9 @@ def run_eval(
         write_atomic(stage / "run-info.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
         files.append(stage / "run-info.json")
         files = [outputs.final(p) for p in files]
+    # After the outputs are in place: a run that fails before (a damaged cached row, a plot
+    # that cannot be written) changes neither them nor the links beside them.
+    _link_recordings(out / "recordings", {n: cache.recording(k) for k, n in g.names.items()})
     return EvalResult(rows, files, w, h, bitrate, summary, stats)
 
 
