@@ -51,6 +51,7 @@ __all__ = [
     "default_samples",
     "MAX_PREPARE_THREADS",
     "MAX_SAMPLES",
+    "GPU_OUTPUT_SLOTS",
     "WgpuPair",
     "WgpuReprojector",
     "wgpu_adapter",
@@ -61,6 +62,7 @@ __version__: str
 METHODS: list[str]
 MAX_SAMPLES: int
 MAX_PREPARE_THREADS: int
+GPU_OUTPUT_SLOTS: int
 
 class SplitRenderError(Exception): ...
 class InvalidInputError(SplitRenderError, ValueError): ...

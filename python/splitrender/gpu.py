@@ -66,7 +66,7 @@ BACKENDS: tuple[str, ...] = ("cpu", "wgpu")
 GPU_METHODS: tuple[str, ...] = ("ours", "ours_extrapolate", "forward_splat")
 
 #: Output slots a :class:`GpuReprojector` holds on the device (``reproj_wgpu::MAX_OUTPUTS``).
-OUTPUT_SLOTS = 8
+OUTPUT_SLOTS: int = _native.GPU_OUTPUT_SLOTS
 
 _Image = npt.NDArray[np.uint8]
 

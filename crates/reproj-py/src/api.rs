@@ -175,22 +175,23 @@ impl BidirHistory {
     }
 }
 
-/// `history` as a `BidirHistory` borrowed for writing, or the error `reproject` and
-/// `BidirHistory.prepare` give for another object or one in use by another call.
 /// `alpha` as the kernels take it (f32), refused while it is still the caller's f64 where it is
 /// not finite or outside `[0, MAX_ALPHA]`: narrowed first, 1e308 was reported as `inf` and
 /// 3.0000001 passed as 3. (`{:?}` prints large and tiny values with an exponent, not in full.)
-pub(crate) fn kernel_alpha(alpha: f64, method: Method) -> PyResult<f32> {
+/// `method`: the method the message names (`None` for `apply_shadows`, which has none).
+pub(crate) fn kernel_alpha(alpha: f64, method: Option<Method>) -> PyResult<f32> {
     if alpha.is_finite() && (0.0..=f64::from(MAX_ALPHA)).contains(&alpha) {
         Ok(alpha as f32)
     } else {
+        let method = method.map_or(String::new(), |m| format!(" for method '{}'", m.name()));
         Err(invalid(format!(
-            "alpha = {alpha:?} is outside the supported range [0, {MAX_ALPHA}] for method '{}'",
-            method.name()
+            "alpha = {alpha:?} is outside the supported range [0, {MAX_ALPHA}]{method}"
         )))
     }
 }
 
+/// `history` as a `BidirHistory` borrowed for writing, or the error `reproject` and
+/// `BidirHistory.prepare` give for another object or one in use by another call.
 fn history_mut<'py>(h: &Bound<'py, PyAny>) -> PyResult<PyRefMut<'py, BidirHistory>> {
     let h = h.cast::<BidirHistory>().map_err(|_| {
         invalid(format!(
@@ -278,7 +279,7 @@ pub fn reproject<'py>(
         let newer_view = newer.view()?;
         let request = Request {
             client,
-            alpha: kernel_alpha(alpha, method)?,
+            alpha: kernel_alpha(alpha, Some(method))?,
         };
         // The kernel only reads the borrowed arrays. As everywhere with numpy, Python code in
         // another thread that writes to them meanwhile would race with it; we do not copy to
@@ -377,11 +378,7 @@ pub fn apply_shadows<'py>(
         let bits = array::<u32>(bits, "bits", &hw2)?;
         let s_min = array::<u8>(s_min, "s_min", &hw3d)?;
         let s_max = array::<u8>(s_max, "s_max", &hw3d)?;
-        if !(alpha.is_finite() && (0.0..=f64::from(MAX_ALPHA)).contains(&alpha)) {
-            return Err(invalid(format!(
-                "alpha = {alpha:?} is outside the supported range [0, {MAX_ALPHA}]"
-            )));
-        }
+        let alpha = kernel_alpha(alpha, None)?;
         let s = convert::subframes(subframes)?;
         let role = match role {
             "older" => Role::Older,
@@ -399,7 +396,7 @@ pub fn apply_shadows<'py>(
             slice(&s_max, "s_max")?,
         );
         let mut out = vec![0u8; c.len()];
-        py.detach(|| reproj_core::apply_shadows(c, b, lo, hi, alpha as f32, s, role, &mut out));
+        py.detach(|| reproj_core::apply_shadows(c, b, lo, hi, alpha, s, role, &mut out));
         rgb(py, out, h, w)
     })
 }

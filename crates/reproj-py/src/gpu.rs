@@ -220,7 +220,7 @@ impl WgpuReprojector {
             };
             let request = Request {
                 client,
-                alpha: kernel_alpha(alpha, method)?,
+                alpha: kernel_alpha(alpha, Some(method))?,
             };
             let mut out = download.then(|| vec![0u8; n * 3]);
             let mut diag = diagnostics.then(|| Diagnostics::new(n));

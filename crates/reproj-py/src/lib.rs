@@ -91,6 +91,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::default_samples, m)?)?;
     m.add("MAX_SAMPLES", reproj_scene::MAX_SAMPLES)?;
     m.add("MAX_PREPARE_THREADS", api::MAX_PREPARE_THREADS)?;
+    m.add("GPU_OUTPUT_SLOTS", reproj_wgpu::MAX_OUTPUTS)?;
     m.add_function(wrap_pyfunction!(_panic_for_test, m)?)?;
     Ok(())
 }

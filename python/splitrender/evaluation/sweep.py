@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.errors import SplitRenderError, is_user_error
-from splitrender.files import JSON_KINDS, read_json
+from splitrender.files import JSON_KINDS, read_json, read_regular
 from splitrender.progress import Progress
 
 __all__ = [
@@ -277,9 +277,23 @@ class Cache:
                                      "height], ...]}")
         return data["part"], list(data["times"]), list(data["sha256"]), list(data["aux"])
 
+    def read_file(self, path: Path, limit: int, what: str) -> bytes:
+        """The bytes of the cache's file ``path``, at most ``limit`` (``files.read_regular``).
+
+        Raises:
+            DamagedCacheError: for a longer file, or one that is not a regular file."""
+        data: bytes = self._read(read_regular, path, limit, what)
+        return data
+
     def _read_json(self, path: Path, what: str) -> Any:
+        return self._read(read_json, path, 1 << 24, f"cached {what}")
+
+    def _read(self, reader: Callable[[Path, int, str, type[Exception]], Any], path: Path,
+              limit: int, what: str) -> Any:
+        """``reader(path, limit, what, DamagedCacheError)`` (``files.read_regular`` or
+        ``read_json``), its error turned into :meth:`damaged`'s, which names the entry."""
         try:
-            return read_json(path, 1 << 24, f"cached {what}", DamagedCacheError)
+            return reader(path, limit, what, DamagedCacheError)
         except DamagedCacheError as e:
             raise self.damaged(path, str(e).removeprefix(f"{path}: ")) from None
 

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from splitrender.evaluation.sweep import Cache, DamagedCacheError, Task
-from splitrender.files import read_regular, write_atomic
+from splitrender.evaluation.sweep import Cache, Task
+from splitrender.files import write_atomic
 
 __all__ = [
     "CLIENT_CHUNK",
@@ -150,10 +150,7 @@ def render_recording(task: Task, cache: Cache) -> None:
         # Read with the most bytes such a frame takes (a damaged file is not read whole), then
         # checked against the SHA-256 the chunk's task wrote: the recording's manifest gets the
         # SHA-256 of these bytes, so a frame damaged in the chunk would pass every later check.
-        try:
-            data = read_regular(f, limits[part], "chunk frame", DamagedCacheError)
-        except DamagedCacheError as e:
-            raise cache.damaged(f, str(e).removeprefix(f"{f}: ")) from None
+        data = cache.read_file(f, limits[part], "chunk frame")
         if hashlib.sha256(data).hexdigest() != digest:
             raise cache.damaged(f, "SHA-256 does not match the chunk's entries.json")
         return t, data

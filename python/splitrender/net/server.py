@@ -942,6 +942,7 @@ def load_certificate(cert: Path, key: Path | None = None) -> tuple[Any, Any]:
         found = "an encrypted one" if isinstance(e, TypeError) else "none that parses"
         raise InvalidInputError(f"{key_path}: expected an unencrypted PEM private key "
                                 f"(-----BEGIN PRIVATE KEY-----), found {found}") from None
+
     def spki(public: Any) -> bytes:
         return bytes(public.public_bytes(serialization.Encoding.DER,
                                          serialization.PublicFormat.SubjectPublicKeyInfo))

@@ -771,7 +771,9 @@ class Recording:
     """A recording opened by :func:`load_recording`; frames load lazily."""
 
     __slots__ = (
+        "_client_members",
         "_eyes",
+        "_server_members",
         "_sizes",
         "client_frames",
         "manifest",
@@ -785,6 +787,9 @@ class Recording:
         cams = manifest["cameras"]
         self._sizes = [tuple(cams["main"]), *(tuple(a) for a in cams["aux"])]
         self._eyes = int(cams["eyes"])
+        # The members of every frame file, by name: dtype and shape.
+        self._server_members = _server_spec(self._sizes)
+        self._client_members = _client_spec(cams["client"], self._eyes)
         self.server_frames: Sequence[ServerFrame] = LazyFrames(
             len(manifest["server_frames"]), self._server
         )
@@ -818,7 +823,7 @@ class Recording:
         hold every buffer, from the manifest alone (without reading a frame)."""
         return sum(
             dt.itemsize * math.prod(shape)
-            for name, (dt, shape) in self._server_spec().items()
+            for name, (dt, shape) in self._server_members.items()
             if name.rsplit(".", 1)[-1] not in ("pose", "view", "proj")
         )
 
@@ -843,7 +848,7 @@ class Recording:
     def server_pose(self, k: int) -> npt.NDArray[np.float64]:
         """The (predicted) head pose server frame ``k`` was rendered at."""
         entry = self.manifest["server_frames"][k]
-        return _read_npz(self.path, entry, self._server_spec(), {"pose"})["pose"]
+        return _read_npz(self.path, entry, self._server_members, {"pose"})["pose"]
 
     def server_cameras(self, k: int) -> tuple[Camera, ...]:
         """Server frame ``k``'s cameras, main then auxiliary: the frame file's size, members
@@ -851,19 +856,16 @@ class Recording:
         the file's SHA-256 is checked when the frame is read whole)."""
         entry = self.manifest["server_frames"][k]
         only = {f"{cam}.{m}" for cam in _CAMERAS for m in ("view", "proj")}
-        a = _read_npz(self.path, entry, self._server_spec(), only)
+        a = _read_npz(self.path, entry, self._server_members, only)
         try:
             return tuple(Camera(a[f"{cam}.view"], a[f"{cam}.proj"], w, h)
                          for cam, (w, h) in zip(_CAMERAS, self._sizes))
         except SplitRenderError as e:
             raise _fail(self.path / entry["file"], str(e)) from None
 
-    def _server_spec(self) -> Spec:
-        return _server_spec(self._sizes)
-
     def _server(self, k: int) -> ServerFrame:
         entry = self.manifest["server_frames"][k]
-        a = _read_npz(self.path, entry, self._server_spec())
+        a = _read_npz(self.path, entry, self._server_members)
         frames = []
         try:
             for cam in _CAMERAS:
@@ -892,9 +894,6 @@ class Recording:
             raise _fail(self.path / entry["file"], str(e)) from None
         return ServerFrame(entry["index"], entry["time"], frames[0], tuple(frames[1:]))
 
-    def _client_spec(self) -> Spec:
-        return _client_spec(self.manifest["cameras"]["client"], self._eyes)
-
     def _cameras(self, entry: dict[str, Any], a: dict[str, Any], eyes: range) -> list[Camera]:
         """The client cameras of ``eyes`` in frame file ``a`` (of manifest ``entry``)."""
         w, h = self.manifest["cameras"]["client"]
@@ -905,7 +904,7 @@ class Recording:
 
     def _client(self, n: int) -> ClientFrame:
         entry = self.manifest["client_frames"][n]
-        a = _read_npz(self.path, entry, self._client_spec())
+        a = _read_npz(self.path, entry, self._client_members)
         cams = tuple(self._cameras(entry, a, range(self._eyes)))
         imgs = tuple(a[f"eye{e}.color"] for e in range(self._eyes))
         return ClientFrame(entry["index"], entry["time"], a["pose"], cams, imgs)
@@ -915,7 +914,7 @@ class Recording:
         checked as :meth:`_client` does, its images not read (:func:`_read_npz`)."""
         entry = self.manifest["client_frames"][n]
         only = {f"eye{eye}.view", f"eye{eye}.proj"}
-        a = _read_npz(self.path, entry, self._client_spec(), only)
+        a = _read_npz(self.path, entry, self._client_members, only)
         return self._cameras(entry, a, range(eye, eye + 1))[0]
 
     def verify(self) -> None:
