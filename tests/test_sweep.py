@@ -6,6 +6,7 @@ that does not answer and for Ray missing. Tiny: one scene at 77x43, 0.3 s."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import socket
 import threading
@@ -500,4 +501,37 @@ def test_a_damaged_chunk_is_not_assembled_into_a_recording(tmp_path: Path, damag
         run_eval(_config(out, cache))
     assert f"{frame}: {problem}" in str(e.value)
     assert f"remove {frame.parent} and run" in str(e.value)
+    assert not any((cache / "recordings").iterdir())
+
+
+@pytest.mark.parametrize("aux", [[[9, 9], [9, 9]], []])
+def test_server_chunks_with_another_rig_are_not_assembled(tmp_path: Path, aux: Any) -> None:
+    """The assembled manifest names one rig's auxiliary cameras: a server chunk whose sizes
+    differ from another's is refused with both named, and a server chunk without auxiliary
+    cameras is damaged, never an internal error at the manifest."""
+    def stop_at_assembly(task: sweep.Task) -> None:
+        if task.fn.endswith(":render_recording"):
+            raise RuntimeError("stopped before the assembly")
+
+    cache, out = tmp_path / "cache", tmp_path / "out"
+    config = dataclasses.replace(_config(out, cache), seconds=0.5)  # two server chunks
+    with pytest.raises(sweep.TaskFailedError, match="stopped before the assembly"):
+        run_eval(config, fault=stop_at_assembly)
+    server = [p for p in sorted((cache / "chunks").glob("*/entries.json"))
+              if json.loads(p.read_text())["part"] == "server"]
+    assert len(server) == 2
+    entries = json.loads(server[1].read_text())
+    assert entries["aux"] != aux and len(entries["aux"]) == 2
+    server[1].write_text(json.dumps({**entries, "aux": aux}))
+    with pytest.raises(sweep.TaskFailedError) as e:
+        run_eval(config)
+    if aux:
+        a, b = (p.parent.name for p in server)  # in either order: the graph's, not ours
+        assert (f"server chunks {a} and {b} disagree" in str(e.value)
+                or f"server chunks {b} and {a} disagree" in str(e.value))
+        assert "on the auxiliary cameras' sizes ([[" in str(e.value)
+        assert f"remove {cache / 'chunks'} and run" in str(e.value)
+    else:
+        assert f"{server[1]}: expected" in str(e.value)
+        assert f"remove {server[1].parent} and run" in str(e.value)
     assert not any((cache / "recordings").iterdir())

@@ -270,11 +270,14 @@ class Cache:
                 and len(data["sha256"]) == len(data["times"])
                 and all(isinstance(d, str) and _SHA256.fullmatch(d) for d in data["sha256"])
                 and isinstance(data["aux"], list)
-                and all(isinstance(a, list) and len(a) == 2 and all(map(_count, a))
+                # A server frame has auxiliary cameras (their sizes), a client frame none.
+                and (len(data["aux"]) > 0) == (data["part"] == "server")
+                and all(isinstance(a, list) and len(a) == 2 and all(map(_positive, a))
                         for a in data["aux"])):
             raise self.damaged(path, 'expected {"part": "server" or "client", "times": '
                                      '[numbers], "sha256": [one per time], "aux": [[width, '
-                                     "height], ...]}")
+                                     "height], ...] (a server chunk's cameras; [] for a client "
+                                     "chunk)}")
         return data["part"], list(data["times"]), list(data["sha256"]), list(data["aux"])
 
     def read_file(self, path: Path, limit: int, what: str) -> bytes:
@@ -330,6 +333,10 @@ def _finite(value: object) -> bool:
 
 def _count(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _positive(value: object) -> bool:
+    return _count(value) and value != 0
 
 
 @dataclass

@@ -125,7 +125,7 @@ def render_recording(task: Task, cache: Cache) -> None:
     r = _renderer(task)
     server: list[tuple[float, Path, str]] = []
     client: list[tuple[float, Path, str]] = []
-    aux: list[list[int]] = []
+    aux: tuple[str, list[list[int]]] | None = None  # the first server chunk's, and its key
     for key in task.deps:
         folder = cache.chunk(key)
         part, times, digests, chunk_aux = cache.read_chunk_info(key)
@@ -133,17 +133,26 @@ def render_recording(task: Task, cache: Cache) -> None:
         if len(files) != len(times):
             raise cache.damaged(folder, f"{len(files)} frames, expected {len(times)}")
         if part == "server":
-            aux = aux or chunk_aux
+            # One rig renders every server frame: chunks that disagree on its auxiliary
+            # cameras cannot be one recording, and the manifest would take the first's.
+            if aux is None:
+                aux = (key, chunk_aux)
+            elif chunk_aux != aux[1]:
+                # Which one is wrong cannot be told from the two: all go, as below.
+                raise cache.damaged(
+                    cache.root / "chunks",
+                    f"server chunks {aux[0]} and {key} disagree on the auxiliary cameras' "
+                    f"sizes ({aux[1]} and {chunk_aux}); expected one rig's")
             server += zip(times, files, digests)
         else:
             client += zip(times, files, digests)
-    if (len(server), len(client)) != (r.n_server, r.n_client):
+    if aux is None or (len(server), len(client)) != (r.n_server, r.n_client):
         # Which chunk is wrong cannot be told (each agrees with its entries.json): all go.
         raise cache.damaged(cache.root / "chunks",
                             f"the chunks hold {len(server)} server and {len(client)} client "
                             f"frames, expected {r.n_server} and {r.n_client}")
 
-    fields = r.fields(aux)
+    fields = r.fields(aux[1])
     limits = {part: frame_bytes_limit(fields, part) for part in ("server", "client")}
 
     def checked(part: str, t: float, f: Path, digest: str) -> tuple[float, bytes]:
