@@ -403,6 +403,7 @@ EXEMPT: dict[str, str] = {
     "through the same checks as adopt_prepared's",
     "Client.reset": "takes no arguments",
     "RealtimeClient.close": "takes no arguments",
+    "StreamEncoder.close": "takes no arguments",
     "StreamEncoder.request_key_frame": "takes no arguments",
     "StreamStats.mbps_by_buffer": "takes no arguments",
     "StreamStats.mbps_by_camera": "takes no arguments",

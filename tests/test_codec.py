@@ -549,6 +549,34 @@ def test_truncated_packet_raises(
                 dec.decode(packets[0][:cut])
 
 
+def test_a_second_thread_encoding_at_once_is_refused(frames: list[sr.ServerFrame]) -> None:
+    """Two frames encoded at once would drive the same x265 encoders from two threads (the
+    process crashed, or hung): the second call is refused, and the first completes."""
+    import threading
+
+    entered, release = threading.Event(), threading.Event()
+    with StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc:
+        check = enc._check_layout
+
+        def held_check(frame: sr.ServerFrame) -> None:  # the first call waits inside encode
+            entered.set()
+            assert release.wait(30)
+            check(frame)
+
+        enc._check_layout = held_check  # type: ignore[method-assign]
+        out: list[bytes] = []
+        first = threading.Thread(target=lambda: out.append(enc.encode(frames[0])))
+        first.start()
+        assert entered.wait(30)
+        with pytest.raises(InvalidInputError, match="encoding a frame in another thread"):
+            enc.encode(frames[1])
+        release.set()
+        first.join(30)
+        assert len(out) == 1 and out[0]
+        enc._check_layout = check  # type: ignore[method-assign]
+        assert enc.encode(frames[1])  # the next frame in order, on this thread
+
+
 def test_layout_change_is_invalid_input(frames: list[sr.ServerFrame]) -> None:
     scene = sr.SyntheticScene(dynamic=True)
     with StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc:

@@ -337,6 +337,33 @@ def test_prepared_pairs_give_the_same_images_and_no_pair_work_on_the_display(sce
     assert (0, 1) in histories and (None, 2) in histories
 
 
+@pytest.mark.parametrize("bad", ["refused", "singular"])
+def test_a_display_camera_the_client_refused_or_could_not_use_loses_no_server_frame(
+        scene, frames, bad):
+    """The worker prepares each pair with the frame's own camera (the pair's work does not
+    depend on the display's): a camera the display refused, or a singular one it accepted while
+    nothing was held (black), does not make every later frame's preparation fail."""
+    camera = scene.rig(0.0, W, H)[0]
+    with loop(FakeClock()) as c:
+        if bad == "refused":
+            with pytest.raises(InvalidInputError, match="camera: expected Camera, got str"):
+                c.render("not a camera", 0.0)  # type: ignore[arg-type]
+        else:
+            singular = sr.Camera(camera.view, np.zeros((4, 4)), W, H)
+            assert not c.render(singular, 0.0).any()
+        for f in frames[:2]:
+            assert c.submit(f).result(30) == f.index
+        assert c.client.held == (0, 1)
+        assert c.render(camera, 0.05).any()
+
+
+def test_a_closed_client_renders_no_more(scene, frames):
+    c = loop(FakeClock())
+    c.close()
+    with pytest.raises(InvalidInputError, match="the client is closed"):
+        c.render(scene.rig(0.0, W, H)[0], 0.0)
+
+
 def test_frames_of_a_longer_span_pair_with_each_other_and_are_prepared(scene):
     # A live server that keeps only f_s / 2 renders every 2nd frame with motion spanning two
     # periods (ServerFrame.span 2): frames 0 and 2 form the pair, prepared on the worker.

@@ -172,7 +172,9 @@ def reproject_alpha(
     instead of once per call. For those three the images are the same with or without it
     (without it each call does that work again); for ``backward_bidir`` the previous B-frame
     seeds the search (seeds/001's latest-frame initialisation). Do not modify a frame's arrays
-    in place while a history holds its pair.
+    in place while a history holds its pair. The history keeps the arrays of the pair of its
+    last call alive until the next call or ``reset()`` (a pair given new arrays is a new pair,
+    even where the old ones were); a call that fails forgets the pair's state.
     ``backend`` is ``"cpu"`` (reproj-core) or ``"wgpu"`` (the GPU path, :mod:`splitrender.gpu`:
     ``ours``, ``ours_extrapolate`` and ``forward_splat``, the same images; this per-call form
     uploads the frames every time, :class:`splitrender.gpu.GpuReprojector` keeps them on the

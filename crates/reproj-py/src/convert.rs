@@ -373,6 +373,20 @@ impl<'py> CamArrays<'py> {
         })
     }
 
+    /// Strong references to every array borrowed, appended to `out` (see
+    /// `BidirHistory::arrays`).
+    fn keep(&self, out: &mut Vec<Py<PyAny>>) {
+        out.push(self.color.as_any().clone().unbind());
+        out.push(self.depth.as_any().clone().unbind());
+        out.extend(self.motion.iter().map(|m| m.as_any().clone().unbind()));
+        for a in self.shadow.iter().flatten() {
+            out.push(match a {
+                ShadowArray::Bits(b) => b.as_any().clone().unbind(),
+                ShadowArray::Color(c) => c.as_any().clone().unbind(),
+            });
+        }
+    }
+
     /// The borrowed view the kernels take.
     pub fn view(&self) -> PyResult<CameraView<'_>> {
         let what = &self.what;
@@ -417,6 +431,12 @@ impl<'py> FrameArrays<'py> {
             .map(|(i, a)| CamArrays::extract(a, &format!("{what}.aux[{i}]")))
             .collect::<PyResult<Vec<_>>>()?;
         Ok(FrameArrays { main, aux })
+    }
+
+    /// Strong references to every array of the frame, appended to `out`.
+    pub fn keep(&self, out: &mut Vec<Py<PyAny>>) {
+        self.main.keep(out);
+        self.aux.iter().for_each(|a| a.keep(out));
     }
 
     /// The borrowed view the kernels take.

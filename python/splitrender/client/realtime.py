@@ -690,7 +690,6 @@ class RealtimeClient:
         self._closed = False
         self._queued = 0  # packets submitted and not yet being received
         self._pending: list[Future[int | None]] = []
-        self._camera: Camera | None = None
         # The pose time of each frame the client holds (its entries go with the frames, so that
         # a client that runs for hours keeps no state per frame it has dropped).
         self._pose_time: dict[int, float] = {}
@@ -800,7 +799,11 @@ class RealtimeClient:
             older = self._held_or_received(frame.index - frame.span)
             if older is not None and older.span != frame.span:
                 older = None
-            camera = self._camera if self._camera is not None else frame.main.camera
+            # prepare_pair only checks the camera (the pair's work does not depend on it):
+            # the frame's own, checked with it. The display's last camera was used here, so
+            # one the display had refused, or accepted while nothing was held (a singular
+            # one gave black), failed every later frame's pair.
+            camera = frame.main.camera
             spare = self.client.retired_histories()
             # Device pairs the display no longer uses: dropped below, on this thread and outside
             # the lock the display takes, so that freeing their memory costs no display frame.
@@ -993,7 +996,11 @@ class RealtimeClient:
 
     def render(self, camera: Camera, time: float, *, eye: int = 0) -> _Image:
         """The display frame at ``camera`` and display ``time`` from the frames usable now
-        (:meth:`Client.render`); :attr:`Client.last_info` says how it was made."""
+        (:meth:`Client.render`); :attr:`Client.last_info` says how it was made.
+
+        Raises:
+            InvalidInputError: as :meth:`Client.render`, and for a client that was closed."""
+        self._check_open()
         return self._render(camera, time, eye)[0]
 
     def _render(
@@ -1002,7 +1009,6 @@ class RealtimeClient:
         """:meth:`render`, and (under the same lock, so that the worker cannot change them in
         between) whether its pair was prepared and the pose time of the newest usable frame."""
         with self._lock:
-            self._camera = camera
             self._release_due(time)
             image = self.client.render(camera, time, eye=eye)
             info = self.client.last_info

@@ -786,16 +786,20 @@ class StreamEncoder(_WorkerThreads):
     shadow colours), each holding every camera's tiles.
 
     The first frame fixes the layout (number of cameras and their sizes); later frames must keep
-    it. Not thread-safe (it is a stream); internally the pictures of a frame are encoded in
-    parallel (``config.threads``, 0 = one per CPU).
+    it. One frame is encoded at a time (it is a stream): a second thread's :meth:`encode` while
+    one runs is refused. Internally the pictures of a frame are encoded in parallel
+    (``config.threads``, 0 = one per CPU).
 
     # Errors
     :class:`~splitrender.errors.InvalidInputError` for a frame that does not match the layout or
-    the camera shares."""
+    the camera shares, and for an :meth:`encode` while another thread's runs."""
 
     @checked(config=optional(instances(CodecConfig)))
     def __init__(self, config: CodecConfig | None = None) -> None:
         self.config = config if config is not None else CodecConfig()
+        # Held by encode: two frames at once would drive the same x265 contexts from two
+        # threads, which crashes the process (libx265 is not reentrant per encoder).
+        self._encoding = threading.Lock()
         self._layout: tuple[tuple[int, int], ...] | None = None
         self._streams: dict[BufferKind, _HevcStream] = {}
         self._frames = 0
@@ -834,8 +838,25 @@ class StreamEncoder(_WorkerThreads):
 
         Raises:
             InvalidInputError: for a buffer of the wrong dtype or shape (naming it, e.g.
-                ``frame.aux[0].color``) or a frame that does not match the stream's layout.
+                ``frame.aux[0].color``), a frame that does not match the stream's layout, or
+                while another thread encodes with this encoder.
         """
+        if not self._encoding.acquire(blocking=False):
+            raise InvalidInputError(
+                "StreamEncoder.encode: this encoder is encoding a frame in another thread; a "
+                "stream is encoded one frame at a time, in order (use one encoder per stream)")
+        try:
+            return self._encode(frame)
+        finally:
+            self._encoding.release()
+
+    def close(self) -> None:
+        """Ends the worker threads, after a frame being encoded in another thread."""
+        with self._encoding:
+            super().close()
+
+    def _encode(self, frame: ServerFrame) -> bytes:
+        """:meth:`encode` on one thread at a time."""
         self._check_layout(frame)
         assert self._layout is not None
         cfg = self.config
