@@ -249,7 +249,9 @@ class Client:
             del self._frames[j]
             del self._paths[j]
         for pair in [p for p in self._prepared if p[1] not in self._frames]:
-            self._retired.append(self._prepared.pop(pair))
+            retired = self._prepared.pop(pair)
+            retired.reset()  # lets go of the pair's arrays (it holds them while it may be used)
+            self._retired.append(retired)
         # A device pair whose frames are gone is retired: the uploading side drops it
         # (retired_uploads), so that freeing its device memory costs no display frame.
         for pair in [p for p in self._uploaded if not self._holds(p)]:
