@@ -232,6 +232,11 @@ def test_options_round_trip() -> None:
         ("use_shadows", 1),
         ("blend", None),
         ("server_fps", 0.0),
+        # Beyond float32, which the kernels take them as: inf and 0 there, and every call
+        # refused naming a value the caller never gave.
+        ("eps_e", 1e300),
+        ("eps_z", 1e-50),
+        ("aux_threshold_scale", 3.5e38),
     ],
 )
 def test_options_validation(name: str, value: object) -> None:
@@ -406,6 +411,9 @@ def test_scene_flow(pair: Pair) -> None:
     assert moved.shape == (h, w, 3) and np.isfinite(moved).any()
     with pytest.raises(sr.InvalidInputError, match="direction"):
         sr.scene_flow(src, src.camera, 0.0, direction="sideways")  # type: ignore[arg-type]
+    # Finite, but infinite in the kernel's float32: a flow of NaN everywhere was returned.
+    with pytest.raises(sr.InvalidInputError, match="w = 1e308: expected a value within float32"):
+        sr.scene_flow(src, src.camera, 1e308)
 
 
 def test_apply_shadows(pair: Pair) -> None:

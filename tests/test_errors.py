@@ -281,6 +281,11 @@ def test_unknown_option(pair: Pair) -> None:
         lambda: _native.reproject("ours", older, newer, client, 0.5, {"eps_e": -1.0}),
         "option eps_e = -1: expected a finite value > 0",
     )
+    for key, value in (("eps_e", "1e300"), ("eps_z", "1e-50")):  # named as given, not as f32
+        _raises_invalid(
+            lambda: _native.reproject("ours", older, newer, client, 0.5, {key: float(value)}),
+            f"option {key} = {value}: expected a value within float32's range",
+        )
     _raises_invalid(
         lambda: _native.reproject("ours", older, newer, client, 0.5, [("window", 1)]),
         "options: expected a dict, got list",

@@ -192,6 +192,40 @@ def test_wgpu_errors_are_the_cpu_errors(
         g.render(camera, 0.5)
 
 
+def test_gpu_reprojector_arguments_are_checked(
+    pair_synthetic: tuple[sr.ServerFrame, sr.ServerFrame],
+) -> None:
+    # bool() of anything had been taken: "no" chose the 32-bit splat, and diagnostics="no"
+    # returned a Reprojection. The constructor's is checked before any adapter is asked for.
+    with pytest.raises(InvalidInputError, match="force_32bit_atomics: expected a bool"):
+        gpu.GpuReprojector(force_32bit_atomics="no")  # type: ignore[arg-type]
+    if not HAVE_GPU:
+        return
+    f0, f1 = pair_synthetic
+    with pytest.raises(InvalidInputError, match="diagnostics: expected a bool"):
+        gpu.GpuReprojector().reproject(f0, f1, f1.main.camera, 0.5,
+                                       diagnostics="no")  # type: ignore[arg-type]
+
+
+@needs_gpu
+def test_a_client_image_beyond_the_devices_buffers_is_the_callers_error(
+    pair_synthetic: tuple[sr.ServerFrame, sr.ServerFrame],
+) -> None:
+    # wgpu's own refusal (a bind group's validation error) had come back as the base class,
+    # which the command line reports as an internal failure. lavapipe binds at most 128 MiB;
+    # a GPU with a larger limit would render this camera, so only lavapipe is held to it.
+    if "llvmpipe" not in gpu.adapter():
+        pytest.skip("the refusal is checked on lavapipe, whose limit the camera exceeds")
+    f0, f1 = pair_synthetic
+    big = sr.Camera(f1.main.camera.view, f1.main.camera.proj, 8192, 4096)
+    g = gpu.GpuReprojector()
+    g.load(f0, f1)
+    with pytest.raises(InvalidInputError, match=r"of the 8192x4096 client image needs \d+ "
+                       "bytes, above this device's storage binding limit"):
+        g.render(big, 0.5)
+    g.render(f1.main.camera, 0.5)  # still usable
+
+
 @needs_gpu
 def test_an_unused_older_frame_is_not_uploaded(
     pair_synthetic: tuple[sr.ServerFrame, sr.ServerFrame],

@@ -140,8 +140,9 @@ class GpuReprojector:
         GpuUnavailableError: when there is no wgpu adapter.
     """
 
+    @checked(force_32bit_atomics=BOOL)
     def __init__(self, *, force_32bit_atomics: bool = False) -> None:
-        self._native = _native.WgpuReprojector(bool(force_32bit_atomics))
+        self._native = _native.WgpuReprojector(force_32bit_atomics)
         self._lock = threading.RLock()
 
     def __repr__(self) -> str:
@@ -305,6 +306,7 @@ class GpuReprojector:
             return Reprojection(*out)
         return out
 
+    @checked(diagnostics=BOOL)
     def reproject(
         self,
         older: ServerFrame | None,

@@ -50,6 +50,10 @@ MAX_SIDE = 16384
 #: Most server-frame periods a frame's motion may span (:attr:`ServerFrame.span`): a server
 #: that keeps less than 1/16 of its f_s has nothing left to interpolate.
 MAX_SPAN = 16
+#: The range of a float32 (the kernels' thresholds): its largest value, and its smallest
+#: above 0 (a subnormal).
+_F32_MAX = float(np.finfo(np.float32).max)
+_F32_TRUE_MIN = float(np.finfo(np.float32).smallest_subnormal)
 
 Shape = tuple[int, ...]
 
@@ -587,9 +591,14 @@ class ReprojectOptions:
     )
 
     def __post_init__(self) -> None:
-        for name in (*self._FLOATS, "server_fps"):
-            v = check_float(f"ReprojectOptions.{name}", getattr(self, name), positive=True)
+        for name in self._FLOATS:
+            # The kernels take them as float32: beyond its range they became inf or 0 there,
+            # and every call was refused naming a value the caller never gave.
+            v = check_float(f"ReprojectOptions.{name}", getattr(self, name), lo=_F32_TRUE_MIN,
+                            hi=_F32_MAX)
             object.__setattr__(self, name, v)
+        v = check_float("ReprojectOptions.server_fps", self.server_fps, positive=True)
+        object.__setattr__(self, "server_fps", v)
         for name, (lo, hi) in self._INTS.items():
             v = check_int(f"ReprojectOptions.{name}", getattr(self, name), lo, hi)
             object.__setattr__(self, name, v)

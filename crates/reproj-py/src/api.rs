@@ -373,6 +373,7 @@ pub fn scene_flow<'py>(
         if !w.is_finite() {
             return Err(invalid(format!("w: expected a finite float, got {w}")));
         }
+        let w = convert::narrow(w, "w", false)?;
         // The flow does not read colour; the view still wants a buffer of the right size.
         let color = vec![0u8; sw * sh * 3];
         let cv = CameraView {
@@ -383,7 +384,7 @@ pub fn scene_flow<'py>(
             shadow: None,
         };
         let flow = py
-            .detach(|| reproj_core::scene_flow(&cv, &client, w as f32))
+            .detach(|| reproj_core::scene_flow(&cv, &client, w))
             .map_err(map_reproj_error)?;
         shaped(py, flow.into_flattened(), (sh, sw, 3))
     })

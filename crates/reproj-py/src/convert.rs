@@ -235,6 +235,25 @@ pub fn float(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<f64> {
         .map_err(|_| invalid(format!("{what}: expected a float, got {}", describe(obj))))
 }
 
+/// `x` as the kernels take it (f32), refused where narrowing would change what it means: a
+/// finite value beyond f32's range (it became inf), or, with `nonzero`, a value other than 0
+/// that f32 cannot tell from 0. Checked on the caller's f64, so that the message names the
+/// value given (narrowed first, `eps_e = 1e300` was refused as `eps_e = inf`).
+pub fn narrow(x: f64, what: &str, nonzero: bool) -> PyResult<f32> {
+    let v = x as f32;
+    if (x.is_finite() && !v.is_finite()) || (nonzero && x != 0.0 && v == 0.0) {
+        let tiny = if nonzero {
+            "; at least 1.4e-45 where not 0"
+        } else {
+            ""
+        };
+        return Err(invalid(format!(
+            "{what} = {x:?}: expected a value within float32's range (at most 3.4e38{tiny})"
+        )));
+    }
+    Ok(v)
+}
+
 /// A Python int (or anything with `__index__`).
 pub fn int(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<i64> {
     if obj.is_instance_of::<pyo3::types::PyBool>() {
@@ -503,7 +522,8 @@ pub fn params(options: Option<&Bound<'_, PyAny>>) -> PyResult<Params> {
         let key: String = k
             .extract()
             .map_err(|_| invalid(format!("options: keys must be str, got {}", describe(&k))))?;
-        let f = |v: &Bound<'_, PyAny>| float(v, &format!("option {key}")).map(|x| x as f32);
+        let what = format!("option {key}");
+        let f = |v: &Bound<'_, PyAny>| narrow(float(v, &what)?, &what, true);
         match key.as_str() {
             "eps_e" => p.eps_e = f(&v)?,
             "eps_z" => p.eps_z = f(&v)?,

@@ -35,7 +35,7 @@ says how to install one (Mesa's lavapipe needs no GPU)."
 fn map_gpu_error(e: GpuError) -> PyErr {
     match e {
         GpuError::Input(e) => map_reproj_error(e),
-        GpuError::Unsupported(msg) | GpuError::Order(msg) => invalid(msg),
+        GpuError::Unsupported(msg) | GpuError::Order(msg) | GpuError::TooLarge(msg) => invalid(msg),
         GpuError::NoAdapter(_) => GpuUnavailableError::new_err(e.to_string()),
         GpuError::Device(_) | GpuError::State(_) => SplitRenderError::new_err(e.to_string()),
     }

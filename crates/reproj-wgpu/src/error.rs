@@ -18,6 +18,10 @@ pub enum GpuError {
     /// The device reported an error (out of memory, a lost device, a limit exceeded).
     #[error("wgpu device error: {0}")]
     Device(String),
+    /// Frames or a client image larger than this device's buffers can hold (its limits),
+    /// found before anything was asked of it: the caller's to change.
+    #[error("{0}")]
+    TooLarge(String),
     /// A call out of order (rendering before any frames were loaded): the caller's to fix.
     #[error("{0}")]
     Order(String),

@@ -457,7 +457,8 @@ impl Reprojector {
     /// # Errors
     /// The CPU path's input errors for the method, `α`, options and camera (same messages);
     /// [`GpuError::Unsupported`] for `timewarp` and `backward_bidir`; [`GpuError::Order`] when no
-    /// pair is loaded; [`GpuError::Device`] for device errors.
+    /// pair is loaded; [`GpuError::TooLarge`] for a client image larger than the device's
+    /// buffers can bind; [`GpuError::Device`] for device errors.
     pub fn render(
         &mut self,
         slot: usize,
@@ -725,6 +726,16 @@ impl Reprojector {
             .is_some_and(|o| o.width == w && o.height == h);
         if !fits {
             let n = (w * h) as u64;
+            // Before the device is asked: wgpu's own refusal came back as a validation error
+            // of a bind group, not as the caller's input.
+            let need = [("output", n * OUT_BYTES), ("diagnostics", n * DIAG_BYTES)];
+            let what = format!("the {w}x{h} client image");
+            check_bindings(
+                &self.device.limits(),
+                &what,
+                &need,
+                "a smaller client camera",
+            )?;
             let buf = |label: &str, size: u64, usage: wgpu::BufferUsages| {
                 self.device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some(label),
@@ -785,7 +796,8 @@ impl Uploader {
     /// # Errors
     /// The CPU path's input errors ([`GpuError::Input`]: buffer sizes, camera mismatch, singular
     /// matrices); [`GpuError::Unsupported`] for more than [`MAX_CAMERAS`] cameras per frame;
-    /// [`GpuError::Device`] when the buffers exceed the device's limits or memory.
+    /// [`GpuError::TooLarge`] when the buffers exceed the device's limits, [`GpuError::Device`]
+    /// when its memory.
     pub fn upload(&self, older: Option<&FrameView>, newer: &FrameView) -> Result<UploadedPair> {
         FrameView::validate_pair(older, newer)?;
         let n_cams = 1 + newer.aux.len();
@@ -867,17 +879,7 @@ impl Uploader {
             ("splat", splat),
             ("auxiliary cells", aux_cells),
         ];
-        let max = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size.min(u64::from(u32::MAX)) as u32) as u64;
-        for (name, bytes) in need {
-            if bytes > max {
-                return Err(GpuError::Device(format!(
-                    "the {name} buffer of this pair needs {bytes} bytes, above this device's \
-                     storage binding limit of {max} bytes; use smaller frames or backend 'cpu'"
-                )));
-            }
-        }
+        check_bindings(&limits, "this pair", &need, "smaller frames")?;
         let device = &self.device;
         let (texels, sources) = scoped(device, "uploading the server frames", || {
             let buf = |label: &str, size: u64, usage: wgpu::BufferUsages| {
@@ -927,6 +929,28 @@ impl Uploader {
             sources,
         })
     }
+}
+
+/// Refuses buffers that `limits` cannot bind as storage (or create at all): `need` names each
+/// buffer of `what` and its bytes; `smaller` says what to make smaller instead.
+fn check_bindings(
+    limits: &wgpu::Limits,
+    what: &str,
+    need: &[(&str, u64)],
+    smaller: &str,
+) -> Result<()> {
+    let max = limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size.min(u64::from(u32::MAX)) as u32) as u64;
+    for &(name, bytes) in need {
+        if bytes > max {
+            return Err(GpuError::TooLarge(format!(
+                "the {name} buffer of {what} needs {bytes} bytes, above this device's storage \
+                 binding limit of {max} bytes; use {smaller} or backend 'cpu'"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// Bytes of the per-frame buffers (flow, splat, auxiliary cells) of a pair with `points` source
