@@ -440,6 +440,44 @@ def test_picture_of_odd_cameras_refused_before_decoding() -> None:
         dec.decode(packet)
 
 
+def test_a_picture_longer_than_a_side_is_refused_by_both_ends() -> None:
+    """Cameras two pixels tall tile into one row: a 32768-pixel geometry picture, which the
+    encoder had written and the decoder then refused at every packet, naming a tile offset
+    (InvalidInputError, not the stream's error). Now the encoder refuses the first frame and
+    the decoder the packet, each naming the picture's size."""
+    from splitrender.codec.stream import BufferEntry, CameraRecord, Packet
+
+    frame = sr.SyntheticScene(dynamic=True).server_frame(0, 0.0, 4096, 2)
+    with (
+        StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc,
+        pytest.raises(InvalidInputError, match="picture.geometry would be 32768x32, beyond "
+                      "the codec's 16384 pixels a side"),
+    ):
+        enc.encode(frame)
+    eye = np.eye(4)
+    cams = tuple(CameraRecord(eye, eye, w, h) for w, h in ((4096, 2), (2048, 1), (2048, 1)))
+    bufs = (BufferEntry(0, BufferKind.PICTURE_GEOMETRY, Codec.HEVC, 1, 4096, 2, b"x"),)
+    packet = pack_packet(Packet(0, 0.0, True, False, cams, bufs))
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match="picture.geometry: a 32768x32 picture for these "
+                      "cameras; expected at most 16384 pixels a side"),
+    ):
+        dec.decode(packet)
+
+
+@pytest.mark.parametrize("size", [(1024, 1), (1, 1024), (2048, 8)])
+def test_long_thin_cameras_round_trip(size: tuple[int, int]) -> None:
+    """Their pictures are 8192 pixels long and 16 short, which x265 refused to open (a side
+    beyond 4208 is HEVC level 5, whose coding tree units are 32 or more): such pictures are
+    made 32 short, and the frame round-trips."""
+    frame = sr.SyntheticScene(dynamic=True).server_frame(0, 0.0, *size)
+    with StreamEncoder(CodecConfig(bitrate_mbps=BITRATE)) as enc, StreamDecoder() as dec:
+        out = dec.decode(enc.encode(frame))
+    assert out.main.color.shape == frame.main.color.shape
+    assert _psnr(out.main.color, frame.main.color) > 25
+
+
 @pytest.mark.parametrize(
     ("sizes", "expected"),
     [

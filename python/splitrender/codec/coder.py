@@ -359,6 +359,11 @@ def _place(
     return placed, x + col_w
 
 
+#: The longest picture side HEVC level 4.1 allows, rounded down to whole 16-pixel blocks
+#: (sqrt(8 · 2,228,224 samples) = 4222): a longer one is level 5 (see :func:`_layout`).
+_LEVEL5_SIDE = 4208
+
+
 @lru_cache(maxsize=64)
 def _layout(
     picture: BufferKind, sizes: tuple[tuple[int, int], ...]
@@ -384,7 +389,14 @@ def _layout(
     assert best is not None
     _, col_h, placed, width = best
     # libx265's smallest picture is 16x16 (8x8 tiles of a tiny camera would be less)
-    return placed, max(16, width), max(16, col_h)
+    width, col_h = max(16, width), max(16, col_h)
+    if max(width, col_h) > _LEVEL5_SIDE:
+        # A side this long needs HEVC level 5, whose coding tree units are at least 32x32,
+        # and x265 sizes them down to a short side of 16: it refused to open (a 1024x1
+        # camera's geometry picture is 8192x16). Only such pictures grow, so every stream
+        # that could be written before keeps its layout.
+        width, col_h = max(32, width), max(32, col_h)
+    return placed, width, col_h
 
 
 def _put(atlas: npt.NDArray[Any], t: _Tile, a: npt.NDArray[Any]) -> None:
@@ -517,7 +529,12 @@ class _HevcStream:
             "forced-idr": "1",
             "x265-params": ":".join(params),
         }
-        ctx.open()
+        try:
+            ctx.open()
+        except av.FFmpegError as e:  # a ValueError of PyAV's, outside the package's errors
+            raise InvalidInputError(
+                f"{buffer_name(0, self.picture)}: libx265 cannot encode a {self.w}x{self.h} "
+                f"picture of these cameras ({e})") from None
         self.ctx = ctx
         self.target_bps = kbps * 1000.0
         self.need_idr = True
@@ -826,6 +843,18 @@ class StreamEncoder(_WorkerThreads):
                     f"frame {frame.index}: {len(layout)} cameras but "
                     f"{len(self.config.camera_shares)} camera shares in the CodecConfig"
                 )
+            if not self.config.uncompressed:
+                for pic in PICTURE_KINDS:
+                    _, pw, ph = _layout(pic, layout)
+                    # The decoder places no tile beyond MAX_SIDE (a picture that long was
+                    # encoded, and every packet then refused): cameras a few pixels tall
+                    # or wide tile into one long row or column.
+                    if max(pw, ph) > MAX_SIDE:
+                        raise InvalidInputError(
+                            f"frame {frame.index}: with cameras of {layout}, "
+                            f"{buffer_name(0, pic)} would be {pw}x{ph}, beyond the codec's "
+                            f"{MAX_SIDE} pixels a side; expected cameras nearer to square, "
+                            "or CodecConfig(uncompressed=True)")
             self._layout = layout
         elif layout != self._layout:
             raise InvalidInputError(
@@ -1358,6 +1387,11 @@ class StreamDecoder(_WorkerThreads):
                 raise StreamError(
                     f"{where}, {b.name}: a {pw}x{ph} picture for these cameras exceeds the "
                     f"decoder's limit of {4 * self.max_pixels + (1 << 16)} pixels"
+                )
+            if max(pw, ph) > MAX_SIDE:  # no encoder of ours writes one (StreamEncoder)
+                raise StreamError(
+                    f"{where}, {b.name}: a {pw}x{ph} picture for these cameras; expected "
+                    f"at most {MAX_SIDE} pixels a side"
                 )
         # Colour and shadow pictures start at once; this thread meanwhile unpacks the lossless
         # parts, which the geometry picture's worker then applies (static and invalid masks),
