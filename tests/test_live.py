@@ -339,6 +339,82 @@ def test_before_its_hello_a_client_gets_nothing_but_a_refusal(server: _Server) -
     assert "refused 127.0.0.1:" in log  # the peer's address, not "client"
 
 
+def test_connections_without_a_hello_do_not_lock_a_client_out(server: _Server) -> None:
+    # Connections need no token to wait for a hello: MAX_PENDING of them, kept open, had every
+    # client refused as busy. The oldest waiting one is refused instead; a client's hello
+    # comes within a round trip of taking its place.
+    from splitrender.net.server import MAX_PENDING
+
+    async def silent(c: Any) -> None:
+        pass
+
+    async def hello_after_them(c: Any) -> None:
+        await asyncio.sleep(0.5)  # the others' handshakes are done by then
+        q = c._quic
+        q.send_stream_data(q.get_next_available_stream_id(), _hello())
+        c.transmit()
+
+    async def all_of_them() -> list[str]:
+        return list(await asyncio.gather(
+            *(_peer(server.port, silent, 10.0) for _ in range(MAX_PENDING)),
+            _peer(server.port, hello_after_them, 1.5),
+        ))
+
+    *silent_ones, client = asyncio.run(asyncio.wait_for(all_of_them(), 30))
+    assert client == ""  # not refused: its session began
+    assert silent_ones.count(f"busy: {MAX_PENDING} connections are waiting for a hello") == 1
+
+
+def test_a_peer_that_stops_the_control_stream_gets_a_reason_and_frees_the_server(
+        server: _Server) -> None:
+    # STOP_SENDING on the control stream, then a hello: sending the welcome raised inside
+    # aioquic's callback (a traceback on the server's stderr), the session was taken without
+    # its frame task, and every other client was told busy until this one left.
+    async def stop_then_hello(c: Any) -> None:
+        q = c._quic
+        sid = q.get_next_available_stream_id()
+        q.send_stream_data(sid, b"")
+        q.stop_stream(sid, 0)
+        c.transmit()
+        await asyncio.sleep(0.2)
+        q.send_stream_data(sid, _hello())
+        c.transmit()
+
+    async def hello(c: Any) -> None:
+        q = c._quic
+        q.send_stream_data(q.get_next_available_stream_id(), _hello())
+        c.transmit()
+
+    reason = asyncio.run(_peer(server.port, stop_then_hello, 10.0))
+    # Which one depends on whether the server knew the stream as the control stream when the
+    # STOP_SENDING came (here it comes before any of the stream's data).
+    assert reason in ("control stream stopped by the client",
+                      "control stream cannot carry the welcome: Cannot send data after the "
+                      "stream was reset")
+    assert asyncio.run(_peer(server.port, hello, 1.0)) == ""  # not busy
+    assert "Traceback" not in server.log.read_text()
+
+
+def test_aioquics_own_log_lines_do_not_reach_the_servers_stderr(server: _Server) -> None:
+    # Data on a stream only the server may open is aioquic's to refuse; it also logged
+    # "[cid] Error: 5, reason: Wrong stream initiator" to stderr, once per such connection.
+    async def wrong_initiator(c: Any) -> None:
+        from aioquic.quic.stream import QuicStream
+
+        q = c._quic
+        # The server's first bidirectional stream, planted in the client's own table (its API
+        # refuses to send on it).
+        stream = QuicStream(stream_id=1, max_stream_data_local=1 << 16,
+                            max_stream_data_remote=1 << 16, writable=True)
+        q._streams[1] = stream
+        q._streams_queue.append(stream)
+        q.send_stream_data(1, b"junk")
+        c.transmit()
+
+    assert asyncio.run(_peer(server.port, wrong_initiator, 10.0)) == "Wrong stream initiator"
+    assert "Wrong stream initiator" not in server.log.read_text()
+
+
 def test_a_session_without_poses_ends_and_frees_the_server(server: _Server) -> None:
     # Rate reports (or pings, or malformed poses) kept the session, and every other client
     # was refused as busy, for as long as they came.

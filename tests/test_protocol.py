@@ -268,6 +268,28 @@ def test_constant_velocity_predicts_linear_motion() -> None:
     np.testing.assert_allclose(far.predict(5.0), _pose(0.11), atol=1e-9)
 
 
+def test_constant_velocity_is_bounded_by_what_the_peer_sends() -> None:
+    """Its samples come from the network: a flood of them a nanosecond apart kept every one
+    (the window holds 5e7), and two 5e-324 s apart made the extrapolation infinite (the
+    session ended as a server error on a NaN rotation)."""
+    p = ConstantVelocity(window=0.05)
+    for i in range(10 * ConstantVelocity.MAX_SAMPLES):
+        p.add(i * 1e-9, _pose(0.0))
+    assert len(p._samples) == ConstantVelocity.MAX_SAMPLES
+    q = ConstantVelocity()
+    q.add(0.0, _pose(0.0))
+    q.add(5e-324, _pose(0.001))
+    np.testing.assert_array_equal(q.predict(0.4), _pose(0.001))  # no velocity: held
+    # Far apart in position, the shortest baseline allowed and the longest look ahead: the
+    # prediction stays where a pose may be.
+    r = ConstantVelocity()
+    r.add(0.0, _pose(-proto.MAX_POSITION / 2))
+    r.add(ConstantVelocity.MIN_BASELINE_S, _pose(proto.MAX_POSITION))
+    got = r.predict(1.0)
+    assert got is not None and np.isfinite(got).all()
+    assert np.abs(got[:3, 3]).max() == proto.MAX_POSITION
+
+
 def test_last_pose_and_names() -> None:
     p = LastPose()
     p.add(1.0, _pose(1.0))

@@ -118,10 +118,21 @@ def add_serve(sub: Any) -> None:
                    "not a key frame, as if lost (the client asks for a key frame) (default: 0)")
 
 
+def _quiet_quic() -> None:
+    """aioquic logs a peer's protocol violations ("Error: 5, reason: Wrong stream initiator")
+    on its logger "quic"; with no handler anywhere Python prints them to stderr, one line per
+    connection a peer chooses, beside the command's own lines. The commands say what ended a
+    session themselves; a program that configures logging still gets aioquic's records."""
+    import logging
+
+    logging.getLogger("quic").addHandler(logging.NullHandler())
+
+
 def run_serve(args: argparse.Namespace) -> int:
     from splitrender.net.server import LiveServer, ServerOptions, load_certificate
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
+    _quiet_quic()
     if (args.cert is None) != (args.key is None):
         return fail("--cert and --key go together")
     if args.bitrate is not None and args.min_bitrate is not None and (
@@ -222,6 +233,7 @@ def run_connect(args: argparse.Namespace) -> int:
     from splitrender.net.protocol import PROTOCOL_VERSION
     from splitrender.scene.builtin import SCENE_NAMES, Scene, TraceMotion, load_trace
 
+    _quiet_quic()
     if args.compare is not None and not args.score:
         return fail("--compare: needs --score")
     if args.fingerprint is None and not args.insecure:

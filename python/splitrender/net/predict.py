@@ -20,6 +20,7 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation  # type: ignore[import-untyped,unused-ignore]
 
 from splitrender.errors import InvalidInputError
+from splitrender.net.protocol import MAX_POSITION
 
 __all__ = ["PREDICTORS", "ConstantVelocity", "LastPose", "PosePredictor", "make_predictor"]
 
@@ -66,7 +67,17 @@ class ConstantVelocity:
     (the newest and the oldest in the window: a longer baseline than two consecutive samples
     at 120 Hz, so that pose noise is not amplified by the extrapolation). ``max_ahead`` caps
     how far it extrapolates (seconds past the newest sample): beyond it the motion model is
-    worth less than holding still."""
+    worth less than holding still.
+
+    The samples come from the network: at most :data:`MAX_SAMPLES` are kept (the oldest go
+    first), and two closer than :data:`MIN_BASELINE_S` give no velocity (the newest pose is
+    held): samples a hair apart made the extrapolation infinite. A prediction is kept within
+    the positions a pose may have (:data:`~splitrender.net.protocol.MAX_POSITION`)."""
+
+    #: Most samples kept: a display at 1000 Hz fills a 50 ms window with 50.
+    MAX_SAMPLES = 256
+    #: Shortest time between the oldest and newest sample that velocities are taken over.
+    MIN_BASELINE_S = 1e-3
 
     def __init__(self, window: float = 0.05, max_ahead: float = 0.5) -> None:
         if not (math.isfinite(window) and window > 0 and math.isfinite(max_ahead)):
@@ -76,7 +87,7 @@ class ConstantVelocity:
             )
         self.window = float(window)
         self.max_ahead = float(max_ahead)
-        self._samples: deque[tuple[float, _F64]] = deque()
+        self._samples: deque[tuple[float, _F64]] = deque(maxlen=self.MAX_SAMPLES)
 
     def add(self, time: float, pose: _F64) -> None:
         s = self._samples
@@ -98,10 +109,13 @@ class ConstantVelocity:
         if len(s) < 2:
             return np.array(p1, dtype=np.float64)
         t0, p0 = s[0]
+        if t1 - t0 < self.MIN_BASELINE_S:
+            return np.array(p1, dtype=np.float64)
         ahead = min(time - t1, self.max_ahead)
         f = ahead / (t1 - t0)
         out = np.eye(4)
-        out[:3, 3] = p1[:3, 3] + f * (p1[:3, 3] - p0[:3, 3])
+        out[:3, 3] = np.clip(p1[:3, 3] + f * (p1[:3, 3] - p0[:3, 3]), -MAX_POSITION,
+                             MAX_POSITION)
         r0 = Rotation.from_matrix(p0[:3, :3])
         r1 = Rotation.from_matrix(p1[:3, :3])
         step = (r1 * r0.inv()).as_rotvec()  # world-frame rotation from t0 to t1

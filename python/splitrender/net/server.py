@@ -52,6 +52,7 @@ from aioquic.quic.events import (
     DatagramFrameReceived,
     HandshakeCompleted,
     QuicEvent,
+    StopSendingReceived,
     StreamDataReceived,
     StreamReset,
 )
@@ -112,8 +113,8 @@ IDLE_TIMEOUT_S = 3.0
 MAX_CLOCK_STEP_S = 1.0
 #: A connection that has sent no valid hello this long after it opened is closed.
 HELLO_TIMEOUT_S = 2.0
-#: Most connections that may wait for their hello at once; more are refused as busy (each holds
-#: up to its receive windows, :data:`RECEIVE_WINDOW`).
+#: Most connections that may wait for their hello at once (each holds up to its receive
+#: windows, :data:`RECEIVE_WINDOW`); one more takes the place of the one that waited longest.
 MAX_PENDING = 16
 #: The receive windows the server grants a client (QUIC max_data; per stream, a quarter): its
 #: only stream is the control stream (a hello, then a few bytes per key request), and they grow
@@ -291,7 +292,7 @@ class _Session(QuicConnectionProtocol):
         super().__init__(*args, **kwargs)
         self._windows = ReceiveWindows(self._quic)
         self._addr: Any = None  # the client's address, from its first datagram
-        self._pending = False  # counted in LiveServer.pending (until a hello is taken)
+        self._pending = False  # in LiveServer.waiting (until a hello is taken)
         self._hello_timer: asyncio.TimerHandle | None = None
         self._control = ControlReader()
         self._control_id: int | None = None
@@ -320,16 +321,20 @@ class _Session(QuicConnectionProtocol):
         )
 
     def _handshake_done(self) -> None:
-        """Counts the connection among those waiting for a hello, or refuses it as busy. Not
-        before the handshake: a close sent then carries no reason (RFC 9000 §10.2.3) and the
-        client's retransmitted Initial opens a new connection."""
+        """Counts the connection among those waiting for a hello; when :data:`MAX_PENDING`
+        already wait, the one that has waited longest is refused as busy. Not before the
+        handshake: a close sent then carries no reason (RFC 9000 §10.2.3) and the client's
+        retransmitted Initial opens a new connection."""
         srv = self.server
         if self.accepted or self._refused:
             return
-        if srv.pending >= MAX_PENDING:
-            self._refuse(CLOSE_BUSY, f"busy: {MAX_PENDING} connections are waiting for a hello")
-            return
-        srv.pending += 1
+        if len(srv.waiting) >= MAX_PENDING:
+            # The oldest, not the newest: connections that never send a hello (they need no
+            # token) refused every client while they kept the places filled; a client sends
+            # its hello at once, within a round trip of taking the place.
+            oldest = next(iter(srv.waiting))
+            oldest._refuse(CLOSE_BUSY, f"busy: {MAX_PENDING} connections are waiting for a hello")
+        srv.waiting[self] = None
         self._pending = True
 
     def datagram_received(self, data: bytes | str, addr: Any) -> None:
@@ -349,7 +354,7 @@ class _Session(QuicConnectionProtocol):
             self._hello_timer = None
         if self._pending:
             self._pending = False
-            self.server.pending -= 1
+            del self.server.waiting[self]
 
     def quic_event_received(self, event: QuicEvent) -> None:
         self._windows.delivered(event)
@@ -365,6 +370,11 @@ class _Session(QuicConnectionProtocol):
         elif isinstance(event, StreamReset):
             if event.stream_id == self._control_id:
                 self._refuse(CLOSE_BAD_HELLO, "control stream reset by the client")
+        elif isinstance(event, StopSendingReceived):
+            # The welcome goes on the control stream: one the client stopped could not carry
+            # it (aioquic raised, and the session held the server without frames).
+            if event.stream_id == self._control_id:
+                self._refuse(CLOSE_BAD_HELLO, "control stream stopped by the client")
         elif isinstance(event, ConnectionTerminated):
             self._terminated(event.reason_phrase or f"closed (code {event.error_code})")
 
@@ -449,13 +459,17 @@ class _Session(QuicConnectionProtocol):
         if self.server.active is not None:
             self._refuse(CLOSE_BUSY, "busy: the server is serving another session")
             return
+        assert self._control_id is not None
+        try:
+            self._quic.send_stream_data(self._control_id, frame_control(self.server.welcome()))
+        except (RuntimeError, ValueError) as e:  # aioquic: a stream the client reset or ended
+            self._refuse(CLOSE_BAD_HELLO, f"control stream cannot carry the welcome: {e}")
+            return
         self.accepted = True
         self._not_pending()
         self._last_pose_at = asyncio.get_running_loop().time()  # IDLE_TIMEOUT_S from here
         self.server.active = self
         self.server.log(f"session from {self._peer()}: display {hello.display_fps:g} FPS")
-        assert self._control_id is not None
-        self._quic.send_stream_data(self._control_id, frame_control(self.server.welcome()))
         self.transmit()
         self._task = asyncio.ensure_future(self._frames())
 
@@ -790,7 +804,8 @@ class LiveServer:
         self.fingerprint = fingerprint_hex(certificate.public_bytes(Encoding.DER))
         self._log = log if log is not None else sys.stderr
         self.active: _Session | None = None
-        self.pending = 0  # connections waiting for their hello (MAX_PENDING)
+        # Connections waiting for their hello, oldest first (at most MAX_PENDING).
+        self.waiting: dict[_Session, None] = {}
         self.refused = 0
         self.sessions: list[SessionStats] = []
         self.port = 0
