@@ -759,3 +759,22 @@ def test_a_fingerprint_is_pinned_as_certificate_tools_print_it() -> None:
     digest = "ab" * 32
     printed = ":".join(digest[i:i + 2] for i in range(0, 64, 2)).upper()
     assert ConnectOptions("127.0.0.1", 4433, fingerprint=printed).fingerprint == digest
+
+
+def test_a_server_keeps_the_statistics_of_its_last_sessions_only(tmp_path: Path) -> None:
+    # Each session's statistics hold per-frame lists; a server serving sessions=0 (forever)
+    # kept every one.
+    import io
+
+    from splitrender.net.server import KEPT_SESSIONS, LiveServer, ServerOptions, SessionStats
+
+    srv = LiveServer(ServerOptions("courtyard", scale=0.03125, token=TOKEN), log=io.StringIO())
+
+    class Ended:
+        def __init__(self, n: int) -> None:
+            self.stats = SessionStats(frames_sent=n)
+
+    for n in range(KEPT_SESSIONS + 5):
+        srv.session_ended(Ended(n))  # type: ignore[arg-type]
+    assert srv.sessions_ended == KEPT_SESSIONS + 5
+    assert [s.frames_sent for s in srv.sessions] == list(range(5, KEPT_SESSIONS + 5))

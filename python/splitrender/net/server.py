@@ -111,6 +111,8 @@ IDLE_TIMEOUT_S = 3.0
 #: How far a pose's time may run ahead of the client's clock as its earlier poses gave it (the
 #: offset is the largest seen, so one sample far in the future would move every later frame).
 MAX_CLOCK_STEP_S = 1.0
+#: How many ended sessions' statistics a server keeps (:attr:`LiveServer.sessions`).
+KEPT_SESSIONS = 64
 #: A connection that has sent no valid hello this long after it opened is closed.
 HELLO_TIMEOUT_S = 2.0
 #: Most connections that may wait for their hello at once (each holds up to its receive
@@ -250,7 +252,8 @@ class ServerOptions:
 
 @dataclass
 class SessionStats:
-    """What one session did (printed when it ends, and kept in :attr:`LiveServer.sessions`)."""
+    """What one session did (printed when it ends, and kept in :attr:`LiveServer.sessions`,
+    the last :data:`KEPT_SESSIONS`)."""
 
     frames_sent: int = 0
     frames_skipped: int = 0
@@ -807,7 +810,10 @@ class LiveServer:
         # Connections waiting for their hello, oldest first (at most MAX_PENDING).
         self.waiting: dict[_Session, None] = {}
         self.refused = 0
-        self.sessions: list[SessionStats] = []
+        # The last KEPT_SESSIONS (each holds per-frame lists: all of them, a server left to
+        # run with sessions=0 grew with every session), and how many ended in all.
+        self.sessions: deque[SessionStats] = deque(maxlen=KEPT_SESSIONS)
+        self.sessions_ended = 0
         self.port = 0
         self.executor = ThreadPoolExecutor(1, thread_name_prefix="splitrender-serve")
         self._done = asyncio.Event()
@@ -874,8 +880,9 @@ class LiveServer:
     def session_ended(self, session: _Session) -> None:
         self.active = None
         self.sessions.append(session.stats)
+        self.sessions_ended += 1
         self.log(f"session ended: {session.stats.line()}")
-        if self.options.sessions and len(self.sessions) >= self.options.sessions:
+        if self.options.sessions and self.sessions_ended >= self.options.sessions:
             self._done.set()
 
     def configuration(self) -> QuicConfiguration:
