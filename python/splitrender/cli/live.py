@@ -125,7 +125,9 @@ def _quiet_quic() -> None:
     session themselves; a program that configures logging still gets aioquic's records."""
     import logging
 
-    logging.getLogger("quic").addHandler(logging.NullHandler())
+    quic = logging.getLogger("quic")
+    if not any(isinstance(h, logging.NullHandler) for h in quic.handlers):  # once a process
+        quic.addHandler(logging.NullHandler())
 
 
 def run_serve(args: argparse.Namespace) -> int:
