@@ -437,6 +437,90 @@ def test_a_session_without_poses_ends_and_frees_the_server(server: _Server) -> N
     server.wait_log("0 frames sent", 10)
 
 
+def test_a_servers_reason_is_one_printable_line() -> None:
+    # Printed raw, a server's reason added a second "splitrender: error:" line of its choosing
+    # and drove the terminal with escape sequences.
+    from splitrender.client.live import ConnectOptions, LiveClient
+
+    client = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None))
+    client.terminated(3, "bad hello\nsplitrender: error: your token leaked\x1b[31mRED")
+    assert client._refusal is not None and client._refusal.isprintable()
+    assert "bad hello\\nsplitrender: error: your token leaked\\x1b[31mRED" in client._refusal
+
+
+def test_the_packets_are_kept_for_replay_only_when_asked() -> None:
+    # Every payload received was kept for replay, which only --compare uses: a session at
+    # 40 Mb/s held 18 GB after an hour.
+    from splitrender.client.live import ConnectOptions, LiveClient
+    from splitrender.errors import InvalidInputError
+
+    client = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None))
+    with pytest.raises(InvalidInputError, match="keep_packets=True"):
+        client.replay("ours", lambda t: np.eye(4), 1.0)
+    with pytest.raises(InvalidInputError, match="keep_packets: expected a bool"):
+        ConnectOptions("127.0.0.1", 9, TOKEN, None, keep_packets="yes")  # type: ignore[arg-type]
+
+
+def test_frames_that_never_end_are_held_to_a_bound() -> None:
+    """A server that opens frame streams announcing the largest size and never ends them: the
+    client buffered everything sent on them (QUIC's windows grow as it reads). The frames
+    arriving may announce MAX_ARRIVING_BYTES together; one more is dropped as malformed."""
+    from aioquic.asyncio import QuicConnectionProtocol, serve
+    from aioquic.quic.configuration import QuicConfiguration
+    from aioquic.quic.events import StreamDataReceived
+
+    from splitrender.client.live import MAX_ARRIVING_BYTES, ConnectOptions, LiveClient
+    from splitrender.net.server import self_signed_certificate
+
+    streams = MAX_ARRIVING_BYTES // proto.MAX_FRAME_PAYLOAD + 1
+    ready: queue.Queue[int] = queue.Queue()
+    stop = threading.Event()
+
+    class Endless(QuicConnectionProtocol):
+        def quic_event_received(self, event: Any) -> None:
+            if not (isinstance(event, StreamDataReceived) and event.stream_id == 0):
+                return
+            q = self._quic
+            # A perspective projection (reversed depth, near 0.1): row-major, as the wire has it.
+            proj = (1.0, 0, 0, 0, 0, 1.78, 0, 0, 0, 0, 0, 0.1, 0, 0, -1.0, 0)
+            q.send_stream_data(0, proto.frame_control(proto.Welcome(
+                10.0, 0.03125, 80, 45, proj, 100, 1.0, 0.1, "courtyard").encode()))
+            for k in range(streams):
+                sid = q.get_next_available_stream_id(is_unidirectional=True)
+                header = proto.FrameHeader(k, k, True, 0.0, 0.1, 0.0, 1e6, 1.0, 1.0,
+                                           proto.MAX_FRAME_PAYLOAD, 1)
+                q.send_stream_data(sid, header.encode() + bytes(1000))  # and never a FIN
+            self.transmit()
+
+    async def endless() -> None:
+        cfg = QuicConfiguration(is_client=False, alpn_protocols=[proto.ALPN], idle_timeout=30.0,
+                                max_datagram_frame_size=proto.MAX_DATAGRAM)
+        cfg.certificate, cfg.private_key = self_signed_certificate()
+        srv = await serve("127.0.0.1", 0, configuration=cfg, create_protocol=Endless)
+        ready.put(srv._transport.get_extra_info("sockname")[1])
+        while not stop.is_set():
+            await asyncio.sleep(0.05)
+        srv.close()
+
+    t = threading.Thread(target=lambda: asyncio.run(endless()), daemon=True)
+    t.start()
+    client = None
+    try:
+        client = LiveClient(ConnectOptions("127.0.0.1", ready.get(timeout=10), TOKEN, None,
+                                           connect_timeout=20))
+        client.connect()
+        end = time.monotonic() + 10
+        while client.net.malformed_streams < 1 and time.monotonic() < end:
+            time.sleep(0.05)
+        assert client.net.malformed_streams == 1
+        assert len(client.in_progress) == streams - 1
+    finally:
+        if client is not None:
+            client.close()
+        stop.set()
+        t.join(10)
+
+
 def test_a_server_that_never_welcomes_is_named(tmp_path: Path) -> None:
     """A server that takes the hello and says nothing: the client said "refused by the
     server: Idle timeout"."""

@@ -248,6 +248,26 @@ def test_order_start_without_key_frame() -> None:
     assert log.requests == [(-1, proto.KEY_START)] and not log.submitted
 
 
+def test_a_frame_headers_sent_time_is_a_time() -> None:
+    # Any finite value was taken: -1e36 s made the client's queueing delay overflow the f32 of
+    # its next report, which raised on the network thread (a traceback, and no more reports).
+    good = proto.FrameHeader(3, 3, False, 0.2, 0.3, 0.25, 1e6, 1.0, 1.0, 100, 1)
+    assert proto.FrameHeader.decode(good.encode()) == good
+    bad = dataclasses.replace(good, sent=-1e36).encode()
+    with pytest.raises(ProtocolError, match=r"frame header.sent: expected a finite number in "
+                       r"\[-1e\+09, 1e\+09\]"):
+        proto.FrameHeader.decode(bad)
+
+
+def test_a_peers_text_is_printed_on_one_line() -> None:
+    # A server's reason phrase was printed raw: a second "splitrender: error:" line of its
+    # choosing, and escape sequences sent to the terminal.
+    said = proto.printable("bad hello\nsplitrender: error: leaked\x1b[31mRED")
+    assert said == "bad hello\\nsplitrender: error: leaked\\x1b[31mRED"
+    assert said.isprintable()
+    assert proto.printable("x" * 300) == "x" * 200 + "..."
+
+
 # -- prediction, rate control, relay -------------------------------------------------------------
 
 

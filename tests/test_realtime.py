@@ -254,6 +254,33 @@ def _submit_until_held(c: RealtimeClient, frames: list[Any], entered: threading.
     assert entered.wait(10.0)
 
 
+def test_close_dropping_the_backlog_cancels_what_was_not_received(scene, frames, monkeypatch):
+    """A live session ends with close(drop_pending=True): a server that sent faster than its
+    rate had the command decode the whole backlog first (minutes past --seconds)."""
+    entered, release, _ = _hold_preparation(monkeypatch, lambda pair: pair[1] == 1)
+    c = loop(FakeClock())
+    c.submit(frames[0]).result(30)
+    busy = c.submit(frames[1])
+    assert entered.wait(10.0)
+    backlog = [c.submit(f) for f in frames[2:]]
+    threading.Timer(0.2, release.set).start()
+    c.close(drop_pending=True)
+    assert busy.result(0) == 1  # the one being received finishes
+    assert backlog and all(f.cancelled() for f in backlog)
+
+
+def test_a_client_that_never_waits_keeps_only_the_first_error(scene, frames):
+    """A live session submits for hours and never waits: every future was kept (a failed one
+    holds its packet). Done ones are let go, but for the first error, which wait() raises."""
+    with loop(FakeClock(), executor=InlineExecutor()) as c:
+        bad = c.submit(b"not a packet")
+        for _ in range(3 * rt._PRUNE_PENDING):
+            c.submit(b"nor this")
+        assert len(c._pending) <= rt._PRUNE_PENDING + 1 and c._pending[0] is bad
+        with pytest.raises(StreamError):
+            c.wait()
+
+
 def test_display_extrapolates_while_the_new_pair_is_prepared(scene, frames, monkeypatch):
     entered, release, _ = _hold_preparation(monkeypatch, lambda pair: pair[1] == 1)
     clock = FakeClock()

@@ -263,7 +263,7 @@ def run_connect(args: argparse.Namespace) -> int:
         opts = ConnectOptions(
             host, port, args.token, args.fingerprint, args.method, args.fps, backend=args.backend,
             version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
-            max_divisor=args.max_divisor,
+            max_divisor=args.max_divisor, keep_packets=args.compare is not None,
         )
     except SplitRenderError as e:
         return fail(str(e))

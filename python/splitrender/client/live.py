@@ -60,6 +60,7 @@ from splitrender.net.protocol import (
     KEY_UNDECODABLE,
     MAX_DATAGRAM,
     MAX_FPS,
+    MAX_FRAME_PAYLOAD,
     MAX_TOKEN,
     MIN_DISPLAY_FPS,
     PROTOCOL_VERSION,
@@ -74,10 +75,18 @@ from splitrender.net.protocol import (
     fingerprint_hex,
     frame_control,
     normalise_fingerprint,
+    printable,
 )
 from splitrender.net.quic import ReceiveWindows
 from splitrender.reproject import METHODS
-from splitrender.types import Camera, ServerFrame, check_float, check_int, check_str
+from splitrender.types import (
+    Camera,
+    ServerFrame,
+    check_bool,
+    check_float,
+    check_int,
+    check_str,
+)
 
 __all__ = ["ConnectOptions", "FrameOrder", "LiveClient"]
 
@@ -86,6 +95,9 @@ _Image = npt.NDArray[np.uint8]
 
 #: Error code of a stream the client gives up on (STOP_SENDING).
 STOP_STALE = 1
+#: Most bytes the frames still arriving may announce together (their headers' sizes): a
+#: 1280x720 frame is under 1 MB; a server that opens frames and never ends them is held to this.
+MAX_ARRIVING_BYTES = 2 * MAX_FRAME_PAYLOAD
 #: Seconds between two rate reports (and one per completed frame).
 REPORT_INTERVAL_S = 0.1
 #: The receive rate is measured over this many seconds.
@@ -118,6 +130,8 @@ class ConnectOptions:
     backend: str = "cpu"
     version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
     max_divisor: int = MAX_DIVISOR
+    #: Keep every packet received, for :meth:`LiveClient.replay` (all the bytes of the session).
+    keep_packets: bool = False
 
     def __post_init__(self) -> None:
         # What the hello carries, checked here: on the network thread a hello that does not
@@ -141,6 +155,7 @@ class ConnectOptions:
         # threading.Event.wait takes at most about 49 days; an hour is more than any connect.
         check_float("connect_timeout", self.connect_timeout, positive=True, hi=3600.0)
         check_backend(self.backend)
+        object.__setattr__(self, "keep_packets", check_bool("keep_packets", self.keep_packets))
         check_int("version", self.version, 0, 0xFFFF)
         check_int("max_divisor", self.max_divisor, 1, 16)  # RateGovernor's range
 
@@ -310,8 +325,19 @@ class _Connection(QuicConnectionProtocol):
         self._bufs: dict[int, bytearray] = {}
         self._headers: dict[int, FrameHeader] = {}
         self._dead: set[int] = set()
+        self._declared = 0  # bytes the headers of the frames still arriving announce
 
     def quic_event_received(self, event: QuicEvent) -> None:
+        try:
+            self._event(event)
+        except Exception as e:  # noqa: BLE001 - raised in asyncio's callback, it was a traceback
+            # and the session went on without what failed; it ends instead, with the reason.
+            reason = f"client error: {type(e).__name__}: {e}".splitlines()[0][:200]
+            self.owner.net.closed_reason = self.owner.net.closed_reason or reason
+            self._quic.close(error_code=CLOSE_BYE, reason_phrase=reason)
+            self.transmit()
+
+    def _event(self, event: QuicEvent) -> None:
         o = self.owner
         self._windows.delivered(event)
         if isinstance(event, HandshakeCompleted):
@@ -383,7 +409,9 @@ class _Connection(QuicConnectionProtocol):
 
     def _forget(self, sid: int) -> None:
         self._bufs.pop(sid, None)
-        self._headers.pop(sid, None)
+        header = self._headers.pop(sid, None)
+        if header is not None:
+            self._declared -= header.size
         self.owner.in_progress.pop(sid, None)
 
     def _drop(self, sid: int) -> None:
@@ -406,7 +434,13 @@ class _Connection(QuicConnectionProtocol):
             except ProtocolError:
                 self._drop(sid)
                 return
+            if self._declared + header.size > MAX_ARRIVING_BYTES:
+                # Frames that never end were buffered without a bound (QUIC's windows grow as
+                # the client reads): at most this much is held for the frames arriving.
+                self._drop(sid)
+                return
             self._headers[sid] = header
+            self._declared += header.size
             self.owner.order.started(header.seq, sid)
         self.owner.received(sid, len(data), header)
         if header is not None and len(buf) > FrameHeader.SIZE + header.size:
@@ -507,10 +541,12 @@ class LiveClient:
         if self.welcome is None and self.server_fingerprint is None:
             # Closed before the handshake completed: nobody (or no QUIC server) answered.
             o = self.options
-            self.refuse(f"no answer from {o.host}:{o.port} ({reason or f'code {code}'}): is "
-                        "`splitrender serve` running there?")
+            said = printable(reason) or f"code {code}"
+            self.refuse(f"no answer from {o.host}:{o.port} ({said}): is `splitrender serve` "
+                        "running there?")
         elif self.welcome is None:
-            self.refuse(f"refused by the server: {reason or f'connection closed (code {code})'}")
+            said = printable(reason) or f"connection closed (code {code})"
+            self.refuse(f"refused by the server: {said}")
         if self.net.closed_reason is None:
             self.net.closed_reason = reason or f"code {code}"
             self.net.closed_at = self._now()
@@ -548,21 +584,27 @@ class LiveClient:
 
     def _submit(self, header: FrameHeader, payload: bytes) -> None:
         assert self.realtime is not None
-        self.arrivals.append((self._now(), payload))
+        if self.options.keep_packets:  # for replay (every byte received, for the session)
+            self.arrivals.append((self._now(), payload))
         fut = self.realtime.submit(payload, pose_time=header.pose_time)
         loop = asyncio.get_running_loop()
         index = header.seq
 
         def done(f: Any) -> None:
-            if f.exception() is not None:
-                loop.call_soon_threadsafe(self._undecodable, index)
-            elif f.result() is not None:
-                # Usable now (decoded and prepared): how late against when the display
-                # first needed it, t_k - m/f_s (m: its span), for the server's planning
-                # (RateReport).
-                k = int(f.result())
-                usable = self._now()
-                loop.call_soon_threadsafe(self._made_usable, k, header.span, usable)
+            if f.cancelled():  # the backlog dropped at close
+                return
+            try:
+                if f.exception() is not None:
+                    loop.call_soon_threadsafe(self._undecodable, index)
+                elif f.result() is not None:
+                    # Usable now (decoded and prepared): how late against when the display
+                    # first needed it, t_k - m/f_s (m: its span), for the server's planning
+                    # (RateReport).
+                    k = int(f.result())
+                    usable = self._now()
+                    loop.call_soon_threadsafe(self._made_usable, k, header.span, usable)
+            except RuntimeError:
+                pass  # the network loop has ended: nothing left to tell the server
 
         fut.add_done_callback(done)
 
@@ -726,7 +768,9 @@ class LiveClient:
         if self._thread is not None:
             self._thread.join(5.0)
         if self.realtime is not None:
-            self.realtime.close()
+            # Packets not yet decoded are dropped: a server that sent faster than its rate
+            # had the command decode the whole backlog after the session (minutes).
+            self.realtime.close(drop_pending=True)
 
     def run(
         self,
@@ -765,7 +809,14 @@ class LiveClient:
         session decoded, each submitted at the display time it was, at the poses ``motion``
         (the session's), through a real-time loop of its own (so what differs between two
         methods is the method, not what the network and the server did). Returns the loop's
-        summary."""
+        summary.
+
+        Raises:
+            InvalidInputError: for a client made without ``keep_packets``."""
+        if not self.options.keep_packets:
+            raise InvalidInputError(
+                "replay: the packets were not kept; connect with "
+                "ConnectOptions(keep_packets=True)")
         w = self.welcome
         assert w is not None, "connect() and run() first"
         proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)

@@ -411,6 +411,8 @@ class RateGovernor:
         self._fitting = 0
 
 
+#: Submitted packets kept for :meth:`RealtimeClient.wait` before the done ones are let go.
+_PRUNE_PENDING = 64
 #: How the receive worker yields the cores to the display (``RealtimeClient(worker_priority=)``).
 WORKER_PRIORITIES = ("idle", "low", "normal")
 
@@ -719,10 +721,12 @@ class RealtimeClient:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def close(self) -> None:
-        """Stops the worker (after the packets already submitted) and the decoder."""
+    @checked(drop_pending=BOOL)
+    def close(self, *, drop_pending: bool = False) -> None:
+        """Stops the worker and the decoder: after the packets already submitted, or with
+        ``drop_pending`` after the one being received (the others' futures are cancelled)."""
         self._closed = True
-        self._worker.shutdown(wait=True)
+        self._worker.shutdown(wait=True, cancel_futures=drop_pending)
         if self._decoder is not None:
             self._decoder.close()
 
@@ -756,6 +760,13 @@ class RealtimeClient:
         with self._lock:
             self._queued += 1
         fut = self._worker.submit(self._receive, packet, pose_time)
+        if len(self._pending) >= _PRUNE_PENDING:
+            # What wait() needs of the done ones is the first error; the rest (a failed one
+            # holds its packet) went unbounded for a client that never waits (a live session).
+            failed = [f for f in self._pending
+                      if f.done() and not f.cancelled() and f.exception() is not None]
+            first = failed[0] if failed else None
+            self._pending = [f for f in self._pending if not f.done() or f is first]
         self._pending.append(fut)
         return fut
 

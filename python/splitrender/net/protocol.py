@@ -65,6 +65,7 @@ __all__ = [
     "frame_control",
     "hello_version",
     "normalise_fingerprint",
+    "printable",
     "unsupported_version",
 ]
 
@@ -562,7 +563,7 @@ class FrameHeader:
             bool(key),
             _finite("frame header.pose_time", pt, -1e9, 1e9),
             _finite("frame header.predicted_time", tt, -1e9, 1e9),
-            _finite("frame header.sent", sent),
+            _finite("frame header.sent", sent, -1e9, 1e9),  # times, as pose_time's
             _finite("frame header.target_bps", bps, 0.0, 1e12),
             _finite("frame header.render_ms", rms, 0.0, 1e9),
             _finite("frame header.encode_ms", ems, 0.0, 1e9),
@@ -572,6 +573,15 @@ class FrameHeader:
 
 
 # -- certificate pinning -------------------------------------------------------------------------
+
+
+def printable(text: str, limit: int = 200) -> str:
+    """A peer's text (a close's reason phrase) fit for one line of a terminal: control
+    characters (a line break, an escape sequence) as Python writes them in a string literal,
+    and at most ``limit`` characters. Printed raw, a server's reason could add lines that read
+    as the command's own, or drive the terminal."""
+    out = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[:limit])
+    return out + ("..." if len(text) > limit else "")
 
 
 def fingerprint_hex(der: bytes) -> str:
