@@ -7,6 +7,7 @@ server is slow here (it skips frames; the client extrapolates), which is part of
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import queue
@@ -461,20 +462,47 @@ def test_the_packets_are_kept_for_replay_only_when_asked() -> None:
         ConnectOptions("127.0.0.1", 9, TOKEN, None, keep_packets="yes")  # type: ignore[arg-type]
 
 
+@contextlib.contextmanager
+def _hand_made_server(protocol: Any) -> Iterator[int]:
+    """An aioquic server on 127.0.0.1 whose connections are ``protocol`` (a
+    QuicConnectionProtocol of the test's), on a thread of its own; yields its port."""
+    from aioquic.asyncio import serve
+    from aioquic.quic.configuration import QuicConfiguration
+
+    from splitrender.net.server import self_signed_certificate
+
+    ready: queue.Queue[int] = queue.Queue()
+    stop = threading.Event()
+
+    async def run() -> None:
+        cfg = QuicConfiguration(is_client=False, alpn_protocols=[proto.ALPN], idle_timeout=30.0,
+                                max_datagram_frame_size=proto.MAX_DATAGRAM)
+        cfg.certificate, cfg.private_key = self_signed_certificate()
+        srv = await serve("127.0.0.1", 0, configuration=cfg, create_protocol=protocol)
+        ready.put(srv._transport.get_extra_info("sockname")[1])
+        while not stop.is_set():
+            await asyncio.sleep(0.05)
+        srv.close()
+
+    t = threading.Thread(target=lambda: asyncio.run(run()), daemon=True)
+    t.start()
+    try:
+        yield ready.get(timeout=10)
+    finally:
+        stop.set()
+        t.join(10)
+
+
 def test_frames_that_never_end_are_held_to_a_bound() -> None:
     """A server that opens frame streams announcing the largest size and never ends them: the
     client buffered everything sent on them (QUIC's windows grow as it reads). The frames
     arriving may announce MAX_ARRIVING_BYTES together; one more is dropped as malformed."""
-    from aioquic.asyncio import QuicConnectionProtocol, serve
-    from aioquic.quic.configuration import QuicConfiguration
+    from aioquic.asyncio import QuicConnectionProtocol
     from aioquic.quic.events import StreamDataReceived
 
     from splitrender.client.live import MAX_ARRIVING_BYTES, ConnectOptions, LiveClient
-    from splitrender.net.server import self_signed_certificate
 
     streams = MAX_ARRIVING_BYTES // proto.MAX_FRAME_PAYLOAD + 1
-    ready: queue.Queue[int] = queue.Queue()
-    stop = threading.Event()
 
     class Endless(QuicConnectionProtocol):
         def quic_event_received(self, event: Any) -> None:
@@ -492,74 +520,36 @@ def test_frames_that_never_end_are_held_to_a_bound() -> None:
                 q.send_stream_data(sid, header.encode() + bytes(1000))  # and never a FIN
             self.transmit()
 
-    async def endless() -> None:
-        cfg = QuicConfiguration(is_client=False, alpn_protocols=[proto.ALPN], idle_timeout=30.0,
-                                max_datagram_frame_size=proto.MAX_DATAGRAM)
-        cfg.certificate, cfg.private_key = self_signed_certificate()
-        srv = await serve("127.0.0.1", 0, configuration=cfg, create_protocol=Endless)
-        ready.put(srv._transport.get_extra_info("sockname")[1])
-        while not stop.is_set():
-            await asyncio.sleep(0.05)
-        srv.close()
-
-    t = threading.Thread(target=lambda: asyncio.run(endless()), daemon=True)
-    t.start()
-    client = None
-    try:
-        client = LiveClient(ConnectOptions("127.0.0.1", ready.get(timeout=10), TOKEN, None,
-                                           connect_timeout=20))
-        client.connect()
-        end = time.monotonic() + 10
-        while client.net.malformed_streams < 1 and time.monotonic() < end:
-            time.sleep(0.05)
-        assert client.net.malformed_streams == 1
-        assert len(client.in_progress) == streams - 1
-    finally:
-        if client is not None:
+    with _hand_made_server(Endless) as port:
+        client = LiveClient(ConnectOptions("127.0.0.1", port, TOKEN, None, connect_timeout=20))
+        try:
+            client.connect()
+            end = time.monotonic() + 10
+            while client.net.malformed_streams < 1 and time.monotonic() < end:
+                time.sleep(0.05)
+            assert client.net.malformed_streams == 1
+            assert len(client.in_progress) == streams - 1
+        finally:
             client.close()
-        stop.set()
-        t.join(10)
 
 
 def test_a_server_that_never_welcomes_is_named(tmp_path: Path) -> None:
     """A server that takes the hello and says nothing: the client said "refused by the
     server: Idle timeout"."""
-    from aioquic.asyncio import QuicConnectionProtocol, serve
-    from aioquic.quic.configuration import QuicConfiguration
+    from aioquic.asyncio import QuicConnectionProtocol
 
     from splitrender.client.live import WELCOME_TIMEOUT_S, ConnectOptions, LiveClient
     from splitrender.errors import ProtocolError
-    from splitrender.net.server import self_signed_certificate
-
-    ready: queue.Queue[int] = queue.Queue()
-    stop = threading.Event()
 
     class Mute(QuicConnectionProtocol):
         def quic_event_received(self, event: Any) -> None:
             pass  # takes the handshake (aioquic's part), reads nothing, answers nothing
 
-    async def mute() -> None:
-        cfg = QuicConfiguration(is_client=False, alpn_protocols=[proto.ALPN], idle_timeout=30.0,
-                                max_datagram_frame_size=proto.MAX_DATAGRAM)
-        cfg.certificate, cfg.private_key = self_signed_certificate()
-        srv = await serve("127.0.0.1", 0, configuration=cfg,
-                          create_protocol=Mute)
-        ready.put(srv._transport.get_extra_info("sockname")[1])
-        while not stop.is_set():
-            await asyncio.sleep(0.05)
-        srv.close()
-
-    t = threading.Thread(target=lambda: asyncio.run(mute()), daemon=True)
-    t.start()
-    try:
-        port = ready.get(timeout=10)
+    with _hand_made_server(Mute) as port:
         client = LiveClient(ConnectOptions("127.0.0.1", port, TOKEN, None, connect_timeout=20))
         with pytest.raises(ProtocolError, match=f"no welcome from the server within "
                            f"{WELCOME_TIMEOUT_S:g} s of the hello"):
             client.connect()
-    finally:
-        stop.set()
-        t.join(10)
 
 
 def test_client_killed_then_next_session(server: _Server, tmp_path: Path) -> None:
