@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 import splitrender.net.protocol as proto
 from splitrender.client.live import FrameOrder
-from splitrender.errors import InvalidInputError, ProtocolError, SplitRenderError
+from splitrender.errors import InvalidInputError, ProtocolError, SplitRenderError, StreamError
 from splitrender.net.abr import LeadController, LinkPacer, RateController
 from splitrender.net.predict import ConstantVelocity, LastPose, make_predictor
 from splitrender.net.relay import Impairment, Relay, _Direction, check_loopback
@@ -556,8 +556,17 @@ def test_encoder_live_controls_and_seq_indexed_packets() -> None:
     assert keys == [True, False, True, False, False]  # a rate change alone waits for a key
     with pytest.raises(InvalidInputError):
         sr.StreamEncoder().set_bitrate(0.0)
-    dec = _TimeIndexed(fps)
+    proj = tuple(frames[0].main.camera.proj.ravel())
+    dec = _TimeIndexed(proto.Welcome(fps, 1.0, 32, 24, proj, 100, 0.5, 0.1, "synthetic"))
     try:
         assert [dec.decode(p).index for p in packets] == ks
     finally:
         dec.close()
+    # Its pixels are bounded by the welcome's size: packets of this server's larger cameras
+    # (the decoder's own bound is 2^25 pixels, a gigabyte of buffers) are refused.
+    small = _TimeIndexed(proto.Welcome(fps, 1.0, 16, 12, proj, 100, 0.5, 0.1, "synthetic"))
+    try:
+        with pytest.raises(StreamError, match="exceeds the decoder's limit of 384 pixels"):
+            small.decode(packets[0])
+    finally:
+        small.close()

@@ -272,16 +272,25 @@ class FrameOrder:
             return
 
 
+def _pixel_limit(welcome: Welcome) -> int:
+    """The most pixels a packet of this server may declare, per camera and in all: twice its
+    welcome's main camera (the rig's two half-size auxiliary cameras make 1.5 times). The
+    decoder's own limit is 2^25 pixels, about a gigabyte of buffers, which a server that
+    declares cameras larger than its welcome's could make the client allocate per packet."""
+    return max(1, 2 * welcome.width * welcome.height)
+
+
 class _TimeIndexed(StreamDecoder):
     """The stream decoder, with each frame's index taken back from its time (``round(t ·
     f_s)``): the packets are indexed by their place in the encoded sequence (consecutive, as
     the decoder checks), while the client orders frames by time (FrameHeader). ``spans``
     (by ``seq``, from the frame headers; absent: 1) give each frame its span, which the
-    packet does not carry."""
+    packet does not carry. ``welcome``: the server's, whose size bounds the pixels a packet
+    may declare (:func:`_pixel_limit`)."""
 
-    def __init__(self, server_fps: float, spans: dict[int, int] | None = None) -> None:
-        super().__init__()
-        self.server_fps = server_fps
+    def __init__(self, welcome: Welcome, spans: dict[int, int] | None = None) -> None:
+        super().__init__(max_pixels=_pixel_limit(welcome))
+        self.server_fps = welcome.server_fps
         self.spans: dict[int, int] = {} if spans is None else spans
 
     def decode(self, data: bytes | memoryview) -> ServerFrame:
@@ -533,7 +542,7 @@ class LiveClient:
             ),
             display_fps=self.options.display_fps,
             max_divisor=self.options.max_divisor,
-            decoder=_TimeIndexed(welcome.server_fps, self.spans),
+            decoder=_TimeIndexed(welcome, self.spans),
         )
         self._ready.set()
 
@@ -831,7 +840,7 @@ class LiveClient:
             ),
             display_fps=self.options.display_fps,
             max_divisor=self.options.max_divisor,
-            decoder=_TimeIndexed(w.server_fps, dict(self.spans)),
+            decoder=_TimeIndexed(w, dict(self.spans)),
         ) as rt:
             return rt.run(pose, seconds, feed=self.arrivals, on_frame=on_frame).summary()
 
