@@ -125,7 +125,8 @@ def render_recording(task: Task, cache: Cache) -> None:
     r = _renderer(task)
     server: list[tuple[float, Path, str]] = []
     client: list[tuple[float, Path, str]] = []
-    aux: tuple[str, list[list[int]]] | None = None  # the first server chunk's, and its key
+    aux: list[list[int]] | None = None  # the first server chunk's (aux_key's)
+    aux_key = ""
     for key in task.deps:
         folder = cache.chunk(key)
         part, times, digests, chunk_aux = cache.read_chunk_info(key)
@@ -136,13 +137,13 @@ def render_recording(task: Task, cache: Cache) -> None:
             # One rig renders every server frame: chunks that disagree on its auxiliary
             # cameras cannot be one recording, and the manifest would take the first's.
             if aux is None:
-                aux = (key, chunk_aux)
-            elif chunk_aux != aux[1]:
+                aux, aux_key = chunk_aux, key
+            elif chunk_aux != aux:
                 # Which one is wrong cannot be told from the two: all go, as below.
                 raise cache.damaged(
                     cache.root / "chunks",
-                    f"server chunks {aux[0]} and {key} disagree on the auxiliary cameras' "
-                    f"sizes ({aux[1]} and {chunk_aux}); expected one rig's")
+                    f"server chunks {aux_key} and {key} disagree on the auxiliary cameras' "
+                    f"sizes ({aux} and {chunk_aux}); expected one rig's")
             server += zip(times, files, digests)
         else:
             client += zip(times, files, digests)
@@ -152,7 +153,7 @@ def render_recording(task: Task, cache: Cache) -> None:
                             f"the chunks hold {len(server)} server and {len(client)} client "
                             f"frames, expected {r.n_server} and {r.n_client}")
 
-    fields = r.fields(aux[1])
+    fields = r.fields(aux)
     limits = {part: frame_bytes_limit(fields, part) for part in ("server", "client")}
 
     def checked(part: str, t: float, f: Path, digest: str) -> tuple[float, bytes]:
@@ -309,7 +310,7 @@ def score_play(task: Task, cache: Cache) -> None:
         # Decoded as the client needs each frame: held whole, a 1280x720 run would take
         # about 50 MB per server frame in every task running at once.
         packets = list(read_stream(cache.stream(key)))
-        if len(packets) != len(sizes) or [len(q) for q in packets] != sizes:
+        if [len(q) for q in packets] != sizes:
             raise cache.damaged(cache.stream_info(key), "the sizes of another stream than "
                                 f"{cache.stream(key).name}")
         server = DecodedStream(packets)
