@@ -157,6 +157,33 @@ def test_session(server: _Server, tmp_path: Path) -> None:
     server.wait_log("session ended", 10)
 
 
+def test_a_long_session_keeps_the_newest_frame_records_only(
+    server: _Server, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The client kept a record of every server frame (report.json's target_mbps, its span, when
+    # it became usable) and every display frame and pose of the session: memory that grew with
+    # the session's length (gigabytes a day at 120 Hz). Here 4 records are kept.
+    import splitrender.client.live as live
+    from splitrender.scene import Scene
+
+    monkeypatch.setattr(live, "KEEP_FRAME_RECORDS", 4)
+    client = live.LiveClient(
+        live.ConnectOptions("127.0.0.1", server.port, TOKEN, server.fingerprint))
+    welcome = client.connect()
+    r = client.run(Scene(welcome.scene).client_pose, 2.0)
+    completed = r["network"]["frames_completed"]
+    assert completed > 8
+    listed = [f["index"] for f in r["target_mbps"]]
+    assert len(listed) == 4 and listed == sorted(listed)
+    assert len(client.spans) <= 4 and len(client.usable_at) <= 4
+    # What sums up the whole session still does: every display refresh, the frames' gaps.
+    _all_refreshes(r, 2.0)
+    assert 0 < r["network"]["longest_gap_s"] < 2.0
+    assert r["network"]["server_render_ms_p50"] > 0
+    assert not hasattr(client, "poses")
+    server.wait_log("session ended", 10)
+
+
 @pytest.mark.skipif(
     not __import__("splitrender").gpu.available(),
     reason="no wgpu adapter (apt-get install mesa-vulkan-drivers gives Mesa's lavapipe)",

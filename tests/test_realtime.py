@@ -152,11 +152,11 @@ def test_frames_that_do_not_fit_the_refresh_halve_the_rate_and_then_meet_their_d
         report = c.run(pose_of(scene), 0.5)
     down = rt.RateGovernor.DOWN_MISSES
     # The first `down` frames miss (each then starts on the first refresh not yet passed) ...
-    assert [f.met for f in report.frames[:down]] == [False] * down
-    assert all(f.divisor == 1 for f in report.frames[:down])
+    assert [f.met for f in list(report.frames)[:down]] == [False] * down
+    assert all(f.divisor == 1 for f in list(report.frames)[:down])
     # ... then every frame is at half rate: two refreshes apart, due two refreshes after its
     # start, and on time.
-    after = report.frames[down:]
+    after = list(report.frames)[down:]
     assert len(after) > 20
     assert all(f.divisor == 2 and f.met for f in after)
     for a, b in zip(after, after[1:]):
@@ -186,7 +186,7 @@ def test_the_rate_goes_back_up_after_a_second_of_frames_that_fit_the_refresh(sce
     slow_until = 12 - first_half  # the half-rate frames that were still slow
     assert back - first_half == slow_until + int(FC / 2)
     assert set(divisors[back:]) == {1}
-    assert all(f.met for f in report.frames[back:])
+    assert all(f.met for f in list(report.frames)[back:])
 
 
 def test_a_display_that_fits_no_rate_stays_at_its_lowest(scene, frames):
@@ -196,7 +196,7 @@ def test_a_display_that_fits_no_rate_stays_at_its_lowest(scene, frames):
         c.submit(frames[0])
         c.wait()
         report = c.run(pose_of(scene), 0.5)
-    assert {f.divisor for f in report.frames[rt.RateGovernor.DOWN_MISSES:]} == {2}
+    assert {f.divisor for f in list(report.frames)[rt.RateGovernor.DOWN_MISSES:]} == {2}
     assert report.deadline_misses == len(report.frames)
 
 
@@ -333,7 +333,7 @@ def test_exclusive_run_waits_for_the_worker_off_the_clock(scene, frames, monkeyp
     feed = [(k / FS - 1 / FS, frames[k]) for k in range(3)]
     with loop(clock) as c:
         report = c.run(pose_of(scene), 0.2, feed=feed, exclusive=True)
-    f = report.frames
+    f = list(report.frames)
     assert len(f) == 24 and report.deadline_misses == 0 and report.dropped == 0
     # Frames 0 and 1 arrived before refresh 0, frame 2 at refresh 12 (display time 0.1).
     assert {(x.mode, x.older, x.newer) for x in f[:12]} == {("interpolate", 0, 1)}
@@ -466,7 +466,7 @@ def test_the_text_report_names_the_preparation_threads_on_the_cpu_only() -> None
     from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
 
     report = rt.RealtimeReport(display_fps=120.0)
-    report.frames.append(rt.DisplayFrame(
+    report.add(rt.DisplayFrame(
         index=0, time=0.0, start=0.0, done=0.004, deadline=1 / 120, mode="extrapolate",
         older=None, newer=0, alpha=None, server_age_ms=None, prepared=True))
     s = report.summary()
@@ -753,7 +753,7 @@ def test_misses_are_put_down_to_a_late_start_more_cpu_or_waiting():
     for n, (mode, delay, render, cpu) in enumerate(plan):
         tick = 1.0 + n * PERIOD
         start = tick + delay / 1e3
-        report.frames.append(DisplayFrame(
+        report.add(DisplayFrame(
             index=n, time=n * PERIOD, start=start, done=start + render / 1e3,
             deadline=tick + PERIOD, mode=mode, older=0, newer=1, alpha=0.5,
             server_age_ms=None, prepared=True, refresh=tick, cpu_ms=cpu))
@@ -770,7 +770,8 @@ def test_misses_are_put_down_to_a_late_start_more_cpu_or_waiting():
     # Frames without a refresh or a CPU time (off Linux, or recorded before these existed):
     # only the tests they allow; a miss of them all is put down to waiting.
     bare = RealtimeReport(display_fps=FC)
-    bare.frames = [dataclasses.replace(f, refresh=None, cpu_ms=None) for f in report.frames]
+    for f in report.frames:
+        bare.add(dataclasses.replace(f, refresh=None, cpu_ms=None))
     assert bare.miss_causes() == {"late_start": 0, "more_cpu": 0, "waited": 6}
     assert bare.summary()["frame_cpu_ms_p50"] is None
 
@@ -916,7 +917,7 @@ def test_warm_up_receives_the_due_frames_and_renders_one_frame_off_the_record(sc
         # Frame 2 was submitted on the clock (at refresh 12), as without a warm-up.
         c.wait()
         assert 2 in c.client.held
-    f = report.frames
+    f = list(report.frames)
     assert len(f) == 24 and report.deadline_misses == 0
     # Frames 0 and 1 (due at -0.1 and 0) were in before refresh 0: no frame held.
     assert {(x.mode, x.older, x.newer) for x in f[:12]} == {("interpolate", 0, 1)}
@@ -1154,7 +1155,7 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
     for n, (mode, wait, render) in enumerate(plan):
         tick = n * period
         start = tick + wait / 1e3
-        report.frames.append(DisplayFrame(
+        report.add(DisplayFrame(
             index=n, time=n * period, start=start, done=start + render / 1e3,
             deadline=tick + period, mode=mode, older=None, newer=0, alpha=None,
             server_age_ms=None if n == 0 else 10.0 * n, prepared=True))
@@ -1201,7 +1202,7 @@ def test_realtime_figure_judges_half_rate_frames_on_their_own_deadline(with_refr
     n = 0
     for d, render in renders:
         tick = n * period
-        report.frames.append(DisplayFrame(
+        report.add(DisplayFrame(
             index=n, time=tick, start=tick, done=tick + render / 1e3,
             deadline=tick + d * period, mode="extrapolate", older=None, newer=0, alpha=None,
             server_age_ms=None, prepared=True, divisor=d,

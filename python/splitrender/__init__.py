@@ -6,10 +6,10 @@ bidirectional image-based reprojection (Steiner et al. 2025). The kernels are na
 (``splitrender._native``, Rust); this package holds the data model and the Python API.
 
 The sub-packages follow the data flow (shared/DESIGN.md, "Package layout"); imports point down it:
-:mod:`~splitrender.types` and :mod:`~splitrender.errors` at the bottom, then
-:mod:`~splitrender.reproject` and :mod:`~splitrender.gpu` (one client frame), :mod:`.scene` (where
-server frames come from), :mod:`.codec` (frames <-> packets), :mod:`.net` (the network),
-:mod:`.client`, and on top :mod:`.evaluation` and :mod:`.cli`.
+:mod:`~splitrender.types`, :mod:`~splitrender.errors` and :mod:`~splitrender.tally` at the
+bottom, then :mod:`~splitrender.reproject` and :mod:`~splitrender.gpu` (one client frame),
+:mod:`.scene` (where server frames come from), :mod:`.codec` (frames <-> packets), :mod:`.net`
+(the network), :mod:`.client`, and on top :mod:`.evaluation` and :mod:`.cli`.
 
 Conventions: shared/DESIGN.md ("Conventions").
 """

@@ -79,6 +79,7 @@ from splitrender.net.protocol import (
 )
 from splitrender.net.quic import ReceiveWindows
 from splitrender.reproject import METHODS
+from splitrender.tally import Tally
 from splitrender.types import (
     Camera,
     ServerFrame,
@@ -104,6 +105,10 @@ REPORT_INTERVAL_S = 0.1
 RATE_WINDOW_S = 0.5
 #: Seconds between two looks at the give-up timers and the report clock.
 TICK_S = 0.05
+#: Server frames whose record (target, arrival, when usable: ``report.json``'s
+#: ``target_mbps``) and span the client keeps: the newest, an hour at 10 FPS (some 20 MB); a
+#: session of any length takes bounded memory (``ConnectOptions(keep_packets=True)`` aside).
+KEEP_FRAME_RECORDS = 36000
 #: Seconds without any packet from the server after which the connection counts as lost.
 IDLE_TIMEOUT_S = 3.0
 #: How long the client waits for the server's welcome after its hello (the server answers at
@@ -312,13 +317,15 @@ class _NetStats:
     reports: int = 0
     key_frames: int = 0
     decode_errors: int = 0
-    arrivals: list[float] = field(default_factory=list)  # display time of each completed frame
-    # index, Mb/s, arrival, sent (display s), server render + encode ms, bytes, span
-    targets: list[tuple[int, float, float, float, float, int, int]] = field(
-        default_factory=list
+    last_arrival: float | None = None  # display time of the newest completed frame
+    longest_gap: float = 0.0  # the longest time without a completed frame, from time 0
+    # The newest frames': index, Mb/s, arrival, sent (display s), server render + encode ms,
+    # bytes, span.
+    targets: deque[tuple[int, float, float, float, float, int, int]] = field(
+        default_factory=lambda: deque(maxlen=KEEP_FRAME_RECORDS)
     )
-    server_render_ms: list[float] = field(default_factory=list)
-    server_encode_ms: list[float] = field(default_factory=list)
+    server_render_ms: Tally = field(default_factory=Tally)
+    server_encode_ms: Tally = field(default_factory=Tally)
     closed_at: float | None = None
     closed_reason: str | None = None
 
@@ -485,6 +492,13 @@ class _Connection(QuicConnectionProtocol):
         self.transmit()
 
 
+def _put_bounded(d: dict[int, Any], key: int, value: Any, keep: int | None) -> None:
+    """``d[key] = value``, then the oldest entries dropped beyond ``keep`` (``None``: none)."""
+    d[key] = value
+    if keep is not None and len(d) > keep:
+        del d[next(iter(d))]
+
+
 class LiveClient:
     """``splitrender connect``: :meth:`connect` opens the session (raises
     :class:`~splitrender.errors.ProtocolError` with the server's one-line reason when refused,
@@ -509,8 +523,10 @@ class LiveClient:
         #: Frames being received: stream id -> [first byte (loop time), bytes, header.sent].
         self.in_progress: dict[int, list[float]] = {}
         self._usable: list[float] = []  # lateness (s) of the frames usable since the report
-        #: Display time at which each server frame (by index) became usable.
+        #: Display time at which each server frame (by index) became usable: the newest
+        #: :data:`KEEP_FRAME_RECORDS`.
         self.usable_at: dict[int, float] = {}
+        self._any_usable = False
         self._min_delay: float | None = None
         self._reported = 0.0  # loop time of the last rate report
         self.realtime: RealtimeClient | None = None
@@ -518,7 +534,8 @@ class LiveClient:
         #: them to another method in the same conditions.
         self.arrivals: list[tuple[float, bytes]] = []
         #: Each frame's span (FrameHeader.span) by its seq, for the decoder (the packet does
-        #: not carry it).
+        #: not carry it): the newest :data:`KEEP_FRAME_RECORDS` (all with ``keep_packets``,
+        #: for :meth:`replay`).
         self.spans: dict[int, int] = {}
         self.order = FrameOrder(self._submit, self._request_key, self._stop_stream, 0.1)
 
@@ -571,12 +588,14 @@ class LiveClient:
         size = len(payload) + FrameHeader.SIZE
         n.bytes_received += size
         n.key_frames += header.key
-        n.arrivals.append(arrival)
+        n.longest_gap = max(n.longest_gap, arrival - (n.last_arrival or 0.0))
+        n.last_arrival = arrival
         n.targets.append((header.index, header.target_bps / 1e6, arrival, header.sent,
                           header.render_ms + header.encode_ms, size, header.span))
-        self.spans[header.seq] = header.span
-        n.server_render_ms.append(header.render_ms)
-        n.server_encode_ms.append(header.encode_ms)
+        _put_bounded(self.spans, header.seq, header.span,
+                     None if self.options.keep_packets else KEEP_FRAME_RECORDS)
+        n.server_render_ms.add(header.render_ms)
+        n.server_encode_ms.add(header.encode_ms)
         # One-way delay up to a constant (the two clocks' offset): its excess over the least
         # seen is the queue the frame met (the link's and the sender's).
         delay = loop_now - header.sent
@@ -619,8 +638,8 @@ class LiveClient:
 
     def _made_usable(self, k: int, span: int, usable: float) -> None:
         assert self.welcome is not None and self._loop is not None
-        first = not self.usable_at
-        self.usable_at[k] = usable
+        first, self._any_usable = not self._any_usable, True
+        _put_bounded(self.usable_at, k, usable, KEEP_FRAME_RECORDS)
         if not first:
             # (The session's first frame is for the time it arrives: late by construction.)
             self._usable.append(usable - (k - span) / self.welcome.server_fps)
@@ -792,18 +811,15 @@ class LiveClient:
         w = self.welcome
         assert w is not None and self.realtime is not None, "connect() first"
         proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
-        self.poses: list[tuple[float, _F64]] = []
 
         def pose(t: float) -> Camera:
             m = motion(t)
-            self.poses.append((t, m))
             self.send_pose(t, m)
             return Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
 
         self._t0 = time.monotonic()
         rt = self.realtime.run(pose, seconds, on_frame=on_frame)
         self.summary = rt.summary()
-        self.display_frames = rt.frames
         self.close()
         return self.report(seconds)
 
@@ -851,12 +867,7 @@ class LiveClient:
         s = dict(self.summary)
         n = self.net
         fs = self.welcome.server_fps if self.welcome is not None else 1.0
-        arrivals = n.arrivals
-        gaps = np.diff([0.0, *arrivals, seconds]) if arrivals else np.array([seconds])
-
-        def med(v: list[float]) -> float | None:
-            return float(np.median(v)) if v else None
-
+        longest_gap = max(n.longest_gap, seconds - (n.last_arrival or 0.0))
         gpu = None if self.realtime is None else self.realtime.client.gpu
         s.update(
             backend=self.options.backend,
@@ -880,16 +891,16 @@ class LiveClient:
                 "streams_reset": n.streams_reset,
                 "pose_datagrams": n.pose_datagrams,
                 "rate_reports": n.reports,
-                "longest_gap_s": float(gaps.max()),
+                "longest_gap_s": float(longest_gap),
                 "connection_closed_at": n.closed_at,
                 # None only when closing the connection took longer than close() waits (the
                 # server unreachable through a collapsed link).
                 "connection_closed": n.closed_reason or "still closing at the end",
-                "server_render_ms_p50": med(n.server_render_ms),
-                "server_encode_ms_p50": med(n.server_encode_ms),
+                "server_render_ms_p50": n.server_render_ms.median(),
+                "server_encode_ms_p50": n.server_encode_ms.median(),
                 "server_fingerprint": self.server_fingerprint,
             },
-            # Per frame received: the encoder target, the arrival (display seconds) and how
+            # Per frame received (the newest KEEP_FRAME_RECORDS): the encoder target, the arrival (display seconds) and how
             # late it was against when the display first needed it, t_k - m/f_s (m: its
             # span; negative: early), the measure of whether frames arrive on time as the
             # target moves; and when it became usable (decoded and prepared; None: never)
@@ -906,7 +917,7 @@ class LiveClient:
             ],
         )
         if n.closed_at is not None and n.closed_at < seconds - 1.0:
-            s["outage"] = {"from": arrivals[-1] if arrivals else 0.0, "reason": n.closed_reason}
+            s["outage"] = {"from": n.last_arrival or 0.0, "reason": n.closed_reason}
         if math.isnan(s["mbps"]):
             s["mbps"] = 0.0
         return s

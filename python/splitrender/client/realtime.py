@@ -48,7 +48,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from concurrent.futures import wait as futures_wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -60,6 +60,7 @@ from splitrender.errors import InvalidInputError, StreamError
 from splitrender.gpu import BACKENDS, GpuPair
 from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
+from splitrender.tally import Tally
 from splitrender.types import Camera, ReprojectOptions, ServerFrame, interpolates
 from splitrender.types import (  # argument checks
     BOOL,
@@ -207,50 +208,113 @@ def _cpu_s(clocks: list[int] | None) -> float | None:
         return None
 
 
-def _percentile(values: list[float], q: float) -> float | None:
-    return float(np.percentile(values, q)) if values else None
+#: Display frames a :class:`RealtimeReport` keeps one by one by default (about 9 minutes at
+#: 120 Hz, some 20 MB): the newest; its summary covers every frame of the run
+#: (:class:`~splitrender.tally.Tally`). ``RealtimeClient(keep_frames=None)`` keeps them all.
+KEEP_FRAMES = 65536
+
+#: Refusal messages of undecodable packets a :class:`RealtimeReport` keeps (the first ones; it
+#: counts them all).
+KEEP_UNDECODABLE = 100
 
 
-def _median(values: list[float]) -> float | None:
-    return _percentile(values, 50.0)
-
-
-@dataclass
 class RealtimeReport:
-    """What :meth:`RealtimeClient.run` did: every display frame, the refreshes dropped after a
-    late frame and those repeated at a divided rate (:class:`RateGovernor`), the worker's
-    decode and preparation times (ms per server frame), and the wall and CPU seconds of the
-    run (CPU: the whole process, every thread)."""
+    """What :meth:`RealtimeClient.run` did: its display frames (:meth:`add`; the newest
+    ``keep_frames`` in :attr:`frames`, default :data:`KEEP_FRAMES`, ``None``: all), the
+    refreshes dropped after a late frame and those repeated at a divided rate
+    (:class:`RateGovernor`), the worker's decode and preparation times (ms per server frame),
+    and the wall and CPU seconds of the run (CPU: the whole process, every thread).
 
-    display_fps: float
-    frames: list[DisplayFrame] = field(default_factory=list)
-    dropped: int = 0
-    repeated: int = 0
-    decode_ms: list[float] = field(default_factory=list)
-    prepare_ms: list[float] = field(default_factory=list)
-    usable_ms: list[float] = field(default_factory=list)
-    server_frames_received: int = 0
-    server_frames_late: int = 0
-    #: Server frames whose interpolation pair was not prepared because it would have been ready
-    #: too late to be shown (:data:`MIN_PAIR_USE`); each became usable at its own time.
-    pairs_skipped: int = 0
-    #: Interpolation pairs estimated too late but prepared to measure them again
-    #: (:data:`PAIR_PROBE_AFTER`).
-    pairs_probed: int = 0
-    wall_s: float = 0.0
-    cpu_s: float = 0.0
-    cpus: int = 1
-    #: Why each packet that did not decode was refused (the StreamError's message), in order.
-    undecodable: list[str] = field(default_factory=list)
-    #: The warm-up before the clock started (``RealtimeClient.run(warm_up=True)``), ms.
-    warm_up_ms: float | None = None
-    #: How the display's threads were scheduled (:func:`_raise_display`): ``"realtime"``,
-    #: ``"normal"``, or ``"normal"`` with the reason real-time scheduling was refused.
-    display_scheduling: str = "normal"
+    A run of any length takes bounded memory: the counts, the time percentiles and
+    :meth:`miss_causes` cover every frame (:class:`~splitrender.tally.Tally`: exact up to
+    :data:`~splitrender.tally.EXACT` frames, then within
+    :data:`~splitrender.tally.RELATIVE_ERROR`)."""
+
+    def __init__(self, display_fps: float, keep_frames: int | None = KEEP_FRAMES) -> None:
+        self.display_fps = display_fps
+        #: The newest display frames (all of them with ``keep_frames=None``).
+        self.frames: deque[DisplayFrame] = deque(maxlen=keep_frames)
+        self.dropped = 0
+        self.repeated = 0
+        #: ms per server frame: its decode; its pairs' preparation; from the worker taking
+        #: the packet until the frame was usable.
+        self.decode_ms = Tally()
+        self.prepare_ms = Tally()
+        self.usable_ms = Tally()
+        self.server_frames_received = 0
+        self.server_frames_late = 0
+        #: Server frames whose interpolation pair was not prepared because it would have been
+        #: ready too late to be shown (:data:`MIN_PAIR_USE`); each became usable at its own time.
+        self.pairs_skipped = 0
+        #: Interpolation pairs estimated too late but prepared to measure them again
+        #: (:data:`PAIR_PROBE_AFTER`).
+        self.pairs_probed = 0
+        self.wall_s = 0.0
+        self.cpu_s = 0.0
+        self.cpus = 1
+        #: Why the first :data:`KEEP_UNDECODABLE` packets that did not decode were refused
+        #: (the StreamError's message), in order; :attr:`packets_undecodable` counts them all.
+        self.undecodable: list[str] = []
+        self.packets_undecodable = 0
+        #: The warm-up before the clock started (``RealtimeClient.run(warm_up=True)``), ms.
+        self.warm_up_ms: float | None = None
+        #: How the display's threads were scheduled (:func:`_raise_display`): ``"realtime"``,
+        #: ``"normal"``, or ``"normal"`` with the reason real-time scheduling was refused.
+        self.display_scheduling = "normal"
+        # Every frame's share of the summary (the frames themselves are kept only so far).
+        self._count = 0
+        self._misses = 0
+        self._prepared = 0
+        self._modes: dict[str, int] = dict.fromkeys(MODES, 0)
+        self._divisors: dict[int, int] = {}
+        self._render = Tally()
+        self._cpu = Tally()
+        self._ages = Tally()
+        self._cpu_by_mode: dict[str, Tally] = {}
+        # Missed frames by cause: started late; else, with a CPU time, by mode (compared with
+        # the mode's median at the end); else waited.
+        self._late_starts = 0
+        self._missed_cpu: dict[str, Tally] = {}
+        self._missed_waited = 0
+
+    def add(self, frame: DisplayFrame) -> None:
+        """Records a display frame."""
+        self.frames.append(frame)
+        self._count += 1
+        self._prepared += frame.prepared
+        self._modes[frame.mode] = self._modes.get(frame.mode, 0) + 1
+        self._divisors[frame.divisor] = self._divisors.get(frame.divisor, 0) + 1
+        self._render.add(frame.render_ms)
+        if frame.server_age_ms is not None:
+            self._ages.add(frame.server_age_ms)
+        if frame.cpu_ms is not None:
+            self._cpu.add(frame.cpu_ms)
+            self._cpu_by_mode.setdefault(frame.mode, Tally()).add(frame.cpu_ms)
+        if frame.met:
+            return
+        self._misses += 1
+        delay = frame.start_delay_ms
+        if delay is not None and delay > LATE_START_MS:
+            self._late_starts += 1
+        elif frame.cpu_ms is not None:
+            self._missed_cpu.setdefault(frame.mode, Tally()).add(frame.cpu_ms)
+        else:
+            self._missed_waited += 1
+
+    def add_undecodable(self, reason: str) -> None:
+        """Records a packet that did not decode, and why."""
+        self.packets_undecodable += 1
+        if len(self.undecodable) < KEEP_UNDECODABLE:
+            self.undecodable.append(reason)
+
+    @property
+    def frame_count(self) -> int:
+        """The display frames of the run (:attr:`frames` keeps the newest)."""
+        return self._count
 
     @property
     def deadline_misses(self) -> int:
-        return sum(not f.met for f in self.frames)
+        return self._misses
 
     def miss_causes(self) -> dict[str, int]:
         """The missed frames by what made them late (:data:`MISS_CAUSES`), each counted once,
@@ -266,23 +330,13 @@ class RealtimeReport:
           the GIL after the native call, say).
 
         Frames without a refresh or a CPU time skip the tests that need them."""
-        cpu: dict[str, list[float]] = {}
-        for f in self.frames:
-            if f.cpu_ms is not None:
-                cpu.setdefault(f.mode, []).append(f.cpu_ms)
-        median = {m: float(np.median(v)) for m, v in cpu.items()}
-        causes = dict.fromkeys(MISS_CAUSES, 0)
-        for f in self.frames:
-            if f.met:
-                continue
-            delay = f.start_delay_ms
-            if delay is not None and delay > LATE_START_MS:
-                causes["late_start"] += 1
-            elif f.cpu_ms is not None and f.cpu_ms > MORE_CPU * median[f.mode]:
-                causes["more_cpu"] += 1
-            else:
-                causes["waited"] += 1
-        return causes
+        more = 0
+        for mode, missed in self._missed_cpu.items():
+            median = self._cpu_by_mode[mode].median()
+            assert median is not None  # the missed frame's own CPU time is among them
+            more += missed.count_above(MORE_CPU * median)
+        waited = self._missed_waited + sum(len(t) for t in self._missed_cpu.values()) - more
+        return {"late_start": self._late_starts, "more_cpu": more, "waited": waited}
 
     def summary(self) -> dict[str, Any]:
         """One flat object: ``frames``, ``deadline_misses`` (count and ``_pct``), ``dropped``,
@@ -302,11 +356,8 @@ class RealtimeReport:
         second and core, 0–1), ``display_scheduling`` (how the display's threads were
         scheduled) and ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample
         are ``None``."""
-        render = [f.render_ms for f in self.frames]
-        cpu = [f.cpu_ms for f in self.frames if f.cpu_ms is not None]
-        ages = [f.server_age_ms for f in self.frames if f.server_age_ms is not None]
-        n = len(self.frames)
-        misses = self.deadline_misses
+        n = self._count
+        misses = self._misses
         return {
             "frames": n,
             "display_fps": self.display_fps,
@@ -315,29 +366,26 @@ class RealtimeReport:
             "deadline_misses_by_cause": self.miss_causes(),
             "dropped": self.dropped,
             "repeated": self.repeated,
-            "full_rate_pct": 100.0 * sum(f.divisor == 1 for f in self.frames) / n if n else 0.0,
-            "frames_by_divisor": {
-                str(d): sum(f.divisor == d for f in self.frames)
-                for d in sorted({f.divisor for f in self.frames})
-            },
-            "frame_ms_p50": _percentile(render, 50),
-            "frame_ms_p95": _percentile(render, 95),
-            "frame_ms_p99": _percentile(render, 99),
-            "frame_ms_max": max(render) if render else None,
-            "frame_cpu_ms_p50": _median(cpu),
-            "frame_cpu_ms_max": max(cpu) if cpu else None,
-            "modes": {m: sum(f.mode == m for f in self.frames) for m in MODES},
-            "prepared_pct": 100.0 * sum(f.prepared for f in self.frames) / n if n else 0.0,
-            "decode_ms_per_server_frame": _median(self.decode_ms),
-            "prepare_ms_per_server_frame": _median(self.prepare_ms),
-            "usable_ms_per_server_frame": _median(self.usable_ms),
+            "full_rate_pct": 100.0 * self._divisors.get(1, 0) / n if n else 0.0,
+            "frames_by_divisor": {str(d): self._divisors[d] for d in sorted(self._divisors)},
+            "frame_ms_p50": self._render.percentile(50),
+            "frame_ms_p95": self._render.percentile(95),
+            "frame_ms_p99": self._render.percentile(99),
+            "frame_ms_max": self._render.max,
+            "frame_cpu_ms_p50": self._cpu.median(),
+            "frame_cpu_ms_max": self._cpu.max,
+            "modes": {m: self._modes.get(m, 0) for m in MODES},
+            "prepared_pct": 100.0 * self._prepared / n if n else 0.0,
+            "decode_ms_per_server_frame": self.decode_ms.median(),
+            "prepare_ms_per_server_frame": self.prepare_ms.median(),
+            "usable_ms_per_server_frame": self.usable_ms.median(),
             "server_frames_received": self.server_frames_received,
             "server_frames_late": self.server_frames_late,
             "pairs_skipped": self.pairs_skipped,
             "pairs_probed": self.pairs_probed,
-            "packets_undecodable": len(self.undecodable),
-            "server_age_ms_p50": _median(ages),
-            "server_age_ms_max": max(ages) if ages else None,
+            "packets_undecodable": self.packets_undecodable,
+            "server_age_ms_p50": self._ages.median(),
+            "server_age_ms_max": self._ages.max,
             "achieved_fps": (n - misses) / self.wall_s if self.wall_s > 0 else 0.0,
             "wall_s": self.wall_s,
             "cpu_utilisation": self.cpu_s / (self.wall_s * self.cpus) if self.wall_s > 0 else 0.0,
@@ -620,7 +668,9 @@ class RealtimeClient:
     (:func:`_raise_display`; restored when it returns; the report's ``display_scheduling`` says
     what it got). ``max_divisor`` is the most :meth:`run` may divide the display rate by when
     its frames do not fit the refresh (:class:`RateGovernor`; default 2, half rate; 1 keeps
-    ``f_c`` whatever the frames cost).
+    ``f_c`` whatever the frames cost). ``keep_frames`` is how many display frames the report
+    keeps one by one (:attr:`RealtimeReport.frames`: the newest; default :data:`KEEP_FRAMES`,
+    ``None``: all, memory growing with the run); its summary covers every frame either way.
     ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
     their priority). Use as a context manager, or call :meth:`close`.
 
@@ -636,7 +686,7 @@ class RealtimeClient:
         prepare_threads=optional(ints(1, MAX_PREPARE_THREADS)), decoder=optional(_decoder),
         executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
         display_priority=strs(*DISPLAY_PRIORITIES), backend=strs(*BACKENDS),
-        max_divisor=ints(1, 16),
+        max_divisor=ints(1, 16), keep_frames=optional(ints(0, 1 << 40)),
     )
     def __init__(
         self,
@@ -654,6 +704,7 @@ class RealtimeClient:
         display_priority: str = "realtime",
         backend: str = "cpu",
         max_divisor: int = MAX_DIVISOR,
+        keep_frames: int | None = KEEP_FRAMES,
     ) -> None:
         if (
             isinstance(display_fps, bool)
@@ -675,6 +726,7 @@ class RealtimeClient:
         self.worker_priority = worker_priority
         self.display_priority = display_priority
         self.max_divisor = max_divisor
+        self.keep_frames = keep_frames
         self._decoder = decoder
         self._lock = threading.Lock()
         # One worker: packets are decoded in order (each depends on the previous one's
@@ -708,7 +760,7 @@ class RealtimeClient:
         # prepare the next to measure it again (PAIR_PROBE_AFTER).
         self._skipped_in_a_row = 0
         self._probe_after = PAIR_PROBE_AFTER
-        self._report = RealtimeReport(self.display_fps)
+        self._report = RealtimeReport(self.display_fps, self.keep_frames)
         self._interpolates = interpolates(self.method, self.client.options.splat_bidirectional)
 
     @property
@@ -799,7 +851,7 @@ class RealtimeClient:
         except StreamError as e:
             # The display goes on without it (the future holds the error); the report says so.
             with self._lock:
-                self._report.undecodable.append(str(e))
+                self._report.add_undecodable(str(e))
             raise
         t1, c1 = time.perf_counter(), self.clock.now()
         # On the run's clock, which is what the estimate of a pair's preparation is held to.
@@ -840,7 +892,7 @@ class RealtimeClient:
             if pairs and pairs[0] is not None:
                 self._pair_cost = (self.clock.now() - c1, decode_s)
             if decode_s is not None:
-                self._report.decode_ms.append((t1 - t0) * 1e3)
+                self._report.decode_ms.add((t1 - t0) * 1e3)
             # Without its interpolation pair the frame is used from its own time on, to
             # extrapolate from: handed over earlier, the display would interpolate towards it
             # and do the pair's work itself.
@@ -864,7 +916,7 @@ class RealtimeClient:
                 for older_index, state in later:
                     self._adopt(older_index, frame.index, state)
             if first or later:
-                self._report.prepare_ms.append((t2 - t1 + t3 - t2) * 1e3)
+                self._report.prepare_ms.add((t2 - t1 + t3 - t2) * 1e3)
         return frame.index
 
     def _held_or_received(self, index: int) -> ServerFrame | None:
@@ -937,7 +989,7 @@ class RealtimeClient:
             for older_index, state in entry.states:
                 self._adopt(older_index, frame.index, state)
             self._report.server_frames_received += 1
-            self._report.usable_ms.append(entry.usable_ms)
+            self._report.usable_ms.add(entry.usable_ms)
             period = frame.span / self.client.server_fps
             if self._origin is not None and self._late(frame.time, period):
                 self._report.server_frames_late += 1
@@ -1111,7 +1163,7 @@ class RealtimeClient:
         report.cpu_s = time.process_time() - cpu0
         report.cpus = os.cpu_count() or 1
         with self._lock:
-            self._report = RealtimeReport(self.display_fps)
+            self._report = RealtimeReport(self.display_fps, self.keep_frames)
         return report
 
     def _warm_up(
@@ -1196,7 +1248,7 @@ class RealtimeClient:
                 refresh=tick,
                 cpu_ms=None if used is None or after is None else (after - used) * 1e3,
             )
-            report.frames.append(record)
+            report.add(record)
             late_in_a_row = 0 if record.met else late_in_a_row + 1
             if raised and late_in_a_row >= _OVERRUN_FRAMES:
                 _restore(raised)

@@ -283,6 +283,7 @@ def run_realtime_bench(
         display_priority=display_priority,
         max_divisor=max_divisor,
         prepare_threads=prepare_threads,
+        keep_frames=None,  # the plots show every frame of the run (its length is the user's)
     ) as client:
         # Warmed up: the first packets are received and one frame rendered before the clock
         # starts, so that the run measures the steady state (the summary's warm_up_ms).
@@ -294,7 +295,7 @@ def run_realtime_bench(
         # A live display goes on extrapolating past such a packet; a benchmark of a stream
         # that does not decode measures nothing of it (it showed 60 held frames and rc 0).
         raise StreamError(
-            f"{source}: {len(report.undecodable)} packets did not decode; the first: "
+            f"{source}: {report.packets_undecodable} packets did not decode; the first: "
             f"{report.undecodable[0]}"
         )
     return RealtimeBench(

@@ -87,6 +87,7 @@ from splitrender.net.protocol import (
 )
 from splitrender.net.quic import ReceiveWindows
 from splitrender.scene.builtin import Scene
+from splitrender.tally import Tally
 from splitrender.types import MAX_SPAN, ServerFrame
 
 __all__ = [
@@ -266,15 +267,17 @@ class SessionStats:
     poses: int = 0
     reports: int = 0
     bytes_sent: int = 0
-    render_ms: list[float] = field(default_factory=list)
-    encode_ms: list[float] = field(default_factory=list)
-    target_mbps: list[float] = field(default_factory=list)
-    paced_ms: list[float] = field(default_factory=list)  # frames held for the link (LinkPacer)
+    # Per frame, in memory bounded whatever the session's length (Tally).
+    render_ms: Tally = field(default_factory=Tally)
+    encode_ms: Tally = field(default_factory=Tally)
+    target_mbps: Tally = field(default_factory=Tally)
+    paced_ms: Tally = field(default_factory=Tally)  # frames held for the link (LinkPacer)
     ended: str = ""
 
     def line(self) -> str:
-        def med(v: list[float]) -> str:
-            return f"{float(np.median(v)):.0f}" if v else "n/a"
+        def med(v: Tally) -> str:
+            m = v.median()
+            return "n/a" if m is None else f"{m:.0f}"
 
         return (
             f"{self.frames_sent} frames sent ({self.key_frames} key, {self.frames_skipped} "
@@ -704,7 +707,7 @@ class _Session(QuicConnectionProtocol):
                 now = loop.time()
                 hold = self._pacer.free_at(now, self._abr.link_bps) - now
                 if hold > 0:
-                    self.stats.paced_ms.append(hold * 1e3)
+                    self.stats.paced_ms.add(hold * 1e3)
                     await asyncio.sleep(hold)
                 self._pacer.sent(loop.time(), len(packet) + FrameHeader.SIZE, self._abr.link_bps)
                 # (The link's rate the frame was encoded for: its encoder target over its span.)
@@ -776,9 +779,9 @@ class _Session(QuicConnectionProtocol):
         s.frames_sent += 1
         s.key_frames += key
         s.bytes_sent += len(packet) + FrameHeader.SIZE
-        s.render_ms.append(render_ms)
-        s.encode_ms.append(encode_ms)
-        s.target_mbps.append(target / 1e6)
+        s.render_ms.add(render_ms)
+        s.encode_ms.add(encode_ms)
+        s.target_mbps.add(target / 1e6)
 
 
 class LiveServer:
