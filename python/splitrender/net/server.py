@@ -813,8 +813,8 @@ class LiveServer:
         # Connections waiting for their hello, oldest first (at most MAX_PENDING).
         self.waiting: dict[_Session, None] = {}
         self.refused = 0
-        # The last KEPT_SESSIONS (each holds per-frame lists: all of them, a server left to
-        # run with sessions=0 grew with every session), and how many ended in all.
+        # The last KEPT_SESSIONS (all of them, a server left to run with sessions=0 grew with
+        # every session; each holds four Tallies, at most 2 MB), and how many ended in all.
         self.sessions: deque[SessionStats] = deque(maxlen=KEPT_SESSIONS)
         self.sessions_ended = 0
         self.port = 0
