@@ -879,3 +879,95 @@ def test_a_server_keeps_the_statistics_of_its_last_sessions_only(tmp_path: Path)
         srv.session_ended(Ended(n))  # type: ignore[arg-type]
     assert srv.sessions_ended == KEPT_SESSIONS + 5
     assert [s.frames_sent for s in srv.sessions] == list(range(5, KEPT_SESSIONS + 5))
+
+
+def test_serve_sends_the_certificates_intermediates(tmp_path: Path) -> None:
+    # Only the leaf of a --cert chain was sent: a client that verifies against the root CA
+    # (not pinning the leaf, as ours does) could not build the path and failed the handshake.
+    import datetime
+    import io
+
+    from aioquic.asyncio.client import connect
+    from aioquic.quic.configuration import QuicConfiguration
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    from splitrender.errors import InvalidInputError
+    from splitrender.net.server import LiveServer, ServerOptions, load_certificate_chain
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+
+    def issue(cn: str, ca: bool, issuer: tuple[Any, Any] | None) -> tuple[Any, Any]:
+        key = ec.generate_private_key(ec.SECP256R1())
+        name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
+        by_name, by_key = (name, key) if issuer is None else (issuer[0].subject, issuer[1])
+        b = (
+            x509.CertificateBuilder()
+            .subject_name(name)
+            .issuer_name(by_name)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5))
+            .not_valid_after(now + datetime.timedelta(days=1))
+            .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True)
+        )
+        if not ca:
+            b = b.add_extension(x509.SubjectAlternativeName([x509.DNSName(cn)]), critical=False)
+        return b.sign(by_key, hashes.SHA256()), key
+
+    def pem(cert: Any) -> bytes:
+        return bytes(cert.public_bytes(serialization.Encoding.PEM))
+
+    root = issue("splitrender test root CA", True, None)
+    inter = issue("splitrender test intermediate CA", True, root)
+    leaf = issue("localhost", False, inter)
+    full, only_leaf, wrong = (tmp_path / f"{n}.pem" for n in ("full", "leaf", "wrong"))
+    full.write_bytes(pem(leaf[0]) + pem(inter[0]))
+    only_leaf.write_bytes(pem(leaf[0]))
+    wrong.write_bytes(pem(inter[0]) + pem(leaf[0]))  # the intermediate first
+    key = tmp_path / "leaf.key"
+    key.write_bytes(leaf[1].private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption()))
+
+    with pytest.raises(InvalidInputError) as e:
+        load_certificate_chain(wrong, key)
+    assert str(e.value).startswith(f"{wrong}: certificate 2 of 2 does not issue certificate 1")
+
+    async def handshake(cert_file: Path) -> str:
+        """Why a client that trusts the root only fails the handshake ("": it completes)."""
+        cert, private, chain = load_certificate_chain(cert_file, key)
+        srv = LiveServer(ServerOptions("courtyard", scale=0.03125, token=TOKEN),
+                         certificate=cert, private_key=private, certificate_chain=chain,
+                         log=io.StringIO())
+        leaf_sha = cert.fingerprint(hashes.SHA256()).hex()
+        assert srv.fingerprint.replace(":", "").lower() == leaf_sha  # the leaf's
+        bound = asyncio.Event()
+        task = asyncio.ensure_future(srv.run("127.0.0.1", 0, lambda s: bound.set()))
+        try:
+            await asyncio.wait_for(bound.wait(), 10)
+            cfg = QuicConfiguration(is_client=True, alpn_protocols=[proto.ALPN],
+                                    server_name="localhost", verify_mode=ssl.CERT_REQUIRED,
+                                    idle_timeout=5.0)
+            cfg.load_verify_locations(cadata=pem(root[0]))
+            async with connect("127.0.0.1", srv.port, configuration=cfg,
+                               wait_connected=False) as client:
+                client.transmit()  # the first flight (connect sends it only when it waits)
+                try:
+                    await asyncio.wait_for(client.wait_connected(), 5)
+                except ConnectionError:
+                    closed = client._quic._close_event
+                    return closed.reason_phrase if closed is not None else "closed"
+                return ""
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await asyncio.wait_for(task, 10)
+
+    assert load_certificate_chain(full, key)[2] == [inter[0]]
+    assert asyncio.run(asyncio.wait_for(handshake(full), 30)) == ""
+    # The leaf alone: the client cannot build the path to the root (the old server's case).
+    reason = asyncio.run(asyncio.wait_for(handshake(only_leaf), 30))
+    assert reason == "unable to get local issuer certificate"

@@ -131,7 +131,7 @@ def _quiet_quic() -> None:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    from splitrender.net.server import LiveServer, ServerOptions, load_certificate
+    from splitrender.net.server import LiveServer, ServerOptions, load_certificate_chain
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
     _quiet_quic()
@@ -161,14 +161,16 @@ def run_serve(args: argparse.Namespace) -> int:
             return fail(f"--scene: {args.scene!r} is neither a built-in scene "
                         f"({', '.join(SCENE_NAMES)}) nor a scene description file")
         cert = key = None
+        chain: list[Any] = []
         if args.cert is not None:
-            cert, key = load_certificate(args.cert, args.key)
+            # The intermediates too: a client that verifies against the root CA needs them.
+            cert, key, chain = load_certificate_chain(args.cert, args.key)
         gop = args.gop if args.gop is not None else max(1, round(10 * args.fps))
         server = LiveServer(
             ServerOptions(name, args.scale, args.fps, args.bitrate, args.min_bitrate, gop,
                           token, args.predictor, args.sessions,
                           drop_every=args.drop_every, max_span=args.max_span),
-            scene=scene, certificate=cert, private_key=key,
+            scene=scene, certificate=cert, private_key=key, certificate_chain=chain,
         )
     except (SplitRenderError, ValueError, OSError) as e:
         return fail(str(e))

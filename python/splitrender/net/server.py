@@ -37,7 +37,7 @@ import math
 import sys
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -787,9 +787,12 @@ class _Session(QuicConnectionProtocol):
 class LiveServer:
     """``splitrender serve``: :meth:`run` serves sessions on ``host:port`` until
     ``options.sessions`` have ended (0: until cancelled). ``certificate``/``private_key``
-    (``cryptography`` objects) default to a new self-signed pair; :attr:`fingerprint` is the
-    SHA-256 of the certificate (what a client pins). ``scene`` overrides the built-in scene of
-    ``options.scene_name`` (e.g. one loaded from a JSON description)."""
+    (``cryptography`` objects) default to a new self-signed pair; ``certificate_chain`` holds
+    the intermediate certificates sent after it in the handshake, the leaf's issuer first (as
+    :func:`load_certificate_chain` returns them; none for a self-signed one), which a client
+    that verifies against the root CA rather than pinning needs. :attr:`fingerprint` is the
+    SHA-256 of the (leaf) certificate (what a client pins). ``scene`` overrides the built-in
+    scene of ``options.scene_name`` (e.g. one loaded from a JSON description)."""
 
     def __init__(
         self,
@@ -798,6 +801,7 @@ class LiveServer:
         scene: Scene | None = None,
         certificate: Any = None,
         private_key: Any = None,
+        certificate_chain: Sequence[Any] = (),
         log: TextIO | None = None,
     ) -> None:
         self.options = options
@@ -807,6 +811,7 @@ class LiveServer:
         from cryptography.hazmat.primitives.serialization import Encoding
 
         self.certificate, self.private_key = certificate, private_key
+        self.certificate_chain = list(certificate_chain)
         self.fingerprint = fingerprint_hex(certificate.public_bytes(Encoding.DER))
         self._log = log if log is not None else sys.stderr
         self.active: _Session | None = None
@@ -902,6 +907,7 @@ class LiveServer:
         )
         cfg.certificate = self.certificate
         cfg.private_key = self.private_key
+        cfg.certificate_chain = list(self.certificate_chain)
         return cfg
 
     async def run(
@@ -936,12 +942,28 @@ MAX_PEM_BYTES = 1 << 20
 
 def load_certificate(cert: Path, key: Path | None = None) -> tuple[Any, Any]:
     """A PEM certificate and its private key from files (``--cert``/``--key``; without ``key``,
-    from ``cert`` as well), as :class:`QuicConfiguration` takes them.
+    from ``cert`` as well), as :class:`QuicConfiguration` takes them: the first two of
+    :func:`load_certificate_chain` (which see for the errors), without the intermediates."""
+    leaf, private, _ = load_certificate_chain(cert, key)
+    return leaf, private
+
+
+def load_certificate_chain(
+    cert: Path, key: Path | None = None
+) -> tuple[Any, Any, list[Any]]:
+    """The leaf certificate, its private key and the intermediate certificates that follow
+    the leaf in ``cert`` (a PEM chain, e.g. a ``fullchain.pem``: leaf first, then each
+    certificate's issuer) from files (``--cert``/``--key``; without ``key``, from ``cert`` as
+    well), as :class:`QuicConfiguration` takes them (``certificate``, ``private_key``,
+    ``certificate_chain``: the server sends the intermediates in its handshake, which a client
+    that verifies against the root CA needs).
 
     # Errors
     :class:`InvalidInputError` naming the file that cannot be read or holds no certificate or
-    key (cryptography's own message named neither), and a key that is not the certificate's
-    (a client would fail the handshake with no word why)."""
+    key (cryptography's own message named neither), a chain in which a certificate is not
+    issued by the next one (out of order, or an unrelated certificate: a client would fail the
+    handshake), and a key that is not the certificate's (a client would fail the handshake
+    with no word why)."""
     from cryptography import x509
     from cryptography.exceptions import UnsupportedAlgorithm
     from cryptography.hazmat.primitives import serialization
@@ -958,6 +980,13 @@ def load_certificate(cert: Path, key: Path | None = None) -> tuple[Any, Any]:
     except ValueError:
         raise InvalidInputError(f"{cert}: expected a PEM certificate (-----BEGIN CERTIFICATE-----)"
                                 ", found none that parses") from None
+    n = len(chain)
+    for i in range(n - 1):
+        # By name, as a verifier builds the path (the signatures are the client's to check).
+        if chain[i].issuer != chain[i + 1].subject:
+            raise InvalidInputError(f"{cert}: certificate {i + 2} of {n} does not issue "
+                                    f"certificate {i + 1} (expected the leaf first, then "
+                                    "each certificate's issuer)")
     key_path = cert if key is None else key
     key_pem = cert_pem if key is None else read(key, "private key (PEM)")
     try:
@@ -975,4 +1004,4 @@ def load_certificate(cert: Path, key: Path | None = None) -> tuple[Any, Any]:
     if spki(private.public_key()) != spki(chain[0].public_key()):
         raise InvalidInputError(f"{key_path}: the private key is not the key of the "
                                 f"certificate in {cert}")
-    return chain[0], private
+    return chain[0], private, list(chain[1:])
