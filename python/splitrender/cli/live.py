@@ -113,6 +113,9 @@ def add_serve(sub: Any) -> None:
                    help="head-pose predictor (default: %(default)s)")
     p.add_argument("--sessions", type=lambda t: integer(t, 0, 1000000), default=0, metavar="N",
                    help="exit after N sessions (default: 0, serve until interrupted)")
+    p.add_argument("--retry", action="store_true",
+                   help="validate each client's address with a QUIC Retry before keeping any "
+                   "state for it (a round trip more to connect; for a server others can reach)")
     p.add_argument("--drop-every", type=lambda t: integer(t, 0, 1000000), default=0,
                    metavar="N", help="fault injection: do not send every N-th frame that is "
                    "not a key frame, as if lost (the client asks for a key frame) (default: 0)")
@@ -169,7 +172,8 @@ def run_serve(args: argparse.Namespace) -> int:
         server = LiveServer(
             ServerOptions(name, args.scale, args.fps, args.bitrate, args.min_bitrate, gop,
                           token, args.predictor, args.sessions,
-                          drop_every=args.drop_every, max_span=args.max_span),
+                          drop_every=args.drop_every, max_span=args.max_span,
+                          retry=args.retry),
             scene=scene, certificate=cert, private_key=key, certificate_chain=chain,
         )
     except (SplitRenderError, ValueError, OSError) as e:

@@ -249,6 +249,12 @@ class ServerOptions:
     drop_every: int = 0
     #: Longest span :func:`choose_span` may pick (1: never lower the rate; skip frames instead).
     max_span: int = MAX_SPAN
+    #: QUIC address validation (RFC 9000 §8.1.2): a client's first packet is answered with a
+    #: Retry carrying a token, and no connection state is made until the client returns it, so
+    #: that packets from spoofed addresses, or a flood of handshakes never completed, cost the
+    #: server a packet each instead of a connection's state and crypto. Costs every client a
+    #: round trip more to connect (not per frame).
+    retry: bool = False
 
 
 @dataclass
@@ -923,7 +929,7 @@ class LiveServer:
 
         Session.server = server
         quic = await serve(host, port, configuration=self.configuration(),
-                           create_protocol=Session)
+                           create_protocol=Session, retry=self.options.retry)
         assert quic._transport is not None
         self.port = int(quic._transport.get_extra_info("sockname")[1])
         if ready is not None:
