@@ -161,21 +161,29 @@ def test_a_long_session_keeps_the_newest_frame_records_only(
     server: _Server, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # The client kept a record of every server frame (report.json's target_mbps, its span, when
-    # it became usable) and every display frame and pose of the session: memory that grew with
-    # the session's length (gigabytes a day at 120 Hz). Here 4 records are kept.
+    # it became usable), every display frame and pose, and the id of every frame stream of
+    # the session: memory that grew with the session's length (gigabytes a day at 120 Hz).
+    # Here 4 records and 4 stream ids are kept.
     import splitrender.client.live as live
     from splitrender.scene import Scene
 
     monkeypatch.setattr(live, "KEEP_FRAME_RECORDS", 4)
+    monkeypatch.setattr(live, "KEEP_DEAD_STREAMS", 4)
     client = live.LiveClient(
         live.ConnectOptions("127.0.0.1", server.port, TOKEN, server.fingerprint))
     welcome = client.connect()
-    r = client.run(Scene(welcome.scene).client_pose, 2.0)
+    conns = set()  # the connection while the display runs (let go of at the close)
+    r = client.run(Scene(welcome.scene).client_pose, 2.0,
+                   on_frame=lambda image, frame: conns.add(client._conn))
+    (conn,) = conns
     completed = r["network"]["frames_completed"]
     assert completed > 8
     listed = [f["index"] for f in r["target_mbps"]]
     assert len(listed) == 4 and listed == sorted(listed)
     assert len(client.spans) <= 4 and len(client.usable_at) <= 4
+    assert conn is not None and len(conn._dead) <= 4 and conn._dead_below > 0
+    # The streams forgotten are known as ended by their ids: none was taken for a new one.
+    assert r["network"]["malformed_streams"] == 0
     # What sums up the whole session still does: every display refresh, the frames' gaps.
     _all_refreshes(r, 2.0)
     assert 0 < r["network"]["longest_gap_s"] < 2.0

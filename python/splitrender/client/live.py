@@ -109,6 +109,10 @@ TICK_S = 0.05
 #: ``target_mbps``) and span the client keeps: the newest, an hour at 10 FPS (some 20 MB); a
 #: session of any length takes bounded memory (``ConnectOptions(keep_packets=True)`` aside).
 KEEP_FRAME_RECORDS = 36000
+#: Streams ended or given up that the client remembers by id, to ignore what still comes on
+#: them (the newest; an older one is known by being below the newest forgotten, which for a
+#: frame is minutes late at this count).
+KEEP_DEAD_STREAMS = 4096
 #: Seconds without any packet from the server after which the connection counts as lost.
 IDLE_TIMEOUT_S = 3.0
 #: How long the client waits for the server's welcome after its hello (the server answers at
@@ -340,7 +344,10 @@ class _Connection(QuicConnectionProtocol):
         self._control = ControlReader()
         self._bufs: dict[int, bytearray] = {}
         self._headers: dict[int, FrameHeader] = {}
-        self._dead: set[int] = set()
+        # Streams ended or given up (ids, newest last) and the highest id forgotten of them: a
+        # set of every one grew by a frame stream per server frame for the session's length.
+        self._dead: dict[int, None] = {}
+        self._dead_below = -1
         self._declared = 0  # bytes the headers of the frames still arriving announce
 
     def quic_event_received(self, event: QuicEvent) -> None:
@@ -363,8 +370,8 @@ class _Connection(QuicConnectionProtocol):
                 self._control_data(event.data)
             elif event.stream_id % 4 == 3:  # server-initiated unidirectional: a frame
                 self._frame_data(event.stream_id, event.data, event.end_stream)
-            elif event.stream_id not in self._dead:
-                self._dead.add(event.stream_id)
+            elif not self._is_dead(event.stream_id):
+                self._kill(event.stream_id)
                 o.net.malformed_streams += 1
         elif isinstance(event, StreamReset):
             if event.stream_id in self._bufs or event.stream_id in self._headers:
@@ -423,6 +430,17 @@ class _Connection(QuicConnectionProtocol):
                 self._quic.close(error_code=CLOSE_BYE, reason_phrase="bad welcome")
                 self.transmit()
 
+    def _is_dead(self, sid: int) -> bool:
+        return sid in self._dead or (sid <= self._dead_below and sid not in self._bufs)
+
+    def _kill(self, sid: int) -> None:
+        """What comes on stream ``sid`` from now on is ignored."""
+        self._dead[sid] = None
+        if len(self._dead) > KEEP_DEAD_STREAMS:
+            oldest = next(iter(self._dead))
+            del self._dead[oldest]
+            self._dead_below = max(self._dead_below, oldest)
+
     def _forget(self, sid: int) -> None:
         self._bufs.pop(sid, None)
         header = self._headers.pop(sid, None)
@@ -434,12 +452,12 @@ class _Connection(QuicConnectionProtocol):
         """A malformed frame stream: counted, forgotten, and the server told to stop it."""
         self.owner.net.malformed_streams += 1
         self._forget(sid)
-        self._dead.add(sid)
+        self._kill(sid)
         self._quic.stop_stream(sid, STOP_STALE)
         self.transmit()
 
     def _frame_data(self, sid: int, data: bytes, end: bool) -> None:
-        if sid in self._dead:
+        if self._is_dead(sid):
             return
         buf = self._bufs.setdefault(sid, bytearray())
         buf += data
@@ -469,13 +487,13 @@ class _Connection(QuicConnectionProtocol):
             payload = bytes(buf[FrameHeader.SIZE :])
             first = self.owner.in_progress.get(sid, [math.nan])[0]
             self._forget(sid)
-            self._dead.add(sid)
+            self._kill(sid)
             self.owner.frame_complete(header, payload, first)
 
     def stop(self, sid: int) -> None:
-        if sid not in self._dead:
+        if not self._is_dead(sid):
             self._forget(sid)
-            self._dead.add(sid)
+            self._kill(sid)
             try:
                 self._quic.stop_stream(sid, STOP_STALE)
             except ValueError:

@@ -208,10 +208,10 @@ def _cpu_s(clocks: list[int] | None) -> float | None:
         return None
 
 
-#: Display frames a :class:`RealtimeReport` keeps one by one by default (about 9 minutes at
-#: 120 Hz, some 20 MB): the newest; its summary covers every frame of the run
+#: Display frames a :class:`RealtimeReport` keeps one by one by default (over 2 minutes at
+#: 120 Hz; about 400 bytes each, 7 MB): the newest; its summary covers every frame of the run
 #: (:class:`~splitrender.tally.Tally`). ``RealtimeClient(keep_frames=None)`` keeps them all.
-KEEP_FRAMES = 65536
+KEEP_FRAMES = 16384
 
 #: Refusal messages of undecodable packets a :class:`RealtimeReport` keeps (the first ones; it
 #: counts them all).
