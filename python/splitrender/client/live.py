@@ -918,11 +918,12 @@ class LiveClient:
                 "server_encode_ms_p50": n.server_encode_ms.median(),
                 "server_fingerprint": self.server_fingerprint,
             },
-            # Per frame received (the newest KEEP_FRAME_RECORDS): the encoder target, the arrival (display seconds) and how
-            # late it was against when the display first needed it, t_k - m/f_s (m: its
-            # span; negative: early), the measure of whether frames arrive on time as the
-            # target moves; and when it became usable (decoded and prepared; None: never)
-            # and whether that was late (what server_frames_late counts, frame by frame).
+            # Per frame received (the newest KEEP_FRAME_RECORDS): the encoder target, the
+            # arrival (display seconds) and how late it was against when the display first
+            # needed it, t_k - m/f_s (m: its span; negative: early), the measure of whether
+            # frames arrive on time as the target moves; and when it became usable (decoded
+            # and prepared; None: never) and whether that was late (what server_frames_late
+            # counts, frame by frame).
             target_mbps=[
                 {"index": i, "mbps": round(m, 6), "sent": round(sent, 4),
                  "server_ms": round(ms, 1), "bytes": size,
