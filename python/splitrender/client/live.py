@@ -435,11 +435,9 @@ class _Connection(QuicConnectionProtocol):
 
     def _kill(self, sid: int) -> None:
         """What comes on stream ``sid`` from now on is ignored."""
-        self._dead[sid] = None
-        if len(self._dead) > KEEP_DEAD_STREAMS:
-            oldest = next(iter(self._dead))
-            del self._dead[oldest]
-            self._dead_below = max(self._dead_below, oldest)
+        gone = _put_bounded(self._dead, sid, None, KEEP_DEAD_STREAMS)
+        if gone is not None:
+            self._dead_below = max(self._dead_below, gone)
 
     def _forget(self, sid: int) -> None:
         self._bufs.pop(sid, None)
@@ -510,11 +508,15 @@ class _Connection(QuicConnectionProtocol):
         self.transmit()
 
 
-def _put_bounded(d: dict[int, Any], key: int, value: Any, keep: int | None) -> None:
-    """``d[key] = value``, then the oldest entries dropped beyond ``keep`` (``None``: none)."""
+def _put_bounded(d: dict[int, Any], key: int, value: Any, keep: int | None) -> int | None:
+    """``d[key] = value``, then the oldest entry dropped beyond ``keep`` (``None``: none);
+    returns the key dropped."""
     d[key] = value
-    if keep is not None and len(d) > keep:
-        del d[next(iter(d))]
+    if keep is None or len(d) <= keep:
+        return None
+    oldest: int = next(iter(d))
+    del d[oldest]
+    return oldest
 
 
 class LiveClient:
