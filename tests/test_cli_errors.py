@@ -322,6 +322,8 @@ def test_every_error_class_is_the_callers_but_the_base() -> None:
 
     assert subclasses(SplitRenderError) == {
         "InvalidInputError", "StreamError", "GpuUnavailableError", "ProtocolError",
+        # legal sizes whose memory the machine could not reserve (before anything is allocated).
+        "OutOfMemoryError",
         "RecordingError", "DatasetError", "TraceError", "DemoArgumentError",
         "EvalArgumentError", "BenchArgumentError",
         # eval's sweep (issue 16): Ray missing, --address unreachable, a task that raised (its

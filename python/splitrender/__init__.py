@@ -26,7 +26,12 @@ from splitrender.codec import (
     stream_stats,
     write_stream,
 )
-from splitrender.errors import InvalidInputError, SplitRenderError, StreamError
+from splitrender.errors import (
+    InvalidInputError,
+    OutOfMemoryError,
+    SplitRenderError,
+    StreamError,
+)
 from splitrender.evaluation import metrics
 from splitrender.net import NetworkModel, Schedule
 from splitrender.reproject import (
@@ -79,6 +84,7 @@ __all__ = [
     "DatasetError",
     "DecodedStream",
     "InvalidInputError",
+    "OutOfMemoryError",
     "ModelPlacement",
     "NetworkModel",
     "PlaybackResult",

@@ -5,6 +5,7 @@
     Exception
     └── SplitRenderError
         ├── InvalidInputError   (also a ValueError)
+        ├── OutOfMemoryError    (also a MemoryError: legal sizes this machine cannot hold)
         ├── StreamError
         ├── GpuUnavailableError (backend="wgpu" without a GPU adapter)
         └── ProtocolError       (a malformed or refused message of the live protocol)
@@ -16,9 +17,9 @@ Python as such: it is raised as ``SplitRenderError("internal error in ... (pleas
 
 Whose fault an error is follows from its class (:func:`is_user_error`): every *subclass* of
 :class:`SplitRenderError` names something the caller gave (an argument, a file, a destination, a
-backend, a peer's message), including those defined beside their readers
-(``splitrender.scene``'s ``RecordingError``, ``DatasetError``, ``TraceError``) and the argument
-errors of the evaluation commands. :class:`SplitRenderError` itself is raised only for failures
+backend, a peer's message, sizes too large for this machine), including those defined beside
+their readers (``splitrender.scene``'s ``RecordingError``, ``DatasetError``, ``TraceError``) and
+the argument errors of the evaluation commands. :class:`SplitRenderError` itself is raised only for failures
 that are not the caller's: an internal error (a Rust panic), an external tool (ffmpeg) or the GPU
 device failing. The command line exits with status 2 for the first kind and 1 for the second.
 """
@@ -29,6 +30,7 @@ import socket
 from splitrender._native import (
     GpuUnavailableError,
     InvalidInputError,
+    OutOfMemoryError,
     SplitRenderError,
     StreamError,
 )
@@ -36,6 +38,7 @@ from splitrender._native import (
 __all__ = [
     "GpuUnavailableError",
     "InvalidInputError",
+    "OutOfMemoryError",
     "ProtocolError",
     "SplitRenderError",
     "StreamError",

@@ -18,6 +18,7 @@ pub mod camera;
 pub mod dequant;
 pub mod error;
 pub mod frame;
+pub mod memory;
 pub mod method;
 pub mod ours;
 pub mod params;

@@ -4,6 +4,7 @@ use numpy::ndarray::{Array, Dimension, ShapeBuilder};
 use numpy::{IntoPyArray, PyArray, PyArray2, PyArray3, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
+use reproj_core::memory::reproject_bytes;
 use reproj_core::method::MAX_ALPHA;
 use reproj_core::{
     Camera, CameraBuffers, CameraView, Diagnostics, Mat4, Method, Output, Params, ReprojError,
@@ -13,6 +14,7 @@ use reproj_core::{
 use crate::convert::{self, array, depth_and_size, slice, Dim, FrameArrays};
 use crate::errors::{invalid, map_reproj_error, SplitRenderError};
 use crate::guarded;
+use crate::memory::reserve;
 
 /// An `H×W×3` RGB8 image from a vector of `H·W·3` bytes (no copy).
 pub(crate) fn rgb<'py>(
@@ -167,6 +169,14 @@ impl BidirHistory {
             let mut hist = history_mut(slf.as_any())?;
             let older_view = args.older.as_ref().map(FrameArrays::view).transpose()?;
             let newer_view = args.newer.view()?;
+            reserve(reproject_bytes(&newer_view, &args.client), || {
+                let (cw, ch) = (args.client.width, args.client.height);
+                let m = args.method;
+                format!(
+                    "BidirHistory.prepare: {m} to a {cw}x{ch} client from {}",
+                    sizes(&newer_view)
+                )
+            })?;
             let inner = &mut hist.inner;
             let mut work = || {
                 reproj_core::prepare_pair(
@@ -264,6 +274,21 @@ impl<'py> CallArgs<'py> {
     }
 }
 
+/// A frame's camera sizes for messages: `"a WxH main camera"` and its auxiliary cameras'.
+fn sizes(frame: &reproj_core::FrameView<'_>) -> String {
+    let main = &frame.main.camera;
+    let mut s = format!("a {}x{} main camera", main.width, main.height);
+    if !frame.aux.is_empty() {
+        let aux: Vec<String> = frame
+            .aux
+            .iter()
+            .map(|a| format!("{}x{}", a.camera.width, a.camera.height))
+            .collect();
+        s += &format!(" and auxiliary cameras of {}", aux.join(", "));
+    }
+    s
+}
+
 /// One client frame by `method`; see `splitrender.reproject_alpha` for the semantics.
 #[pyfunction]
 #[pyo3(signature = (method, older, newer, client, alpha, options=None, previous=None, diagnostics=false, history=None))]
@@ -290,6 +315,14 @@ pub fn reproject<'py>(
         } = CallArgs::extract(method, older, newer, client, options)?;
         let (cw, ch) = (client.width, client.height);
         let n = cw * ch;
+        let newer_view = newer.view()?;
+        // The output and the diagnostics (3 + 1 + 4 bytes a client pixel) with the kernel's.
+        reserve(reproject_bytes(&newer_view, &client) + 8 * n as u64, || {
+            format!(
+                "reproject: {method} to a {cw}x{ch} client from {}",
+                sizes(&newer_view)
+            )
+        })?;
         let mut out = match previous.filter(|p| !p.is_none()) {
             // Copied, never written in place: the caller's previous frame stays as it was.
             Some(p) => {
@@ -306,7 +339,6 @@ pub fn reproject<'py>(
         let hist = hist_ref.as_deref_mut().map(|h| &mut h.inner);
         let mut diag = diagnostics.then(|| Diagnostics::new(n));
         let older_view = older.as_ref().map(FrameArrays::view).transpose()?;
-        let newer_view = newer.view()?;
         let request = Request {
             client,
             alpha: kernel_alpha(alpha, Some(method))?,
@@ -374,6 +406,10 @@ pub fn scene_flow<'py>(
             return Err(invalid(format!("w: expected a finite float, got {w}")));
         }
         let w = convert::narrow(w, "w", false)?;
+        // The colour below and the flow returned (3 + 12 bytes a pixel).
+        reserve(15 * (sw * sh) as u64, || {
+            format!("scene_flow: a {sw}x{sh} source image")
+        })?;
         // The flow does not read colour; the view still wants a buffer of the right size.
         let color = vec![0u8; sw * sh * 3];
         let cv = CameraView {
@@ -429,6 +465,7 @@ pub fn apply_shadows<'py>(
             slice(&s_min, "s_min")?,
             slice(&s_max, "s_max")?,
         );
+        reserve(c.len() as u64, || format!("apply_shadows: a {w}x{h} image"))?;
         let mut out = vec![0u8; c.len()];
         py.detach(|| reproj_core::apply_shadows(c, b, lo, hi, alpha, s, role, &mut out));
         rgb(py, out, h, w)

@@ -13,6 +13,7 @@ use reproj_core::dequant::{self, CodeTile, YCbCrPlanes};
 use crate::convert::{array, array_mut, finite, side, slice, slice_mut, Dim};
 use crate::errors::invalid;
 use crate::guarded;
+use crate::memory::reserve;
 
 /// A position inside a plane (`0..=MAX_SIDE`).
 fn position(v: i64, what: &str) -> PyResult<usize> {
@@ -49,18 +50,23 @@ fn mask<'py>(
 }
 
 /// Where a kernel writes: `out` when given (the caller's array, reused across frames so that
-/// its pages are not faulted in again for every frame), else a new numpy array. Every value is
-/// written by the kernel either way.
+/// its pages are not faulted in again for every frame), else a new numpy array (reserved
+/// first, for `call`). Every value is written by the kernel either way.
 fn output<'py, T: Element>(
     py: Python<'py>,
     out: Option<&Bound<'py, PyAny>>,
     shape: &[usize],
+    call: &str,
 ) -> PyResult<(Bound<'py, PyArrayDyn<T>>, PyReadwriteArrayDyn<'py, T>)> {
     if let Some(o) = out.filter(|o| !o.is_none()) {
         let dims: Vec<Dim> = shape.iter().map(|&n| Dim::Is(n)).collect();
         let rw = array_mut::<T>(o, "out", &dims)?;
         return Ok((o.cast::<PyArrayDyn<T>>()?.clone(), rw));
     }
+    let bytes = shape.iter().product::<usize>() * std::mem::size_of::<T>();
+    reserve(bytes as u64, || {
+        format!("{call}: an output array of shape {shape:?}")
+    })?;
     let arr = PyArrayDyn::<T>::zeros(py, shape, false);
     let rw = arr
         .try_readwrite()
@@ -121,7 +127,7 @@ pub fn dequantise_depth<'py>(
         let t = tile(codes, stride, x, y, w, h, "depth tile")?;
         let inv = mask(invalid_mask, "invalid_mask", w, h)?;
         let inv = inv.as_ref().map(|m| slice(m, "invalid_mask")).transpose()?;
-        let (arr, mut rw) = output::<f32>(py, out, &[h, w])?;
+        let (arr, mut rw) = output::<f32>(py, out, &[h, w], "dequantise_depth")?;
         let dst = slice_mut(&mut rw, "out")?;
         py.detach(|| dequant::depth_from_codes(t, w, h, scale, offset, inv, dst));
         Ok(arr)
@@ -169,7 +175,7 @@ pub fn dequantise_motion<'py>(
         let st = st.as_ref().map(|m| slice(m, "static_mask")).transpose()?;
         let inv = mask(invalid_mask, "invalid_mask", w, h)?;
         let inv = inv.as_ref().map(|m| slice(m, "invalid_mask")).transpose()?;
-        let (arr, mut rw) = output::<f32>(py, out, &[h, w, 3])?;
+        let (arr, mut rw) = output::<f32>(py, out, &[h, w, 3], "dequantise_motion")?;
         let dst = slice_mut(&mut rw, "out")?;
         py.detach(|| dequant::motion_from_half_codes(ch, w, h, s, o, st, inv, dst));
         Ok(arr)
@@ -228,7 +234,7 @@ pub fn shadow_colour<'py>(
             )));
         }
         let bits = slice(&bits, "bits")?;
-        let (arr, mut rw) = output::<u8>(py, out, &[h, w, 3])?;
+        let (arr, mut rw) = output::<u8>(py, out, &[h, w, 3], "shadow_colour")?;
         let dst = slice_mut(&mut rw, "out")?;
         py.detach(|| dequant::shadow_colour_from_ycbcr(planes, x, y, w, h, step, bits, dst));
         Ok(arr)

@@ -4,14 +4,16 @@
 //! Exception
 //! └── SplitRenderError
 //!     ├── InvalidInputError (also a ValueError)
+//!     ├── OutOfMemoryError  (also a MemoryError)
 //!     └── StreamError
 //! ```
 //!
 //! `create_exception!` takes a single base class, but `InvalidInputError` must be both a
-//! `SplitRenderError` and a `ValueError` so that callers can catch either. It is therefore created
-//! once, natively, by calling `type(name, (SplitRenderError, ValueError), namespace)` — exactly what
-//! a Python `class` statement does — and kept in a [`PyOnceLock`]. All three classes report
-//! `__module__ == "splitrender.errors"`, where the Python package re-exports them.
+//! `SplitRenderError` and a `ValueError` so that callers can catch either (and
+//! `OutOfMemoryError` a `MemoryError`). Each is therefore created once, natively, by calling
+//! `type(name, (SplitRenderError, builtin), namespace)` — exactly what a Python `class`
+//! statement does — and kept in a [`PyOnceLock`]. All the classes report `__module__ ==
+//! "splitrender.errors"`, where the Python package re-exports them.
 
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
@@ -37,26 +39,51 @@ static INVALID_INPUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 const INVALID_INPUT_DOC: &str = "Invalid arguments: a wrong dtype, shape, size, matrix, option or \
 method. Subclass of both SplitRenderError and ValueError.";
 
-/// The `InvalidInputError` class, created on first use.
-pub fn invalid_input_type(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
-    let ty = INVALID_INPUT.get_or_try_init(py, || -> PyResult<Py<PyType>> {
-        let bases = PyTuple::new(
-            py,
-            [
-                py.get_type::<SplitRenderError>(),
-                py.get_type::<pyo3::exceptions::PyValueError>(),
-            ],
-        )?;
+static OUT_OF_MEMORY: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+const OUT_OF_MEMORY_DOC: &str = "A call whose sizes are legal but need more memory than this \
+machine could allocate, raised before the call allocates anything: the message names the call, \
+its sizes and the bytes it needs. Subclass of both SplitRenderError and MemoryError.";
+
+/// The class `name(SplitRenderError, B)` with `doc`, created on first use and kept in `cell`.
+fn with_builtin_base<'py, B: pyo3::PyTypeInfo>(
+    py: Python<'py>,
+    cell: &'static PyOnceLock<Py<PyType>>,
+    name: &str,
+    doc: &str,
+) -> PyResult<&'py Bound<'py, PyType>> {
+    let ty = cell.get_or_try_init(py, || -> PyResult<Py<PyType>> {
+        let bases = PyTuple::new(py, [py.get_type::<SplitRenderError>(), py.get_type::<B>()])?;
         let ns = PyDict::new(py);
         ns.set_item("__module__", "splitrender.errors")?;
-        ns.set_item("__doc__", INVALID_INPUT_DOC)?;
+        ns.set_item("__doc__", doc)?;
         let ty = py
             .get_type::<PyType>()
-            .call1(("InvalidInputError", bases, ns))?
+            .call1((name, bases, ns))?
             .cast_into::<PyType>()?;
         Ok(ty.unbind())
     })?;
     Ok(ty.bind(py))
+}
+
+/// The `InvalidInputError` class, created on first use.
+pub fn invalid_input_type(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
+    with_builtin_base::<pyo3::exceptions::PyValueError>(
+        py,
+        &INVALID_INPUT,
+        "InvalidInputError",
+        INVALID_INPUT_DOC,
+    )
+}
+
+/// The `OutOfMemoryError` class, created on first use.
+pub fn out_of_memory_type(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
+    with_builtin_base::<pyo3::exceptions::PyMemoryError>(
+        py,
+        &OUT_OF_MEMORY,
+        "OutOfMemoryError",
+        OUT_OF_MEMORY_DOC,
+    )
 }
 
 /// An `InvalidInputError` with `msg`.
@@ -65,6 +92,15 @@ pub fn invalid(msg: impl Into<String>) -> PyErr {
     Python::attach(|py| match invalid_input_type(py) {
         Ok(ty) => PyErr::from_type(ty.clone(), msg),
         // Cannot happen short of memory exhaustion; still an error of the hierarchy.
+        Err(_) => SplitRenderError::new_err(msg),
+    })
+}
+
+/// An `OutOfMemoryError` with `msg`.
+pub fn out_of_memory(msg: impl Into<String>) -> PyErr {
+    let msg = msg.into();
+    Python::attach(|py| match out_of_memory_type(py) {
+        Ok(ty) => PyErr::from_type(ty.clone(), msg),
         Err(_) => SplitRenderError::new_err(msg),
     })
 }

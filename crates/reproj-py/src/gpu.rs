@@ -22,6 +22,7 @@ use crate::api::{kernel_alpha, rgb, shaped};
 use crate::convert::{self, array, slice, Dim, FrameArrays};
 use crate::errors::{invalid, map_reproj_error, SplitRenderError};
 use crate::guarded;
+use crate::memory::reserve;
 
 pyo3::create_exception!(
     splitrender.errors,
@@ -222,6 +223,12 @@ impl WgpuReprojector {
                 client,
                 alpha: kernel_alpha(alpha, Some(method))?,
             };
+            // The image and diagnostics returned (3 and 1 + 4 bytes a pixel) and as much again
+            // for the copies read back from the device. (Device memory is wgpu's to refuse.)
+            let host = 3 * download as u64 + 5 * diagnostics as u64;
+            reserve(2 * host * n as u64, || {
+                format!("WgpuReprojector.render: a {cw}x{ch} client")
+            })?;
             let mut out = download.then(|| vec![0u8; n * 3]);
             let mut diag = diagnostics.then(|| Diagnostics::new(n));
             py.detach(|| {

@@ -15,11 +15,12 @@ mod codec;
 mod convert;
 mod errors;
 mod gpu;
+mod memory;
 mod metrics;
 mod scene;
 mod synth;
 
-use errors::{invalid_input_type, SplitRenderError, StreamError};
+use errors::{invalid_input_type, out_of_memory_type, SplitRenderError, StreamError};
 
 /// Runs `f`, turning a panic into `SplitRenderError("internal error in <name>: … (please report)")`.
 ///
@@ -62,6 +63,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     )?;
     m.add("SplitRenderError", py.get_type::<SplitRenderError>())?;
     m.add("InvalidInputError", invalid_input_type(py)?)?;
+    m.add("OutOfMemoryError", out_of_memory_type(py)?)?;
     m.add("StreamError", py.get_type::<StreamError>())?;
     m.add(
         "GpuUnavailableError",

@@ -8,6 +8,7 @@ use crate::api::shaped;
 use crate::convert::{array, slice, Dim};
 use crate::errors::{invalid, map_reproj_error};
 use crate::guarded;
+use crate::memory::reserve;
 
 /// SSIM of `x` against `y` (`float64[H, W, C]`, C-contiguous, the same shape): the mean of the
 /// per-pixel, per-channel map, and the map itself when `want_map`.
@@ -38,6 +39,9 @@ pub fn ssim<'py>(
                 .map_err(map_reproj_error)
         };
         if want_map {
+            reserve(8 * xs.len() as u64, || {
+                format!("ssim: a map of shape ({h}, {w}, {c})")
+            })?;
             let mut map = vec![0.0f64; xs.len()];
             let mean = run(Some(&mut map))?;
             Ok((mean, Some(shaped(py, map, (h, w, c))?)))

@@ -9,6 +9,7 @@
 use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
+use reproj_core::memory::{pixels, server_buffers_bytes};
 use reproj_core::{Camera, Mat4};
 use reproj_scene::{self as rs, HeadPose, Rigid, SceneError, ServerBuffers, Variant};
 
@@ -16,6 +17,7 @@ use crate::api::{camera_items, mat, put_buffers, rgb};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
+use crate::memory::reserve;
 
 /// Maps a renderer error onto the hierarchy. Every variant is listed (no wildcard) so that a new
 /// variant has to be mapped deliberately. Arguments and scene files (glTF, bad or unsupported)
@@ -324,6 +326,17 @@ impl Scene {
             let rig = rs::rig(&pose, w, h, scene.near, scene.far);
             let n_main = self::samples(samples, rig.main.width, rig.main.height)?;
             let n_aux = self::samples(samples, rig.aux[0].width, rig.aux[0].height)?;
+            let aux_bytes = server_buffers_bytes(pixels(&rig.aux[0]));
+            reserve(
+                server_buffers_bytes(pixels(&rig.main)) + 2 * aux_bytes,
+                || {
+                    format!(
+                    "Scene.render_server_frame: a {w}x{h} server frame and two {}x{} auxiliary \
+                     cameras (scale {scale})",
+                    rig.aux[0].width, rig.aux[0].height
+                )
+                },
+            )?;
             let (main, aux) = py
                 .detach(|| -> rs::Result<_> {
                     let one = |c: &Camera, n| rs::render_server(scene, c, t, 1.0 / fs, s, n);
@@ -374,6 +387,12 @@ impl Scene {
             } else {
                 vec![rs::mono(&pose, w, h, scene.near, scene.far)]
             };
+            reserve(cams.iter().map(rs::truth_bytes).sum(), || {
+                format!(
+                    "Scene.render_client_frame: {} {w}x{h} image(s) (scale {scale})",
+                    cams.len()
+                )
+            })?;
             let images = py
                 .detach(|| {
                     cams.iter()
@@ -413,6 +432,10 @@ impl Scene {
             let t = convert::finite(t, "t")?;
             let n = self::samples(samples, camera.width, camera.height)?;
             let scene = &self.inner;
+            reserve(rs::truth_bytes(&camera), || {
+                let (w, h) = (camera.width, camera.height);
+                format!("Scene.render_ground_truth: a {w}x{h} image")
+            })?;
             let img = py
                 .detach(|| rs::render_ground_truth(scene, &camera, t, n))
                 .map_err(map_scene_error)?;

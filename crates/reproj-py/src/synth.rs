@@ -3,12 +3,14 @@
 use numpy::PyArray3;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
+use reproj_core::memory::{pixels, server_buffers_bytes, synthetic_truth_bytes};
 use reproj_core::synthetic::{self, SyntheticScene};
 
 use crate::api::{camera_items, put_buffers, rgb};
 use crate::convert;
 use crate::errors::invalid;
 use crate::guarded;
+use crate::memory::reserve;
 
 /// Every server buffer of one camera of the synthetic scene at `time`, as a dict of arrays:
 /// `color`, `depth`, `motion_fwd`, `motion_bwd`, `shadow_fwd_bits`, `shadow_fwd_min`,
@@ -33,6 +35,10 @@ pub fn synthetic_render_server<'py>(
             )));
         }
         let s = convert::subframes(subframes)?;
+        reserve(server_buffers_bytes(pixels(&camera)), || {
+            let (w, h) = (camera.width, camera.height);
+            format!("synthetic_render_server: a {w}x{h} camera")
+        })?;
         let scene = SyntheticScene::new(dynamic);
         let r = py.detach(|| scene.render_server(&camera, time, interval, s));
         let d = PyDict::new(py);
@@ -54,6 +60,10 @@ pub fn synthetic_ground_truth<'py>(
     guarded("synthetic_ground_truth", || {
         let camera = convert::client(camera, "camera")?;
         let time = convert::finite(time, "time")?;
+        reserve(synthetic_truth_bytes(pixels(&camera)), || {
+            let (w, h) = (camera.width, camera.height);
+            format!("synthetic_ground_truth: a {w}x{h} image")
+        })?;
         let scene = SyntheticScene::new(dynamic);
         let img = py.detach(|| scene.render_ground_truth(&camera, time));
         rgb(py, img, camera.height, camera.width)

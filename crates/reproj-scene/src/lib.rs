@@ -79,8 +79,8 @@ pub use gltf::{load_gltf_scene, place_gltf, GltfModel, Placement};
 pub use material::{Material, Pattern};
 pub use math::{Rigid, V3};
 pub use render::{
-    default_samples, render_ground_truth, render_server, render_shadow_fraction, ServerBuffers,
-    ShadowBuffers, MAX_SAMPLES,
+    default_samples, render_ground_truth, render_server, render_shadow_fraction, truth_bytes,
+    ServerBuffers, ShadowBuffers, MAX_SAMPLES,
 };
 pub use rig::{main_size, mono, rig, stereo, CameraPath, HeadPose, Rig, PREDICTION_DELAY};
 pub use scene::{Light, Object, Scene, Variant};
