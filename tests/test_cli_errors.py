@@ -262,6 +262,24 @@ def test_a_full_disk_exits_1_with_one_line_and_is_not_called_a_bug(
     assert err == f"splitrender: error: {tmp_path / 'video.mp4'}: No space left on device\n"
 
 
+def test_memory_running_out_in_python_exits_1_with_one_line_and_is_not_called_a_bug(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    import numpy as np
+
+    import splitrender.cli.example as example
+
+    def hungry(args: Any) -> int:
+        np.empty(1 << 62, dtype=np.uint8)  # numpy's own MemoryError, no allocation made
+        return 0
+
+    monkeypatch.setattr(example, "run", hungry)
+    code, err = run(["example", "--out", str(tmp_path / "e")], capsys)
+    assert code == 1 and len(err.splitlines()) == 1, err
+    assert err.startswith("splitrender: error: out of memory (Unable to allocate 4.00 EiB")
+    assert "bug" not in err and "Traceback" not in err
+
+
 def test_a_reader_that_goes_away_ends_the_command_quietly() -> None:
     # `splitrender ... | head`: the pipe breaks when the command next writes. In a subprocess,
     # so that its stdout is a real pipe.

@@ -69,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     an unreadable or malformed input, a refused destination ...), one ``splitrender: error:``
     line naming it, as argparse does for a bad option. 1: a failure that is not the caller's
     (``SplitRenderError`` itself: an external tool or the device; an ``OSError`` of the machine,
-    such as a full disk, one line too; any other exception: a bug,
+    such as a full disk, or a ``MemoryError``, one line too; any other exception: a bug,
     said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted (143: by
     SIGTERM, unwound the same way). 141: the
     reader of the output went away (a broken pipe), said nothing."""
@@ -104,6 +104,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             isinstance(e, OSError) and e.errno in _MACHINE_ERRNOS
         ):
             print(f"{PROG}: error: {_describe(e)}", file=sys.stderr)
+            return 1
+        if isinstance(e, MemoryError):
+            # numpy or Python ran out (the bindings raise OutOfMemoryError, a user error, for
+            # sizes they cannot reserve): the machine's limit, not a bug.
+            print(f"{PROG}: error: out of memory ({_describe(e) or 'MemoryError'}): this "
+                  "machine could not allocate what the command needs; try a smaller --scale "
+                  "or fewer frames", file=sys.stderr)
             return 1
         if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
             traceback.print_exc()
