@@ -889,6 +889,27 @@ def test_a_server_keeps_the_statistics_of_its_last_sessions_only(tmp_path: Path)
     assert [s.frames_sent for s in srv.sessions] == list(range(5, KEPT_SESSIONS + 5))
 
 
+def test_an_ended_sessions_statistics_keep_histograms_only() -> None:
+    # A kept session's four tallies held up to 512 KiB of values each (64 sessions kept).
+    import io
+
+    from splitrender.net.server import LiveServer, ServerOptions, SessionStats
+
+    log = io.StringIO()
+    srv = LiveServer(ServerOptions("courtyard", scale=0.03125, token=TOKEN), log=log)
+
+    class Ended:
+        stats = SessionStats()
+
+    for ms in range(1, 101):
+        Ended.stats.render_ms.add(float(ms))
+    srv.session_ended(Ended())  # type: ignore[arg-type]
+    kept = srv.sessions[-1]
+    assert "render 50 ms" in log.getvalue()  # printed from the exact values: 50.5 → "50"
+    assert not kept.render_ms.exact and len(kept.render_ms) == 100
+    assert not any(t.exact for t in (kept.encode_ms, kept.target_mbps, kept.paced_ms))
+
+
 def test_serve_sends_the_certificates_intermediates(tmp_path: Path) -> None:
     # Only the leaf of a --cert chain was sent: a client that verifies against the root CA
     # (not pinning the leaf, as ours does) could not build the path and failed the handshake.

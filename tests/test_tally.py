@@ -59,6 +59,22 @@ def test_beyond_it_percentiles_are_within_the_stated_relative_error(
     assert t.percentile(0) == min(values) and t.percentile(100) == max(values)
 
 
+def test_a_tally_that_forgets_its_values_keeps_its_summary_within_the_relative_error() -> None:
+    values = np.random.default_rng(5).lognormal(2.0, 0.5, 2000).tolist()
+    t = Tally()
+    for v in values:
+        t.add(v)
+    assert t.exact
+    t.forget_values()
+    assert not t.exact and len(t) == 2000 and (t.min, t.max) == (min(values), max(values))
+    for q in QS:
+        exact = float(np.percentile(values, q))
+        got = t.percentile(q)
+        assert got is not None and abs(got - exact) <= RELATIVE_ERROR * exact * (1 + 1e-12)
+    t.add(1.0)  # and counts on
+    assert len(t) == 2001 and t.min == 1.0
+
+
 def test_beyond_it_counts_above_a_value_are_exact_but_for_the_values_own_bin() -> None:
     values = np.random.default_rng(5).uniform(1.0, 20.0, 5000).tolist()
     t = Tally(exact=100)

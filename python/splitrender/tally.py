@@ -99,6 +99,12 @@ class Tally:
     def __len__(self) -> int:
         return self.count
 
+    def forget_values(self) -> None:
+        """Drops the values kept one by one (up to 512 KiB): from then on the percentiles
+        come from the histogram, within :data:`RELATIVE_ERROR`, as past :data:`EXACT` values.
+        For a tally kept for its summary after its run ended."""
+        self._values = None
+
     @property
     def exact(self) -> bool:
         """Whether every value is kept (the percentiles are exact)."""
