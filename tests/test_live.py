@@ -903,9 +903,11 @@ def test_an_ended_sessions_statistics_keep_histograms_only() -> None:
 
     for ms in range(1, 101):
         Ended.stats.render_ms.add(float(ms))
+        Ended.stats.target_mbps.add(8.0)
     srv.session_ended(Ended())  # type: ignore[arg-type]
     kept = srv.sessions[-1]
-    assert "render 50 ms" in log.getvalue()  # printed from the exact values: 50.5 → "50"
+    # Printed from the exact values (50.5 → "50"), the bit-rate the rate control chose too.
+    assert "render 50 ms + encode n/a ms per frame at 8 Mb/s (medians)" in log.getvalue()
     assert not kept.render_ms.exact and len(kept.render_ms) == 100
     assert not any(t.exact for t in (kept.encode_ms, kept.target_mbps, kept.paced_ms))
 

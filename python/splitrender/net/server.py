@@ -289,7 +289,8 @@ class SessionStats:
             f"{self.frames_sent} frames sent ({self.key_frames} key, {self.frames_skipped} "
             f"skipped, {self.streams_reset} reset, {self.frames_dropped} dropped on purpose, "
             f"{len(self.paced_ms)} held for the link), render {med(self.render_ms)} ms + encode "
-            f"{med(self.encode_ms)} ms per frame (median), {self.key_requests} key requests, "
+            f"{med(self.encode_ms)} ms per frame at {med(self.target_mbps)} Mb/s (medians), "
+            f"{self.key_requests} key requests, "
             f"{self.malformed_datagrams} malformed datagrams, {self.malformed_streams} "
             f"malformed streams; ended: {self.ended}"
         )
