@@ -1,7 +1,9 @@
-//! The memory bounds of `reproj_core::memory` hold: the peak of the bytes a call keeps allocated,
-//! counted by a global allocator that tracks the live bytes, stays within the call's bound on one
-//! thread and on four, for every method and renderer; and the per-pixel constants are not loose
-//! (the heaviest call's growth between two sizes is at least half the bound's).
+//! The memory bounds of `reproj_core::memory` (and reproj-scene's `truth_bytes`) hold: the peak
+//! of the bytes a call keeps allocated, counted by a global allocator that tracks the live
+//! bytes, stays within the call's bound on one thread and on four, for every method and
+//! renderer; between two sizes it grows by no more than the bound (so a per-pixel constant too
+//! small fails even where the fixed part dwarfs it at these sizes), and the heaviest call's by
+//! at least half as much (the constants are not loose).
 //!
 //! The Python binding reserves these bounds before a call and raises an error when it cannot
 //! (an allocation failing inside Rust aborts the process), so a bound below the true peak lets
