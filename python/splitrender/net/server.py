@@ -280,6 +280,15 @@ class SessionStats:
     paced_ms: Tally = field(default_factory=Tally)  # frames held for the link (LinkPacer)
     ended: str = ""
 
+    def forget_values(self) -> None:
+        """Keeps each tally's histogram only (:meth:`Tally.forget_values`): for statistics kept
+        for their summaries after the session ended (each tally's values one by one would hold
+        up to 512 KiB, for :data:`KEPT_SESSIONS` sessions)."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, Tally):
+                value.forget_values()
+
     def line(self) -> str:
         def med(v: Tally) -> str:
             m = v.median()
@@ -896,10 +905,7 @@ class LiveServer:
         self.active = None
         stats = session.stats
         self.log(f"session ended: {stats.line()}")
-        # Kept for their summaries: the histograms suffice (each tally's values one by one
-        # would hold up to 512 KiB, 2 MiB a session, for KEPT_SESSIONS sessions).
-        for tally in (stats.render_ms, stats.encode_ms, stats.target_mbps, stats.paced_ms):
-            tally.forget_values()
+        stats.forget_values()
         self.sessions.append(stats)
         self.sessions_ended += 1
         if self.options.sessions and self.sessions_ended >= self.options.sessions:
