@@ -10,6 +10,16 @@
 //! with the 64-bit splat where the adapter has it and the 32-bit fallback; `ours_cpu` is
 //! reproj-core on the same frames for comparison (the naive baseline beside the fast one).
 //!
+//! What a new pair costs, with the default splat:
+//!
+//! - `upload`: [`Uploader::upload`] of the pair (every camera of both frames packed and copied
+//!   to the device, what a real-time client's worker does on arrival), waiting until the copy is
+//!   done and freeing the pair;
+//! - `ours/<atomics>/install_on_device`: the first frame of a pair, [`Reprojector::install`] of
+//!   an uploaded pair (alternating between two, so that every iteration switches) and one frame
+//!   left on the device; beside `on_device` it shows whether the first frame of a pair costs
+//!   more than the others.
+//!
 //! `cargo bench -p reproj-wgpu --bench reproject_gpu` (needs an adapter; on a machine without a
 //! GPU, Mesa's lavapipe: `apt-get install mesa-vulkan-drivers`). `REPROJ_GPU_SCALES=1.0,0.5`
 //! picks the scales of the 2560×1440 base (default `0.25,0.5`): 1.0 is DESIGN.md's GPU target,
@@ -21,7 +31,9 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use reproj_core::{Method, Output, Params, Request};
 use reproj_scene::{builtin, mono, render_server_frame, Variant};
-use reproj_wgpu::{ContextOptions, GpuContext, Previous, Reprojector, ReprojectorOptions};
+use reproj_wgpu::{
+    ContextOptions, GpuContext, Previous, Reprojector, ReprojectorOptions, Uploader,
+};
 
 fn bench(c: &mut Criterion) {
     let ctx = match GpuContext::new(&ContextOptions::default()) {
@@ -90,6 +102,41 @@ fn bench(c: &mut Criterion) {
                 |b| {
                     b.iter(|| {
                         frame(None);
+                        ctx.device.poll(wgpu::PollType::Wait).expect("device poll")
+                    })
+                },
+            );
+            if force {
+                continue; // a new pair's costs are timed with the default splat only
+            }
+            let uploader: Uploader = gpu.uploader();
+            g.bench_function(BenchmarkId::new("upload", &size), |b| {
+                b.iter(|| {
+                    let pair = uploader.upload(Some(&older), &newer).expect("upload");
+                    ctx.device.poll(wgpu::PollType::Wait).expect("device poll");
+                    pair
+                })
+            });
+            let pairs = [(); 2].map(|()| {
+                std::sync::Arc::new(uploader.upload(Some(&older), &newer).expect("upload"))
+            });
+            let mut next = 0;
+            g.bench_function(
+                BenchmarkId::new(format!("ours/{name}/install_on_device"), &size),
+                |b| {
+                    b.iter(|| {
+                        gpu.install(pairs[next].clone()).expect("install");
+                        next ^= 1;
+                        gpu.render(
+                            0,
+                            Method::Ours,
+                            black_box(&request),
+                            &params,
+                            Previous::Keep,
+                            None,
+                            None,
+                        )
+                        .expect("render");
                         ctx.device.poll(wgpu::PollType::Wait).expect("device poll")
                     })
                 },
