@@ -8,12 +8,12 @@
 //! anything is allocated. Each bound is linear in the pixels with a constant for what does not
 //! grow with them (per-thread scratch); `tests/peak_memory.rs` of reproj-scene measures the
 //! peaks with a counting allocator and checks every bound against them, on one thread and on
-//! four, and that their growth with the pixels is within the bounds'.
+//! four, and (on one thread) that their growth with the pixels is within the bounds'.
 //!
-//! One part is not bounded by the pixels alone: the reference renderer's screen tiles list the
-//! objects each tile may meet (16 bytes an object a tile, 8×8 or 16×16 pixels), counted here
-//! at what the built-in scenes need; a glTF scene of hundreds of objects overlapping on screen
-//! needs more.
+//! The reference renderer's screen tiles list the objects each tile may meet (16 bytes an object
+//! a tile of 8×8 or 16×16 pixels); the lists stop at an eighth of an entry a pixel on average
+//! and leave the rays to the scene's BVH beyond (a scene of hundreds of objects overlapping on
+//! screen), so that they too take at most a few bytes a pixel.
 //!
 //! [`MAX_SIDE`]: crate::MAX_SIDE
 
@@ -64,8 +64,8 @@ pub const SERVER_BUFFER_BYTES_PER_PIXEL: u64 = 3 + 4 + 2 * 12 + 2 * (4 + 3 + 3);
 
 /// An upper bound of the bytes a renderer allocates for one camera's server buffers of `pixels`
 /// pixels: the buffers twice (rendered in row blocks, then joined), 10 bytes a pixel for the
-/// rest (reproj-scene's screen tiles' object lists: up to 6 measured in the built-in scenes)
-/// and the fixed part. Holds for
+/// rest (up to 5.6 measured in the built-in scenes, reproj-scene's screen tiles' object lists
+/// included, which take at most 4.25 at their cap) and the fixed part. Holds for
 /// [`crate::synthetic::SyntheticScene::render_server`] and reproj-scene's `render_server`.
 pub fn server_buffers_bytes(pixels: u64) -> u64 {
     (2 * SERVER_BUFFER_BYTES_PER_PIXEL + 10) * pixels + FIXED_BYTES

@@ -10,6 +10,8 @@
 //! they are tested in, so a ray that meets one falls back to [`Snapshot::trace`], whose order
 //! decides, and the answer is the BVH's in every case.
 
+use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+
 use rayon::prelude::*;
 use reproj_core::Camera;
 
@@ -29,6 +31,18 @@ fn tile_shift(width: usize) -> u32 {
     } else {
         3
     }
+}
+
+/// The most list entries a camera's tiles may hold together: an eighth a pixel on average (8 a
+/// tile of 8×8 pixels, 32 of 16×16; the built-in scenes need at most 0.03 at 640×360 and above),
+/// and at least 4,096 (64 KiB) for small images. A scene of hundreds of objects overlapping on
+/// screen would list more, and the lists' memory grows with pixels × objects (4,096 objects at
+/// 1280×720 would be 0.9 GB): beyond the cap [`EyeTiles::new`] gives up and the BVH serves every
+/// ray, with the same answers. With it the lists take at most 4 bytes a pixel (twice the 16
+/// bytes of an eighth of an entry, while the rows are joined), which the renderers' memory
+/// bounds count ([`super::truth_bytes`], [`reproj_core::memory::server_buffers_bytes`]).
+fn max_entries(pixels: usize) -> usize {
+    (pixels / 8).max(1 << 12)
 }
 
 /// A tile's side planes: each through the camera centre and two adjacent corner rays (indices
@@ -94,7 +108,8 @@ impl Target<'_> {
 
 impl<'s> EyeTiles<'s> {
     /// The tiles of `camera` (whose rays are `rays`) at the instant `snap`; `None` where the
-    /// camera's geometry is not finite (the BVH then serves every ray).
+    /// camera's geometry is not finite or the lists would hold more than [`max_entries`] (the
+    /// BVH then serves every ray).
     pub(crate) fn new(
         snap: &'s Snapshot<'_>,
         camera: &Camera,
@@ -129,6 +144,11 @@ impl<'s> EyeTiles<'s> {
             |m, &(_, d, r, _)| m.max(d + r),
         );
         let eps = 1e-9 * size;
+        // The entries listed so far over every row: a row stops once they exceed the cap. The
+        // outcome does not depend on the threads (the total exceeds the cap or not), and what
+        // is held beyond the cap before a row notices is at most one tile's list a thread.
+        let cap = max_entries(w * h);
+        let listed = AtomicUsize::new(0);
         // Per object: the corners of its object-space box in the world, relative to the camera
         // centre, with their distances from it (the box holds every hit, as for the sphere).
         let boxes: Vec<[(V3, f64); 8]> = (0..n)
@@ -225,7 +245,14 @@ impl<'s> EyeTiles<'s> {
                 }
                 lists[first..].sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
                 ends.push(lists.len());
+                let added = lists.len() - first;
+                if listed.fetch_add(added, Relaxed) + added > cap {
+                    return None;
+                }
             }
+            // Held exactly while the other rows are built and joined (a vector grows by
+            // doubling, so up to twice its entries otherwise).
+            lists.shrink_to_fit();
             Some((lists, ends))
         };
         // Rows in parallel (at 1280×720, 14 400 tiles each test every object, a sequential step
@@ -235,7 +262,7 @@ impl<'s> EyeTiles<'s> {
             .into_par_iter()
             .map(tile_row)
             .collect::<Option<_>>()?;
-        let mut lists = Vec::new();
+        let mut lists = Vec::with_capacity(done.iter().map(|(row, _)| row.len()).sum());
         let mut starts = Vec::with_capacity(cols * rows + 1);
         starts.push(0);
         for (row, ends) in done {
@@ -258,6 +285,12 @@ impl<'s> EyeTiles<'s> {
             targets,
             far: super::far_s(snap),
         })
+    }
+
+    /// The entries of every tile's list together.
+    #[cfg(test)]
+    fn entries(&self) -> usize {
+        self.lists.len()
     }
 
     /// The tile that pixel `(i, j)` lies in.
@@ -480,6 +513,68 @@ mod tests {
         assert!(tile_shift(48) < tile_shift(520));
         let scene = builtin("courtyard", Variant::Dynamic).unwrap();
         compare(&scene, 14, (520, 293), &[]);
+    }
+
+    /// The built-in scenes' lists stay under half [`max_entries`] from the tests' sizes to
+    /// 2560×1440 (so they keep the lists' speed), where courtyard with its houses copied in place
+    /// 160 times exceeds it and is left to the BVH (the renders' memory bounds count the lists
+    /// at the cap); with 16 copies the lists are kept.
+    #[test]
+    fn the_lists_stop_at_their_cap_and_the_builtin_scenes_stay_far_below_it() {
+        let entries = |scene: &Scene, (w, h): (usize, usize)| {
+            let pose = scene.path.server_pose(14, 10.0);
+            let cam = rig(&pose, w, h, scene.near, scene.far).main;
+            let rays = camera_rays(&cam, "test").unwrap();
+            let snap = scene.at(1.4);
+            EyeTiles::new(&snap, &cam, &rays).map(|e| e.entries())
+        };
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            for size @ (w, h) in [(48, 27), (640, 360), (1280, 720), (2560, 1440)] {
+                let n = entries(&scene, size).unwrap();
+                assert!(
+                    2 * n <= max_entries(w * h),
+                    "{name} at {w}x{h}: {n} entries"
+                );
+            }
+        }
+        // Courtyard with every house copied in place, many times over.
+        let crowd = |copies: usize| {
+            let mut scene = builtin("courtyard", Variant::Static).unwrap();
+            let houses: Vec<usize> = (0..scene.objects.len())
+                .filter(|&i| scene.objects[i].name == "house")
+                .collect();
+            for _ in 0..copies {
+                for &i in &houses {
+                    scene.objects.push(scene.objects[i].clone());
+                }
+            }
+            scene.refresh().unwrap();
+            scene
+        };
+        let size @ (w, h) = (640, 360);
+        let some = entries(&crowd(16), size).expect("16 copies: lists kept");
+        assert!(some > 2 * entries(&crowd(0), size).unwrap());
+        let dense = crowd(160);
+        assert_eq!(
+            entries(&dense, size),
+            None,
+            "160 copies at {w}x{h}: lists kept"
+        );
+        // ... and renders what the scene of one copy does (the copies tie with the originals,
+        // whose colours they share), through the BVH.
+        let (w, h) = (256, 144);
+        assert_eq!(
+            entries(&dense, (w, h)),
+            None,
+            "160 copies at {w}x{h}: lists kept"
+        );
+        let pose = dense.path.server_pose(14, 10.0);
+        let render = |scene: &Scene| {
+            let cam = rig(&pose, w, h, scene.near, scene.far).main;
+            crate::render_ground_truth(scene, &cam, 1.4, 1).unwrap()
+        };
+        assert!(render(&dense) == render(&crowd(0)));
     }
 
     /// Two copies of a house at the same place meet a ray at exactly the same distance: the
