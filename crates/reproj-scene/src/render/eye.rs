@@ -34,7 +34,7 @@ fn tile_shift(width: usize) -> u32 {
 }
 
 /// The most list entries a camera's tiles may hold together: an eighth a pixel on average (8 a
-/// tile of 8×8 pixels, 32 of 16×16; the built-in scenes need at most 0.03 at 640×360 and above),
+/// tile of 8×8 pixels, 32 of 16×16; the built-in scenes need at most 0.033 at 640×360 and up),
 /// and at least 4,096 (64 KiB) for small images. A scene of hundreds of objects overlapping on
 /// screen would list more, and the lists' memory grows with pixels × objects (4,096 objects at
 /// 1280×720 would be 0.9 GB): beyond the cap [`EyeTiles::new`] gives up and the BVH serves every
