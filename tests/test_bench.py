@@ -145,3 +145,24 @@ def test_the_copy_floor_copies_every_byte_in_equal_parts_on_the_threads_asked(
     assert sorted(n for _, n in parts) == [333] * 4 + [334] * 8
     assert main not in {t for t, _ in parts}
     assert seconds > 0 and threads in (1, 3)
+
+
+def test_a_damaged_cached_recording_is_rendered_again(tmp_path, monkeypatch) -> None:
+    # A flipped byte in a cached frame failed every later bench ("SHA-256 does not match the
+    # manifest"), reported as the user's error: the manifest was checked, not the frames.
+    import tempfile
+
+    from splitrender.evaluation.bench import _recording
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    said: list[str] = []
+    first = _recording("courtyard", 0.02, said.append)
+    frame = first.path / "server" / "000001.npz"
+    data = bytearray(frame.read_bytes())
+    data[len(data) // 2] ^= 0x55
+    frame.write_bytes(data)
+    again = _recording("courtyard", 0.02, said.append)
+    again.verify()
+    assert [s.split()[0] for s in said] == ["rendering", "rendering"]
+    assert _recording("courtyard", 0.02, said.append).path == first.path
+    assert said[-1].startswith("reusing the cached recording")

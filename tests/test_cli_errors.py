@@ -220,6 +220,20 @@ def test_internal_failure_exits_1_and_says_it_is_a_bug(
     assert err.splitlines()[-1].startswith("splitrender: internal error: KeyError")
 
 
+def test_ctrl_c_while_the_parsers_are_built_is_an_interrupt_not_a_traceback(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The parsers took a few tenths of a second to build outside main()'s handlers: Ctrl-C
+    # then printed a KeyboardInterrupt traceback of 20-30 lines.
+    import splitrender.cli.example as example
+
+    def interrupted(sub: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(example, "add", interrupted)
+    assert run(["example", "--out", "x"], capsys) == (130, "splitrender: interrupted\n")
+
+
 def test_sigterm_unwinds_as_an_interrupt_and_leaves_no_temporary_file(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:

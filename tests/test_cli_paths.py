@@ -240,7 +240,7 @@ def _moved(packet: bytes) -> bytes:
     return _restamped(packet, cameras=(replace(cams[0], view=view), *cams[1:]))
 
 
-@pytest.mark.parametrize("case", ["fps", "shifted", "moved", "short"])
+@pytest.mark.parametrize("case", ["fps", "shifted", "moved", "short", "first missing"])
 def test_play_refuses_a_stream_not_encoded_from_the_recording(
     recording: Path, stream: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
     case: str,
@@ -254,6 +254,10 @@ def test_play_refuses_a_stream_not_encoded_from_the_recording(
         expected = "the stream is at 20 server frames per second, the recording at 10"
     elif case == "shifted":
         packets = packets[1:] + [_restamped(packets[-1], index=N_SERVER, time=N_SERVER / 10)]
+        expected = "its frame 0 is server frame 1 at 0.1 s, the recording's is 0 at 0 s"
+    elif case == "first missing":
+        # It was told to give a shorter --seconds, which then left too few client frames.
+        packets = packets[1:]
         expected = "its frame 0 is server frame 1 at 0.1 s, the recording's is 0 at 0 s"
     elif case == "moved":
         packets[2] = _moved(packets[2])
@@ -272,6 +276,27 @@ def test_play_refuses_a_stream_not_encoded_from_the_recording(
     argv = ["play", str(foreign), "--recording", str(recording), "--no-vmaf", "--out", str(out)]
     assert main([*argv, "--quiet"]) == 2
     assert capsys.readouterr().err == f"splitrender: error: {expected}\n"
+    assert not out.exists()
+
+
+def test_a_recording_too_short_to_score_is_named_rather_than_seconds(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Without --seconds the length is the recording's: "--seconds: 0.01 s is 1 client frames"
+    # blamed an option that was not given.
+    short = Path(shutil.copytree(recording, tmp_path / "short"))
+    m = read_json(short / "manifest.json")
+    m.update(seconds=0.01, server_frames=m["server_frames"][:1],
+             client_frames=m["client_frames"][:1])
+    (short / "manifest.json").write_text(json.dumps(m))
+    out = tmp_path / "out"
+    assert main(["play", str(short), "--no-vmaf", "--out", str(out), "--quiet"]) == 2
+    assert capsys.readouterr().err == (
+        f"splitrender: error: {short} lasts 0.01 s, 1 client frames; at least "
+        f"{2 * SKIP_FRAMES + 1} are needed ({SKIP_FRAMES} skipped at each end)\n")
+    assert main(["play", str(recording), "--seconds", "0.1", "--no-vmaf", "--out", str(out),
+                 "--quiet"]) == 2
+    assert capsys.readouterr().err.startswith("splitrender: error: --seconds: 0.1 s, 12 client")
     assert not out.exists()
 
 
@@ -421,7 +446,8 @@ def test_play_refuses_a_damaged_stream_before_it_writes_anything(
     argv = ["play", str(damaged), "--recording", str(recording), "--no-vmaf", "--out", str(out)]
     assert main([*argv, "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("splitrender: error: frame 2: packet CRC mismatch"), err
+    # Naming the file: "frame 2: packet CRC mismatch" did not say which.
+    assert err.startswith(f"splitrender: error: {damaged}: frame 2: packet CRC mismatch"), err
     assert not out.exists()
 
 

@@ -1328,3 +1328,35 @@ def test_bench_realtime_on_the_gpu_uploads_on_the_worker(tmp_path, monkeypatch, 
     # Every frame rendered a pair uploaded by the worker.
     assert r["prepared_pct"] == 100.0 and r["prepare_ms_per_server_frame"] > 0
     assert "pair upload" in capsys.readouterr().out
+
+
+def test_a_damaged_cached_stream_is_encoded_again(tmp_path, monkeypatch):
+    # A flipped byte in the cached stream failed every later `bench --realtime` with "frame 0:
+    # packet CRC mismatch", which named neither the file nor the fix: only its count was read.
+    import tempfile
+
+    from splitrender.codec.stream import StreamFile, unpack_packet
+    from splitrender.evaluation.bench_realtime import _scene_stream
+
+    class Said:
+        def __init__(self):
+            self.stages = []
+
+        def stage(self, text):
+            self.stages.append(text)
+
+        def bar(self, *args, **kwargs):
+            pass
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    said = Said()
+    path = _scene_stream("courtyard", 0.02, 3, said)
+    packets = list(StreamFile(path).packets())
+    data = bytearray(path.read_bytes())
+    data[data.find(packets[1]) + len(packets[1]) // 2] ^= 0x55
+    path.write_bytes(data)
+    assert _scene_stream("courtyard", 0.02, 3, said) == path
+    assert [unpack_packet(p).index for p in StreamFile(path).packets()] == [0, 1, 2]
+    assert not any(s.startswith("reusing") for s in said.stages)
+    _scene_stream("courtyard", 0.02, 3, said)
+    assert said.stages[-1].startswith("reusing the cached stream")

@@ -8,7 +8,9 @@ import json
 import struct
 import shutil
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -193,6 +195,14 @@ def test_partial_and_incomplete_are_refused(recorded: Path, tmp_path: Path) -> N
         load_recording(tmp_path / "nothing")
 
 
+def test_an_output_named_as_an_unfinished_recording_is_refused(tmp_path: Path) -> None:
+    # A render into x.partial-1 completed, and every reader then refused it as unfinished.
+    out = tmp_path / "x.partial-1"
+    with pytest.raises(RecordingError, match="x.partial-1: a name ending in .partial-N"):
+        write_recording(out, "lab", seconds=SECONDS, scale=SCALE)
+    assert not any(tmp_path.iterdir())
+
+
 def test_existing_output_needs_overwrite(recorded: Path) -> None:
     with pytest.raises(RecordingError, match="already exists"):
         write_recording(recorded, "lab", seconds=SECONDS, scale=SCALE)
@@ -269,6 +279,40 @@ def test_bad_manifest(copy: Path, changes: dict[str, object], problem: str) -> N
     with pytest.raises(RecordingError, match=problem) as e:
         load_recording(copy)
     assert "manifest.json" in str(e.value)
+
+
+def _cut(key: str, n: int) -> Callable[[dict[str, Any]], None]:
+    def cut(m: dict[str, Any]) -> None:
+        m[key] = m[key][:n]
+    return cut
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        # seconds=1e6 reached play as "n: expected an int in [0, 50000], got 120000000".
+        ({"seconds": 1e6}, "'seconds' and 'fs': 1e\\+06 s at 10 frames/s is more than 50000"),
+        ({"seconds": 1e300}, "more than 50000 frames"),
+        # Cut lists failed later under metrics' names, or (server frames) played held frames
+        # scored as if the recording were whole.
+        (_cut("client_frames", 3), "4 server frames and 3 client frames listed; 0.3 s at "
+         "fs=10 and fc=120 plan 4 and 36"),
+        (_cut("server_frames", 1), "1 server frames and 36 client frames listed"),
+        ({"seconds": 0.1}, "plan 2 and 12"),
+    ],
+)
+def test_the_frame_lists_are_the_ones_the_manifest_plans(
+    copy: Path, change: dict[str, object] | Callable[[dict[str, Any]], None], problem: str
+) -> None:
+    p = copy / "manifest.json"
+    m = json.loads(p.read_text())
+    if callable(change):
+        change(m)
+    else:
+        m.update(change)
+    p.write_text(json.dumps(m))
+    with pytest.raises(RecordingError, match=f"manifest.json: .*{problem}"):
+        load_recording(copy)
 
 
 @pytest.mark.parametrize(

@@ -513,6 +513,11 @@ def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
     cut.write_bytes(raw[:end] + b"SRIX" + bytes(200))
     with pytest.raises(StreamError, match="after frame 3: record at byte"):
         list(read_stream(cut))
+    # A record of zero bytes (no index, so the scan reads it): its message named no file
+    # ("frame ?: packet of 0 bytes is shorter than the 32-byte header").
+    cut.write_bytes(raw[:24] + struct.pack("<I", 0) + raw[24:end])
+    with pytest.raises(StreamError, match="^cut.srs: frame \\?: packet of 0 bytes is shorter"):
+        list(read_stream(cut))
     bad = tmp_path / "v.srs"
     bad.write_bytes(raw[:8] + struct.pack("<H", 9) + raw[10:])
     with pytest.raises(StreamError, match="unsupported stream version 9"):

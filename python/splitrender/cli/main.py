@@ -73,8 +73,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     said as such, with its traceback when :data:`DEBUG_ENV` is set). 130: interrupted (143: by
     SIGTERM, unwound the same way). 141: the
     reader of the output went away (a broken pipe), said nothing."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:  # Ctrl-C while the parsers are built (a few tenths of a second)
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
     # SIGTERM (what `timeout` and service managers send) ends the command as Ctrl-C does, so
     # that its temporary files go (an encode left its `.partial` file, a render its folder).
     previous = _on_sigterm()

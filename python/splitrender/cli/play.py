@@ -220,8 +220,11 @@ def _play(args: argparse.Namespace, src: Path, rendered: bool, stage: Path,
         raise InvalidInputError(f"--seconds: {rec_path} lasts {rec.manifest['seconds']:g} s")
     n_server, n_client = plan(seconds, rec.fs, rec.fc)
     if n_client <= 2 * SKIP_FRAMES:
+        # Without --seconds the length is the recording's (or the dataset's): name that.
+        what = ("--seconds:" if args.seconds is not None
+                else f"{args.dataset if args.dataset is not None else rec_path} lasts")
         raise InvalidInputError(
-            f"--seconds: {seconds:g} s is {n_client} client frames; at least "
+            f"{what} {seconds:g} s, {n_client} client frames; at least "
             f"{2 * SKIP_FRAMES + 1} are needed ({SKIP_FRAMES} skipped at each end)")
     eyes = 2 if args.stereo else 1
     # The ground truths are read as they are scored: a play never holds them all.
@@ -241,6 +244,15 @@ def _play(args: argparse.Namespace, src: Path, rendered: bool, stage: Path,
             raise InvalidInputError(
                 f"{src}: the stream has no frames; expected at least one "
                 "server frame")
+        # Every packet's structure and CRC, and that it was encoded from this recording,
+        # before anything is written: a damaged or foreign stream file is refused here, not
+        # half-way through the play. Before its length: a stream that lacks its first frame
+        # was told to give a shorter --seconds, which then did not leave enough frames.
+        try:
+            check_stream_of(packets, stream.fps, rec, src.name)
+            mbps, bitrate = stream_stats(packets, rec.fs).mbps_total(), None
+        except StreamError as e:  # a packet's message names its frame, not the file
+            raise StreamError(f"{src}: {e}") from None
         if len(packets) < n_server:
             # The client would extrapolate the rest from the last frame, scored as if the
             # stream had covered it.
@@ -248,11 +260,6 @@ def _play(args: argparse.Namespace, src: Path, rendered: bool, stage: Path,
                 f"{src}: the stream has {len(packets)} server frames, "
                 f"{seconds:g} s of the recording need {n_server}; give --seconds "
                 f"{(len(packets) - 1) / rec.fs:g} or less")
-        # Every packet's structure and CRC, and that it was encoded from this recording,
-        # before anything is written: a damaged or foreign stream file is refused here, not
-        # half-way through the play.
-        mbps, bitrate = stream_stats(packets, rec.fs).mbps_total(), None
-        check_stream_of(packets, stream.fps, rec, src.name)
         server, sizes = DecodedStream(packets), [len(p) for p in packets]
     else:
         frames = rec.server_frames[:n_server]

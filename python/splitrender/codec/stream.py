@@ -822,10 +822,18 @@ class StreamFile:
             packet, n = self._read_record(
                 f, pos, out[-1].frame if out else None, peek=True
             )
-            frame, key = peek_header(packet)
+            frame, key = self._peek(packet)
             out.append(IndexEntry(frame, pos, key))
             pos += _RECORD.size + n
         return out
+
+    def _peek(self, packet: bytes) -> tuple[int, bool]:
+        """:func:`peek_header` of a record's packet, its errors naming this file (a record of
+        zero bytes was "frame ?: packet of 0 bytes ...", which named no file)."""
+        try:
+            return peek_header(packet)
+        except StreamError as e:
+            raise StreamError(f"{self._name}: {e}") from None
 
     def _read_record(
         self, f: BinaryIO, pos: int, prev: int | None, *, peek: bool = False
@@ -878,7 +886,7 @@ class StreamFile:
             for e in self.index[first:]:
                 f.seek(e.offset)
                 data, _ = self._read_record(f, e.offset, prev)
-                frame, _ = peek_header(data)
+                frame, _ = self._peek(data)
                 if frame != e.frame:
                     raise StreamError(
                         f"{self._name}: frame {e.frame}: the record holds frame {frame}"

@@ -249,9 +249,12 @@ def _recording(scene: str, scale: float, log: Any) -> Any:
     try:
         rec = load_recording(path)
         if len(rec.server_frames) >= 2 and len(rec.client_frames) >= 2:
+            # Every frame against its hash, not only the manifest: a damaged frame file
+            # failed every later bench, as if the user's input were wrong.
+            rec.verify()
             log(f"reusing the cached recording {path}")
             return rec
-    except RecordingError:
+    except RecordingError:  # missing, damaged or of another version: rendered again
         pass
     log(f"rendering 2 server frames of {scene} at scale {scale:g} into {path} (cached)")
     # 0.1 s at 120 FPS: client frames 0..11, server frames 0 and 1.

@@ -127,9 +127,12 @@ def _scene_stream(scene: str, scale: float, n: int, progress: Progress) -> Path:
     )
     if path.is_file():
         try:
-            # The file's index counts its frames without reading them (they are read once,
-            # by the caller).
-            if len(StreamFile(path)) == n:
+            # Every packet's structure and CRC, not only the count of the file's index: a
+            # damaged cache failed every later run with a CRC mismatch that named no file.
+            cached = StreamFile(path)
+            if len(cached) == n:
+                for data in cached.packets():
+                    unpack_packet(data)
                 progress.stage(f"reusing the cached stream {path}")
                 return path
         except (StreamError, OSError):  # a damaged or foreign file: render it again
@@ -239,7 +242,10 @@ def run_realtime_bench(
     packets = list(read_stream(path))
     if not packets:
         raise InvalidInputError(f"{path}: the stream has no frames")
-    heads = [unpack_packet(p) for p in packets]
+    try:
+        heads = [unpack_packet(p) for p in packets]
+    except StreamError as e:  # the packet's message names its frame, not the file
+        raise StreamError(f"{path}: {e}") from None
     main = heads[0].cameras[0]
     fs = _FS
     if len(heads) > 1 and heads[1].time > heads[0].time:

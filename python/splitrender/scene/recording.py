@@ -396,6 +396,13 @@ def check_destination(out: Path, overwrite: bool) -> None:
     is not a recording directory or an empty one (a file, a symbolic link, another folder),
     or is the current directory or above it, even with ``overwrite``: the check
     :func:`write_frames` makes, for callers to make before long work."""
+    # The name of an interrupted write: load_recording refuses it as unfinished, so a render
+    # into x.partial-1 finished and was then "an unfinished recording; render it again".
+    if _PARTIAL.search(out.name):
+        raise RecordingError(
+            f"{out}: a name ending in .partial-N is an unfinished recording's, which no reader "
+            "opens; expected another name"
+        )
     # Only a directory is replaced: write_frames moves the old one aside and removes it with
     # rmtree, which a file or a link would only fail at after the rename, all frames written.
     if out.is_symlink() or (out.exists() and not out.is_dir()):
@@ -1004,4 +1011,29 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
     _get(m, "client_motion", dict, mpath)
     _check_frames(m, "server_frames", float(m["fs"]), mpath)
     _check_frames(m, "client_frames", float(m["fc"]), mpath)
+    _check_plan(m, mpath)
     return Recording(root, m)
+
+
+def _check_plan(m: dict[str, Any], where: Path) -> None:
+    """Checks that the manifest's frame lists are the ones its ``seconds``, ``fs`` and ``fc``
+    plan (:func:`plan`): ``play`` and ``eval`` take a run's length from ``seconds`` and index the
+    frames it plans, so a manifest whose lists are shorter failed later under the names of
+    internal parameters, or (too few server frames) played held frames scored as if the
+    recording were whole. A dataset import keeps every server frame of its folder, so the
+    server list may be longer than planned, never shorter."""
+    seconds, fs, fc = (float(m[k]) for k in ("seconds", "fs", "fc"))
+    for key, rate in (("fs", fs), ("fc", fc)):
+        # Before plan() rounds them: a product too large for a float is inf (a frame's slack
+        # for a product such as n / fc · fc that rounds above n).
+        if seconds * rate > MAX_FRAMES + 1:
+            raise _fail(where, f"fields 'seconds' and {key!r}: {seconds:g} s at {rate:g} "
+                        f"frames/s is more than {MAX_FRAMES} frames")
+    n_server, n_client = plan(seconds, fs, fc)
+    have_server, have_client = len(m["server_frames"]), len(m["client_frames"])
+    if have_client != n_client or have_server < n_server:
+        raise _fail(
+            where,
+            f"{have_server} server frames and {have_client} client frames listed; "
+            f"{seconds:g} s at fs={fs:g} and fc={fc:g} plan {n_server} and {n_client}",
+        )
