@@ -568,3 +568,147 @@ def test_no_shadow_subframes_without_shadow_buffers_is_taken_as_one(handmade: Pa
                 shutil.rmtree(d / f"{sub}Shadow{kind}", ignore_errors=True)
     _edit_cam(handmade, "main", shadowFps=5, serverFps=10)
     assert dataset_info(handmade, client=None).subframes == 1
+
+
+# ----------------------------------------------------------------------------------------------
+# Camera folder names and pixel formats on import (audit of the importer).
+
+
+@pytest.mark.parametrize(
+    ("aux", "client", "what"),
+    [
+        (("../ds/left", "right"), "client_ol", r"aux\[0\]"),
+        (("left", "a/b"), "client_ol", r"aux\[1\]"),
+        (("left", ""), "client_ol", r"aux\[1\]"),
+        (("..", "right"), "client_ol", r"aux\[0\]"),
+        (("left", "right"), ".", "client"),
+        (("left", "right"), "..", "client"),
+        (("left", "right"), "../ds/client_ol", "client"),
+        (("left", "c:\\x"), "client_ol", r"aux\[1\]"),
+    ],
+)
+def test_import_camera_names_must_be_plain(
+    handmade: Path, tmp_path: Path, aux: tuple[str, str], client: str, what: str
+) -> None:
+    # `--aux ../ds/left,right` read DIR/../ds/left and `--client .` DIR/cam.json; the export
+    # already refused such names.
+    _recording_ready(handmade)
+    match = f"{what}: expected a plain name"
+    with pytest.raises(DatasetError, match=match):
+        sr.import_dataset(handmade, aux=aux, client=client)
+    with pytest.raises(DatasetError, match=match):
+        import_dataset_as_recording(handmade, tmp_path / "rec", aux=aux, client=client)
+    assert not (tmp_path / "rec").exists()
+    if what == "client":
+        with pytest.raises(DatasetError, match=match):
+            dataset_info(handmade, client=client)
+
+
+def test_import_refuses_an_absolute_client_folder(handmade: Path) -> None:
+    # A path of its own read a client folder from anywhere; it is a folder of the dataset.
+    with pytest.raises(DatasetError, match="client: expected a plain name"):
+        sr.import_dataset(handmade, aux=(), client=str(handmade / "client_ol"))
+
+
+@pytest.mark.parametrize(
+    ("aux", "client"),
+    [
+        (("left", "left"), "client_ol"),
+        (("main", "right"), "client_ol"),
+        (("left", "right"), "main"),
+        (("left", "right"), "right"),
+    ],
+)
+def test_import_camera_names_must_differ(
+    handmade: Path, tmp_path: Path, aux: tuple[str, str], client: str
+) -> None:
+    # `--aux left,left` read one camera twice, `--client main` took the server's main colour
+    # as the ground truth; the export refuses the same names.
+    _recording_ready(handmade)
+    match = r"camera directory names must differ, got \['main', "
+    with pytest.raises(DatasetError, match=match):
+        sr.import_dataset(handmade, aux=aux, client=client)
+    with pytest.raises(DatasetError, match=match):
+        import_dataset_as_recording(handmade, tmp_path / "rec", aux=aux, client=client)
+    assert not (tmp_path / "rec").exists()
+    if client == "main":
+        with pytest.raises(DatasetError, match=match):
+            dataset_info(handmade, client=client)
+
+
+def _png_bytes(width: int, height: int, depth: int, colour_type: int, rows: bytes) -> bytes:
+    """A PNG of any bit depth and colour type (Pillow writes no 16-bit RGB)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        crc = struct.pack(">I", zlib.crc32(kind + data))
+        return struct.pack(">I", len(data)) + kind + data + crc
+
+    ihdr = struct.pack(">IIBBBBB", width, height, depth, colour_type, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(rows))
+            + chunk(b"IEND", b""))
+
+
+def _save(path: Path, image: Image.Image, fmt: str = "PNG") -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    image.save(path, format=fmt)
+
+
+def _grey16(path: Path) -> None:
+    # 300 was read as 255.
+    _save(path, Image.fromarray(np.full((4, 4), 300, np.uint16)))
+
+
+def _rgb48(path: Path) -> None:
+    # Each 16-bit sample was cut to its high byte.
+    path.write_bytes(_png_bytes(4, 4, 16, 2, b"".join(b"\0" + b"\x01\x2c" * 12 for _ in range(4))))
+
+
+@pytest.mark.parametrize(
+    ("file", "write", "problem"),
+    [
+        ("main/color/0007.png", _grey16, r"a 16-bit PNG \(mode I;16\), expected 8 bits a sample"),
+        ("main/color/0007.png", _rgb48, r"a 16-bit PNG \(mode RGB\), expected 8 bits a sample"),
+        ("main/forwardShadowInfo/0007.png", _rgb48, r"a 16-bit PNG"),
+        ("main/color/0007.png", lambda p: _save(p, Image.new("RGB", (4, 4)), "JPEG"),
+         r"a JPEG file, expected an 8-bit PNG"),
+    ],
+    ids=["grey16", "rgb48", "info-rgb48", "jpeg"],
+)
+def test_import_refuses_a_png_that_is_not_8_bits_a_sample(
+    handmade: Path, file: str, write: object, problem: str
+) -> None:
+    # Pillow read them without a word: a 16-bit grey 300 as 255, 16-bit RGB samples cut to
+    # their high byte, a JPEG (lossy) named .png.
+    path = handmade / file
+    assert callable(write)
+    write(path)
+    name = file.replace("/", r"[/\\]").replace(".", r"\.")
+    with pytest.raises(DatasetError, match=rf"{name}: {problem}"):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_import_reads_every_8_bit_colour_type_as_the_authors_loader_does(
+    handmade: Path,
+) -> None:
+    # Their loader reads every PNG as RGBA8 (REFERENCE.md §1.6), alpha ignored: grey, palette
+    # and RGBA colour, an RGB shadow buffer are the same pixels as the RGB(A) files.
+    before = sr.import_dataset(handmade, aux=())
+    colour = handmade / "main" / "color" / "0007.png"
+    rgb = np.asarray(Image.open(colour).convert("RGB"))
+    info = handmade / "main" / "forwardShadowInfo" / "0007.png"
+    rgba = np.asarray(Image.open(info).convert("RGBA"))
+    for image in (Image.fromarray(rgb).convert("P"), Image.fromarray(rgb).convert("RGBA")):
+        _save(colour, image)
+        _save(info, Image.fromarray(rgba[..., :3]))  # RGB: no alpha
+        after = sr.import_dataset(handmade, aux=())
+        assert np.array_equal(after.server_frames[0].main.color,
+                              before.server_frames[0].main.color)
+        assert np.array_equal(after.server_frames[0].main.shadow_fwd.bits,
+                              before.server_frames[0].main.shadow_fwd.bits)
+    grey = handmade / "client_ol" / "color" / "0007.png"
+    _write_png(grey, np.full((4, 4, 3), 77, np.uint8))
+    want = sr.import_dataset(handmade, aux=()).ground_truth[0]
+    _save(grey, Image.new("L", (4, 4), 77))
+    assert np.array_equal(sr.import_dataset(handmade, aux=()).ground_truth[0], want)

@@ -98,3 +98,54 @@ def test_render_cli_accepts_a_description(tmp_path: Path) -> None:
     args = ["render", str(desc), "--out", str(out), "--seconds", "0.1", "--scale", "0.03", "--quiet"]
     assert main(args) == 0
     assert sr.load_recording(out).scene == "courtyard"
+
+
+@pytest.mark.parametrize(
+    ("entry", "problem"),
+    [
+        # The string was walked as the position (1, 2, 3).
+        ({"position": "123"}, r"models\[0\]: position: expected an array of 3 numbers, got a "
+                              r'string "123"'),
+        # ... and "1e5" failed with "could not convert string to float: 'e'".
+        ({"position": "1e5"}, r'models\[0\]: position: expected an array of 3 numbers, got a '
+                              r'string "1e5"'),
+        ({"position": [1, 2]}, r"models\[0\]: position: expected an array of 3 numbers, got an "
+                               r"array \[1, 2\]"),
+        ({"position": [1, 2, 3, 4]}, r"models\[0\]: position: expected an array of 3 numbers"),
+        ({"position": [0, True, 0]}, r"models\[0\]: position: expected an array of 3 numbers, "
+                                     r"got an array \[0, true, 0\]"),
+        ({"position": [0, "2", 0]}, r"models\[0\]: position: expected an array of 3 numbers"),
+        ({"position": {"x": 0}}, r"models\[0\]: position: expected an array of 3 numbers, got "
+                                 r"an object"),
+        # true was 1.0, "2" was 2.0.
+        ({"yaw_deg": True}, r"models\[0\]: yaw_deg: expected a number, got true"),
+        ({"scale": "2"}, r'models\[0\]: scale: expected a number, got a string "2"'),
+        ({"time_offset": None}, r"models\[0\]: time_offset: expected a number, got null"),
+        ({"speed": [1]}, r"models\[0\]: speed: expected a number, got an array \[1\]"),
+        # 3 was the path "3".
+        ({"path": 3}, r"models\[0\]: path: expected a string, got an integer 3"),
+    ],
+)
+def test_description_values_must_have_their_json_type(
+    tmp_path: Path, entry: dict[str, object], problem: str
+) -> None:
+    _write_quad(tmp_path)
+    desc = _describe(tmp_path, **entry)
+    with pytest.raises(sr.InvalidInputError, match=rf"scene\.json: {problem}"):
+        sr.Scene.from_description(desc)
+    # Values of their JSON type load, an int as a number like a float (JSON has one number).
+    desc = _describe(tmp_path, position=[1, 0.5, -3], yaw_deg=90, scale=2, time_offset=0,
+                     speed=1.5)
+    (m,) = sr.Scene.from_description(desc).models
+    assert m.position == (1.0, 0.5, -3.0) and (m.yaw_deg, m.scale, m.speed) == (90.0, 2.0, 1.5)
+
+
+@pytest.mark.parametrize(("variant", "got"), [("null", "null"), ("3", "an integer 3"),
+                                              ('["static"]', r'an array \["static"\]')])
+def test_description_variant_must_be_a_string(tmp_path: Path, variant: str, got: str) -> None:
+    # null was the variant "None" (an unknown variant), ["static"] the variant "['static']".
+    desc = tmp_path / "scene.json"
+    desc.write_text(f'{{"scene": "courtyard", "variant": {variant}}}')
+    with pytest.raises(sr.InvalidInputError,
+                       match=rf"scene\.json: variant: expected a string, got {got}$"):
+        sr.Scene.from_description(desc)

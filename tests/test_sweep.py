@@ -378,6 +378,9 @@ def _eval(cache: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> tuple[i
 
 @pytest.mark.parametrize("content", ['{"ssim": 0.5}\n', '{"ssim": "0.5", "flip": null, "psnr":'
                                      ' null, "vmaf": null, "mse": null, "frames": 3, "mbps": 1}',
+                                     # A 300-digit SSIM in tables.md before.
+                                     '{"ssim": 1e300, "flip": null, "psnr": null, "vmaf": null,'
+                                     ' "mse": null, "frames": 3, "mbps": 1}',
                                      "not json"])
 def test_a_damaged_cached_row_is_named_with_what_to_remove(
     serial: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], content: str
@@ -404,6 +407,49 @@ def test_a_damaged_cached_row_is_named_with_what_to_remove(
     assert _eval(cache, tmp_path / "out", capsys)[0] == 0
     assert (tmp_path / "out" / "results.json").read_bytes() == \
         (serial / "results.json").read_bytes()
+
+
+_ROW = {"ssim": 0.9, "flip": 0.1, "psnr": 30.0, "vmaf": 90.0, "mse": 1e-3, "frames": 3,
+        "mbps": 1.5}
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "expected"),
+    [("ssim", 1e300, r"null or a number in \[-1, 1\]"), ("ssim", 1.5, None), ("ssim", -1.01, None),
+     ("flip", 1.5, r"null or a number in \[0, 1\]"), ("flip", -0.1, None),
+     ("psnr", 100.5, r"null or a number in \[0, 100\]"), ("psnr", -3.0, None),
+     ("vmaf", 1e300, r"null or a number in \[0, 100\]"), ("vmaf", -1.0, None),
+     ("mse", 2.0, r"null or a number in \[0, 1\]"), ("mse", -1e-3, None),
+     ("frames", 2.5, "an integer >= 0"), ("mbps", -1.0, "a finite number >= 0")],
+)
+def test_a_cached_row_out_of_its_metrics_ranges_is_damaged(
+    tmp_path: Path, name: str, value: float, expected: str | None
+) -> None:
+    """docs/sweeps.md says a row is checked for fields, types and ranges, but only finiteness
+    was: an SSIM of 1e300 reached tables.md with 300 digits. Each metric has its range
+    (metrics.py); the values the pipeline makes, its ends included, are read."""
+    import re
+
+    cache = sweep.Cache(tmp_path / "cache")
+    cache.prepare()
+    key = "a" * 64
+    path = cache.row(key)
+    path.write_text(json.dumps({**_ROW, name: value}))
+    what = rf"{name} is {re.escape(repr(value))}, expected {expected or '.*'}"
+    with pytest.raises(sweep.DamagedCacheError,
+                       match=rf"^{re.escape(str(path))}: {what}: a damaged cache entry \(changed "
+                             rf"after it was written\); remove {re.escape(str(path))} and run"):
+        cache.read_row(key)
+    # The ends of the ranges: identical images give SSIM 1, FLIP 0, PSNR the 100 dB cap (not
+    # inf) and MSE 0; a metric not computed is null.
+    ends = [{"ssim": 1.0, "flip": 0.0, "psnr": 100.0, "vmaf": 100.0, "mse": 0.0},
+            {"ssim": -1.0, "flip": 1.0, "psnr": 0.0, "vmaf": 0.0, "mse": 1.0, "frames": 0,
+             "mbps": 0.0},
+            {"ssim": None, "flip": None, "psnr": None, "vmaf": None, "mse": None},
+            {"ssim": 1 + 2**-52, "mse": 1 + 2**-52, "psnr": -1e-15}]  # rounding in a mean
+    for row in ends:
+        path.write_text(json.dumps({**_ROW, **row}))
+        assert cache.read_row(key) == {**_ROW, **row}
 
 
 def test_a_damaged_cached_stream_or_recording_names_the_entry(

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.errors import SplitRenderError, is_user_error
+from splitrender.evaluation.metrics import PSNR_CAP_DB
 from splitrender.files import JSON_KINDS, read_json, read_regular
 from splitrender.progress import Progress
 
@@ -218,8 +219,9 @@ class Cache:
 
     def read_row(self, key: str) -> dict[str, Any]:
         """The row a score task wrote (``sweep_tasks._write_part``): ``ssim``, ``flip``,
-        ``psnr``, ``vmaf`` and ``mse`` (each a finite number or null), ``frames`` (an integer
-        ≥ 0) and ``mbps`` (a finite number ≥ 0), and nothing else.
+        ``psnr``, ``vmaf`` and ``mse`` (each null, where not computed, or a number in its range,
+        :data:`_METRIC_RANGES`), ``frames`` (an integer ≥ 0) and ``mbps`` (a finite number
+        ≥ 0), and nothing else.
 
         Raises:
             DamagedCacheError: for a file that is not such an object."""
@@ -230,11 +232,19 @@ class Cache:
             raise self.damaged(path, f"expected an object with {sorted(_ROW_FIELDS)}, "
                                      f"got {keys}")
         for name, value in sorted(data.items()):
-            ok = (_count(value) if name == "frames"
-                  else _finite(value) and value >= 0 if name == "mbps"
-                  else value is None or _finite(value))
+            if name == "frames":
+                ok, expected = _count(value), "an integer >= 0"
+            elif name == "mbps":
+                ok, expected = _finite(value) and value >= 0, "a finite number >= 0"
+            else:
+                lo, hi = _METRIC_RANGES[name]
+                # The bounds are the metrics' own; the slack lets through a mean that rounding
+                # put a few ulps past one (an SSIM of 1 + 2e-16), never a damaged value.
+                ok = value is None or (_finite(value)
+                                       and lo - _RANGE_SLACK <= value <= hi + _RANGE_SLACK)
+                expected = f"null or a number in [{lo:g}, {hi:g}]"
             if not ok:
-                raise self.damaged(path, f"{name} is {value!r}")
+                raise self.damaged(path, f"{name} is {value!r}, expected {expected}")
         return data
 
     def read_stream_info(self, key: str) -> tuple[list[int], float]:
@@ -323,6 +333,13 @@ class Cache:
 _SUBFOLDERS = ("chunks", "recordings", "timewarp", "streams", "rows")
 #: The fields of a score task's row in the cache.
 _ROW_FIELDS = {"ssim", "flip", "psnr", "vmaf", "mse", "frames", "mbps"}
+#: The range of each metric of a row (evaluation/metrics.py): SSIM's map is in [-1, 1] and so
+#: its mean; LDR-FLIP's error map in [0, 1]; PSNR is capped at PSNR_CAP_DB (identical images give
+#: the cap, not inf) and is >= 0 as the MSE of values in [0, 1] is <= 1; libvmaf's default model
+#: clips its score to [0, 100]. Rows hold means of these (over frames, and over eyes).
+_METRIC_RANGES = {"ssim": (-1.0, 1.0), "flip": (0.0, 1.0), "psnr": (0.0, PSNR_CAP_DB),
+                  "vmaf": (0.0, 100.0), "mse": (0.0, 1.0)}
+_RANGE_SLACK = 1e-9
 _SHA256 = re.compile("[0-9a-f]{64}")
 
 

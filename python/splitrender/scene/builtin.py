@@ -19,19 +19,20 @@ camera-to-world ``float64[4, 4]`` head poses (the camera looks along its -z):
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeGuard
 
 import numpy as np
 import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.errors import InvalidInputError
-from splitrender.files import read_json, read_regular
+from splitrender.files import JSON_KINDS, read_json, read_regular
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 from splitrender.types import (  # argument checks
     BOOL,
@@ -200,11 +201,14 @@ class Scene:
                          "scale": 0.02, "animation": 2, "time_offset": 0, "speed": 1}]}
 
         Model paths are relative to the description's folder. Every key of a model but ``path``
-        and ``position`` is optional (defaults as :class:`ModelPlacement`).
+        and ``position`` is optional (defaults as :class:`ModelPlacement`). Each key takes its
+        JSON type only: strings for ``scene``, ``variant`` and ``path``, an array of 3 numbers
+        for ``position``, numbers (not ``true``/``false`` or a string of digits) for the others.
 
         Raises:
             InvalidInputError: naming the file and the problem (unreadable, not JSON, unknown or
-                missing keys, bad values, a glTF model that does not load).
+                missing keys, a value of another JSON type (naming the key and the type
+                expected) or out of range, a glTF model that does not load).
         """
         p = Path(path)
         try:
@@ -233,19 +237,23 @@ class Scene:
             try:
                 models.append(
                     ModelPlacement(
-                        path=str(p.parent / str(m["path"])),
-                        position=tuple(float(v) for v in m["position"]),  # type: ignore[arg-type]
-                        yaw_deg=float(m.get("yaw_deg", 0.0)),
-                        scale=float(m.get("scale", 1.0)),
+                        path=str(p.parent / _json_string("path", m["path"])),
+                        position=_json_position(m["position"]),
+                        yaw_deg=_json_number("yaw_deg", m.get("yaw_deg", 0.0)),
+                        scale=_json_number("scale", m.get("scale", 1.0)),
                         animation=_animation_index(m.get("animation", 0)),
-                        time_offset=float(m.get("time_offset", 0.0)),
-                        speed=float(m.get("speed", 1.0)),
+                        time_offset=_json_number("time_offset", m.get("time_offset", 0.0)),
+                        speed=_json_number("speed", m.get("speed", 1.0)),
                     )
                 )
             except (TypeError, ValueError, OverflowError) as e:
                 raise InvalidInputError(f"{p}: models[{i}]: {e}") from None
+        variant = doc.get("variant", "dynamic")
+        if not isinstance(variant, str):
+            # str() made null the variant "None", reported as an unknown variant.
+            raise InvalidInputError(f"{p}: variant: expected a string, got {_json_text(variant)}")
         try:
-            return cls(doc["scene"], str(doc.get("variant", "dynamic")), models)
+            return cls(doc["scene"], variant, models)
         except InvalidInputError as e:
             raise InvalidInputError(f"{p}: {e}") from None
 
@@ -537,6 +545,46 @@ def _animation_index(v: object) -> int | None:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v):
         raise ValueError(f"animation: expected an integer >= 0 or null, got {v!r}")
     return int(v)
+
+
+def _json_text(value: object) -> str:
+    """A JSON value as a message names it: its kind and its (shortened) text."""
+    text = json.dumps(value)
+    if len(text) > 40:
+        text = text[:37] + "..."
+    if value is None or isinstance(value, bool):
+        return text  # null, true, false
+    return f"{JSON_KINDS.get(type(value), type(value).__name__)} {text}"
+
+
+# A description's values are taken with their JSON type only: float() took true as 1.0 and the
+# string "2" as 2.0, and tuple() walked the string "123" as the position (1, 2, 3). The
+# ValueError is named after the model by Scene.from_description, as _animation_index's is.
+
+
+def _is_number(value: object) -> TypeGuard[int | float]:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _json_number(key: str, value: object) -> float:
+    """A description's number ``key`` (an int or a float; its range is ModelPlacement's)."""
+    if not _is_number(value):
+        raise ValueError(f"{key}: expected a number, got {_json_text(value)}")
+    return value  # an int as it is: ModelPlacement converts it (and refuses one too large)
+
+
+def _json_position(value: object) -> tuple[float, float, float]:
+    """A description's ``position``: an array of exactly 3 numbers."""
+    if not (isinstance(value, list) and len(value) == 3 and all(map(_is_number, value))):
+        raise ValueError(f"position: expected an array of 3 numbers, got {_json_text(value)}")
+    return (value[0], value[1], value[2])
+
+
+def _json_string(key: str, value: object) -> str:
+    """A description's string ``key`` (str() made 3 the path "3")."""
+    if not isinstance(value, str):
+        raise ValueError(f"{key}: expected a string, got {_json_text(value)}")
+    return value
 
 
 def _is_float(text: str) -> bool:

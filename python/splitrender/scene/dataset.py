@@ -185,17 +185,33 @@ def _write_exr(path: Path, channels: dict[str, npt.NDArray[Any]]) -> None:
 
 
 def _read_png(path: Path, size: tuple[int, int]) -> _U8:
-    """RGBA8 of the PNG at ``path``, which must be ``size = (w, h)`` (checked before decoding)."""
+    """RGBA8 of the 8-bit PNG at ``path``, which must be ``size = (w, h)`` (checked before
+    decoding). As the authors' loader does (REFERENCE.md §1.6, "Colour PNGs are loaded as
+    RGBA8"), any 8-bit colour type is read (grey, palette, RGB, with or without alpha; the
+    callers ignore alpha); a 16-bit PNG or another format named ``.png`` is refused."""
     if not path.is_file():
         raise _fail(path, "missing file")
     try:
         with Image.open(path) as im:
+            # Pillow opens whatever it can: a JPEG named .png (lossy), a 16-bit PNG cut to 8
+            # bits (a grey 300 read as 255; RGB samples to their high byte).
+            if im.format != "PNG":
+                raise _fail(path, f"a {im.format} file, expected an 8-bit PNG")
             if im.size != size:
                 raise _fail(
                     path,
                     f"resolution {im.size[0]}x{im.size[1]} does not match cam.json's "
                     f"{size[0]}x{size[1]}",
                 )
+            # The bit depth from the IHDR (the first chunk, which Pillow has parsed): Pillow
+            # opens a 16-bit RGB PNG in mode RGB.
+            with open(path, "rb") as f:
+                ihdr = f.read(26)
+            if len(ihdr) < 26 or ihdr[12:16] != b"IHDR":
+                raise _fail(path, "cannot read PNG: the first chunk is not IHDR")
+            if ihdr[24] > 8:
+                raise _fail(path, f"a {ihdr[24]}-bit PNG (mode {im.mode}), expected 8 bits a "
+                                  "sample (RGB8 or RGBA8)")
             if im.mode not in ("RGB", "RGBA"):
                 im = im.convert("RGBA")
             a = np.asarray(im)
@@ -260,6 +276,20 @@ def _number(m: dict[str, Any], key: str, default: float, path: Path) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
         raise _fail(path, f"{key}: expected a number in {lo:g}..{hi:g} (frames/s), got {v!r}")
     return float(v)
+
+
+def _check_names(root: Path, aux: Sequence[str], client: str | None) -> None:
+    """Refuses camera folder names that are not plain names (``../ds/left`` read a folder
+    outside the dataset, ``.`` the dataset's own ``cam.json``) or that repeat one (``left,left``
+    read one camera twice, a client ``main`` took the server's colour as the ground truth), as
+    :func:`export_dataset` refuses them."""
+    for i, a in enumerate(aux):
+        check_name(a, f"aux[{i}]", DatasetError)
+    names = ["main", *aux]
+    if client is not None:
+        names.append(check_name(client, "client", DatasetError))
+    if len(set(names)) != len(names):
+        raise _fail(root, f"camera directory names must differ, got {names}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -526,18 +556,22 @@ def _subframes(shadow_fps: float, server_fps: float) -> int:
 
 
 def dataset_info(in_dir: str | os.PathLike[str], client: str | None = "client_ol") -> DatasetInfo:
-    """The :class:`DatasetInfo` of the dataset in ``in_dir``.
+    """The :class:`DatasetInfo` of the dataset in ``in_dir`` (``client``: the client's folder
+    name in it, or ``None``: main's ``clientFps``).
 
     Raises:
-        DatasetError: as :func:`import_dataset` for ``main/cam.json``, a rate out of range, or
-            ``shadowFps`` that gives more than 12 shadow subframes, or none where the dataset
-            has shadow buffers.
+        DatasetError: as :func:`import_dataset` for ``main/cam.json`` and the client's name,
+            a rate out of range, or ``shadowFps`` that gives more than
+            12 shadow subframes, or none where the dataset has shadow buffers.
     """
     root = Path(in_dir)
+    _check_names(root, (), client)
     main = _read_cam(root / "main" / "cam.json")
     fc_src = main.raw
     if client is not None:
         fc_src = _read_json(root / client / "cam.json")
+    # Each rate from the file the authors' program reads it from (REFERENCE.md §1.2): main's
+    # serverFps and shadowFps, the client's clientFps; the others' copies are not read.
     fs = _number(main.raw, "serverFps", 10.0, main.path)
     fd = _number(main.raw, "shadowFps", 60.0, main.path)
     s, (lo, hi) = _subframes(fd, fs), _SUBFRAMES
@@ -637,25 +671,30 @@ def import_dataset(
     client: str | os.PathLike[str] | None = "client_ol",
 ) -> ImportedDataset:
     """Reads the dataset in the authors' layout under ``in_dir``: the ``main`` camera, the
-    auxiliary cameras ``aux`` (in rig order) and the client directory ``client`` (relative to
-    ``in_dir`` or absolute; ``None``: no client) and converts it to our conventions (see the
-    module docstring). Server frame ``k`` gets index ``k`` and time ``k / serverFps``; client
+    auxiliary cameras ``aux`` (in rig order) and the client directory ``client`` (folder names
+    in ``in_dir``; ``None``: no client) and converts it to our conventions (see the module
+    docstring). Server frame ``k`` gets index ``k`` and time ``k / serverFps``; client
     frame ``n`` time ``n / clientFps`` and the client ``cam.json``'s resolution (the main
     camera's when it has none).
 
     Raises:
-        DatasetError: naming the file, for a missing directory, ``cam.json`` or buffer file, a
-            file whose resolution differs from its ``cam.json``, malformed JSON or matrices,
-            a singular ``w2c``, a ``proj`` that is not an invertible reversed-Z perspective
-            projection with 0 < near < far < inf, two frames of one camera with the same
-            ``idx`` (the client's only when it has ground truth), aux frame lists of another
-            length than main's, or unreadable images.
+        DatasetError: naming the file, for a name of ``aux`` or ``client`` that is not a plain
+            folder name (empty, with a separator, ``.`` or ``..``) or that repeats another (or
+            ``main``), a missing directory, ``cam.json`` or buffer file, a file whose
+            resolution differs from its ``cam.json``, malformed JSON or matrices, a singular
+            ``w2c``, a ``proj`` that is not an invertible reversed-Z
+            perspective projection with 0 < near < far < inf, two frames of one camera with
+            the same ``idx`` (the client's only when it has ground truth), aux frame lists of
+            another length than main's, unreadable images, or an image that is not an 8-bit PNG
+            (a JPEG named ``.png``, a 16-bit PNG).
     """
     root = Path(in_dir)
+    client_name = None if client is None else os.fspath(client)
+    # The names are joined under in_dir: checked before anything is read.
+    _check_names(root, aux, client_name)
     if not root.is_dir():
         raise _fail(root, "no such dataset directory")
     info_main = _read_cam(root / "main" / "cam.json")
-    fs = _number(info_main.raw, "serverFps", 10.0, info_main.path)
     cams = [("main", info_main)]
     for name in aux:
         d = root / name
@@ -668,6 +707,17 @@ def import_dataset(
                 f"{len(c.frames)} frames, but main/cam.json has {len(info_main.frames)}",
             )
         cams.append((name, c))
+    cc, has_gt = None, False
+    if client_name is not None:
+        cd = root / client_name
+        if not cd.is_dir():
+            raise _fail(cd, "missing client directory")
+        has_gt = (cd / "color").is_dir()
+        # Without ground truth the client's idx reads no file (the reference ignores it).
+        cc = _read_cam(cd / "cam.json", need_resolution=False, distinct=has_gt)
+    # Each rate from the file the authors' program reads it from (REFERENCE.md §1.2).
+    fs = _number(info_main.raw, "serverFps", 10.0, info_main.path)
+    fc = 60.0 if cc is None else _number(cc.raw, "clientFps", 60.0, cc.path)
     per_cam = [_import_camera(root / name, c) for name, c in cams]
     server = [
         ServerFrame(k, k / fs, per_cam[0][k], tuple(p[k] for p in per_cam[1:]))
@@ -675,25 +725,16 @@ def import_dataset(
     ]
     requests: list[ClientRequest] = []
     truth: list[_U8 | None] = []
-    if client is not None:
-        cd = root / client
-        if not cd.is_dir():
-            raise _fail(cd, "missing client directory")
-        has_gt = (cd / "color").is_dir()
-        # Without ground truth the client's idx reads no file (the reference ignores it).
-        cc = _read_cam(cd / "cam.json", need_resolution=False, distinct=has_gt)
-        fc = _number(cc.raw, "clientFps", 60.0, cc.path)
+    if cc is not None:
+        cd = cc.path.parent
         w, h = cc.size if cc.width else info_main.size
         for n, (idx, view, proj) in enumerate(cc.frames):
             try:
                 requests.append(ClientRequest(Camera(view, proj, w, h), n / fc))
             except SplitRenderError as e:
                 raise _fail(cc.path, f"frames[{n}]: {e}") from None
-            truth.append(
-                np.ascontiguousarray(_read_png(cd / "color" / _name(idx, "png"), (w, h))[..., :3])
-                if has_gt
-                else None
-            )
+            gt = cd / "color" / _name(idx, "png")
+            truth.append(np.ascontiguousarray(_read_png(gt, (w, h))[..., :3]) if has_gt else None)
     return ImportedDataset(server, requests, truth)
 
 
