@@ -298,3 +298,33 @@ def test_output_folder_refuses_a_file_as_the_folder(tmp_path: Path) -> None:
     with pytest.raises(InvalidInputError, match="exists and is not a folder; expected a folder"):
         _run(file, [], "x")
     assert file.read_text() == "a file"
+
+
+def test_output_folder_check_finds_a_folder_it_cannot_write(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # check() only looked for "exists and is not a folder": `connect --out /proc/self` (or a
+    # read-only folder) ran its whole session, then failed making ".partial-...".
+    if Path("/proc/self").is_dir():  # a folder that takes no entry, whoever runs this
+        with pytest.raises(InvalidInputError, match=r"^/proc/self: cannot write the outputs "
+                           "there: No such file or directory; expected a folder"):
+            OutputFolder("/proc/self", ("a",)).check()
+        with pytest.raises(InvalidInputError, match=r"^/proc/self/new/out: cannot write the "
+                           r"outputs there \(in /proc/self, to create it\): No such file"):
+            OutputFolder("/proc/self/new/out", ("a",)).check()
+    # A folder that can be written, existing or to be made: the check leaves nothing behind.
+    (tmp_path / "there").mkdir()
+    OutputFolder(tmp_path / "there", ("a",)).check()
+    OutputFolder(tmp_path / "new" / "out", ("a",)).check()
+    assert [p.name for p in tmp_path.iterdir()] == ["there"]
+    assert not any((tmp_path / "there").iterdir())
+    # A read-only one (simulated: root writes into any folder), named with the system's words.
+    import tempfile
+
+    def read_only(*args: object, **kwargs: object) -> str:
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(tempfile, "mkdtemp", read_only)
+    with pytest.raises(InvalidInputError, match=f"^{tmp_path / 'there'}: cannot write the "
+                       "outputs there: Read-only file system"):
+        OutputFolder(tmp_path / "there", ("a",)).check()

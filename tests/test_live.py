@@ -154,6 +154,13 @@ def test_session(server: _Server, tmp_path: Path) -> None:
     assert r["mbps"] > 0 and r["network"]["frames_lost"] == 0
     assert r["max_divisor"] == 2  # the default: half rate allowed
     assert (tmp_path / "video.mp4").stat().st_size > 0
+    # The video lasts the session: a frame per refresh at 120 FPS, whatever ran at half rate
+    # or overran its refresh.
+    av = pytest.importorskip("av")
+    with av.open(str(tmp_path / "video.mp4")) as c:
+        assert sum(1 for _ in c.decode(video=0)) == round(5.0 * 120)
+    # usable_late, frame by frame, is what server_frames_late counts.
+    assert sum(f["usable_late"] for f in r["target_mbps"]) == r["server_frames_late"]
     server.wait_log("session ended", 10)
 
 
@@ -662,10 +669,13 @@ def test_server_killed_mid_session(tmp_path: Path) -> None:
     s = _Server(tmp_path / "serve.log")
     try:
         c = _Proc(["connect", f"127.0.0.1:{s.port}", "--token", TOKEN, "--fingerprint",
-                   s.fingerprint, "--seconds", "7", "--out", str(tmp_path / "out")],
+                   s.fingerprint, "--seconds", "6", "--out", str(tmp_path / "out")],
                   tmp_path / "c.log")
         s.wait_log("session from", 30)
-        time.sleep(1.5)
+        # Killed about 3 s into the session: the idle timeout closes the connection 3 s after
+        # the server's last packet, near or after the end, and the outage was not reported
+        # when that was less than 1 s before it.
+        time.sleep(3.0)
         s.p.kill()
         rc = c.p.wait(60)
         c.stop()
@@ -673,9 +683,10 @@ def test_server_killed_mid_session(tmp_path: Path) -> None:
         s.stop()
     assert rc == 0, c.log.read_text()
     r = _report(tmp_path / "out")
-    _all_refreshes(r, 7.0)
+    _all_refreshes(r, 6.0)
     assert r["modes"]["hold"] > 0
     assert "outage" in r and r["network"]["connection_closed"]
+    assert 0 < r["outage"]["from"] < 4.5, r["outage"]  # when the frames stopped
 
 
 # The cap test's settings. At 77x43 a frame carries ~1.3 kB whatever the target (packet
@@ -1053,3 +1064,263 @@ def test_with_retry_a_first_packet_gets_a_retry_and_clients_still_connect() -> N
 
     assert asyncio.run(asyncio.wait_for(probe(False), 30)) == QuicPacketType.INITIAL
     assert asyncio.run(asyncio.wait_for(probe(True), 30)) == QuicPacketType.RETRY
+
+
+# -- the audit of serve / connect / relay -------------------------------------------------------
+
+
+def test_the_video_lasts_the_session_at_half_rate_and_over_dropped_refreshes(
+    tmp_path: Path,
+) -> None:
+    # One video frame per display frame at --fps: at half rate (the default --max-divisor 2) a
+    # 2 s session at 1000 FPS gave 1142 frames at 1000 FPS, a video of 1.142 s. Each display
+    # frame now lasts until the next one's refresh, as it did on the display.
+    av = pytest.importorskip("av")
+    from splitrender.cli.live import MAX_VIDEO_FPS, _video_timeline, _write_video
+
+    fc, seconds = 120.0, 0.25  # 30 refreshes
+    # Half rate, with refreshes 5 and 6 dropped after frame 4 overran them.
+    refresh = [0, 2, 4, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29]
+    times = [n / fc for n in refresh]
+    shown, rate = _video_timeline(times, fc, seconds)
+    assert rate == fc and len(shown) / rate == pytest.approx(seconds)
+    assert shown == [max(i for i, n in enumerate(refresh) if n <= j) for j in range(30)]
+    # Every other refresh kept (a long session's memory cap): still the session's length.
+    shown, rate = _video_timeline(times, fc, seconds, stride=2)
+    assert rate == fc / 2 and len(shown) / rate == pytest.approx(seconds)
+    # A display faster than a video plays: every m-th refresh, still the session's length.
+    shown, rate = _video_timeline([2 * n / 1000 for n in range(1000)], 1000.0, 2.0)
+    assert rate <= MAX_VIDEO_FPS and len(shown) / rate == pytest.approx(2.0)
+    # The video written: a frame per refresh at f_c.
+    images = [np.full((29, 51, 3), 8 * i, np.uint8) for i in range(len(refresh))]
+    _write_video(tmp_path / "v.mp4", list(zip(times, images)), fc, seconds)
+    with av.open(str(tmp_path / "v.mp4")) as c:
+        stream = c.streams.video[0]
+        assert float(stream.average_rate) == pytest.approx(fc)
+        assert sum(1 for _ in c.decode(stream)) == 30
+
+
+def test_the_outage_is_reported_whenever_the_server_went_away_before_the_end() -> None:
+    # Only a close more than 1 s before the end was reported; the close comes with the idle
+    # timeout, 3 s after the server's last packet, so a server killed 2 s into a 6 s session
+    # (closed at 5.27 s) went unreported, and so did one gone in its last 3 s (closed after).
+    from splitrender.client.live import ConnectOptions, LiveClient
+
+    def session(closed_at: float, last_packet: float, code: int = 0,
+                reason: str = "Idle timeout", ours: bool = False) -> dict:  # type: ignore[type-arg]
+        client = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None))
+        client.summary = {}
+        client.net.last_arrival = client.net.last_packet = last_packet
+        client._t0 = time.monotonic() - closed_at
+        if ours:
+            client.close()  # the session's own end
+        client.terminated(code, reason)
+        return client.report(6.0)
+
+    killed = session(closed_at=5.27, last_packet=2.0)
+    assert killed["outage"] == {"from": 2.0, "reason": "Idle timeout"}
+    # Gone in the last 3 s: the client closed the connection at the end, before the idle
+    # timeout, but heard nothing from the server for its last 2 s.
+    late = session(closed_at=6.01, last_packet=4.0, reason="session over", ours=True)
+    assert late["outage"]["from"] == 4.0 and "server" in late["outage"]["reason"]
+    # A server that shut down says so (its code, when the phrase is empty).
+    stopped = session(closed_at=3.0, last_packet=3.0, code=proto.CLOSE_SHUTDOWN, reason="")
+    assert stopped["outage"]["reason"] == "server shutting down"
+    assert stopped["network"]["connection_closed"] == "server shutting down"
+    # A session that ended normally, the server there until the end: no outage.
+    assert "outage" not in session(closed_at=6.01, last_packet=5.99, reason="session over",
+                                   ours=True)
+    assert "outage" not in session(closed_at=5.99, last_packet=5.99, reason="session over",
+                                   ours=True)
+
+
+def test_usable_late_is_what_server_frames_late_counts() -> None:
+    # usable_late was timed in the submit future's callback (after the frame's second pair,
+    # and against another clock's origin) and its sum differed from server_frames_late (6 vs
+    # 5, 5 vs 4, 1 vs 0); now it is the counter's own decision at the handover, frame by frame.
+    from splitrender.client.live import ConnectOptions, LiveClient
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+    from splitrender.scene import Scene
+    from splitrender.types import Camera
+
+    fs, scale = 10.0, 0.02
+    scene = Scene("courtyard")
+    frames = [scene.server_frame(k, scale, fs) for k in range(10)]
+    cam = frames[0].main.camera
+    client = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None))
+    client.welcomed(proto.Welcome(fs, scale, cam.width, cam.height,
+                                  tuple(float(v) for v in cam.proj.ravel()), 100, 1.0, 0.1,
+                                  "courtyard"))
+    with StreamEncoder(CodecConfig(bitrate_mbps=1.0, fps=fs, threads=1)) as enc:
+        packets = [enc.encode(f) for f in frames]
+    # Each frame arrives 20 ms before the display first needs it (t_k - 1/f_s), except frames
+    # 5 and 6, 60 ms after: late whatever the machine's speed.
+    at = [max(0.0, (k - 1) / fs - 0.02) for k in range(10)]
+    at[5], at[6] = 0.46, 0.48
+    assert at == sorted(at)
+
+    def pose(t: float) -> Camera:
+        view = np.asarray(np.linalg.inv(scene.client_pose(t)), np.float64)
+        return Camera(view, cam.proj, cam.width, cam.height)
+
+    assert client.realtime is not None
+    try:
+        client.summary = client.realtime.run(pose, 1.0, feed=list(zip(at, packets))).summary()
+    finally:
+        client.close()
+    for k, (t, p) in enumerate(zip(at, packets)):
+        client.net.targets.append((k, 1.0, t, t, 10.0, len(p), 1))
+    r = client.report(1.0)
+    late = r["server_frames_late"]
+    assert late >= 2, r
+    assert sum(f["usable_late"] for f in r["target_mbps"]) == late
+    # And each frame handed over has the display time it was handed over at.
+    assert all(f["usable"] is not None for f in r["target_mbps"][1:])
+
+
+def test_a_server_stopped_tells_its_client_and_logs_the_session(tmp_path: Path) -> None:
+    # SIGTERM (or Ctrl-C): the server closed its connections with code 0 and no reason (the
+    # client read "code 0", a normal end) and printed no line for the session it ended.
+    s = _Server(tmp_path / "serve.log")
+    try:
+        c = _Proc(["connect", f"127.0.0.1:{s.port}", "--token", TOKEN, "--fingerprint",
+                   s.fingerprint, "--seconds", "6", "--out", str(tmp_path / "out")],
+                  tmp_path / "c.log")
+        s.wait_log("session from", 30)
+        time.sleep(1.5)
+        s.p.send_signal(signal.SIGTERM)
+        assert s.p.wait(30) == 143
+        rc = c.p.wait(60)
+        c.stop()
+    finally:
+        s.stop()
+    assert rc == 0, c.log.read_text()
+    log = s.log.read_text()
+    assert "session ended: " in log and "ended: server shutting down" in log, log
+    r = _report(tmp_path / "out")
+    _all_refreshes(r, 6.0)
+    assert r["network"]["connection_closed"] == "server shutting down"
+    assert r["outage"]["reason"] == "server shutting down"
+
+
+def test_a_generated_token_never_starts_with_a_dash() -> None:
+    # ~1.5 % of token_urlsafe(16) tokens start with '-', which `connect --token` cannot take
+    # (argparse: "expected one argument").
+    from splitrender.cli.live import _new_token
+    from splitrender.cli.main import build_parser
+
+    tokens = [_new_token() for _ in range(2000)]
+    assert not any(t.startswith("-") for t in tokens)
+    assert len(set(tokens)) == len(tokens)
+    assert all(len(t) == 32 and int(t, 16) >= 0 for t in tokens)  # 128 bits, hex
+    parser = build_parser()
+    for t in tokens[:50]:
+        args = parser.parse_args(["connect", "127.0.0.1:9", "--token", t, "--insecure",
+                                  "--out", "x"])
+        assert args.token == t
+
+
+def test_the_session_line_prints_small_rates() -> None:
+    # At small scales the median target is hundredths of a Mb/s: it printed "at 0 Mb/s".
+    from splitrender.net.server import SessionStats
+
+    stats = SessionStats()
+    stats.target_mbps.add(0.036)
+    assert "per frame at 0.036 Mb/s (medians)" in stats.line()
+
+
+def test_serve_refuses_a_scale_the_codec_cannot_carry_before_rendering() -> None:
+    # --scale 1.75 rendered for 5 s, then failed with the codec's "picture.geometry would be
+    # 16800x2528 ... CodecConfig(uncompressed=True)"; --scale 6 grew past 1.1 GB first.
+    done = subprocess.run(
+        [sys.executable, "-m", "splitrender", "serve", "--scale", "1.75", "--port", "0",
+         "--token", TOKEN], capture_output=True, text=True, timeout=60)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0].startswith("splitrender: error: --scale: expected at most 1.7"), lines
+    assert "16800x2528" in lines[0] and "uncompressed" not in lines[0]
+
+    from splitrender.errors import InvalidInputError
+    from splitrender.net.server import check_scale
+    from splitrender.scene import Scene
+
+    # The largest scale it names works, a step above it does not.
+    largest = float(lines[0].split("expected at most ")[1].split()[0])
+    scene = Scene("courtyard")
+    check_scale(scene, largest)
+    with pytest.raises(InvalidInputError, match="scale: expected at most"):
+        check_scale(scene, largest + 0.002)
+    # The check's rig (auxiliary cameras of half the main camera's size, rounded down) is the
+    # renderer's, at odd sizes too.
+    f = scene.server_frame(0, 0.0213, 10.0)
+    w, h = f.main.camera.width, f.main.camera.height
+    assert (w % 2, h % 2) == (1, 1)
+    assert [(a.camera.width, a.camera.height) for a in f.aux] == [(w // 2, h // 2)] * 2
+
+
+def test_connect_refuses_an_unwritable_out_before_the_session() -> None:
+    # --out /proc/self (or a read-only folder) ran the whole session, then failed with
+    # ".partial-...: No such file or directory": the session's results were lost.
+    if not Path("/proc/self").is_dir():
+        pytest.skip("no /proc")
+    done = subprocess.run(
+        [sys.executable, "-m", "splitrender", "connect", "127.0.0.1:9", "--insecure", "--quiet",
+         "--out", "/proc/self"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip() == (
+        "splitrender: error: --out /proc/self: cannot write the outputs there: No such file or "
+        "directory; expected a folder this user can write")
+
+
+def test_connect_says_n_a_for_a_pose_to_display_it_does_not_have(tmp_path: Path) -> None:
+    # A session in which no server frame arrived printed "pose-to-display p50 0 ms".
+    from aioquic.asyncio import QuicConnectionProtocol
+    from aioquic.quic.events import StreamDataReceived
+
+    class WelcomeOnly(QuicConnectionProtocol):
+        def quic_event_received(self, event: Any) -> None:
+            if isinstance(event, StreamDataReceived) and event.stream_id == 0:
+                proj = (1.0, 0, 0, 0, 0, 1.78, 0, 0, 0, 0, 0, 0.1, 0, 0, -1.0, 0)
+                self._quic.send_stream_data(0, proto.frame_control(proto.Welcome(
+                    10.0, 0.03125, 80, 45, proj, 100, 1.0, 0.1, "courtyard").encode()))
+                self.transmit()
+
+    with _hand_made_server(WelcomeOnly) as port:
+        done = _connect(port, tmp_path, "--seconds", "0.5", timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert _report(tmp_path)["pose_to_display_ms_p50"] is None
+    assert "pose-to-display p50 n/a," in done.stdout, done.stdout
+
+
+@pytest.mark.parametrize("argv, start, words", [
+    # Passed the parser, then failed as the API's "port: expected an int in [1, 65535]".
+    (["connect", "127.0.0.1:0"], "splitrender connect: error: argument HOST:PORT:",
+     ("port in 1..65535, got 0",)),
+    # The parser said the least was 0.001, then the command said 1 (serve: 0.1).
+    (["connect", "127.0.0.1:9", "--fps", "0.5"], "splitrender connect: error: argument --fps:",
+     ("at least 1 FPS",)),
+    (["serve", "--fps", "0.05"], "splitrender serve: error: argument --fps:",
+     ("at least 0.1 FPS",)),
+    # Named as the API's field, "fingerprint: ...".
+    (["connect", "127.0.0.1:9", "--fingerprint", "zz"],
+     "splitrender connect: error: argument --fingerprint:", ("64 hex digits", "'zz'")),
+    # Said "use backend='cpu'", an argument of the API.
+    (["connect", "127.0.0.1:9", "--backend", "wgpu", "--method", "timewarp"],
+     "splitrender: error: --method timewarp:", ("--backend cpu",)),
+])
+def test_live_commands_name_the_option_that_is_wrong(
+    argv: list[str], start: str, words: tuple[str, ...], tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from splitrender.cli import main
+
+    if argv[0] == "connect":
+        argv = [*argv, "--insecure", "--quiet", "--out", str(tmp_path / "out")]
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) else 1
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith(start), err
+    for w in words:
+        assert w in err[0], (w, err)

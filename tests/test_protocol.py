@@ -67,6 +67,21 @@ def test_documented_sizes() -> None:
     assert len(w.encode()) == 425 <= proto.MAX_CONTROL
 
 
+def test_every_close_code_is_documented_and_has_words() -> None:
+    """docs/protocol.md's table of close codes; a close without a reason phrase reads as its
+    code's words (a server's bare close read "code 0", a normal end, when it shut down)."""
+    from pathlib import Path
+
+    codes = {n: getattr(proto, n) for n in proto.__all__ if n.startswith("CLOSE_")
+             and n != "CLOSE_TEXT"}
+    assert sorted(codes.values()) == list(range(len(codes)))
+    assert set(proto.CLOSE_TEXT) == set(codes.values())
+    assert proto.CLOSE_TEXT[proto.CLOSE_SHUTDOWN] == "server shutting down"
+    doc = (Path(__file__).parents[1] / "docs" / "protocol.md").read_text()
+    for name, code in codes.items():
+        assert f"| {code} | {name.removeprefix('CLOSE_')} |" in doc, name
+
+
 def test_hello_refusals_name_the_field() -> None:
     raw = proto.Hello("t").encode()
     other = raw[:5] + struct.pack("<H", 9) + raw[7:]

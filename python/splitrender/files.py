@@ -282,13 +282,31 @@ class OutputFolder:
 
     def check(self) -> None:
         """Raises :class:`~splitrender.errors.InvalidInputError` when ``out`` exists and is not
-        a folder: what entering checks, for a command to check before long work."""
+        a folder (what entering checks), or when no entry can be made in it, or, when it is
+        missing, in its nearest existing parent (no permission, a read-only file system, a
+        folder such as ``/proc/self`` that takes none), naming the path and the system's
+        reason: for a command to check before long work (found on entering, after it, the
+        work was lost). The check makes a temporary folder there and removes it."""
+        self._check_kind()
+        probe = next((p for p in (self.out, *self.out.absolute().parents) if p.exists()), None)
+        if probe is None:
+            return  # nothing exists above it (no root): entering will say why
+        try:
+            os.rmdir(tempfile.mkdtemp(prefix=".check-", dir=probe))
+        except OSError as e:
+            where = "" if probe == self.out else f" (in {probe}, to create it)"
+            raise InvalidInputError(
+                f"{self.out}: cannot write the outputs there{where}: {e.strerror or e}; "
+                "expected a folder this user can write"
+            ) from None
+
+    def _check_kind(self) -> None:
         if self.out.exists() and not self.out.is_dir():
             raise InvalidInputError(f"{self.out}: exists and is not a folder; expected a folder "
                                     "for the outputs (new or existing)")
 
     def __enter__(self) -> Path:
-        self.check()
+        self._check_kind()
         self._created = not self.out.exists()
         self.out.mkdir(parents=True, exist_ok=True)
         self._stage = Path(tempfile.mkdtemp(prefix=".partial-", dir=self.out))

@@ -31,29 +31,79 @@ from splitrender.cli.args import (
     loss,
     milliseconds,
     bitrate,
-    rate,
     seconds,
 )
 from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR
 from splitrender.errors import SplitRenderError
 from splitrender.files import OutputFolder, write_atomic
+from splitrender.gpu import GPU_METHODS
 from splitrender.gpu import require as require_backend
 from splitrender.reproject import METHODS
-from splitrender.net.protocol import MAX_TOKEN, MIN_DISPLAY_FPS, MIN_SERVER_FPS
+from splitrender.net.protocol import (
+    MAX_FPS,
+    MAX_TOKEN,
+    MIN_DISPLAY_FPS,
+    MIN_SERVER_FPS,
+    normalise_fingerprint,
+)
 from splitrender.types import MAX_SPAN
 
 __all__ = ["add_connect", "add_relay", "add_serve"]
 
 
-def _address(text: str) -> tuple[str, int]:
+def _address(text: str, lowest: int = 1) -> tuple[str, int]:
+    """``HOST:PORT``; port 0 (``lowest`` 0) only where it means "any free port" (a listening
+    address): a peer's port 0 passed the parser and failed later as the API's ``port``."""
     host, sep, port = text.rpartition(":")
     if not sep or not host:
         raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
-    return host.strip("[]"), integer(port, 0, 65535, "a port")
+    return host.strip("[]"), integer(port, lowest, 65535, "a port")
+
+
+def _listen_address(text: str) -> tuple[str, int]:
+    return _address(text, 0)
 
 
 def _port(text: str) -> int:
     return integer(text, 0, 65535, "a port")
+
+
+def _fps(text: str, lowest: float, why: str = "") -> float:
+    """A rate in FPS in ``lowest``..:data:`MAX_FPS`, the protocol's range, checked by the
+    parser (it checked the codec's, from 0.001, and the command then refused what was below
+    the protocol's with another minimum)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of FPS, got {text!r}") from None
+    if not (math.isfinite(v) and lowest <= v <= MAX_FPS):
+        raise argparse.ArgumentTypeError(
+            f"expected at least {lowest:g} FPS{why} and at most {MAX_FPS:g}, got {text}")
+    return v
+
+
+def _server_fps(text: str) -> float:
+    return _fps(text, MIN_SERVER_FPS, " (the least a client accepts)")
+
+
+def _display_fps(text: str) -> float:
+    return _fps(text, MIN_DISPLAY_FPS)
+
+
+def _fingerprint(text: str) -> str:
+    """64 hex digits (colons and case ignored), checked when parsed, so that the error names
+    --fingerprint (ConnectOptions names its field, ``fingerprint``)."""
+    try:
+        return normalise_fingerprint(text)
+    except SplitRenderError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("fingerprint: ")) from None
+
+
+def _new_token() -> str:
+    """A random session token of 128 bits, in hex: never starts with '-', which argparse
+    takes for an option (``connect --token -Ab..`` said "expected one argument" for the ~1.5 %
+    of ``token_urlsafe`` tokens that did), and needs no quoting in a shell."""
+    return secrets.token_hex(16)
 
 
 def _step(text: str) -> tuple[float, float]:
@@ -81,13 +131,14 @@ def add_serve(sub: Any) -> None:
     from splitrender.net.predict import PREDICTORS
 
     p = command(sub, "serve", run_serve)
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: %(default)s)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default: %(default)s)")
     p.add_argument("--port", type=_port, default=4433, help="UDP port (default: %(default)s)")
     p.add_argument("--scene", default="courtyard", metavar="SCENE",
                    help="built-in scene (courtyard, colonnade, lab) or a JSON scene description "
                    "(default: %(default)s)")
     add_scale(p, 0.0625)
-    p.add_argument("--fps", type=rate, default=10.0, metavar="FS",
+    p.add_argument("--fps", type=_server_fps, default=10.0, metavar="FS",
                    help="server frames per second, f_s (default: %(default)s); a server that "
                    "cannot keep it renders every m-th frame (see --max-span)")
     p.add_argument("--max-span", type=lambda t: integer(t, 1, MAX_SPAN), default=MAX_SPAN,
@@ -134,7 +185,12 @@ def _quiet_quic() -> None:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    from splitrender.net.server import LiveServer, ServerOptions, load_certificate_chain
+    from splitrender.net.server import (
+        LiveServer,
+        ServerOptions,
+        check_scale,
+        load_certificate_chain,
+    )
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
     _quiet_quic()
@@ -144,15 +200,12 @@ def run_serve(args: argparse.Namespace) -> int:
         args.min_bitrate > args.bitrate
     ):
         return fail(f"--min-bitrate {args.min_bitrate:g} is above --bitrate {args.bitrate:g}")
-    token = args.token if args.token is not None else secrets.token_urlsafe(16)
+    token = args.token if args.token is not None else _new_token()
     if len(token.encode()) > MAX_TOKEN:
         return fail(f"--token: at most {MAX_TOKEN} bytes")
     if not token:
         # A client that sends none (connect's default) would be let in.
         return fail("--token: expected a non-empty token (leave it out for a random one)")
-    if args.fps < MIN_SERVER_FPS:
-        return fail(f"--fps: expected at least {MIN_SERVER_FPS:g} FPS (the least a client "
-                    f"accepts), got {args.fps:g}")
     try:
         if args.scene in SCENE_NAMES:
             scene = Scene(args.scene)
@@ -163,6 +216,8 @@ def run_serve(args: argparse.Namespace) -> int:
         else:
             return fail(f"--scene: {args.scene!r} is neither a built-in scene "
                         f"({', '.join(SCENE_NAMES)}) nor a scene description file")
+        # Before anything is rendered (LiveServer renders two frames to start).
+        check_scale(scene, args.scale, "--scale")
         cert = key = None
         chain: list[Any] = []
         if args.cert is not None:
@@ -201,8 +256,9 @@ def run_serve(args: argparse.Namespace) -> int:
 def add_connect(sub: Any) -> None:
     p = command(sub, "connect", run_connect)
     p.add_argument("server", type=_address, metavar="HOST:PORT", help="the server to connect to")
-    p.add_argument("--token", default="", help="the server's session token")
-    p.add_argument("--fingerprint", default=None, metavar="SHA256",
+    p.add_argument("--token", default="", help="the server's session token (one that starts "
+                   "with '-': --token=-...)")
+    p.add_argument("--fingerprint", type=_fingerprint, default=None, metavar="SHA256",
                    help="the server certificate's SHA-256 (hex, colons and case ignored), as "
                    "`splitrender serve` prints it; a mismatch is refused")
     p.add_argument("--insecure", action="store_true",
@@ -211,7 +267,7 @@ def add_connect(sub: Any) -> None:
                    help=f"reprojection method: {', '.join(METHODS)} (default: %(default)s)")
     p.add_argument("--seconds", type=seconds, default=5.0, metavar="S",
                    help="session length (default: %(default)s)")
-    p.add_argument("--fps", type=rate, default=DISPLAY_FPS, metavar="FC",
+    p.add_argument("--fps", type=_display_fps, default=DISPLAY_FPS, metavar="FC",
                    help="display frames per second, f_c (default: %(default)s)")
     add_max_divisor(p, MAX_DIVISOR)
     add_trace(p)
@@ -248,8 +304,10 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail("--fingerprint: expected the server's certificate fingerprint (or --insecure)")
     if len(args.token.encode()) > MAX_TOKEN:
         return fail(f"--token: at most {MAX_TOKEN} bytes")
-    if args.fps < MIN_DISPLAY_FPS:
-        return fail(f"--fps: expected at least {MIN_DISPLAY_FPS:g} FPS, got {args.fps:g}")
+    if args.backend == "wgpu" and args.method not in GPU_METHODS:
+        # Said here in the command's words (the API's check says backend='cpu').
+        return fail(f"--method {args.method}: has no wgpu kernel (--backend wgpu runs "
+                    f"{', '.join(GPU_METHODS)}); use --backend cpu for it")
     # The video and the report replace the previous run's together, the report last; an
     # interrupted score leaves the previous pair.
     outputs = OutputFolder(args.out, ("video.mp4", "report.json"))
@@ -295,20 +353,30 @@ def run_connect(args: argparse.Namespace) -> int:
         frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
         first_shown: list[float] = []
         # The display frames are kept (for the video and the score, written afterwards so
-        # that no display frame pays for encoding) within MAX_KEPT_BYTES: past it every other
-        # one is let go and only every `stride`-th is kept, so a long session at a large
-        # scale cannot exhaust memory (the video's rate drops instead).
+        # that no display frame pays for encoding) within MAX_KEPT_BYTES: past it the video
+        # shows every `stride`-th refresh only (its rate drops), and of the frames made for
+        # the refreshes up to one it shows only the newest is kept, what the display showed
+        # then, so a long session at a large scale cannot exhaust memory.
         stride = [1]
+        kept: list[int] = []  # the refresh index of each frame in `frames`
+
+        def slot(index: int) -> int:
+            return -(-index // stride[0])  # the first video refresh that shows it
 
         def on_frame(img: npt.NDArray[np.uint8], rec: Any) -> None:
             if rec.mode != "hold" and not first_shown:
                 first_shown.append(rec.time)
-            if rec.index % stride[0]:
-                return
+            if kept and slot(kept[-1]) == slot(rec.index):
+                frames.pop()  # a newer frame for the same video refresh
+                kept.pop()
             frames.append((rec.time, img.copy()))
-            if len(frames) * img.nbytes > MAX_KEPT_BYTES:
-                del frames[1::2]
+            kept.append(rec.index)
+            while len(frames) > 1 and len(frames) * img.nbytes > MAX_KEPT_BYTES:
                 stride[0] *= 2
+                last = [i for i in range(len(kept))
+                        if i + 1 == len(kept) or slot(kept[i]) != slot(kept[i + 1])]
+                frames[:] = [frames[i] for i in last]
+                kept[:] = [kept[i] for i in last]
 
         report = client.run(motion, args.seconds, on_frame=on_frame)
     except SplitRenderError as e:
@@ -316,7 +384,7 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail(str(e))
     out: Path = args.out
     with outputs as stage:
-        _write_video(stage / "video.mp4", [img for _, img in frames], args.fps / stride[0])
+        _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0])
         if args.score:
             # Scored from the first frame made from a server frame on: before it every method
             # shows the same black start-up (no server frame yet); holds after it count.
@@ -335,25 +403,62 @@ def run_connect(args: argparse.Namespace) -> int:
                 report["compare"] = {"method": args.compare, **summary}
         write_atomic(stage / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
+    p50 = report["pose_to_display_ms_p50"]  # None: no display frame showed a server frame
     print(f"{report['frames']} frames ({report['full_rate_pct']:.0f} % at the full rate), "
           f"{report['deadline_misses']} deadline misses, modes "
           f"{report['modes']}, {report['server_frames_received']} server frames "
           f"({net['frames_lost']} lost, {net['key_recoveries']} key-frame recoveries), "
-          f"pose-to-display p50 {report['pose_to_display_ms_p50'] or 0:.0f} ms, "
+          f"pose-to-display p50 {'n/a' if p50 is None else f'{p50:.0f} ms'}, "
           f"{report['mbps']:.3f} Mb/s; wrote {out}/report.json")
     return 0
 
 
-def _write_video(path: Path, images: list[npt.NDArray[np.uint8]], fps: float) -> None:
+#: Highest frame rate of connect's video: what players and the H.264 writers take (as
+#: ``video_fps`` says); a faster display's video shows every m-th refresh.
+MAX_VIDEO_FPS = 240.0
+
+
+def _video_timeline(
+    times: list[float], fc: float, seconds: float, stride: int = 1
+) -> tuple[list[int], float]:
+    """The video of display frames shown at ``times`` (display seconds, in order, the first
+    at 0) on a display refreshing at ``fc`` for ``seconds``: which frame each video frame
+    shows (an index into ``times``) and the video's rate. A video frame per refresh, or per
+    ``m``-th refresh where only every ``stride``-th was kept or ``fc`` is above
+    :data:`MAX_VIDEO_FPS` (m a multiple of ``stride``), each showing the newest display frame
+    made for that refresh or before: a frame shown at half rate, or repeated over the
+    refreshes it overran, covers them all, as it did on the display. So the video lasts the
+    session (one frame per display frame made it too short, and fast, where frames were
+    shown at half rate or refreshes dropped)."""
+    import bisect
+
+    m = stride * max(1, math.ceil(fc / stride / MAX_VIDEO_FPS - 1e-9))
+    refreshes = round(seconds * fc)
+    shown = []
+    for j in range(0, refreshes, m):
+        # The newest frame made for refresh j or before (1e-9: the times are j / fc, rounded).
+        shown.append(max(0, bisect.bisect_right(times, j / fc + 1e-9) - 1))
+    return shown, fc / m
+
+
+def _write_video(
+    path: Path, frames: _Shown, fc: float, seconds: float, stride: int = 1
+) -> None:
+    """The display ``frames`` ``(display time, image)`` as a video of the session's length
+    (:func:`_video_timeline`)."""
     from splitrender.evaluation.demo import _Video
 
-    if not images:
+    if not frames:
         return
-    first = _even(images[0])
+    shown, rate = _video_timeline([t for t, _ in frames], fc, seconds, stride)
+    first = _even(frames[0][1])
     # _Video writes beside path and renames when complete: a reader never sees half a video.
-    with _Video(path, first.shape[1], first.shape[0], fps) as video:
-        for img in images:
-            video.write(_even(img))
+    with _Video(path, first.shape[1], first.shape[0], rate) as video:
+        last, img = -1, first
+        for i in shown:
+            if i != last:  # a frame repeated over refreshes is padded once
+                last, img = i, _even(frames[i][1])
+            video.write(img)
 
 
 #: Most bytes of display frames `connect` keeps for its video and score.
@@ -414,7 +519,8 @@ def _score(
 
 def add_relay(sub: Any) -> None:
     p = command(sub, "relay", run_relay)
-    p.add_argument("--listen", type=_address, default=("127.0.0.1", 4434), metavar="HOST:PORT",
+    p.add_argument("--listen", type=_listen_address, default=("127.0.0.1", 4434),
+                   metavar="HOST:PORT",
                    help="where clients connect (loopback only; default: 127.0.0.1:4434)")
     p.add_argument("--target", type=_address, default=("127.0.0.1", 4433), metavar="HOST:PORT",
                    help="the server (loopback only; default: 127.0.0.1:4433)")
@@ -429,8 +535,8 @@ def add_relay(sub: Any) -> None:
                    help="cap of the server-to-client direction (default: none)")
     p.add_argument("--bandwidth-at", type=_step, action="append", default=[],
                    metavar="SECONDS:MBPS",
-                   help="change the cap SECONDS after the first datagram of the client (repeatable; "
-                   "0 removes it)")
+                   help="change the cap SECONDS after the first datagram of the client "
+                   "(repeatable; 0 removes it)")
     p.add_argument("--queue", type=milliseconds, default=500.0, metavar="MS",
                    help="longest queue before the cap drops datagrams (default: %(default)s)")
     p.add_argument("--seed", type=lambda t: integer(t, 0, 2**32 - 1), default=0, metavar="N",

@@ -55,6 +55,7 @@ from splitrender.gpu import backend_for, check_backend
 from splitrender.net.protocol import (
     ALPN,
     CLOSE_BYE,
+    CLOSE_TEXT,
     KEY_LOST,
     KEY_START,
     KEY_UNDECODABLE,
@@ -118,6 +119,10 @@ IDLE_TIMEOUT_S = 3.0
 #: How long the client waits for the server's welcome after its hello (the server answers at
 #: once; it closes a connection without a hello after 2 s).
 WELCOME_TIMEOUT_S = 3.0
+#: A server that sent no packet at all in this long before the session's end went away (a live
+#: one acknowledges the poses within milliseconds), though the idle timeout that closes the
+#: connection (:data:`IDLE_TIMEOUT_S`) comes only after the end.
+SILENT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -311,6 +316,26 @@ class _TimeIndexed(StreamDecoder):
         )
 
 
+class _Realtime(RealtimeClient):
+    """The real-time client, telling :attr:`handed` of each server frame it hands to the
+    display during :meth:`run` (its time, the display time, and whether
+    ``server_frames_late`` counts it): report.json's per-frame ``usable`` and
+    ``usable_late`` are then the counter's own decisions. They were timed in the submit
+    future's callback, after the frame's second pair was prepared (a millisecond or more after
+    the handover; for a frame whose pair was skipped, before it), against another clock's
+    origin, and their sum differed from ``server_frames_late`` by a frame or two a session."""
+
+    handed: Callable[[float, float, bool], None] | None = None
+
+    def _late(self, frame_time: float, period: float) -> bool:
+        # The decision the counter takes (RealtimeClient calls this at the handover, under
+        # its lock, in run() only), passed on as it is made.
+        late = super()._late(frame_time, period)
+        if self.handed is not None:
+            self.handed(frame_time, self._display_now(), late)
+        return late
+
+
 @dataclass
 class _NetStats:
     frames_completed: int = 0
@@ -332,6 +357,10 @@ class _NetStats:
     server_encode_ms: Tally = field(default_factory=Tally)
     closed_at: float | None = None
     closed_reason: str | None = None
+    #: Whether the connection closed other than by the client's end of the session (the
+    #: server closed it, went silent for the idle timeout, or the client failed).
+    closed_early: bool = False
+    last_packet: float | None = None  # display time of the newest packet from the server
 
 
 class _Connection(QuicConnectionProtocol):
@@ -350,13 +379,21 @@ class _Connection(QuicConnectionProtocol):
         self._dead_below = -1
         self._declared = 0  # bytes the headers of the frames still arriving announce
 
+    def datagram_received(self, data: bytes | str, addr: Any) -> None:
+        # Any packet (acknowledgements of the poses included): whether the server is there.
+        self.owner.net.last_packet = self.owner._now()
+        super().datagram_received(data, addr)
+
     def quic_event_received(self, event: QuicEvent) -> None:
         try:
             self._event(event)
         except Exception as e:  # noqa: BLE001 - raised in asyncio's callback, it was a traceback
             # and the session went on without what failed; it ends instead, with the reason.
             reason = f"client error: {type(e).__name__}: {e}".splitlines()[0][:200]
-            self.owner.net.closed_reason = self.owner.net.closed_reason or reason
+            o = self.owner
+            if o.net.closed_reason is None:
+                o.net.closed_reason, o.net.closed_at = reason, o._now()
+                o.net.closed_early = not o._ending
             self._quic.close(error_code=CLOSE_BYE, reason_phrase=reason)
             self.transmit()
 
@@ -543,9 +580,11 @@ class LiveClient:
         #: Frames being received: stream id -> [first byte (loop time), bytes, header.sent].
         self.in_progress: dict[int, list[float]] = {}
         self._usable: list[float] = []  # lateness (s) of the frames usable since the report
-        #: Display time at which each server frame (by index) became usable: the newest
+        #: Each server frame (by index) handed to the display during the run: the display
+        #: time and whether ``server_frames_late`` counted it (:class:`_Realtime`); the newest
         #: :data:`KEEP_FRAME_RECORDS`.
-        self.usable_at: dict[int, float] = {}
+        self.usable_at: dict[int, tuple[float, bool]] = {}
+        self._ending = False  # close() was called: the session's own end
         self._any_usable = False
         self._min_delay: float | None = None
         self._reported = 0.0  # loop time of the last rate report
@@ -573,7 +612,7 @@ class LiveClient:
     def welcomed(self, welcome: Welcome) -> None:
         self.welcome = welcome
         self.order.give_up = 1.0 / welcome.server_fps
-        self.realtime = RealtimeClient(
+        self.realtime = _Realtime(
             client=Client(
                 self.options.method, server_fps=welcome.server_fps, backend=self.options.backend
             ),
@@ -581,7 +620,15 @@ class LiveClient:
             max_divisor=self.options.max_divisor,
             decoder=_TimeIndexed(welcome, self.spans),
         )
+        self.realtime.handed = self._handed
         self._ready.set()
+
+    def _handed(self, frame_time: float, now: float, late: bool) -> None:
+        """A server frame handed to the display at display time ``now`` (the display's or
+        the worker's thread, under the real-time client's lock)."""
+        assert self.welcome is not None
+        k = round(frame_time * self.welcome.server_fps)
+        _put_bounded(self.usable_at, k, (now, late), KEEP_FRAME_RECORDS)
 
     def terminated(self, code: int, reason: str) -> None:
         if self.welcome is None and self.server_fingerprint is None:
@@ -594,8 +641,10 @@ class LiveClient:
             said = printable(reason) or f"connection closed (code {code})"
             self.refuse(f"refused by the server: {said}")
         if self.net.closed_reason is None:
-            self.net.closed_reason = reason or f"code {code}"
+            # The code's own words when the peer gave none (a bare close read "code 0").
+            self.net.closed_reason = reason or CLOSE_TEXT.get(code, f"code {code}")
             self.net.closed_at = self._now()
+            self.net.closed_early = not self._ending
         if self._stop is not None:
             self._stop.set()
 
@@ -659,7 +708,6 @@ class LiveClient:
     def _made_usable(self, k: int, span: int, usable: float) -> None:
         assert self.welcome is not None and self._loop is not None
         first, self._any_usable = not self._any_usable, True
-        _put_bounded(self.usable_at, k, usable, KEEP_FRAME_RECORDS)
         if not first:
             # (The session's first frame is for the time it arrives: late by construction.)
             self._usable.append(usable - (k - span) / self.welcome.server_fps)
@@ -807,6 +855,7 @@ class LiveClient:
         return self.welcome
 
     def close(self) -> None:
+        self._ending = True
         loop, stop = self._loop, self._stop
         if loop is not None and stop is not None:
             try:
@@ -932,13 +981,23 @@ class LiveClient:
                  "arrival": round(t, 4),
                  "span": span,
                  "late_ms": round((t - (i - span) / fs) * 1e3, 1),
-                 "usable": None if (u := self.usable_at.get(i)) is None else round(u, 4),
-                 "usable_late": u is not None and u > max(0.0, (i - span) / fs)}
+                 "usable": None if (u := self.usable_at.get(i)) is None else round(u[0], 4),
+                 "usable_late": u is not None and u[1]}
                 for i, m, t, sent, ms, size, span in n.targets
             ],
         )
-        if n.closed_at is not None and n.closed_at < seconds - 1.0:
-            s["outage"] = {"from": n.last_arrival or 0.0, "reason": n.closed_reason}
+        # The server went away before the end: the connection closed then (the idle timeout
+        # comes 3 s after its last packet, so a server gone in the last 3 s closed it after
+        # the end, and one gone in the last 4 s went unreported), or nothing came from it at
+        # all in the last SILENT_S. From when the frames stopped.
+        silent = seconds - (n.last_packet or 0.0)
+        early = n.closed_early and n.closed_at is not None and n.closed_at < seconds
+        if early or silent > SILENT_S:
+            s["outage"] = {
+                "from": n.last_arrival or 0.0,
+                "reason": n.closed_reason if early else (
+                    f"no packet from the server in the last {silent:.1f} s of the session"),
+            }
         if math.isnan(s["mbps"]):
             s["mbps"] = 0.0
         return s

@@ -132,7 +132,9 @@ from splitrender.types import (  # argument checks
 if TYPE_CHECKING:
     from typing_extensions import Self  # annotations only (Python 3.10)
 
-__all__ = ["CodecConfig", "DecodedStream", "StreamDecoder", "StreamEncoder"]
+__all__ = [
+    "CodecConfig", "DecodedStream", "StreamDecoder", "StreamEncoder", "oversized_picture",
+]
 
 _K = BufferKind
 _CODE_MAX = 4095  # 12 bits
@@ -365,6 +367,19 @@ _LEVEL5_SIDE = 4208
 
 
 @lru_cache(maxsize=64)
+def oversized_picture(sizes: Sequence[tuple[int, int]]) -> tuple[str, int, int] | None:
+    """The first picture a stream of cameras of ``sizes`` (``(width, height)``, main first)
+    would have that the codec cannot carry, a side beyond :data:`MAX_SIDE`, as ``(name,
+    width, height)``; ``None`` when every picture fits. :class:`StreamEncoder` refuses such a
+    stream at its first frame; a server checks its scale with this before rendering one."""
+    layout = tuple((int(w), int(h)) for w, h in sizes)
+    for pic in PICTURE_KINDS:
+        _, pw, ph = _layout(pic, layout)
+        if max(pw, ph) > MAX_SIDE:
+            return buffer_name(0, pic), pw, ph
+    return None
+
+
 def _layout(
     picture: BufferKind, sizes: tuple[tuple[int, int], ...]
 ) -> tuple[dict[tuple[int, BufferKind, int], _Tile], int, int]:
@@ -844,17 +859,16 @@ class StreamEncoder(_WorkerThreads):
                     f"{len(self.config.camera_shares)} camera shares in the CodecConfig"
                 )
             if not self.config.uncompressed:
-                for pic in PICTURE_KINDS:
-                    _, pw, ph = _layout(pic, layout)
-                    # The decoder places no tile beyond MAX_SIDE (a picture that long was
-                    # encoded, and every packet then refused): cameras a few pixels tall
-                    # or wide tile into one long row or column.
-                    if max(pw, ph) > MAX_SIDE:
-                        raise InvalidInputError(
-                            f"frame {frame.index}: with cameras of {layout}, "
-                            f"{buffer_name(0, pic)} would be {pw}x{ph}, beyond the codec's "
-                            f"{MAX_SIDE} pixels a side; expected cameras nearer to square, "
-                            "or CodecConfig(uncompressed=True)")
+                # The decoder places no tile beyond MAX_SIDE (a picture that long was
+                # encoded, and every packet then refused): cameras a few pixels tall or wide
+                # tile into one long row or column.
+                over = oversized_picture(layout)
+                if over is not None:
+                    name, pw, ph = over
+                    raise InvalidInputError(
+                        f"frame {frame.index}: with cameras of {layout}, {name} would be "
+                        f"{pw}x{ph}, beyond the codec's {MAX_SIDE} pixels a side; expected "
+                        "cameras nearer to square, or CodecConfig(uncompressed=True)")
             self._layout = layout
         elif layout != self._layout:
             raise InvalidInputError(

@@ -41,6 +41,8 @@ __all__ = [
     "CLOSE_BYE",
     "CLOSE_DISPLAY",
     "CLOSE_SERVER_ERROR",
+    "CLOSE_SHUTDOWN",
+    "CLOSE_TEXT",
     "CLOSE_TOKEN",
     "CLOSE_VERSION",
     "MAX_CONTROL",
@@ -104,6 +106,18 @@ CLOSE_BAD_HELLO = 3  #: the control stream did not start with a well-formed hell
 CLOSE_BUSY = 4  #: the server already serves a session
 CLOSE_DISPLAY = 5  #: the display size is not the one the server renders
 CLOSE_SERVER_ERROR = 6  #: the server failed to render or encode; the session ends
+CLOSE_SHUTDOWN = 7  #: the server is shutting down (Ctrl-C, SIGTERM); the session ends
+#: What each close code says when its reason phrase is empty (a peer's own words come first).
+CLOSE_TEXT: Mapping[int, str] = {
+    CLOSE_BYE: "session over",
+    CLOSE_VERSION: "protocol version not supported",
+    CLOSE_TOKEN: "wrong token",
+    CLOSE_BAD_HELLO: "bad hello",
+    CLOSE_BUSY: "busy",
+    CLOSE_DISPLAY: "display size not served",
+    CLOSE_SERVER_ERROR: "server error",
+    CLOSE_SHUTDOWN: "server shutting down",
+}
 
 # Message types (the first byte of every message).
 T_HELLO = 0x01

@@ -68,6 +68,8 @@ from splitrender.net.protocol import (
     CLOSE_BUSY,
     CLOSE_DISPLAY,
     CLOSE_SERVER_ERROR,
+    CLOSE_SHUTDOWN,
+    CLOSE_TEXT,
     CLOSE_TOKEN,
     CLOSE_VERSION,
     PROTOCOL_VERSION,
@@ -94,6 +96,7 @@ __all__ = [
     "LiveServer",
     "ServerOptions",
     "SessionStats",
+    "check_scale",
     "choose_span",
     "self_signed_certificate",
 ]
@@ -202,6 +205,48 @@ def plan_frame(
     return FramePlan(k, (k - m) / fs - ahead - offset, skipped)
 
 
+def _camera_sizes(scene: Scene, scale: float) -> tuple[tuple[int, int], ...]:
+    """The rig's camera sizes at ``scale`` without rendering a frame: the main camera and the
+    two auxiliary cameras of half its width and height, rounded down, at least 1
+    (reproj-scene's rig; tests/test_live.py checks it against a rendered frame)."""
+    w, h = scene.main_size(scale)
+    aux = (max(1, w // 2), max(1, h // 2))
+    return (w, h), aux, aux
+
+
+def check_scale(scene: Scene, scale: float, name: str = "scale") -> None:
+    """Raises :class:`~splitrender.errors.InvalidInputError` naming ``name`` and the largest
+    scale that works when the codec cannot carry ``scene``'s frames at ``scale`` (a picture
+    side beyond :data:`~splitrender.codec.stream.MAX_SIDE`,
+    :func:`~splitrender.codec.coder.oversized_picture`): found at the first encode, the
+    server had rendered for seconds (minutes at large scales) and failed with the codec's
+    words, which named neither the scale nor an option of ``serve``."""
+    from splitrender.codec.coder import oversized_picture
+    from splitrender.codec.stream import MAX_SIDE
+
+    def fits(x: float) -> bool:
+        return oversized_picture(_camera_sizes(scene, x)) is None
+
+    over = oversized_picture(_camera_sizes(scene, scale))
+    if over is None:
+        return
+    # The pictures grow with the scale: bisect for the largest that fits, then round it down
+    # to 4 significant digits (a value to type).
+    lo, hi = 1.0 / 2880, scale
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid)
+    digits = 10.0 ** (3 - math.floor(math.log10(lo)))
+    largest = math.floor(lo * digits) / digits
+    while not fits(largest) and largest > 1.0 / digits:  # a layout that is not monotone there
+        largest = round(largest - 1.0 / digits, 12)
+    pic, pw, ph = over
+    raise InvalidInputError(
+        f"{name}: expected at most {largest:g} (scale {scale:g} makes the codec's {pic} "
+        f"{pw}x{ph}, beyond its {MAX_SIDE} pixels a side)"
+    )
+
+
 def self_signed_certificate(host: str = "localhost") -> tuple[Any, Any]:
     """A new ECDSA P-256 key and a self-signed certificate for ``host`` valid for 30 days
     (``cryptography`` objects, as :class:`QuicConfiguration` takes them)."""
@@ -290,15 +335,17 @@ class SessionStats:
                 value.forget_values()
 
     def line(self) -> str:
-        def med(v: Tally) -> str:
+        # Milliseconds whole; Mb/s to 3 significant digits (at small scales the rate is
+        # hundredths of a Mb/s, which ".0f" printed as 0).
+        def med(v: Tally, spec: str = ".0f") -> str:
             m = v.median()
-            return "n/a" if m is None else f"{m:.0f}"
+            return "n/a" if m is None else format(m, spec)
 
         return (
             f"{self.frames_sent} frames sent ({self.key_frames} key, {self.frames_skipped} "
             f"skipped, {self.streams_reset} reset, {self.frames_dropped} dropped on purpose, "
             f"{len(self.paced_ms)} held for the link), render {med(self.render_ms)} ms + encode "
-            f"{med(self.encode_ms)} ms per frame at {med(self.target_mbps)} Mb/s (medians), "
+            f"{med(self.encode_ms)} ms per frame at {med(self.target_mbps, '.3g')} Mb/s (medians), "
             f"{self.key_requests} key requests, "
             f"{self.malformed_datagrams} malformed datagrams, {self.malformed_streams} "
             f"malformed streams; ended: {self.ended}"
@@ -538,6 +585,18 @@ class _Session(QuicConnectionProtocol):
         if not 0.0 <= t <= (2**31 - 1) / (2 * fs):
             return False
         return self._offset is None or t - now <= self._offset + MAX_CLOCK_STEP_S
+
+    def shut_down(self) -> None:
+        """The server stops (Ctrl-C, SIGTERM): the connection is closed with
+        :data:`CLOSE_SHUTDOWN`, so that the client reports the server gone rather than a
+        normal end (a bare close said code 0, ``BYE``), and an accepted session's line is
+        logged now (the loop ends before the close's ``ConnectionTerminated`` would come)."""
+        if not self._refused:
+            self._refused = True
+            self._quic.close(error_code=CLOSE_SHUTDOWN,
+                             reason_phrase=CLOSE_TEXT[CLOSE_SHUTDOWN])
+            self.transmit()
+        self._terminated(CLOSE_TEXT[CLOSE_SHUTDOWN])
 
     def _terminated(self, reason: str) -> None:
         self._not_pending()
@@ -822,6 +881,9 @@ class LiveServer:
     ) -> None:
         self.options = options
         self.scene = scene if scene is not None else Scene(options.scene_name)
+        # Before the first render: at a scale the codec cannot carry, that render took seconds
+        # to minutes (and gigabytes) for an encode that then failed.
+        check_scale(self.scene, options.scale)
         if certificate is None:
             certificate, private_key = self_signed_certificate()
         from cryptography.hazmat.primitives.serialization import Encoding
@@ -949,6 +1011,10 @@ class LiveServer:
         try:
             await self._done.wait()
         finally:
+            # Ctrl-C and SIGTERM come here too (cancelled): each connection is told why it
+            # ends, and an accepted session's line is logged, before the socket goes.
+            for session in [*self.waiting, *([self.active] if self.active else [])]:
+                session.shut_down()
             quic.close()
             self.executor.shutdown(wait=True, cancel_futures=True)
             self.encoder.close()
