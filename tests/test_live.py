@@ -18,7 +18,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -665,18 +665,19 @@ def test_through_the_relay(tmp_path: Path) -> None:
     assert r["pose_to_display_ms_p50"] > 50  # at least the one-way delay
 
 
-def test_server_killed_mid_session(tmp_path: Path) -> None:
+def _session_ended_by_the_server(
+    tmp_path: Path, after: float, end: Callable[[_Server], None]
+) -> tuple[dict[str, Any], str]:
+    """A 6 s session whose server ``end`` stops ``after`` seconds into it: the client's
+    report (every refresh accounted for) and the server's log."""
     s = _Server(tmp_path / "serve.log")
     try:
         c = _Proc(["connect", f"127.0.0.1:{s.port}", "--token", TOKEN, "--fingerprint",
                    s.fingerprint, "--seconds", "6", "--out", str(tmp_path / "out")],
                   tmp_path / "c.log")
         s.wait_log("session from", 30)
-        # Killed about 3 s into the session: the idle timeout closes the connection 3 s after
-        # the server's last packet, near or after the end, and the outage was not reported
-        # when that was less than 1 s before it.
-        time.sleep(3.0)
-        s.p.kill()
+        time.sleep(after)
+        end(s)
         rc = c.p.wait(60)
         c.stop()
     finally:
@@ -684,6 +685,14 @@ def test_server_killed_mid_session(tmp_path: Path) -> None:
     assert rc == 0, c.log.read_text()
     r = _report(tmp_path / "out")
     _all_refreshes(r, 6.0)
+    return r, s.log.read_text()
+
+
+def test_server_killed_mid_session(tmp_path: Path) -> None:
+    # Killed about 3 s into the session: the idle timeout closes the connection 3 s after the
+    # server's last packet, near or after the end, and the outage was not reported when that
+    # was less than 1 s before it.
+    r, _ = _session_ended_by_the_server(tmp_path, 3.0, lambda s: s.p.kill())
     assert r["modes"]["hold"] > 0
     assert "outage" in r and r["network"]["connection_closed"]
     assert 0 < r["outage"]["from"] < 4.5, r["outage"]  # when the frames stopped
@@ -1181,24 +1190,12 @@ def test_usable_late_is_what_server_frames_late_counts() -> None:
 def test_a_server_stopped_tells_its_client_and_logs_the_session(tmp_path: Path) -> None:
     # SIGTERM (or Ctrl-C): the server closed its connections with code 0 and no reason (the
     # client read "code 0", a normal end) and printed no line for the session it ended.
-    s = _Server(tmp_path / "serve.log")
-    try:
-        c = _Proc(["connect", f"127.0.0.1:{s.port}", "--token", TOKEN, "--fingerprint",
-                   s.fingerprint, "--seconds", "6", "--out", str(tmp_path / "out")],
-                  tmp_path / "c.log")
-        s.wait_log("session from", 30)
-        time.sleep(1.5)
+    def stop(s: _Server) -> None:
         s.p.send_signal(signal.SIGTERM)
         assert s.p.wait(30) == 143
-        rc = c.p.wait(60)
-        c.stop()
-    finally:
-        s.stop()
-    assert rc == 0, c.log.read_text()
-    log = s.log.read_text()
+
+    r, log = _session_ended_by_the_server(tmp_path, 1.5, stop)
     assert "session ended: " in log and "ended: server shutting down" in log, log
-    r = _report(tmp_path / "out")
-    _all_refreshes(r, 6.0)
     assert r["network"]["connection_closed"] == "server shutting down"
     assert r["outage"]["reason"] == "server shutting down"
 
