@@ -574,6 +574,22 @@ def test_no_shadow_subframes_without_shadow_buffers_is_taken_as_one(handmade: Pa
 # Camera folder names and pixel formats on import (audit of the importer).
 
 
+def _refused_everywhere(
+    handmade: Path, tmp_path: Path, aux: tuple[str, str], client: str, match: str, info: bool
+) -> None:
+    """The names are refused by import_dataset, by import_dataset_as_recording (which writes
+    nothing) and, with ``info``, by dataset_info."""
+    _recording_ready(handmade)
+    with pytest.raises(DatasetError, match=match):
+        sr.import_dataset(handmade, aux=aux, client=client)
+    with pytest.raises(DatasetError, match=match):
+        import_dataset_as_recording(handmade, tmp_path / "rec", aux=aux, client=client)
+    assert not (tmp_path / "rec").exists()
+    if info:
+        with pytest.raises(DatasetError, match=match):
+            dataset_info(handmade, client=client)
+
+
 @pytest.mark.parametrize(
     ("aux", "client", "what"),
     [
@@ -592,16 +608,8 @@ def test_import_camera_names_must_be_plain(
 ) -> None:
     # `--aux ../ds/left,right` read DIR/../ds/left and `--client .` DIR/cam.json; the export
     # already refused such names.
-    _recording_ready(handmade)
-    match = f"{what}: expected a plain name"
-    with pytest.raises(DatasetError, match=match):
-        sr.import_dataset(handmade, aux=aux, client=client)
-    with pytest.raises(DatasetError, match=match):
-        import_dataset_as_recording(handmade, tmp_path / "rec", aux=aux, client=client)
-    assert not (tmp_path / "rec").exists()
-    if what == "client":
-        with pytest.raises(DatasetError, match=match):
-            dataset_info(handmade, client=client)
+    _refused_everywhere(handmade, tmp_path, aux, client, f"{what}: expected a plain name",
+                        info=what == "client")
 
 
 def test_import_refuses_an_absolute_client_folder(handmade: Path) -> None:
@@ -624,16 +632,9 @@ def test_import_camera_names_must_differ(
 ) -> None:
     # `--aux left,left` read one camera twice, `--client main` took the server's main colour
     # as the ground truth; the export refuses the same names.
-    _recording_ready(handmade)
-    match = r"camera directory names must differ, got \['main', "
-    with pytest.raises(DatasetError, match=match):
-        sr.import_dataset(handmade, aux=aux, client=client)
-    with pytest.raises(DatasetError, match=match):
-        import_dataset_as_recording(handmade, tmp_path / "rec", aux=aux, client=client)
-    assert not (tmp_path / "rec").exists()
-    if client == "main":
-        with pytest.raises(DatasetError, match=match):
-            dataset_info(handmade, client=client)
+    _refused_everywhere(handmade, tmp_path, aux, client,
+                        r"camera directory names must differ, got \['main', ",
+                        info=client == "main")
 
 
 def _png_bytes(width: int, height: int, depth: int, colour_type: int, rows: bytes) -> bytes:

@@ -695,6 +695,8 @@ def import_dataset(
     if not root.is_dir():
         raise _fail(root, "no such dataset directory")
     info_main = _read_cam(root / "main" / "cam.json")
+    # Each rate from the file the authors' program reads it from (REFERENCE.md §1.2).
+    fs = _number(info_main.raw, "serverFps", 10.0, info_main.path)
     cams = [("main", info_main)]
     for name in aux:
         d = root / name
@@ -707,17 +709,6 @@ def import_dataset(
                 f"{len(c.frames)} frames, but main/cam.json has {len(info_main.frames)}",
             )
         cams.append((name, c))
-    cc, has_gt = None, False
-    if client_name is not None:
-        cd = root / client_name
-        if not cd.is_dir():
-            raise _fail(cd, "missing client directory")
-        has_gt = (cd / "color").is_dir()
-        # Without ground truth the client's idx reads no file (the reference ignores it).
-        cc = _read_cam(cd / "cam.json", need_resolution=False, distinct=has_gt)
-    # Each rate from the file the authors' program reads it from (REFERENCE.md §1.2).
-    fs = _number(info_main.raw, "serverFps", 10.0, info_main.path)
-    fc = 60.0 if cc is None else _number(cc.raw, "clientFps", 60.0, cc.path)
     per_cam = [_import_camera(root / name, c) for name, c in cams]
     server = [
         ServerFrame(k, k / fs, per_cam[0][k], tuple(p[k] for p in per_cam[1:]))
@@ -725,16 +716,25 @@ def import_dataset(
     ]
     requests: list[ClientRequest] = []
     truth: list[_U8 | None] = []
-    if cc is not None:
-        cd = cc.path.parent
+    if client_name is not None:
+        cd = root / client_name
+        if not cd.is_dir():
+            raise _fail(cd, "missing client directory")
+        has_gt = (cd / "color").is_dir()
+        # Without ground truth the client's idx reads no file (the reference ignores it).
+        cc = _read_cam(cd / "cam.json", need_resolution=False, distinct=has_gt)
+        fc = _number(cc.raw, "clientFps", 60.0, cc.path)
         w, h = cc.size if cc.width else info_main.size
         for n, (idx, view, proj) in enumerate(cc.frames):
             try:
                 requests.append(ClientRequest(Camera(view, proj, w, h), n / fc))
             except SplitRenderError as e:
                 raise _fail(cc.path, f"frames[{n}]: {e}") from None
-            gt = cd / "color" / _name(idx, "png")
-            truth.append(np.ascontiguousarray(_read_png(gt, (w, h))[..., :3]) if has_gt else None)
+            truth.append(
+                np.ascontiguousarray(_read_png(cd / "color" / _name(idx, "png"), (w, h))[..., :3])
+                if has_gt
+                else None
+            )
     return ImportedDataset(server, requests, truth)
 
 
