@@ -289,6 +289,8 @@ TABLE: dict[str, Entry] = {
                                lambda f: dict(path=f.trace_file), dict(path=PATH)),
     "Scene.main_size": (lambda f: sr.Scene("courtyard").main_size, lambda f: dict(scale=0.1),
                         dict(scale=POSITIVE)),
+    "Scene.camera_sizes": (lambda f: sr.Scene("courtyard").camera_sizes,
+                           lambda f: dict(scale=0.1), dict(scale=POSITIVE)),
     "Scene.head_box": (lambda f: sr.Scene("courtyard").head_box, lambda f: dict(t=0.1),
                        dict(t=NUMBER)),
     "Scene.client_pose": (lambda f: sr.Scene("courtyard").client_pose, lambda f: dict(t=0.1),

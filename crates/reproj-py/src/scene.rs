@@ -265,6 +265,15 @@ impl Scene {
         })
     }
 
+    /// The rig's camera sizes at `scale`, `[main, left, right]` as `(width, height)`: the main
+    /// camera of `main_size` and the auxiliary cameras of half its sides, rounded down, at
+    /// least 1.
+    fn camera_sizes(&self, scale: f64) -> PyResult<[(usize, usize); 3]> {
+        guarded("Scene.camera_sizes", || {
+            rs::camera_sizes(scale).map_err(map_scene_error)
+        })
+    }
+
     /// The head box's camera-to-world pose at `t` (no anchor deviation).
     fn head_box<'py>(&self, py: Python<'py>, t: f64) -> PyResult<Bound<'py, PyArray2<f64>>> {
         guarded("Scene.head_box", || {

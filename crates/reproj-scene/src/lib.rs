@@ -82,7 +82,10 @@ pub use render::{
     default_samples, render_ground_truth, render_server, render_shadow_fraction, truth_bytes,
     ServerBuffers, ShadowBuffers, MAX_SAMPLES,
 };
-pub use rig::{main_size, mono, rig, stereo, CameraPath, HeadPose, Rig, PREDICTION_DELAY};
+pub use rig::{
+    aux_size, camera_sizes, main_size, mono, rig, stereo, CameraPath, HeadPose, Rig,
+    PREDICTION_DELAY,
+};
 pub use scene::{Light, Object, Scene, Variant};
 pub use scenes::{builtin, SCENE_NAMES};
 pub use shape::{Mesh, Shape, Vertex};

@@ -183,6 +183,23 @@ pub fn main_size(scale: f64) -> Result<(usize, usize)> {
     Ok((w as usize, h as usize))
 }
 
+/// Size of each auxiliary camera beside a `width×height` main camera: half of each side,
+/// rounded down, at least 1 (the rig's rule, [`rig`]).
+pub fn aux_size(width: usize, height: usize) -> (usize, usize) {
+    ((width / 2).max(1), (height / 2).max(1))
+}
+
+/// The rig's camera sizes at `scale`, `[main, left, right]`, without rendering a frame: the
+/// main camera of [`main_size`] and the auxiliary cameras of [`aux_size`].
+///
+/// # Errors
+/// [`SceneError::BadScale`], as [`main_size`].
+pub fn camera_sizes(scale: f64) -> Result<[(usize, usize); 3]> {
+    let (w, h) = main_size(scale)?;
+    let aux = aux_size(w, h);
+    Ok([(w, h), aux, aux])
+}
+
 /// The three server cameras of one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rig {
@@ -203,7 +220,7 @@ pub fn rig(pose: &HeadPose, width: usize, height: usize, near: f64, far: f64) ->
         width,
         height,
     };
-    let (aw, ah) = ((width / 2).max(1), (height / 2).max(1));
+    let (aw, ah) = aux_size(width, height);
     let aux_proj = Mat4::perspective(AUX_FOV, aspect(aw, ah), near, far);
     // side −1 = left: moved along −x and yawed left (a positive rotation about +y turns −z to −x).
     let aux = |side: f64| {
@@ -308,6 +325,21 @@ mod tests {
         assert!(err > 1e-4 && err < 0.1, "prediction error {err}");
         // The head box passes through its keys.
         assert!(crate::math::length(sub(path.head_box(2.0).position(), [2.0, 1.6, 4.0])) < 1e-12);
+    }
+
+    #[test]
+    fn camera_sizes_are_the_rigs() {
+        let pose = HeadPose::look_at([0.0, 1.6, 5.0], [0.0, 1.6, 0.0]);
+        for scale in [0.5, 0.0011, 0.0013, 0.3] {
+            let sizes = camera_sizes(scale).unwrap();
+            let (w, h) = sizes[0];
+            let r = rig(&pose, w, h, 0.1, 100.0);
+            let got = [r.main, r.aux[0], r.aux[1]].map(|c| (c.width, c.height));
+            assert_eq!(got, sizes, "scale {scale}");
+        }
+        assert_eq!(aux_size(3, 2), (1, 1));
+        assert_eq!(aux_size(1281, 721), (640, 360));
+        assert!(camera_sizes(0.0).is_err());
     }
 
     #[test]

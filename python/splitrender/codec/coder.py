@@ -366,13 +366,18 @@ def _place(
 _LEVEL5_SIDE = 4208
 
 
-@lru_cache(maxsize=64)
 def oversized_picture(sizes: Sequence[tuple[int, int]]) -> tuple[str, int, int] | None:
     """The first picture a stream of cameras of ``sizes`` (``(width, height)``, main first)
     would have that the codec cannot carry, a side beyond :data:`MAX_SIDE`, as ``(name,
     width, height)``; ``None`` when every picture fits. :class:`StreamEncoder` refuses such a
     stream at its first frame; a server checks its scale with this before rendering one."""
-    layout = tuple((int(w), int(h)) for w, h in sizes)
+    return _oversized(tuple((int(w), int(h)) for w, h in sizes))
+
+
+@lru_cache(maxsize=64)
+def _oversized(layout: tuple[tuple[int, int], ...]) -> tuple[str, int, int] | None:
+    """:func:`oversized_picture` of a layout in its hashable form (cached for the server's
+    scale check, which bisects)."""
     for pic in PICTURE_KINDS:
         _, pw, ph = _layout(pic, layout)
         if max(pw, ph) > MAX_SIDE:

@@ -205,15 +205,6 @@ def plan_frame(
     return FramePlan(k, (k - m) / fs - ahead - offset, skipped)
 
 
-def _camera_sizes(scene: Scene, scale: float) -> tuple[tuple[int, int], ...]:
-    """The rig's camera sizes at ``scale`` without rendering a frame: the main camera and the
-    two auxiliary cameras of half its width and height, rounded down, at least 1
-    (reproj-scene's rig; tests/test_live.py checks it against a rendered frame)."""
-    w, h = scene.main_size(scale)
-    aux = (max(1, w // 2), max(1, h // 2))
-    return (w, h), aux, aux
-
-
 def check_scale(scene: Scene, scale: float, name: str = "scale") -> None:
     """Raises :class:`~splitrender.errors.InvalidInputError` naming ``name`` and the largest
     scale that works when the codec cannot carry ``scene``'s frames at ``scale`` (a picture
@@ -225,9 +216,9 @@ def check_scale(scene: Scene, scale: float, name: str = "scale") -> None:
     from splitrender.codec.stream import MAX_SIDE
 
     def fits(x: float) -> bool:
-        return oversized_picture(_camera_sizes(scene, x)) is None
+        return oversized_picture(scene.camera_sizes(x)) is None
 
-    over = oversized_picture(_camera_sizes(scene, scale))
+    over = oversized_picture(scene.camera_sizes(scale))
     if over is None:
         return
     # The pictures grow with the scale: bisect for the largest that fits, then round it down

@@ -286,6 +286,13 @@ class Scene:
         """Main camera ``(width, height)`` at ``scale``: ``round(2560·scale) x round(1440·scale)``."""
         return self._native.main_size(scale)
 
+    @checked(scale=floats(positive=True))
+    def camera_sizes(self, scale: float) -> list[tuple[int, int]]:
+        """The rig's camera sizes at ``scale``, ``[main, left, right]`` as ``(width, height)``,
+        without rendering a frame: :meth:`main_size` and the auxiliary cameras of half its
+        sides, rounded down, at least 1 (the renderer's own rule)."""
+        return self._native.camera_sizes(scale)
+
     @checked(t=floats())
     def head_box(self, t: float) -> F64:
         """The head box's camera-to-world pose at ``t`` (no deviation)."""
