@@ -281,7 +281,7 @@ TABLE: dict[str, Entry] = {
              prepare_threads=[*INT[1:], -1, 0, 257], decoder=OPTIONAL_THING, executor=OPTIONAL_THING,
              worker_priority=[*STR, "x", "IDLE"], display_priority=[*STR, "x", "idle"],
              backend=[*STR, "x", "WGPU"], max_divisor=[*COUNT, 0, 17],
-             keep_frames=[*INT[1:], -1]),
+             keep_frames=[*INT[1:], -1], on_handover=CALLABLE),
     ),
     "Scene": (lambda f: sr.Scene, lambda f: dict(name="courtyard"),
               dict(name=[*STR, "x"], variant=[*STR, "x"], models=[*SEQUENCE, ["x"]])),

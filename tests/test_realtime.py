@@ -453,6 +453,46 @@ def test_a_server_frame_that_becomes_usable_after_it_was_needed_counts_as_late(s
     assert report.frames[0].server_age_ms == pytest.approx(100.0)
 
 
+def test_on_handover_tells_each_frame_handed_over_and_the_late_decision(scene, frames):
+    clock = FakeClock()
+    told: list[rt.Handover] = []
+    with RealtimeClient(client=CostClient(clock, lambda n: 0.002), clock=clock,
+                        display_fps=FC, executor=InlineExecutor(), on_handover=told.append) as c:
+        # Frame 0 before the run, frame 1 at 0.05 s (after the display first needed it, at 0),
+        # frame 2 at 0.07 s (before it is needed, at 0.1).
+        feed = [(-0.1, frames[0]), (0.05, frames[1]), (0.07, frames[2])]
+        report = c.run(pose_of(scene), 0.15, feed=feed)
+        # Outside run() nothing is handed over through the callback.
+        c.submit(frames[3]).result(30)
+        c.render(pose_of(scene)(0.35), 0.35)
+    assert [(h.index, h.time, h.late) for h in told] == [
+        (0, 0.0, False), (1, 0.1, True), (2, 0.2, False)]
+    assert sum(h.late for h in told) == report.server_frames_late == 1
+    # Each at the display time it was handed over: frame 0 at the run's start, frames 1 and 2
+    # at the first refresh after they arrived.
+    assert told[0].display_time == pytest.approx(0.0)
+    for h, arrived in zip(told[1:], (0.05, 0.07)):
+        assert arrived - 1e-9 <= h.display_time < arrived + PERIOD + 1e-9
+
+
+def test_an_exception_in_on_handover_is_the_packets_after_the_handover(scene, frames):
+    clock = FakeClock()
+
+    def fail(h: rt.Handover) -> None:
+        raise RuntimeError(f"callback failed on frame {h.index}")
+
+    with RealtimeClient(client=CostClient(clock, lambda n: 0.002), clock=clock,
+                        display_fps=FC, executor=InlineExecutor(), on_handover=fail) as c:
+        report = c.run(pose_of(scene), 0.05, feed=[(0.0, frames[0])])
+        # Handed over on the worker: the packet's error, which wait() raises; the frame was
+        # handed over all the same and the display used it.
+        with pytest.raises(RuntimeError, match="frame 0"):
+            c.wait()
+        assert c.client.held == (0,)
+    assert report.server_frames_received == 1
+    assert {f.mode for f in list(report.frames)[1:]} == {"extrapolate"}
+
+
 def text_report(summary: dict[str, Any]) -> str:
     """The bench's text report (``format_realtime``) of a run with ``summary``."""
     from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime

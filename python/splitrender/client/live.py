@@ -47,6 +47,7 @@ from splitrender.client.realtime import (
     DISPLAY_FPS,
     MAX_DIVISOR,
     DisplayFrame,
+    Handover,
     RealtimeClient,
 )
 from splitrender.codec.coder import StreamDecoder
@@ -316,26 +317,6 @@ class _TimeIndexed(StreamDecoder):
         )
 
 
-class _Realtime(RealtimeClient):
-    """The real-time client, telling :attr:`handed` of each server frame it hands to the
-    display during :meth:`run` (its time, the display time, and whether
-    ``server_frames_late`` counts it): report.json's per-frame ``usable`` and
-    ``usable_late`` are then the counter's own decisions. They were timed in the submit
-    future's callback, after the frame's second pair was prepared (a millisecond or more after
-    the handover; for a frame whose pair was skipped, before it), against another clock's
-    origin, and their sum differed from ``server_frames_late`` by a frame or two a session."""
-
-    handed: Callable[[float, float, bool], None] | None = None
-
-    def _late(self, frame_time: float, period: float) -> bool:
-        # The decision the counter takes (RealtimeClient calls this at the handover, under
-        # its lock, in run() only), passed on as it is made.
-        late = super()._late(frame_time, period)
-        if self.handed is not None:
-            self.handed(frame_time, self._display_now(), late)
-        return late
-
-
 @dataclass
 class _NetStats:
     frames_completed: int = 0
@@ -581,7 +562,7 @@ class LiveClient:
         self.in_progress: dict[int, list[float]] = {}
         self._usable: list[float] = []  # lateness (s) of the frames usable since the report
         #: Each server frame (by index) handed to the display during the run: the display
-        #: time and whether ``server_frames_late`` counted it (:class:`_Realtime`); the newest
+        #: time and whether ``server_frames_late`` counted it (``on_handover``); the newest
         #: :data:`KEEP_FRAME_RECORDS`.
         self.usable_at: dict[int, tuple[float, bool]] = {}
         self._ending = False  # close() was called: the session's own end
@@ -612,23 +593,22 @@ class LiveClient:
     def welcomed(self, welcome: Welcome) -> None:
         self.welcome = welcome
         self.order.give_up = 1.0 / welcome.server_fps
-        self.realtime = _Realtime(
+        self.realtime = RealtimeClient(
             client=Client(
                 self.options.method, server_fps=welcome.server_fps, backend=self.options.backend
             ),
             display_fps=self.options.display_fps,
             max_divisor=self.options.max_divisor,
             decoder=_TimeIndexed(welcome, self.spans),
+            on_handover=self._handed,
         )
-        self.realtime.handed = self._handed
         self._ready.set()
 
-    def _handed(self, frame_time: float, now: float, late: bool) -> None:
-        """A server frame handed to the display at display time ``now`` (the display's or
-        the worker's thread, under the real-time client's lock)."""
-        assert self.welcome is not None
-        k = round(frame_time * self.welcome.server_fps)
-        _put_bounded(self.usable_at, k, (now, late), KEEP_FRAME_RECORDS)
+    def _handed(self, h: Handover) -> None:
+        """A server frame handed to the display (the display's or the worker's thread, under
+        the real-time client's lock): report.json's per-frame ``usable`` and ``usable_late``
+        are the real-time loop's own decisions, which ``server_frames_late`` counts."""
+        _put_bounded(self.usable_at, h.index, (h.display_time, h.late), KEEP_FRAME_RECORDS)
 
     def terminated(self, code: int, reason: str) -> None:
         if self.welcome is None and self.server_fingerprint is None:

@@ -92,6 +92,7 @@ __all__ = [
     "MIN_PAIR_USE",
     "PREPARE_THREADS",
     "DisplayFrame",
+    "Handover",
     "MonotonicClock",
     "RateGovernor",
     "RealtimeClient",
@@ -212,6 +213,21 @@ def _cpu_s(clocks: list[int] | None) -> float | None:
 #: 120 Hz; about 400 bytes each, 7 MB): the newest; its summary covers every frame of the run
 #: (:class:`~splitrender.tally.Tally`). ``RealtimeClient(keep_frames=None)`` keeps them all.
 KEEP_FRAMES = 16384
+
+@dataclass(frozen=True, slots=True)
+class Handover:
+    """A server frame handed to the display during :meth:`RealtimeClient.run` (its
+    ``on_handover`` callback): the frame's ``index`` and ``time`` (content seconds), the
+    ``display_time`` it was handed over at, and whether it was ``late``: handed over after the
+    display first needed it, one pair's interval before its time (where the pair it closes
+    starts), or after the run began for a frame needed before. ``late`` is the decision
+    :attr:`RealtimeReport.server_frames_late` counts."""
+
+    index: int
+    time: float
+    display_time: float
+    late: bool
+
 
 #: Refusal messages of undecodable packets a :class:`RealtimeReport` keeps (the first ones; it
 #: counts them all).
@@ -672,7 +688,13 @@ class RealtimeClient:
     keeps one by one (:attr:`RealtimeReport.frames`: the newest; default :data:`KEEP_FRAMES`,
     ``None``: all, memory growing with the run); its summary covers every frame either way.
     ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
-    their priority). Use as a context manager, or call :meth:`close`.
+    their priority). ``on_handover`` is called with a :class:`Handover` for each server frame
+    handed to the display during :meth:`run`, in order, under the client's lock, on the thread
+    that hands it over (the display thread, or the worker when a frame arrives after its
+    time): keep it short. It is called after the handover is complete; an exception it raises
+    reaches :meth:`run`'s caller from the display thread, or from the worker the future of the
+    packet whose receipt handed the frame over (and :meth:`wait`). Use as a context manager,
+    or call :meth:`close`.
 
     Raises:
         InvalidInputError: for an unknown method, invalid options, a method the backend cannot
@@ -687,6 +709,7 @@ class RealtimeClient:
         executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
         display_priority=strs(*DISPLAY_PRIORITIES), backend=strs(*BACKENDS),
         max_divisor=ints(1, 16), keep_frames=optional(ints(0, 1 << 40)),
+        on_handover=optional(CALLABLE),
     )
     def __init__(
         self,
@@ -705,6 +728,7 @@ class RealtimeClient:
         backend: str = "cpu",
         max_divisor: int = MAX_DIVISOR,
         keep_frames: int | None = KEEP_FRAMES,
+        on_handover: Callable[[Handover], None] | None = None,
     ) -> None:
         if (
             isinstance(display_fps, bool)
@@ -727,6 +751,7 @@ class RealtimeClient:
         self.display_priority = display_priority
         self.max_divisor = max_divisor
         self.keep_frames = keep_frames
+        self.on_handover = on_handover
         self._decoder = decoder
         self._lock = threading.Lock()
         # One worker: packets are decoded in order (each depends on the previous one's
@@ -974,6 +999,7 @@ class RealtimeClient:
         current frame), whose error is raised for its future as before: a frame from the wire
         must not stop the display thread."""
         handed: dict[int, bool] = {}
+        events: list[Handover] = []
         while self._received and self._received[0].release_at <= display_time + TIME_EPS:
             entry = self._received.pop(0)
             frame = entry.frame
@@ -991,14 +1017,19 @@ class RealtimeClient:
             self._report.server_frames_received += 1
             self._report.usable_ms.add(entry.usable_ms)
             period = frame.span / self.client.server_fps
-            if self._origin is not None and self._late(frame.time, period):
-                self._report.server_frames_late += 1
+            if self._origin is not None:
+                late = self._late(frame.time, period)
+                self._report.server_frames_late += late
+                events.append(Handover(frame.index, frame.time, self._display_now(), late))
             self._pose_time[frame.index] = (
                 frame.time - period if entry.pose_time is None else entry.pose_time
             )
         if handed:
             # Once for all the frames handed over: a later one may have retired an earlier one.
             self._forget_dropped(self.client.held)
+        if self.on_handover is not None:
+            for event in events:
+                self.on_handover(event)
         return handed
 
     def _forget_dropped(self, held: tuple[int, ...]) -> None:
