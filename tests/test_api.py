@@ -7,6 +7,7 @@ import copy
 import dataclasses
 import gc
 import io
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -509,3 +510,22 @@ def test_cli_help(capsys: pytest.CaptureFixture[str]) -> None:
     text = capsys.readouterr().out
     for opt in ("--out", "--width", "--height"):
         assert opt in text
+
+
+def test_every_help_text_is_printed_as_written() -> None:
+    # argparse %-formats help lines but not descriptions: `encode --help` showed "60 %%".
+    import argparse
+
+    from splitrender.cli.main import build_parser
+
+    def walk(p: argparse.ArgumentParser, name: str) -> Iterator[tuple[str, str]]:
+        yield name, p.format_help()
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub, q in action.choices.items():
+                    yield from walk(q, f"{name} {sub}")
+
+    texts = dict(walk(build_parser(), "splitrender"))
+    assert len(texts) > 10 and "splitrender encode" in texts
+    for name, text in texts.items():
+        assert "%%" not in text and "%(" not in text, name

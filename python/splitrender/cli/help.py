@@ -47,8 +47,8 @@ DESCRIPTION: dict[str, str] = {
         "Encode every server frame of the recording REC (from `splitrender render`) into a "
         "stream file (docs/stream-format.md): colour and shadow colours in 8-bit HEVC, depth "
         "and motion in 12-bit HEVC, shadow bitfields losslessly with zstd, split over the "
-        "cameras (main 60 %%, auxiliary 20 %% each) and buffers (colour 50 %%, depth 20 %%, "
-        "motion 20 %%, shadow colours 10 %%). Prints the achieved Mb/s per buffer, per camera "
+        "cameras (main 60 %, auxiliary 20 % each) and buffers (colour 50 %, depth 20 %, "
+        "motion 20 %, shadow colours 10 %). Prints the achieved Mb/s per buffer, per camera "
         "and in total. The file is written under a temporary name and renamed when complete."
     ),
     "dataset": (
@@ -100,7 +100,7 @@ DESCRIPTION: dict[str, str] = {
         "the left eye with --stereo), "
         "summary.md and summary.json (the network settings; per method: ssim, flip, psnr, "
         "vmaf, mbps, frames, modes), "
-        "and prints the table. The defaults (courtyard at 256x144, 1 s) take about 1.5 minutes "
+        "and prints the table. The defaults (courtyard at 256x144, 1 s) take about 20 seconds "
         "on 2 CPU cores; time grows with scale^2 x seconds."
     ),
     "play": (
