@@ -120,6 +120,15 @@ def test_every_frame_meets_its_deadline_when_rendering_fits_the_period(scene, fr
     assert all(f.prepared for f in report.frames)
 
 
+def test_a_run_that_meets_every_deadline_achieves_the_display_rate_exactly(scene, frames):
+    # The run's time ended at the last frame's completion, (n - 1) / f_c plus its render
+    # time: 24 frames of 2 ms at 120 FPS were 24 / 0.1937 s = 123.9 FPS achieved.
+    report = run_after_receiving(scene, frames[:3], 0.2)
+    s = report.summary()
+    assert s["frames"] == 24 and s["deadline_misses"] == 0
+    assert s["wall_s"] == pytest.approx(0.2) and s["achieved_fps"] == pytest.approx(FC)
+
+
 def test_a_late_frame_is_a_miss_and_the_loop_resumes_on_the_next_free_refresh(scene, frames):
     clock = FakeClock()
     # Frame 3 takes 2.4 periods: it misses its deadline and overruns refreshes 4 and 5.
