@@ -166,3 +166,56 @@ def test_a_damaged_cached_recording_is_rendered_again(tmp_path, monkeypatch) -> 
     assert [s.split()[0] for s in said] == ["rendering", "rendering"]
     assert _recording("courtyard", 0.02, said.append).path == first.path
     assert said[-1].startswith("reusing the cached recording")
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        # An IndexError of the key-frame mean (no frame timed).
+        (["--frames", "0", "--sizes", "64x36"], ("--frames", "1..100000", "got 0")),
+        # The scene's InvalidInputError, a traceback naming "width".
+        (["--sizes", "0x0", "--frames", "1"], ("--sizes", "WxH", "1..16384", "'0x0'")),
+        # ValueError of int().
+        (["--sizes", "abc"], ("--sizes", "WxH", "'abc'")),
+        (["--sizes", "64x36,64", "--frames", "1"], ("--sizes", "'64'")),
+        # Sides the scene takes, but a picture of the stream the codec cannot carry.
+        (["--sizes", "16384x16", "--frames", "1"], ("--sizes", "picture.color 24576x32")),
+        (["--paper-mbps", "0", "--sizes", "64x36", "--frames", "1"], ("--paper-mbps", "got 0")),
+        # Within the option's range, but scaled to the size beyond CodecConfig's.
+        (["--paper-mbps", "100000", "--sizes", "2600x1440", "--frames", "1"],
+         ("--paper-mbps", "2600x1440", "at most the codec's 100000 Mb/s")),
+        (["--preset", "fastest", "--sizes", "64x36", "--frames", "1"],
+         ("--preset", "'fastest'", "superfast")),
+    ],
+)
+def test_bench_codec_argument_errors_are_one_line_and_exit_2(
+    argv: list[str], words: tuple[str, ...], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from splitrender.evaluation.bench_codec import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("python -m splitrender.evaluation.bench_codec: error: argument ")
+    assert err.count("\n") == 1 and all(w in err for w in words), err
+
+
+def test_bench_realtime_names_the_stream_option_and_path_of_a_file_that_is_no_stream(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    # It said "afile: file of 6 bytes has no header": the file's bare name, not where it is nor
+    # which option gave it.
+    from splitrender.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "afile").write_text("hello\n")
+    sr.write_stream(tmp_path / "sub" / "empty.srs", [])
+    argv = ["bench", "--realtime", "--seconds", "0.25", "--quiet", "--stream"]
+    assert main([*argv, "sub/afile"]) == 2
+    assert capsys.readouterr().err == (
+        "splitrender: error: --stream: sub/afile: file of 6 bytes has no header\n")
+    assert main([*argv, "sub/empty.srs"]) == 2
+    assert capsys.readouterr().err == (
+        "splitrender: error: --stream: sub/empty.srs: the stream has no frames\n")

@@ -254,3 +254,16 @@ def test_demo_holds_a_bounded_number_of_frames_whatever_the_length(
         assert sum(1 for _ in c.decode(video=0)) == 120
     assert sorted(p.name for p in (tmp_path / "long").iterdir()) == [
         "stills", "summary.json", "summary.md", "video.mp4"]
+
+
+def test_summary_says_how_fast_the_video_plays(tmp_path: Path) -> None:
+    from splitrender.evaluation.demo import playback_speed
+
+    # They said "1x slow motion", "0.5x slow motion" and "17.1429x slow motion".
+    assert playback_speed(30) == "4x slow motion"  # the default, as README.md says
+    assert playback_speed(120) == "real time" and playback_speed(240) == "2x fast motion"
+    assert playback_speed(120.3) == "about real time"
+    out = tmp_path / "o"
+    argv = ["demo", *TINY, "--no-vmaf", "--methods", "timewarp", "--video-fps", "7"]
+    assert main([*argv, "--out", str(out)]) == 0
+    assert " frames at 7 FPS (17.1x slow motion). " in (out / "summary.md").read_text()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pytest
 from splitrender.cli import main
@@ -193,3 +194,71 @@ def test_vmaf_crossings_interpolate_between_measured_points() -> None:
     assert got[40.0] == 1.0  # already reached at the lowest rate
     assert got[60.0] == pytest.approx(1.5)
     assert got[80.0] is None
+
+
+def _short_trace(path: Path) -> Path:
+    path.write_text("0 1.6 0 0 0 0 0\n0.1 1.6 0 0 5 0 50\n")  # 50 ms
+    return path
+
+
+@pytest.mark.parametrize(
+    "extra, option",
+    [
+        (lambda t: ["--out", str(t / "a-file")], "--out"),
+        (lambda t: ["--out", "/proc/self"], "--out"),
+        (lambda t: ["--latency", "5000"], "--latency"),
+        (lambda t: ["--latency", "150", "--delays", "12"], "--latency"),
+        (lambda t: ["--trace", str(_short_trace(t / "short.trace"))], "--trace"),
+        (lambda t: ["--executor", "ray"], "--executor ray"),
+    ],
+    ids=["out-file", "out-proc", "latency", "latency-and-delay", "trace", "ray-missing"],
+)
+def test_eval_refuses_before_any_work(
+    extra: Any, option: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Each was found after the cache was laid out and, but for --out, by a task after rendering
+    # (--out: after the whole sweep, at 1280x720 hours of it); Ray missing after the cache.
+    import sys
+
+    if option == "--out" and not Path("/proc/self").is_dir():
+        pytest.skip("no /proc")
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    (tmp_path / "a-file").write_text("mine")
+    argv = ["eval", *TINY, "--scenes", "courtyard", "--variants", "dynamic", "--methods",
+            "ours", "--delays", "0", "--no-vmaf", "--cache", str(tmp_path / "cache"),
+            "--out", str(tmp_path / "out"), *extra(tmp_path)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"error: {option}" in err, err
+    assert not (tmp_path / "cache").exists() and not (tmp_path / "out").exists()
+    assert (tmp_path / "a-file").read_text() == "mine"
+
+
+def test_table_2_calls_only_the_default_bitrate_the_papers(
+    eval_out: Path, tmp_path: Path
+) -> None:
+    from splitrender.evaluation.experiments import _ordinal
+
+    assert "(the paper's 40 Mb/s scaled by pixel count)" in (eval_out / "tables.md").read_text()
+    out = tmp_path / "out"
+    assert main(["eval", *TINY, "--scenes", "courtyard", "--variants", "dynamic", "--methods",
+                 "ours", "--delays", "0", "--no-vmaf", "--bitrate", "0.5",
+                 "--out", str(out)]) == 0
+    text = (out / "tables.md").read_text()
+    assert "compressed at 0.5 Mb/s; `ours_extrapolate`" in text and "paper's 40" not in text
+    # --flip-every's note in English ordinals.
+    assert [_ordinal(n) for n in (1, 2, 3, 4, 11, 12, 13, 21, 22, 103, 111)] == [
+        "1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "22nd", "103rd", "111th"]
+
+
+@pytest.mark.parametrize("scale", ["0.001", "0.0107", "1.601"])
+def test_a_scale_out_of_range_names_the_range_of_scales(
+    scale: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Below 0.0008 the renderer's check answered ("each side must be in 2..=16384"), above it
+    # this one ("expected 16..4096 pixels a side"): neither said which scales work.
+    assert main(["eval", "--scale", scale, "--methods", "ours", "--quiet",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "expected 16..4096 pixels a side (--scale 0.0108 to 1.6)" in err, err

@@ -28,10 +28,21 @@ from typing import Any
 import av
 import numpy as np
 
-from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.cli.args import Parser, bitrate, count, names, side
+from splitrender.codec.coder import (
+    MAX_BITRATE_MBPS,
+    X265_PRESETS,
+    CodecConfig,
+    StreamDecoder,
+    StreamEncoder,
+    oversized_picture,
+)
 from splitrender.codec.stream import Codec, stream_stats, unpack_packet
 from splitrender.scene.synthetic import SyntheticScene
-from splitrender.types import CameraFrame, ServerFrame
+from splitrender.types import MAX_SIDE, CameraFrame, ServerFrame
+
+#: How the module is run (its documented command), the name its argument errors open with.
+PROG = "python -m splitrender.evaluation.bench_codec"
 
 
 def _cams(f: ServerFrame) -> list[CameraFrame]:
@@ -256,12 +267,46 @@ def profile(repeats: int = 7) -> None:
     print(f"load average {os.getloadavg()}")
 
 
+def sizes(text: str) -> tuple[tuple[int, int], ...]:
+    """``--sizes``: comma-separated main-camera sizes ``WxH``, each side 1..MAX_SIDE (what the
+    scene and the codec take), whose stream (with the rig's two half-size auxiliary cameras)
+    the codec can carry; an ``ArgumentTypeError`` otherwise. Checked here, before any frame is
+    rendered: a bad size failed as a traceback of the scene's or the codec's checks."""
+    out = []
+    for item in names(text):
+        # Without an "x" (or with a second one) a side is "" (or "36x2"), which side() refuses.
+        w, _, h = item.partition("x")
+        try:
+            size = side(w), side(h)
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(
+                f"expected WxH sizes like 640x360, each side 1..{MAX_SIDE}, got {item!r}"
+            ) from None
+        # The rig's own camera sizes (its auxiliary cameras' rounding included).
+        main, aux = SyntheticScene().rig(0.0, *size)
+        over = oversized_picture([(c.width, c.height) for c in (main, *aux)])
+        if over is not None:
+            pic, pw, ph = over
+            raise argparse.ArgumentTypeError(
+                f"{item} makes the codec's {pic} {pw}x{ph}, beyond its {MAX_SIDE} pixels a "
+                "side; expected a smaller size, or one nearer to square"
+            )
+        out.append(size)
+    return tuple(out)
+
+
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--frames", type=int, default=20)
-    ap.add_argument("--sizes", default="640x360,1280x720")
-    ap.add_argument("--paper-mbps", type=float, default=40.0)
-    ap.add_argument("--preset", default=CodecConfig().preset)
+    # Parser: one-line argument errors and exit status 2, as the splitrender command's.
+    ap = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
+    ap.add_argument("--frames", type=count, default=20, metavar="N",
+                    help="server frames per run (default: %(default)s)")
+    ap.add_argument("--sizes", type=sizes, default="640x360,1280x720", metavar="WxH,...",
+                    help="main-camera sizes (default: %(default)s)")
+    ap.add_argument("--paper-mbps", type=bitrate, default=40.0, metavar="MBPS",
+                    help="bitrate at the paper's 2560x1440, scaled by pixel count "
+                    "(default: %(default)s)")
+    ap.add_argument("--preset", choices=X265_PRESETS, default=CodecConfig().preset,
+                    help="x265 preset (default: %(default)s)")
     ap.add_argument(
         "--chroma", action="store_true", help="also compare 4:4:4 and 4:2:0"
     )
@@ -271,6 +316,15 @@ def main(argv: list[str] | None = None) -> None:
         help="only the decode-time profile of two 1280x720 courtyard frames",
     )
     args = ap.parse_args(argv)
+    for w, h in args.sizes:
+        # CodecConfig bounds the scaled target, not --paper-mbps: a large size can take it
+        # past the bound (a traceback at the first run otherwise).
+        target = args.paper_mbps * w * h / (2560 * 1440)
+        if target > MAX_BITRATE_MBPS:
+            ap.error(
+                f"argument --paper-mbps: {args.paper_mbps:g} Mb/s scaled to {w}x{h} is "
+                f"{target:g} Mb/s; expected at most the codec's {MAX_BITRATE_MBPS:g} Mb/s"
+            )
     if args.profile:
         profile()
         return
@@ -278,8 +332,7 @@ def main(argv: list[str] | None = None) -> None:
         f"cpus: {os.cpu_count()}, frames per run: {args.frames}, preset {args.preset}"
     )
     scene = SyntheticScene(dynamic=True)
-    for size in args.sizes.split(","):
-        w, h = (int(x) for x in size.split("x"))
+    for w, h in args.sizes:
         frames = [scene.server_frame(i, i / 10, w, h) for i in range(args.frames)]
         cfg = CodecConfig.scaled(w, h, args.paper_mbps, preset=args.preset)
         r = run(w, h, args.frames, cfg, frames)

@@ -239,13 +239,25 @@ def run_realtime_bench(
         if not path.is_file():
             raise InvalidInputError(f"--stream: {path}: expected a stream file, found none")
         source = str(path)
-    packets = list(read_stream(path))
+    # What the errors of the file name: the option and the path as given, or the cache's path.
+    where = str(path) if stream is None else f"--stream: {os.fspath(stream)}"
+    try:
+        packets = list(read_stream(path))
+    except StreamError as e:
+        # The reader's messages open with the file's bare name (its path when it cannot be
+        # opened): "afile: ..." named neither the option nor where the file is.
+        msg = str(e)
+        for name in (os.fspath(path), path.name):
+            if msg.startswith(f"{name}: "):
+                msg = msg[len(name) + 2:]
+                break
+        raise StreamError(f"{where}: {msg}") from None
     if not packets:
-        raise InvalidInputError(f"{path}: the stream has no frames")
+        raise InvalidInputError(f"{where}: the stream has no frames")
     try:
         heads = [unpack_packet(p) for p in packets]
     except StreamError as e:  # the packet's message names its frame, not the file
-        raise StreamError(f"{path}: {e}") from None
+        raise StreamError(f"{where}: {e}") from None
     main = heads[0].cameras[0]
     fs = _FS
     if len(heads) > 1 and heads[1].time > heads[0].time:

@@ -183,6 +183,18 @@ def _even(a: int) -> int:
     return a + (a & 1)
 
 
+def playback_speed(video_fps: float, client_fps: float = FC) -> str:
+    """How ``video.mp4`` (one video frame per client frame, at ``video_fps``) plays the
+    session: ``"4x slow motion"`` (30 FPS), ``"real time"`` (120), ``"2x fast motion"`` (240).
+    Three significant digits; within 0.5 % of the session's speed, ``"about real time"``."""
+    slow = client_fps / video_fps
+    factor = f"{max(slow, 1 / slow):.3g}"
+    if factor == "1":
+        # "1x slow motion" at 120 FPS, "0.5x slow motion" at 240, said neither.
+        return "real time" if slow == 1 else "about real time"
+    return f"{factor}x {'slow' if slow > 1 else 'fast'} motion"
+
+
 def _side_by_side(tiles: Sequence[_Image], gap: int = 4) -> _Image:
     """Tiles in a row with white gaps, padded (black) to even sides for yuv420p."""
     h, w = tiles[0].shape[:2]
@@ -321,12 +333,17 @@ def check_run_args(
             f"--seconds: {seconds:g} s is {n_client} client frames at {FC:g} FPS; the "
             f"evaluation skips {SKIP_FRAMES} at each end, so at least {need:.3f} s is needed"
         )
+    # One message for every scale out of range, with the range of scales to type (below
+    # 0.0008 the renderer's own check answered, in other words).
     try:
         w, h = Scene(scenes[0]).main_size(scale)
-    except SplitRenderError as e:
-        raise error(f"--scale: {e}") from None
+        size = f"a {w}x{h} main camera"
+    except SplitRenderError:
+        w = h = 0
+        size = "a main camera under 2 pixels a side"
     if min(w, h) < 16 or max(w, h) > 4096:
-        raise error(f"--scale: {scale:g} gives a {w}x{h} main camera; expected 16..4096 pixels a side")
+        raise error(f"--scale: {scale:g} gives {size}; expected 16..4096 pixels a side "
+                    "(--scale 0.0108 to 1.6)")
 
 
 def check_gpu(backend: str) -> None:
@@ -603,7 +620,7 @@ def _demo(cfg: DemoConfig, out: Path) -> DemoResult:
         (
             f"`video.mp4`: ground truth | {video_method} | FLIP error map of {video_method} "
             f"(magma, black = no error), {n_client} frames at {cfg.video_fps:g} FPS "
-            f"({FC / cfg.video_fps:g}x slow motion). Stills of client frames "
+            f"({playback_speed(cfg.video_fps)}). Stills of client frames "
             f"{', '.join(map(str, still_idx))} are in `stills/`."
         ),
         "",

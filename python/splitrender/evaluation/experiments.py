@@ -65,11 +65,12 @@ from splitrender.evaluation.demo import (
     check_run_args,
     metric_names,
 )
+from splitrender.errors import InvalidInputError
 from splitrender.files import OutputFolder, write_atomic
 from splitrender.progress import Progress
 from splitrender.evaluation.metrics import PSNR_CAP_DB, SKIP_FRAMES
 from splitrender.evaluation.references import minterpolate
-from splitrender.evaluation.sweep import SweepStats, Task, make_task
+from splitrender.evaluation.sweep import SweepStats, Task, check_ray_installed, make_task
 from splitrender.net.model import NetworkModel
 
 __all__ = [
@@ -225,6 +226,16 @@ def check_config(cfg: EvalConfig) -> None:
             f"--delays: {max(cfg.delays)} client frames is past the last scored frame of "
             f"{cfg.seconds:g} s ({n_client} client frames, {SKIP_FRAMES} skipped at each end); "
             f"expected at most {last}, or a longer --seconds")
+    # Likewise a latency that delays every frame past the last scored client frame (the score
+    # task found it after rendering and encoding).
+    if cfg.network is not None:
+        worst = max(cfg.delays, default=0)
+        if cfg.network.latency_ms * 1e-3 + worst / FC > last / FC:
+            with_delays = f" with --delays up to {worst}" if worst else ""
+            raise EvalArgumentError(
+                f"--latency: {cfg.network.latency_ms:g} ms{with_delays} is past the last scored "
+                f"client frame of {cfg.seconds:g} s (at {last / FC * 1e3:.4g} ms); expected "
+                "less, or a longer --seconds")
     if not cfg.variants or any(v not in ("static", "dynamic") for v in cfg.variants) or len(
         set(cfg.variants)
     ) != len(cfg.variants):
@@ -438,16 +449,27 @@ def run_eval(
         raise EvalArgumentError(f"--jobs: expected an integer >= 1, got {jobs}")
     if cfg.address is not None and cfg.executor != "ray":
         raise EvalArgumentError("--address: goes with --executor ray")
+    if cfg.executor == "ray":
+        check_ray_installed()  # before the cache and the outputs are touched
     given = None if cfg.recording is None else load_recording(cfg.recording)
+    trace: Trace | None = None if cfg.trace is None else load_trace(cfg.trace)
+    if trace is not None and given is None and cfg.seconds > trace.duration + 1e-9:
+        # The render task found it, after the cache was laid out, naming no option.
+        raise EvalArgumentError(f"--trace: {cfg.trace} lasts {trace.duration:.3f} s; "
+                                f"expected at least --seconds {cfg.seconds:g}")
     out = cfg.out
+    try:
+        # Before the sweep, which may take hours: an --out that cannot take the outputs was
+        # found when they were written.
+        OutputFolder(out, _OUTPUTS).check()
+    except InvalidInputError as e:
+        raise EvalArgumentError(f"--out: {e}") from None
     cache = Cache(default_cache_dir() if cfg.cache is None else cfg.cache)
     try:
         cache.prepare()
     except OSError as e:
         raise EvalArgumentError(f"--cache: {cache.root}: cannot create the cache there: "
                                 f"{e.strerror or e}") from e
-    out.mkdir(parents=True, exist_ok=True)
-    trace: Trace | None = None if cfg.trace is None else load_trace(cfg.trace)
     network = cfg.network or NetworkModel()
     fs, fc = FS, FC
     if given is None:
@@ -505,11 +527,13 @@ def run_eval(
         t2.append(g.play(_fixed(scene, "dynamic", "ours_extrapolate", bitrate, 0, False,
                                 link(0)), rec, st, 1))
     if t2:
+        # Only the default is the paper's rate; a --bitrate given is the user's own.
+        scaled = " (the paper's 40 Mb/s scaled by pixel count)" if cfg.bitrate_mbps is None else ""
         tables.append((
             "Table 2: extra delay l (client frames), dynamic scenes, compressed",
             (f"`ours` with the next server frame arriving l client frames late (f_c = {FC:g} "
-             f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s (the paper's 40 Mb/s "
-             "scaled by pixel count); `ours_extrapolate` (l = 0) for comparison. Bold: the best "
+             f"FPS, f_s = {FS:g} FPS), compressed at {bitrate:.3g} Mb/s{scaled}; "
+             "`ours_extrapolate` (l = 0) for comparison. Bold: the best "
              "per scene."), t2, ("scene", "method", "delay"), ("scene",),
         ))
 
@@ -648,7 +672,8 @@ def run_eval(
         motion = (f"the recording {cfg.recording}'s client poses" if given is not None
                   else "the scenes head paths" if trace is None else f"head trace {cfg.trace}")
         flip_note = ("" if cfg.flip_every == 1 else
-                     f"; FLIP on every {cfg.flip_every}th of those frames only (--flip-every)")
+                     f"; FLIP on every {_ordinal(cfg.flip_every)} of those frames only "
+                     "(--flip-every)")
         md = [
             f"# splitrender eval: {', '.join(cfg.scenes)} at {w}x{h}",
             "",
@@ -683,6 +708,12 @@ def run_eval(
     # that cannot be written) changes neither them nor the links beside them.
     _link_recordings(out / "recordings", {n: cache.recording(k) for k, n in g.names.items()})
     return EvalResult(rows, files, w, h, bitrate, summary, stats)
+
+
+def _ordinal(n: int) -> str:
+    """``n`` as an English ordinal: 1st, 2nd, 3rd, 4th, 11th, 12th, 13th, 21st, ..."""
+    suffix = "th" if n % 100 in (11, 12, 13) else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
 
 
 def vmaf_crossings(

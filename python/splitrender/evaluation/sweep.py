@@ -502,14 +502,26 @@ def run_local(todo: Sequence[Task], cache: Cache, jobs: int, report: _Report,
         raise error
 
 
+def check_ray_installed() -> None:
+    """Raises :class:`RayMissingError` when Ray cannot be imported, without importing it (which
+    takes seconds): for ``--executor ray`` to be refused before any work."""
+    import importlib.util
+
+    if importlib.util.find_spec("ray") is None:
+        raise RayMissingError(_RAY_MISSING)
+
+
+_RAY_MISSING = (
+    "--executor ray: Ray is not installed; install it with "
+    "`pip install 'splitrender[ray]'` (or `pip install 'ray[default]>=2.40,<3'`)"
+)
+
+
 def _import_ray() -> Any:
     try:
         import ray
     except ImportError as e:
-        raise RayMissingError(
-            "--executor ray: Ray is not installed; install it with "
-            "`pip install 'splitrender[ray]'` (or `pip install 'ray[default]>=2.40,<3'`)"
-        ) from e
+        raise RayMissingError(_RAY_MISSING) from e
     return ray
 
 
