@@ -581,3 +581,145 @@ def test_server_chunks_with_another_rig_are_not_assembled(tmp_path: Path, aux: A
         assert f"{server[1]}: expected" in str(e.value)
         assert f"remove {server[1].parent} and run" in str(e.value)
     assert not any((cache / "recordings").iterdir())
+
+
+@pytest.mark.parametrize("damage", ["packet", "trailer", "truncated"])
+def test_a_damaged_cached_stream_names_the_stream(
+    serial: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
+) -> None:
+    """A cached stream changed after it was written (a byte of a packet, its trailer, the file
+    cut short) fails the score task that plays it naming the stream to remove. Its errors,
+    raised when the file is opened or a packet is decoded during the playback, named the file
+    by its base name or not at all ("frame 0: packet CRC mismatch"), with the advice to run
+    again, which failed the same way."""
+    cache = _damaged_cache(serial, tmp_path)
+    for row in (cache / "rows").glob("*.json"):
+        row.unlink()
+    [stream] = (cache / "streams").glob("*.stream")
+    data = bytearray(stream.read_bytes())
+    if damage == "packet":
+        data[100] ^= 0x01
+    elif damage == "trailer":  # which says where the index is: the records are then scanned
+        data[-10:] = bytes(b ^ 0xFF for b in data[-10:])
+    else:
+        del data[len(data) // 2:]
+    stream.write_bytes(bytes(data))
+    code, err = _eval(cache, tmp_path / "out", capsys)
+    assert code == 2 and "internal error" not in err, err
+    assert f"{stream}: " in err and f"remove {stream} and run" in err, err
+    assert f"{stream}: {stream.name}" not in err  # named once
+    if damage == "packet":  # found by the decoding, during the playback
+        assert f"{stream}: frame 0: packet CRC mismatch" in err, err
+    # The advice works: the stream's information beside it kept the encode task from running
+    # again, and every later run failed on the missing stream.
+    stream.unlink()
+    code, err = _eval(cache, tmp_path / "out", capsys)
+    assert code == 0, err
+    assert (tmp_path / "out" / "results.json").read_bytes() == (
+        serial / "results.json").read_bytes()
+
+
+def test_a_damaged_cached_timewarp_array_names_the_file(serial: Path, tmp_path: Path) -> None:
+    """A byte changed in an array of the cached timewarp frames (their npy headers, checked
+    first, intact) fails its member's CRC-32 when the arrays are read: that was BadZipFile,
+    naming no file, with the advice to run again, which failed the same way."""
+    import re
+
+    import numpy as np
+
+    cache = sweep.Cache(tmp_path / "cache")
+    cache.prepare()
+    # Members of more than the 4 KiB zipfile reads at once: a smaller one is read whole, and
+    # its CRC-32 checked, with its header.
+    n, h, w = 3, 40, 40
+    depth = np.arange(n * h * w, dtype=np.float32).reshape(n, h, w)
+    path = cache.timewarp("b" * 64)
+    np.savez(path, index=np.arange(n, dtype=np.int64), time=np.arange(n) / 30.0,
+             view=np.stack([np.eye(4)] * n), proj=np.stack([np.eye(4)] * n),
+             color=np.zeros((n, h, w, 3), np.uint8), depth=depth)
+    data = bytearray(path.read_bytes())
+    data[data.index(depth.tobytes()) + depth.nbytes // 2] ^= 0x01  # stored, not compressed
+    path.write_bytes(bytes(data))
+    [rec] = (serial.parent / "cache" / "recordings").iterdir()
+    task = sweep.Task("c" * 64, "score", "splitrender.evaluation.sweep_tasks:score_timewarp",
+                      {"fps": 10, "source": "timewarp"}, ("r" * 64, "b" * 64),
+                      {"recording": str(rec)})
+    p = re.escape(str(path))
+    with pytest.raises(sweep.DamagedCacheError, match=rf"^{p}: not a valid npz: BadZipFile: .*"
+                                                      rf"; remove {p} and run"):
+        sweep.run_task(str(cache.root), task)
+
+
+@pytest.mark.parametrize("when", ["before", "during"])
+def test_a_chunk_made_after_another_run_assembled_its_recording_is_not_left(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, when: str
+) -> None:
+    """Two runs sharing a cache: one run's chunk task finishes after the other run assembled
+    the recording and removed its chunks, ``before`` it starts or ``during`` its rendering.
+    Its chunk stayed for good (this run's recording task, finding the recording, does not
+    run): 1-2 chunks of ~280 MB at 1280x720 for every two runs."""
+    from splitrender.evaluation import sweep_tasks
+
+    started: list[sweep.Task] = []
+
+    def stop_at_assembly(task: sweep.Task) -> None:
+        started.append(task)
+        if task.fn.endswith(":render_recording"):
+            raise RuntimeError("stopped before the assembly")
+
+    cache = sweep.Cache(tmp_path / "cache")
+    with pytest.raises(sweep.TaskFailedError, match="stopped before the assembly"):
+        run_eval(_config(tmp_path / "out", cache.root), fault=stop_at_assembly)
+    *parts, rec = started
+    assert len(parts) == 3 and all(t.fn.endswith(":render_chunk") for t in parts)
+    if when == "before":
+        sweep_tasks.render_recording(rec, cache)  # the other run
+    else:
+        write_atomic = sweep_tasks.write_atomic
+
+        def assembled_meanwhile(path: Path, data: Any) -> None:
+            write_atomic(path, data)  # the chunk's entries.json, just before its rename
+            sweep_tasks.render_recording(rec, cache)  # the other run
+
+        monkeypatch.setattr(sweep_tasks, "write_atomic", assembled_meanwhile)
+    sweep_tasks.render_chunk(parts[0], cache)  # this run's, planned before the assembly
+    assert cache.has(rec)
+    assert not any((cache.root / "chunks").iterdir())
+
+
+def test_a_chunk_whose_twin_lands_just_before_its_rename_leaves_the_twin(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two runs render the same chunk: the twin renamed into place between this one's check
+    and its rename failed the task (ENOTEMPTY) where docs/sweeps.md says the twin stays."""
+    import os
+
+    from splitrender.evaluation import sweep_tasks
+
+    started: list[sweep.Task] = []
+
+    def stop_at_assembly(task: sweep.Task) -> None:
+        started.append(task)
+        if task.fn.endswith(":render_recording"):
+            raise RuntimeError("stopped before the assembly")
+
+    cache = sweep.Cache(tmp_path / "cache")
+    with pytest.raises(sweep.TaskFailedError, match="stopped before the assembly"):
+        run_eval(_config(tmp_path / "out", cache.root), fault=stop_at_assembly)
+    chunk = started[0]
+    dest = cache.chunk(chunk.key)
+    twin = {p.name: p.read_bytes() for p in dest.iterdir()}
+    aside = tmp_path / "twin"
+    rename = os.rename
+    rename(dest, aside)  # not there yet when this one checks
+
+    def twin_first(src: Any, dst: Any) -> None:
+        if Path(dst) == dest:
+            rename(aside, dst)  # the twin lands
+        rename(src, dst)  # ENOTEMPTY for this one
+
+    monkeypatch.setattr(os, "rename", twin_first)
+    sweep_tasks.render_chunk(chunk, cache)
+    assert {p.name: p.read_bytes() for p in cache.chunk(chunk.key).iterdir()} == twin
+    assert sorted(p.name for p in (cache.root / "chunks").iterdir()) == sorted(
+        t.key for t in started[:-1])

@@ -331,19 +331,16 @@ class _Plan:
             return self.add("render", "render_recording",
                             {"given": hashlib.sha256(manifest).hexdigest()},
                             label=f"{scene} (the recording {self.given.path})")
-        from splitrender.evaluation.sweep_tasks import CLIENT_CHUNK, SERVER_CHUNK, chunks
+        from splitrender.evaluation.sweep_tasks import chunk_params
         from splitrender.scene.recording import plan
 
         params = {"scene": scene, "variant": variant, "stereo": stereo, **self._motion()}
         label = f"{scene} ({variant}{', stereo' if stereo else ''})"
         n_server, n_client = plan(self.cfg.seconds, FS, FC)
         parts = [
-            self.add("render", "render_chunk",
-                     {**params, "part": part, "start": a, "stop": b},
-                     label=f"{label} {part} frames {a}-{b - 1}")
-            for part, n, size in (("server", n_server, SERVER_CHUNK),
-                                  ("client", n_client, CLIENT_CHUNK))
-            for a, b in chunks(n, size)
+            self.add("render", "render_chunk", c,
+                     label=f"{label} {c['part']} frames {c['start']}-{c['stop'] - 1}")
+            for c in chunk_params(params, n_server, n_client)
         ]
         t = self.add("render", "render_recording", params, parts, label=label)
         self.names[t.key] = f"{scene}-{variant}{'-stereo' if stereo else ''}"

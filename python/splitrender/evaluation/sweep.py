@@ -214,8 +214,14 @@ class Cache:
 
     def has(self, task: Task) -> bool:
         """Whether ``task``'s output is there; a recording given from outside (``--dataset``,
-        keyed by its manifest) always is."""
-        return task.stage == "render" and "given" in task.params or self.marker(task).is_file()
+        keyed by its manifest) always is. A stream is there with both its files: the advice
+        for a damaged one is to remove the ``.stream``, after which the ``.json`` marker alone
+        kept the encode task from running again, and every later run failed on the missing
+        stream."""
+        if task.stage == "render" and "given" in task.params:
+            return True
+        return self.marker(task).is_file() and (
+            task.stage != "encode" or self.stream(task.key).is_file())
 
     def read_row(self, key: str) -> dict[str, Any]:
         """The row a score task wrote (``sweep_tasks._write_part``): ``ssim``, ``flip``,

@@ -19,18 +19,19 @@ import hashlib
 import io
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from splitrender.evaluation.sweep import Cache, Task
+from splitrender.evaluation.sweep import Cache, DamagedCacheError, Task, make_task
 from splitrender.files import write_atomic
 
 __all__ = [
     "CLIENT_CHUNK",
     "SERVER_CHUNK",
+    "chunk_params",
     "chunks",
     "encode_stream",
     "render_chunk",
@@ -84,6 +85,11 @@ def render_chunk(task: Task, cache: Cache) -> None:
 
     p = task.params
     r = _renderer(task)
+    recording = _recording_of(task, r)
+    # Another run sharing the cache may have assembled the recording (and removed its chunks)
+    # since this one planned the chunk: it is not needed any more.
+    if recording is not None and cache.has(recording):
+        return
     dest = cache.chunk(task.key)
     tmp = temporary_beside(dest)
     tmp.mkdir(parents=True)
@@ -101,13 +107,49 @@ def render_chunk(task: Task, cache: Cache) -> None:
             digests.append(hashlib.sha256(data).hexdigest())
         entries = {"part": p["part"], "times": times, "sha256": digests, "aux": aux}
         write_atomic(tmp / "entries.json", json.dumps(entries) + "\n")
-        if dest.exists():  # an earlier partial attempt cannot be there (renamed whole): a twin
+        try:
+            # An earlier partial attempt cannot be at dest (renamed whole): a twin, whose bytes
+            # are these, is, and stays.
+            if dest.exists():
+                raise FileExistsError(dest)
+            os.rename(tmp, dest)
+        except OSError:
+            if not dest.is_dir():
+                raise
+            # (Also a twin renamed in between the check and the rename: ENOTEMPTY.)
             shutil.rmtree(tmp)
         else:
-            os.rename(tmp, dest)
+            # Checked again after the rename: an assembly writes the recording's manifest
+            # before it removes the chunks, so a chunk renamed into place after that removal
+            # sees the recording here. Left, it would stay for good (~280 MB at 1280x720): this
+            # run's recording task, finding the recording made, does not run to remove it.
+            if recording is not None and cache.has(recording):
+                shutil.rmtree(dest, ignore_errors=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def chunk_params(params: dict[str, Any], n_server: int, n_client: int) -> list[dict[str, Any]]:
+    """The parameters of the chunk tasks of the recording task of ``params`` (``n_server`` and
+    ``n_client`` frames): its server chunks, then its client chunks, of :data:`SERVER_CHUNK`
+    and :data:`CLIENT_CHUNK` frames."""
+    return [{**params, "part": part, "start": a, "stop": b}
+            for part, n, size in (("server", n_server, SERVER_CHUNK),
+                                  ("client", n_client, CLIENT_CHUNK))
+            for a, b in chunks(n, size)]
+
+
+def _recording_of(task: Task, r: Any) -> Task | None:
+    """The recording task that chunk ``task`` is planned for (``experiments.py``, by
+    :func:`chunk_params`); ``None`` where that does not give ``task`` (a chunk planned
+    otherwise)."""
+    params = {k: v for k, v in task.params.items() if k not in ("part", "start", "stop")}
+    parts = [make_task("render", task.fn, c) for c in chunk_params(params, r.n_server, r.n_client)]
+    if task.key not in {t.key for t in parts}:
+        return None
+    module = task.fn.rpartition(":")[0]
+    return make_task("render", f"{module}:render_recording", params, parts)
 
 
 def chunks(n: int, size: int) -> list[tuple[int, int]]:
@@ -207,13 +249,22 @@ def _timewarp_frames(path: Path) -> list[Any]:
     """The frames :func:`render_timewarp` wrote. Each array is read from the archive once: an
     ``NpzFile`` decompresses the whole stack at every ``z[name]``, and a frame's slice keeps
     that copy alive, so indexing it per frame held N copies of each stack (N² memory: 13 GB
-    for the 60 FPS line at 320×180, beyond any machine at 1280×720)."""
+    for the 60 FPS line at 320×180, beyond any machine at 1280×720).
+
+    Raises:
+        RecordingError: naming ``path`` (:func:`run_task` makes it a damaged cache entry)."""
+    from splitrender.scene.recording import NPZ_ERRORS, RecordingError
     from splitrender.types import Camera, CameraFrame, ServerFrame
 
     _, h, w = _timewarp_shape(path)
-    with np.load(path) as z:
-        index, time, view, proj, color, depth = (
-            z[k] for k in ("index", "time", "view", "proj", "color", "depth"))
+    try:
+        # _timewarp_shape checked the headers, not the data: a byte changed in an array fails
+        # its member's CRC-32 only when read (BadZipFile), which named no file.
+        with np.load(path) as z:
+            index, time, view, proj, color, depth = (
+                z[k] for k in ("index", "time", "view", "proj", "color", "depth"))
+    except NPZ_ERRORS as e:
+        raise RecordingError(f"{path}: not a valid npz: {type(e).__name__}: {e}") from None
     return [
         ServerFrame(int(index[k]), float(time[k]), CameraFrame(
             Camera(view[k], proj[k], int(w), int(h)), color[k], depth[k]))
@@ -292,9 +343,45 @@ def _write_part(task: Task, cache: Cache, metrics: Any, mbps: float) -> None:
     write_atomic(cache.row(task.key), json.dumps(part, sort_keys=True, allow_nan=False) + "\n")
 
 
+class _CachedStream:
+    """The server frames of the cache's stream ``key``, decoded as the client needs each
+    (``DecodedStream``): held whole, a 1280x720 run would take about 50 MB per server frame in
+    every task running at once.
+
+    A ``StreamError`` from reading the file or from decoding a packet (during the playback) is
+    a damaged entry, named here: the encode task wrote the file from its encoder's packets, and
+    those errors name the file by its base name or not at all (``frame 0: packet CRC
+    mismatch``), which :func:`run_task` cannot tell from a caller's error."""
+
+    def __init__(self, cache: Cache, key: str, sizes: list[int]) -> None:
+        from splitrender.codec.coder import DecodedStream
+        from splitrender.codec.stream import read_stream
+        from splitrender.errors import StreamError
+
+        self._cache, self._path = cache, cache.stream(key)
+        try:
+            packets = list(read_stream(self._path))
+        except StreamError as e:
+            raise self._damaged(e) from None
+        if [len(q) for q in packets] != sizes:
+            raise cache.damaged(cache.stream_info(key), "the sizes of another stream than "
+                                f"{self._path.name}")
+        self._frames = DecodedStream(packets)
+
+    def __iter__(self) -> Iterator[Any]:
+        from splitrender.errors import StreamError
+
+        try:
+            yield from self._frames
+        except StreamError as e:
+            raise self._damaged(e) from None
+
+    def _damaged(self, e: Exception) -> DamagedCacheError:
+        problem = str(e).removeprefix(f"{self._path}: ").removeprefix(f"{self._path.name}: ")
+        return self._cache.damaged(self._path, problem)
+
+
 def score_play(task: Task, cache: Cache) -> None:
-    from splitrender.codec.coder import DecodedStream
-    from splitrender.codec.stream import read_stream
     from splitrender.evaluation.pipeline import play_and_score_eyes, raw_mbps
     from splitrender.gpu import backend_for
     from splitrender.net.model import NetworkModel
@@ -307,13 +394,7 @@ def score_play(task: Task, cache: Cache) -> None:
     if p["stream"]:
         key = task.deps[1]
         sizes, mbps = cache.read_stream_info(key)
-        # Decoded as the client needs each frame: held whole, a 1280x720 run would take
-        # about 50 MB per server frame in every task running at once.
-        packets = list(read_stream(cache.stream(key)))
-        if [len(q) for q in packets] != sizes:
-            raise cache.damaged(cache.stream_info(key), "the sizes of another stream than "
-                                f"{cache.stream(key).name}")
-        server = DecodedStream(packets)
+        server = _CachedStream(cache, key, sizes)
     else:
         server = rec.server_frames  # read when the client needs each
         mbps = raw_mbps(rec)
