@@ -650,16 +650,9 @@ def test_a_damaged_cached_timewarp_array_names_the_file(serial: Path, tmp_path: 
         sweep.run_task(str(cache.root), task)
 
 
-@pytest.mark.parametrize("when", ["before", "during"])
-def test_a_chunk_made_after_another_run_assembled_its_recording_is_not_left(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, when: str
-) -> None:
-    """Two runs sharing a cache: one run's chunk task finishes after the other run assembled
-    the recording and removed its chunks, ``before`` it starts or ``during`` its rendering.
-    Its chunk stayed for good (this run's recording task, finding the recording, does not
-    run): 1-2 chunks of ~280 MB at 1280x720 for every two runs."""
-    from splitrender.evaluation import sweep_tasks
-
+def _stopped_before_assembly(tmp_path: Path) -> tuple[sweep.Cache, list[sweep.Task]]:
+    """A sweep's cache with its chunks made, stopped before the recording's assembly, and the
+    tasks it started (the chunks, then the recording)."""
     started: list[sweep.Task] = []
 
     def stop_at_assembly(task: sweep.Task) -> None:
@@ -670,6 +663,20 @@ def test_a_chunk_made_after_another_run_assembled_its_recording_is_not_left(
     cache = sweep.Cache(tmp_path / "cache")
     with pytest.raises(sweep.TaskFailedError, match="stopped before the assembly"):
         run_eval(_config(tmp_path / "out", cache.root), fault=stop_at_assembly)
+    return cache, started
+
+
+@pytest.mark.parametrize("when", ["before", "during"])
+def test_a_chunk_made_after_another_run_assembled_its_recording_is_not_left(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, when: str
+) -> None:
+    """Two runs sharing a cache: one run's chunk task finishes after the other run assembled
+    the recording and removed its chunks, ``before`` it starts or ``during`` its rendering.
+    Its chunk stayed for good (this run's recording task, finding the recording, does not
+    run): 1-2 chunks of ~280 MB at 1280x720 for every two runs."""
+    from splitrender.evaluation import sweep_tasks
+
+    cache, started = _stopped_before_assembly(tmp_path)
     *parts, rec = started
     assert len(parts) == 3 and all(t.fn.endswith(":render_chunk") for t in parts)
     if when == "before":
@@ -696,16 +703,7 @@ def test_a_chunk_whose_twin_lands_just_before_its_rename_leaves_the_twin(
 
     from splitrender.evaluation import sweep_tasks
 
-    started: list[sweep.Task] = []
-
-    def stop_at_assembly(task: sweep.Task) -> None:
-        started.append(task)
-        if task.fn.endswith(":render_recording"):
-            raise RuntimeError("stopped before the assembly")
-
-    cache = sweep.Cache(tmp_path / "cache")
-    with pytest.raises(sweep.TaskFailedError, match="stopped before the assembly"):
-        run_eval(_config(tmp_path / "out", cache.root), fault=stop_at_assembly)
+    cache, started = _stopped_before_assembly(tmp_path)
     chunk = started[0]
     dest = cache.chunk(chunk.key)
     twin = {p.name: p.read_bytes() for p in dest.iterdir()}
