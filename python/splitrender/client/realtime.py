@@ -214,6 +214,7 @@ def _cpu_s(clocks: list[int] | None) -> float | None:
 #: (:class:`~splitrender.tally.Tally`). ``RealtimeClient(keep_frames=None)`` keeps them all.
 KEEP_FRAMES = 16384
 
+
 @dataclass(frozen=True, slots=True)
 class Handover:
     """A server frame handed to the display during :meth:`RealtimeClient.run` (its

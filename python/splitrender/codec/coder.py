@@ -739,7 +739,8 @@ def _quantise_motion(
     list[npt.NDArray[np.uint16]], tuple[float, float, float], tuple[float, float, float]
 ]:
     """Per channel: a range that includes 0, ``scale = range / 4093`` (two codes to spare for
-    the rounding of ``z0``) and the code ``z0`` of 0, so that ``code * scale + offset`` with ``offset = -z0 * scale`` is exactly 0.0 for ``z0``."""
+    the rounding of ``z0``) and the code ``z0`` of 0, so that ``code * scale + offset`` with
+    ``offset = -z0 * scale`` is exactly 0.0 for ``z0``."""
     planes, scales, offsets = [], [], []
     for c in range(3):
         v = m[..., c].astype(np.float64)

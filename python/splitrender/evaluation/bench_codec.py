@@ -28,7 +28,6 @@ from typing import Any
 import av
 import numpy as np
 
-from splitrender.cli.args import Parser, bitrate, count, names, side
 from splitrender.codec.coder import (
     MAX_BITRATE_MBPS,
     X265_PRESETS,
@@ -272,6 +271,8 @@ def sizes(text: str) -> tuple[tuple[int, int], ...]:
     scene and the codec take), whose stream (with the rig's two half-size auxiliary cameras)
     the codec can carry; an ``ArgumentTypeError`` otherwise. Checked here, before any frame is
     rendered: a bad size failed as a traceback of the scene's or the codec's checks."""
+    from splitrender.cli.args import names, side  # main()'s import, which says why
+
     out = []
     for item in names(text):
         # Without an "x" (or with a second one) a side is "" (or "36x2"), which side() refuses.
@@ -296,7 +297,11 @@ def sizes(text: str) -> tuple[tuple[int, int], ...]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    # Parser: one-line argument errors and exit status 2, as the splitrender command's.
+    # This module's command line, the only part of it above the evaluation (its functions are a
+    # library below the CLI): the splitrender command's parser, for one-line argument errors
+    # and exit status 2, and its argument types.
+    from splitrender.cli.args import Parser, bitrate, count
+
     ap = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=count, default=20, metavar="N",
                     help="server frames per run (default: %(default)s)")
