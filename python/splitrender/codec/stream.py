@@ -121,6 +121,7 @@ __all__ = [
     "read_stream",
     "stream_stats",
     "unpack_packet",
+    "without_file_name",
     "write_stream",
 ]
 
@@ -902,6 +903,18 @@ def read_stream(
     """The packets of the container file at ``path``, from the start or from key frame
     ``start`` (see :class:`StreamFile`)."""
     yield from StreamFile(path).packets(start)
+
+
+def without_file_name(message: str, path: str | os.PathLike[str]) -> str:
+    """``message`` of a :class:`StreamError` about the file at ``path`` without the name
+    :class:`StreamFile` gives the file (its base name, or its path where it cannot open it):
+    for a caller that names the file its own way (an option and the path as given, a cache
+    entry)."""
+    full = os.fspath(path)
+    for name in (full, os.path.basename(full)):
+        if message.startswith(f"{name}: "):
+            return message[len(name) + 2:]
+    return message
 
 
 # --------------------------------------------------------------------------------------------

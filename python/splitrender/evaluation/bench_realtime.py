@@ -38,6 +38,7 @@ from splitrender.codec.stream import (
     pack_packet,
     read_stream,
     unpack_packet,
+    without_file_name,
 )
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.files import write_atomic
@@ -244,14 +245,9 @@ def run_realtime_bench(
     try:
         packets = list(read_stream(path))
     except StreamError as e:
-        # The reader's messages open with the file's bare name (its path when it cannot be
-        # opened): "afile: ..." named neither the option nor where the file is.
-        msg = str(e)
-        for name in (os.fspath(path), path.name):
-            if msg.startswith(f"{name}: "):
-                msg = msg[len(name) + 2:]
-                break
-        raise StreamError(f"{where}: {msg}") from None
+        # The reader's messages open with the file's bare name: "afile: ..." named neither the
+        # option nor where the file is.
+        raise StreamError(f"{where}: {without_file_name(str(e), path)}") from None
     if not packets:
         raise InvalidInputError(f"{where}: the stream has no frames")
     try:

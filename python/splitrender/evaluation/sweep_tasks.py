@@ -377,7 +377,9 @@ class _CachedStream:
             raise self._damaged(e) from None
 
     def _damaged(self, e: Exception) -> DamagedCacheError:
-        problem = str(e).removeprefix(f"{self._path}: ").removeprefix(f"{self._path.name}: ")
+        from splitrender.codec.stream import without_file_name
+
+        problem = without_file_name(str(e), self._path)
         return self._cache.damaged(self._path, problem)
 
 
