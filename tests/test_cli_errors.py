@@ -155,6 +155,10 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
                                       "{tmp}/c", "--fps", "0.5"],
      ("--fps", "at least 1")),
     ("all lost", ["relay", "--loss", "1", "--seconds", "0.1"], ("--loss", "below 1")),
+    # argparse reads a value starting with '-' as an option and said only "expected one
+    # argument", though the option was given one.
+    ("value starting with a dash", ["relay", "--bandwidth-at", "-1:0.5", "--seconds", "0.1"],
+     ("--bandwidth-at", "is written --bandwidth-at=-1:0.5")),
     # One datagram went round 186,000 times in 1.5 s.
     ("relay to itself", ["relay", "--listen", "127.0.0.1:47330", "--target", "localhost:47330",
                          "--seconds", "0.1"], ("listen and target", "forward to itself")),

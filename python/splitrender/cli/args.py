@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -27,8 +28,31 @@ T = TypeVar("T")
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (``splitrender: error: ...``) and no usage dump."""
 
+    _argv: list[str] = []
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Any = None, namespace: Any = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        # Kept for error(): argparse reads "--opt -1:0.5" as two options and says only that
+        # --opt lacks its value.
+        self._argv = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        hint = self._dash_value_hint(message)
+        self.exit(2, f"{self.prog}: error: {message}{hint} (see '{self.prog} --help')\n")
+
+    def _dash_value_hint(self, message: str) -> str:
+        """``; write --opt=VALUE ...`` when ``message`` says an option lacks its value and the
+        word after it starts with ``-`` (a value argparse took for an option)."""
+        found = re.match(r"argument (\S+): expected one argument$", message)
+        if found is None:
+            return ""
+        names = found.group(1).split("/")
+        for word, following in zip(self._argv, self._argv[1:]):
+            if word in names and following.startswith("-") and len(following) > 1:
+                return f"; a value that starts with '-' is written {word}={following}"
+        return ""
 
 
 def fail(message: str) -> int:
