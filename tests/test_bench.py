@@ -191,13 +191,13 @@ def test_a_damaged_cached_recording_is_rendered_again(tmp_path, monkeypatch) -> 
 def test_bench_codec_argument_errors_are_one_line_and_exit_2(
     argv: list[str], words: tuple[str, ...], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from splitrender.evaluation.bench_codec import main
+    from splitrender.cli.bench_codec import main
 
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2
     err = capsys.readouterr().err
-    assert err.startswith("python -m splitrender.evaluation.bench_codec: error: argument ")
+    assert err.startswith("python -m splitrender.cli.bench_codec: error: argument ")
     assert err.count("\n") == 1 and all(w in err for w in words), err
 
 

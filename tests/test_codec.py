@@ -3,7 +3,7 @@ zero motion on static pixels, rate control within ±10 %, random access, untrust
 `ours` on decoded frames close to `ours` on the uncompressed ones.
 
 Bounds are stated where they are asserted; the figures they come from are printed by
-``python -m splitrender.evaluation.bench_codec``."""
+``python -m splitrender.cli.bench_codec``."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""The ``splitrender`` command line, one module per subcommand family (:mod:`.main` dispatches)."""
+"""The ``splitrender`` command line, one module per subcommand family (:mod:`.main` dispatches),
+and the codec benchmark's (:mod:`.bench_codec`: ``python -m splitrender.cli.bench_codec``)."""
 
 from splitrender.cli.main import main
 

@@ -1,25 +1,26 @@
-"""Benchmark of the codec: ``python -m splitrender.evaluation.bench_codec [--frames N] [--sizes 640x360,...]``.
+"""Benchmark of the codec (its command line: ``python -m splitrender.cli.bench_codec [--frames N]
+[--sizes 640x360,...]``).
 
 For each main-camera size (two auxiliary cameras at half size, every buffer) it encodes and
 decodes a run of the synthetic dynamic scene at the paper's 40 Mb/s scaled by pixel count and
 prints: encode and decode milliseconds per server frame (mean over all frames, and over key /
 non-key frames), the realtime factor at ``f_s`` (``1/f_s`` divided by the time per frame; >= 1 is
 realtime), the achieved bitrate and its split, colour PSNR, depth and motion errors, and how many
-static pixels would decode to exactly zero motion without the static mask. With ``--chroma`` it
-also compares 4:4:4 and 4:2:0 colour at equal bitrate.
+static pixels would decode to exactly zero motion without the static mask (:func:`report`). With
+``--chroma`` it also compares 4:4:4 and 4:2:0 colour at equal bitrate.
 
-``--profile`` instead encodes the two server frames of ``splitrender bench`` (courtyard at
-1280x720, cached in the temporary directory) at the paper's 40 Mb/s scaled and prints where the
-decode time goes (docs/performance.md, "Codec"), as minima of CPU time over repeated runs: per
-HEVC picture of each packet its size, pixel format, bytes and FFmpeg's decoding alone (a new
-decoder, and one kept across frames as a client's is); ``StreamDecoder.decode`` on one thread
-per step (FFmpeg, colour conversion, copies, dequantisation, lossless parts); and the CPU and
-wall time of ``StreamDecoder.decode`` per server frame with its default threads.
+``--profile`` (:func:`profile`) instead encodes the two server frames of ``splitrender bench``
+(courtyard at 1280x720, cached in the temporary directory) at the paper's 40 Mb/s scaled and
+prints where the decode time goes (docs/performance.md, "Codec"), as minima of CPU time over
+repeated runs: per HEVC picture of each packet its size, pixel format, bytes and FFmpeg's
+decoding alone (a new decoder, and one kept across frames as a client's is);
+``StreamDecoder.decode`` on one thread per step (FFmpeg, colour conversion, copies,
+dequantisation, lossless parts); and the CPU and wall time of ``StreamDecoder.decode`` per
+server frame with its default threads.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import time
@@ -29,20 +30,13 @@ import av
 import numpy as np
 
 from splitrender.codec.coder import (
-    MAX_BITRATE_MBPS,
-    X265_PRESETS,
     CodecConfig,
     StreamDecoder,
     StreamEncoder,
-    oversized_picture,
 )
 from splitrender.codec.stream import Codec, stream_stats, unpack_packet
 from splitrender.scene.synthetic import SyntheticScene
-from splitrender.types import MAX_SIDE, CameraFrame, ServerFrame
-
-#: How the module is run (its documented command), the name its argument errors open with.
-PROG = "python -m splitrender.evaluation.bench_codec"
-
+from splitrender.types import CameraFrame, ServerFrame
 
 def _cams(f: ServerFrame) -> list[CameraFrame]:
     return [f.main, *f.aux]
@@ -266,85 +260,24 @@ def profile(repeats: int = 7) -> None:
     print(f"load average {os.getloadavg()}")
 
 
-def sizes(text: str) -> tuple[tuple[int, int], ...]:
-    """``--sizes``: comma-separated main-camera sizes ``WxH``, each side 1..MAX_SIDE (what the
-    scene and the codec take), whose stream (with the rig's two half-size auxiliary cameras)
-    the codec can carry; an ``ArgumentTypeError`` otherwise. Checked here, before any frame is
-    rendered: a bad size failed as a traceback of the scene's or the codec's checks."""
-    from splitrender.cli.args import names, side  # main()'s import, which says why
-
-    out = []
-    for item in names(text):
-        # Without an "x" (or with a second one) a side is "" (or "36x2"), which side() refuses.
-        w, _, h = item.partition("x")
-        try:
-            size = side(w), side(h)
-        except argparse.ArgumentTypeError:
-            raise argparse.ArgumentTypeError(
-                f"expected WxH sizes like 640x360, each side 1..{MAX_SIDE}, got {item!r}"
-            ) from None
-        # The rig's own camera sizes (its auxiliary cameras' rounding included).
-        main, aux = SyntheticScene().rig(0.0, *size)
-        over = oversized_picture([(c.width, c.height) for c in (main, *aux)])
-        if over is not None:
-            pic, pw, ph = over
-            raise argparse.ArgumentTypeError(
-                f"{item} makes the codec's {pic} {pw}x{ph}, beyond its {MAX_SIDE} pixels a "
-                "side; expected a smaller size, or one nearer to square"
-            )
-        out.append(size)
-    return tuple(out)
-
-
-def main(argv: list[str] | None = None) -> None:
-    # This module's command line, the only part of it above the evaluation (its functions are a
-    # library below the CLI): the splitrender command's parser, for one-line argument errors
-    # and exit status 2, and its argument types.
-    from splitrender.cli.args import Parser, bitrate, count
-
-    ap = Parser(prog=PROG, description=__doc__.split("\n\n")[0])
-    ap.add_argument("--frames", type=count, default=20, metavar="N",
-                    help="server frames per run (default: %(default)s)")
-    ap.add_argument("--sizes", type=sizes, default="640x360,1280x720", metavar="WxH,...",
-                    help="main-camera sizes (default: %(default)s)")
-    ap.add_argument("--paper-mbps", type=bitrate, default=40.0, metavar="MBPS",
-                    help="bitrate at the paper's 2560x1440, scaled by pixel count "
-                    "(default: %(default)s)")
-    ap.add_argument("--preset", choices=X265_PRESETS, default=CodecConfig().preset,
-                    help="x265 preset (default: %(default)s)")
-    ap.add_argument(
-        "--chroma", action="store_true", help="also compare 4:4:4 and 4:2:0"
-    )
-    ap.add_argument(
-        "--profile",
-        action="store_true",
-        help="only the decode-time profile of two 1280x720 courtyard frames",
-    )
-    args = ap.parse_args(argv)
-    for w, h in args.sizes:
-        # CodecConfig bounds the scaled target, not --paper-mbps: a large size can take it
-        # past the bound (a traceback at the first run otherwise).
-        target = args.paper_mbps * w * h / (2560 * 1440)
-        if target > MAX_BITRATE_MBPS:
-            ap.error(
-                f"argument --paper-mbps: {args.paper_mbps:g} Mb/s scaled to {w}x{h} is "
-                f"{target:g} Mb/s; expected at most the codec's {MAX_BITRATE_MBPS:g} Mb/s"
-            )
-    if args.profile:
-        profile()
-        return
+def report(
+    sizes: tuple[tuple[int, int], ...], frames_per_run: int, paper_mbps: float, preset: str,
+    compare_chroma: bool,
+) -> None:
+    """Prints the benchmark of the module's docstring for each main-camera size of ``sizes``
+    (checked by the caller: :func:`splitrender.cli.bench_codec.sizes`)."""
     print(
-        f"cpus: {os.cpu_count()}, frames per run: {args.frames}, preset {args.preset}"
+        f"cpus: {os.cpu_count()}, frames per run: {frames_per_run}, preset {preset}"
     )
     scene = SyntheticScene(dynamic=True)
-    for w, h in args.sizes:
-        frames = [scene.server_frame(i, i / 10, w, h) for i in range(args.frames)]
-        cfg = CodecConfig.scaled(w, h, args.paper_mbps, preset=args.preset)
-        r = run(w, h, args.frames, cfg, frames)
+    for w, h in sizes:
+        frames = [scene.server_frame(i, i / 10, w, h) for i in range(frames_per_run)]
+        cfg = CodecConfig.scaled(w, h, paper_mbps, preset=preset)
+        r = run(w, h, frames_per_run, cfg, frames)
         rt = (1000 / cfg.fps) / r["enc_ms"]
         print(
             f"\n{w}x{h} (+2x {w // 2}x{h // 2}), target {cfg.bitrate_mbps:.3f} Mb/s "
-            f"(paper {args.paper_mbps:g} Mb/s scaled), gop {cfg.gop}, chroma {cfg.chroma}"
+            f"(paper {paper_mbps:g} Mb/s scaled), gop {cfg.gop}, chroma {cfg.chroma}"
         )
         print(
             f"  encode {r['enc_ms']:.1f} ms/frame (key {r['enc_key_ms']:.1f}, other "
@@ -363,23 +296,19 @@ def main(argv: list[str] | None = None) -> None:
         frac = static_without_mask(
             frames[: min(6, len(frames))],
             CodecConfig.scaled(
-                w, h, args.paper_mbps, preset=args.preset, exact_static_motion=False
+                w, h, paper_mbps, preset=preset, exact_static_motion=False
             ),
         )
         print(
             f"  without the static mask, {100 * frac:.3f} % of static pixels decode to exact 0"
         )
-        if args.chroma:
+        if compare_chroma:
             for chroma in ("444", "420"):
                 c = CodecConfig.scaled(
-                    w, h, args.paper_mbps, preset=args.preset, chroma=chroma
+                    w, h, paper_mbps, preset=preset, chroma=chroma
                 )
-                rc = run(w, h, args.frames, c, frames)
+                rc = run(w, h, frames_per_run, c, frames)
                 print(
                     f"  chroma {chroma}: colour PSNR {rc['psnr']:.2f} dB at {rc['mbps']:.3f} Mb/s, "
                     f"encode {rc['enc_ms']:.1f} ms, decode {rc['dec_ms']:.1f} ms"
                 )
-
-
-if __name__ == "__main__":
-    main()
