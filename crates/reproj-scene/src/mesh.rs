@@ -244,13 +244,17 @@ impl Mesh {
     /// the `f64` test would hit (the per-ray walk's padded boxes never cull one either): each
     /// ray's answer, whether some triangle's `f64` test hits it, is the same. Where more
     /// triangles than fit in place are reachable, the rays are walked one by one.
-    pub(crate) fn occluded_rays(
+    ///
+    /// `N` is the scene's shadow-ray count (`scene::SHADOW_SAMPLES`), a parameter here so that
+    /// meshes stay below the scene that owns them; the masks hold one bit per ray.
+    pub(crate) fn occluded_rays<const N: usize>(
         &self,
         o: V3,
-        dirs: &[V3; crate::scene::SHADOW_SAMPLES],
+        dirs: &[V3; N],
         (axis, spread): (V3, f64),
         todo: u32,
     ) -> u32 {
+        const { assert!(N <= 32, "one bit per ray in a u32 mask") };
         let each = |todo: u32| {
             bits(todo)
                 .filter(|&k| self.occludes(o, dirs[k]))
