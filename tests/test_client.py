@@ -198,6 +198,23 @@ def test_stereo_eyes_keep_separate_state(frames: list[sr.ServerFrame]) -> None:
     np.testing.assert_array_equal(got[holes], left_before[holes])
 
 
+def test_a_returned_image_cannot_change_the_next_frame(frames: list[sr.ServerFrame]) -> None:
+    """The image render returns is the eye's previous output, whose colour the next frame's
+    unmatched pixels keep: it is read-only, so an overlay drawn into it in place cannot leak
+    into the next frame (on the CPU it did; the GPU keeps its own copy on the device)."""
+    scene = sr.SyntheticScene(dynamic=True)
+    client = Client("ours")
+    assert not client.render(scene.rig(0.0, W, H)[0], 0.0).flags.writeable  # holding: black
+    client.receive(frames[0])
+    client.receive(frames[1])
+    first = client.render(scene.rig(0.05, W, H)[0], 0.05)
+    assert not first.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        first[:] = (255, 0, 255)
+    away = _yawed(scene.rig(0.06, W, H)[0], 45.0)
+    assert not (client.render(away, 0.06) == (255, 0, 255)).all(axis=-1).any()
+
+
 def _yawed(cam: sr.Camera, deg: float) -> sr.Camera:
     """``cam`` turned ``deg`` degrees about its own vertical axis."""
     s, c = np.sin(np.radians(deg)), np.cos(np.radians(deg))

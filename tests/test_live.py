@@ -1320,3 +1320,79 @@ def test_live_commands_name_the_option_that_is_wrong(
     assert code == 2 and len(err) == 1 and err[0].startswith(start), err
     for w in words:
         assert w in err[0], (w, err)
+
+
+def test_a_live_clients_poses_are_checked_and_run_always_closes_the_session() -> None:
+    # From Python: run() before connect() failed an assert; a NaN pose was sent (the server
+    # dropped it as malformed) and refused as "Camera.view", a name the caller never used; a
+    # scaled pose was rendered here and dropped by the server without a word; and a run whose
+    # motion raised left the connection open (the server busy) and the worker's threads running.
+    from splitrender.client.live import ConnectOptions, LiveClient
+    from splitrender.errors import InvalidInputError, ProtocolError
+    from splitrender.scene import Scene
+
+    with pytest.raises(InvalidInputError, match=r"LiveClient.run: not connected"):
+        LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None)).run(lambda t: np.eye(4), 0.1)
+    kept = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None, keep_packets=True))
+    with pytest.raises(InvalidInputError, match=r"LiveClient.replay: not connected"):
+        kept.replay("ours", lambda t: np.eye(4), 0.1)
+    scene = Scene("courtyard")
+    proj = tuple(float(v) for v in scene.server_frame(0, 0.01, 10.0).main.camera.proj.ravel())
+
+    def connected() -> LiveClient:
+        client = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None))
+        client.welcomed(proto.Welcome(10.0, 0.01, 25, 14, proj, 100, 1.0, 0.1, "courtyard"))
+        assert client.realtime is not None
+        return client
+
+    def scaled(t: float) -> Any:
+        return 2.0 * scene.client_pose(t)
+
+    def nan(t: float) -> Any:
+        return np.full((4, 4), np.nan)
+
+    for motion, words in [(nan, "finite values"), (scaled, "not a rotation"),
+                          (lambda t: np.eye(4)[:3], r"4x4 .* got shape \(3, 4\)")]:
+        client = connected()
+        with pytest.raises(InvalidInputError, match=rf"motion\(0\): .*{words}"):
+            client.run(motion, 0.1)
+        assert client.realtime is not None and client.realtime._closed
+    # The server drops what the client now refuses.
+    with pytest.raises(ProtocolError, match="not a rotation"):
+        proto.PoseSample.decode(proto.PoseSample(1, 0.0, scaled(0.0)).encode())
+
+    def broken(t: float) -> Any:
+        raise KeyError("the caller's own bug")
+
+    client = connected()
+    with pytest.raises(KeyError):
+        client.run(broken, 0.1)
+    assert client.realtime is not None and client.realtime._closed
+    with pytest.raises(InvalidInputError, match="the session is over"):
+        client.run(scene.client_pose, 0.1)
+    # A good pose goes through, and the context manager closes what it opened.
+    with connected() as client:
+        assert client.run(scene.client_pose, 1 / 60)["frames"] == 2
+
+
+def test_a_live_server_runs_once_and_says_so() -> None:
+    # A second run() (after the first was cancelled, its encoder closed) raised asyncio's
+    # RuntimeError about an Event bound to another event loop.
+    import io
+
+    from splitrender.errors import InvalidInputError
+    from splitrender.net.server import LiveServer, ServerOptions
+
+    srv = LiveServer(ServerOptions("courtyard", scale=0.03125, token=TOKEN), log=io.StringIO())
+
+    async def first() -> None:
+        bound = asyncio.Event()
+        task = asyncio.create_task(srv.run("127.0.0.1", 0, ready=lambda s: bound.set()))
+        await asyncio.wait_for(bound.wait(), 10)
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+    asyncio.run(first())
+    with pytest.raises(InvalidInputError, match="has run before .* make a new LiveServer"):
+        asyncio.run(asyncio.wait_for(srv.run("127.0.0.1", 0), 10))

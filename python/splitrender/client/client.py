@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import numbers
 import threading
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -197,6 +198,10 @@ class Client:
         :attr:`last_info` then says how it was made. Holding (no usable frame) returns the
         previous output of that eye, or black.
 
+        The image is read-only, on both backends: it is also the eye's previous output, whose
+        colour the next frame's unmatched pixels keep, so a caller that drew on it (an overlay
+        in place) would have changed the next frame. Copy it (``image.copy()``) to modify it.
+
         Raises:
             InvalidInputError: for an invalid camera or time, or while another thread renders
                 with this client.
@@ -222,15 +227,18 @@ class Client:
         if prev is not None and prev.shape[:2] != camera.shape:
             prev = None
         if info.mode == "hold" or info.newer is None:
-            image = prev.copy() if prev is not None else np.zeros((*camera.shape, 3), np.uint8)
+            # Read-only, as every image returned: the previous output itself serves.
+            image = prev if prev is not None else np.zeros((*camera.shape, 3), np.uint8)
         else:
             older = None if info.older is None else self._frames[info.older]
             history = self._history_for((info.older, info.newer), eye)
             assert info.alpha is not None
             if self._gpu is not None:
-                image = self._render_gpu(older, info.older, info.newer, camera, info.alpha, prev, eye)
+                image = self._render_gpu(
+                    older, info.older, info.newer, camera, info.alpha, prev, eye
+                )
             else:
-                image = _reproject_alpha(
+                image = cast(_Image, _reproject_alpha(  # diagnostics=False: the image
                     older,
                     self._frames[info.newer],
                     camera,
@@ -242,7 +250,11 @@ class Client:
                     history=history,
                     backend="cpu",
                     paths=self._paths_of(info.older, info.newer),
-                )
+                ))
+        # The returned image is the eye's previous output for the next frame's hole filling
+        # (on the CPU; the GPU keeps its own copy on the device): read-only, so that a caller
+        # cannot change the next frame through it (and the backends behave alike).
+        image.flags.writeable = False
         self._previous[eye] = image
         self._buffer.prune(float(time))
         for j in [j for j in self._frames if j not in self._buffer.times]:

@@ -77,6 +77,7 @@ from splitrender.net.protocol import (
     fingerprint_hex,
     frame_control,
     normalise_fingerprint,
+    pose_problem,
     printable,
 )
 from splitrender.net.quic import ReceiveWindows
@@ -537,11 +538,40 @@ def _put_bounded(d: dict[int, Any], key: int, value: Any, keep: int | None) -> i
     return oldest
 
 
+def _checked_pose(motion: Callable[[float], _F64], t: float) -> _F64:
+    """``motion(t)`` as a ``float64`` 4x4 world-from-camera pose, checked as the server checks
+    the poses it receives (:func:`~splitrender.net.protocol.pose_problem`). A NaN pose was sent
+    (the server dropped it as malformed) and then refused as ``Camera.view``, a name the caller
+    never used; a scaled one was rendered here and dropped by the server without a word.
+
+    Raises:
+        InvalidInputError: naming ``motion`` and ``t``."""
+    m = motion(t)
+    where = f"motion({t:g})"
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (4, 4):
+        got = type(m).__name__ if a is None else f"shape {a.shape}"
+        raise InvalidInputError(
+            f"{where}: expected a 4x4 world-from-camera pose matrix, got {got}"
+        )
+    problem = pose_problem(a)
+    if problem is None and not np.array_equal(a[3], (0.0, 0.0, 0.0, 1.0)):
+        problem = "expected a last row 0 0 0 1"
+    if problem is not None:
+        raise InvalidInputError(f"{where}: not a world-from-camera pose: {problem}")
+    return a
+
+
 class LiveClient:
     """``splitrender connect``: :meth:`connect` opens the session (raises
     :class:`~splitrender.errors.ProtocolError` with the server's one-line reason when refused,
     or when the certificate does not match), :meth:`run` shows ``seconds`` of display frames at
-    the poses ``motion(t)`` (world-from-camera) and returns the report (:meth:`report`)."""
+    the poses ``motion(t)`` (world-from-camera) and returns the report (:meth:`report`).
+    :meth:`run` closes the session when it ends, also when it raises; a client that connected
+    and does not run is closed with :meth:`close`, or used as a context manager."""
 
     def __init__(self, options: ConnectOptions) -> None:
         self.options = options
@@ -834,7 +864,26 @@ class LiveClient:
             raise ProtocolError(self._refusal or "connection closed before the welcome")
         return self.welcome
 
+    def __enter__(self) -> LiveClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _connected(self, what: str) -> Welcome:
+        """The welcome of the session :meth:`connect` opened (``what`` names the call)."""
+        if self.welcome is None or self.realtime is None:
+            raise InvalidInputError(f"LiveClient.{what}: not connected (call connect() first)")
+        if self._ending and what == "run":
+            raise InvalidInputError(
+                f"LiveClient.{what}: the session is over (run() and close() end it; connect "
+                "a new LiveClient)"
+            )
+        return self.welcome
+
     def close(self) -> None:
+        """Ends the session (the connection closed, the real-time client's worker stopped
+        with the packets not yet decoded dropped); waits up to 5 s for the network thread."""
         self._ending = True
         loop, stop = self._loop, self._stop
         if loop is not None and stop is not None:
@@ -856,20 +905,32 @@ class LiveClient:
         on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
     ) -> dict[str, Any]:
         """The display loop for ``seconds`` at ``f_c`` (on this thread), sending each pose;
-        then closes the session and returns :meth:`report`'s object."""
-        w = self.welcome
-        assert w is not None and self.realtime is not None, "connect() first"
+        then closes the session and returns :meth:`report`'s object. ``motion(t)`` is the
+        world-from-camera pose at display time ``t``: a 4x4 matrix of a rotation and a position
+        (the inverse of :attr:`Camera.view <splitrender.Camera.view>`), last row ``0 0 0 1``.
+        The session is closed however the loop ends (an exception of ``motion`` or
+        ``on_frame`` included).
+
+        Raises:
+            InvalidInputError: before :meth:`connect`, or for a pose ``motion`` returns that is
+                not such a matrix (named with its time; the server would drop it)."""
+        w = self._connected("run")
+        assert self.realtime is not None
         proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
 
         def pose(t: float) -> Camera:
-            m = motion(t)
+            m = _checked_pose(motion, t)
             self.send_pose(t, m)
             return Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
 
         self._t0 = time.monotonic()
-        rt = self.realtime.run(pose, seconds, on_frame=on_frame)
+        try:
+            rt = self.realtime.run(pose, seconds, on_frame=on_frame)
+        finally:
+            # Also when the loop raised: the connection otherwise stayed open (the server
+            # busy with it) and the worker's threads running while the object lived.
+            self.close()
         self.summary = rt.summary()
-        self.close()
         return self.report(seconds)
 
     def replay(
@@ -886,17 +947,18 @@ class LiveClient:
         summary.
 
         Raises:
-            InvalidInputError: for a client made without ``keep_packets``."""
+            InvalidInputError: for a client made without ``keep_packets``, before
+                :meth:`connect`, or for a pose ``motion`` returns that is not one (as
+                :meth:`run`)."""
         if not self.options.keep_packets:
             raise InvalidInputError(
                 "replay: the packets were not kept; connect with "
                 "ConnectOptions(keep_packets=True)")
-        w = self.welcome
-        assert w is not None, "connect() and run() first"
+        w = self._connected("replay")
         proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
 
         def pose(t: float) -> Camera:
-            view = np.asarray(np.linalg.inv(motion(t)), np.float64)
+            view = np.asarray(np.linalg.inv(_checked_pose(motion, t)), np.float64)
             return Camera(view, proj, w.width, w.height)
 
         with RealtimeClient(

@@ -105,8 +105,9 @@ def play(
     :class:`Client` renders client frame ``n`` at ``cameras[n]`` and time ``n / fps``.
 
     ``on_frame(n, image, info)`` is called for every client frame (e.g. to write it out); with
-    ``keep_images=False`` the result holds no images. ``backend`` is ``"cpu"`` or ``"wgpu"``
-    (see :class:`Client`).
+    ``keep_images=False`` the result holds no images. The images are read-only (see
+    :meth:`Client.render`; a frame that holds repeats the same array). ``backend`` is
+    ``"cpu"`` or ``"wgpu"`` (see :class:`Client`).
 
     Raises:
         InvalidInputError: for invalid arguments, a network whose ``client_fps`` is not ``fps``,

@@ -1091,7 +1091,8 @@ class RealtimeClient:
 
     def render(self, camera: Camera, time: float, *, eye: int = 0) -> _Image:
         """The display frame at ``camera`` and display ``time`` from the frames usable now
-        (:meth:`Client.render`); :attr:`Client.last_info` says how it was made.
+        (:meth:`Client.render`: read-only, the eye's previous output for the next frame's
+        unmatched pixels); :attr:`Client.last_info` says how it was made.
 
         Raises:
             InvalidInputError: as :meth:`Client.render`, and for a client that was closed."""
@@ -1133,8 +1134,9 @@ class RealtimeClient:
         reaches it (between display frames; a live client calls :meth:`submit` from its network
         thread instead). ``on_frame(image, record)`` is called after each frame (the caller's
         present; its time counts against the frame's deadline only if it runs past the next
-        refresh). Returns the report of the run: its display frames, and what the worker did
-        since the previous run returned (or since the client was made).
+        refresh; ``image`` is read-only, as :meth:`Client.render` returns it). Returns the
+        report of the run: its display frames, and what the worker did since the previous run
+        returned (or since the client was made).
 
         ``exclusive`` (a diagnostic; a live client cannot wait): after each arrival the display
         waits until the worker has received it (decoded and prepared, or refused) and the

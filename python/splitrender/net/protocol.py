@@ -67,6 +67,7 @@ __all__ = [
     "frame_control",
     "hello_version",
     "normalise_fingerprint",
+    "pose_problem",
     "printable",
     "unsupported_version",
 ]
@@ -424,17 +425,26 @@ class PoseSample:
         t = _finite("pose.time", t, -1e9, 1e9)
         m = np.eye(4)
         m[:3] = np.asarray(rows, dtype=np.float64).reshape(3, 4)
-        if not np.isfinite(m).all() or np.abs(m[:3, 3]).max() > MAX_POSITION:
-            raise ProtocolError(
-                f"pose.pose: expected finite values, positions within ±{MAX_POSITION:g}"
-            )
-        r = m[:3, :3]
-        if np.abs(r).max() > 1.001:  # before the product below (it could overflow)
-            raise ProtocolError("pose.pose: the 3x3 part is not a rotation")
-        # A rotation (the renderer refuses anything else): orthonormal within float noise.
-        if not np.allclose(r @ r.T, np.eye(3), atol=1e-4) or np.linalg.det(r) <= 0:
-            raise ProtocolError("pose.pose: the 3x3 part is not a rotation")
+        problem = pose_problem(m)
+        if problem is not None:
+            raise ProtocolError(f"pose.pose: {problem}")
         return cls(int(seq), t, m)
+
+
+def pose_problem(m: _F64) -> str | None:
+    """What makes the 4x4 ``m`` (its top three rows) no pose a server takes (``None``: it is
+    one): non-finite values, a position beyond ±:data:`MAX_POSITION`, or a 3x3 part that is not
+    a rotation (the renderer refuses anything else; orthonormal within float noise). The server
+    drops such a ``POSE`` datagram (:meth:`PoseSample.decode`); a client checks its poses with
+    it before it sends them."""
+    if not np.isfinite(m[:3]).all() or np.abs(m[:3, 3]).max() > MAX_POSITION:
+        return f"expected finite values, positions within ±{MAX_POSITION:g}"
+    r = m[:3, :3]
+    if np.abs(r).max() > 1.001:  # before the product below (it could overflow)
+        return "the 3x3 part is not a rotation"
+    if not np.allclose(r @ r.T, np.eye(3), atol=1e-4) or np.linalg.det(r) <= 0:
+        return "the 3x3 part is not a rotation"
+    return None
 
 
 @dataclass(frozen=True, slots=True)

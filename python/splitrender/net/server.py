@@ -894,6 +894,7 @@ class LiveServer:
         self.port = 0
         self.executor = ThreadPoolExecutor(1, thread_name_prefix="splitrender-serve")
         self._done = asyncio.Event()
+        self._ran = False
         # Two first frames: the camera the welcome describes, and the first estimate of the
         # render + encode time of a frame that is not a key frame (refined per frame; the
         # first encode opens the encoders, which is no guide).
@@ -986,7 +987,18 @@ class LiveServer:
         ready: Callable[[LiveServer], None] | None = None,
     ) -> None:
         """Serves until ``options.sessions`` sessions have ended (or cancelled). ``ready`` is
-        called once the socket is bound (:attr:`port` holds the port, useful with 0)."""
+        called once the socket is bound (:attr:`port` holds the port, useful with 0). A server
+        runs once: its encoder and render thread are closed when it returns.
+
+        Raises:
+            InvalidInputError: for a server that has run before (a second run failed with
+                asyncio's RuntimeError about another event loop, its encoder closed)."""
+        if self._ran:
+            raise InvalidInputError(
+                "LiveServer.run: this server has run before (a server runs once: its encoder "
+                "and render thread are closed when it returns; make a new LiveServer)"
+            )
+        self._ran = True
         server = self
 
         class Session(_Session):
