@@ -135,7 +135,7 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
     pinned = _connect(server.port, tmp_path, fingerprint=other.lower().replace(":", ""),
                       timeout=30)
     assert pinned.returncode == 2 and len(pinned.stderr.strip().splitlines()) == 1
-    assert "does not match --fingerprint" in pinned.stderr
+    assert "does not match the pinned fingerprint (--fingerprint" in pinned.stderr
     assert not (tmp_path / "report.json").exists()
     server.wait_log("refused", 5)
 

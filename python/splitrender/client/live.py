@@ -413,7 +413,7 @@ class _Connection(QuicConnectionProtocol):
             # Before the hello: the token never goes to a server that is not the pinned one.
             o.refuse(
                 f"the server's certificate (SHA-256 {o.server_fingerprint}) does not match "
-                "--fingerprint"
+                "the pinned fingerprint (--fingerprint, ConnectOptions.fingerprint)"
             )
             self._quic.close(error_code=CLOSE_BYE, reason_phrase="certificate mismatch")
             self.transmit()

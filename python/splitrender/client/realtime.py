@@ -689,10 +689,11 @@ class RealtimeClient:
     keeps one by one (:attr:`RealtimeReport.frames`: the newest; default :data:`KEEP_FRAMES`,
     ``None``: all, memory growing with the run); its summary covers every frame either way.
     ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
-    their priority). ``on_handover`` is called with a :class:`Handover` for each server frame
-    handed to the display during :meth:`run`, in order, under the client's lock, on the thread
-    that hands it over (the display thread, or the worker when a frame arrives after its
-    time): keep it short. It is called after the handover is complete; an exception it raises
+    their priority). The client owns the ``decoder`` and ``executor`` it is given:
+    :meth:`close` closes the one and shuts the other down. ``on_handover`` is called with a
+    :class:`Handover` for each server frame handed to the display during :meth:`run`, in order,
+    under the client's lock, on the thread that hands it over (the display thread, or the
+    worker when a frame arrives after its time): keep it short. It is called after the handover is complete; an exception it raises
     reaches :meth:`run`'s caller from the display thread, or from the worker the future of the
     packet whose receipt handed the frame over (and :meth:`wait`). Use as a context manager,
     or call :meth:`close`.
@@ -770,6 +771,8 @@ class RealtimeClient:
         self._closed = False
         self._queued = 0  # packets submitted and not yet being received
         self._pending: list[Future[int | None]] = []
+        # submit() is called from any thread: the worker's order and _pending's are one order.
+        self._submit_lock = threading.Lock()
         # The pose time of each frame the client holds (its entries go with the frames, so that
         # a client that runs for hours keeps no state per frame it has dropped).
         self._pose_time: dict[int, float] = {}
@@ -835,17 +838,19 @@ class RealtimeClient:
         """:meth:`submit` without its argument checks, for :meth:`run`'s arrivals, which
         :func:`_arrivals` has checked."""
         self._check_open()
-        with self._lock:
-            self._queued += 1
-        fut = self._worker.submit(self._receive, packet, pose_time)
-        if len(self._pending) >= _PRUNE_PENDING:
-            # What wait() needs of the done ones is the first error; the rest (a failed one
-            # holds its packet) went unbounded for a client that never waits (a live session).
-            failed = [f for f in self._pending
-                      if f.done() and not f.cancelled() and f.exception() is not None]
-            first = failed[0] if failed else None
-            self._pending = [f for f in self._pending if not f.done() or f is first]
-        self._pending.append(fut)
+        with self._submit_lock:
+            with self._lock:
+                self._queued += 1
+            fut = self._worker.submit(self._receive, packet, pose_time)
+            if len(self._pending) >= _PRUNE_PENDING:
+                # What wait() needs of the done ones is the first error; the rest (a failed one
+                # holds its packet) went unbounded for a client that never waits (a live
+                # session).
+                failed = [f for f in self._pending
+                          if f.done() and not f.cancelled() and f.exception() is not None]
+                first = failed[0] if failed else None
+                self._pending = [f for f in self._pending if not f.done() or f is first]
+            self._pending.append(fut)
         return fut
 
     def _check_open(self) -> None:
@@ -854,10 +859,37 @@ class RealtimeClient:
 
     def wait(self, timeout: float | None = None) -> None:
         """Blocks until every packet submitted so far is usable, refused or due at its own
-        time (:data:`MIN_PAIR_USE`; re-raises the first error)."""
-        pending, self._pending = self._pending, []
-        for fut in pending:
-            fut.result(timeout)
+        time (:data:`MIN_PAIR_USE`). ``timeout``: seconds for the whole wait (default: none).
+
+        Raises:
+            StreamError: the first error of the packets waited for (those after it are left
+                to the next ``wait``).
+            TimeoutError: when ``timeout`` passed first; the packets not yet received are
+                left to the next ``wait``."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._submit_lock:
+            pending = list(self._pending)
+        waited = 0
+        try:
+            for fut in pending:
+                left = None if deadline is None else max(0.0, deadline - time.monotonic())
+                try:
+                    fut.result(left)
+                except TimeoutError as e:
+                    # The wait's timeout leaves the packet to the next wait.
+                    if fut.done() and not fut.cancelled() and fut.exception() is e:
+                        waited += 1
+                    raise
+                except BaseException:
+                    waited += 1  # its own error, raised once
+                    raise
+                waited += 1
+        finally:
+            # Each packet is waited for once (a timeout used to drop the ones not yet
+            # waited for, and then each future had the whole timeout).
+            gone = {id(f) for f in pending[:waited]}
+            with self._submit_lock:
+                self._pending = [f for f in self._pending if id(f) not in gone]
 
     def _decode(self, packet: bytes | memoryview) -> ServerFrame:
         if self._decoder is None:
