@@ -34,11 +34,36 @@
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
 use reproj_core::*;
 
-fn main() {
-    let (w, h): (usize, usize) = match std::env::args().nth(2) {
-        Some(s) => (s.parse().unwrap(), s.parse::<usize>().unwrap() * 9 / 16),
+const USAGE: &str = "usage: time_ours [METHOD] [WIDTH]  (METHOD: ours, ours_extrapolate, \
+forward_splat, timewarp, backward_bidir; WIDTH: main camera width, 16..=16384, height 9/16 of it)";
+
+/// The command line's method and main camera size, or the usage message and exit status 2.
+fn parse_args() -> (Option<Method>, usize, usize) {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let fail = |why: String| -> ! {
+        eprintln!("time_ours: error: {why}\n{USAGE}");
+        std::process::exit(2)
+    };
+    if args.len() > 2 {
+        fail(format!("expected at most 2 arguments, got {}", args.len()));
+    }
+    let method = args
+        .first()
+        .map(|m| m.parse().unwrap_or_else(|e| fail(format!("{e}"))));
+    let (w, h) = match args.get(1) {
+        Some(s) => match s.parse::<usize>() {
+            Ok(w) if (16..=MAX_SIDE).contains(&w) => (w, w * 9 / 16),
+            _ => fail(format!(
+                "WIDTH: expected an integer in 16..={MAX_SIDE}, got {s:?}"
+            )),
+        },
         None => (1280, 720),
     };
+    (method, w, h)
+}
+
+fn main() {
+    let (method, w, h) = parse_args();
     let scene = SyntheticScene::new(true);
     // Shadows off: this times the reprojection core, not the shadow lookups.
     let f0 = SyntheticFrame::render(&scene, 0.0, w, h, 0.1, 4);
@@ -69,8 +94,8 @@ fn main() {
     if let Some(&t) = tiers.first() {
         ours::set_simd_limit(t);
     }
-    let methods: Vec<Method> = match std::env::args().nth(1) {
-        Some(m) => vec![m.parse().unwrap()],
+    let methods: Vec<Method> = match method {
+        Some(m) => vec![m],
         None => vec![Method::Ours, Method::ForwardSplat],
     };
     for method in methods {

@@ -198,6 +198,25 @@ impl Camera {
     /// # Errors
     /// [`ReprojError::BadSize`] when a side is zero or above [`MAX_SIDE`].
     pub fn new(view: Mat4, proj: Mat4, width: usize, height: usize, what: &str) -> Result<Camera> {
+        let camera = Camera {
+            view,
+            proj,
+            width,
+            height,
+        };
+        camera.check_size(what)?;
+        Ok(camera)
+    }
+
+    /// Checks the size: each side in `1..=`[`MAX_SIDE`]. The fields are public, so a camera
+    /// built without [`Camera::new`] may hold any size; every entry point that takes one
+    /// ([`crate::reproject()`], [`Camera::projector`], [`crate::CameraView::validate`]) checks
+    /// it with this before using it.
+    ///
+    /// # Errors
+    /// [`ReprojError::BadSize`] when a side is zero or above [`MAX_SIDE`].
+    pub fn check_size(&self, what: &str) -> Result<()> {
+        let (width, height) = (self.width, self.height);
         if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
             return Err(ReprojError::BadSize {
                 what: what.to_string(),
@@ -206,12 +225,7 @@ impl Camera {
                 max: MAX_SIDE,
             });
         }
-        Ok(Camera {
-            view,
-            proj,
-            width,
-            height,
-        })
+        Ok(())
     }
 
     /// `P = proj · view` in `f64`.
@@ -222,8 +236,10 @@ impl Camera {
     /// The kernel-side form of this camera: `P` and `P⁻¹` in `f32`.
     ///
     /// # Errors
-    /// [`ReprojError::SingularMatrix`] when `P` cannot be inverted.
+    /// [`ReprojError::BadSize`] when a side is zero or above [`MAX_SIDE`] (checked first,
+    /// [`Camera::check_size`]); [`ReprojError::SingularMatrix`] when `P` cannot be inverted.
     pub fn projector(&self, what: &str) -> Result<Projector> {
+        self.check_size(what)?;
         let vp = self.view_proj();
         let inv = vp.inverse().ok_or_else(|| ReprojError::SingularMatrix {
             what: what.to_string(),

@@ -55,11 +55,14 @@ fn check_len(what: &str, actual: usize, expected: usize, detail: String) -> Resu
 }
 
 impl CameraView<'_> {
-    /// Checks every buffer against the camera's size.
+    /// Checks the camera's size, then every buffer against it.
     ///
     /// # Errors
-    /// [`ReprojError::BufferSize`] naming the first buffer whose length is wrong.
+    /// [`ReprojError::BadSize`] when a side of the camera is zero or above
+    /// [`crate::MAX_SIDE`] ([`Camera::check_size`]); [`ReprojError::BufferSize`] naming the first
+    /// buffer whose length is wrong.
     pub fn validate(&self, what: &str) -> Result<()> {
+        self.camera.check_size(&format!("{what} camera"))?;
         let (w, h) = (self.camera.width, self.camera.height);
         let n = w * h;
         check_len(
@@ -270,10 +273,11 @@ impl CameraBuffers {
 pub const MAX_AUX: usize = 62;
 
 impl FrameView<'_> {
-    /// Checks every camera's buffers.
+    /// Checks every camera's size and buffers ([`CameraView::validate`]).
     ///
     /// # Errors
-    /// The first [`ReprojError::BufferSize`] found.
+    /// The first [`ReprojError::BadSize`] or [`ReprojError::BufferSize`] found;
+    /// [`ReprojError::CameraMismatch`] for more than [`MAX_AUX`] auxiliary cameras.
     pub fn validate(&self, what: &str) -> Result<()> {
         if self.aux.len() > MAX_AUX {
             // Each auxiliary camera of each frame has its own diagnostic code below the BLENDED
@@ -294,7 +298,8 @@ impl FrameView<'_> {
     /// as "newer" and "older"), and that both have the same number of auxiliary cameras.
     ///
     /// # Errors
-    /// The first [`ReprojError::BufferSize`] found, or [`ReprojError::CameraMismatch`].
+    /// The first [`ReprojError::BadSize`] or [`ReprojError::BufferSize`] found, or
+    /// [`ReprojError::CameraMismatch`].
     pub fn validate_pair(older: Option<&FrameView>, newer: &FrameView) -> Result<()> {
         newer.validate("newer")?;
         if let Some(o) = older {

@@ -10,6 +10,34 @@
 //!
 //! Entry point: [`reproject()`], which writes one client frame into a caller-owned buffer holding the
 //! previous client frame (pixels without a match keep that colour, seeds/000 §3.5 rule 3).
+//!
+//! ```
+//! use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
+//! use reproj_core::{reproject, Method, Output, Params, Request};
+//!
+//! // Two server frames 0.1 s apart (main camera 32×18 and two auxiliary cameras each), with
+//! // 4 dynamic-shadow subframes: the older one with its forward motion, the newer with its
+//! // backward motion.
+//! let scene = SyntheticScene::new(true);
+//! let (w, h) = (32, 18);
+//! let f0 = SyntheticFrame::render(&scene, 0.0, w, h, 0.1, 4);
+//! let f1 = SyntheticFrame::render(&scene, 0.1, w, h, 0.1, 4);
+//! // The client's camera half way between them (α = 0.5).
+//! let (eye, target) = head_pose(0.05);
+//! let request = Request { client: rig(eye, target, w, h).0, alpha: 0.5 };
+//! // The previous client frame; pixels without a match keep it.
+//! let mut image = vec![0u8; w * h * 3];
+//! reproject(
+//!     Method::Ours,
+//!     Some(&f0.view(true)),
+//!     &f1.view(false),
+//!     &request,
+//!     &Params::default(),
+//!     Output::new(&mut image),
+//!     None,
+//! )?;
+//! # Ok::<(), reproj_core::ReprojError>(())
+//! ```
 
 #![warn(missing_docs)]
 

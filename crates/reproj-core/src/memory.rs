@@ -39,7 +39,9 @@ pub const REPROJECT_BYTES_PER_CLIENT_PIXEL: u64 = 48;
 
 /// The pixels of `camera`, as `u64`.
 pub fn pixels(camera: &Camera) -> u64 {
-    camera.width as u64 * camera.height as u64
+    // Saturating: a camera's fields are public and a bound must not overflow for any of them
+    // (the kernels refuse sides above `MAX_SIDE` anyway).
+    (camera.width as u64).saturating_mul(camera.height as u64)
 }
 
 /// An upper bound of the bytes [`crate::reproject()`] or [`crate::prepare_pair`] allocates for
@@ -49,13 +51,13 @@ pub fn pixels(camera: &Camera) -> u64 {
 /// `128 · Σ server pixels + 48 · client pixels + 16 MiB`; the server pixels are those of the
 /// newer frame's cameras, as the older frame's are the same sizes (the kernels refuse others).
 pub fn reproject_bytes(newer: &FrameView<'_>, client: &Camera) -> u64 {
-    let server: u64 = std::iter::once(&newer.main)
+    let server = std::iter::once(&newer.main)
         .chain(&newer.aux)
-        .map(|c| pixels(&c.camera))
-        .sum();
-    REPROJECT_BYTES_PER_SERVER_PIXEL * server
-        + REPROJECT_BYTES_PER_CLIENT_PIXEL * pixels(client)
-        + FIXED_BYTES
+        .fold(0u64, |sum, c| sum.saturating_add(pixels(&c.camera)));
+    REPROJECT_BYTES_PER_SERVER_PIXEL
+        .saturating_mul(server)
+        .saturating_add(REPROJECT_BYTES_PER_CLIENT_PIXEL.saturating_mul(pixels(client)))
+        .saturating_add(FIXED_BYTES)
 }
 
 /// Bytes a pixel of [`crate::CameraBuffers`] holds: colour 3, depth 4, two motions 12 each,
@@ -68,12 +70,14 @@ pub const SERVER_BUFFER_BYTES_PER_PIXEL: u64 = 3 + 4 + 2 * 12 + 2 * (4 + 3 + 3);
 /// included, which take at most 4.25 at their cap) and the fixed part. Holds for
 /// [`crate::synthetic::SyntheticScene::render_server`] and reproj-scene's `render_server`.
 pub fn server_buffers_bytes(pixels: u64) -> u64 {
-    (2 * SERVER_BUFFER_BYTES_PER_PIXEL + 10) * pixels + FIXED_BYTES
+    (2 * SERVER_BUFFER_BYTES_PER_PIXEL + 10)
+        .saturating_mul(pixels)
+        .saturating_add(FIXED_BYTES)
 }
 
 /// An upper bound of the bytes [`crate::synthetic::SyntheticScene::render_ground_truth`]
 /// allocates for an image of `pixels` pixels: the RGB8 image (written in place) and one byte a
 /// pixel to spare, and the fixed part.
 pub fn synthetic_truth_bytes(pixels: u64) -> u64 {
-    4 * pixels + FIXED_BYTES
+    4u64.saturating_mul(pixels).saturating_add(FIXED_BYTES)
 }

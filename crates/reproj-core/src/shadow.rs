@@ -26,12 +26,19 @@ pub enum Role {
 }
 
 /// The quantised level of subframe `j`.
+///
+/// # Panics
+/// In debug builds, for `j ≥ 16` (the shift overflows; a bitfield holds 16 subframes).
 #[inline(always)]
 pub fn level(bits: u32, j: usize) -> u32 {
     (bits >> (2 * j)) & 3
 }
 
 /// `C(j)`, the colour of subframe `j` (eq. 10 and the `lerp` inside eq. 11).
+///
+/// # Panics
+/// In debug builds, for `s > 16` ([`level`]); `s` is [`crate::Params::shadow_subframes`],
+/// which [`crate::Params::validate`] keeps in `1..=16`.
 #[inline]
 pub fn subframe_color(
     base: [f32; 3],
@@ -74,6 +81,9 @@ pub fn subframe_color(
 }
 
 /// `c_S`, the colour of a source pixel at `α` with its dynamic shadow applied (eqs. 9–11).
+///
+/// # Panics
+/// In debug builds, for `s > 16` ([`subframe_color`]).
 #[inline]
 pub fn shadow_color(
     base: [u8; 3],
@@ -144,6 +154,11 @@ fn round_channel(v: f32) -> u8 {
 
 /// Applies the dynamic shadows of a whole image at `α` (eqs. 9–11) into `out` (`H·W·3`). Used by
 /// tests and tools; the reprojection applies shadows per sampled pixel instead.
+///
+/// # Panics
+/// When `bits` holds fewer than `out.len() / 3` values or `s_min`/`s_max` fewer than `out`'s
+/// length (`color` and `out` are zipped: the shorter one sets the pixels written), or, in debug
+/// builds, for `s > 16` ([`shadow_color`]); the Python binding checks all of them first.
 pub fn apply_shadows(
     color: &[u8],
     bits: &[u32],

@@ -64,10 +64,12 @@ struct Plane {
 ///
 /// # Errors
 /// [`ReprojError::SingularMatrix`] when a camera of `frame` or the client camera cannot be
-/// inverted; [`ReprojError::BufferSize`] when a buffer does not match its camera (also checked by
-/// [`crate::reproject()`]). Nothing is written on error.
+/// inverted; [`ReprojError::BadSize`] for a camera with a side of zero or above
+/// [`crate::MAX_SIDE`]; [`ReprojError::BufferSize`] when a buffer does not match its camera
+/// (also checked by [`crate::reproject()`]). Nothing is written on error.
 pub fn run(frame: &FrameView, request: &Request, params: &Params, out: Output) -> Result<()> {
     frame.validate("frame")?;
+    request.client.check_size("client camera")?;
     out.check(request.client.width, request.client.height)?;
     let Some(warp) = Warp::new(frame, request, params)? else {
         // No valid depth: nothing can be warped, every pixel keeps the previous frame.

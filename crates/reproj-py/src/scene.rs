@@ -30,6 +30,7 @@ fn map_scene_error(e: SceneError) -> PyErr {
         | SceneError::BadSubframes { .. }
         | SceneError::BadSamples { .. }
         | SceneError::BadScale { .. }
+        | SceneError::BadTime { .. }
         | SceneError::BadCamera { .. }
         | SceneError::BadHierarchy { .. }
         | SceneError::Gltf { .. }

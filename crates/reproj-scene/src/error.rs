@@ -47,6 +47,17 @@ pub enum SceneError {
         /// Largest side accepted.
         max: usize,
     },
+    /// A time, interval or frame rate that is not finite (or not positive, for a rate), or a
+    /// time at which an object of the scene is not at a finite position.
+    #[error("{what} = {value:?}: {expected}")]
+    BadTime {
+        /// Which argument.
+        what: String,
+        /// The value given.
+        value: f64,
+        /// What is accepted.
+        expected: String,
+    },
     /// A camera with a zero or oversized side, or matrices that cannot be inverted.
     #[error("camera {what}: {why}")]
     BadCamera {

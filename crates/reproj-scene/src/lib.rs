@@ -129,7 +129,8 @@ impl ServerFrame {
 ///
 /// # Errors
 /// [`SceneError::BadScale`] for a scale that gives an empty or oversized image,
-/// [`SceneError::BadSubframes`] for `subframes ∉ 1..=16`.
+/// [`SceneError::BadTime`] for a rate `fs` that is not finite and positive (or a time `k / fs`
+/// at which the scene is not finite), [`SceneError::BadSubframes`] for `subframes ∉ 1..=16`.
 pub fn render_server_frame(
     scene: &Scene,
     k: usize,
@@ -138,6 +139,7 @@ pub fn render_server_frame(
     subframes: usize,
 ) -> Result<ServerFrame> {
     let (w, h) = main_size(scale)?;
+    let fs = render::check_rate("fs", fs)?;
     let pose = scene.path.server_pose(k, fs);
     let r = rig(&pose, w, h, scene.near, scene.far);
     let t = k as f64 / fs;
@@ -165,7 +167,8 @@ pub fn render_server_frame(
 /// [`default_samples`] (so it matches [`render_server_frame`]'s main colour at a server pose).
 ///
 /// # Errors
-/// [`SceneError::BadScale`] as [`render_server_frame`].
+/// [`SceneError::BadScale`] as [`render_server_frame`]; [`SceneError::BadTime`] for a rate `fc`
+/// that is not finite and positive (or a time `n / fc` at which the scene is not finite).
 pub fn render_client_frame(
     scene: &Scene,
     n: usize,
@@ -174,6 +177,7 @@ pub fn render_client_frame(
     stereo_eyes: bool,
 ) -> Result<Vec<Vec<u8>>> {
     let (w, h) = main_size(scale)?;
+    let fc = render::check_rate("fc", fc)?;
     let t = n as f64 / fc;
     let pose = scene.path.client_pose(t);
     let cams = if stereo_eyes {

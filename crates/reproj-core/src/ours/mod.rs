@@ -819,7 +819,8 @@ impl Resolve<'_> {
 /// motion, depth outside `[0,1]`) or the moved point is behind the client camera.
 ///
 /// # Errors
-/// Buffer-size errors of `view`, singular matrices.
+/// Size and buffer-size errors of `view` and `client` ([`ReprojError::BadSize`],
+/// [`ReprojError::BufferSize`]), singular matrices.
 pub fn scene_flow(view: &CameraView, client: &Camera, w: f32) -> Result<Vec<[f32; 3]>> {
     view.validate("source")?;
     let proj = view.camera.projector("source camera")?;

@@ -55,7 +55,7 @@ use reproj_core::{Camera, CameraBuffers, CameraView, Mat4};
 use crate::error::{Result, SceneError};
 use crate::material::Material;
 use crate::math::{add, normalize, scale, V3};
-use crate::scene::Snapshot;
+use crate::scene::{Scene, Snapshot};
 use eye::{EyeTile, EyeTiles};
 pub use server::render_server;
 pub use truth::{render_ground_truth, render_shadow_fraction};
@@ -69,7 +69,9 @@ pub const MAX_SAMPLES: usize = 8;
 /// scenes) and [`FIXED_BYTES`](reproj_core::memory::FIXED_BYTES). For the server buffers,
 /// [`reproj_core::memory::server_buffers_bytes`] holds (tests/peak_memory.rs checks both).
 pub fn truth_bytes(camera: &Camera) -> u64 {
-    13 * reproj_core::memory::pixels(camera) + reproj_core::memory::FIXED_BYTES
+    13u64
+        .saturating_mul(reproj_core::memory::pixels(camera))
+        .saturating_add(reproj_core::memory::FIXED_BYTES)
 }
 
 /// Two samples lie on one surface (and share a shadow fraction) when they hit the same object
@@ -85,7 +87,7 @@ const SAME_SURFACE_COS: f64 = 0.9;
 /// pixel covers a quarter of the area, so 2×2 spans a similar footprint at less than half the
 /// primary rays, and rendering time grows with the pixel count.
 pub fn default_samples(width: usize, height: usize) -> usize {
-    if width * height <= 640 * 360 {
+    if width.saturating_mul(height) <= 640 * 360 {
         3
     } else {
         2
@@ -134,6 +136,43 @@ impl ServerBuffers {
     /// or the newer one (backward ones).
     pub fn camera_view(&self, forward: bool) -> CameraView<'_> {
         self.buffers.view(self.camera(), forward)
+    }
+}
+
+/// Checks a time `t` (seconds) that a render function was given as `what`: finite, and every
+/// object of `scene` at a finite position then (its world box is built in `f32`). A time the
+/// animations take out of range (seconds far beyond any path, such as 1e300) is refused here
+/// rather than building a BVH of infinite boxes.
+pub(crate) fn check_time(scene: &Scene, what: &str, t: f64) -> Result<()> {
+    let finite = |v: &f64| (*v as f32).is_finite();
+    let ok = t.is_finite()
+        && scene
+            .transforms(t)
+            .iter()
+            .all(|w| w.rot.iter().flatten().chain(&w.trans).all(finite));
+    if ok {
+        Ok(())
+    } else {
+        Err(SceneError::BadTime {
+            what: what.to_string(),
+            value: t,
+            expected: "expected a finite time at which every object of the scene is at a \
+                       finite position"
+                .to_string(),
+        })
+    }
+}
+
+/// Checks a frame rate (frames per second) given as `what`: finite and positive.
+pub(crate) fn check_rate(what: &str, rate: f64) -> Result<f64> {
+    if rate.is_finite() && rate > 0.0 {
+        Ok(rate)
+    } else {
+        Err(SceneError::BadTime {
+            what: what.to_string(),
+            value: rate,
+            expected: "expected a finite frame rate > 0".to_string(),
+        })
     }
 }
 

@@ -6,8 +6,8 @@ use rayon::prelude::*;
 use reproj_core::{Camera, CameraBuffers};
 
 use super::{
-    camera_rays, check_samples, footprint, material, mean_rgb8, pixel_color, sample_ray, EyeTiles,
-    Needs, Sample, ServerBuffers, SubRays, SubSample, BLOCK_ROWS,
+    camera_rays, check_samples, check_time, footprint, material, mean_rgb8, pixel_color,
+    sample_ray, EyeTiles, Needs, Sample, ServerBuffers, SubRays, SubSample, BLOCK_ROWS,
 };
 use crate::error::{Result, SceneError};
 use crate::math::{normalize, V3};
@@ -104,7 +104,8 @@ fn shadow_field(
 /// # Errors
 /// [`SceneError::BadSubframes`] when `subframes ∉ 1..=16`; [`SceneError::BadSamples`] when
 /// `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when the camera's size is out of range
-/// or its matrices cannot be inverted.
+/// or its matrices cannot be inverted; [`SceneError::BadTime`] when `t` or `interval` is not
+/// finite, or an object of the scene is not at a finite position at `t` or `t ± interval`.
 ///
 /// [`default_samples`]: super::default_samples
 pub fn render_server(
@@ -120,6 +121,16 @@ pub fn render_server(
     }
     let n = check_samples(samples)?;
     let rays = camera_rays(camera, "server")?;
+    check_time(scene, "t", t)?;
+    if !interval.is_finite() {
+        return Err(SceneError::BadTime {
+            what: "interval".into(),
+            value: interval,
+            expected: "expected a finite number of seconds".into(),
+        });
+    }
+    check_time(scene, "t + interval", t + interval)?;
+    check_time(scene, "t - interval", t - interval)?;
     let (w, h) = (camera.width, camera.height);
     let key = scene.at(t);
     let eye = EyeTiles::new(&key, camera, &rays);

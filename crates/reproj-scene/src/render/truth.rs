@@ -6,8 +6,8 @@ use rayon::prelude::*;
 use reproj_core::Camera;
 
 use super::{
-    camera_rays, check_samples, footprint, pixel_color, sample, sample_ray, EyeTiles, Needs, Rays,
-    SubRays,
+    camera_rays, check_samples, check_time, footprint, pixel_color, sample, sample_ray, EyeTiles,
+    Needs, Rays, SubRays,
 };
 use crate::error::Result;
 use crate::scene::Scene;
@@ -47,10 +47,13 @@ fn per_pixel<T: Copy + Default + Send, S: Default, const C: usize>(
 ///
 /// # Errors
 /// [`SceneError::BadSamples`] when `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when
-/// the camera's size is out of range or its matrices cannot be inverted.
+/// the camera's size is out of range or its matrices cannot be inverted;
+/// [`SceneError::BadTime`] when `t` is not finite or an object of the scene is not at a finite
+/// position then.
 ///
 /// [`SceneError::BadSamples`]: crate::SceneError::BadSamples
 /// [`SceneError::BadCamera`]: crate::SceneError::BadCamera
+/// [`SceneError::BadTime`]: crate::SceneError::BadTime
 pub fn render_ground_truth(
     scene: &Scene,
     camera: &Camera,
@@ -59,6 +62,7 @@ pub fn render_ground_truth(
 ) -> Result<Vec<u8>> {
     let n = check_samples(samples)?;
     let rays = camera_rays(camera, "client")?;
+    check_time(scene, "t", t)?;
     let snap = scene.at(t);
     let eye = EyeTiles::new(&snap, camera, &rays);
     let (centres, grid) = (SubRays::new(&rays, 1), SubRays::new(&rays, n));
@@ -83,6 +87,7 @@ pub fn render_ground_truth(
 /// As [`render_ground_truth`].
 pub fn render_shadow_fraction(scene: &Scene, camera: &Camera, t: f64) -> Result<Vec<f32>> {
     let rays = camera_rays(camera, "shadow")?;
+    check_time(scene, "t", t)?;
     let snap = scene.at(t);
     Ok(per_pixel(&rays, |_: &mut (), i, j| {
         [sample(&snap, &rays, i, j, true).shadow as f32]
