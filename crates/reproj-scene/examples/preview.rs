@@ -5,10 +5,30 @@
 
 use reproj_scene::{builtin, render_server_frame, Variant, SCENE_NAMES};
 
+const USAGE: &str = "usage: preview [K] [SCALE]  (K: server frame index, default 10; SCALE: of \
+2560x1440, default 0.125)";
+
+/// Argument `i`'s value, `default` without it; the usage and exit status 2 for one that does not
+/// parse or is one too many.
+fn arg<T: std::str::FromStr>(args: &[String], i: usize, name: &str, default: T) -> T {
+    if args.len() > 2 {
+        fail(&format!("expected at most 2 arguments, got {}", args.len()));
+    }
+    args.get(i).map_or(default, |s| {
+        s.parse()
+            .unwrap_or_else(|_| fail(&format!("{name}: cannot read {s:?}")))
+    })
+}
+
+fn fail(why: &str) -> ! {
+    eprintln!("preview: error: {why}\n{USAGE}");
+    std::process::exit(2)
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
-    let k: usize = args.next().map_or(Ok(10), |s| s.parse())?;
-    let scale: f64 = args.next().map_or(Ok(0.125), |s| s.parse())?;
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let k: usize = arg(&args, 0, "K", 10);
+    let scale: f64 = arg(&args, 1, "SCALE", 0.125);
     for name in SCENE_NAMES {
         let scene = builtin(name, Variant::Dynamic)?;
         let t0 = std::time::Instant::now();

@@ -15,11 +15,31 @@ fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
     })
 }
 
+const USAGE: &str = "usage: render_count [SCENE] [SCALE] [server|truth|both]  (defaults: \
+courtyard 0.05 both)";
+
+fn fail(why: &str) -> ! {
+    eprintln!("render_count: error: {why}\n{USAGE}");
+    std::process::exit(2)
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
+    if args.len() > 4 {
+        fail(&format!(
+            "expected at most 3 arguments, got {}",
+            args.len() - 1
+        ));
+    }
     let name = args.get(1).map_or("courtyard", String::as_str);
-    let scale: f64 = args.get(2).map_or(Ok(0.05), |s| s.parse())?;
+    let scale: f64 = args.get(2).map_or(0.05, |s| {
+        s.parse()
+            .unwrap_or_else(|_| fail(&format!("SCALE: cannot read {s:?}")))
+    });
     let what = args.get(3).map_or("both", String::as_str);
+    if !["server", "truth", "both"].contains(&what) {
+        fail(&format!("expected server, truth or both, got {what:?}"));
+    }
     let scene = builtin(name, Variant::Dynamic)?;
     let (w, h) = main_size(scale)?;
     let (fs, k, fc, n) = (10.0, 20, 120.0, 240);

@@ -15,6 +15,10 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    if std::env::args().len() > 1 {
+        eprintln!("render_time: error: expected no arguments\nusage: render_time");
+        std::process::exit(2);
+    }
     let scene = builtin("courtyard", Variant::Dynamic)?;
     for scale in [0.125, 0.25] {
         let reps = if scale < 0.2 { 5 } else { 3 };
