@@ -826,7 +826,8 @@ class StreamEncoder(_WorkerThreads):
     The first frame fixes the layout (number of cameras and their sizes); later frames must keep
     it. One frame is encoded at a time (it is a stream): a second thread's :meth:`encode` while
     one runs is refused. Internally the pictures of a frame are encoded in parallel
-    (``config.threads``, 0 = one per CPU).
+    (``config.threads``, 0 = one per CPU), on worker threads that run until :meth:`close` (or
+    the end of a ``with`` block).
 
     # Errors
     :class:`~splitrender.errors.InvalidInputError` for a frame that does not match the layout or
@@ -1329,7 +1330,8 @@ class StreamDecoder(_WorkerThreads):
     stream has an order), and the HEVC decoding, which is most of the time, releases the GIL.
 
     ``threads`` (0 = one per CPU) is the number of pictures decoded at once and the slice threads
-    of each picture's decoder.
+    of each picture's decoder. The worker threads start with the first packet and run until
+    :meth:`close` (or the end of a ``with`` block): close a decoder when its stream ends.
 
     # Errors
     :class:`~splitrender.errors.StreamError` naming the frame and buffer for anything wrong in a
