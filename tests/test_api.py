@@ -417,6 +417,23 @@ def test_scene_flow(pair: Pair) -> None:
         sr.scene_flow(src, src.camera, 1e308)
 
 
+def test_scene_flow_direction_takes_that_directions_motion(pair: Pair) -> None:
+    """``direction="forward"`` is eq. 12 (the frame's ``motion_fwd``), ``"backward"`` eq. 13
+    (its ``motion_bwd``): each is the kernel's flow with that motion buffer. The shape-only check
+    above passed with the direction ignored."""
+    src = pair.older.main
+    cam, c = pair.request.camera, src.camera
+    assert src.motion_fwd is not None and src.motion_bwd is not None
+    flows = {}
+    for direction, motion in (("forward", src.motion_fwd), ("backward", src.motion_bwd)):
+        flows[direction] = sr.scene_flow(src, cam, 0.5, direction=direction)
+        want = _native.scene_flow(c.view, c.proj, src.depth, motion, cam.to_native(), 0.5)
+        np.testing.assert_array_equal(flows[direction], want, err_msg=direction)
+    # Not vacuous: the two motions move the scene's pixels differently.
+    differ = np.abs(flows["forward"] - flows["backward"]) > 1e-4
+    assert np.nanmean(differ.any(axis=-1)) > 0.01
+
+
 def test_apply_shadows(pair: Pair) -> None:
     cf = pair.older.main
     assert cf.shadow_fwd is not None

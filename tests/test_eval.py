@@ -18,9 +18,12 @@ TINY = ["--scale", "0.03", "--seconds", "0.3", "--quiet"]
 
 @pytest.fixture(scope="module")
 def eval_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("eval") / "out"
+    base = tmp_path_factory.mktemp("eval")
+    out = base / "out"
+    # A cache of its own: the streams in it are this sweep's (see test_eval_rows_score_...).
     args = ["eval", *TINY, "--scenes", "courtyard", "--methods", "ours,timewarp,video_interp",
-            "--delays", "0,12", "--bitrates", "40", "--stereo", "--no-vmaf", "--out", str(out)]
+            "--delays", "0,12", "--bitrates", "40", "--stereo", "--no-vmaf", "--out", str(out),
+            "--cache", str(base / "cache")]
     assert main(args) == 0
     return out
 
@@ -57,6 +60,75 @@ def test_eval_rows_have_exactly_the_keys_and_types(eval_out: Path) -> None:
     }
     # Table 3 has no video_interp row: it cannot make a stereo pair.
     assert not any(r["method"] == "video_interp" and r["stereo"] for r in rows)
+
+
+def _mse_and_ssim(images: Any, truth: Any) -> tuple[float, float]:
+    """The mean squared error (in [0, 1] units) and mean SSIM of ``images`` against ``truth``
+    over the scored client frames (the first and last SKIP_FRAMES left out)."""
+    import numpy as np
+    from splitrender import metrics as M
+
+    kept = range(M.SKIP_FRAMES, len(truth) - M.SKIP_FRAMES)
+    mse = np.mean([np.mean((images[n] / 255.0 - truth[n] / 255.0) ** 2) for n in kept])
+    return float(mse), float(np.mean([M.ssim(images[n], truth[n]) for n in kept]))
+
+
+def test_eval_rows_score_each_methods_frames_against_each_eyes_ground_truth(
+    eval_out: Path, tmp_path: Path
+) -> None:
+    """The rows' PSNR and SSIM are those of the method's own client frames, made here again
+    (played from the recording or the cached stream, minterpolate for video_interp), against
+    the recording's ground truth of the same eye; a stereo row averages its two eyes (PSNR of
+    the mean MSE). The row checks above only look at types: a score of the truth against
+    itself, or of the right eye against the left eye's truth, passed them."""
+    import numpy as np
+    import splitrender as sr
+    from splitrender import metrics as M
+    from splitrender.evaluation.references import minterpolate
+
+    rows = json.loads((eval_out / "results.json").read_text())
+
+    def row(variant: str, method: str, compressed: bool, stereo: bool) -> dict[str, Any]:
+        [r] = [r for r in rows if (r["variant"], r["method"], r["bitrate_mbps"] is not None,
+                                   r["delay"], r["stereo"]) == (variant, method, compressed, 0,
+                                                                stereo)]
+        return r
+
+    def check(r: dict[str, Any], eyes: list[tuple[float, float]]) -> None:
+        what = f"{r['variant']} {r['method']} stereo={r['stereo']}"
+        assert r["psnr"] == pytest.approx(M.psnr_of_mse(np.mean([m for m, _ in eyes])),
+                                          abs=1e-9), what
+        assert r["ssim"] == pytest.approx(np.mean([s for _, s in eyes]), abs=1e-9), what
+
+    # Table 1: uncompressed, mono.
+    for variant in ("static", "dynamic"):
+        rec = sr.load_recording(eval_out / "recordings" / f"courtyard-{variant}")
+        cams, lazy = rec.eye(0)
+        truth = [lazy[n] for n in range(len(lazy))]
+        server = list(rec.server_frames)
+        for method in ("ours", "timewarp"):
+            played = sr.play(server, cams, sr.NetworkModel(client_fps=rec.fc), rec.fc, method)
+            check(row(variant, method, False, False), [_mse_and_ssim(played.images, truth)])
+        interp = minterpolate([f.main.color for f in server], rec.fs, rec.fc, len(truth))
+        check(row(variant, "video_interp", False, False), [_mse_and_ssim(interp, truth)])
+    # Table 3: stereo, from the stream at the sweep's bitrate (the one whose rate the row has).
+    rec = sr.load_recording(eval_out / "recordings" / "courtyard-dynamic-stereo")
+    cache = Path(json.loads((eval_out / "run-info.json").read_text())["cache"])
+    for method in ("ours", "timewarp"):
+        r = row("dynamic", method, True, True)
+        streams = {p.read_bytes() for p in (cache / "streams").glob("*.stream")
+                   if json.loads(p.with_suffix(".json").read_text())["mbps"] == r["mbps"]}
+        assert len(streams) == 1, f"{len(streams)} cached streams at {r['mbps']} Mb/s"
+        (path := tmp_path / f"{method}.srs").write_bytes(streams.pop())
+        packets = list(sr.read_stream(path))
+        eyes = []
+        for eye in (0, 1):
+            cams, lazy = rec.eye(eye)
+            played = sr.play(sr.DecodedStream(packets), cams,
+                             sr.NetworkModel(client_fps=rec.fc), rec.fc, method,
+                             frame_sizes=[len(p) for p in packets])
+            eyes.append(_mse_and_ssim(played.images, [lazy[n] for n in range(len(lazy))]))
+        check(r, eyes)
 
 
 def test_eval_writes_tables_plots_and_one_recording_per_scene_variant(eval_out: Path) -> None:
