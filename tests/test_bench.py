@@ -219,3 +219,26 @@ def test_bench_realtime_names_the_stream_option_and_path_of_a_file_that_is_no_st
     assert main([*argv, "sub/empty.srs"]) == 2
     assert capsys.readouterr().err == (
         "splitrender: error: --stream: sub/empty.srs: the stream has no frames\n")
+
+
+@pytest.mark.parametrize("gap", [5e-324, 1e-9])
+def test_bench_realtime_takes_the_server_rate_from_the_stream_files_header(
+    tmp_path, capsys, gap: float
+) -> None:
+    # The rate was taken from the first two packets' times: a gap of 5e-324 s raised
+    # OverflowError ("internal error", exit 1) and one of 1e-9 s planned 10^9 packets a second
+    # of the run, which grew without bound (900 MB in a minute) instead of running 0.1 s.
+    from splitrender.cli.main import main
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+    from splitrender.codec.stream import pack_packet, unpack_packet
+
+    scene = sr.SyntheticScene(dynamic=True)
+    with StreamEncoder(CodecConfig(bitrate_mbps=0.5)) as enc:
+        packets = [enc.encode(scene.server_frame(i, i / 10, 32, 18)) for i in range(2)]
+    packets[1] = pack_packet(dataclasses.replace(unpack_packet(packets[1]), time=gap))
+    sr.write_stream(tmp_path / "s.srs", packets, fps=10.0)
+    out = tmp_path / "rt.json"
+    assert main(["bench", "--realtime", "--stream", str(tmp_path / "s.srs"), "--seconds", "0.1",
+                 "--display-priority", "normal", "--json", str(out), "--quiet"]) == 0, (
+        capsys.readouterr().err)
+    assert out.is_file()

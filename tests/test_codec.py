@@ -654,6 +654,38 @@ def test_codec_config_takes_numpy_scalars_as_floats() -> None:
     assert all(type(v) is float for v in (cfg.bitrate_mbps, cfg.fps, cfg.vbv_buffer_s))
 
 
+def test_codec_config_takes_numpy_integers_as_ints_and_chroma_as_a_str() -> None:
+    # gop=np.int64(5) stayed a numpy integer; chroma=420 said "expected '444' or '420', got 420".
+    cfg = CodecConfig(gop=np.int64(5), zstd_level=np.int32(3), threads=np.uint8(2))
+    assert all(type(v) is int for v in (cfg.gop, cfg.zstd_level, cfg.threads))
+    assert (cfg.gop, cfg.zstd_level, cfg.threads) == (5, 3, 2)
+    with pytest.raises(InvalidInputError, match="^CodecConfig.chroma: expected a str, got int"):
+        CodecConfig(chroma=420)  # type: ignore[arg-type]
+
+
+def test_a_frame_that_is_not_a_key_frame_keeps_the_camera_sizes() -> None:
+    # A packet of other cameras after frame 1 failed as "picture.shadow: HEVC payload of 505
+    # bytes did not decode (0 pictures)" (its pictures predict from pictures of another
+    # layout), which named neither the cause nor the rule; at a key frame the layout may change.
+    scene = sr.SyntheticScene(dynamic=True)
+
+    def packets(w: int, h: int) -> list[bytes]:
+        with StreamEncoder(CodecConfig(bitrate_mbps=0.5, gop=100)) as enc:
+            return [enc.encode(scene.server_frame(i, i / 10, w, h)) for i in range(2)]
+
+    small, other = packets(32, 18), packets(48, 28)
+    follow = pack_packet(dataclasses.replace(unpack_packet(other[1]), index=2, time=0.2))
+    with StreamDecoder(threads=1) as dec:
+        dec.decode(small[0])
+        dec.decode(small[1])
+        with pytest.raises(StreamError, match=(
+                "^frame 2: camera sizes 48x28, 24x14, 24x14 differ from frame 1's 32x18, "
+                "16x9, 16x9; the cameras may change only at a key frame$")):
+            dec.decode(follow)
+        assert dec.decode(other[0]).main.color.shape == (28, 48, 3)  # a key frame
+        assert dec.decode(other[1]).main.color.shape == (28, 48, 3)
+
+
 def _without_shadows(f: sr.ServerFrame, cams: set[int]) -> sr.ServerFrame:
     """``f`` with the shadow bitfields of ``cams`` all zero (no moving shadows there)."""
     def strip(ci: int, cf: sr.CameraFrame) -> sr.CameraFrame:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -99,6 +100,16 @@ def test_encode_failure_leaves_no_stream(recording: Path, tmp_path: Path) -> Non
     with pytest.raises(KeyboardInterrupt):
         encode_recording(recording, out, progress=boom)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_encode_recording_ends_its_worker_threads(recording: Path, tmp_path: Path) -> None:
+    # The encoder was never closed: its worker threads outlived the call until it was collected.
+    def workers() -> set[threading.Thread]:
+        return {t for t in threading.enumerate() if t.name.startswith("splitrender-enc")}
+
+    before = workers()
+    encode_recording(recording, tmp_path / "s.srs", bitrate_mbps=0.5)
+    assert workers() - before == set()
 
 
 def test_encode_cli(recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -579,3 +579,92 @@ def test_hevc_decoder_refuses_a_picture_larger_than_declared() -> None:
     assert len(_hevc_decoder(256, 256).decode(av.Packet(data))) == 1
     with pytest.raises(av.error.FFmpegError):
         _hevc_decoder(100, 100).decode(av.Packet(data))
+
+
+def _with_index(raw: bytes, entries: list[tuple[int, int, int]]) -> bytes:
+    """``raw`` (a container file) with its index replaced by ``entries`` ``(frame, offset,
+    key)``, CRC and trailer consistent (a hostile writer makes them so)."""
+    (offset,) = struct.unpack_from("<Q", raw, len(raw) - 16)
+    table = b"".join(struct.pack("<QQB7x", *e) for e in entries)
+    index = b"SRIX" + struct.pack("<I", len(entries)) + table + struct.pack("<I", zlib.crc32(table))
+    return raw[:offset] + index + struct.pack("<Q8s", offset, b"SRSTREND")
+
+
+def test_an_index_that_repeats_reorders_or_skips_records_is_refused(tmp_path: Path) -> None:
+    # With its CRC made consistent, an index that listed record 0 four times read back as frame
+    # 0 four times, one that listed the first record of four as a stream of one frame, an empty
+    # one as a stream of none, and a key flag the packet contradicts let packets(start=k) start
+    # at a frame no decoder can start at.
+    packets = [pack_packet(_packet(i, key=i % 2 == 0)) for i in range(4)]
+    path = tmp_path / "s.srs"
+    write_stream(path, packets)
+    raw = path.read_bytes()
+    good = [(e.frame, e.offset, int(e.key)) for e in StreamFile(path).index]
+    assert _with_index(raw, good) == raw
+    bad = tmp_path / "bad.srs"
+    for entries, message in [
+        ([good[0]] * 4, "index entry 1 \\(frame 0\\) points at byte 24, expected the records in "
+         "file order from byte 24"),
+        (good[::-1], "index entry 0 \\(frame 3\\) points at byte"),
+        (good[1:], "index entry 0 \\(frame 1\\) points at byte"),
+        (good[:1], "frame 0: its record ends at byte \\d+, the index begins at byte"),
+        (good[:1] + good[2:], "frame 0: its record ends at byte \\d+, the next record begins"),
+        ([], "the index lists no records, but \\d+ bytes of records precede it"),
+        ([good[0], (1, good[1][1], 1), *good[2:]],
+         "frame 1: the index says it is a key frame, the packet says otherwise"),
+    ]:
+        bad.write_bytes(_with_index(raw, entries))
+        with pytest.raises(StreamError, match=f"^bad.srs: {message}"):
+            list(StreamFile(bad).packets())
+    # A stream of no frames is still one.
+    write_stream(path, [])
+    assert list(read_stream(path)) == []
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"index": -1}, "frame index -1, expected an int in 0..9223372036854775807"),
+        ({"index": 1 << 63}, "frame index 9223372036854775808, expected an int in"),
+        ({"time": float("nan")}, "time is not finite"),
+        ({"width": 0}, "main: camera size 0x4 beyond the limits"),
+        ({"width": 20000}, "main: camera size 20000x4 beyond the limits"),
+        ({"view": np.full((4, 4), np.inf)}, "main: camera matrices must be finite 4x4 arrays"),
+        ({"proj": np.eye(3)}, "main: camera matrices must be finite 4x4 arrays"),
+    ],
+)
+def test_pack_packet_refuses_what_a_reader_refuses(change: dict[str, object], message: str) -> None:
+    # Each was packed (and then refused by every reader) or raised struct.error.
+    p = _packet()
+    if "index" in change or "time" in change:
+        p = dataclasses.replace(p, **change)  # type: ignore[arg-type]
+    else:
+        cam = dataclasses.replace(p.cameras[0], **change)  # type: ignore[arg-type]
+        p = dataclasses.replace(p, cameras=(cam, *p.cameras[1:]), buffers=())
+    with pytest.raises(StreamError, match=message):
+        pack_packet(p)
+
+
+@pytest.mark.parametrize("fps", [1e6, 0.0, float("nan"), "10"])
+def test_stream_writer_refuses_a_rate_no_reader_takes(tmp_path: Path, fps: object) -> None:
+    # fps=1e6 was written, and the file then refused by every reader ("server rate 1000000.0");
+    # a str raised TypeError.
+    with pytest.raises(InvalidInputError, match="^fps: expected a"):
+        StreamWriter(tmp_path / "s.srs", fps)  # type: ignore[arg-type]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_write_names_the_stream_file(tmp_path: Path) -> None:
+    # On a full disk `splitrender encode` said "error: [Errno 28] No space left on device",
+    # naming no file: the write into the temporary file has no name of its own.
+    path = tmp_path / "s.srs"
+    for at_close in (False, True):
+        w = StreamWriter(path, fps=10)
+        w._file.close()
+        full = io.BufferedWriter(_FullDisk()) if at_close else _FullDisk()
+        w._file = full  # type: ignore[assignment]
+        with pytest.raises(OSError) as e:
+            with w:
+                w.write(pack_packet(_packet(0)))  # buffered at_close: it fails at the flush
+        assert (e.value.errno, e.value.filename) == (errno.EFBIG, str(path)), at_close
+        assert list(tmp_path.iterdir()) == []

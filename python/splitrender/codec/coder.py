@@ -264,13 +264,13 @@ class CodecConfig:
                 f"CodecConfig.camera_shares: expected values > 0 summing to 1, got {cs}"
             )
         object.__setattr__(self, "camera_shares", cs)
-        if self.chroma not in ("444", "420"):
-            raise InvalidInputError(
-                f"CodecConfig.chroma: expected '444' or '420', got {self.chroma!r}"
-            )
-        check_int("CodecConfig.gop", self.gop, 1, 100000)
-        check_int("CodecConfig.zstd_level", self.zstd_level, 1, 22)
-        check_int("CodecConfig.threads", self.threads, 0, MAX_THREADS)
+        # chroma=420 said "expected '444' or '420', got 420": a str is expected, not the number.
+        check_str("CodecConfig.chroma", self.chroma, ("444", "420"))
+        # As ints (a numpy integer stayed one, in the config's repr and what it compares to).
+        for name, hi in (("gop", 100000), ("zstd_level", 22), ("threads", MAX_THREADS)):
+            lo = 0 if name == "threads" else 1
+            object.__setattr__(
+                self, name, check_int(f"CodecConfig.{name}", getattr(self, name), lo, hi))
         check_str("CodecConfig.preset", self.preset, X265_PRESETS)
         for name in ("uncompressed", "exact_static_motion", "rate_feedback"):
             object.__setattr__(self, name, check_bool(f"CodecConfig.{name}", getattr(self, name)))
@@ -799,7 +799,8 @@ class _WorkerThreads:
         return self._pool
 
     def close(self) -> None:
-        """Ends the worker threads."""
+        """Ends the worker threads. The object stays usable: a later call that needs them
+        starts them again (and they run until the next :meth:`close`)."""
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
@@ -901,7 +902,9 @@ class StreamEncoder(_WorkerThreads):
             self._encoding.release()
 
     def close(self) -> None:
-        """Ends the worker threads, after a frame being encoded in another thread."""
+        """Ends the worker threads, after a frame being encoded in another thread. The encoder
+        keeps its state: a later :meth:`encode` goes on with the stream (its threads start
+        again until the next :meth:`close`)."""
         with self._encoding:
             super().close()
 
@@ -1343,6 +1346,8 @@ class StreamDecoder(_WorkerThreads):
         # Per picture: its size and the FFmpeg decoder made for it.
         self._decoders: dict[BufferKind, tuple[tuple[int, int], Any]] = {}
         self._last: int | None = None
+        # The camera sizes of the last decoded frame: a frame that is not a key frame keeps them.
+        self._sizes: tuple[tuple[int, int], ...] = ()
         self._threads = threads or (os.cpu_count() or 1)
         self._lock = threading.Lock()
         self._out = _Outputs()
@@ -1386,6 +1391,16 @@ class StreamDecoder(_WorkerThreads):
                 f"{where}: not a key frame and it does not follow the last decoded frame "
                 f"({after}); decoding must start at a key frame"
             )
+        sizes = tuple((c.width, c.height) for c in p.cameras)
+        if not p.key and sizes != self._sizes:
+            # Its pictures predict from pictures of another layout: it failed as "picture.shadow:
+            # HEVC payload of 505 bytes did not decode (0 pictures)", or, where the pictures
+            # kept their sizes, decoded from the wrong tiles.
+            self._last = None
+            raise StreamError(
+                f"{where}: camera sizes {_sizes_text(sizes)} differ from frame {p.index - 1}'s "
+                f"{_sizes_text(self._sizes)}; the cameras may change only at a key frame"
+            )
         seen: dict[tuple[int, BufferKind], BufferEntry] = {}
         for b in p.buffers:
             if (b.camera, b.kind) in seen:
@@ -1398,7 +1413,6 @@ class StreamDecoder(_WorkerThreads):
                     "which the packet does not hold"
                 )
         self._last = None  # until this frame has decoded fully
-        sizes = tuple((c.width, c.height) for c in p.cameras)
         pictures = [b for b in p.buffers if b.codec == Codec.HEVC]
         for b in pictures:
             # Odd camera shapes waste room in the columns: bound the picture itself too, at
@@ -1468,7 +1482,7 @@ class StreamDecoder(_WorkerThreads):
             self._camera(p, ci, rec, seen, results, shadow_rgb)
             for ci, rec in enumerate(p.cameras)
         ]
-        self._last = p.index
+        self._last, self._sizes = p.index, sizes
         return ServerFrame(
             index=p.index, time=p.time, main=cams[0], aux=tuple(cams[1:])
         )
@@ -1676,6 +1690,11 @@ class StreamDecoder(_WorkerThreads):
             shadow_fwd=shadows["fwd"],
             shadow_bwd=shadows["bwd"],
         )
+
+
+def _sizes_text(sizes: tuple[tuple[int, int], ...]) -> str:
+    """``"64x36, 32x18"``: a frame's camera sizes, main first."""
+    return ", ".join(f"{w}x{h}" for w, h in sizes)
 
 
 def _lossless(

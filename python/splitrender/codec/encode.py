@@ -58,11 +58,11 @@ def encode_recording(
     base = config or CodecConfig.scaled(w, h, fps=rec.fs)
     if bitrate_mbps is not None:
         base = dataclasses.replace(base, bitrate_mbps=bitrate_mbps)
-    encoder = StreamEncoder(base)
     stats = StreamStats(fps=rec.fs)
     # StreamWriter writes beside out_path and renames when complete: an interrupted encode
-    # leaves the previous file, never a stream that looks finished.
-    with StreamWriter(out_path, fps=rec.fs) as writer:
+    # leaves the previous file, never a stream that looks finished. The encoder's worker
+    # threads end with the call (they outlived it, until the encoder was collected).
+    with StreamEncoder(base) as encoder, StreamWriter(out_path, fps=rec.fs) as writer:
         for k, frame in enumerate(frames):
             packet = encoder.encode(frame)
             writer.write(packet)

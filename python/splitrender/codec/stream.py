@@ -59,7 +59,8 @@ Container file (version 4; it holds version-4 packets)::
 The index lets a reader start at any key frame without scanning; a file without a valid trailer
 (a writer that did not finish, a truncated copy) is still read sequentially, and a record that
 runs past the end of the file raises :class:`StreamError`. A file cut inside its index ends its
-records where the index begins.
+records where the index begins. The index lists every record in file order, each where the one
+before it ends, with its packet's frame and key flag; any other index is refused.
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ from __future__ import annotations
 import enum
 import errno
 import math
+import numbers
 import os
 import struct
 import zlib
@@ -348,6 +350,10 @@ def _n_params(b: BufferEntry) -> int:
     return b.channels if b.codec == Codec.TILE and b.kind in _QUANTISED else 0
 
 
+def _integral(v: object) -> bool:
+    return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
 def _f32(v: float) -> bool:
     return math.isfinite(v) and float(np.float32(v)) == v
 
@@ -356,10 +362,20 @@ def pack_packet(packet: Packet) -> bytes:
     """The bytes of ``packet`` (format in the module docstring).
 
     # Errors
-    :class:`StreamError` when a field does not fit the format's limits: camera and buffer counts,
-    a payload over :data:`MAX_PAYLOAD`, a buffer whose size is not its camera's, or a scale or
-    offset that is not a finite float32 value."""
+    :class:`StreamError` when a field does not fit the format's limits (whatever
+    :func:`unpack_packet` would refuse): a frame index beyond ``0..2^63 - 1``, a time that is not
+    finite, camera and buffer counts, a camera size beyond the limits or matrices that are not
+    finite 4x4 arrays, a payload over :data:`MAX_PAYLOAD`, a buffer whose size is not its
+    camera's, or a scale or offset that is not a finite float32 value."""
     where = _where(packet.index)
+    # What unpack_packet refuses is refused here too, as the StreamError a writer expects (an
+    # index of 2^63 or a NaN time was packed and then refused by every reader; an index of -1
+    # or a 3x3 matrix raised struct.error).
+    if not (_integral(packet.index) and 0 <= packet.index <= MAX_INDEX):
+        raise StreamError(f"{where}: frame index {packet.index!r}, expected an int in "
+                          f"0..{MAX_INDEX} (2^63 - 1)")
+    if not math.isfinite(packet.time):
+        raise StreamError(f"{where}: time is not finite ({packet.time})")
     if not 1 <= len(packet.cameras) <= MAX_CAMERAS:
         raise StreamError(
             f"{where}: {len(packet.cameras)} cameras (1..{MAX_CAMERAS} allowed)"
@@ -372,13 +388,21 @@ def pack_packet(packet: Packet) -> bytes:
         FLAG_UNCOMPRESSED if packet.uncompressed else 0
     )
     block = bytearray(_BLOCK_HEAD.pack(len(packet.cameras), 0, len(packet.buffers)))
-    for c in packet.cameras:
-        block += _CAMERA.pack(
-            c.width,
-            c.height,
-            *np.asarray(c.view, np.float64).ravel(),
-            *np.asarray(c.proj, np.float64).ravel(),
-        )
+    for i, c in enumerate(packet.cameras):
+        cwhere = f"{where}, {camera_name(i)}"
+        w, h = c.width, c.height
+        if not (
+            _integral(w) and _integral(h)
+            and 1 <= w <= MAX_SIDE and 1 <= h <= MAX_SIDE and w * h <= MAX_PIXELS
+        ):
+            raise StreamError(
+                f"{cwhere}: camera size {w}x{h} beyond the limits (side 1..{MAX_SIDE}, "
+                f"pixels <= {MAX_PIXELS})"
+            )
+        mats = [np.asarray(m, np.float64) for m in (c.view, c.proj)]
+        if any(m.shape != (4, 4) for m in mats) or not all(np.isfinite(m).all() for m in mats):
+            raise StreamError(f"{cwhere}: camera matrices must be finite 4x4 arrays")
+        block += _CAMERA.pack(w, h, *mats[0].ravel(), *mats[1].ravel())
     for b in packet.buffers:
         bwhere = _where(packet.index, b.name)
         if len(b.payload) > MAX_PAYLOAD:
@@ -631,9 +655,10 @@ class StreamWriter(AtomicWriter):
     ``path`` is as it was, so a failed write never leaves a stream that reads as complete with
     fewer frames, nor destroys the previous one."""
 
+    @checked(path=PATH, fps=floats(positive=True, hi=MAX_RATE))
     def __init__(self, path: str | os.PathLike[str], fps: float = 10.0) -> None:
-        if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps: expected a finite value > 0, got {fps}")
+        # The rate StreamFile reads back: 1e6 was written, and the file then refused by every
+        # reader ("server rate 1000000.0 frames per second").
         self.path = Path(path)
         if self.path.is_dir():  # found now, not by the rename after all the frames
             raise IsADirectoryError(
@@ -665,9 +690,19 @@ class StreamWriter(AtomicWriter):
             raise StreamError(
                 f"frame {frame}: packet of {len(packet)} bytes is too large"
             )
-        self._index.append(IndexEntry(frame, self._file.tell(), key))
-        self._file.write(_RECORD.pack(len(packet)))
-        self._file.write(packet)
+        try:
+            self._index.append(IndexEntry(frame, self._file.tell(), key))
+            self._file.write(_RECORD.pack(len(packet)))
+            self._file.write(packet)
+        except OSError as e:
+            raise self._named(e) from None
+
+    def _named(self, e: OSError) -> OSError:
+        """``e`` naming :attr:`path` where it names no file: a write into the temporary file
+        failed with "[Errno 28] No space left on device", which named no file at all."""
+        if e.filename is not None or e.errno is None:
+            return e
+        return type(e)(e.errno, e.strerror, str(self.path))
 
     def close(self) -> None:
         """Writes the index and trailer and replaces ``path`` with the finished file (a second
@@ -689,6 +724,9 @@ class StreamWriter(AtomicWriter):
             os.fsync(self._file.fileno())
             self._file.close()
             os.replace(self._tmp, self.path)
+        except OSError as e:
+            self.abort()
+            raise self._named(e) from None
         except BaseException:
             self.abort()
             raise
@@ -778,7 +816,13 @@ class StreamFile:
             offset, magic = _TRAILER.unpack(f.read(_TRAILER.size))
             if magic == _TRAILER_MAGIC:
                 return offset, self._parse_index(f, offset)
-        return self._size, self._scan(f)
+        index = self._scan(f)
+        if index:
+            last = index[-1].offset
+            f.seek(last)
+            (n,) = _RECORD.unpack(f.read(_RECORD.size))
+            return last + _RECORD.size + n, index
+        return _FILE_HEADER.size, index
 
     def _parse_index(self, f: BinaryIO, offset: int) -> list[IndexEntry]:
         room = self._size - _TRAILER.size - offset
@@ -797,14 +841,30 @@ class StreamFile:
         (crc,) = struct.unpack("<I", f.read(4))
         if zlib.crc32(raw) != crc:
             raise StreamError(f"{self._name}: index CRC mismatch")
-        out = []
+        out: list[IndexEntry] = []
         for i in range(n):
             frame, off, key = _INDEX_ENTRY.unpack_from(raw, i * _INDEX_ENTRY.size)
-            if not _FILE_HEADER.size <= off < offset:
+            if not _FILE_HEADER.size <= off <= offset - _RECORD.size:
                 raise StreamError(
                     f"{self._name}: index entry for frame {frame} points outside"
                 )
+            # The writer lists every record, in file order, from the first: an index that
+            # repeats, reorders or skips records (its CRC made consistent) read back as
+            # another stream, frame 0 four times or one frame of four (records are checked to
+            # follow each other as they are read).
+            first = not out and off != _FILE_HEADER.size
+            if first or (out and off <= out[-1].offset):
+                raise StreamError(
+                    f"{self._name}: index entry {i} (frame {frame}) points at byte {off}, "
+                    "expected the records in file order from byte "
+                    f"{_FILE_HEADER.size} (a damaged index?)"
+                )
             out.append(IndexEntry(frame, off, bool(key)))
+        if not out and offset != _FILE_HEADER.size:
+            raise StreamError(
+                f"{self._name}: the index lists no records, but {offset - _FILE_HEADER.size} "
+                "bytes of records precede it (a damaged index?)"
+            )
         return out
 
     def _scan(self, f: BinaryIO) -> list[IndexEntry]:
@@ -884,13 +944,28 @@ class StreamFile:
             first = hits[0]
         with self._open() as f:
             prev = self.index[first - 1].frame if first > 0 else None
-            for e in self.index[first:]:
+            entries = self.index[first:]
+            for i, e in enumerate(entries):
                 f.seek(e.offset)
-                data, _ = self._read_record(f, e.offset, prev)
-                frame, _ = self._peek(data)
+                data, n = self._read_record(f, e.offset, prev)
+                frame, key = self._peek(data)
                 if frame != e.frame:
                     raise StreamError(
                         f"{self._name}: frame {e.frame}: the record holds frame {frame}"
+                    )
+                if key != e.key:
+                    # packets(start=k) would start at a packet that cannot be decoded first.
+                    raise StreamError(
+                        f"{self._name}: frame {frame}: the index says it is "
+                        f"{'' if e.key else 'not '}a key frame, the packet says otherwise"
+                    )
+                end = e.offset + _RECORD.size + n
+                nxt = entries[i + 1].offset if i + 1 < len(entries) else self._end
+                if nxt != end:
+                    what = "the next record" if i + 1 < len(entries) else "the index"
+                    raise StreamError(
+                        f"{self._name}: frame {frame}: its record ends at byte {end}, "
+                        f"{what} begins at byte {nxt} (a damaged index?)"
                     )
                 prev = frame
                 yield data

@@ -3,7 +3,8 @@
 
 The source is a stream file, or a built-in scene whose server frames are rendered and encoded
 once (at the paper's 40 Mb/s scaled by pixel count) into a stream file cached in the temporary
-directory. Each server frame ``k`` (time ``t_k = k / f_s``) is handed to the client when the
+directory. Each server frame ``k`` (time ``t_k = k / f_s``, ``f_s`` the server rate in the
+stream file's header) is handed to the client when the
 model's server would send it over an ideal link, at display time ``t_k − 1 / f_s``
 (:mod:`splitrender.net.model`), and decoded and prepared on the client's worker thread while
 the display loop renders every refresh at the client's pose (with ``backend="wgpu"`` on the GPU,
@@ -36,7 +37,6 @@ from splitrender.codec.stream import (
     CameraRecord,
     StreamFile,
     pack_packet,
-    read_stream,
     unpack_packet,
     without_file_name,
 )
@@ -243,7 +243,8 @@ def run_realtime_bench(
     # What the errors of the file name: the option and the path as given, or the cache's path.
     where = str(path) if stream is None else f"--stream: {os.fspath(stream)}"
     try:
-        packets = list(read_stream(path))
+        file = StreamFile(path)
+        packets = list(file.packets())
     except StreamError as e:
         # The reader's messages open with the file's bare name: "afile: ..." named neither the
         # option nor where the file is.
@@ -255,9 +256,10 @@ def run_realtime_bench(
     except StreamError as e:  # the packet's message names its frame, not the file
         raise StreamError(f"{where}: {e}") from None
     main = heads[0].cameras[0]
-    fs = _FS
-    if len(heads) > 1 and heads[1].time > heads[0].time:
-        fs = 1.0 / (heads[1].time - heads[0].time)
+    # The server rate the file's header gives (checked to be in (0, 1000] when it was read), not
+    # one taken from the first two packets' times: a hostile gap of 5e-324 s raised
+    # OverflowError, one of 1e-9 s asked for 10^9 packets a second (memory without bound).
+    fs = file.fps
     cycle = len(packets) / fs
     n_sent = math.ceil(seconds * fs) + 1
     looped = n_sent > len(packets)
