@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
@@ -238,7 +239,7 @@ def _play(args: argparse.Namespace, src: Path, rendered: bool, stage: Path,
     server: Sequence[ServerFrame] | DecodedStream
     if stream is not None:
         stages.stage(f"reading {src}")
-        packets = list(stream.packets())[:n_server]
+        packets = list(itertools.islice(stream.packets(), n_server))
         if not packets:
             # Scoring nothing but held black frames would report a result for no content.
             raise InvalidInputError(
