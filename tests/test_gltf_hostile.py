@@ -141,3 +141,25 @@ def test_glb_length_beyond_the_file(tmp_path: Path, capfd: pytest.CaptureFixture
     ):
         _place(tmp_path, bad, "bad.glb")
     assert "panicked" not in capfd.readouterr().err
+
+
+def test_models_of_a_description_share_the_fixed_decode_allowance(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # Each model had 64 MiB of decoding on top of 64 bytes per byte of its file: a description
+    # placing one 738-byte file 10 times held 0.9 GB, and up to 4,000 placements are allowed.
+    def sparse(d: dict[str, Any]) -> None:
+        _huge_sparse(d)
+        d["accessors"][0]["count"] = 750_000  # 36 MB decoded: one fits in 64 MiB, two do not
+
+    (tmp_path / "big.gltf").write_bytes(_edited(sparse))
+    desc = tmp_path / "scene.json"
+    entry = {"path": "big.gltf", "position": [0.0, 0.0, 0.0]}
+    desc.write_text(json.dumps({"scene": "courtyard", "variant": "static", "models": [entry]}))
+    sr.Scene.from_description(desc)  # alone it loads
+    desc.write_text(json.dumps({"scene": "courtyard", "variant": "static",
+                                "models": [entry, entry]}))
+    with pytest.raises(sr.InvalidInputError, match=r"big\.gltf: accessor 0 \(POSITION\) with "
+                       r"count 750000: .*a fixed allowance the models of a scene share"):
+        sr.Scene.from_description(desc)
+    assert "panicked" not in capfd.readouterr().err

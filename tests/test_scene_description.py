@@ -149,3 +149,86 @@ def test_description_variant_must_be_a_string(tmp_path: Path, variant: str, got:
     with pytest.raises(sr.InvalidInputError,
                        match=rf"scene\.json: variant: expected a string, got {got}$"):
         sr.Scene.from_description(desc)
+
+
+def test_description_models_null_is_named_as_json(tmp_path: Path) -> None:
+    # "got NoneType": the Python name of JSON's null.
+    desc = tmp_path / "scene.json"
+    desc.write_text('{"scene": "courtyard", "models": null}')
+    with pytest.raises(sr.InvalidInputError,
+                       match=r"scene\.json: models: expected an array of objects, got null$"):
+        sr.Scene.from_description(desc)
+
+
+def test_model_placement_takes_a_pathlike(tmp_path: Path) -> None:
+    # ModelPlacement took a pathlib.Path, and Scene(models=...) then raised TypeError ("cannot
+    # be converted to 'PyString'") from the native constructor.
+    model = sr.ModelPlacement(_write_quad(tmp_path), (0.0, 0.0, -3.0), animation=None)
+    assert model.path == str(tmp_path / "quad.gltf")
+    assert len(sr.Scene("courtyard", "static", [model]).models) == 1
+
+
+@pytest.mark.parametrize("command", ["render", "serve"])
+def test_cli_names_a_gltf_model_given_as_the_scene(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    # render said 'unknown scene ".../quad.gltf"'; serve read the model as a description
+    # ("scene description is not UTF-8" for a GLB).
+    model = _write_quad(tmp_path)
+    args = (["render", str(model), "--out", str(tmp_path / "rec")] if command == "render"
+            else ["serve", "--scene", str(model), "--port", "0"])
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert f"{model} is a glTF model, not a scene; expected a built-in scene" in err
+    assert '"models": [{"path": "quad.gltf", "position": [0, 0, -3]}]' in err
+    assert not (tmp_path / "rec").exists()
+
+
+def test_render_cli_refuses_variant_with_a_description(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --variant was ignored: the description's own variant was rendered.
+    _write_quad(tmp_path)
+    desc = _describe(tmp_path)
+    out = tmp_path / "rec"
+    assert main(["render", str(desc), "--variant", "dynamic", "--out", str(out)]) == 2
+    assert capsys.readouterr().err == (
+        f"splitrender: error: --variant: only for a built-in scene; the scene description "
+        f'{desc} names its own ("variant", default dynamic)\n'
+    )
+    assert not out.exists()
+
+
+def test_render_cli_takes_a_description_named_in_upper_case(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # "scene.JSON" was taken for a built-in scene's name: 'unknown scene "...scene.JSON"'.
+    desc = tmp_path / "scene.JSON"
+    desc.write_text('{"scene": "courtyard", "models": 3}')
+    assert main(["render", str(desc), "--out", str(tmp_path / "rec")]) == 2
+    assert capsys.readouterr().err == (
+        f"splitrender: error: {desc}: models: expected an array of objects, got an integer 3\n"
+    )
+
+
+def test_render_cli_force_keeps_a_model_inside_the_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --force replaced the recording folder, and the glTF model the description placed from
+    # inside it went with the old recording (check_apart saw the description and trace only).
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "manifest.json").write_text("{}")  # what --force takes for a recording
+    model = _write_quad(rec)
+    desc = tmp_path / "scene.json"
+    desc.write_text(json.dumps({"scene": "courtyard", "variant": "static", "models": [
+        {"path": "rec/quad.gltf", "position": [0, 0, -3]}]}))
+    args = ["render", str(desc), "--out", str(rec), "--force", "--seconds", "0.1",
+            "--scale", "0.02", "--quiet"]
+    assert main(args) == 2
+    assert capsys.readouterr().err == (
+        f"splitrender: error: {rec}: the output holds the glTF model {model}; expected a path "
+        "outside it\n"
+    )
+    assert model.is_file() and (rec / "manifest.json").read_text() == "{}"

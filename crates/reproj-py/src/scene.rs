@@ -210,6 +210,8 @@ impl Scene {
             let inner = py
                 .detach(|| {
                     let mut scene = rs::builtin(name, variant)?;
+                    // One fixed decode allowance for all the models (GltfModel::load_sharing).
+                    let mut allowance = rs::GLTF_ALLOWANCE;
                     for (path, position, yaw_deg, scale, animation, time_offset, speed) in &models {
                         let place = Rigid::translation(*position)
                             .then(&Rigid::rotation([0.0, 1.0, 0.0], yaw_deg.to_radians()));
@@ -220,7 +222,8 @@ impl Scene {
                             time_offset: *time_offset,
                             speed: *speed,
                         };
-                        rs::place_gltf(&mut scene, path, placement)?;
+                        let model = rs::GltfModel::load_sharing(path, &mut allowance)?;
+                        rs::place_model(&mut scene, &std::sync::Arc::new(model), placement)?;
                     }
                     Ok(scene)
                 })

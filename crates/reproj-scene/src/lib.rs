@@ -75,7 +75,7 @@ pub mod shape;
 
 pub use anim::Anim;
 pub use error::{Result, SceneError};
-pub use gltf::{load_gltf_scene, place_gltf, GltfModel, Placement};
+pub use gltf::{load_gltf_scene, place_gltf, place_model, GltfModel, Placement, GLTF_ALLOWANCE};
 pub use material::{Material, Pattern};
 pub use math::{Rigid, V3};
 pub use render::{

@@ -19,6 +19,7 @@ from splitrender.types import MAX_SIDE
 
 if TYPE_CHECKING:
     from splitrender.net.model import NetworkModel
+    from splitrender.scene.builtin import Scene
 
 PROG = "splitrender"
 
@@ -219,6 +220,52 @@ def out_file(text: str) -> Path:
             f"{'not a directory' if parent.exists() else 'missing'}"
         )
     return path
+
+
+def scene_description(text: str, where: str = "") -> Path | None:
+    """The scene description a SCENE argument names, or ``None`` for a built-in scene's name:
+    a name ending in .json (any case) or any other existing path (which the description reader
+    refuses if it is not a regular JSON file). A glTF model given directly is refused naming
+    what to write instead (it was "unknown scene", or "not UTF-8" for serve's --scene)."""
+    from splitrender.errors import InvalidInputError
+    from splitrender.scene.builtin import SCENE_NAMES
+
+    if text in SCENE_NAMES:
+        return None
+    path = Path(text)
+    if path.suffix.lower() in (".gltf", ".glb"):
+        raise InvalidInputError(
+            f"{where}{text} is a glTF model, not a scene; expected a built-in scene "
+            f"({', '.join(SCENE_NAMES)}) or a JSON scene description that places the model into "
+            f'one, e.g. {{"scene": "courtyard", "models": [{{"path": "{path.name}", '
+            '"position": [0, 0, -3]}]} (see splitrender.Scene.from_description)'
+        )
+    if path.suffix.lower() == ".json" or path.exists():
+        return path
+    return None
+
+
+def open_scene(text: str, where: str = "", variant: str | None = None) -> Scene:
+    """The scene a SCENE argument names (:func:`scene_description`): a built-in scene in
+    ``variant`` (default dynamic), or a scene description, which names its own variant:
+    ``variant`` given with one is refused (render's --variant was ignored)."""
+    from splitrender.errors import InvalidInputError
+    from splitrender.scene.builtin import SCENE_NAMES, Scene
+
+    desc = scene_description(text, where)
+    if desc is not None:
+        if variant is not None:
+            raise InvalidInputError(
+                f"--variant: only for a built-in scene; the scene description {text} names its "
+                'own ("variant", default dynamic)'
+            )
+        return Scene.from_description(desc)
+    if text not in SCENE_NAMES:
+        raise InvalidInputError(
+            f'{where}unknown scene "{text}"; valid scenes: {", ".join(SCENE_NAMES)}, or a JSON '
+            "scene description file (*.json)"
+        )
+    return Scene(text, variant or "dynamic")
 
 
 def _method_list(text: str, known: tuple[str, ...]) -> tuple[str, ...]:

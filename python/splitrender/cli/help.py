@@ -6,7 +6,8 @@ from __future__ import annotations
 
 HELP: dict[str, str] = {
     "example": "reproject a synthetic dynamic scene with every method and write PNGs",
-    "render": "render a recording of a built-in scene (server buffers + ground truth)",
+    "render": "render a recording of a built-in scene or a scene description (server buffers "
+              "+ ground truth)",
     "encode": "encode a recording into a stream file (HEVC + zstd, versioned packets)",
     "dataset": "export a recording to, or import one from, the authors' dataset layout",
     "dataset export": "write a recording in the authors' dataset layout",

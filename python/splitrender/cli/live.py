@@ -31,6 +31,7 @@ from splitrender.cli.args import (
     loss,
     milliseconds,
     bitrate,
+    open_scene,
     seconds,
 )
 from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR
@@ -191,7 +192,6 @@ def run_serve(args: argparse.Namespace) -> int:
         check_scale,
         load_certificate_chain,
     )
-    from splitrender.scene.builtin import SCENE_NAMES, Scene
 
     _quiet_quic()
     if (args.cert is None) != (args.key is None):
@@ -207,15 +207,8 @@ def run_serve(args: argparse.Namespace) -> int:
         # A client that sends none (connect's default) would be let in.
         return fail("--token: expected a non-empty token (leave it out for a random one)")
     try:
-        if args.scene in SCENE_NAMES:
-            scene = Scene(args.scene)
-            name = args.scene
-        elif Path(args.scene).is_file():
-            scene = Scene.from_description(args.scene)
-            name = scene.name
-        else:
-            return fail(f"--scene: {args.scene!r} is neither a built-in scene "
-                        f"({', '.join(SCENE_NAMES)}) nor a scene description file")
+        scene = open_scene(args.scene, "--scene: ")
+        name = scene.name
         # Before anything is rendered (LiveServer renders two frames to start).
         check_scale(scene, args.scale, "--scale")
         cert = key = None

@@ -15,6 +15,8 @@ from splitrender.cli.args import (
     bitrate,
     command,
     in_path,
+    open_scene,
+    scene_description,
     seconds,
     run_stages,
     wrote_dir,
@@ -37,8 +39,9 @@ def add_render(sub: Any) -> None:
     re.add_argument(
         "--variant",
         choices=("static", "dynamic"),
-        default="dynamic",
-        help="still or animated objects and light (default: %(default)s)",
+        default=None,
+        help="still or animated objects and light (default: dynamic); a built-in scene's only: "
+        'a scene description names its own ("variant")',
     )
     re.add_argument(
         "--seconds",
@@ -58,21 +61,22 @@ def add_render(sub: Any) -> None:
 def render(args: argparse.Namespace) -> int:
     # Imported here: the renderer is not needed by the other commands.
     from splitrender.scene.recording import plan, write_recording
-    from splitrender.scene.builtin import Scene, load_trace
+    from splitrender.scene.builtin import load_trace
     from splitrender.files import check_apart
 
     def work(bar: Progress) -> Path:
         # With --force the old DIR is removed once the new recording is in place: it must not
         # hold the scene description or the trace (nor be one of them).
         inputs: dict[str, str | Path] = {} if args.trace is None else {"trace": args.trace}
-        if args.scene.endswith(".json"):
-            inputs["scene description"] = args.scene
+        desc = scene_description(args.scene)
+        if desc is not None:
+            inputs["scene description"] = desc
         check_apart(args.out, inputs, replaced=args.force)
-        scene = (
-            Scene.from_description(args.scene)
-            if args.scene.endswith(".json")
-            else Scene(args.scene, args.variant)
-        )
+        scene = open_scene(args.scene, variant=args.variant)
+        # And the description's glTF models (not their buffers or textures): a recording folder
+        # holding one lost it to --force once the new recording was in place.
+        for model in scene.models:
+            check_apart(args.out, {"glTF model": model.path}, replaced=args.force)
         trace = None if args.trace is None else load_trace(args.trace)
         n_server, n_client = plan(args.seconds, 10.0, 120.0)
         w, h = scene.main_size(args.scale)

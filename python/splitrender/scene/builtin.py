@@ -131,7 +131,9 @@ class ModelPlacement:
 
     def __post_init__(self) -> None:
         where = f"ModelPlacement({self.path!r})"
-        check_path(f"{where}.path", self.path)
+        # An os.PathLike (which check_path takes) as its str: the native Scene takes only a str
+        # (a pathlib.Path raised TypeError from Scene(models=...)).
+        object.__setattr__(self, "path", os.fspath(check_path(f"{where}.path", self.path)))
         position = check_items(f"{where}.position", self.position, floats())
         if len(position) != 3:
             raise InvalidInputError(
@@ -225,7 +227,7 @@ class Scene:
             # A number raised TypeError from enumerate(), a string or object was walked as
             # a sequence of its characters or keys (issue 15, found by the fuzz suite).
             raise InvalidInputError(
-                f"{p}: models: expected an array of objects, got {type(entries).__name__}"
+                f"{p}: models: expected an array of objects, got {_json_text(entries)}"
             )
         models = []
         for i, m in enumerate(entries):

@@ -24,6 +24,8 @@ use crate::error::{Result, SceneError};
 pub(crate) struct Budget {
     left: usize,
     total: usize,
+    /// The fixed allowance in `total` (the rest is proportional to the input).
+    base: usize,
 }
 
 /// Decoded bytes allowed per byte of input (file, buffers and textures read).
@@ -35,7 +37,11 @@ impl Budget {
     /// A budget of `BUDGET_FACTOR × input + base` bytes.
     pub(crate) fn new(input: usize, base: usize) -> Budget {
         let total = input.saturating_mul(BUDGET_FACTOR).saturating_add(base);
-        Budget { left: total, total }
+        Budget {
+            left: total,
+            total,
+            base,
+        }
     }
 
     /// Takes `bytes` from the budget, or says what would have exceeded it.
@@ -46,7 +52,7 @@ impl Budget {
                 format!(
                     "{what}: decoding it needs {bytes} bytes, more than the {} left of the \
                      {}-byte budget this file's size allows ({BUDGET_FACTOR} bytes per input \
-                     byte + a fixed allowance)",
+                     byte + what is left of a fixed allowance the models of a scene share)",
                     self.left, self.total
                 ),
             ));
@@ -65,6 +71,12 @@ impl Budget {
     /// Bytes still available.
     pub(crate) fn left(&self) -> usize {
         self.left
+    }
+
+    /// How much of the fixed allowance was taken: what was taken beyond the part proportional
+    /// to the input.
+    pub(crate) fn fixed_used(&self) -> usize {
+        (self.total - self.left).saturating_sub(self.total - self.base)
     }
 }
 

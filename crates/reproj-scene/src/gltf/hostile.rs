@@ -603,6 +603,63 @@ fn absolute_uris_are_refused() {
     assert!(e.contains(&format!("(decoded {plain:?})")), "{e}");
 }
 
+#[test]
+fn required_extensions_are_unsupported_not_malformed() {
+    // The document's validation refused an extension the `gltf` crate does not know first, as
+    // "malformed glTF: invalid glTF: extensionsRequired[0] = ...: Unsupported extension".
+    for ext in [
+        "KHR_draco_mesh_compression",
+        "EXT_meshopt_compression",
+        "FOO_bar",
+    ] {
+        let mut m = base_model();
+        m.set("/extensionsRequired", Value::from(vec![ext]));
+        m.set("/extensionsUsed", Value::from(vec![ext]));
+        let e = load(&m.glb()).unwrap_err();
+        assert!(matches!(e, SceneError::GltfUnsupported { .. }), "{e:?}");
+        let msg = e.to_string();
+        assert_names(
+            &msg,
+            &[&format!(
+                "required extension {ext} (the renderer implements none)"
+            )],
+        );
+        assert!(!msg.contains("malformed"), "{msg}");
+    }
+}
+
+#[test]
+fn models_of_a_scene_share_the_fixed_allowance() {
+    // Each load had its own 64 MiB on top of 64 bytes per input byte: a scene description
+    // placing one 738-byte file 10 times held 0.9 GB, 4,000 times would have held hundreds.
+    let mut m = base_model();
+    // Mesh 0's positions: 99,999 of them, all but one zero (no buffer view, one sparse value).
+    let mut big = m.json["accessors"][8].clone();
+    big["count"] = 99_999.into();
+    m.json["accessors"].as_array_mut().unwrap().push(big);
+    m.set("/meshes/0/primitives/0/attributes/POSITION", 9.into());
+    let dir = super::tests::test_dir().join(format!("reproj-gltf-{}-share", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("sparse.glb");
+    std::fs::write(&p, m.glb()).unwrap();
+    let mut allowance = GLTF_ALLOWANCE;
+    GltfModel::load_sharing(&p, &mut allowance).unwrap();
+    let used = GLTF_ALLOWANCE - allowance;
+    assert!(used > 99_999 * 3 * 8, "used {used}");
+    // Exactly what it takes, then nothing left for a second one.
+    let mut allowance = used;
+    GltfModel::load_sharing(&p, &mut allowance).unwrap();
+    assert_eq!(allowance, 0);
+    let e = GltfModel::load_sharing(&p, &mut allowance).unwrap_err();
+    assert!(matches!(e, SceneError::Gltf { .. }), "{e:?}");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("sparse.glb") && msg.contains("a fixed allowance the models of a scene share"),
+        "{msg}"
+    );
+    GltfModel::load(&p).unwrap(); // alone, as before
+}
+
 /// JSON fields the mutations rewrite: every count, offset, stride, length, type and index kind
 /// the loader reads.
 const FIELDS: &[&str] = &[

@@ -42,11 +42,35 @@ impl GltfModel {
     pub fn from_bytes(path: impl AsRef<Path>, bytes: &[u8]) -> Result<GltfModel> {
         decode(path.as_ref(), bytes, BUDGET_BASE)
     }
+
+    /// [`GltfModel::load`] with the fixed part of the decode budget (64 MiB for one model)
+    /// drawn from `allowance`, which the models of one scene share: each model's own part
+    /// stays 64 bytes per byte of its input, so that a scene description placing a small file
+    /// many times (or many small files) cannot decode 64 MiB for each (a 738-byte model placed
+    /// 10 times held 0.9 GB). Starts from [`GLTF_ALLOWANCE`] for a scene.
+    ///
+    /// # Errors
+    /// As [`GltfModel::load`]; the budget's message says the allowance is shared.
+    pub fn load_sharing(path: impl AsRef<Path>, allowance: &mut usize) -> Result<GltfModel> {
+        let path = path.as_ref();
+        let bytes = source::read_file(path, path, "the model file", MAX_FILE_BYTES)?;
+        let (model, used) = decode_counted(path, &bytes, *allowance)?;
+        *allowance = allowance.saturating_sub(used);
+        Ok(model)
+    }
 }
+
+/// The fixed decode allowance of one scene's glTF models ([`GltfModel::load_sharing`]): bytes.
+pub const GLTF_ALLOWANCE: usize = BUDGET_BASE;
 
 /// [`GltfModel::from_bytes`] with `budget_base` decoded bytes allowed on top of the part
 /// proportional to the input (the tests use a small one).
 pub(crate) fn decode(path: &Path, bytes: &[u8], budget_base: usize) -> Result<GltfModel> {
+    decode_counted(path, bytes, budget_base).map(|(model, _)| model)
+}
+
+/// [`decode`], and how much of `budget_base` the model took.
+fn decode_counted(path: &Path, bytes: &[u8], budget_base: usize) -> Result<(GltfModel, usize)> {
     // Every check above the decoders is meant to leave them nothing to panic on; should one
     // still do so, the caller gets an error rather than an abort.
     std::panic::catch_unwind(AssertUnwindSafe(|| {
@@ -125,7 +149,7 @@ fn local(path: &Path, index: usize, n: &gltf::json::Node) -> Result<Local> {
     }))
 }
 
-fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<GltfModel> {
+fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<(GltfModel, usize)> {
     let (json, blob) = if bytes.starts_with(source::GLB_MAGIC) {
         source::split_glb(path, bytes)?
     } else {
@@ -133,9 +157,6 @@ fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<GltfM
     };
     let document = source::parse_document(path, json)?;
     let root = document.as_json();
-    if let Some(ext) = document.extensions_required().next() {
-        return Err(unsupported(path, format!("required extension {ext}")));
-    }
     let mut sources = Sources::new(path, bytes.len());
     let mut buffers: Vec<Bytes> = Vec::with_capacity(root.buffers.len());
     for (i, b) in root.buffers.iter().enumerate() {
@@ -448,7 +469,8 @@ fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<GltfM
         });
     }
 
-    Ok(GltfModel {
+    let used = data.budget.fixed_used();
+    let model = GltfModel {
         path: path.to_path_buf(),
         nodes,
         order,
@@ -456,5 +478,6 @@ fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<GltfM
         materials,
         skins,
         animations,
-    })
+    };
+    Ok((model, used))
 }

@@ -25,8 +25,9 @@
 //! Colours: the base-colour factor times the base-colour texture (bilinear, repeat wrap), both
 //! taken as the renderer's linear `[0,1]` albedo like every procedural material (the renderer does
 //! no sRGB conversion anywhere). Morph targets are not applied (their weight channels are
-//! ignored); the `CUBICSPLINE` interpolation, non-triangle primitives and texture coordinate sets
-//! other than 0 are refused with [`SceneError::GltfUnsupported`].
+//! ignored); the `CUBICSPLINE` interpolation, non-triangle primitives, texture coordinate sets
+//! other than 0 and any extension in `extensionsRequired` are refused with
+//! [`SceneError::GltfUnsupported`].
 //!
 //! The file is untrusted (issue 15). Only regular files are read, each at most
 //! `MAX_FILE_BYTES` (1 GiB); the GLB container is split here with every length checked
@@ -62,6 +63,7 @@ use std::path::Path;
 
 use crate::error::SceneError;
 pub use crate::gltf_model::{GltfModel, GltfShape, NodeTrack, Texture};
+pub use load::GLTF_ALLOWANCE;
 pub use place::{load_gltf_scene, place_gltf, place_model, Placement};
 
 fn err(path: &Path, problem: impl Into<String>) -> SceneError {

@@ -50,6 +50,24 @@ pub(super) fn decode_image(
     limits.max_image_width = Some(MAX_TEXTURE_SIDE);
     limits.max_image_height = Some(MAX_TEXTURE_SIDE);
     limits.max_alloc = Some(data.budget.left() as u64);
+    // The header first, to name a size the budget cannot hold (the decoder's refusal read only
+    // "Memory limit exceeded").
+    let (hw, hh) = image::ImageReader::with_format(std::io::Cursor::new(&bytes[..]), format)
+        .into_dimensions()
+        .map_err(|e| err(path, format!("cannot decode {what}: {e}")))?;
+    let need = (hw as usize)
+        .saturating_mul(hh as usize)
+        .saturating_mul(std::mem::size_of::<[f32; 3]>());
+    if hw.max(hh) > MAX_TEXTURE_SIDE || need > data.budget.left() {
+        return Err(err(
+            path,
+            format!(
+                "{what} is {hw}x{hh} pixels ({need} bytes decoded), expected at most \
+                 {MAX_TEXTURE_SIDE} on a side and within the {} bytes left of the decode budget",
+                data.budget.left()
+            ),
+        ));
+    }
     let mut reader = image::ImageReader::with_format(std::io::Cursor::new(&bytes[..]), format);
     reader.limits(limits);
     let decoded = reader

@@ -8,7 +8,7 @@ use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 use std::sync::Arc;
 
-use super::err;
+use super::{err, unsupported};
 use crate::error::Result;
 
 /// Largest file read (the glTF or GLB file, an external buffer or texture): 1 GiB, far above
@@ -147,6 +147,15 @@ pub(super) fn parse_document(path: &Path, json: &[u8]) -> Result<gltf::Document>
                 }
             }
         }
+    }
+    // Before the validation, which refuses an extension the crate does not know as "malformed
+    // glTF: invalid glTF: extensionsRequired[0] = ...: Unsupported extension": the file may be
+    // well-formed; the renderer implements no extension a file can require.
+    if let Some(ext) = root.extensions_required.first() {
+        return Err(unsupported(
+            path,
+            format!("required extension {ext} (the renderer implements none)"),
+        ));
     }
     gltf::Document::from_json(root).map_err(|e| err(path, format!("malformed glTF: {e}")))
 }

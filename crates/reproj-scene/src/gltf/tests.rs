@@ -397,6 +397,23 @@ fn bad_files_give_errors_naming_file_and_problem() {
     );
     std::fs::write(&lines, json).unwrap();
     check(&lines, "unsupported");
+    // A header claiming 16000x16000 pixels (3 GB decoded): refused naming the size, before the
+    // decoder's "Memory limit exceeded".
+    let huge = write_model("hugetex", "huge.jpg", false);
+    let mut jpeg = Vec::new();
+    image::RgbImage::new(8, 8)
+        .write_to(
+            &mut std::io::Cursor::new(&mut jpeg),
+            image::ImageFormat::Jpeg,
+        )
+        .unwrap();
+    let sof = jpeg.windows(2).position(|w| w == [0xFF, 0xC0]).unwrap();
+    jpeg[sof + 5..sof + 9].copy_from_slice(&[0x3E, 0x80, 0x3E, 0x80]); // height, width 16000
+    std::fs::write(huge.parent().unwrap().join("huge.jpg"), jpeg).unwrap();
+    check(
+        &huge,
+        "texture file \"huge.jpg\" is 16000x16000 pixels (3072000000 bytes decoded)",
+    );
     let cubic = write_model("cubic", "tex.png", false);
     let json = std::fs::read_to_string(&cubic)
         .unwrap()
