@@ -509,7 +509,8 @@ def test_force_replaces_only_a_recording_or_an_empty_folder(
         assert main([*argv, "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert err == (f"splitrender: error: {out}: is not a recording (no manifest.json) and "
-                       "not empty; --force replaces only a recording or an empty folder\n")
+                       "not empty; --force (overwrite=True) replaces only a recording or an "
+                       "empty folder\n")
     assert (notes / "todo.txt").read_text() == "important"
     assert sorted(p.name for p in rec.rglob("*")) == before
     # The working directory, or one above it: refused before the render (it was an internal

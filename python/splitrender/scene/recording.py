@@ -413,7 +413,10 @@ def check_destination(out: Path, overwrite: bool) -> None:
     if not out.exists():
         return
     if not overwrite:
-        raise RecordingError(f"{out}: already exists (choose another --out or pass --force)")
+        raise RecordingError(
+            f"{out}: already exists (choose another path, or replace it: --force, "
+            "overwrite=True)"
+        )
     # The rename that moves the old one aside cannot move the working directory or a folder
     # above it ("." failed as an internal error, ".." after the whole render).
     here, target = Path.cwd().resolve(), out.resolve()
@@ -425,8 +428,8 @@ def check_destination(out: Path, overwrite: bool) -> None:
     # a recording's own subfolders, was removed with everything in it.
     if not (out / _MANIFEST).is_file() and any(out.iterdir()):
         raise RecordingError(
-            f"{out}: is not a recording (no {_MANIFEST}) and not empty; --force replaces only "
-            "a recording or an empty folder"
+            f"{out}: is not a recording (no {_MANIFEST}) and not empty; --force (overwrite=True) "
+            "replaces only a recording or an empty folder"
         )
 
 
