@@ -693,10 +693,10 @@ class RealtimeClient:
     :meth:`close` closes the one and shuts the other down. ``on_handover`` is called with a
     :class:`Handover` for each server frame handed to the display during :meth:`run`, in order,
     under the client's lock, on the thread that hands it over (the display thread, or the
-    worker when a frame arrives after its time): keep it short. It is called after the handover is complete; an exception it raises
-    reaches :meth:`run`'s caller from the display thread, or from the worker the future of the
-    packet whose receipt handed the frame over (and :meth:`wait`). Use as a context manager,
-    or call :meth:`close`.
+    worker when a frame arrives after its time): keep it short. It is called after the
+    handover is complete; an exception it raises reaches :meth:`run`'s caller from the display
+    thread, or from the worker the future of the packet whose receipt handed the frame over
+    (and :meth:`wait`). Use as a context manager, or call :meth:`close`.
 
     Raises:
         InvalidInputError: for an unknown method, invalid options, a method the backend cannot
