@@ -217,7 +217,7 @@ impl Camera {
     /// [`ReprojError::BadSize`] when a side is zero or above [`MAX_SIDE`].
     pub fn check_size(&self, what: &str) -> Result<()> {
         let (width, height) = (self.width, self.height);
-        if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
+        if !self.size_ok() {
             return Err(ReprojError::BadSize {
                 what: what.to_string(),
                 width,
@@ -226,6 +226,12 @@ impl Camera {
             });
         }
         Ok(())
+    }
+
+    /// Whether each side is in `1..=`[`MAX_SIDE`] ([`Camera::check_size`] without the error,
+    /// for callers that build the error's label only when it is needed).
+    pub(crate) fn size_ok(&self) -> bool {
+        (1..=MAX_SIDE).contains(&self.width) && (1..=MAX_SIDE).contains(&self.height)
     }
 
     /// `P = proj · view` in `f64`.

@@ -62,7 +62,10 @@ impl CameraView<'_> {
     /// [`crate::MAX_SIDE`] ([`Camera::check_size`]); [`ReprojError::BufferSize`] naming the first
     /// buffer whose length is wrong.
     pub fn validate(&self, what: &str) -> Result<()> {
-        self.camera.check_size(&format!("{what} camera"))?;
+        if !self.camera.size_ok() {
+            // The label is built only for the error: this runs for every camera of every frame.
+            self.camera.check_size(&format!("{what} camera"))?;
+        }
         let (w, h) = (self.camera.width, self.camera.height);
         let n = w * h;
         check_len(

@@ -816,13 +816,7 @@ class StreamFile:
             offset, magic = _TRAILER.unpack(f.read(_TRAILER.size))
             if magic == _TRAILER_MAGIC:
                 return offset, self._parse_index(f, offset)
-        index = self._scan(f)
-        if index:
-            last = index[-1].offset
-            f.seek(last)
-            (n,) = _RECORD.unpack(f.read(_RECORD.size))
-            return last + _RECORD.size + n, index
-        return _FILE_HEADER.size, index
+        return self._scan(f)
 
     def _parse_index(self, f: BinaryIO, offset: int) -> list[IndexEntry]:
         room = self._size - _TRAILER.size - offset
@@ -867,7 +861,8 @@ class StreamFile:
             )
         return out
 
-    def _scan(self, f: BinaryIO) -> list[IndexEntry]:
+    def _scan(self, f: BinaryIO) -> tuple[int, list[IndexEntry]]:
+        """``(end of the last whole record, index)`` from the record lengths."""
         out: list[IndexEntry] = []
         pos = _FILE_HEADER.size
         while pos < self._size:
@@ -886,7 +881,7 @@ class StreamFile:
             frame, key = self._peek(packet)
             out.append(IndexEntry(frame, pos, key))
             pos += _RECORD.size + n
-        return out
+        return pos, out
 
     def _peek(self, packet: bytes) -> tuple[int, bool]:
         """:func:`peek_header` of a record's packet, its errors naming this file (a record of
