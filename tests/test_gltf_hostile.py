@@ -163,3 +163,60 @@ def test_models_of_a_description_share_the_fixed_decode_allowance(
                        r"count 750000: .*a fixed allowance the models of a scene share"):
         sr.Scene.from_description(desc)
     assert "panicked" not in capfd.readouterr().err
+
+
+def _sparse_indices(d: dict[str, Any]) -> None:
+    # 999,999 indices from a sparse accessor: zero (no buffer view) but for the first three,
+    # 0, 1, 2 (read from the quad's own indices): one triangle and 333,332 with every corner
+    # at vertex 0, in a file of about a kilobyte.
+    a = d["accessors"][1]
+    del a["bufferView"]
+    a["count"] = 999_999
+    a["sparse"] = {
+        "count": 3,
+        "indices": {"bufferView": 1, "componentType": 5123},
+        "values": {"bufferView": 1},
+    }
+
+
+def _one_triangle(d: dict[str, Any]) -> None:
+    d["accessors"][1]["count"] = 3
+
+
+def test_a_sparse_accessor_of_coincident_triangles_loads_and_changes_no_pixel(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # The renderer's BVH build is quadratic in coincident triangle boxes: this file's
+    # 333,332 degenerate triangles kept its load busy for hours. Triangles no ray can hit are
+    # left out of the BVH (and copies share one entry); the image is the one triangle's.
+    import subprocess
+    import sys
+
+    model = _edited(_sparse_indices)
+    assert len(model) < 1500
+    (tmp_path / "one.gltf").write_bytes(_edited(_one_triangle))
+    (tmp_path / "sparse.gltf").write_bytes(model)
+    pose = sr.Scene("courtyard", "static").server_pose(0, 10.0)
+    spot = pose[:3, 3] - 3.0 * pose[:3, 2] - (0.0, 1.0, 0.0)
+    for name in ("one", "sparse"):
+        entry = {"path": f"{name}.gltf", "position": [float(v) for v in spot]}
+        (tmp_path / f"{name}.json").write_text(
+            json.dumps({"scene": "courtyard", "variant": "static", "models": [entry]}))
+    # In a child process, so that a return of the stall fails this test instead of the run.
+    script = (
+        "import sys, splitrender as sr\n"
+        "plain = sr.Scene('courtyard', 'static').server_frame(0, 0.03).main\n"
+        "one, sparse = [sr.Scene.from_description(p).server_frame(0, 0.03).main\n"
+        "               for p in sys.argv[1:]]\n"
+        "print((one.color != plain.color).any(axis=2).mean(),\n"
+        "      (sparse.color != one.color).sum(), (sparse.depth != one.depth).sum())\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(tmp_path / "one.json"), str(tmp_path / "sparse.json")],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    shown, colour, depth = done.stdout.split()
+    assert float(shown) > 0.02, f"the triangle covers only {float(shown):.1%} of the image"
+    assert (colour, depth) == ("0", "0"), done.stdout
+    assert "panicked" not in capfd.readouterr().err

@@ -5,6 +5,7 @@
 //! Every intersection is computed in `f64`. A mesh's BVH (obvhs, `f32`) only culls: its boxes are
 //! padded so that `f32` rounding can never cull a triangle the `f64` test would hit.
 
+use std::collections::{HashMap, HashSet};
 use std::fmt;
 use std::time::Duration;
 
@@ -121,7 +122,12 @@ pub struct Mesh {
     /// Counter-clockwise (seen from outside) index triples.
     pub triangles: Vec<[u32; 3]>,
     bounds: Bounds,
+    /// The BVH over the triangles' boxes, one primitive per distinct box ([`Mesh::new`]).
     bvh: Bvh2,
+    /// Per BVH primitive, its triangles: `prim_tris[prim_start[p]..prim_start[p + 1]]`, in
+    /// increasing order.
+    prim_start: Vec<u32>,
+    prim_tris: Vec<u32>,
     /// Per triangle, the padded box its BVH leaf was built from ([`Mesh::occluded_rays`]).
     tri_boxes: Vec<Aabb>,
     /// Per triangle, its first corner `a` and the edges `b − a` and `c − a` that
@@ -142,16 +148,35 @@ impl fmt::Debug for Mesh {
 
 impl Mesh {
     /// Builds the mesh and its BVH. Indices out of range are dropped with their triangle.
+    ///
+    /// The BVH's primitives are the triangles' distinct padded boxes, each standing for every
+    /// triangle with that box, numbered in the order of their first triangle (a mesh whose boxes
+    /// all differ gets one primitive per triangle, in triangle order): the BVH build (PLOC) is
+    /// quadratic in the number of coincident boxes (every merge distance ties: 20,000 took
+    /// 10 s), and a glTF file of under a kilobyte whose sparse index accessor repeats one
+    /// triangle 333,333 times was still loading after 300 s. Left out of it: triangles with
+    /// `b` or `c` at `a` (the ray–triangle test's determinant is then exactly zero, or NaN, so
+    /// no ray can hit them) and exact copies of an earlier triangle (which can never be the
+    /// answer: the earlier one is tested first and gives the same distance); they keep their
+    /// indices in [`Mesh::triangles`].
     pub fn new(vertices: Vec<Vertex>, triangles: Vec<[u32; 3]>) -> Mesh {
         let n = vertices.len() as u32;
         let triangles: Vec<[u32; 3]> = triangles
             .into_iter()
             .filter(|t| t.iter().all(|&i| i < n))
             .collect();
-        let prims: Vec<Tri> = triangles
+        let tri_edges: Vec<[V3; 3]> = triangles
             .iter()
-            .map(|t| Tri(Bounds::around(t.map(|i| vertices[i as usize].position)).padded_f32()))
+            .map(|t| {
+                let [a, b, c] = t.map(|i| vertices[i as usize].position);
+                [a, sub(b, a), sub(c, a)]
+            })
             .collect();
+        let tri_boxes: Vec<Aabb> = triangles
+            .iter()
+            .map(|t| Bounds::around(t.map(|i| vertices[i as usize].position)).padded_f32())
+            .collect();
+        let (prims, prim_start, prim_tris) = group_boxes(&tri_boxes, &tri_edges);
         // medium_build: the meshes are built once per scene, so traversal speed matters more.
         let bvh = build_bvh2(
             &prims,
@@ -159,21 +184,23 @@ impl Mesh {
             &mut Duration::default(),
         );
         let bounds = Bounds::around(vertices.iter().map(|v| v.position));
-        let tri_edges = triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| vertices[i as usize].position);
-                [a, sub(b, a), sub(c, a)]
-            })
-            .collect();
         Mesh {
             vertices,
             triangles,
             bounds,
             bvh,
-            tri_boxes: prims.into_iter().map(|t| t.0).collect(),
+            prim_start,
+            prim_tris,
+            tri_boxes,
             tri_edges,
         }
+    }
+
+    /// The triangles of BVH primitive `prim` (an index into the BVH's primitive list).
+    #[inline]
+    fn prim_triangles(&self, prim: u32) -> &[u32] {
+        let p = prim as usize;
+        &self.prim_tris[self.prim_start[p] as usize..self.prim_start[p + 1] as usize]
     }
 
     /// Object-space bounds.
@@ -182,7 +209,7 @@ impl Mesh {
     }
 
     pub(crate) fn intersect(&self, o: V3, d: V3, tmin: f64, tmax: f64) -> Option<LocalHit> {
-        if self.triangles.is_empty() {
+        if self.prim_tris.is_empty() {
             return None;
         }
         let ray = f32_ray(o, d, f32_above(tmax));
@@ -190,15 +217,15 @@ impl Mesh {
         let mut limit = tmax;
         let mut hit = RayHit::none();
         self.bvh.ray_traverse(ray, &mut hit, |_, id| {
-            let tri = self.bvh.primitive_indices[id];
-            match self.triangle_hit(tri, o, d, tmin, limit) {
-                Some((t, u, v)) => {
+            let mut found = f32::INFINITY;
+            for &tri in self.prim_triangles(self.bvh.primitive_indices[id]) {
+                if let Some((t, u, v)) = self.triangle_hit(tri, o, d, tmin, limit) {
                     limit = t;
                     best = Some((t, tri, u, v));
-                    f32_above(t)
+                    found = f32_above(t);
                 }
-                None => f32::INFINITY,
             }
+            found
         });
         let (t, tri, u, v) = best?;
         let [a, b, c] = self.triangles[tri as usize].map(|i| &self.vertices[i as usize]);
@@ -216,13 +243,14 @@ impl Mesh {
 
     /// Whether anything blocks `o + t·d` for `t > 0` (any hit, stops at the first).
     pub(crate) fn occludes(&self, o: V3, d: V3) -> bool {
-        if self.triangles.is_empty() {
+        if self.prim_tris.is_empty() {
             return false;
         }
         let ray = f32_ray(o, d, f32::INFINITY);
         !self.bvh.ray_traverse_miss(ray, |_, id| {
-            let tri = self.bvh.primitive_indices[id];
-            if self.triangle_hit(tri, o, d, 0.0, f64::INFINITY).is_some() {
+            let prim = self.bvh.primitive_indices[id];
+            let hits = |&tri: &u32| self.triangle_hit(tri, o, d, 0.0, f64::INFINITY).is_some();
+            if self.prim_triangles(prim).iter().any(hits) {
                 0.0
             } else {
                 f32::INFINITY
@@ -260,7 +288,7 @@ impl Mesh {
                 .filter(|&k| self.occludes(o, dirs[k]))
                 .fold(0u32, |m, k| m | 1 << k)
         };
-        if self.triangles.is_empty() || todo == 0 {
+        if self.prim_tris.is_empty() || todo == 0 {
             return 0;
         }
         if !(o.iter().chain(&axis).all(|c| c.is_finite()) && spread.is_finite()) {
@@ -285,7 +313,8 @@ impl Mesh {
             if node.is_leaf() {
                 // A leaf's triangles one by one, each with its own padded box (a leaf of one
                 // triangle would have had that box).
-                for &tri in &self.bvh.primitive_indices[first..first + node.prim_count as usize] {
+                let prims = &self.bvh.primitive_indices[first..first + node.prim_count as usize];
+                for &tri in prims.iter().flat_map(|&p| self.prim_triangles(p)) {
                     if meets(&self.tri_boxes[tri as usize]) {
                         if nt == tris.len() {
                             return each(todo);
@@ -356,6 +385,48 @@ impl Mesh {
         let t = dot(e2, q) * inv;
         (t > tmin && t < tmax).then_some((t, u, v))
     }
+}
+
+/// The BVH primitives of [`Mesh::new`]: the distinct boxes among `boxes` of the triangles that
+/// can be hit, in the order of their first triangle, and per primitive its triangles,
+/// increasing, as `(boxes, start, triangles)` with primitive `p`'s at
+/// `triangles[start[p]..start[p + 1]]`.
+///
+/// Left out: a triangle with an edge from its first corner zero (`edges[t] = [a, b − a, c − a]`;
+/// its determinant is zero, no ray hits it), and a triangle whose `edges` are bit for bit an
+/// earlier one's. [`Mesh::triangle_hit`] reads nothing else, so such a copy gives the same `t`
+/// as the earlier triangle, which is in the same primitive and tested first: the nearest-hit
+/// search keeps the first of equal distances and the occlusion tests need one hit, so the copy
+/// changes no answer. (A sparse glTF accessor repeats one index triple at no cost in bytes.)
+fn group_boxes(boxes: &[Aabb], edges: &[[V3; 3]]) -> (Vec<Tri>, Vec<u32>, Vec<u32>) {
+    let key = |b: &Aabb| [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(f32::to_bits);
+    let mut first: HashMap<[u32; 6], u32> = HashMap::with_capacity(boxes.len());
+    let mut seen: HashSet<[u64; 9]> = HashSet::with_capacity(boxes.len());
+    // Per hittable triangle, its primitive.
+    let mut prim_of: Vec<(u32, u32)> = Vec::with_capacity(boxes.len());
+    let mut prims = Vec::new();
+    for (t, (b, e)) in boxes.iter().zip(edges).enumerate() {
+        let bits: [u64; 9] = std::array::from_fn(|i| e[i / 3][i % 3].to_bits());
+        if e[1] == [0.0; 3] || e[2] == [0.0; 3] || !seen.insert(bits) {
+            continue;
+        }
+        let next = prims.len() as u32;
+        let p = *first.entry(key(b)).or_insert(next);
+        if p == next {
+            prims.push(Tri(*b));
+        }
+        prim_of.push((p, t as u32));
+    }
+    // A stable sort by primitive keeps each primitive's triangles in increasing order.
+    prim_of.sort_by_key(|&(p, _)| p);
+    let mut start = vec![0u32; prims.len() + 1];
+    for &(p, _) in &prim_of {
+        start[p as usize + 1] += 1;
+    }
+    for p in 0..prims.len() {
+        start[p + 1] += start[p];
+    }
+    (prims, start, prim_of.into_iter().map(|(_, t)| t).collect())
 }
 
 /// The set bits of `m`, lowest first.
@@ -500,5 +571,115 @@ mod tests {
             assert!(f64::from(f32_above(t)) > t);
         }
         assert_eq!(f32_above(f64::INFINITY), f32::INFINITY);
+    }
+
+    fn vertex(position: V3, normal: V3, uv: [f64; 2]) -> Vertex {
+        Vertex {
+            position,
+            normal,
+            uv,
+        }
+    }
+
+    /// A small mesh: an 8 × 8 grid of unit quads (two triangles each, the halves of a quad
+    /// sharing their box) in the plane z = 0, each quad's corners at its own vertices, with
+    /// normals and UVs that tell the vertices apart.
+    fn grid() -> (Vec<Vertex>, Vec<[u32; 3]>) {
+        let (mut vs, mut ts) = (Vec::new(), Vec::new());
+        for i in 0..8 {
+            for j in 0..8 {
+                let base = vs.len() as u32;
+                for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
+                    let p = [f64::from(i) + dx, f64::from(j) + dy, 0.0];
+                    vs.push(vertex(p, [0.1 * dx, 0.1 * dy, 1.0], [dx, dy]));
+                }
+                ts.push([base, base + 1, base + 2]);
+                ts.push([base, base + 2, base + 3]);
+            }
+        }
+        (vs, ts)
+    }
+
+    #[test]
+    fn coincident_triangles_share_one_bvh_primitive() {
+        // One triangle 20,000 times and one corner 20,000 times (a few hundred bytes of sparse
+        // glTF accessor): the BVH build is quadratic in coincident boxes, so they must not
+        // each be a primitive of their own (2N − 1 nodes before).
+        let vs = vec![
+            vertex([0.0; 3], [0.0, 0.0, 1.0], [0.0; 2]),
+            vertex([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0]),
+            vertex([0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0]),
+        ];
+        let mut ts = vec![[0, 1, 2]; 20_000];
+        ts.extend(vec![[0, 0, 0]; 20_000]);
+        let mesh = Mesh::new(vs, ts);
+        assert_eq!(
+            mesh.triangles.len(),
+            40_000,
+            "every triangle is kept for its index"
+        );
+        assert_eq!(mesh.bvh.nodes.len(), 1);
+        assert_eq!(
+            (mesh.prim_start.as_slice(), mesh.prim_tris.as_slice()),
+            (&[0, 1][..], &[0][..])
+        );
+        let hit = mesh.intersect([0.2, 0.2, 1.0], [0.0, 0.0, -1.0], 0.0, 10.0);
+        assert_eq!(hit.map(|h| (h.t, h.face)), Some((1.0, 0)));
+        // Only degenerate triangles: nothing to hit, and no walk of an empty BVH.
+        let flat = Mesh::new(
+            vec![vertex([0.0; 3], [0.0; 3], [0.0; 2]); 3],
+            vec![[0, 1, 2]; 9],
+        );
+        assert!(flat.prim_tris.is_empty());
+        assert!(flat
+            .intersect([0.0, 0.0, 1.0], [0.0, 0.0, -1.0], 0.0, 10.0)
+            .is_none());
+        assert!(!flat.occludes([0.0, 0.0, 1.0], [0.0, 0.0, -1.0]));
+    }
+
+    #[test]
+    fn copies_and_degenerate_triangles_change_no_answer() {
+        // The grid, then every triangle again over vertices of its own at the same positions
+        // (other normals and UVs, so a copy that won a hit would show), and degenerate ones:
+        // every ray must get the grid's own answer, the earlier triangle's.
+        let (vs, ts) = grid();
+        let plain = Mesh::new(vs.clone(), ts.clone());
+        let (mut vs2, mut ts2) = (vs.clone(), ts.clone());
+        for t in &ts {
+            let base = vs2.len() as u32;
+            for &i in t {
+                let v = vs[i as usize];
+                vs2.push(vertex(v.position, [0.5, -0.5, 1.0], [9.0, 9.0]));
+            }
+            ts2.push([base, base + 1, base + 2]);
+            ts2.push([t[0], t[0], t[1]]);
+        }
+        let copied = Mesh::new(vs2, ts2);
+        assert_eq!(
+            copied.prim_tris, plain.prim_tris,
+            "no copy or degenerate one is tested"
+        );
+        let mut checked = 0;
+        for k in 0..400 {
+            let (x, y) = (
+                f64::from(k % 20) * 0.41 - 0.3,
+                f64::from(k / 20) * 0.41 - 0.3,
+            );
+            let o = [x, y, 2.0];
+            for d in [[0.0, 0.0, -1.0], [0.13, -0.07, -1.0], [-0.5, 0.5, -0.25]] {
+                let (a, b) = (
+                    plain.intersect(o, d, 0.0, 1e9),
+                    copied.intersect(o, d, 0.0, 1e9),
+                );
+                let key = |h: Option<LocalHit>| h.map(|h| (h.t, h.face, h.normal, h.uv));
+                assert_eq!(key(a), key(b), "ray {o:?} {d:?}");
+                assert_eq!(plain.occludes(o, d), copied.occludes(o, d));
+                checked += usize::from(a.is_some());
+            }
+        }
+        assert!(
+            checked > 300,
+            "the rays must meet the grid ({checked} hits)"
+        );
     }
 }
