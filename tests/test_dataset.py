@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -713,3 +714,191 @@ def test_import_reads_every_8_bit_colour_type_as_the_authors_loader_does(
     want = sr.import_dataset(handmade, aux=()).ground_truth[0]
     _save(grey, Image.new("L", (4, 4), 77))
     assert np.array_equal(sr.import_dataset(handmade, aux=()).ground_truth[0], want)
+
+
+# ----------------------------------------------------------------------------------------------
+# A user-level audit of `splitrender dataset export/import`.
+
+
+def _cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """``splitrender dataset ...``'s exit status and stderr."""
+    from splitrender.cli.main import main
+
+    return main(["dataset", *argv, "--quiet"]), capsys.readouterr().err
+
+
+def test_export_refuses_the_current_directory(
+    recording: sr.Recording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # `dataset export REC --out .` in an empty folder was an internal error (ValueError: "."
+    # has an empty name); `--out ../here` renamed the export over the working directory.
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    for out in (".", "../here"):
+        with pytest.raises(DatasetError, match=rf"{re.escape(out)}: is the current directory"):
+            sr.export_dataset(recording, out)
+        code, err = _cli(["export", str(recording.path), "--out", out], capsys)
+        assert code == 2 and err.count("\n") == 1, err
+        assert err.startswith("splitrender: error: ") and "current directory" in err, err
+    assert list(tmp_path.iterdir()) == [here] and list(here.iterdir()) == []
+
+
+def test_export_names_the_output_when_its_folder_cannot_be_written(
+    recording: sr.Recording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A read-only folder: the error named the hidden temporary folder (.ds.partial-123-0),
+    # which the user never gave.
+    mkdir = Path.mkdir
+
+    def read_only(self: Path, *args: object, **kwargs: object) -> None:
+        if self.parent == tmp_path:
+            raise PermissionError(13, "Permission denied", str(self))
+        mkdir(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Path, "mkdir", read_only)
+    with pytest.raises(PermissionError) as e:
+        sr.export_dataset(recording, tmp_path / "ds")
+    assert e.value.filename == str(tmp_path / "ds") and "partial" not in str(e.value)
+    assert "no permission to write in its folder" in str(e.value)
+
+
+def _exr_bomb(path: Path, kind: str) -> None:
+    """``path``'s EXR rewritten with pixels beyond what its size in cam.json allows."""
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        pixels = {k: np.array(v.pixels) for k, v in f.channels().items()}
+    h, w = next(iter(pixels.values())).shape
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if kind == "part":  # a second part of 64x64 pixels, 8 channels
+        big = {f"C{i}": np.zeros((64, 64), np.float16) for i in range(8)}
+        second = dict(header, dataWindow=((0, 0), (63, 63)), displayWindow=((0, 0), (w - 1, h - 1)))
+        OpenEXR.File([OpenEXR.Part(header, pixels, "a"), OpenEXR.Part(second, big, "b")]).write(
+            str(path))
+    elif kind == "channels":  # 64 more channels of the right size
+        extra = {f"C{i}": np.zeros((h, w), np.float16) for i in range(64)}
+        OpenEXR.File(header, {**pixels, **extra}).write(str(path))
+    else:  # 32-bit unsigned integers for the depth
+        OpenEXR.File(header, {k: (v * 1000).astype(np.uint32) for k, v in pixels.items()}).write(
+            str(path))
+
+
+@pytest.mark.parametrize(
+    ("file", "kind", "problem"),
+    [
+        ("forwardFlowField/0007.exr", "part", r"2 parts, expected a single-part EXR"),
+        ("depth/0007.exr", "part", r"2 parts, expected a single-part EXR"),
+        ("forwardFlowField/0007.exr", "channels", r"expected channels R, G, B \(A optional\), "
+         r"got channels \['B', 'C0', 'C1', 'C10', 'C11', 'C12', 'C13', 'C14'\] "
+         r"\.\.\. \(67 in all\)"),
+        ("depth/0007.exr", "uint", r"channel Z holds uint32 samples, expected half or float"),
+    ],
+    ids=["flow-two-parts", "depth-two-parts", "flow-extra-channels", "depth-uint"],
+)
+def test_import_refuses_exr_pixels_beyond_the_layout(
+    handmade: Path, file: str, kind: str, problem: str
+) -> None:
+    # Every part and channel of an EXR was decoded (a 150 kB file with a second part of 3000 x
+    # 3000 pixels took 135 MB; the size check covered part 0 alone), and integer depth was
+    # read as float without a word.
+    path = handmade / "main" / file
+    _exr_bomb(path, kind)
+    name = file.replace("/", r"[/\\]").replace(".", r"\.")
+    with pytest.raises(DatasetError, match=rf"{name}: {problem}"):
+        sr.import_dataset(handmade, aux=())
+
+
+@pytest.mark.parametrize("special", ["/dev/zero", "dir"])
+def test_import_names_a_buffer_that_is_not_a_regular_file(
+    handmade: Path, special: str
+) -> None:
+    # Was "missing file" for a file that is there.
+    path = handmade / "main" / "depth" / "0007.exr"
+    path.unlink()
+    if special == "dir":
+        path.mkdir()
+    else:
+        path.symlink_to(special)
+    with pytest.raises(DatasetError, match=r"0007\.exr: not a regular file \(a "):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_import_reads_the_client_rate_from_the_client_cam_json(handmade: Path) -> None:
+    # docs/dataset-format.md: clientFps from the client's cam.json, main's copy not read.
+    _edit_cam(handmade, "main", clientFps=30)
+    frames = json.loads((handmade / "client_ol" / "cam.json").read_text())["frames"]
+    _edit_cam(handmade, "client_ol", clientFps=120, frames=frames * 2)
+    times = [r.time for r in sr.import_dataset(handmade, aux=()).client_requests]
+    assert times == [0.0, 1 / 120]
+    assert dataset_info(handmade).client_fps == 120
+
+
+def test_import_refuses_aux_frame_lists_of_another_length(handmade: Path) -> None:
+    _recording_ready(handmade)
+    frames = json.loads((handmade / "right" / "cam.json").read_text())["frames"]
+    for aux_frames in (frames[:1], [*frames, {**frames[0], "idx": 9}]):
+        _edit_cam(handmade, "right", frames=aux_frames)
+        with pytest.raises(
+            DatasetError,
+            match=rf"right[/\\]cam\.json: {len(aux_frames)} frames, but main/cam\.json has 2",
+        ):
+            sr.import_dataset(handmade)
+
+
+def test_imported_recording_keeps_the_client_frames_between_server_frames(
+    handmade: Path, tmp_path: Path
+) -> None:
+    # Server frames at 0 and 0.1 s; client frames at n / 40 s: those up to 0.1 s lie between
+    # two server frames (or on the last), those after it are left out.
+    _recording_ready(handmade)
+    frames = json.loads((handmade / "client_ol" / "cam.json").read_text())["frames"]
+    _edit_cam(handmade, "client_ol", clientFps=40,
+              frames=[{**frames[0], "idx": 7 + n} for n in range(7)])
+    for n in range(7):
+        _write_png(handmade / "client_ol" / "color" / f"{7 + n:04d}.png",
+                   np.full((4, 4, 3), n, np.uint8))
+    rec = sr.load_recording(import_dataset_as_recording(handmade, tmp_path / "rec"))
+    client = list(rec.client_frames)
+    assert [c.time for c in client] == pytest.approx([0.0, 0.025, 0.05, 0.075, 0.1])
+    assert [int(c.ground_truth[0, 0, 0]) for c in client] == [0, 1, 2, 3, 4]
+    assert len(rec.server_frames) == 2
+
+
+def test_import_refuses_more_client_frames_than_a_recording_holds(
+    handmade: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # More than MAX_FRAMES client frames were read and written, and load_recording then refused
+    # the recording ("... is more than 50000 frames"); now refused before any image is read.
+    from splitrender.scene import dataset
+
+    _recording_ready(handmade)
+    frames = json.loads((handmade / "client_ol" / "cam.json").read_text())["frames"]
+    _edit_cam(handmade, "client_ol", clientFps=40,
+              frames=[{**frames[0], "idx": 7 + n} for n in range(4)])
+    monkeypatch.setattr(dataset, "MAX_FRAMES", 3)
+    read: list[Path] = []
+    monkeypatch.setattr(dataset, "_read_png", lambda p, s: read.append(p))
+    with pytest.raises(
+        DatasetError,
+        match=r"client_ol[/\\]cam\.json: 4 client frames lie between two server frames, a "
+        r"recording holds at most 3",
+    ):
+        import_dataset_as_recording(handmade, tmp_path / "rec")
+    assert read == [] and not (tmp_path / "rec").exists()
+
+
+def test_export_writes_motion_beyond_half_range_as_infinite_without_a_warning(
+    tmp_path: Path,
+) -> None:
+    # numpy's "RuntimeWarning: overflow encountered in cast" reached the command's stderr.
+    import warnings
+
+    from splitrender.scene import dataset
+
+    motion = np.array([[[1e6, -1e6, 0.5]]], np.float32)
+    path = tmp_path / "flow.exr"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        dataset._write_exr(path, {c: motion[..., i] for i, c in enumerate("RGB")})
+    back = dataset._read_exr(path, (1, 1), "flow")
+    np.testing.assert_array_equal(back, [[[np.inf, -np.inf, 0.5]]])

@@ -28,11 +28,13 @@ Conventions, theirs → ours (derived in docs/dataset-format.md):
 
 from __future__ import annotations
 
+import errno
 import functools
 import json
 import math
 import os
 import shutil
+import stat
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +50,7 @@ from splitrender.errors import SplitRenderError
 from splitrender.files import check_apart, check_name, joined, read_json_object, temporary_beside
 from splitrender.imageio import write_png
 from splitrender.scene.recording import (
+    MAX_FRAMES,
     ClientFrame,
     Recording,
     check_destination,
@@ -180,7 +183,11 @@ def _name(idx: int, ext: str) -> str:
 
 
 def _write_exr(path: Path, channels: dict[str, npt.NDArray[Any]]) -> None:
-    half = {k: np.ascontiguousarray(v.astype(np.float16)) for k, v in channels.items()}
+    # A value beyond half's range (|v| > 65504) is written as an infinity, which marks the
+    # pixel invalid (DESIGN.md): said in docs/dataset-format.md, not as numpy's RuntimeWarning
+    # ("overflow encountered in cast") on the command line's stderr.
+    with np.errstate(over="ignore"):
+        half = {k: np.ascontiguousarray(v.astype(np.float16)) for k, v in channels.items()}
     OpenEXR.File(dict(_EXR_HEADER), half).write(str(path))
 
 
@@ -189,8 +196,7 @@ def _read_png(path: Path, size: tuple[int, int]) -> _U8:
     decoding). As the authors' loader does (REFERENCE.md §1.6, "Colour PNGs are loaded as
     RGBA8"), any 8-bit colour type is read (grey, palette, RGB, with or without alpha; the
     callers ignore alpha); a 16-bit PNG or another format named ``.png`` is refused."""
-    if not path.is_file():
-        raise _fail(path, "missing file")
+    _check_file(path)
     try:
         with Image.open(path) as im:
             # Pillow opens whatever it can: a JPEG named .png (lossy), a 16-bit PNG cut to 8
@@ -230,24 +236,29 @@ def _read_png(path: Path, size: tuple[int, int]) -> _U8:
 
 def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
     """``want="depth"``: the single channel as ``float32[H, W]``; ``want="flow"``: R, G, B as
-    ``float32[H, W, 3]``. The size is checked from the header before the pixels are read."""
-    if not path.is_file():
-        raise _fail(path, "missing file")
+    ``float32[H, W, 3]``. The size, parts and channels are checked from the header before the
+    pixels are read: every part and channel of the file is decoded, so these bound what is
+    allocated (a second part or extra channels were decoded whatever their size)."""
+    _check_file(path)
     try:
-        hdr = OpenEXR.File(str(path), header_only=True).header()
+        header_file = OpenEXR.File(str(path), header_only=True)
+        parts = len(header_file.parts)
+        hdr = header_file.header()
         lo, hi = (np.asarray(v) for v in hdr["dataWindow"])
         w, h = int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
         names = [c.name for c in hdr["channels"]]
     except (RuntimeError, OSError, KeyError, TypeError, ValueError) as e:
         raise _fail(path, f"cannot read EXR: {e}") from None
+    if parts != 1:
+        raise _fail(path, f"{parts} parts, expected a single-part EXR")
     if (w, h) != size:
         raise _fail(
             path, f"resolution {w}x{h} does not match cam.json's {size[0]}x{size[1]}"
         )
     if want == "depth" and len(names) != 1:
-        raise _fail(path, f"expected a single-channel depth EXR, got channels {names}")
-    if want == "flow" and not {"R", "G", "B"} <= set(names):
-        raise _fail(path, f"expected channels R, G, B (A optional), got {names}")
+        raise _fail(path, f"expected a single-channel depth EXR, got {_channels(names)}")
+    if want == "flow" and not {"R", "G", "B"} <= set(names) <= {"R", "G", "B", "A"}:
+        raise _fail(path, f"expected channels R, G, B (A optional), got {_channels(names)}")
     try:
         with OpenEXR.File(str(path), separate_channels=True) as f:
             ch = f.channels()
@@ -255,12 +266,35 @@ def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
             planes = [np.asarray(ch[k].pixels) for k in keys]
     except (RuntimeError, OSError, KeyError, TypeError, ValueError) as e:
         raise _fail(path, f"cannot read EXR: {e}") from None
-    for p in planes:
+    for k, p in zip(keys, planes):
         if p.shape != (h, w):
             raise _fail(path, f"channel of shape {p.shape}, expected {(h, w)}")
+        if p.dtype not in (np.float16, np.float32):  # a UINT channel was read as a float
+            raise _fail(path, f"channel {k} holds {p.dtype} samples, expected half or float")
     if want == "depth":
         return np.ascontiguousarray(planes[0], dtype=np.float32)
     return np.ascontiguousarray(np.stack(planes, axis=-1), dtype=np.float32)
+
+
+def _channels(names: Sequence[str], shown: int = 8) -> str:
+    """``channels ['A', 'B']``, or the first ``shown`` names and the count of a longer list (a
+    hostile file may name thousands)."""
+    names = sorted(names)
+    more = f" ... ({len(names)} in all)" if len(names) > shown else ""
+    return f"channels {names[:shown]}{more}"
+
+
+def _check_file(path: Path) -> None:
+    """Refuses a buffer ``path`` that is missing or not a regular file (a folder, a device: it
+    was "missing file")."""
+    if path.is_file():
+        return
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        raise _fail(path, "missing file") from None
+    kind = "a folder" if stat.S_ISDIR(mode) else "a device, FIFO or socket"
+    raise _fail(path, f"not a regular file ({kind}), expected an image file")
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -436,10 +470,11 @@ def export_dataset(
     ground truth to ``client``. Depth and motion are written as half floats.
 
     Raises:
-        DatasetError: ``out_dir`` is not empty, is the recording's directory or lies inside it,
-            a name of ``aux_names`` or ``client`` is not a plain folder name
-            (empty, with a separator, ``.`` or ``..``), or the recording has more auxiliary
-            cameras than ``aux_names``.
+        DatasetError: ``out_dir`` is not empty, is the current directory, is the recording's
+            directory or lies inside it, a name of ``aux_names`` or ``client`` is not a plain
+            folder name (empty, with a separator, ``.`` or ``..``), or the recording has more
+            auxiliary cameras than ``aux_names``.
+        OSError: ``out_dir``'s folder cannot be written (the error names ``out_dir``).
         RecordingError: the recording cannot be read.
     """
     out = Path(out_dir)
@@ -452,6 +487,10 @@ def export_dataset(
     check_apart(out, {"recording": rec.path}, DatasetError)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise _fail(out, "exists and is not an empty directory")
+    # The finished export is renamed over an empty out: "." was an internal error (it has no
+    # name to put a temporary folder beside), "../here" left the shell in a removed folder.
+    if out.exists() and out.resolve() == Path.cwd().resolve():
+        raise _fail(out, "is the current directory; expected a folder beside or below it")
     frames = list(rec.server_frames)
     n_aux = len(frames[0].aux)
     if n_aux > len(aux_names):
@@ -462,7 +501,7 @@ def export_dataset(
     # Written into a temporary folder beside out and renamed when complete: an interrupted
     # export leaves no dataset that reads as valid with cameras or frames missing.
     tmp = temporary_beside(out)
-    tmp.parent.mkdir(parents=True, exist_ok=True)
+    _make_temporary(tmp, out)
     try:
         _write_layout(tmp, rec, frames, names, client)
         os.replace(tmp, out)  # out is missing or an empty folder, which a rename replaces
@@ -470,6 +509,25 @@ def export_dataset(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def _make_temporary(tmp: Path, out: Path) -> None:
+    """Creates the folder ``tmp`` beside ``out`` (and the folders above), or raises the
+    ``OSError`` naming ``out``, the path the caller gave: the hidden ``tmp`` was named."""
+    try:
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        tmp.mkdir()
+    except OSError as e:
+        where = str(out.parent)
+        why = {
+            errno.ENOENT: f"its folder {where!r} does not exist",
+            errno.ENOTDIR: f"{where!r} is not a folder",
+            errno.EACCES: f"no permission to write in its folder {where!r}",
+            errno.EPERM: f"no permission to write in its folder {where!r}",
+            errno.EEXIST: f"{where!r} is not a folder",
+            errno.EROFS: f"its folder {where!r} is on a read-only file system",
+        }.get(e.errno or 0, e.strerror or str(e))
+        raise type(e)(e.errno, f"cannot write the dataset: {why}", str(out)) from None
 
 
 def _write_layout(
@@ -569,6 +627,8 @@ def dataset_info(in_dir: str | os.PathLike[str], client: str | None = "client_ol
     main = _read_cam(root / "main" / "cam.json")
     fc_src = main.raw
     if client is not None:
+        if not (root / client).is_dir():  # as import_dataset says it
+            raise _fail(root / client, "missing client directory")
         fc_src = _read_json(root / client / "cam.json")
     # Each rate from the file the authors' program reads it from (REFERENCE.md §1.2): main's
     # serverFps and shadowFps, the client's clientFps; the others' copies are not read.
@@ -685,8 +745,9 @@ def import_dataset(
             ``w2c``, a ``proj`` that is not an invertible reversed-Z
             perspective projection with 0 < near < far < inf, two frames of one camera with
             the same ``idx`` (the client's only when it has ground truth), aux frame lists of
-            another length than main's, unreadable images, or an image that is not an 8-bit PNG
-            (a JPEG named ``.png``, a 16-bit PNG).
+            another length than main's, unreadable images, an image that is not an 8-bit PNG
+            (a JPEG named ``.png``, a 16-bit PNG), or an EXR of more than one part, other
+            channels than it needs or integer samples.
     """
     root = Path(in_dir)
     client_name = None if client is None else os.fspath(client)
@@ -738,6 +799,14 @@ def import_dataset(
     return ImportedDataset(server, requests, truth)
 
 
+def _client_frames_kept(n_client: int, n_server: int, fs: float, fc: float) -> int:
+    """How many of the first client frames lie between two of the ``n_server`` server frames
+    (or on the last): the recording's client frames (:func:`plan`)."""
+    while n_client > 0 and plan(n_client / fc, fs, fc)[0] > n_server:
+        n_client -= 1
+    return n_client
+
+
 def import_dataset_as_recording(
     in_dir: str | os.PathLike[str],
     out: str | os.PathLike[str],
@@ -753,8 +822,9 @@ def import_dataset_as_recording(
 
     Raises:
         DatasetError: the dataset cannot be read or cannot be a recording (not two auxiliary
-            cameras, no ground truth, a client size other than the main camera's), or ``out``
-            is the dataset's directory, lies inside it or holds it.
+            cameras, no ground truth, a client size other than the main camera's, more client
+            frames than a recording holds), or ``out`` is the dataset's directory, lies inside it
+            or holds it.
         RecordingError: ``out`` exists (without ``overwrite``).
     """
     root, dest = Path(in_dir), Path(out)
@@ -765,9 +835,21 @@ def import_dataset_as_recording(
     check_destination(dest, overwrite)
     if stages is not None:
         stages.stage(f"reading the dataset {root}")
-    data = import_dataset(root, aux, client)
+    # The frame counts from the cam.json files, before any image is read: a recording holds at
+    # most MAX_FRAMES client frames (load_recording refused the one written with more).
+    _check_names(root, aux, client)
+    if not root.is_dir():
+        raise _fail(root, "no such dataset directory")
     info = dataset_info(root, client)
     fs, fc = info.server_fps, info.client_fps
+    listed = _read_json(root / client / "cam.json").get("frames")
+    if isinstance(listed, list):
+        n_server = len(_read_json(root / "main" / "cam.json")["frames"])  # read by dataset_info
+        n_client = _client_frames_kept(len(listed), n_server, fs, fc)
+        if n_client > MAX_FRAMES:
+            raise _fail(root / client / "cam.json", f"{n_client} client frames lie between two "
+                        f"server frames, a recording holds at most {MAX_FRAMES}")
+    data = import_dataset(root, aux, client)
     if not data.client_requests or any(t is None for t in data.ground_truth):
         raise DatasetError(f"{root / client}/color: missing; a recording needs the ground truth")
     w, h = data.server_frames[0].main.camera.width, data.server_frames[0].main.camera.height
@@ -776,9 +858,7 @@ def import_dataset_as_recording(
         raise DatasetError(f"{root / client}/cam.json: client size {cw}x{ch}, a recording "
                            f"needs the main camera's {w}x{h}")
     n_server = len(data.server_frames)
-    n_client = len(data.client_requests)
-    while n_client > 0 and plan(n_client / fc, fs, fc)[0] > n_server:
-        n_client -= 1
+    n_client = _client_frames_kept(len(data.client_requests), n_server, fs, fc)
     if n_client == 0:
         raise DatasetError(f"{root}: no client frame lies between two server frames")
 
