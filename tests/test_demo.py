@@ -11,8 +11,10 @@ from typing import Any
 import pytest
 from splitrender.evaluation.bench import BENCH_KEYS
 from splitrender.cli import main
+from splitrender.cli.main import build_parser
 import numpy as np
 from splitrender.evaluation.demo import DEFAULT_METHODS, ROW_KEYS, TruthStore, _Video, colormap
+from splitrender.evaluation.metrics import flip_map
 
 av = pytest.importorskip("av")
 
@@ -20,45 +22,176 @@ TINY = ["--scale", "0.04", "--seconds", "0.3", "--quiet"]
 
 
 @pytest.fixture(scope="module")
-def demo_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[bytes]]:
+    """The demo's folder and the packets it encoded (kept aside by a spy on ``encode_packets``:
+    the demo writes no stream file), from which the tests play and score the run again."""
+    import splitrender.evaluation.pipeline as pipeline
+
     out = tmp_path_factory.mktemp("demo") / "out"
-    assert main(["demo", *TINY, "--no-vmaf", "--out", str(out)]) == 0
-    return out
+    encode, packets = pipeline.encode_packets, []
+
+    def kept(*args: Any, **kwargs: Any) -> tuple[list[bytes], float]:
+        made, mbps = encode(*args, **kwargs)
+        packets.append(list(made))
+        return made, mbps
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(pipeline, "encode_packets", kept)
+        assert main(["demo", *TINY, "--no-vmaf", "--out", str(out)]) == 0
+    [run] = packets
+    return out, run
 
 
-def test_demo_writes_a_decodable_video_with_one_frame_per_client_frame(demo_out: Path) -> None:
+@pytest.fixture(scope="module")
+def demo_out(demo_run: tuple[Path, list[bytes]]) -> Path:
+    return demo_run[0]
+
+
+@pytest.fixture(scope="module")
+def replayed(demo_run: tuple[Path, list[bytes]]) -> dict[str, Any]:
+    """The demo run made again outside the demo: the ground truth rendered here at the
+    client's pose, and every default method played from the demo's packets (``sr.play``)."""
+    import splitrender as sr
+    from splitrender.scene.builtin import Scene
+
+    _, packets = demo_run
+    eyes = [Scene("courtyard", "dynamic").client_frames(n, 0.04, 120.0)[0] for n in range(36)]
+    cams = [c for c, _ in eyes]
+    frames = list(sr.DecodedStream(packets))
+    played = {m: sr.play(frames, cams, sr.NetworkModel(client_fps=120.0), 120.0, m,
+                         frame_sizes=[len(p) for p in packets])
+              for m in DEFAULT_METHODS}
+    return {"truth": [img for _, img in eyes], "played": played, "packets": packets}
+
+
+def _png(path: Path) -> Any:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        assert im.mode == "RGB", path
+        return np.asarray(im)
+
+
+def test_demo_writes_a_video_of_truth_ours_and_its_flip_map_per_client_frame(
+    demo_out: Path, replayed: dict[str, Any]
+) -> None:
+    # It counted the frames and the size only: a video of the ground truth three times passed.
     with av.open(str(demo_out / "video.mp4")) as c:
         stream = c.streams.video[0]
-        frames = [f.to_ndarray(format="rgb24") for f in c.decode(stream)]
+        frames = [f.to_ndarray(format="rgb24").astype(np.int16) for f in c.decode(stream)]
     assert len(frames) == round(0.3 * 120)
-    h, w = frames[0].shape[:2]
-    assert h % 2 == 0 and w % 2 == 0
-    assert w >= 3 * 102 and h >= 58  # three 102x58 tiles side by side
+    assert frames[0].shape == (58, 3 * 102 + 2 * 4, 3)  # three 102x58 tiles, 4 pixels apart
+    truth, ours = replayed["truth"], replayed["played"]["ours"].images
+
+    def tile(frame: Any, k: int) -> Any:
+        return frame[:, k * 106:k * 106 + 102]
+
+    def mae(a: Any, b: Any) -> float:
+        return float(np.abs(a - b.astype(np.int16)).mean())
+
+    # Frame n shows client frame n (up to the lossy 4:2:0 coding): the ground truth, then ours,
+    # each nearer its own image than ours' (the truth's) or another frame's on average, then
+    # ours' FLIP map (checked on a few frames: FLIP costs ~70 ms a frame).
+    other = [(n + 18) % 36 for n in range(36)]
+    near = np.array([[mae(tile(f, 0), truth[n]), mae(tile(f, 1), ours[n])]
+                     for n, f in enumerate(frames)])
+    assert near.max() < 8, near
+    # Per tile, the wrong images: another frame's, and the other image of the same frame.
+    for far in ([truth[n] for n in other], [ours[n] for n in other]), (ours, truth):
+        for k in (0, 1):
+            mean_far = np.mean([mae(tile(f, k), far[k][n]) for n, f in enumerate(frames)])
+            assert near[:, k].mean() < mean_far, (k, near[:, k].mean(), mean_far)
+    for n in (0, 12, 24):
+        got = tile(frames[n], 2)
+        own = mae(got, colormap(flip_map(ours[n], truth[n])))
+        assert own < 8 and own < mae(got, colormap(flip_map(ours[other[n]], truth[other[n]])))
 
 
-def test_demo_writes_stills_and_a_summary_with_every_method(demo_out: Path) -> None:
-    pngs = sorted((demo_out / "stills").glob("*.png"))
-    names = {p.name.split("_", 1)[1] for p in pngs}
-    assert {f"{m}.png" for m in DEFAULT_METHODS} | {"ground_truth.png", "flip_ours.png"} <= names
-    for p in pngs:
-        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+def test_demo_summary_rows_score_each_methods_frames_against_the_ground_truth(
+    demo_out: Path, replayed: dict[str, Any]
+) -> None:
+    """Each row's SSIM, PSNR (of the mean squared error) and FLIP are those of the method's
+    client frames, played again here from the demo's packets, against the ground truth
+    rendered again here, over the scored frames; Mb/s is the packets' rate. The row checks
+    only looked at ranges: a score against the previous frame's ground truth, or a rate eight
+    times the packets', passed them."""
+    from splitrender import metrics as M
+
     summary = json.loads((demo_out / "summary.json").read_text())
     rows = summary["rows"]
     assert [r["method"] for r in rows] == list(DEFAULT_METHODS)
+    truth, packets = replayed["truth"], replayed["packets"]
+    mbps = sum(len(p) for p in packets) * 8 / 1e6 / (len(packets) / 10.0)
+    assert summary["mbps"] == pytest.approx(mbps, rel=1e-12)
+    kept = range(M.SKIP_FRAMES, 36 - M.SKIP_FRAMES)
     for r in rows:
-        assert set(ROW_KEYS) <= set(r)
-        assert 0 < r["ssim"] <= 1 and 0 <= r["flip"] <= 1 and r["psnr"] > 0
+        assert list(r) == [*ROW_KEYS, "modes"]
+        played = replayed["played"][r["method"]]
+        images = played.images
+        mse = np.mean([np.mean((images[n] / 255.0 - truth[n] / 255.0) ** 2) for n in kept])
+        assert r["psnr"] == pytest.approx(M.psnr_of_mse(float(mse)), abs=1e-9), r
+        assert r["ssim"] == pytest.approx(np.mean([M.ssim(images[n], truth[n]) for n in kept]),
+                                          abs=1e-9), r
+        if r["method"] == "ours":  # FLIP costs ~70 ms a frame: one method's column
+            assert r["flip"] == pytest.approx(
+                np.mean([M.flip(images[n], truth[n]) for n in kept]), abs=1e-9)
         assert r["vmaf"] is None  # --no-vmaf
-        assert r["mbps"] > 0 and r["frames"] == 36 - 24
+        assert r["mbps"] == summary["mbps"] and r["frames"] == len(kept)
+        assert r["modes"] == played.summary()
     md = (demo_out / "summary.md").read_text()
-    assert all(m in md for m in DEFAULT_METHODS)
+    for r in rows:
+        assert (f"| {r['method']} | {r['ssim']:.4f} | {r['flip']:.4f} | {r['psnr']:.2f} | – | "
+                f"{r['mbps']:.3f} | 12 |") in md
 
 
-def test_demo_prints_the_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    args = ["demo", *TINY, "--methods", "timewarp", "--out", str(tmp_path / "o")]
-    assert main(args) == 0
-    out = capsys.readouterr().out
-    assert "SSIM" in out and "timewarp" in out and "VMAF" in out
+def test_demo_stills_are_the_frames_it_scored(demo_out: Path, replayed: dict[str, Any]) -> None:
+    # Only the PNG signature was checked: a still of the ground truth for every method passed.
+    summary = json.loads((demo_out / "summary.json").read_text())
+    idx = summary["stills"]
+    assert len(set(idx)) == 3 and all(12 <= n < 36 - 12 for n in idx)
+    names = ["ground_truth", *DEFAULT_METHODS, "flip_ours", "side_by_side"]
+    assert sorted(p.name for p in (demo_out / "stills").iterdir()) == sorted(
+        f"frame{n:04d}_{name}.png" for n in idx for name in names)
+    truth, played = replayed["truth"], replayed["played"]
+    for n in idx:
+        still = {name: _png(demo_out / "stills" / f"frame{n:04d}_{name}.png") for name in names}
+        assert np.array_equal(still["ground_truth"], truth[n])
+        for m in DEFAULT_METHODS:
+            assert np.array_equal(still[m], played[m].images[n]), (n, m)
+        err = colormap(flip_map(played["ours"].images[n], truth[n]))
+        assert np.array_equal(still["flip_ours"], err)
+        side = still["side_by_side"]
+        assert side.shape == (58, 3 * 102 + 2 * 4, 3)
+        for k, name in enumerate(("ground_truth", "ours", "flip_ours")):
+            assert np.array_equal(side[:, k * 106:k * 106 + 102], still[name]), (n, name)
+
+
+def test_demo_prints_the_table_and_one_progress_line_per_stage(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # It looked for the words "SSIM", "timewarp" and "VMAF" only (a table of zeros passed), and
+    # ran with --quiet (progress printed or not, it passed).
+    out = tmp_path / "o"
+    assert main(["demo", *[a for a in TINY if a != "--quiet"], "--methods", "timewarp",
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr()
+    (row,) = json.loads((out / "summary.json").read_text())["rows"]
+    head, line = printed.out.splitlines()[-2:]
+    assert head.split() == ["method", "SSIM", "↑", "FLIP", "↓", "PSNR", "↑", "VMAF", "↑",
+                            "Mb/s", "frames"]
+    assert line.split() == ["timewarp", f"{row['ssim']:.4f}", f"{row['flip']:.4f}",
+                            f"{row['psnr']:.2f}", f"{row['vmaf']:.2f}", f"{row['mbps']:.3f}",
+                            "12"]
+    # Not a terminal: one plain line per stage (render, ground truth, each method, summary).
+    assert "\r" not in printed.err
+    assert [ln.split("  (")[0] for ln in printed.err.splitlines()] == [
+        "[1/4] rendering courtyard (dynamic) at 102x58: 4 server frames at 10 FPS, encoded at "
+        "1.6 Mb/s",
+        "[2/4] rendering 36 ground-truth client frames at 120 FPS",
+        "[3/4] timewarp: playing 36 client frames, then ssim, flip, psnr, vmaf; writing "
+        "video.mp4 (ground truth | timewarp | FLIP map)",
+        "[4/4] writing summary.md and summary.json",
+    ]
 
 
 def test_bench_json_rows_have_exactly_the_keys(
@@ -108,13 +241,45 @@ def test_bad_arguments_exit_2_with_one_line(
     assert not (tmp_path / "o").exists()
 
 
-def test_help_of_demo_and_bench(capsys: pytest.CaptureFixture[str]) -> None:
-    for cmd in ("demo", "bench"):
+def test_help_of_demo_and_bench(demo_out: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Each command's --help prints its own description and options (it looked for "--scale"
+    and "--methods" only, which the other command's help has too), and what the demo's says
+    of its defaults, its limits and its summary is what the demo does."""
+    from splitrender.cli.help import DESCRIPTION
+    from splitrender.evaluation.demo import DemoArgumentError, DemoConfig, check_config
+    from splitrender.scene.builtin import Scene
+
+    def words(text: str) -> str:
+        return " ".join(text.split())
+
+    texts = {}
+    for cmd, other in (("demo", "bench"), ("bench", "demo")):
         with pytest.raises(SystemExit) as e:
             main([cmd, "--help"])
         assert e.value.code == 0
-        text = capsys.readouterr().out
+        text = texts[cmd] = words(capsys.readouterr().out)
+        assert text.startswith(f"usage: splitrender {cmd} ")
+        assert words(DESCRIPTION[cmd]) in text and words(DESCRIPTION[other])[:80] not in text
         assert "--scale" in text and "--methods" in text
+    # "The defaults (courtyard at 256x144, 1 s)"
+    assert "The defaults (courtyard at 256x144, 1 s)" in DESCRIPTION["demo"]
+    defaults = DemoConfig()
+    assert (defaults.scene, defaults.seconds) == ("courtyard", 1.0)
+    assert Scene("courtyard").main_size(defaults.scale) == (256, 144)
+    args = build_parser().parse_args(["demo"])
+    assert (args.scene, args.scale, args.seconds) == ("courtyard", defaults.scale, 1.0)
+    assert "at least 0.21 s (25 client frames) and at most the scene's 4 s" in texts["demo"]
+    for ok in (0.21, 4.0):
+        check_config(DemoConfig(seconds=ok))
+    for bad in (0.2, 4.01):
+        with pytest.raises(DemoArgumentError, match="--seconds"):
+            check_config(DemoConfig(seconds=bad))
+    # "summary.json (the network settings; per method: ssim, flip, psnr, vmaf, mbps, frames,
+    # modes)"
+    said = DESCRIPTION["demo"].split("per method: ", 1)[1].split(")", 1)[0]
+    summary = json.loads((demo_out / "summary.json").read_text())
+    assert "network" in summary
+    assert [k for k in summary["rows"][0] if k != "method"] == said.split(", ")
 
 
 def test_colormap_is_dark_for_no_error_and_bright_for_full_error() -> None:
@@ -256,7 +421,9 @@ def test_demo_holds_a_bounded_number_of_frames_whatever_the_length(
         "stills", "summary.json", "summary.md", "video.mp4"]
 
 
-def test_summary_says_how_fast_the_video_plays(tmp_path: Path) -> None:
+def test_summary_says_how_fast_the_video_plays(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from splitrender.evaluation.demo import playback_speed
 
     # They said "1x slow motion", "0.5x slow motion" and "17.1429x slow motion".
@@ -266,4 +433,5 @@ def test_summary_says_how_fast_the_video_plays(tmp_path: Path) -> None:
     out = tmp_path / "o"
     argv = ["demo", *TINY, "--no-vmaf", "--methods", "timewarp", "--video-fps", "7"]
     assert main([*argv, "--out", str(out)]) == 0
+    assert capsys.readouterr().err == ""  # --quiet: no progress
     assert " frames at 7 FPS (17.1x slow motion). " in (out / "summary.md").read_text()

@@ -161,6 +161,24 @@ def test_read_regular_caps_the_read_at_the_limit(tmp_path: Path) -> None:
         read_regular(tmp_path / "missing", 10, "trace", InvalidInputError)
 
 
+def test_read_regular_reads_at_most_one_byte_past_the_limit(tmp_path: Path) -> None:
+    # The test above passed with f.read() of the whole file: a 64 MiB file (sparse: nothing on
+    # disk) refused with a limit of 10 bytes must not be read into memory first.
+    import tracemalloc
+
+    big = tmp_path / "big.json"
+    with big.open("wb") as f:
+        f.truncate(64 << 20)
+    tracemalloc.start()
+    try:
+        with pytest.raises(InvalidInputError, match="more than 10 bytes"):
+            read_regular(big, 10, "manifest", InvalidInputError)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, f"{peak} bytes allocated to refuse a file over 10 bytes"
+
+
 @pytest.mark.parametrize(
     ("text", "problem"),
     [
@@ -252,6 +270,32 @@ def test_output_folder_replaces_the_outputs_together(tmp_path: Path) -> None:
     assert _tree(out) == {"frames/0000.png": "new 0000.png", "frames/0001.png": "new 0001.png",
                           "notes.txt": "mine", "summary.json": "run 2"}
     assert sorted(p.name for p in out.iterdir()) == ["frames", "notes.txt", "summary.json"]
+
+
+def test_output_folder_moves_the_summary_in_last_and_the_old_outputs_out_first(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Until the summary is in place the folder must not claim a complete run, so it is moved in
+    # after every other output; no test looked at the order (the summary first passed).
+    out = tmp_path / "out"
+    _run(out, ["0000.png"], "run 1")
+    rename, moves = os.rename, []
+
+    def spy(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+        moves.append((Path(src).parent == out, Path(dst).parent == out, Path(src).name))
+        rename(src, dst)
+
+    monkeypatch.setattr(os, "rename", spy)
+    with OutputFolder(out, ("frames", "video.mp4", "summary.json")) as stage:
+        (stage / "summary.json").write_text("run 2")
+        (stage / "video.mp4").write_text("new video")
+        (stage / "frames").mkdir()
+    aside = [name for from_out, _, name in moves if from_out]
+    placed = [name for from_out, to_out, name in moves if to_out and not from_out]
+    assert sorted(aside) == ["frames", "summary.json"] and moves[:2] == [
+        (True, False, n) for n in aside]
+    assert placed == ["frames", "video.mp4", "summary.json"]
+    assert _tree(out) == {"summary.json": "run 2", "video.mp4": "new video"}
 
 
 def test_an_interrupted_output_folder_keeps_the_previous_outputs(tmp_path: Path) -> None:

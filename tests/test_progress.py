@@ -23,7 +23,9 @@ def _run(progress: Progress) -> None:
 
 def test_not_a_terminal_gives_one_plain_line_per_stage() -> None:
     out = io.StringIO()  # isatty() is False, as for CI logs and `> log`
-    _run(Progress(3, stream=out))
+    progress = Progress(3, stream=out)
+    progress.start -= 90.0  # made 90 s ago: each line says so (it checked only for " s)")
+    _run(progress)
     text = out.getvalue()
     assert "\r" not in text
     lines = text.splitlines()
@@ -32,7 +34,7 @@ def test_not_a_terminal_gives_one_plain_line_per_stage() -> None:
         "[2/3] encoding",
         "[3/3] scoring",
     ]
-    assert all(line.endswith(" s)") for line in lines)  # elapsed time on each stage line
+    assert all(line.endswith("  (90.0 s)") for line in lines), lines  # elapsed time
 
 
 class _Terminal(io.StringIO):
@@ -74,3 +76,15 @@ def test_a_new_loop_in_the_same_stage_starts_a_new_bar() -> None:
     of_6 = re.findall(r"(\d+)/6 (\w)", text)
     assert {u for _, u in of_4} == {"a"} and max(int(n) for n, _ in of_4) == 2
     assert {u for _, u in of_6} == {"b"}
+
+
+def test_a_finished_loop_closes_its_bar_at_once() -> None:
+    # A bar is closed (its line ended) when done == total, not when the next stage starts: what
+    # else is printed before that does not land on the bar's line.
+    out = _Terminal()
+    with Progress(1, stream=out) as p:
+        p.stage("one loop")
+        for k in range(3):
+            p.bar(k + 1, 3, "frames")
+        text = out.getvalue()
+        assert text.endswith("\n") and "3/3 frames" in text.rsplit("\r", 1)[-1], repr(text)

@@ -31,6 +31,8 @@ def test_up_to_its_exact_count_a_tally_gives_numpys_percentiles() -> None:
     for q in QS:
         assert t.percentile(q) == float(np.percentile(values, q))
     assert t.count_above(5.0) == sum(v > 5.0 for v in values)
+    # "exceed": a value equal to x is not counted (5.0 is none of them, so >= passed above).
+    assert t.count_above(values[7]) == sum(v > values[7] for v in values)
     assert (t.min, t.max) == (min(values), max(values))
 
 
@@ -55,6 +57,7 @@ def test_beyond_it_percentiles_are_within_the_stated_relative_error(
     got = t.percentile(q)
     assert got is not None
     assert abs(got - exact) <= RELATIVE_ERROR * abs(exact) * (1 + 1e-12)
+    assert t.min is not None and t.max is not None and t.min <= got <= t.max  # as numpy's is
     assert (t.min, t.max) == (min(values), max(values))
     assert t.percentile(0) == min(values) and t.percentile(100) == max(values)
 
