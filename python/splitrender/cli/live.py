@@ -263,11 +263,18 @@ def add_connect(sub: Any) -> None:
     p.add_argument("--fps", type=_display_fps, default=DISPLAY_FPS, metavar="FC",
                    help="display frames per second, f_c (default: %(default)s)")
     add_max_divisor(p, MAX_DIVISOR)
+    p.add_argument("--scene", default=None, metavar="SCENE",
+                   help="the scene the server renders, for the poses and --score's ground "
+                   "truth: the JSON scene description given to `serve --scene` (the server "
+                   "names only its built-in scene, which has none of the models), or a "
+                   "built-in scene; one whose built-in scene is not the server's is refused "
+                   "(default: the built-in scene the server names)")
     add_trace(p)
     add_out(p)
     p.add_argument("--score", action="store_true",
                    help="afterwards, render the ground truth at the poses the client had and "
-                   "score the display frames (ssim, flip, psnr, vmaf) into report.json")
+                   "score the display frames (ssim, flip, psnr, vmaf) into report.json; "
+                   "against a server of a scene description give it with --scene")
     p.add_argument("--compare", default=None, choices=METHODS, metavar="M",
                    help="with --score: afterwards, replay the packets this session decoded, "
                    "at the same arrival times and poses, through method M and score it too "
@@ -311,6 +318,8 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail(f"--out {e}")
     try:
         trace = None if args.trace is None else load_trace(args.trace)
+        # Before connecting: a description that does not load is named without a session.
+        given = None if args.scene is None else open_scene(args.scene, "--scene: ")
         # Before connecting: a method without a GPU kernel, or no adapter, fails here.
         require_backend(args.backend, args.method)
     except SplitRenderError as e:
@@ -334,7 +343,14 @@ def run_connect(args: argparse.Namespace) -> int:
             client.close()
             return fail(f"the server renders {welcome.scene!r}, not a built-in scene: this "
                         "client cannot compute its poses in it")
-        scene = Scene(welcome.scene)
+        if given is not None and given.name != welcome.scene:
+            # The welcome names the built-in scene of what the server renders (of its
+            # description too): another one cannot be the server's, and scored against it the
+            # session would compare two different scenes.
+            client.close()
+            return fail(f"--scene {args.scene}: the server renders {welcome.scene!r}, this "
+                        f"scene is {given.name!r}")
+        scene = given if given is not None else Scene(welcome.scene)
         if trace is not None:
             motion = TraceMotion(scene, trace, args.trace_scale).client_pose
         else:
@@ -375,6 +391,8 @@ def run_connect(args: argparse.Namespace) -> int:
     except SplitRenderError as e:
         client.close()
         return fail(str(e))
+    # What the poses and the ground truth came from: the server names only a built-in scene.
+    report["scene"] = welcome.scene if args.scene is None else args.scene
     out: Path = args.out
     with outputs as stage:
         _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0])
