@@ -33,6 +33,8 @@ fn map_scene_error(e: SceneError) -> PyErr {
         | SceneError::BadTime { .. }
         | SceneError::BadCamera { .. }
         | SceneError::BadHierarchy { .. }
+        | SceneError::BadPath { .. }
+        | SceneError::Changed { .. }
         | SceneError::Gltf { .. }
         | SceneError::GltfUnsupported { .. } => invalid(msg),
     }

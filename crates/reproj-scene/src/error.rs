@@ -76,6 +76,25 @@ pub enum SceneError {
         /// Its parent index.
         parent: usize,
     },
+    /// A camera path without keys, with a key that is not finite, or with key times that
+    /// decrease.
+    #[error("camera path: {why}")]
+    BadPath {
+        /// What is wrong with it.
+        why: String,
+    },
+    /// A scene whose objects were changed in place (added, removed, re-parented, animated)
+    /// since [`crate::Scene::new`] or [`crate::Scene::refresh`] derived which of them move.
+    #[error(
+        "the scene's objects changed since Scene::new or Scene::refresh derived which move \
+         ({derived} derived, {now} now): call Scene::refresh after changing them"
+    )]
+    Changed {
+        /// Objects when it was derived.
+        derived: usize,
+        /// Objects now.
+        now: usize,
+    },
     /// A glTF file that cannot be read or is malformed (bad JSON, a missing buffer or texture
     /// file, an out-of-range index, inconsistent data).
     #[error("glTF {path}: {problem}")]

@@ -130,7 +130,8 @@ impl ServerFrame {
 /// # Errors
 /// [`SceneError::BadScale`] for a scale that gives an empty or oversized image,
 /// [`SceneError::BadTime`] for a rate `fs` that is not finite and positive (or a time `k / fs`
-/// at which the scene is not finite), [`SceneError::BadSubframes`] for `subframes ∉ 1..=16`.
+/// at which the scene is not finite), [`SceneError::BadSubframes`] for `subframes ∉ 1..=16`,
+/// and the errors of [`Scene::check`].
 pub fn render_server_frame(
     scene: &Scene,
     k: usize,
@@ -140,6 +141,7 @@ pub fn render_server_frame(
 ) -> Result<ServerFrame> {
     let (w, h) = main_size(scale)?;
     let fs = render::check_rate("fs", fs)?;
+    scene.check()?; // before its path gives the pose
     let pose = scene.path.server_pose(k, fs);
     let r = rig(&pose, w, h, scene.near, scene.far);
     let t = k as f64 / fs;
@@ -168,7 +170,8 @@ pub fn render_server_frame(
 ///
 /// # Errors
 /// [`SceneError::BadScale`] as [`render_server_frame`]; [`SceneError::BadTime`] for a rate `fc`
-/// that is not finite and positive (or a time `n / fc` at which the scene is not finite).
+/// that is not finite and positive (or a time `n / fc` at which the scene is not finite), and
+/// the errors of [`Scene::check`].
 pub fn render_client_frame(
     scene: &Scene,
     n: usize,
@@ -179,6 +182,7 @@ pub fn render_client_frame(
     let (w, h) = main_size(scale)?;
     let fc = render::check_rate("fc", fc)?;
     let t = n as f64 / fc;
+    scene.check()?; // before its path gives the pose
     let pose = scene.path.client_pose(t);
     let cams = if stereo_eyes {
         stereo(&pose, w, h, scene.near, scene.far).to_vec()

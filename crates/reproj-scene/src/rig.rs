@@ -86,7 +86,38 @@ pub struct CameraPath {
 }
 
 impl CameraPath {
+    /// Checks what [`CameraPath::head_box`] needs: at least one key, every key's time, eye and
+    /// target finite, and times that never decrease ([`crate::Scene::new`] calls it).
+    ///
+    /// # Errors
+    /// [`SceneError::BadPath`] naming the first key at fault.
+    pub fn check(&self) -> Result<()> {
+        let bad = |why: String| Err(SceneError::BadPath { why });
+        if self.keys.is_empty() {
+            return bad("no keys, expected at least one (time, eye, target)".to_string());
+        }
+        for (i, (t, eye, target)) in self.keys.iter().enumerate() {
+            if !(t.is_finite() && eye.iter().chain(target).all(|c| c.is_finite())) {
+                return bad(format!(
+                    "key {i} is ({t:?}, {eye:?}, {target:?}), expected finite numbers"
+                ));
+            }
+            if i > 0 && *t < self.keys[i - 1].0 {
+                return bad(format!(
+                    "key {i} at time {t} comes before key {} at {}, expected times in \
+                     increasing order",
+                    i - 1,
+                    self.keys[i - 1].0
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// The head box's pose at `t`.
+    ///
+    /// # Panics
+    /// When the path has no keys ([`CameraPath::check`] refuses it).
     pub fn head_box(&self, t: f64) -> HeadPose {
         let k = &self.keys;
         if k.len() == 1 || t <= k[0].0 {

@@ -211,10 +211,11 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Assembles a scene, checking the hierarchy.
+    /// Assembles a scene, checking the hierarchy and the camera path.
     ///
     /// # Errors
-    /// [`SceneError::BadHierarchy`] when a parent does not come before its child.
+    /// [`SceneError::BadHierarchy`] when a parent does not come before its child;
+    /// [`SceneError::BadPath`] as [`CameraPath::check`].
     pub fn new(
         name: &str,
         variant: Variant,
@@ -226,6 +227,7 @@ impl Scene {
         path: CameraPath,
     ) -> Result<Scene> {
         let moves = compute_moves(&objects, variant)?;
+        path.check()?;
         Ok(Scene {
             name: name.to_string(),
             variant,
@@ -244,14 +246,35 @@ impl Scene {
     /// [`crate::gltf::place_gltf`], or motions appended to an object).
     ///
     /// # Errors
-    /// [`SceneError::BadHierarchy`] as [`Scene::new`].
+    /// [`SceneError::BadHierarchy`] and [`SceneError::BadPath`] as [`Scene::new`].
     pub fn refresh(&mut self) -> Result<()> {
         self.moves = compute_moves(&self.objects, self.variant)?;
+        self.path.check()
+    }
+
+    /// Checks what rendering relies on, as every render function does first: the camera path
+    /// ([`CameraPath::check`]), and that which objects move was derived from the objects as
+    /// they are (the fields are public; a change needs [`Scene::refresh`]).
+    ///
+    /// # Errors
+    /// [`SceneError::BadPath`], [`SceneError::BadHierarchy`], or [`SceneError::Changed`] when
+    /// the objects changed since [`Scene::new`] or [`Scene::refresh`].
+    pub fn check(&self) -> Result<()> {
+        self.path.check()?;
+        if compute_moves(&self.objects, self.variant)? != self.moves {
+            return Err(SceneError::Changed {
+                derived: self.moves.len(),
+                now: self.objects.len(),
+            });
+        }
         Ok(())
     }
 
     /// Whether object `i` moves (never in the static variant). Points on objects that do not
     /// move have exactly zero motion.
+    ///
+    /// # Panics
+    /// When `i` is not an object's index.
     pub fn moves(&self, i: usize) -> bool {
         self.moves[i]
     }
@@ -265,6 +288,10 @@ impl Scene {
     }
 
     /// World transform of every object at time `t`.
+    ///
+    /// # Panics
+    /// When an object's parent is not an earlier object ([`Scene::new`], [`Scene::refresh`]
+    /// and [`Scene::check`] refuse such a scene).
     pub fn transforms(&self, t: f64) -> Vec<Rigid> {
         let te = self.anim_time(t);
         let mut world: Vec<Rigid> = Vec::with_capacity(self.objects.len());

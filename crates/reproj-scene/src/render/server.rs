@@ -105,7 +105,8 @@ fn shadow_field(
 /// [`SceneError::BadSubframes`] when `subframes ∉ 1..=16`; [`SceneError::BadSamples`] when
 /// `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when the camera's size is out of range
 /// or its matrices cannot be inverted; [`SceneError::BadTime`] when `t` or `interval` is not
-/// finite, or an object of the scene is not at a finite position at `t` or `t ± interval`.
+/// finite, or an object of the scene is not at a finite position at `t` or `t ± interval`;
+/// the errors of [`Scene::check`].
 ///
 /// [`default_samples`]: super::default_samples
 pub fn render_server(

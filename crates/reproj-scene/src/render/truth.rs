@@ -49,7 +49,7 @@ fn per_pixel<T: Copy + Default + Send, S: Default, const C: usize>(
 /// [`SceneError::BadSamples`] when `samples ∉ 1..=MAX_SAMPLES`; [`SceneError::BadCamera`] when
 /// the camera's size is out of range or its matrices cannot be inverted;
 /// [`SceneError::BadTime`] when `t` is not finite or an object of the scene is not at a finite
-/// position then.
+/// position then; the errors of [`Scene::check`].
 ///
 /// [`SceneError::BadSamples`]: crate::SceneError::BadSamples
 /// [`SceneError::BadCamera`]: crate::SceneError::BadCamera
