@@ -29,9 +29,16 @@ needs_gpu = pytest.mark.skipif(
 
 #: 2560·0.0625 × 1440·0.0625 = 160×90 main camera, 80×45 auxiliary cameras.
 SCALE = 0.0625
-#: Least share of identical pixels and largest mean absolute difference (8-bit units).
-MIN_EQUAL = 0.995
-MAX_MAD = 0.5
+#: Least share of identical pixels (and source codes) and largest mean absolute difference
+#: (8-bit units). On lavapipe, which CI runs, every comparison here is bit-identical (Mesa 22.3.6),
+#: and the largest difference measured on it (crates/reproj-wgpu/tests/parity.rs at 128×72) was
+#: 0.043 % of the pixels, MAD 0.03: its bound is about twice that, tight enough that a kernel wrong
+#: in a few tenths of a percent of the pixels fails (with 99.5 % and 0.5, a dynamic-shadow blend
+#: weighted the wrong way round passed on courtyard and colonnade). Other adapters keep the looser
+#: bound, which has not been measured against.
+ON_LAVAPIPE = HAVE_GPU and "llvmpipe" in gpu.adapter()
+MIN_EQUAL = 0.999 if ON_LAVAPIPE else 0.995
+MAX_MAD = 0.06 if ON_LAVAPIPE else 0.5
 
 Pair = tuple[sr.Scene, sr.ServerFrame, sr.ServerFrame]
 
@@ -285,6 +292,33 @@ def test_no_adapter_raises_a_clear_error() -> None:
         timeout=120,
     )
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_a_wgpu_backend_variable_naming_no_backend_is_named() -> None:
+    """WGPU_BACKEND with a typo (or empty) selected no backend at all, and the error that followed
+    said to install a Vulkan driver; it names the variable and what it may hold instead."""
+    code = textwrap.dedent(
+        """
+        from splitrender import gpu
+        from splitrender.errors import GpuUnavailableError
+        try:
+            gpu.adapter()
+        except GpuUnavailableError as e:
+            print(e)
+        """
+    )
+    env = dict(os.environ, WGPU_BACKEND="vulkna")
+    r = subprocess.run(
+        [sys.executable, "-c", code],
+        check=False,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "WGPU_BACKEND = \"vulkna\" names no wgpu backend" in r.stdout, r.stdout
+    assert "expected a comma-separated list of vulkan, metal, dx12, gl" in r.stdout, r.stdout
 
 
 def test_gpu_unavailable_error_is_in_the_hierarchy() -> None:

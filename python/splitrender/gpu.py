@@ -12,7 +12,8 @@ display frame pays the upload.
 
 Without a GPU, Mesa's software Vulkan driver lavapipe works (Debian/Ubuntu:
 ``apt-get install mesa-vulkan-drivers``); without any adapter, asking for the wgpu backend raises
-:class:`~splitrender.errors.GpuUnavailableError`.
+:class:`~splitrender.errors.GpuUnavailableError`. wgpu's ``WGPU_BACKEND`` (e.g. ``vulkan``)
+restricts the search; a value naming no backend raises the same error, naming the variable.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 //! Thin as the rest: inputs are checked by the same conversions as `reproject` (`convert.rs`),
 //! every device call runs with the GIL released, and every [`GpuError`] maps onto the exception
 //! hierarchy: input problems and methods without a GPU kernel are `InvalidInputError`, a missing
-//! adapter is `GpuUnavailableError` (with how to get one), device failures `SplitRenderError`.
+//! adapter (or a `WGPU_BACKEND` that names none) is `GpuUnavailableError` (with how to get one),
+//! device failures `SplitRenderError`.
 //!
 //! One device per process ([`context`]), created on first use and shared by every reprojector:
 //! creating a device costs far more than a client frame (pipelines compile per reprojector).
@@ -37,7 +38,7 @@ fn map_gpu_error(e: GpuError) -> PyErr {
     match e {
         GpuError::Input(e) => map_reproj_error(e),
         GpuError::Unsupported(msg) | GpuError::Order(msg) | GpuError::TooLarge(msg) => invalid(msg),
-        GpuError::NoAdapter(_) => GpuUnavailableError::new_err(e.to_string()),
+        GpuError::NoAdapter(_) | GpuError::Config(_) => GpuUnavailableError::new_err(e.to_string()),
         GpuError::Device(_) | GpuError::State(_) => SplitRenderError::new_err(e.to_string()),
     }
 }

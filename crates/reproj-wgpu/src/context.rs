@@ -53,8 +53,12 @@ impl GpuContext {
     }
 
     async fn new_async(options: &ContextOptions) -> Result<GpuContext> {
+        let env = std::env::var("WGPU_BACKEND").ok();
+        if let Some(v) = &env {
+            check_backend_env(v)?;
+        }
         let mut desc = wgpu::InstanceDescriptor::from_env_or_default();
-        if std::env::var_os("WGPU_BACKEND").is_none() {
+        if env.is_none() {
             desc.backends = wgpu::Backends::PRIMARY;
         }
         let instance = wgpu::Instance::new(&desc);
@@ -65,7 +69,12 @@ impl GpuContext {
                 compatible_surface: None,
             })
             .await
-            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+            .map_err(|e| match &env {
+                Some(v) => GpuError::NoAdapter(format!(
+                    "{e} (WGPU_BACKEND = {v:?} limits the search to those backends)"
+                )),
+                None => GpuError::NoAdapter(e.to_string()),
+            })?;
         let info = adapter.get_info();
         let wanted = int64_atomic_features();
         let features = if options.int64_atomics && adapter.features().contains(wanted) {
@@ -106,6 +115,39 @@ impl GpuContext {
     }
 }
 
+/// The names wgpu 26 reads from `WGPU_BACKEND` (`wgpu::Backends::from_comma_list`), in groups.
+const BACKEND_NAMES: [&[&str]; 6] = [
+    &["vulkan", "vk"],
+    &["metal", "mtl"],
+    &["dx12", "d3d12"],
+    &["gl", "gles", "opengl"],
+    &["webgpu"],
+    &["noop"],
+];
+
+/// Refuses a `WGPU_BACKEND` with a name wgpu does not know: wgpu skips such names (with a log
+/// line nobody sees), so a typo or an empty value selected no backend, and the error that followed
+/// told the caller to install a Vulkan driver.
+fn check_backend_env(value: &str) -> Result<()> {
+    let unknown: Vec<&str> = value
+        .split(',')
+        .map(str::trim)
+        .filter(|b| {
+            !BACKEND_NAMES
+                .iter()
+                .any(|names| names.contains(&b.to_lowercase().as_str()))
+        })
+        .collect();
+    if unknown.is_empty() {
+        return Ok(());
+    }
+    Err(GpuError::Config(format!(
+        "WGPU_BACKEND = {value:?} names no wgpu backend in {unknown:?}; expected a \
+         comma-separated list of vulkan, metal, dx12, gl (or unset it for the platform's \
+         native backends)"
+    )))
+}
+
 /// An adapter in words.
 pub fn describe(info: &wgpu::AdapterInfo) -> String {
     let mut s = format!("{} ({:?}, {:?}", info.name, info.backend, info.device_type);
@@ -115,4 +157,26 @@ pub fn describe(info: &wgpu::AdapterInfo) -> String {
     }
     s.push(')');
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backend_env_names_are_checked() {
+        for ok in ["vulkan", "Vulkan, GL", "vk,metal", "dx12", "noop"] {
+            assert_eq!(check_backend_env(ok), Ok(()), "{ok}");
+        }
+        for bad in ["vulkna", "", "vulkan,", "primary"] {
+            let Err(GpuError::Config(msg)) = check_backend_env(bad) else {
+                panic!("{bad:?} was accepted");
+            };
+            assert!(msg.contains(&format!("WGPU_BACKEND = {bad:?}")), "{msg}");
+            assert!(
+                msg.contains("expected a comma-separated list of vulkan"),
+                "{msg}"
+            );
+        }
+    }
 }

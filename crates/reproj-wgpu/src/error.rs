@@ -12,6 +12,9 @@ pub enum GpuError {
     /// No GPU adapter (or no usable device) could be found.
     #[error("no wgpu adapter: {0}. Install a Vulkan driver; without a GPU, Mesa's software rasteriser lavapipe works (Debian/Ubuntu: apt-get install mesa-vulkan-drivers)")]
     NoAdapter(String),
+    /// The environment asks for something that cannot work (`WGPU_BACKEND` naming no backend).
+    #[error("{0}")]
+    Config(String),
     /// The method or configuration has no GPU kernel.
     #[error("{0}")]
     Unsupported(String),

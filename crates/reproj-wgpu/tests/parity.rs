@@ -1,9 +1,10 @@
 //! GPU against CPU on the built-in dynamic scenes (`courtyard`, `colonnade`, `lab`, rendered by
 //! reproj-scene at 160×90 with two 80×45 auxiliary cameras, every buffer, S = 4): for `ours`
 //! (interpolating and extrapolating), `ours_extrapolate` and `forward_splat` (unidirectional and
-//! bidirectional), the wgpu output equals reproj-core's on at least 99.5 % of the pixels and the
-//! mean absolute difference is below 0.5/255. The 64-bit and the 32-bit splat give identical
-//! images.
+//! bidirectional), the wgpu output equals reproj-core's, pixels and source codes, within
+//! [`Tolerance`]: on lavapipe (what CI runs) at least 99.9 % of the pixels and a mean absolute
+//! difference below 0.06/255, on other adapters 99.5 % and 0.5/255. The 64-bit and the 32-bit
+//! splat give identical images.
 //!
 //! Without an adapter the tests print why and pass, unless `REPROJ_WGPU_REQUIRE_ADAPTER=1` (set by
 //! CI, which installs lavapipe) makes that a failure.
@@ -20,10 +21,41 @@ use reproj_wgpu::{
 const SCALE: f64 = 0.0625;
 const FS: f64 = 10.0;
 const SUBFRAMES: usize = 4;
-/// Least share of pixels that must be identical.
-const MIN_EQUAL: f64 = 0.995;
-/// Largest mean absolute difference, in 8-bit units (0.5/255 of the range).
-const MAX_MAD: f64 = 0.5;
+/// How close the GPU's images must be to reproj-core's.
+///
+/// On lavapipe every case here is bit-identical (Mesa 22.3.6; images, source codes and errors);
+/// the largest difference measured on it, at 128×72, was 4 of 9,216 pixels (0.043 %, MAD
+/// 0.03/255). Its bound is about twice that, so that a kernel that is wrong in a few percent of
+/// the pixels fails (with the looser bound, a dynamic-shadow blend weighted the wrong way round
+/// passed on courtyard and colonnade). Other adapters (FMA contraction, other rounding) keep the
+/// looser bound, which has not been measured against.
+#[derive(Debug, Clone, Copy)]
+struct Tolerance {
+    /// Least share of identical pixels (and of identical source codes).
+    min_equal: f64,
+    /// Largest mean absolute difference, in 8-bit units.
+    max_mad: f64,
+}
+
+impl Tolerance {
+    fn of(ctx: &GpuContext) -> Tolerance {
+        if ctx.info.name.contains("llvmpipe") {
+            Tolerance {
+                min_equal: 0.999,
+                max_mad: 0.06,
+            }
+        } else {
+            Tolerance {
+                min_equal: 0.995,
+                max_mad: 0.5,
+            }
+        }
+    }
+
+    fn holds(self, equal: f64, mad: f64) -> bool {
+        equal >= self.min_equal && mad < self.max_mad
+    }
+}
 
 fn context() -> Option<&'static GpuContext> {
     static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
@@ -115,6 +147,7 @@ fn compare(a: &[u8], b: &[u8]) -> (f64, f64) {
 
 fn check_scene(name: &str) {
     let Some(ctx) = context() else { return };
+    let tol = Tolerance::of(ctx);
     let scene = builtin(name, Variant::Dynamic).expect("built-in scene");
     let k = 2;
     let f0 = render_server_frame(&scene, k, SCALE, FS, SUBFRAMES).expect("render");
@@ -194,13 +227,16 @@ fn check_scene(name: &str) {
                 100.0 * codes,
                 100.0 * matched
             );
-            if eq < MIN_EQUAL || mad >= MAX_MAD {
+            if !tol.holds(eq, mad) || codes < tol.min_equal {
                 failures.push(format!(
-                    "{name} {} ({}): {:.3} % equal (need {:.1} %), MAD {mad:.4} (need < {MAX_MAD})",
+                    "{name} {} ({}): {:.3} % equal, {:.3} % same source (need {:.1} %), MAD \
+                     {mad:.4} (need < {})",
                     case.name,
                     gpu.atomics().name(),
                     100.0 * eq,
-                    100.0 * MIN_EQUAL
+                    100.0 * codes,
+                    100.0 * tol.min_equal,
+                    tol.max_mad,
                 ));
             }
             // A scene where nothing matches would make the comparison vacuous.
@@ -294,7 +330,7 @@ fn device_resident_frames_and_errors() {
             .expect("gpu");
         let (eq, mad) = compare(&img, &cpu);
         assert!(
-            eq >= MIN_EQUAL && mad < MAX_MAD,
+            Tolerance::of(ctx).holds(eq, mad),
             "frame {n}: {eq} equal, MAD {mad}"
         );
     }
