@@ -15,6 +15,7 @@ from PIL import Image
 
 import splitrender as sr
 from splitrender import _native
+from splitrender.scene import dataset
 from splitrender.scene.dataset import (
     DatasetError,
     bits_from_rgba,
@@ -902,3 +903,160 @@ def test_export_writes_motion_beyond_half_range_as_infinite_without_a_warning(
         dataset._write_exr(path, {c: motion[..., i] for i, c in enumerate("RGB")})
     back = dataset._read_exr(path, (1, 1), "flow")
     np.testing.assert_array_equal(back, [[[np.inf, -np.inf, 0.5]]])
+
+
+# ----------------------------------------------------------------------------------------------
+# The import as a recording holds one frame at a time (audit of the importer).
+
+
+def _long_dataset(root: Path, n_server: int, w: int = 48, h: int = 32) -> int:
+    """A dataset of ``n_server`` server frames of main, left and right (``w`` x ``h``, every
+    buffer) and ``2·n_server − 1`` client frames with ground truth, all between two server
+    frames; returns the bytes of one server frame's buffers (three cameras)."""
+    rng = np.random.default_rng(3)
+    files: dict[str, bytes] = {}
+    scratch = root.parent / f"{root.name}-scratch"
+    for name, write in (
+        ("png", lambda p: _write_png(p, rng.integers(0, 256, (h, w, 4), np.uint8))),
+        ("depth", lambda p: _write_exr(p, {"Y": rng.random((h, w))})),
+        ("flow", lambda p: _write_exr(p, {c: rng.random((h, w)) - 0.5 for c in "RGB"})),
+    ):
+        path = scratch / f"{name}.{'png' if name == 'png' else 'exr'}"
+        write(path)
+        files[name] = path.read_bytes()
+    frames = [{"idx": i, "w2c": matrix_to_unity(VIEW), "proj": matrix_to_unity(PROJ)}
+              for i in range(2 * n_server)]
+    for cam in ("main", "left", "right"):
+        d = root / cam
+        for sub in ("color", "depth", *dataset._FLOW.values(), *dataset._SHADOW["fwd"],
+                    *dataset._SHADOW["bwd"]):
+            (d / sub).mkdir(parents=True)
+            kind = "png" if sub not in ("depth", *dataset._FLOW.values()) else (
+                "depth" if sub == "depth" else "flow")
+            for i in range(n_server):
+                (d / sub / f"{i:04d}.{'png' if kind == 'png' else 'exr'}").write_bytes(
+                    files[kind])
+        (d / "cam.json").write_text(json.dumps({
+            "frames": frames[:n_server], "resolution": {"x": w, "y": h}, "serverFps": 10,
+            "shadowFps": 40}))
+    c = root / "client_ol"
+    (c / "color").mkdir(parents=True)
+    for i in range(2 * n_server - 1):
+        (c / "color" / f"{i:04d}.png").write_bytes(files["png"])
+    (c / "cam.json").write_text(json.dumps({"frames": frames[:2 * n_server - 1],
+                                            "resolution": {"x": w, "y": h}, "clientFps": 20}))
+    return 3 * w * h * (3 + 4 + 2 * 12 + 2 * (4 + 3 + 3))
+
+
+def test_import_as_recording_memory_does_not_grow_with_the_frame_count(tmp_path: Path) -> None:
+    # Every frame of every camera was decoded into memory before the first was written (about
+    # 100 MB per camera frame at 1920x1080): a long dataset could not be imported.
+    import tracemalloc
+
+    peaks = []
+    for n in (3, 9):
+        frame_bytes = _long_dataset(tmp_path / f"ds{n}", n)
+        tracemalloc.start()
+        try:
+            out = import_dataset_as_recording(tmp_path / f"ds{n}", tmp_path / f"rec{n}")
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+        rec = sr.load_recording(out)
+        assert (len(rec.server_frames), len(rec.client_frames)) == (n, 2 * n - 1)
+    # Six more server frames (and twelve more client frames) held at once would add
+    # 6 x frame_bytes; the frames are read one at a time, so the peak stays put.
+    assert peaks[1] - peaks[0] < frame_bytes // 2, (peaks, frame_bytes)
+
+
+def test_import_as_recording_refuses_more_server_frames_than_a_recording_holds(
+    handmade: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Every server frame of the dataset is kept: more than MAX_FRAMES were read and written,
+    # and load_recording refuses such a recording; now refused before any image is read.
+    _recording_ready(handmade)
+    monkeypatch.setattr(dataset, "MAX_FRAMES", 1)
+    read: list[Path] = []
+    monkeypatch.setattr(dataset, "_read_png", lambda p, s: read.append(p))
+    with pytest.raises(
+        DatasetError,
+        match=r"main[/\\]cam\.json: 2 server frames, a recording holds at most 1",
+    ):
+        import_dataset_as_recording(handmade, tmp_path / "rec")
+    assert read == [] and not (tmp_path / "rec").exists()
+
+
+def test_an_image_the_import_cannot_read_leaves_the_output_as_it_was(
+    handmade: Path, tmp_path: Path
+) -> None:
+    # The frames are read while the recording is written: a bad image found then must leave
+    # no recording (and, with overwrite, the previous one).
+    _recording_ready(handmade)
+    rec = tmp_path / "rec"
+    import_dataset_as_recording(handmade, rec)
+    before = {p: p.read_bytes() for p in rec.rglob("*") if p.is_file()}
+    (handmade / "right" / "depth" / "0008.exr").write_bytes(b"not an EXR")
+    for out, overwrite in ((tmp_path / "new", False), (rec, True)):
+        with pytest.raises(DatasetError, match=r"right[/\\]depth[/\\]0008\.exr: cannot read EXR"):
+            import_dataset_as_recording(handmade, out, overwrite=overwrite)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "rec"]
+    assert {p: p.read_bytes() for p in rec.rglob("*") if p.is_file()} == before
+
+
+def test_import_help_says_which_client_frames_are_kept(handmade: Path, tmp_path: Path) -> None:
+    # The help said "before the last server frame's"; a client frame at that very time is kept.
+    from splitrender.cli.help import DESCRIPTION
+
+    assert "at or before the last server frame's" in DESCRIPTION["dataset import"]
+    _recording_ready(handmade)
+    frames = json.loads((handmade / "client_ol" / "cam.json").read_text())["frames"]
+    _edit_cam(handmade, "client_ol", clientFps=20,
+              frames=[{**frames[0], "idx": 7 + n} for n in range(3)])
+    for n in range(3):
+        _write_png(handmade / "client_ol" / "color" / f"{7 + n:04d}.png",
+                   np.zeros((4, 4, 3), np.uint8))
+    rec = sr.load_recording(import_dataset_as_recording(handmade, tmp_path / "rec"))
+    assert [c.time for c in rec.client_frames] == [0.0, 0.05, 0.1]  # the last server frame's
+    assert rec.server_frames[-1].time == 0.1
+
+
+@pytest.mark.parametrize(
+    ("argv", "problem"),
+    [
+        # A third name was ignored without a word; the help speaks of two cameras.
+        (["export", "{rec}", "--aux-names", "a,b,c"],
+         "argument --aux-names: expected two names, the folders of the two auxiliary cameras "
+         "in rig order; got 3: a,b,c"),
+        # The messages named the API's parameters: "only 1 aux_names", "aux_names[0]: ...",
+        # "client: ...".
+        (["export", "{rec}", "--aux-names", "left"],
+         "argument --aux-names: expected two names, the folders of the two auxiliary cameras "
+         "in rig order; got 1: left"),
+        (["export", "{rec}", "--aux-names", "../x,right"],
+         "argument --aux-names: expected a plain name (not empty, no '/', '\\' or NUL, not '.' "
+         "or '..'), got '../x'"),
+        (["export", "{rec}", "--client", ""], "argument --client: expected a plain name"),
+        (["import", "{ds}", "--client", ""], "argument --client: expected a plain name"),
+        (["import", "{ds}", "--aux", "left,right,x"],
+         "argument --aux: expected two names, the folders of the two auxiliary cameras in rig "
+         "order; got 3: left,right,x"),
+        (["import", "{ds}", "--aux", "left,.."], "argument --aux: expected a plain name"),
+    ],
+)
+def test_command_line_messages_name_the_options(
+    recording: sr.Recording, exported: Path, tmp_path: Path, argv: list[str], problem: str,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from splitrender.cli.main import main
+
+    out = tmp_path / "out"
+    argv = [a.format(rec=recording.path, ds=exported) for a in argv]
+    with pytest.raises(SystemExit) as e:  # argparse's exit, or main's status
+        raise SystemExit(main(["dataset", *argv, "--out", str(out), "--quiet"]))
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1, err
+    assert err.startswith("splitrender dataset ") and problem in err, err
+    assert not out.exists()
+    # The Python API's messages name its parameters.
+    with pytest.raises(DatasetError, match=r"^aux: a recording has two auxiliary cameras, got 3"):
+        import_dataset_as_recording(exported, out, aux=("left", "right", "x"))

@@ -631,3 +631,39 @@ def test_a_member_longer_than_its_array_is_refused(tmp_path: Path) -> None:
     for read in (lambda: rec.client_frames[0], lambda: rec.eye(0)):
         with pytest.raises(RecordingError, match="000000.npz: eye0.view: more bytes than"):
             read()
+
+
+def test_more_server_frames_than_a_recording_holds_are_refused(copy: Path) -> None:
+    # The plan bounds the client frames; the server list may be longer than planned (a dataset
+    # import keeps every server frame), and 50,001 of them were accepted although
+    # docs/recording-format.md says at most 50,000 of each.
+    p = copy / "manifest.json"
+    m = json.loads(p.read_text())
+    entry = m["server_frames"][-1]
+    m["server_frames"] += [
+        {**entry, "index": k, "time": k / 10, "file": f"server/{k:06d}.npz"}
+        for k in range(len(m["server_frames"]), 50_001)
+    ]
+    p.write_text(json.dumps(m))
+    with pytest.raises(
+        RecordingError,
+        match=r"manifest\.json: server_frames: 50001 frames, a recording holds at most 50000",
+    ):
+        load_recording(copy)
+    m["server_frames"] = m["server_frames"][:50_000]
+    p.write_text(json.dumps(m))
+    assert len(load_recording(copy).server_frames) == 50_000
+
+
+def test_a_writer_refuses_more_frames_than_a_recording_holds(tmp_path: Path) -> None:
+    # What load_recording refuses is not written: refused before any frame is made.
+    from splitrender.scene.recording import LazyFrames, write_entries
+
+    def never(i: int) -> tuple[float, bytes]:
+        raise AssertionError("no frame is made")
+
+    out = tmp_path / "r"
+    with pytest.raises(RecordingError, match=r"r: server_frames: 50001 frames, a recording "
+                       r"holds at most 50000"):
+        write_entries(out, {}, LazyFrames(50_001, never), LazyFrames(1, never))
+    assert list(tmp_path.iterdir()) == []

@@ -15,6 +15,7 @@ from splitrender.cli.args import (
     run_stages,
     wrote_dir,
 )
+from splitrender.files import check_name
 from splitrender.progress import Progress
 
 __all__ = ["add"]
@@ -38,11 +39,31 @@ def add(sub: Any) -> None:
     _add_layout_options(im, "--aux")
 
 
+def _folder(text: str) -> str:
+    """A camera folder's name (:func:`~splitrender.files.check_name`), refused here so that the
+    message names the option, not the API's parameter."""
+    try:
+        return check_name(text, "", argparse.ArgumentTypeError)
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix(": ")) from None
+
+
+def _two_folders(text: str) -> tuple[str, ...]:
+    """The two auxiliary cameras' folder names: a third name was ignored without a word."""
+    got = names(text)
+    if len(got) != 2:
+        raise argparse.ArgumentTypeError(
+            f"expected two names, the folders of the two auxiliary cameras in rig order; got "
+            f"{len(got)}: {','.join(got)}"
+        )
+    return tuple(_folder(n) for n in got)
+
+
 def _add_layout_options(p: argparse.ArgumentParser, aux_flag: str) -> None:
-    p.add_argument(aux_flag, type=names, default=_AUX, metavar="LIST",
+    p.add_argument(aux_flag, type=_two_folders, default=_AUX, metavar="LIST",
                    help="the directories of the two auxiliary cameras, in rig order "
                    f"(default: {','.join(_AUX)})")
-    p.add_argument("--client", default=_CLIENT, metavar="NAME",
+    p.add_argument("--client", type=_folder, default=_CLIENT, metavar="NAME",
                    help="the directory of the client cameras (cam.json) and ground truth "
                    "(color/) (default: %(default)s)")
     add_quiet(p)

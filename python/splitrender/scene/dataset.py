@@ -52,6 +52,7 @@ from splitrender.imageio import write_png
 from splitrender.scene.recording import (
     MAX_FRAMES,
     ClientFrame,
+    LazyFrames,
     Recording,
     check_destination,
     load_recording,
@@ -667,61 +668,128 @@ class ImportedDataset(NamedTuple):
     ground_truth: list[_U8 | None]
 
 
-def _import_camera(d: Path, cam: _Cam) -> list[CameraFrame]:
+def _camera_frames(d: Path, cam: _Cam) -> LazyFrames[CameraFrame]:
+    """The frames of the camera folder ``d`` (with ``cam.json`` ``cam``), each read from its
+    files when asked for (:func:`import_dataset_as_recording` holds one at a time)."""
     size = cam.size
     w, h = size
     n = len(cam.frames)
     flows = {k: (d / v).is_dir() for k, v in _FLOW.items()}
     shadows = {k: (d / v[0]).is_dir() and (d / v[1]).is_dir() for k, v in _SHADOW.items()}
-    colors: list[_U8] = []
-    depths: list[_F32] = []
-    for idx, _, _ in cam.frames:
-        colors.append(np.ascontiguousarray(_read_png(d / "color" / _name(idx, "png"), size)[..., :3]))
-        depths.append(_read_exr(d / "depth" / _name(idx, "exr"), size, "depth"))
-    motion: dict[str, list[_F32 | None]] = {"fwd": [None] * n, "bwd": [None] * n}
-    shadow: dict[str, list[ShadowBuffers | None]] = {"fwd": [None] * n, "bwd": [None] * n}
-    for k, (idx, _, _) in enumerate(cam.frames):
-        # The pair (k, k+1) numbered idx_k: forward → frame k, backward → frame k+1. The forward
-        # file of the last frame is optional (the reference never reads it).
-        for direction, target in (("fwd", k), ("bwd", k + 1)):
-            last = k + 1 >= n
-            if target >= n:
+
+    def frame(k: int) -> CameraFrame:
+        idx, view, proj = cam.frames[k]
+        color = np.ascontiguousarray(_read_png(d / "color" / _name(idx, "png"), size)[..., :3])
+        depth = _read_exr(d / "depth" / _name(idx, "exr"), size, "depth")
+        motion: dict[str, _F32 | None] = {"fwd": None, "bwd": None}
+        shadow: dict[str, ShadowBuffers | None] = {"fwd": None, "bwd": None}
+        # The pair (j, j+1) is numbered idx_j: its forward files are frame j's, its backward
+        # files frame j+1's. Frame 0 has no backward files; the forward files of the last
+        # frame are optional (the reference never reads them).
+        for direction, j in (("fwd", k), ("bwd", k - 1)):
+            if j < 0:
                 continue
+            pair = cam.frames[j][0]
+            optional = direction == "fwd" and k + 1 >= n
             if flows[direction]:
-                p = d / _FLOW[direction] / _name(idx, "exr")
-                if not (last and not p.is_file()):
-                    motion[direction][target] = motion_from_theirs(_read_exr(p, size, "flow"))
+                p = d / _FLOW[direction] / _name(pair, "exr")
+                if not (optional and not p.is_file()):
+                    motion[direction] = motion_from_theirs(_read_exr(p, size, "flow"))
             if shadows[direction]:
                 info, col_a, col_b = _SHADOW[direction]
-                p = d / info / _name(idx, "png")
-                if last and not p.is_file():
+                p = d / info / _name(pair, "png")
+                if optional and not p.is_file():
                     continue
                 bits = bits_from_rgba(_read_png(p, size))
-                s_min = _read_png(d / col_a / _name(idx, "png"), size)[..., :3]
+                s_min = _read_png(d / col_a / _name(pair, "png"), size)[..., :3]
                 if (d / col_b).is_dir():
-                    s_max = _read_png(d / col_b / _name(idx, "png"), size)[..., :3]
+                    s_max = _read_png(d / col_b / _name(pair, "png"), size)[..., :3]
                 else:  # REFERENCE.md §1.6: ColorB missing → the base colour is used
-                    s_max = colors[target]
-                shadow[direction][target] = ShadowBuffers(
+                    s_max = color
+                shadow[direction] = ShadowBuffers(
                     bits, np.ascontiguousarray(s_min), np.ascontiguousarray(s_max)
                 )
-    out = []
-    for k, (_, view, proj) in enumerate(cam.frames):
         try:
-            out.append(
-                CameraFrame(
-                    Camera(view, proj, w, h),
-                    colors[k],
-                    depths[k],
-                    motion["fwd"][k],
-                    motion["bwd"][k],
-                    shadow["fwd"][k],
-                    shadow["bwd"][k],
-                )
+            return CameraFrame(
+                Camera(view, proj, w, h),
+                color,
+                depth,
+                motion["fwd"],
+                motion["bwd"],
+                shadow["fwd"],
+                shadow["bwd"],
             )
         except SplitRenderError as e:
             raise _fail(cam.path, f"frames[{k}]: {e}") from None
-    return out
+
+    return LazyFrames(n, frame)
+
+
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """A dataset's ``cam.json`` files, read and checked (:func:`_open_layout`); no image read."""
+
+    fs: float
+    #: The camera folders, main then the auxiliary ones, with their cam.json.
+    cams: list[tuple[Path, _Cam]]
+    #: The client folder and its cam.json (None: no client).
+    client: tuple[Path, _Cam] | None
+    fc: float
+    requests: list[ClientRequest]
+    has_truth: bool
+
+    def server_frame(self, frames: Sequence[Sequence[CameraFrame]], k: int) -> ServerFrame:
+        """Server frame ``k`` of the cameras' ``frames`` (main first), at ``k / serverFps``."""
+        return ServerFrame(k, k / self.fs, frames[0][k], tuple(f[k] for f in frames[1:]))
+
+    def truth(self, n: int) -> _U8:
+        """Client frame ``n``'s ground truth, read from its file."""
+        assert self.client is not None
+        cd, cc = self.client
+        cam = self.requests[n].camera
+        png = _read_png(cd / "color" / _name(cc.frames[n][0], "png"), (cam.width, cam.height))
+        return np.ascontiguousarray(png[..., :3])
+
+
+def _open_layout(root: Path, aux: Sequence[str], client: str | None) -> _Layout:
+    """Reads and checks the ``cam.json`` files of the dataset ``root`` as :func:`import_dataset`
+    does (names, folders, matrices, frame counts, rates, client cameras)."""
+    # The names are joined under in_dir: checked before anything is read.
+    _check_names(root, aux, client)
+    if not root.is_dir():
+        raise _fail(root, "no such dataset directory")
+    info_main = _read_cam(root / "main" / "cam.json")
+    # Each rate from the file the authors' program reads it from (REFERENCE.md §1.2).
+    fs = _number(info_main.raw, "serverFps", 10.0, info_main.path)
+    cams = [(root / "main", info_main)]
+    for name in aux:
+        d = root / name
+        if not d.is_dir():
+            raise _fail(d, "missing auxiliary camera directory")
+        c = _read_cam(d / "cam.json")
+        if len(c.frames) != len(info_main.frames):
+            raise _fail(
+                c.path,
+                f"{len(c.frames)} frames, but main/cam.json has {len(info_main.frames)}",
+            )
+        cams.append((d, c))
+    if client is None:
+        return _Layout(fs, cams, None, 0.0, [], False)
+    cd = root / client
+    if not cd.is_dir():
+        raise _fail(cd, "missing client directory")
+    has_truth = (cd / "color").is_dir()
+    # Without ground truth the client's idx reads no file (the reference ignores it).
+    cc = _read_cam(cd / "cam.json", need_resolution=False, distinct=has_truth)
+    fc = _number(cc.raw, "clientFps", 60.0, cc.path)
+    w, h = cc.size if cc.width else info_main.size
+    requests = []
+    for n, (_, view, proj) in enumerate(cc.frames):
+        try:
+            requests.append(ClientRequest(Camera(view, proj, w, h), n / fc))
+        except SplitRenderError as e:
+            raise _fail(cc.path, f"frames[{n}]: {e}") from None
+    return _Layout(fs, cams, (cd, cc), fc, requests, has_truth)
 
 
 @checked(in_dir=PATH, aux=items(strs()), client=optional(PATH))
@@ -749,59 +817,16 @@ def import_dataset(
             (a JPEG named ``.png``, a 16-bit PNG), or an EXR of more than one part, other
             channels than it needs or integer samples.
     """
-    root = Path(in_dir)
-    client_name = None if client is None else os.fspath(client)
-    # The names are joined under in_dir: checked before anything is read.
-    _check_names(root, aux, client_name)
-    if not root.is_dir():
-        raise _fail(root, "no such dataset directory")
-    info_main = _read_cam(root / "main" / "cam.json")
-    # Each rate from the file the authors' program reads it from (REFERENCE.md §1.2).
-    fs = _number(info_main.raw, "serverFps", 10.0, info_main.path)
-    cams = [("main", info_main)]
-    for name in aux:
-        d = root / name
-        if not d.is_dir():
-            raise _fail(d, "missing auxiliary camera directory")
-        c = _read_cam(d / "cam.json")
-        if len(c.frames) != len(info_main.frames):
-            raise _fail(
-                c.path,
-                f"{len(c.frames)} frames, but main/cam.json has {len(info_main.frames)}",
-            )
-        cams.append((name, c))
-    per_cam = [_import_camera(root / name, c) for name, c in cams]
-    server = [
-        ServerFrame(k, k / fs, per_cam[0][k], tuple(p[k] for p in per_cam[1:]))
-        for k in range(len(info_main.frames))
-    ]
-    requests: list[ClientRequest] = []
-    truth: list[_U8 | None] = []
-    if client_name is not None:
-        cd = root / client_name
-        if not cd.is_dir():
-            raise _fail(cd, "missing client directory")
-        has_gt = (cd / "color").is_dir()
-        # Without ground truth the client's idx reads no file (the reference ignores it).
-        cc = _read_cam(cd / "cam.json", need_resolution=False, distinct=has_gt)
-        fc = _number(cc.raw, "clientFps", 60.0, cc.path)
-        w, h = cc.size if cc.width else info_main.size
-        for n, (idx, view, proj) in enumerate(cc.frames):
-            try:
-                requests.append(ClientRequest(Camera(view, proj, w, h), n / fc))
-            except SplitRenderError as e:
-                raise _fail(cc.path, f"frames[{n}]: {e}") from None
-            truth.append(
-                np.ascontiguousarray(_read_png(cd / "color" / _name(idx, "png"), (w, h))[..., :3])
-                if has_gt
-                else None
-            )
-    return ImportedDataset(server, requests, truth)
+    lay = _open_layout(Path(in_dir), aux, None if client is None else os.fspath(client))
+    per_cam = [list(_camera_frames(d, c)) for d, c in lay.cams]
+    server = [lay.server_frame(per_cam, k) for k in range(len(per_cam[0]))]
+    truth = [lay.truth(n) if lay.has_truth else None for n in range(len(lay.requests))]
+    return ImportedDataset(server, lay.requests, truth)
 
 
 def _client_frames_kept(n_client: int, n_server: int, fs: float, fc: float) -> int:
     """How many of the first client frames lie between two of the ``n_server`` server frames
-    (or on the last): the recording's client frames (:func:`plan`)."""
+    or on the last (at or before its time): the recording's client frames (:func:`plan`)."""
     while n_client > 0 and plan(n_client / fc, fs, fc)[0] > n_server:
         n_client -= 1
     return n_client
@@ -818,62 +843,77 @@ def import_dataset_as_recording(
 ) -> Path:
     """Reads the dataset in the authors' layout under ``in_dir`` (:func:`import_dataset`) and
     writes it as a recording to ``out`` (see ``splitrender dataset import --help``); returns
-    ``out``. ``stages`` gets two stages (reading, writing).
+    ``out``. The frames are read and written one at a time, so the memory it takes does not
+    grow with the dataset's length. ``stages`` gets two stages (checking the ``cam.json``
+    files, converting the frames).
 
     Raises:
         DatasetError: the dataset cannot be read or cannot be a recording (not two auxiliary
-            cameras, no ground truth, a client size other than the main camera's, more client
-            frames than a recording holds), or ``out`` is the dataset's directory, lies inside it
-            or holds it.
+            cameras, no ground truth, a client size other than the main camera's, more server
+            frames or more client frames than a recording holds), or ``out`` is the dataset's
+            directory, lies inside it or holds it. An image that cannot be read is found while
+            the recording is written into ``out.partial-<pid>``, which is then removed: ``out``
+            is left as it was.
         RecordingError: ``out`` exists (without ``overwrite``).
     """
     root, dest = Path(in_dir), Path(out)
     if len(aux) != 2:
-        raise DatasetError(f"--aux: a recording has two auxiliary cameras, got {len(aux)}")
+        raise DatasetError(f"aux: a recording has two auxiliary cameras, got {len(aux)}")
     # With overwrite, write_frames removes the old dest: that must not be (or hold) the dataset.
     check_apart(dest, {"dataset": root}, DatasetError, replaced=overwrite)
     check_destination(dest, overwrite)
     if stages is not None:
-        stages.stage(f"reading the dataset {root}")
+        stages.stage(f"checking the dataset {root}")
     # The frame counts from the cam.json files, before any image is read: a recording holds at
-    # most MAX_FRAMES client frames (load_recording refused the one written with more).
+    # most MAX_FRAMES server and client frames (load_recording refused the one written with
+    # more).
     _check_names(root, aux, client)
     if not root.is_dir():
         raise _fail(root, "no such dataset directory")
     info = dataset_info(root, client)
     fs, fc = info.server_fps, info.client_fps
+    n_server = len(_read_json(root / "main" / "cam.json")["frames"])  # read by dataset_info
+    if n_server > MAX_FRAMES:
+        raise _fail(root / "main" / "cam.json", f"{n_server} server frames, a recording "
+                    f"holds at most {MAX_FRAMES}")
     listed = _read_json(root / client / "cam.json").get("frames")
     if isinstance(listed, list):
-        n_server = len(_read_json(root / "main" / "cam.json")["frames"])  # read by dataset_info
         n_client = _client_frames_kept(len(listed), n_server, fs, fc)
         if n_client > MAX_FRAMES:
             raise _fail(root / client / "cam.json", f"{n_client} client frames lie between two "
                         f"server frames, a recording holds at most {MAX_FRAMES}")
-    data = import_dataset(root, aux, client)
-    if not data.client_requests or any(t is None for t in data.ground_truth):
+    lay = _open_layout(root, aux, client)
+    if not lay.requests or not lay.has_truth:
         raise DatasetError(f"{root / client}/color: missing; a recording needs the ground truth")
-    w, h = data.server_frames[0].main.camera.width, data.server_frames[0].main.camera.height
-    cw, ch = data.client_requests[0].camera.width, data.client_requests[0].camera.height
+    main = lay.cams[0][1]
+    w, h = main.size
+    cw, ch = lay.requests[0].camera.width, lay.requests[0].camera.height
     if (cw, ch) != (w, h):
         raise DatasetError(f"{root / client}/cam.json: client size {cw}x{ch}, a recording "
                            f"needs the main camera's {w}x{h}")
-    n_server = len(data.server_frames)
-    n_client = _client_frames_kept(len(data.client_requests), n_server, fs, fc)
+    n_client = _client_frames_kept(len(lay.requests), n_server, fs, fc)
     if n_client == 0:
         raise DatasetError(f"{root}: no client frame lies between two server frames")
+    # The ground truth of the client frames left out is checked as import_dataset checks it
+    # (one image at a time), so that the same datasets are refused.
+    for n in range(n_client, len(lay.requests)):
+        lay.truth(n)
 
     # Server frame k is at k / fs (import_dataset's time); buffers the layout has no slot for
-    # (frame 0's backward ones) are None, which write_frames writes as zeros.
-    server = [(np.linalg.inv(f.main.camera.view).astype(np.float64), f)
-              for f in data.server_frames]
-    clients = []
-    for n in range(n_client):
-        cam = data.client_requests[n].camera
-        truth = data.ground_truth[n]
-        assert truth is not None
+    # (frame 0's backward ones) are None, which write_frames writes as zeros. Each frame is
+    # read from its files when write_frames asks for it and dropped once written.
+    cameras = [_camera_frames(d, c) for d, c in lay.cams]
+
+    def server_frame(k: int) -> tuple[npt.NDArray[np.float64], ServerFrame]:
+        f = lay.server_frame(cameras, k)
+        return np.linalg.inv(f.main.camera.view).astype(np.float64), f
+
+    def client_frame(n: int) -> ClientFrame:
+        cam = lay.requests[n].camera
         pose = np.linalg.inv(cam.view).astype(np.float64)
-        clients.append(ClientFrame(n, n / fc, pose, (cam,), (truth,)))
-    near, far = _near_far(data.server_frames[0].main.camera.proj)  # checked by _read_cam
+        return ClientFrame(n, n / fc, pose, (cam,), (lay.truth(n),))
+
+    near, far = _near_far(main.frames[0][2])  # checked by _read_cam
     fields = {
         "generator": f"splitrender {__version__} (dataset import)",
         "scene": root.resolve().name,
@@ -889,13 +929,15 @@ def import_dataset_as_recording(
         "far": far,
         "cameras": {
             "main": [w, h],
-            "aux": [[a.camera.width, a.camera.height] for a in data.server_frames[0].aux],
+            "aux": [list(c.size) for _, c in lay.cams[1:]],
             "client": [w, h],
             "eyes": 1,
         },
         "client_motion": {"source": "dataset", "dir": str(root)},
     }
     if stages is not None:
-        stages.stage(f"writing {n_server} server frames and {n_client} client frames into {dest}")
+        stages.stage(f"converting {n_server} server frames and {n_client} client frames of "
+                     f"{root} into {dest}")
     bar = None if stages is None else functools.partial(stages.bar, unit="frames")
-    return write_frames(dest, fields, server, clients, overwrite=overwrite, progress=bar)
+    return write_frames(dest, fields, LazyFrames(n_server, server_frame),
+                        LazyFrames(n_client, client_frame), overwrite=overwrite, progress=bar)

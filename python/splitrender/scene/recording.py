@@ -484,6 +484,9 @@ def write_entries(
     :meth:`RecordingRender.server_entry` and :meth:`RecordingRender.client_entry` make them."""
     out = Path(out)
     check_destination(out, overwrite)
+    # What load_recording refuses is not written.
+    _check_count(len(server_frames), "server_frames", out)
+    _check_count(len(client_frames), "client_frames", out)
     total = len(server_frames) + len(client_frames)
     tmp = out.with_name(f"{out.name}.partial-{os.getpid()}")
     if tmp.exists():
@@ -936,6 +939,13 @@ class Recording:
             pass
 
 
+def _check_count(n: int, key: str, where: Path | str) -> None:
+    """Refuses more than :data:`MAX_FRAMES` entries in the frame list ``key`` (the plan bounds
+    the client frames, nothing the server frames of a dataset import but this)."""
+    if n > MAX_FRAMES:
+        raise _fail(where, f"{key}: {n} frames, a recording holds at most {MAX_FRAMES}")
+
+
 def _check_frames(m: dict[str, Any], key: str, rate: float, where: Path) -> None:
     frames = _get(m, key, list, where)
     if not frames:
@@ -1012,6 +1022,8 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
     if cams.get("eyes") != (2 if stereo else 1):
         raise _fail(mpath, f"cameras.eyes: {cams.get('eyes')!r} does not match stereo={stereo}")
     _get(m, "client_motion", dict, mpath)
+    for key in ("server_frames", "client_frames"):
+        _check_count(len(_get(m, key, list, mpath)), key, mpath)
     _check_frames(m, "server_frames", float(m["fs"]), mpath)
     _check_frames(m, "client_frames", float(m["fc"]), mpath)
     _check_plan(m, mpath)
