@@ -161,6 +161,39 @@ def test_read_regular_caps_the_read_at_the_limit(tmp_path: Path) -> None:
         read_regular(tmp_path / "missing", 10, "trace", InvalidInputError)
 
 
+def test_read_regular_asks_for_no_more_than_the_file_holds(tmp_path: Path) -> None:
+    # A read allocates what it asks for: every manifest or cam.json of a few hundred bytes,
+    # read under its 64 MiB limit, held 64 MiB while it was read.
+    import tracemalloc
+
+    small = tmp_path / "manifest.json"
+    small.write_bytes(b"{}" * 500)
+    tracemalloc.start()
+    try:
+        assert read_regular(small, 64 << 20, "manifest", InvalidInputError) == b"{}" * 500
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, peak
+
+
+def test_read_regular_reads_a_file_that_grew_since_its_size_was_taken(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The first read asks for one byte past st_size; a file longer by then is read on, up to
+    # the limit (here st_size is made to say 10 for a file of 1000 bytes).
+    import splitrender.files as files
+
+    path = tmp_path / "grown.json"
+    path.write_bytes(b"x" * 1000)
+    real = os.fstat
+    monkeypatch.setattr(files.os, "fstat", lambda fd: os.stat_result(
+        tuple(real(fd))[:6] + (10,) + tuple(real(fd))[7:10]))
+    assert read_regular(path, 1000, "manifest", InvalidInputError) == b"x" * 1000
+    with pytest.raises(InvalidInputError, match="more than 999 bytes"):
+        read_regular(path, 999, "manifest", InvalidInputError)
+
+
 def test_read_regular_reads_at_most_one_byte_past_the_limit(tmp_path: Path) -> None:
     # The test above passed with f.read() of the whole file: a 64 MiB file (sparse: nothing on
     # disk) refused with a limit of 10 bytes must not be read into memory first.

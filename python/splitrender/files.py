@@ -96,9 +96,14 @@ def read_regular(
 ) -> bytes:
     """The bytes of ``path``, opened by :func:`open_regular`, which must be at most ``limit``
     bytes; otherwise raises ``error``. At most ``limit + 1`` bytes are read whatever
-    ``st_size`` says, so a file growing while read cannot exhaust memory."""
+    ``st_size`` says, so a file growing while read cannot exhaust memory; and no more than one
+    byte past ``st_size`` is asked for at first (a read allocates what it asks for: a 1 KB
+    manifest read under a 64 MB limit held 64 MB)."""
     with open_regular(path, what, error) as f:
-        data = f.read(limit + 1)
+        size = os.fstat(f.fileno()).st_size
+        data = f.read(min(limit, size) + 1)
+        if size < len(data) <= limit:  # it grew while read: the rest, still within the limit
+            data += f.read(limit + 1 - len(data))
     if len(data) > limit:
         raise error(f"{path}: {what} is more than {limit} bytes")
     return data
