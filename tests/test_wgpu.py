@@ -282,16 +282,21 @@ def test_no_adapter_raises_a_clear_error() -> None:
         print("ok")
         """
     )
-    env = dict(os.environ, WGPU_BACKEND="metal" if sys.platform != "darwin" else "dx12")
-    r = subprocess.run(
+    r = _python(code, WGPU_BACKEND="metal" if sys.platform != "darwin" else "dx12")
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def _python(code: str, **env: str) -> subprocess.CompletedProcess[str]:
+    """``code`` run by a fresh interpreter (the device is created once per process) with
+    ``env`` added to the environment."""
+    return subprocess.run(
         [sys.executable, "-c", code],
         check=False,
-        env=env,
+        env=dict(os.environ, **env),
         capture_output=True,
         text=True,
         timeout=120,
     )
-    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
 
 
 def test_a_wgpu_backend_variable_naming_no_backend_is_named() -> None:
@@ -307,15 +312,7 @@ def test_a_wgpu_backend_variable_naming_no_backend_is_named() -> None:
             print(e)
         """
     )
-    env = dict(os.environ, WGPU_BACKEND="vulkna")
-    r = subprocess.run(
-        [sys.executable, "-c", code],
-        check=False,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    r = _python(code, WGPU_BACKEND="vulkna")
     assert r.returncode == 0, r.stderr
     assert "WGPU_BACKEND = \"vulkna\" names no wgpu backend" in r.stdout, r.stdout
     assert "expected a comma-separated list of vulkan, metal, dx12, gl" in r.stdout, r.stdout

@@ -203,13 +203,22 @@ def open_temporary(path: str | os.PathLike[str]) -> tuple[Path, BinaryIO]:
     except OSError as e:
         if e.filename != str(tmp):
             raise
-        why = {
-            errno.ENOENT: f"its folder {str(dest.parent)!r} does not exist",
-            errno.ENOTDIR: f"{str(dest.parent)!r} is not a folder",
-            errno.EACCES: f"no permission to write in its folder {str(dest.parent)!r}",
-            errno.EROFS: f"its folder {str(dest.parent)!r} is on a read-only file system",
-        }.get(e.errno or 0, e.strerror or str(e))
+        why = unwritable_folder(e, dest.parent)
         raise type(e)(e.errno, f"cannot write the file: {why}", str(path)) from None
+
+
+def unwritable_folder(e: OSError, folder: Path) -> str:
+    """Why nothing could be created in ``folder`` (``e``, raised creating something there), in
+    words about ``folder``: the caller names its destination, not a hidden temporary beside it."""
+    where = repr(str(folder))
+    return {
+        errno.ENOENT: f"its folder {where} does not exist",
+        errno.ENOTDIR: f"{where} is not a folder",
+        errno.EEXIST: f"{where} is not a folder",
+        errno.EACCES: f"no permission to write in its folder {where}",
+        errno.EPERM: f"no permission to write in its folder {where}",
+        errno.EROFS: f"its folder {where} is on a read-only file system",
+    }.get(e.errno or 0, e.strerror or str(e))
 
 
 def _check_not_special(dest: Path) -> None:

@@ -28,7 +28,6 @@ Conventions, theirs → ours (derived in docs/dataset-format.md):
 
 from __future__ import annotations
 
-import errno
 import functools
 import json
 import math
@@ -47,7 +46,14 @@ from PIL import Image
 
 from splitrender._native import __version__, singular_camera
 from splitrender.errors import SplitRenderError
-from splitrender.files import check_apart, check_name, joined, read_json_object, temporary_beside
+from splitrender.files import (
+    check_apart,
+    check_name,
+    joined,
+    read_json_object,
+    temporary_beside,
+    unwritable_folder,
+)
 from splitrender.imageio import write_png
 from splitrender.scene.recording import (
     MAX_FRAMES,
@@ -519,15 +525,7 @@ def _make_temporary(tmp: Path, out: Path) -> None:
         tmp.parent.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()
     except OSError as e:
-        where = str(out.parent)
-        why = {
-            errno.ENOENT: f"its folder {where!r} does not exist",
-            errno.ENOTDIR: f"{where!r} is not a folder",
-            errno.EACCES: f"no permission to write in its folder {where!r}",
-            errno.EPERM: f"no permission to write in its folder {where!r}",
-            errno.EEXIST: f"{where!r} is not a folder",
-            errno.EROFS: f"its folder {where!r} is on a read-only file system",
-        }.get(e.errno or 0, e.strerror or str(e))
+        why = unwritable_folder(e, out.parent)
         raise type(e)(e.errno, f"cannot write the dataset: {why}", str(out)) from None
 
 
