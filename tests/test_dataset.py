@@ -846,18 +846,24 @@ def test_import_refuses_aux_frame_lists_of_another_length(handmade: Path) -> Non
             sr.import_dataset(handmade)
 
 
+def _client_frames_at(handmade: Path, fc: float, count: int) -> None:
+    """The hand-made dataset made recording-ready with ``count`` client frames at ``fc``, all
+    at the first frame's pose, frame ``n``'s ground truth filled with the value ``n``."""
+    _recording_ready(handmade)
+    frames = json.loads((handmade / "client_ol" / "cam.json").read_text())["frames"]
+    _edit_cam(handmade, "client_ol", clientFps=fc,
+              frames=[{**frames[0], "idx": 7 + n} for n in range(count)])
+    for n in range(count):
+        _write_png(handmade / "client_ol" / "color" / f"{7 + n:04d}.png",
+                   np.full((4, 4, 3), n, np.uint8))
+
+
 def test_imported_recording_keeps_the_client_frames_between_server_frames(
     handmade: Path, tmp_path: Path
 ) -> None:
     # Server frames at 0 and 0.1 s; client frames at n / 40 s: those up to 0.1 s lie between
     # two server frames (or on the last), those after it are left out.
-    _recording_ready(handmade)
-    frames = json.loads((handmade / "client_ol" / "cam.json").read_text())["frames"]
-    _edit_cam(handmade, "client_ol", clientFps=40,
-              frames=[{**frames[0], "idx": 7 + n} for n in range(7)])
-    for n in range(7):
-        _write_png(handmade / "client_ol" / "color" / f"{7 + n:04d}.png",
-                   np.full((4, 4, 3), n, np.uint8))
+    _client_frames_at(handmade, 40, 7)
     rec = sr.load_recording(import_dataset_as_recording(handmade, tmp_path / "rec"))
     client = list(rec.client_frames)
     assert [c.time for c in client] == pytest.approx([0.0, 0.025, 0.05, 0.075, 0.1])
@@ -1008,13 +1014,7 @@ def test_import_help_says_which_client_frames_are_kept(handmade: Path, tmp_path:
     from splitrender.cli.help import DESCRIPTION
 
     assert "at or before the last server frame's" in DESCRIPTION["dataset import"]
-    _recording_ready(handmade)
-    frames = json.loads((handmade / "client_ol" / "cam.json").read_text())["frames"]
-    _edit_cam(handmade, "client_ol", clientFps=20,
-              frames=[{**frames[0], "idx": 7 + n} for n in range(3)])
-    for n in range(3):
-        _write_png(handmade / "client_ol" / "color" / f"{7 + n:04d}.png",
-                   np.zeros((4, 4, 3), np.uint8))
+    _client_frames_at(handmade, 20, 3)
     rec = sr.load_recording(import_dataset_as_recording(handmade, tmp_path / "rec"))
     assert [c.time for c in rec.client_frames] == [0.0, 0.05, 0.1]  # the last server frame's
     assert rec.server_frames[-1].time == 0.1
