@@ -268,7 +268,9 @@ def test_reproject_shapes(pair: Pair, method: str) -> None:
 
 def test_reproject_covers_most_pixels(pair: Pair) -> None:
     r = sr.reproject(pair.older, pair.newer, pair.request, "ours", diagnostics=True)
-    assert r.matched.mean() > 0.9
+    # Measured: every pixel (the client pose lies between the server poses); 0.9 let a tenth of
+    # the image go unmatched.
+    assert r.matched.mean() > 0.99
 
 
 @pytest.mark.parametrize("method", EXPECTED_METHODS)

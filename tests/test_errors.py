@@ -346,26 +346,88 @@ def test_invalid_motion_never_matches(pair: Pair, method: str) -> None:
     np.testing.assert_array_equal(r.image, prev)
 
 
+def _spoilt(frame: sr.ServerFrame, seed: int, fill: int | None) -> sr.ServerFrame:
+    """``frame`` with about a fifth of each camera's pixels invalid (NaN or infinite depth, or
+    NaN or infinite motion in both directions), and, where ``fill`` is given, those pixels'
+    colour, shadow colours and shadow bits set to ``fill``. A few other pixels get finite but
+    odd depths and motions (1e30, -5), which no method may fail on. The same ``seed`` spoils
+    the same pixels in the same way."""
+    rng = np.random.default_rng(seed)
+    cams = []
+    for cf in (frame.main, *frame.aux):
+        shape = cf.depth.shape
+        mask = rng.random(shape) < 0.2
+        by_depth = mask & (rng.random(shape) < 0.5)
+        bad = rng.choice(np.array([np.nan, np.inf, -np.inf], np.float32), shape)
+        odd = ~mask & (rng.random(shape) < 0.05)
+        odd_value = rng.choice(np.array([1e30, -5.0], np.float32), shape)
+        depth = cf.depth.copy()
+        depth[by_depth] = bad[by_depth]
+        depth[odd] = odd_value[odd]
+        fields: dict[str, Any] = {"depth": depth}
+        for name in ("motion_fwd", "motion_bwd"):
+            m = getattr(cf, name)
+            assert m is not None
+            m = m.copy()
+            m[mask & ~by_depth] = bad[mask & ~by_depth][:, None]
+            m[odd] = odd_value[odd][:, None]
+            fields[name] = m
+        if fill is not None:
+            color = cf.color.copy()
+            color[mask] = fill
+            fields["color"] = color
+            for name in ("shadow_fwd", "shadow_bwd"):
+                s = getattr(cf, name)
+                assert s is not None
+                bits, s_min, s_max = s.bits.copy(), s.s_min.copy(), s.s_max.copy()
+                bits[mask] = 0 if fill == 0 else 0xFFFF_FFFF
+                s_min[mask] = fill
+                s_max[mask] = fill
+                fields[name] = sr.ShadowBuffers(bits, s_min, s_max)
+        cams.append(dataclasses.replace(cf, **fields))
+    return sr.ServerFrame(frame.index, frame.time, cams[0], tuple(cams[1:]))
+
+
 @pytest.mark.parametrize("method", sr.METHODS)
 def test_partly_invalid_pixels_give_valid_output(pair: Pair, method: str) -> None:
-    rng = np.random.default_rng(5)
+    """An invalid pixel (NaN or infinite depth or motion) never reaches the output (DESIGN.md):
+    what the invalid pixels hold (colour, shadow colours and bits) changes no output pixel, no
+    source and no error, while the same change on valid pixels does change the output. Pixels
+    no source coloured keep the previous frame, and every matched pixel has a finite error."""
+    h, w = pair.request.camera.shape
+    prev = np.random.default_rng(6).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    results = []
+    for fill in (0, 255):
+        older, newer = _spoilt(pair.older, 5, fill), _spoilt(pair.newer, 7, fill)
+        results.append(
+            sr.reproject(older, newer, pair.request, method, previous=prev, diagnostics=True)
+        )
+    dark, bright = results
+    assert dark.image.dtype == np.uint8 and dark.image.shape == (h, w, 3)
+    matched = dark.source != sr.Reprojection.SOURCE_NONE
+    assert matched.mean() > 0.3, "too few matched pixels for the test to mean anything"
+    np.testing.assert_array_equal(dark.source, bright.source)
+    np.testing.assert_array_equal(dark.error, bright.error)
+    np.testing.assert_array_equal(dark.image, bright.image)
+    np.testing.assert_array_equal(dark.image[~matched], prev[~matched])
+    if method != "timewarp":  # timewarp reports no error (always NaN)
+        assert np.isfinite(dark.error[matched]).all()
+    # The power of the check: with valid depth and motion, the same pixels' colours show.
+    valid = []
+    for fill in (0, 255):
+        older, newer = _recolored(pair.older, 5, fill), _recolored(pair.newer, 7, fill)
+        valid.append(sr.reproject(older, newer, pair.request, method, previous=prev))
+    assert (valid[0] != valid[1]).any(axis=2).mean() > 0.1
 
-    def spoil(a: np.ndarray) -> np.ndarray:
-        out = a.copy()
-        mask = rng.random(out.shape[:2]) < 0.2
-        out[mask] = rng.choice([np.nan, np.inf, -np.inf, 1e30, -5.0])
-        return out
 
-    fill = {
-        "depth": lambda cf: spoil(cf.depth),
-        "motion_fwd": lambda cf: spoil(cf.motion_fwd),
-        "motion_bwd": lambda cf: spoil(cf.motion_bwd),
-    }
-    older, newer = _frame_with(pair.older, **fill), _frame_with(pair.newer, **fill)
-    r = sr.reproject(older, newer, pair.request, method, diagnostics=True)
-    assert r.image.dtype == np.uint8 and r.image.shape == (*pair.request.camera.shape, 3)
-    matched = r.source != sr.Reprojection.SOURCE_NONE
-    assert not np.isnan(r.error[matched]).any() or method == "timewarp"
+def _recolored(frame: sr.ServerFrame, seed: int, fill: int) -> sr.ServerFrame:
+    """``frame`` with the colours :func:`_spoilt` would set, and its depth and motion intact."""
+    spoilt = _spoilt(frame, seed, fill)
+    cams = [
+        dataclasses.replace(s, depth=cf.depth, motion_fwd=cf.motion_fwd, motion_bwd=cf.motion_bwd)
+        for s, cf in zip((spoilt.main, *spoilt.aux), (frame.main, *frame.aux), strict=True)
+    ]
+    return sr.ServerFrame(frame.index, frame.time, cams[0], tuple(cams[1:]))
 
 
 # ------------------------------------------------------------------------------------------

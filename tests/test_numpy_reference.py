@@ -1,7 +1,7 @@
 """Property (5) of issue #2: the native kernels agree with the pure-numpy reference.
 
 - ``_native.scene_flow`` (eqs. 1, 12, 13) against :func:`numpy_ref.scene_flow` on random cameras,
-  depths (NaN, ±inf and out-of-range values included), motions and ``w``: within 1e-4 NDC
+  depths (NaN, ±inf and out-of-range values included), motions and ``w``: within 1e-5 NDC
   (relative to the flow's magnitude where that exceeds 1; the kernels run in float32), and NaN
   exactly where the reference says the pixel is invalid or behind the client camera.
 - ``apply_shadows`` (eqs. 9–11) against :func:`numpy_ref.apply_shadows` on random bitfields,
@@ -155,13 +155,15 @@ def check_flow(src: scenes.Cam, depth, motion, client: scenes.Cam, w: float) -> 
         f"depth={depth[mismatch][:5]}, ref={ref[mismatch][:5]}, native={got[mismatch][:5]}"
     )
     both = ~ref_nan & ~got_nan & ~ambiguous
-    # 1e-4 NDC, relative to the flow where that exceeds 1 (float32 holds ~7 digits; a few dozen
-    # operations and the conditioning of the unprojection, far/near up to 2000, stay well inside).
+    # 1e-5 NDC, relative to the flow where that exceeds 1 (float32 holds ~7 digits; a few dozen
+    # operations and the conditioning of the unprojection, far/near up to 2000, stay inside).
     # One more term for points within centimetres of the client's camera plane (|clip w| small,
     # in front of its near plane): there w is a difference of terms of size M (the scene's
     # coordinates), so float32 leaves it a relative error of ~1e-6·M/|w|, and NDC = xyz/w inherits it.
-    cond = np.where(np.isfinite(cw), 0.05 * mag / np.maximum(np.abs(cw), 1e-12), 1.0)
-    tol = 1e-4 * scale * np.maximum(1.0, cond)
+    # Measured over 1000 random cases: at worst 0.29 of this tolerance. (At 1e-4 it was 25 times
+    # what was measured; the nearby-client test passed with w off by 2e-4 of itself.)
+    cond = np.where(np.isfinite(cw), 0.5 * mag / np.maximum(np.abs(cw), 1e-12), 1.0)
+    tol = 1e-5 * scale * np.maximum(1.0, cond)
     err = np.abs(got.astype(np.float64) - ref)
     bad = both[..., None] & (err > tol[..., None])
     assert not bad.any(), (

@@ -350,7 +350,9 @@ def _translation_check(case, blend: bool):
     inner = interior(H, W)
     matched = (source != NONE) & inner
     expected = visible_in([c0, c1], cards, cc) & inner
-    assert matched.sum() >= 0.98 * expected.sum(), (
+    # Measured (150 random cases): every visible interior pixel matched, and at worst one pixel
+    # (99.96 %) not within one pixel of the analytic image.
+    assert matched.sum() >= 0.995 * expected.sum(), (
         f"only {matched.sum()} interior pixels matched, {expected.sum()} are visible in a server image"
     )
     blended = (source & BLENDED) != 0
@@ -358,7 +360,7 @@ def _translation_check(case, blend: bool):
         blended, blend_within_one_pixel(image, truth, alpha), within_one_pixel(image, truth)
     )
     frac = ok[matched].mean() if matched.any() else 1.0
-    assert frac >= 0.99, (
+    assert frac >= 0.998, (
         f"{(~ok & matched).sum()} of {matched.sum()} matched interior pixels ({100 * (1 - frac):.2f} %) are not "
         f"within one pixel of the analytic image (alpha={alpha}, blend={blend}); first at "
         f"{np.argwhere(~ok & matched)[:3].tolist()}"
@@ -385,7 +387,7 @@ def test_translation_over_plane_matches_analytic_warp_without_blending(case):
 # --------------------------------------------------------------------------------------------
 
 
-def _swap_check(older, newer, client, alpha, min_equal=0.995, **options):
+def _swap_check(older, newer, client, alpha, min_equal=0.999, **options):
     a_img, a_src, _ = run(older, newer, client, alpha, **options)
     b_img, b_src, _ = run(swapped(newer, 0), swapped(older, 1), client, 1.0 - alpha, **options)
     equal = (a_img == b_img).all(axis=-1)
@@ -510,8 +512,9 @@ def test_time_reversal_symmetry_dynamic_scene(case):
     hypothesis draws two identical server poses. Algorithm 2 then starts from the other end of the
     correspondence (``p_f → q`` vs ``p_b → q′``), which may land on a neighbouring pixel, and where
     it lands on the same pair the float sum/lerp order differs (±1 after rounding). So: equality
-    on ≥ 99.5 % of pixels (300 random cases: worst 99.97 %, 12 cases below 100 %, all with
-    tie-swapped choices), and |Δ| ≤ 1 wherever the mirrored source won.
+    on ≥ 99.9 % of pixels (300 random cases: worst 99.97 %, i.e. one pixel of 3072, 12 cases
+    below 100 %, all with tie-swapped choices; 150 more cases: the same worst), and |Δ| ≤ 1
+    wherever the mirrored source won.
     """
     older, newer, client, alpha, use_aux = case
     _swap_check(older, newer, client, alpha, use_aux=use_aux)
