@@ -72,7 +72,7 @@ fn camera_paths_that_give_no_pose_are_refused() {
             "lab",
             Variant::Static,
             scene.objects.clone(),
-            scene.light.clone(),
+            scene.light,
             scene.sky,
             scene.duration,
             (scene.near, scene.far),
