@@ -311,6 +311,7 @@ TABLE: dict[str, Entry] = {
         lambda f: sr.Scene("courtyard").ground_truth, lambda f: dict(camera=f.cam, t=0.1),
         dict(camera=THING, t=NUMBER, samples=[*INT[1:], 0]),
     ),
+    "Scene.digest": (lambda f: sr.Scene("courtyard").digest, lambda f: {}, {}),
     "Scene.path_motion": (lambda f: sr.Scene("courtyard").path_motion, lambda f: {},
                           dict(prediction_delay=[*NUMBER[1:], -1.0])),
     "DecodedStream": (lambda f: sr.DecodedStream, lambda f: dict(packets=f.packets),

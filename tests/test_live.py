@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import json
 import math
 import queue
 import re
+import shutil
 import signal
 import ssl
 import subprocess
@@ -126,10 +128,11 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
                    token="nope", timeout=30)
     assert bad.returncode == 2
     assert bad.stderr.strip() == "splitrender: error: refused by the server: wrong token"
-    version = _connect(server.port, tmp_path, "--protocol-version", "7", timeout=30,
+    # A version 3 client (its hello has this layout: version 4 changed only the welcome).
+    version = _connect(server.port, tmp_path, "--protocol-version", "3", timeout=30,
                        fingerprint=server.fingerprint)
     assert version.returncode == 2 and len(version.stderr.strip().splitlines()) == 1
-    assert "protocol version 7 is not supported (this server speaks version 3)" in version.stderr
+    assert "protocol version 3 is not supported (this server speaks version 4)" in version.stderr
     other = server.fingerprint.replace(server.fingerprint[:2], "00" if server.fingerprint[:2]
                                        != "00" else "11", 1)
     pinned = _connect(server.port, tmp_path, fingerprint=other.lower().replace(":", ""),
@@ -155,6 +158,7 @@ def test_refusals(server: _Server, tmp_path: Path) -> None:
 
 
 def test_session(server: _Server, tmp_path: Path) -> None:
+    ended = server.log.read_text().count("session ended")
     done = _connect(server.port, tmp_path, "--seconds", "5", fingerprint=server.fingerprint)
     assert done.returncode == 0, done.stderr
     r = _report(tmp_path)
@@ -183,7 +187,7 @@ def test_session(server: _Server, tmp_path: Path) -> None:
         assert sum(1 for _ in c.decode(video=0)) == round(5.0 * 120)
     # usable_late, frame by frame, is what server_frames_late counts.
     assert sum(f["usable_late"] for f in r["target_mbps"]) == r["server_frames_late"]
-    server.wait_log("session ended", 10)
+    _sessions_ended(server, ended)
 
 
 def test_a_long_session_keeps_the_newest_frame_records_only(
@@ -200,6 +204,7 @@ def test_a_long_session_keeps_the_newest_frame_records_only(
     monkeypatch.setattr(live, "KEEP_DEAD_STREAMS", 4)
     client = live.LiveClient(
         live.ConnectOptions("127.0.0.1", server.port, TOKEN, server.fingerprint))
+    ended = server.log.read_text().count("session ended")
     welcome = client.connect()
     conns = set()  # the connection while the display runs (let go of at the close)
     r = client.run(Scene(welcome.scene).client_pose, 2.0,
@@ -218,7 +223,9 @@ def test_a_long_session_keeps_the_newest_frame_records_only(
     assert 0 < r["network"]["longest_gap_s"] < 2.0
     assert r["network"]["server_render_ms_p50"] > 0
     assert not hasattr(client, "poses")
-    server.wait_log("session ended", 10)
+    # Its own session's end (a "session ended" of an earlier test let the next one meet a
+    # server still serving this one: refused as busy).
+    _sessions_ended(server, ended)
 
 
 def _sessions_ended(server: _Server, before: int, timeout: float = 15.0) -> None:
@@ -674,7 +681,7 @@ def test_frames_that_never_end_are_held_to_a_bound() -> None:
             # A perspective projection (reversed depth, near 0.1): row-major, as the wire has it.
             proj = (1.0, 0, 0, 0, 0, 1.78, 0, 0, 0, 0, 0, 0.1, 0, 0, -1.0, 0)
             q.send_stream_data(0, proto.frame_control(proto.Welcome(
-                10.0, 0.03125, 80, 45, proj, 100, 1.0, 0.1, "courtyard").encode()))
+                10.0, 0.03125, 80, 45, proj, 100, 1.0, 0.1, "courtyard", bytes(32)).encode()))
             for k in range(streams):
                 sid = q.get_next_available_stream_id(is_unidirectional=True)
                 header = proto.FrameHeader(k, k, True, 0.0, 0.1, 0.0, 1e6, 1.0, 1.0,
@@ -839,29 +846,108 @@ def _quad_in_view(folder: Path) -> Path:
 def test_connect_scores_a_scene_description_against_its_own_ground_truth(
     tmp_path: Path,
 ) -> None:
-    # The welcome names the description's built-in scene only, and `connect --score` scored
+    # The welcome named the description's built-in scene only, and `connect --score` scored
     # against that: without the models (here SSIM 0.63 and 14.7 dB for a session whose own
     # scores are 0.89 and 24.9). `connect --scene` takes the description the server renders;
-    # one of another built-in scene is refused before the session.
+    # since version 4 the welcome's scene digest must be its digest: another scene, another
+    # description of the same built-in scene, or no --scene with --score is refused before
+    # the session, and a copy of the description and its model elsewhere is accepted.
     desc = _quad_in_view(tmp_path)
+    mine = tmp_path / "client"  # the client's copy, in a folder of its own
+    mine.mkdir()
+    for name in ("scene.json", "quad.gltf"):
+        shutil.copy(tmp_path / name, mine / name)
+    other = tmp_path / "grey"  # the same placement of another model file (no material)
+    other.mkdir()
+    shutil.copy(desc, other / "scene.json")
+    from conftest import quad_blob, quad_document
+
+    (other / "quad.gltf").write_text(json.dumps(quad_document(quad_blob())))
     server = _Server(tmp_path / "serve.log", "--scene", str(desc), "--bitrate", "0.5")
+    digest = server.line("scene digest ").split()[2]
     try:
-        other = _connect(server.port, tmp_path / "other", "--scene", "colonnade",
-                         fingerprint=server.fingerprint, timeout=30)
-        assert other.returncode == 2 and other.stderr.strip() == (
-            "splitrender: error: --scene colonnade: the server renders 'courtyard', this scene "
-            "is 'colonnade'"), other.stderr
-        assert not (tmp_path / "other" / "report.json").exists()
-        _sessions_ended(server, 0)
-        done = _connect(server.port, tmp_path / "out", "--scene", str(desc), "--seconds", "2",
-                        "--score", "--no-vmaf", fingerprint=server.fingerprint)
+        for i, (args, words) in enumerate([
+            (["--scene", "colonnade"], "--scene colonnade: not the scene the server renders: "
+             f"the server renders 'courtyard' with scene digest {digest}, this one "
+             "(colonnade, dynamic, 0 models) "),
+            (["--scene", str(other / "scene.json")],
+             f"--scene {other / 'scene.json'}: not the scene the server renders: the server "
+             f"renders 'courtyard' with scene digest {digest}, this one (courtyard, dynamic, "
+             "1 model) "),
+            (["--score"], f"--score: the server renders 'courtyard' with scene digest {digest}"
+             ", not the built-in 'courtyard' ("),
+        ]):
+            refused = _connect(server.port, tmp_path / f"refused{i}", *args,
+                               fingerprint=server.fingerprint, timeout=30)
+            assert refused.returncode == 2, refused.stderr
+            line = refused.stderr.strip()
+            assert line.startswith(f"splitrender: error: {words}"), line
+            assert line.endswith("; pass --scene the scene description the server was given")
+            assert len(line.splitlines()) == 1
+            assert not (tmp_path / f"refused{i}" / "report.json").exists()
+            _sessions_ended(server, i)
+        done = _connect(server.port, tmp_path / "out", "--scene", str(mine / "scene.json"),
+                        "--seconds", "2", "--score", "--no-vmaf",
+                        fingerprint=server.fingerprint)
     finally:
         server.stop()
     assert done.returncode == 0, done.stderr
     r = _report(tmp_path / "out")
-    assert r["scene"] == str(desc) and r["scored_frames"] >= 20
+    assert r["scene"] == str(mine / "scene.json") and r["scored_frames"] >= 20
+    assert r["scene_digest"] == digest
     # Measured: 24.9 dB, SSIM 0.89 (load average 3); against the built-in scene 14.7 and 0.63.
     assert r["psnr"] > 19 and r["ssim"] > 0.75, (r["psnr"], r["ssim"], r["modes"])
+
+
+def test_a_scene_digest_is_of_what_renders_not_of_its_paths(tmp_path: Path) -> None:
+    """Scene.digest, which the welcome carries: the same for a copy of a description and its
+    model files in another folder; another for another byte of a file the model references
+    (a .gltf's external buffer), another placement or variant."""
+    from conftest import quad_blob, quad_document
+
+    from splitrender.scene import Scene
+
+    def description(folder: Path, blob: bytes, position: float = -3.0,
+                    variant: str = "dynamic") -> Path:
+        folder.mkdir()
+        doc = quad_document(blob)
+        doc["buffers"][0]["uri"] = "quad%20data.bin"  # relative, percent-encoded
+        (folder / "quad.gltf").write_text(json.dumps(doc))
+        (folder / "quad data.bin").write_bytes(blob)
+        (folder / "scene.json").write_text(json.dumps({"scene": "courtyard", "variant": variant,
+            "models": [{"path": "quad.gltf", "position": [0, 0, position]}]}, indent=2))
+        return folder / "scene.json"
+
+    blob = quad_blob()
+    first = Scene.from_description(description(tmp_path / "a", blob)).digest()
+    assert len(first) == 32
+    assert Scene.from_description(description(tmp_path / "b", blob)).digest() == first
+    other = bytearray(blob)
+    other[0] ^= 1  # one bit of one vertex, in the .bin file only
+    for changed in (description(tmp_path / "c", bytes(other)),
+                    description(tmp_path / "d", blob, position=-3.5),
+                    description(tmp_path / "e", blob, variant="static")):
+        assert Scene.from_description(changed).digest() != first, changed
+    assert len({Scene(n).digest() for n in ("courtyard", "colonnade", "lab")} | {first}) == 4
+    assert Scene("courtyard").digest() != Scene("courtyard", "static").digest()
+
+
+def test_connect_without_scene_goes_on_unless_it_scores() -> None:
+    """Without --scene, the built-in scene's head path gives the poses whatever the server
+    renders; only --score, which would compare two scenes, is refused."""
+    from splitrender.cli.live import _scene_mismatch
+    from splitrender.scene import Scene
+
+    scene = Scene("courtyard")
+    ours = scene.digest()
+    welcome = proto.Welcome(10.0, 0.01, 25, 14, (1.0,) * 16, 100, 1.0, 0.1, "courtyard", ours)
+    for score in (False, True):
+        assert _scene_mismatch(welcome, scene, ours, None, score) is None
+        assert _scene_mismatch(welcome, scene, ours, "courtyard", score) is None
+        other = dataclasses.replace(welcome, scene_digest=bytes(32))
+        assert (_scene_mismatch(other, scene, ours, None, score) is None) == (not score)
+        assert "--scene x.json: not the scene" in str(
+            _scene_mismatch(other, scene, ours, "x.json", score))
 
 
 # The cap test's settings. At 77x43 a frame carries ~1.3 kB whatever the target (packet
@@ -1325,7 +1411,7 @@ def test_usable_late_is_what_server_frames_late_counts() -> None:
     client = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None))
     client.welcomed(proto.Welcome(fs, scale, cam.width, cam.height,
                                   tuple(float(v) for v in cam.proj.ravel()), 100, 1.0, 0.1,
-                                  "courtyard"))
+                                  "courtyard", bytes(32)))
     with StreamEncoder(CodecConfig(bitrate_mbps=1.0, fps=fs, threads=1)) as enc:
         packets = [enc.encode(f) for f in frames]
     # Each frame arrives 20 ms before the display first needs it (t_k - 1/f_s), except frames
@@ -1439,12 +1525,16 @@ def test_connect_says_n_a_for_a_pose_to_display_it_does_not_have(tmp_path: Path)
     from aioquic.asyncio import QuicConnectionProtocol
     from aioquic.quic.events import StreamDataReceived
 
+    from splitrender.scene import Scene
+
+    digest = Scene("courtyard").digest()  # the built-in scene's: connect goes on
+
     class WelcomeOnly(QuicConnectionProtocol):
         def quic_event_received(self, event: Any) -> None:
             if isinstance(event, StreamDataReceived) and event.stream_id == 0:
                 proj = (1.0, 0, 0, 0, 0, 1.78, 0, 0, 0, 0, 0, 0.1, 0, 0, -1.0, 0)
                 self._quic.send_stream_data(0, proto.frame_control(proto.Welcome(
-                    10.0, 0.03125, 80, 45, proj, 100, 1.0, 0.1, "courtyard").encode()))
+                    10.0, 0.03125, 80, 45, proj, 100, 1.0, 0.1, "courtyard", digest).encode()))
                 self.transmit()
 
     with _hand_made_server(WelcomeOnly) as port:
@@ -1507,7 +1597,8 @@ def test_a_live_clients_poses_are_checked_and_run_always_closes_the_session() ->
 
     def connected() -> LiveClient:
         client = LiveClient(ConnectOptions("127.0.0.1", 9, TOKEN, None))
-        client.welcomed(proto.Welcome(10.0, 0.01, 25, 14, proj, 100, 1.0, 0.1, "courtyard"))
+        client.welcomed(proto.Welcome(10.0, 0.01, 25, 14, proj, 100, 1.0, 0.1, "courtyard",
+                                      bytes(32)))
         assert client.realtime is not None
         return client
 

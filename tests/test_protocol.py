@@ -7,7 +7,9 @@ from __future__ import annotations
 import dataclasses
 import asyncio
 import math
+import re
 import struct
+from typing import Any
 
 import numpy as np
 import pytest
@@ -42,7 +44,7 @@ def test_round_trips() -> None:
     hello = proto.Hello("tok€n", 160, 90, 90.0)
     assert proto.decode_control(hello.encode()) == hello
     welcome = proto.Welcome(10.0, 0.0625, 160, 90, tuple(float(i) for i in range(16)), 100,
-                            0.2, 0.05, "courtyard")
+                            0.2, 0.05, "courtyard", bytes(range(32)))
     assert proto.decode_control(welcome.encode()) == welcome
     kr = proto.KeyRequest(41, proto.KEY_UNDECODABLE)
     assert proto.decode_control(kr.encode()) == kr
@@ -63,8 +65,8 @@ def test_documented_sizes() -> None:
     assert len(proto.PoseSample(0, 0.0, np.eye(4)).encode()) == 109
     assert len(proto.RateReport(0, 0, 0, 0, 0, 0, 0).encode()) == 43
     assert proto.FrameHeader.SIZE == 63
-    w = proto.Welcome(10.0, 0.1, 1, 1, (0.0,) * 16, 1, 1.0, 1.0, "s" * 255)
-    assert len(w.encode()) == 425 <= proto.MAX_CONTROL
+    w = proto.Welcome(10.0, 0.1, 1, 1, (0.0,) * 16, 1, 1.0, 1.0, "s" * 255, bytes(32))
+    assert len(w.encode()) == 457 <= proto.MAX_CONTROL
 
 
 def test_every_close_code_is_documented_and_has_words() -> None:
@@ -98,6 +100,50 @@ def test_hello_refusals_name_the_field() -> None:
         proto.Hello.decode(raw[:-1])
     with pytest.raises(ProtocolError, match="display size 5x0"):
         proto.Hello.decode(proto.Hello("t", 5, 1).encode()[:-12] + struct.pack("<HHd", 5, 0, 60))
+
+
+def _welcome(**changes: Any) -> proto.Welcome:
+    w = proto.Welcome(10.0, 0.1, 16, 9, (0.0,) * 16, 1, 1.0, 1.0, "courtyard", b"\xab" * 32)
+    return dataclasses.replace(w, **changes)
+
+
+def test_version_3_peers_are_refused_as_such() -> None:
+    """Version 4 added the welcome's scene digest: a version 3 hello is refused with the
+    version this side speaks, and a version 3 welcome (170 + N bytes, no digest) is refused
+    for its version, not for its size, nor read as a welcome without a digest."""
+    raw = proto.Hello("t").encode()
+    v3 = raw[:5] + struct.pack("<H", 3) + raw[7:]  # a version 3 hello has this layout too
+    with pytest.raises(ProtocolError, match=re.escape(
+            "protocol version 3 is not supported (this server speaks version 4)")):
+        proto.Hello.decode(v3)
+    assert proto.hello_version(v3) == 3
+    old = struct.Struct("<BHddHHHdd16dB")  # version 3's welcome
+    name = b"courtyard"
+    v3_welcome = old.pack(2, 3, 10.0, 0.1, 16, 9, 1, 1.0, 1.0, *(0.0,) * 16, len(name)) + name
+    with pytest.raises(ProtocolError, match="welcome: protocol version 3, expected 4"):
+        proto.decode_control(v3_welcome)
+    with pytest.raises(ProtocolError, match="welcome: protocol version 3, expected 4"):
+        proto.decode_control(_welcome(version=3).encode())
+
+
+def test_the_welcomes_scene_digest_is_32_bytes_and_its_size_checked() -> None:
+    w = _welcome(scene_digest=bytes(range(32)))
+    raw = w.encode()
+    # After the projection, before the name's length: 1 + 2 + 8 + 8 + 3·2 + 8 + 8 + 128 bytes.
+    assert raw[169:201] == bytes(range(32)) and raw[201] == len("courtyard")
+    assert proto.Welcome.decode(raw).scene_digest == bytes(range(32))
+    for bad in (bytes(31), bytes(33), b"", "ab" * 32):
+        with pytest.raises(ProtocolError, match="welcome.scene_digest: expected 32 bytes"):
+            _welcome(scene_digest=bad).encode()
+    # Sizes before use: a welcome cut inside the digest, a name other than its length says.
+    with pytest.raises(ProtocolError, match="welcome: expected at least 202 bytes, got 190"):
+        proto.decode_control(raw[:190])
+    with pytest.raises(ProtocolError, match="welcome: expected 211 bytes, got 212"):
+        proto.decode_control(raw + b"x")
+    with pytest.raises(ProtocolError, match="welcome: expected 222 bytes, got 211"):
+        proto.decode_control(raw[:201] + bytes([20]) + raw[202:])
+    with pytest.raises(ProtocolError, match="welcome: expected at least 3 bytes, got 2"):
+        proto.decode_control(raw[:2])
 
 
 def test_datagram_limits_and_checks() -> None:
@@ -164,7 +210,8 @@ def test_fuzz_only_protocol_errors(data: bytes) -> None:
 
 @given(st.integers(0, 200), st.integers(0, 255))
 def test_fuzz_mutated_messages(pos: int, byte: int) -> None:
-    for raw in (proto.Hello("tok").encode(), proto.PoseSample(1, 2.0, _pose(2.0)).encode(),
+    for raw in (proto.Hello("tok").encode(), _welcome().encode(),
+                proto.PoseSample(1, 2.0, _pose(2.0)).encode(),
                 proto.RateReport(1, 1, 1, 1, 1, 1, 1).encode(), _header(5).encode()):
         m = bytearray(raw)
         m[pos % len(m)] = byte
@@ -572,14 +619,16 @@ def test_encoder_live_controls_and_seq_indexed_packets() -> None:
     with pytest.raises(InvalidInputError):
         sr.StreamEncoder().set_bitrate(0.0)
     proj = tuple(frames[0].main.camera.proj.ravel())
-    dec = _TimeIndexed(proto.Welcome(fps, 1.0, 32, 24, proj, 100, 0.5, 0.1, "synthetic"))
+    dec = _TimeIndexed(proto.Welcome(fps, 1.0, 32, 24, proj, 100, 0.5, 0.1, "synthetic",
+                                     bytes(32)))
     try:
         assert [dec.decode(p).index for p in packets] == ks
     finally:
         dec.close()
     # Its pixels are bounded by the welcome's size: packets of this server's larger cameras
     # (the decoder's own bound is 2^25 pixels, a gigabyte of buffers) are refused.
-    small = _TimeIndexed(proto.Welcome(fps, 1.0, 16, 12, proj, 100, 0.5, 0.1, "synthetic"))
+    small = _TimeIndexed(proto.Welcome(fps, 1.0, 16, 12, proj, 100, 0.5, 0.1, "synthetic",
+                                       bytes(32)))
     try:
         with pytest.raises(StreamError, match="exceeds the decoder's limit of 384 pixels"):
             small.decode(packets[0])

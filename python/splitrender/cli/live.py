@@ -233,6 +233,7 @@ def run_serve(args: argparse.Namespace) -> int:
               f"{args.fps:g} FPS, {s.min_mbps():.3g}-{s.max_mbps():.3g} Mb/s, first frame "
               f"rendered + encoded in {s.proc_estimate * 1e3:.0f} ms", flush=True)
         print(f"fingerprint {s.fingerprint}", flush=True)
+        print(f"scene digest {s.scene_digest.hex()}", flush=True)
         if args.token is None:
             print(f"token {token}", flush=True)
 
@@ -265,16 +266,17 @@ def add_connect(sub: Any) -> None:
     add_max_divisor(p, MAX_DIVISOR)
     p.add_argument("--scene", default=None, metavar="SCENE",
                    help="the scene the server renders, for the poses and --score's ground "
-                   "truth: the JSON scene description given to `serve --scene` (the server "
-                   "names only its built-in scene, which has none of the models), or a "
-                   "built-in scene; one whose built-in scene is not the server's is refused "
-                   "(default: the built-in scene the server names)")
+                   "truth: the JSON scene description given to `serve --scene` (a copy "
+                   "elsewhere will do), or a built-in scene; one whose scene digest is not "
+                   "the one the server sends is refused (default: the built-in scene the "
+                   "server names)")
     add_trace(p)
     add_out(p)
     p.add_argument("--score", action="store_true",
                    help="afterwards, render the ground truth at the poses the client had and "
                    "score the display frames (ssim, flip, psnr, vmaf) into report.json; "
-                   "against a server of a scene description give it with --scene")
+                   "against a server of a scene description give it with --scene (refused "
+                   "without)")
     p.add_argument("--compare", default=None, choices=METHODS, metavar="M",
                    help="with --score: afterwards, replay the packets this session decoded, "
                    "at the same arrival times and poses, through method M and score it too "
@@ -320,6 +322,9 @@ def run_connect(args: argparse.Namespace) -> int:
         trace = None if args.trace is None else load_trace(args.trace)
         # Before connecting: a description that does not load is named without a session.
         given = None if args.scene is None else open_scene(args.scene, "--scene: ")
+        # Its models read for the digest before connecting too (the server ends a session
+        # that sends no pose for 3 s).
+        given_digest = None if given is None else given.digest()
         # Before connecting: a method without a GPU kernel, or no adapter, fails here.
         require_backend(args.backend, args.method)
     except SplitRenderError as e:
@@ -343,14 +348,15 @@ def run_connect(args: argparse.Namespace) -> int:
             client.close()
             return fail(f"the server renders {welcome.scene!r}, not a built-in scene: this "
                         "client cannot compute its poses in it")
-        if given is not None and given.name != welcome.scene:
-            # The welcome names the built-in scene of what the server renders (of its
-            # description too): another one cannot be the server's, and scored against it the
-            # session would compare two different scenes.
-            client.close()
-            return fail(f"--scene {args.scene}: the server renders {welcome.scene!r}, this "
-                        f"scene is {given.name!r}")
         scene = given if given is not None else Scene(welcome.scene)
+        problem = _scene_mismatch(
+            welcome, scene, given_digest if given_digest is not None else scene.digest(),
+            args.scene, args.score,
+        )
+        if problem is not None:
+            # Scored against another scene, the session would compare two different scenes.
+            client.close()
+            return fail(problem)
         if trace is not None:
             motion = TraceMotion(scene, trace, args.trace_scale).client_pose
         else:
@@ -393,6 +399,7 @@ def run_connect(args: argparse.Namespace) -> int:
         return fail(str(e))
     # What the poses and the ground truth came from: the server names only a built-in scene.
     report["scene"] = welcome.scene if args.scene is None else args.scene
+    report["scene_digest"] = welcome.scene_digest.hex()  # what the server rendered
     out: Path = args.out
     with outputs as stage:
         _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0])
@@ -422,6 +429,32 @@ def run_connect(args: argparse.Namespace) -> int:
           f"pose-to-display p50 {'n/a' if p50 is None else f'{p50:.0f} ms'}, "
           f"{report['mbps']:.3f} Mb/s; wrote {out}/report.json")
     return 0
+
+
+def _scene_mismatch(
+    welcome: Any, scene: Any, digest: bytes, given: str | None, score: bool
+) -> str | None:
+    """Why ``connect`` must not go on with ``scene`` (``digest``: its :meth:`Scene.digest`;
+    ``given``: ``--scene`` as given, ``None``: the built-in scene ``welcome`` names) against
+    the server of ``welcome``; ``None`` when it may. A ``--scene`` is the user's word that it
+    is the server's scene: refused when its digest differs. Without one, the built-in
+    scene's head path gives the poses whatever the server renders, but scoring against it
+    compares two scenes: ``--score`` is refused when the server renders something else (a
+    scene description, another variant)."""
+    if digest == welcome.scene_digest:
+        return None
+    server = (f"the server renders {welcome.scene!r} with scene digest "
+              f"{welcome.scene_digest.hex()}")
+    advice = "pass --scene the scene description the server was given"
+    if given is not None:
+        models = len(scene.models)
+        return (f"--scene {given}: not the scene the server renders: {server}, this one "
+                f"({scene.name}, {scene.variant}, {models} model{'s' * (models != 1)}) "
+                f"{digest.hex()}; {advice}")
+    if score:
+        return (f"--score: {server}, not the built-in {welcome.scene!r} ({digest.hex()}), "
+                f"whose ground truth would not be the session's; {advice}")
+    return None
 
 
 #: Highest frame rate of connect's video: what players and the H.264 writers take (as

@@ -54,6 +54,7 @@ __all__ = [
     "MIN_DISPLAY_FPS",
     "MIN_SERVER_FPS",
     "PROTOCOL_VERSION",
+    "SCENE_DIGEST_BYTES",
     "ControlReader",
     "FrameHeader",
     "Hello",
@@ -73,14 +74,14 @@ __all__ = [
 ]
 
 #: The version this code speaks; a hello of any other is refused (:data:`CLOSE_VERSION`).
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 #: QUIC's application protocol name (TLS ALPN); a peer without it fails the handshake.
 ALPN = "splitrender-live/1"
 #: Four bytes that open a :class:`Hello`, so that a stray peer is refused as such.
 HELLO_MAGIC = b"SRLV"
 
 #: Largest control message body (after its u16 length): a hello with the longest token is 84 B,
-#: a welcome with the longest scene name 425 B.
+#: a welcome with the longest scene name 457 B.
 MAX_CONTROL = 1024
 #: Largest datagram either side accepts (a pose is 109 B, a report 43 B).
 MAX_DATAGRAM = 256
@@ -98,6 +99,8 @@ MAX_FRAME_PAYLOAD = 64 << 20
 MAX_POSITION = 1e6
 #: Longest scene name in a welcome, in bytes (UTF-8).
 MAX_SCENE_NAME = 255
+#: Size of a welcome's scene digest (SHA-256, :meth:`splitrender.scene.Scene.digest`).
+SCENE_DIGEST_BYTES = 32
 
 # Connection close codes (QUIC application error codes) of a refusal or an ending.
 CLOSE_BYE = 0  #: the session ended normally
@@ -132,7 +135,8 @@ _F64 = npt.NDArray[np.float64]
 
 _HELLO = struct.Struct("<B4sHB")  # type, magic, version, token length; token; then _HELLO_TAIL
 _HELLO_TAIL = struct.Struct("<HHd")  # display width, height (0 = the server's), f_c
-_WELCOME = struct.Struct("<BHddHHHdd16dB")  # ...; then the scene name
+_WELCOME = struct.Struct("<BHddHHHdd16d32sB")  # ..., scene digest, name length; the name
+_WELCOME_VERSION = struct.Struct("<BH")  # type, version: read before the rest
 _KEY_REQUEST = struct.Struct("<BqB")
 _POSE = struct.Struct("<BId12d")
 _REPORT = struct.Struct("<BIddffIIHf")
@@ -245,7 +249,10 @@ def hello_version(data: bytes | memoryview) -> int | None:
 class Welcome:
     """The server's answer to an accepted hello: what the client needs to display the stream
     (server rate ``f_s``, main camera size and projection, key-frame interval ``gop``, the bit
-    rate range) and to compute its own poses (``scene``, ``scale``)."""
+    rate range) and to compute its own poses (``scene``, the built-in scene, and ``scale``).
+    Since version 4 ``scene_digest`` (32 bytes): the :meth:`~splitrender.scene.Scene.digest`
+    of exactly what the server renders (variant, placed models and their files too), which a
+    client compares with its own scene's before it scores against it."""
 
     server_fps: float
     scale: float
@@ -256,12 +263,20 @@ class Welcome:
     max_mbps: float
     min_mbps: float
     scene: str
+    scene_digest: bytes
     version: int = PROTOCOL_VERSION
 
     def encode(self) -> bytes:
         name = self.scene.encode("utf-8")
         if len(name) > MAX_SCENE_NAME:
             raise ProtocolError(f"welcome.scene: at most {MAX_SCENE_NAME} bytes, got {len(name)}")
+        if not isinstance(self.scene_digest, bytes) or len(self.scene_digest) != (
+            SCENE_DIGEST_BYTES
+        ):
+            raise ProtocolError(
+                f"welcome.scene_digest: expected {SCENE_DIGEST_BYTES} bytes, got "
+                f"{self.scene_digest!r:.80}"
+            )
         if len(self.proj) != 16:
             raise ProtocolError(f"welcome.proj: expected 16 values, got {len(self.proj)}")
         return (
@@ -276,6 +291,7 @@ class Welcome:
                 self.max_mbps,
                 self.min_mbps,
                 *self.proj,
+                self.scene_digest,
                 len(name),
             )
             + name
@@ -283,14 +299,19 @@ class Welcome:
 
     @classmethod
     def decode(cls, data: bytes | memoryview) -> Welcome:
+        """The welcome in ``data``. Its version is read first, so that a welcome of another
+        version (another layout: version 3's has no digest) is refused as such, not for its
+        size."""
         _type("welcome", data, T_WELCOME)
-        _expect("welcome", data, _WELCOME.size, exact=False)
-        _, version, fs, scale, w, h, gop, hi, lo, *rest = _WELCOME.unpack_from(data, 0)
-        proj, n = tuple(float(v) for v in rest[:16]), rest[16]
+        _expect("welcome", data, _WELCOME_VERSION.size, exact=False)
+        version = _WELCOME_VERSION.unpack_from(data, 0)[1]
         if version != PROTOCOL_VERSION:
             raise ProtocolError(
                 f"welcome: protocol version {version}, expected {PROTOCOL_VERSION}"
             )
+        _expect("welcome", data, _WELCOME.size, exact=False)
+        _, _, fs, scale, w, h, gop, hi, lo, *rest = _WELCOME.unpack_from(data, 0)
+        proj, digest, n = tuple(float(v) for v in rest[:16]), bytes(rest[16]), rest[17]
         _expect("welcome", data, _WELCOME.size + n)
         fs = _finite("welcome.server_fps", fs, MIN_SERVER_FPS, MAX_FPS)
         scale = _finite("welcome.scale", scale, 1e-6, 16.0)
@@ -303,7 +324,7 @@ class Welcome:
         for i, v in enumerate(proj):
             _finite(f"welcome.proj[{i}]", v)
         name = _text("welcome.scene", data[_WELCOME.size :])
-        return cls(fs, scale, w, h, proj, gop, hi, lo, name, version)
+        return cls(fs, scale, w, h, proj, gop, hi, lo, name, digest, version)
 
 
 @dataclass(frozen=True, slots=True)

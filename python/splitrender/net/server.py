@@ -858,7 +858,9 @@ class LiveServer:
     :func:`load_certificate_chain` returns them; none for a self-signed one), which a client
     that verifies against the root CA rather than pinning needs. :attr:`fingerprint` is the
     SHA-256 of the (leaf) certificate (what a client pins). ``scene`` overrides the built-in
-    scene of ``options.scene_name`` (e.g. one loaded from a JSON description)."""
+    scene of ``options.scene_name`` (e.g. one loaded from a JSON description); the welcome
+    names its built-in scene and :attr:`scene_digest`, its :meth:`Scene.digest`, computed
+    once here (the model files read again), which a client compares with its own scene's."""
 
     def __init__(
         self,
@@ -872,6 +874,7 @@ class LiveServer:
     ) -> None:
         self.options = options
         self.scene = scene if scene is not None else Scene(options.scene_name)
+        self.scene_digest = self.scene.digest()
         # Before the first render: at a scale the codec cannot carry, that render took seconds
         # to minutes (and gigabytes) for an encode that then failed.
         check_scale(self.scene, options.scale)
@@ -952,7 +955,7 @@ class LiveServer:
         w, h = self.size
         return Welcome(
             o.fps, o.scale, w, h, self.proj, o.gop, self.max_mbps(), self.min_mbps(),
-            o.scene_name,
+            self.scene.name, self.scene_digest,
         ).encode()
 
     def session_ended(self, session: _Session) -> None:

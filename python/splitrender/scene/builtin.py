@@ -22,6 +22,8 @@ import hashlib
 import json
 import math
 import os
+import re
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Sequence
@@ -32,7 +34,7 @@ import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.errors import InvalidInputError
-from splitrender.files import JSON_KINDS, read_json, read_regular
+from splitrender.files import JSON_KINDS, open_regular, read_json, read_regular
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 from splitrender.types import (  # argument checks
     BOOL,
@@ -95,6 +97,99 @@ def _check_samples(samples: int | None) -> int | None:
             f"samples: expected an int in 1..{MAX_SAMPLES} per pixel side or None, got {samples!r}"
         )
     return samples
+
+
+#: What :meth:`Scene.digest` hashes first: the version of its definition.
+DIGEST_KIND = "splitrender-scene/1"
+#: Largest model file, or file a model references, :meth:`Scene.digest` reads: the glTF
+#: loader's own limit per file (crates/reproj-scene, ``MAX_FILE_BYTES``).
+MAX_MODEL_FILE_BYTES = 1 << 30
+
+
+def _file_sha256(path: Path, what: str) -> tuple[str, bytes]:
+    """The SHA-256 (hex) of the file at ``path`` and its first 20 bytes, read in pieces, at
+    most :data:`MAX_MODEL_FILE_BYTES`."""
+    h = hashlib.sha256()
+    head = b""
+    n = 0
+    try:
+        with open_regular(path, what, InvalidInputError) as f:
+            while chunk := f.read(1 << 20):
+                n += len(chunk)
+                if n > MAX_MODEL_FILE_BYTES:
+                    raise InvalidInputError(
+                        f"{path}: {what} is more than {MAX_MODEL_FILE_BYTES} bytes"
+                    )
+                if len(head) < 20:
+                    head += chunk[: 20 - len(head)]
+                h.update(chunk)
+    except OSError as e:
+        raise InvalidInputError(f"{path}: cannot read the {what}: {e}") from None
+    return h.hexdigest(), head
+
+
+def _gltf_json(path: Path, head: bytes) -> Any:
+    """The JSON document of the glTF model at ``path`` (``head``: its first 20 bytes): the
+    whole file, or a GLB file's JSON chunk."""
+    glb = head[:4] == b"glTF"
+    try:
+        if not glb:
+            raw = read_regular(path, MAX_MODEL_FILE_BYTES, "glTF model", InvalidInputError)
+        else:
+            if len(head) < 20:
+                raise InvalidInputError(f"{path}: a GLB file of {len(head)} bytes")
+            (size,) = struct.unpack_from("<I", head, 12)
+            with open_regular(path, "glTF model", InvalidInputError) as f:
+                # Checked against the file before reading: a read allocates what it asks for.
+                if size > os.fstat(f.fileno()).st_size - 20:
+                    raise InvalidInputError(f"{path}: GLB JSON chunk of {size} bytes, longer "
+                                            "than the file")
+                f.seek(20)
+                raw = f.read(size)
+    except OSError as e:
+        raise InvalidInputError(f"{path}: cannot read the glTF model: {e}") from None
+    try:
+        return json.loads(raw)
+    except (ValueError, RecursionError):
+        raise InvalidInputError(f"{path}: not a glTF model (its JSON does not parse)") from None
+
+
+def _model_identity(m: ModelPlacement) -> dict[str, Any]:
+    """What :meth:`Scene.digest` takes of the placed model ``m``: its placement and the SHA-256
+    of its file and of each file its glTF document references by a relative URI (``buffers``,
+    then ``images``, in order; ``data:`` URIs are in the document's own bytes)."""
+    from urllib.parse import unquote
+
+    path = Path(m.path)
+    sha, head = _file_sha256(path, "glTF model")
+    doc = _gltf_json(path, head)
+    resources = []
+    for key in ("buffers", "images"):
+        entries = doc.get(key, []) if isinstance(doc, dict) else []
+        for i, entry in enumerate(entries if isinstance(entries, list) else []):
+            uri = entry.get("uri") if isinstance(entry, dict) else None
+            if not isinstance(uri, str) or uri.startswith("data:"):
+                continue
+            try:
+                name = unquote(uri, errors="strict")
+            except UnicodeDecodeError:
+                raise InvalidInputError(f"{path}: {key}[{i}].uri is not UTF-8") from None
+            # As the loader (gltf/source.rs, parse_uri), which refused the model otherwise.
+            if ":" in uri or name.startswith(("/", "\\")) or re.match("[A-Za-z]:", name):
+                raise InvalidInputError(f"{path}: {key}[{i}].uri {uri!r}: expected a relative "
+                                        "path or a data: URI")
+            resources.append(_file_sha256(path.parent / name, f"file of {key}[{i}]")[0])
+    return {
+        # + 0.0: -0.0 as 0.0 (the same placement).
+        "position": [float(v) + 0.0 for v in m.position],
+        "yaw_deg": m.yaw_deg + 0.0,
+        "scale": m.scale,
+        "animation": m.animation,
+        "time_offset": m.time_offset + 0.0,
+        "speed": m.speed,
+        "sha256": sha,
+        "resources": resources,
+    }
 
 
 class TraceError(InvalidInputError):
@@ -371,6 +466,31 @@ class Scene:
     @checked(prediction_delay=floats(lo=0.0, hi=10.0))
     def path_motion(self, prediction_delay: float = PREDICTION_DELAY) -> PathMotion:
         return PathMotion(self, prediction_delay)
+
+    def digest(self) -> bytes:
+        """The SHA-256 that identifies what this scene renders (32 bytes): its built-in scene,
+        its variant and, per placed model in order, the placement's numbers and the bytes of
+        the model file and of every file it references (a ``.gltf``'s buffers and images, a
+        ``.glb``'s external ones). Not the model paths or the description's own text: a copy
+        of a description and its models in another folder, or reformatted, has the same
+        digest; another model file, placement or variant has another. ``splitrender serve``
+        sends it in its welcome and ``connect`` compares it with its ``--scene``'s
+        (docs/protocol.md, "Scene digest", gives the exact text hashed).
+
+        Reads the model files again (they may have changed since the scene was built: the
+        digest is of what they hold now).
+
+        Raises:
+            InvalidInputError: a model file or a file it references that cannot be read, is
+                larger than the glTF loader takes, or a model that is not glTF.
+        """
+        models = [_model_identity(m) for m in self.models]
+        text = json.dumps(
+            {"digest": DIGEST_KIND, "scene": self.name, "variant": self.variant,
+             "models": models},
+            sort_keys=True, separators=(",", ":"), allow_nan=False, ensure_ascii=True,
+        )
+        return hashlib.sha256(text.encode("ascii")).digest()
 
 
 class ClientMotion(Protocol):
