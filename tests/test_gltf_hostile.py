@@ -59,15 +59,22 @@ def _missing_node(d: dict[str, Any]) -> None:
     d["animations"][0]["channels"][0]["target"]["node"] = 99
 
 
-def _huge_sparse(d: dict[str, Any]) -> None:
-    a = d["accessors"][0]
+def _sparse(d: dict[str, Any], accessor: int, count: int, given: int, values: int) -> None:
+    """Accessor ``accessor`` made sparse: ``count`` elements, zero (no buffer view) but for the
+    first ``given`` ones, whose indices are read from the quad's index view (0, 1, 2, ...) and
+    values from view ``values``."""
+    a = d["accessors"][accessor]
     del a["bufferView"]
-    a["count"] = 500_000_000
+    a["count"] = count
     a["sparse"] = {
-        "count": 1,
+        "count": given,
         "indices": {"bufferView": 1, "componentType": 5123},
-        "values": {"bufferView": 0},
+        "values": {"bufferView": values},
     }
+
+
+def _huge_sparse(d: dict[str, Any]) -> None:
+    _sparse(d, 0, 500_000_000, 1, 0)
 
 
 def _vec2(d: dict[str, Any]) -> None:
@@ -169,14 +176,7 @@ def _sparse_indices(d: dict[str, Any]) -> None:
     # 999,999 indices from a sparse accessor: zero (no buffer view) but for the first three,
     # 0, 1, 2 (read from the quad's own indices): one triangle and 333,332 with every corner
     # at vertex 0, in a file of about a kilobyte.
-    a = d["accessors"][1]
-    del a["bufferView"]
-    a["count"] = 999_999
-    a["sparse"] = {
-        "count": 3,
-        "indices": {"bufferView": 1, "componentType": 5123},
-        "values": {"bufferView": 1},
-    }
+    _sparse(d, 1, 999_999, 3, 1)
 
 
 def _one_triangle(d: dict[str, Any]) -> None:

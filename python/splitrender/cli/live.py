@@ -10,7 +10,7 @@ import math
 import secrets
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -45,9 +45,13 @@ from splitrender.net.protocol import (
     MAX_TOKEN,
     MIN_DISPLAY_FPS,
     MIN_SERVER_FPS,
+    Welcome,
     normalise_fingerprint,
 )
 from splitrender.types import MAX_SPAN
+
+if TYPE_CHECKING:  # imported where used (it loads the native module)
+    from splitrender.scene.builtin import Scene
 
 __all__ = ["add_connect", "add_relay", "add_serve"]
 
@@ -432,7 +436,7 @@ def run_connect(args: argparse.Namespace) -> int:
 
 
 def _scene_mismatch(
-    welcome: Any, scene: Any, digest: bytes, given: str | None, score: bool
+    welcome: Welcome, scene: Scene, digest: bytes, given: str | None, score: bool
 ) -> str | None:
     """Why ``connect`` must not go on with ``scene`` (``digest``: its :meth:`Scene.digest`;
     ``given``: ``--scene`` as given, ``None``: the built-in scene ``welcome`` names) against

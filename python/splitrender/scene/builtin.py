@@ -106,11 +106,10 @@ DIGEST_KIND = "splitrender-scene/1"
 MAX_MODEL_FILE_BYTES = 1 << 30
 
 
-def _file_sha256(path: Path, what: str) -> tuple[str, bytes]:
-    """The SHA-256 (hex) of the file at ``path`` and its first 20 bytes, read in pieces, at
-    most :data:`MAX_MODEL_FILE_BYTES`."""
+def _file_sha256(path: Path, what: str) -> str:
+    """The SHA-256 (hex) of the file at ``path``, read in pieces, at most
+    :data:`MAX_MODEL_FILE_BYTES`."""
     h = hashlib.sha256()
-    head = b""
     n = 0
     try:
         with open_regular(path, what, InvalidInputError) as f:
@@ -120,36 +119,38 @@ def _file_sha256(path: Path, what: str) -> tuple[str, bytes]:
                     raise InvalidInputError(
                         f"{path}: {what} is more than {MAX_MODEL_FILE_BYTES} bytes"
                     )
-                if len(head) < 20:
-                    head += chunk[: 20 - len(head)]
                 h.update(chunk)
     except OSError as e:
         raise InvalidInputError(f"{path}: cannot read the {what}: {e}") from None
-    return h.hexdigest(), head
+    return h.hexdigest()
 
 
-def _gltf_json(path: Path, head: bytes) -> Any:
-    """The JSON document of the glTF model at ``path`` (``head``: its first 20 bytes): the
-    whole file, or a GLB file's JSON chunk."""
-    glb = head[:4] == b"glTF"
+def _model_file(path: Path) -> tuple[str, Any]:
+    """The SHA-256 (hex) of the glTF model file at ``path`` and its JSON document: a ``.gltf``
+    read once for both; a GLB hashed in pieces (its binary chunk may be large) and its JSON
+    chunk read on its own."""
     try:
-        if not glb:
-            raw = read_regular(path, MAX_MODEL_FILE_BYTES, "glTF model", InvalidInputError)
-        else:
-            if len(head) < 20:
-                raise InvalidInputError(f"{path}: a GLB file of {len(head)} bytes")
-            (size,) = struct.unpack_from("<I", head, 12)
-            with open_regular(path, "glTF model", InvalidInputError) as f:
+        with open_regular(path, "glTF model", InvalidInputError) as f:
+            head = f.read(20)
+            glb = head[:4] == b"glTF"
+            if glb:
+                if len(head) < 20:
+                    raise InvalidInputError(f"{path}: a GLB file of {len(head)} bytes")
+                (size,) = struct.unpack_from("<I", head, 12)
                 # Checked against the file before reading: a read allocates what it asks for.
                 if size > os.fstat(f.fileno()).st_size - 20:
                     raise InvalidInputError(f"{path}: GLB JSON chunk of {size} bytes, longer "
                                             "than the file")
-                f.seek(20)
                 raw = f.read(size)
+        if glb:
+            sha = _file_sha256(path, "glTF model")
+        else:
+            raw = read_regular(path, MAX_MODEL_FILE_BYTES, "glTF model", InvalidInputError)
+            sha = hashlib.sha256(raw).hexdigest()
     except OSError as e:
         raise InvalidInputError(f"{path}: cannot read the glTF model: {e}") from None
     try:
-        return json.loads(raw)
+        return sha, json.loads(raw)
     except (ValueError, RecursionError):
         raise InvalidInputError(f"{path}: not a glTF model (its JSON does not parse)") from None
 
@@ -161,8 +162,7 @@ def _model_identity(m: ModelPlacement) -> dict[str, Any]:
     from urllib.parse import unquote
 
     path = Path(m.path)
-    sha, head = _file_sha256(path, "glTF model")
-    doc = _gltf_json(path, head)
+    sha, doc = _model_file(path)
     resources = []
     for key in ("buffers", "images"):
         entries = doc.get(key, []) if isinstance(doc, dict) else []
@@ -178,7 +178,7 @@ def _model_identity(m: ModelPlacement) -> dict[str, Any]:
             if ":" in uri or name.startswith(("/", "\\")) or re.match("[A-Za-z]:", name):
                 raise InvalidInputError(f"{path}: {key}[{i}].uri {uri!r}: expected a relative "
                                         "path or a data: URI")
-            resources.append(_file_sha256(path.parent / name, f"file of {key}[{i}]")[0])
+            resources.append(_file_sha256(path.parent / name, f"file of {key}[{i}]"))
     return {
         # + 0.0: -0.0 as 0.0 (the same placement).
         "position": [float(v) + 0.0 for v in m.position],

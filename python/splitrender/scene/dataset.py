@@ -862,7 +862,8 @@ def import_dataset_as_recording(
     check_destination(dest, overwrite)
     if stages is not None:
         stages.stage(f"checking the dataset {root}")
-    # The frame counts from the cam.json files, before any image is read: a recording holds at
+    # The rates and shadow subframes (dataset_info), then every cam.json (_open_layout): the
+    # frame counts are checked from them before any image is read, as a recording holds at
     # most MAX_FRAMES server and client frames (load_recording refused the one written with
     # more).
     _check_names(root, aux, client)
@@ -870,26 +871,23 @@ def import_dataset_as_recording(
         raise _fail(root, "no such dataset directory")
     info = dataset_info(root, client)
     fs, fc = info.server_fps, info.client_fps
-    n_server = len(_read_json(root / "main" / "cam.json")["frames"])  # read by dataset_info
-    if n_server > MAX_FRAMES:
-        raise _fail(root / "main" / "cam.json", f"{n_server} server frames, a recording "
-                    f"holds at most {MAX_FRAMES}")
-    listed = _read_json(root / client / "cam.json").get("frames")
-    if isinstance(listed, list):
-        n_client = _client_frames_kept(len(listed), n_server, fs, fc)
-        if n_client > MAX_FRAMES:
-            raise _fail(root / client / "cam.json", f"{n_client} client frames lie between two "
-                        f"server frames, a recording holds at most {MAX_FRAMES}")
     lay = _open_layout(root, aux, client)
+    main_cam = lay.cams[0][1]
+    n_server = len(main_cam.frames)
+    if n_server > MAX_FRAMES:
+        raise _fail(main_cam.path, f"{n_server} server frames, a recording holds at most "
+                    f"{MAX_FRAMES}")
+    n_client = _client_frames_kept(len(lay.requests), n_server, fs, fc)
+    if n_client > MAX_FRAMES:
+        raise _fail(root / client / "cam.json", f"{n_client} client frames lie between two "
+                    f"server frames, a recording holds at most {MAX_FRAMES}")
     if not lay.requests or not lay.has_truth:
         raise DatasetError(f"{root / client}/color: missing; a recording needs the ground truth")
-    main = lay.cams[0][1]
-    w, h = main.size
+    w, h = main_cam.size
     cw, ch = lay.requests[0].camera.width, lay.requests[0].camera.height
     if (cw, ch) != (w, h):
         raise DatasetError(f"{root / client}/cam.json: client size {cw}x{ch}, a recording "
                            f"needs the main camera's {w}x{h}")
-    n_client = _client_frames_kept(len(lay.requests), n_server, fs, fc)
     if n_client == 0:
         raise DatasetError(f"{root}: no client frame lies between two server frames")
     # The ground truth of the client frames left out is checked as import_dataset checks it
@@ -911,7 +909,7 @@ def import_dataset_as_recording(
         pose = np.linalg.inv(cam.view).astype(np.float64)
         return ClientFrame(n, n / fc, pose, (cam,), (lay.truth(n),))
 
-    near, far = _near_far(main.frames[0][2])  # checked by _read_cam
+    near, far = _near_far(main_cam.frames[0][2])  # checked by _read_cam
     fields = {
         "generator": f"splitrender {__version__} (dataset import)",
         "scene": root.resolve().name,

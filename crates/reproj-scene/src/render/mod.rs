@@ -142,10 +142,9 @@ impl ServerBuffers {
 /// Checks a time `t` (seconds) that a render function was given as `what`: finite, and every
 /// object of `scene` at a finite position then (its world box is built in `f32`). A time the
 /// animations take out of range (seconds far beyond any path, such as 1e300) is refused here
-/// rather than building a BVH of infinite boxes. The scene itself is checked first
-/// ([`Scene::check`]: every render function calls this before anything else).
+/// rather than building a BVH of infinite boxes. The scene itself must have been checked
+/// ([`Scene::check`]: every render function does so first, once).
 pub(crate) fn check_time(scene: &Scene, what: &str, t: f64) -> Result<()> {
-    scene.check()?;
     let finite = |v: &f64| (*v as f32).is_finite();
     let ok = t.is_finite()
         && scene

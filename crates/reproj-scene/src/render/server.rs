@@ -122,6 +122,7 @@ pub fn render_server(
     }
     let n = check_samples(samples)?;
     let rays = camera_rays(camera, "server")?;
+    scene.check()?;
     check_time(scene, "t", t)?;
     if !interval.is_finite() {
         return Err(SceneError::BadTime {

@@ -62,6 +62,7 @@ pub fn render_ground_truth(
 ) -> Result<Vec<u8>> {
     let n = check_samples(samples)?;
     let rays = camera_rays(camera, "client")?;
+    scene.check()?;
     check_time(scene, "t", t)?;
     let snap = scene.at(t);
     let eye = EyeTiles::new(&snap, camera, &rays);
@@ -87,6 +88,7 @@ pub fn render_ground_truth(
 /// As [`render_ground_truth`].
 pub fn render_shadow_fraction(scene: &Scene, camera: &Camera, t: f64) -> Result<Vec<f32>> {
     let rays = camera_rays(camera, "shadow")?;
+    scene.check()?;
     check_time(scene, "t", t)?;
     let snap = scene.at(t);
     Ok(per_pixel(&rays, |_: &mut (), i, j| {
