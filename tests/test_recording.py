@@ -667,3 +667,24 @@ def test_a_writer_refuses_more_frames_than_a_recording_holds(tmp_path: Path) -> 
                        r"holds at most 50000"):
         write_entries(out, {}, LazyFrames(50_001, never), LazyFrames(1, never))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_recording_that_appears_while_another_is_written_is_kept(
+    recorded: Path, tmp_path: Path
+) -> None:
+    # Two runs writing one new path: the second to finish moved the first's recording aside
+    # and removed it (the overwrite branch ran because `out` existed by then), though neither
+    # was asked to replace anything.
+    out = tmp_path / "rec"
+    done: list[int] = []
+
+    def other_run_finishes(n: int, total: int) -> None:
+        if not done:  # after the first frame: another run's recording lands at `out`
+            shutil.copytree(recorded, out)
+        done.append(n)
+
+    before = _files(recorded)
+    with pytest.raises(RecordingError, match="appeared while this recording was written"):
+        write_recording(out, "lab", seconds=SECONDS, scale=SCALE, progress=other_run_finishes)
+    assert _files(out) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["rec"]  # the partial one removed

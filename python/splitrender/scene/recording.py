@@ -456,7 +456,8 @@ def write_frames(
     The recording is written into ``out.partial-<pid>`` and renamed to ``out`` when complete
     (an existing ``out`` is replaced then, with ``overwrite``); on an exception (Ctrl-C included)
     the partial directory is removed. Raises :class:`RecordingError` when ``out`` exists and
-    not ``overwrite``."""
+    not ``overwrite``, also when it appears while the frames are written (another run's
+    recording, which is kept)."""
 
     def server(k: int) -> tuple[float, bytes]:
         pose, f = server_frames[k]
@@ -522,7 +523,7 @@ def write_entries(
         }
         text = json.dumps(manifest, indent=1, sort_keys=False) + "\n"
         (tmp / _MANIFEST).write_text(text, encoding="utf-8")
-        if out.exists():  # overwrite: move the old one aside first, remove it after the rename
+        if overwrite and out.exists():  # move the old one aside first, remove it after
             old = out.with_name(f"{out.name}.old-{os.getpid()}")
             out.rename(old)
             try:
@@ -532,11 +533,30 @@ def write_entries(
                 raise
             shutil.rmtree(old)
         else:
-            tmp.rename(out)
+            _rename_new(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def _rename_new(tmp: Path, out: Path) -> None:
+    """Renames the finished ``tmp`` to ``out``, which was not there when the write began.
+
+    Something at ``out`` now (another run that wrote there meanwhile) is not replaced: a
+    directory rename fails onto a non-empty directory or a file, so the check is the
+    rename itself, with no window between a look and the move. (An empty directory made
+    meanwhile is replaced: nothing of anyone's is lost.)"""
+    try:
+        tmp.rename(out)
+    except OSError as e:
+        if not (out.exists() or out.is_symlink()):
+            raise
+        raise RecordingError(
+            f"{out}: appeared while this recording was written (another run writing there?) "
+            "and is left as it is; expected a new path (or replace it: --force, "
+            "overwrite=True)"
+        ) from e
 
 
 # --------------------------------------------------------------------------- reading
