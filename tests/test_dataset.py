@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import re
 import shutil
+import struct
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -194,6 +198,26 @@ def test_an_interrupted_export_leaves_no_dataset(
     monkeypatch.undo()
     sr.export_dataset(recording, empty)  # an empty folder is replaced by the finished export
     assert sorted(p.name for p in empty.iterdir()) == sorted(p.name for p in exported.iterdir())
+
+
+def test_an_export_keeps_what_another_run_wrote_meanwhile(
+    recording: sr.Recording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Two exports to one new folder: the second to finish failed on the rename with an
+    # OSError naming its hidden temporary folder ("Directory not empty").
+    out = tmp_path / "ds"
+    write_layout = dataset._write_layout
+
+    def another_run_finishes_first(*args: object, **kwargs: object) -> None:
+        write_layout(*args, **kwargs)  # type: ignore[arg-type]
+        out.mkdir()
+        (out / "theirs").write_text("kept")
+
+    monkeypatch.setattr(dataset, "_write_layout", another_run_finishes_first)
+    with pytest.raises(DatasetError, match=f"^{out}: appeared while this one was written"):
+        sr.export_dataset(recording, out)
+    assert [p.name for p in tmp_path.iterdir()] == ["ds"]  # the temporary folder removed
+    assert [p.name for p in out.iterdir()] == ["theirs"]
 
 
 def test_export_and_import_refuse_an_output_inside_the_input(
@@ -1060,3 +1084,176 @@ def test_command_line_messages_name_the_options(
     # The Python API's messages name its parameters.
     with pytest.raises(DatasetError, match=r"^aux: a recording has two auxiliary cameras, got 3"):
         import_dataset_as_recording(exported, out, aux=("left", "right", "x"))
+
+
+# ----------------------------------------------------------------------------------------------
+# A corrupt EXR: one line of ours, nothing of the OpenEXR library's on stdout or stderr.
+
+
+def _exr_table(data: bytes) -> int:
+    """Where the offset table of the handmade EXR ``data`` starts: after its last attribute
+    (``type``, ``scanlineimage``, the attributes being sorted by name) and the header's NUL."""
+    return data.index(b"scanlineimage\x00") + len(b"scanlineimage\x00")
+
+
+def _corrupt(data: bytes, kind: str) -> bytes:
+    """The one-chunk (4 lines, ZIP) depth EXR ``data`` corrupted as ``kind`` says."""
+    table = _exr_table(data)
+    (chunk,) = struct.unpack_from("<Q", data, table)
+    assert chunk == table + 8 and struct.unpack_from("<i", data, chunk) == (0,)
+    if kind == "header":  # cut inside the attributes
+        return data[:100]
+    if kind == "offset-table":
+        return data[: table + 4]
+    if kind == "chunk":  # inside the chunk's pixel data
+        return data[:-5]
+    if kind == "offset-past-end":
+        return data[:table] + struct.pack("<Q", len(data) + 1000) + data[table + 8 :]
+    # Garbage compressed data: a packed size below the 32 bytes of the 4 half lines (so ZIP),
+    # then 20 bytes that are not a zlib stream.
+    assert kind == "garbage"
+    return data[: chunk + 4] + struct.pack("<i", 20) + bytes(range(7, 27))
+
+
+_CORRUPTIONS = {
+    "header": "truncated or corrupt header: attribute 'dataWindow' runs past the end of the "
+              "file (100 bytes)",
+    "offset-table": "truncated: its offset table (1 x 8 bytes) ends at byte 314, past the end "
+                    "of the file (310 bytes)",
+    "chunk": "truncated or corrupt chunk 0 (lines 0..3) at byte 314: 32 bytes of data, but "
+             "only 27 follow its header in the file (349 bytes)",
+    "offset-past-end": "truncated or corrupt offset table: chunk 0 (lines 0..3) at byte 1354, "
+                       "past the end of the file (354 bytes)",
+    "garbage": "(EXR_ERR_CORRUPT_CHUNK) Unable to decompress",
+}
+
+
+# Two of the five as a subprocess (each starts an interpreter); the API test below takes all,
+# with fd 1 and 2 checked the same way.
+@pytest.mark.parametrize("kind", ["offset-table", "garbage"])
+def test_a_corrupt_exr_gets_one_line_of_ours_on_the_command_line(
+    handmade: Path, tmp_path: Path, kind: str
+) -> None:
+    # The library printed its own lines (`PATH: (EXR_ERR_BAD_CHUNK_LEADER) ...` on stderr,
+    # `Warning: Exception raised reading pixel data for part 0 - ...` on stdout) before ours,
+    # which then said "Invalid part index '0': file has 0 parts."; a chunk offset past the end
+    # of the file was taken without a word (the library rebuilt the table by scanning).
+    _recording_ready(handmade)
+    path = handmade / "main" / "depth" / "0007.exr"
+    good = path.read_bytes()
+    assert len(good) == 354  # the offsets in the messages
+    path.write_bytes(_corrupt(good, kind))
+    here = str(Path(sr.__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [here, *filter(None, [os.environ.get("PYTHONPATH")])]))
+    r = subprocess.run(
+        [sys.executable, "-m", "splitrender", "dataset", "import", str(handmade), "--out",
+         str(tmp_path / "rec"), "--quiet"],
+        env=env, capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert r.returncode == 2 and r.stdout == "", (r.returncode, r.stdout, r.stderr)
+    assert r.stderr.count("\n") == 1 and r.stderr.endswith("\n"), r.stderr
+    assert r.stderr.startswith(f"splitrender: error: {path}: cannot read EXR: "), r.stderr
+    assert _CORRUPTIONS[kind] in r.stderr, r.stderr
+    assert not (tmp_path / "rec").exists()
+
+
+@pytest.mark.parametrize("kind", list(_CORRUPTIONS))
+def test_a_corrupt_exr_says_nothing_of_the_library_to_an_api_caller(
+    handmade: Path, kind: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # As on the command line, for a program that calls the API: the error names the file and
+    # what was wrong, and fd 1 and 2 hold nothing of the library's.
+    path = handmade / "main" / "depth" / "0007.exr"
+    path.write_bytes(_corrupt(path.read_bytes(), kind))
+    with pytest.raises(DatasetError) as e:
+        sr.import_dataset(handmade, aux=())
+    assert str(e.value).startswith(f"{path}: cannot read EXR: ")
+    assert _CORRUPTIONS[kind] in str(e.value)
+    assert capfd.readouterr() == ("", "")
+
+
+def _write_exr_as(path: Path, z: np.ndarray, compression: object) -> None:
+    OpenEXR.File({"compression": compression, "type": OpenEXR.scanlineimage},
+                 {"Z": z.astype(np.float16)}).write(str(path))
+
+
+def test_import_refuses_exr_chunks_out_of_place(handmade: Path) -> None:
+    # One chunk a line (ZIPS): the 4 offsets are checked, each chunk's line and extent.
+    path = handmade / "main" / "depth" / "0007.exr"
+    _write_exr_as(path, np.full((4, 4), D_PLANE), OpenEXR.ZIPS_COMPRESSION)
+    data = path.read_bytes()
+    table = _exr_table(data)
+    offsets = struct.unpack_from("<4Q", data, table)
+    swapped = struct.pack("<4Q", offsets[1], offsets[0], *offsets[2:])
+    path.write_bytes(data[:table] + swapped + data[table + 32 :])
+    with pytest.raises(DatasetError, match=rf"0007\.exr: cannot read EXR: corrupt chunk 0 "
+                       rf"\(lines 0\.\.0\) at byte {offsets[1]}: it says line 1, expected 0$"):
+        sr.import_dataset(handmade, aux=())
+    into_table = struct.pack("<4Q", table + 8, *offsets[1:])
+    path.write_bytes(data[:table] + into_table + data[table + 32 :])
+    with pytest.raises(DatasetError, match=rf"corrupt offset table: chunk 0 \(lines 0\.\.0\) "
+                       rf"at byte {table + 8}, before the end of the table \(byte {table + 32}\)"):
+        sr.import_dataset(handmade, aux=())
+    # A packed size above what the line takes uncompressed (4 halves: 8 bytes) that fits the
+    # file: the library said "packed data size says 9, must be between 0 and 8" on stderr.
+    big = bytearray(data)
+    struct.pack_into("<i", big, offsets[3] + 4, 9)
+    path.write_bytes(bytes(big[: offsets[3] + 8 + 8]) + b"\0")
+    with pytest.raises(DatasetError, match=r"corrupt chunk 3 \(lines 3\.\.3\) at byte \d+: 9 "
+                       r"bytes of data, expected at most 8 \(its lines uncompressed\)$"):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_import_refuses_exr_chunks_that_overlap(handmade: Path) -> None:
+    # Uncompressed, one line a chunk: line 0's 8 bytes of pixels read as the leader of a chunk
+    # for line 1 with 8 bytes, and chunk 1's offset points there, inside chunk 0.
+    path = handmade / "main" / "depth" / "0007.exr"
+    z = np.full((4, 4), D_PLANE)
+    z[0] = np.frombuffer(struct.pack("<ii", 1, 8), np.float16)
+    _write_exr_as(path, z, OpenEXR.NO_COMPRESSION)
+    data = path.read_bytes()
+    table = _exr_table(data)
+    offsets = struct.unpack_from("<4Q", data, table)
+    inside = offsets[0] + 8  # past chunk 0's leader: its pixels
+    path.write_bytes(data[:table] + struct.pack("<4Q", offsets[0], inside, *offsets[2:])
+                     + data[table + 32 :])
+    with pytest.raises(DatasetError, match=rf"corrupt offset table: chunk 1 at byte {inside} "
+                       rf"lies inside chunk 0 \(which ends at byte {offsets[0] + 16}\)$"):
+        sr.import_dataset(handmade, aux=())
+
+
+@pytest.mark.parametrize("order", ["INCREASING_Y", "DECREASING_Y"])
+@pytest.mark.parametrize(
+    "compression", ["NO", "RLE", "ZIPS", "ZIP", "PIZ", "PXR24", "B44", "DWAA", "DWAB"]
+)
+def test_exrs_of_every_compression_and_line_order_pass_the_chunk_checks(
+    tmp_path: Path, compression: str, order: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # 40 lines: several chunks for all but DWAB's 256 lines; the offsets of a DECREASING_Y
+    # file decrease. Each reads as the library reads it, without a word on fd 1 or 2.
+    path = tmp_path / "z.exr"
+    z = (np.arange(40 * 5).reshape(40, 5) % 11 / 8).astype(np.float16)
+    OpenEXR.File({"compression": getattr(OpenEXR, f"{compression}_COMPRESSION"),
+                  "type": OpenEXR.scanlineimage, "lineOrder": getattr(OpenEXR, order)},
+                 {"Z": z}).write(str(path))
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        want = np.asarray(f.channels()["Z"].pixels, np.float32)
+    np.testing.assert_array_equal(dataset._read_exr(path, (5, 40), "depth"), want)
+    assert capfd.readouterr() == ("", "")
+
+
+def test_what_others_write_while_the_library_is_captured_goes_where_it_went(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # fd 1 and 2 and sys.stdout are captured around the library's calls: the library's lines
+    # are kept for the error, those of others (another thread) are passed on afterwards.
+    path = tmp_path / "x.exr"
+    with dataset._library_output(path) as said:
+        os.write(2, f"{path}: (EXR_ERR_CORRUPT_CHUNK) bad\nanother's line\n".encode())
+        print("Warning: Exception raised reading pixel data for part 0 - Unable to run decoder")
+        print("printed by another")
+        os.write(1, b"written by another\n")
+    assert said == ["(EXR_ERR_CORRUPT_CHUNK) bad", "Unable to run decoder"]
+    out, err = capfd.readouterr()
+    assert out == "written by another\nprinted by another\n" and err == "another's line\n"

@@ -684,7 +684,7 @@ def test_a_recording_that_appears_while_another_is_written_is_kept(
         done.append(n)
 
     before = _files(recorded)
-    with pytest.raises(RecordingError, match="appeared while this recording was written"):
+    with pytest.raises(RecordingError, match="appeared while this one was written"):
         write_recording(out, "lab", seconds=SECONDS, scale=SCALE, progress=other_run_finishes)
     assert _files(out) == before
     assert [p.name for p in tmp_path.iterdir()] == ["rec"]  # the partial one removed

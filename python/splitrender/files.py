@@ -395,6 +395,25 @@ def write_atomic(path: str | os.PathLike[str], data: bytes | str) -> None:
 Error = Callable[[str], Exception]
 
 
+def rename_new_folder(tmp: Path, out: Path, error: Error, hint: str = "") -> None:
+    """Renames the finished folder ``tmp`` to ``out``, which was missing or an empty folder when
+    the write began; raises ``error`` when something is there now (another run that wrote
+    there meanwhile), which is left as it is.
+
+    A folder's rename fails onto a non-empty folder or a file, so the check is the rename
+    itself, with no window between a look and the move. (An empty folder made meanwhile is
+    replaced: nothing of anyone's is lost.) ``hint`` ends the message (``"; expected ..."``)."""
+    try:
+        tmp.rename(out)
+    except OSError as e:
+        if not (out.exists() or out.is_symlink()):
+            raise
+        raise error(
+            f"{out}: appeared while this one was written (another run writing there?) and is "
+            f"left as it is{hint}"
+        ) from e
+
+
 def check_name(name: object, what: str, error: Error = InvalidInputError) -> str:
     """Returns ``name`` if it is a plain file or folder name (a non-empty ``str`` without ``/``,
     ``\\`` or NUL, not ``.`` or ``..``), else raises ``error(message)`` naming ``what``. Both

@@ -28,13 +28,20 @@ Conventions, theirs → ours (derived in docs/dataset-format.md):
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import functools
+import io
 import json
 import math
 import os
 import shutil
 import stat
-from collections.abc import Sequence
+import struct
+import sys
+import tempfile
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -51,6 +58,7 @@ from splitrender.files import (
     check_name,
     joined,
     read_json_object,
+    rename_new_folder,
     temporary_beside,
     unwritable_folder,
 )
@@ -245,17 +253,26 @@ def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
     """``want="depth"``: the single channel as ``float32[H, W]``; ``want="flow"``: R, G, B as
     ``float32[H, W, 3]``. The size, parts and channels are checked from the header before the
     pixels are read: every part and channel of the file is decoded, so these bound what is
-    allocated (a second part or extra channels were decoded whatever their size)."""
+    allocated (a second part or extra channels were decoded whatever their size). So is the
+    layout of the file's chunks (:func:`_check_exr_chunks`), so that a file cut short or with
+    a broken offset table is refused in our words; what the library still says about a file
+    (corrupt compressed data) is folded into the error (:func:`_library_output`), as nothing
+    of it may reach the command line's stdout or stderr."""
     _check_file(path)
+    said: list[str] = []
     try:
-        header_file = OpenEXR.File(str(path), header_only=True)
+        with _library_output(path) as said:
+            header_file = OpenEXR.File(str(path), header_only=True)
         parts = len(header_file.parts)
         hdr = header_file.header()
         lo, hi = (np.asarray(v) for v in hdr["dataWindow"])
         w, h = int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
         names = [c.name for c in hdr["channels"]]
     except (RuntimeError, OSError, KeyError, TypeError, ValueError) as e:
-        raise _fail(path, f"cannot read EXR: {e}") from None
+        _exr_header_end(path)  # a specific reason where the layout gives one
+        raise _fail(path, f"cannot read EXR: {_said(said) or e}") from None
+    if said:
+        raise _fail(path, f"cannot read EXR: {_said(said)}")
     if parts != 1:
         raise _fail(path, f"{parts} parts, expected a single-part EXR")
     if (w, h) != size:
@@ -266,13 +283,20 @@ def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
         raise _fail(path, f"expected a single-channel depth EXR, got {_channels(names)}")
     if want == "flow" and not {"R", "G", "B"} <= set(names) <= {"R", "G", "B", "A"}:
         raise _fail(path, f"expected channels R, G, B (A optional), got {_channels(names)}")
+    _check_exr_chunks(path, int(hdr["compression"]), int(lo[1]), w, h)
     try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
+        with _library_output(path) as said, OpenEXR.File(
+            str(path), separate_channels=True
+        ) as f:
             ch = f.channels()
             keys = names if want == "depth" else ["R", "G", "B"]
             planes = [np.asarray(ch[k].pixels) for k in keys]
     except (RuntimeError, OSError, KeyError, TypeError, ValueError) as e:
-        raise _fail(path, f"cannot read EXR: {e}") from None
+        # The library reports corrupt pixel data on stderr and stdout and then raises about
+        # something else ("Invalid part index '0': file has 0 parts"): what it said comes first.
+        raise _fail(path, f"cannot read EXR: {_said(said) or e}") from None
+    if said:  # it complained but returned: the pixels are not the file's
+        raise _fail(path, f"cannot read EXR: {_said(said)}")
     for k, p in zip(keys, planes):
         if p.shape != (h, w):
             raise _fail(path, f"channel of shape {p.shape}, expected {(h, w)}")
@@ -281,6 +305,268 @@ def _read_exr(path: Path, size: tuple[int, int], want: str) -> _F32:
     if want == "depth":
         return np.ascontiguousarray(planes[0], dtype=np.float32)
     return np.ascontiguousarray(np.stack(planes, axis=-1), dtype=np.float32)
+
+
+# The layout of a scanline OpenEXR file (openexr.com, "OpenEXR File Layout"): the magic number
+# and version flags, the header (attributes ``name\0 type\0 size:int32 value``, ended by a NUL),
+# the offset table (one uint64 per chunk, ordered by y whatever the line order) and the chunks
+# (``y:int32 packed size:int32 data``).
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_EXR_TILED, _EXR_DEEP, _EXR_MULTIPART = 0x200, 0x800, 0x1000
+#: Lines per chunk by compression code, fixed by the format. Codes above 11 (ZSTD, LJ2K) are not
+#: in every version of the library with the same geometry: their files are not checked here.
+_EXR_LINES_PER_CHUNK = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 32, 9: 256,
+                        10: 256, 11: 32}
+_EXR_SAMPLE_BYTES = {0: 4, 1: 2, 2: 4}  # UINT, HALF, FLOAT
+
+
+class _ExrHeader(NamedTuple):
+    """What :func:`_exr_header_end` finds: the file's size and flags, where its header ends
+    and the bytes a pixel takes over all channels (``None``: subsampled or unknown channels)."""
+
+    size: int
+    flags: int
+    end: int
+    pixel_bytes: int | None
+
+
+def _exr_header_end(path: Path) -> _ExrHeader:
+    """Walks the header of the EXR at ``path`` (each attribute's size checked against the file's
+    before it is skipped); raises :class:`DatasetError` for a file that is not an EXR or whose
+    header is cut short."""
+    try:
+        with open(path, "rb", buffering=0) as f:
+            size = os.fstat(f.fileno()).st_size
+            head = f.read(8)
+            if len(head) < 8 or head[:4] != _EXR_MAGIC:
+                raise _fail(path, "cannot read EXR: not an OpenEXR file (no magic number)")
+            flags = int.from_bytes(head[4:], "little")
+            # Names and types of at most 31 bytes, 255 with the long-names flag (0x400): the
+            # looser bound for all, as this walk only finds where the header ends.
+            longest = 256
+            pos, pixel_bytes = 8, None
+            while True:
+                f.seek(pos)
+                buf = f.read(2 * longest + 4)
+                if buf[:1] == b"\0":
+                    pos += 1
+                    break
+                name_end = buf.find(b"\0", 0, longest)
+                type_end = buf.find(b"\0", name_end + 1, name_end + 1 + longest)
+                if name_end <= 0 or type_end < 0 or type_end + 5 > len(buf):
+                    raise _cut(path, size, f"the attribute at byte {pos}")
+                (n,) = struct.unpack_from("<i", buf, type_end + 1)
+                start = pos + type_end + 5
+                if n < 0 or start + n > size:
+                    raise _cut(path, size, f"attribute {buf[:name_end].decode('latin-1')!r}")
+                if buf[:name_end] == b"channels" and n <= 4096:
+                    f.seek(start)
+                    pixel_bytes = _chlist_pixel_bytes(f.read(n))
+                pos = start + n
+    except OSError as e:
+        raise _fail(path, f"cannot read EXR: {e.strerror or e}") from None
+    return _ExrHeader(size, flags, pos, pixel_bytes)
+
+
+def _cut(path: Path, size: int, what: str) -> DatasetError:
+    return _fail(path, f"cannot read EXR: truncated or corrupt header: {what} runs past the end "
+                       f"of the file ({size} bytes)")
+
+
+def _chlist_pixel_bytes(value: bytes) -> int | None:
+    """The bytes a pixel takes in all channels of the ``chlist`` ``value``; ``None`` where a
+    channel is subsampled or of an unknown type, or the list is malformed."""
+    total, pos = 0, 0
+    while pos < len(value) and value[pos] != 0:
+        end = value.find(b"\0", pos)
+        if end < 0 or end + 17 > len(value):
+            return None
+        kind, _, xs, ys = struct.unpack_from("<iB3xii", value, end + 1)
+        if kind not in _EXR_SAMPLE_BYTES or (xs, ys) != (1, 1):
+            return None
+        total += _EXR_SAMPLE_BYTES[kind]
+        pos = end + 17
+    return total if pos < len(value) else None
+
+
+def _check_exr_chunks(path: Path, compression: int, y_min: int, w: int, h: int) -> None:
+    """Refuses a scanline EXR whose offset table or chunks do not fit the file: ``ceil(h /
+    lines per chunk)`` offsets after the header, each chunk within the file past the table,
+    saying the first line it should hold and holding no more bytes than its lines take
+    uncompressed (exactly as many without compression), no two overlapping. These read the
+    table and 8 bytes a chunk. Given such files, the library printed its own lines on stderr
+    and stdout, or (an offset out of the file) rebuilt the table by scanning the file without
+    a word. Tiled, deep and multi-part files (with one part) and compressions of other codes
+    are left to the library."""
+    hdr = _exr_header_end(path)
+    lines = _EXR_LINES_PER_CHUNK.get(compression)
+    if hdr.flags & (_EXR_TILED | _EXR_DEEP | _EXR_MULTIPART) or lines is None:
+        return
+    try:
+        chunks = _exr_chunks(path, hdr, compression, y_min, w, h, lines)
+    except (OSError, struct.error) as e:  # struct.error: the file shrank while it was read
+        raise _fail(path, f"cannot read EXR: {e}") from None
+    chunks.sort()
+    for (_, end, i), (at, _, j) in zip(chunks, chunks[1:]):
+        if at < end:
+            raise _fail(path, f"cannot read EXR: corrupt offset table: chunk {j} at byte {at} "
+                              f"lies inside chunk {i} (which ends at byte {end})")
+
+
+def _exr_chunks(
+    path: Path, hdr: _ExrHeader, compression: int, y_min: int, w: int, h: int, lines: int
+) -> list[tuple[int, int, int]]:
+    """(start, end, index) of each chunk of the scanline EXR at ``path``, each checked as
+    :func:`_check_exr_chunks` says but for the overlaps."""
+    n = -(-h // lines)
+    lead = 8  # y, packed size
+    table_end = hdr.end + 8 * n
+    if table_end > hdr.size:
+        raise _fail(path, f"cannot read EXR: truncated: its offset table ({n} x 8 bytes) ends "
+                          f"at byte {table_end}, past the end of the file ({hdr.size} bytes)")
+    chunks = []
+    with open(path, "rb", buffering=0) as f:  # 8 bytes a chunk: no read-ahead
+        f.seek(hdr.end)
+        offsets = struct.unpack(f"<{n}Q", f.read(8 * n))
+        for i, at in enumerate(offsets):
+            y0 = y_min + i * lines
+            what = f"chunk {i} (lines {y0}..{min(y0 + lines, y_min + h) - 1})"
+            if at < table_end:
+                raise _fail(path, f"cannot read EXR: corrupt offset table: {what} at byte {at}, "
+                                  f"before the end of the table (byte {table_end})")
+            if at > hdr.size - lead:
+                where = "," if at >= hdr.size else f", whose {lead}-byte header runs"
+                raise _fail(path, f"cannot read EXR: truncated or corrupt offset table: {what} "
+                                  f"at byte {at}{where} past the end of the file ({hdr.size} "
+                                  "bytes)")
+            f.seek(at)
+            y, packed = struct.unpack("<ii", f.read(lead))
+            if y != y0:
+                raise _fail(path, f"cannot read EXR: corrupt {what} at byte {at}: it says line "
+                                  f"{y}, expected {y0}")
+            if not 0 <= packed <= hdr.size - at - lead:
+                raise _fail(path, f"cannot read EXR: truncated or corrupt {what} at byte {at}: "
+                                  f"{packed} bytes of data, but only {hdr.size - at - lead} "
+                                  f"follow its header in the file ({hdr.size} bytes)")
+            if hdr.pixel_bytes is not None:
+                raw = (min(y0 + lines, y_min + h) - y0) * w * hdr.pixel_bytes
+                if packed > raw or (compression == 0 and packed != raw):
+                    expected = f"{raw}" if compression == 0 else f"at most {raw}"
+                    raise _fail(path, f"cannot read EXR: corrupt {what} at byte {at}: {packed} "
+                                      f"bytes of data, expected {expected} (its lines "
+                                      f"uncompressed)")
+            chunks.append((at, at + lead + packed, i))
+    return chunks
+
+
+# fd 1 and 2 and sys.stdout are the process's: one capture at a time.
+_OUTPUT_LOCK = threading.Lock()
+#: How the Python binding reports an exception of the C++ library (py::print to sys.stdout).
+_BINDING_WARNING = "Warning: Exception raised reading pixel data for part "
+_SAID_LINES, _SAID_CHARS = 3, 200
+_CAPTURED = 1 << 20  # bytes of a capture sorted into the library's lines and others'
+
+
+@contextlib.contextmanager
+def _library_output(path: Path) -> Iterator[list[str]]:
+    """Runs the block with the library's output captured: the C core's error lines (on fd 2,
+    ``PATH: (EXR_ERR_...) ...``) and the binding's warnings (``py::print`` on sys.stdout) are
+    appended to the list it gives, without the file name; anything else written meanwhile (by
+    another thread) is written where it was going once the block ends. fd 1 is captured too,
+    for the C stdio of the library (flushed before it is given back)."""
+    said: list[str] = []
+    with _OUTPUT_LOCK:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        saved = _redirect_fds((1, 2))
+        py_out = io.StringIO()
+        try:
+            with contextlib.redirect_stdout(py_out):
+                yield said
+        finally:
+            _fflush_c()
+            name = str(path)
+            for fd, old, tmp in saved:
+                os.dup2(old, fd)
+                os.close(old)
+                with tmp:
+                    tmp.seek(0)
+                    _sort_lines(tmp.read(_CAPTURED).decode("utf-8", "replace"), name, said,
+                                functools.partial(_write_fd, fd))
+                    while rest := tmp.read(_CAPTURED):  # another's flood: passed on as it is
+                        _write_fd(fd, rest)
+            _sort_lines(py_out.getvalue(), name, said, _write_stdout)
+
+
+def _redirect_fds(fds: tuple[int, ...]) -> list[tuple[int, int, Any]]:
+    """Points each of ``fds`` at a new temporary file; returns (fd, saved copy, file) for those
+    it could (a closed fd is left as it is)."""
+    saved = []
+    for fd in fds:
+        try:
+            old = os.dup(fd)
+        except OSError:
+            continue
+        try:
+            tmp = tempfile.TemporaryFile()
+            os.dup2(tmp.fileno(), fd)
+        except OSError:
+            os.close(old)
+            continue
+        saved.append((fd, old, tmp))
+    return saved
+
+
+@functools.cache
+def _libc_fflush() -> Any:
+    try:
+        return ctypes.CDLL(None).fflush
+    except (OSError, AttributeError, TypeError):  # not a POSIX C library
+        return None
+
+
+def _fflush_c() -> None:
+    """Flushes the C stdio buffers (what the library wrote with printf)."""
+    fflush = _libc_fflush()
+    if fflush is not None:
+        fflush(None)
+
+
+def _sort_lines(text: str, name: str, said: list[str], other: Callable[[str], None]) -> None:
+    """Appends the library's lines of ``text`` to ``said`` (without the file name ``name``),
+    hands the rest to ``other``."""
+    rest = []
+    for line in text.splitlines(keepends=True):
+        bare = line.rstrip("\r\n")
+        if bare.startswith(_BINDING_WARNING):
+            said.append(bare[len(_BINDING_WARNING):].partition(" - ")[2] or bare)
+        elif bare.startswith(name + ": "):
+            said.append(bare[len(name) + 2:])
+        else:
+            rest.append(line)
+    if rest:
+        with contextlib.suppress(Exception):
+            other("".join(rest))
+
+
+def _write_fd(fd: int, text: str | bytes) -> None:
+    data = text.encode() if isinstance(text, str) else text
+    while data:
+        data = data[os.write(fd, data):]
+
+
+def _write_stdout(text: str) -> None:
+    sys.stdout.write(text)
+
+
+def _said(said: list[str]) -> str:
+    """The library's lines as one, without repeats: the first few, each cut to a length."""
+    lines = list(dict.fromkeys(s.strip() for s in said if s.strip()))
+    shown = [s if len(s) <= _SAID_CHARS else s[: _SAID_CHARS - 3] + "..."
+             for s in lines[:_SAID_LINES]]
+    more = f"; ... ({len(lines)} lines in all)" if len(lines) > _SAID_LINES else ""
+    return "; ".join(shown) + more
 
 
 def _channels(names: Sequence[str], shown: int = 8) -> str:
@@ -511,7 +797,7 @@ def export_dataset(
     _make_temporary(tmp, out)
     try:
         _write_layout(tmp, rec, frames, names, client)
-        os.replace(tmp, out)  # out is missing or an empty folder, which a rename replaces
+        rename_new_folder(tmp, out, DatasetError, "; expected a new or empty folder")
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -813,7 +1099,9 @@ def import_dataset(
             the same ``idx`` (the client's only when it has ground truth), aux frame lists of
             another length than main's, unreadable images, an image that is not an 8-bit PNG
             (a JPEG named ``.png``, a 16-bit PNG), or an EXR of more than one part, other
-            channels than it needs or integer samples.
+            channels than it needs or integer samples, whose offset table or chunks do not fit
+            the file (cut short, an offset out of place) or whose data the library cannot
+            decode (what it said is in the message; nothing of it reaches stdout or stderr).
     """
     lay = _open_layout(Path(in_dir), aux, None if client is None else os.fspath(client))
     per_cam = [list(_camera_frames(d, c)) for d, c in lay.cams]

@@ -56,7 +56,13 @@ import numpy.typing as npt
 
 from splitrender._native import __version__
 from splitrender.errors import InvalidInputError, SplitRenderError
-from splitrender.files import JSON_KINDS, open_regular, read_json_object, read_regular
+from splitrender.files import (
+    JSON_KINDS,
+    open_regular,
+    read_json_object,
+    read_regular,
+    rename_new_folder,
+)
 from splitrender.scene.builtin import (
     MAX_SAMPLES,
     ClientMotion,
@@ -533,30 +539,12 @@ def write_entries(
                 raise
             shutil.rmtree(old)
         else:
-            _rename_new(tmp, out)
+            rename_new_folder(tmp, out, RecordingError, "; expected a new path (or replace it: "
+                              "--force, overwrite=True)")
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
-
-
-def _rename_new(tmp: Path, out: Path) -> None:
-    """Renames the finished ``tmp`` to ``out``, which was not there when the write began.
-
-    Something at ``out`` now (another run that wrote there meanwhile) is not replaced: a
-    directory rename fails onto a non-empty directory or a file, so the check is the
-    rename itself, with no window between a look and the move. (An empty directory made
-    meanwhile is replaced: nothing of anyone's is lost.)"""
-    try:
-        tmp.rename(out)
-    except OSError as e:
-        if not (out.exists() or out.is_symlink()):
-            raise
-        raise RecordingError(
-            f"{out}: appeared while this recording was written (another run writing there?) "
-            "and is left as it is; expected a new path (or replace it: --force, "
-            "overwrite=True)"
-        ) from e
 
 
 # --------------------------------------------------------------------------- reading
