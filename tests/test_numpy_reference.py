@@ -5,7 +5,8 @@
   (relative to the flow's magnitude where that exceeds 1; the kernels run in float32), and NaN
   exactly where the reference says the pixel is invalid or behind the client camera.
 - ``apply_shadows`` (eqs. 9–11) against :func:`numpy_ref.apply_shadows` on random bitfields,
-  colours, ``α``, subframe counts and roles: ``|Δ| ≤ 1`` in 8 bits after rounding.
+  colours, ``α``, subframe counts and roles: equal after rounding, except by one where the exact
+  value is a rounding tie within float32 noise.
 """
 
 from __future__ import annotations
@@ -252,12 +253,23 @@ def test_apply_shadows_matches_numpy_reference(seed, h, w, alpha, subframes, rol
     color, bits, s_min, s_max = _shadow_inputs(seed, h, w, subframes)
     shadow = sr.ShadowBuffers(bits, s_min, s_max)
     got = np.asarray(sr.apply_shadows(color, shadow, alpha, subframes=subframes, role=role))
-    ref = numpy_ref.apply_shadows(color, bits, s_min, s_max, alpha, subframes, role)
+    exact = numpy_ref.shadow_color(color, bits, s_min, s_max, alpha, subframes, role)
+    ref = numpy_ref.round_rgb(exact)
     assert got.shape == (h, w, 3) and got.dtype == np.uint8
     diff = np.abs(got.astype(np.int16) - ref.astype(np.int16))
     assert diff.max() <= 1, (
         f"apply_shadows differs from eqs. 9–11 by {diff.max()} at {np.argwhere(diff > 1)[:3].tolist()} "
         f"(alpha={alpha}, S={subframes}, role={role}, bits={bits[diff.max(axis=-1) > 1][:3]})"
+    )
+    # Off by one only where the exact value is a rounding tie within float32 noise (the kernels
+    # blend in float32): measured at most 6.4e-6 from x.5 over 3000 random cases (77 of 386,000
+    # channels differ). A kernel that truncates instead of rounding differs by one elsewhere.
+    off = diff > 0
+    tie = np.abs(exact[off] - np.floor(exact[off]) - 0.5)
+    assert (tie < 2e-5).all(), (
+        f"apply_shadows rounds {exact[off][tie >= 2e-5][:3].tolist()} to "
+        f"{got[off][tie >= 2e-5][:3].tolist()}, eqs. 9–11 rounded give "
+        f"{ref[off][tie >= 2e-5][:3].tolist()} (alpha={alpha}, S={subframes}, role={role})"
     )
     # Pixels without a dynamic shadow keep the key colour exactly.
     assert (got[bits == 0] == color[bits == 0]).all()

@@ -191,3 +191,58 @@ def test_path_motion_prediction_delay() -> None:
     assert PathMotion(scene, 1 / 60).describe()["prediction_delay"] == 1 / 60
     with pytest.raises(sr.InvalidInputError, match="prediction_delay"):
         PathMotion(scene, -0.1)
+
+
+def _warp_error(frame: sr.CameraFrame, motion: np.ndarray, later: np.ndarray) -> float:
+    """MAE between the moving pixels' colours and ``later``'s colours where ``motion`` (NDC)
+    carries them (nearest pixel; those carried outside the image are left out)."""
+    h, w = frame.color.shape[:2]
+    moving = (motion != 0).any(axis=-1)
+    jj, ii = np.nonzero(moving)
+    x = (2 * ii + 1) / w - 1 + motion[jj, ii, 0]
+    y = 1 - (2 * jj + 1) / h + motion[jj, ii, 1]
+    col = np.floor((x + 1) / 2 * w).astype(int)
+    row = np.floor((1 - y) / 2 * h).astype(int)
+    ok = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    a = later[row[ok], col[ok]].astype(int)
+    return float(np.abs(a - frame.color[jj[ok], ii[ok]].astype(int)).mean())
+
+
+def test_motion_and_shadow_buffers_are_the_ones_named(lab: Scene) -> None:
+    """``motion_fwd`` carries a moving pixel to where the same camera sees it one server frame
+    later, ``motion_bwd`` one frame earlier; ``S_max`` (the most shadowed level) is no brighter
+    than the key colour and ``S_min`` no darker. Measured at frame 2: warp MAE 25.9 (forward)
+    and 23.0 (backward) against 29.6/26.6 without motion and 31.0/32.2 with the other buffer."""
+    f = lab.server_frame(2, SCALE, samples=1).main
+    assert f.motion_fwd is not None and f.motion_bwd is not None
+    for motion, other, t in ((f.motion_fwd, f.motion_bwd, 0.3), (f.motion_bwd, f.motion_fwd, 0.1)):
+        assert (motion != 0).any(axis=-1).sum() > 100
+        later = lab.ground_truth(f.camera, t, samples=1)
+        right = _warp_error(f, motion, later)
+        assert right < _warp_error(f, np.where(motion != 0, other, 0.0), later), t
+        assert right < _warp_error(f, np.where(motion != 0, 1e-12, 0.0), later), t
+    for sh in (f.shadow_fwd, f.shadow_bwd):
+        assert sh is not None
+        key = f.color.astype(int).sum(axis=-1)
+        lo, hi = sh.s_min.astype(int).sum(axis=-1), sh.s_max.astype(int).sum(axis=-1)
+        stored_lo, stored_hi = (sh.bits != 0) & (lo > 0), (sh.bits != 0) & (hi > 0)
+        assert stored_lo.sum() + stored_hi.sum() > 50
+        assert (hi[stored_hi] <= key[stored_hi]).all() and (lo[stored_lo] >= key[stored_lo]).all()
+
+
+def test_trace_pose_interpolates_between_samples(tmp_path: Path) -> None:
+    """Between two lines a trace's pose is linear in position and, for a turn about one axis,
+    halfway in angle (normalised quaternion interpolation of a symmetric pair)."""
+    trace = load_trace(_write(tmp_path, "0 0 0 0 0 0 0\n1 2 -4 0 40 0 100\n3 2 -4 0 40 0 200\n"))
+    p = trace.pose(0.025)  # a quarter of the way from line 1 to line 2
+    np.testing.assert_allclose(p[:3, 3], [0.25, 0.5, -1.0], atol=1e-12)
+    p = trace.pose(0.05)  # halfway: a 20° yaw about +y
+    c, s = np.cos(np.radians(20.0)), np.sin(np.radians(20.0))
+    np.testing.assert_allclose(p[:3, :3], [[c, 0, s], [0, 1, 0], [-s, 0, c]], atol=1e-12)
+    np.testing.assert_allclose(trace.pose(0.15)[:3, 3], [2.0, 2.0, -4.0], atol=1e-12)
+    np.testing.assert_allclose(trace.pose(9.0)[:3, 3], [3.0, 2.0, -4.0], atol=1e-12)  # clamped
+    np.testing.assert_allclose(trace.pose(-1.0), np.eye(4), atol=1e-12)
+    # Across ±180° the two quaternions lie in opposite hemispheres: the short way is through
+    # 180°, not back through 0°.
+    trace = load_trace(_write(tmp_path, "0 0 0 0 170 0 0\n0 0 0 0 -170 0 100\n"))
+    np.testing.assert_allclose(trace.pose(0.05)[:3, :3], np.diag([-1.0, 1.0, -1.0]), atol=1e-12)

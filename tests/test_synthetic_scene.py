@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import scenes
 import splitrender as sr
+from splitrender import _native as native
 
 W, H = 320, 180
 FPS = 10.0
@@ -116,6 +117,24 @@ def test_ours_beats_every_baseline_on_the_synthetic_dynamic_scene(k, alpha):
             f"(MAE {value:.3f}); all: {figures}"
             + (f"; methods that wrote nothing (stubs?): {stubs}" if stubs else "")
         )
+    # The whole-image MAE is mostly the static surfaces' resampling error (ours ≈ 10.5 here):
+    # object motion handled wrongly moves it by under 10 % and ours still wins. On the pixels
+    # that show a moving object at the client pose (from the native renderer, not from the
+    # Python wiring under test) ours measured 16.5–18.5 and the baselines 33–57; object motion
+    # ignored (zero) or the backward motion buffer replaced by the forward one gave 25.8–44.
+    moving = _moving_pixels(client, t)
+    assert moving.sum() > 1000, f"only {moving.sum()} moving pixels: the check would be vacuous"
+    on_moving = {name: mae(img[moving], truth[moving]) for name, img in images.items()}
+    shown = ", ".join(f"{k}: {v:.2f}" for k, v in on_moving.items())
+    assert on_moving["ours"] < 24.0, f"ours on the moving objects: {shown}"
+    for name, value in on_moving.items():
+        assert name == "ours" or on_moving["ours"] < value, f"on the moving objects: {shown}"
+
+
+def _moving_pixels(client: sr.Camera, t: float) -> np.ndarray:
+    """Pixels of ``client`` at ``t`` that see a moving object (non-zero object motion)."""
+    b = native.synthetic_render_server(True, client.to_native(), t, 1.0 / FPS, 4)
+    return np.asarray((b["motion_fwd"] != 0).any(axis=-1) | (b["motion_bwd"] != 0).any(axis=-1))
 
 
 def test_ours_is_deterministic(setup):
@@ -234,3 +253,37 @@ def test_nan_depth_region_keeps_the_previous_frame(setup):
     assert same[clear].mean() >= 0.999, (
         f"{(~same & clear).sum()} pixels far from the NaN block changed when it was introduced"
     )
+
+
+@pytest.mark.parametrize("k", [3, 12])
+def test_shadow_buffers_bring_the_key_colour_towards_the_ground_truth(k):
+    """The synthetic scene's shadow buffers, applied at ``α`` (eqs. 9–11), give static pixels
+    under a moving shadow a colour nearer the ground truth at ``t_k + α·Δ`` (same camera) than
+    the key colour: forward buffers of frame ``k`` at α = 0.5, 0.75, backward buffers of frame
+    ``k+1`` at α = 0.25, 0.5. Measured: at most 0.67 of the key colour's MAE; the forward
+    buffers given the backward ones, or S_min and S_max swapped, gave 1.4–5."""
+    scene = sr.SyntheticScene(dynamic=True)
+    for index, role, alphas in ((k, "older", (0.5, 0.75)), (k + 1, "newer", (0.25, 0.5))):
+        t_frame = index / FPS
+        cf = scene.render(scene.rig(t_frame, W, H)[0], t_frame, fps=FPS, subframes=4)
+        shadow = cf.shadow_fwd if role == "older" else cf.shadow_bwd
+        assert shadow is not None and cf.motion_fwd is not None and cf.motion_bwd is not None
+        static = ~(np.asarray(cf.motion_fwd) != 0).any(axis=-1)
+        static &= ~(np.asarray(cf.motion_bwd) != 0).any(axis=-1)
+        shaded = static & (np.asarray(shadow.bits) != 0)
+        assert shaded.sum() > 150, f"only {shaded.sum()} shadowed pixels: vacuous"
+        applied = key = 0.0
+        for alpha in alphas:
+            t = between(k, alpha)
+            truth = np.asarray(scene.ground_truth(cf.camera, t))[shaded]
+            got = np.asarray(sr.apply_shadows(cf.color, shadow, alpha, subframes=4, role=role))
+            applied += mae(got[shaded], truth)
+            key += mae(np.asarray(cf.color)[shaded], truth)
+        assert applied < 0.8 * key, (
+            f"frame {index} ({role}): shadows applied MAE {applied:.2f}, key colour {key:.2f}"
+        )
+
+
+def between(k: int, alpha: float) -> float:
+    """The time ``t_k + α·Δ`` between server frames ``k`` and ``k+1``."""
+    return (k + alpha) / FPS
