@@ -96,3 +96,13 @@ def test_the_model_seeds_load(tmp_path: Path) -> None:
             {"scene": "lab", "models": [{"path": name, "position": [0, 0, 0], "animation": 0}]}
         ))
         splitrender.Scene.from_description(desc)
+
+
+def test_the_harness_counts_a_named_memory_refusal_as_specific() -> None:
+    # OutOfMemoryError (a MemoryError too) is the bindings' refusal, before allocating, of
+    # legal sizes the case's memory cap cannot hold: a specific error, not an out-of-memory
+    # outcome; a bare MemoryError (numpy or Python ran out) still is one.
+    from fuzz.harness import Outcome, _classify_exception  # tests/ is on the path (scenes.py)
+    refusal = splitrender.OutOfMemoryError("reproject: 16384x16384 needs 8.0 GiB")
+    assert _classify_exception(refusal).outcome is Outcome.SPECIFIC
+    assert _classify_exception(MemoryError()).outcome is Outcome.OOM

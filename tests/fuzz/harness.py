@@ -110,6 +110,10 @@ def _classify_exception(e: BaseException) -> Verdict:
         return Verdict(Outcome.SPECIFIC, str(e)[:300])
     if isinstance(e, Corrupted):
         return Verdict(Outcome.CORRUPTED, str(e)[:300])
+    # Before MemoryError: OutOfMemoryError is one too, the bindings' refusal of legal sizes
+    # this process cannot hold (the case's memory cap), named before anything is allocated.
+    if isinstance(e, errors.OutOfMemoryError):
+        return Verdict(Outcome.SPECIFIC, text)
     if isinstance(e, MemoryError):
         return Verdict(Outcome.OOM, text)
     if type(e).__name__ == "PanicException" or _PANIC.search(str(e)):
