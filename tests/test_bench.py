@@ -7,6 +7,7 @@ import dataclasses
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -64,6 +65,36 @@ def test_bytes_touched_counts_every_buffer_the_output_depends_on(pair: Pair, met
     assert read, "the perturbations changed nothing: the test would prove nothing"
     floor = pair.newer.main.color.nbytes + sum(read.values())
     assert bytes_touched(method, pair.older, pair.newer) >= floor, read
+
+
+#: The buffers each method reads, as bench.py's module docstring lists them: (frame, cameras,
+#: fields); "all" is the main and the auxiliary cameras.
+DOCUMENTED = {
+    "ours": (("older", "all", ("color", "depth", "motion_fwd", "shadow_fwd")),
+             ("newer", "all", ("color", "depth", "motion_bwd", "shadow_bwd"))),
+    "ours_extrapolate": (("older", "all", ("color", "depth", "motion_bwd", "shadow_bwd")),),
+    "forward_splat": (("older", "all", ("color", "depth", "motion_bwd")),),
+    "timewarp": (("older", "main", ("color", "depth")),),
+    "backward_bidir": (("older", "main", ("color", "depth", "motion_fwd")),
+                       ("newer", "main", ("color", "depth", "motion_bwd"))),
+}
+
+
+@pytest.mark.parametrize("method", sr.METHODS)
+def test_bytes_touched_is_the_output_and_the_documented_buffers(pair: Pair, method: str) -> None:
+    """Exactly the output image and the buffers the module docstring lists (a lower bound
+    alone let a method count buffers it never reads), and those include every buffer the
+    output was seen to change with."""
+    documented: dict[str, int] = {}
+    for which, cams, fields in DOCUMENTED[method]:
+        frame = pair.older if which == "older" else pair.newer
+        for k, cam in enumerate((frame.main, *frame.aux) if cams == "all" else (frame.main,)):
+            for field in fields:
+                if getattr(cam, field) is not None:
+                    documented[f"{which}.cam{k}.{field}"] = _nbytes(getattr(cam, field))
+    assert set(_buffers_read(pair, method)) <= set(documented)
+    expected = pair.newer.main.color.nbytes + sum(documented.values())
+    assert bytes_touched(method, pair.older, pair.newer) == expected, documented
 
 
 def test_forward_splat_reads_its_auxiliary_cameras(pair: Pair) -> None:
@@ -145,6 +176,77 @@ def test_the_copy_floor_copies_every_byte_in_equal_parts_on_the_threads_asked(
     assert sorted(n for _, n in parts) == [333] * 4 + [334] * 8
     assert main not in {t for t, _ in parts}
     assert seconds > 0 and threads in (1, 3)
+
+
+@pytest.mark.parametrize(("part_s", "expected"), [(1.0, (3.0, 3)), (5.0, (10.0, 1))])
+def test_the_copy_floor_is_the_faster_of_one_thread_and_the_parts(
+    monkeypatch: pytest.MonkeyPatch, part_s: float, expected: tuple[float, int]
+) -> None:
+    """On a clock where the whole copy takes 10 s and each of 3 parts ``part_s``: the floor is
+    the median of the faster way (3 parts one after the other: 3 s, or 15 s) and its threads."""
+    import threading
+    import types
+
+    from splitrender.evaluation import bench
+
+    now = [0.0]
+    lock = threading.Lock()
+    real = np.copyto
+
+    def copyto(dst: np.ndarray, src: np.ndarray) -> None:
+        with lock:
+            now[0] += 10.0 if len(src) == 1001 else part_s
+        real(dst, src)
+
+    monkeypatch.setattr(np, "copyto", copyto)
+    monkeypatch.setattr(bench, "time", types.SimpleNamespace(perf_counter=lambda: now[0]))
+    assert bench.copy_floor_s(1001, 3, repeats=3) == expected
+
+
+def test_bench_rows_are_the_median_and_the_copy_floor_of_the_bytes_touched(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """run_bench's accounting with fake timings: the median and slowest sample, per pixel, the
+    copy floor measured on each method's bytes touched (of the two server frames) on rayon's
+    threads, GB/s and the ratio from them."""
+    import tempfile
+
+    from splitrender.evaluation import bench
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    samples = [3e-3, 1e-3, 2e-3, 10e-3, 4e-3]  # median 3 ms, slowest 10 ms
+    timed: list[str] = []
+
+    def time_frames(one, requests, frames, **kw):  # type: ignore[no-untyped-def]
+        one(requests[0])
+        timed.append(str(frames))
+        return samples
+
+    floors: list[tuple[int, int]] = []
+
+    def copy_floor_s(nbytes: int, threads: int = 1, repeats: int = 5) -> tuple[float, int]:
+        floors.append((nbytes, threads))
+        return 5e-4, 7
+
+    monkeypatch.setattr(bench, "time_frames", time_frames)
+    monkeypatch.setattr(bench, "copy_floor_s", copy_floor_s)
+    rows = bench.run_bench("courtyard", sr.METHODS, 0.02, frames=5, repeats=1, progress=False)
+    rec = bench._recording("courtyard", 0.02, lambda _: None)
+    f0, f1 = rec.server_frames[0], rec.server_frames[1]
+    w, h = f0.main.camera.width, f0.main.camera.height
+    assert [r.method for r in rows] == list(sr.METHODS) and timed == ["5"] * len(rows)
+    for r, (nbytes, threads) in zip(rows, floors):
+        assert nbytes == bytes_touched(r.method, f0, f1) and threads == bench.kernel_threads()
+        assert (r.width, r.height, r.backend) == (w, h, "cpu")
+        assert r.ms_per_frame == pytest.approx(3.0, rel=1e-12)
+        assert r.ms_per_frame_max == pytest.approx(10.0, rel=1e-12)
+        assert r.ns_per_pixel == pytest.approx(3e6 / (w * h), rel=1e-12)
+        assert r.mb_touched == pytest.approx(nbytes / 1e6, rel=1e-12)
+        assert r.gb_per_s == pytest.approx(nbytes / 3e-3 / 1e9, rel=1e-12)
+        assert r.copy_floor_ms == pytest.approx(0.5, rel=1e-12) and r.copy_threads == 7
+        assert r.ratio_to_floor == pytest.approx(6.0, rel=1e-12)
+        assert list(r.to_json()) == list(bench.BENCH_KEYS)
+        assert r.to_json()["ratio_to_floor"] == r.ratio_to_floor
 
 
 def test_a_damaged_cached_recording_is_rendered_again(tmp_path, monkeypatch) -> None:

@@ -62,15 +62,17 @@ def test_eval_rows_have_exactly_the_keys_and_types(eval_out: Path) -> None:
     assert not any(r["method"] == "video_interp" and r["stereo"] for r in rows)
 
 
-def _mse_and_ssim(images: Any, truth: Any) -> tuple[float, float]:
-    """The mean squared error (in [0, 1] units) and mean SSIM of ``images`` against ``truth``
-    over the scored client frames (the first and last SKIP_FRAMES left out)."""
+def _mse_and_ssim(images: Any, truth: Any, flip: bool = False) -> tuple[float, float, Any]:
+    """The mean squared error (in [0, 1] units), mean SSIM and, with ``flip``, mean FLIP (else
+    ``None``: 75 ms a frame) of ``images`` against ``truth`` over the scored client frames (the
+    first and last SKIP_FRAMES left out)."""
     import numpy as np
     from splitrender import metrics as M
 
     kept = range(M.SKIP_FRAMES, len(truth) - M.SKIP_FRAMES)
     mse = np.mean([np.mean((images[n] / 255.0 - truth[n] / 255.0) ** 2) for n in kept])
-    return float(mse), float(np.mean([M.ssim(images[n], truth[n]) for n in kept]))
+    return (float(mse), float(np.mean([M.ssim(images[n], truth[n]) for n in kept])),
+            float(np.mean([M.flip(images[n], truth[n]) for n in kept])) if flip else None)
 
 
 def test_eval_rows_score_each_methods_frames_against_each_eyes_ground_truth(
@@ -94,11 +96,13 @@ def test_eval_rows_score_each_methods_frames_against_each_eyes_ground_truth(
                                                                 stereo)]
         return r
 
-    def check(r: dict[str, Any], eyes: list[tuple[float, float]]) -> None:
+    def check(r: dict[str, Any], eyes: list[tuple[float, float, Any]]) -> None:
         what = f"{r['variant']} {r['method']} stereo={r['stereo']}"
-        assert r["psnr"] == pytest.approx(M.psnr_of_mse(np.mean([m for m, _ in eyes])),
+        assert r["psnr"] == pytest.approx(M.psnr_of_mse(np.mean([e[0] for e in eyes])),
                                           abs=1e-9), what
-        assert r["ssim"] == pytest.approx(np.mean([s for _, s in eyes]), abs=1e-9), what
+        assert r["ssim"] == pytest.approx(np.mean([e[1] for e in eyes]), abs=1e-9), what
+        if all(e[2] is not None for e in eyes):  # FLIP's maps are float32: equal to 1e-6
+            assert r["flip"] == pytest.approx(np.mean([e[2] for e in eyes]), abs=1e-6), what
 
     # Table 1: uncompressed, mono.
     for variant in ("static", "dynamic"):
@@ -108,9 +112,26 @@ def test_eval_rows_score_each_methods_frames_against_each_eyes_ground_truth(
         server = list(rec.server_frames)
         for method in ("ours", "timewarp"):
             played = sr.play(server, cams, sr.NetworkModel(client_fps=rec.fc), rec.fc, method)
-            check(row(variant, method, False, False), [_mse_and_ssim(played.images, truth)])
+            flip = (variant, method) == ("dynamic", "ours")  # one row's FLIP: 1 s
+            check(row(variant, method, False, False),
+                  [_mse_and_ssim(played.images, truth, flip)])
         interp = minterpolate([f.main.color for f in server], rec.fs, rec.fc, len(truth))
         check(row(variant, "video_interp", False, False), [_mse_and_ssim(interp, truth)])
+    # Figure 6's references at the sweep's one bitrate: the ground truth itself as a video, and
+    # the main colour as a video before minterpolate; their rows' rates are those achieved.
+    from splitrender.evaluation.references import video_streaming
+
+    rec = sr.load_recording(eval_out / "recordings" / "courtyard-dynamic")
+    truth = [rec.eye(0)[1][n] for n in range(len(rec.eye(0)[1]))]
+    r = row("dynamic", "video_streaming", True, False)
+    coded, mbps = video_streaming(truth, r["bitrate_mbps"], rec.fc)
+    check(r, [_mse_and_ssim(coded, truth)])
+    assert r["mbps"] == pytest.approx(mbps, rel=1e-6) and r["ssim"] < 1.0
+    [r] = [r for r in rows if r["method"] == "video_interp" and r["bitrate_mbps"] is not None]
+    colours, mbps = video_streaming([f.main.color for f in rec.server_frames],
+                                    r["bitrate_mbps"], rec.fs)
+    check(r, [_mse_and_ssim(minterpolate(colours, rec.fs, rec.fc, len(truth)), truth)])
+    assert r["mbps"] == pytest.approx(mbps, rel=1e-6)
     # Table 3: stereo, from the stream at the sweep's bitrate (the one whose rate the row has).
     rec = sr.load_recording(eval_out / "recordings" / "courtyard-dynamic-stereo")
     cache = Path(json.loads((eval_out / "run-info.json").read_text())["cache"])
@@ -334,3 +355,25 @@ def test_a_scale_out_of_range_names_the_range_of_scales(
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "expected 16..4096 pixels a side (--scale 0.0108 to 1.6)" in err, err
+
+
+def test_tables_put_each_metric_under_its_label_and_bold_the_best_per_group() -> None:
+    """tables.md's columns in order, each value under its own label, and in bold the best of
+    each group: the highest SSIM, PSNR and VMAF, the lowest FLIP; none in a group of one."""
+    from splitrender.evaluation.experiments import format_rows
+
+    def r(method: str, delay: int, ssim: float, flip: float, psnr: float,
+          vmaf: float | None) -> dict[str, Any]:
+        return {"scene": "lab", "method": method, "bitrate_mbps": 1.23456, "delay": delay,
+                "ssim": ssim, "flip": flip, "psnr": psnr, "vmaf": vmaf, "mbps": 2.5,
+                "frames": 96}
+
+    rows = [r("ours", 0, 0.91, 0.20, 30.0, 80.0), r("timewarp", 0, 0.85, 0.10, 31.0, None),
+            r("ours", 2, 0.80, 0.30, 25.0, 70.0)]
+    assert format_rows(rows, ("method", "bitrate_mbps", "delay"), ("delay",)).splitlines() == [
+        "| method | bitrate_mbps | delay | SSIM ↑ | FLIP ↓ | PSNR ↑ | VMAF ↑ | Mb/s | frames |",
+        "|---|---|---|---|---|---|---|---|---|",
+        "| ours | 1.23 | 0 | **0.9100** | 0.2000 | 30.00 | 80.00 | 2.500 | 96 |",
+        "| timewarp | 1.23 | 0 | 0.8500 | **0.1000** | **31.00** | – | 2.500 | 96 |",
+        "| ours | 1.23 | 2 | 0.8000 | 0.3000 | 25.00 | 70.00 | 2.500 | 96 |",
+    ]

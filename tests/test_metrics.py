@@ -310,17 +310,28 @@ def test_vmaf_failing_after_more_frames_than_it_queues_does_not_hang(
 
 def test_sequence_scorer_frame_by_frame_equals_evaluate_sequence() -> None:
     truth = moving_sequence(30, 48, 64)
-    rendered = [np.clip(t.astype(int) + (i % 5) - 2, 0, 255).astype(np.uint8)
-                for i, t in enumerate(truth)]
+    rng = np.random.default_rng(7)  # noise of 0 to 24 levels: VMAF from 100 down to ~88
+    rendered = [np.clip(t.astype(int) + rng.integers(-1, 2, t.shape) * (6 * (i % 5)), 0, 255)
+                .astype(np.uint8) for i, t in enumerate(truth)]
     whole = M.evaluate_sequence(rendered, truth, skip=3, flip_every=4)
     with M.SequenceScorer(30, 3, flip_every=4) as scorer:
         for r, t in zip(rendered, truth):
             scorer.add(r, t)
         res = scorer.finish()
     assert res == whole
+    # Against the per-image functions and vmaf() of the whole sequences, the rendered frames
+    # first: VMAF is not symmetric and varies from frame to frame here, so a scorer that fed
+    # ffmpeg the truth as the distorted side, or took another frame's score, fails.
+    whole_vmaf = M.vmaf(rendered, truth)
+    assert M.vmaf(truth, rendered) != whole_vmaf
+    assert len(set(whole_vmaf[3:27])) > 5
     for row, i in zip(res.per_frame, res.frames):
         assert row["ssim"] == M.ssim(rendered[i], truth[i])
         assert row["psnr"] == M.psnr(rendered[i], truth[i])
+        assert row["vmaf"] == whole_vmaf[i]
+        assert ("flip" in row) == ((i - 3) % 4 == 0)
+        if "flip" in row:
+            assert row["flip"] == M.flip(rendered[i], truth[i])
     with M.SequenceScorer(5, 1, ("psnr",)) as scorer:
         scorer.add(truth[0], truth[0])
         with pytest.raises(InvalidInputError, match="expected 5 frames, got 1"):
@@ -358,3 +369,17 @@ def test_vmaf_waits_for_an_ffmpeg_slow_to_start(
     t.join(60)
     assert not t.is_alive(), "vmaf hung waiting for ffmpeg"
     assert got == [expected]
+
+
+def test_float_frames_are_scored_as_the_uint8_frames_they_round_to() -> None:
+    """evaluate_sequence takes float frames in [0, 1] and scores them as the uint8 frames they
+    round to (not truncate to: (k - 0.4) / 255 is level k)."""
+    truth = [textured(32, 32, seed=i) for i in range(3)]
+    rendered = [np.clip(t.astype(int) + 5 * i - 4, 0, 255).astype(np.uint8)
+                for i, t in enumerate(truth)]
+    as_u8 = M.evaluate_sequence(rendered, truth, skip=1, metrics=("psnr", "ssim"))
+    assert min(int(f.min()) for f in rendered + truth) >= 1
+    as_float = M.evaluate_sequence([(r - 0.4) / 255.0 for r in rendered],
+                                   [(t - 0.4) / 255.0 for t in truth], skip=1,
+                                   metrics=("psnr", "ssim"))
+    assert as_float == as_u8
