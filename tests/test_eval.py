@@ -238,6 +238,9 @@ def test_eval_reuses_matching_recordings(
     assert not (out / "rate_distortion.png").exists()
     assert (out / "delays.png").read_bytes() != (eval_out / "delays.png").read_bytes()
     assert (out / "notes.txt").read_text() == "mine" and (out / "recordings").is_dir()
+    # This run's recordings only: the first run's stereo link went (no stereo rows here).
+    assert sorted(p.name for p in (out / "recordings").iterdir()) == [
+        "courtyard-dynamic", "courtyard-static"]
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")]
 
 

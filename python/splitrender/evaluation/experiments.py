@@ -391,11 +391,17 @@ def _fixed(scene: str, variant: str, method: str, br: float | None, delay: int, 
 
 def _link_recordings(folder: Path, targets: dict[str, Path]) -> None:
     """``folder/NAME`` as a symbolic link to each recording in the cache (for ``play``), each
-    replaced atomically (a link made beside it, renamed over it)."""
+    replaced atomically (a link made beside it, renamed over it). The links of an earlier run
+    into the same folder that this one has not made are removed (a ``-stereo`` one stayed
+    after a run without stereo, beside tables without its rows); anything else is left."""
     import os
 
     from splitrender.files import temporary_beside
 
+    if folder.is_dir():
+        for old in folder.iterdir():
+            if old.is_symlink() and old.name not in targets:
+                old.unlink(missing_ok=True)
     if not targets:
         return
     folder.mkdir(exist_ok=True)
