@@ -261,6 +261,27 @@ def test_invalid_depth_and_motion_stay_invalid(frames: list[sr.ServerFrame]) -> 
     )
 
 
+def test_depth_whose_range_starts_away_from_zero_keeps_its_offset(
+    frames: list[sr.ServerFrame],
+) -> None:
+    """The synthetic scene's depth starts at 0 (its background), where the depth tile's offset
+    is 0 and a decoder that dropped it, or an encoder that sent another, went unnoticed. Here
+    the main camera's depth is moved to 0.5 + its range: the mean |error| as a fraction of the
+    range within twice the 0.00036 measured on this frame (the main camera's bound in
+    ``test_every_buffer_within_twice_its_measured_error`` is 0.0009), and the mean signed error
+    (measured +0.00008) within 0.0002: an offset off by a code step (1/4095 of the range)
+    fails."""
+    f = frames[0]
+    depth = f.main.depth + np.float32(0.5)
+    assert f.main.motion_fwd is not None
+    out = _round_trip_main(f, depth, f.main.motion_fwd)
+    rng = float(depth.max() - depth.min())
+    err = (out.main.depth.astype(np.float64) - depth) / rng
+    print(f"depth at 0.5: mean |error| {np.abs(err).mean():.5f}, bias {err.mean():+.5f}")
+    assert np.abs(err).mean() <= 0.0008
+    assert abs(err.mean()) <= 0.0002
+
+
 @pytest.mark.parametrize("tiny", [1e-45, -1e-45, 1e-40, 1e-38])
 def test_denormal_depth_and_motion_ranges_round_trip_finite(
     frames: list[sr.ServerFrame], tiny: float
@@ -337,6 +358,23 @@ def test_decoding_starts_at_any_key_frame(
         pytest.raises(StreamError, match="frame 7: not a key frame"),
     ):
         dec.decode(packets[7])
+    # A key frame asked for between the regular ones (the live server's): x265 is not reopened
+    # there (the regular one at 6 reopened every encoder, which starts with an IDR anyway), so
+    # only the forced IDR lets a decoder start at it.
+    scene = sr.SyntheticScene(dynamic=True)
+    src = [scene.server_frame(i, i / 10, W, H) for i in range(4)]
+    with StreamEncoder(CodecConfig(bitrate_mbps=BITRATE, gop=100)) as enc:
+        forced = []
+        for i, f in enumerate(src):
+            if i == 2:
+                enc.request_key_frame()
+            forced.append(enc.encode(f))
+    assert [unpack_packet(p).key for p in forced] == [True, False, True, False]
+    with StreamDecoder() as dec:
+        whole = [dec.decode(p) for p in forced]
+    with StreamDecoder() as dec:
+        for a, p in zip(whole[2:], forced[2:]):
+            _assert_same_frame(a, dec.decode(p))
     with StreamDecoder() as dec:
         dec.decode(packets[0])
         with pytest.raises(StreamError, match="frame 2: not a key frame"):
@@ -389,6 +427,48 @@ def test_undecodable_payloads_raise_stream_error(
         dec.decode(bad)
 
 
+def _zstd_frame(raw: bytes) -> bytes:
+    import zstandard
+
+    return zstandard.ZstdCompressor(write_content_size=True).compress(raw)
+
+
+def _bits_payload(n: int, values: bytes, set_pixels: int = 2) -> bytes:
+    """A main-camera (160x90) shadow bitfield payload: value width ``n``, the first
+    ``set_pixels`` pixels set, then ``values``."""
+    mask = np.zeros(W * H, bool)
+    mask[:set_pixels] = True
+    return _zstd_frame(bytes([n]) + np.packbits(mask).tobytes() + values)
+
+
+@pytest.mark.parametrize(
+    ("name", "payload", "message"),
+    [
+        # a mask one byte short of its 80x45 camera's 450
+        ("aux1.motion_bwd.static", _zstd_frame(bytes(449)), "mask of 449 bytes, expected 450"),
+        # one value byte for two set pixels
+        ("main.shadow_fwd.bits", _bits_payload(1, b"\x07"),
+         "shadow bitfield payload holds 1 value bytes for 2 pixels of 1 bytes"),
+        # a set pixel whose bitfield is 0
+        ("main.shadow_fwd.bits", _bits_payload(1, b"\x07\x00"),
+         "shadow bitfield payload stores a zero for a set pixel"),
+        ("main.shadow_fwd.bits", _bits_payload(5, b"\x07" * 10), "malformed shadow bitfield"),
+    ],
+    ids=["short_mask", "too_few_value_bytes", "zero_value", "value_width_5"],
+)
+def test_malformed_lossless_payloads_raise_stream_error(
+    coded: tuple[list[bytes], list[sr.ServerFrame]], name: str, payload: bytes, message: str
+) -> None:
+    """zstd frames that decompress within their limit but do not hold what their buffer needs:
+    each a StreamError naming the frame, the buffer and what is wrong."""
+    packets, _ = coded
+    with (
+        StreamDecoder() as dec,
+        pytest.raises(StreamError, match=f"^frame 0, {name}: {message}"),
+    ):
+        dec.decode(_replace_payload(packets[0], name, payload))
+
+
 def test_packet_holds_three_pictures_and_tiles(
     coded: tuple[list[bytes], list[sr.ServerFrame]],
 ) -> None:
@@ -420,22 +500,34 @@ def test_tile_without_its_picture_raises(
         dec.decode(pack_packet(dataclasses.replace(p, buffers=bufs)))
 
 
-def test_picture_of_odd_cameras_refused_before_decoding() -> None:
-    """Two cameras within the per-camera and total pixel limits whose shapes (16x16384 and
-    16384x16) would make a 16400x16384 picture: refused before FFmpeg allocates it."""
+@pytest.mark.parametrize(
+    ("side", "message"),
+    [
+        # (a side beyond MAX_SIDE as well: test_a_picture_longer_than_a_side_is_refused_...)
+        (16384, "a 16400x16384 picture for these cameras exceeds the decoder's limit of "
+         f"{4 * (1 << 25) + (1 << 16)} pixels"),
+        # every side within MAX_SIDE: only the pixel bound refuses it
+        (16000, "a 16016x16000 picture for these cameras exceeds the decoder's limit of "
+         f"{4 * (1 << 25) + (1 << 16)} pixels"),
+    ],
+)
+def test_picture_of_odd_cameras_refused_before_decoding(side: int, message: str) -> None:
+    """Two cameras within the per-camera and total pixel limits whose shapes (16 x side and
+    side x 16) would make a picture of about side x side: refused by its pixels (more than four
+    times the decoder's limit) before FFmpeg allocates it, whether or not a side is too long."""
     from splitrender.codec.stream import BufferEntry, CameraRecord, Packet
 
     eye = np.eye(4)
-    cams = (CameraRecord(eye, eye, 16, 16384), CameraRecord(eye, eye, 16384, 16))
+    cams = (CameraRecord(eye, eye, 16, side), CameraRecord(eye, eye, side, 16))
     bufs = (
-        BufferEntry(0, BufferKind.COLOR, Codec.TILE, 3, 16, 16384, b""),
-        BufferEntry(1, BufferKind.COLOR, Codec.TILE, 3, 16384, 16, b""),
-        BufferEntry(0, BufferKind.PICTURE_COLOR, Codec.HEVC, 1, 16, 16384, b"x"),
+        BufferEntry(0, BufferKind.COLOR, Codec.TILE, 3, 16, side, b""),
+        BufferEntry(1, BufferKind.COLOR, Codec.TILE, 3, side, 16, b""),
+        BufferEntry(0, BufferKind.PICTURE_COLOR, Codec.HEVC, 1, 16, side, b"x"),
     )
     packet = pack_packet(Packet(0, 0.0, True, False, cams, bufs))
     with (
         StreamDecoder() as dec,
-        pytest.raises(StreamError, match="frame 0, picture.color: a 16400x16384 picture"),
+        pytest.raises(StreamError, match=f"^frame 0, picture.color: {message}"),
     ):
         dec.decode(packet)
 
@@ -763,16 +855,18 @@ def test_lossless_share_is_a_fraction(value: object) -> None:
 @pytest.mark.parametrize("paper_mbps", [20.0, 40.0, 80.0])
 def test_bitrate_within_ten_percent(paper_mbps: float) -> None:
     """20 frames at 640x360 (two GOPs), the paper's 20/40/80 Mb/s scaled by pixel count
-    (1.25/2.5/5 Mb/s): the whole stream, headers included, within ±10 % of the target.
-    (Measured with stream format 3: +0.7 %, -0.4 %, -2.2 %; format 2's 24 HEVC streams: +7.1 %,
-    +2.9 %, -0.4 %.)"""
+    (1.25/2.5/5 Mb/s): the whole stream, headers included, within ±10 % of the target (issue
+    13's requirement) and within twice the worst error measured with stream format 4 (+1.1 %,
+    -0.6 %, -2.6 %): ±5.2 %. Without the correction for the stream's shortfall so far the
+    rate control gave -0.8 %, -4.7 %, -9.9 %, inside ±10 %. (Format 3: +0.7 %, -0.4 %, -2.2 %;
+    format 2's 24 HEVC streams: +7.1 %, +2.9 %, -0.4 %.)"""
     w, h = 640, 360
     scene = sr.SyntheticScene(dynamic=True)
     cfg = CodecConfig.scaled(w, h, paper_mbps)
     with StreamEncoder(cfg) as enc:
         packets = [enc.encode(scene.server_frame(i, i / 10, w, h)) for i in range(20)]
     got = stream_stats(packets, cfg.fps).mbps_total()
-    assert abs(got / cfg.bitrate_mbps - 1) <= 0.10, (got, cfg.bitrate_mbps)
+    assert abs(got / cfg.bitrate_mbps - 1) <= 0.052, (got, cfg.bitrate_mbps)
 
 
 def test_ours_on_decoded_close_to_uncompressed() -> None:

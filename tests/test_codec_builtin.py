@@ -66,8 +66,10 @@ def _encode(
 def test_bitrate_within_ten_percent_on_builtin_scene(
     frames: list[sr.ServerFrame], encoded: Encoded, paper_mbps: float
 ) -> None:
-    """Measured (courtyard dynamic, 512x288, 20 frames, stream format 3): 20 -> 0.80 Mb/s
-    target, 0.8087 achieved (+1.1 %); 40 -> 1.6, 1.6133 (+0.8 %); 80 -> 3.2, 3.1783 (-0.7 %)."""
+    """Measured (courtyard dynamic, 512x288, 20 frames, stream format 4): 20 -> 0.80 Mb/s
+    target, 0.8357 achieved (+4.5 %); 40 -> 1.6, 1.6090 (+0.6 %); 80 -> 3.2, 3.1777 (-0.7 %).
+    The ±10 % asserted (issue 13's requirement) is about twice the worst of them. (Format 3:
+    +1.1 %, +0.8 %, -0.7 %.)"""
     w, h = frames[0].main.camera.width, frames[0].main.camera.height
     cfg, packets = _encode(frames, paper_mbps, encoded)
     stats = stream_stats(packets, cfg.fps)

@@ -10,8 +10,16 @@ import pytest
 
 import splitrender as sr
 from splitrender.cli import main
-from splitrender.codec.coder import DecodedStream, StreamDecoder, decode_packets
+import splitrender.codec.encode as encode_module
+from splitrender.codec.coder import (
+    CodecConfig,
+    DecodedStream,
+    StreamDecoder,
+    StreamEncoder,
+    decode_packets,
+)
 from splitrender.codec.encode import encode_recording
+from splitrender.codec.stream import StreamFile
 
 
 @pytest.fixture(scope="module")
@@ -112,25 +120,54 @@ def test_encode_recording_ends_its_worker_threads(recording: Path, tmp_path: Pat
     assert workers() - before == set()
 
 
+def _mbps(path: Path) -> float:
+    f = StreamFile(path)
+    return sr.stream_stats(f.packets(), f.fps).mbps_total()
+
+
 def test_encode_cli(recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The stream is encoded at --bitrate: measured over this recording's 4 frames, 0.530 Mb/s
+    for 0.5 (+6 %) and 0.114 for 0.1 (+14 %), each asserted within twice that; without it
+    (the paper's 40 Mb/s scaled to the main camera) 0.084 for both. The report's total is the
+    stream's."""
+    rates = []
+    for bitrate in ("0.5", "0.1"):
+        out = tmp_path / f"s{bitrate}.srs"
+        assert main(["encode", str(recording), "--bitrate", bitrate, "--out", str(out)]) == 0
+        text = capsys.readouterr().out
+        assert "picture.color" in text
+        got = _mbps(out)
+        total = [line.split() for line in text.splitlines() if line.split()[:1] == ["total"]]
+        assert total == [["total", f"{got:.3f}"]], text
+        rates.append(got)
+    assert len(list(StreamFile(out).packets())) == 4
+    assert abs(rates[0] / 0.5 - 1) <= 0.12 and abs(rates[1] / 0.1 - 1) <= 0.27, rates
+
+
+def test_encode_keeps_the_recordings_server_rate(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A recording at 5 server frames per second: the stream file says 5, and the encoder's
+    rate control budgets its frames at 5 per second (``CodecConfig.fps``; at 10 its packets
+    were about 30 % smaller), at the given target or, without one, the paper's 40 Mb/s at
+    2560x1440 scaled to the main camera by pixel count."""
+    rec = sr.write_recording(tmp_path / "rec5", "courtyard", seconds=0.6, scale=0.04, fs=5.0)
+    configs: list[CodecConfig] = []
+
+    class Recorded(StreamEncoder):
+        def __init__(self, config: CodecConfig | None = None) -> None:
+            assert config is not None
+            configs.append(config)
+            super().__init__(config)
+
+    monkeypatch.setattr(encode_module, "StreamEncoder", Recorded)
     out = tmp_path / "s.srs"
-    assert main(["encode", str(recording), "--bitrate", "0.5", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
-    assert "total" in text and "picture.color" in text
-    assert out.is_file()
-
-
-def test_encode_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["encode", str(tmp_path / "missing"), "--out", str(tmp_path / "x.srs")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("splitrender: error:") and "\n" not in err
-    with pytest.raises(SystemExit) as e:
-        main(["encode", str(tmp_path), "--bitrate", "-3", "--out", str(tmp_path / "x.srs")])
-    assert e.value.code == 2
-    capsys.readouterr()
-    # 1e300 reached the encoder and ended in an OverflowError traceback.
-    with pytest.raises(SystemExit) as e:
-        main(["encode", str(tmp_path), "--bitrate", "1e300", "--out", str(tmp_path / "x.srs")])
-    assert e.value.code == 2
-    err = capsys.readouterr().err
-    assert "--bitrate: expected a finite number >= 0.01 and <= 100000 Mb/s, got 1e300" in err
+    stats = encode_recording(rec, out, bitrate_mbps=0.5)
+    assert stats.fps == 5.0 and StreamFile(out).fps == 5.0
+    main_camera = sr.load_recording(rec).server_frames[0].main.camera
+    w, h = main_camera.width, main_camera.height
+    encode_recording(rec, tmp_path / "default.srs")
+    assert [(c.fps, c.bitrate_mbps) for c in configs] == [
+        (5.0, 0.5), (5.0, pytest.approx(40.0 * w * h / (2560 * 1440)))]
+    # Measured over its 4 frames: 0.391 Mb/s (-22 %; 0.281 budgeted at 10 per second).
+    assert abs(_mbps(out) / 0.5 - 1) <= 0.44

@@ -226,6 +226,25 @@ def test_wrong_version_and_magic() -> None:
         unpack_packet(b"XXXX" + bytes(data[4:]))
 
 
+def test_fields_a_writer_leaves_fixed_are_checked_by_the_reader() -> None:
+    # pack_packet refuses a NaN time and writes only known flags and a zero reserved byte; a
+    # hostile producer (consistent CRC) may write anything there.
+    data = pack_packet(_packet())
+    for offset, fmt, value, message in [
+        (16, "<d", float("nan"), "time is not finite"),
+        (16, "<d", float("-inf"), "time is not finite"),
+        (6, "<H", 1 | 4, "unknown header flags 0x0005"),
+    ]:
+        bad = bytearray(data)
+        struct.pack_into(fmt, bad, offset, value)
+        with pytest.raises(StreamError, match=f"^frame 7: {message}"):
+            unpack_packet(_refresh_crc(bytes(bad)))
+    head, block, payloads = _split(data)
+    block[1] = 1
+    with pytest.raises(StreamError, match="^frame 7: reserved header byte is 1, expected 0"):
+        unpack_packet(_join(head, block, payloads))
+
+
 def test_a_frame_index_beyond_an_i64_is_a_stream_error() -> None:
     # A crafted index of 2^63 passed the parser and failed after the whole decode, as an
     # InvalidInputError of ServerFrame.index (the caller's class for the wire's fault).
@@ -273,6 +292,23 @@ def test_absurd_sizes_rejected_before_allocation() -> None:
     ):
         unpack_packet(_join(head, b, payloads))
     assert MAX_PAYLOAD < 0xFFFFFFF0
+    # Within MAX_PAYLOAD but beyond the bytes that remain (96 + 0 + 0 + 2 + 3 of payloads): the
+    # check above must not rest on MAX_PAYLOAD alone.
+    b = bytearray(block)
+    b[_ENTRIES + 4 : _ENTRIES + 8] = struct.pack("<I", 1000)  # main.color, 96 bytes
+    with pytest.raises(
+        StreamError, match=r"^frame 7, main.color: payload of 1000 bytes but 101 bytes remain"
+    ):
+        unpack_packet(_join(head, b, payloads))
+    # Camera counts outside 1..16, each with as many whole camera records as it claims.
+    cam = block[_CAMS + 264 : _CAMS + 2 * 264]
+    for n_cam in (0, 17):
+        b = bytearray(block)
+        b[0] = n_cam
+        if n_cam:
+            b[_ENTRIES:_ENTRIES] = cam * (n_cam - 2)
+        with pytest.raises(StreamError, match=f"^frame 7: {n_cam} cameras in the header"):
+            unpack_packet(_join(head, b, payloads))
     b = bytearray(block)
     b[2:4] = struct.pack("<H", 60000)  # buffer count
     with pytest.raises(StreamError, match="frame 7: 60000 buffers"):
@@ -500,7 +536,13 @@ def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
     cut.write_bytes(
         raw[: 24 + 2 * (4 + len(packets[0])) + 100]
     )  # mid third record, no index
-    with pytest.raises(StreamError, match="after frame 1"):
+    # Refused by its claimed length before the read (the 100 bytes after the record's start
+    # hold its 4-byte length and 96 of its bytes), not by the short read after it.
+    with pytest.raises(
+        StreamError,
+        match=f"^cut.srs: frame after frame 1: record at byte {24 + 2 * (4 + len(packets[0]))} "
+        f"claims {len(packets[0])} bytes but 96 remain",
+    ):
         list(read_stream(cut))
     # Cut inside the index (4 records of 4 written): every record is whole and read. The
     # scan used to take the index magic for a record length and refuse the file.
@@ -616,6 +658,14 @@ def test_an_index_that_repeats_reorders_or_skips_records_is_refused(tmp_path: Pa
         bad.write_bytes(_with_index(raw, entries))
         with pytest.raises(StreamError, match=f"^bad.srs: {message}"):
             list(StreamFile(bad).packets())
+    # Any other change to the index (here a padding byte, which nothing else reads) fails its
+    # CRC.
+    (offset,) = struct.unpack_from("<Q", raw, len(raw) - 16)
+    damaged = bytearray(raw)
+    damaged[offset + 8 + 17] ^= 1  # entry 0's first padding byte
+    bad.write_bytes(bytes(damaged))
+    with pytest.raises(StreamError, match="^bad.srs: index CRC mismatch"):
+        StreamFile(bad)
     # A stream of no frames is still one.
     write_stream(path, [])
     assert list(read_stream(path)) == []
