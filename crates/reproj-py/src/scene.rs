@@ -162,6 +162,8 @@ type ModelSpec = (String, [f64; 3], f64, f64, Option<usize>, f64, f64);
 #[derive(Debug)]
 pub struct Scene {
     inner: rs::Scene,
+    /// What each placed model was loaded from, in the order placed.
+    files: Vec<rs::gltf::ModelFiles>,
 }
 
 impl Scene {
@@ -209,9 +211,10 @@ impl Scene {
                     return Err(invalid(format!("{what}: speed must be > 0, got {}", m.6)));
                 }
             }
-            let inner = py
+            let (inner, files) = py
                 .detach(|| {
                     let mut scene = rs::builtin(name, variant)?;
+                    let mut files = Vec::with_capacity(models.len());
                     // One fixed decode allowance for all the models (GltfModel::load_sharing).
                     let mut allowance = rs::GLTF_ALLOWANCE;
                     for (path, position, yaw_deg, scale, animation, time_offset, speed) in &models {
@@ -225,12 +228,13 @@ impl Scene {
                             speed: *speed,
                         };
                         let model = rs::GltfModel::load_sharing(path, &mut allowance)?;
+                        files.push(model.files.clone());
                         rs::place_model(&mut scene, &std::sync::Arc::new(model), placement)?;
                     }
-                    Ok(scene)
+                    Ok((scene, files))
                 })
                 .map_err(map_scene_error)?;
-            Ok(Scene { inner })
+            Ok(Scene { inner, files })
         })
     }
 
@@ -244,6 +248,18 @@ impl Scene {
     #[getter]
     fn variant(&self) -> &'static str {
         self.inner.variant.name()
+    }
+
+    /// What each placed model was loaded from, in the order placed: `(sha256, resources)`, the
+    /// SHA-256 (64 lower-case hex digits) of the model file's bytes and of each file its glTF
+    /// document references by a relative URI (`buffers`, then `images`, in the document's
+    /// order), of the bytes read when this scene was built (`reproj_scene::gltf::ModelFiles`).
+    #[getter]
+    fn model_files(&self) -> Vec<(String, Vec<String>)> {
+        self.files
+            .iter()
+            .map(|f| (f.sha256.clone(), f.resources.clone()))
+            .collect()
     }
 
     /// Length of the animation and the head-box path (seconds).

@@ -148,11 +148,33 @@ pub(crate) struct Animation {
     pub(crate) end: f64,
 }
 
+/// The files a [`GltfModel`] was loaded from, as SHA-256 digests (64 lower-case hex digits)
+/// of the bytes the loader read and decoded when it was built: what the model renders, not
+/// what the files hold later (each file is read once; these are not a second read).
+///
+/// The model file is hashed whole (a GLB with its BIN chunk). `resources` lists each file its
+/// glTF document references by a relative URI: every `buffers` entry, then every `images`
+/// entry, in the document's order, one digest per entry (an entry naming the same file as
+/// another repeats its digest). `data:` URIs, a GLB's BIN chunk and images in buffer views are
+/// bytes of the model file (or of a buffer) and not listed. An image that no material uses as
+/// its base colour is not decoded, but its file is still read (once) and hashed, so that the
+/// list does not depend on which images the renderer uses.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ModelFiles {
+    /// SHA-256 (hex) of the model file (`.gltf` or `.glb`).
+    pub sha256: String,
+    /// SHA-256 (hex) of each file referenced by a relative URI: buffers, then images.
+    pub resources: Vec<String>,
+}
+
 /// A loaded glTF model (the default scene, or the first one).
 #[derive(Debug)]
 pub struct GltfModel {
     /// The file it came from.
     pub path: PathBuf,
+    /// The SHA-256 of the bytes of the model file and of each external file it references, as
+    /// the loader read them ([`ModelFiles`]).
+    pub files: ModelFiles,
     pub(crate) nodes: Vec<Node>,
     /// Nodes of the scene, parents before children.
     pub(crate) order: Vec<usize>,

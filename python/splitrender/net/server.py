@@ -860,7 +860,8 @@ class LiveServer:
     SHA-256 of the (leaf) certificate (what a client pins). ``scene`` overrides the built-in
     scene of ``options.scene_name`` (e.g. one loaded from a JSON description); the welcome
     names its built-in scene and :attr:`scene_digest`, its :meth:`Scene.digest`, computed
-    once here (the model files read again), which a client compares with its own scene's."""
+    once here (from the hashes the glTF loader took of the files it read), which a client
+    compares with its own scene's."""
 
     def __init__(
         self,

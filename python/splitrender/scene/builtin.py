@@ -22,8 +22,6 @@ import hashlib
 import json
 import math
 import os
-import re
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Sequence
@@ -34,7 +32,7 @@ import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.errors import InvalidInputError
-from splitrender.files import JSON_KINDS, open_regular, read_json, read_regular
+from splitrender.files import JSON_KINDS, read_json, read_regular
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 from splitrender.types import (  # argument checks
     BOOL,
@@ -101,84 +99,13 @@ def _check_samples(samples: int | None) -> int | None:
 
 #: What :meth:`Scene.digest` hashes first: the version of its definition.
 DIGEST_KIND = "splitrender-scene/1"
-#: Largest model file, or file a model references, :meth:`Scene.digest` reads: the glTF
-#: loader's own limit per file (crates/reproj-scene, ``MAX_FILE_BYTES``).
-MAX_MODEL_FILE_BYTES = 1 << 30
 
 
-def _file_sha256(path: Path, what: str) -> str:
-    """The SHA-256 (hex) of the file at ``path``, read in pieces, at most
-    :data:`MAX_MODEL_FILE_BYTES`."""
-    h = hashlib.sha256()
-    n = 0
-    try:
-        with open_regular(path, what, InvalidInputError) as f:
-            while chunk := f.read(1 << 20):
-                n += len(chunk)
-                if n > MAX_MODEL_FILE_BYTES:
-                    raise InvalidInputError(
-                        f"{path}: {what} is more than {MAX_MODEL_FILE_BYTES} bytes"
-                    )
-                h.update(chunk)
-    except OSError as e:
-        raise InvalidInputError(f"{path}: cannot read the {what}: {e}") from None
-    return h.hexdigest()
-
-
-def _model_file(path: Path) -> tuple[str, Any]:
-    """The SHA-256 (hex) of the glTF model file at ``path`` and its JSON document: a ``.gltf``
-    read once for both; a GLB hashed in pieces (its binary chunk may be large) and its JSON
-    chunk read on its own."""
-    try:
-        with open_regular(path, "glTF model", InvalidInputError) as f:
-            head = f.read(20)
-            glb = head[:4] == b"glTF"
-            if glb:
-                if len(head) < 20:
-                    raise InvalidInputError(f"{path}: a GLB file of {len(head)} bytes")
-                (size,) = struct.unpack_from("<I", head, 12)
-                # Checked against the file before reading: a read allocates what it asks for.
-                if size > os.fstat(f.fileno()).st_size - 20:
-                    raise InvalidInputError(f"{path}: GLB JSON chunk of {size} bytes, longer "
-                                            "than the file")
-                raw = f.read(size)
-        if glb:
-            sha = _file_sha256(path, "glTF model")
-        else:
-            raw = read_regular(path, MAX_MODEL_FILE_BYTES, "glTF model", InvalidInputError)
-            sha = hashlib.sha256(raw).hexdigest()
-    except OSError as e:
-        raise InvalidInputError(f"{path}: cannot read the glTF model: {e}") from None
-    try:
-        return sha, json.loads(raw)
-    except (ValueError, RecursionError):
-        raise InvalidInputError(f"{path}: not a glTF model (its JSON does not parse)") from None
-
-
-def _model_identity(m: ModelPlacement) -> dict[str, Any]:
-    """What :meth:`Scene.digest` takes of the placed model ``m``: its placement and the SHA-256
-    of its file and of each file its glTF document references by a relative URI (``buffers``,
-    then ``images``, in order; ``data:`` URIs are in the document's own bytes)."""
-    from urllib.parse import unquote
-
-    path = Path(m.path)
-    sha, doc = _model_file(path)
-    resources = []
-    for key in ("buffers", "images"):
-        entries = doc.get(key, []) if isinstance(doc, dict) else []
-        for i, entry in enumerate(entries if isinstance(entries, list) else []):
-            uri = entry.get("uri") if isinstance(entry, dict) else None
-            if not isinstance(uri, str) or uri.startswith("data:"):
-                continue
-            try:
-                name = unquote(uri, errors="strict")
-            except UnicodeDecodeError:
-                raise InvalidInputError(f"{path}: {key}[{i}].uri is not UTF-8") from None
-            # As the loader (gltf/source.rs, parse_uri), which refused the model otherwise.
-            if ":" in uri or name.startswith(("/", "\\")) or re.match("[A-Za-z]:", name):
-                raise InvalidInputError(f"{path}: {key}[{i}].uri {uri!r}: expected a relative "
-                                        "path or a data: URI")
-            resources.append(_file_sha256(path.parent / name, f"file of {key}[{i}]"))
+def _model_identity(m: ModelPlacement, sha: str, resources: list[str]) -> dict[str, Any]:
+    """What :meth:`Scene.digest` takes of the placed model ``m``: its placement, ``sha`` the
+    SHA-256 (hex) of its file and ``resources`` that of each file its glTF document references
+    by a relative URI (``buffers``, then ``images``, in order; ``data:`` URIs are in the
+    document's own bytes), as the native loader read them (``_native.Scene.model_files``)."""
     return {
         # + 0.0: -0.0 as 0.0 (the same placement).
         "position": [float(v) + 0.0 for v in m.position],
@@ -477,14 +404,15 @@ class Scene:
         sends it in its welcome and ``connect`` compares it with its ``--scene``'s
         (docs/protocol.md, "Scene digest", gives the exact text hashed).
 
-        Reads the model files again (they may have changed since the scene was built: the
-        digest is of what they hold now).
-
-        Raises:
-            InvalidInputError: a model file or a file it references that cannot be read, is
-                larger than the glTF loader takes, or a model that is not glTF.
+        The files' digests are of the bytes the glTF loader read when this scene was built,
+        each file read once (a file changed since has no effect on what this scene renders, nor
+        on its digest); it reads no file.
         """
-        models = [_model_identity(m) for m in self.models]
+        files = self._native.model_files
+        models = [
+            _model_identity(m, sha, resources)
+            for m, (sha, resources) in zip(self.models, files, strict=True)
+        ]
         text = json.dumps(
             {"digest": DIGEST_KIND, "scene": self.name, "variant": self.variant,
              "models": models},

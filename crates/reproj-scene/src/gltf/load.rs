@@ -15,7 +15,8 @@ use super::source::{self, Sources, MAX_FILE_BYTES};
 use super::{err, unsupported};
 use crate::error::Result;
 use crate::gltf_model::{
-    Animation, Channel, GltfMaterial, GltfModel, Local, Node, Property, Skin, Texture, Trs,
+    Animation, Channel, GltfMaterial, GltfModel, Local, ModelFiles, Node, Property, Skin, Texture,
+    Trs,
 };
 
 impl GltfModel {
@@ -147,6 +148,38 @@ fn local(path: &Path, index: usize, n: &gltf::json::Node) -> Result<Local> {
         r: rotation(path, &what, r)?,
         s: DVec3::from_array(s),
     }))
+}
+
+/// What the model was read from ([`ModelFiles`]): the digest of `bytes` and of each file a
+/// `buffers` entry, then an `images` entry, names by a relative URI. Called after decoding:
+/// every buffer and every decoded texture's file was read by then, and its digest is of the
+/// bytes decoded. An image file no material decodes is read here for its digest only, and
+/// left out when it cannot be (missing, not a regular file, over the caps, a URI that is not
+/// a relative path): nothing of it renders, and the loader took such a model before.
+///
+/// [`ModelFiles`]: crate::gltf::ModelFiles
+fn model_files(
+    bytes: &[u8],
+    root: &gltf::json::Root,
+    sources: &mut Sources<'_>,
+) -> Result<ModelFiles> {
+    let mut resources = Vec::new();
+    for (i, b) in root.buffers.iter().enumerate() {
+        if let Some(uri) = &b.uri {
+            resources.extend(sources.sha256(uri, &format!("buffer {i}"))?);
+        }
+    }
+    for (i, image) in root.images.iter().enumerate() {
+        if let Some(uri) = &image.uri {
+            if let Ok(Some(h)) = sources.sha256(uri, &format!("file of image {i}")) {
+                resources.push(h);
+            }
+        }
+    }
+    Ok(ModelFiles {
+        sha256: source::sha256_hex(bytes),
+        resources,
+    })
 }
 
 fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<(GltfModel, usize)> {
@@ -469,9 +502,11 @@ fn decode_checked(path: &Path, bytes: &[u8], budget_base: usize) -> Result<(Gltf
         });
     }
 
+    let files = model_files(bytes, root, &mut sources)?;
     let used = data.budget.fixed_used();
     let model = GltfModel {
         path: path.to_path_buf(),
+        files,
         nodes,
         order,
         meshes,

@@ -48,6 +48,11 @@
 //! chunks and its buffers, `access.rs` decodes accessors, `read.rs` decodes one image and one
 //! primitive, `place.rs` puts a model into a scene, `tests.rs` and `hostile.rs` hold the unit
 //! tests.
+//!
+//! The loader also records what it read: the SHA-256 of the model file and of each file the
+//! document references by a relative URI ([`ModelFiles`], on [`GltfModel::files`]), hashed
+//! from the bytes it decoded, so that a scene's identity (the Python `Scene.digest`) is of
+//! what renders, not of what the files hold when it is asked.
 
 mod access;
 #[cfg(test)]
@@ -62,7 +67,7 @@ mod tests;
 use std::path::Path;
 
 use crate::error::SceneError;
-pub use crate::gltf_model::{GltfModel, GltfShape, NodeTrack, Texture};
+pub use crate::gltf_model::{GltfModel, GltfShape, ModelFiles, NodeTrack, Texture};
 pub use load::GLTF_ALLOWANCE;
 pub use place::{load_gltf_scene, place_gltf, place_model, Placement};
 

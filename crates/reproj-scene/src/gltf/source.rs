@@ -2,11 +2,15 @@
 //! container split by hand with every chunk length checked against the bytes present, the JSON
 //! document, and its buffers and image files (data URIs decoded here, external files read with
 //! the same cap). Nothing read from the file sizes an allocation before it is checked.
+//! Each external file is read once and hashed (SHA-256) from the bytes read, for
+//! [`crate::gltf::ModelFiles`].
 
 use std::collections::HashMap;
 use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 use std::sync::Arc;
+
+use sha2::{Digest, Sha256};
 
 use super::{err, unsupported};
 use crate::error::Result;
@@ -278,12 +282,22 @@ pub(super) fn base64_decode(text: &str) -> Option<Vec<u8>> {
     Some(out)
 }
 
+/// The SHA-256 of `bytes` as 64 lower-case hex digits.
+pub(super) fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
 /// Reads URIs (buffers, textures) once each, keeping the sum of bytes read under
-/// [`MAX_INPUT_BYTES`].
+/// [`MAX_INPUT_BYTES`], and hashes each file read.
 pub(super) struct Sources<'p> {
     path: &'p Path,
     base: PathBuf,
     files: HashMap<PathBuf, Arc<Vec<u8>>>,
+    /// SHA-256 (hex) of each file read, from the bytes read.
+    hashes: HashMap<PathBuf, String>,
     /// Bytes of input so far (the model file and every distinct file or data URI read).
     pub(super) input: u64,
 }
@@ -294,6 +308,7 @@ impl<'p> Sources<'p> {
             path,
             base: path.parent().unwrap_or(Path::new(".")).to_path_buf(),
             files: HashMap::new(),
+            hashes: HashMap::new(),
             input: file_bytes as u64,
         }
     }
@@ -308,13 +323,41 @@ impl<'p> Sources<'p> {
                 if let Some(d) = self.files.get(&file) {
                     return Ok(d.clone());
                 }
-                let left = MAX_INPUT_BYTES.saturating_sub(self.input);
-                let cap = MAX_FILE_BYTES.min(left);
-                let d = Arc::new(read_file(self.path, &file, what, cap)?);
-                self.input += d.len() as u64;
+                let d = Arc::new(self.read_new(&file, what)?);
                 self.files.insert(file, d.clone());
                 Ok(d)
             }
         }
+    }
+
+    /// The SHA-256 (hex) of the file behind `uri`, `None` for a `data:` URI. A file already
+    /// read ([`Sources::read`]) is not read again: its digest is of the bytes decoded. Any
+    /// other (an image no material uses as its base colour) is read now, once, under the same
+    /// caps, hashed and dropped. Called after decoding, so it changes nothing decoded.
+    pub(super) fn sha256(&mut self, uri: &str, what: &str) -> Result<Option<String>> {
+        // Before parse_uri, which would copy the payload.
+        if uri.starts_with("data:") {
+            return Ok(None);
+        }
+        match parse_uri(self.path, &self.base, uri)? {
+            Uri::Data(_) => Ok(None),
+            Uri::File(file) => {
+                if let Some(h) = self.hashes.get(&file) {
+                    return Ok(Some(h.clone()));
+                }
+                self.read_new(&file, what)?;
+                Ok(self.hashes.get(&file).cloned())
+            }
+        }
+    }
+
+    /// Reads `file` (not read before), charging it to the input and recording its digest.
+    fn read_new(&mut self, file: &Path, what: &str) -> Result<Vec<u8>> {
+        let left = MAX_INPUT_BYTES.saturating_sub(self.input);
+        let cap = MAX_FILE_BYTES.min(left);
+        let d = read_file(self.path, file, what, cap)?;
+        self.input += d.len() as u64;
+        self.hashes.insert(file.to_path_buf(), sha256_hex(&d));
+        Ok(d)
     }
 }

@@ -505,3 +505,104 @@ fn flight_helmet_loads() {
     let scene = load_gltf_scene(&path).unwrap();
     crate::render_client_frame(&scene, 0, 0.02, 120.0, false).unwrap();
 }
+
+/// The SHA-256 of the file at `p`, read here (not by the loader).
+fn file_sha256(p: &Path) -> String {
+    use sha2::Digest;
+    let bytes = std::fs::read(p).unwrap();
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// `write_model`'s document as JSON and the bytes of its (data: URI) buffer.
+fn model_json_and_bin(model: &Path) -> (gltf::json::Value, Vec<u8>) {
+    let json: gltf::json::Value =
+        gltf::json::deserialize::from_str(&std::fs::read_to_string(model).unwrap()).unwrap();
+    let uri = json["buffers"][0]["uri"].as_str().unwrap();
+    let bin = source::base64_decode(uri.split_once(";base64,").unwrap().1).unwrap();
+    (json, bin)
+}
+
+#[test]
+fn recorded_file_digests_are_the_sha256_of_the_files() {
+    // The hex form itself, against the standard's value for "abc".
+    assert_eq!(
+        source::sha256_hex(b"abc"),
+        "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+    );
+    let model = write_model("digest", "tex.png", false);
+    let dir = model.parent().unwrap().to_path_buf();
+    let (json, bin) = model_json_and_bin(&model);
+    let tex = dir.join("tex.png");
+    let png = std::fs::read(&tex).unwrap();
+    let data_png = format!("data:image/png;base64,{}", base64(&png));
+
+    // A .gltf with an external .bin (percent-encoded, named by two buffers), its texture, an
+    // image no material uses (read for its digest only), a data: image and buffer (not
+    // listed), and an unused image whose file is missing (left out: the model still loads).
+    let mut doc = json.clone();
+    let n = bin.len();
+    doc["buffers"] = serde_json_value(&format!(
+        r#"[{{"byteLength":{n},"uri":"model%20data.bin"}},
+            {{"byteLength":{n},"uri":"model%20data.bin"}},
+            {{"byteLength":1,"uri":"data:application/octet-stream;base64,AA=="}}]"#
+    ));
+    doc["images"] = serde_json_value(&format!(
+        r#"[{{"uri":"tex.png"}},{{"uri":"sub/unused.png"}},{{"uri":"{data_png}"}},
+            {{"uri":"gone.png"}}]"#
+    ));
+    std::fs::write(dir.join("model data.bin"), &bin).unwrap();
+    std::fs::create_dir_all(dir.join("sub")).unwrap();
+    std::fs::write(dir.join("sub/unused.png"), b"not decoded").unwrap();
+    let ext = dir.join("external.gltf");
+    std::fs::write(&ext, gltf::json::serialize::to_vec(&doc).unwrap()).unwrap();
+    let files = GltfModel::load(&ext).unwrap().files;
+    let bin_sha = file_sha256(&dir.join("model data.bin"));
+    assert_eq!(files.sha256, file_sha256(&ext));
+    assert_eq!(
+        files.resources,
+        [
+            bin_sha.clone(),
+            bin_sha,
+            file_sha256(&tex),
+            file_sha256(&dir.join("sub/unused.png"))
+        ]
+    );
+
+    // A .glb: its BIN chunk is the model file's; its texture is an external file.
+    let mut doc = json.clone();
+    doc["buffers"] = serde_json_value(&format!(r#"[{{"byteLength":{n}}}]"#));
+    let mut chunk = gltf::json::serialize::to_vec(&doc).unwrap();
+    chunk.resize(chunk.len().div_ceil(4) * 4, b' ');
+    let mut bin4 = bin.clone();
+    bin4.resize(bin.len().div_ceil(4) * 4, 0);
+    let mut glb = b"glTF".to_vec();
+    glb.extend_from_slice(&2u32.to_le_bytes());
+    glb.extend_from_slice(&((28 + chunk.len() + bin4.len()) as u32).to_le_bytes());
+    glb.extend_from_slice(&(chunk.len() as u32).to_le_bytes());
+    glb.extend_from_slice(b"JSON");
+    glb.extend_from_slice(&chunk);
+    glb.extend_from_slice(&(bin4.len() as u32).to_le_bytes());
+    glb.extend_from_slice(b"BIN\0");
+    glb.extend_from_slice(&bin4);
+    let glb_path = dir.join("model.glb");
+    std::fs::write(&glb_path, &glb).unwrap();
+    let files = GltfModel::load(&glb_path).unwrap().files;
+    assert_eq!(files.sha256, file_sha256(&glb_path));
+    assert_eq!(files.resources, [file_sha256(&tex)]);
+
+    // Only data: URIs: the model file alone.
+    let mut doc = json;
+    doc["images"] = serde_json_value(&format!(r#"[{{"uri":"{data_png}"}}]"#));
+    let inline = dir.join("inline.gltf");
+    std::fs::write(&inline, gltf::json::serialize::to_vec(&doc).unwrap()).unwrap();
+    let files = GltfModel::load(&inline).unwrap().files;
+    assert_eq!(files.sha256, file_sha256(&inline));
+    assert!(files.resources.is_empty(), "{:?}", files.resources);
+}
+
+fn serde_json_value(s: &str) -> gltf::json::Value {
+    gltf::json::deserialize::from_str(s).unwrap()
+}
