@@ -7,12 +7,14 @@ import copy
 import dataclasses
 import gc
 import io
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pytest
+import numpy_ref
 from conftest import FPS, Pair
 
 import splitrender as sr
@@ -86,6 +88,12 @@ def test_camera_look_at_and_immutability() -> None:
     np.testing.assert_array_equal(c.proj, _native.perspective(60.0, 8 / 6, 0.1, 100.0))
     np.testing.assert_array_equal(c.view, _native.look_at((0, 0, 2), (0, 0, 0)))
     assert c.shape == (6, 8)
+    # Every argument reaches the matrices.
+    c3 = sr.Camera.look_at((1, 2, 3), (0, 0, 0), fov_y_deg=45.0, width=8, height=6, near=0.5,
+                           far=50.0, up=(1, 0, 0))
+    np.testing.assert_array_equal(c3.proj, _native.perspective(45.0, 8 / 6, 0.5, 50.0))
+    np.testing.assert_array_equal(c3.view, _native.look_at((1, 2, 3), (0, 0, 0), (1, 0, 0)))
+    assert not np.array_equal(c3.view, _native.look_at((1, 2, 3), (0, 0, 0)))
     with pytest.raises(dataclasses.FrozenInstanceError):
         c.width = 3  # type: ignore[misc]
     with pytest.raises(ValueError):
@@ -110,6 +118,11 @@ def test_camera_look_at_and_immutability() -> None:
         ),
         ({"proj": np.full((4, 4), np.nan)}, "Camera.proj: expected finite values"),
         ({"view": "abc"}, "Camera.view"),
+        # Refused, not cast: numpy drops the imaginary part with only a warning.
+        (
+            {"view": np.eye(4) + 1j},
+            "Camera.view: expected a 4x4 matrix of floats, got complex128 (4, 4)",
+        ),
     ],
 )
 def test_camera_validation(kwargs: dict[str, object], fragment: str) -> None:
@@ -139,6 +152,10 @@ def test_camera_frame_validation() -> None:
         sr.InvalidInputError, match="CameraFrame.depth: expected a C-contiguous array"
     ):
         sr.CameraFrame(c, color, np.zeros((6, 16), np.float32)[:, ::2])
+    buf = np.zeros(depth.nbytes + 1, np.uint8)
+    unaligned = np.frombuffer(buf.data, np.float32, depth.size, offset=1).reshape(depth.shape)
+    with pytest.raises(sr.InvalidInputError, match="CameraFrame.depth: expected an aligned array"):
+        sr.CameraFrame(c, color, unaligned)
     with pytest.raises(sr.InvalidInputError, match="CameraFrame.motion_bwd"):
         sr.CameraFrame(c, color, depth, motion_bwd=np.zeros((6, 8, 2), np.float32))
     with pytest.raises(
@@ -201,6 +218,14 @@ def test_options_defaults_match_design() -> None:
     assert o.server_fps == 10.0
 
 
+def test_options_integer_ranges_are_inclusive() -> None:
+    # Both ends of each range are taken (one past them is refused: test_options_validation).
+    for name, lo, hi in (("window", 0, 8), ("fpi_iterations", 0, 32),
+                         ("bidir_iterations", 0, 32), ("shadow_subframes", 1, 16)):
+        for v in (lo, hi):
+            assert getattr(sr.ReprojectOptions().replace(**{name: v}), name) == v
+
+
 def test_options_round_trip() -> None:
     o = sr.ReprojectOptions(eps_e=0.004, window=2, blend=False, server_fps=20)
     assert sr.ReprojectOptions(**dataclasses.asdict(o)) == o
@@ -208,6 +233,9 @@ def test_options_round_trip() -> None:
         eps_e=0.004, window=0, blend=False, server_fps=20
     )
     assert isinstance(o.server_fps, float)
+    with pytest.raises(sr.InvalidInputError, match=r"ReprojectOptions.replace: unknown options "
+                       r"\['eps'\]; expected some of eps_e, "):
+        o.replace(eps=0.1)
     native = o.to_native()
     assert "server_fps" not in native
     assert set(native) | {"server_fps"} == {f.name for f in dataclasses.fields(o)}
@@ -231,8 +259,15 @@ def test_options_round_trip() -> None:
         ("shadow_subframes", 0),
         ("shadow_subframes", 17),
         ("use_shadows", 1),
+        ("use_aux", 1),
         ("blend", None),
+        ("splat_bidirectional", "yes"),
         ("server_fps", 0.0),
+        ("server_fps", float("inf")),
+        # One past an end of the integer ranges (ReprojectOptions documents 0..8, 0..32, 1..16).
+        ("window", -1),
+        ("fpi_iterations", -1),
+        ("bidir_iterations", 33),
         # Beyond float32, which the kernels take them as: inf and 0 there, and every call
         # refused naming a value the caller never gave.
         ("eps_e", 1e300),
@@ -273,19 +308,34 @@ def test_reproject_covers_most_pixels(pair: Pair) -> None:
     assert r.matched.mean() > 0.99
 
 
+def _top_half_invalid(frame: sr.ServerFrame) -> sr.ServerFrame:
+    """``frame`` with NaN depth in the top half of every camera: no source for those pixels."""
+    def cam(c: sr.CameraFrame) -> sr.CameraFrame:
+        depth = c.depth.copy()
+        depth[: depth.shape[0] // 2] = np.nan
+        return dataclasses.replace(c, depth=depth)
+    return dataclasses.replace(frame, main=cam(frame.main), aux=tuple(map(cam, frame.aux)))
+
+
 @pytest.mark.parametrize("method", EXPECTED_METHODS)
 def test_previous_is_copied_not_mutated(pair: Pair, method: str) -> None:
+    # Half of each server image invalid, so that the client frame has unmatched pixels (the
+    # pair alone has none: checked on them, the property held for any `previous`).
+    older, newer = _top_half_invalid(pair.older), _top_half_invalid(pair.newer)
     h, w = pair.request.camera.shape
     prev = np.random.default_rng(1).integers(0, 256, (h, w, 3), dtype=np.uint8)
     before = prev.copy()
-    r = sr.reproject(pair.older, pair.newer, pair.request, method, previous=prev, diagnostics=True)
+    r = sr.reproject(older, newer, pair.request, method, previous=prev, diagnostics=True)
     np.testing.assert_array_equal(prev, before)
     assert r.image is not prev
     keep = r.source == sr.Reprojection.SOURCE_NONE
+    assert 0.2 < keep.mean() < 0.8  # measured: 0.44 to 0.5
     np.testing.assert_array_equal(r.image[keep], prev[keep])
     # Without a previous frame, unmatched pixels are black.
-    r0 = sr.reproject(pair.older, pair.newer, pair.request, method, diagnostics=True)
-    assert (r0.image[r0.source == 0] == 0).all()
+    r0 = sr.reproject(older, newer, pair.request, method, diagnostics=True)
+    np.testing.assert_array_equal(r0.source, r.source)
+    assert (r0.image[keep] == 0).all()
+    np.testing.assert_array_equal(r0.image[~keep], r.image[~keep])
 
 
 def test_reproject_time_to_alpha(pair: Pair) -> None:
@@ -304,6 +354,25 @@ def test_reproject_time_to_alpha(pair: Pair) -> None:
     a = sr.reproject(None, pair.newer, late, "ours")
     b = sr.reproject_alpha(None, pair.newer, cam, 1.0 + 0.02 * FPS, "ours")
     np.testing.assert_array_equal(a, b)
+    # With both frames held and the request at or after `newer`, the newest is used (at its
+    # own time too, alpha = 1), not the older one.
+    for dt in (0.0, 0.02):
+        req = sr.ClientRequest(cam, pair.newer.time + dt)
+        a = sr.reproject(pair.older, pair.newer, req, "ours_extrapolate")
+        b = sr.reproject_alpha(None, pair.newer, cam, 1.0 + dt * FPS, "ours_extrapolate")
+        np.testing.assert_array_equal(a, b, err_msg=str(dt))
+    # alpha scales with options.server_fps (the default is FPS; not with timewarp, which
+    # reads no motion and gives the same image at every alpha), ...
+    fast = sr.ReprojectOptions(server_fps=2 * FPS)
+    a = sr.reproject(pair.older, pair.newer, pair.request, "ours_extrapolate", options=fast)
+    alpha = 1.0 + (pair.request.time - pair.older.time) * 2 * FPS
+    b = sr.reproject_alpha(None, pair.older, cam, alpha, "ours_extrapolate", options=fast)
+    np.testing.assert_array_equal(a, b)
+    # ... and a pair's alpha with its frames' times (here two periods apart), not f_s.
+    far = dataclasses.replace(pair.newer, time=2 / FPS)
+    a = sr.reproject(pair.older, far, pair.request, "ours")
+    b = sr.reproject_alpha(pair.older, far, cam, pair.request.time * FPS / 2, "ours")
+    np.testing.assert_array_equal(a, b)
 
 
 def test_alpha_is_refused_as_given_not_as_rounded(pair: Pair) -> None:
@@ -321,6 +390,9 @@ def test_reproject_time_errors(pair: Pair) -> None:
         sr.reproject(pair.older, pair.newer, early, "ours_extrapolate")
     with pytest.raises(sr.InvalidInputError, match="frames out of order"):
         sr.reproject(pair.newer, pair.older, pair.request, "ours")
+    same = dataclasses.replace(pair.newer, time=pair.older.time)  # alpha would be 0/0
+    with pytest.raises(sr.InvalidInputError, match="frames out of order"):
+        sr.reproject(pair.older, same, pair.request, "ours")
     with pytest.raises(sr.InvalidInputError, match="needs both frames"):
         sr.reproject(None, pair.newer, pair.request, "backward_bidir")
     with pytest.raises(sr.InvalidInputError, match="unknown method 'nope'"):
@@ -332,11 +404,20 @@ def test_bidir_history_reused_and_reset_gives_the_images_without_one(pair: Pair)
     # the second reuses it, reset() empties it; every image equals the call without a history.
     h = sr.BidirHistory()
     assert repr(h) == "BidirHistory()"
-    fresh = sr.reproject(pair.older, pair.newer, pair.request, "backward_bidir")
+    older = _copied(pair.older)
+    fresh = sr.reproject(older, pair.newer, pair.request, "backward_bidir")
     assert fresh.shape == (*pair.request.camera.shape, 3)
-    filled = sr.reproject(pair.older, pair.newer, pair.request, "backward_bidir", history=h)
-    reused = sr.reproject(pair.older, pair.newer, pair.request, "backward_bidir", history=h)
+    filled = sr.reproject(older, pair.newer, pair.request, "backward_bidir", history=h)
+    reused = sr.reproject(older, pair.newer, pair.request, "backward_bidir", history=h)
+    # The history holds the pair it keeps state for (backward_bidir counts no pair_builds, so
+    # that is what shows it was given the call at all) until reset() empties it.
+    depth = weakref.ref(older.main.depth)
+    del older
+    gc.collect()
+    assert depth() is not None
     h.reset()
+    gc.collect()
+    assert depth() is None
     after_reset = sr.reproject(pair.older, pair.newer, pair.request, "backward_bidir", history=h)
     for image in (filled, reused, after_reset):
         np.testing.assert_array_equal(image, fresh)
@@ -346,8 +427,8 @@ def test_bidir_history_reused_and_reset_gives_the_images_without_one(pair: Pair)
 def test_history_through_two_pairs_gives_the_images_without_one(pair: Pair, method: str) -> None:
     # One history through the client frames of a pair (as the Client keeps it), then through the
     # next pair without a reset: every image equals the call without a history, so whatever
-    # pair state the history keeps is never served to another pair. (Whether it is reused within
-    # a pair is not observable from Python: only the images are checked.)
+    # pair state the history keeps is never served to another pair. The state is built once per
+    # pair and reused within it (pair_builds; 0 if the history never reached the core).
     w, h = pair.request.camera.width, pair.request.camera.height
     frames = [pair.older, pair.newer, pair.scene.server_frame(2, 2 / FPS, w, h, fps=FPS)]
     history = sr.BidirHistory()
@@ -362,6 +443,7 @@ def test_history_through_two_pairs_gives_the_images_without_one(pair: Pair, meth
             kept = sr.reproject(older, newer, req, method, history=history)
             fresh = sr.reproject(older, newer, req, method)
             assert np.array_equal(kept, fresh), (method, k, n)
+        assert history.pair_builds == k + 1, (method, k)
 
 
 def _copied(frame: sr.ServerFrame, **fields: Any) -> sr.ServerFrame:
@@ -443,6 +525,23 @@ def test_apply_shadows(pair: Pair) -> None:
     np.testing.assert_array_equal(at0, cf.color)
     mid = sr.apply_shadows(cf.color, cf.shadow_fwd, 0.5, subframes=4, role="older")
     assert mid.dtype == np.uint8 and mid.shape == cf.color.shape
+    # alpha, subframes and role reach the kernel: each call is eqs. 9-11 (the NumPy reference;
+    # off by one only at float32 rounding ties, see test_numpy_reference.py), and not the
+    # same image for the other role or subframe count.
+    s = cf.shadow_fwd
+    images = {}
+    calls: list[tuple[float, int, Literal["older", "newer"]]] = [
+        (0.5, 4, "older"), (0.25, 4, "older"), (0.25, 4, "newer"), (0.25, 3, "older")]
+    for alpha, subframes, role in calls:
+        got = sr.apply_shadows(cf.color, s, alpha, subframes=subframes, role=role)
+        want = numpy_ref.apply_shadows(cf.color, s.bits, s.s_min, s.s_max, alpha, subframes, role)
+        assert np.abs(got.astype(np.int16) - want).max() <= 1, (alpha, subframes, role)
+        images[alpha, subframes, role] = got
+    np.testing.assert_array_equal(images[0.5, 4, "older"], mid)
+    # Not vacuous: alpha, the role (subframe 1 against 3) and S each change this frame's image.
+    older = images[0.25, 4, "older"]
+    for other in (mid, images[0.25, 4, "newer"], images[0.25, 3, "older"]):
+        assert (older != other).any()
     with pytest.raises(sr.InvalidInputError, match="role: expected 'older' or 'newer'"):
         sr.apply_shadows(cf.color, cf.shadow_fwd, 0.5, role="middle")  # type: ignore[arg-type]
 

@@ -863,3 +863,27 @@ def test_entry_check_runs_the_full_check_only_on_a_size_mismatch(
     _set(camera, "width", camera.width + 1)
     precheck_frames(args)
     assert checked == ["newer"]
+
+
+def test_native_message_gets_the_path_and_the_direction() -> None:
+    """A native error about a buffer that the Python checks pass (one they cannot see, e.g. an
+    array another thread holds mutably borrowed) keeps the native message, its frame named by the
+    caller's path and ``motion``/``shadow`` by the direction that frame gave (the messages above
+    all come from the Python checks, which run first)."""
+    from splitrender.types import FrameArgument, native_error
+
+    p = _fresh()
+    args = (
+        FrameArgument("older", "older", p.older, "fwd"),
+        FrameArgument("newer", "frames[3]", p.newer, "bwd"),
+    )
+    for native, want in (
+        ("newer.aux[1].motion: busy", "frames[3].aux[1].motion_bwd: busy"),
+        ("older.main.shadow.s_min: busy", "older.main.shadow_fwd.s_min: busy"),
+        ("newer.main.depth: busy", "frames[3].main.depth: busy"),
+    ):
+        got = native_error(sr.InvalidInputError(native), args)
+        assert type(got) is sr.InvalidInputError and str(got) == want
+    # An error about no frame comes back as it was.
+    other = sr.InvalidInputError("alpha = 5 is outside the supported range")
+    assert native_error(other, args) is other

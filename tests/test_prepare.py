@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -59,6 +61,56 @@ def test_extrapolation_is_prepared_without_the_older_frame(pair: Pair, method: s
     assert history.pair_builds == 1
 
 
+def test_prepared_with_the_options_given(pair: Pair) -> None:
+    # eps_z and aux_threshold_scale shape the pair's work (a history rebuilds when they change):
+    # frames displayed with the options the pair was prepared with reuse it.
+    options = sr.ReprojectOptions(eps_z=0.01, aux_threshold_scale=2.0)
+    history = sr.BidirHistory()
+    cam = pair.request.camera
+    sr.prepare_pair(pair.older, pair.newer, cam, options=options, history=history)
+    kept = sr.reproject_alpha(pair.older, pair.newer, cam, pair.alpha, options=options,
+                              history=history)
+    assert history.pair_builds == 1
+    fresh = sr.reproject_alpha(pair.older, pair.newer, cam, pair.alpha, options=options)
+    np.testing.assert_array_equal(kept, fresh)
+    # Not vacuous: other options need other work.
+    sr.reproject_alpha(pair.older, pair.newer, cam, pair.alpha, history=history)
+    assert history.pair_builds == 2
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux's /proc")
+def test_threads_runs_the_work_on_a_pool_of_that_many_threads(pair: Pair) -> None:
+    # The dedicated pools are kept, their threads named reproj-pool{N}-{i} (reproj_core::pool);
+    # 7 threads is a count no other test asks for.
+    def pool_threads() -> list[str]:
+        names = (p.read_text().strip() for p in Path("/proc/self/task").glob("*/comm"))
+        return sorted(n for n in names if n.startswith("reproj-pool7-"))
+
+    history = sr.BidirHistory()
+    sr.prepare_pair(pair.older, pair.newer, pair.request.camera, history=history, threads=7)
+    assert history.pair_builds == 1
+    # A thread names itself as it starts: those that ran the work have, the rest soon will.
+    want = [f"reproj-pool7-{i}" for i in range(7)]
+    deadline = time.monotonic() + 5.0
+    while pool_threads() != want and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert pool_threads() == want
+
+
+def test_each_method_prepares_its_own_work(pair: Pair) -> None:
+    # With both frames given, the extrapolating methods prepare their own work (not `ours`'s
+    # interpolation): their frames reuse it, the other method's do not.
+    cam = pair.request.camera
+    for method, other in (("ours_extrapolate", "forward_splat"), ("forward_splat", "ours")):
+        history = sr.BidirHistory()
+        sr.prepare_pair(pair.older, pair.newer, cam, method, history=history)
+        sr.reproject_alpha(pair.older, pair.newer, cam, 1.2, method, history=history)
+        assert history.pair_builds == 1, method
+        sr.reproject_alpha(pair.older, pair.newer, cam, 0.5 if other == "ours" else 1.2, other,
+                           history=history)
+        assert history.pair_builds == 2, (method, other)
+
+
 def test_without_prepare_the_first_frame_builds(pair: Pair) -> None:
     history = sr.BidirHistory()
     sr.reproject(pair.older, pair.newer, pair.request, history=history)
@@ -92,7 +144,7 @@ def test_invalid_arguments_are_named(pair: Pair) -> None:
         sr.prepare_pair(pair.older, pair.newer, cam, history=None)  # type: ignore[arg-type]
     with pytest.raises(sr.InvalidInputError, match="older: expected a ServerFrame"):
         sr.prepare_pair(1, pair.newer, cam, history=history)  # type: ignore[arg-type]
-    for bad in [0, -1, 100_000]:
+    for bad in [0, -1, _native.MAX_PREPARE_THREADS + 1, 100_000]:
         with pytest.raises(sr.InvalidInputError, match="threads"):
             sr.prepare_pair(pair.older, pair.newer, cam, history=history, threads=bad)
     with pytest.raises(sr.InvalidInputError, match="threads"):
