@@ -1,6 +1,7 @@
-"""The fuzz suite (issue 15; harness in tests/fuzz/): a fixed-seed subset in CI, and the long
-profile under ``pytest -m fuzz``, which draws a new seed each run (printed, to replay with
-``python -m tests.fuzz --seed S``; ``FUZZ_CASES`` sets its size).
+"""The fuzz suite (issue 15; harness in tests/fuzz/): a fixed-seed subset in CI with hand-picked
+cases (tests/fuzz/pinned.py), and the long profile under ``pytest -m fuzz``, which draws a new
+seed each run (printed, to replay with ``python -m tests.fuzz --seed S``; ``FUZZ_CASES`` sets
+its size).
 
 The harness runs in its own interpreter: it forks a child per case, which is only safe from a
 process without threads, and a pytest session may have started some (encoders, thread pools)."""
@@ -60,14 +61,32 @@ def _assert_all_good(results: list[dict[str, str]]) -> None:
 
 def test_fuzz_fixed_seed(tmp_path: Path) -> None:
     """The CI profile: a fixed seed, every kind; each case must end as a specific error or a
-    checked acceptance."""
+    checked acceptance. Then the hand-picked cases (tests/fuzz/pinned.py), one per input check
+    that matters, each required to end as the specific error it pins: the random draw missed
+    some (dropping load_trace's non-finite check, or a description's check that ``models`` is
+    a list, passed it)."""
+    from tests.fuzz.pinned import PINNED
+
     results = _run_fuzz(tmp_path, "--ci")
     kinds = {r["kind"] for r in results}
     assert len(kinds) >= 12 and len(results) >= 240
+    pinned = [r for r in results if r["kind"] == "pinned"]
+    assert [int(r["index"]) for r in pinned] == list(range(len(PINNED)))
+    # The harness makes a pinned case that was accepted, or refused by another error, bad.
+    assert all(r["outcome"] == "specific error" for r in pinned), _shown(
+        [r for r in pinned if r["outcome"] != "specific error"])
     # Both good outcomes occur: a suite whose mutations were all refused (or all accepted)
     # would not reach the parsers' depths.
     assert {r["outcome"] for r in results} >= {"specific error", "accepted"}
     _assert_all_good(results)
+
+
+def test_fuzz_results_list_the_hand_picked_cases() -> None:
+    """docs/fuzz-results.md lists the CI profile's hand-picked cases as the report writes them
+    (``python -m tests.fuzz --out``): a case added to tests/fuzz/pinned.py is documented."""
+    from tests.fuzz.__main__ import pinned_list
+
+    assert pinned_list() in (ROOT / "docs" / "fuzz-results.md").read_text()
 
 
 @pytest.mark.fuzz
@@ -102,7 +121,7 @@ def test_the_harness_counts_a_named_memory_refusal_as_specific() -> None:
     # OutOfMemoryError (a MemoryError too) is the bindings' refusal, before allocating, of
     # legal sizes the case's memory cap cannot hold: a specific error, not an out-of-memory
     # outcome; a bare MemoryError (numpy or Python ran out) still is one.
-    from fuzz.harness import Outcome, _classify_exception  # tests/ is on the path (scenes.py)
+    from tests.fuzz.harness import Outcome, _classify_exception
     refusal = splitrender.OutOfMemoryError("reproject: 16384x16384 needs 8.0 GiB")
     assert _classify_exception(refusal).outcome is Outcome.SPECIFIC
     assert _classify_exception(MemoryError()).outcome is Outcome.OOM

@@ -11,8 +11,9 @@ Run the long profile and rewrite docs/fuzz-results.md with::
 
     PYTHONPATH=python python -m tests.fuzz --cases 2400 --seed 1 --out docs/fuzz-results.md
 
-``tests/test_fuzz.py`` runs a fixed-seed subset in CI (and draws a fresh seed under
-``pytest -m fuzz``).
+``tests/test_fuzz.py`` runs a fixed-seed subset in CI, then the hand-picked cases of
+``tests/fuzz/pinned.py`` (one per input check that matters, each required to end as the specific
+error it pins), and draws a fresh seed under ``pytest -m fuzz``.
 """
 
 import os

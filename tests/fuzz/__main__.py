@@ -2,6 +2,7 @@
 
     PYTHONPATH=python python -m tests.fuzz --cases 2400 --seed 1 --out docs/fuzz-results.md
     PYTHONPATH=python python -m tests.fuzz --replay packet:17 --seed 1   # one case, kept on disk
+    PYTHONPATH=python python -m tests.fuzz --pinned    # the hand-picked cases alone (pinned.py)
 
 Exit status 0 when every case ended as "specific error" or "accepted", 1 otherwise.
 """
@@ -25,6 +26,7 @@ from pathlib import Path
 import tests.fuzz  # noqa: F401 - sets the thread-pool variables before numpy is imported
 from tests.fuzz import targets
 from tests.fuzz.harness import Outcome, Verdict, run_case
+from tests.fuzz.pinned import PINNED
 
 #: Address space a case may take beyond the fork server's own (bytes): a frame of the
 #: decoder's largest camera (2^25 pixels, about 1 GB of buffers) fits, 30 GB does not.
@@ -33,8 +35,10 @@ MEM_BUDGET = 2 << 30
 _LISTENING = re.compile(r"^listening on ", re.MULTILINE)
 #: The heading in tests/fuzz/targets.py's docstring under which the checks are listed.
 _WHY = "Why accepting is right, per kind (the check each ``run`` makes):"
-#: The CI profile: cases and seed (tests/test_fuzz.py).
+#: The CI profile: cases and seed (tests/test_fuzz.py); it also runs the hand-picked cases.
 CI_CASES, CI_SEED = 250, 20261202
+#: The kind of the hand-picked cases' results (their index: the position in ``PINNED``).
+PINNED_KIND = "pinned"
 
 
 @dataclass(frozen=True)
@@ -69,27 +73,52 @@ def _work(run: Callable[[], None], cli: bool) -> Callable[[], Verdict]:
 
 
 def run_one(kind: str, index: int, seed: int, seeds: Path, work: Path) -> Result:
+    if kind == PINNED_KIND:
+        return run_pinned(index, seeds, work)
     k = targets.KINDS[kind]
     rng = random.Random(f"{seed}:{kind}:{index}")
     case_dir = work / f"{kind}-{index}"
     shutil.rmtree(case_dir, ignore_errors=True)
     case_dir.mkdir(parents=True)
     mutation, run, opts = k.make(rng, seeds, case_dir)
+    verdict = _run_made(k, run, opts)
+    return Result(kind, index, mutation, verdict.outcome.value, verdict.detail)
+
+
+def run_pinned(index: int, seeds: Path, work: Path) -> Result:
+    """Runs the hand-picked case ``PINNED[index]``: good only as a specific error whose text
+    matches its ``expect``."""
+    p = PINNED[index]
+    case_dir = work / f"{PINNED_KIND}-{index}"
+    shutil.rmtree(case_dir, ignore_errors=True)
+    case_dir.mkdir(parents=True)
+    what, run, opts = p.make(seeds, case_dir)
+    v = _run_made(targets.KINDS[p.kind], run, opts)
+    if v.outcome is Outcome.ACCEPTED:
+        v = Verdict(Outcome.WRONG_ACCEPT, f"accepted; expected an error matching {p.expect!r}")
+    elif v.outcome is Outcome.SPECIFIC and not re.search(p.expect, v.detail):
+        v = Verdict(Outcome.UNEXPECTED, f"expected an error matching {p.expect!r}, got: "
+                    f"{v.detail}")
+    return Result(PINNED_KIND, index, f"{p.kind} {p.name}: {what}", v.outcome.value, v.detail)
+
+
+def _run_made(k: targets.Kind, run: Callable[[], None], opts: dict[str, object]) -> Verdict:
+    """Runs a case's ``run`` (with its ``opts``) in a forked child; its verdict."""
     cli = bool(opts.get("cli"))
     serve = bool(opts.get("serve"))
 
     def log_check(v: Verdict, output: str) -> Verdict:
         return targets.classify_cli(v, output) if cli else v
 
-    verdict = run_case(
+    fsize_limit = opts.get("fsize_limit")
+    return run_case(
         _work(run, cli),
         time_limit=k.time_limit,
         mem_budget=MEM_BUDGET,
-        fsize_limit=opts.get("fsize_limit"),
+        fsize_limit=fsize_limit if isinstance(fsize_limit, int) else None,
         log_check=log_check,
         running=_LISTENING if serve else None,
     )
-    return Result(kind, index, mutation, verdict.outcome.value, verdict.detail)
 
 
 def preload() -> None:
@@ -121,14 +150,18 @@ def build_seeds(seeds: Path) -> None:
 
 
 def run_all(
-    cases: int, seed: int, kinds: list[str], work: Path, progress: bool = True
+    cases: int, seed: int, kinds: list[str], work: Path, progress: bool = True,
+    pinned: bool = False,
 ) -> tuple[list[Result], float]:
-    """Runs ``cases`` cases (split over ``kinds``) and returns the results and the wall time."""
+    """Runs ``cases`` cases (split over ``kinds``; none when 0) and, with ``pinned``, the
+    hand-picked cases (pinned.py) after them; returns the results and the wall time."""
     start = time.monotonic()
     seeds = work / "seeds"
     build_seeds(seeds)
     results: list[Result] = []
-    counts = plan(cases, kinds)
+    counts = plan(cases, kinds) if cases else {}
+    if pinned:
+        counts[PINNED_KIND] = len(PINNED)
     total = sum(counts.values())
     for kind, n in counts.items():
         for i in range(n):
@@ -183,6 +216,10 @@ def report(results: list[Result], seed: int, command: str, seconds: float, examp
         "",
         why,
         "",
+        "## Hand-picked cases (CI profile)",
+        "",
+        pinned_list(),
+        "",
         "## Cases with a bad outcome",
         "",
     ]
@@ -205,13 +242,33 @@ def report(results: list[Result], seed: int, command: str, seconds: float, examp
     return "\n".join(lines).rstrip() + "\n"
 
 
+def pinned_list() -> str:
+    """The hand-picked cases (pinned.py) as Markdown, for the report."""
+    rows = [f"| `{PINNED_KIND}:{i}` | `{p.kind}` | {p.name} | {p.check} | "
+            f"`{p.expect.replace('|', chr(92) + '|')}` |" for i, p in enumerate(PINNED)]
+    return "\n".join([
+        "The CI profile (`python -m tests.fuzz --ci`) runs these after its random draw, which",
+        "need not reach a given check (`--pinned` runs them alone; tests/fuzz/pinned.py). Each",
+        "must end as a specific error whose text matches the expression (`re.search`):",
+        "accepted, it counts as \"wrongly accepted\"; refused by another error, as \"not the",
+        "expected error\".",
+        "",
+        "| case | kind | name | the check it pins | the error must match |",
+        "|---|---|---|---|---|",
+        *rows,
+    ])
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m tests.fuzz", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--cases", type=int, default=2400, help="number of cases (default: %(default)s)")
     p.add_argument("--seed", type=int, default=None, help="seed (default: a random one, printed)")
     p.add_argument("--ci", action="store_true",
-                   help=f"the CI profile: {CI_CASES} cases, seed {CI_SEED} (unless given)")
+                   help=f"the CI profile: {CI_CASES} cases, seed {CI_SEED} (unless given), "
+                   f"then the {len(PINNED)} hand-picked cases")
+    p.add_argument("--pinned", action="store_true",
+                   help="run only the hand-picked cases (tests/fuzz/pinned.py)")
     p.add_argument("--kinds", default=",".join(targets.KINDS),
                    help="comma-separated kinds (default: all)")
     p.add_argument("--out", type=Path, default=None, help="write the Markdown summary here")
@@ -238,7 +295,8 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(asdict(r), indent=2))
             print(f"case files: {work / 'cases' / f'{kind}-{index}'}")
             return 0 if Outcome(r.outcome).good else 1
-        results, seconds = run_all(cases, seed, kinds, work)
+        results, seconds = run_all(0 if args.pinned else cases, seed, kinds, work,
+                                   pinned=args.ci or args.pinned)
     finally:
         if args.work is None and not args.replay:
             shutil.rmtree(work, ignore_errors=True)

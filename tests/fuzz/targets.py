@@ -364,6 +364,15 @@ def _packet_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Call
     which = rng.randrange(2)
     good = [(seeds / f"packet{i}.bin").read_bytes() for i in range(2)]
     data, what, must_refuse = mutate_packet(good[which], rng)
+    return f"packet {which}: {what}", packet_run(data, good[0] if which == 1 else None, what,
+                                                 must_refuse), {}
+
+
+def packet_run(
+    data: bytes, before: bytes | None, what: str, must_refuse: bool
+) -> Callable[[], None]:
+    """The ``packet`` kind's run: decodes ``data`` (after the packet ``before``, when given)
+    and checks the frame."""
 
     def run() -> None:
         from splitrender.codec.coder import StreamDecoder
@@ -371,14 +380,14 @@ def _packet_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Call
 
         p = unpack_packet(data)
         with StreamDecoder() as d:
-            if which == 1:
-                d.decode(good[0])
+            if before is not None:
+                d.decode(before)
             frame = d.decode(data)
         if must_refuse:
             raise WrongAccept(f"accepted a packet that must be refused ({what})")
         _well_formed("decoded", frame, [(c.width, c.height) for c in p.cameras])
 
-    return f"packet {which}: {what}", run, {}
+    return run
 
 
 # -- stream files -----------------------------------------------------------------------------
@@ -458,6 +467,11 @@ def _stream_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Call
     path.write_bytes(out)
     if op == "special":
         what = special_file(path, rng)
+    return what, stream_run(path, what, must_refuse), {}
+
+
+def stream_run(path: Path, what: str, must_refuse: bool) -> Callable[[], None]:
+    """The ``stream-file`` kind's run: reads and decodes every packet of ``path``."""
 
     def run() -> None:
         from splitrender.codec.coder import StreamDecoder
@@ -476,7 +490,7 @@ def _stream_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Call
         for k, (frame, packet) in enumerate(frames):
             _well_formed(f"frame {k}", frame, [(c.width, c.height) for c in packet.cameras])
 
-    return what, run, {}
+    return run
 
 
 # -- writers ----------------------------------------------------------------------------------
@@ -503,8 +517,6 @@ def _disk_full() -> None:
 
 
 def _stream_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
-    from splitrender.codec.stream import read_stream
-
     good = (seeds / "stream.srs").read_bytes()
     packets = [(seeds / f"packet{i}.bin").read_bytes() for i in range(2)]
     path = work / "out.srs"
@@ -527,6 +539,13 @@ def _stream_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[st
         what = f"packet {at} mangled ({w})"
     else:
         what = "four valid packets"
+    return what, stream_writer_run(path, good, items, work), opts
+
+
+def stream_writer_run(path: Path, good: bytes, items: list[bytes | None],
+                      work: Path) -> Callable[[], None]:
+    """The ``stream-writer`` kind's run: writes ``items`` (``None``: the iterator is
+    interrupted there) over ``path``, whose bytes are ``good``."""
 
     def packet_iter() -> Iterator[bytes]:
         for p in items:
@@ -535,7 +554,7 @@ def _stream_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[st
             yield p
 
     def run() -> None:
-        from splitrender.codec.stream import write_stream
+        from splitrender.codec.stream import read_stream, write_stream
 
         try:
             write_stream(path, packet_iter(), fps=10.0)
@@ -556,14 +575,20 @@ def _stream_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[st
         except KeyboardInterrupt:
             pass  # the interruption the case made, handled as it should be (checked above)
 
-    return what, wrapped, opts
+    return wrapped
 
 
 def _recording_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
     out = work / "rec"
     shutil.copytree(seeds / "rec-small", out)
-    before = _tree_digest(out)
     limit = rng.randrange(1, 40_000)
+    return (f"write_recording over a recording, file size limit {limit} bytes",
+            recording_writer_run(out, work), {"fsize_limit": limit})
+
+
+def recording_writer_run(out: Path, work: Path) -> Callable[[], None]:
+    """The ``recording-writer`` kind's run: writes a recording over the recording ``out``."""
+    before = _tree_digest(out)
 
     def run() -> None:
         import splitrender as sr
@@ -581,7 +606,7 @@ def _recording_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple
             raise
         sr.load_recording(out).verify()
 
-    return f"write_recording over a recording, file size limit {limit} bytes", run, {"fsize_limit": limit}
+    return run
 
 
 def _dataset_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
@@ -600,6 +625,15 @@ def _dataset_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[s
         else:
             client = bad
         what = f"export_dataset with aux_names={names}, client={client!r}"
+    return what, dataset_writer_run(seeds / "rec-small", out, names, client), opts
+
+
+def dataset_writer_run(
+    rec: Path, out: Path, names: tuple[str, ...], client: str
+) -> Callable[[], None]:
+    """The ``dataset-writer`` kind's run: exports the recording ``rec`` to ``out`` with
+    ``names`` for the auxiliary cameras' folders and ``client`` for the client's."""
+    work = out.parent
 
     def run() -> None:
         import splitrender as sr
@@ -607,7 +641,7 @@ def _dataset_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[s
 
         outside = sorted(p.name for p in work.parent.iterdir())
         try:
-            sr.export_dataset(seeds / "rec-small", out, aux_names=names, client=client)
+            sr.export_dataset(rec, out, aux_names=names, client=client)
         except BaseException:
             if out.exists() and any(out.iterdir()):
                 raise Corrupted("the export failed and left files in its output folder") from None
@@ -621,7 +655,7 @@ def _dataset_writer_case(rng: random.Random, seeds: Path, work: Path) -> tuple[s
         for k, f in enumerate(data.server_frames):
             _well_formed(f"frame {k}", f)
 
-    return what, run, opts
+    return run
 
 
 # -- recordings -------------------------------------------------------------------------------
@@ -697,6 +731,11 @@ def _recording_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, C
         victim = rng.choice(sorted(q for q in rec.rglob("*") if q.is_file()))
         victim.unlink()
         what = f"{victim.relative_to(rec)} removed"
+    return what, recording_run(rec), {}
+
+
+def recording_run(rec: Path) -> Callable[[], None]:
+    """The ``recording`` kind's run: loads ``rec`` and checks every frame."""
 
     def run() -> None:
         import splitrender as sr
@@ -713,7 +752,7 @@ def _recording_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, C
             if c.ground_truth.shape != (c.camera.height, c.camera.width, 3):
                 raise WrongAccept(f"ground truth of shape {c.ground_truth.shape}")
 
-    return what, run, {}
+    return run
 
 
 # -- datasets ---------------------------------------------------------------------------------
@@ -749,6 +788,11 @@ def _dataset_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Cal
         else:
             victim.unlink()
         what = f"{victim.relative_to(ds)} removed"
+    return what, dataset_run(ds), {}
+
+
+def dataset_run(ds: Path) -> Callable[[], None]:
+    """The ``dataset`` kind's run: imports ``ds`` and checks every frame."""
 
     def run() -> None:
         from splitrender.scene.dataset import dataset_info, import_dataset
@@ -765,7 +809,7 @@ def _dataset_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Cal
             if not math.isfinite(req.time):
                 raise WrongAccept(f"client time {req.time}")
 
-    return what, run, {}
+    return run
 
 
 # -- traces -----------------------------------------------------------------------------------
@@ -809,6 +853,11 @@ def _trace_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Calla
     path.write_bytes(out)
     if op == "special":
         what = special_file(path, rng)
+    return what, trace_run(path), {}
+
+
+def trace_run(path: Path) -> Callable[[], None]:
+    """The ``trace`` kind's run: loads the trace ``path`` and checks what it holds."""
 
     def run() -> None:
         from splitrender.scene.builtin import load_trace
@@ -825,7 +874,7 @@ def _trace_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Calla
             if not np.isfinite(t.pose(s)).all():
                 raise WrongAccept(f"pose({s}) not finite")
 
-    return what, run, {}
+    return run
 
 
 # -- scene descriptions, glTF, GLB --------------------------------------------------------------
@@ -842,6 +891,12 @@ def _placed_model(
     """The case of a (mutated) model file: placed in front of the camera, animated or at rest,
     loaded and rendered."""
     anim = rng.choice((0, None))
+    return f"{what} (animation {anim})", placed_model_run(path, anim), {}
+
+
+def placed_model_run(path: Path, anim: int | None) -> Callable[[], None]:
+    """The ``gltf`` and ``glb`` kinds' run: the model ``path`` placed in front of the camera,
+    loaded and rendered."""
 
     def run() -> None:
         from splitrender.scene.builtin import ModelPlacement, Scene
@@ -849,7 +904,7 @@ def _placed_model(
         scene = Scene("lab", "static", [ModelPlacement(str(path), (0.0, 0.0, -2.0), animation=anim)])
         _render_check(scene)
 
-    return f"{what} (animation {anim})", run, {}
+    return run
 
 
 def _copy_model(seeds: Path, work: Path) -> None:
@@ -873,14 +928,20 @@ def _description_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str,
                  ("models", 0, "time_offset")]
         new, what = mutate_json(doc, rng, focus)
         (work / "scene.json").write_text(dumps(new))
+    return what, description_run(work / "scene.json"), {}
+
+
+def description_run(path: Path) -> Callable[[], None]:
+    """The ``scene-description`` kind's run: the scene of the description ``path``, loaded and
+    rendered."""
 
     def run() -> None:
         from splitrender.scene.builtin import Scene
 
-        scene = Scene.from_description(work / "scene.json")
+        scene = Scene.from_description(path)
         _render_check(scene)
 
-    return what, run, {}
+    return run
 
 
 def _gltf_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callable[[], None], dict[str, Any]]:
@@ -1067,16 +1128,23 @@ def _cli_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callabl
                     symlinks=True)
     base = rng.choice(cli_seeds(seeds, work))
     argv, what = mutate_argv(base, rng, seeds, work)
+    shown = " ".join(a if len(a) < 40 else a[:37] + "..." for a in argv)
+    text = f"{what}: splitrender {shown}".replace(str(seeds), "SEEDS").replace(str(work), "CASE")
+    text = text.replace(str(shared), "SEEDS")
+    return text, cli_run(argv, work), {"cli": True, "serve": argv[0] == "serve"}
+
+
+def cli_run(argv: list[str], work: Path) -> Callable[[], None]:
+    """The ``cli`` kind's run: ``splitrender ARGV`` in the folder ``work``; raises SystemExit
+    with its exit status (:func:`classify_cli` reads the rest from its output)."""
+
     def run() -> None:
         from splitrender.cli import main
 
         os.chdir(work)  # relative outputs of a mutated command line land in the case's folder
         raise SystemExit(main(argv))
 
-    shown = " ".join(a if len(a) < 40 else a[:37] + "..." for a in argv)
-    text = f"{what}: splitrender {shown}".replace(str(seeds), "SEEDS").replace(str(work), "CASE")
-    text = text.replace(str(shared), "SEEDS")
-    return text, run, {"cli": True, "serve": argv[0] == "serve"}
+    return run
 
 
 def classify_cli(verdict: Verdict, output: str) -> Verdict:
