@@ -496,7 +496,7 @@ def _library_output(path: Path) -> Iterator[list[str]]:
                                 functools.partial(_write_fd, fd))
                     while rest := tmp.read(_CAPTURED):  # another's flood: passed on as it is
                         _write_fd(fd, rest)
-            _sort_lines(py_out.getvalue(), name, said, _write_stdout)
+            _sort_lines(py_out.getvalue(), name, said, sys.stdout.write)  # restored by now
 
 
 def _redirect_fds(fds: tuple[int, ...]) -> list[tuple[int, int, Any]]:
@@ -533,7 +533,7 @@ def _fflush_c() -> None:
         fflush(None)
 
 
-def _sort_lines(text: str, name: str, said: list[str], other: Callable[[str], None]) -> None:
+def _sort_lines(text: str, name: str, said: list[str], other: Callable[[str], object]) -> None:
     """Appends the library's lines of ``text`` to ``said`` (without the file name ``name``),
     hands the rest to ``other``."""
     rest = []
@@ -554,10 +554,6 @@ def _write_fd(fd: int, text: str | bytes) -> None:
     data = text.encode() if isinstance(text, str) else text
     while data:
         data = data[os.write(fd, data):]
-
-
-def _write_stdout(text: str) -> None:
-    sys.stdout.write(text)
 
 
 def _said(said: list[str]) -> str:
