@@ -20,7 +20,7 @@ from conftest import FPS, Pair
 import splitrender as sr
 from splitrender import _native
 from splitrender.cli import main as cli_main
-from splitrender.imageio import encode_png, write_png
+from splitrender.imageio import caption_height, encode_png, montage, write_png
 
 EXPECTED_METHODS = ("ours", "ours_extrapolate", "forward_splat", "timewarp", "backward_bidir")
 
@@ -595,6 +595,39 @@ def test_png_encoding_round_trips_through_pillow(tmp_path: Path) -> None:
         encode_png(img.astype(np.float32))  # type: ignore[arg-type]
     with pytest.raises(sr.InvalidInputError, match="non-empty"):
         encode_png(np.zeros((0, 3, 3), np.uint8))
+
+
+def test_montage_places_tiles_unchanged_under_their_own_captions() -> None:
+    rng = np.random.default_rng(1)
+    tiles = [rng.integers(0, 256, (30, 40, 3), dtype=np.uint8) for _ in range(5)]
+    # Without labels: the tiles row by row, 4 white pixels apart, a short last row white.
+    plain = montage(tiles, columns=3)
+    assert plain.shape == (2 * 30 + 4, 3 * 40 + 2 * 4, 3)
+    for k, tile in enumerate(tiles):
+        y, x = divmod(k, 3)
+        assert np.array_equal(plain[y * 34:y * 34 + 30, x * 44:x * 44 + 40], tile), k
+    assert (plain[34:, 88:] == 255).all() and (plain[30:34] == 255).all()
+    # With labels: each tile moves down by its caption bar, which holds black text on white,
+    # and differs with the label (the label drawn, not a fixed mark).
+    labels = ["ground truth", "ours", "ours", "timewarp", ""]
+    bar = caption_height(30)
+    cap = montage(tiles, columns=3, labels=labels)
+    assert cap.shape == (2 * (bar + 30) + 4, 3 * 40 + 2 * 4, 3)
+    bars = []
+    for k, tile in enumerate(tiles):
+        y, x = divmod(k, 3)
+        y, x = y * (bar + 34), x * 44
+        assert np.array_equal(cap[y + bar:y + bar + 30, x:x + 40], tile), k
+        bars.append(cap[y:y + bar, x:x + 40])
+    assert all(b.min() < 64 for b in bars[:4]) and (bars[4] == 255).all()
+    assert np.array_equal(bars[1], bars[2]) and not np.array_equal(bars[0], bars[1])
+    assert not np.array_equal(bars[1], bars[3])
+    # Captions scale with the tile (legible at 720 rows), never below 10-pixel text.
+    assert caption_height(720) > 2 * caption_height(144) and caption_height(18) >= 14
+    with pytest.raises(sr.InvalidInputError, match=r"tiles\[1\]: expected uint8 array of shape"):
+        montage([tiles[0], tiles[1][:, :20]])
+    with pytest.raises(sr.InvalidInputError, match="labels: expected one per tile"):
+        montage(tiles, labels=["a"])
 
 
 def test_cli_example(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

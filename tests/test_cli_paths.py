@@ -607,12 +607,17 @@ def _check_example(out: Path, printed: str) -> None:
     assert sorted(p.name for p in out.iterdir()) == sorted(f"{n}.png" for n in [*names, "montage"])
     images = {n: read_png(out / f"{n}.png") for n in names}
     assert all(im.shape == (18, 32, 3) for im in images.values())
-    # The montage is the tiles row by row, 3 per row, 4 pixels apart.
+    # The montage is the tiles row by row, 3 per row, 4 pixels apart, each under a caption bar
+    # of `bar` rows with its label in black on white.
     montage = read_png(out / "montage.png")
-    assert montage.shape == (2 * 18 + 4, 3 * 32 + 2 * 4, 3)
+    bar = (montage.shape[0] - 2 * 18 - 4) // 2
+    assert bar > 0 and montage.shape == (2 * (bar + 18) + 4, 3 * 32 + 2 * 4, 3)
     for k, n in enumerate(names):
-        r, c = divmod(k, 3)
-        np.testing.assert_array_equal(montage[22 * r:22 * r + 18, 36 * c:36 * c + 32], images[n])
+        y, x = divmod(k, 3)
+        y, x = y * (bar + 18 + 4), x * 36
+        np.testing.assert_array_equal(montage[y + bar:y + bar + 18, x:x + 32], images[n])
+        caption = montage[y:y + bar, x:x + 32]
+        assert caption.min() < 64 and np.median(caption) == 255, n
     # The printed MAE of each method is that of its PNG against ground_truth.png.
     truth = images["ground_truth"].astype(np.int16)
     for m in METHODS:

@@ -44,7 +44,7 @@ from splitrender.errors import InvalidInputError
 from splitrender.files import AtomicWriter, OutputFolder, temporary_beside, write_atomic
 from splitrender.net.model import NetworkModel
 from splitrender.progress import Progress
-from splitrender.imageio import write_png
+from splitrender.imageio import montage, write_png
 from splitrender.evaluation.metrics import SKIP_FRAMES, VMAF_MIN_SIDE, flip_map
 from splitrender.reproject import METHODS
 
@@ -195,14 +195,13 @@ def playback_speed(video_fps: float, client_fps: float = FC) -> str:
     return f"{factor}x {'slow' if slow > 1 else 'fast'} motion"
 
 
-def _side_by_side(tiles: Sequence[_Image], gap: int = 4) -> _Image:
-    """Tiles in a row with white gaps, padded (black) to even sides for yuv420p."""
-    h, w = tiles[0].shape[:2]
-    width = len(tiles) * w + (len(tiles) - 1) * gap
+def _side_by_side(tiles: Sequence[_Image], labels: Sequence[str]) -> _Image:
+    """Tiles in a row under their captions (:func:`~splitrender.imageio.montage`), padded
+    (black) to even sides for yuv420p."""
+    row = montage(tiles, labels=labels)
+    h, width = row.shape[:2]
     out = np.zeros((_even(h), _even(width), 3), np.uint8)
-    out[:h, :width] = 255
-    for k, t in enumerate(tiles):
-        out[:h, k * (w + gap) : k * (w + gap) + w] = t
+    out[:h, :width] = row
     return out
 
 
@@ -532,7 +531,7 @@ def _demo(cfg: DemoConfig, out: Path) -> DemoResult:
             with contextlib.ExitStack() as stack:
                 video: _Video | None = None
                 if method == video_method:
-                    vw, vh = _side_by_side([truth[0]] * 3).shape[1::-1]
+                    vw, vh = _side_by_side([truth[0]] * 3, [""] * 3).shape[1::-1]
                     video = stack.enter_context(_Video(video_path, vw, vh, cfg.video_fps))
 
                 def on_frame(eye: int, n: int, image: _Image, info: Any) -> None:
@@ -545,7 +544,9 @@ def _demo(cfg: DemoConfig, out: Path) -> DemoResult:
                     if video is None:
                         return
                     err = colormap(flip_map(image, truth[n]))
-                    side = _side_by_side([truth[n], image, err])
+                    side = _side_by_side([truth[n], image, err], [
+                        f"ground truth  t = {n / FC:.3f} s", f"{method}  {info.mode}",
+                        f"FLIP error of {method}"])
                     video.write(side)
                     if n in still_idx:
                         for name, img in (
