@@ -986,6 +986,12 @@ def test_ours_better_than_timewarp_live(tmp_path: Path) -> None:
         assert math.isfinite(r[m]) and math.isfinite(c[m])
     assert r["modes"]["interpolate"] > 0
     assert r["ssim"] > c["ssim"] + 0.01, (r["ssim"], c["ssim"], r["modes"], c["modes"])
+    # The scores are printed as well (after the session's summary), each method's its own.
+    assert done.stdout.splitlines()[-2:] == [
+        f"ours: SSIM {r['ssim']:.4f}, FLIP {r['flip']:.4f}, PSNR {r['psnr']:.2f}, "
+        f"no VMAF (--no-vmaf) over {r['scored_frames']} display frames",
+        f"timewarp (replayed): SSIM {c['ssim']:.4f}, FLIP {c['flip']:.4f}, PSNR "
+        f"{c['psnr']:.2f}, no VMAF (--no-vmaf) over {c['scored_frames']} display frames"]
 
 
 def test_adaptive_bitrate_follows_a_halved_cap(tmp_path: Path) -> None:

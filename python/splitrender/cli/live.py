@@ -412,6 +412,9 @@ def run_connect(args: argparse.Namespace) -> int:
             # shows the same black start-up (no server frame yet); holds after it count.
             start = first_shown[0] if first_shown else math.inf
             picked = _pick([f for f in frames if f[0] >= start])
+            if not args.quiet:
+                print(f"scoring {len(picked)} display frames against the ground truth rendered "
+                      "at the client's poses", file=sys.stderr, flush=True)
             report.update(_score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf))
             if args.compare is not None:
                 other: list[tuple[float, npt.NDArray[np.uint8]]] = []
@@ -431,8 +434,28 @@ def run_connect(args: argparse.Namespace) -> int:
           f"{report['modes']}, {report['server_frames_received']} server frames "
           f"({net['frames_lost']} lost, {net['key_recoveries']} key-frame recoveries), "
           f"pose-to-display p50 {'n/a' if p50 is None else f'{p50:.0f} ms'}, "
-          f"{report['mbps']:.3f} Mb/s; wrote {out}/report.json")
+          f"{report['mbps']:.3f} Mb/s; wrote {out}/: report.json, video.mp4")
+    if args.score:
+        print(_score_line(args.method, report, args.no_vmaf))
+        if args.compare is not None:
+            print(_score_line(f"{args.compare} (replayed)", report["compare"], args.no_vmaf))
     return 0
+
+
+def _score_line(method: str, scores: dict[str, Any], no_vmaf: bool) -> str:
+    """The printed scores of ``method`` (``scores``: what :func:`_score` put in the report)."""
+    n = scores["scored_frames"]
+    if n == 0:
+        return f"{method}: no display frame showed a server frame: nothing scored"
+    names = {"ssim": ("SSIM", 4), "flip": ("FLIP", 4), "psnr": ("PSNR", 2), "vmaf": ("VMAF", 2)}
+    parts = [f"{label} {scores[m]:.{digits}f}" for m, (label, digits) in names.items()
+             if m in scores]
+    if "vmaf" not in scores:
+        from splitrender.evaluation.metrics import VMAF_MIN_SIDE
+
+        parts.append("no VMAF (--no-vmaf)" if no_vmaf
+                     else f"no VMAF (a side under {VMAF_MIN_SIDE} pixels)")
+    return f"{method}: {', '.join(parts)} over {n} display frames"
 
 
 def _scene_mismatch(
