@@ -1096,6 +1096,60 @@ mod tests {
         }
     }
 
+    /// The merge's two comparisons (§3.5) on cases worked by hand (`ε_z = 0.15`, depths
+    /// reversed: larger is nearer, similar when `2·|Δz| < ε_z`): an auxiliary match replaces a
+    /// main match ([`overrides_main`]) only when nearer and not similar; of two auxiliary
+    /// matches ([`better_aux`]) the nearer wins when the depths differ, else the smaller error,
+    /// and the earlier grid's on a tie. (The merge tests above take both as their reference.)
+    #[test]
+    fn merge_keeps_the_nearer_else_the_smaller_error() {
+        let eps_z = 0.15;
+        let cell = |z: f32, e: f32| AuxCell {
+            src: 2,
+            visible_in_main: false,
+            p: 0,
+            e,
+            z,
+        };
+        // (auxiliary depth, main depth, overrides).
+        for (az, mz, want) in [
+            (0.5, 0.3, true),
+            (0.3, 0.5, false),
+            (0.35, 0.3, false),
+            // 2·0.1 ≥ ε_z although 0.1 < ε_z: not similar.
+            (0.4, 0.3, true),
+            (0.3, 0.3, false),
+        ] {
+            assert_eq!(
+                overrides_main(&cell(az, 0.1), mz, eps_z),
+                want,
+                "{az} over {mz}"
+            );
+        }
+        // (earlier grid's depth and error, later grid's, whether the later one is kept).
+        for ((bz, be), (cz, ce), later) in [
+            ((0.3, 0.1), (0.5, 0.2), true),
+            ((0.5, 0.1), (0.3, 0.05), false),
+            ((0.3, 0.2), (0.4, 0.1), true),
+            ((0.4, 0.2), (0.3, 0.1), false),
+            ((0.3, 0.2), (0.35, 0.1), true),
+            ((0.35, 0.1), (0.3, 0.2), false),
+            ((0.3, 0.1), (0.32, 0.1), false),
+        ] {
+            let (b, c) = (cell(bz, be), cell(cz, ce));
+            let kept = better_aux(Some(&b), &c, eps_z);
+            assert_eq!(
+                std::ptr::eq(kept, &c),
+                later,
+                "{:?} then {:?}",
+                (bz, be),
+                (cz, ce)
+            );
+        }
+        let c = cell(0.1, 0.9);
+        assert!(std::ptr::eq(better_aux(None, &c, eps_z), &c));
+    }
+
     /// [`unite_maybe`] flags a cell in every grid of three or more when any flags it, and every
     /// cell when the grids differ in size; two grids keep their own flags.
     #[test]

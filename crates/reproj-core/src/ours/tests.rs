@@ -282,10 +282,15 @@ fn extrapolation_of_a_static_scene_is_the_identity() {
 /// The synthetic scene's client at `alpha` of the pair, moved off the server's path (0.25 right,
 /// 0.1 down), so that it sees what the main camera did not and the auxiliary cameras matter.
 fn off_path_request(alpha: f32, w: usize, h: usize) -> Request {
+    off_path_request_by(alpha, [0.25, -0.1], w, h)
+}
+
+/// [`off_path_request`] with the client moved by `(dx, dy)` off the server's path.
+fn off_path_request_by(alpha: f32, [dx, dy]: [f64; 2], w: usize, h: usize) -> Request {
     use crate::synthetic::{head_pose, rig};
     let (mut e, tg) = head_pose(0.1 * f64::from(alpha));
-    e[0] += 0.25;
-    e[1] -= 0.1;
+    e[0] += dx;
+    e[1] += dy;
     Request {
         client: rig(e, tg, w, h).0,
         alpha,
@@ -302,15 +307,29 @@ fn lazy_auxiliary_search_equals_searching_every_cell() {
     let f0 = SyntheticFrame::render(&scene, 0.0, w, h, 0.1, 4);
     let f1 = SyntheticFrame::render(&scene, 0.1, w, h, 0.1, 4);
     let (older, newer) = (f0.view(true), f1.view(false));
-    let mut aux_pixels = 0;
-    for (alpha, pair) in [(0.35f32, true), (0.8, true), (1.4, false)] {
-        let req = off_path_request(alpha, w, h);
-        let run = |eager: bool| {
+    let (mut aux_pixels, mut overrides) = (0, 0);
+    // Off the path by (0.25, −0.1) most auxiliary matches fill pixels where main found nothing
+    // (§3.5 rule 1), and the few that replace a main match (rule 2) lie in the grids' border
+    // cells; by (0.5, 0) some lie inside, where only the landing points' flags
+    // ([`AuxGrid::maybe`]) have the lazy search look.
+    let cases = [
+        (0.35f32, true, [0.25, -0.1]),
+        (0.8, true, [0.25, -0.1]),
+        (1.4, false, [0.25, -0.1]),
+        (0.35, true, [0.5, 0.0]),
+        (1.4, false, [0.5, 0.0]),
+    ];
+    for (alpha, pair, off) in cases {
+        let req = off_path_request_by(alpha, off, w, h);
+        let run = |eager: bool, use_aux: bool| {
             EAGER_AUX.with(|x| x.set(eager));
             let mut out = vec![9u8; w * h * 3];
             let mut diag = Diagnostics::new(w * h);
             let older = pair.then_some(&older);
-            let p = Params::default();
+            let p = Params {
+                use_aux,
+                ..Params::default()
+            };
             reproject(
                 Method::Ours,
                 older,
@@ -324,20 +343,23 @@ fn lazy_auxiliary_search_equals_searching_every_cell() {
             EAGER_AUX.with(|x| x.set(false));
             (out, diag)
         };
-        let (lazy, eager) = (run(false), run(true));
+        let (lazy, eager) = (run(false, true), run(true, true));
         assert_eq!(lazy.0, eager.0, "colour, alpha {alpha}");
         assert_eq!(lazy.1.source, eager.1.source, "sources, alpha {alpha}");
-        aux_pixels += eager
-            .1
-            .source
-            .iter()
-            .filter(|&&c| c & !Diagnostics::BLENDED >= Diagnostics::AUX_BASE)
+        let from_aux = |c: u8| c & !Diagnostics::BLENDED >= Diagnostics::AUX_BASE;
+        aux_pixels += eager.1.source.iter().filter(|&&c| from_aux(c)).count();
+        // Rule 2: an auxiliary match where the main camera alone found one.
+        let main_only = run(false, false).1.source;
+        overrides += (0..w * h)
+            .filter(|&k| main_only[k] != Diagnostics::NONE && from_aux(eager.1.source[k]))
             .count();
     }
-    // The scene must exercise the auxiliary cameras for the comparison to mean anything.
+    // The scene must exercise the auxiliary cameras for the comparison to mean anything, both
+    // where main found nothing and where an auxiliary match replaces main's (which only the
+    // flagged cells can do).
     assert!(
-        aux_pixels > 100,
-        "only {aux_pixels} pixels from auxiliary cameras"
+        aux_pixels > 100 && overrides > 25,
+        "{aux_pixels} pixels from auxiliary cameras, {overrides} of them over a main match"
     );
 }
 
@@ -852,10 +874,11 @@ fn sparse_transfer(rnd: &mut impl FnMut() -> u64) -> NdcTransfer {
 
 /// The flow of still points (motion +0, every bit clear), which `flow_row` computes with one
 /// transfer instead of two, is the general path's to the byte: flow, client depth and cell, and
-/// the key depth wherever there is a cell; and so is `full_flow_row`'s, which skips their motion. Rows mix still and moving runs (chunks of either kind
-/// and chunks with both), with ±0, NaN and infinite depths and motions, a middle column and row
-/// at NDC +0, `w` of both signs, and besides the cameras' transfer, transfers of sparse small
-/// entries whose sums are signed zeros and whose divisors are zero.
+/// the key depth wherever there is a cell; and so is `full_flow_row`'s, which skips their motion.
+/// Rows mix still and moving runs (chunks of either kind and chunks with both), with ±0, NaN and
+/// infinite depths and motions, a middle column and row at NDC +0, `w` of both signs, and besides
+/// the cameras' transfer, transfers of sparse small entries whose sums are signed zeros and whose
+/// divisors are zero.
 #[test]
 fn still_points_flow_as_the_general_path() {
     let (sw, sh) = (3 * 32 + 13, 61);
@@ -1286,4 +1309,331 @@ fn buffer_pool_fits_sources_across_interpolation_and_extrapolation() {
         pool.extend(taken.into_iter().rev());
     }
     assert_eq!(pool.len(), interpolate.len());
+}
+
+/// A `w × h` camera over a textured plane at depth 4 ([`plane`]) with every colour replaced by
+/// `rgb`: the frames of the blending test, whose colours tell the frames apart.
+fn plane_of_one_colour(c: &Camera, rgb: [u8; 3]) -> (Vec<u8>, Vec<f32>) {
+    let (_, depth) = plane(c, 4.0);
+    (rgb.repeat(c.width * c.height), depth)
+}
+
+/// Algorithm 2 blends the kept match with its correspondence in the other frame by α: the older
+/// frame's colour weighs `1 − α` and the newer's `α`, whichever frame's match is kept (its own
+/// colour weighs `ω`: `1 − α` for the older, `α` for the newer). The camera moves between the
+/// frames (so the full scene flows of the two frames cancel only as a sum, not as a difference),
+/// and each frame has one colour: every blended pixel is `(1 − α)·A + α·B`, exactly.
+#[test]
+fn blending_weighs_the_frames_by_alpha() {
+    let (w, h) = (64, 48);
+    let (c0, c1, ct) = (cam(0.0, w, h), cam(0.2, w, h), cam(0.05, w, h));
+    let (a, b) = ([0u8, 100, 200], [200u8, 100, 0]);
+    let (col0, dep0) = plane_of_one_colour(&c0, a);
+    let (col1, dep1) = plane_of_one_colour(&c1, b);
+    let view = |camera, color: &'static [u8], depth: &'static [f32]| FrameView {
+        main: CameraView {
+            camera,
+            color,
+            depth,
+            motion: None,
+            shadow: None,
+        },
+        aux: vec![],
+    };
+    let (f0, f1) = (
+        view(c0, col0.leak(), dep0.leak()),
+        view(c1, col1.leak(), dep1.leak()),
+    );
+    // (α, the blend (1 − α)·A + α·B, by hand).
+    for (alpha, want) in [(0.25f32, [50u8, 100, 150]), (0.75, [150, 100, 50])] {
+        let req = Request { client: ct, alpha };
+        let (out, source) =
+            with_sources(Method::Ours, Some(&f0), &f1, &req, &Params::default(), None);
+        let mut blended = 0;
+        for (k, &code) in source.iter().enumerate() {
+            let px = &out[3 * k..3 * k + 3];
+            match code {
+                c if c & Diagnostics::BLENDED != 0 => {
+                    assert_eq!(px, want, "alpha {alpha}, pixel {k}, code {c}");
+                    blended += 1;
+                }
+                Diagnostics::MAIN_OLDER => assert_eq!(px, a, "alpha {alpha}, pixel {k}"),
+                Diagnostics::MAIN_NEWER => assert_eq!(px, b, "alpha {alpha}, pixel {k}"),
+                c => panic!("alpha {alpha}, pixel {k}: code {c}"),
+            }
+        }
+        // Every pixel but a column at the border, where the point leaves the other image (3024
+        // of 3072 here).
+        assert!(
+            blended * 100 >= w * h * 97,
+            "alpha {alpha}: {blended} blended"
+        );
+    }
+}
+
+/// A moving plane between the frames (eqs. 12, 13): the older frame's points move by `α` of
+/// their forward motion and the newer frame's by `1 − α` of their backward motion. Each frame is
+/// tested alone (the other frame's depth invalid, so that Algorithm 1 can keep only its
+/// matches): the plane moves +0.5 NDC (16 px) per interval, so at α = 0.25 output pixel `i`
+/// shows the older frame's pixel `i − 4` and the newer frame's pixel `i + 12`, and the
+/// diagnostics name the frame.
+#[test]
+fn moving_object_is_interpolated_along_its_motion() {
+    let (w, h) = (64, 48);
+    let c = cam(0.0, w, h);
+    let (color, depth) = plane(&c, 2.0);
+    let invalid = vec![f32::NAN; w * h];
+    let forward: Vec<f32> = (0..w * h).flat_map(|_| [0.5f32, 0.0, 0.0]).collect();
+    let backward: Vec<f32> = forward.iter().map(|m| -m).collect();
+    let view = |depth, motion| FrameView {
+        main: CameraView {
+            camera: c,
+            color: &color,
+            depth,
+            motion: Some(motion),
+            shadow: None,
+        },
+        aux: vec![],
+    };
+    let req = Request {
+        client: c,
+        alpha: 0.25,
+    };
+    // (older, newer, the source pixel column's offset, the code).
+    let cases = [
+        (
+            view(&depth, &forward),
+            view(&invalid, &backward),
+            -4,
+            Diagnostics::MAIN_OLDER,
+        ),
+        (
+            view(&invalid, &forward),
+            view(&depth, &backward),
+            12,
+            Diagnostics::MAIN_NEWER,
+        ),
+    ];
+    for (older, newer, d, code) in cases {
+        let (out, source) = with_sources(
+            Method::Ours,
+            Some(&older),
+            &newer,
+            &req,
+            &Params::default(),
+            None,
+        );
+        let mut total = 0;
+        for j in 2..h - 2 {
+            for i in 16..w - 16 {
+                let k = j * w + i;
+                let q = 3 * (k as i64 + d) as usize;
+                assert_eq!(source[k], code, "offset {d}, pixel ({i}, {j})");
+                assert_eq!(
+                    out[3 * k..3 * k + 3],
+                    color[q..q + 3],
+                    "offset {d}, pixel ({i}, {j})"
+                );
+                total += 1;
+            }
+        }
+        assert_eq!(total, (h - 4) * (w - 32));
+    }
+}
+
+/// The splat keeps the nearest point of a cell (a key of reversed depth, nearest smallest): a
+/// strip 1 m away in front of a plane 4 m away, seen from 0.3 m to the side, covers background
+/// points that land in the same cells; where the strip is in the client's view (a pixel's ray
+/// hits it, one pixel off its edges), the output is the strip's colour, which the background
+/// never has.
+#[test]
+fn nearer_surface_wins_the_splat() {
+    let (w, h) = (64, 48);
+    let c = cam(0.0, w, h);
+    let (mut color, mut depth) = plane(&c, 4.0);
+    let (_, near) = plane(&c, 1.0);
+    let red = [255u8, 0, 0];
+    let cols = 20..30;
+    for j in 0..h {
+        for i in cols.clone() {
+            depth[j * w + i] = near[j * w + i];
+            color[3 * (j * w + i)..3 * (j * w + i) + 3].copy_from_slice(&red);
+        }
+    }
+    let f = FrameView {
+        main: CameraView {
+            camera: c,
+            color: &color,
+            depth: &depth,
+            motion: None,
+            shadow: None,
+        },
+        aux: vec![],
+    };
+    let client = cam(0.3, w, h);
+    // World x at 1 m of NDC x: tan(30°)·aspect.
+    let half = (30f64.to_radians()).tan() * w as f64 / h as f64;
+    let (lo, hi) = (
+        (2.0 * cols.start as f64 / w as f64 - 1.0) * half,
+        (2.0 * cols.end as f64 / w as f64 - 1.0) * half,
+    );
+    let px = 2.0 * half / w as f64;
+    for method in [Method::Ours] {
+        let req = Request { client, alpha: 1.0 };
+        let (out, _) = with_sources(method, None, &f, &req, &Params::default(), None);
+        let mut strip = 0;
+        for i in 0..w {
+            let ndc = (2 * i + 1) as f64 / w as f64 - 1.0;
+            let x = 0.3 + ndc * half;
+            if x < lo + px || x > hi - px {
+                continue;
+            }
+            for j in 0..h {
+                let k = j * w + i;
+                assert_eq!(out[3 * k..3 * k + 3], red, "{method}: pixel ({i}, {j})");
+                strip += 1;
+            }
+        }
+        // Eight columns of the ten, the others within a pixel of the strip's edges.
+        assert!(strip >= 8 * h, "{method}: {strip} strip pixels");
+    }
+}
+
+/// A [`Resolve`] over `sources` for the selection tests: thresholds `ε_e = 1`, `ε_z = 0.1`.
+fn selection<'a>(
+    sources: &'a [Src<'a>],
+    p: &'a Params,
+    pair: &'a pair::PairCache,
+    bidirectional: bool,
+    cw: usize,
+) -> Resolve<'a> {
+    Resolve {
+        params: p,
+        alpha: 0.5,
+        client_w: cw,
+        client_h: 1,
+        sources,
+        bidirectional,
+        eps_e: 1.0,
+        eps_e_aux: 1.0,
+        eps_z: 0.1,
+        eps_z_aux: 0.1,
+        iterations: 0,
+        aux: Vec::new(),
+        client_ndc: NdcTable::new(cw, 1),
+        pair,
+        palettes: Vec::new(),
+    }
+}
+
+/// Algorithm 1, in the row form ([`Resolve::choose_row`]) and per match ([`Resolve::choose`]),
+/// on cases worked by hand (`ε_e = 1`, `ε_z = 0.1`, depths reversed: larger is nearer): both
+/// correspond at similar depths (`2·|Δz| < ε_z`): the smaller error; at other depths: the nearer,
+/// whatever the errors; one corresponds (`e < ε_e`, strictly): that one; none: no source. Also
+/// which frame's visibility in main the choice carries (§3.5 rule 2: a point visible in either
+/// main frame; the other frame's counts only for the same point, at a similar depth).
+#[test]
+fn algorithm_1_keeps_the_better_match() {
+    use super::select::{Picks, NO_SOURCE};
+    const INF: f32 = f32::INFINITY;
+    // (e_older, z_older, e_newer, z_newer, the source kept: 0 older, 1 newer, None).
+    let cases: [(f32, f32, f32, f32, Option<u8>); 11] = [
+        (0.2, 0.5, 0.3, 0.5, Some(0)),
+        (0.3, 0.5, 0.2, 0.5, Some(1)),
+        // 2·0.3 ≥ ε_z: the nearer, the newer, with the larger error; and the other way.
+        (0.2, 0.3, 0.3, 0.6, Some(1)),
+        (0.3, 0.6, 0.2, 0.3, Some(0)),
+        // 2·0.07 ≥ ε_z although 0.07 < ε_z: the nearer (older), not the smaller error.
+        (0.3, 0.57, 0.2, 0.5, Some(0)),
+        // 2·0.04 < ε_z: the smaller error (newer), not the nearer.
+        (0.3, 0.54, 0.2, 0.5, Some(1)),
+        (0.2, 0.5, INF, f32::NAN, Some(0)),
+        (INF, f32::NAN, 0.9, 0.2, Some(1)),
+        // An error at ε_e does not correspond; the nearer one that does is kept anyway.
+        (1.0, 0.9, 0.5, 0.1, Some(1)),
+        (1.0, 0.5, INF, f32::NAN, None),
+        (1.5, 0.5, 2.0, 0.5, None),
+    ];
+    let n = cases.len();
+    let (p, pair) = (Params::default(), pair::PairCache::default());
+    let mut sides = [super::search::SearchRow::default(), Default::default()];
+    for (s, side) in sides.iter_mut().enumerate() {
+        side.e = cases.iter().map(|c| [c.0, c.2][s]).collect();
+        side.z = cases.iter().map(|c| [c.1, c.3][s]).collect();
+        side.p = (0..n as u32).map(|i| 100 * s as u32 + i).collect();
+    }
+    let r = selection(&[], &p, &pair, true, n);
+    let mut picks = Picks::default();
+    r.choose_row(&sides, &mut picks);
+    for (i, &(ef, zf, eb, zb, want)) in cases.iter().enumerate() {
+        let got = (picks.src[i] != NO_SOURCE).then_some(picks.src[i]);
+        assert_eq!(got, want, "choose_row, case {i}");
+        if let Some(s) = want {
+            let (e, z) = if s == 0 { (ef, zf) } else { (eb, zb) };
+            let kept = (picks.p[i], picks.e[i], picks.z[i]);
+            assert_eq!(kept, (100 * u32::from(s) + i as u32, e, z), "case {i}");
+        }
+        // Per match, for camera 1 (sources 2 and 3), with every visibility.
+        for (vf, vb) in [(false, false), (true, false), (false, true)] {
+            let m = |e: f32, z: f32, vis| (e.is_finite()).then_some(Match { p: 7, e, z, vis });
+            let c = r.choose(1, m(ef, zf, vf), m(eb, zb, vb), 1.0, 0.1);
+            assert_eq!(
+                c.map(|c| c.src),
+                want.map(|s| 2 + usize::from(s)),
+                "case {i}"
+            );
+            if let (Some(c), Some(s)) = (c, want) {
+                let (own, other) = if s == 0 { (vf, vb) } else { (vb, vf) };
+                let same_point = ef < 1.0 && eb < 1.0 && 2.0 * (zf - zb).abs() < 0.1;
+                assert_eq!(c.visible_in_main, own || (same_point && other), "case {i}");
+            }
+        }
+    }
+    // One frame (unidirectional): its match where `e < ε_e`.
+    let r = selection(&[], &p, &pair, false, 3);
+    let mut side = super::search::SearchRow::default();
+    (side.e, side.z, side.p) = (
+        vec![0.99, 1.0, INF],
+        vec![0.5, 0.5, f32::NAN],
+        vec![4, 5, 6],
+    );
+    r.choose_row(std::slice::from_ref(&side), &mut picks);
+    assert_eq!(picks.src[..3], [0, NO_SOURCE, NO_SOURCE]);
+    let m = Match {
+        p: 4,
+        e: 0.99,
+        z: 0.5,
+        vis: false,
+    };
+    assert_eq!(r.choose(1, Some(m), None, 1.0, 0.1).map(|c| c.src), Some(1));
+    assert!(r
+        .choose(1, Some(Match { e: 1.0, ..m }), None, 1.0, 0.1)
+        .is_none());
+}
+
+/// The diagnostic code of a match names its camera and frame ([`Diagnostics`]): main older 1,
+/// main newer 2, auxiliary camera `i` older `3 + 2i` and newer `4 + 2i`, with the blend flag.
+#[test]
+fn diagnostic_codes_name_the_camera_and_frame() {
+    let c = cam(0.0, 4, 3);
+    let (color, depth) = (vec![0u8; 36], vec![0.5f32; 12]);
+    let view = CameraView {
+        camera: c,
+        color: &color,
+        depth: &depth,
+        motion: None,
+        shadow: None,
+    };
+    let sources: Vec<Src> = (0..6)
+        .map(|k| {
+            let role = [Role::Older, Role::Newer][k % 2];
+            Src::new(view, c.projector("test").unwrap(), None, role, k / 2)
+        })
+        .collect();
+    let (p, pair) = (Params::default(), pair::PairCache::default());
+    let r = selection(&sources, &p, &pair, true, 1);
+    for (k, want) in [1u8, 2, 3, 4, 5, 6].into_iter().enumerate() {
+        assert_eq!(r.code_of(k, false), want, "source {k}");
+        assert_eq!(r.code_of(k, true), want | 0x80, "source {k}, blended");
+    }
 }
