@@ -180,5 +180,33 @@ mod tests {
         // At a = 0 the position is (2, 0, 0) moving toward −z.
         assert!((m.trans[0] - 2.0).abs() < 1e-12);
         assert!((fwd[2] + 1.0).abs() < 1e-12, "{fwd:?}");
+        // Everywhere on the circle, either way round: the local −z axis is the direction of
+        // travel (the path's velocity by central differences), the speed is radius·|rate|, and
+        // the local origin stays on the horizontal circle of the radius.
+        let h = 1e-6;
+        for (radius, rate, phase) in [(2.0, 1.0, 0.0), (0.5, -1.7, 0.4), (3.0, 0.6, -2.0)] {
+            let c = Anim::Circle {
+                radius,
+                rate,
+                phase,
+            };
+            for t in [0.3, 1.1, 2.9, 4.4] {
+                let m = c.at(t);
+                let v = scale(sub(c.at(t + h).trans, c.at(t - h).trans), 0.5 / h);
+                let speed = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                assert!((speed - radius * rate.abs()).abs() < 1e-6, "{speed}");
+                let fwd = m.vector([0.0, 0.0, -1.0]);
+                let err = (0..3)
+                    .map(|k| (fwd[k] - v[k] / speed).abs())
+                    .fold(0.0, f64::max);
+                assert!(err < 1e-8, "rate {rate} t {t}: faces {fwd:?}, moves {v:?}");
+                let r = (m.trans[0] * m.trans[0] + m.trans[2] * m.trans[2]).sqrt();
+                assert!(
+                    (r - radius).abs() < 1e-12 && m.trans[1] == 0.0,
+                    "{:?}",
+                    m.trans
+                );
+            }
+        }
     }
 }

@@ -191,6 +191,27 @@ mod tests {
         assert!((0..3).all(|k| (q[k] - p[k]).abs() < 1e-14));
     }
 
+    /// `a.then(&b)` applies `b` first: for two general transforms (each with a rotation and a
+    /// translation, so that neither order nor a dropped term can pass), the same point as
+    /// applying `b` and then `a`.
+    #[test]
+    fn then_applies_its_argument_first() {
+        let p = [0.7, 0.2, -3.0];
+        let a = Rigid {
+            trans: [0.4, -1.5, 2.0],
+            ..Rigid::rotation([1.0, 0.2, 0.3], -0.8)
+        };
+        let b = Rigid {
+            trans: [-0.6, 0.9, 0.1],
+            ..Rigid::rotation([-0.1, 0.5, 1.0], 2.1)
+        };
+        let (got, want) = (a.then(&b).point(p), a.point(b.point(p)));
+        assert!(
+            (0..3).all(|k| (got[k] - want[k]).abs() < 1e-14),
+            "{got:?} vs {want:?}"
+        );
+    }
+
     /// [`floor`] is `f64::floor` bit for bit, and [`floor_i64`] its cast: special values, values
     /// at and near integers and the `2⁵²` threshold, and pseudo-random bit patterns over the
     /// whole range.
@@ -242,9 +263,35 @@ mod tests {
     }
 
     #[test]
-    fn rotation_turns_x_toward_y_about_z() {
+    fn rotation_turns_by_the_right_hand_rule_about_any_axis() {
         let r = Rigid::rotation([0.0, 0.0, 1.0], std::f64::consts::FRAC_PI_2);
         let v = r.vector([1.0, 0.0, 0.0]);
         assert!(v[0].abs() < 1e-15 && (v[1] - 1.0).abs() < 1e-15);
+        // The right-hand rule about the other axes too: y toward z about x, z toward x about y.
+        let quarter = std::f64::consts::FRAC_PI_2;
+        for (axis, from, to) in [
+            ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]),
+            ([0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]),
+        ] {
+            let v = Rigid::rotation(axis, quarter).vector(from);
+            assert!(
+                (0..3).all(|k| (v[k] - to[k]).abs() < 1e-15),
+                "{axis:?}: {v:?}"
+            );
+        }
+        // Any axis (not unit) and angle: Rodrigues' formula in vector form,
+        // v·cos θ + (k × v)·sin θ + k·(k·v)·(1 − cos θ).
+        let (axis, angle, v) = ([0.3, -1.2, 0.7], 2.3f64, [0.4, 1.1, -0.9]);
+        let k = normalize(axis);
+        let (s, c) = angle.sin_cos();
+        let want = add(
+            add(scale(v, c), scale(cross(k, v), s)),
+            scale(k, dot(k, v) * (1.0 - c)),
+        );
+        let got = Rigid::rotation(axis, angle).vector(v);
+        assert!(
+            (0..3).all(|i| (got[i] - want[i]).abs() < 1e-14),
+            "{got:?} vs {want:?}"
+        );
     }
 }

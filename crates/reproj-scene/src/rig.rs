@@ -332,6 +332,21 @@ mod tests {
         let d = sub(ro, lo);
         assert!((crate::math::length(d) - IPD).abs() < 1e-12);
         assert!((0..3).all(|k| (lf[k] - rf[k]).abs() < 1e-12));
+        // Left and right of the head, half the IPD each way along its own x axis (the head's
+        // right, computed here from the look-at), looking where the head looks.
+        let f = crate::math::normalize(sub([3.0, 1.2, -5.0], [1.0, 1.6, 0.0]));
+        let right = crate::math::normalize([-f[2], 0.0, f[0]]);
+        for (o, side) in [(lo, -1.0), (ro, 1.0)] {
+            let want = add(pose.position(), scale(right, 0.5 * IPD * side));
+            assert!(
+                (0..3).all(|k| (o[k] - want[k]).abs() < 1e-12),
+                "{o:?} vs {want:?}"
+            );
+        }
+        assert!(
+            (0..3).all(|k| (lf[k] - f[k]).abs() < 1e-12),
+            "{lf:?} vs {f:?}"
+        );
     }
 
     #[test]
@@ -381,5 +396,10 @@ mod tests {
         assert!(main_size(0.0).is_err());
         assert!(main_size(f64::NAN).is_err());
         assert!(main_size(100.0).is_err());
+        // At the edges: a side of 2 is the least allowed, MAX_SIDE the most.
+        assert_eq!(main_size(0.0014).unwrap(), (4, 2));
+        assert!(main_size(0.001).is_err(), "a height of 1");
+        assert_eq!(main_size(6.4).unwrap(), (reproj_core::MAX_SIDE, 9216));
+        assert!(main_size(6.4004).is_err(), "a width of MAX_SIDE + 1");
     }
 }

@@ -323,6 +323,102 @@ fn stride_that_runs_past_the_view() {
     );
 }
 
+/// Appends `bytes` to the model's buffer as a new buffer view and returns its index.
+fn add_view(m: &mut Model, data: &[u8]) -> usize {
+    let (o, l) = bytes(&mut m.bin, data);
+    let views = m.json["bufferViews"].as_array_mut().unwrap();
+    views.push(serde_json_value(&format!(
+        r#"{{"buffer":0,"byteOffset":{o},"byteLength":{l}}}"#
+    )));
+    let index = views.len() - 1;
+    m.json["buffers"][0]["byteLength"] = Value::from(m.bin.len());
+    index
+}
+
+/// The positions mesh `mesh` decoded to.
+fn positions(model: &GltfModel, mesh: usize) -> Vec<[f64; 3]> {
+    model.meshes[mesh][0]
+        .positions
+        .iter()
+        .map(|p| [p.x, p.y, p.z])
+        .collect()
+}
+
+#[test]
+fn strided_accessor_that_ends_at_its_view_end_loads() {
+    // Positions 16 bytes apart with nothing after the last one: 2·16 + 12 = 44 bytes, what
+    // the last element needs (not 3·16 = 48).
+    let mut m = base_model();
+    let want = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let mut data = Vec::new();
+    for (k, p) in want.iter().enumerate() {
+        data.extend(p.iter().flat_map(|&c| (c as f32).to_le_bytes()));
+        if k < 2 {
+            data.extend([0xFF; 4]); // another attribute's bytes, interleaved
+        }
+    }
+    assert_eq!(data.len(), 44);
+    let view = add_view(&mut m, &data);
+    m.set(&format!("/bufferViews/{view}/byteStride"), 16.into());
+    m.set("/accessors/0/bufferView", view.into());
+    let model = load(&m.glb()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(positions(&model, 0), want);
+    // One byte less and the last element does not fit.
+    m.set(&format!("/bufferViews/{view}/byteLength"), 43.into());
+    assert_names(
+        &load_err(&m),
+        &[
+            "accessor 0 (POSITION): 3 elements of 12 bytes at byteOffset 0 with stride 16 do \
+           not fit in buffer view 10 (43 bytes)",
+        ],
+    );
+}
+
+#[test]
+fn sparse_counts_and_indices_at_their_limits() {
+    // Accessor 8 (3 positions, all zero without a buffer view) with `n` sparse values at
+    // `indices`: every element replaced is allowed, as is the last index (count − 1).
+    let with = |indices: &[u8]| {
+        let mut m = base_model();
+        let iv = add_view(&mut m, indices);
+        let values: Vec<u8> = (0..indices.len())
+            .flat_map(|k| [k as f32 + 1.0, 0.5, 0.0])
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let vv = add_view(&mut m, &values);
+        m.set("/accessors/8/sparse/count", indices.len().into());
+        m.set("/accessors/8/sparse/indices/bufferView", iv.into());
+        m.set("/accessors/8/sparse/values/bufferView", vv.into());
+        m.set("/accessors/8/max", serde_json_value("[3, 0.5, 0]"));
+        m
+    };
+    let model = load(&with(&[0, 1, 2]).glb()).unwrap_or_else(|e| panic!("{e}"));
+    let want = [[1.0, 0.5, 0.0], [2.0, 0.5, 0.0], [3.0, 0.5, 0.0]];
+    assert_eq!(positions(&model, 1), want);
+    let model = load(&with(&[2]).glb()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(
+        positions(&model, 1),
+        [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.5, 0.0]]
+    );
+    assert_names(
+        &load_err(&with(&[0, 1, 2, 3])),
+        &["accessor 8 (POSITION): sparse count 4, expected 1..=3 (the accessor's count)"],
+    );
+    for (indices, bad, at) in [
+        (&[0u8, 1, 3][..], 3, 2),
+        (&[0, 2, 2][..], 2, 2),
+        (&[1, 0][..], 0, 1),
+    ] {
+        assert_names(
+            &load_err(&with(indices)),
+            &[&format!(
+                "accessor 8 (POSITION): sparse index {bad} at position {at}, expected strictly \
+                 increasing indices below 3"
+            )],
+        );
+    }
+}
+
 #[test]
 fn animation_channel_targeting_a_missing_node() {
     let mut m = base_model();
