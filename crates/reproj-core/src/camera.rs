@@ -568,6 +568,60 @@ mod tests {
         assert!(z_at(1.0) > z_at(2.0));
     }
 
+    /// A point on the edge of the vertical field of view projects to `y = ±1`, one on the edge
+    /// of the horizontal one (`tan(h/2) = aspect · tan(v/2)`) to `x = ±1`, whatever its depth.
+    #[test]
+    fn perspective_maps_the_field_of_view_to_the_image_edges() {
+        let (fov, aspect) = (50.0f64, 1.6);
+        let p = Mat4::perspective(fov, aspect, 0.1, 100.0);
+        let t = (fov.to_radians() / 2.0).tan();
+        for d in [0.5, 3.0, 40.0] {
+            let ndc = |x: f64, y: f64| {
+                let c = p.mul_vec([x, y, -d, 1.0]);
+                [c[0] / c[3], c[1] / c[3]]
+            };
+            let [x, y] = ndc(0.0, d * t);
+            assert!(
+                x.abs() < 1e-12 && (y - 1.0).abs() < 1e-12,
+                "top at {d}: {y}"
+            );
+            let [x, y] = ndc(-d * t * aspect, 0.0);
+            assert!(
+                (x + 1.0).abs() < 1e-12 && y.abs() < 1e-12,
+                "left at {d}: {x}"
+            );
+        }
+    }
+
+    /// The camera's x axis points right of the view direction and its y axis up (toward `up`):
+    /// a world point right of and above the target lands at positive camera x and y, and the
+    /// rotation is orthonormal.
+    #[test]
+    fn look_at_is_right_handed_with_up_on_top() {
+        // Looking from the origin along −z: the view matrix is the identity.
+        let v = Mat4::look_at([0.0; 3], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]);
+        for r in 0..4 {
+            for c in 0..4 {
+                let e = if r == c { 1.0 } else { 0.0 };
+                assert!((v.0[r][c] - e).abs() < 1e-15, "{v:?}");
+            }
+        }
+        // Looking along +x from (1, 2, 3): right is +z, up is +y.
+        let v = Mat4::look_at([1.0, 2.0, 3.0], [5.0, 2.0, 3.0], [0.0, 1.0, 0.0]);
+        let p = v.mul_vec([5.0, 2.5, 3.5, 1.0]);
+        assert!(
+            (p[0] - 0.5).abs() < 1e-12 && (p[1] - 0.5).abs() < 1e-12,
+            "{p:?}"
+        );
+        assert!((p[2] + 4.0).abs() < 1e-12);
+        for a in 0..3 {
+            for b in 0..3 {
+                let d: f64 = (0..3).map(|k| v.0[a][k] * v.0[b][k]).sum();
+                assert!((d - if a == b { 1.0 } else { 0.0 }).abs() < 1e-12);
+            }
+        }
+    }
+
     #[test]
     fn look_at_puts_target_on_the_axis() {
         let v = Mat4::look_at([1.0, 2.0, 3.0], [4.0, 2.0, -1.0], [0.0, 1.0, 0.0]);
@@ -617,6 +671,11 @@ mod tests {
                 }
             }
         }
+        // The centres of DESIGN.md: x = (2i+1)/W − 1, y = 1 − (2j+1)/H (row 0 at the top).
+        assert_eq!(ndc_of_pixel(0, 0, 4, 2), [-0.75, 0.5]);
+        assert_eq!(ndc_of_pixel(3, 1, 4, 2), [0.75, -0.5]);
+        assert_eq!(pixel_of_ndc(0.3, -0.9, 4, 2), Some((2, 1)));
+        assert_eq!(pixel_of_ndc(-0.3, 0.9, 4, 2), Some((1, 0)));
         assert_eq!(pixel_of_ndc(f32::NAN, 0.0, 4, 4), None);
         assert_eq!(pixel_of_ndc(1.0, 0.0, 4, 4), None);
         assert_eq!(pixel_of_ndc(-1.0, 1.0, 4, 4), Some((0, 0)));

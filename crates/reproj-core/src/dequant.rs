@@ -266,6 +266,67 @@ mod tests {
         assert_eq!(out[(6) * 3], 0.0);
     }
 
+    /// The decoder multiplies then adds, never fused: with the encoder's `offset = −(code₀ ·
+    /// scale)` rounded to `f32`, the code of 0 gives `+0.0` exactly, which a fused multiply-add
+    /// (the exact product minus its rounding) would not for a scale such as 0.1.
+    #[test]
+    fn the_code_of_zero_decodes_to_zero_unfused() {
+        let (code0, scale) = (7u16, 0.1f32);
+        let offset = -(f32::from(code0) * scale);
+        assert_ne!(
+            f32::from(code0).mul_add(scale, offset),
+            0.0,
+            "the case needs rounding"
+        );
+        let plane = [code0, 9, 9, 9];
+        let t = CodeTile {
+            plane: &plane,
+            stride: 2,
+            x: 0,
+            y: 0,
+        };
+        let mut depth = [1.0f32; 4];
+        depth_from_codes(t, 2, 2, scale, offset, None, &mut depth);
+        assert_eq!(depth[0].to_bits(), 0.0f32.to_bits());
+        let mut motion = [1.0f32; 3];
+        motion_from_half_codes(
+            [t; 3],
+            1,
+            1,
+            [scale; 3],
+            [offset; 3],
+            None,
+            None,
+            &mut motion,
+        );
+        assert_eq!(motion.map(f32::to_bits), [0.0f32.to_bits(); 3]);
+    }
+
+    /// Each motion channel decodes its own tile (at its own place in its plane) with its own
+    /// scale and offset.
+    #[test]
+    fn motion_channels_use_their_own_tile_scale_and_offset() {
+        // Three planes of stride 4; the 1×1 tile of channel c is at (c, 1) and holds 10 + c.
+        let planes: Vec<Vec<u16>> = (0..3u16)
+            .map(|c| {
+                let mut p = vec![0u16; 8];
+                p[4 + usize::from(c)] = 10 + c;
+                p
+            })
+            .collect();
+        let tiles = [0, 1, 2].map(|c| CodeTile {
+            plane: &planes[c],
+            stride: 4,
+            x: c,
+            y: 1,
+        });
+        let mut out = [0.0f32; 6];
+        let (scale, offset) = ([1.0, 2.0, 4.0], [-1.0, -2.0, -3.0]);
+        motion_from_half_codes(tiles, 2, 1, scale, offset, None, None, &mut out);
+        // 10·1 − 1, 11·2 − 2, 12·4 − 3, for both pixels of the 2×1 camera.
+        assert_eq!(out, [9.0, 20.0, 45.0, 9.0, 20.0, 45.0]);
+    }
+
     #[test]
     fn depth_respects_tile_offset_and_stride() {
         let plane: Vec<u16> = (0..20).collect();
@@ -352,5 +413,47 @@ mod tests {
             !planes.fits(2, 0, 2, 2),
             "the tile of a 3×3 camera needs 2×2 samples"
         );
+    }
+
+    /// A wide tile (more than 64 pixels per row, so several spans of set bits) at an offset of
+    /// a 4:2:0 picture, full and half size: every set pixel takes the luma and chroma samples
+    /// that cover it, computed here sample by sample.
+    #[test]
+    fn shadow_colour_of_a_wide_tile_at_an_offset() {
+        let (pw, ph) = (160usize, 12usize);
+        let y: Vec<u8> = (0..pw * ph).map(|k| (k * 7 % 251) as u8).collect();
+        let cb: Vec<u8> = (0..pw * ph / 4).map(|k| (k * 13 % 253) as u8).collect();
+        let cr: Vec<u8> = (0..pw * ph / 4).map(|k| (k * 29 % 241) as u8).collect();
+        let planes = planes(&y, &cb, &cr, [pw, pw / 2], 2);
+        let (x0, y0, w, h) = (6, 2, 150, 5);
+        let bits: Vec<u32> = (0..w * h).map(|k| u32::from(k % 37 == 3)).collect();
+        for step in [1, 2] {
+            let mut out = vec![7u8; w * h * 3];
+            shadow_colour_from_ycbcr(planes, x0, y0, w, h, step, &bits, &mut out);
+            let mut set = 0;
+            for r in 0..h {
+                for c in 0..w {
+                    let k = r * w + c;
+                    let got = &out[3 * k..3 * k + 3];
+                    if bits[k] == 0 {
+                        assert_eq!(got, [0; 3]);
+                        continue;
+                    }
+                    set += usize::from(c >= 128);
+                    let (ly, lx) = (y0 + r / step, x0 + c / step);
+                    let luma = f32::from(y[ly * pw + lx]);
+                    let ci = (ly / 2) * (pw / 2) + lx / 2;
+                    let (u, v) = (f32::from(cb[ci]) - 128.0, f32::from(cr[ci]) - 128.0);
+                    let want = [
+                        luma + 1.5748 * v,
+                        luma - 0.187324 * u - 0.468124 * v,
+                        luma + 1.8556 * u,
+                    ]
+                    .map(|x| x.round_ties_even().clamp(0.0, 255.0) as u8);
+                    assert_eq!(got, want, "step {step}, pixel ({c}, {r})");
+                }
+            }
+            assert!(set >= 3, "set bits past two spans of 64: {set}");
+        }
     }
 }

@@ -252,11 +252,90 @@ mod tests {
     fn names_round_trip() {
         for m in Method::ALL {
             assert_eq!(m.name().parse::<Method>().unwrap(), m);
+            assert_eq!(m.to_string(), m.name());
         }
+        // The names of DESIGN.md "Methods", in the order of the paper's tables.
+        let names = Method::ALL.map(|m| m.name());
+        assert_eq!(
+            names,
+            [
+                "ours",
+                "ours_extrapolate",
+                "forward_splat",
+                "timewarp",
+                "backward_bidir"
+            ]
+        );
         assert!(matches!(
             "nope".parse::<Method>(),
             Err(ReprojError::UnknownMethod(_))
         ));
+    }
+
+    /// Which frames each method takes, and the errors when `α` or a frame does not fit it:
+    /// timewarp warps the older frame before `α = 1` and the newer one from there (or when the
+    /// older is missing); interpolation needs the older frame; the extrapolating methods refuse
+    /// `α < 1`, backward_bidir `α > 1`, every method `α` outside `[0, 3]` or NaN.
+    #[test]
+    fn calls_are_routed_by_alpha_and_the_frames_given() {
+        use crate::camera::Mat4;
+        use crate::frame::CameraBuffers;
+        let (w, h) = (8, 6);
+        let cam = Camera::new(
+            Mat4::look_at([0.0; 3], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
+            Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+            w,
+            h,
+            "test",
+        )
+        .unwrap();
+        // Two flat frames of one colour each at 5 m.
+        let frame = |rgb: u8| {
+            let mut b = CameraBuffers::zeroed(w, h);
+            b.color.fill(rgb);
+            b.depth.fill(0.1 * 95.0 / (5.0 * 99.9));
+            b
+        };
+        let (ob, nb) = (frame(40), frame(90));
+        let (older, newer) = (
+            FrameView {
+                main: ob.view(cam, true),
+                aux: vec![],
+            },
+            FrameView {
+                main: nb.view(cam, false),
+                aux: vec![],
+            },
+        );
+        let call = |m: Method, older: Option<&FrameView>, alpha: f32| {
+            let mut out = vec![0u8; w * h * 3];
+            let request = Request { client: cam, alpha };
+            let p = Params::default();
+            reproject(m, older, &newer, &request, &p, Output::new(&mut out), None).map(|()| out)
+        };
+        let tw = Method::Timewarp;
+        assert!(call(tw, Some(&older), 0.5)
+            .unwrap()
+            .iter()
+            .all(|&v| v == 40));
+        assert!(call(tw, Some(&older), 1.0)
+            .unwrap()
+            .iter()
+            .all(|&v| v == 90));
+        assert!(call(tw, None, 0.5).unwrap().iter().all(|&v| v == 90));
+        let missing = |r: Result<Vec<u8>>| matches!(r, Err(ReprojError::MissingFrame(_)));
+        let range = |r: Result<Vec<u8>>| matches!(r, Err(ReprojError::AlphaRange { .. }));
+        assert!(missing(call(Method::Ours, None, 0.5)));
+        assert!(call(Method::Ours, None, 1.0).is_ok());
+        assert!(missing(call(Method::BackwardBidir, None, 0.5)));
+        assert!(range(call(Method::BackwardBidir, Some(&older), 1.5)));
+        assert!(range(call(Method::OursExtrapolate, Some(&older), 0.5)));
+        assert!(range(call(Method::ForwardSplat, Some(&older), 0.5)));
+        for m in Method::ALL {
+            for alpha in [-0.1, 3.5, f32::NAN] {
+                assert!(range(call(m, Some(&older), alpha)), "{m} at {alpha}");
+            }
+        }
     }
 
     #[test]

@@ -242,5 +242,67 @@ mod tests {
         assert_eq!(at(0.625), [50.0; 3]);
         // First interval holds subframe S−1 = 3 (level 0, key colour).
         assert_eq!(at(0.1), [100.0; 3]);
+        // Off the middle of an interval: t + 0.55 is a fifth of the way from subframe 2 (t + 0.5,
+        // dark) to subframe 1 (t + 0.75, lit).
+        assert_close(at(0.55), [20.0; 3]);
+        assert_close(at(0.7), [80.0; 3]);
+    }
+
+    fn assert_close(got: [f32; 3], want: [f32; 3]) {
+        let ok = got.iter().zip(&want).all(|(g, w)| (g - w).abs() < 1e-3);
+        assert!(ok, "{got:?} vs {want:?}");
+    }
+
+    #[test]
+    fn older_image_interpolates_linearly_within_an_interval() {
+        // Fig. 5's pixel: lit (200) at subframe 0, dark (40) from subframe 1 on.
+        let bits = 0b11_11_11_00;
+        let at = |a: f32| shadow_color([200; 3], bits, [0; 3], [40; 3], a, S, Role::Older);
+        // β = 0.2 and 0.8 of the way from subframe 0 to subframe 1.
+        assert_close(at(0.05), [168.0; 3]);
+        assert_close(at(0.2), [72.0; 3]);
+    }
+
+    #[test]
+    fn key_frame_in_shadow_lightens_toward_s_min() {
+        // Levels 3, 1, 0, 0: the key frame is the most shadowed (its colour is B′, S_max is not
+        // stored, here a poison value) and S_min is the lit colour.
+        let bits = 0b00_00_01_11;
+        let (key, s_min, poison) = ([30, 30, 30], [210, 180, 150], [1, 2, 3]);
+        for role in [Role::Older, Role::Newer] {
+            let at = |a: f32| shadow_color(key, bits, s_min, poison, a, S, role);
+            let (sub1, sub2) = match role {
+                Role::Older => (0.25, 0.5),
+                Role::Newer => (0.75, 0.5),
+            };
+            // Subframe 2 at level 0 = L_min: S_min itself; subframe 1 at level 1: a third of
+            // the way from S_min to the key colour.
+            assert_close(at(sub2), [210.0, 180.0, 150.0]);
+            assert_close(at(sub1), [150.0, 130.0, 110.0]);
+        }
+    }
+
+    #[test]
+    fn colours_round_half_away_from_zero_and_clamp() {
+        assert_eq!(round_rgb([0.49, 0.5, 254.5]), [0, 1, 255]);
+        assert_eq!(round_rgb([127.5, -3.0, 300.0]), [128, 0, 255]);
+        assert_eq!(round_rgb([f32::NAN, 1.4999, 2.5]), [0, 1, 3]);
+        assert_eq!(
+            round_rgb4([0.5, 99.5, 254.49, f32::INFINITY]),
+            [1, 100, 254, 255]
+        );
+    }
+
+    #[test]
+    fn apply_shadows_takes_each_pixels_own_buffers() {
+        // Pixel 0: no dynamic shadow; pixel 1: Fig. 5 (S_max dark); pixel 2: shadowed key frame
+        // (S_min lit). At α = 0.5 (subframe 2) every shadowed pixel shows its stored extreme.
+        let color = [10, 20, 30, 200, 200, 200, 30, 30, 30];
+        let bits = [0, 0b11_11_11_00, 0b00_00_01_11];
+        let s_min = [9, 9, 9, 0, 0, 0, 210, 180, 150];
+        let s_max = [9, 9, 9, 40, 41, 42, 0, 0, 0];
+        let mut out = [0u8; 9];
+        apply_shadows(&color, &bits, &s_min, &s_max, 0.5, S, Role::Older, &mut out);
+        assert_eq!(out, [10, 20, 30, 40, 41, 42, 210, 180, 150]);
     }
 }

@@ -190,9 +190,53 @@ impl Rows<'_> {
 mod tests {
     use super::*;
 
-    /// The definition with a full 11×11 window and explicit zero padding, pixel by pixel.
+    /// `C1 = (0.01·L)²`, `C2 = (0.03·L)²` with `L = 1`, written out here rather than taken from
+    /// the code under test.
+    const K1: f64 = 1e-4;
+    const K2: f64 = 9e-4;
+
+    /// The 11 taps of the normalised Gaussian of σ = 1.5, written out here (not [`taps`]).
+    fn gauss() -> Vec<f64> {
+        let g: Vec<f64> = (-5..=5)
+            .map(|d: i32| (-f64::from(d * d) / 4.5).exp())
+            .collect();
+        let sum: f64 = g.iter().sum();
+        g.iter().map(|v| v / sum).collect()
+    }
+
+    #[test]
+    fn the_window_is_the_normalised_gaussian_of_sigma_1_5() {
+        let (g, want) = (taps(), gauss());
+        for (a, b) in g.iter().zip(&want) {
+            assert!((a - b).abs() < 1e-15, "{g:?}");
+        }
+        // The centre and first side taps of the usual 11-tap σ = 1.5 window.
+        assert!((g[5] - 0.266_011_72).abs() < 1e-8 && (g[4] - 0.213_005_54).abs() < 1e-8);
+    }
+
+    /// On constant images the contrast–structure term is 1 and, where the whole window lies
+    /// inside the image, the means are the values: SSIM = (2ab + C1) / (a² + b² + C1).
+    #[test]
+    fn constant_images_score_the_luminance_term_inside() {
+        let (h, w, a, b) = (13, 12, 0.2, 0.3);
+        let (x, y) = (vec![a; h * w], vec![b; h * w]);
+        let mut map = vec![0.0; h * w];
+        ssim(&x, &y, h, w, 1, Some(&mut map)).unwrap();
+        let want = (2.0 * a * b + K1) / (a * a + b * b + K1);
+        for r in RADIUS..h - RADIUS {
+            for col in RADIUS..w - RADIUS {
+                let got = map[r * w + col];
+                assert!((got - want).abs() < 1e-12, "({r},{col}): {got} vs {want}");
+            }
+        }
+        // At a corner the zero padding darkens both means (and adds structure): not the same.
+        assert!((map[0] - want).abs() > 1e-3);
+    }
+
+    /// The definition with a full 11×11 window and explicit zero padding, pixel by pixel, with
+    /// its own window and constants.
     fn direct(x: &[f64], y: &[f64], h: usize, w: usize, c: usize) -> Vec<f64> {
-        let g = taps();
+        let g = gauss();
         let at = |img: &[f64], r: isize, col: isize, ch: usize| -> f64 {
             if r < 0 || col < 0 || r >= h as isize || col >= w as isize {
                 0.0
@@ -220,8 +264,8 @@ mod tests {
                     }
                     let (vx, vy, cov) =
                         (m[2] - m[0] * m[0], m[3] - m[1] * m[1], m[4] - m[0] * m[1]);
-                    out[(r * w + col) * c + ch] = ((2.0 * m[0] * m[1] + C1) * (2.0 * cov + C2))
-                        / ((m[0] * m[0] + m[1] * m[1] + C1) * (vx + vy + C2));
+                    out[(r * w + col) * c + ch] = ((2.0 * m[0] * m[1] + K1) * (2.0 * cov + K2))
+                        / ((m[0] * m[0] + m[1] * m[1] + K1) * (vx + vy + K2));
                 }
             }
         }

@@ -449,41 +449,85 @@ mod tests {
         assert!(diag.error.iter().all(|e| e.is_nan()));
     }
 
+    /// With a uniform depth the plane is the scene, so a client moved sideways and up by
+    /// `(tx, ty)` from the server sees the server image shifted by exactly `f·t/d` in NDC: the
+    /// centre of client pixel `(i, j)` lands at `(i + ½ + sx, j + ½ − sy)` server pixels. For
+    /// a server at the origin looking down −z, and for one elsewhere, turned (the plane's point
+    /// and normal must follow the camera, not the world origin).
     #[test]
     fn timewarp_translation_matches_analytic_shift() {
         let dist = 5.0;
-        let server = camera_at([0.0, 0.0, 0.0], [0.0, 0.0, -1.0], 60.0, W, H);
+        let (shift_x, shift_y) = (2.3, 1.6);
+        // Focal lengths of the 60° camera, from the field of view (not from the matrix).
+        let fy = 1.0 / 30f64.to_radians().tan();
+        let fx = fy * H as f64 / W as f64;
+        let (tx, ty) = (
+            shift_x * (2.0 / W as f64) * dist / fx,
+            shift_y * (2.0 / H as f64) * dist / fy,
+        );
         let color = coded_color(W, H);
         let depth = vec![z_of(dist); W * H];
-        let frame = FrameView {
-            main: view(server, &color, &depth),
-            aux: vec![],
-        };
-        // Moving the client right by tx shifts the plane left by tx·f_x/d in NDC: the client pixel
-        // i sees server pixel i + shift.
-        let shift_px = 2.3;
-        let fx = server.proj.0[0][0];
-        let tx = shift_px * (2.0 / W as f64) * dist / fx;
-        let client = camera_at([tx, 0.0, 0.0], [tx, 0.0, -1.0], 60.0, W, H);
-        let (out, diag) = run_tw(&frame, client, &Params::default());
-        for j in 0..H {
-            for i in 0..W {
-                let k = j * W + i;
-                assert_eq!(diag.source[k], Diagnostics::MAIN_NEWER);
-                let (si, sj) = (out[3 * k] as f64 / 7.0, out[3 * k + 1] as usize / 10);
-                assert_eq!(sj, j, "row at ({i},{j})");
-                let expect = i as f64 + shift_px;
-                if expect <= (W - 1) as f64 {
-                    assert!(
-                        (si - expect).abs() <= 1.0,
-                        "({i},{j}): got column {si}, expected {expect}"
+        for (eye, target) in [
+            ([0.0, 0.0, 0.0], [0.0, 0.0, -1.0]),
+            ([3.0, 1.0, 4.0], [0.5, 0.2, -2.0]),
+        ] {
+            let server = camera_at(eye, target, 60.0, W, H);
+            let frame = FrameView {
+                main: view(server, &color, &depth),
+                aux: vec![],
+            };
+            // The server's x and y axes in world space: the first two rows of its view matrix.
+            let (ax, ay) = (server.view.0[0], server.view.0[1]);
+            let moved = |p: [f64; 3]| [0, 1, 2].map(|k| p[k] + tx * ax[k] + ty * ay[k]);
+            let client = camera_at(moved(eye), moved(target), 60.0, W, H);
+            let (out, diag) = run_tw(&frame, client, &Params::default());
+            for j in 0..H {
+                for i in 0..W {
+                    let k = j * W + i;
+                    assert_eq!(diag.source[k], Diagnostics::MAIN_NEWER);
+                    let (si, sj) = (
+                        usize::from(out[3 * k] / 7),
+                        usize::from(out[3 * k + 1] / 10),
                     );
-                } else {
-                    // Beyond the server image with no auxiliary camera: clamped to the border.
-                    assert_eq!(si, (W - 1) as f64);
+                    // Past the server image (no auxiliary camera): clamped to its border.
+                    let want_i = ((i as f64 + 0.5 + shift_x).floor() as usize).min(W - 1);
+                    let want_j = (j as f64 + 0.5 - shift_y).floor().max(0.0) as usize;
+                    assert_eq!(
+                        (si, sj),
+                        (want_i, want_j),
+                        "{eye:?}: client pixel ({i},{j})"
+                    );
                 }
             }
         }
+    }
+
+    /// Rays that meet the plane behind the client (a client turned away from it) are not
+    /// written, and neither are those that only an auxiliary camera facing away from the hit
+    /// would "see" through its mirrored projection: those fall back to main, clamped.
+    #[test]
+    fn timewarp_writes_nothing_behind_a_camera() {
+        let server = camera_at([0.0, 0.0, 0.0], [0.0, 0.0, -1.0], 60.0, W, H);
+        let color = coded_color(W, H);
+        let depth = vec![z_of(5.0); W * H];
+        let (aw, ah) = (W / 2, H / 2);
+        let aux_color = vec![222u8; aw * ah * 3];
+        let aux_depth = vec![0.5f32; aw * ah];
+        // An auxiliary camera at the server's centre looking the other way (+z).
+        let behind = camera_at([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 100.0, aw, ah);
+        let frame = FrameView {
+            main: view(server, &color, &depth),
+            aux: vec![view(behind, &aux_color, &aux_depth)],
+        };
+        let away = camera_at([0.0, 0.0, 0.0], [0.2, 0.1, 1.0], 60.0, W, H);
+        let (out, diag) = run_tw(&frame, away, &Params::default());
+        assert!(out.iter().all(|&v| v == 3));
+        assert!(diag.source.iter().all(|&s| s == Diagnostics::NONE));
+        // Turned left past main's border: every hit lies in front of main, behind the aux.
+        let left = camera_at([0.0, 0.0, 0.0], [-0.8, 0.0, -1.0], 60.0, W, H);
+        let (out, diag) = run_tw(&frame, left, &Params::default());
+        assert!(diag.source.iter().all(|&s| s == Diagnostics::MAIN_NEWER));
+        assert!(out.chunks(3).all(|c| c[2] == 40));
     }
 
     #[test]

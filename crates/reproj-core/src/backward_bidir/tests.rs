@@ -643,3 +643,137 @@ fn backward_bidir_latest_init_is_the_nearest_of_the_nine() {
         "{repeats} repeats, {chosen} chosen"
     );
 }
+
+/// The full flow of a pixel is its object motion carried into the other camera: into its own
+/// camera, exactly that motion; into a camera that has the point behind it, none (NaN), not the
+/// mirrored projection.
+#[test]
+fn backward_bidir_full_flow_is_the_motion_and_none_behind_the_camera() {
+    let img = square_frame(A, 1.0);
+    let view = img.frame().main;
+    let from = img.cam.projector("from").unwrap();
+    let mut flow = Vec::new();
+    full_flow(&view, &from, &from, &mut flow);
+    for (k, f) in flow.iter().enumerate() {
+        for c in 0..3 {
+            let (got, want) = (f[c], img.motion[3 * k + c]);
+            assert!((got - want).abs() < 1e-5, "pixel {k}: {f:?}");
+        }
+    }
+    let back = Camera::new(
+        Mat4::look_at([0.0; 3], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
+        Mat4::perspective(60.0, W as f64 / H as f64, 0.1, 100.0),
+        W,
+        H,
+        "back",
+    )
+    .unwrap()
+    .projector("back")
+    .unwrap();
+    full_flow(&view, &from, &back, &mut flow);
+    assert!(flow.iter().flatten().all(|v| v.is_nan()));
+}
+
+/// The shading rules of seeds/001 §5.2 on hand-made flows, one output pixel per case, at
+/// α = 0.25 on a 16×8 grid (one pixel = 0.25 in aspect-scaled NDC units, the tolerance):
+/// rule 1 keeps the smaller error and blends; rule 2 keeps the nearer point and blends only
+/// where the other frame sees it at the predicted depth; a single result within the tolerance
+/// is used (just outside it does not count); rule 3 blends both and reports the smaller error.
+#[test]
+fn backward_bidir_visibility_rules_on_hand_made_flows() {
+    let (w, h, alpha) = (16, 8, 0.25f32);
+    let cam = camera(w, h);
+    let (px, py) = (2.0 / w as f32, 2.0 / h as f32);
+    let (near, far) = (z_of(5.0), z_of(10.0));
+    let at = |i: usize, j: usize| j * w + i;
+    let mut older = Img {
+        cam,
+        color: (0..w * h * 3).map(|k| (k % 97) as u8).collect(),
+        depth: vec![near; w * h],
+        motion: vec![0.0; w * h * 3],
+    };
+    let mut newer = Img {
+        color: (0..w * h * 3).map(|k| (100 + k % 89) as u8).collect(),
+        ..older.clone()
+    };
+    let (mut vf, mut vb) = (vec![[0.0f32; 3]; w * h], vec![[0.0f32; 3]; w * h]);
+    // Rule 1: the same depth, sub-pixel flows; errors 0.25·(0.3, 0.2) px and 0.75·(0.3, 0.2) px.
+    vf[at(2, 2)] = [0.3 * px, 0.2 * py, 0.0];
+    vb[at(2, 2)] = [-0.3 * px, -0.2 * py, 0.0];
+    // Rule 2: older nearer at (6, 2), newer nearer at (7, 2); no second chance (the other
+    // frame's depth differs).
+    newer.depth[at(6, 2)] = far;
+    older.depth[at(7, 2)] = far;
+    // Rule 2 with the second chance: older nearer at (10, 2), flowing one pixel right, where
+    // the newer frame sees it at the same depth.
+    newer.depth[at(10, 2)] = far;
+    vf[at(10, 2)] = [px, 0.0, 0.0];
+    // One within: the forward step leaves the image 1.3 px past the left border (error 1.3 px);
+    // the backward one converges on a farther point, which it keeps.
+    vf[at(0, 3)] = [0.65, 0.0, 0.0];
+    newer.depth[at(0, 3)] = far;
+    // Rule 3: both steps leave the image: errors 16 px (forward) and 24 px (backward).
+    vf[at(6, 5)] = [8.0, 0.0, 0.0];
+    vb[at(6, 5)] = [-4.0, 0.0, 0.0];
+    let ctx = Bidir::new(
+        [(older.frame().main, &vf), (newer.frame().main, &vb)],
+        alpha,
+        &Params::default(),
+        None,
+    );
+    let a = |i, j| &older.color[3 * at(i, j)..3 * at(i, j) + 3];
+    let b = |i, j| &newer.color[3 * at(i, j)..3 * at(i, j) + 3];
+    let blend = |x: &[u8], y: &[u8]| -> Vec<u8> {
+        x.iter()
+            .zip(y)
+            .map(|(&x, &y)| (0.75 * f32::from(x) + 0.25 * f32::from(y)).round() as u8)
+            .collect()
+    };
+    let (old, new, both) = (
+        Diagnostics::MAIN_OLDER,
+        Diagnostics::MAIN_NEWER,
+        Diagnostics::BLENDED,
+    );
+    let px_err = 2.0 / h as f32;
+    // (pixel, diagnostic code, colour, error in pixels)
+    let cases = [
+        (
+            (2, 2),
+            old | both,
+            blend(a(2, 2), b(2, 2)),
+            0.25 * 0.13f32.sqrt(),
+        ),
+        ((6, 2), old, a(6, 2).to_vec(), 0.0),
+        ((7, 2), new, b(7, 2).to_vec(), 0.0),
+        ((10, 2), old | both, blend(a(10, 2), b(11, 2)), 0.25),
+        ((0, 3), new, b(0, 3).to_vec(), 0.0),
+        ((6, 5), old | both, blend(a(6, 5), b(6, 5)), 16.0),
+        ((3, 6), new | both, blend(a(3, 6), b(3, 6)), 0.0),
+    ];
+    for ((i, j), code, rgb, err_px) in cases {
+        let (res, _) = ctx.resolve_pixel(i, j);
+        let (c, got, e) = res.expect("written");
+        assert_eq!((c, got.to_vec()), (code, rgb), "pixel ({i}, {j})");
+        assert!(
+            (e - err_px * px_err).abs() < 1e-6,
+            "pixel ({i}, {j}): error {e}"
+        );
+    }
+}
+
+/// After a B-frame at α₀ = 0 only the backward offsets apply (the forward ones are zero and
+/// cannot be scaled): scaled by `(1−α)/(1−α₀)` (eq. 19) they find square texels at α = 0.5 that
+/// neither I-frame covers and the other initialisations miss (5 of 12 when measured).
+#[test]
+fn backward_bidir_latest_frame_backward_offsets_are_scaled() {
+    let (older, newer) = square_pair();
+    let mut hist = BidirHistory::new();
+    run_bb(&older, &newer, 0.0, Some(&mut hist));
+    let (out, _) = run_bb(&older, &newer, 0.5, Some(&mut hist));
+    let missed_with = assert_square_at(&out, 0.5, false);
+    let missed_without = assert_square_at(&run_bb(&older, &newer, 0.5, None).0, 0.5, false);
+    assert!(
+        missed_with + 4 <= missed_without,
+        "{missed_with} missed with the history, {missed_without} without"
+    );
+}

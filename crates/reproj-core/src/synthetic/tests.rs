@@ -131,7 +131,7 @@ fn sweeping_shadow_sets_bits_on_the_wall() {
     let rays = Rays::new(&main).unwrap();
     let pose = scene.pose(t);
     for (sb, sign) in [(&r.shadow_fwd, 1.0), (&r.shadow_bwd, -1.0)] {
-        let mut on_wall = 0;
+        let (mut on_wall, mut smin_stored) = (0, 0);
         for (k, o) in objs.iter().enumerate() {
             let bits = sb.bits[k];
             let (smin, smax) = (&sb.s_min[3 * k..3 * k + 3], &sb.s_max[3 * k..3 * k + 3]);
@@ -156,16 +156,19 @@ fn sweeping_shadow_sets_bits_on_the_wall() {
             assert_eq!(levels[3], (f * 3.0).round() as u32);
             assert_eq!(smin == [0; 3], lmin == levels[0]);
             assert_eq!(smax == [0; 3], lmax == levels[0]);
+            // A stored extreme is the key sample shaded at that level.
+            let at = |l: u32| SyntheticScene::shade(s.albedo, s.normal, f64::from(l) / 3.0);
             if lmax != levels[0] {
-                assert_eq!(
-                    smax,
-                    SyntheticScene::shade(s.albedo, s.normal, lmax as f64 / 3.0)
-                );
+                assert_eq!(smax, at(lmax));
+            }
+            if lmin != levels[0] {
+                assert_eq!(smin, at(lmin));
+                smin_stored += 1;
             }
         }
         assert!(
-            on_wall > 5,
-            "only {on_wall} wall pixels with dynamic shadow"
+            on_wall > 5 && smin_stored > 5,
+            "only {on_wall} wall pixels with dynamic shadow, {smin_stored} with S_min"
         );
     }
 }
