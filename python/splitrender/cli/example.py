@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from splitrender.cli.args import add_out, command, side
 from splitrender.files import OutputFolder
