@@ -120,3 +120,64 @@ proptest! {
         }
     }
 }
+
+/// The splat bands of pass 1 (64 source rows each) and the points they spill into other bands'
+/// rows: `ours` on a tall image (150 rows: three bands in the main sources, two in the 75-row
+/// auxiliary ones), for a client off the server's path vertically (near and far points move
+/// apart, so some land outside their band's rows), gives the same bytes on one thread and on
+/// four. At [`H`] rows the property above has one band and no spill: spills applied to the wrong
+/// range of the grid, or not at all in the last range, on more than one thread passed it.
+#[test]
+fn parallel_equals_serial_across_splat_bands() {
+    let (w, h) = (24, 150);
+    let scene = SyntheticScene::new(true);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let four = rayon::ThreadPoolBuilder::new()
+        .num_threads(4)
+        .build()
+        .unwrap();
+    for (t0, dx, dy) in [(0.3, 0.1, 0.3), (1.7, -0.2, -0.4)] {
+        let (f0, f1) = (
+            SyntheticFrame::render(&scene, t0, w, h, DT, S),
+            SyntheticFrame::render(&scene, t0 + DT, w, h, DT, S),
+        );
+        let (older, newer) = (f0.view(true), f1.view(false));
+        // Off the server's path, up or down and to the side: near and far points part vertically.
+        let (mut eye, target) = head_pose(t0 + 0.6 * DT);
+        eye[0] += dx;
+        eye[1] += dy;
+        let req = Request {
+            client: rig(eye, target, w, h).0,
+            alpha: 0.6,
+        };
+        let run = |pool: &rayon::ThreadPool| {
+            pool.install(|| {
+                let mut out = vec![7u8; 3 * w * h];
+                let mut diag = Diagnostics::new(w * h);
+                let o = Output::with_diagnostics(&mut out, &mut diag);
+                reproject(
+                    Method::Ours,
+                    Some(&older),
+                    &newer,
+                    &req,
+                    &Params::default(),
+                    o,
+                    None,
+                )
+                .unwrap();
+                let err: Vec<u32> = diag.error.iter().map(|e| e.to_bits()).collect();
+                (out, diag.source, err)
+            })
+        };
+        let (serial, parallel) = (run(&one), run(&four));
+        assert!(serial == parallel, "t0 {t0}: 1 thread != 4 threads");
+        let matched = serial.1.iter().filter(|&&c| c != Diagnostics::NONE).count();
+        assert!(
+            matched > w * h / 2,
+            "t0 {t0}: ours matched only {matched} pixels"
+        );
+    }
+}

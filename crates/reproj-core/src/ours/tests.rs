@@ -1637,3 +1637,198 @@ fn diagnostic_codes_name_the_camera_and_frame() {
         assert_eq!(r.code_of(k, true), want | 0x80, "source {k}, blended");
     }
 }
+
+/// Which camera of the server frame sees the plane in [`errors_of_a_plane_moved_by`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Seen {
+    /// The main camera.
+    ByMain,
+    /// An auxiliary camera of the main camera's pose and size, while the main camera looks the
+    /// other way (its points lie behind the client and never splat): every match is the
+    /// auxiliary camera's (§3.5 rule 1).
+    ByAux,
+}
+
+/// The errors of eq. 7 where a server camera (60° vertical field, square pixels, main or
+/// auxiliary as `seen`) sees a fronto-parallel plane 3 m away and the client is that camera
+/// moved sideways and up so that the plane moves by `(ox, oy)` pixels in the image (less than
+/// half a pixel, so every output pixel finds the source pixel of the same index): per output
+/// pixel, its error, or `None` without a match. At 3 m a pixel is `2·3·tan 30° / h` metres on
+/// both axes. Every match must come from the camera that sees the plane.
+fn errors_of_a_plane_moved_by(
+    (w, h): (usize, usize),
+    [ox, oy]: [f64; 2],
+    params: &Params,
+    seen: Seen,
+) -> Vec<Option<f32>> {
+    let d = 3.0;
+    let looking = |x: f64, y: f64, dz: f64| {
+        Camera::new(
+            Mat4::look_at([x, y, 0.0], [x, y, dz], [0.0, 1.0, 0.0]),
+            Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+            w,
+            h,
+            "test",
+        )
+        .unwrap()
+    };
+    let server = looking(0.0, 0.0, -1.0);
+    let (color, depth) = plane(&server, d);
+    let plane_view = CameraView {
+        camera: server,
+        color: &color,
+        depth: &depth,
+        motion: None,
+        shadow: None,
+    };
+    let away = vec![0.5f32; w * h];
+    let f = match seen {
+        Seen::ByMain => FrameView {
+            main: plane_view,
+            aux: vec![],
+        },
+        Seen::ByAux => FrameView {
+            main: CameraView {
+                camera: looking(0.0, 0.0, 1.0),
+                depth: &away,
+                ..plane_view
+            },
+            aux: vec![plane_view],
+        },
+    };
+    let metres = 2.0 * d * 30f64.to_radians().tan() / h as f64;
+    let req = Request {
+        client: looking(ox * metres, oy * metres, -1.0),
+        alpha: 1.0,
+    };
+    let mut out = vec![0u8; w * h * 3];
+    let mut diag = Diagnostics::new(w * h);
+    let o = Output::with_diagnostics(&mut out, &mut diag);
+    reproject(Method::Ours, None, &f, &req, params, o, None).unwrap();
+    let code = match seen {
+        Seen::ByMain => Diagnostics::MAIN_NEWER,
+        Seen::ByAux => Diagnostics::AUX_BASE + 1,
+    };
+    let sources = diag.source.iter();
+    sources
+        .zip(&diag.error)
+        .map(|(&s, &e)| {
+            assert!(s == code || s == Diagnostics::NONE, "{seen:?}: source {s}");
+            (s != Diagnostics::NONE).then_some(e)
+        })
+        .collect()
+}
+
+/// The error of eq. 7 is aspect-scaled NDC, in units where 2 is the image's short side: a pixel
+/// counts `2 / min(W, H)` on both axes (REFERENCE.md §2.5). A client that moves a plane by 0.45
+/// pixels across and 0.15 down (worked from the geometry, see [`errors_of_a_plane_moved_by`])
+/// gives every pixel the error `2·√(0.45² + 0.15²) / 32 = 0.029646` on 128×32 and 32×128 images,
+/// through the main camera and through an auxiliary camera of the same size, within 6e-7 (twice
+/// the 2.8e-7 the kernel's f32 arithmetic is off here). With the x and y factors swapped it would
+/// be 0.0381 on the first (x counted in pixels of the long side, y in four times its pixels) and
+/// 0.113 on the second (over `ε_e`: no match).
+#[test]
+fn matching_error_counts_pixels_of_either_axis_alike() {
+    let want = 2.0 * (0.45f64.powi(2) + 0.15f64.powi(2)).sqrt() / 32.0;
+    for seen in [Seen::ByMain, Seen::ByAux] {
+        for size in [(128, 32), (32, 128)] {
+            let p = Params::default();
+            let errors = errors_of_a_plane_moved_by(size, [0.45, 0.15], &p, seen);
+            for (k, e) in errors.iter().enumerate() {
+                let e = e.unwrap_or_else(|| panic!("{seen:?}, {size:?}: pixel {k}: no match"));
+                assert!(
+                    (f64::from(e) - want).abs() < 6e-7,
+                    "{seen:?}, {size:?}: pixel {k}: error {e}, not {want}"
+                );
+            }
+        }
+    }
+}
+
+/// `ε_e` keeps its size in pixels on every image (REFERENCE.md §2.5; it is given in units where 2
+/// is the short side of a 1440-pixel image, and scaled by `1440 / min(W, H)`), so the main
+/// camera's `ε_e = 0.4 / 720` is 0.4 pixels of the short side, and so is an auxiliary camera's
+/// `aux_threshold_scale · ε_e` for `ε_e = 0.1 / 720` (on an auxiliary image of the client's
+/// size): on 128×32 and 32×128 images a plane moved by 0.3 pixels (0.24 across, 0.18 down)
+/// matches at every pixel, and one moved by 0.5 pixels (0.3 across, 0.4 down) at none. Scaled by
+/// the long side instead, the threshold would be 0.1 pixels and the first would not match.
+#[test]
+fn error_threshold_is_the_same_number_of_pixels_on_every_image_shape() {
+    for (seen, eps_e) in [(Seen::ByMain, 0.4 / 720.0), (Seen::ByAux, 0.1 / 720.0)] {
+        let params = Params {
+            eps_e,
+            ..Params::default()
+        };
+        for size in [(128, 32), (32, 128)] {
+            let near = errors_of_a_plane_moved_by(size, [0.24, 0.18], &params, seen);
+            let unmatched = near.iter().filter(|e| e.is_none()).count();
+            assert_eq!(unmatched, 0, "{seen:?}, {size:?}: 0.3 px, under 0.4 px");
+            let far = errors_of_a_plane_moved_by(size, [0.3, 0.4], &params, seen);
+            let matched = far.iter().filter(|e| e.is_some()).count();
+            assert_eq!(matched, 0, "{seen:?}, {size:?}: 0.5 px, over 0.4 px");
+        }
+    }
+}
+
+/// "Visible in main" (§3.5 rule 2) on points worked by hand, in the row stages and the per-point
+/// test alike: the transfer is the identity (an auxiliary point lands on the main pixel of its own
+/// index, at its own depth 0.5), `ε_z = 0.004` (a reversed-depth difference counts twice). Depths
+/// are reversed (larger is nearer): where main saw something nearer than the point by more than
+/// `ε_z / 2` (0.6, 0.5025) the point is hidden; where main saw it (0.5), something within
+/// `ε_z / 2` (0.5015) or something farther (0.3: main's depth there does not hide the point) it
+/// is visible. A flipped comparison would hide the point in front of the far surface and show the
+/// points behind the near ones.
+#[test]
+fn visible_in_main_hides_points_behind_what_main_saw_nearer() {
+    let mut identity = crate::camera::M4([0.0; 16]);
+    for i in 0..4 {
+        identity.0[5 * i] = 1.0;
+    }
+    let t = NdcTransfer {
+        m: identity,
+        w_row: [0.0, 0.0, 0.0, 1.0],
+    };
+    let (sw, sh) = (5, 3);
+    // (main's depth at the point's pixel, visible).
+    let cases = [
+        (0.6, false),
+        (0.5025, false),
+        (0.5, true),
+        (0.5015, true),
+        (0.3, true),
+    ];
+    let x = row_ndc_x(sw, sh);
+    let depth = vec![0.5f32; sw];
+    let want: Vec<bool> = cases.iter().map(|c| c.1).collect();
+    for j in 0..sh {
+        // Main's depths on row j (the points' row) are the cases; the other rows see nothing
+        // nearer than the points.
+        let mut main_depth = vec![0.1f32; sw * sh];
+        for (i, c) in cases.iter().enumerate() {
+            main_depth[j * sw + i] = c.0;
+        }
+        let y = crate::camera::ndc_of_pixel(0, j, sw, sh)[1];
+        for tier in [Simd::Baseline, Simd::Avx2, Simd::Avx512] {
+            set_simd_limit(tier);
+            for moved in [false, true] {
+                let [rows, reference] = pair::visibility_row_and_reference(
+                    &x,
+                    y,
+                    &depth,
+                    None,
+                    moved,
+                    &t,
+                    (sw, sh),
+                    &main_depth,
+                    0.004,
+                );
+                assert_eq!(rows, want, "{tier:?}, row {j}, moved {moved}: row stages");
+                assert_eq!(
+                    reference, want,
+                    "{tier:?}, row {j}, moved {moved}: per point"
+                );
+            }
+        }
+    }
+    set_simd_limit(Simd::Avx512);
+}
