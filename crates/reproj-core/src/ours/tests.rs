@@ -66,6 +66,25 @@ fn cam(x: f64, w: usize, h: usize) -> Camera {
     .unwrap()
 }
 
+/// A frame of the main camera alone (no shadows, no auxiliary cameras).
+fn main_only<'a>(
+    camera: Camera,
+    color: &'a [u8],
+    depth: &'a [f32],
+    motion: Option<&'a [f32]>,
+) -> FrameView<'a> {
+    FrameView {
+        main: CameraView {
+            camera,
+            color,
+            depth,
+            motion,
+            shadow: None,
+        },
+        aux: vec![],
+    }
+}
+
 #[test]
 fn static_identity_reproduces_the_server_image() {
     let c = cam(0.0, 64, 48);
@@ -98,16 +117,7 @@ fn camera_translation_matches_the_analytic_image() {
     let (col0, dep0) = plane(&c0, 4.0);
     let (col1, dep1) = plane(&c1, 4.0);
     let (gt, _) = plane(&ct, 4.0);
-    let v = |c, col: &'static [u8], dep: &'static [f32]| FrameView {
-        main: CameraView {
-            camera: c,
-            color: col,
-            depth: dep,
-            motion: None,
-            shadow: None,
-        },
-        aux: vec![],
-    };
+    let v = |c, col: &'static [u8], dep: &'static [f32]| main_only(c, col, dep, None);
     let (col0, dep0, col1, dep1) = (col0.leak(), dep0.leak(), col1.leak(), dep1.leak());
     let f0 = v(c0, col0, dep0);
     let f1 = v(c1, col1, dep1);
@@ -250,16 +260,7 @@ fn auxiliary_camera_with_non_integer_ratio_fills_holes() {
 fn extrapolation_of_a_static_scene_is_the_identity() {
     let c = cam(0.0, 48, 32);
     let (color, depth) = plane(&c, 2.0);
-    let f = FrameView {
-        main: CameraView {
-            camera: c,
-            color: &color,
-            depth: &depth,
-            motion: None,
-            shadow: None,
-        },
-        aux: vec![],
-    };
+    let f = main_only(c, &color, &depth, None);
     for alpha in [1.0, 1.5, 2.9] {
         for m in [Method::Ours, Method::OursExtrapolate] {
             let mut out = vec![0u8; color.len()];
@@ -596,16 +597,7 @@ fn moving_object_is_extrapolated_along_its_motion() {
     let c = cam(0.0, w, h);
     let (color, depth) = plane(&c, 2.0);
     let motion: Vec<f32> = (0..w * h).flat_map(|_| [-0.4f32, 0.0, 0.0]).collect();
-    let f = FrameView {
-        main: CameraView {
-            camera: c,
-            color: &color,
-            depth: &depth,
-            motion: Some(&motion),
-            shadow: None,
-        },
-        aux: vec![],
-    };
+    let f = main_only(c, &color, &depth, Some(&motion));
     let mut out = vec![0u8; color.len()];
     let req = Request {
         client: c,
@@ -1330,16 +1322,8 @@ fn blending_weighs_the_frames_by_alpha() {
     let (a, b) = ([0u8, 100, 200], [200u8, 100, 0]);
     let (col0, dep0) = plane_of_one_colour(&c0, a);
     let (col1, dep1) = plane_of_one_colour(&c1, b);
-    let view = |camera, color: &'static [u8], depth: &'static [f32]| FrameView {
-        main: CameraView {
-            camera,
-            color,
-            depth,
-            motion: None,
-            shadow: None,
-        },
-        aux: vec![],
-    };
+    let view =
+        |camera, color: &'static [u8], depth: &'static [f32]| main_only(camera, color, depth, None);
     let (f0, f1) = (
         view(c0, col0.leak(), dep0.leak()),
         view(c1, col1.leak(), dep1.leak()),
@@ -1385,16 +1369,7 @@ fn moving_object_is_interpolated_along_its_motion() {
     let invalid = vec![f32::NAN; w * h];
     let forward: Vec<f32> = (0..w * h).flat_map(|_| [0.5f32, 0.0, 0.0]).collect();
     let backward: Vec<f32> = forward.iter().map(|m| -m).collect();
-    let view = |depth, motion| FrameView {
-        main: CameraView {
-            camera: c,
-            color: &color,
-            depth,
-            motion: Some(motion),
-            shadow: None,
-        },
-        aux: vec![],
-    };
+    let view = |depth, motion| main_only(c, &color, depth, Some(motion));
     let req = Request {
         client: c,
         alpha: 0.25,
@@ -1460,16 +1435,7 @@ fn nearer_surface_wins_the_splat() {
             color[3 * (j * w + i)..3 * (j * w + i) + 3].copy_from_slice(&red);
         }
     }
-    let f = FrameView {
-        main: CameraView {
-            camera: c,
-            color: &color,
-            depth: &depth,
-            motion: None,
-            shadow: None,
-        },
-        aux: vec![],
-    };
+    let f = main_only(c, &color, &depth, None);
     let client = cam(0.3, w, h);
     // World x at 1 m of NDC x: tan(30°)·aspect.
     let half = (30f64.to_radians()).tan() * w as f64 / h as f64;
