@@ -140,6 +140,110 @@ mod tests {
         assert_eq!(size_of::<FrameSourceU>() % 16, 0);
     }
 
+    /// Every member of every shared WGSL struct with a Rust mirror sits at the byte offset of the
+    /// mirror's field (sizes alone let two fields of one type trade places: the shaders then read
+    /// `eps_z_aux` as `eps_z`, or the window as the iteration count).
+    #[test]
+    fn offsets_match_the_wgsl_structs() {
+        use std::mem::offset_of;
+        let src = crate::shaders::SHARED[0].1;
+        let module = naga::front::wgsl::parse_str(src).expect("bindings.wgsl parses");
+        // (WGSL struct, [(WGSL member, offset of the Rust field that mirrors it)]).
+        let tables: [(&str, Vec<(&str, usize)>); 5] = [
+            (
+                "Transfer",
+                vec![
+                    ("m", offset_of!(TransferU, m)),
+                    ("w_row", offset_of!(TransferU, w_row)),
+                ],
+            ),
+            (
+                "Source",
+                vec![
+                    ("to_other", offset_of!(SourceU, to_other)),
+                    ("from_other", offset_of!(SourceU, from_other)),
+                    ("to_main_same", offset_of!(SourceU, to_main_same)),
+                    ("to_main_other", offset_of!(SourceU, to_main_other)),
+                    ("offset", offset_of!(SourceU, offset)),
+                    ("width", offset_of!(SourceU, width)),
+                    ("height", offset_of!(SourceU, height)),
+                    ("present", offset_of!(SourceU, present)),
+                    ("cell_offset", offset_of!(SourceU, cell_offset)),
+                    ("_pad0", offset_of!(SourceU, _pad)),
+                    ("_pad1", offset_of!(SourceU, _pad) + 4),
+                    ("_pad2", offset_of!(SourceU, _pad) + 8),
+                ],
+            ),
+            (
+                "FrameSource",
+                vec![
+                    ("to_client", offset_of!(FrameSourceU, to_client)),
+                    ("w", offset_of!(FrameSourceU, w)),
+                    ("_pad0", offset_of!(FrameSourceU, _pad)),
+                    ("_pad1", offset_of!(FrameSourceU, _pad) + 4),
+                    ("_pad2", offset_of!(FrameSourceU, _pad) + 8),
+                ],
+            ),
+            (
+                "Frame",
+                vec![
+                    ("client_w", offset_of!(FrameU, client_w)),
+                    ("client_h", offset_of!(FrameU, client_h)),
+                    ("alpha", offset_of!(FrameU, alpha)),
+                    ("mode", offset_of!(FrameU, mode)),
+                    ("bidirectional", offset_of!(FrameU, bidirectional)),
+                    ("n_aux", offset_of!(FrameU, n_aux)),
+                    ("iterations", offset_of!(FrameU, iterations)),
+                    ("window", offset_of!(FrameU, window)),
+                    ("subframes", offset_of!(FrameU, subframes)),
+                    ("shadows", offset_of!(FrameU, shadows)),
+                    ("blend", offset_of!(FrameU, blend)),
+                    ("vis_other", offset_of!(FrameU, vis_other)),
+                    ("eps_e", offset_of!(FrameU, eps_e)),
+                    ("eps_e_aux", offset_of!(FrameU, eps_e_aux)),
+                    ("eps_z", offset_of!(FrameU, eps_z)),
+                    ("eps_z_aux", offset_of!(FrameU, eps_z_aux)),
+                    ("eps_o", offset_of!(FrameU, eps_o)),
+                    ("_pad0", offset_of!(FrameU, _pad)),
+                    ("_pad1", offset_of!(FrameU, _pad) + 4),
+                    ("_pad2", offset_of!(FrameU, _pad) + 8),
+                    ("sources", offset_of!(FrameU, sources)),
+                ],
+            ),
+            (
+                "Texel",
+                vec![
+                    ("color", offset_of!(TexelU, color)),
+                    ("depth", offset_of!(TexelU, depth)),
+                    ("mx", offset_of!(TexelU, motion)),
+                    ("my", offset_of!(TexelU, motion) + 4),
+                    ("mz", offset_of!(TexelU, motion) + 8),
+                    ("bits", offset_of!(TexelU, bits)),
+                    ("s_min", offset_of!(TexelU, s_min)),
+                    ("s_max", offset_of!(TexelU, s_max)),
+                ],
+            ),
+        ];
+        for (name, table) in tables {
+            let (_, ty) = module
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap_or_else(|| panic!("no WGSL struct {name}"));
+            let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+                panic!("{name} is not a struct");
+            };
+            let wgsl: Vec<(&str, usize)> = members
+                .iter()
+                .map(|m| (m.name.as_deref().unwrap_or("?"), m.offset as usize))
+                .collect();
+            assert_eq!(
+                wgsl, table,
+                "{name}: WGSL members and offsets against the Rust mirror"
+            );
+        }
+    }
+
     #[test]
     fn pack_rgb_is_little_endian_rgb() {
         assert_eq!(pack_rgb(&[1, 2, 3]).to_le_bytes(), [1, 2, 3, 0]);

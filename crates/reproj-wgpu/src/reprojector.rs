@@ -1107,4 +1107,120 @@ mod tests {
             Err(GpuError::Unsupported(_))
         ));
     }
+
+    /// reproj-core's routing (`method.rs`, `route`) at the edges of α, written out by hand: the
+    /// older frame takes part exactly when α < 1 (not at α = 1), α = 3 is allowed and NaN is
+    /// not, the missing-frame errors only below α = 1, the unidirectional methods refuse α < 1
+    /// with their own ranges, and neither CPU-only method runs.
+    #[test]
+    fn plan_at_the_edges_of_alpha() {
+        #[derive(Debug, PartialEq)]
+        enum Want {
+            Run(Mode, bool),
+            Range(&'static str),
+            Missing,
+            Unsupported,
+        }
+        use Want::{Missing, Range, Run, Unsupported};
+        let uni = Params::default();
+        let bi = Params {
+            splat_bidirectional: true,
+            ..uni
+        };
+        let below = 1.0 - f32::EPSILON;
+        let ours_range = "[1, 3] (extrapolation from the newest frame, given as `newer`)";
+        let splat_range =
+            "[1, 3] (unidirectional splatting from the newest frame, given as `newer`)";
+        let table = [
+            (Method::Ours, uni, true, 0.0, Run(Mode::Ours, true)),
+            (Method::Ours, uni, true, below, Run(Mode::Ours, true)),
+            (Method::Ours, uni, true, 1.0, Run(Mode::Ours, false)),
+            (Method::Ours, uni, true, 3.0, Run(Mode::Ours, false)),
+            (
+                Method::Ours,
+                uni,
+                true,
+                3.0 + 4.0 * f32::EPSILON,
+                Range("[0, 3]"),
+            ),
+            (Method::Ours, uni, true, -0.25, Range("[0, 3]")),
+            (Method::Ours, uni, true, f32::NAN, Range("[0, 3]")),
+            (Method::Ours, uni, true, f32::INFINITY, Range("[0, 3]")),
+            (Method::Ours, uni, false, below, Missing),
+            (Method::Ours, uni, false, 1.0, Run(Mode::Ours, false)),
+            (Method::OursExtrapolate, uni, true, below, Range(ours_range)),
+            (
+                Method::OursExtrapolate,
+                uni,
+                true,
+                1.0,
+                Run(Mode::Ours, false),
+            ),
+            (
+                Method::OursExtrapolate,
+                uni,
+                false,
+                3.0,
+                Run(Mode::Ours, false),
+            ),
+            (Method::ForwardSplat, uni, true, below, Range(splat_range)),
+            (
+                Method::ForwardSplat,
+                uni,
+                true,
+                1.0,
+                Run(Mode::ForwardSplat, false),
+            ),
+            (
+                Method::ForwardSplat,
+                bi,
+                true,
+                below,
+                Run(Mode::ForwardSplat, true),
+            ),
+            (
+                Method::ForwardSplat,
+                bi,
+                true,
+                1.0,
+                Run(Mode::ForwardSplat, false),
+            ),
+            (Method::ForwardSplat, bi, false, below, Missing),
+            (
+                Method::ForwardSplat,
+                bi,
+                false,
+                1.5,
+                Run(Mode::ForwardSplat, false),
+            ),
+            (Method::Timewarp, uni, true, 1.5, Unsupported),
+            (Method::BackwardBidir, uni, true, 0.5, Unsupported),
+        ];
+        for (method, params, has_older, alpha, want) in table {
+            let got = match plan(method, has_older, alpha, &params) {
+                Ok((mode, bidirectional)) => Run(mode, bidirectional),
+                Err(GpuError::Input(ReprojError::AlphaRange {
+                    alpha: a,
+                    method: m,
+                    range,
+                })) => {
+                    assert_eq!((a.to_bits(), m.as_str()), (alpha.to_bits(), method.name()));
+                    match range.as_str() {
+                        "[0, 3]" => Range("[0, 3]"),
+                        r if r == ours_range => Range(ours_range),
+                        r if r == splat_range => Range(splat_range),
+                        r => panic!("{method:?} at {alpha}: range {r:?}"),
+                    }
+                }
+                Err(GpuError::Input(ReprojError::MissingFrame(_))) => Missing,
+                Err(GpuError::Unsupported(_)) => Unsupported,
+                Err(e) => panic!("{method:?} at {alpha}: {e:?}"),
+            };
+            assert_eq!(
+                got, want,
+                "{method:?}, bidirectional splat {}, older {has_older}, alpha {alpha}",
+                params.splat_bidirectional
+            );
+        }
+    }
 }

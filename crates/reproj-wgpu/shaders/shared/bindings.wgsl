@@ -1,5 +1,6 @@
 // Shared types and the bind group of every reprojection pass (group 0, declared explicitly on the
-// host in `src/pipeline.rs`; the Rust mirrors of the uniform structs are in `src/layout.rs`).
+// host by `bind_group_layout_entries` in `src/reprojector.rs`; the Rust mirrors of the uniform
+// structs are in `src/layout.rs`).
 //
 // Source slots: slot 2c is camera c of the older frame F_t, slot 2c+1 camera c of the newer frame
 // F_{t+1}; camera 0 is the main camera, camera 1 + i auxiliary camera i. A unidirectional frame
