@@ -30,15 +30,14 @@ needs_gpu = pytest.mark.skipif(
 #: 2560·0.0625 × 1440·0.0625 = 160×90 main camera, 80×45 auxiliary cameras.
 SCALE = 0.0625
 #: Least share of identical pixels (and source codes) and largest mean absolute difference
-#: (8-bit units). On lavapipe, which CI runs, every comparison here is bit-identical (Mesa 22.3.6),
-#: and the largest difference measured on it (crates/reproj-wgpu/tests/parity.rs at 128×72) was
-#: 0.043 % of the pixels, MAD 0.03: its bound is about twice that, tight enough that a kernel wrong
-#: in a few tenths of a percent of the pixels fails (with 99.5 % and 0.5, a dynamic-shadow blend
-#: weighted the wrong way round passed on courtyard and colonnade). Other adapters keep the looser
-#: bound, which has not been measured against.
+#: (8-bit units). On lavapipe, which CI runs, every comparison here is bit-identical (Mesa 22.3.6,
+#: LLVM 15; so is every case of crates/reproj-wgpu/tests/parity.rs at 150x84, 160x90 and 128x72),
+#: and it must stay so: a kernel wrong in a handful of pixels fails (with 99.5 % and 0.5, a
+#: dynamic-shadow blend weighted the wrong way round passed on courtyard and colonnade). Other
+#: adapters keep the looser bound, which has not been measured against.
 ON_LAVAPIPE = HAVE_GPU and "llvmpipe" in gpu.adapter()
-MIN_EQUAL = 0.999 if ON_LAVAPIPE else 0.995
-MAX_MAD = 0.06 if ON_LAVAPIPE else 0.5
+MIN_EQUAL = 1.0 if ON_LAVAPIPE else 0.995
+MAX_MAD = 0.0 if ON_LAVAPIPE else 0.5
 
 Pair = tuple[sr.Scene, sr.ServerFrame, sr.ServerFrame]
 
@@ -80,7 +79,7 @@ def test_wgpu_matches_cpu_on_builtin_scenes(pair: Pair, method: str, n: int) -> 
         f0, f1, request, method, previous=previous, diagnostics=True, backend="wgpu"
     )
     equal, mad = _agreement(wgpu.image, cpu.image)
-    assert equal >= MIN_EQUAL and mad < MAX_MAD, (
+    assert equal >= MIN_EQUAL and mad <= MAX_MAD, (
         f"{scene.name} {method}: {100 * equal:.3f} % equal, MAD {mad:.4f}"
     )
     assert float((wgpu.source == cpu.source).mean()) >= MIN_EQUAL
@@ -99,7 +98,7 @@ def test_fallback_splat_equals_int64(pair: Pair) -> None:
     images = [g.reproject(f0, f1, camera, alpha, "ours") for g in (fallback, native)]
     cpu = sr.reproject_alpha(f0, f1, camera, alpha, "ours")
     equal, mad = _agreement(images[0], cpu)
-    assert equal >= MIN_EQUAL and mad < MAX_MAD
+    assert equal >= MIN_EQUAL and mad <= MAX_MAD
     if native.atomics == "int64":
         np.testing.assert_array_equal(images[0], images[1])
 
@@ -124,7 +123,7 @@ def test_client_on_wgpu_plays_like_cpu() -> None:
         modes |= set(runs["cpu"].modes())
         for n, (a, b) in enumerate(zip(runs["wgpu"].images, runs["cpu"].images, strict=True)):
             equal, mad = _agreement(a, b)
-            assert equal >= MIN_EQUAL and mad < MAX_MAD, f"{latency} ms, frame {n}: {equal}, {mad}"
+            assert equal >= MIN_EQUAL and mad <= MAX_MAD, f"{latency} ms, frame {n}: {equal}, {mad}"
     assert modes == {"hold", "extrapolate", "interpolate"}
 
 
@@ -142,7 +141,7 @@ def test_gpu_reprojector_keeps_frames_on_the_device(pair: Pair) -> None:
         cpu = sr.reproject_alpha(f0, f1, camera, alpha, "ours", previous=prev)
         img = g.render(camera, alpha, "ours", previous="keep", slot=1)
         equal, mad = _agreement(img, cpu)
-        assert equal >= MIN_EQUAL and mad < MAX_MAD
+        assert equal >= MIN_EQUAL and mad <= MAX_MAD
         prev = cpu
     assert "GpuReprojector(adapter=" in repr(g)
 
