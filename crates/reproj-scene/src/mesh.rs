@@ -600,6 +600,53 @@ mod tests {
         (vs, ts)
     }
 
+    /// Möller–Trumbore's edges are exact and closed: on the triangle (0,0,0), (1,0,0), (0,1,0) a
+    /// ray straight down through (x, y, 1) has u = x, v = y and t = 1 with no rounding, so points
+    /// on the edges and corners (u = 0, v = 0, u + v = 1) hit and points 2⁻⁴⁰ beyond an edge
+    /// miss: in the triangle test, the BVH walk, the shadow ray and the bundled shadow rays alike
+    /// (their culling boxes must hold the corners).
+    #[test]
+    fn triangle_edges_are_closed_and_exact() {
+        let n = [0.0, 0.0, 1.0];
+        let mesh = Mesh::new(
+            vec![
+                vertex([0.0; 3], n, [0.0, 0.0]),
+                vertex([1.0, 0.0, 0.0], n, [1.0, 0.0]),
+                vertex([0.0, 1.0, 0.0], n, [0.0, 1.0]),
+            ],
+            vec![[0, 1, 2]],
+        );
+        let e = 2f64.powi(-40);
+        let down = [0.0, 0.0, -1.0];
+        let cases = [
+            (0.25, 0.25, true),
+            (0.5, 0.5, true),
+            (0.0, 0.5, true),
+            (0.5, 0.0, true),
+            (0.0, 0.0, true),
+            (1.0, 0.0, true),
+            (0.0, 1.0, true),
+            (0.5, 0.5 + e, false),
+            (0.5 + e, 0.5, false),
+            (1.0 + e, 0.0, false),
+            (-e, 0.5, false),
+            (0.5, -e, false),
+            (-e, -e, false),
+        ];
+        for (x, y, hit) in cases {
+            let o = [x, y, 1.0];
+            let at = format!("({x}, {y})");
+            let want = hit.then_some((1.0, x, y));
+            assert_eq!(mesh.triangle_hit(0, o, down, 0.0, 10.0), want, "{at}");
+            let h = mesh.intersect(o, down, 0.0, 10.0);
+            let want = hit.then_some((1.0, [x, y], 0));
+            assert_eq!(h.map(|h| (h.t, h.uv, h.face)), want, "{at}");
+            assert_eq!(mesh.occludes(o, down), hit, "{at}");
+            let bundled = mesh.occluded_rays(o, &[down], (down, 0.0), 1);
+            assert_eq!(bundled, u32::from(hit), "{at}");
+        }
+    }
+
     #[test]
     fn coincident_triangles_share_one_bvh_primitive() {
         // One triangle 20,000 times and one corner 20,000 times (a few hundred bytes of sparse

@@ -1413,6 +1413,16 @@ mod tests {
                 let snap = Snapshot::new(&scene, t);
                 let reach = snap.cull.reach;
                 assert!(reach > 0.0, "{name}: no reach");
+                // A query serves points within its reach and no farther.
+                let x0 = snap.spheres[0].0;
+                for (f, served) in [(0.999, true), (1.001, false), (1.5, false), (3.0, false)] {
+                    let x = add(x0, scale(normalize([0.3, -0.5, 0.8]), f * reach));
+                    NEAR_CASTERS.with(|near| near.borrow_mut().snap = u64::MAX);
+                    snap.near_casters(x0, ext(x0), |_| {});
+                    snap.near_casters(x, ext(x), |_| {});
+                    let from = NEAR_CASTERS.with(|near| near.borrow().x);
+                    assert_eq!(from == x0, served, "{name} t={t}: {f} reaches");
+                }
                 let (l, e1, e2) = (snap.light, snap.cull.e1, snap.cull.e2);
                 let (sin_a, cos_a) = snap.light_sin_cos;
                 for i in (0..scene.objects.len()).filter(|&i| scene.objects[i].casts_shadow) {
@@ -1512,6 +1522,125 @@ mod tests {
         assert!(
             shortcut > 0 && blocked > 0,
             "shortcut {shortcut}, blocked {blocked}"
+        );
+    }
+
+    /// The quad shortcut for quads turned every way against the light: the shadow rays all
+    /// leaving the plane's +y side, all its −y side, and straddling it (the normal within the
+    /// light's angular radius of a right angle to it), for origins on both sides, on it and
+    /// just off it, over and beyond the quad.
+    #[test]
+    fn quad_shortcut_finds_what_each_ray_finds_for_quads_turned_against_the_light() {
+        let (mut straddle, mut shortcut, mut blocked) = (0, 0, 0);
+        for name in SCENE_NAMES {
+            let mut scene = builtin(name, Variant::Static).unwrap();
+            let Some(q) = (0..scene.objects.len())
+                .find(|&i| matches!(scene.objects[i].shape, Shape::Quad { .. }))
+            else {
+                continue;
+            };
+            let l = Snapshot::new(&scene, 0.0).light;
+            let a = scene.light.angular_radius;
+            let across = normalize(cross(l, [0.0, 1.0, 0.0]));
+            let side = cross(across, l);
+            let place = scene.objects[q].place;
+            // Far from the light's plane either way, and across it in steps of an eighth of the
+            // light's radius (the lowest sample just below or above the plane at some).
+            let across_light = (-12..=12).map(|k| f64::from(k) * a / 8.0);
+            for phi in [-1.0, -0.3, 0.3, 1.0, 2.0].into_iter().chain(across_light) {
+                // The quad's normal at `phi` from the plane at a right angle to the light.
+                let n = add(scale(side, phi.cos()), scale(l, phi.sin()));
+                let turn =
+                    Rigid::rotation(cross([0.0, 1.0, 0.0], n), dot(n, [0.0, 1.0, 0.0]).acos());
+                scene.objects[q].place = Rigid::translation(place.trans).then(&turn);
+                let snap = Snapshot::new(&scene, 0.0);
+                let Shape::Quad { half } = *snap.shape(q) else {
+                    unreachable!()
+                };
+                let (lo, hi) = snap.samples_y[q];
+                straddle += usize::from(lo < 0.0 && hi > 0.0);
+                for y in [-2.0, -1e-300, -0.0, 0.0, 1e-300, 2.0] {
+                    for (fx, fz) in [(0.0, 0.0), (0.5, -0.3), (0.99, 0.99), (1.5, 0.2)] {
+                        let o = [fx * half[0], y, fz * half[1]];
+                        let each = snap.occluded_each(q, o, ALL_RAYS);
+                        assert_eq!(
+                            snap.occluded_rays(q, o, ALL_RAYS),
+                            each,
+                            "{name} phi={phi} o={o:?}"
+                        );
+                        shortcut += usize::from((y >= 0.0 && lo >= 0.0) || (y <= 0.0 && hi <= 0.0));
+                        blocked += usize::from(each != 0 && each != ALL_RAYS);
+                    }
+                }
+            }
+        }
+        assert!(
+            straddle > 0 && shortcut > 0 && blocked > 0,
+            "straddle {straddle}, shortcut {shortcut}, partly blocked {blocked}"
+        );
+    }
+
+    /// `blocked_rays` (the cull, the exact sphere and box tests, the shortcuts) hides exactly the
+    /// shadow rays that tracing every ray against every shadow caster hides (the point's own
+    /// convex object skipped, the rays below the tangent plane hidden), at the surfaces that
+    /// primary rays of each scene's camera meet, in sun, penumbra and shadow.
+    #[test]
+    fn blocked_rays_finds_what_every_caster_finds() {
+        let (mut lit, mut partial, mut dark) = (0, 0, 0);
+        for name in SCENE_NAMES {
+            let scene = builtin(name, Variant::Dynamic).unwrap();
+            let t = 1.3;
+            let snap = Snapshot::new(&scene, t);
+            let cam = crate::rig::rig(
+                &scene.path.server_pose(13, 10.0),
+                64,
+                36,
+                scene.near,
+                scene.far,
+            )
+            .main;
+            let rays = crate::render::camera_rays(&cam, "test").unwrap();
+            for j in 0..cam.height {
+                for i in 0..cam.width {
+                    let d = rays.ray(i, j);
+                    let Some(hit) = snap.trace(rays.origin, d, 1.0, scene.far / scene.near) else {
+                        continue;
+                    };
+                    let x = add(rays.origin, scale(d, hit.t));
+                    let mut n = normalize(snap.world[hit.obj].vector(hit.local.normal));
+                    if dot(n, d) > 0.0 {
+                        n = scale(n, -1.0);
+                    }
+                    let got = snap.blocked_rays(hit.obj, x, n, Occluders::All, None);
+                    // Every caster, every ray, from the offset origin that `blocked_rays`
+                    // documents.
+                    let ext = x.iter().fold(1.0f64, |a, c| a.max(c.abs()));
+                    let origin = add(x, scale(n, 1e-5 * ext));
+                    let mut want = 0u32;
+                    for (k, s) in snap.samples.iter().enumerate() {
+                        let below = dot(*s, n) <= 0.0;
+                        let hidden = below
+                            || (0..scene.objects.len()).any(|c| {
+                                scene.objects[c].casts_shadow
+                                    && !(c == hit.obj && scene.objects[c].shape.is_convex())
+                                    && snap
+                                        .shape(c)
+                                        .occludes(snap.inv[c].point(origin), snap.inv[c].vector(*s))
+                            });
+                        want |= u32::from(hidden) << k;
+                    }
+                    assert_eq!(got, want, "{name} pixel ({i}, {j}) object {}", hit.obj);
+                    match want {
+                        0 => lit += 1,
+                        ALL_RAYS => dark += 1,
+                        _ => partial += 1,
+                    }
+                }
+            }
+        }
+        assert!(
+            lit > 0 && partial > 0 && dark > 0,
+            "lit {lit}, penumbra {partial}, shadow {dark}"
         );
     }
 }

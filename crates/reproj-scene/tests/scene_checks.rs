@@ -51,6 +51,28 @@ fn objects_changed_without_refresh_are_refused_until_refreshed() {
     ));
     scene.refresh().unwrap();
     assert!(scene.moves(still));
+    // An object that is its own parent.
+    let was = scene.objects[3].parent;
+    scene.objects[3].parent = Some(3);
+    for r in renders(&scene) {
+        assert!(
+            matches!(
+                r,
+                Err(SceneError::BadHierarchy {
+                    index: 3,
+                    parent: 3,
+                    ..
+                })
+            ),
+            "{r:?}"
+        );
+    }
+    assert!(matches!(
+        scene.refresh(),
+        Err(SceneError::BadHierarchy { index: 3, .. })
+    ));
+    scene.objects[3].parent = was;
+    scene.refresh().unwrap();
     // A parent that comes after its child.
     let last = scene.objects.len() - 1;
     scene.objects[0].parent = Some(last);

@@ -597,4 +597,47 @@ mod tests {
             .sum();
         assert!(seen > 0, "no ray met a doubled house");
     }
+
+    /// The tiles of the last column and of the last, partial row (27 pixels in tiles of 8) reach
+    /// the image's far edges: a small sphere on the centre ray of a pixel at each corner and in
+    /// the middle of each edge (a quarter of a pixel across, 2 m out) is found as the BVH finds
+    /// it, so its tile's list holds it.
+    #[test]
+    fn tile_lists_reach_the_image_edges() {
+        let mut scene = builtin("courtyard", Variant::Static).unwrap();
+        let (k, (w, h)) = (14, (48, 27));
+        let pose = scene.path.server_pose(k, 10.0);
+        let cam = rig(&pose, w, h, scene.near, scene.far).main;
+        let rays = camera_rays(&cam, "test").unwrap();
+        let first = scene.objects.len();
+        let (mid_w, mid_h) = (w / 2, h / 2);
+        let pixels = [
+            (0, 0),
+            (w - 1, 0),
+            (0, h - 1),
+            (w - 1, h - 1),
+            (mid_w, 0),
+            (mid_w, h - 1),
+            (0, mid_h),
+            (w - 1, mid_h),
+        ];
+        for (i, j) in pixels {
+            let d = normalize(rays.ray(i, j));
+            let beside = normalize(rays.ray(if i == 0 { 1 } else { i - 1 }, j));
+            let radius = 0.125 * 2.0 * length(sub(d, beside));
+            let centre = crate::math::add(rays.origin, crate::math::scale(d, 2.0));
+            let material = scene.objects[0].material;
+            scene.objects.push(crate::scene::Object::new(
+                "probe",
+                Shape::Sphere { radius },
+                material,
+                Rigid::translation(centre),
+            ));
+        }
+        scene.refresh().unwrap();
+        let probes: Vec<usize> = (first..scene.objects.len()).collect();
+        // Each probe is met at least by its pixel's centre ray.
+        let seen = compare(&scene, k, (w, h), &probes);
+        assert!(seen >= probes.len(), "{seen} rays met the probes");
+    }
 }

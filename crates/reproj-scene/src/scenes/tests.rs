@@ -21,5 +21,17 @@ fn every_builtin_scene_builds_with_moving_objects_only_when_dynamic() {
         let s = builtin(name, Variant::Static).unwrap();
         assert!((0..d.objects.len()).any(|i| d.moves(i)), "{name}");
         assert!((0..s.objects.len()).all(|i| !s.moves(i)), "{name}");
+        // An object moves exactly when its world transform changes with time (children of
+        // moving parents included); in the static variant none changes.
+        let times = [0.37, 1.3, 2.9];
+        let (d0, s0) = (d.transforms(0.0), s.transforms(0.0));
+        for i in 0..d.objects.len() {
+            let changes = times.iter().any(|&t| d.transforms(t)[i] != d0[i]);
+            assert_eq!(d.moves(i), changes, "{name} object {i}");
+            assert!(
+                times.iter().all(|&t| s.transforms(t)[i] == s0[i]),
+                "{name} {i}"
+            );
+        }
     }
 }
