@@ -219,6 +219,15 @@ fn quad_t(o: V3, d: V3, half: [f64; 2], tmin: f64, tmax: f64) -> Option<(f64, f6
 /// The ray parameter where `o + t·d`, `t ∈ (tmin, tmax)`, first meets the sphere `(c, r)`.
 #[inline]
 fn sphere_t(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<f64> {
+    // The front surface first; the back one only when the front lies before tmin.
+    sphere_roots(o, d, c, r)?
+        .into_iter()
+        .find(|&t| t > tmin && t < tmax)
+}
+
+/// Both ray parameters where the ray `o + t·d` meets the sphere of centre `c` and radius `r`,
+/// the front one first; `None` when it misses.
+fn sphere_roots(o: V3, d: V3, c: V3, r: f64) -> Option<[f64; 2]> {
     let oc = sub(o, c);
     let a = dot(d, d);
     let b = dot(d, oc);
@@ -227,10 +236,7 @@ fn sphere_t(o: V3, d: V3, c: V3, r: f64, tmin: f64, tmax: f64) -> Option<f64> {
         return None;
     }
     let sq = disc.sqrt();
-    // The front surface first; the back one only when the front lies before tmin.
-    [(-b - sq) / a, (-b + sq) / a]
-        .into_iter()
-        .find(|&t| t > tmin && t < tmax)
+    Some([(-b - sq) / a, (-b + sq) / a])
 }
 
 fn sphere_hit(o: V3, d: V3, c: V3, t: f64) -> LocalHit {
@@ -360,14 +366,20 @@ fn capsule_t(
     }
     for (c, face) in [(a, 1), (b, 2)] {
         let lim = best.map_or(tmax, |b| b.0);
-        if let Some(t) = sphere_t(o, d, c, r, tmin, lim) {
-            // Only the cap's outer half belongs to the capsule.
+        let Some(roots) = sphere_roots(o, d, c, r) else {
+            continue;
+        };
+        // Only the cap's outer half belongs to the capsule. Both roots in order: a ray from
+        // inside the capsule (or from a `tmin` past its front) meets the cap sphere first on its
+        // inner half, inside the body, and leaves through the outer half at the second root.
+        for t in roots.into_iter().filter(|&t| t > tmin && t < lim) {
             let p = add(o, scale(d, t));
             let s = dot(sub(p, a), axis);
             if (face == 1 && s <= 0.0) || (face == 2 && s >= len) {
                 // The cap sphere's unit normal at the hit, scaled back to the radius.
                 let n = normalize(sub(add(o, scale(d, t)), c));
                 best = Some((t, scale(n, r), face));
+                break;
             }
         }
     }
@@ -401,5 +413,207 @@ mod tests {
             .intersect([0.2, 5.0, 0.1], [0.0, -2.0, 0.0], 0.0, 10.0)
             .unwrap();
         assert!((h.t - 1.5).abs() < 1e-12 && h.normal == [0.0, 1.0, 0.0]);
+    }
+
+    /// Every ray of `rays` as `(origin, direction, tmin)`: what `intersect` finds from `tmin`
+    /// on, as `(t, normal, uv, face)`, with `occludes` (from `t > 0`) agreeing where `tmin` is 0.
+    #[allow(clippy::type_complexity)]
+    fn hits(shape: &Shape, rays: &[(V3, V3, f64)]) -> Vec<Option<(f64, V3, [f64; 2], u32)>> {
+        rays.iter()
+            .map(|&(o, d, tmin)| {
+                let h = shape.intersect(o, d, tmin, 100.0);
+                if tmin == 0.0 {
+                    assert_eq!(shape.occludes(o, d), h.is_some(), "{shape:?} {o:?} {d:?}");
+                }
+                h.map(|h| (h.t, h.normal, h.uv, h.face))
+            })
+            .collect()
+    }
+
+    /// The analytic shapes against rays worked by hand (dyadic values, so every answer is
+    /// exact): the near surface from outside and the far one from inside, each face's own
+    /// normal, number and texture coordinates, edges and tangents inclusive, a ray parallel to a
+    /// face on its plane, and bounds that touch the surface on every side.
+    #[test]
+    fn analytic_shapes_answer_rays_worked_by_hand() {
+        let sphere = Shape::Sphere { radius: 2.0 };
+        assert_eq!(
+            sphere.bounds(),
+            Bounds {
+                min: [-2.0; 3],
+                max: [2.0; 3]
+            }
+        );
+        let got = hits(
+            &sphere,
+            &[
+                // From above, the direction not unit: t in its units.
+                ([0.0, 5.0, 0.0], [0.0, -2.0, 0.0], 0.0),
+                // From inside: the far side, with the outward normal.
+                ([0.0, 0.0, 0.0], [0.0, 0.0, -1.0], 0.0),
+                // From outside past the front (tmin beyond it): the back.
+                ([0.0, 0.0, 5.0], [0.0, 0.0, -1.0], 4.0),
+                // Tangent at (2, 0, 0), and just past it.
+                ([2.0, 0.0, 5.0], [0.0, 0.0, -1.0], 0.0),
+                ([2.0 + 1e-9, 0.0, 5.0], [0.0, 0.0, -1.0], 0.0),
+                // Pointing away.
+                ([0.0, 0.0, 5.0], [0.0, 0.0, 1.0], 0.0),
+            ],
+        );
+        assert_eq!(
+            got,
+            [
+                Some((1.5, [0.0, 1.0, 0.0], [0.5, 1.0], 0)),
+                Some((2.0, [0.0, 0.0, -1.0], [0.25, 0.5], 0)),
+                Some((7.0, [0.0, 0.0, -1.0], [0.25, 0.5], 0)),
+                Some((5.0, [1.0, 0.0, 0.0], [0.5, 0.5], 0)),
+                None,
+                None,
+            ]
+        );
+
+        let cube = Shape::Cuboid {
+            min: [-1.0, -1.0, -1.0],
+            max: [1.0, 2.0, 1.0],
+        };
+        assert_eq!(
+            cube.bounds(),
+            Bounds {
+                min: [-1.0; 3],
+                max: [1.0, 2.0, 1.0]
+            }
+        );
+        let got = hits(
+            &cube,
+            &[
+                ([0.25, 5.0, 0.5], [0.0, -2.0, 0.0], 0.0),
+                ([0.25, -5.0, 0.5], [0.0, 1.0, 0.0], 0.0),
+                ([-4.0, 0.5, 0.25], [1.0, 0.0, 0.0], 0.0),
+                ([0.0, 0.5, 0.25], [1.0, 0.0, 0.0], 0.0),
+                ([0.0, 0.5, 5.0], [0.0, 0.0, -1.0], 0.0),
+                // Inside: the exit.
+                ([0.0, 0.5, 0.0], [0.0, 0.0, 1.0], 0.0),
+                // Parallel to the face x = 1, on its plane (the slab is closed), and just off it.
+                ([1.0, 5.0, 0.5], [0.0, -1.0, 0.0], 0.0),
+                ([1.0 + 1e-9, 5.0, 0.5], [0.0, -1.0, 0.0], 0.0),
+                // Through an edge.
+                ([1.0, 5.0, 1.0], [0.0, -1.0, 0.0], 0.0),
+            ],
+        );
+        assert_eq!(
+            got,
+            [
+                Some((1.5, [0.0, 1.0, 0.0], [0.5, 0.25], 3)),
+                Some((4.0, [0.0, -1.0, 0.0], [0.5, 0.25], 2)),
+                Some((3.0, [-1.0, 0.0, 0.0], [0.5, 0.25], 0)),
+                Some((1.0, [1.0, 0.0, 0.0], [0.5, 0.25], 1)),
+                Some((4.0, [0.0, 0.0, 1.0], [0.0, 0.5], 5)),
+                Some((1.0, [0.0, 0.0, 1.0], [0.0, 0.5], 5)),
+                Some((3.0, [0.0, 1.0, 0.0], [0.5, 1.0], 3)),
+                None,
+                Some((3.0, [0.0, 1.0, 0.0], [1.0, 1.0], 3)),
+            ]
+        );
+
+        let quad = Shape::Quad { half: [2.0, 1.0] };
+        assert_eq!(
+            quad.bounds(),
+            Bounds {
+                min: [-2.0, 0.0, -1.0],
+                max: [2.0, 0.0, 1.0]
+            }
+        );
+        let got = hits(
+            &quad,
+            &[
+                ([1.5, 3.0, 0.5], [0.0, -1.0, 0.0], 0.0),
+                // From below: seen from both sides (the normal stays +y).
+                ([-1.5, -3.0, -0.5], [0.0, 1.0, 0.0], 0.0),
+                // Its edges and corner inclusive, each axis with its own half extent.
+                ([2.0, 3.0, 0.0], [0.0, -1.0, 0.0], 0.0),
+                ([0.0, 3.0, -1.0], [0.0, -1.0, 0.0], 0.0),
+                ([-2.0, 3.0, 1.0], [0.0, -1.0, 0.0], 0.0),
+                ([0.0, 3.0, 1.5], [0.0, -1.0, 0.0], 0.0),
+                ([2.0 + 1e-9, 3.0, 0.0], [0.0, -1.0, 0.0], 0.0),
+                // Parallel to it.
+                ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 0.0),
+            ],
+        );
+        assert_eq!(
+            got,
+            [
+                Some((3.0, [0.0, 1.0, 0.0], [1.5, 0.5], 0)),
+                Some((3.0, [0.0, 1.0, 0.0], [-1.5, -0.5], 0)),
+                Some((3.0, [0.0, 1.0, 0.0], [2.0, 0.0], 0)),
+                Some((3.0, [0.0, 1.0, 0.0], [0.0, -1.0], 0)),
+                Some((3.0, [0.0, 1.0, 0.0], [-2.0, 1.0], 0)),
+                None,
+                None,
+                None,
+            ]
+        );
+
+        // The segment from a = (0, 0.25, 0) to b = (0, −0.25, 0) (axis −y), radius 0.125.
+        let cap = Shape::Capsule {
+            a: [0.0, 0.25, 0.0],
+            b: [0.0, -0.25, 0.0],
+            radius: 0.125,
+        };
+        assert_eq!(
+            cap.bounds(),
+            Bounds {
+                min: [-0.125, -0.375, -0.125],
+                max: [0.125, 0.375, 0.125]
+            }
+        );
+        let got = hits(
+            &cap,
+            &[
+                // The body from the side (at its end b too: the body's range is closed), the
+                // caps along the axis from either end.
+                ([1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], 0.0),
+                ([1.0, -0.25, 0.0], [-1.0, 0.0, 0.0], 0.0),
+                ([0.0, 1.0, 0.0], [0.0, -1.0, 0.0], 0.0),
+                ([0.0, -1.0, 0.0], [0.0, 1.0, 0.0], 0.0),
+                // Beside it.
+                ([0.25, 0.0, 1.0], [0.0, 0.0, -1.0], 0.0),
+            ],
+        );
+        assert_eq!(
+            got.iter()
+                .map(|h| h.map(|h| (h.0, h.1, h.3)))
+                .collect::<Vec<_>>(),
+            [
+                Some((0.875, [1.0, 0.0, 0.0], 0)),
+                Some((0.875, [1.0, 0.0, 0.0], 0)),
+                Some((0.625, [0.0, 1.0, 0.0], 1)),
+                Some((0.625, [0.0, -1.0, 0.0], 2)),
+                None,
+            ]
+        );
+        // The body's second texture coordinate is the distance along the axis from `a`.
+        assert_eq!(got[0].map(|h| h.2[1]), Some(0.25));
+        assert_eq!(got[1].map(|h| h.2[1]), Some(0.5));
+        // From inside (or from a `tmin` past the front): the ray meets a cap sphere first on
+        // its inner half, inside the body, and leaves the capsule through the cap's outer half
+        // (these found nothing when only the cap sphere's first root was tried).
+        let got = hits(
+            &cap,
+            &[
+                ([0.0, 0.25, 0.0], [0.0, -1.0, 0.0], 0.0),
+                ([0.0, 0.0, 0.0], [0.0, 1.0, 0.0], 0.0),
+                ([0.0, 1.0, 0.0], [0.0, -1.0, 0.0], 1.0),
+            ],
+        );
+        assert_eq!(
+            got.iter()
+                .map(|h| h.map(|h| (h.0, h.1, h.3)))
+                .collect::<Vec<_>>(),
+            [
+                Some((0.625, [0.0, -1.0, 0.0], 2)),
+                Some((0.375, [0.0, 1.0, 0.0], 1)),
+                Some((1.375, [0.0, -1.0, 0.0], 2)),
+            ]
+        );
     }
 }
