@@ -117,10 +117,8 @@ fn camera_translation_matches_the_analytic_image() {
     let (col0, dep0) = plane(&c0, 4.0);
     let (col1, dep1) = plane(&c1, 4.0);
     let (gt, _) = plane(&ct, 4.0);
-    let v = |c, col: &'static [u8], dep: &'static [f32]| main_only(c, col, dep, None);
-    let (col0, dep0, col1, dep1) = (col0.leak(), dep0.leak(), col1.leak(), dep1.leak());
-    let f0 = v(c0, col0, dep0);
-    let f1 = v(c1, col1, dep1);
+    let f0 = main_only(c0, &col0, &dep0, None);
+    let f1 = main_only(c1, &col1, &dep1, None);
     let mut out = vec![0u8; w * h * 3];
     let mut diag = Diagnostics::new(w * h);
     let req = Request {
@@ -1322,11 +1320,9 @@ fn blending_weighs_the_frames_by_alpha() {
     let (a, b) = ([0u8, 100, 200], [200u8, 100, 0]);
     let (col0, dep0) = plane_of_one_colour(&c0, a);
     let (col1, dep1) = plane_of_one_colour(&c1, b);
-    let view =
-        |camera, color: &'static [u8], depth: &'static [f32]| main_only(camera, color, depth, None);
     let (f0, f1) = (
-        view(c0, col0.leak(), dep0.leak()),
-        view(c1, col1.leak(), dep1.leak()),
+        main_only(c0, &col0, &dep0, None),
+        main_only(c1, &col1, &dep1, None),
     );
     // (α, the blend (1 − α)·A + α·B, by hand).
     for (alpha, want) in [(0.25f32, [50u8, 100, 150]), (0.75, [150, 100, 50])] {
