@@ -89,17 +89,7 @@ fn main_only<'a>(
 fn static_identity_reproduces_the_server_image() {
     let c = cam(0.0, 64, 48);
     let (color, depth) = plane(&c, 3.0);
-    let view = CameraView {
-        camera: c,
-        color: &color,
-        depth: &depth,
-        motion: None,
-        shadow: None,
-    };
-    let f = FrameView {
-        main: view,
-        aux: vec![],
-    };
+    let f = main_only(c, &color, &depth, None);
     for alpha in [0.0, 0.3, 0.99] {
         let mut out = vec![0u8; color.len()];
         let req = Request { client: c, alpha };

@@ -200,29 +200,35 @@ fn serde_json_value(s: &str) -> Value {
     gltf::json::deserialize::from_str(s).unwrap()
 }
 
+/// A GLB file: header, `json` as its JSON chunk (space-padded), `bin` as its BIN chunk
+/// (zero-padded).
+pub(super) fn glb_bytes(json: &Value, bin: &[u8]) -> Vec<u8> {
+    let mut json = gltf::json::serialize::to_vec(json).unwrap();
+    while json.len() % 4 != 0 {
+        json.push(b' ');
+    }
+    let mut bin = bin.to_vec();
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    let total = 12 + 8 + json.len() + 8 + bin.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
+}
+
 impl Model {
-    /// The GLB file: header, JSON chunk (space-padded), BIN chunk (zero-padded).
+    /// The GLB file of the model ([`glb_bytes`]).
     fn glb(&self) -> Vec<u8> {
-        let mut json = gltf::json::serialize::to_vec(&self.json).unwrap();
-        while json.len() % 4 != 0 {
-            json.push(b' ');
-        }
-        let mut bin = self.bin.clone();
-        while bin.len() % 4 != 0 {
-            bin.push(0);
-        }
-        let total = 12 + 8 + json.len() + 8 + bin.len();
-        let mut out = Vec::with_capacity(total);
-        out.extend_from_slice(b"glTF");
-        out.extend_from_slice(&2u32.to_le_bytes());
-        out.extend_from_slice(&(total as u32).to_le_bytes());
-        out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-        out.extend_from_slice(b"JSON");
-        out.extend_from_slice(&json);
-        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-        out.extend_from_slice(b"BIN\0");
-        out.extend_from_slice(&bin);
-        out
+        glb_bytes(&self.json, &self.bin)
     }
 
     /// Sets the value at JSON pointer `ptr`, adding the last key when it is missing.

@@ -574,19 +574,7 @@ fn recorded_file_digests_are_the_sha256_of_the_files() {
     // A .glb: its BIN chunk is the model file's; its texture is an external file.
     let mut doc = json.clone();
     doc["buffers"] = serde_json_value(&format!(r#"[{{"byteLength":{n}}}]"#));
-    let mut chunk = gltf::json::serialize::to_vec(&doc).unwrap();
-    chunk.resize(chunk.len().div_ceil(4) * 4, b' ');
-    let mut bin4 = bin.clone();
-    bin4.resize(bin.len().div_ceil(4) * 4, 0);
-    let mut glb = b"glTF".to_vec();
-    glb.extend_from_slice(&2u32.to_le_bytes());
-    glb.extend_from_slice(&((28 + chunk.len() + bin4.len()) as u32).to_le_bytes());
-    glb.extend_from_slice(&(chunk.len() as u32).to_le_bytes());
-    glb.extend_from_slice(b"JSON");
-    glb.extend_from_slice(&chunk);
-    glb.extend_from_slice(&(bin4.len() as u32).to_le_bytes());
-    glb.extend_from_slice(b"BIN\0");
-    glb.extend_from_slice(&bin4);
+    let glb = super::hostile::glb_bytes(&doc, &bin);
     let glb_path = dir.join("model.glb");
     std::fs::write(&glb_path, &glb).unwrap();
     let files = GltfModel::load(&glb_path).unwrap().files;
