@@ -43,6 +43,6 @@ def _timewarp_frames(path: Path) -> list[Any]:
 sweep_tasks._timewarp_frames = _timewarp_frames
 
 if __name__ == "__main__":
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
 
     sys.exit(main(sys.argv[1:]))

@@ -6,6 +6,7 @@ import ast
 import copy
 import dataclasses
 import gc
+import importlib
 import io
 import weakref
 from collections.abc import Iterator
@@ -42,6 +43,53 @@ def test_methods_and_version() -> None:
 def test_all_exports_exist() -> None:
     for name in sr.__all__:
         assert hasattr(sr, name), name
+
+
+def _fresh(code: str) -> str:
+    """Runs ``code`` in a new interpreter (nothing of the package imported yet); its stdout."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_the_package_imports_its_names_on_first_use() -> None:
+    # `import splitrender` (and the command's `splitrender.cli`) loads none of the package's
+    # modules, numpy or the native module: Ctrl-C during those imports is then the command's to
+    # catch (test_cli_errors), and a script that needs one name does not pay for all of them.
+    loaded = _fresh(
+        "import sys\n"
+        "import splitrender, splitrender.cli\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('splitrender', 'numpy'))))\n"
+    )
+    assert loaded.strip() == "['splitrender', 'splitrender.cli']"
+    # Each name is its module's object; the table of homes names exactly the public names.
+    assert set(sr._HOME) == set(sr.__all__)
+    for name in sr.__all__:
+        assert getattr(sr, name) is getattr(importlib.import_module(sr._HOME[name]), name), name
+    assert set(sr.__all__) <= set(dir(sr))
+    with pytest.raises(AttributeError, match="no attribute 'reprojet'"):
+        _ = sr.reprojet  # type: ignore[attr-defined]
+
+
+def test_the_reproject_function_keeps_its_name_when_its_module_loads() -> None:
+    # `splitrender.reproject` is a module and the package's public function: importing the
+    # module (which the package's own modules do first) must not put it in the function's place.
+    kinds = _fresh(
+        "import splitrender.reproject\n"
+        "import splitrender as sr\n"
+        "from splitrender import reproject\n"
+        "import splitrender.client\n"
+        "print(type(sr.reproject).__name__, type(reproject).__name__,\n"
+        "      sr.reproject is splitrender.reproject, 'reproject' in dir(sr))\n"
+        "from splitrender import *\n"
+        "print(callable(reproject), sorted(sr.__all__) == sorted(k for k in sr.__all__\n"
+        "      if k in globals()))\n"
+    )
+    assert kinds.split("\n")[:2] == ["function function True True", "True True"]
 
 
 def test_exception_hierarchy() -> None:
@@ -667,7 +715,7 @@ def test_every_help_text_is_printed_as_written() -> None:
     # argparse %-formats help lines but not descriptions: `encode --help` showed "60 %%".
     import argparse
 
-    from splitrender.cli.main import build_parser
+    from splitrender.cli.dispatch import build_parser
 
     def walk(p: argparse.ArgumentParser, name: str) -> Iterator[tuple[str, str]]:
         yield name, p.format_help()

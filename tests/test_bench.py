@@ -308,7 +308,7 @@ def test_bench_realtime_names_the_stream_option_and_path_of_a_file_that_is_no_st
 ) -> None:
     # It said "afile: file of 6 bytes has no header": the file's bare name, not where it is nor
     # which option gave it.
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "sub").mkdir()
@@ -330,7 +330,7 @@ def test_bench_realtime_takes_the_server_rate_from_the_stream_files_header(
     # The rate was taken from the first two packets' times: a gap of 5e-324 s raised
     # OverflowError ("internal error", exit 1) and one of 1e-9 s planned 10^9 packets a second
     # of the run, which grew without bound (900 MB in a minute) instead of running 0.1 s.
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
     from splitrender.codec.coder import CodecConfig, StreamEncoder
     from splitrender.codec.stream import pack_packet, unpack_packet
 

@@ -238,6 +238,35 @@ def test_ctrl_c_while_the_parsers_are_built_is_an_interrupt_not_a_traceback(
     assert run(["example", "--out", "x"], capsys) == (130, "splitrender: interrupted\n")
 
 
+@pytest.mark.parametrize("module", ["numpy", "splitrender._native", "splitrender.cli.args"])
+@pytest.mark.parametrize("entry", ["script", "-m"])
+def test_ctrl_c_while_the_command_imports_its_modules_is_an_interrupt(
+    module: str, entry: str
+) -> None:
+    # The console script imports `splitrender.cli` before any of our code runs; that imported
+    # the whole package (numpy, the native module, the codec: ~0.3 s), and Ctrl-C then printed
+    # a traceback. A fresh interpreter whose import of `module` is interrupted, as the console
+    # script (`from splitrender.cli import main`) and `python -m splitrender` start.
+    import subprocess
+    import sys
+
+    start = ("from splitrender.cli import main\nsys.exit(main(['--version']))\n"
+             if entry == "script" else "import runpy\nrunpy.run_module('splitrender', "
+             "run_name='__main__', alter_sys=True)\n")
+    code = (
+        "import sys\n"
+        "class Interrupt:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        f"        if name == {module!r}:\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Interrupt())\n"
+        "sys.argv = ['splitrender', '--version']\n"
+    ) + start
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert (done.returncode, done.stderr, done.stdout) == (130, "splitrender: interrupted\n", "")
+
+
 def test_sigterm_unwinds_as_an_interrupt_and_leaves_no_temporary_file(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
@@ -311,7 +340,7 @@ def test_a_reader_that_goes_away_ends_the_command_quietly() -> None:
         "def broken(args):\n"
         "    print('x' * 100000)\n"  # more than a pipe holds: blocks until the reader is gone
         "example.run = broken\n"
-        "from splitrender.cli.main import main\n"
+        "from splitrender.cli.dispatch import main\n"
         "sys.exit(main(['example']))\n"
     )
     with subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,

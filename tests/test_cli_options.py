@@ -12,7 +12,7 @@ import pytest
 
 import splitrender as sr
 from splitrender.cli import main
-from splitrender.cli.main import build_parser
+from splitrender.cli.dispatch import build_parser
 from splitrender.net.model import NetworkModel
 
 pytest.importorskip("av")

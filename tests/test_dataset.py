@@ -747,7 +747,7 @@ def test_import_reads_every_8_bit_colour_type_as_the_authors_loader_does(
 
 def _cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
     """``splitrender dataset ...``'s exit status and stderr."""
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
 
     return main(["dataset", *argv, "--quiet"]), capsys.readouterr().err
 
@@ -1071,7 +1071,7 @@ def test_command_line_messages_name_the_options(
     recording: sr.Recording, exported: Path, tmp_path: Path, argv: list[str], problem: str,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
 
     out = tmp_path / "out"
     argv = [a.format(rec=recording.path, ds=exported) for a in argv]

@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 from splitrender.evaluation.bench import BENCH_KEYS
 from splitrender.cli import main
-from splitrender.cli.main import build_parser
+from splitrender.cli.dispatch import build_parser
 import numpy as np
 from splitrender.evaluation.demo import DEFAULT_METHODS, ROW_KEYS, TruthStore, _Video, colormap
 from splitrender.evaluation.metrics import flip_map

@@ -1462,7 +1462,7 @@ def test_a_generated_token_never_starts_with_a_dash() -> None:
     # ~1.5 % of token_urlsafe(16) tokens start with '-', which `connect --token` cannot take
     # (argparse: "expected one argument").
     from splitrender.cli.live import _new_token
-    from splitrender.cli.main import build_parser
+    from splitrender.cli.dispatch import build_parser
 
     tokens = [_new_token() for _ in range(2000)]
     assert not any(t.startswith("-") for t in tokens)

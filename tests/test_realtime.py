@@ -1123,7 +1123,7 @@ def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypa
     import json
     import tempfile
 
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
 
     from PIL import Image
 
@@ -1152,7 +1152,7 @@ def test_bench_realtime_refuses_a_stream_whose_packets_do_not_decode(
 ):
     # It showed held frames, "decode n/a" and exited 0: a live display goes on past such a
     # packet, but a benchmark of the stream measures nothing of it.
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
     from splitrender.codec.coder import CodecConfig, StreamEncoder
 
     with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
@@ -1180,7 +1180,7 @@ def test_the_report_counts_the_packets_that_did_not_decode(scene, frames):
 def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames, capsys):
     import json
 
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
     from splitrender.codec.coder import CodecConfig, StreamEncoder
 
     with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
@@ -1207,7 +1207,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
 ):
     import json
 
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
     from splitrender.codec.coder import CodecConfig, StreamEncoder
 
     with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
@@ -1267,7 +1267,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
     ],
 )
 def test_bench_realtime_argument_errors_exit_2(argv, message, tmp_path, monkeypatch, capsys):
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
 
     monkeypatch.chdir(tmp_path)
     assert main(["bench", *argv, "--quiet"]) == 2
@@ -1453,7 +1453,7 @@ def test_bench_realtime_on_the_gpu_uploads_on_the_worker(tmp_path, monkeypatch, 
     import json
     import tempfile
 
-    from splitrender.cli.main import main
+    from splitrender.cli.dispatch import main
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the stream cache
     out = tmp_path / "rt.json"

@@ -131,7 +131,7 @@ def preload() -> None:
     PIL.Image.init()  # the format plugins, which Image.open would otherwise load in each child
 
     import splitrender
-    import splitrender.cli.main
+    import splitrender.cli.dispatch
     import splitrender.codec.coder
     import splitrender.scene.dataset  # noqa: F401
 

@@ -63,7 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``splitrender`` console script; returns the exit status.
+    """Runs the ``splitrender`` command (what the console script's :func:`splitrender.cli.main`
+    calls once this module is imported); returns the exit status.
 
     0: done. 2: the caller's error (:func:`~splitrender.errors.is_user_error`: a bad argument,
     an unreadable or malformed input, a refused destination ...), one ``splitrender: error:``
