@@ -73,6 +73,10 @@ def test_the_package_imports_its_names_on_first_use() -> None:
     assert set(sr.__all__) <= set(dir(sr))
     with pytest.raises(AttributeError, match="no attribute 'reprojet'"):
         _ = sr.reprojet  # type: ignore[attr-defined]
+    # A submodule is reached from a bare `import splitrender`, as when the package imported
+    # everything (`sr.gpu.available()` in scripts and tests).
+    assert _fresh("import splitrender\nprint(splitrender.gpu.__name__)\n").strip() == (
+        "splitrender.gpu")
 
 
 def test_the_reproject_function_keeps_its_name_when_its_module_loads() -> None:

@@ -111,13 +111,21 @@ _HOME = {name: module for module, names in _HOMES.items() for name in names}
 
 
 def __getattr__(name: str) -> Any:
-    """The public name ``name``, imported from its module on first use and kept."""
+    """The public name ``name``, imported from its module on first use and kept; or the
+    submodule ``name`` (``splitrender.gpu`` after a bare ``import splitrender``, as when this
+    module imported everything)."""
     module = _HOME.get(name)
-    if module is None:
-        raise AttributeError(f"module 'splitrender' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+    if module is not None:
+        value = getattr(importlib.import_module(module), name)
+        globals()[name] = value
+        return value
+    if not name.startswith("__"):
+        try:
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise  # a module it imports is missing: that is the error to see
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
