@@ -184,7 +184,16 @@ def test_session(server: _Server, tmp_path: Path) -> None:
     # or overran its refresh.
     av = pytest.importorskip("av")
     with av.open(str(tmp_path / "video.mp4")) as c:
-        assert sum(1 for _ in c.decode(video=0)) == round(5.0 * 120)
+        pictures = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert len(pictures) == round(5.0 * 120)
+    # Each under its caption (test_connect_captions_...): the bar above the client's image.
+    from splitrender.imageio import caption_height
+    from splitrender.scene.builtin import Scene
+
+    w, h = Scene("courtyard").main_size(float(SCALE))
+    bar = caption_height(h)
+    assert pictures[0].shape == (h + bar + (h + bar) % 2, w + w % 2, 3)
+    assert all((p[:bar] > 200).mean() > 0.7 for p in pictures)
     # usable_late, frame by frame, is what server_frames_late counts.
     assert sum(f["usable_late"] for f in r["target_mbps"]) == r["server_frames_late"]
     _sessions_ended(server, ended)
@@ -1365,6 +1374,47 @@ def test_the_video_lasts_the_session_at_half_rate_and_over_dropped_refreshes(
         stream = c.streams.video[0]
         assert float(stream.average_rate) == pytest.approx(fc)
         assert sum(1 for _ in c.decode(stream)) == 30
+
+
+def test_connect_captions_each_video_frame_with_its_mode_time_and_lateness(
+    tmp_path: Path,
+) -> None:
+    # connect's video showed the display frames bare: a hold or a late frame could not be told
+    # from an artefact of the method. Each is captioned now, as demo's video is.
+    av = pytest.importorskip("av")
+    from splitrender.cli.live import _frame_caption, _write_video
+    from splitrender.client.realtime import DisplayFrame
+    from splitrender.imageio import caption_height
+
+    def rec(index: int, mode: str, took: float, age: float | None) -> DisplayFrame:
+        return DisplayFrame(index=index, time=index / 120, start=2.0, done=2.0 + took,
+                            deadline=2.0 + 1 / 120, mode=mode, older=0, newer=1, alpha=0.5,
+                            server_age_ms=age, prepared=True)
+
+    assert (_frame_caption("ours", rec(3, "interpolate", 0.0061, 95.4))
+            == "ours interpolate  t 0.025 s  6.1 ms  server frame 95 ms old")
+    assert (_frame_caption("timewarp", rec(4, "hold", 0.0102, None))
+            == "timewarp hold  t 0.033 s  10.2 ms LATE")
+    # Written under their captions: a white bar with black text above each frame, the frame
+    # itself below it; other captions, other bars.
+    h, w = 60, 160
+    images = [np.full((h, w, 3), 40 + 60 * k, np.uint8) for k in range(3)]
+    captions = ["ours interpolate", "ours extrapolate", "ours hold  LATE"]
+    _write_video(tmp_path / "v.mp4", list(zip([k / 120 for k in range(3)], images)), 120.0,
+                 3 / 120, captions=captions)
+    with av.open(str(tmp_path / "v.mp4")) as c:
+        pictures = [f.to_ndarray(format="rgb24").astype(int) for f in c.decode(video=0)]
+    bar = caption_height(h)
+    assert len(pictures) == 3 and pictures[0].shape == (h + bar + (h + bar) % 2, w, 3)
+    for k, p in enumerate(pictures):
+        assert (p[:bar] > 200).mean() > 0.8 and (p[:bar] < 60).any(), k
+        assert abs(p[bar + 2 : bar + h - 2].mean() - (40 + 60 * k)) < 4, k
+    assert np.abs(pictures[0][:bar] - pictures[2][:bar]).max() > 150
+    # Without captions, the frames as they are.
+    _write_video(tmp_path / "bare.mp4", list(zip([k / 120 for k in range(3)], images)), 120.0,
+                 3 / 120)
+    with av.open(str(tmp_path / "bare.mp4")) as c:
+        assert next(iter(c.decode(video=0))).to_ndarray(format="rgb24").shape == (h, w, 3)
 
 
 def test_the_outage_is_reported_whenever_the_server_went_away_before_the_end() -> None:

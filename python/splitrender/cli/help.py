@@ -207,7 +207,9 @@ DESCRIPTION: dict[str, str] = {
         "head path, or --trace), send each pose to the server, and write OUT/report.json "
         "(frames, deadline misses, frame times, modes, server frames received and late, "
         "pose-to-display latency, Mb/s, network counters, the encoder target per frame) and "
-        "OUT/video.mp4; with --score, the ground truth is rendered afterwards at the poses the "
+        "OUT/video.mp4 (each display frame under a caption: method, mode, display time, "
+        "render time, LATE where it missed its deadline, the newest server frame's age); "
+        "with --score, the ground truth is rendered afterwards at the poses the "
         "client had and ssim, flip, psnr, vmaf go into the report. A lost server or outage does "
         "not stop the display: it extrapolates, then holds, until --seconds."
     ),

@@ -9,6 +9,7 @@ import json
 import math
 import secrets
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -378,6 +379,7 @@ def run_connect(args: argparse.Namespace) -> int:
         # then, so a long session at a large scale cannot exhaust memory.
         stride = [1]
         kept: list[int] = []  # the refresh index of each frame in `frames`
+        captions: list[str] = []  # and its caption in the video (_frame_caption)
 
         def slot(index: int) -> int:
             return -(-index // stride[0])  # the first video refresh that shows it
@@ -388,14 +390,17 @@ def run_connect(args: argparse.Namespace) -> int:
             if kept and slot(kept[-1]) == slot(rec.index):
                 frames.pop()  # a newer frame for the same video refresh
                 kept.pop()
+                captions.pop()
             frames.append((rec.time, img.copy()))
             kept.append(rec.index)
+            captions.append(_frame_caption(args.method, rec))
             while len(frames) > 1 and len(frames) * img.nbytes > MAX_KEPT_BYTES:
                 stride[0] *= 2
                 last = [i for i in range(len(kept))
                         if i + 1 == len(kept) or slot(kept[i]) != slot(kept[i + 1])]
                 frames[:] = [frames[i] for i in last]
                 kept[:] = [kept[i] for i in last]
+                captions[:] = [captions[i] for i in last]
 
         report = client.run(motion, args.seconds, on_frame=on_frame)
     except SplitRenderError as e:
@@ -406,7 +411,7 @@ def run_connect(args: argparse.Namespace) -> int:
     report["scene_digest"] = welcome.scene_digest.hex()  # what the server rendered
     out: Path = args.out
     with outputs as stage:
-        _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0])
+        _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0], captions)
         if args.score:
             # Scored from the first frame made from a server frame on: before it every method
             # shows the same black start-up (no server frame yet); holds after it count.
@@ -513,23 +518,44 @@ def _video_timeline(
 
 
 def _write_video(
-    path: Path, frames: _Shown, fc: float, seconds: float, stride: int = 1
+    path: Path, frames: _Shown, fc: float, seconds: float, stride: int = 1,
+    captions: Sequence[str] | None = None,
 ) -> None:
     """The display ``frames`` ``(display time, image)`` as a video of the session's length
-    (:func:`_video_timeline`)."""
+    (:func:`_video_timeline`), each under its caption where ``captions`` (one per frame) are
+    given."""
     from splitrender.evaluation.demo import _Video
+    from splitrender.imageio import montage
 
     if not frames:
         return
     shown, rate = _video_timeline([t for t, _ in frames], fc, seconds, stride)
-    first = _even(frames[0][1])
+
+    def picture(i: int) -> npt.NDArray[np.uint8]:
+        img = frames[i][1]
+        return _even(img if captions is None else montage([img], labels=[captions[i]]))
+
+    first = picture(0)
     # _Video writes beside path and renames when complete: a reader never sees half a video.
     with _Video(path, first.shape[1], first.shape[0], rate) as video:
         last, img = -1, first
         for i in shown:
-            if i != last:  # a frame repeated over refreshes is padded once
-                last, img = i, _even(frames[i][1])
+            if i != last:  # a frame repeated over refreshes is drawn once
+                last, img = i, picture(i)
             video.write(img)
+
+
+def _frame_caption(method: str, rec: Any) -> str:
+    """The caption of display frame ``rec`` (a :class:`~splitrender.client.realtime.
+    DisplayFrame`) in connect's video: the method and its mode, the display time, the time it
+    took against its deadline, and the age of the newest server frame it used: what the viewer
+    needs to tell a hold or a late frame from a reprojection artefact."""
+    text = f"{method} {rec.mode}  t {rec.time:.3f} s  {rec.render_ms:.1f} ms"
+    if not rec.met:
+        text += " LATE"
+    if rec.server_age_ms is not None:
+        text += f"  server frame {rec.server_age_ms:.0f} ms old"
+    return text
 
 
 #: Most bytes of display frames `connect` keeps for its video and score.
