@@ -118,7 +118,8 @@ def _stub_names() -> set[str]:
         elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
             names.add(node.target.id)
     return {
-        n for n in names if not n.startswith("_") or n.startswith("__") or n == "_panic_for_test"
+        n for n in names if not n.startswith("_") or n.startswith("__")
+        or n in ("_panic_for_test", "_wgpu_lose_device_for_test")
     }
 
 

@@ -232,6 +232,8 @@ TABLE: dict[str, Entry] = {
                           dict(index=INT)),
     "Client.was_prepared": (lambda f: f.client.was_prepared, lambda f: dict(older=0, newer=1),
                             dict(older=INT[1:], newer=INT)),
+    "Client.lose_gpu": (lambda f: f.client.lose_gpu, lambda f: dict(reason="lost"),
+                        dict(reason=STR)),
     "Client.adopt_prepared": (
         lambda f: f.client.adopt_prepared,
         lambda f: dict(older=0, newer=1, history=sr.BidirHistory()),

@@ -397,7 +397,12 @@ def test_every_error_class_is_the_callers_but_the_base() -> None:
         "SweepError", "RayMissingError", "ClusterUnreachableError", "TaskFailedError",
         # a cache entry changed after it was written: the message names the entry to remove.
         "DamagedCacheError",
+        # the one that is not: the GPU device was lost (exit 1, as SplitRenderError itself).
+        "GpuDeviceLostError",
     }
+    from splitrender.errors import GpuDeviceLostError, is_user_error
+
+    assert not is_user_error(GpuDeviceLostError("the GPU device was lost (Destroyed)"))
 
 
 @pytest.mark.parametrize("fps", [1.0, 12.5, 29.97, 120.0, 240.0])

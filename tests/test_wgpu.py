@@ -298,6 +298,108 @@ def _python(code: str, **env: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@needs_gpu
+def test_a_lost_device_fails_as_such_and_the_client_goes_on_on_the_cpu() -> None:
+    """A driver reset or a removed GPU loses the device (here: wgpu's destroy). Rendering then
+    raised a SplitRenderError about an invalid encoder, and an upload panicked inside wgpu
+    (mapping a buffer made invalid by the loss), printing a Rust backtrace. Now every call on
+    the lost device raises GpuDeviceLostError (not the caller's error), a client and the
+    real-time loop go on on the CPU with the same bytes as a CPU client, whichever thread met
+    the loss, and a new reprojector runs on a new device. In a child process: the device is
+    the process's."""
+    code = textwrap.dedent(
+        """
+        import numpy as np
+        import splitrender as sr
+        from splitrender import _native
+        from splitrender.client.realtime import RealtimeClient
+        from splitrender.errors import GpuDeviceLostError, is_user_error
+
+        W, H, FC = 96, 54, 120.0
+        scene = sr.SyntheticScene(dynamic=True)
+        frames = [scene.server_frame(k, k / 10, W, H) for k in range(4)]
+
+
+        def cam(n):
+            return scene.rig(n / FC, W, H)[0]
+
+
+        def lost_on(make):
+            try:
+                make()
+            except GpuDeviceLostError as e:
+                assert "the GPU device was lost (Destroyed)" in str(e), str(e)
+                assert not is_user_error(e)
+                return
+            raise AssertionError("no GpuDeviceLostError")
+
+
+        # The display meets the loss: that frame and the rest render on the CPU, the same bytes.
+        cpu = sr.Client("ours")
+        with RealtimeClient("ours", display_fps=FC, backend="wgpu") as c:
+            for f in frames[:2]:
+                cpu.receive(f); c.submit(f); c.wait()
+            gpu = c.client.gpu
+            for n in range(1, 4):
+                assert np.array_equal(c.render(cam(n), n / FC), cpu.render(cam(n), n / FC))
+            assert c.client.backend == "wgpu" and c.client.gpu_lost is None and gpu.lost is None
+            _native._wgpu_lose_device_for_test()
+            assert gpu.lost == "Destroyed", gpu.lost
+            for n in range(4, 8):
+                assert np.array_equal(c.render(cam(n), n / FC), cpu.render(cam(n), n / FC)), n
+            assert c.client.backend == "cpu" and c.client.gpu is None
+            assert "Destroyed" in c.client.gpu_lost
+            # Every call on the lost device fails as such (no panic on the upload's mapping).
+            lost_on(lambda: gpu.upload(frames[0], frames[1]))
+            lost_on(lambda: gpu.load(frames[0], frames[1]))
+            lost_on(lambda: gpu.render(cam(1), 0.5, "ours"))
+            # Frames received after it are prepared by the worker for the CPU.
+            for f in frames[2:]:
+                cpu.receive(f); c.submit(f); c.wait()
+            for n in range(13, 30):
+                assert np.array_equal(c.render(cam(n), n / FC), cpu.render(cam(n), n / FC)), n
+                info = c.client.last_info
+                assert c.client.was_prepared(info.older, info.newer), n
+
+        # The per-call API and a new client run on a new device.
+        again = sr.reproject_alpha(frames[0], frames[1], cam(6), 0.5, "ours", backend="wgpu")
+        assert again.shape == (H, W, 3)
+
+        # The worker meets the loss first (an upload): the client goes to the CPU before any frame
+        # fails, and the display's frames are the CPU's bytes.
+        cpu = sr.Client("ours")
+        with RealtimeClient("ours", display_fps=FC, backend="wgpu") as c:
+            for f in frames[:2]:
+                cpu.receive(f); c.submit(f); c.wait()
+            assert np.array_equal(c.render(cam(3), 3 / FC), cpu.render(cam(3), 3 / FC))
+            _native._wgpu_lose_device_for_test()
+            cpu.receive(frames[2]); c.submit(frames[2]); c.wait()
+            assert c.client.gpu_lost is not None and c.client.backend == "cpu"
+            for n in range(13, 20):
+                assert np.array_equal(c.render(cam(n), n / FC), cpu.render(cam(n), n / FC)), n
+
+        # A run: the loss is reported (RealtimeReport.gpu_lost, the summary's gpu_lost) and the
+        # display goes on with frames from the server frames.
+        with RealtimeClient("ours", display_fps=FC, backend="wgpu") as c:
+            modes = []
+
+            def on_frame(image, rec):
+                modes.append(rec.mode)
+                if len(modes) == 5:
+                    _native._wgpu_lose_device_for_test()
+
+            report = c.run(lambda t: scene.rig(t, W, H)[0], 0.25, feed=[(0.0, f) for f in frames],
+                           on_frame=on_frame)
+            assert "Destroyed" in report.summary()["gpu_lost"]
+            assert len(modes) > 10 and modes[-1] != "hold", modes
+        print("ok")
+        """
+    )
+    r = _python(code)
+    assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr
+    assert "panicked" not in r.stderr and "internal error" not in r.stderr, r.stderr
+
+
 def test_a_wgpu_backend_variable_naming_no_backend_is_named() -> None:
     """WGPU_BACKEND with a typo (or empty) selected no backend at all, and the error that followed
     said to install a Vulkan driver; it names the variable and what it may hold instead."""

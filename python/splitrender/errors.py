@@ -8,6 +8,7 @@
         ├── OutOfMemoryError    (also a MemoryError: legal sizes this machine cannot hold)
         ├── StreamError
         ├── GpuUnavailableError (backend="wgpu" without a GPU adapter)
+        ├── GpuDeviceLostError  (the GPU device was lost: a driver reset, a removed GPU)
         └── ProtocolError       (a malformed or refused message of the live protocol)
 
 The classes are defined by the native module (so that the Rust code raises them directly) and
@@ -21,13 +22,15 @@ backend, a peer's message, sizes too large for this machine), including those de
 their readers (``splitrender.scene``'s ``RecordingError``, ``DatasetError``, ``TraceError``) and
 the argument errors of the evaluation commands. :class:`SplitRenderError` itself is raised only for failures
 that are not the caller's: an internal error (a Rust panic), an external tool (ffmpeg) or the GPU
-device failing. The command line exits with status 2 for the first kind and 1 for the second.
+device failing; so is :class:`GpuDeviceLostError`, the one subclass that is not the caller's
+either. The command line exits with status 2 for the first kind and 1 for the second.
 """
 
 import errno
 import socket
 
 from splitrender._native import (
+    GpuDeviceLostError,
     GpuUnavailableError,
     InvalidInputError,
     OutOfMemoryError,
@@ -36,6 +39,7 @@ from splitrender._native import (
 )
 
 __all__ = [
+    "GpuDeviceLostError",
     "GpuUnavailableError",
     "InvalidInputError",
     "OutOfMemoryError",
@@ -68,9 +72,10 @@ def is_user_error(error: BaseException) -> bool:
     """Whether ``error`` is the caller's to fix, by its class alone (see the module's text): a
     subclass of :class:`SplitRenderError`, or an :class:`OSError` about a path or address the
     caller named (missing, not allowed, of the wrong kind, already there). ``SplitRenderError``
-    itself and every other exception are failures inside the package or the machine."""
+    itself, :class:`GpuDeviceLostError` and every other exception are failures inside the
+    package or the machine."""
     if isinstance(error, SplitRenderError):
-        return type(error) is not SplitRenderError
+        return type(error) not in (SplitRenderError, GpuDeviceLostError)
     # A host name that does not resolve is the caller's too (its errno is the resolver's).
     return isinstance(error, socket.gaierror) or (
         isinstance(error, OSError) and error.errno in _USER_ERRNOS

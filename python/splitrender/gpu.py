@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 import splitrender._native as _native
-from splitrender.errors import GpuUnavailableError, InvalidInputError
+from splitrender.errors import GpuDeviceLostError, GpuUnavailableError, InvalidInputError
 from splitrender.types import (
     Camera,
     FrameArgument,
@@ -52,6 +52,7 @@ __all__ = [
     "GPU_METHODS",
     "GpuPair",
     "GpuReprojector",
+    "GpuDeviceLostError",
     "GpuUnavailableError",
     "OUTPUT_SLOTS",
     "adapter",
@@ -137,6 +138,10 @@ class GpuReprojector:
     ``force_32bit_atomics`` selects the 32-bit splat even where the adapter has 64-bit atomic
     min/max (both give the same images; the option exists for tests and comparisons).
 
+    When the device is lost (a driver reset, a removed GPU) every call raises
+    :class:`~splitrender.errors.GpuDeviceLostError` from then on, and :attr:`lost` says why; a
+    new ``GpuReprojector`` is made on a new device (where one can be had).
+
     Raises:
         GpuUnavailableError: when there is no wgpu adapter.
     """
@@ -159,6 +164,11 @@ class GpuReprojector:
         """``"int64"`` (one 64-bit atomic maximum per splatted point) or ``"int32"`` (two
         32-bit passes)."""
         return self._native.atomics
+
+    @property
+    def lost(self) -> str | None:
+        """Why its device was lost (``None`` while it is not): it never renders again."""
+        return self._native.lost
 
     def load(self, older: ServerFrame | None, newer: ServerFrame) -> None:
         """Uploads a pair: ``older`` (``F_t``, its forward buffers; ``None`` to extrapolate only)
@@ -354,13 +364,15 @@ _shared_lock = threading.Lock()
 
 def shared() -> GpuReprojector:
     """The process-wide :class:`GpuReprojector` that the per-call API
-    (:func:`splitrender.reproject` with ``backend="wgpu"``) uses; created on first use.
+    (:func:`splitrender.reproject` with ``backend="wgpu"``) uses; created on first use, and
+    again after its device was lost (the call that met the loss raised
+    :class:`~splitrender.errors.GpuDeviceLostError`; the next one runs on a new device).
 
     Raises:
         GpuUnavailableError: when there is no wgpu adapter.
     """
     global _shared
     with _shared_lock:
-        if _shared is None:
+        if _shared is None or _shared.lost is not None:
             _shared = GpuReprojector()
         return _shared

@@ -4,12 +4,13 @@
 //! every device call runs with the GIL released, and every [`GpuError`] maps onto the exception
 //! hierarchy: input problems and methods without a GPU kernel are `InvalidInputError`, a missing
 //! adapter (or a `WGPU_BACKEND` that names none) is `GpuUnavailableError` (with how to get one),
-//! device failures `SplitRenderError`.
+//! a lost device `GpuDeviceLostError`, other device failures `SplitRenderError`.
 //!
 //! One device per process ([`context`]), created on first use and shared by every reprojector:
 //! creating a device costs far more than a client frame (pipelines compile per reprojector).
+//! A lost device is replaced by the next reprojector made: the ones on it keep failing.
 
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex};
 
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
@@ -33,21 +34,41 @@ pyo3::create_exception!(
 says how to install one (Mesa's lavapipe needs no GPU)."
 );
 
+pyo3::create_exception!(
+    splitrender.errors,
+    GpuDeviceLostError,
+    SplitRenderError,
+    "The GPU device was lost (a driver reset, a removed GPU): the reprojector that raised it \
+never works again; a new one is made on a new device, or the CPU path takes over."
+);
+
 /// Maps a GPU-path error onto the hierarchy; every variant explicitly.
 fn map_gpu_error(e: GpuError) -> PyErr {
     match e {
         GpuError::Input(e) => map_reproj_error(e),
         GpuError::Unsupported(msg) | GpuError::Order(msg) | GpuError::TooLarge(msg) => invalid(msg),
         GpuError::NoAdapter(_) | GpuError::Config(_) => GpuUnavailableError::new_err(e.to_string()),
+        GpuError::Lost(_) => GpuDeviceLostError::new_err(e.to_string()),
         GpuError::Device(_) | GpuError::State(_) => SplitRenderError::new_err(e.to_string()),
     }
 }
 
-/// The process-wide device, created on first use (the outcome, failure included, is kept).
-fn context(py: Python<'_>) -> PyResult<&'static GpuContext> {
-    static CONTEXT: OnceLock<Result<GpuContext, GpuError>> = OnceLock::new();
-    let ctx = py.detach(|| CONTEXT.get_or_init(|| GpuContext::new(&ContextOptions::default())));
-    ctx.as_ref().map_err(|e| map_gpu_error(e.clone()))
+/// The process-wide device, created on first use; the outcome, failure included, is kept until
+/// the device is lost, when the next call makes a new one.
+fn context(py: Python<'_>) -> PyResult<Arc<GpuContext>> {
+    static CONTEXT: Mutex<Option<Result<Arc<GpuContext>, GpuError>>> = Mutex::new(None);
+    let ctx = py.detach(|| {
+        // A poisoned lock holds a whole value (it is replaced, never changed in place).
+        let mut slot = CONTEXT.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(Ok(ctx)) = slot.as_ref() {
+            if ctx.loss.reason().is_some() {
+                *slot = None;
+            }
+        }
+        slot.get_or_insert_with(|| GpuContext::new(&ContextOptions::default()).map(Arc::new))
+            .clone()
+    });
+    ctx.map_err(map_gpu_error)
 }
 
 /// The wgpu adapter in words (e.g. `llvmpipe (...) (Vulkan, Cpu, Mesa ...)`); raises
@@ -55,6 +76,17 @@ fn context(py: Python<'_>) -> PyResult<&'static GpuContext> {
 #[pyfunction]
 pub fn wgpu_adapter(py: Python<'_>) -> PyResult<String> {
     guarded("wgpu_adapter", || Ok(context(py)?.describe()))
+}
+
+/// Destroys the process-wide device, as a driver reset or a removed GPU loses it; exists so that
+/// the tests can see what a lost device does to the GPU path and its callers.
+#[pyfunction]
+pub fn _wgpu_lose_device_for_test(py: Python<'_>) -> PyResult<()> {
+    guarded("_wgpu_lose_device_for_test", || {
+        let ctx = context(py)?;
+        py.detach(|| ctx.device.destroy());
+        Ok(())
+    })
 }
 
 /// The client reprojection on the GPU with the server frames kept on the device: `upload` a pair
@@ -111,7 +143,7 @@ impl WgpuReprojector {
                 force_32bit_atomics,
             };
             let inner = py
-                .detach(|| Reprojector::new(ctx, &options))
+                .detach(|| Reprojector::new(&ctx, &options))
                 .map_err(map_gpu_error)?;
             Ok(WgpuReprojector {
                 uploader: inner.uploader(),
@@ -125,6 +157,14 @@ impl WgpuReprojector {
     #[getter]
     fn adapter(&self) -> String {
         self.adapter.clone()
+    }
+
+    /// Why its device was lost (`None` while it is not): it never renders again.
+    #[getter]
+    fn lost(&self) -> PyResult<Option<String>> {
+        guarded("WgpuReprojector.lost", || {
+            Ok(self.lock()?.lost().map(str::to_owned))
+        })
     }
 
     /// `"int64"` (one 64-bit atomic max per splat) or `"int32"` (two 32-bit passes).

@@ -69,6 +69,10 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "GpuUnavailableError",
         py.get_type::<gpu::GpuUnavailableError>(),
     )?;
+    m.add(
+        "GpuDeviceLostError",
+        py.get_type::<gpu::GpuDeviceLostError>(),
+    )?;
     m.add_class::<gpu::WgpuReprojector>()?;
     m.add_class::<gpu::WgpuPair>()?;
     m.add_function(wrap_pyfunction!(gpu::wgpu_adapter, m)?)?;
@@ -95,5 +99,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MAX_PREPARE_THREADS", api::MAX_PREPARE_THREADS)?;
     m.add("GPU_OUTPUT_SLOTS", reproj_wgpu::MAX_OUTPUTS)?;
     m.add_function(wrap_pyfunction!(_panic_for_test, m)?)?;
+    m.add_function(wrap_pyfunction!(gpu::_wgpu_lose_device_for_test, m)?)?;
     Ok(())
 }

@@ -1,6 +1,8 @@
 //! Device creation, kept apart from the kernels so that callers (and tests) can bring their own
 //! `wgpu::Device` (see [`crate::Reprojector::with_device`]).
 
+use std::sync::{Arc, OnceLock};
+
 use crate::error::{GpuError, Result};
 
 /// How [`GpuContext::new`] picks its device.
@@ -31,6 +33,60 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     /// The adapter it was created from.
     pub info: wgpu::AdapterInfo,
+    /// Whether (and why) the device was lost.
+    pub loss: DeviceLoss,
+}
+
+/// Whether a device was lost, and why: set by the device's lost callback ([`DeviceLoss::watch`]).
+///
+/// On a lost device wgpu reports no errors (as WebGPU specifies): what is made on it is invalid,
+/// and a buffer made invalid that way panics when it is mapped. So every operation of
+/// [`crate::Reprojector`] and [`crate::Uploader`] asks this first ([`DeviceLoss::check`]), and
+/// turns the errors that follow a loss into [`GpuError::Lost`] ([`DeviceLoss::explain`]).
+#[derive(Debug, Clone, Default)]
+pub struct DeviceLoss(Option<Arc<OnceLock<String>>>);
+
+impl DeviceLoss {
+    /// Watches `device` (its lost callback, which replaces any other).
+    pub fn watch(device: &wgpu::Device) -> DeviceLoss {
+        let cell = Arc::new(OnceLock::new());
+        let set = cell.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            let _ = set.set(if message.is_empty() {
+                format!("{reason:?}")
+            } else {
+                format!("{reason:?}: {message}")
+            });
+        });
+        DeviceLoss(Some(cell))
+    }
+
+    /// Why the device was lost, or `None` while it is not known to be (or it is not watched:
+    /// [`DeviceLoss::default`]).
+    pub fn reason(&self) -> Option<&str> {
+        self.0.as_ref()?.get().map(String::as_str)
+    }
+
+    /// [`GpuError::Lost`] once `device` (the watched one) is lost. wgpu calls the lost callback
+    /// while it polls the device (a destroyed device is lost at its next poll), so a watched
+    /// device is polled first, without waiting.
+    pub fn check(&self, device: &wgpu::Device) -> Result<()> {
+        if self.0.is_some() {
+            let _ = device.poll(wgpu::PollType::Poll);
+        }
+        match self.reason() {
+            Some(why) => Err(GpuError::Lost(why.to_owned())),
+            None => Ok(()),
+        }
+    }
+
+    /// `r`, with a device error that came from the loss of `device` said as such.
+    pub fn explain<T>(&self, device: &wgpu::Device, r: Result<T>) -> Result<T> {
+        match r {
+            Err(GpuError::Device(_) | GpuError::State(_)) => self.check(device).and(r),
+            r => r,
+        }
+    }
 }
 
 /// The features the 64-bit splat needs.
@@ -98,6 +154,7 @@ impl GpuContext {
             eprintln!("reproj-wgpu: uncaptured wgpu error: {e}");
         }));
         Ok(GpuContext {
+            loss: DeviceLoss::watch(&device),
             device,
             queue,
             info,

@@ -18,9 +18,13 @@ pub enum GpuError {
     /// The method or configuration has no GPU kernel.
     #[error("{0}")]
     Unsupported(String),
-    /// The device reported an error (out of memory, a lost device, a limit exceeded).
+    /// The device reported an error (out of memory, a limit exceeded).
     #[error("wgpu device error: {0}")]
     Device(String),
+    /// The device was lost (a driver reset, a removed GPU, `wgpu::Device::destroy`): nothing
+    /// made on it works again. A new device (a new [`crate::GpuContext`]) may.
+    #[error("the GPU device was lost ({0}); make a new reprojector (on a new device) or use the CPU path")]
+    Lost(String),
     /// Frames or a client image larger than this device's buffers can hold (its limits),
     /// found before anything was asked of it: the caller's to change.
     #[error("{0}")]

@@ -39,7 +39,7 @@ mod layout;
 pub mod reprojector;
 pub mod shaders;
 
-pub use context::{ContextOptions, GpuContext};
+pub use context::{ContextOptions, DeviceLoss, GpuContext};
 pub use error::{GpuError, Result};
 pub use reprojector::{
     Atomics, Previous, Reprojector, ReprojectorOptions, UploadedPair, Uploader, MAX_CAMERAS,

@@ -29,7 +29,7 @@ use reproj_core::{
     CameraView, Diagnostics, FrameView, Mat4, Method, NdcTransfer, Params, ReprojError, Request,
 };
 
-use crate::context::{int64_atomic_features, GpuContext};
+use crate::context::{int64_atomic_features, DeviceLoss, GpuContext};
 use crate::error::{GpuError, Result};
 use crate::layout::{
     pack_rgb, FrameSourceU, FrameU, SourceU, TexelU, TransferU, AUX_CELL_BYTES, DIAG_BYTES,
@@ -181,6 +181,7 @@ pub struct Reprojector {
     spare: Option<Scratch>,
     outputs: Vec<Option<Output>>,
     generation: u64,
+    loss: DeviceLoss,
 }
 
 /// Uploads pairs to a reprojector's device ([`Reprojector::uploader`]); cheap to clone, and usable
@@ -190,6 +191,7 @@ pub struct Reprojector {
 pub struct Uploader {
     device: wgpu::Device,
     queue: wgpu::Queue,
+    loss: DeviceLoss,
 }
 
 /// Error scopes are a stack per device in wgpu 26, not per thread: two threads inside
@@ -272,12 +274,18 @@ impl Reprojector {
     /// # Errors
     /// [`GpuError::Device`] when a shader or pipeline fails to build on this device.
     pub fn new(ctx: &GpuContext, options: &ReprojectorOptions) -> Result<Reprojector> {
-        Self::with_device(&ctx.device, &ctx.queue, options)
+        ctx.loss.check(&ctx.device)?;
+        let r = Self::with_device(&ctx.device, &ctx.queue, options).map(|r| Reprojector {
+            loss: ctx.loss.clone(),
+            ..r
+        });
+        ctx.loss.explain(&ctx.device, r)
     }
 
     /// Compiles the pipelines on a caller's device. The 64-bit splat is used when the device was
     /// created with `SHADER_INT64 | SHADER_INT64_ATOMIC_MIN_MAX` and the options do not force the
-    /// 32-bit one.
+    /// 32-bit one. The device's loss is the caller's to watch (its lost callback is left alone):
+    /// its errors are [`GpuError::Device`], never [`GpuError::Lost`].
     ///
     /// # Errors
     /// [`GpuError::Device`] when a shader or pipeline fails to build on this device.
@@ -355,6 +363,7 @@ impl Reprojector {
                 spare: None,
                 outputs: (0..MAX_OUTPUTS).map(|_| None).collect(),
                 generation: 0,
+                loss: DeviceLoss::default(),
             })
         })
     }
@@ -362,6 +371,14 @@ impl Reprojector {
     /// Which splat variant runs.
     pub fn atomics(&self) -> Atomics {
         self.atomics
+    }
+
+    /// Why its device was lost (polled now, without waiting), or `None`: after a loss every
+    /// call fails with [`GpuError::Lost`]. Always `None` for a device of the caller's
+    /// ([`Reprojector::with_device`]).
+    pub fn lost(&self) -> Option<&str> {
+        let _ = self.loss.check(&self.device);
+        self.loss.reason()
     }
 
     /// Uploads the server frames of a pair and makes it current: `older` is `F_t` (with its
@@ -385,6 +402,7 @@ impl Reprojector {
         Uploader {
             device: self.device.clone(),
             queue: self.queue.clone(),
+            loss: self.loss.clone(),
         }
     }
 
@@ -394,9 +412,16 @@ impl Reprojector {
     /// caller can drop it where freeing its device memory costs no frame (a receiving thread).
     ///
     /// # Errors
-    /// [`GpuError::Device`] when the per-frame buffers cannot be allocated. A pair uploaded to
-    /// another device fails at the next render, as [`GpuError::Device`].
+    /// [`GpuError::Device`] when the per-frame buffers cannot be allocated; [`GpuError::Lost`]
+    /// once the device is lost. A pair uploaded to another device fails at the next render, as
+    /// [`GpuError::Device`].
     pub fn install(&mut self, pair: Arc<UploadedPair>) -> Result<Option<Arc<UploadedPair>>> {
+        self.loss.check(&self.device)?;
+        let r = self.install_on_device(pair);
+        self.loss.explain(&self.device, r)
+    }
+
+    fn install_on_device(&mut self, pair: Arc<UploadedPair>) -> Result<Option<Arc<UploadedPair>>> {
         let need = scratch_bytes(pair.points, pair.cells);
         let (old, previous) = match self.current.take() {
             Some(c) => (Some(c.scratch), Some(c.pair)),
@@ -458,8 +483,24 @@ impl Reprojector {
     /// The CPU path's input errors for the method, `α`, options and camera (same messages);
     /// [`GpuError::Unsupported`] for `timewarp` and `backward_bidir`; [`GpuError::Order`] when no
     /// pair is loaded; [`GpuError::TooLarge`] for a client image larger than the device's
-    /// buffers can bind; [`GpuError::Device`] for device errors.
+    /// buffers can bind; [`GpuError::Device`] for device errors; [`GpuError::Lost`] once the
+    /// device is lost (a reprojector made by [`Reprojector::new`]).
     pub fn render(
+        &mut self,
+        slot: usize,
+        method: Method,
+        request: &Request,
+        params: &Params,
+        previous: Previous<'_>,
+        out: Option<&mut [u8]>,
+        diag: Option<&mut Diagnostics>,
+    ) -> Result<()> {
+        self.loss.check(&self.device)?;
+        let r = self.render_on_device(slot, method, request, params, previous, out, diag);
+        self.loss.explain(&self.device, r)
+    }
+
+    fn render_on_device(
         &mut self,
         slot: usize,
         method: Method,
@@ -797,8 +838,18 @@ impl Uploader {
     /// The CPU path's input errors ([`GpuError::Input`]: buffer sizes, camera mismatch, singular
     /// matrices); [`GpuError::Unsupported`] for more than [`MAX_CAMERAS`] cameras per frame;
     /// [`GpuError::TooLarge`] when the buffers exceed the device's limits, [`GpuError::Device`]
-    /// when its memory.
+    /// when its memory; [`GpuError::Lost`] once the device is lost.
     pub fn upload(&self, older: Option<&FrameView>, newer: &FrameView) -> Result<UploadedPair> {
+        self.loss.check(&self.device)?;
+        let r = self.upload_to_device(older, newer);
+        self.loss.explain(&self.device, r)
+    }
+
+    fn upload_to_device(
+        &self,
+        older: Option<&FrameView>,
+        newer: &FrameView,
+    ) -> Result<UploadedPair> {
         FrameView::validate_pair(older, newer)?;
         let n_cams = 1 + newer.aux.len();
         if n_cams > MAX_CAMERAS {
@@ -899,6 +950,9 @@ impl Uploader {
                 ),
             ))
         })?;
+        // Buffers made on a device lost since the check above are invalid, and mapping an invalid
+        // buffer panics (wgpu reports no error for them: WebGPU's rule for a lost device).
+        self.loss.check(device)?;
         {
             let mut mapped = texels.slice(..).get_mapped_range_mut();
             let mut rest: &mut [TexelU] = bytemuck::cast_slice_mut(&mut mapped);

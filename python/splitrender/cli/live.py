@@ -440,6 +440,9 @@ def run_connect(args: argparse.Namespace) -> int:
           f"({net['frames_lost']} lost, {net['key_recoveries']} key-frame recoveries), "
           f"pose-to-display p50 {'n/a' if p50 is None else f'{p50:.0f} ms'}, "
           f"{report['mbps']:.3f} Mb/s; wrote {out}/: report.json, video.mp4")
+    if report.get("gpu_lost") is not None:
+        print(f"the GPU device was lost ({report['gpu_lost']}): the display went on on the CPU "
+              "from then on")
     if args.score:
         print(_score_line(args.method, report, args.no_vmaf))
         if args.compare is not None:

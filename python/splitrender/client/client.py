@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.errors import InvalidInputError
-from splitrender.gpu import GpuPair, GpuReprojector, check_backend
+from splitrender.gpu import GpuDeviceLostError, GpuPair, GpuReprojector, check_backend
 from splitrender.net.model import (
     ClientFrameInfo,
     FrameBuffer,
@@ -36,6 +36,7 @@ from splitrender.types import (  # argument checks
     instances,
     ints,
     optional,
+    strs,
 )
 
 __all__ = ["Client"]
@@ -131,6 +132,11 @@ class Client:
         """How the last rendered frame was made (frames used, ``α``, mode)."""
         self._gpu = GpuReprojector() if self.backend == "wgpu" else None
         self._gpu_pair: tuple[int | None, int] | None = None
+        self.gpu_lost: str | None = None
+        """Why the GPU device was lost (wgpu's reason and message, e.g. ``"Destroyed"``;
+        ``None`` while it was not, and on the CPU): from the frame that met the loss on, this
+        client renders on the CPU (:attr:`backend` becomes ``"cpu"``), so that the display
+        goes on."""
 
     def __repr__(self) -> str:
         return f"Client(method={self.method!r}, backend={self.backend!r}, held={self.held})"
@@ -233,12 +239,18 @@ class Client:
             older = None if info.older is None else self._frames[info.older]
             history = self._history_for((info.older, info.newer), eye)
             assert info.alpha is not None
+            rendered: _Image | None = None
             if self._gpu is not None:
-                image = self._render_gpu(
-                    older, info.older, info.newer, camera, info.alpha, prev, eye
-                )
-            else:
-                image = cast(_Image, _reproject_alpha(  # diagnostics=False: the image
+                try:
+                    rendered = self._render_gpu(
+                        older, info.older, info.newer, camera, info.alpha, prev, eye
+                    )
+                except GpuDeviceLostError as e:
+                    # The CPU renders this frame and the rest: a lost device never works again,
+                    # and the frames the client holds are all the CPU path needs.
+                    self.lose_gpu(self._gpu.lost or str(e))
+            if rendered is None:
+                rendered = cast(_Image, _reproject_alpha(  # diagnostics=False: the image
                     older,
                     self._frames[info.newer],
                     camera,
@@ -251,6 +263,7 @@ class Client:
                     backend="cpu",
                     paths=self._paths_of(info.older, info.newer),
                 ))
+            image = rendered
         # The returned image is the eye's previous output for the next frame's hole filling
         # (on the CPU; the GPU keeps its own copy on the device): read-only, so that a caller
         # cannot change the next frame through it (and the backends behave alike).
@@ -313,6 +326,8 @@ class Client:
         Raises:
             InvalidInputError: on the CPU backend, or when the frames are not held.
         """
+        if self._gpu is None and self.gpu_lost is not None:
+            return  # uploaded before the device was lost: nothing renders it now
         if self._gpu is None:
             raise InvalidInputError(
                 "adopt_uploaded: this client renders on the CPU (backend='cpu'); a pair uploaded "
@@ -323,6 +338,21 @@ class Client:
                 f"adopt_uploaded: expected held frames, got ({older}, {newer}); held: {self.held}"
             )
         self._uploaded[(older, newer)] = pair
+
+    @checked(reason=strs())
+    def lose_gpu(self, reason: str) -> None:
+        """Renders on the CPU from now on, the GPU device having been lost (``reason``,
+        :attr:`gpu_lost`): what a device-lost error met elsewhere (an upload on another thread)
+        tells the client. Pairs uploaded to the device are dropped; the next frame of each pair
+        does the CPU's pair work itself."""
+        if self._gpu is None:
+            return
+        self.gpu_lost = reason
+        self.backend = "cpu"
+        self._gpu = None
+        self._gpu_pair = None
+        self._uploaded.clear()
+        self._retired_pairs.clear()
 
     def retired_uploads(self) -> list[GpuPair]:
         """Takes the device pairs this client no longer uses (those adopted with

@@ -57,7 +57,7 @@ import numpy.typing as npt
 import splitrender._native as _native
 from splitrender.client.client import Client
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.gpu import BACKENDS, GpuPair
+from splitrender.gpu import BACKENDS, GpuDeviceLostError, GpuPair
 from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
 from splitrender.tally import Tally
@@ -275,6 +275,9 @@ class RealtimeReport:
         self.packets_undecodable = 0
         #: The warm-up before the clock started (``RealtimeClient.run(warm_up=True)``), ms.
         self.warm_up_ms: float | None = None
+        #: Why the GPU device was lost during the run (:attr:`Client.gpu_lost`: the display
+        #: went on on the CPU), ``None`` where it was not.
+        self.gpu_lost: str | None = None
         #: How the display's threads were scheduled (:func:`_raise_display`): ``"realtime"``,
         #: ``"normal"``, or ``"normal"`` with the reason real-time scheduling was refused.
         self.display_scheduling = "normal"
@@ -371,8 +374,9 @@ class RealtimeReport:
         again), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their
         deadline per second of the run) and ``cpu_utilisation`` (process CPU seconds per wall
         second and core, 0–1), ``display_scheduling`` (how the display's threads were
-        scheduled) and ``warm_up_ms`` (``None`` without a warm-up). Times that have no sample
-        are ``None``."""
+        scheduled), ``warm_up_ms`` (``None`` without a warm-up) and ``gpu_lost`` (why the GPU
+        device was lost, after which the display rendered on the CPU; ``None``). Times that have
+        no sample are ``None``."""
         n = self._count
         misses = self._misses
         return {
@@ -408,6 +412,7 @@ class RealtimeReport:
             "cpu_utilisation": self.cpu_s / (self.wall_s * self.cpus) if self.wall_s > 0 else 0.0,
             "display_scheduling": self.display_scheduling,
             "warm_up_ms": self.warm_up_ms,
+            "gpu_lost": self.gpu_lost,
         }
 
 
@@ -1092,10 +1097,16 @@ class RealtimeClient:
         out: list[tuple[int | None, _native.BidirHistory | GpuPair]] = []
         gpu = self.client.gpu
         for o in olders:
-            state: _native.BidirHistory | GpuPair
+            state: _native.BidirHistory | GpuPair | None = None
             if gpu is not None:
-                state = gpu.upload(o, frame)
-            else:
+                try:
+                    state = gpu.upload(o, frame)
+                except GpuDeviceLostError as e:
+                    # The display goes on on the CPU (Client.lose_gpu), and so does this pair.
+                    with self._lock:
+                        self.client.lose_gpu(gpu.lost or str(e))
+                    gpu = None
+            if state is None:
                 state = spare.pop() if spare else _native.BidirHistory()
                 state.reset()
                 prepare_pair(
@@ -1232,6 +1243,7 @@ class RealtimeClient:
         report.cpu_s = time.process_time() - cpu0
         report.cpus = os.cpu_count() or 1
         with self._lock:
+            report.gpu_lost = self.client.gpu_lost
             self._report = RealtimeReport(self.display_fps, self.keep_frames)
         return report
 

@@ -384,6 +384,9 @@ def format_realtime(b: RealtimeBench) -> str:
             + ("" if s.get("warm_up_ms") is None
                else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
         ]
+        + ([] if s.get("gpu_lost") is None else [
+            f"  the GPU device was lost ({s['gpu_lost']}): the display went on on the CPU "
+            "from then on (the figures mix the two backends)"])
     )
 
 
