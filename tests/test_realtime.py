@@ -614,6 +614,15 @@ def test_the_text_report_names_the_preparation_threads_on_the_cpu_only() -> None
     gpu = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", s,
                                         backend="wgpu", prepare_threads=None))
     assert "pair upload" in gpu and "preparing on" not in gpu
+    # A run that lost its GPU device says so (test_wgpu: the loss itself), and one that did not
+    # says nothing of it.
+    assert s["gpu_lost"] is None and "device was lost" not in gpu
+    report.gpu_lost = "Destroyed"
+    lost = format_realtime(RealtimeBench("ours", "test", W, H, False, False, "idle", "normal",
+                                         report.summary(), backend="wgpu"))
+    assert lost.splitlines()[-1] == (
+        "  the GPU device was lost (Destroyed): the display went on on the CPU from then on "
+        "(the figures mix the two backends)")
 
 
 def test_the_api_refuses_preparation_threads_for_the_gpu_backend(monkeypatch) -> None:
