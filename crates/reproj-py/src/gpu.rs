@@ -79,12 +79,17 @@ pub fn wgpu_adapter(py: Python<'_>) -> PyResult<String> {
 }
 
 /// Destroys the process-wide device, as a driver reset or a removed GPU loses it; exists so that
-/// the tests can see what a lost device does to the GPU path and its callers.
+/// the tests can see what a lost device does to the GPU path and its callers. Returns once wgpu
+/// counts it lost (a destroyed device is lost when its queue is empty), as a loss the driver
+/// reports is.
 #[pyfunction]
 pub fn _wgpu_lose_device_for_test(py: Python<'_>) -> PyResult<()> {
     guarded("_wgpu_lose_device_for_test", || {
         let ctx = context(py)?;
-        py.detach(|| ctx.device.destroy());
+        py.detach(|| {
+            ctx.device.destroy();
+            let _ = ctx.loss.check_drained(&ctx.device);
+        });
         Ok(())
     })
 }

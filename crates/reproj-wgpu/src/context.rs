@@ -67,12 +67,23 @@ impl DeviceLoss {
         self.0.as_ref()?.get().map(String::as_str)
     }
 
-    /// [`GpuError::Lost`] once `device` (the watched one) is lost. wgpu calls the lost callback
-    /// while it polls the device (a destroyed device is lost at its next poll), so a watched
-    /// device is polled first, without waiting.
+    /// [`GpuError::Lost`] once `device` (the watched one) is known to be lost. wgpu calls the
+    /// lost callback while it polls the device, so a watched device is polled first, without
+    /// waiting: a loss the driver reported is found then; a destroyed device is lost only once
+    /// its queue is empty ([`DeviceLoss::check_drained`]).
     pub fn check(&self, device: &wgpu::Device) -> Result<()> {
+        self.poll_and_check(device, wgpu::PollType::Poll)
+    }
+
+    /// [`DeviceLoss::check`] after the work submitted to `device` is done: what a destroyed
+    /// device needs before it counts as lost (wgpu, `Device::maintain`).
+    pub fn check_drained(&self, device: &wgpu::Device) -> Result<()> {
+        self.poll_and_check(device, wgpu::PollType::Wait)
+    }
+
+    fn poll_and_check(&self, device: &wgpu::Device, poll: wgpu::PollType) -> Result<()> {
         if self.0.is_some() {
-            let _ = device.poll(wgpu::PollType::Poll);
+            let _ = device.poll(poll);
         }
         match self.reason() {
             Some(why) => Err(GpuError::Lost(why.to_owned())),
@@ -80,10 +91,11 @@ impl DeviceLoss {
         }
     }
 
-    /// `r`, with a device error that came from the loss of `device` said as such.
+    /// `r`, with a device error that came from the loss of `device` said as such (found after
+    /// the device's work is done: an error path can wait).
     pub fn explain<T>(&self, device: &wgpu::Device, r: Result<T>) -> Result<T> {
         match r {
-            Err(GpuError::Device(_) | GpuError::State(_)) => self.check(device).and(r),
+            Err(GpuError::Device(_) | GpuError::State(_)) => self.check_drained(device).and(r),
             r => r,
         }
     }

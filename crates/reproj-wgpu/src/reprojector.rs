@@ -951,8 +951,10 @@ impl Uploader {
             ))
         })?;
         // Buffers made on a device lost since the check above are invalid, and mapping an invalid
-        // buffer panics (wgpu reports no error for them: WebGPU's rule for a lost device).
-        self.loss.check(device)?;
+        // buffer panics (wgpu reports no error for them: WebGPU's rule for a lost device). A
+        // destroyed device is known to be lost only once its queue is empty: this waits for the
+        // work in flight (the display's frame; this runs on the uploading thread).
+        self.loss.check_drained(device)?;
         {
             let mut mapped = texels.slice(..).get_mapped_range_mut();
             let mut rest: &mut [TexelU] = bytemuck::cast_slice_mut(&mut mapped);
