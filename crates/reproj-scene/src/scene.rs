@@ -1488,6 +1488,33 @@ mod tests {
         assert!(edges > 0);
     }
 
+    /// Checks that quad `i` of `snap` blocks the same shadow rays through its shortcut as ray by
+    /// ray, from origins on both sides of its plane, on it (either zero) and just off it, over
+    /// and beyond the quad; `what` names the case. Counts the origins the shortcut decided, those
+    /// with any ray blocked and those with some but not all blocked.
+    fn check_quad_shortcut(snap: &Snapshot, i: usize, what: &str) -> [usize; 3] {
+        let Shape::Quad { half } = *snap.shape(i) else {
+            panic!("{what}: object {i} is no quad");
+        };
+        let (lo, hi) = snap.samples_y[i];
+        let mut counts = [0; 3];
+        for y in [-2.0, -1e-300, -0.0, 0.0, 1e-300, 2.0] {
+            for (fx, fz) in [(0.0, 0.0), (0.5, -0.3), (0.99, 0.99), (1.5, 0.2)] {
+                let o = [fx * half[0], y, fz * half[1]];
+                let each = snap.occluded_each(i, o, ALL_RAYS);
+                assert_eq!(
+                    snap.occluded_rays(i, o, ALL_RAYS),
+                    each,
+                    "{what} object {i} o={o:?}"
+                );
+                counts[0] += usize::from((y >= 0.0 && lo >= 0.0) || (y <= 0.0 && hi <= 0.0));
+                counts[1] += usize::from(each != 0);
+                counts[2] += usize::from(each != 0 && each != ALL_RAYS);
+            }
+        }
+        counts
+    }
+
     /// The quad shortcut finds what each ray finds, for origins on both sides of the plane, on
     /// it (either zero) and just off it, over and beyond the quad, under every built-in light.
     #[test]
@@ -1498,24 +1525,12 @@ mod tests {
             for t in [0.0, 1.3, 2.7] {
                 let snap = Snapshot::new(&scene, t);
                 for i in 0..scene.objects.len() {
-                    let Shape::Quad { half } = snap.shape(i) else {
+                    if !matches!(snap.shape(i), Shape::Quad { .. }) {
                         continue;
-                    };
-                    for y in [-2.0, -1e-300, -0.0, 0.0, 1e-300, 2.0] {
-                        for (fx, fz) in [(0.0, 0.0), (0.5, -0.3), (0.99, 0.99), (1.5, 0.2)] {
-                            let o = [fx * half[0], y, fz * half[1]];
-                            let each = snap.occluded_each(i, o, ALL_RAYS);
-                            assert_eq!(
-                                snap.occluded_rays(i, o, ALL_RAYS),
-                                each,
-                                "{name} t={t} object {i} o={o:?}"
-                            );
-                            let (lo, hi) = snap.samples_y[i];
-                            shortcut +=
-                                usize::from((y >= 0.0 && lo >= 0.0) || (y <= 0.0 && hi <= 0.0));
-                            blocked += usize::from(each != 0);
-                        }
                     }
+                    let [decided, any, _] = check_quad_shortcut(&snap, i, &format!("{name} t={t}"));
+                    shortcut += decided;
+                    blocked += any;
                 }
             }
         }
@@ -1554,24 +1569,12 @@ mod tests {
                     Rigid::rotation(cross([0.0, 1.0, 0.0], n), dot(n, [0.0, 1.0, 0.0]).acos());
                 scene.objects[q].place = Rigid::translation(place.trans).then(&turn);
                 let snap = Snapshot::new(&scene, 0.0);
-                let Shape::Quad { half } = *snap.shape(q) else {
-                    unreachable!()
-                };
                 let (lo, hi) = snap.samples_y[q];
                 straddle += usize::from(lo < 0.0 && hi > 0.0);
-                for y in [-2.0, -1e-300, -0.0, 0.0, 1e-300, 2.0] {
-                    for (fx, fz) in [(0.0, 0.0), (0.5, -0.3), (0.99, 0.99), (1.5, 0.2)] {
-                        let o = [fx * half[0], y, fz * half[1]];
-                        let each = snap.occluded_each(q, o, ALL_RAYS);
-                        assert_eq!(
-                            snap.occluded_rays(q, o, ALL_RAYS),
-                            each,
-                            "{name} phi={phi} o={o:?}"
-                        );
-                        shortcut += usize::from((y >= 0.0 && lo >= 0.0) || (y <= 0.0 && hi <= 0.0));
-                        blocked += usize::from(each != 0 && each != ALL_RAYS);
-                    }
-                }
+                let [decided, _, partly] =
+                    check_quad_shortcut(&snap, q, &format!("{name} phi={phi}"));
+                shortcut += decided;
+                blocked += partly;
             }
         }
         assert!(
