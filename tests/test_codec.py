@@ -957,6 +957,45 @@ def test_half_size_shadow_colour_is_the_full_size_one_of_repeated_samples() -> N
     assert np.array_equal(half, full) and (half[bits == 0] == 0).all()
 
 
+def test_block_mean_is_the_mean_of_the_weighted_pixels_of_each_2x2_block() -> None:
+    """The encoder's half-size motion and shadow colours (reproj_core::quant::block_mean)
+    against numpy's reduction that computed them before: the same bytes, odd sides padded,
+    NaN only where a weighted pixel is NaN, and float64 sums (f32 MAX four times)."""
+    from splitrender import _native
+
+    def numpy_block_mean(a: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h, w = weight.shape
+        hh, hw = (h + 1) // 2, (w + 1) // 2
+        wp = np.zeros((2 * hh, 2 * hw), np.float32)
+        wp[:h, :w] = weight
+        ap = np.zeros((2 * hh, 2 * hw, a.shape[2]), np.float32)
+        ap[:h, :w] = np.where(weight[..., None], a, np.float32(0))
+        sums = ap.reshape(hh, 2, hw, 2, -1).sum(axis=(1, 3), dtype=np.float64)
+        counts = wp.reshape(hh, 2, hw, 2).sum(axis=(1, 3))
+        return (sums / np.maximum(counts, 1)[..., None]).astype(np.float32), counts > 0
+
+    rng = np.random.default_rng(12)
+    for h, w, c in ((5, 7, 3), (6, 4, 3), (1, 1, 1), (9, 2, 2)):
+        a = (rng.standard_normal((h, w, c)) * 100).astype(np.float32)
+        a[rng.random((h, w)) < 0.2] = np.nan
+        weight = (rng.random((h, w)) < 0.6) & ~np.isnan(a).any(axis=2)
+        mean, on = _native.block_mean(a, weight)
+        want, want_on = numpy_block_mean(a, weight)
+        assert mean.shape == ((h + 1) // 2, (w + 1) // 2, c)
+        assert np.array_equal(mean, want, equal_nan=True) and np.array_equal(on, want_on)
+    nan_at_0 = np.ones((2, 2, 1), np.float32)
+    nan_at_0[0, 0] = np.nan
+    every, not_0 = np.ones((2, 2), bool), np.array([[False, True], [True, True]])
+    assert np.isnan(_native.block_mean(nan_at_0, every)[0]).all()
+    assert _native.block_mean(nan_at_0, not_0)[0][0, 0, 0] == 1.0
+    huge = np.full((2, 2, 1), np.finfo(np.float32).max, np.float32)
+    assert _native.block_mean(huge, np.ones((2, 2), bool))[0][0, 0, 0] == huge[0, 0, 0]
+    with pytest.raises(InvalidInputError, match="weight"):
+        _native.block_mean(np.zeros((4, 4, 3), np.float32), np.zeros((4, 5), bool))
+    with pytest.raises(InvalidInputError, match="a:"):
+        _native.block_mean(np.zeros((4, 4), np.float32), np.zeros((4, 4), bool))
+
+
 def test_dequantisation_writes_into_out_every_value() -> None:
     """With ``out`` each kernel returns that array, holding what it returns without one, whatever
     ``out`` held before (the decoder reuses arrays of earlier frames)."""

@@ -43,6 +43,7 @@ __all__ = [
     "dequantise_depth",
     "dequantise_motion",
     "shadow_colour",
+    "block_mean",
     "ssim",
     "synthetic_render_server",
     "synthetic_ground_truth",
@@ -154,6 +155,7 @@ def shadow_colour(
     out: _U8 | None = None,
     half: bool = False,
 ) -> _U8: ...
+def block_mean(a: _F32, weight: npt.NDArray[np.bool_]) -> tuple[_F32, npt.NDArray[np.bool_]]: ...
 def ssim(
     x: _F64, y: _F64, want_map: bool = False
 ) -> tuple[float, _F64 | None]: ...

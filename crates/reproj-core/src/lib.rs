@@ -51,6 +51,7 @@ pub mod method;
 pub mod ours;
 pub mod params;
 pub mod pool;
+pub mod quant;
 pub mod request;
 pub mod shadow;
 mod simd;

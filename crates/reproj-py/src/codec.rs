@@ -1,7 +1,8 @@
 //! The stream decoder's dequantisation kernels (`reproj_core::dequant`): depth and motion from
 //! the geometry picture's 12-bit codes, shadow colours from their Y′CbCr picture. Called by
 //! `splitrender.codec.coder` with views of the decoded planes; each checks that the tile lies in
-//! its plane and that the masks have the camera's size before the kernel runs.
+//! its plane and that the masks have the camera's size before the kernel runs. And the
+//! encoder's half-size buffers (`reproj_core::quant`).
 
 use numpy::{
     Element, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyReadwriteArrayDyn,
@@ -9,6 +10,7 @@ use numpy::{
 };
 use pyo3::prelude::*;
 use reproj_core::dequant::{self, CodeTile, YCbCrPlanes};
+use reproj_core::quant;
 
 use crate::convert::{array, array_mut, finite, side, slice, slice_mut, Dim};
 use crate::errors::invalid;
@@ -238,5 +240,33 @@ pub fn shadow_colour<'py>(
         let dst = slice_mut(&mut rw, "out")?;
         py.detach(|| dequant::shadow_colour_from_ycbcr(planes, x, y, w, h, step, bits, dst));
         Ok(arr)
+    })
+}
+
+/// Per 2×2 block of `a` (`float32[h, w, c]`; an odd side padded), the mean over the pixels
+/// where `weight` (`bool[h, w]`) is set, 0 where none is (summed in float64, rounded once),
+/// and whether any is: `(float32[⌈h/2⌉, ⌈w/2⌉, c], bool[⌈h/2⌉, ⌈w/2⌉])`. The encoder's
+/// half-size motion and shadow colours (`reproj_core::quant::block_mean`).
+#[pyfunction]
+#[allow(clippy::type_complexity)]
+pub fn block_mean<'py>(
+    py: Python<'py>,
+    a: &Bound<'py, PyAny>,
+    weight: &Bound<'py, PyAny>,
+) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Bound<'py, PyArrayDyn<bool>>)> {
+    guarded("block_mean", || {
+        let a = array::<f32>(a, "a", &[Dim::Any("h"), Dim::Any("w"), Dim::Any("c")])?;
+        let (h, w, c) = (a.shape()[0], a.shape()[1], a.shape()[2]);
+        let weight = array::<bool>(weight, "weight", &[Dim::Is(h), Dim::Is(w)])?;
+        let (hh, hw) = (h.div_ceil(2), w.div_ceil(2));
+        let (mean, mut mean_rw) = output::<f32>(py, None, &[hh, hw, c], "block_mean")?;
+        let (any, mut any_rw) = output::<bool>(py, None, &[hh, hw], "block_mean")?;
+        let (src, on) = (slice(&a, "a")?, slice(&weight, "weight")?);
+        let (dst, set) = (
+            slice_mut(&mut mean_rw, "mean")?,
+            slice_mut(&mut any_rw, "any")?,
+        );
+        py.detach(|| quant::block_mean(src, w, h, c, on, dst, set));
+        Ok((mean, any))
     })
 }

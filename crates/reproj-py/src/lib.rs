@@ -87,6 +87,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(codec::dequantise_depth, m)?)?;
     m.add_function(wrap_pyfunction!(codec::dequantise_motion, m)?)?;
     m.add_function(wrap_pyfunction!(codec::shadow_colour, m)?)?;
+    m.add_function(wrap_pyfunction!(codec::block_mean, m)?)?;
     m.add_function(wrap_pyfunction!(metrics::ssim, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_render_server, m)?)?;
     m.add_function(wrap_pyfunction!(synth::synthetic_ground_truth, m)?)?;

@@ -448,18 +448,18 @@ def _block_mean(
     """Per 2x2 block (odd sizes padded): the mean of ``a`` over the pixels where ``weight`` is set
     (0 where none is), and whether any is set. ``a`` is ``(h, w, c)``. The sums are taken in
     float64: four finite float32 values near the largest one overflow a float32 sum, and their
-    mean is finite."""
-    h, w = weight.shape
-    hh, hw = _half(h), _half(w)
-    wp = np.zeros((2 * hh, 2 * hw), np.float32)
-    wp[:h, :w] = weight
-    ap = np.zeros((2 * hh, 2 * hw, a.shape[2]), np.float32)
-    ap[:h, :w] = a
-    ap *= wp[..., None]
-    sums = ap.reshape(hh, 2, hw, 2, -1).sum(axis=(1, 3), dtype=np.float64)
-    counts = wp.reshape(hh, 2, hw, 2).sum(axis=(1, 3))
-    mean = sums / np.maximum(counts, 1)[..., None]
-    return mean.astype(np.float32), counts > 0
+    mean is finite (``reproj_core::quant::block_mean``; as numpy, a reduction over the two
+    short axes of a strided view, it took 20 ms a buffer at 1280x720, 60 % of an encode)."""
+    return _native.block_mean(np.ascontiguousarray(a, np.float32), np.ascontiguousarray(weight))
+
+
+def _every_channel(a: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """``a.all(axis=2)`` of an ``(h, w, c)`` mask, one channel at a time: numpy's reduction over
+    the short last axis took 13 ms at 1280x720x3, this 0.5 ms."""
+    out: npt.NDArray[np.bool_] = a[..., 0].copy()
+    for c in range(1, a.shape[2]):
+        out &= a[..., c]
+    return out
 
 
 def _shadow_fill(
@@ -1200,11 +1200,11 @@ class StreamEncoder(_WorkerThreads):
             m = getattr(cf, f"motion_{d}")
             kind, kstatic, kinvalid = _MOTION[d]
             if m is not None:
-                finite = np.isfinite(m).all(axis=2)
+                finite = _every_channel(np.isfinite(m))
                 mm = (
                     m if finite.all() else np.where(finite[..., None], m, np.float32(0))
                 )
-                static = (mm == 0).all(axis=2)
+                static = _every_channel(mm == 0)
                 if static.all():
                     jobs.append(_Job(ci, kind, w, h, Codec.ZERO))
                 else:
