@@ -147,6 +147,34 @@ def test_network_options_parse_with_units_and_ranges(
         assert f"argument {bad[0]}: expected" in _error(["demo", *bad], capsys), bad
 
 
+def test_serve_encoder_threads_reach_the_encoder(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``serve --encoder-threads N`` is the encoder's thread count (``CodecConfig.threads``),
+    1 by default; out of range it is refused by the option. The server is stopped at its
+    construction (its options recorded), before it renders or listens."""
+    from types import SimpleNamespace
+
+    from splitrender.net import server
+
+    seen: list[server.ServerOptions] = []
+    codec_config = server.LiveServer.codec_config
+
+    def record(options: server.ServerOptions, **_: Any) -> None:
+        seen.append(options)
+        raise sr.InvalidInputError("stopped here")
+
+    monkeypatch.setattr(server, "LiveServer", record)
+    for argv, threads in ((["--encoder-threads", "3"], 3), (["--encoder-threads", "0"], 0),
+                          ([], 1)):
+        assert main(["serve", "--port", "0", "--token", "t", *argv]) == 2
+        assert "stopped here" in capsys.readouterr().err
+        fake = SimpleNamespace(options=seen[-1], max_mbps=lambda: 1.0)
+        assert codec_config(fake).threads == threads  # type: ignore[arg-type]
+    assert "--encoder-threads: expected an integer in 0..1024" in _error(
+        ["serve", "--encoder-threads", "-1"], capsys)
+
+
 def test_play_loss_drops_the_seeded_frames(
     rec: Path, ideal: dict[str, Any], work: Path
 ) -> None:

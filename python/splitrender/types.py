@@ -50,6 +50,9 @@ MAX_SIDE = 16384
 #: Most server-frame periods a frame's motion may span (:attr:`ServerFrame.span`): a server
 #: that keeps less than 1/16 of its f_s has nothing left to interpolate.
 MAX_SPAN = 16
+#: Most encoder or decoder threads (``CodecConfig.threads``, ``serve --encoder-threads``;
+#: ``threads=10**400`` reached the thread pool).
+MAX_THREADS = 1024
 #: The range of a float32 (the kernels' thresholds): its largest value, and its smallest
 #: above 0 (a subnormal).
 _F32_MAX = float(np.finfo(np.float32).max)

@@ -49,7 +49,7 @@ from splitrender.net.protocol import (
     Welcome,
     normalise_fingerprint,
 )
-from splitrender.types import MAX_SPAN
+from splitrender.types import MAX_SPAN, MAX_THREADS
 
 if TYPE_CHECKING:  # imported where used (it loads the native module)
     from splitrender.scene.builtin import Scene
@@ -161,6 +161,10 @@ def add_serve(sub: Any) -> None:
                    help="key frame every N server frames (default: one per 10 s: the client asks "
                    "for one when it needs it, and each regular key frame restarts the encoders' "
                    "rate control, which is slow)")
+    p.add_argument("--encoder-threads", type=lambda t: integer(t, 0, MAX_THREADS), default=1,
+                   metavar="N", help="threads that encode a frame's three HEVC pictures side by "
+                   "side; 0: one per core (default: 1, which leaves the other cores to a client "
+                   "on the same machine; on a server of its own, 0 or 3 cut the encode time)")
     p.add_argument("--token", default=None,
                    help="session token the client must send (default: a random one, printed)")
     p.add_argument("--cert", type=in_path, default=None, metavar="PEM",
@@ -225,6 +229,7 @@ def run_serve(args: argparse.Namespace) -> int:
         server = LiveServer(
             ServerOptions(name, args.scale, args.fps, args.bitrate, args.min_bitrate, gop,
                           token, args.predictor, args.sessions,
+                          encoder_threads=args.encoder_threads,
                           drop_every=args.drop_every, max_span=args.max_span,
                           retry=args.retry),
             scene=scene, certificate=cert, private_key=key, certificate_chain=chain,

@@ -115,6 +115,7 @@ from splitrender.types import (
 )
 from splitrender.types import (  # argument checks
     MAX_SIDE,
+    MAX_THREADS,
     buffers,
     check_bool,
     check_float,
@@ -170,8 +171,6 @@ MAX_BITRATE_MBPS = 100_000.0
 #: fraction of denominator <= 1001 that 1e-300 rounded to 0 (ZeroDivisionError), and the rate
 #: control divides by it.
 MIN_FPS, MAX_FPS = 1e-3, 1000.0
-#: Most encoder or decoder threads (``threads=10**400`` reached the thread pool).
-MAX_THREADS = 1024
 #: The presets of x265 (``CodecConfig.preset``), fastest first.
 X265_PRESETS = (
     "ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower",
