@@ -103,8 +103,13 @@ mod tests {
         ) {
             let mut s = seed | 1;
             let mut next = || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            // NaN and -0.0 among values of either sign.
             let a: Vec<f32> = (0..w * h * c)
-                .map(|_| match next() % 9 { 0 => f32::NAN, 1 => -0.0, k => (next() % 2001) as f32 * 0.37 - 370.0 * k as f32 })
+                .map(|_| match next() % 9 {
+                    0 => f32::NAN,
+                    1 => -0.0,
+                    k => (next() % 2001) as f32 * 0.37 - 370.0 * k as f32,
+                })
                 .collect();
             let weight: Vec<bool> = (0..w * h).map(|_| next() % 3 != 0).collect();
             let (mean, any) = run(&a, w, h, c, &weight);
@@ -119,8 +124,8 @@ mod tests {
                         .collect();
                     prop_assert_eq!(any[by * hw + bx], !on.is_empty());
                     for ch in 0..c {
-                        // From +0.0, as the kernel (and numpy's zeros) start: Rust's `sum` starts at
-                        // -0.0, which a block of nothing but -0.0 would keep.
+                        // From +0.0, as the kernel (and numpy's zeros) start: Rust's
+                        // `sum` starts at -0.0, which a block of only -0.0 would keep.
                         let sum = on.iter().fold(0.0f64, |s, &p| s + f64::from(a[p * c + ch]));
                         let want = (sum / on.len().max(1) as f64) as f32;
                         let got = mean[(by * hw + bx) * c + ch];
