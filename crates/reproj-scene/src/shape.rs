@@ -377,7 +377,7 @@ fn capsule_t(
             let s = dot(sub(p, a), axis);
             if (face == 1 && s <= 0.0) || (face == 2 && s >= len) {
                 // The cap sphere's unit normal at the hit, scaled back to the radius.
-                let n = normalize(sub(add(o, scale(d, t)), c));
+                let n = normalize(sub(p, c));
                 best = Some((t, scale(n, r), face));
                 break;
             }
