@@ -178,6 +178,7 @@ TABLE: dict[str, Entry] = {
         dict(eye=[None, "x", (1, 2), (BIG, 0, 0)], target=[None, (1, 2)], fov_y_deg=POSITIVE,
              width=COUNT, height=COUNT, near=POSITIVE, far=POSITIVE, up=[None, 1]),
     ),
+    "Camera.stereo": (lambda f: f.cam.stereo, lambda f: dict(ipd=0.07), dict(ipd=POSITIVE)),
     "CameraFrame": (
         lambda f: sr.CameraFrame,
         lambda f: dict(camera=_m(f).camera, color=_m(f).color, depth=_m(f).depth),

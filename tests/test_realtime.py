@@ -49,11 +49,13 @@ class CostClient(Client):
     def __init__(self, clock: FakeClock, cost: Any, **kw: Any) -> None:
         super().__init__("ours", **kw)
         self.clock, self.cost, self.calls = clock, cost, 0
+        self.rendered: list[Any] = []  # (eye, last_info) of each call
 
     def render(self, camera: sr.Camera, time: float, *, eye: int = 0) -> np.ndarray:
         image = super().render(camera, time, eye=eye)
         self.clock.advance(self.cost(self.calls))
         self.calls += 1
+        self.rendered.append((eye, self.last_info))
         return image
 
 
@@ -82,6 +84,10 @@ def frames(scene: sr.SyntheticScene) -> list[sr.ServerFrame]:
 
 def pose_of(scene: sr.SyntheticScene) -> Any:
     return lambda t: scene.rig(t, W, H)[0]
+
+
+def eyes_of(scene: sr.SyntheticScene) -> Any:
+    return lambda t: scene.rig(t, W, H)[0].stereo()
 
 
 def loop(
@@ -219,6 +225,84 @@ def test_max_divisor_one_keeps_the_full_rate(scene, frames):
     assert {f.divisor for f in report.frames} == {1}
     assert report.deadline_misses == len(report.frames)
     assert report.summary()["repeated"] == 0
+
+
+def test_a_stereo_frame_is_both_eyes_from_one_pair(scene, frames):
+    """A stereo run renders each display frame's left eye, then its right eye, from the same
+    server frames at the same α, each with its own previous output (the images a plain client
+    gives for eyes 0 and 1), and hands both to on_frame."""
+    plain = Client("ours")
+    clock = FakeClock()
+    shown: list[Any] = []
+    with loop(clock, lambda n: 0.003) as c:
+        # Frames 0-1 before the run, frame 2 during it: frames before and after a handover.
+        for f in frames[:2]:
+            plain.receive(f)
+            c.submit(f)
+            c.wait()
+        report = c.run(
+            eyes_of(scene), 0.15, stereo=True, feed=[(0.05, frames[2])],
+            on_frame=lambda images, record: shown.append((images, record)),
+        )
+        rendered = c.client.rendered
+    assert len(shown) == 18 and len(rendered) == 36
+    assert [eye for eye, _ in rendered] == [0, 1] * 18
+    pairs = set()
+    for (left_info, right_info), ((left, right), record) in zip(
+        zip(rendered[::2], rendered[1::2]), shown, strict=True
+    ):
+        made = [(i.older, i.newer, i.alpha, i.mode) for i in (left_info[1], right_info[1])]
+        assert made[0] == made[1]  # the same frames, α and mode
+        pairs.add(made[0][:2])
+        if 2 in made[0][:2] and 2 not in plain.held:  # handed over as the loop's client had it
+            plain.receive(frames[2])
+        assert record.eyes == 2
+        cams = scene.rig(record.time, W, H)[0].stereo()
+        np.testing.assert_array_equal(left, plain.render(cams[0], record.time, eye=0))
+        np.testing.assert_array_equal(right, plain.render(cams[1], record.time, eye=1))
+        assert not np.array_equal(left, right)
+    assert len(pairs) >= 2  # the run went on over the handover of frame 2
+    assert report.summary()["eyes"] == 2
+
+
+@pytest.mark.parametrize(
+    ("per_eye_ms", "stereo", "met"), [(5.0, False, True), (3.0, True, True), (5.0, True, False)]
+)
+def test_a_stereo_frames_time_and_deadline_cover_both_eyes(scene, frames, per_eye_ms, stereo,
+                                                          met):
+    # An 8.3 ms refresh: one eye of 5 ms fits, two of 3 ms fit, two of 5 ms do not.
+    clock = FakeClock()
+    with loop(clock, lambda n: per_eye_ms / 1e3, max_divisor=1) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(eyes_of(scene) if stereo else pose_of(scene), 0.1, stereo=stereo)
+    eyes = 2 if stereo else 1
+    # A late frame overruns one refresh, which is dropped.
+    assert len(report.frames) == (12 if met else 6)
+    for f in report.frames:
+        assert f.eyes == eyes and f.met == met
+        assert f.render_ms == pytest.approx(per_eye_ms * eyes)
+    assert report.summary()["eyes"] == eyes
+
+
+@pytest.mark.parametrize(
+    ("views", "said"),
+    [
+        (lambda cam: cam, "got Camera"),
+        (lambda cam: (cam,), r"got a tuple of 1: \(Camera\)"),
+        (lambda cam: [cam, cam, cam], r"got a list of 3: \(Camera, Camera, Camera\)"),
+        (lambda cam: (cam, "right"), r"got a tuple of 2: \(Camera, str\)"),
+    ],
+)
+def test_a_stereo_pose_that_is_not_two_cameras_is_refused(scene, frames, views, said):
+    with loop(FakeClock()) as c:
+        c.submit(frames[0])
+        c.wait()
+        with pytest.raises(InvalidInputError, match=r"pose\(0\): with stereo=True expected a "
+                                                    r"pair \(left, right\) of Camera, " + said):
+            c.run(lambda t: views(scene.rig(t, W, H)[0]), 0.05, stereo=True)
+        # A mono run of the same client still works.
+        assert c.run(pose_of(scene), 0.05).deadline_misses == 0
 
 
 @pytest.mark.parametrize("divisor", [0, -1, 17, 1.5, "2", None])
@@ -1095,6 +1179,7 @@ def test_run_needs_at_least_one_frame(scene, seconds):
         (lambda c, f, pose: c.run(pose, 0.02, start_time=float("inf")), "start_time"),
         (lambda c, f, pose: c.run(pose, 0.02, on_frame=3), "on_frame"),
         (lambda c, f, pose: c.run(pose, 0.02, warm_up="yes"), "warm_up"),
+        (lambda c, f, pose: c.run(pose, 0.02, stereo=1), "stereo"),
         # The items of the feed as the run takes them (it may be a generator: not read ahead).
         (lambda c, f, pose: c.run(pose, 0.02, feed=[1, 2]), r"feed\[0\]"),
         (lambda c, f, pose: c.run(pose, 0.02, feed=[(0.0, f), ("x", f)]), r"feed\[1\]\[0\]"),
@@ -1208,7 +1293,24 @@ def test_bench_realtime_plays_a_stream_file_and_loops_it(tmp_path, scene, frames
     # been received. The last one, sent 0.1 s before the run ends, may still be decoding then on
     # a loaded machine (the worker runs at idle priority), so it is not required.
     assert 4 <= r["server_frames_received"] <= 6
+    assert r["eyes"] == 1
     assert "source looped" in capsys.readouterr().out
+
+
+def test_bench_realtime_stereo_renders_two_eyes_a_frame(tmp_path, frames, capsys):
+    import json
+
+    from splitrender.cli.dispatch import main
+    from splitrender.codec.coder import CodecConfig, StreamEncoder
+
+    with StreamEncoder(CodecConfig(bitrate_mbps=2.0)) as enc:
+        sr.write_stream(tmp_path / "s.srs", [enc.encode(f) for f in frames[:3]])
+    out = tmp_path / "rt.json"
+    assert main(["bench", "--realtime", "--stereo", "--stream", str(tmp_path / "s.srs"),
+                 "--seconds", "0.25", "--json", str(out), "--quiet"]) == 0
+    r = json.loads(out.read_text())
+    assert r["eyes"] == 2 and r["frames"] + r["dropped"] + r["repeated"] == 30
+    assert f"two eyes of {W}x{H} + aux" in capsys.readouterr().out
 
 
 def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
@@ -1257,6 +1359,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--fps", "60"], "--fps goes with --realtime"),
         (["--max-divisor", "2"], "--max-divisor goes with --realtime"),
         (["--prepare-threads", "2"], "--prepare-threads goes with --realtime"),
+        (["--stereo"], "--stereo goes with --realtime"),
         (["--realtime", "--backend", "wgpu", "--prepare-threads", "2"],
          "--prepare-threads goes with --backend cpu"),
         (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),

@@ -101,6 +101,29 @@ def test_client_frames_mono_and_stereo(lab: Scene) -> None:
     assert len(eyes) == 2 and not np.array_equal(eyes[0][0].view, eyes[1][0].view)
 
 
+def test_camera_stereo_gives_the_renderers_eyes(lab: Scene) -> None:
+    """A live client derives its eyes from the head camera (Camera.stereo); they must be the
+    cameras the renderer's stereo ground truth is rendered at, or --score and Table 3 would
+    score each eye against another viewpoint."""
+    for n in (0, 3, 50):
+        ((head, _),) = lab.client_frames(n, SCALE)
+        rendered = [cam for cam, _ in lab.client_frames(n, SCALE, stereo=True)]
+        for ours, theirs in zip(head.stereo(), rendered, strict=True):
+            np.testing.assert_allclose(ours.view, theirs.view, rtol=0, atol=1e-12)
+            np.testing.assert_array_equal(ours.proj, theirs.proj)
+            assert (ours.width, ours.height) == (theirs.width, theirs.height)
+    # Left is left: the left eye's camera sees the head's origin at +IPD/2 along its x axis.
+    left, right = head.stereo()
+    centre = np.linalg.inv(head.view)[:, 3]
+    assert (left.view @ centre)[0] == pytest.approx(sr.types.IPD / 2, abs=1e-12)
+    assert (right.view @ centre)[0] == pytest.approx(-sr.types.IPD / 2, abs=1e-12)
+    wide = head.stereo(0.5)[0]
+    assert (wide.view @ centre)[0] == pytest.approx(0.25, abs=1e-12)
+    for bad in (0.0, -0.07, float("nan"), float("inf"), "7cm"):
+        with pytest.raises(sr.InvalidInputError, match="ipd"):
+            head.stereo(bad)  # type: ignore[arg-type]
+
+
 def test_bad_arguments(lab: Scene) -> None:
     with pytest.raises(sr.InvalidInputError, match="subframes"):
         lab.server_frame(0, SCALE, subframes=0)

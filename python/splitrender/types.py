@@ -31,6 +31,7 @@ import splitrender._native as _native
 from splitrender.errors import InvalidInputError
 
 __all__ = [
+    "IPD",
     "MAX_INDEX",
     "MAX_SIDE",
     "MAX_SPAN",
@@ -53,6 +54,9 @@ MAX_SPAN = 16
 #: Most encoder or decoder threads (``CodecConfig.threads``, ``serve --encoder-threads``;
 #: ``threads=10**400`` reached the thread pool).
 MAX_THREADS = 1024
+#: The stereo client's interpupillary distance, metres: the eyes of :meth:`Camera.stereo` and of
+#: the reference renderer's stereo client frames (reproj-scene's ``rig::IPD``) are this far apart.
+IPD = 0.07
 #: The range of a float32 (the kernels' thresholds): its largest value, and its smallest
 #: above 0 (a subnormal).
 _F32_MAX = float(np.finfo(np.float32).max)
@@ -379,6 +383,22 @@ class Camera:
         view = _native.look_at(_vec3("eye", eye), _vec3("target", target), _vec3("up", up))
         proj = _native.perspective(fov_y_deg, width / height, near, far)
         return cls(view, proj, width, height)
+
+    @checked(ipd=floats(positive=True))
+    def stereo(self, ipd: float = IPD) -> tuple[Camera, Camera]:
+        """The two eyes ``(left, right)`` of a head whose camera is this one: ``∓ipd / 2`` along
+        its own x axis, the same orientation, projection and size (as the reference renderer's
+        stereo client frames, whose IPD is :data:`IPD`). An eye at offset ``o`` from the head
+        sees world points at ``view_eye = T(−o) · view``.
+
+        Raises:
+            InvalidInputError: for an ``ipd`` that is not a positive finite number."""
+        out = []
+        for side in (-1.0, 1.0):
+            shift = np.eye(4)
+            shift[0, 3] = -0.5 * ipd * side
+            out.append(Camera(shift @ self.view, self.proj, self.width, self.height))
+        return (out[0], out[1])
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -319,6 +319,11 @@ def add_bench(sub: Any) -> None:
     )
     add_max_divisor(be, None, "with --realtime: ")
     be.add_argument(
+        "--stereo", action="store_true",
+        help="with --realtime: two eyes per display frame (IPD 7 cm), both rendered from the "
+        "same server frames by the frame's deadline, as a headset shows them",
+    )
+    be.add_argument(
         "--stream", type=in_path, default=None, metavar="FILE",
         help="with --realtime: play this stream file instead of the built-in --scene",
     )
@@ -362,6 +367,7 @@ def bench(args: argparse.Namespace) -> int:
         ("--max-divisor", args.max_divisor is not None),
         ("--prepare-threads", args.prepare_threads is not None),
         ("--plot", args.plot is not None),
+        ("--stereo", args.stereo),
     ):
         if given:
             return fail(f"{flag} goes with --realtime")
@@ -422,7 +428,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             worker_priority=args.worker_priority or "idle",
             display_priority=args.display_priority or "realtime", backend=args.backend,
             max_divisor=MAX_DIVISOR if args.max_divisor is None else args.max_divisor,
-            prepare_threads=args.prepare_threads,
+            prepare_threads=args.prepare_threads, stereo=args.stereo,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

@@ -45,11 +45,11 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from concurrent.futures import wait as futures_wait
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -139,7 +139,7 @@ class DisplayFrame:
     refresh it started on (``start`` is later by the wait for the display thread to run);
     ``cpu_ms`` the CPU time the display's threads (the display thread and the render threads)
     spent from ``start`` to ``done`` (``None`` where threads' CPU clocks cannot be read: off
-    Linux)."""
+    Linux). ``eyes``: the images it is (2 for a stereo run: its times cover both eyes)."""
 
     index: int
     time: float
@@ -155,6 +155,7 @@ class DisplayFrame:
     divisor: int = 1
     refresh: float | None = None
     cpu_ms: float | None = None
+    eyes: int = 1
 
     @property
     def render_ms(self) -> float:
@@ -196,6 +197,24 @@ def _thread_cpu_clocks(tids: list[int]) -> list[int] | None:
     if not sys.platform.startswith("linux"):
         return None
     return [((~tid) << 3) | 6 for tid in tids]
+
+
+def _eye_cameras(pose: Callable[[float], Any], t: float) -> tuple[Camera, ...]:
+    """``pose(t)`` of a stereo run (:meth:`RealtimeClient.run`): the cameras ``(left, right)``."""
+    views = pose(t)
+    if (
+        not isinstance(views, (tuple, list))
+        or len(views) != 2
+        or not all(isinstance(c, Camera) for c in views)
+    ):
+        got = describe(views)
+        if isinstance(views, (tuple, list)):
+            got = f"a {got} of {len(views)}: ({', '.join(describe(c) for c in views[:4])}"
+            got += ", ...)" if len(views) > 4 else ")"
+        raise InvalidInputError(
+            f"pose({t:g}): with stereo=True expected a pair (left, right) of Camera, got {got}"
+        )
+    return tuple(views)
 
 
 def _cpu_s(clocks: list[int] | None) -> float | None:
@@ -281,6 +300,8 @@ class RealtimeReport:
         #: How the display's threads were scheduled (:func:`_raise_display`): ``"realtime"``,
         #: ``"normal"``, or ``"normal"`` with the reason real-time scheduling was refused.
         self.display_scheduling = "normal"
+        #: Images per display frame: 1, or 2 for a stereo run (``RealtimeClient.run(stereo=)``).
+        self.eyes = 1
         # Every frame's share of the summary (the frames themselves are kept only so far).
         self._count = 0
         self._misses = 0
@@ -359,7 +380,8 @@ class RealtimeReport:
         return {"late_start": self._late_starts, "more_cpu": more, "waited": waited}
 
     def summary(self) -> dict[str, Any]:
-        """One flat object: ``frames``, ``deadline_misses`` (count and ``_pct``), ``dropped``,
+        """One flat object: ``frames``, ``eyes`` (images per frame: 2 for a stereo run; the
+        frame times cover both), ``deadline_misses`` (count and ``_pct``), ``dropped``,
         ``deadline_misses_by_cause`` (:meth:`miss_causes`), ``repeated`` (refreshes that
         showed a frame again because the rate was divided),
         ``full_rate_pct`` (frames at ``f_c``) and ``frames_by_divisor`` (how many at ``f_c / d``,
@@ -382,6 +404,7 @@ class RealtimeReport:
         return {
             "frames": n,
             "display_fps": self.display_fps,
+            "eyes": self.eyes,
             "deadline_misses": misses,
             "deadline_misses_pct": 100.0 * misses / n if n else 0.0,
             "deadline_misses_by_cause": self.miss_causes(),
@@ -1140,36 +1163,81 @@ class RealtimeClient:
         Raises:
             InvalidInputError: as :meth:`Client.render`, and for a client that was closed."""
         self._check_open()
-        return self._render(camera, time, eye)[0]
+        return self._render((camera,), time, eye)[0][0]
 
     def _render(
-        self, camera: Camera, time: float, eye: int = 0
-    ) -> tuple[_Image, bool, float | None]:
-        """:meth:`render`, and (under the same lock, so that the worker cannot change them in
-        between) whether its pair was prepared and the pose time of the newest usable frame."""
+        self, cameras: Sequence[Camera], time: float, first_eye: int = 0
+    ) -> tuple[list[_Image], bool, float | None]:
+        """:meth:`render` of each of ``cameras`` (eyes ``first_eye``, ``first_eye + 1``, …), and
+        (under the same lock, so that the worker cannot change them in between) whether its pair
+        was prepared and the pose time of the newest usable frame. The eyes of a stereo frame
+        are rendered under one hold of the lock: the worker cannot hand a new pair over between
+        them, so both eyes show the same server frames at the same α."""
         with self._lock:
             self._release_due(time)
-            image = self.client.render(camera, time, eye=eye)
+            images = [
+                self.client.render(c, time, eye=first_eye + e) for e, c in enumerate(cameras)
+            ]
             info = self.client.last_info
             assert info is not None
             prepared = info.newer is not None and self.client.was_prepared(info.older, info.newer)
             held = self.client.held
             self._forget_dropped(held)
             newest = self._pose_time[max(held)] if held else None
-        return image, prepared, newest
+        return images, prepared, newest
 
-    @checked(pose=CALLABLE, feed=ITERABLE, start_time=floats(), on_frame=optional(CALLABLE),
-             exclusive=BOOL, warm_up=BOOL)
+    @overload
     def run(
         self,
         pose: Callable[[float], Camera],
         seconds: float,
         *,
+        feed: Iterable[tuple[float, bytes | memoryview | ServerFrame]] = ...,
+        start_time: float = ...,
+        on_frame: Callable[[_Image, DisplayFrame], None] | None = ...,
+        exclusive: bool = ...,
+        warm_up: bool = ...,
+        stereo: Literal[False] = ...,
+    ) -> RealtimeReport: ...
+    @overload
+    def run(
+        self,
+        pose: Callable[[float], tuple[Camera, Camera]],
+        seconds: float,
+        *,
+        feed: Iterable[tuple[float, bytes | memoryview | ServerFrame]] = ...,
+        start_time: float = ...,
+        on_frame: Callable[[tuple[_Image, _Image], DisplayFrame], None] | None = ...,
+        exclusive: bool = ...,
+        warm_up: bool = ...,
+        stereo: Literal[True],
+    ) -> RealtimeReport: ...
+    @overload
+    def run(
+        self,
+        pose: Callable[[float], Any],
+        seconds: float,
+        *,
+        feed: Iterable[tuple[float, bytes | memoryview | ServerFrame]] = ...,
+        start_time: float = ...,
+        on_frame: Callable[[Any, DisplayFrame], None] | None = ...,
+        exclusive: bool = ...,
+        warm_up: bool = ...,
+        stereo: bool = ...,
+    ) -> RealtimeReport: ...
+    @checked(pose=CALLABLE, feed=ITERABLE, start_time=floats(), on_frame=optional(CALLABLE),
+             exclusive=BOOL, warm_up=BOOL, stereo=BOOL)
+    def run(
+        self,
+        pose: Callable[[float], Any],
+        seconds: float,
+        *,
         feed: Iterable[tuple[float, bytes | memoryview | ServerFrame]] = (),
         start_time: float = 0.0,
-        on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+        on_frame: Callable[[Any, DisplayFrame], None] | None = None,
         exclusive: bool = False,
         warm_up: bool = False,
+        stereo: bool = False,
     ) -> RealtimeReport:
         """Shows ``seconds`` of display frames at ``f_c`` from display time ``start_time``:
         frame ``n`` at the camera ``pose(start_time + n / f_c)``. ``feed`` (optional) is the
@@ -1193,10 +1261,19 @@ class RealtimeClient:
         frame is in. The display's buffers then exist before the first recorded frame, which
         would otherwise pay their first-touch page faults (about 4 ms at 640×360 here).
 
+        ``stereo``: a headset's display frame is two images. ``pose(t)`` returns the eyes'
+        cameras ``(left, right)`` (a headset runtime gives each eye's pose and field of view;
+        :meth:`Camera.stereo` makes them from a head camera), both are rendered from the same
+        server frames at the same α, one after the other, and the frame's deadline holds for
+        both (its render time is theirs together); ``on_frame`` gets ``(left image, right
+        image)``. Each eye keeps its own previous output (eyes 0 and 1 of
+        :meth:`Client.render`).
+
         Raises:
             InvalidInputError: for arguments of the wrong type, ``seconds`` shorter than one
                 display frame, an item of ``feed`` that is not a pair ``(finite display time,
-                packet)`` (raised when the run reaches it), or a client that was closed."""
+                packet)`` (raised when the run reaches it), a ``pose`` that with ``stereo``
+                returns anything but a pair of cameras, or a client that was closed."""
         self._check_open()
         fc = self.display_fps
         valid = not isinstance(seconds, bool) and isinstance(seconds, (int, float))
@@ -1207,6 +1284,11 @@ class RealtimeClient:
             )
         n_frames = int(round(seconds * fc))
         report = self._report
+        report.eyes = 2 if stereo else 1
+
+        def views(t: float) -> tuple[Camera, ...]:
+            return _eye_cameras(pose, t) if stereo else (pose(t),)
+
         # Before the clock starts: the first call may start the render threads.
         threads = _display_threads()
         report.display_scheduling, saved = _raise_display(self.display_priority, threads)
@@ -1214,7 +1296,7 @@ class RealtimeClient:
         interval = sys.getswitchinterval()
         try:
             if warm_up:
-                arrivals = self._warm_up(report, pose, arrivals, start_time)
+                arrivals = self._warm_up(report, views, arrivals, start_time)
             t0 = self.clock.now()
             cpu0 = time.process_time()
             if not exclusive:
@@ -1227,7 +1309,7 @@ class RealtimeClient:
             # between two native calls. 0.5 ms keeps that wait well inside a frame.
             sys.setswitchinterval(min(interval, 0.0005))
             end = self._display(
-                report, t0, n_frames, pose, arrivals, start_time, on_frame, exclusive, saved,
+                report, t0, n_frames, views, arrivals, start_time, on_frame, exclusive, saved,
                 _thread_cpu_clocks(threads),
             )
         finally:
@@ -1250,7 +1332,7 @@ class RealtimeClient:
     def _warm_up(
         self,
         report: RealtimeReport,
-        pose: Callable[[float], Camera],
+        views: Callable[[float], tuple[Camera, ...]],
         arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]],
         start_time: float,
     ) -> Iterator[tuple[float, bytes | memoryview | ServerFrame]]:
@@ -1262,7 +1344,7 @@ class RealtimeClient:
             received.append(self._submit(nxt[1]))
             nxt = next(arrivals, None)
         futures_wait(received)  # a packet that failed is skipped here as in the run
-        self._render(pose(start_time), start_time)
+        self._render(views(start_time), start_time)
         report.warm_up_ms = (self.clock.now() - begin) * 1e3
         return arrivals if nxt is None else itertools.chain([nxt], arrivals)
 
@@ -1271,10 +1353,10 @@ class RealtimeClient:
         report: RealtimeReport,
         t0: float,
         n_frames: int,
-        pose: Callable[[float], Camera],
+        views: Callable[[float], tuple[Camera, ...]],
         arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]],
         start_time: float,
-        on_frame: Callable[[_Image, DisplayFrame], None] | None,
+        on_frame: Callable[[Any, DisplayFrame], None] | None,
         exclusive: bool,
         raised: _Saved,
         clocks: list[int] | None,
@@ -1306,10 +1388,10 @@ class RealtimeClient:
                     tick = t0 + n * period
             self.clock.sleep_until(tick)
             t = start_time + n * period
-            camera = pose(t)
+            cameras = views(t)
             start = self.clock.now()
             used = _cpu_s(clocks)
-            image, prepared, newest = self._render(camera, t)
+            images, prepared, newest = self._render(cameras, t)
             after = _cpu_s(clocks)
             done = self.clock.now()
             info = self.client.last_info
@@ -1329,6 +1411,7 @@ class RealtimeClient:
                 divisor=d,
                 refresh=tick,
                 cpu_ms=None if used is None or after is None else (after - used) * 1e3,
+                eyes=len(images),
             )
             report.add(record)
             late_in_a_row = 0 if record.met else late_in_a_row + 1
@@ -1340,7 +1423,7 @@ class RealtimeClient:
                     "in a row)"
                 )
             if on_frame is not None:
-                on_frame(image, record)
+                on_frame(images[0] if len(images) == 1 else tuple(images), record)
             after = self.clock.now()
             governor.update(after - tick, record.met)
             # The frame is shown for its `d` refreshes; the next starts after them, or at the

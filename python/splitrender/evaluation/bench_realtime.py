@@ -189,8 +189,12 @@ def run_realtime_bench(
     backend: str = "cpu",
     max_divisor: int = MAX_DIVISOR,
     prepare_threads: int | None = None,
+    stereo: bool = False,
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
+    ``stereo``: each display frame is two eyes (:meth:`Camera.stereo
+    <splitrender.Camera.stereo>` of the client's camera, IPD 7 cm) rendered from the same
+    server frames, as a headset shows them; the frame times cover both.
     ``exclusive``: the display waits for the worker after each arrival, off the clock
     (:meth:`RealtimeClient.run`), so that the deadlines measure the display frames alone.
     ``worker_priority``: how the worker yields the cores to the display, ``display_priority``:
@@ -289,7 +293,7 @@ def run_realtime_bench(
     feed = [(k / fs - 1.0 / fs, packet(k)) for k in range(n_sent)]
     stages.stage(
         f"running {method} in real time for {seconds:g} s at {display_fps:g} FPS, "
-        f"{main.width}x{main.height} + aux" + (" (the source loops)" if looped else "")
+        + ("two eyes of " if stereo else "") + f"{main.width}x{main.height} + aux" + (" (the source loops)" if looped else "")
         + ("" if adapter is None else f" on {adapter}")
     )
     with RealtimeClient(
@@ -304,7 +308,8 @@ def run_realtime_bench(
         # Warmed up: the first packets are received and one frame rendered before the clock
         # starts, so that the run measures the steady state (the summary's warm_up_ms).
         report = client.run(
-            pose, seconds, feed=feed, start_time=0.0, exclusive=exclusive, warm_up=True
+            (lambda t: pose(t).stereo()) if stereo else pose, seconds, feed=feed,
+            start_time=0.0, exclusive=exclusive, warm_up=True, stereo=stereo,
         )
     stages.close()
     if report.undecodable:
@@ -337,7 +342,9 @@ def format_realtime(b: RealtimeBench) -> str:
     )
     return "\n".join(
         [
-            f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
+            f"{b.method} in real time on {b.source}: "
+            + ("two eyes of " if s.get("eyes") == 2 else "")
+            + f"{b.width}x{b.height} + aux at "
             f"{s['display_fps']:g} FPS for {s['wall_s']:.1f} s"
             + ("" if b.adapter is None else f", rendered on the GPU ({b.adapter})")
             + (" (source looped)" if b.looped else "")
