@@ -291,6 +291,12 @@ def add_connect(sub: Any) -> None:
                    help="with --score: afterwards, replay the packets this session decoded, "
                    "at the same arrival times and poses, through method M and score it too "
                    "(report.json's compare): the two methods in the same conditions")
+    p.add_argument("--stereo", action="store_true",
+                   help="two eyes per display frame (IPD 7 cm), both rendered by the frame's "
+                   "deadline from the same server frames, as a headset shows them (the server "
+                   "is sent the head's pose); the video shows them side by side, and --score "
+                   "scores each eye against its own ground truth (the mean of the two, as "
+                   "eval's Table 3)")
     add_backend(p, "ours, ours_extrapolate and forward_splat; the display renders on the GPU "
                 "and the receiving worker uploads each pair there")
     add_no_vmaf(p)
@@ -374,8 +380,10 @@ def run_connect(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"connected to {host}:{port}: {welcome.scene} {welcome.width}x"
                   f"{welcome.height} at {welcome.server_fps:g} FPS; displaying {args.method} "
-                  f"at {args.fps:g} FPS for {args.seconds:g} s", file=sys.stderr, flush=True)
-        frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
+                  + ("(two eyes) " if args.stereo else "")
+                  + f"at {args.fps:g} FPS for {args.seconds:g} s", file=sys.stderr, flush=True)
+        frames: list[tuple[float, npt.NDArray[np.uint8]]] = []  # stereo: left | right
+        eyes = 2 if args.stereo else 1
         first_shown: list[float] = []
         # The display frames are kept (for the video and the score, written afterwards so
         # that no display frame pays for encoding) within MAX_KEPT_BYTES: past it the video
@@ -389,14 +397,15 @@ def run_connect(args: argparse.Namespace) -> int:
         def slot(index: int) -> int:
             return -(-index // stride[0])  # the first video refresh that shows it
 
-        def on_frame(img: npt.NDArray[np.uint8], rec: Any) -> None:
+        def on_frame(shown: Any, rec: Any) -> None:
             if rec.mode != "hold" and not first_shown:
                 first_shown.append(rec.time)
             if kept and slot(kept[-1]) == slot(rec.index):
                 frames.pop()  # a newer frame for the same video refresh
                 kept.pop()
                 captions.pop()
-            frames.append((rec.time, img.copy()))
+            img = _kept_image(shown)
+            frames.append((rec.time, img))
             kept.append(rec.index)
             captions.append(_frame_caption(args.method, rec))
             while len(frames) > 1 and len(frames) * img.nbytes > MAX_KEPT_BYTES:
@@ -407,7 +416,7 @@ def run_connect(args: argparse.Namespace) -> int:
                 kept[:] = [kept[i] for i in last]
                 captions[:] = [captions[i] for i in last]
 
-        report = client.run(motion, args.seconds, on_frame=on_frame)
+        report = client.run(motion, args.seconds, on_frame=on_frame, stereo=args.stereo)
     except SplitRenderError as e:
         client.close()
         return fail(str(e))
@@ -416,7 +425,8 @@ def run_connect(args: argparse.Namespace) -> int:
     report["scene_digest"] = welcome.scene_digest.hex()  # what the server rendered
     out: Path = args.out
     with outputs as stage:
-        _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0], captions)
+        _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0], captions,
+                     eyes)
         if args.score:
             # Scored from the first frame made from a server frame on: before it every method
             # shows the same black start-up (no server frame yet); holds after it count.
@@ -425,16 +435,19 @@ def run_connect(args: argparse.Namespace) -> int:
             if not args.quiet:
                 print(f"scoring {len(picked)} display frames against the ground truth rendered "
                       "at the client's poses", file=sys.stderr, flush=True)
-            report.update(_score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf))
+            report.update(
+                _score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf, eyes)
+            )
             if args.compare is not None:
                 other: list[tuple[float, npt.NDArray[np.uint8]]] = []
                 summary = client.replay(
-                    args.compare, motion, args.seconds,
-                    on_frame=lambda img, rec: other.append((rec.time, img.copy())))
+                    args.compare, motion, args.seconds, stereo=args.stereo,
+                    on_frame=lambda shown, rec: other.append((rec.time, _kept_image(shown))))
                 # The same display times as the live method's score: what each display showed
                 # then (a refresh whose frame was late repeats the one before, as it did live).
                 summary.update(_score(scene, welcome.scale, args.fps, motion,
-                                      _shown(other, [t for t, _ in picked]), args.no_vmaf))
+                                      _shown(other, [t for t, _ in picked]), args.no_vmaf,
+                                      eyes))
                 report["compare"] = {"method": args.compare, **summary}
         write_atomic(stage / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
@@ -525,13 +538,30 @@ def _video_timeline(
     return shown, fc / m
 
 
+def _kept_image(shown: Any) -> npt.NDArray[np.uint8]:
+    """A copy of what ``on_frame`` was given: the image, or a stereo frame's two eyes side by
+    side (left | right)."""
+    if isinstance(shown, tuple):
+        return np.concatenate(shown, axis=1)
+    return np.array(shown)
+
+
+def _eye_images(img: npt.NDArray[np.uint8], eyes: int) -> list[npt.NDArray[np.uint8]]:
+    """The ``eyes`` images of a kept frame (:func:`_kept_image`), left first."""
+    if eyes == 1:
+        return [img]
+    w = img.shape[1] // eyes
+    return [np.ascontiguousarray(img[:, e * w : (e + 1) * w]) for e in range(eyes)]
+
+
 def _write_video(
     path: Path, frames: _Shown, fc: float, seconds: float, stride: int = 1,
-    captions: Sequence[str] | None = None,
+    captions: Sequence[str] | None = None, eyes: int = 1,
 ) -> None:
     """The display ``frames`` ``(display time, image)`` as a video of the session's length
     (:func:`_video_timeline`), each under its caption where ``captions`` (one per frame) are
-    given."""
+    given; a stereo session's (``eyes`` 2) shows the eyes side by side, the caption over the
+    left one."""
     from splitrender.evaluation.demo import _Video
     from splitrender.imageio import montage
 
@@ -540,8 +570,11 @@ def _write_video(
     shown, rate = _video_timeline([t for t, _ in frames], fc, seconds, stride)
 
     def picture(i: int) -> npt.NDArray[np.uint8]:
-        img = frames[i][1]
-        return _even(img if captions is None else montage([img], labels=[captions[i]]))
+        tiles = _eye_images(frames[i][1], eyes)
+        if captions is None:
+            return _even(montage(tiles, gap=0) if eyes > 1 else tiles[0])
+        labels = [captions[i]] if eyes == 1 else [f"left eye  {captions[i]}", "right eye"]
+        return _even(montage(tiles, labels=labels))
 
     first = picture(0)
     # _Video writes beside path and renames when complete: a reader never sees half a video.
@@ -602,21 +635,35 @@ def _shown(frames: _Shown, times: list[float]) -> _Shown:
 
 def _score(
     scene: Any, scale: float, fc: float, motion: Any, picked: _Shown, no_vmaf: bool,
+    eyes: int = 1,
 ) -> dict[str, Any]:
     """The display frames ``picked`` (display time, image) against the ground truth rendered
-    at the poses the client had (``motion(t)``: the same function that gave them)."""
+    at the poses the client had (``motion(t)``: the same function that gave them). A stereo
+    session's (``eyes`` 2, the eyes side by side) scores each eye against the ground truth of
+    that eye; the metrics are the means over both (as eval's Table 3), and ``per_eye`` holds
+    each eye's."""
     from splitrender.evaluation.metrics import METRICS, VMAF_MIN_SIDE, evaluate_sequence
 
     if not picked:
         return {"scored_frames": 0}
-    truth = []
+    truth: list[list[npt.NDArray[np.uint8]]] = [[] for _ in range(eyes)]
     for t, _ in picked:
-        truth.append(scene.client_frames(round(t * fc), scale, fc, pose=motion(t))[0][1])
-    h, w = picked[0][1].shape[:2]
+        views = scene.client_frames(round(t * fc), scale, fc, eyes == 2, pose=motion(t))
+        for e, (_, img) in enumerate(views):
+            truth[e].append(img)
+    h, w = _eye_images(picked[0][1], eyes)[0].shape[:2]
     metrics = [m for m in METRICS
                if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]
-    result = evaluate_sequence([img for _, img in picked], truth, skip=0, metrics=metrics)
-    return {m: result.mean[m] for m in metrics} | {"scored_frames": len(result.frames)}
+    per_eye = []
+    for e in range(eyes):
+        shown = [_eye_images(img, eyes)[e] for _, img in picked]
+        result = evaluate_sequence(shown, truth[e], skip=0, metrics=metrics)
+        per_eye.append({m: result.mean[m] for m in metrics})
+    out: dict[str, Any] = {m: sum(p[m] for p in per_eye) / eyes for m in metrics}
+    out["scored_frames"] = len(picked)
+    if eyes > 1:
+        out["per_eye"] = per_eye
+    return out
 
 
 # -- relay ---------------------------------------------------------------------------------------

@@ -95,7 +95,6 @@ from splitrender.types import (
 __all__ = ["ConnectOptions", "FrameOrder", "LiveClient"]
 
 _F64 = npt.NDArray[np.float64]
-_Image = npt.NDArray[np.uint8]
 
 #: Error code of a stream the client gives up on (STOP_SENDING).
 STOP_STALE = 1
@@ -902,14 +901,17 @@ class LiveClient:
         self,
         motion: Callable[[float], _F64],
         seconds: float,
-        on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+        on_frame: Callable[[Any, DisplayFrame], None] | None = None,
+        stereo: bool = False,
     ) -> dict[str, Any]:
         """The display loop for ``seconds`` at ``f_c`` (on this thread), sending each pose;
         then closes the session and returns :meth:`report`'s object. ``motion(t)`` is the
         world-from-camera pose at display time ``t``: a 4x4 matrix of a rotation and a position
         (the inverse of :attr:`Camera.view <splitrender.Camera.view>`), last row ``0 0 0 1``.
         The session is closed however the loop ends (an exception of ``motion`` or
-        ``on_frame`` included).
+        ``on_frame`` included). ``stereo``: each display frame is the two eyes of the head at
+        ``motion(t)`` (:meth:`Camera.stereo <splitrender.Camera.stereo>`), ``on_frame`` gets
+        ``(left, right)`` (:meth:`RealtimeClient.run`); the server is sent the head's pose.
 
         Raises:
             InvalidInputError: before :meth:`connect`, or for a pose ``motion`` returns that is
@@ -918,14 +920,15 @@ class LiveClient:
         assert self.realtime is not None
         proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
 
-        def pose(t: float) -> Camera:
+        def pose(t: float) -> Camera | tuple[Camera, Camera]:
             m = _checked_pose(motion, t)
             self.send_pose(t, m)
-            return Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
+            head = Camera(np.asarray(np.linalg.inv(m), np.float64), proj, w.width, w.height)
+            return head.stereo() if stereo else head
 
         self._t0 = time.monotonic()
         try:
-            rt = self.realtime.run(pose, seconds, on_frame=on_frame)
+            rt = self.realtime.run(pose, seconds, on_frame=on_frame, stereo=stereo)
         finally:
             # Also when the loop raised: the connection otherwise stayed open (the server
             # busy with it) and the worker's threads running while the object lived.
@@ -938,13 +941,14 @@ class LiveClient:
         method: str,
         motion: Callable[[float], _F64],
         seconds: float,
-        on_frame: Callable[[_Image, DisplayFrame], None] | None = None,
+        on_frame: Callable[[Any, DisplayFrame], None] | None = None,
+        stereo: bool = False,
     ) -> dict[str, Any]:
         """The session again with ``method``, offline from the network: the packets this
         session decoded, each submitted at the display time it was, at the poses ``motion``
         (the session's), through a real-time loop of its own (so what differs between two
         methods is the method, not what the network and the server did). Returns the loop's
-        summary.
+        summary. ``stereo`` as :meth:`run`.
 
         Raises:
             InvalidInputError: for a client made without ``keep_packets``, before
@@ -957,9 +961,10 @@ class LiveClient:
         w = self._connected("replay")
         proj = np.asarray(w.proj, dtype=np.float64).reshape(4, 4)
 
-        def pose(t: float) -> Camera:
+        def pose(t: float) -> Camera | tuple[Camera, Camera]:
             view = np.asarray(np.linalg.inv(_checked_pose(motion, t)), np.float64)
-            return Camera(view, proj, w.width, w.height)
+            head = Camera(view, proj, w.width, w.height)
+            return head.stereo() if stereo else head
 
         with RealtimeClient(
             client=Client(
@@ -969,7 +974,9 @@ class LiveClient:
             max_divisor=self.options.max_divisor,
             decoder=_TimeIndexed(w, dict(self.spans)),
         ) as rt:
-            return rt.run(pose, seconds, feed=self.arrivals, on_frame=on_frame).summary()
+            return rt.run(
+                pose, seconds, feed=self.arrivals, on_frame=on_frame, stereo=stereo
+            ).summary()
 
     def report(self, seconds: float) -> dict[str, Any]:
         """``report.json``: the real-time loop's summary, the pose-to-display latency, the
