@@ -560,8 +560,7 @@ def _write_video(
 ) -> None:
     """The display ``frames`` ``(display time, image)`` as a video of the session's length
     (:func:`_video_timeline`), each under its caption where ``captions`` (one per frame) are
-    given; a stereo session's (``eyes`` 2) shows the eyes side by side, the caption over the
-    left one."""
+    given; a stereo session's (``eyes`` 2) shows the eyes side by side under one caption."""
     from splitrender.evaluation.demo import _Video
     from splitrender.imageio import montage
 
@@ -571,10 +570,13 @@ def _write_video(
 
     def picture(i: int) -> npt.NDArray[np.uint8]:
         tiles = _eye_images(frames[i][1], eyes)
+        # A stereo frame's eyes side by side under one caption across both: at the small live
+        # scales a caption cut at one eye's width kept little more than the method's name.
+        img = tiles[0] if eyes == 1 else montage(tiles)
         if captions is None:
-            return _even(montage(tiles, gap=0) if eyes > 1 else tiles[0])
-        labels = [captions[i]] if eyes == 1 else [f"left eye  {captions[i]}", "right eye"]
-        return _even(montage(tiles, labels=labels))
+            return _even(img)
+        label = captions[i] if eyes == 1 else f"{captions[i]}  (left | right eye)"
+        return _even(montage([img], labels=[label]))
 
     first = picture(0)
     # _Video writes beside path and renames when complete: a reader never sees half a video.
