@@ -653,13 +653,13 @@ def _score(
         views = scene.client_frames(round(t * fc), scale, fc, eyes == 2, pose=motion(t))
         for e, (_, img) in enumerate(views):
             truth[e].append(img)
-    h, w = _eye_images(picked[0][1], eyes)[0].shape[:2]
+    shown = [_eye_images(img, eyes) for _, img in picked]  # per frame, per eye
+    h, w = shown[0][0].shape[:2]
     metrics = [m for m in METRICS
                if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]
     per_eye = []
     for e in range(eyes):
-        shown = [_eye_images(img, eyes)[e] for _, img in picked]
-        result = evaluate_sequence(shown, truth[e], skip=0, metrics=metrics)
+        result = evaluate_sequence([s[e] for s in shown], truth[e], skip=0, metrics=metrics)
         per_eye.append({m: result.mean[m] for m in metrics})
     out: dict[str, Any] = {m: sum(p[m] for p in per_eye) / eyes for m in metrics}
     out["scored_frames"] = len(picked)
