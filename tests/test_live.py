@@ -1183,6 +1183,7 @@ def test_load_certificate_names_the_file_that_is_wrong(tmp_path: Path) -> None:
         ("connect_timeout", 0.0, "connect_timeout: expected a finite float > 0"),
         ("backend", "metal", "unknown backend 'metal'"),
         ("max_divisor", 0, r"max_divisor: expected an int in \[1, 16\], got 0"),
+        ("defer_interpolation", "yes", "defer_interpolation: expected a bool, got str"),
     ],
 )
 def test_connect_options_are_checked_where_they_are_given(

@@ -6,6 +6,7 @@ time."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import sys
 import threading
@@ -51,8 +52,9 @@ class CostClient(Client):
         self.clock, self.cost, self.calls = clock, cost, 0
         self.rendered: list[Any] = []  # (eye, last_info) of each call
 
-    def render(self, camera: sr.Camera, time: float, *, eye: int = 0) -> np.ndarray:
-        image = super().render(camera, time, eye=eye)
+    def render(self, camera: sr.Camera, time: float, *, eye: int = 0,
+               interpolate: bool = True) -> np.ndarray:
+        image = super().render(camera, time, eye=eye, interpolate=interpolate)
         self.clock.advance(self.cost(self.calls))
         self.calls += 1
         self.rendered.append((eye, self.last_info))
@@ -225,6 +227,175 @@ def test_max_divisor_one_keeps_the_full_rate(scene, frames):
     assert {f.divisor for f in report.frames} == {1}
     assert report.deadline_misses == len(report.frames)
     assert report.summary()["repeated"] == 0
+
+
+class ModeCostClient(Client):
+    """A client whose interpolated frames take ``interpolate_s`` seconds of the fake clock and
+    its other frames ``extrapolate_s``, each times ``slow(clock)`` (the machine's speed)."""
+
+    def __init__(self, clock: FakeClock, interpolate_s: float, extrapolate_s: float,
+                 slow: Any = lambda t: 1.0) -> None:
+        super().__init__("ours")
+        self.clock, self.slow = clock, slow
+        self.cost = {"interpolate": interpolate_s, "extrapolate": extrapolate_s, "hold": 0.0}
+        self.rendered: list[Any] = []  # (eye, last_info, interpolate) of each call
+
+    def render(self, camera: sr.Camera, time: float, *, eye: int = 0,
+               interpolate: bool = True) -> np.ndarray:
+        image = super().render(camera, time, eye=eye, interpolate=interpolate)
+        assert self.last_info is not None
+        self.clock.advance(self.cost[self.last_info.mode] * self.slow(self.clock.t))
+        self.rendered.append((eye, self.last_info, interpolate))
+        return image
+
+
+def mode_cost_run(scene: sr.SyntheticScene, n_frames: int, seconds: float, *,
+                  slow: Any = lambda t: 1.0, defer: bool = True, stereo: bool = False,
+                  ahead: float = 1.0) -> tuple[rt.RealtimeReport, ModeCostClient]:
+    """A run over ``n_frames`` server frames, each received ``ahead`` server periods before its
+    time (one: every display frame can interpolate; half: the first half of each pair's
+    interval extrapolates), interpolated frames 1.2 refreshes long and extrapolated ones 0.4
+    (times ``slow`` of the clock)."""
+    clock = FakeClock()
+    client = ModeCostClient(clock, 1.2 * PERIOD, 0.4 * PERIOD, slow)
+    server = [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n_frames)]
+    before = [f for f in server if f.time - ahead / FS <= 0]
+    with RealtimeClient(client=client, clock=clock, display_fps=FC, executor=InlineExecutor(),
+                        defer_interpolation=defer) as c:
+        for f in before:
+            c.submit(f)
+        report = c.run(eyes_of(scene) if stereo else pose_of(scene), seconds, stereo=stereo,
+                       feed=[(f.time - ahead / FS, f) for f in server[len(before):]])
+    return report, client
+
+
+@pytest.mark.parametrize("stereo", [False, True])
+def test_interpolation_that_would_miss_its_deadline_is_deferred_to_extrapolation(scene,
+                                                                                 stereo):
+    # Interpolated frames take 1.2 refreshes, extrapolated ones 0.4 (both eyes: twice that
+    # when stereo, where the first misses and the deferral cover the whole frame).
+    report, client = mode_cost_run(scene, 4, 0.3, stereo=stereo,
+                                   slow=lambda t: 0.5 if stereo else 1.0)
+    frames_ = list(report.frames)
+    first = rt.ModeGovernor.MIN_FRAMES
+    # The first frames interpolate and miss, until their cost is known; then every frame that
+    # could interpolate extrapolates from the pair's older frame instead, on time, at the full
+    # rate (fewer misses than would halve it).
+    assert [(f.mode, f.met, f.deferred) for f in frames_[:first]] == [
+        ("interpolate", False, False)] * first
+    assert first < rt.RateGovernor.DOWN_MISSES
+    rest = frames_[first:]
+    assert len(rest) > 20
+    assert all(f.mode == "extrapolate" and f.deferred and f.met and f.divisor == 1
+               for f in rest)
+    # Extrapolated from the frame at or before the display time, as a late pair would be.
+    assert all(f.newer == math.floor(f.time * FS + 1e-9) and f.older is None for f in rest)
+    s = report.summary()
+    assert s["deadline_misses"] == first
+    assert s["interpolation_deferred"] == len(rest)
+    assert s["modes"] == {"interpolate": first, "extrapolate": len(rest), "hold": 0}
+    # Each eye of a deferred stereo frame extrapolates: both were asked not to interpolate.
+    eyes = 2 if stereo else 1
+    assert len(client.rendered) == eyes * len(frames_)
+    for k, f in enumerate(frames_):
+        calls = client.rendered[eyes * k: eyes * (k + 1)]
+        assert [eye for eye, _, _ in calls] == list(range(eyes))
+        assert all(info.mode == f.mode and interpolate != f.deferred
+                   for _, info, interpolate in calls)
+
+
+def test_always_interpolating_misses_and_halves_the_rate_instead(scene):
+    report, _ = mode_cost_run(scene, 4, 0.3, defer=False)
+    frames_ = list(report.frames)
+    down = rt.RateGovernor.DOWN_MISSES
+    assert all(f.mode == "interpolate" and not f.deferred for f in frames_)
+    assert [f.met for f in frames_[:down]] == [False] * down
+    assert all(f.divisor == 2 and f.met for f in frames_[down:])
+    assert report.summary()["interpolation_deferred"] == 0
+
+
+def test_deferred_interpolation_resumes_once_the_machine_is_fast_enough(scene):
+    # Slow (as above) for the first 0.1 s, then 2.5 times faster: an interpolated frame takes
+    # 0.48 refreshes. The deferred frames' extrapolation cost, scaled by what interpolating
+    # cost against it, says when interpolation fits again: once the slow extrapolated frames
+    # are out of the governor's window.
+    report, _ = mode_cost_run(scene, 16, 1.5, slow=lambda t: 1.0 if t < 100.1 else 0.4)
+    frames_ = list(report.frames)
+    deferred = [k for k, f in enumerate(frames_) if f.deferred]
+    assert deferred and deferred == list(range(deferred[0], deferred[-1] + 1))
+    back = deferred[-1] + 1
+    # Deferred through the slow part and until the slow extrapolated frames are too few of
+    # those kept to be their quantile (95 %), after which every frame interpolates again and
+    # meets its deadline.
+    fast_from = next(k for k, f in enumerate(frames_) if f.start >= 100.1)
+    slow = fast_from - deferred[0]
+    kept = next(n for n in range(slow, rt.ModeGovernor.WINDOW + 1)
+                if slow <= n - math.ceil(rt.ModeGovernor.QUANTILE * n))
+    assert back - fast_from == kept - slow
+    assert all(f.mode == "interpolate" and f.met and not f.deferred for f in frames_[back:])
+    assert len(frames_) - back > 30
+
+
+@pytest.mark.parametrize("defer", [True, False])
+def test_the_rate_goes_back_up_where_extrapolating_fits_the_refresh(scene, defer):
+    # Each frame arrives half a period before its time: each pair's interval extrapolates for
+    # its first half and can interpolate for the second. The first frames are three times
+    # slower (misses that halve the rate); then an interpolated frame takes 1.2 refreshes
+    # (on time at half rate, late at the full rate) and an extrapolated one 0.4.
+    report, _ = mode_cost_run(scene, 32, 3.0, ahead=0.5, defer=defer,
+                              slow=lambda t: 3.0 if t < 100.04 else 1.0)
+    frames_ = list(report.frames)
+    halved = next(k for k, f in enumerate(frames_) if f.divisor == 2)
+    assert all(not f.met for f in frames_[:halved])
+    if not defer:
+        # Interpolated frames of 1.2 refreshes never fit the full rate's headroom: half rate
+        # for the rest of the run, every frame on time.
+        assert all(f.divisor == 2 and f.met for f in frames_[halved:])
+        return
+    # Back at the full rate once a second of frames would fit it, the interpolated ones
+    # counted as extrapolated; there, interpolation that would miss is deferred and every frame
+    # is on time.
+    back = next(k for k, f in enumerate(frames_) if k > halved and f.divisor == 1)
+    after = frames_[back:]
+    assert len(after) > 120
+    assert all(f.divisor == 1 and f.met for f in after)
+    assert all(f.mode == "extrapolate" for f in after)
+    assert sum(f.deferred for f in after) > len(after) / 3
+
+
+def test_mode_governor_estimates_from_its_quantile_and_the_ratio_of_the_modes():
+    g = rt.ModeGovernor()
+    assert g.interpolation_s() is None and g.allows(0.0)  # unknown: interpolate
+    for _ in range(g.MIN_FRAMES - 1):
+        g.record("interpolate", 0.02)
+    assert g.interpolation_s() is None and g.allows(0.001)
+    g.record("interpolate", 0.02)
+    g.record("hold", 1.0)  # not kept
+    assert g.interpolation_s() == 0.02
+    # The slowest 5 % are above the quantile: one slow frame of 120 does not defer.
+    for _ in range(g.WINDOW - 1):
+        g.record("interpolate", 0.004)
+    g.record("interpolate", 0.02)
+    assert g.interpolation_s() == 0.004
+    assert g.allows(0.004 / g.HEADROOM) and not g.allows(0.0039 / g.HEADROOM)
+    # Deferred: its interpolated frames were let go; with no extrapolated frame kept yet, the
+    # estimate stays the one that deferred it until one divides it.
+    assert g.interpolation_s() == 0.004 and not g.allows(0.004)
+    for _ in range(g.MIN_FRAMES):
+        g.record("extrapolate", 0.002)
+    assert g.interpolation_s() == pytest.approx(0.004)  # 0.002 times the ratio 2
+    for _ in range(g.WINDOW):
+        g.record("extrapolate", 0.001)
+    assert g.interpolation_s() == pytest.approx(0.002)
+    assert g.allows(0.0023)
+
+
+def test_bad_defer_interpolation_is_refused():
+    with pytest.raises(InvalidInputError, match="defer_interpolation: expected a bool"):
+        RealtimeClient(defer_interpolation=1)
+    with pytest.raises(InvalidInputError, match="interpolate: expected a bool"):
+        Client("ours").render(sr.Camera.look_at((0, 0, 0), (0, 0, -1), width=W, height=H), 0.0,
+                              interpolate="no")
 
 
 def test_a_stereo_frame_is_both_eyes_from_one_pair(scene, frames):
@@ -1360,6 +1531,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--max-divisor", "2"], "--max-divisor goes with --realtime"),
         (["--prepare-threads", "2"], "--prepare-threads goes with --realtime"),
         (["--stereo"], "--stereo goes with --realtime"),
+        (["--always-interpolate"], "--always-interpolate goes with --realtime"),
         (["--realtime", "--backend", "wgpu", "--prepare-threads", "2"],
          "--prepare-threads goes with --backend cpu"),
         (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),

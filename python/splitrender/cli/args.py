@@ -366,6 +366,19 @@ def add_max_divisor(p: Any, default: int | None, when: str = "") -> None:
     )
 
 
+def add_always_interpolate(p: Any, when: str = "") -> None:
+    """``--always-interpolate``: a frame that can interpolate its pair does, whatever it costs
+    (``RealtimeClient(defer_interpolation=False)``; by default it extrapolates where an
+    interpolated frame would miss its deadline, :class:`~splitrender.client.realtime.ModeGovernor`).
+    ``when`` (e.g. ``"with --realtime: "``) opens its help."""
+    p.add_argument(
+        "--always-interpolate", action="store_true",
+        help=f"{when}interpolate every frame that has its pair, even where an interpolated "
+        "frame would miss its deadline (default: such a frame extrapolates from the pair's "
+        "older frame instead, which costs about 60 %% as much)",
+    )
+
+
 def add_samples(p: argparse.ArgumentParser, more: str = "") -> None:
     """``--samples N`` (:data:`SAMPLES_HELP`, then ``more``)."""
     p.add_argument("--samples", type=samples, default=None, metavar="N", help=SAMPLES_HELP + more)

@@ -8,6 +8,7 @@ from typing import Any
 
 from splitrender.cli.args import (
     add_backend,
+    add_always_interpolate,
     add_max_divisor,
     add_network,
     add_no_vmaf,
@@ -318,6 +319,7 @@ def add_bench(sub: Any) -> None:
         f"run at the worker's priority; default: {PREPARE_THREADS})",
     )
     add_max_divisor(be, None, "with --realtime: ")
+    add_always_interpolate(be, "with --realtime: ")
     be.add_argument(
         "--stereo", action="store_true",
         help="with --realtime: two eyes per display frame (IPD 7 cm), both rendered from the "
@@ -365,6 +367,7 @@ def bench(args: argparse.Namespace) -> int:
         ("--worker-priority", args.worker_priority is not None),
         ("--display-priority", args.display_priority is not None),
         ("--max-divisor", args.max_divisor is not None),
+        ("--always-interpolate", args.always_interpolate),
         ("--prepare-threads", args.prepare_threads is not None),
         ("--plot", args.plot is not None),
         ("--stereo", args.stereo),
@@ -429,6 +432,7 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             display_priority=args.display_priority or "realtime", backend=args.backend,
             max_divisor=MAX_DIVISOR if args.max_divisor is None else args.max_divisor,
             prepare_threads=args.prepare_threads, stereo=args.stereo,
+            defer_interpolation=not args.always_interpolate,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

@@ -19,6 +19,7 @@ import numpy.typing as npt
 from splitrender.cli.args import (
     MAX_SECONDS,
     add_backend,
+    add_always_interpolate,
     add_max_divisor,
     add_no_vmaf,
     add_out,
@@ -274,6 +275,7 @@ def add_connect(sub: Any) -> None:
     p.add_argument("--fps", type=_display_fps, default=DISPLAY_FPS, metavar="FC",
                    help="display frames per second, f_c (default: %(default)s)")
     add_max_divisor(p, MAX_DIVISOR)
+    add_always_interpolate(p)
     p.add_argument("--scene", default=None, metavar="SCENE",
                    help="the scene the server renders, for the poses and --score's ground "
                    "truth: the JSON scene description given to `serve --scene` (a copy "
@@ -351,6 +353,7 @@ def run_connect(args: argparse.Namespace) -> int:
             host, port, args.token, args.fingerprint, args.method, args.fps, backend=args.backend,
             version=PROTOCOL_VERSION if args.protocol_version is None else args.protocol_version,
             max_divisor=args.max_divisor, keep_packets=args.compare is not None,
+            defer_interpolation=not args.always_interpolate,
         )
     except SplitRenderError as e:
         return fail(str(e))
@@ -454,7 +457,10 @@ def run_connect(args: argparse.Namespace) -> int:
     p50 = report["pose_to_display_ms_p50"]  # None: no display frame showed a server frame
     print(f"{report['frames']} frames ({report['full_rate_pct']:.0f} % at the full rate), "
           f"{report['deadline_misses']} deadline misses, modes "
-          f"{report['modes']}, {report['server_frames_received']} server frames "
+          f"{report['modes']}"
+          + (f" ({report['interpolation_deferred']} extrapolated where interpolating would "
+             "have missed)" if report.get("interpolation_deferred") else "")
+          + f", {report['server_frames_received']} server frames "
           f"({net['frames_lost']} lost, {net['key_recoveries']} key-frame recoveries), "
           f"pose-to-display p50 {'n/a' if p50 is None else f'{p50:.0f} ms'}, "
           f"{report['mbps']:.3f} Mb/s; wrote {out}/: report.json, video.mp4")

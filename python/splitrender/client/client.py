@@ -30,6 +30,7 @@ from splitrender.net.model import (
 from splitrender.reproject import METHODS, _reproject_alpha
 from splitrender.types import Camera, ReprojectOptions, ServerFrame, check_server_frame
 from splitrender.types import (  # argument checks
+    BOOL,
     MAX_RATE,
     checked,
     floats,
@@ -185,9 +186,10 @@ class Client:
         )
         return True
 
-    @checked(time=floats())
-    def choose(self, time: float) -> ClientFrameInfo:
-        """The frames, ``α`` and mode :meth:`render` would use at ``time`` (no state change)."""
+    @checked(time=floats(), interpolate=BOOL)
+    def choose(self, time: float, *, interpolate: bool = True) -> ClientFrameInfo:
+        """The frames, ``α`` and mode :meth:`render` would use at ``time`` (no state change);
+        ``interpolate`` as :meth:`render`'s."""
         return choose_frames(
             self._buffer.times,
             time,
@@ -195,14 +197,20 @@ class Client:
             self.method,
             splat_bidirectional=self.options.splat_bidirectional,
             spans={i: f.span for i, f in self._frames.items()},
+            interpolate=interpolate,
         )
 
-    @checked(camera=instances(Camera), time=floats(), eye=ints(0, 1))
-    def render(self, camera: Camera, time: float, *, eye: int = 0) -> _Image:
+    @checked(camera=instances(Camera), time=floats(), eye=ints(0, 1), interpolate=BOOL)
+    def render(
+        self, camera: Camera, time: float, *, eye: int = 0, interpolate: bool = True
+    ) -> _Image:
         """The client frame (``uint8[H, W, 3]``) at ``camera`` and display ``time`` seconds;
         ``eye`` keys the previous-output and history state (0 mono/left, 1 right).
         :attr:`last_info` then says how it was made. Holding (no usable frame) returns the
-        previous output of that eye, or black.
+        previous output of that eye, or black. ``interpolate=False`` extrapolates from the
+        newest frame at or before ``time`` even where a pair would interpolate (cheaper: what
+        the real-time loop does when an interpolated frame would miss its deadline,
+        :class:`~splitrender.client.realtime.ModeGovernor`).
 
         The image is read-only, on both backends: it is also the eye's previous output, whose
         colour the next frame's unmatched pixels keep, so a caller that drew on it (an overlay
@@ -222,13 +230,13 @@ class Client:
                 "renders one frame at a time (use one client per thread, or a lock)"
             )
         try:
-            return self._render(camera, float(time), eye)
+            return self._render(camera, float(time), eye, interpolate)
         finally:
             self._rendering.release()
 
-    def _render(self, camera: Camera, time: float, eye: int) -> _Image:
+    def _render(self, camera: Camera, time: float, eye: int, interpolate: bool = True) -> _Image:
         """:meth:`render` with its arguments checked, one thread at a time."""
-        info = self.choose(time)
+        info = self.choose(time, interpolate=interpolate)
         prev = self._previous.get(eye)
         if prev is not None and prev.shape[:2] != camera.shape:
             prev = None

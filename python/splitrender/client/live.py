@@ -133,7 +133,10 @@ class ConnectOptions:
     ``None`` accepts any certificate (``--insecure``). ``backend``: where the display renders
     (``"wgpu"``: on the GPU, each pair uploaded by the receiving worker). ``max_divisor``: the
     most the display may divide ``display_fps`` by when its frames do not fit the refresh
-    (:class:`~splitrender.client.realtime.RateGovernor`; 1 holds the rate)."""
+    (:class:`~splitrender.client.realtime.RateGovernor`; 1 holds the rate).
+    ``defer_interpolation``: a frame that could interpolate extrapolates instead where an
+    interpolated frame would miss its deadline
+    (:class:`~splitrender.client.realtime.ModeGovernor`; ``False``: always interpolate)."""
 
     host: str
     port: int
@@ -145,6 +148,7 @@ class ConnectOptions:
     backend: str = "cpu"
     version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
     max_divisor: int = MAX_DIVISOR
+    defer_interpolation: bool = True
     #: Keep every packet received, for :meth:`LiveClient.replay` (all the bytes of the session).
     keep_packets: bool = False
 
@@ -173,6 +177,9 @@ class ConnectOptions:
         object.__setattr__(self, "keep_packets", check_bool("keep_packets", self.keep_packets))
         check_int("version", self.version, 0, 0xFFFF)
         check_int("max_divisor", self.max_divisor, 1, 16)  # RateGovernor's range
+        object.__setattr__(
+            self, "defer_interpolation", check_bool("defer_interpolation", self.defer_interpolation)
+        )
 
 
 class FrameOrder:
@@ -628,6 +635,7 @@ class LiveClient:
             ),
             display_fps=self.options.display_fps,
             max_divisor=self.options.max_divisor,
+            defer_interpolation=self.options.defer_interpolation,
             decoder=_TimeIndexed(welcome, self.spans),
             on_handover=self._handed,
         )
@@ -972,6 +980,7 @@ class LiveClient:
             ),
             display_fps=self.options.display_fps,
             max_divisor=self.options.max_divisor,
+            defer_interpolation=self.options.defer_interpolation,
             decoder=_TimeIndexed(w, dict(self.spans)),
         ) as rt:
             return rt.run(
@@ -991,6 +1000,7 @@ class LiveClient:
             backend=self.options.backend,
             adapter=None if gpu is None else gpu.adapter,
             max_divisor=self.options.max_divisor,
+            defer_interpolation=self.options.defer_interpolation,
             pose_to_display_ms_p50=s.get("server_age_ms_p50"),
             # time.monotonic() at display time 0 (the same clock in every process of the
             # machine: events elsewhere, e.g. a relay's bandwidth step, can be placed on

@@ -22,9 +22,12 @@ Three things happen at once, and only the last is on the display path:
    time, is rendered by :meth:`Client.render` from the usable frames, and is due at the next
    refresh. A frame that finishes after it is *late* (a deadline miss); the loop then starts
    again at the first refresh not yet passed, so one slow frame never makes the following ones
-   late (the refreshes in between are *dropped*: the display repeats its image). A display
-   whose frames do not fit the refresh goes on at half the rate (:class:`RateGovernor`, as
-   headset runtimes do), on time, and back to the full rate once its frames fit again.
+   late (the refreshes in between are *dropped*: the display repeats its image). A frame that
+   could interpolate its pair extrapolates from the pair's older frame instead where an
+   interpolated frame would not be done by its deadline (:class:`ModeGovernor`: about 60 % of
+   the cost); a display whose frames do not fit the refresh even so goes on at half the rate
+   (:class:`RateGovernor`, as headset runtimes do), on time, and back to the full rate once
+   its frames fit again.
 
 Every display frame is recorded (:class:`DisplayFrame`): deadline met or missed, render time,
 mode (interpolate, extrapolate, hold), the server frames used, and the age of the newest server
@@ -93,6 +96,7 @@ __all__ = [
     "PREPARE_THREADS",
     "DisplayFrame",
     "Handover",
+    "ModeGovernor",
     "MonotonicClock",
     "RateGovernor",
     "RealtimeClient",
@@ -139,7 +143,10 @@ class DisplayFrame:
     refresh it started on (``start`` is later by the wait for the display thread to run);
     ``cpu_ms`` the CPU time the display's threads (the display thread and the render threads)
     spent from ``start`` to ``done`` (``None`` where threads' CPU clocks cannot be read: off
-    Linux). ``eyes``: the images it is (2 for a stereo run: its times cover both eyes)."""
+    Linux). ``eyes``: the images it is (2 for a stereo run: its times cover both eyes).
+    ``deferred``: it could have interpolated its pair but extrapolated from the pair's older
+    frame, because an interpolated frame would not have been done by its deadline
+    (:class:`ModeGovernor`)."""
 
     index: int
     time: float
@@ -156,6 +163,7 @@ class DisplayFrame:
     refresh: float | None = None
     cpu_ms: float | None = None
     eyes: int = 1
+    deferred: bool = False
 
     @property
     def render_ms(self) -> float:
@@ -306,6 +314,7 @@ class RealtimeReport:
         self._count = 0
         self._misses = 0
         self._prepared = 0
+        self._deferred = 0
         self._modes: dict[str, int] = dict.fromkeys(MODES, 0)
         self._divisors: dict[int, int] = {}
         self._render = Tally()
@@ -323,6 +332,7 @@ class RealtimeReport:
         self.frames.append(frame)
         self._count += 1
         self._prepared += frame.prepared
+        self._deferred += frame.deferred
         self._modes[frame.mode] = self._modes.get(frame.mode, 0) + 1
         self._divisors[frame.divisor] = self._divisors.get(frame.divisor, 0) + 1
         self._render.add(frame.render_ms)
@@ -387,9 +397,11 @@ class RealtimeReport:
         ``full_rate_pct`` (frames at ``f_c``) and ``frames_by_divisor`` (how many at ``f_c / d``,
         keyed by ``d`` as text), ``frame_ms_p50/p95/p99/max`` (render time),
         ``frame_cpu_ms_p50/max`` (the display threads' CPU time per frame), ``modes`` (count
-        per mode), ``decode_ms_per_server_frame``, ``prepare_ms_per_server_frame`` (both
-        pairs) and ``usable_ms_per_server_frame`` (from the worker taking the packet until the
-        frame is usable: its decode and first pair; all medians), the server frames received
+        per mode), ``interpolation_deferred`` (the extrapolated frames that could have
+        interpolated, but an interpolated frame would have missed its deadline:
+        :class:`ModeGovernor`), ``decode_ms_per_server_frame``,
+        ``prepare_ms_per_server_frame`` (both pairs) and ``usable_ms_per_server_frame`` (from
+        the worker taking the packet until the frame is usable: its decode and first pair; all medians), the server frames received
         and late, ``packets_undecodable`` (packets the decoder refused; :attr:`undecodable`
         says why), ``pairs_skipped`` (interpolation pairs not prepared because they would have
         come too late) and ``pairs_probed`` (such pairs prepared anyway, to measure them
@@ -419,6 +431,7 @@ class RealtimeReport:
             "frame_cpu_ms_p50": self._cpu.median(),
             "frame_cpu_ms_max": self._cpu.max,
             "modes": {m: self._modes.get(m, 0) for m in MODES},
+            "interpolation_deferred": self._deferred,
             "prepared_pct": 100.0 * self._prepared / n if n else 0.0,
             "decode_ms_per_server_frame": self.decode_ms.median(),
             "prepare_ms_per_server_frame": self.prepare_ms.median(),
@@ -463,8 +476,9 @@ class RateGovernor:
       (a page fault, another process) changes nothing.
     - **Up** by one when every frame of the last second at the current divisor (``f_c /
       divisor`` frames) finished within :data:`HEADROOM` of the deadline it would have had at
-      the divisor below. The headroom and the second keep it from switching back and forth at
-      the edge.
+      the divisor below (an interpolated frame counted at what it would have cost
+      extrapolating, where :class:`ModeGovernor` defers interpolation that does not fit). The
+      headroom and the second keep it from switching back and forth at the edge.
 
     ``max_divisor = 1`` keeps the full rate whatever the frames cost."""
 
@@ -502,6 +516,111 @@ class RateGovernor:
         self.divisor = divisor
         self._missed.clear()
         self._fitting = 0
+
+
+class ModeGovernor:
+    """Whether a display frame that could interpolate its pair does, or extrapolates from the
+    pair's older frame instead because an interpolated frame would not be done by its deadline
+    (``RealtimeClient(defer_interpolation=)``).
+
+    Why: an interpolated frame of ``ours`` costs about 1.6 times an extrapolated one (two
+    sources to carry to the display camera and search instead of one). In a slow hour of a
+    shared machine the interpolated frames' slowest few pass the refresh while the
+    extrapolated ones still fit (640×360 at 120 Hz on 2 cores: 0.3–1.4 % of the frames missed,
+    all of them interpolated; docs/realtime.md). A missed frame shows the last image for one
+    more refresh (judder), then a pose a refresh old; extrapolated, it is on time, and only
+    what the newer frame would have shown (disocclusions) is filled from the older one. Headset
+    runtimes make the same trade: the deadline first, then the quality of the frame.
+
+    - The render times of the last :data:`WINDOW` frames of each mode are kept.
+    - The cost of an interpolated frame is the :data:`QUANTILE` of those kept of that mode;
+      with fewer than :data:`MIN_FRAMES` of them, the extrapolated frames' quantile times the
+      ratio of the two modes' medians, last measured together (without a ratio yet: the
+      interpolated frames' quantile when interpolation was last deferred); before any of these,
+      unknown.
+    - A frame interpolates when that cost is unknown or fits within :data:`HEADROOM` of the
+      time left to its deadline when it starts. When it does not, the interpolated frames
+      kept are let go: from then on the cost follows the extrapolated frames (which go on
+      being rendered), and interpolation resumes once it fits again.
+
+    A frame that could not interpolate anyway (no pair yet, hold) does not ask. The
+    :class:`RateGovernor` halves the rate only when the frames miss even so, and goes back up
+    when they would fit the faster rate extrapolating (:meth:`cheapest_s`): 120 Hz with some
+    frames extrapolated is a better display than 60 Hz with all of them interpolated."""
+
+    #: Frames of each mode whose render times are kept.
+    WINDOW = 120
+    #: The share of the kept frames of a mode that the cost estimate covers.
+    QUANTILE = 0.95
+    #: Interpolated frames needed before their own times are the estimate (three, so that the
+    #: display extrapolates before :class:`RateGovernor`'s fourth miss would halve the rate).
+    MIN_FRAMES = 3
+    #: The share of the time left to the deadline the estimate must fit in.
+    HEADROOM = 0.9
+
+    def __init__(self) -> None:
+        self._times: dict[str, deque[float]] = {
+            "interpolate": deque(maxlen=self.WINDOW),
+            "extrapolate": deque(maxlen=self.WINDOW),
+        }
+        # The interpolated over the extrapolated frames' median, last measured together; and
+        # the interpolated frames' (quantile, median) when interpolation was last deferred.
+        self._ratio: float | None = None
+        self._deferred_at: tuple[float, float] | None = None
+
+    def _stats(self, mode: str) -> tuple[float, float] | None:
+        """The :data:`QUANTILE` and the median of the kept frames of ``mode`` (``None``: fewer
+        than :data:`MIN_FRAMES`)."""
+        kept = self._times[mode]
+        if len(kept) < self.MIN_FRAMES:
+            return None
+        ordered = sorted(kept)
+        n = len(ordered)
+        return ordered[max(0, math.ceil(self.QUANTILE * n) - 1)], ordered[(n - 1) // 2]
+
+    def interpolation_s(self) -> float | None:
+        """The estimated render time of an interpolated frame (seconds; ``None``: unknown)."""
+        own = self._stats("interpolate")
+        if own is not None:
+            return own[0]
+        other = self._stats("extrapolate")
+        if other is not None and self._ratio is not None:
+            return other[0] * self._ratio
+        return None if self._deferred_at is None else self._deferred_at[0]
+
+    def allows(self, time_left_s: float) -> bool:
+        """Whether a frame that could interpolate, with ``time_left_s`` to its deadline, does."""
+        cost = self.interpolation_s()
+        if cost is None or cost <= self.HEADROOM * time_left_s:
+            return True
+        own = self._stats("interpolate")
+        if own is not None:
+            self._deferred_at = own
+            self._times["interpolate"].clear()
+        return False
+
+    def record(self, mode: str, render_s: float) -> None:
+        """Records a display frame of ``mode`` that took ``render_s`` seconds (``hold`` frames
+        are not kept)."""
+        if mode not in self._times:
+            return
+        self._times[mode].append(render_s)
+        other = self._stats("extrapolate")
+        if other is None or other[1] <= 0.0:
+            return
+        own = self._stats("interpolate")
+        if own is not None:
+            self._ratio = own[1] / other[1]
+        elif self._ratio is None and self._deferred_at is not None:
+            self._ratio = self._deferred_at[1] / other[1]
+
+    def cheapest_s(self, mode: str, render_s: float) -> float:
+        """What a frame of ``mode`` that took ``render_s`` seconds would have taken had its
+        interpolation been deferred: divided by the ratio of the modes' medians for an
+        interpolated frame (when the ratio is known and above 1), else ``render_s``."""
+        if mode == "interpolate" and self._ratio is not None and self._ratio > 1.0:
+            return render_s / self._ratio
+        return render_s
 
 
 #: Submitted packets kept for :meth:`RealtimeClient.wait` before the done ones are let go.
@@ -713,7 +832,10 @@ class RealtimeClient:
     (:func:`_raise_display`; restored when it returns; the report's ``display_scheduling`` says
     what it got). ``max_divisor`` is the most :meth:`run` may divide the display rate by when
     its frames do not fit the refresh (:class:`RateGovernor`; default 2, half rate; 1 keeps
-    ``f_c`` whatever the frames cost). ``keep_frames`` is how many display frames the report
+    ``f_c`` whatever the frames cost). ``defer_interpolation`` (default ``True``): a frame that
+    could interpolate its pair extrapolates from the pair's older frame instead where an
+    interpolated frame would not be done by its deadline (:class:`ModeGovernor`; ``False``
+    interpolates whatever it costs). ``keep_frames`` is how many display frames the report
     keeps one by one (:attr:`RealtimeReport.frames`: the newest; default :data:`KEEP_FRAMES`,
     ``None``: all, memory growing with the run); its summary covers every frame either way.
     ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
@@ -738,8 +860,8 @@ class RealtimeClient:
         prepare_threads=optional(ints(1, MAX_PREPARE_THREADS)), decoder=optional(_decoder),
         executor=optional(instances(Executor)), worker_priority=strs(*WORKER_PRIORITIES),
         display_priority=strs(*DISPLAY_PRIORITIES), backend=strs(*BACKENDS),
-        max_divisor=ints(1, 16), keep_frames=optional(ints(0, 1 << 40)),
-        on_handover=optional(CALLABLE),
+        max_divisor=ints(1, 16), defer_interpolation=BOOL,
+        keep_frames=optional(ints(0, 1 << 40)), on_handover=optional(CALLABLE),
     )
     def __init__(
         self,
@@ -757,6 +879,7 @@ class RealtimeClient:
         display_priority: str = "realtime",
         backend: str = "cpu",
         max_divisor: int = MAX_DIVISOR,
+        defer_interpolation: bool = True,
         keep_frames: int | None = KEEP_FRAMES,
         on_handover: Callable[[Handover], None] | None = None,
     ) -> None:
@@ -780,6 +903,7 @@ class RealtimeClient:
         self.worker_priority = worker_priority
         self.display_priority = display_priority
         self.max_divisor = max_divisor
+        self.defer_interpolation = defer_interpolation
         self.keep_frames = keep_frames
         self.on_handover = on_handover
         self._decoder = decoder
@@ -1155,28 +1279,44 @@ class RealtimeClient:
 
     # -- display ---------------------------------------------------------------------------
 
-    def render(self, camera: Camera, time: float, *, eye: int = 0) -> _Image:
+    @checked(interpolate=BOOL)
+    def render(
+        self, camera: Camera, time: float, *, eye: int = 0, interpolate: bool = True
+    ) -> _Image:
         """The display frame at ``camera`` and display ``time`` from the frames usable now
         (:meth:`Client.render`: read-only, the eye's previous output for the next frame's
-        unmatched pixels); :attr:`Client.last_info` says how it was made.
+        unmatched pixels; ``interpolate`` as its); :attr:`Client.last_info` says how it was
+        made.
 
         Raises:
             InvalidInputError: as :meth:`Client.render`, and for a client that was closed."""
         self._check_open()
-        return self._render((camera,), time, eye)[0][0]
+        return self._render((camera,), time, eye, lambda: interpolate)[0][0]
 
     def _render(
-        self, cameras: Sequence[Camera], time: float, first_eye: int = 0
-    ) -> tuple[list[_Image], bool, float | None]:
+        self,
+        cameras: Sequence[Camera],
+        time: float,
+        first_eye: int = 0,
+        interpolate: Callable[[], bool] | None = None,
+    ) -> tuple[list[_Image], bool, float | None, bool]:
         """:meth:`render` of each of ``cameras`` (eyes ``first_eye``, ``first_eye + 1``, …), and
         (under the same lock, so that the worker cannot change them in between) whether its pair
-        was prepared and the pose time of the newest usable frame. The eyes of a stereo frame
-        are rendered under one hold of the lock: the worker cannot hand a new pair over between
-        them, so both eyes show the same server frames at the same α."""
+        was prepared, the pose time of the newest usable frame, and whether interpolation was
+        deferred: ``interpolate`` is asked, only when the frame could interpolate, whether it
+        does. The eyes of a stereo frame are rendered under one hold of the lock: the worker
+        cannot hand a new pair over between them, so both eyes show the same server frames at
+        the same α."""
         with self._lock:
             self._release_due(time)
+            deferred = (
+                interpolate is not None
+                and self.client.choose(time).mode == "interpolate"
+                and not interpolate()
+            )
             images = [
-                self.client.render(c, time, eye=first_eye + e) for e, c in enumerate(cameras)
+                self.client.render(c, time, eye=first_eye + e, interpolate=not deferred)
+                for e, c in enumerate(cameras)
             ]
             info = self.client.last_info
             assert info is not None
@@ -1184,7 +1324,7 @@ class RealtimeClient:
             held = self.client.held
             self._forget_dropped(held)
             newest = self._pose_time[max(held)] if held else None
-        return images, prepared, newest
+        return images, prepared, newest, deferred
 
     @overload
     def run(
@@ -1369,6 +1509,7 @@ class RealtimeClient:
         clocks (:func:`_thread_cpu_clocks`), read around each frame."""
         period = 1.0 / self.display_fps
         governor = RateGovernor(self.display_fps, self.max_divisor)
+        modes = ModeGovernor()
         nxt = next(arrivals, None)
         n = 0
         late_in_a_row = 0
@@ -1391,7 +1532,11 @@ class RealtimeClient:
             cameras = views(t)
             start = self.clock.now()
             used = _cpu_s(clocks)
-            images, prepared, newest = self._render(cameras, t)
+            deadline = tick + d * period
+            allows = (
+                (lambda: modes.allows(deadline - start)) if self.defer_interpolation else None
+            )
+            images, prepared, newest, deferred = self._render(cameras, t, 0, allows)
             after = _cpu_s(clocks)
             done = self.clock.now()
             info = self.client.last_info
@@ -1401,7 +1546,7 @@ class RealtimeClient:
                 time=t,
                 start=start,
                 done=done,
-                deadline=tick + d * period,
+                deadline=deadline,
                 mode=info.mode,
                 older=info.older,
                 newer=info.newer,
@@ -1412,7 +1557,9 @@ class RealtimeClient:
                 refresh=tick,
                 cpu_ms=None if used is None or after is None else (after - used) * 1e3,
                 eyes=len(images),
+                deferred=deferred,
             )
+            modes.record(info.mode, done - start)
             report.add(record)
             late_in_a_row = 0 if record.met else late_in_a_row + 1
             if raised and late_in_a_row >= _OVERRUN_FRAMES:
@@ -1425,7 +1572,11 @@ class RealtimeClient:
             if on_frame is not None:
                 on_frame(images[0] if len(images) == 1 else tuple(images), record)
             after = self.clock.now()
-            governor.update(after - tick, record.met)
+            frame_s = after - tick
+            if self.defer_interpolation:
+                # At the faster rate this frame could extrapolate, were interpolating too slow.
+                frame_s -= (done - start) - modes.cheapest_s(info.mode, done - start)
+            governor.update(frame_s, record.met)
             # The frame is shown for its `d` refreshes; the next starts after them, or at the
             # first refresh not yet passed (a late frame drops the refreshes it overran instead
             # of making every later frame late too).

@@ -105,6 +105,10 @@ class RealtimeBench:
     #: The threads of the worker's pair preparation (``--prepare-threads``); ``None`` on the
     #: GPU backend, where the worker uploads each pair instead of preparing it.
     prepare_threads: int | None = PREPARE_THREADS
+    #: A frame that could interpolate extrapolated where an interpolated frame would have
+    #: missed its deadline (``False``: ``--always-interpolate``; the summary's
+    #: ``interpolation_deferred`` counts those frames).
+    defer_interpolation: bool = True
 
     def to_json(self) -> dict[str, Any]:
         """What ran (every field but the summary and the frames), then the summary's keys."""
@@ -190,6 +194,7 @@ def run_realtime_bench(
     max_divisor: int = MAX_DIVISOR,
     prepare_threads: int | None = None,
     stereo: bool = False,
+    defer_interpolation: bool = True,
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``stereo``: each display frame is two eyes (:meth:`Camera.stereo
@@ -203,6 +208,9 @@ def run_realtime_bench(
     ``prepare_threads``: the threads of the worker's pair preparation on the CPU (``None``:
     :data:`~splitrender.client.realtime.PREPARE_THREADS`; refused with ``backend="wgpu"``,
     where the worker uploads each pair instead).
+    ``defer_interpolation``: a frame that could interpolate extrapolates where an
+    interpolated frame would miss its deadline (``RealtimeClient``'s; ``False``:
+    ``--always-interpolate``).
     ``backend``: where the display renders (``"wgpu"``: the GPU, the worker uploading each
     pair).
 
@@ -302,6 +310,7 @@ def run_realtime_bench(
         worker_priority=worker_priority,
         display_priority=display_priority,
         max_divisor=max_divisor,
+        defer_interpolation=defer_interpolation,
         prepare_threads=prepare_threads,
         keep_frames=None,  # the plots show every frame of the run (its length is the user's)
     ) as client:
@@ -322,7 +331,7 @@ def run_realtime_bench(
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
-        max_divisor, prepare_threads,
+        max_divisor, prepare_threads, defer_interpolation,
     )
 
 
@@ -334,7 +343,13 @@ def format_realtime(b: RealtimeBench) -> str:
         v = s.get(key)
         return "n/a" if v is None else f"{v:.2f} ms"
 
-    modes = ", ".join(f"{k} {v}" for k, v in s["modes"].items())
+    modes = ", ".join(
+        f"{k} {v}"
+        + (f" ({s['interpolation_deferred']} of them instead of interpolating, which would "
+           "have missed the deadline)"
+           if k == "extrapolate" and s.get("interpolation_deferred") else "")
+        for k, v in s["modes"].items()
+    )
     fc = s["display_fps"]
     rates = ", ".join(
         f"{fc / int(d):g} FPS {100 * v / max(s['frames'], 1):.1f} %"
@@ -368,7 +383,8 @@ def format_realtime(b: RealtimeBench) -> str:
                else f"; display threads' CPU per frame p50 {ms('frame_cpu_ms_p50')}, "
                f"max {ms('frame_cpu_ms_max')}"),
             f"  modes: {modes}; pairs prepared off the display path: "
-            f"{s['prepared_pct']:.1f} % of frames",
+            f"{s['prepared_pct']:.1f} % of frames"
+            + ("" if b.defer_interpolation else " (--always-interpolate)"),
             f"  decode {ms('decode_ms_per_server_frame')} and pair "
             + ("preparation " if b.backend == "cpu" else "upload ")
             + f"{ms('prepare_ms_per_server_frame')} per server frame (worker thread"

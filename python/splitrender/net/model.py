@@ -275,15 +275,18 @@ def choose_frames(
     *,
     splat_bidirectional: bool = False,
     spans: Mapping[int, int] | None = None,
+    interpolate: bool = True,
 ) -> ClientFrameInfo:
     """The frames, ``α`` and mode for display time ``time`` given the frames ``held``
     (``index -> time``), by the rules in the module docs. ``spans`` (``index -> span``,
     absent: 1) are the periods each frame's motion spans (:attr:`ServerFrame.span`): frame
     ``k`` of span ``m`` pairs with frame ``k + m`` of the same span, and extrapolates with
-    ``α = 1 + (t − t_k) · f_s / m``."""
+    ``α = 1 + (t − t_k) · f_s / m``. ``interpolate=False``: extrapolate from frame ``k`` even
+    where the pair would interpolate (the real-time loop's
+    :class:`~splitrender.client.realtime.ModeGovernor`; ``backward_bidir`` then holds)."""
     method = _check_method(method)
     t = float(time)
-    bidir = interpolates(method, splat_bidirectional)
+    bidir = interpolate and interpolates(method, splat_bidirectional)
     held_ix = tuple(sorted(held))
     past = [j for j in held_ix if held[j] <= t + TIME_EPS]
     if past:
