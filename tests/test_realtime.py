@@ -234,8 +234,8 @@ class ModeCostClient(Client):
     its other frames ``extrapolate_s``, each times ``slow(clock)`` (the machine's speed)."""
 
     def __init__(self, clock: FakeClock, interpolate_s: float, extrapolate_s: float,
-                 slow: Any = lambda t: 1.0) -> None:
-        super().__init__("ours")
+                 slow: Any = lambda t: 1.0, method: str = "ours") -> None:
+        super().__init__(method)
         self.clock, self.slow = clock, slow
         self.cost = {"interpolate": interpolate_s, "extrapolate": extrapolate_s, "hold": 0.0}
         self.rendered: list[Any] = []  # (eye, last_info, interpolate) of each call
@@ -251,13 +251,14 @@ class ModeCostClient(Client):
 
 def mode_cost_run(scene: sr.SyntheticScene, n_frames: int, seconds: float, *,
                   slow: Any = lambda t: 1.0, defer: bool = True, stereo: bool = False,
-                  ahead: float = 1.0) -> tuple[rt.RealtimeReport, ModeCostClient]:
+                  ahead: float = 1.0, method: str = "ours"
+                  ) -> tuple[rt.RealtimeReport, ModeCostClient]:
     """A run over ``n_frames`` server frames, each received ``ahead`` server periods before its
     time (one: every display frame can interpolate; half: the first half of each pair's
     interval extrapolates), interpolated frames 1.2 refreshes long and extrapolated ones 0.4
     (times ``slow`` of the clock)."""
     clock = FakeClock()
-    client = ModeCostClient(clock, 1.2 * PERIOD, 0.4 * PERIOD, slow)
+    client = ModeCostClient(clock, 1.2 * PERIOD, 0.4 * PERIOD, slow, method)
     server = [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n_frames)]
     before = [f for f in server if f.time - ahead / FS <= 0]
     with RealtimeClient(client=client, clock=clock, display_fps=FC, executor=InlineExecutor(),
@@ -304,8 +305,10 @@ def test_interpolation_that_would_miss_its_deadline_is_deferred_to_extrapolation
                    for _, info, interpolate in calls)
 
 
-def test_always_interpolating_misses_and_halves_the_rate_instead(scene):
-    report, _ = mode_cost_run(scene, 4, 0.3, defer=False)
+@pytest.mark.parametrize(("method", "defer"), [("ours", False), ("backward_bidir", True)])
+def test_always_interpolating_misses_and_halves_the_rate_instead(scene, method, defer):
+    # Asked to, or for backward_bidir, which cannot extrapolate (deferring would hold).
+    report, _ = mode_cost_run(scene, 4, 0.3, defer=defer, method=method)
     frames_ = list(report.frames)
     down = rt.RateGovernor.DOWN_MISSES
     assert all(f.mode == "interpolate" and not f.deferred for f in frames_)
@@ -1572,6 +1575,7 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
         ("extrapolate", 0.2, 3.0), ("extrapolate", 6.0, 3.0), ("hold", 0.1, 0.5),
         ("extrapolate", 0.1, 3.0), ("extrapolate", 0.1, 200.0)]
     plan += [("interpolate", 0.1, 2.0)] * (150 - len(plan))
+    deferred = {7}  # extrapolated where interpolating would have missed: drawn apart
     report = RealtimeReport(display_fps=fps)
     for n, (mode, wait, render) in enumerate(plan):
         tick = n * period
@@ -1579,7 +1583,8 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
         report.add(DisplayFrame(
             index=n, time=n * period, start=start, done=start + render / 1e3,
             deadline=tick + period, mode=mode, older=None, newer=0, alpha=None,
-            server_age_ms=None if n == 0 else 10.0 * n, prepared=True))
+            server_age_ms=None if n == 0 else 10.0 * n, prepared=True,
+            deferred=n in deferred))
     b = RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", report.summary(),
                       frames=tuple(report.frames))
     fig = realtime_figure(b)
@@ -1597,10 +1602,12 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
     assert [y for _, y in cross] == pytest.approx([9.1, 9.0, ceiling])
     assert ceiling == pytest.approx(4e3 * period)
     for mode in MODE_COLOURS:
-        count = sum(m == mode for m, _, _ in plan)
-        drawn = points[f"{mode} ({count})"]
-        frames = [n for n, (m, _, r) in enumerate(plan) if m == mode and r < 100]
-        assert [x for x, _ in drawn] == pytest.approx([n * period for n in frames])
+        frames = [n for n, (m, _, _) in enumerate(plan) if m == mode and n not in deferred]
+        drawn = points[f"{mode} ({len(frames)})"]
+        inside = [n for n in frames if plan[n][2] < 100]
+        assert [x for x, _ in drawn] == pytest.approx([n * period for n in inside])
+    ((x, y),) = points["extrapolate, instead of interpolating (1)"]
+    assert (x, y) == (pytest.approx(7 * period), pytest.approx(3.1))
     # The refresh period as the line every miss is above.
     (line,) = [ln for ln in top.get_lines() if ln.get_label().startswith("refresh period")]
     assert list(line.get_ydata()) == pytest.approx([1e3 * period] * 2)

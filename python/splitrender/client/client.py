@@ -210,7 +210,8 @@ class Client:
         previous output of that eye, or black. ``interpolate=False`` extrapolates from the
         newest frame at or before ``time`` even where a pair would interpolate (cheaper: what
         the real-time loop does when an interpolated frame would miss its deadline,
-        :class:`~splitrender.client.realtime.ModeGovernor`).
+        :class:`~splitrender.client.realtime.ModeGovernor`; ``backward_bidir``, which cannot
+        extrapolate, then holds).
 
         The image is read-only, on both backends: it is also the eye's previous output, whose
         colour the next frame's unmatched pixels keep, so a caller that drew on it (an overlay

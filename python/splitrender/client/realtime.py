@@ -835,7 +835,8 @@ class RealtimeClient:
     ``f_c`` whatever the frames cost). ``defer_interpolation`` (default ``True``): a frame that
     could interpolate its pair extrapolates from the pair's older frame instead where an
     interpolated frame would not be done by its deadline (:class:`ModeGovernor`; ``False``
-    interpolates whatever it costs). ``keep_frames`` is how many display frames the report
+    interpolates whatever it costs; ``backward_bidir``, which cannot extrapolate, always
+    interpolates). ``keep_frames`` is how many display frames the report
     keeps one by one (:attr:`RealtimeReport.frames`: the newest; default :data:`KEEP_FRAMES`,
     ``None``: all, memory growing with the run); its summary covers every frame either way.
     ``executor`` runs the receive side instead (it must run jobs in order; its threads keep
@@ -943,6 +944,8 @@ class RealtimeClient:
         self._probe_after = PAIR_PROBE_AFTER
         self._report = RealtimeReport(self.display_fps, self.keep_frames)
         self._interpolates = interpolates(self.method, self.client.options.splat_bidirectional)
+        # backward_bidir cannot extrapolate: deferring its interpolation would hold the image.
+        self._defers = defer_interpolation and self.method != "backward_bidir"
 
     @property
     def method(self) -> str:
@@ -1534,7 +1537,7 @@ class RealtimeClient:
             used = _cpu_s(clocks)
             deadline = tick + d * period
             allows = (
-                (lambda: modes.allows(deadline - start)) if self.defer_interpolation else None
+                (lambda: modes.allows(deadline - start)) if self._defers else None
             )
             images, prepared, newest, deferred = self._render(cameras, t, 0, allows)
             after = _cpu_s(clocks)
@@ -1573,7 +1576,7 @@ class RealtimeClient:
                 on_frame(images[0] if len(images) == 1 else tuple(images), record)
             after = self.clock.now()
             frame_s = after - tick
-            if self.defer_interpolation:
+            if self._defers:
                 # At the faster rate this frame could extrapolate, were interpolating too slow.
                 frame_s -= (done - start) - modes.cheapest_s(info.mode, done - start)
             governor.update(frame_s, record.met)

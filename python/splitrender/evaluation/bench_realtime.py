@@ -434,6 +434,9 @@ def write_realtime_json(path: Path, b: RealtimeBench) -> None:
 
 #: The colour of each mode in :func:`realtime_figure`.
 MODE_COLOURS = {"interpolate": "tab:blue", "extrapolate": "tab:orange", "hold": "0.55"}
+#: The colour of the frames that extrapolated where interpolating would have missed
+#: (:class:`~splitrender.client.realtime.ModeGovernor`).
+DEFERRED_COLOUR = "tab:brown"
 
 
 def realtime_figure(b: RealtimeBench) -> Figure:
@@ -441,8 +444,9 @@ def realtime_figure(b: RealtimeBench) -> Figure:
 
     - above, each display frame's time from its refresh to done (the render time plus any
       wait before it started: what its deadline, the next refresh, is judged on), coloured by
-      its mode, against the refresh period (and, where the rate was halved, two periods: the
-      deadline of those frames); every frame that missed its deadline is marked by a red
+      its mode (apart: the extrapolated frames that could have interpolated), against the
+      refresh period (and, where the rate was halved, two periods: the deadline of those
+      frames); every frame that missed its deadline is marked by a red
       cross; a frame beyond the plotted range (four periods, or the p99 if higher) sits at its
       top edge as a triangle;
     - below, the age of the newest server frame it used (display time minus the time that
@@ -466,13 +470,17 @@ def realtime_figure(b: RealtimeBench) -> Figure:
     )
     ceiling = max(4.0 * period, 1.15 * float(np.percentile(ms, 99)) if len(ms) else 0.0)
     shown = np.minimum(ms, ceiling)
-    for mode, colour in MODE_COLOURS.items():
-        pick = np.array([f.mode == mode for f in b.frames], bool)
+    deferred = np.array([f.deferred for f in b.frames], bool)
+    kinds = [
+        (mode, colour, np.array([f.mode == mode for f in b.frames], bool) & ~deferred)
+        for mode, colour in MODE_COLOURS.items()
+    ] + [("extrapolate, instead of interpolating", DEFERRED_COLOUR, deferred)]
+    for label, colour, pick in kinds:
         if not pick.any():
             continue
         inside = pick & (ms <= ceiling)
         top.scatter(times[inside], shown[inside], s=6, color=colour,
-                    label=f"{mode} ({pick.sum()})", zorder=2)
+                    label=f"{label} ({pick.sum()})", zorder=2)
         over = pick & (ms > ceiling)
         if over.any():
             top.scatter(times[over], shown[over], s=22, marker="^", color=colour, zorder=2)
