@@ -369,8 +369,9 @@ def add_max_divisor(p: Any, default: int | None, when: str = "") -> None:
 def add_always_interpolate(p: Any, when: str = "") -> None:
     """``--always-interpolate``: a frame that can interpolate its pair does, whatever it costs
     (``RealtimeClient(defer_interpolation=False)``; by default it extrapolates where an
-    interpolated frame would miss its deadline, :class:`~splitrender.client.realtime.ModeGovernor`).
-    ``when`` (e.g. ``"with --realtime: "``) opens its help."""
+    interpolated frame would miss its deadline:
+    :class:`~splitrender.client.realtime.ModeGovernor`). ``when`` opens its help, e.g.
+    ``"with --realtime: "``."""
     p.add_argument(
         "--always-interpolate", action="store_true",
         help=f"{when}interpolate every frame that has its pair, even where an interpolated "

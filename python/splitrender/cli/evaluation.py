@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.cli.args import (
-    add_backend,
     add_always_interpolate,
+    add_backend,
     add_max_divisor,
     add_network,
     add_no_vmaf,

@@ -18,8 +18,8 @@ import numpy.typing as npt
 
 from splitrender.cli.args import (
     MAX_SECONDS,
-    add_backend,
     add_always_interpolate,
+    add_backend,
     add_max_divisor,
     add_no_vmaf,
     add_out,

@@ -148,9 +148,9 @@ class ConnectOptions:
     backend: str = "cpu"
     version: int = PROTOCOL_VERSION  # only tests send another (to see it refused)
     max_divisor: int = MAX_DIVISOR
-    defer_interpolation: bool = True
     #: Keep every packet received, for :meth:`LiveClient.replay` (all the bytes of the session).
     keep_packets: bool = False
+    defer_interpolation: bool = True
 
     def __post_init__(self) -> None:
         # What the hello carries, checked here: on the network thread a hello that does not
