@@ -251,18 +251,22 @@ class ModeCostClient(Client):
 
 def mode_cost_run(scene: sr.SyntheticScene, n_frames: int, seconds: float, *,
                   slow: Any = lambda t: 1.0, defer: bool = True, stereo: bool = False,
-                  ahead: float = 1.0, method: str = "ours"
+                  ahead: float = 1.0, method: str = "ours", extrapolation_pairs: bool = True
                   ) -> tuple[rt.RealtimeReport, ModeCostClient]:
     """A run over ``n_frames`` server frames, each received ``ahead`` server periods before its
     time (one: every display frame can interpolate; half: the first half of each pair's
     interval extrapolates), interpolated frames 1.2 refreshes long and extrapolated ones 0.4
-    (times ``slow`` of the clock)."""
+    (times ``slow`` of the clock). ``extrapolation_pairs=False``: the worker prepares only the
+    interpolation pairs (as it does for a frame it receives behind)."""
     clock = FakeClock()
     client = ModeCostClient(clock, 1.2 * PERIOD, 0.4 * PERIOD, slow, method)
     server = [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n_frames)]
     before = [f for f in server if f.time - ahead / FS <= 0]
     with RealtimeClient(client=client, clock=clock, display_fps=FC, executor=InlineExecutor(),
                         defer_interpolation=defer) as c:
+        if not extrapolation_pairs:
+            prepare = c._prepare
+            c._prepare = lambda olders, *a: prepare([o for o in olders if o is not None], *a)
         for f in before:
             c.submit(f)
         report = c.run(eyes_of(scene) if stereo else pose_of(scene), seconds, stereo=stereo,
@@ -305,10 +309,14 @@ def test_interpolation_that_would_miss_its_deadline_is_deferred_to_extrapolation
                    for _, info, interpolate in calls)
 
 
-@pytest.mark.parametrize(("method", "defer"), [("ours", False), ("backward_bidir", True)])
-def test_always_interpolating_misses_and_halves_the_rate_instead(scene, method, defer):
-    # Asked to, or for backward_bidir, which cannot extrapolate (deferring would hold).
-    report, _ = mode_cost_run(scene, 4, 0.3, defer=defer, method=method)
+@pytest.mark.parametrize(("method", "defer", "pairs"), [
+    ("ours", False, True), ("backward_bidir", True, True), ("ours", True, False)])
+def test_always_interpolating_misses_and_halves_the_rate_instead(scene, method, defer, pairs):
+    # Asked to; for backward_bidir, which cannot extrapolate (deferring would hold); and where
+    # the older frame's extrapolation pair was not prepared (the display would prepare it: more
+    # than the interpolated frame costs).
+    report, _ = mode_cost_run(scene, 4, 0.3, defer=defer, method=method,
+                              extrapolation_pairs=pairs)
     frames_ = list(report.frames)
     down = rt.RateGovernor.DOWN_MISSES
     assert all(f.mode == "interpolate" and not f.deferred for f in frames_)

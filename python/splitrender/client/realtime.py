@@ -543,7 +543,8 @@ class ModeGovernor:
       kept are let go: from then on the cost follows the extrapolated frames (which go on
       being rendered), and interpolation resumes once it fits again.
 
-    A frame that could not interpolate anyway (no pair yet, hold) does not ask. The
+    A frame that could not interpolate anyway (no pair yet, hold) does not ask, nor one whose
+    older frame's extrapolation pair was not prepared off the display path. The
     :class:`RateGovernor` halves the rate only when the frames miss even so, and goes back up
     when they would fit the faster rate extrapolating (:meth:`cheapest_s`): 120 Hz with some
     frames extrapolated is a better display than 60 Hz with all of them interpolated."""
@@ -1306,17 +1307,23 @@ class RealtimeClient:
         """:meth:`render` of each of ``cameras`` (eyes ``first_eye``, ``first_eye + 1``, …), and
         (under the same lock, so that the worker cannot change them in between) whether its pair
         was prepared, the pose time of the newest usable frame, and whether interpolation was
-        deferred: ``interpolate`` is asked, only when the frame could interpolate, whether it
-        does. The eyes of a stereo frame are rendered under one hold of the lock: the worker
+        deferred: ``interpolate`` is asked, only when the frame could interpolate and the
+        extrapolation pair of the pair's older frame is prepared, whether it does. The eyes of a stereo frame are rendered under one hold of the lock: the worker
         cannot hand a new pair over between them, so both eyes show the same server frames at
         the same α."""
         with self._lock:
             self._release_due(time)
-            deferred = (
-                interpolate is not None
-                and self.client.choose(time).mode == "interpolate"
-                and not interpolate()
-            )
+            deferred = False
+            if interpolate is not None:
+                could = self.client.choose(time)
+                # Only to a prepared extrapolation pair: one the display prepared itself would
+                # cost more than the interpolated frame (the worker leaves it out when behind).
+                deferred = (
+                    could.mode == "interpolate"
+                    and could.older is not None
+                    and self.client.was_prepared(None, could.older)
+                    and not interpolate()
+                )
             images = [
                 self.client.render(c, time, eye=first_eye + e, interpolate=not deferred)
                 for e, c in enumerate(cameras)
