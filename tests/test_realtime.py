@@ -401,6 +401,22 @@ def test_mode_governor_estimates_from_its_quantile_and_the_ratio_of_the_modes():
     assert g.allows(0.0023)
 
 
+def test_render_extrapolates_when_told_not_to_interpolate(scene, frames):
+    # The caller's own display loop decides: no governor, no condition on the pairs prepared.
+    with loop(FakeClock()) as c:
+        for f in frames[:2]:
+            c.submit(f)
+        c.wait()
+        cam = scene.rig(0.05, W, H)[0]
+        c.render(cam, 0.05)
+        assert (c.client.last_info.mode, c.client.last_info.older) == ("interpolate", 0)
+        c.render(cam, 0.05, interpolate=False)
+        info = c.client.last_info
+        assert (info.mode, info.older, info.newer, info.alpha) == ("extrapolate", None, 0, 1.5)
+        with pytest.raises(InvalidInputError, match="interpolate: expected a bool"):
+            c.render(cam, 0.05, interpolate=0)
+
+
 def test_bad_defer_interpolation_is_refused():
     with pytest.raises(InvalidInputError, match="defer_interpolation: expected a bool"):
         RealtimeClient(defer_interpolation=1)

@@ -1295,26 +1295,27 @@ class RealtimeClient:
         Raises:
             InvalidInputError: as :meth:`Client.render`, and for a client that was closed."""
         self._check_open()
-        return self._render((camera,), time, eye, lambda: interpolate)[0][0]
+        return self._render((camera,), time, eye, interpolate)[0][0]
 
     def _render(
         self,
         cameras: Sequence[Camera],
         time: float,
         first_eye: int = 0,
-        interpolate: Callable[[], bool] | None = None,
+        interpolate: bool | Callable[[], bool] = True,
     ) -> tuple[list[_Image], bool, float | None, bool]:
         """:meth:`render` of each of ``cameras`` (eyes ``first_eye``, ``first_eye + 1``, …), and
         (under the same lock, so that the worker cannot change them in between) whether its pair
         was prepared, the pose time of the newest usable frame, and whether interpolation was
-        deferred: ``interpolate`` is asked, only when the frame could interpolate and the
-        extrapolation pair of the pair's older frame is prepared, whether it does. The eyes of a stereo frame are rendered under one hold of the lock: the worker
-        cannot hand a new pair over between them, so both eyes show the same server frames at
-        the same α."""
+        deferred. ``interpolate``: as :meth:`Client.render`'s, or the :class:`ModeGovernor`'s
+        question, asked only when the frame could interpolate and the extrapolation pair of the
+        pair's older frame is prepared. The eyes of a stereo frame are rendered under one hold
+        of the lock: the worker cannot hand a new pair over between them, so both eyes show the
+        same server frames at the same α."""
         with self._lock:
             self._release_due(time)
             deferred = False
-            if interpolate is not None:
+            if callable(interpolate):
                 could = self.client.choose(time)
                 # Only to a prepared extrapolation pair: one the display prepared itself would
                 # cost more than the interpolated frame (the worker leaves it out when behind).
@@ -1324,8 +1325,9 @@ class RealtimeClient:
                     and self.client.was_prepared(None, could.older)
                     and not interpolate()
                 )
+                interpolate = not deferred
             images = [
-                self.client.render(c, time, eye=first_eye + e, interpolate=not deferred)
+                self.client.render(c, time, eye=first_eye + e, interpolate=interpolate)
                 for e, c in enumerate(cameras)
             ]
             info = self.client.last_info
@@ -1543,9 +1545,7 @@ class RealtimeClient:
             start = self.clock.now()
             used = _cpu_s(clocks)
             deadline = tick + d * period
-            allows = (
-                (lambda: modes.allows(deadline - start)) if self._defers else None
-            )
+            allows = (lambda: modes.allows(deadline - start)) if self._defers else True
             images, prepared, newest, deferred = self._render(cameras, t, 0, allows)
             after = _cpu_s(clocks)
             done = self.clock.now()
