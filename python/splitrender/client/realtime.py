@@ -397,20 +397,19 @@ class RealtimeReport:
         ``full_rate_pct`` (frames at ``f_c``) and ``frames_by_divisor`` (how many at ``f_c / d``,
         keyed by ``d`` as text), ``frame_ms_p50/p95/p99/max`` (render time),
         ``frame_cpu_ms_p50/max`` (the display threads' CPU time per frame), ``modes`` (count
-        per mode), ``interpolation_deferred`` (the extrapolated frames that could have
-        interpolated, but an interpolated frame would have missed its deadline:
-        :class:`ModeGovernor`), ``decode_ms_per_server_frame``,
-        ``prepare_ms_per_server_frame`` (both pairs) and ``usable_ms_per_server_frame`` (from
-        the worker taking the packet until the frame is usable: its decode and first pair; all medians), the server frames received
-        and late, ``packets_undecodable`` (packets the decoder refused; :attr:`undecodable`
-        says why), ``pairs_skipped`` (interpolation pairs not prepared because they would have
-        come too late) and ``pairs_probed`` (such pairs prepared anyway, to measure them
-        again), ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their
-        deadline per second of the run) and ``cpu_utilisation`` (process CPU seconds per wall
-        second and core, 0–1), ``display_scheduling`` (how the display's threads were
-        scheduled), ``warm_up_ms`` (``None`` without a warm-up) and ``gpu_lost`` (why the GPU
-        device was lost, after which the display rendered on the CPU; ``None``). Times that have
-        no sample are ``None``."""
+        per mode), ``interpolation_deferred`` (the extrapolated frames that could have interpolated,
+        but an interpolated frame would have missed its deadline: :class:`ModeGovernor`),
+        ``decode_ms_per_server_frame``, ``prepare_ms_per_server_frame`` (both pairs) and
+        ``usable_ms_per_server_frame`` (from the worker taking the packet until the frame is usable:
+        its decode and first pair; all medians), the server frames received and late,
+        ``packets_undecodable`` (packets the decoder refused; :attr:`undecodable` says why),
+        ``pairs_skipped`` (interpolation pairs not prepared because they would have come too late)
+        and ``pairs_probed`` (such pairs prepared anyway, to measure them again),
+        ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per second of the
+        run) and ``cpu_utilisation`` (process CPU seconds per wall second and core, 0–1),
+        ``display_scheduling`` (how the display's threads were scheduled), ``warm_up_ms`` (``None``
+        without a warm-up) and ``gpu_lost`` (why the GPU device was lost, after which the display
+        rendered on the CPU; ``None``). Times that have no sample are ``None``."""
         n = self._count
         misses = self._misses
         return {
@@ -581,7 +580,10 @@ class ModeGovernor:
 
     def interpolation_s(self) -> float | None:
         """The estimated render time of an interpolated frame (seconds; ``None``: unknown)."""
-        own = self._stats("interpolate")
+        return self._estimate(self._stats("interpolate"))
+
+    def _estimate(self, own: tuple[float, float] | None) -> float | None:
+        """:meth:`interpolation_s` from the interpolated frames' ``own`` :meth:`_stats`."""
         if own is not None:
             return own[0]
         other = self._stats("extrapolate")
@@ -591,10 +593,10 @@ class ModeGovernor:
 
     def allows(self, time_left_s: float) -> bool:
         """Whether a frame that could interpolate, with ``time_left_s`` to its deadline, does."""
-        cost = self.interpolation_s()
+        own = self._stats("interpolate")
+        cost = self._estimate(own)
         if cost is None or cost <= self.HEADROOM * time_left_s:
             return True
-        own = self._stats("interpolate")
         if own is not None:
             self._deferred_at = own
             self._times["interpolate"].clear()

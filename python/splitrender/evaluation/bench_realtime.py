@@ -301,7 +301,8 @@ def run_realtime_bench(
     feed = [(k / fs - 1.0 / fs, packet(k)) for k in range(n_sent)]
     stages.stage(
         f"running {method} in real time for {seconds:g} s at {display_fps:g} FPS, "
-        + ("two eyes of " if stereo else "") + f"{main.width}x{main.height} + aux" + (" (the source loops)" if looped else "")
+        + ("two eyes of " if stereo else "") + f"{main.width}x{main.height} + aux"
+        + (" (the source loops)" if looped else "")
         + ("" if adapter is None else f" on {adapter}")
     )
     with RealtimeClient(
