@@ -75,6 +75,8 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
      ("--video-fps", ">= 1", "1e-9")),
     ("huge", ["demo", "--out", "{tmp}/d", "--scale", "1e300"], ("--scale", "<= 6.4")),
     ("zero rate", ["bench", "--realtime", "--fps", "0"], ("--fps", ">= 0.001", "got 0")),
+    ("no refreshes to score", ["bench", "--realtime", "--score", "0"],
+     ("--score", "1..100000", "got 0")),
     ("zero threads", ["bench", "--realtime", "--prepare-threads", "0"],
      ("--prepare-threads", "a thread count in 1..256", "got 0")),
     ("huge integer", ["example", "--width", "1" + "0" * 400], ("--width", "1..16384")),

@@ -251,13 +251,13 @@ class ModeCostClient(Client):
 
 def mode_cost_run(scene: sr.SyntheticScene, n_frames: int, seconds: float, *,
                   slow: Any = lambda t: 1.0, defer: bool = True, stereo: bool = False,
-                  ahead: float = 1.0, method: str = "ours", extrapolation_pairs: bool = True
-                  ) -> tuple[rt.RealtimeReport, ModeCostClient]:
+                  ahead: float = 1.0, method: str = "ours", extrapolation_pairs: bool = True,
+                  on_frame: Any = None) -> tuple[rt.RealtimeReport, ModeCostClient]:
     """A run over ``n_frames`` server frames, each received ``ahead`` server periods before its
     time (one: every display frame can interpolate; half: the first half of each pair's
     interval extrapolates), interpolated frames 1.2 refreshes long and extrapolated ones 0.4
     (times ``slow`` of the clock). ``extrapolation_pairs=False``: the worker prepares only the
-    interpolation pairs (as it does for a frame it receives behind)."""
+    interpolation pairs (as it does for a frame it receives behind). ``on_frame``: the run's."""
     clock = FakeClock()
     client = ModeCostClient(clock, 1.2 * PERIOD, 0.4 * PERIOD, slow, method)
     server = [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(n_frames)]
@@ -270,7 +270,8 @@ def mode_cost_run(scene: sr.SyntheticScene, n_frames: int, seconds: float, *,
         for f in before:
             c.submit(f)
         report = c.run(eyes_of(scene) if stereo else pose_of(scene), seconds, stereo=stereo,
-                       feed=[(f.time - ahead / FS, f) for f in server[len(before):]])
+                       feed=[(f.time - ahead / FS, f) for f in server[len(before):]],
+                       on_frame=on_frame)
     return report, client
 
 
@@ -1405,6 +1406,43 @@ def test_a_closed_realtime_client_refuses_work(scene, frames):
             call()
 
 
+def test_a_missed_deadline_leaves_the_older_image_up_at_the_slots_shown(scene):
+    # What bench --realtime --score scores: the image up at each refresh slot. Interpolated
+    # frames of 1.2 refreshes miss, then the rate halves; both show in the slots.
+    from splitrender.evaluation.shown import ShownRecorder
+
+    n_slots = round(0.4 * FC)
+    recorder = ShownRecorder(range(n_slots), 0.0, FC)
+    made: list[Any] = []
+
+    def on_frame(image: Any, record: rt.DisplayFrame) -> None:
+        made.append((record, image))
+        recorder(image, record)
+
+    report, _ = mode_cost_run(scene, 6, 0.4, defer=False, on_frame=on_frame)
+    shown = recorder.finish(n_slots)
+    # The first frame missed too: its slot showed nothing yet (a headset's start-up).
+    assert not made[0][0].met
+    assert [s.slot for s in shown] == list(range(1, n_slots))
+    at = {s.slot: s for s in shown}
+    missed = [(i, r) for i, (r, _) in enumerate(made) if not r.met and i > 0]
+    halved = [(i, r) for i, (r, _) in enumerate(made) if r.met and r.divisor == 2]
+    assert missed and halved
+    for i, (r, image) in enumerate(made):
+        if r.met and r.divisor == 1:  # on time at the full rate: its own slot
+            assert at[r.index].frame is r and at[r.index].stale == 0
+            assert at[r.index].image[0] is image
+    for i, r in missed:  # done 1.2 refreshes after its own: its slot shows the frame before
+        assert at[r.index].frame is made[i - 1][0] and at[r.index].stale >= 1
+        assert at[r.index + 1].frame is r and at[r.index + 1].stale == 1
+    for i, r in halved:  # shown from the second refresh for two refreshes, a refresh late
+        assert at[r.index].frame is made[i - 1][0]
+        after = [r.index + k for k in (1, 2) if r.index + k < n_slots]
+        assert all(at[s].frame is r for s in after)
+        assert [at[s].stale for s in after] == [1, 2][: len(after)]
+    assert list(report.frames) == [r for r, _ in made]
+
+
 # -- splitrender bench --realtime ---------------------------------------------------------------
 
 REALTIME_KEYS = ("method", "source", "width", "height", "frames", "deadline_misses",
@@ -1559,6 +1597,11 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--prepare-threads", "2"], "--prepare-threads goes with --realtime"),
         (["--stereo"], "--stereo goes with --realtime"),
         (["--always-interpolate"], "--always-interpolate goes with --realtime"),
+        (["--score"], "--score goes with --realtime"),
+        (["--no-vmaf"], "--no-vmaf goes with --realtime"),
+        (["--realtime", "--no-vmaf"], "--no-vmaf goes with --score"),
+        (["--realtime", "--stream", "s.srs", "--score", "5"],
+         "--score: a stream file carries no ground truth; score a built-in --scene"),
         (["--realtime", "--backend", "wgpu", "--prepare-threads", "2"],
          "--prepare-threads goes with --backend cpu"),
         (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),

@@ -44,6 +44,7 @@ from splitrender.client.realtime import (
     WORKER_PRIORITIES,
 )
 from splitrender.errors import InvalidInputError, SplitRenderError
+from splitrender.evaluation.shown import SCORED
 from splitrender.files import check_apart, check_output_file, write_atomic
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -343,6 +344,14 @@ def add_bench(sub: Any) -> None:
         "refresh to done, by mode, against the refresh period, the deadline misses, and the age "
         "of the newest server frame",
     )
+    be.add_argument(
+        "--score", type=count, nargs="?", const=SCORED, default=None, metavar="N",
+        help="with --realtime on a built-in --scene: afterwards, score what the display showed "
+        f"at N refreshes (default N: {SCORED}) spread over the run against the ground truth at "
+        "their poses (ssim, flip, psnr, vmaf), by the mode of the frame shown and its age: a "
+        "missed deadline counts as the older image left up",
+    )
+    add_no_vmaf(be, "with --score: skip VMAF")
     add_backend(
         be, "ours, ours_extrapolate and forward_splat only; with --realtime the display renders "
         "on the GPU and the worker uploads each pair there",
@@ -371,6 +380,8 @@ def bench(args: argparse.Namespace) -> int:
         ("--prepare-threads", args.prepare_threads is not None),
         ("--plot", args.plot is not None),
         ("--stereo", args.stereo),
+        ("--score", args.score is not None),
+        ("--no-vmaf", args.no_vmaf),
     ):
         if given:
             return fail(f"{flag} goes with --realtime")
@@ -422,6 +433,10 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             return fail(f"{flag} {e}")
     if len(outputs) == 2 and args.json.resolve() == args.plot.resolve():
         return fail(f"--plot: {args.plot} is the --json file too; expected another file")
+    if args.score is not None and args.stream is not None:
+        return fail("--score: a stream file carries no ground truth; score a built-in --scene")
+    if args.no_vmaf and args.score is None:
+        return fail("--no-vmaf goes with --score")
     try:
         result = run_realtime_bench(
             args.scene, 0.25 if args.scale is None else args.scale,
@@ -432,7 +447,8 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             display_priority=args.display_priority or "realtime", backend=args.backend,
             max_divisor=MAX_DIVISOR if args.max_divisor is None else args.max_divisor,
             prepare_threads=args.prepare_threads, stereo=args.stereo,
-            defer_interpolation=not args.always_interpolate,
+            defer_interpolation=not args.always_interpolate, score=args.score or 0,
+            no_vmaf=args.no_vmaf,
         )
     except (InvalidInputError, StreamError) as e:
         return fail(str(e))

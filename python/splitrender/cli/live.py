@@ -650,28 +650,15 @@ def _score(
     session's (``eyes`` 2, the eyes side by side) scores each eye against the ground truth of
     that eye; the metrics are the means over both (as eval's Table 3), and ``per_eye`` holds
     each eye's."""
-    from splitrender.evaluation.metrics import METRICS, VMAF_MIN_SIDE, evaluate_sequence
+    from splitrender.evaluation.shown import score_images
 
-    if not picked:
-        return {"scored_frames": 0}
-    truth: list[list[npt.NDArray[np.uint8]]] = [[] for _ in range(eyes)]
-    for t, _ in picked:
-        views = scene.client_frames(round(t * fc), scale, fc, eyes == 2, pose=motion(t))
-        for e, (_, img) in enumerate(views):
-            truth[e].append(img)
+    truth = [
+        [img for _, img in scene.client_frames(round(t * fc), scale, fc, eyes == 2,
+                                               pose=motion(t))]
+        for t, _ in picked
+    ]
     shown = [_eye_images(img, eyes) for _, img in picked]  # per frame, per eye
-    h, w = shown[0][0].shape[:2]
-    metrics = [m for m in METRICS
-               if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]
-    per_eye = []
-    for e in range(eyes):
-        result = evaluate_sequence([s[e] for s in shown], truth[e], skip=0, metrics=metrics)
-        per_eye.append({m: result.mean[m] for m in metrics})
-    out: dict[str, Any] = {m: sum(p[m] for p in per_eye) / eyes for m in metrics}
-    out["scored_frames"] = len(picked)
-    if eyes > 1:
-        out["per_eye"] = per_eye
-    return out
+    return score_images(shown, truth, no_vmaf)[0]
 
 
 # -- relay ---------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR, PREPARE_THREADS, DisplayFrame
 from splitrender.codec.stream import (
@@ -41,6 +42,7 @@ from splitrender.codec.stream import (
     without_file_name,
 )
 from splitrender.errors import InvalidInputError, StreamError
+from splitrender.evaluation.shown import Shown, ShownRecorder, score_shown, spread
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
 from splitrender.progress import Progress
@@ -49,6 +51,8 @@ from splitrender.types import Camera
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+    from splitrender.scene.builtin import Scene
 
 __all__ = [
     "REALTIME_KEYS",
@@ -109,6 +113,10 @@ class RealtimeBench:
     #: missed its deadline (``False``: ``--always-interpolate``; the summary's
     #: ``interpolation_deferred`` counts those frames).
     defer_interpolation: bool = True
+    #: With ``score``: what the display showed at that many refreshes against the ground truth
+    #: (:func:`~splitrender.evaluation.shown.score_shown`: the means, ``by_mode``,
+    #: ``by_staleness``); ``None`` without.
+    score: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """What ran (every field but the summary and the frames), then the summary's keys."""
@@ -195,6 +203,8 @@ def run_realtime_bench(
     prepare_threads: int | None = None,
     stereo: bool = False,
     defer_interpolation: bool = True,
+    score: int = 0,
+    no_vmaf: bool = False,
 ) -> RealtimeBench:
     """Runs ``seconds`` of the real-time loop (module docs) and returns its summary.
     ``stereo``: each display frame is two eyes (:meth:`Camera.stereo
@@ -213,6 +223,13 @@ def run_realtime_bench(
     ``--always-interpolate``).
     ``backend``: where the display renders (``"wgpu"``: the GPU, the worker uploading each
     pair).
+    ``score``: after the run, score what the display showed at that many refreshes (0: none)
+    spread over the run against the ground truth of the refreshes' times (a built-in scene's
+    only; :mod:`splitrender.evaluation.shown`: a missed deadline counts as the older image
+    left up, a halved rate as each image shown twice), without VMAF for ``no_vmaf``. The first
+    and last ``SKIP_FRAMES`` refreshes are left out, and in a looped run those within a server
+    period of a seam (where a pair straddles the jump of the content, an artefact of the
+    loop).
 
     Raises:
         InvalidInputError: for arguments that cannot work.
@@ -225,6 +242,12 @@ def run_realtime_bench(
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
     check_realtime_args(method, seconds, scale, display_fps)
+    if isinstance(score, bool) or not isinstance(score, int) or not 0 <= score <= 100_000:
+        raise InvalidInputError(f"score: expected refreshes to score, 0 to 100000, got {score!r}")
+    if score and stream is not None:
+        raise InvalidInputError(
+            "--score: a stream file carries no ground truth; score a built-in --scene"
+        )
     if prepare_threads is not None and backend != "cpu":
         # Said rather than ignored: no preparation pool runs on the GPU path.
         raise InvalidInputError(
@@ -235,7 +258,7 @@ def run_realtime_bench(
         prepare_threads = PREPARE_THREADS
     # Before anything is rendered: a method without a GPU kernel or a missing adapter fails here.
     adapter = require_backend(backend, method)
-    stages = Progress(3 if stream is None else 2, progress)
+    stages = Progress((3 if stream is None else 2) + (score > 0), progress)
     if stream is None:
         if scene not in SCENE_NAMES:
             raise InvalidInputError(
@@ -299,6 +322,13 @@ def run_realtime_bench(
             return cams[int(math.floor(t * fs + 1e-9)) % len(cams)]
 
     feed = [(k / fs - 1.0 / fs, packet(k)) for k in range(n_sent)]
+    n_frames = round(seconds * display_fps)
+    recorder = None
+    if score:
+        recorder = ShownRecorder(
+            _scored_slots(n_frames, display_fps, cycle if looped else math.inf, fs, score),
+            0.0, display_fps,
+        )
     stages.stage(
         f"running {method} in real time for {seconds:g} s at {display_fps:g} FPS, "
         + ("two eyes of " if stereo else "") + f"{main.width}x{main.height} + aux"
@@ -320,7 +350,11 @@ def run_realtime_bench(
         report = client.run(
             (lambda t: pose(t).stereo()) if stereo else pose, seconds, feed=feed,
             start_time=0.0, exclusive=exclusive, warm_up=True, stereo=stereo,
+            on_frame=recorder,
         )
+    scored = None
+    if recorder is not None and sc is not None:
+        scored = _score(sc, pose, cycle, stereo, recorder.finish(n_frames), no_vmaf, stages)
     stages.close()
     if report.undecodable:
         # A live display goes on extrapolating past such a packet; a benchmark of a stream
@@ -332,8 +366,44 @@ def run_realtime_bench(
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
-        max_divisor, prepare_threads, defer_interpolation,
+        max_divisor, prepare_threads, defer_interpolation, scored,
     )
+
+
+def _scored_slots(n_frames: int, fc: float, cycle: float, fs: float, count: int) -> list[int]:
+    """``count`` refresh slots spread over a run of ``n_frames`` at ``fc``: not the first or
+    last ``SKIP_FRAMES``, nor those within a server period (``1 / fs``) of a seam of a source
+    looped every ``cycle`` seconds (``inf``: not looped)."""
+    from splitrender.evaluation.metrics import SKIP_FRAMES
+
+    def near_seam(t: float) -> bool:
+        phase = t % cycle
+        return phase > cycle - 1.0 / fs or (t >= cycle and phase < 1.0 / fs)
+
+    slots = [s for s in range(SKIP_FRAMES, n_frames - SKIP_FRAMES) if not near_seam(s / fc)]
+    return [slots[i] for i in spread(0, len(slots), count)]
+
+
+def _score(
+    scene: Scene, pose: Callable[[float], Camera], cycle: float, stereo: bool,
+    shown: list[Shown], no_vmaf: bool, stages: Progress,
+) -> dict[str, Any]:
+    """The refreshes ``shown`` against the ground truth at their poses (``pose``, as the run
+    had them) and scene times (a looped run's modulo ``cycle``)."""
+    stages.stage(
+        f"scoring what the display showed at {len(shown)} refreshes against the ground truth "
+        "rendered at their poses"
+    )
+    rendered = [0]
+
+    def truth(t: float) -> list[npt.NDArray[np.uint8]]:
+        cam = pose(t)
+        images = [scene.ground_truth(c, t % cycle) for c in (cam.stereo() if stereo else (cam,))]
+        rendered[0] += 1
+        stages.bar(rendered[0], len(shown), "ground truths")
+        return images
+
+    return score_shown(shown, truth, no_vmaf, lambda m, d, n: stages.bar(d, n, m))
 
 
 def format_realtime(b: RealtimeBench) -> str:
@@ -411,7 +481,35 @@ def format_realtime(b: RealtimeBench) -> str:
         + ([] if s.get("gpu_lost") is None else [
             f"  the GPU device was lost ({s['gpu_lost']}): the display went on on the CPU "
             "from then on (the figures mix the two backends)"])
+        + ([] if b.score is None else _score_lines(b.score))
     )
+
+
+#: The metrics of the score lines, their labels and digits.
+_METRIC_WORDS = {"ssim": ("SSIM", 4), "flip": ("FLIP", 4), "psnr": ("PSNR", 2),
+                 "vmaf": ("VMAF", 2)}
+
+
+def _score_lines(score: dict[str, Any]) -> list[str]:
+    """The text report's lines of a ``--score`` (:func:`score_shown`'s result)."""
+    n = score["scored_frames"]
+    if not n:
+        return ["  scored: no refresh showed a frame (nothing scored)"]
+
+    def values(d: dict[str, Any]) -> str:
+        return ", ".join(f"{label} {d[m]:.{digits}f}" for m, (label, digits)
+                         in _METRIC_WORDS.items() if m in d)
+
+    def groups(split: dict[str, dict[str, Any]], name: Callable[[str], str]) -> str:
+        return "; ".join(f"{name(k)} ({g['refreshes']}): {values(g)}" for k, g in split.items())
+
+    return [
+        f"  shown at {n} refreshes against the ground truth: {values(score)}",
+        "    by the mode of the frame shown: " + groups(score["by_mode"], str),
+        "    by refreshes since its pose: " + groups(
+            score["by_staleness"],
+            lambda k: "its own refresh" if k == "0" else f"{k} late"),
+    ]
 
 
 #: How the text report names each cause of :meth:`RealtimeReport.miss_causes`.

@@ -1,0 +1,186 @@
+"""What a real-time display showed at each refresh, scored against the ground truth.
+
+:class:`~splitrender.client.realtime.RealtimeClient` renders display frame ``n`` at the pose of
+refresh slot ``n`` (content time ``t_n = start + n / f_c``) for its deadline: the refresh
+``divisor`` periods after the one it started on. Slot ``s`` is shown from the refresh at
+``s + 1`` periods (a full-rate frame on time shows its own slot). A frame is visible from the
+first refresh at or after both its deadline and the moment it was done, so
+
+    first slot of frame n = n + max(divisor, ceil((done - refresh) / period)) - 1
+
+and slot ``s`` shows the newest frame whose first slot is at most ``s``. A frame that misses
+its deadline leaves the previous image up for the refreshes it overran, and a frame at half
+rate shows its pose one refresh later and for two refreshes: scoring the slots (the image up at
+each refresh against the ground truth of that refresh's time) charges a missed deadline and a
+halved rate what the viewer sees of them, as it charges an extrapolated frame its
+reprojection error. Scoring the frames made instead (``connect --score``) scores a late frame
+as if it were on time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from splitrender.client.realtime import DisplayFrame
+
+__all__ = ["ShownRecorder", "Shown", "first_slot", "score_images", "score_shown", "spread"]
+
+_Image = npt.NDArray[np.uint8]
+
+#: Most refresh slots ``bench --realtime --score`` scores by default (the ground truth costs a
+#: render per slot).
+SCORED = 120
+
+
+def first_slot(frame: DisplayFrame, period: float) -> int:
+    """The first refresh slot ``frame`` is shown for (module docs); ``period`` is ``1 / f_c``.
+    A frame without its refresh's clock time counts as on time."""
+    late = 0
+    if frame.refresh is not None:
+        # 1e-9: a frame done exactly on a refresh is visible at that refresh.
+        late = math.ceil((frame.done - frame.refresh) / period - 1e-9)
+    return frame.index + max(frame.divisor, late) - 1
+
+
+@dataclass(frozen=True)
+class Shown:
+    """Refresh slot ``slot`` (content time ``time``) showed ``image`` (a stereo frame's eyes,
+    left first), made by ``frame``."""
+
+    slot: int
+    time: float
+    frame: DisplayFrame
+    image: tuple[_Image, ...]
+
+    @property
+    def stale(self) -> int:
+        """Refreshes between the frame's pose and this slot: 0 for a full-rate frame on time,
+        more where its successor missed its deadline or the rate was divided."""
+        return self.slot - self.frame.index
+
+
+class ShownRecorder:
+    """An ``on_frame`` of :meth:`RealtimeClient.run <splitrender.client.realtime.
+    RealtimeClient.run>` that keeps what the display showed at each of ``slots`` (ascending
+    refresh slots; ``start_time`` and ``fps`` as the run's), and nothing else: a reference to
+    each image shown, which :meth:`Client.render <splitrender.client.client.Client.render>`
+    returns read-only and never writes again (it is the eye's previous output until the next
+    frame replaces it), so keeping it costs the display no copy."""
+
+    def __init__(self, slots: Sequence[int], start_time: float, fps: float) -> None:
+        self._slots = sorted(set(slots))
+        self._start, self._period = start_time, 1.0 / fps
+        self._next = 0  # the first slot not yet resolved
+        self._current: tuple[DisplayFrame, tuple[_Image, ...]] | None = None
+        self.shown: list[Shown] = []
+
+    def _resolve(self, below: int | None) -> None:
+        """Resolves every pending slot under ``below`` (``None``: all) to the current frame."""
+        while self._next < len(self._slots) and (below is None
+                                                 or self._slots[self._next] < below):
+            s = self._slots[self._next]
+            self._next += 1
+            if self._current is not None:  # before the first frame nothing was shown
+                frame, image = self._current
+                self.shown.append(Shown(s, self._start + s * self._period, frame, image))
+
+    def __call__(self, image: Any, frame: DisplayFrame) -> None:
+        # The slots before this frame's first showed the frame before it.
+        self._resolve(first_slot(frame, self._period))
+        self._current = (frame, tuple(image) if isinstance(image, tuple) else (image,))
+
+    def finish(self, slots_in_run: int) -> list[Shown]:
+        """What was shown at the slots, once the run is over (``slots_in_run``: its refreshes;
+        slots past them were not shown)."""
+        self._slots = [s for s in self._slots if s < slots_in_run]
+        self._resolve(None)
+        return self.shown
+
+
+def spread(first: int, stop: int, count: int) -> list[int]:
+    """At most ``count`` integers evenly spread over ``first .. stop - 1``, both ends kept."""
+    n = stop - first
+    k = min(count, n)
+    if k <= 0:
+        return []
+    if k == 1:
+        return [first]
+    return [first + round(j * (n - 1) / (k - 1)) for j in range(k)]
+
+
+def score_images(
+    images: Sequence[Sequence[_Image]],
+    truths: Sequence[Sequence[_Image]],
+    no_vmaf: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> tuple[dict[str, Any], list[dict[str, float]]]:
+    """``images[i][e]`` (frame ``i``, eye ``e``) against ``truths[i][e]``: each metric's mean
+    over the frames and the eyes (a stereo sequence's as eval's Table 3), with ``per_eye`` for
+    two eyes and ``scored_frames``, and each frame's metrics (the eyes' mean). VMAF is left out
+    with ``no_vmaf`` and for a side under ``VMAF_MIN_SIDE`` pixels."""
+    from splitrender.evaluation.metrics import METRICS, VMAF_MIN_SIDE, evaluate_sequence
+
+    if not images:
+        return {"scored_frames": 0}, []
+    eyes = len(images[0])
+    h, w = images[0][0].shape[:2]
+    metrics = [m for m in METRICS if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]
+    per_eye, frames = [], [dict.fromkeys(metrics, 0.0) for _ in images]
+    for e in range(eyes):
+        result = evaluate_sequence(
+            [f[e] for f in images], [t[e] for t in truths], skip=0, metrics=metrics,
+            progress=progress,
+        )
+        per_eye.append({m: result.mean[m] for m in metrics})
+        for row, values in zip(frames, result.per_frame):
+            for m in metrics:
+                row[m] += values[m] / eyes
+    out: dict[str, Any] = {m: sum(p[m] for p in per_eye) / eyes for m in metrics}
+    out["scored_frames"] = len(images)
+    if eyes > 1:
+        out["per_eye"] = per_eye
+    return out, frames
+
+
+def _kind(s: Shown) -> str:
+    return "deferred" if s.frame.deferred else s.frame.mode
+
+
+def score_shown(
+    shown: Sequence[Shown],
+    truth: Callable[[float], Sequence[_Image]],
+    no_vmaf: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, Any]:
+    """The slots ``shown`` (:class:`ShownRecorder`) against ``truth(time)`` (the ground truth
+    at the slot's content time, one image per eye): the means of :func:`score_images`, and
+    the same split by what was up: ``by_mode`` (the mode of the frame shown; ``deferred``: an
+    extrapolated frame that could have interpolated, :class:`~splitrender.client.realtime.
+    ModeGovernor`) and ``by_staleness`` (``"0"``: the frame of the slot's own pose, ``"1"``,
+    ``"2+"``: refreshes older, where a deadline was missed or the rate divided), each with its
+    ``refreshes`` count. PSNR's means here are of the frames' PSNR values (the overall one is
+    the PSNR of the mean squared error, as :func:`evaluate_sequence`'s)."""
+    truths = [tuple(truth(s.time)) for s in shown]
+    out, frames = score_images([s.image for s in shown], truths, no_vmaf, progress)
+    if not frames:
+        return out
+
+    def split(key: Callable[[Shown], str]) -> dict[str, dict[str, float]]:
+        groups: dict[str, list[dict[str, float]]] = {}
+        for s, row in zip(shown, frames):
+            groups.setdefault(key(s), []).append(row)
+        return {
+            k: {"refreshes": len(rows), **{m: float(np.mean([r[m] for r in rows]))
+                                           for m in rows[0]}}
+            for k, rows in sorted(groups.items())
+        }
+
+    out["by_mode"] = split(_kind)
+    out["by_staleness"] = split(lambda s: str(s.stale) if s.stale < 2 else "2+")
+    return out
