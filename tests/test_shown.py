@@ -121,7 +121,7 @@ def test_bench_realtime_score_scores_the_refreshes_of_a_builtin_scene(tmp_path, 
     assert b.to_json()["score"] == s
     text = format_realtime(b)
     assert "shown at 6 refreshes against the ground truth: SSIM" in text
-    assert "by the mode of the frame shown:" in text
+    assert "by the mode of the frame shown:" in text and "by the age of its pose:" in text
 
 
 @pytest.mark.parametrize(

@@ -506,9 +506,10 @@ def _score_lines(score: dict[str, Any]) -> list[str]:
     return [
         f"  shown at {n} refreshes against the ground truth: {values(score)}",
         "    by the mode of the frame shown: " + groups(score["by_mode"], str),
-        "    by refreshes since its pose: " + groups(
+        "    by the age of its pose: " + groups(
             score["by_staleness"],
-            lambda k: "its own refresh" if k == "0" else f"{k} late"),
+            lambda k: "its own refresh" if k == "0"
+            else f"{k} refresh{'' if k == '1' else 'es'} old"),
     ]
 
 
