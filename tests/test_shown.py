@@ -70,6 +70,20 @@ def test_spread_keeps_both_ends_and_never_repeats():
     assert spread(3, 3, 10) == [] and spread(0, 10, 1) == [0]
 
 
+def test_connect_score_spreads_a_short_session_over_all_of_it():
+    # 60 display frames (connect --fps 10 --seconds 6), 36 after the skipped ends: all are
+    # scored; the steps of 120 took 11, all from the session's first third.
+    from splitrender.cli.live import _pick
+    from splitrender.evaluation.metrics import SKIP_FRAMES
+
+    frames = [(k / 10, np.zeros((2, 2, 3), np.uint8)) for k in range(60)]
+    assert [t for t, _ in _pick(frames)] == [k / 10 for k in range(SKIP_FRAMES, 60 - SKIP_FRAMES)]
+    long = [(k / 120, frames[0][1]) for k in range(1200)]
+    picked = [t for t, _ in _pick(long)]
+    assert len(picked) == 120 and picked[0] == SKIP_FRAMES / 120
+    assert picked[-1] == (1199 - SKIP_FRAMES) / 120
+
+
 def test_score_splits_by_the_mode_shown_and_its_age():
     # Ground truth grey 128; each shown frame off by a known amount: its PSNR is known.
     made = [frame(0, 0.5, mode="interpolate"), frame(1, 0.5, mode="extrapolate", deferred=True),

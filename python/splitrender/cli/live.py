@@ -609,8 +609,6 @@ def _frame_caption(method: str, rec: Any) -> str:
 
 #: Most bytes of display frames `connect` keeps for its video and score.
 MAX_KEPT_BYTES = 1 << 30
-#: Most display frames `connect --score` scores.
-SCORED = 120
 
 
 _Shown = list[tuple[float, npt.NDArray[np.uint8]]]
@@ -621,10 +619,12 @@ def _pick(frames: _Shown) -> _Shown:
     does), and at most SCORED evenly spread over the rest (the ground truth costs a render
     per frame)."""
     from splitrender.evaluation.metrics import SKIP_FRAMES
+    from splitrender.evaluation.shown import SCORED, spread
 
     inner = frames[SKIP_FRAMES : len(frames) - SKIP_FRAMES]
-    return [inner[i] for i in sorted({round(j * (len(inner) - 1) / max(1, SCORED - 1))
-                                      for j in range(min(SCORED, len(inner)))})]
+    # Spread over all of them: with fewer than SCORED, the steps of SCORED bunched every
+    # frame scored into the session's first part (36 frames: 11, from its first third).
+    return [inner[i] for i in spread(0, len(inner), SCORED)]
 
 
 def _shown(frames: _Shown, times: list[float]) -> _Shown:

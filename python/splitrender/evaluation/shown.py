@@ -33,8 +33,8 @@ __all__ = ["ShownRecorder", "Shown", "first_slot", "score_images", "score_shown"
 
 _Image = npt.NDArray[np.uint8]
 
-#: Most refresh slots ``bench --realtime --score`` scores by default (the ground truth costs a
-#: render per slot).
+#: Most refresh slots ``bench --realtime --score`` scores by default, and display frames
+#: ``connect --score`` scores (the ground truth costs a render each).
 SCORED = 120
 
 
