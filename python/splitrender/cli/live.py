@@ -479,9 +479,9 @@ def _score_line(method: str, scores: dict[str, Any], no_vmaf: bool) -> str:
     n = scores["scored_frames"]
     if n == 0:
         return f"{method}: no display frame showed a server frame: nothing scored"
-    names = {"ssim": ("SSIM", 4), "flip": ("FLIP", 4), "psnr": ("PSNR", 2), "vmaf": ("VMAF", 2)}
-    parts = [f"{label} {scores[m]:.{digits}f}" for m, (label, digits) in names.items()
-             if m in scores]
+    from splitrender.evaluation.shown import format_scores
+
+    parts = [format_scores(scores)]
     if "vmaf" not in scores:
         from splitrender.evaluation.metrics import VMAF_MIN_SIDE
 

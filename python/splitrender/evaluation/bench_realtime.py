@@ -42,7 +42,13 @@ from splitrender.codec.stream import (
     without_file_name,
 )
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.evaluation.shown import Shown, ShownRecorder, score_shown, spread
+from splitrender.evaluation.shown import (
+    Shown,
+    ShownRecorder,
+    format_scores,
+    score_shown,
+    spread,
+)
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
 from splitrender.progress import Progress
@@ -485,26 +491,18 @@ def format_realtime(b: RealtimeBench) -> str:
     )
 
 
-#: The metrics of the score lines, their labels and digits.
-_METRIC_WORDS = {"ssim": ("SSIM", 4), "flip": ("FLIP", 4), "psnr": ("PSNR", 2),
-                 "vmaf": ("VMAF", 2)}
-
-
 def _score_lines(score: dict[str, Any]) -> list[str]:
     """The text report's lines of a ``--score`` (:func:`score_shown`'s result)."""
     n = score["scored_frames"]
     if not n:
         return ["  scored: no refresh showed a frame (nothing scored)"]
 
-    def values(d: dict[str, Any]) -> str:
-        return ", ".join(f"{label} {d[m]:.{digits}f}" for m, (label, digits)
-                         in _METRIC_WORDS.items() if m in d)
-
     def groups(split: dict[str, dict[str, Any]], name: Callable[[str], str]) -> str:
-        return "; ".join(f"{name(k)} ({g['refreshes']}): {values(g)}" for k, g in split.items())
+        return "; ".join(f"{name(k)} ({g['refreshes']}): {format_scores(g)}"
+                         for k, g in split.items())
 
     return [
-        f"  shown at {n} refreshes against the ground truth: {values(score)}",
+        f"  shown at {n} refreshes against the ground truth: {format_scores(score)}",
         "    by the mode of the frame shown: " + groups(score["by_mode"], str),
         "    by the age of its pose: " + groups(
             score["by_staleness"],

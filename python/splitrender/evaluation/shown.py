@@ -29,13 +29,27 @@ import numpy.typing as npt
 
 from splitrender.client.realtime import DisplayFrame
 
-__all__ = ["ShownRecorder", "Shown", "first_slot", "score_images", "score_shown", "spread"]
+__all__ = [
+    "METRIC_WORDS", "SCORED", "Shown", "ShownRecorder", "first_slot", "format_scores",
+    "score_images", "score_shown", "spread",
+]
 
 _Image = npt.NDArray[np.uint8]
 
 #: Most refresh slots ``bench --realtime --score`` scores by default, and display frames
 #: ``connect --score`` scores (the ground truth costs a render each).
 SCORED = 120
+
+
+#: The metrics as the text reports write them: their labels and digits.
+METRIC_WORDS = {"ssim": ("SSIM", 4), "flip": ("FLIP", 4), "psnr": ("PSNR", 2),
+                "vmaf": ("VMAF", 2)}
+
+
+def format_scores(scores: dict[str, Any]) -> str:
+    """The metrics in ``scores`` (:func:`score_images`' means), as ``SSIM 0.8527, ...``."""
+    return ", ".join(f"{label} {scores[m]:.{digits}f}" for m, (label, digits)
+                     in METRIC_WORDS.items() if m in scores)
 
 
 def first_slot(frame: DisplayFrame, period: float) -> int:
