@@ -1602,6 +1602,7 @@ def test_bench_realtime_exclusive_renders_every_frame_from_its_prepared_pair(
         (["--realtime", "--no-vmaf"], "--no-vmaf goes with --score"),
         (["--realtime", "--stream", "s.srs", "--score", "5"],
          "--score: a stream file carries no ground truth; score a built-in --scene"),
+        (["--realtime", "--score", "--seconds", "0.2"], "--score: 0.2 s is 24 refreshes"),
         (["--realtime", "--backend", "wgpu", "--prepare-threads", "2"],
          "--prepare-threads goes with --backend cpu"),
         (["--realtime", "--fps", "0.001", "--seconds", "1"], "--seconds 1 at --fps 0.001"),

@@ -144,6 +144,10 @@ def test_bench_realtime_score_scores_the_refreshes_of_a_builtin_scene(tmp_path, 
         ({"score": -1}, "score: expected refreshes to score, 0 to 100000, got -1"),
         ({"score": True}, "score: expected refreshes to score"),
         ({"score": 5, "stream": "x.srs"}, "a stream file carries no ground truth"),
+        # Too short to score any refresh (it ran, then said "nothing scored").
+        ({"score": 5}, r"--score: 0.1 s is 12 refreshes at 120 FPS; the score leaves out 12 at "
+         r"each end, so at least 0.208 s is needed"),
+        ({"score": 5, "display_fps": 240.0}, r"0.1 s is 24 refreshes at 240 FPS.*0.104 s"),
     ],
 )
 def test_bench_realtime_score_refuses_what_cannot_be_scored(kwargs, message):

@@ -245,6 +245,7 @@ def run_realtime_bench(
     """
     from splitrender.client.client import Client
     from splitrender.client.realtime import RealtimeClient
+    from splitrender.evaluation.metrics import SKIP_FRAMES
     from splitrender.scene.builtin import SCENE_NAMES, Scene
 
     check_realtime_args(method, seconds, scale, display_fps)
@@ -253,6 +254,13 @@ def run_realtime_bench(
     if score and stream is not None:
         raise InvalidInputError(
             "--score: a stream file carries no ground truth; score a built-in --scene"
+        )
+    if score and round(seconds * display_fps) <= 2 * SKIP_FRAMES:
+        # Refused before the recording and the run: none of its refreshes would be scored.
+        raise InvalidInputError(
+            f"--score: {seconds:g} s is {round(seconds * display_fps)} refreshes at "
+            f"{display_fps:g} FPS; the score leaves out {SKIP_FRAMES} at each end, so at least "
+            f"{(2 * SKIP_FRAMES + 1) / display_fps:.3f} s is needed"
         )
     if prepare_threads is not None and backend != "cpu":
         # Said rather than ignored: no preparation pool runs on the GPU path.
