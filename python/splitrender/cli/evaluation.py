@@ -433,8 +433,6 @@ def _bench_realtime(args: argparse.Namespace) -> int:
             return fail(f"{flag} {e}")
     if len(outputs) == 2 and args.json.resolve() == args.plot.resolve():
         return fail(f"--plot: {args.plot} is the --json file too; expected another file")
-    if args.score is not None and args.stream is not None:
-        return fail("--score: a stream file carries no ground truth; score a built-in --scene")
     if args.no_vmaf and args.score is None:
         return fail("--no-vmaf goes with --score")
     try:

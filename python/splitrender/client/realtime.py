@@ -1571,7 +1571,8 @@ class RealtimeClient:
                 eyes=len(images),
                 deferred=deferred,
             )
-            modes.record(info.mode, done - start)
+            if self._defers:  # nothing else asks the governor
+                modes.record(info.mode, done - start)
             report.add(record)
             late_in_a_row = 0 if record.met else late_in_a_row + 1
             if raised and late_in_a_row >= _OVERRUN_FRAMES:

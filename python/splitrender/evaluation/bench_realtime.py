@@ -255,10 +255,11 @@ def run_realtime_bench(
         raise InvalidInputError(
             "--score: a stream file carries no ground truth; score a built-in --scene"
         )
-    if score and round(seconds * display_fps) <= 2 * SKIP_FRAMES:
+    n_frames = round(seconds * display_fps)
+    if score and n_frames <= 2 * SKIP_FRAMES:
         # Refused before the recording and the run: none of its refreshes would be scored.
         raise InvalidInputError(
-            f"--score: {seconds:g} s is {round(seconds * display_fps)} refreshes at "
+            f"--score: {seconds:g} s is {n_frames} refreshes at "
             f"{display_fps:g} FPS; the score leaves out {SKIP_FRAMES} at each end, so at least "
             f"{(2 * SKIP_FRAMES + 1) / display_fps:.3f} s is needed"
         )
@@ -336,7 +337,6 @@ def run_realtime_bench(
             return cams[int(math.floor(t * fs + 1e-9)) % len(cams)]
 
     feed = [(k / fs - 1.0 / fs, packet(k)) for k in range(n_sent)]
-    n_frames = round(seconds * display_fps)
     recorder = None
     if score:
         recorder = ShownRecorder(
