@@ -6,17 +6,20 @@ time."""
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 import os
 import sys
 import threading
 import time
+import weakref
 from concurrent.futures import Executor, Future
 from typing import Any
 
 import numpy as np
 import pytest
 import splitrender as sr
+import splitrender.client.collector as collector
 import splitrender.client.realtime as rt
 from splitrender.client import Client
 from splitrender.client.realtime import RealtimeClient
@@ -1142,6 +1145,10 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "deadline_misses_by_cause",
         "frame_cpu_ms_p50",
         "frame_cpu_ms_max",
+        "gc_between_frames",
+        "gc_collections",
+        "gc_forced",
+        "gc_ms_max",
     ):
         assert key in s
     assert s["decode_ms_per_server_frame"] is None  # frames handed over decoded
@@ -1203,6 +1210,107 @@ def test_misses_are_put_down_to_a_late_start_more_cpu_or_waiting():
         bare.add(dataclasses.replace(f, refresh=None, cpu_ms=None))
     assert bare.miss_causes() == {"late_start": 0, "more_cpu": 0, "waited": 6}
     assert bare.summary()["frame_cpu_ms_p50"] is None
+
+
+class Node:
+    """A tracked object in a reference cycle with itself: garbage only the collector frees."""
+
+    def __init__(self) -> None:
+        self.me = self
+
+
+class CycleClient(CostClient):
+    """A :class:`CostClient` whose every render leaves ``per_frame`` cycles of garbage, and
+    that notes whether the collector ever runs inside a render (``gc.callbacks``)."""
+
+    def __init__(self, clock: FakeClock, cost: Any, per_frame: int) -> None:
+        super().__init__(clock, cost)
+        self.per_frame, self.rendering = per_frame, False
+        self.first: Any = None  # a weak reference to the first frame's garbage
+        self.starts: list[bool] = []  # per collection: inside a render?
+
+    def render(self, camera: sr.Camera, time: float, *, eye: int = 0,
+               interpolate: bool = True) -> np.ndarray:
+        self.rendering = True
+        try:
+            nodes = [Node() for _ in range(self.per_frame)]
+            if self.first is None:
+                self.first = weakref.ref(nodes[0])
+            del nodes
+            return super().render(camera, time, eye=eye, interpolate=interpolate)
+        finally:
+            self.rendering = False
+
+    def on_gc(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self.starts.append(self.rendering)
+
+
+def collecting_run(scene: sr.SyntheticScene, frames: list[sr.ServerFrame], cost: Any,
+                   per_frame: int) -> tuple[rt.RealtimeReport, CycleClient]:
+    """A run of 0.5 s on the fake clock by a :class:`CycleClient`, the process's collector
+    enabled and nothing frozen before it (as they were restored after it)."""
+    clock = FakeClock()
+    client = CycleClient(clock, cost, per_frame)
+    enabled, frozen = gc.isenabled(), gc.get_freeze_count()
+    gc.enable()
+    try:
+        with RealtimeClient(client=client, clock=clock, display_fps=FC) as c:
+            for f in frames[:3]:
+                c.submit(f)
+            c.wait()
+            gc.callbacks.append(client.on_gc)
+            try:
+                report = c.run(pose_of(scene), 0.5)
+            finally:
+                gc.callbacks.remove(client.on_gc)
+        # As the run left it: on again, nothing frozen.
+        assert gc.isenabled() and gc.get_freeze_count() == frozen
+    finally:
+        gc.enable() if enabled else gc.disable()
+    return report, client
+
+
+def test_the_collector_runs_between_display_frames_not_inside_them(scene, frames):
+    # 300 cycles a frame: Python's own schedule (700) would collect inside every third render.
+    report, client = collecting_run(scene, frames, lambda n: 0.002, 300)
+    assert report.deadline_misses == 0 and len(report.frames) == 60
+    assert client.starts and not any(client.starts)
+    # Over and over: the 18,000 cycles pass the youngest generation's 700 about 25 times.
+    assert report.gc_between_frames and report.gc_collections >= 10
+    assert len(client.starts) > report.gc_collections  # and the full one before the clock
+    assert report.gc_forced == 0  # 6.3 ms to each next refresh: time enough every time
+    assert client.first is not None and client.first() is None  # the garbage was collected
+    s = report.summary()
+    assert s["gc_collections"] == report.gc_collections and s["gc_ms_max"] >= 0
+
+
+def test_garbage_of_frames_that_leave_no_time_is_collected_once_overdue(scene, frames):
+    # Every frame takes 99 % of its refresh: no collection fits before the next, until the
+    # youngest generation's count reaches OVERDUE times its threshold.
+    per_frame = 1000
+    report, client = collecting_run(scene, frames, lambda n: 0.99 * PERIOD, per_frame)
+    assert report.deadline_misses == 0
+    assert report.gc_forced >= 1 and report.gc_forced == report.gc_collections
+    assert not any(client.starts)
+    # Each once the garbage of about OVERDUE x 700 / 1000 = 7 frames had piled up, not one a
+    # frame (8 or 9 in the 60 frames).
+    assert report.gc_collections <= 60 * per_frame // (collector.OVERDUE * 700) + 3
+
+
+def test_a_disabled_collector_is_left_to_the_application(scene, frames):
+    clock = FakeClock()
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        with loop(clock) as c:
+            c.submit(frames[0])
+            c.wait()
+            report = c.run(pose_of(scene), 0.05)
+        assert not gc.isenabled()
+    finally:
+        gc.enable() if enabled else gc.disable()
+    assert not report.gc_between_frames and report.gc_collections == 0
 
 
 @pytest.mark.parametrize("fps", [0, -1.0, float("nan"), "120"])

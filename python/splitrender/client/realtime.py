@@ -33,6 +33,8 @@ Every display frame is recorded (:class:`DisplayFrame`): deadline met or missed,
 mode (interpolate, extrapolate, hold), the server frames used, and the age of the newest server
 frame, from the time its pose was taken to the display time. :class:`RealtimeReport` sums them up
 (:meth:`RealtimeReport.summary`: percentiles, misses, decode and preparation times, CPU use).
+While the display runs, Python's garbage collector runs between its frames, where the time to
+the next refresh holds it, not inside them (:mod:`splitrender.client.collector`).
 
 The clock is a parameter (:class:`Clock`), so that the loop's logic (deadlines, extrapolation
 while a pair is prepared, recovery after a late frame) is tested with a fake clock, and timings
@@ -59,6 +61,7 @@ import numpy.typing as npt
 
 import splitrender._native as _native
 from splitrender.client.client import Client
+from splitrender.client.collector import FrameCollector
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.gpu import BACKENDS, GpuDeviceLostError, GpuPair
 from splitrender.net.model import MODES, TIME_EPS
@@ -310,6 +313,14 @@ class RealtimeReport:
         self.display_scheduling = "normal"
         #: Images per display frame: 1, or 2 for a stereo run (``RealtimeClient.run(stereo=)``).
         self.eyes = 1
+        #: Whether the display ran the garbage collector between its frames
+        #: (:class:`~splitrender.client.collector.FrameCollector`; ``False`` where the
+        #: application had disabled it), the collections it ran, how many of them without the
+        #: time to the next refresh (overdue), and the longest (ms).
+        self.gc_between_frames = False
+        self.gc_collections = 0
+        self.gc_forced = 0
+        self.gc_ms_max = 0.0
         # Every frame's share of the summary (the frames themselves are kept only so far).
         self._count = 0
         self._misses = 0
@@ -408,8 +419,11 @@ class RealtimeReport:
         ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per second of the
         run) and ``cpu_utilisation`` (process CPU seconds per wall second and core, 0–1),
         ``display_scheduling`` (how the display's threads were scheduled), ``warm_up_ms`` (``None``
-        without a warm-up) and ``gpu_lost`` (why the GPU device was lost, after which the display
-        rendered on the CPU; ``None``). Times that have no sample are ``None``."""
+        without a warm-up), ``gpu_lost`` (why the GPU device was lost, after which the display
+        rendered on the CPU; ``None``) and the garbage collection between frames:
+        ``gc_between_frames``, ``gc_collections``, ``gc_forced`` and ``gc_ms_max``
+        (:class:`~splitrender.client.collector.FrameCollector`). Times that have no sample are
+        ``None``."""
         n = self._count
         misses = self._misses
         return {
@@ -448,6 +462,10 @@ class RealtimeReport:
             "display_scheduling": self.display_scheduling,
             "warm_up_ms": self.warm_up_ms,
             "gpu_lost": self.gpu_lost,
+            "gc_between_frames": self.gc_between_frames,
+            "gc_collections": self.gc_collections,
+            "gc_forced": self.gc_forced,
+            "gc_ms_max": self.gc_ms_max,
         }
 
 
@@ -1423,6 +1441,12 @@ class RealtimeClient:
         image)``. Each eye keeps its own previous output (eyes 0 and 1 of
         :meth:`Client.render`).
 
+        While the frames run, Python's garbage collector is the display's: automatic
+        collection is off (in every thread of the process) and each collection runs between
+        two frames, where the time to the next refresh holds it
+        (:class:`~splitrender.client.collector.FrameCollector`; the report's ``gc_*``). After
+        the run it is as it was; a collector the application disabled is left disabled.
+
         Raises:
             InvalidInputError: for arguments of the wrong type, ``seconds`` shorter than one
                 display frame, an item of ``feed`` that is not a pair ``(finite display time,
@@ -1448,9 +1472,12 @@ class RealtimeClient:
         report.display_scheduling, saved = _raise_display(self.display_priority, threads)
         arrivals = _arrivals(feed)
         interval = sys.getswitchinterval()
+        collector = FrameCollector()
         try:
             if warm_up:
                 arrivals = self._warm_up(report, views, arrivals, start_time)
+            # Off the clock: its first full collection walks every object of the process.
+            collector.start()
             t0 = self.clock.now()
             cpu0 = time.process_time()
             if not exclusive:
@@ -1464,7 +1491,7 @@ class RealtimeClient:
             sys.setswitchinterval(min(interval, 0.0005))
             end = self._display(
                 report, t0, n_frames, views, arrivals, start_time, on_frame, exclusive, saved,
-                _thread_cpu_clocks(threads),
+                _thread_cpu_clocks(threads), collector,
             )
         finally:
             # Whatever ended the run (the warm-up's or a frame's error included).
@@ -1472,6 +1499,11 @@ class RealtimeClient:
                 self._origin = None
             _restore(saved)
             sys.setswitchinterval(interval)
+            report.gc_between_frames = collector.active
+            collector.stop()
+        report.gc_collections = collector.collections
+        report.gc_forced = collector.forced
+        report.gc_ms_max = collector.longest_s * 1e3
         # To the end of the last refresh, not the last frame's completion: the frames of
         # `seconds` took (n - 1) / f_c plus a frame's time, and 120 frames at 120 FPS were
         # reported as 120.9 FPS achieved.
@@ -1514,13 +1546,15 @@ class RealtimeClient:
         exclusive: bool,
         raised: _Saved,
         clocks: list[int] | None,
+        collector: FrameCollector,
     ) -> float:
         """The display loop of :meth:`run` (refresh ``n`` at clock ``t0 + n / f_c``; with
         ``exclusive``, ``t0`` moves on by the time waited for the worker); returns the clock
         time its ``n_frames`` refreshes end. ``raised``: the
         threads :func:`_raise_display` raised, restored (and emptied) after
         :data:`_OVERRUN_FRAMES` late frames in a row; ``clocks``: the display threads' CPU
-        clocks (:func:`_thread_cpu_clocks`), read around each frame."""
+        clocks (:func:`_thread_cpu_clocks`), read around each frame; ``collector``: asked
+        after each frame, with the time to the next frame's refresh."""
         period = 1.0 / self.display_fps
         governor = RateGovernor(self.display_fps, self.max_divisor)
         modes = ModeGovernor()
@@ -1598,4 +1632,6 @@ class RealtimeClient:
             report.repeated += shown - n - 1
             report.dropped += min(following, n_frames) - shown
             n = following
+            if n < n_frames:
+                collector.between_frames(t0 + n * period - self.clock.now())
         return t0 + n_frames * period

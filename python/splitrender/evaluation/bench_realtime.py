@@ -420,6 +420,20 @@ def _score(
     return score_shown(shown, truth, no_vmaf, lambda m, d, n: stages.bar(d, n, m))
 
 
+def _collections(s: dict[str, Any]) -> str:
+    """The summary's garbage collection between frames, in words."""
+    if not s.get("gc_between_frames"):
+        return ("garbage collection: left to the application (Python's collector was disabled "
+                "when the display started)")
+    n, forced = s["gc_collections"], s["gc_forced"]
+    return (
+        f"garbage collection between frames: {n} collection{'s' * (n != 1)}"
+        + ("" if not n else f", the longest {s['gc_ms_max']:.2f} ms")
+        + ("" if not forced else f"; {forced} overdue, collected without the time to the "
+           "next refresh")
+    )
+
+
 def format_realtime(b: RealtimeBench) -> str:
     """The summary as plain text."""
     s = b.summary
@@ -491,6 +505,7 @@ def format_realtime(b: RealtimeBench) -> str:
             f"of {os.cpu_count() or 1} cores"
             + ("" if s.get("warm_up_ms") is None
                else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
+            "  " + _collections(s),
         ]
         + ([] if s.get("gpu_lost") is None else [
             f"  the GPU device was lost ({s['gpu_lost']}): the display went on on the CPU "
