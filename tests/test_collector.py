@@ -76,6 +76,24 @@ def test_a_due_generation_is_collected_where_the_time_holds_twice_its_last_cost(
     assert fake.collected == [0, 0]
 
 
+def test_a_younger_generation_stands_in_for_a_due_one_that_does_not_fit(monkeypatch):
+    # A full collection is due; the time holds the first guess of the middle one's, not more.
+    fake = FakeGc(monkeypatch, (701, 0, 11))
+    c = active()
+    time_left = col.MARGIN * col.FIRST_GUESS_S[1] * 1.1
+    assert col.MARGIN * col.FIRST_GUESS_S[2] > time_left
+    c.between_frames(time_left)
+    assert fake.collected == [1] and c.forced == 0
+    # Each stand-in adds to the due generation's count: it becomes overdue, and then comes
+    # even without the time (waiting for it alone, nothing would ever be collected).
+    fake.counts[:] = [701, 0, col.OVERDUE * 10 - 1]
+    c.between_frames(0.0)
+    assert fake.collected == [1]
+    fake.counts[:] = [701, 0, col.OVERDUE * 10]
+    c.between_frames(0.0)
+    assert fake.collected == [1, 2] and c.forced == 1
+
+
 def test_nothing_is_collected_while_none_is_due_whatever_the_time(monkeypatch):
     fake = FakeGc(monkeypatch, (700, 10, 10))
     c = active()

@@ -14,9 +14,10 @@ While the display runs, automatic collection is off and the objects that exist w
 are frozen (:func:`gc.freeze`: a full collection then walks only what the run made). After each
 frame the display asks for the collection the automatic schedule would have made by now
 (:meth:`FrameCollector.due`), and it runs where the time to the next refresh holds
-:data:`MARGIN` times what that generation took the last time. A generation whose count reaches
-:data:`OVERDUE` times its threshold is collected even without that time, so that the memory
-held in garbage cycles stays bounded when the frames never leave it. A process whose collector
+:data:`MARGIN` times what that generation took the last time; where it does not, a younger
+generation that fits runs instead. A generation whose count reaches :data:`OVERDUE` times its
+threshold is collected even without that time, so that the memory held in garbage cycles
+stays bounded when the frames never leave it. A process whose collector
 is disabled when the display starts (``gc.disable()``: the application manages it) is left as
 it is.
 """
@@ -98,17 +99,31 @@ class FrameCollector:
         return g
 
     def between_frames(self, time_left_s: float) -> None:
-        """Collects the generation :meth:`due` names where ``time_left_s`` (to the next
-        refresh) holds :data:`MARGIN` times its last collection, or where its count has
-        reached :data:`OVERDUE` times its threshold; else nothing."""
+        """Where a generation is :meth:`due`: collects the oldest generation up to it whose
+        last collection fits :data:`MARGIN` times into ``time_left_s`` (to the next refresh);
+        where none does, the oldest whose count has reached :data:`OVERDUE` times its
+        threshold; else nothing.
+
+        A younger generation stands in for a due one that does not fit: every collection of an
+        older one walks it too, so it costs less, and its collection adds to the older one's
+        count until that is overdue (waiting for the older one alone, nothing would be
+        collected while the frames leave less than its time)."""
         if not self.active:
             return
-        g = self.due()
-        if g is None:
+        due = self.due()
+        if due is None:
             return
-        if self._cost[g] * MARGIN > time_left_s:
-            if gc.get_count()[g] < OVERDUE * gc.get_threshold()[g]:
+        fits = [g for g in range(due + 1) if self._cost[g] * MARGIN <= time_left_s]
+        if fits:
+            g = fits[-1]
+        else:
+            counts, limits = gc.get_count(), gc.get_threshold()
+            overdue = [
+                g for g in range(due + 1) if 0 < limits[g] and OVERDUE * limits[g] <= counts[g]
+            ]
+            if not overdue:
                 return
+            g = overdue[-1]
             self.forced += 1
         t = time.perf_counter()
         gc.collect(g)
