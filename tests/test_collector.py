@@ -94,13 +94,6 @@ def test_a_younger_generation_stands_in_for_a_due_one_that_does_not_fit(monkeypa
     assert fake.collected == [1, 2] and c.forced == 1
 
 
-def test_nothing_is_collected_while_none_is_due_whatever_the_time(monkeypatch):
-    fake = FakeGc(monkeypatch, (700, 10, 10))
-    c = active()
-    c.between_frames(1.0)
-    assert fake.collected == [] and c.collections == 0
-
-
 def test_an_overdue_generation_is_collected_without_the_time(monkeypatch):
     fake = FakeGc(monkeypatch, (col.OVERDUE * 700 - 1, 0, 0))
     c = active()
@@ -118,9 +111,18 @@ def test_an_overdue_generation_is_collected_without_the_time(monkeypatch):
     assert fake.collected == [0, 1] and c.forced == 2
 
 
-def test_an_inactive_collector_collects_nothing(monkeypatch):
-    fake = FakeGc(monkeypatch, (10_000, 100, 100))
-    c = FrameCollector()
+@pytest.mark.parametrize(
+    ("counts", "collector"),
+    [
+        ((700, 10, 10), active),  # none due, whatever the time
+        ((10_000, 100, 100), FrameCollector),  # inactive: never started, or stopped
+    ],
+)
+def test_nothing_is_collected_while_none_is_due_or_the_collector_is_inactive(
+    monkeypatch, counts, collector
+):
+    fake = FakeGc(monkeypatch, counts)
+    c = collector()
     c.between_frames(1.0)
     assert fake.collected == [] and c.collections == 0
 

@@ -89,14 +89,7 @@ class FrameCollector:
         """The generation CPython's automatic schedule would collect at the next allocation,
         or ``None``: the oldest whose count passes its threshold, once the youngest's does (a
         threshold of 0 turns the schedule, or that generation, off)."""
-        counts, limits = gc.get_count(), gc.get_threshold()
-        if not limits or limits[0] <= 0 or counts[0] <= limits[0]:
-            return None
-        g = 0
-        for k in range(1, min(len(counts), len(limits))):
-            if 0 < limits[k] < counts[k]:
-                g = k
-        return g
+        return _due(gc.get_count(), gc.get_threshold())
 
     def between_frames(self, time_left_s: float) -> None:
         """Where a generation is :meth:`due`: collects the oldest generation up to it whose
@@ -110,14 +103,14 @@ class FrameCollector:
         collected while the frames leave less than its time)."""
         if not self.active:
             return
-        due = self.due()
+        counts, limits = gc.get_count(), gc.get_threshold()
+        due = _due(counts, limits)
         if due is None:
             return
         fits = [g for g in range(due + 1) if self._cost[g] * MARGIN <= time_left_s]
         if fits:
             g = fits[-1]
         else:
-            counts, limits = gc.get_count(), gc.get_threshold()
             overdue = [
                 g for g in range(due + 1) if 0 < limits[g] and OVERDUE * limits[g] <= counts[g]
             ]
@@ -131,3 +124,14 @@ class FrameCollector:
         self._cost[g] = took
         self.collections += 1
         self.longest_s = max(self.longest_s, took)
+
+
+def _due(counts: tuple[int, ...], limits: tuple[int, ...]) -> int | None:
+    """:meth:`FrameCollector.due` of the collector's ``counts`` and thresholds ``limits``."""
+    if limits[0] <= 0 or counts[0] <= limits[0]:
+        return None
+    g = 0
+    for k in range(1, min(len(counts), len(limits))):
+        if 0 < limits[k] < counts[k]:
+            g = k
+    return g
