@@ -232,20 +232,21 @@ def test_a_stereo_session_shows_and_scores_both_eyes(server: _Server, tmp_path: 
 
 def test_a_stereo_score_holds_each_eye_to_its_own_ground_truth() -> None:
     """connect --stereo's score: the left half of a kept frame against the left eye's ground
-    truth, the right half against the right eye's (swapped, neither would match)."""
+    truth, the right half against the right eye's (swapped, neither would match). One run
+    of five frames: the three between its ends are scored."""
     from splitrender.cli.live import _score
     from splitrender.scene.builtin import Scene
 
     scene, scale, fc = Scene("courtyard"), 0.03, 120.0
-    times = [n / fc for n in (10, 11, 12)]
+    times = [n / fc for n in (9, 10, 11, 12, 13)]
     eyes = [[img for _, img in scene.client_frames(round(t * fc), scale, fc, True)]
             for t in times]
     right_way = [(t, np.concatenate(e, axis=1)) for t, e in zip(times, eyes)]
     swapped = [(t, np.concatenate(e[::-1], axis=1)) for t, e in zip(times, eyes)]
-    exact = _score(scene, scale, fc, scene.client_pose, right_way, True, 2)
+    exact = _score(scene, scale, fc, scene.client_pose, [right_way], True, 2)
     assert exact["scored_frames"] == 3 and exact["ssim"] == pytest.approx(1.0)
     assert all(p["ssim"] == pytest.approx(1.0) for p in exact["per_eye"])
-    wrong = _score(scene, scale, fc, scene.client_pose, swapped, True, 2)
+    wrong = _score(scene, scale, fc, scene.client_pose, [swapped], True, 2)
     assert all(p["ssim"] < 0.99 for p in wrong["per_eye"]), wrong["per_eye"]
 
 

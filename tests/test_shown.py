@@ -9,7 +9,16 @@ import numpy as np
 import pytest
 from splitrender.client.realtime import DisplayFrame
 from splitrender.errors import InvalidInputError
-from splitrender.evaluation.shown import ShownRecorder, first_slot, score_shown, spread
+from splitrender.evaluation.shown import (
+    SCORED_RUN,
+    ShownRecorder,
+    first_slot,
+    group,
+    runs,
+    score_images,
+    score_shown,
+    spread,
+)
 
 FC = 120.0
 P = 1.0 / FC
@@ -70,32 +79,104 @@ def test_spread_keeps_both_ends_and_never_repeats():
     assert spread(3, 3, 10) == [] and spread(0, 10, 1) == [0]
 
 
+def test_runs_are_consecutive_spread_to_both_ends_with_context_and_never_overlap():
+    slots = list(range(12, 1188))
+    got = runs(slots, 120)
+    assert len(got) == 10 and all(len(r) == SCORED_RUN + 2 for r in got)
+    assert all(r == list(range(r[0], r[0] + len(r))) for r in got)  # consecutive
+    assert got[0][0] == 12 and got[-1][-1] == 1187  # the first and the last slot
+    assert all(a[-1] < b[0] for a, b in zip(got, got[1:]))
+    # 125 in 11 runs of 11 or 12 scored; 5 in one run of 5.
+    assert sorted(len(r) - 2 for r in runs(slots, 125)) == [11] * 7 + [12] * 4
+    assert [len(r) - 2 for r in runs(slots, 5)] == [5]
+    assert runs(slots, 0) == [] and runs([], 5) == [] and runs([3, 4], 5) == []
+
+
+def test_runs_stay_inside_stretches_and_take_all_where_there_is_no_more_room():
+    # Two stretches (a looped run's seam between them): no run straddles the gap.
+    slots = list(range(0, 40)) + list(range(50, 90))
+    got = runs(slots, 24, length=6)
+    assert len(got) == 4 and all(len(r) == 8 for r in got)
+    assert all(r[-1] < 40 or r[0] >= 50 for r in got)
+    # Room for 38 + 38 scored: asking for as many or more takes each stretch whole.
+    assert runs(slots, 76) == [list(range(0, 40)), list(range(50, 90))]
+    assert runs(slots + [95, 96], 1000) == [list(range(0, 40)), list(range(50, 90))]
+    # 36 candidates, 3 runs of 11 need windows of 13: two fit, the third is left out.
+    assert [len(r) for r in runs(range(36), 33)] == [13, 13]
+
+
+def test_group_drops_the_slots_that_showed_nothing():
+    shown = ShownRecorder([5, 6, 7, 8, 20, 21, 22], 0.0, FC)
+    shown(np.zeros((2, 2, 3), np.uint8), frame(7, 0.5))  # the first frame: up from slot 7
+    got = group(shown.finish(30), [[5, 6, 7, 8], [20, 21, 22]])
+    assert [[s.slot for s in run] for run in got] == [[7, 8], [20, 21, 22]]
+
+
+def _vmaf_texture(n: int, h: int = 48, w: int = 64) -> list[np.ndarray]:
+    """A texture translating 2 px per frame (VMAF's motion feature is not 0)."""
+    rng = np.random.default_rng(5)
+    coarse = rng.integers(0, 256, (h // 4, (w + 2 * n) // 4 + 1, 3), dtype=np.uint8)
+    big = np.repeat(np.repeat(coarse, 4, axis=0), 4, axis=1)
+    return [np.ascontiguousarray(big[:, 2 * i : 2 * i + w]) for i in range(n)]
+
+
+def test_vmaf_of_runs_is_the_vmaf_the_frames_have_in_the_whole_sequence():
+    # What a viewer sees is the whole sequence; the score takes runs of it. Each scored
+    # frame's VMAF must be the one it has there, which libvmaf's motion feature (a frame
+    # against its neighbours) makes depend on the frames around it.
+    from splitrender.evaluation.metrics import evaluate_sequence
+
+    truth = _vmaf_texture(20)
+    # Brighter and off by a pixel: VMAF well under 100.
+    shown = [np.roll(np.asarray(np.clip(t.astype(int) + 24, 0, 255), np.uint8), 1, axis=1)
+             for t in truth]
+    whole = evaluate_sequence(shown, truth, skip=0, metrics=["vmaf"]).per_frame
+    picked = [[0, 1, 2], [6, 7, 8], [12, 13, 14, 15]]
+    _, rows = score_images([[(shown[i],) for i in r] for r in picked],
+                           [[(truth[i],) for i in r] for r in picked])
+    scored = [i for r in picked for i in r[1:-1]]
+    assert [row["vmaf"] for row in rows] == pytest.approx([whole[i]["vmaf"] for i in scored],
+                                                          abs=1e-6)
+    # The same frames as one sequence, as a spread of single refreshes was scored: frame 7
+    # between 1 and 13, 12 px of motion from each, scores otherwise.
+    alone = evaluate_sequence([shown[i] for i in scored], [truth[i] for i in scored], skip=0,
+                              metrics=["vmaf"]).per_frame
+    assert scored[1] == 7
+    assert alone[1]["vmaf"] != pytest.approx(whole[7]["vmaf"], abs=0.5)
+
+
 def test_connect_score_spreads_a_short_session_over_all_of_it():
     # 60 display frames (connect --fps 10 --seconds 6), 36 after the skipped ends: all are
-    # scored; the steps of 120 took 11, all from the session's first third.
+    # taken, in one run, and the 34 between its ends scored; the steps of 120 took 11, all
+    # from the session's first third.
     from splitrender.cli.live import _pick
     from splitrender.evaluation.metrics import SKIP_FRAMES
 
     frames = [(k / 10, np.zeros((2, 2, 3), np.uint8)) for k in range(60)]
-    assert [t for t, _ in _pick(frames)] == [k / 10 for k in range(SKIP_FRAMES, 60 - SKIP_FRAMES)]
+    picked = _pick(frames)
+    assert [[t for t, _ in run] for run in picked] == [
+        [k / 10 for k in range(SKIP_FRAMES, 60 - SKIP_FRAMES)]]
     long = [(k / 120, frames[0][1]) for k in range(1200)]
-    picked = [t for t, _ in _pick(long)]
-    assert len(picked) == 120 and picked[0] == SKIP_FRAMES / 120
-    assert picked[-1] == (1199 - SKIP_FRAMES) / 120
+    picked = _pick(long)
+    assert sum(len(run) - 2 for run in picked) == 120
+    assert picked[0][0][0] == SKIP_FRAMES / 120
+    assert picked[-1][-1][0] == (1199 - SKIP_FRAMES) / 120
 
 
 def test_score_splits_by_the_mode_shown_and_its_age():
     # Ground truth grey 128; each shown frame off by a known amount: its PSNR is known.
-    made = [frame(0, 0.5, mode="interpolate"), frame(1, 0.5, mode="extrapolate", deferred=True),
-            frame(2, 1.5, mode="extrapolate"), frame(4, 0.5, mode="hold")]
-    offset = {0: 4, 1: 8, 2: 16, 4: 32}
-    rec = ShownRecorder(range(5), 0.0, FC)
+    # Slots 0..6 in one run: 0 and 6 are VMAF's context, 1..5 scored.
+    made = [frame(0, 0.5, mode="hold"), frame(1, 0.5, mode="interpolate"),
+            frame(2, 0.5, mode="extrapolate", deferred=True), frame(3, 1.5, mode="extrapolate"),
+            frame(5, 0.5, mode="hold"), frame(6, 0.5)]
+    offset = {0: 64, 1: 4, 2: 8, 3: 16, 5: 32, 6: 64}
+    rec = ShownRecorder(range(7), 0.0, FC)
     for f in made:
         rec(np.full((48, 48, 3), 128 + offset[f.index], np.uint8), f)
-    shown = rec.finish(5)
-    assert [s.frame.index for s in shown] == [0, 1, 1, 2, 4]
+    shown = rec.finish(7)
+    assert [s.frame.index for s in shown] == [0, 1, 2, 2, 3, 5, 6]
     truth = np.full((48, 48, 3), 128, np.uint8)
-    score = score_shown(shown, lambda t: [truth], no_vmaf=True)
+    score = score_shown([shown], lambda t: [truth], no_vmaf=True)
 
     def psnr(d: int) -> float:
         return 10 * math.log10(255**2 / d**2)
@@ -108,7 +189,7 @@ def test_score_splits_by_the_mode_shown_and_its_age():
     assert by_mode["deferred"]["psnr"] == pytest.approx(psnr(8), abs=1e-6)
     assert by_mode["hold"]["psnr"] == pytest.approx(psnr(32), abs=1e-6)
     by_age = score["by_staleness"]
-    # Slot 2 kept frame 1 up; frame 2 missed and was up from slot 3.
+    # Slot 3 kept frame 2 up; frame 3 missed and was up from slot 4.
     assert {k: g["refreshes"] for k, g in by_age.items()} == {"0": 3, "1": 2}
     assert by_age["1"]["psnr"] == pytest.approx((psnr(8) + psnr(16)) / 2, abs=1e-6)
     # The overall PSNR is that of the mean squared error (as the evaluation's everywhere).
@@ -118,6 +199,12 @@ def test_score_splits_by_the_mode_shown_and_its_age():
 
 def test_score_of_nothing_shown_scores_nothing():
     assert score_shown([], lambda t: [], no_vmaf=True) == {"scored_frames": 0}
+    # A run of two slots has no frame between its context ends.
+    rec = ShownRecorder([0, 1], 0.0, FC)
+    rec(np.zeros((48, 48, 3), np.uint8), frame(0, 0.5))
+    truths: list[float] = []
+    score = score_shown([rec.finish(2)], lambda t: truths.append(t) or [], no_vmaf=True)
+    assert score == {"scored_frames": 0} and truths == []  # and no ground truth rendered
 
 
 def test_bench_realtime_score_scores_the_refreshes_of_a_builtin_scene(tmp_path, monkeypatch):
@@ -146,8 +233,8 @@ def test_bench_realtime_score_scores_the_refreshes_of_a_builtin_scene(tmp_path, 
         ({"score": 5, "stream": "x.srs"}, "a stream file carries no ground truth"),
         # Too short to score any refresh (it ran, then said "nothing scored").
         ({"score": 5}, r"--score: 0.1 s is 12 refreshes at 120 FPS; the score leaves out 12 at "
-         r"each end, so at least 0.208 s is needed"),
-        ({"score": 5, "display_fps": 240.0}, r"0.1 s is 24 refreshes at 240 FPS.*0.104 s"),
+         r"each end and scores a refresh between two others, so at least 0.225 s is needed"),
+        ({"score": 5, "display_fps": 240.0}, r"0.1 s is 24 refreshes at 240 FPS.*0.113 s"),
     ],
 )
 def test_bench_realtime_score_refuses_what_cannot_be_scored(kwargs, message):

@@ -44,7 +44,7 @@ from splitrender.client.realtime import (
     WORKER_PRIORITIES,
 )
 from splitrender.errors import InvalidInputError, SplitRenderError
-from splitrender.evaluation.shown import SCORED
+from splitrender.evaluation.shown import SCORED, SCORED_RUN
 from splitrender.files import check_apart, check_output_file, write_atomic
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
@@ -347,9 +347,10 @@ def add_bench(sub: Any) -> None:
     be.add_argument(
         "--score", type=count, nargs="?", const=SCORED, default=None, metavar="N",
         help="with --realtime on a built-in --scene: afterwards, score what the display showed "
-        f"at N refreshes (default N: {SCORED}) spread over the run against the ground truth at "
-        "their poses (ssim, flip, psnr, vmaf), by the mode of the frame shown and its age: a "
-        "missed deadline counts as the older image left up",
+        f"at N refreshes (default N: {SCORED}; in runs of {SCORED_RUN} consecutive ones spread "
+        "over the run, as VMAF's motion feature needs) against the ground truth at their poses "
+        "(ssim, flip, psnr, vmaf), by the mode of the frame shown and its age: a missed "
+        "deadline counts as the older image left up",
     )
     add_no_vmaf(be, "with --score: skip VMAF")
     add_backend(

@@ -436,8 +436,9 @@ def run_connect(args: argparse.Namespace) -> int:
             start = first_shown[0] if first_shown else math.inf
             picked = _pick([f for f in frames if f[0] >= start])
             if not args.quiet:
-                print(f"scoring {len(picked)} display frames against the ground truth rendered "
-                      "at the client's poses", file=sys.stderr, flush=True)
+                print(f"scoring {sum(len(run) - 2 for run in picked)} display frames against "
+                      "the ground truth rendered at the client's poses", file=sys.stderr,
+                      flush=True)
             report.update(
                 _score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf, eyes)
             )
@@ -449,8 +450,8 @@ def run_connect(args: argparse.Namespace) -> int:
                 # The same display times as the live method's score: what each display showed
                 # then (a refresh whose frame was late repeats the one before, as it did live).
                 summary.update(_score(scene, welcome.scale, args.fps, motion,
-                                      _shown(other, [t for t, _ in picked]), args.no_vmaf,
-                                      eyes))
+                                      [_shown(other, [t for t, _ in run]) for run in picked],
+                                      args.no_vmaf, eyes))
                 report["compare"] = {"method": args.compare, **summary}
         write_atomic(stage / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
@@ -614,17 +615,19 @@ MAX_KEPT_BYTES = 1 << 30
 _Shown = list[tuple[float, npt.NDArray[np.uint8]]]
 
 
-def _pick(frames: _Shown) -> _Shown:
+def _pick(frames: _Shown) -> list[_Shown]:
     """The display frames to score: the first and last SKIP_FRAMES left out (as `play`
-    does), and at most SCORED evenly spread over the rest (the ground truth costs a render
-    per frame)."""
+    does), and of the rest runs of consecutive ones that score at most SCORED, spread over
+    them (the ground truth costs a render per frame; each run's first and last frame are
+    VMAF's context only, `shown.runs`). Consecutive as kept: past MAX_KEPT_BYTES, a
+    stride of refreshes apart, as in the video."""
     from splitrender.evaluation.metrics import SKIP_FRAMES
-    from splitrender.evaluation.shown import SCORED, spread
+    from splitrender.evaluation.shown import SCORED, runs
 
     inner = frames[SKIP_FRAMES : len(frames) - SKIP_FRAMES]
     # Spread over all of them: with fewer than SCORED, the steps of SCORED bunched every
     # frame scored into the session's first part (36 frames: 11, from its first third).
-    return [inner[i] for i in spread(0, len(inner), SCORED)]
+    return [[inner[i] for i in run] for run in runs(range(len(inner)), SCORED)]
 
 
 def _shown(frames: _Shown, times: list[float]) -> _Shown:
@@ -642,22 +645,24 @@ def _shown(frames: _Shown, times: list[float]) -> _Shown:
 
 
 def _score(
-    scene: Any, scale: float, fc: float, motion: Any, picked: _Shown, no_vmaf: bool,
+    scene: Any, scale: float, fc: float, motion: Any, picked: list[_Shown], no_vmaf: bool,
     eyes: int = 1,
 ) -> dict[str, Any]:
-    """The display frames ``picked`` (display time, image) against the ground truth rendered
-    at the poses the client had (``motion(t)``: the same function that gave them). A stereo
+    """The runs of display frames ``picked`` (display time, image; each run's first and last
+    VMAF's context only, :func:`_pick`) against the ground truth rendered at the poses the
+    client had (``motion(t)``: the same function that gave them). A stereo
     session's (``eyes`` 2, the eyes side by side) scores each eye against the ground truth of
     that eye; the metrics are the means over both (as eval's Table 3), and ``per_eye`` holds
     each eye's."""
     from splitrender.evaluation.shown import score_images
 
     truth = [
-        [img for _, img in scene.client_frames(round(t * fc), scale, fc, eyes == 2,
-                                               pose=motion(t))]
-        for t, _ in picked
+        [[img for _, img in scene.client_frames(round(t * fc), scale, fc, eyes == 2,
+                                                pose=motion(t))]
+         for t, _ in run]
+        for run in picked
     ]
-    shown = [_eye_images(img, eyes) for _, img in picked]  # per frame, per eye
+    shown = [[_eye_images(img, eyes) for _, img in run] for run in picked]  # run, frame, eye
     return score_images(shown, truth, no_vmaf)[0]
 
 

@@ -46,8 +46,9 @@ from splitrender.evaluation.shown import (
     Shown,
     ShownRecorder,
     format_scores,
+    group,
+    runs,
     score_shown,
-    spread,
 )
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
@@ -230,12 +231,14 @@ def run_realtime_bench(
     ``backend``: where the display renders (``"wgpu"``: the GPU, the worker uploading each
     pair).
     ``score``: after the run, score what the display showed at that many refreshes (0: none)
-    spread over the run against the ground truth of the refreshes' times (a built-in scene's
-    only; :mod:`splitrender.evaluation.shown`: a missed deadline counts as the older image
-    left up, a halved rate as each image shown twice), without VMAF for ``no_vmaf``. The first
-    and last ``SKIP_FRAMES`` refreshes are left out, and in a looped run those within a server
-    period of a seam (where a pair straddles the jump of the content, an artefact of the
-    loop).
+    against the ground truth of the refreshes' times (a built-in scene's only;
+    :mod:`splitrender.evaluation.shown`: a missed deadline counts as the older image left up,
+    a halved rate as each image shown twice), without VMAF for ``no_vmaf``. The refreshes come
+    in runs of :data:`~splitrender.evaluation.shown.SCORED_RUN` consecutive ones spread over
+    the run, each with one more at each end for VMAF's motion feature
+    (:func:`~splitrender.evaluation.shown.runs`). The first and last ``SKIP_FRAMES`` refreshes
+    are left out, and in a looped run those within a server period of a seam (where a pair
+    straddles the jump of the content, an artefact of the loop).
 
     Raises:
         InvalidInputError: for arguments that cannot work.
@@ -256,12 +259,14 @@ def run_realtime_bench(
             "--score: a stream file carries no ground truth; score a built-in --scene"
         )
     n_frames = round(seconds * display_fps)
-    if score and n_frames <= 2 * SKIP_FRAMES:
-        # Refused before the recording and the run: none of its refreshes would be scored.
+    if score and n_frames < 2 * SKIP_FRAMES + 3:
+        # Refused before the recording and the run: none of its refreshes would be scored (a
+        # scored refresh needs one on each side, for VMAF's motion feature).
         raise InvalidInputError(
             f"--score: {seconds:g} s is {n_frames} refreshes at "
-            f"{display_fps:g} FPS; the score leaves out {SKIP_FRAMES} at each end, so at least "
-            f"{(2 * SKIP_FRAMES + 1) / display_fps:.3f} s is needed"
+            f"{display_fps:g} FPS; the score leaves out {SKIP_FRAMES} at each end and scores "
+            f"a refresh between two others, so at least "
+            f"{(2 * SKIP_FRAMES + 3) / display_fps:.3f} s is needed"
         )
     if prepare_threads is not None and backend != "cpu":
         # Said rather than ignored: no preparation pool runs on the GPU path.
@@ -337,12 +342,10 @@ def run_realtime_bench(
             return cams[int(math.floor(t * fs + 1e-9)) % len(cams)]
 
     feed = [(k / fs - 1.0 / fs, packet(k)) for k in range(n_sent)]
-    recorder = None
+    recorder, slot_runs = None, []
     if score:
-        recorder = ShownRecorder(
-            _scored_slots(n_frames, display_fps, cycle if looped else math.inf, fs, score),
-            0.0, display_fps,
-        )
+        slot_runs = _scored_runs(n_frames, display_fps, cycle if looped else math.inf, fs, score)
+        recorder = ShownRecorder([k for run in slot_runs for k in run], 0.0, display_fps)
     stages.stage(
         f"running {method} in real time for {seconds:g} s at {display_fps:g} FPS, "
         + ("two eyes of " if stereo else "") + f"{main.width}x{main.height} + aux"
@@ -368,7 +371,8 @@ def run_realtime_bench(
         )
     scored = None
     if recorder is not None and sc is not None:
-        scored = _score(sc, pose, cycle, stereo, recorder.finish(n_frames), no_vmaf, stages)
+        shown = group(recorder.finish(n_frames), slot_runs)
+        scored = _score(sc, pose, cycle, stereo, shown, no_vmaf, stages)
     stages.close()
     if report.undecodable:
         # A live display goes on extrapolating past such a packet; a benchmark of a stream
@@ -384,10 +388,11 @@ def run_realtime_bench(
     )
 
 
-def _scored_slots(n_frames: int, fc: float, cycle: float, fs: float, count: int) -> list[int]:
-    """``count`` refresh slots spread over a run of ``n_frames`` at ``fc``: not the first or
-    last ``SKIP_FRAMES``, nor those within a server period (``1 / fs``) of a seam of a source
-    looped every ``cycle`` seconds (``inf``: not looped)."""
+def _scored_runs(n_frames: int, fc: float, cycle: float, fs: float, count: int) -> list[list[int]]:
+    """Runs of consecutive refresh slots (:func:`~splitrender.evaluation.shown.runs`) that
+    score ``count`` spread over a run of ``n_frames`` at ``fc``: not the first or last
+    ``SKIP_FRAMES``, nor those within a server period (``1 / fs``) of a seam of a source looped
+    every ``cycle`` seconds (``inf``: not looped)."""
     from splitrender.evaluation.metrics import SKIP_FRAMES
 
     def near_seam(t: float) -> bool:
@@ -395,18 +400,20 @@ def _scored_slots(n_frames: int, fc: float, cycle: float, fs: float, count: int)
         return phase > cycle - 1.0 / fs or (t >= cycle and phase < 1.0 / fs)
 
     slots = [s for s in range(SKIP_FRAMES, n_frames - SKIP_FRAMES) if not near_seam(s / fc)]
-    return [slots[i] for i in spread(0, len(slots), count)]
+    return runs(slots, count)
 
 
 def _score(
     scene: Scene, pose: Callable[[float], Camera], cycle: float, stereo: bool,
-    shown: list[Shown], no_vmaf: bool, stages: Progress,
+    shown: list[list[Shown]], no_vmaf: bool, stages: Progress,
 ) -> dict[str, Any]:
-    """The refreshes ``shown`` against the ground truth at their poses (``pose``, as the run
-    had them) and scene times (a looped run's modulo ``cycle``)."""
+    """The runs of refreshes ``shown`` against the ground truth at their poses (``pose``, as
+    the run had them) and scene times (a looped run's modulo ``cycle``)."""
+    slots = sum(len(run) for run in shown)
     stages.stage(
-        f"scoring what the display showed at {len(shown)} refreshes against the ground truth "
-        "rendered at their poses"
+        f"scoring what the display showed at {sum(max(len(r) - 2, 0) for r in shown)} "
+        f"refreshes in {len(shown)} runs of consecutive ones against the ground truth rendered "
+        "at their poses"
     )
     rendered = [0]
 
@@ -414,7 +421,7 @@ def _score(
         cam = pose(t)
         images = [scene.ground_truth(c, t % cycle) for c in (cam.stereo() if stereo else (cam,))]
         rendered[0] += 1
-        stages.bar(rendered[0], len(shown), "ground truths")
+        stages.bar(rendered[0], slots, "ground truths")
         return images
 
     return score_shown(shown, truth, no_vmaf, lambda m, d, n: stages.bar(d, n, m))

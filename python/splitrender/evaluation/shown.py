@@ -30,8 +30,8 @@ import numpy.typing as npt
 from splitrender.client.realtime import DisplayFrame
 
 __all__ = [
-    "METRIC_WORDS", "SCORED", "Shown", "ShownRecorder", "first_slot", "format_scores",
-    "score_images", "score_shown", "spread",
+    "METRIC_WORDS", "SCORED", "SCORED_RUN", "Shown", "ShownRecorder", "first_slot",
+    "format_scores", "group", "runs", "score_images", "score_shown", "spread",
 ]
 
 _Image = npt.NDArray[np.uint8]
@@ -39,6 +39,15 @@ _Image = npt.NDArray[np.uint8]
 #: Most refresh slots ``bench --realtime --score`` scores by default, and display frames
 #: ``connect --score`` scores (the ground truth costs a render each).
 SCORED = 120
+
+#: Most frames scored in a row. VMAF's motion feature compares each reference frame with the
+#: one before it and the one after it, so frames scored apart (every tenth refresh of a run)
+#: get the motion of frames 80 ms apart and a VMAF about 5 points higher than the same frames
+#: in the video a viewer sees (docs/realtime.md, "VMAF on consecutive refreshes"). The scored
+#: frames therefore come in runs of consecutive ones, each with one more at each end that only
+#: VMAF sees. 12: a server period at 120/10 FPS, so that a run goes through every phase of a
+#: pair.
+SCORED_RUN = 12
 
 
 #: The metrics as the text reports write them: their labels and digits.
@@ -128,35 +137,98 @@ def spread(first: int, stop: int, count: int) -> list[int]:
     return [first + round(j * (n - 1) / (k - 1)) for j in range(k)]
 
 
+def runs(candidates: Sequence[int], count: int, length: int = SCORED_RUN) -> list[list[int]]:
+    """Runs of consecutive integers taken from the ascending ``candidates`` (refresh slots or
+    frame indices that may be scored), for scoring ``count`` of them: each run's first and
+    last are VMAF's context only (:data:`SCORED_RUN`), the ones between are scored. The runs
+    score ``count`` in ``ceil(count / length)`` runs whose lengths differ by at most one,
+    spread evenly over the candidates, the first at their start and the last at their end,
+    never overlapping. Where the candidates hold no more than ``count``, every one is taken:
+    each stretch of consecutive candidates is one run. Stretches too short for a run (under
+    three) are left out, and where the runs do not all fit, fewer are returned."""
+    stretches: list[list[int]] = []
+    for c in candidates:
+        if stretches and c == stretches[-1][-1] + 1:
+            stretches[-1].append(c)
+        else:
+            stretches.append([c])
+    stretches = [s for s in stretches if len(s) >= 3]
+    if count <= 0 or not stretches:
+        return []
+    if count >= sum(len(s) - 2 for s in stretches):
+        return stretches
+    k = -(-count // length)
+    lengths = [count // k + (i < count % k) for i in range(k)]  # longest first
+    window = lengths[0] + 2
+    # Where a window of the longest run fits inside one stretch: (stretch, offset).
+    starts = [(i, o) for i, s in enumerate(stretches) for o in range(len(s) - window + 1)]
+    out: list[list[int]] = []
+    taken_to = (-1, 0)  # the first (stretch, offset) not inside a window already taken
+    for j, n in zip(spread(0, len(starts), k), lengths):
+        at = next((p for p in starts[j:] if p >= taken_to), None)
+        if at is None:
+            break
+        i, o = at
+        out.append(stretches[i][o : o + n + 2])
+        taken_to = (i, o + n + 2)
+    return out
+
+
 def score_images(
-    images: Sequence[Sequence[_Image]],
-    truths: Sequence[Sequence[_Image]],
+    images: Sequence[Sequence[Sequence[_Image]]],
+    truths: Sequence[Sequence[Sequence[_Image]]],
     no_vmaf: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> tuple[dict[str, Any], list[dict[str, float]]]:
-    """``images[i][e]`` (frame ``i``, eye ``e``) against ``truths[i][e]``: each metric's mean
-    over the frames and the eyes (a stereo sequence's as eval's Table 3), with ``per_eye`` for
-    two eyes and ``scored_frames``, and each frame's metrics (the eyes' mean). VMAF is left out
-    with ``no_vmaf`` and for a side under ``VMAF_MIN_SIDE`` pixels."""
-    from splitrender.evaluation.metrics import METRICS, VMAF_MIN_SIDE, evaluate_sequence
+    """``images[r][i][e]`` (run ``r``, its frame ``i``, eye ``e``) against ``truths[r][i][e]``,
+    each run consecutive frames of which the first and the last are VMAF's context, scored by
+    no metric (:data:`SCORED_RUN`; runs of fewer than three frames score nothing): each
+    metric's mean over the scored frames and the eyes (a stereo sequence's as eval's Table 3;
+    PSNR's of the mean squared error), with ``per_eye`` for two eyes and ``scored_frames``,
+    and each scored frame's metrics (the eyes' mean), run after run. VMAF is left out with
+    ``no_vmaf`` and for a side under ``VMAF_MIN_SIDE`` pixels. ``progress(metric, done,
+    total)`` counts over all the runs."""
+    from splitrender.evaluation.metrics import (
+        METRICS,
+        VMAF_MIN_SIDE,
+        evaluate_sequence,
+        psnr_of_mse,
+    )
 
-    if not images:
+    kept = [(r, t) for r, t in zip(images, truths) if len(r) >= 3]
+    if not kept:
         return {"scored_frames": 0}, []
-    eyes = len(images[0])
-    h, w = images[0][0].shape[:2]
+    eyes = len(kept[0][0][0])
+    h, w = kept[0][0][0][0].shape[:2]
     metrics = [m for m in METRICS if not (m == "vmaf" and (no_vmaf or min(h, w) < VMAF_MIN_SIDE))]
-    per_eye, frames = [], [dict.fromkeys(metrics, 0.0) for _ in images]
+    total = sum(len(r) - 2 for r, _ in kept)
+    frames = [dict.fromkeys(metrics, 0.0) for _ in range(total)]
+    per_eye = []
     for e in range(eyes):
-        result = evaluate_sequence(
-            [f[e] for f in images], [t[e] for t in truths], skip=0, metrics=metrics,
-            progress=progress,
-        )
-        per_eye.append({m: result.mean[m] for m in metrics})
-        for row, values in zip(frames, result.per_frame):
+        rows: list[dict[str, float]] = []
+        squared = 0.0  # the sum of the frames' mean squared errors
+        for run, (r, t) in enumerate(kept):
+            before, vmaf_runs = len(rows), len(kept)
+
+            def counted(m: str, done: int, n: int, before: int = before, run: int = run) -> None:
+                if progress is not None:
+                    progress(m, *((run + 1, vmaf_runs) if m == "vmaf" else (before + done, total)))
+
+            result = evaluate_sequence(
+                [f[e] for f in r], [g[e] for g in t], skip=1, metrics=metrics, progress=counted,
+            )
+            rows.extend(result.per_frame)
+            if result.mse is not None:
+                squared += result.mse * len(result.per_frame)
+        mean = {m: float(np.mean([row[m] for row in rows])) for m in metrics}
+        if "psnr" in metrics:
+            mean["psnr"] = psnr_of_mse(squared / total)
+        per_eye.append(mean)
+        for row, values in zip(frames, rows):
             for m in metrics:
                 row[m] += values[m] / eyes
     out: dict[str, Any] = {m: sum(p[m] for p in per_eye) / eyes for m in metrics}
-    out["scored_frames"] = len(images)
+    out["scored_frames"] = total
     if eyes > 1:
         out["per_eye"] = per_eye
     return out, frames
@@ -167,27 +239,32 @@ def _kind(s: Shown) -> str:
 
 
 def score_shown(
-    shown: Sequence[Shown],
+    shown: Sequence[Sequence[Shown]],
     truth: Callable[[float], Sequence[_Image]],
     no_vmaf: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, Any]:
-    """The slots ``shown`` (:class:`ShownRecorder`) against ``truth(time)`` (the ground truth
-    at the slot's content time, one image per eye): the means of :func:`score_images`, and
-    the same split by what was up: ``by_mode`` (the mode of the frame shown; ``deferred``: an
-    extrapolated frame that could have interpolated, :class:`~splitrender.client.realtime.
-    ModeGovernor`) and ``by_staleness`` (``"0"``: the frame of the slot's own pose, ``"1"``,
-    ``"2+"``: refreshes older, where a deadline was missed or the rate divided), each with its
-    ``refreshes`` count. PSNR's means here are of the frames' PSNR values (the overall one is
-    the PSNR of the mean squared error, as :func:`evaluate_sequence`'s)."""
-    truths = [tuple(truth(s.time)) for s in shown]
-    out, frames = score_images([s.image for s in shown], truths, no_vmaf, progress)
+    """The runs of consecutive slots ``shown`` (:class:`ShownRecorder`'s, grouped by
+    :func:`group`) against ``truth(time)`` (the ground truth at the slot's content time, one
+    image per eye; each run's first and last slot are VMAF's context, :func:`score_images`):
+    the means of :func:`score_images`, and the same split by what was up: ``by_mode`` (the
+    mode of the frame shown; ``deferred``: an extrapolated frame that could have interpolated,
+    :class:`~splitrender.client.realtime.ModeGovernor`) and ``by_staleness`` (``"0"``: the
+    frame of the slot's own pose, ``"1"``, ``"2+"``: refreshes older, where a deadline was
+    missed or the rate divided), each with its ``refreshes`` count. PSNR's means here are of
+    the frames' PSNR values (the overall one is the PSNR of the mean squared error, as
+    :func:`evaluate_sequence`'s)."""
+    shown = [run for run in shown if len(run) >= 3]  # the others score nothing
+    truths = [[tuple(truth(s.time)) for s in run] for run in shown]
+    out, frames = score_images([[s.image for s in run] for run in shown], truths, no_vmaf,
+                               progress)
     if not frames:
         return out
+    scored = [s for run in shown for s in run[1:-1]]
 
     def split(key: Callable[[Shown], str]) -> dict[str, dict[str, float]]:
         groups: dict[str, list[dict[str, float]]] = {}
-        for s, row in zip(shown, frames):
+        for s, row in zip(scored, frames):
             groups.setdefault(key(s), []).append(row)
         return {
             k: {"refreshes": len(rows), **{m: float(np.mean([r[m] for r in rows]))
@@ -198,3 +275,11 @@ def score_shown(
     out["by_mode"] = split(_kind)
     out["by_staleness"] = split(lambda s: str(s.stale) if s.stale < 2 else "2+")
     return out
+
+
+def group(shown: Sequence[Shown], slot_runs: Sequence[Sequence[int]]) -> list[list[Shown]]:
+    """``shown`` (:meth:`ShownRecorder.finish`) as the runs of ``slot_runs`` (:func:`runs`),
+    each without the slots that showed nothing (before the first frame): still consecutive,
+    as only a run's first slots can be missing."""
+    at = {s.slot: s for s in shown}
+    return [[at[k] for k in run if k in at] for run in slot_runs]
