@@ -141,9 +141,9 @@ def runs(candidates: Sequence[int], count: int, length: int = SCORED_RUN) -> lis
     """Runs of consecutive integers taken from the ascending ``candidates`` (refresh slots or
     frame indices that may be scored), for scoring ``count`` of them: each run's first and
     last are VMAF's context only (:data:`SCORED_RUN`), the ones between are scored. The runs
-    score ``count`` in ``ceil(count / length)`` runs whose lengths differ by at most one,
-    spread evenly over the candidates, the first at their start and the last at their end,
-    never overlapping. Where the candidates hold no more than ``count``, every one is taken:
+    score ``count`` in ``ceil(count / length)`` runs whose lengths differ by at most one (the
+    longer first), spread evenly over the candidates from their start to their end, never
+    overlapping. Where the candidates hold no more than ``count``, every one is taken:
     each stretch of consecutive candidates is one run. Stretches too short for a run (under
     three) are left out, and where the runs do not all fit, fewer are returned."""
     stretches: list[list[int]] = []
