@@ -197,6 +197,26 @@ def test_score_splits_by_the_mode_shown_and_its_age():
     assert score["psnr"] == pytest.approx(10 * math.log10(255**2 / mse), abs=1e-6)
 
 
+def test_score_pools_the_squared_error_of_every_run_and_counts_only_their_insides():
+    # Two runs of two eyes (off by 4 and by 12 inside, by 100 at their context ends): the
+    # overall PSNR is that of the mean squared error over the four scored frames of both.
+    truth = np.full((40, 40, 3), 100, np.uint8)
+
+    def run(off: int, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        end, inside = truth + 100, truth + off
+        return [(end, end), *[(inside, inside)] * n, (end, end)]
+
+    images = [run(4, 1), run(12, 3)]
+    truths = [[(truth, truth)] * len(r) for r in images]
+    out, rows = score_images(images, truths, no_vmaf=True)
+    mse = (4**2 + 3 * 12**2) / 4
+    assert out["scored_frames"] == 4 and len(rows) == 4
+    assert out["psnr"] == pytest.approx(10 * math.log10(255**2 / mse), abs=1e-9)
+    assert [p["psnr"] for p in out["per_eye"]] == pytest.approx([out["psnr"]] * 2, abs=1e-9)
+    assert [r["psnr"] for r in rows] == pytest.approx(
+        [10 * math.log10(255**2 / d**2) for d in (4, 12, 12, 12)], abs=1e-9)
+
+
 def test_score_of_nothing_shown_scores_nothing():
     assert score_shown([], lambda t: [], no_vmaf=True) == {"scored_frames": 0}
     # A run of two slots has no frame between its context ends.
