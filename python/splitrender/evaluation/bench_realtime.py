@@ -409,9 +409,11 @@ def _score(
 ) -> dict[str, Any]:
     """The runs of refreshes ``shown`` against the ground truth at their poses (``pose``, as
     the run had them) and scene times (a looped run's modulo ``cycle``)."""
+    # The runs score_shown scores (a run cut to fewer than three scores nothing): the counts.
+    shown = [run for run in shown if len(run) >= 3]
     slots = sum(len(run) for run in shown)
     stages.stage(
-        f"scoring what the display showed at {sum(max(len(r) - 2, 0) for r in shown)} "
+        f"scoring what the display showed at {slots - 2 * len(shown)} "
         f"refreshes in {len(shown)} runs of consecutive ones against the ground truth rendered "
         "at their poses"
     )

@@ -19,6 +19,7 @@ as if it were on time.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -174,6 +175,15 @@ def runs(candidates: Sequence[int], count: int, length: int = SCORED_RUN) -> lis
     return out
 
 
+def _across_runs(
+    progress: Callable[[str, int, int], None], before: int, total: int, run: int, runs: int,
+    metric: str, done: int, _: int,
+) -> None:
+    """One run's ``progress(metric, done, n)`` as of all the runs: VMAF (reported once a run)
+    by runs, the other metrics by the ``total`` frames, ``before`` of them in earlier runs."""
+    progress(metric, *((run, runs) if metric == "vmaf" else (before + done, total)))
+
+
 def score_images(
     images: Sequence[Sequence[Sequence[_Image]]],
     truths: Sequence[Sequence[Sequence[_Image]]],
@@ -207,13 +217,9 @@ def score_images(
     for e in range(eyes):
         rows: list[dict[str, float]] = []
         squared = 0.0  # the sum of the frames' mean squared errors
-        for run, (r, t) in enumerate(kept):
-            before, vmaf_runs = len(rows), len(kept)
-
-            def counted(m: str, done: int, n: int, before: int = before, run: int = run) -> None:
-                if progress is not None:
-                    progress(m, *((run + 1, vmaf_runs) if m == "vmaf" else (before + done, total)))
-
+        for run, (r, t) in enumerate(kept, 1):
+            counted = None if progress is None else functools.partial(
+                _across_runs, progress, len(rows), total, run, len(kept))
             result = evaluate_sequence(
                 [f[e] for f in r], [g[e] for g in t], skip=1, metrics=metrics, progress=counted,
             )
