@@ -14,6 +14,7 @@ import pytest
 import splitrender as sr
 from conftest import Pair
 from splitrender.evaluation.bench import bytes_touched
+from splitrender.evaluation.machine import Machine
 from splitrender.types import ShadowBuffers
 
 FIELDS = ("color", "depth", "motion_fwd", "motion_bwd", "shadow_fwd", "shadow_bwd")
@@ -230,6 +231,8 @@ def test_bench_rows_are_the_median_and_the_copy_floor_of_the_bytes_touched(
 
     monkeypatch.setattr(bench, "time_frames", time_frames)
     monkeypatch.setattr(bench, "copy_floor_s", copy_floor_s)
+    machine = Machine("Test CPU (family 1, model 2)", 3, "avx2")
+    monkeypatch.setattr(bench, "this_machine", lambda: machine)
     rows = bench.run_bench("courtyard", sr.METHODS, 0.02, frames=5, repeats=1, progress=False)
     rec = bench._recording("courtyard", 0.02, lambda _: None)
     f0, f1 = rec.server_frames[0], rec.server_frames[1]
@@ -247,6 +250,11 @@ def test_bench_rows_are_the_median_and_the_copy_floor_of_the_bytes_touched(
         assert r.ratio_to_floor == pytest.approx(6.0, rel=1e-12)
         assert list(r.to_json()) == list(bench.BENCH_KEYS)
         assert r.to_json()["ratio_to_floor"] == r.ratio_to_floor
+        assert (r.processor, r.cpus, r.simd) == ("Test CPU (family 1, model 2)", 3, "avx2")
+    # The table says where it was measured before anything else.
+    assert bench.format_rows(rows).splitlines()[0] == (
+        "machine: Test CPU (family 1, model 2), 3 CPUs, CPU row loops AVX2"
+    )
 
 
 def test_a_damaged_cached_recording_is_rendered_again(tmp_path, monkeypatch) -> None:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from splitrender.evaluation.machine import this_machine
 from splitrender.net import protocol as proto
 
 TOKEN = "test-token"
@@ -179,6 +180,9 @@ def test_session(server: _Server, tmp_path: Path) -> None:
     assert 0 < r["pose_to_display_ms_p50"] < 2000
     assert r["mbps"] > 0 and r["network"]["frames_lost"] == 0
     assert r["max_divisor"] == 2  # the default: half rate allowed
+    # The machine the display ran on (the connecting process, this one's machine).
+    here = this_machine()
+    assert (r["processor"], r["cpus"], r["simd"]) == (here.processor, here.cpus, here.simd)
     assert (tmp_path / "video.mp4").stat().st_size > 0
     # The video lasts the session: a frame per refresh at 120 FPS, whatever ran at half rate
     # or overran its refresh.

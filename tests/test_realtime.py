@@ -25,6 +25,7 @@ from splitrender.client import Client
 from splitrender.client.realtime import RealtimeClient
 from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import InvalidInputError, StreamError
+from splitrender.evaluation.machine import this_machine
 
 W, H = 64, 36
 FS, FC = 10.0, 120.0
@@ -911,6 +912,24 @@ def test_the_text_report_names_the_preparation_threads_on_the_cpu_only() -> None
         "(the figures mix the two backends)")
 
 
+def test_the_text_report_names_the_machine_second() -> None:
+    from splitrender.evaluation.bench_realtime import RealtimeBench, format_realtime
+
+    report = rt.RealtimeReport(display_fps=120.0)
+    report.add(rt.DisplayFrame(
+        index=0, time=0.0, start=0.0, done=0.004, deadline=1 / 120, mode="extrapolate",
+        older=None, newer=0, alpha=None, server_age_ms=None, prepared=True))
+    b = RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", report.summary(),
+                      processor="AMD EPYC (family 25, model 17)", cpus=2, simd="avx512")
+    assert format_realtime(b).splitlines()[1] == (
+        "  machine: AMD EPYC (family 25, model 17), 2 CPUs, CPU row loops AVX-512")
+    assert b.to_json()["processor"] == "AMD EPYC (family 25, model 17)"
+    assert (b.to_json()["cpus"], b.to_json()["simd"]) == (2, "avx512")
+    # One made without its machine has no such line.
+    bare = dataclasses.replace(b, processor="", cpus=0, simd="")
+    assert "machine:" not in format_realtime(bare)
+
+
 def test_the_api_refuses_preparation_threads_for_the_gpu_backend(monkeypatch) -> None:
     from splitrender.evaluation import bench_realtime
 
@@ -1583,6 +1602,9 @@ def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypa
     assert sum(r["frames_by_divisor"].values()) == r["frames"]
     assert r["server_frames_received"] >= 3 and r["decode_ms_per_server_frame"] > 0
     assert sum(r["modes"].values()) == r["frames"]
+    # The machine it ran on, as splitrender.evaluation.machine finds it.
+    here = this_machine()
+    assert (r["processor"], r["cpus"], r["simd"]) == (here.processor, here.cpus, here.simd)
 
 
 def test_bench_realtime_refuses_a_stream_whose_packets_do_not_decode(

@@ -40,6 +40,7 @@ __all__ = [
     "look_at",
     "singular_camera",
     "render_thread_ids",
+    "simd_tier",
     "dequantise_depth",
     "dequantise_motion",
     "shadow_colour",
@@ -123,6 +124,7 @@ def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> _F6
 def look_at(eye: _Vec3, target: _Vec3, up: _Vec3 | None = None) -> _F64: ...
 def singular_camera(view: _F64, proj: _F64) -> str | None: ...
 def render_thread_ids() -> list[int]: ...
+def simd_tier() -> str: ...
 def dequantise_depth(
     codes: npt.NDArray[np.uint16],
     x: int,

@@ -542,6 +542,20 @@ pub fn look_at(
     })
 }
 
+/// The instruction set the CPU kernels' row loops run with in this process: `"avx512"`, `"avx2"`
+/// or `"baseline"` (the best the processor has, capped by `REPROJ_SIMD`; every tier gives the
+/// same bytes, only the time differs), for a benchmark to say what it timed.
+#[pyfunction]
+pub fn simd_tier() -> PyResult<&'static str> {
+    guarded("simd_tier", || {
+        Ok(match reproj_core::ours::simd_tier() {
+            reproj_core::ours::Simd::Avx512 => "avx512",
+            reproj_core::ours::Simd::Avx2 => "avx2",
+            reproj_core::ours::Simd::Baseline => "baseline",
+        })
+    })
+}
+
 /// The operating system's thread ids of the threads `reproject` runs on (rayon's global pool,
 /// started if it was not; empty where the platform gives none), for a caller that sets their
 /// scheduling policy (`splitrender.client.realtime`).

@@ -84,6 +84,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(api::look_at, m)?)?;
     m.add_function(wrap_pyfunction!(api::singular_camera, m)?)?;
     m.add_function(wrap_pyfunction!(api::render_thread_ids, m)?)?;
+    m.add_function(wrap_pyfunction!(api::simd_tier, m)?)?;
     m.add_function(wrap_pyfunction!(codec::dequantise_depth, m)?)?;
     m.add_function(wrap_pyfunction!(codec::dequantise_motion, m)?)?;
     m.add_function(wrap_pyfunction!(codec::shadow_colour, m)?)?;

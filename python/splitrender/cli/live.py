@@ -38,6 +38,7 @@ from splitrender.cli.args import (
 )
 from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR
 from splitrender.errors import SplitRenderError
+from splitrender.evaluation.machine import this_machine
 from splitrender.files import OutputFolder, write_atomic
 from splitrender.gpu import GPU_METHODS
 from splitrender.gpu import require as require_backend
@@ -426,6 +427,9 @@ def run_connect(args: argparse.Namespace) -> int:
     # What the poses and the ground truth came from: the server names only a built-in scene.
     report["scene"] = welcome.scene if args.scene is None else args.scene
     report["scene_digest"] = welcome.scene_digest.hex()  # what the server rendered
+    # Where the display ran, as the benchmarks record it: its times depend on it.
+    here = this_machine()
+    report.update(processor=here.processor, cpus=here.cpus, simd=here.simd)
     out: Path = args.out
     with outputs as stage:
         _write_video(stage / "video.mp4", frames, args.fps, args.seconds, stride[0], captions,

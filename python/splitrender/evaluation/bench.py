@@ -48,6 +48,10 @@ from the hardware on this machine today (this VM's speed drifts from day to day;
 less). Until 2026-12-05 the floor was one thread's copy, which on the Intel Xeon of that day
 took 2–2.7× as long as two threads' (docs/performance.md, "The copy floor on the kernel's
 threads").
+
+Each row also records the machine (:mod:`splitrender.evaluation.machine`): ``processor``,
+``cpus`` and ``simd``, the instruction set of the CPU kernels' row loops; the table's first line
+says them.
 """
 
 from __future__ import annotations
@@ -66,6 +70,7 @@ from typing import Any
 import numpy as np
 
 from splitrender.errors import InvalidInputError
+from splitrender.evaluation.machine import Machine, this_machine
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import CameraFrame, ServerFrame, ShadowBuffers
@@ -93,6 +98,9 @@ BENCH_KEYS: tuple[str, ...] = (
     "copy_floor_ms",
     "copy_threads",
     "ratio_to_floor",
+    "processor",
+    "cpus",
+    "simd",
 )
 
 
@@ -114,6 +122,11 @@ class BenchRow:
     mb_touched: float
     copy_floor_ms: float
     copy_threads: int = 1
+    #: The machine (:mod:`splitrender.evaluation.machine`): the processor in words, the CPUs
+    #: the process could run on and the instruction set of the CPU kernels' row loops.
+    processor: str = ""
+    cpus: int = 0
+    simd: str = ""
 
     @property
     def ratio_to_floor(self) -> float:
@@ -319,6 +332,7 @@ def run_bench(
     check_args(scene, methods, scale, frames, backend)
     gpu_run = _GpuRun() if backend == "wgpu" else None
     threads = kernel_threads()
+    machine = this_machine()
 
     # One stage line each: the recording, the codec, every method.
     stages = Progress(2 + len(methods), progress)
@@ -378,6 +392,9 @@ def run_bench(
             mb_touched=touched / 1e6,
             copy_floor_ms=floor * 1e3,
             copy_threads=copy_threads,
+            processor=machine.processor,
+            cpus=machine.cpus,
+            simd=machine.simd,
         )
         rows.append(row)
     return rows
@@ -427,7 +444,10 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
     if not rows:
         return "(no rows)"
     r0 = rows[0]
-    lines = [
+    lines: list[str] = []
+    if r0.processor:  # rows made by hand without their machine say nothing of it
+        lines.append(f"machine: {Machine(r0.processor, r0.cpus, r0.simd).describe()}")
+    lines += [
         (
             f"backend {r0.backend} ({_backend_detail(r0.backend, cpus)}), client "
             f"{r0.width}x{r0.height}; decode "

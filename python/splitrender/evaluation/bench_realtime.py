@@ -42,6 +42,7 @@ from splitrender.codec.stream import (
     without_file_name,
 )
 from splitrender.errors import InvalidInputError, StreamError
+from splitrender.evaluation.machine import Machine, this_machine
 from splitrender.evaluation.shown import (
     Shown,
     ShownRecorder,
@@ -124,6 +125,11 @@ class RealtimeBench:
     #: (:func:`~splitrender.evaluation.shown.score_shown`: the means, ``by_mode``,
     #: ``by_staleness``); ``None`` without.
     score: dict[str, Any] | None = None
+    #: The machine (:mod:`splitrender.evaluation.machine`): the processor in words, the CPUs
+    #: the process could run on and the instruction set of the CPU kernels' row loops.
+    processor: str = ""
+    cpus: int = 0
+    simd: str = ""
 
     def to_json(self) -> dict[str, Any]:
         """What ran (every field but the summary and the frames), then the summary's keys."""
@@ -278,6 +284,7 @@ def run_realtime_bench(
         prepare_threads = PREPARE_THREADS
     # Before anything is rendered: a method without a GPU kernel or a missing adapter fails here.
     adapter = require_backend(backend, method)
+    machine = this_machine()
     stages = Progress((3 if stream is None else 2) + (score > 0), progress)
     if stream is None:
         if scene not in SCENE_NAMES:
@@ -384,7 +391,8 @@ def run_realtime_bench(
     return RealtimeBench(
         method, source, main.width, main.height, looped, exclusive, worker_priority,
         display_priority, report.summary(), backend, adapter, tuple(report.frames),
-        max_divisor, prepare_threads, defer_interpolation, scored,
+        max_divisor, prepare_threads, defer_interpolation, scored, machine.processor,
+        machine.cpus, machine.simd,
     )
 
 
@@ -475,6 +483,11 @@ def format_realtime(b: RealtimeBench) -> str:
                if b.exclusive else "")
             + f"; worker priority {b.worker_priority}; display scheduling "
             + s["display_scheduling"],
+        ]
+        # A bench made by hand without its machine says nothing of it.
+        + ([f"  machine: {Machine(b.processor, b.cpus, b.simd).describe()}"] if b.processor
+           else [])
+        + [
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
             f"({s['deadline_misses_pct']:.2f} %"
             + ("" if not s["deadline_misses"] or s.get("deadline_misses_by_cause") is None
@@ -632,7 +645,9 @@ def realtime_figure(b: RealtimeBench) -> Figure:
     p50, p99 = s.get("frame_ms_p50"), s.get("frame_ms_p99")
     top.set_title(
         f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
-        f"{s['display_fps']:g} FPS, {b.backend}\n{s['frames']} frames"
+        f"{s['display_fps']:g} FPS, {b.backend}"
+        + (f" on {b.processor}" if b.backend == "cpu" and b.processor else "")
+        + f"\n{s['frames']} frames"
         + ("" if s["full_rate_pct"] == 100.0 else f" ({s['full_rate_pct']:.1f} % at full rate)")
         + ", "
         f"{s['deadline_misses']} deadline misses ({pct:.1f} %), render time p50 "

@@ -1,0 +1,90 @@
+"""The machine a benchmark ran on, as its results record it.
+
+A time means little without the processor it was measured on: the same build of ``ours``
+took 10.5-13 ms per 1280×720 frame on one cloud host's Intel Xeon and 15-26 ms on another's
+AMD EPYC (docs/performance.md, "Where it stands"), and a virtual machine's model name alone
+need not say which generation it is ("AMD EPYC"). So ``splitrender bench`` and ``splitrender
+bench --realtime`` print and record the processor (with its x86 family and model numbers,
+which do), the CPUs this process may run on, and the instruction set the CPU kernels' row
+loops use (``REPROJ_SIMD`` caps it; every tier gives the same bytes, only the time differs).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["SIMD_NAMES", "Machine", "processor_name", "this_machine"]
+
+#: The row loops' instruction sets (``_native.simd_tier``) as people write them.
+SIMD_NAMES = {"avx512": "AVX-512", "avx2": "AVX2", "baseline": "baseline"}
+
+#: Where Linux describes the processors.
+CPUINFO = Path("/proc/cpuinfo")
+
+
+@dataclass(frozen=True)
+class Machine:
+    """What :func:`this_machine` found: ``processor`` in words, ``cpus`` the logical CPUs this
+    process may run on, ``simd`` the instruction set of the CPU kernels' row loops (a key of
+    :data:`SIMD_NAMES`)."""
+
+    processor: str
+    cpus: int
+    simd: str
+
+    def describe(self) -> str:
+        """One line: ``AMD EPYC (family 25, model 17), 2 CPUs, CPU row loops AVX-512``."""
+        plural = "s" * (self.cpus != 1)
+        simd = SIMD_NAMES.get(self.simd, self.simd)
+        return f"{self.processor}, {self.cpus} CPU{plural}, CPU row loops {simd}"
+
+
+def processor_name(cpuinfo: str | None = None) -> str:
+    """The processor in words, from ``cpuinfo`` (the text of ``/proc/cpuinfo``; read here
+    when ``None``) where it names one, else what :mod:`platform` says, else ``"unknown"``.
+    On x86 the family and model numbers follow the name, as ``(family 25, model 17)``."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = CPUINFO.read_text(errors="replace")
+        except OSError:
+            cpuinfo = ""
+    # The first processor's fields (every logical CPU repeats them); a line without a colon,
+    # or a value that is empty, names nothing.
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            if fields:
+                break
+            continue
+        key, colon, value = line.partition(":")
+        if colon and value.strip():
+            fields.setdefault(key.strip().lower(), " ".join(value.split()))
+    name = (
+        fields.get("model name") or fields.get("hardware") or fields.get("cpu model")
+        or " ".join(platform.processor().split()) or platform.machine() or "unknown"
+    )
+    family, model = fields.get("cpu family"), fields.get("model")
+    if family is not None and model is not None and family.isdigit() and model.isdigit():
+        name += f" (family {family}, model {model})"
+    return name
+
+
+def _usable_cpus() -> int:
+    """The logical CPUs this process may run on (its affinity where the platform has one)."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    if affinity is not None:
+        try:
+            return len(affinity(0))
+        except OSError:
+            pass
+    return os.cpu_count() or 1
+
+
+def this_machine() -> Machine:
+    """The machine this process runs on (module docs)."""
+    from splitrender._native import simd_tier
+
+    return Machine(processor=processor_name(), cpus=_usable_cpus(), simd=simd_tier())

@@ -1,0 +1,101 @@
+"""The machine a benchmark records (:mod:`splitrender.evaluation.machine`)."""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from splitrender.evaluation import machine as m
+
+INTEL = """processor\t: 0
+vendor_id\t: GenuineIntel
+cpu family\t: 6
+model\t\t: 106
+model name\t: Intel(R) Xeon(R) Platinum 8375C CPU @ 2.90GHz
+stepping\t: 6
+
+processor\t: 1
+vendor_id\t: GenuineIntel
+cpu family\t: 6
+model\t\t: 106
+model name\t: Intel(R) Xeon(R) Platinum 8375C CPU @ 2.90GHz
+"""
+
+# A virtual machine's name need not say the generation: the family and model numbers do.
+AMD = """processor\t: 0
+vendor_id\t: AuthenticAMD
+cpu family\t: 25
+model\t\t: 17
+model name\t: AMD EPYC
+"""
+
+# An Arm board's: no model name, no family.
+ARM = """processor\t: 0
+BogoMIPS\t: 48.00
+Features\t: fp asimd evtstrm crc32 cpuid
+CPU implementer\t: 0x41
+CPU part\t: 0xd08
+"""
+
+
+def test_the_processor_is_named_with_its_family_and_model() -> None:
+    assert m.processor_name(INTEL) == (
+        "Intel(R) Xeon(R) Platinum 8375C CPU @ 2.90GHz (family 6, model 106)"
+    )
+    assert m.processor_name(AMD) == "AMD EPYC (family 25, model 17)"
+
+
+def test_only_the_first_processor_is_read() -> None:
+    second = INTEL.replace("model name\t: Intel", "model name\t: Other", 1)
+    other = INTEL.split("\n\n")[0] + "\n\n" + AMD
+    assert m.processor_name(second).startswith("Other")
+    assert m.processor_name(other).startswith("Intel(R) Xeon(R)")
+
+
+def test_without_a_model_name_the_platform_names_it(monkeypatch) -> None:
+    monkeypatch.setattr(platform, "processor", lambda: "")
+    monkeypatch.setattr(platform, "machine", lambda: "aarch64")
+    assert m.processor_name(ARM) == "aarch64"
+    # Family and model only where both are numbers.
+    assert m.processor_name("cpu family\t: 6\nmodel\t\t: x\n") == "aarch64"
+    monkeypatch.setattr(platform, "machine", lambda: "")
+    assert m.processor_name("") == "unknown"
+    assert m.processor_name("garbage without colons\n\x00\xff") == "unknown"
+
+
+def test_an_unreadable_cpuinfo_names_the_platform(monkeypatch, tmp_path: Path) -> None:
+    monkeypatch.setattr(m, "CPUINFO", tmp_path / "absent")
+    monkeypatch.setattr(platform, "processor", lambda: "  Some   CPU ")
+    assert m.processor_name() == "Some CPU"
+
+
+def test_describe() -> None:
+    assert m.Machine("AMD EPYC (family 25, model 17)", 2, "avx512").describe() == (
+        "AMD EPYC (family 25, model 17), 2 CPUs, CPU row loops AVX-512"
+    )
+    assert m.Machine("x", 1, "baseline").describe() == "x, 1 CPU, CPU row loops baseline"
+
+
+def test_this_machine_counts_the_cpus_the_process_may_use() -> None:
+    here = m.this_machine()
+    assert here.processor and here.simd in m.SIMD_NAMES
+    if hasattr(os, "sched_getaffinity"):
+        assert here.cpus == len(os.sched_getaffinity(0))
+    else:
+        assert here.cpus == os.cpu_count()
+
+
+@pytest.mark.parametrize("tier", ["baseline", "avx2"])
+def test_the_row_loops_tier_follows_reproj_simd(tier: str) -> None:
+    # A cap the processor has is what the kernels run with; the baseline is always there.
+    code = "from splitrender.evaluation.machine import this_machine; print(this_machine().simd)"
+    env = {**os.environ, "REPROJ_SIMD": tier}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=60, check=True).stdout.strip()
+    uncapped = m.this_machine().simd
+    order = list(m.SIMD_NAMES)[::-1]  # baseline, avx2, avx512
+    assert out == min(tier, uncapped, key=order.index)
