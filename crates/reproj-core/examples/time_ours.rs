@@ -17,7 +17,8 @@
 //! `/proc/self/stat`), which moves much less than wall-clock time when other jobs share the
 //! machine (run with `RAYON_NUM_THREADS=1` for a per-core figure), and a digest (FNV-1a) of the
 //! output colour and diagnostics, so that a change meant to be exact can be checked to give the
-//! same bytes (`ALPHA` sets α, default 0.5).
+//! same bytes (`ALPHA` sets α, default 0.5, and 1.5 for `ours_extrapolate`, which only
+//! extrapolates).
 //!
 //! `PERIOD_MS=8.33` paces the timed calls as a display at 120 Hz does (each starts at its
 //! refresh, the thread sleeps in between) and prints their median, p99 and maximum: a frame after
@@ -37,13 +38,15 @@ use reproj_core::*;
 const USAGE: &str = "usage: time_ours [METHOD] [WIDTH]  (METHOD: ours, ours_extrapolate, \
 forward_splat, timewarp, backward_bidir; WIDTH: main camera width, 16..=16384, height 9/16 of it)";
 
+/// Says why it cannot run, with the usage, and exits with status 2.
+fn fail(why: String) -> ! {
+    eprintln!("time_ours: error: {why}\n{USAGE}");
+    std::process::exit(2)
+}
+
 /// The command line's method and main camera size, or the usage message and exit status 2.
 fn parse_args() -> (Option<Method>, usize, usize) {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let fail = |why: String| -> ! {
-        eprintln!("time_ours: error: {why}\n{USAGE}");
-        std::process::exit(2)
-    };
     if args.len() > 2 {
         fail(format!("expected at most 2 arguments, got {}", args.len()));
     }
@@ -77,18 +80,26 @@ fn main() {
         v.aux.iter_mut().for_each(|a| a.shadow = None);
     }
     let (e, tg) = head_pose(0.05);
-    let req = Request {
-        client: rig(e, tg, w, h).0,
-        alpha: std::env::var("ALPHA").map_or(0.5, |s| s.parse().unwrap()),
-    };
+    let alpha: Option<f32> = std::env::var("ALPHA").ok().map(|s| {
+        s.parse()
+            .unwrap_or_else(|_| fail(format!("ALPHA: expected a number, got {s:?}")))
+    });
     let mut out = vec![0u8; w * h * 3];
-    let iters: usize = std::env::var("ITERS").map_or(6, |s| s.parse().unwrap());
+    let iters: usize = std::env::var("ITERS").map_or(6, |s| {
+        s.parse()
+            .unwrap_or_else(|_| fail(format!("ITERS: expected a count, got {s:?}")))
+    });
     let period = std::env::var("PERIOD_MS")
         .ok()
-        .map(|s| std::time::Duration::from_secs_f64(s.parse::<f64>().unwrap() / 1000.0));
+        .map(|s| match s.parse::<f64>() {
+            Ok(ms) if ms.is_finite() && ms > 0.0 => std::time::Duration::from_secs_f64(ms / 1e3),
+            _ => fail(format!(
+                "PERIOD_MS: expected milliseconds above 0, got {s:?}"
+            )),
+        });
     let tiers: Vec<ours::Simd> = std::env::var("SIMD").map_or(Vec::new(), |s| {
         s.split(',')
-            .map(|t| t.parse().unwrap_or_else(|e| panic!("SIMD: {e}")))
+            .map(|t| t.parse().unwrap_or_else(|e| fail(format!("SIMD: {e}"))))
             .collect()
     });
     if let Some(&t) = tiers.first() {
@@ -99,6 +110,13 @@ fn main() {
         None => vec![Method::Ours, Method::ForwardSplat],
     };
     for method in methods {
+        // `ours_extrapolate` takes α ≥ 1 (from the newest frame, half a server period on); the
+        // others interpolate at α = 0.5 (`forward_splat` splats both frames here).
+        let extrapolates = method == Method::OursExtrapolate;
+        let req = Request {
+            client: rig(e, tg, w, h).0,
+            alpha: alpha.unwrap_or(if extrapolates { 1.5 } else { 0.5 }),
+        };
         for use_aux in [false, true] {
             if !use_aux && std::env::var_os("AUX_ONLY").is_some() {
                 continue;
@@ -118,7 +136,8 @@ fn main() {
             out.fill(0);
             // One client frame of this configuration.
             let frame = |out: Output, h: Option<&mut BidirHistory>| {
-                reproject(method, Some(&older), &newer, &req, &p, out, h).unwrap()
+                reproject(method, Some(&older), &newer, &req, &p, out, h)
+                    .unwrap_or_else(|e| fail(format!("{method}: {e}")))
             };
             let prepare = std::env::var("PREPARE").ok();
             let prepared = keep && prepare.is_some();
@@ -129,7 +148,8 @@ fn main() {
                 frame(Output::new(&mut out), None);
                 // The older frame only when interpolating: a late frame prepares extrapolation.
                 let o = (req.alpha < 1.0).then_some(&older);
-                prepare_pair(method, o, &newer, &req.client, &p, &mut history).unwrap();
+                prepare_pair(method, o, &newer, &req.client, &p, &mut history)
+                    .unwrap_or_else(|e| fail(format!("{method}: {e}")));
                 if prepare.as_deref() == Some("only") {
                     println!("{method} aux={use_aux}: prepared only");
                     continue;
