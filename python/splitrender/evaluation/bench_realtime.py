@@ -645,9 +645,9 @@ def realtime_figure(b: RealtimeBench) -> Figure:
     p50, p99 = s.get("frame_ms_p50"), s.get("frame_ms_p99")
     top.set_title(
         f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
-        f"{s['display_fps']:g} FPS, {b.backend}"
-        + (f" on {b.processor}" if b.backend == "cpu" and b.processor else "")
-        + f"\n{s['frames']} frames"
+        f"{s['display_fps']:g} FPS, {b.backend}\n"
+        + (f"{Machine(b.processor, b.cpus, b.simd).describe()}\n" if b.processor else "")
+        + f"{s['frames']} frames"
         + ("" if s["full_rate_pct"] == 100.0 else f" ({s['full_rate_pct']:.1f} % at full rate)")
         + ", "
         f"{s['deadline_misses']} deadline misses ({pct:.1f} %), render time p50 "

@@ -4,9 +4,10 @@ A time means little without the processor it was measured on: the same build of 
 took 10.5-13 ms per 1280×720 frame on one cloud host's Intel Xeon and 15-26 ms on another's
 AMD EPYC (docs/performance.md, "Where it stands"), and a virtual machine's model name alone
 need not say which generation it is ("AMD EPYC"). So ``splitrender bench`` and ``splitrender
-bench --realtime`` print and record the processor (with its x86 family and model numbers,
-which do), the CPUs this process may run on, and the instruction set the CPU kernels' row
-loops use (``REPROJ_SIMD`` caps it; every tier gives the same bytes, only the time differs).
+bench --realtime`` print and record (and ``splitrender connect``'s report.json records) the
+processor (with its x86 family and model numbers, which do), the CPUs this process may run
+on, and the instruction set the CPU kernels' row loops use (``REPROJ_SIMD`` caps it; every
+tier gives the same bytes, only the time differs).
 """
 
 from __future__ import annotations
