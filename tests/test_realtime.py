@@ -1784,7 +1784,7 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
             server_age_ms=None if n == 0 else 10.0 * n, prepared=True,
             deferred=n in deferred))
     b = RealtimeBench("ours", "test", W, H, False, False, "idle", "normal", report.summary(),
-                      frames=tuple(report.frames))
+                      frames=tuple(report.frames), processor="Test CPU", cpus=2, simd="avx2")
     fig = realtime_figure(b)
     top, low = fig.axes
     points = {}
@@ -1813,6 +1813,8 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
     (age,) = low.get_lines()
     assert list(age.get_ydata()) == [10.0 * n for n in range(1, len(plan))]
     assert "3 deadline misses" in top.get_title()
+    # The machine on a line of its own.
+    assert top.get_title().splitlines()[1] == "Test CPU, 2 CPUs, CPU row loops AVX2"
 
 
 @pytest.mark.parametrize("with_refresh", [True, False])
