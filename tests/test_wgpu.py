@@ -422,3 +422,37 @@ def test_a_wgpu_backend_variable_naming_no_backend_is_named() -> None:
 def test_gpu_unavailable_error_is_in_the_hierarchy() -> None:
     assert issubclass(GpuUnavailableError, SplitRenderError)
     assert GpuUnavailableError.__module__ == "splitrender.errors"
+
+
+def test_without_a_desktop_session_the_device_selection_layer_is_off(tmp_path) -> None:
+    """Where nothing names a desktop session, Mesa's device-selection layer is turned off with
+    its own variable; a session, or the user's own choice of either variable, leaves it."""
+    absent = str(tmp_path / "absent")
+    for env, turned_off in [
+        ({}, True),
+        ({"XDG_RUNTIME_DIR": absent}, True),  # set, but no directory: what the layer warns of
+        ({"XDG_RUNTIME_DIR": ""}, True),
+        ({"XDG_RUNTIME_DIR": str(tmp_path)}, False),
+        ({"DISPLAY": ":0"}, False),
+        ({"WAYLAND_DISPLAY": "wayland-0"}, False),
+        ({"NODEVICE_SELECT": "0"}, False),
+        ({"MESA_VK_DEVICE_SELECT": "10de:2330"}, False),
+    ]:
+        given = dict(env)
+        assert gpu._headless_vulkan(given) is turned_off, env
+        assert given == ({**env, "NODEVICE_SELECT": "1"} if turned_off else env)
+
+
+@needs_gpu
+def test_a_headless_process_writes_nothing_to_stderr_for_the_gpu() -> None:
+    """Mesa's device-selection layer wrote "error: XDG_RUNTIME_DIR is invalid or not set in the
+    environment." twice on stderr in a process without a desktop session (a server, CI) that
+    asked for the wgpu backend; with the layer off there, the adapter is found and stderr stays
+    empty."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("XDG_RUNTIME_DIR", "DISPLAY", "WAYLAND_DISPLAY", "NODEVICE_SELECT")}
+    code = "from splitrender import gpu; print(gpu.adapter()); gpu.GpuReprojector()"
+    r = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == gpu.adapter(), r.stderr
+    assert r.stderr == ""

@@ -14,11 +14,18 @@ Without a GPU, Mesa's software Vulkan driver lavapipe works (Debian/Ubuntu:
 ``apt-get install mesa-vulkan-drivers``); without any adapter, asking for the wgpu backend raises
 :class:`~splitrender.errors.GpuUnavailableError`. wgpu's ``WGPU_BACKEND`` (e.g. ``vulkan``)
 restricts the search; a value naming no backend raises the same error, naming the variable.
+
+On a machine without a desktop session (a server, a CI runner, a cluster node) Mesa's Vulkan
+device-selection layer is turned off before the first device is made (``_headless_vulkan``):
+it looks for the desktop's GPU through Wayland, whose library then wrote "error:
+XDG_RUNTIME_DIR is invalid or not set in the environment." to stderr twice per process.
 """
 
 from __future__ import annotations
 
+import os
 import threading
+from collections.abc import MutableMapping
 from typing import Literal, overload
 
 import numpy as np
@@ -114,12 +121,39 @@ def backend_for(method: str, backend: str) -> str:
     return "wgpu" if check_backend(backend) == "wgpu" and method in GPU_METHODS else "cpu"
 
 
+def _headless_vulkan(env: MutableMapping[str, str] | None = None) -> bool:
+    """Turns Mesa's Vulkan device-selection layer off (``NODEVICE_SELECT=1`` in ``env``, the
+    process's environment by default) where there is no desktop session, and says whether it
+    did.
+
+    Why: the Vulkan loader runs that layer (``VK_LAYER_MESA_device_select``, installed with
+    Mesa's drivers) in every process that makes a Vulkan instance; it puts the GPU the desktop
+    shows on first, and to find that GPU it connects to the Wayland compositor, whose library
+    writes "error: XDG_RUNTIME_DIR is invalid or not set in the environment." to stderr where
+    there is no session. Without a session (``XDG_RUNTIME_DIR`` unset or not a directory, and no
+    ``DISPLAY`` or ``WAYLAND_DISPLAY``) there is no such GPU to find, and wgpu picks its
+    adapter by kind itself. Left alone: a process with a session, and one whose user set
+    ``NODEVICE_SELECT`` or chose a device with ``MESA_VK_DEVICE_SELECT`` (the layer's own
+    variables)."""
+    env = os.environ if env is None else env
+    if any(k in env for k in ("NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT")):
+        return False
+    if env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"):
+        return False
+    runtime = env.get("XDG_RUNTIME_DIR")
+    if runtime and os.path.isdir(runtime):
+        return False
+    env["NODEVICE_SELECT"] = "1"
+    return True
+
+
 def adapter() -> str:
     """The wgpu adapter in words, e.g. ``llvmpipe (...) (Vulkan, Cpu, Mesa 22.3.6 ...)``.
 
     Raises:
         GpuUnavailableError: when there is no adapter (the message says how to install one).
     """
+    _headless_vulkan()
     return _native.wgpu_adapter()
 
 
@@ -148,6 +182,7 @@ class GpuReprojector:
 
     @checked(force_32bit_atomics=BOOL)
     def __init__(self, *, force_32bit_atomics: bool = False) -> None:
+        _headless_vulkan()
         self._native = _native.WgpuReprojector(force_32bit_atomics)
         self._lock = threading.RLock()
 
