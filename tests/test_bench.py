@@ -14,7 +14,7 @@ import pytest
 import splitrender as sr
 from conftest import Pair
 from splitrender.evaluation.bench import bytes_touched
-from splitrender.evaluation.machine import Machine
+from splitrender.machine import Machine
 from splitrender.types import ShadowBuffers
 
 FIELDS = ("color", "depth", "motion_fwd", "motion_bwd", "shadow_fwd", "shadow_bwd")

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from splitrender.evaluation.machine import this_machine
+from splitrender.machine import this_machine
 from splitrender.net import protocol as proto
 
 TOKEN = "test-token"

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from splitrender.evaluation import machine as m
+from splitrender import machine as m
 
 INTEL = """processor\t: 0
 vendor_id\t: GenuineIntel
@@ -92,7 +92,7 @@ def test_this_machine_counts_the_cpus_the_process_may_use() -> None:
 @pytest.mark.parametrize("tier", ["baseline", "avx2"])
 def test_the_row_loops_tier_follows_reproj_simd(tier: str) -> None:
     # A cap the processor has is what the kernels run with; the baseline is always there.
-    code = "from splitrender.evaluation.machine import this_machine; print(this_machine().simd)"
+    code = "from splitrender.machine import this_machine; print(this_machine().simd)"
     env = {**os.environ, "REPROJ_SIMD": tier}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          timeout=60, check=True).stdout.strip()

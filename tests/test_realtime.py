@@ -25,7 +25,7 @@ from splitrender.client import Client
 from splitrender.client.realtime import RealtimeClient
 from splitrender.codec.coder import StreamDecoder
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.evaluation.machine import this_machine
+from splitrender.machine import this_machine
 
 W, H = 64, 36
 FS, FC = 10.0, 120.0
@@ -1602,7 +1602,7 @@ def test_bench_realtime_on_a_builtin_scene_writes_its_summary(tmp_path, monkeypa
     assert sum(r["frames_by_divisor"].values()) == r["frames"]
     assert r["server_frames_received"] >= 3 and r["decode_ms_per_server_frame"] > 0
     assert sum(r["modes"].values()) == r["frames"]
-    # The machine it ran on, as splitrender.evaluation.machine finds it.
+    # The machine it ran on, as splitrender.machine finds it.
     here = this_machine()
     assert (r["processor"], r["cpus"], r["simd"]) == (here.processor, here.cpus, here.simd)
 

@@ -38,10 +38,10 @@ from splitrender.cli.args import (
 )
 from splitrender.client.realtime import DISPLAY_FPS, MAX_DIVISOR
 from splitrender.errors import SplitRenderError
-from splitrender.evaluation.machine import this_machine
 from splitrender.files import OutputFolder, write_atomic
 from splitrender.gpu import GPU_METHODS
 from splitrender.gpu import require as require_backend
+from splitrender.machine import this_machine
 from splitrender.reproject import METHODS
 from splitrender.net.protocol import (
     MAX_FPS,

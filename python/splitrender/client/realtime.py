@@ -64,6 +64,7 @@ from splitrender.client.client import Client
 from splitrender.client.collector import FrameCollector
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.gpu import BACKENDS, GpuDeviceLostError, GpuPair
+from splitrender.machine import usable_cpus
 from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
 from splitrender.tally import Tally
@@ -1509,7 +1510,7 @@ class RealtimeClient:
         # reported as 120.9 FPS achieved.
         report.wall_s = max(self.clock.now(), end) - t0
         report.cpu_s = time.process_time() - cpu0
-        report.cpus = os.cpu_count() or 1
+        report.cpus = usable_cpus()  # the CPUs its threads can use, as rayon counts them
         with self._lock:
             report.gpu_lost = self.client.gpu_lost
             self._report = RealtimeReport(self.display_fps, self.keep_frames)

@@ -49,7 +49,7 @@ less). Until 2026-12-05 the floor was one thread's copy, which on the Intel Xeon
 took 2–2.7× as long as two threads' (docs/performance.md, "The copy floor on the kernel's
 threads").
 
-Each row also records the machine (:mod:`splitrender.evaluation.machine`): ``processor``,
+Each row also records the machine (:mod:`splitrender.machine`): ``processor``,
 ``cpus`` and ``simd``, the instruction set of the CPU kernels' row loops; the table's first line
 says them.
 """
@@ -70,7 +70,7 @@ from typing import Any
 import numpy as np
 
 from splitrender.errors import InvalidInputError
-from splitrender.evaluation.machine import Machine, this_machine
+from splitrender.machine import Machine, this_machine, usable_cpus
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import CameraFrame, ServerFrame, ShadowBuffers
@@ -122,7 +122,7 @@ class BenchRow:
     mb_touched: float
     copy_floor_ms: float
     copy_threads: int = 1
-    #: The machine (:mod:`splitrender.evaluation.machine`): the processor in words, the CPUs
+    #: The machine (:mod:`splitrender.machine`): the processor in words, the CPUs
     #: the process could run on and the instruction set of the CPU kernels' row loops.
     processor: str = ""
     cpus: int = 0
@@ -246,7 +246,7 @@ def kernel_threads() -> int:
     """How many threads the CPU methods run a client frame on: rayon's global pool."""
     from splitrender._native import render_thread_ids
 
-    return len(render_thread_ids()) or os.cpu_count() or 1
+    return len(render_thread_ids()) or usable_cpus()
 
 
 def _cache_dir(scene: str, scale: float) -> Path:
@@ -440,10 +440,10 @@ class _GpuRun:
 
 def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
     """A plain-text table of the rows."""
-    cpus = cpus if cpus is not None else (os.cpu_count() or 1)
     if not rows:
         return "(no rows)"
     r0 = rows[0]
+    cpus = cpus if cpus is not None else (r0.cpus or usable_cpus())
     lines: list[str] = []
     if r0.processor:  # rows made by hand without their machine say nothing of it
         lines.append(f"machine: {Machine(r0.processor, r0.cpus, r0.simd).describe()}")

@@ -42,7 +42,6 @@ from splitrender.codec.stream import (
     without_file_name,
 )
 from splitrender.errors import InvalidInputError, StreamError
-from splitrender.evaluation.machine import Machine, this_machine
 from splitrender.evaluation.shown import (
     Shown,
     ShownRecorder,
@@ -53,6 +52,7 @@ from splitrender.evaluation.shown import (
 )
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
+from splitrender.machine import Machine, this_machine, usable_cpus
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import Camera
@@ -125,7 +125,7 @@ class RealtimeBench:
     #: (:func:`~splitrender.evaluation.shown.score_shown`: the means, ``by_mode``,
     #: ``by_staleness``); ``None`` without.
     score: dict[str, Any] | None = None
-    #: The machine (:mod:`splitrender.evaluation.machine`): the processor in words, the CPUs
+    #: The machine (:mod:`splitrender.machine`): the processor in words, the CPUs
     #: the process could run on and the instruction set of the CPU kernels' row loops.
     processor: str = ""
     cpus: int = 0
@@ -524,7 +524,7 @@ def format_realtime(b: RealtimeBench) -> str:
                   else "pairs prepared anyway to measure them again")),
             f"  newest server frame's age at display: p50 {ms('server_age_ms_p50')}, "
             f"max {ms('server_age_ms_max')}; CPU {100 * s['cpu_utilisation']:.0f} % "
-            f"of {os.cpu_count() or 1} cores"
+            f"of {b.cpus or usable_cpus()} cores"
             + ("" if s.get("warm_up_ms") is None
                else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
             "  " + _collections(s),

@@ -7,7 +7,9 @@ need not say which generation it is ("AMD EPYC"). So ``splitrender bench`` and `
 bench --realtime`` print and record (and ``splitrender connect``'s report.json records) the
 processor (with its x86 family and model numbers, which do), the CPUs this process may run
 on, and the instruction set the CPU kernels' row loops use (``REPROJ_SIMD`` caps it; every
-tier gives the same bytes, only the time differs).
+tier gives the same bytes, only the time differs). :func:`usable_cpus` is also what the
+real-time report's CPU utilisation is a share of, so the module sits below the client and
+the evaluation, which both use it.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import platform
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["SIMD_NAMES", "Machine", "processor_name", "this_machine"]
+__all__ = ["SIMD_NAMES", "Machine", "processor_name", "this_machine", "usable_cpus"]
 
 #: The row loops' instruction sets (``_native.simd_tier``) as people write them.
 SIMD_NAMES = {"avx512": "AVX-512", "avx2": "AVX2", "baseline": "baseline"}
@@ -73,7 +75,7 @@ def processor_name(cpuinfo: str | None = None) -> str:
     return name
 
 
-def _usable_cpus() -> int:
+def usable_cpus() -> int:
     """The logical CPUs this process may run on (its affinity where the platform has one)."""
     affinity = getattr(os, "sched_getaffinity", None)
     if affinity is not None:
@@ -88,4 +90,4 @@ def this_machine() -> Machine:
     """The machine this process runs on (module docs)."""
     from splitrender._native import simd_tier
 
-    return Machine(processor=processor_name(), cpus=_usable_cpus(), simd=simd_tier())
+    return Machine(processor=processor_name(), cpus=usable_cpus(), simd=simd_tier())
