@@ -238,7 +238,7 @@ def test_a_stereo_score_holds_each_eye_to_its_own_ground_truth() -> None:
     """connect --stereo's score: the left half of a kept frame against the left eye's ground
     truth, the right half against the right eye's (swapped, neither would match). One run
     of five frames: the three between its ends are scored."""
-    from splitrender.cli.live import _score
+    from splitrender.cli.live import _score, _truths
     from splitrender.scene.builtin import Scene
 
     scene, scale, fc = Scene("courtyard"), 0.03, 120.0
@@ -247,11 +247,46 @@ def test_a_stereo_score_holds_each_eye_to_its_own_ground_truth() -> None:
             for t in times]
     right_way = [(t, np.concatenate(e, axis=1)) for t, e in zip(times, eyes)]
     swapped = [(t, np.concatenate(e[::-1], axis=1)) for t, e in zip(times, eyes)]
-    exact = _score(scene, scale, fc, scene.client_pose, [right_way], True, 2)
+    truth = _truths(scene, scale, fc, scene.client_pose, [right_way], 2)
+    exact = _score([right_way], truth, True, 2)
     assert exact["scored_frames"] == 3 and exact["ssim"] == pytest.approx(1.0)
     assert all(p["ssim"] == pytest.approx(1.0) for p in exact["per_eye"])
-    wrong = _score(scene, scale, fc, scene.client_pose, [swapped], True, 2)
+    wrong = _score([swapped], truth, True, 2)
     assert all(p["ssim"] < 0.99 for p in wrong["per_eye"]), wrong["per_eye"]
+
+
+def test_a_compared_method_is_scored_against_the_same_ground_truth_rendered_once() -> None:
+    """connect --score --compare: the ground truth (a reference render a frame, most of a
+    score's cost) is rendered once for the live method and the replayed one; the replay is
+    scored at the live run's display times, on what it showed then, and a time before its
+    first frame is left out of its score."""
+    from splitrender.cli.live import _scores
+    from splitrender.scene.builtin import Scene
+
+    scene, scale, fc = Scene("courtyard"), 0.03, 120.0
+    rendered: list[int] = []
+
+    class Counting:
+        def client_frames(self, n: int, *args: object, **kw: object) -> object:
+            rendered.append(n)
+            return scene.client_frames(n, *args, **kw)
+
+    times = [n / fc for n in range(9, 16)]
+    truth = [img for t in times for _, img in scene.client_frames(round(t * fc), scale, fc)]
+    live = [(t, img) for t, img in zip(times, truth)]
+    # The replay made its first frame at the live run's second time, and then a frame every
+    # other refresh (each shown twice): black images, nothing like the truth.
+    black = np.zeros_like(truth[0])
+    replay = [(t, black) for t in times[1::2]]
+    score, compared = _scores(Counting(), scale, fc, scene.client_pose, [live], replay, True)
+    assert sorted(rendered) == [round(t * fc) for t in times]  # each truth once
+    assert score["scored_frames"] == 5 and score["ssim"] == pytest.approx(1.0)
+    assert compared is not None
+    # Six of the seven times (not the first): the four between the run's ends are scored.
+    assert compared["scored_frames"] == 4 and compared["ssim"] < 0.5
+    rendered.clear()
+    alone, nothing = _scores(Counting(), scale, fc, scene.client_pose, [live], None, True)
+    assert nothing is None and alone == score and len(rendered) == len(times)
 
 
 def test_a_long_session_keeps_the_newest_frame_records_only(

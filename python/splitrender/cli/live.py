@@ -443,19 +443,19 @@ def run_connect(args: argparse.Namespace) -> int:
                 print(f"scoring {sum(len(run) - 2 for run in picked)} display frames against "
                       "the ground truth rendered at the client's poses", file=sys.stderr,
                       flush=True)
-            report.update(
-                _score(scene, welcome.scale, args.fps, motion, picked, args.no_vmaf, eyes)
-            )
+            other: _Shown = []  # the compared method's display frames
+            summary: dict[str, Any] = {}
             if args.compare is not None:
-                other: list[tuple[float, npt.NDArray[np.uint8]]] = []
                 summary = client.replay(
                     args.compare, motion, args.seconds, stereo=args.stereo,
                     on_frame=lambda shown, rec: other.append((rec.time, _kept_image(shown))))
-                # The same display times as the live method's score: what each display showed
-                # then (a refresh whose frame was late repeats the one before, as it did live).
-                summary.update(_score(scene, welcome.scale, args.fps, motion,
-                                      [_shown(other, [t for t, _ in run]) for run in picked],
-                                      args.no_vmaf, eyes))
+            score, compared = _scores(
+                scene, welcome.scale, args.fps, motion, picked,
+                None if args.compare is None else other, args.no_vmaf, eyes,
+            )
+            report.update(score)
+            if compared is not None:
+                summary.update(compared)
                 report["compare"] = {"method": args.compare, **summary}
         write_atomic(stage / "report.json", json.dumps(report, indent=1) + "\n")
     net = report["network"]
@@ -634,40 +634,69 @@ def _pick(frames: _Shown) -> list[_Shown]:
     return [[inner[i] for i in run] for run in runs(range(len(inner)), SCORED)]
 
 
-def _shown(frames: _Shown, times: list[float]) -> _Shown:
+def _shown(frames: _Shown, times: list[float]) -> list[npt.NDArray[np.uint8] | None]:
     """What a display that made ``frames`` (in time order) showed at each of ``times``: the
-    newest frame made for that time or before."""
+    newest frame made for that time or before (``None`` before its first)."""
     import bisect
 
     at = [t for t, _ in frames]
-    out = []
+    out: list[npt.NDArray[np.uint8] | None] = []
     for t in times:
         i = bisect.bisect_right(at, t + 1e-9) - 1
-        if i >= 0:
-            out.append((t, frames[i][1]))
+        out.append(frames[i][1] if i >= 0 else None)
     return out
 
 
-def _score(
-    scene: Any, scale: float, fc: float, motion: Any, picked: list[_Shown], no_vmaf: bool,
-    eyes: int = 1,
-) -> dict[str, Any]:
-    """The runs of display frames ``picked`` (display time, image; each run's first and last
-    VMAF's context only, :func:`_pick`) against the ground truth rendered at the poses the
-    client had (``motion(t)``: the same function that gave them). A stereo
-    session's (``eyes`` 2, the eyes side by side) scores each eye against the ground truth of
-    that eye; the metrics are the means over both (as eval's Table 3), and ``per_eye`` holds
-    each eye's."""
-    from splitrender.evaluation.shown import score_images
-
-    truth = [
+def _truths(
+    scene: Any, scale: float, fc: float, motion: Any, picked: list[_Shown], eyes: int = 1
+) -> list[list[list[npt.NDArray[np.uint8]]]]:
+    """The ground truth (run, frame, eye) at the display times of ``picked``, rendered at the
+    poses the client had (``motion(t)``: the same function that gave them)."""
+    return [
         [[img for _, img in scene.client_frames(round(t * fc), scale, fc, eyes == 2,
                                                 pose=motion(t))]
          for t, _ in run]
         for run in picked
     ]
+
+
+def _score(
+    picked: list[_Shown], truth: list[list[list[npt.NDArray[np.uint8]]]], no_vmaf: bool,
+    eyes: int = 1,
+) -> dict[str, Any]:
+    """The runs of display frames ``picked`` (display time, image; each run's first and last
+    VMAF's context only, :func:`_pick`) against ``truth`` (:func:`_truths`). A stereo
+    session's (``eyes`` 2, the eyes side by side) scores each eye against the ground truth of
+    that eye; the metrics are the means over both (as eval's Table 3), and ``per_eye`` holds
+    each eye's."""
+    from splitrender.evaluation.shown import score_images
+
     shown = [[_eye_images(img, eyes) for _, img in run] for run in picked]  # run, frame, eye
     return score_images(shown, truth, no_vmaf)[0]
+
+
+def _scores(
+    scene: Any, scale: float, fc: float, motion: Any, picked: list[_Shown],
+    other: _Shown | None, no_vmaf: bool, eyes: int = 1,
+) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The score of ``picked`` (:func:`_score`) and, where ``other`` holds the frames of a
+    replay of the session with another method, its score at the same display times: what
+    its display showed then (a refresh whose frame was late repeats the one before, as it
+    did live; a time before its first frame is left out of both of its run's lists). The
+    ground truth is rendered once for both: it is most of a score's cost."""
+    truth = _truths(scene, scale, fc, motion, picked, eyes)
+    score = _score(picked, truth, no_vmaf, eyes)
+    if other is None:
+        return score, None
+    runs: list[_Shown] = []
+    truths: list[list[list[npt.NDArray[np.uint8]]]] = []
+    for run, want in zip(picked, truth):
+        times = [t for t, _ in run]
+        kept = [(t, img, g) for t, img, g in zip(times, _shown(other, times), want)
+                if img is not None]
+        runs.append([(t, img) for t, img, _ in kept])
+        truths.append([g for _, _, g in kept])
+    return score, _score(runs, truths, no_vmaf, eyes)
 
 
 # -- relay ---------------------------------------------------------------------------------------
