@@ -30,6 +30,15 @@
 //!            Some(&mut image), None)?;
 //! # Ok(()) }
 //! ```
+//!
+//! On a machine without a desktop session (a server, a CI runner, a cluster node), Mesa's Vulkan
+//! device-selection layer, which the loader runs in every process that makes an instance, asks
+//! the Wayland library for the desktop's GPU, and that library writes "error: XDG_RUNTIME_DIR is
+//! invalid or not set in the environment." to stderr. There is no desktop GPU to find there:
+//! set `NODEVICE_SELECT=1` (the layer's own switch) in the environment before the process
+//! starts, as the Python package does for itself (`splitrender.gpu`) and `scripts/test.sh` for
+//! these tests. A library cannot safely set it for its caller: other threads may read the
+//! environment at the same time.
 
 #![warn(missing_docs)]
 
