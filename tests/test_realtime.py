@@ -1461,6 +1461,27 @@ def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frame
         "row)")
 
 
+@pytest.mark.skipif(not hasattr(os, "SCHED_RR"), reason="needs Linux scheduling policies")
+def test_late_frames_not_in_a_row_keep_the_display_at_real_time_priority(scene, frames):
+    # Every other frame takes 1.5 refreshes, the ones between a fifth of one: more late frames
+    # in the run than the limit, but never two in a row.
+    clock = FakeClock()
+    before = _display_policies()
+    policies: list[list[int]] = []
+    with loop(clock, cost=lambda n: (1.5 if n % 2 else 0.2) * PERIOD, max_divisor=1) as c:
+        c.submit(frames[0])
+        c.wait()
+        report = c.run(pose_of(scene), 1.0,
+                       on_frame=lambda im, rec: policies.append(_display_policies()))
+    assert _display_policies() == before
+    if not report.display_scheduling.startswith("realtime"):
+        pytest.skip(f"real-time scheduling not permitted here: {report.display_scheduling}")
+    late = [not f.met for f in report.frames]
+    assert sum(late) > rt._OVERRUN_FRAMES and not any(a and b for a, b in zip(late, late[1:]))
+    assert report.display_scheduling == "realtime"
+    assert all(set(p) == {os.SCHED_RR} for p in policies)
+
+
 def test_warm_up_receives_the_due_frames_and_renders_one_frame_off_the_record(scene, frames):
     feed = [(k / FS - 1 / FS, frames[k]) for k in range(3)]
     clock = FakeClock()
