@@ -522,6 +522,35 @@ def test_rate_governor_refuses_a_bad_display_rate(fps):
         rt.RateGovernor(fps)
 
 
+def test_rate_governor_goes_back_up_only_with_headroom_below():
+    # At half rate, frames that would just fit the full rate's refresh (80 % of it) keep the
+    # half rate; frames within HEADROOM (70 %) of it bring the full rate back after a second
+    # of them (f_c / 2 frames), and not before.
+    assert rt.RateGovernor.HEADROOM == 0.75
+    for share, back_after in [(0.8, None), (0.7, math.ceil(FC / 2))]:
+        g = rt.RateGovernor(FC)
+        for _ in range(rt.RateGovernor.DOWN_MISSES):
+            g.update(2.0 / FC, met=False)
+        assert g.divisor == 2
+        divisors = [g.update(share / FC, met=True) for _ in range(3 * int(FC))]
+        if back_after is None:
+            assert set(divisors) == {2}
+        else:
+            assert divisors.index(1) == back_after - 1 and set(divisors[back_after:]) == {1}
+
+
+def test_rate_governor_counts_the_misses_of_each_divisor_afresh():
+    # The misses that halved the rate do not count at the new divisor: dividing it again
+    # takes DOWN_MISSES misses there.
+    down = rt.RateGovernor.DOWN_MISSES
+    g = rt.RateGovernor(FC, max_divisor=4)
+    for _ in range(down):
+        g.update(2.0 / FC, met=False)
+    assert g.divisor == 2
+    assert [g.update(3.0 / FC, met=m) for m in [True] + [False] * (down - 1)] == [2] * down
+    assert g.update(3.0 / FC, met=False) == 3
+
+
 def _hold_preparation(monkeypatch, held):  # type: ignore[no-untyped-def]
     """Makes the worker's preparation of each pair ``(older index or None, newer index)`` for
     which ``held`` is true wait until ``release`` is set (``entered`` is set when it starts);
