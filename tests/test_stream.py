@@ -321,6 +321,47 @@ def test_absurd_sizes_rejected_before_allocation() -> None:
         unpack_packet(h + struct.pack("<I", crc) + huge + payloads)
 
 
+def test_each_check_of_the_header_block_says_what_is_wrong() -> None:
+    """The header block's own checks, each met by a packet that only it refuses (with a
+    consistent block length and CRC, as a hostile producer writes them): without it, the
+    block would decompress without a bound, or a short block would raise struct.error."""
+    head, block, payloads = _split(pack_packet(_packet()))
+    depth = _ENTRIES + 8  # main.depth's entry (TILE, one scale/offset pair after it)
+
+    def refused(b: bytes | bytearray, message: str) -> None:
+        with pytest.raises(StreamError, match=message):
+            unpack_packet(_join(head, b, payloads))
+
+    b = bytearray(block)
+    b[depth + 3] = 2
+    refused(b, r"^frame 7, main.depth: 2 scale/offset pairs \(expected 1\)$")
+    b = bytearray(block)
+    struct.pack_into("<f", b, depth + 8, float("nan"))
+    refused(b, r"^frame 7, main.depth: scale/offset not finite$")
+    refused(block + bytes(3), r"^frame 7: 3 trailing bytes in the header block$")
+    refused(block[:3], r"^frame 7: header block of 3 bytes is too short$")
+    refused(block[:_CAMS + 264 + 10],
+            rf"^frame 7: header block of {_CAMS + 274} bytes is too short for 2 cameras$")
+    # Every cut of the block is refused in its own words, never with another exception.
+    for n in range(len(block)):
+        with pytest.raises(StreamError, match="^frame 7"):
+            unpack_packet(_join(head, block[:n], payloads))
+    # A zstd frame that does not declare its size would decompress without a bound.
+    unsized = zstandard.ZstdCompressor(write_content_size=False).compress(bytes(block))
+    h = head[:24] + struct.pack("<I", len(unsized))
+    crc = zlib.crc32(payloads, zlib.crc32(unsized, zlib.crc32(h)))
+    with pytest.raises(StreamError, match="^frame 7: the header block does not declare its size"):
+        unpack_packet(h + struct.pack("<I", crc) + unsized + payloads)
+    # The block's length field: beyond the bytes after the fixed header, or zero.
+    data = _join(head, block, payloads)
+    rest = len(data) - 32
+    for m in (rest + 1, 0):
+        bad = _refresh_crc(data[:24] + struct.pack("<I", m) + data[28:])
+        with pytest.raises(StreamError, match=f"^frame 7: header block of {m} bytes, but "
+                                              f"{rest} bytes remain"):
+            unpack_packet(bad)
+
+
 def test_cameras_over_the_budget_together_are_refused_before_allocating() -> None:
     # Issue 15: each camera's size was checked but not their sum; a tiny packet of 16 cameras
     # of 8192 x 4096 whose buffers are all ZERO made the decoder ask for ~30 GB.
@@ -525,6 +566,34 @@ def test_a_stream_path_that_does_not_open_is_a_stream_error(tmp_path: Path) -> N
     for name in ("missing", "dangling", "loop"):
         with pytest.raises(StreamError, match=f"{name}: cannot open the stream file"):
             StreamFile(tmp_path / name)
+
+
+def test_a_file_that_is_not_a_stream_is_refused_by_its_magic(tmp_path: Path) -> None:
+    path = tmp_path / "s.srs"
+    write_stream(path, [pack_packet(_packet(i)) for i in range(2)])
+    raw = path.read_bytes()
+    other = tmp_path / "other.srs"
+    other.write_bytes(b"SRSTREAX" + raw[8:])  # all else a valid stream's
+    with pytest.raises(StreamError, match=r"^other.srs: not a splitrender stream \(b'SRSTREAX'\)"):
+        StreamFile(other)
+
+
+def test_packets_beyond_the_record_limit_are_refused_on_both_sides(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # MAX_PACKET (2 GiB, the record's length field) made small, so that a packet passes it.
+    import splitrender.codec.stream as stream
+
+    packets = [pack_packet(_packet(i)) for i in range(2)]
+    path = tmp_path / "s.srs"
+    write_stream(path, packets)
+    monkeypatch.setattr(stream, "MAX_PACKET", len(packets[0]) - 1)
+    with StreamWriter(tmp_path / "w.srs", 10.0) as w, pytest.raises(
+        StreamError, match=f"^frame 0: packet of {len(packets[0])} bytes is too large"
+    ):
+        w.write(packets[0])
+    with pytest.raises(StreamError, match=f"record at byte 24 claims {len(packets[0])} bytes"):
+        list(read_stream(path))
 
 
 def test_container_truncated_and_wrong_version(tmp_path: Path) -> None:
