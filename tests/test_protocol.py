@@ -194,6 +194,57 @@ def test_control_reader_splits_and_limits() -> None:
         proto.ControlReader().feed(struct.pack("<H", 2000))
 
 
+def test_each_field_from_the_wire_is_checked_and_named() -> None:
+    """Every field check of the decoders, each met by a message that only it refuses (the
+    fuzz tests above only ask that nothing but ProtocolError comes out, which a decoder that
+    accepted these would satisfy too)."""
+    def refused(decode: Any, raw: bytes | bytearray, message: str) -> None:
+        with pytest.raises(ProtocolError, match=message):
+            decode(bytes(raw))
+
+    # A message of another type given to a decoder of one type.
+    refused(proto.FrameHeader.decode, proto.KeyRequest(3).encode() + bytes(60),
+            "^frame header: expected message type 0x20, got 0x03$")
+    # The welcome (type B, version H, f_s d, scale d, then width, height and gop as u16).
+    w = _welcome().encode()
+    for at, value, message in [(19, 0, "welcome: size 0x9"), (21, 0, "welcome: size 16x0"),
+                               (19, 65535, "welcome: size 65535x9"),
+                               (23, 0, "welcome.gop: expected >= 1, got 0")]:
+        raw = bytearray(w)
+        struct.pack_into("<H", raw, at, value)
+        refused(proto.decode_control, raw, f"^{re.escape(message)}")
+    # The key request (type B, last q, reason B).
+    k = proto.KeyRequest(3, proto.KEY_LOST).encode()
+    refused(proto.decode_control, k[:1] + struct.pack("<q", -2) + k[9:],
+            "^key request.last: expected >= -1, got -2$")
+    for reason in (0, 4):
+        refused(proto.decode_control, k[:9] + bytes([reason]),
+                f"^key request.reason: expected 1, 2 or 3, got {reason}$")
+    # The frame header (type B, index q, seq q, key B, ...).
+    h = _header(1).encode()
+    for at, fmt, value, message in [(1, "<q", -1, "frame header: index -1, seq 1: expected >= 0"),
+                                    (9, "<q", -1, "frame header: index 2, seq -1: expected >= 0"),
+                                    (17, "<B", 2, "frame header.key: expected 0 or 1, got 2")]:
+        raw = bytearray(h)
+        struct.pack_into(fmt, raw, at, value)
+        refused(proto.FrameHeader.decode, raw, f"^{re.escape(message)}$")
+    # What this side sends is held to the same limits.
+    with pytest.raises(ProtocolError, match=rf"^hello.width: expected 0..{proto.MAX_SIDE}, got"):
+        proto.Hello("t", proto.MAX_SIDE + 1, 9).encode()
+    with pytest.raises(ProtocolError, match="^welcome.scene: at most 255 bytes, got 256$"):
+        _welcome(scene="x" * 256).encode()
+    with pytest.raises(ProtocolError, match="^welcome.proj: expected 16 values, got 15$"):
+        _welcome(proj=(0.0,) * 15).encode()
+    for message in (b"", bytes(proto.MAX_CONTROL + 1)):
+        with pytest.raises(ProtocolError, match="^control message: expected 1..1024 bytes"):
+            proto.frame_control(message)
+    with pytest.raises(ProtocolError, match=r"^pose: expected a 4x4 matrix, got shape \(3, 4\)"):
+        proto.PoseSample(1, 0.0, np.eye(4)[:3]).encode()
+    # A reader with a small buffer refuses a message it would have to wait for beyond it.
+    with pytest.raises(ProtocolError, match="^control stream: more than 10 bytes pending$"):
+        proto.ControlReader(max_buffer=10).feed(struct.pack("<H", 100) + bytes(20))
+
+
 @given(st.binary(max_size=600))
 def test_fuzz_only_protocol_errors(data: bytes) -> None:
     """Whatever the bytes, the decoders return a message or raise ProtocolError."""
