@@ -483,6 +483,67 @@ def test_packet_holds_three_pictures_and_tiles(
         assert len(tiles) == 3 * 8 and all(len(b.payload) == 0 for b in tiles)
 
 
+def _small_hevc_picture(side: int) -> bytes:
+    """One HEVC key picture of ``side`` x ``side`` pixels, 4:2:0, as libx265 codes it."""
+    from fractions import Fraction
+
+    import av
+
+    enc = av.CodecContext.create("libx265", "w")
+    enc.width, enc.height, enc.pix_fmt = side, side, "yuv420p"
+    enc.time_base = Fraction(1, 10)
+    enc.options = {"x265-params": "log-level=none:bframes=0", "tune": "zerolatency"}
+    frame = av.VideoFrame.from_ndarray(np.zeros((side, side, 3), np.uint8), format="rgb24")
+    frame = frame.reformat(format="yuv420p")
+    frame.pts = 0
+    return b"".join(bytes(p) for p in [*enc.encode(frame), *enc.encode(None)])
+
+
+def test_each_check_of_a_packets_buffers_says_what_is_wrong(
+    frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]],
+) -> None:
+    """The decoder's own checks of a packet the stream format takes (CRCs consistent, as a
+    hostile producer writes them), each met by a packet only it refuses."""
+    packets, _ = coded
+    p = unpack_packet(packets[0])
+    main = p.cameras[0]
+
+    def refused(packet: bytes, message: str, **decoder: Any) -> None:
+        with StreamDecoder(**decoder) as dec, pytest.raises(StreamError, match=message):
+            dec.decode(packet)
+
+    def replaced(name: str, **changes: Any) -> bytes:
+        assert any(b.name == name for b in p.buffers)
+        return pack_packet(dataclasses.replace(p, buffers=tuple(
+            dataclasses.replace(b, **changes) if b.name == name else b for b in p.buffers)))
+
+    pixels = main.width * main.height
+    refused(packets[0], f"^frame 0, main: {main.width}x{main.height} exceeds the decoder's "
+                        f"limit of {pixels - 1} pixels$", max_pixels=pixels - 1)
+    refused(pack_packet(dataclasses.replace(p, buffers=p.buffers + p.buffers[-1:])),
+            "^frame 0, picture.shadow: buffer appears twice$")
+    # A shadow colour tile whose bitfield is stored raw (the right size for it): the tile
+    # is decoded with the bitfield's zstd form only.
+    refused(replaced("main.shadow_fwd.bits", codec=Codec.RAW, payload=bytes(4 * pixels)),
+            "^frame 0, main.shadow_fwd.s_min: a tile needs its bitfield as zstd$")
+    # A mask (one byte a pixel would be its raw form) is decoded from zstd only.
+    refused(replaced("main.motion_fwd.static", codec=Codec.RAW, payload=bytes(pixels)),
+            "^frame 0, main.motion_fwd.static: a mask cannot be raw$")
+    # A picture smaller than the packet's cameras need decodes in FFmpeg; it is refused here.
+    # (The layout's size, not a camera's: the shadow colours of every camera side by side.)
+    refused(replaced("picture.shadow", payload=_small_hevc_picture(32)),
+            r"^frame 0, picture.shadow: HEVC picture is 32x32 yuv420p, expected \d+x\d+ yuv")
+    # A raw buffer one byte short (the uncompressed mode stores every buffer raw).
+    with StreamEncoder(CodecConfig(uncompressed=True)) as enc:
+        raw = unpack_packet(enc.encode(frames[0]))
+    color = raw.buffers[0]
+    assert color.name == "main.color" and color.codec == Codec.RAW
+    short = dataclasses.replace(color, payload=bytes(color.payload)[:-1])
+    refused(pack_packet(dataclasses.replace(raw, buffers=(short, *raw.buffers[1:]))),
+            f"^frame 0, main.color: raw payload of {len(color.payload) - 1} bytes, expected "
+            f"{len(color.payload)}$")
+
+
 def test_tile_without_its_picture_raises(
     coded: tuple[list[bytes], list[sr.ServerFrame]],
 ) -> None:
