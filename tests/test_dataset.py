@@ -172,6 +172,27 @@ def test_export_names_stay_inside_the_output(
     assert list(tmp_path.rglob("*")) == []
 
 
+@pytest.mark.parametrize(
+    ("aux_names", "client", "problem"),
+    [
+        (("left",), "client_ol", r"2 auxiliary cameras but only 1 aux_names"),
+        (("left", "left"), "client_ol",
+         r"camera directory names must differ, got \['main', 'left', 'left', 'client_ol'\]"),
+        (("main", "right"), "client_ol", r"camera directory names must differ"),
+        (("left", "right"), "right", r"camera directory names must differ"),
+    ],
+)
+def test_export_names_each_camera_a_folder_of_its_own(
+    recording: sr.Recording, tmp_path: Path, aux_names: tuple[str, ...], client: str,
+    problem: str,
+) -> None:
+    # One folder for two cameras would have held the files of the one written last.
+    out = tmp_path / "ds"
+    with pytest.raises(DatasetError, match=problem):
+        sr.export_dataset(recording, out, aux_names=aux_names, client=client)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_interrupted_export_leaves_no_dataset(
     recording: sr.Recording, exported: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -380,6 +401,26 @@ def test_error_hostile_cam_json(handmade: Path, text: str, problem: str) -> None
         sr.import_dataset(handmade, aux=())
 
 
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        ({"resolution": [160, 90]}, r"resolution: expected \{x, y\}, got \[160, 90\]"),
+        ({"frames": {}}, r"frames: expected a non-empty array"),
+        ({"frames": []}, r"frames: expected a non-empty array"),
+        ({"frames": [7]}, r"frames\[0\]: expected an object"),
+        ({"frames": [{"idx": -1}]}, r"frames\[0\].idx: expected an int >= 0, got -1"),
+        ({"frames": [{"idx": True}]}, r"frames\[0\].idx: expected an int >= 0, got True"),
+    ],
+)
+def test_error_cam_json_of_another_shape(
+    handmade: Path, change: dict[str, object], problem: str
+) -> None:
+    cam = handmade / "main" / "cam.json"
+    cam.write_text(json.dumps({**json.loads(cam.read_text()), **change}))
+    with pytest.raises(DatasetError, match=rf"main[/\\]cam\.json: {problem}"):
+        sr.import_dataset(handmade, aux=())
+
+
 def test_error_frame_rates_out_of_range(handmade: Path) -> None:
     # shadowFps / serverFps was an infinity, and floor() of it raised OverflowError.
     cam = handmade / "main" / "cam.json"
@@ -429,6 +470,15 @@ def test_error_wrong_exr_resolution_and_channels(handmade: Path) -> None:
     _write_exr(handmade / "main" / "depth" / "0007.exr",
                {"R": np.zeros((4, 4)), "G": np.zeros((4, 4))})
     with pytest.raises(DatasetError, match=r"0007\.exr: expected a single-channel depth EXR"):
+        sr.import_dataset(handmade, aux=())
+
+
+def test_error_a_file_that_is_not_an_exr(handmade: Path) -> None:
+    # A PNG named .exr: refused by its first four bytes, in our words.
+    png = (handmade / "main" / "color" / "0007.png").read_bytes()
+    (handmade / "main" / "depth" / "0007.exr").write_bytes(png)
+    with pytest.raises(DatasetError, match=r"depth[/\\]0007\.exr: cannot read EXR: not an "
+                                           r"OpenEXR file \(no magic number\)$"):
         sr.import_dataset(handmade, aux=())
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import re
 import struct
 import shutil
 import zipfile
@@ -58,6 +59,27 @@ def test_frame_counts_are_bounded(tmp_path: Path, rates: dict[str, float], what:
     with pytest.raises(RecordingError, match=f"{what}: .* more than 50000 frames"):
         write_recording(out, "lab", seconds=SECONDS, scale=SCALE, **rates)  # type: ignore[arg-type]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("seconds", [0.0, -1.0, float("nan"), float("inf"), True, "2"])
+def test_a_recordings_render_refuses_a_bad_length(seconds: object) -> None:
+    """RecordingRender (what eval's sweep tasks run, without write_recording's argument
+    checks) checks the settings itself."""
+    from splitrender.scene.recording import RecordingRender, RecordingSettings
+
+    with pytest.raises(RecordingError, match=f"^seconds: expected a finite number > 0, got "
+                                             f"{re.escape(repr(seconds))}$"):
+        settings = RecordingSettings(seconds=seconds, scale=SCALE)  # type: ignore[arg-type]
+        RecordingRender("lab", settings)
+
+
+def test_a_recording_longer_than_its_scene_is_refused() -> None:
+    from splitrender.scene.recording import RecordingRender, RecordingSettings
+
+    duration = Scene("lab").duration
+    with pytest.raises(RecordingError, match=f"^seconds: scene 'lab' lasts {duration:g} s, "
+                                             f"asked for {duration + 1:g} s$"):
+        RecordingRender("lab", RecordingSettings(seconds=duration + 1, scale=SCALE))
 
 
 def test_round_trip(recorded: Path) -> None:
