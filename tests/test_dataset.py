@@ -506,6 +506,32 @@ def _recording_ready(root: Path) -> None:
     _write_png(root / "client_ol" / "color" / "0007.png", np.zeros((4, 4, 3), np.uint8))
 
 
+def test_a_recording_needs_the_client_folder_its_ground_truth_and_the_main_size(
+    handmade: Path, tmp_path: Path
+) -> None:
+    """import_dataset_as_recording's own checks: a recording holds the ground truth at the
+    main camera's size."""
+    _recording_ready(handmade)
+    out = tmp_path / "rec"
+
+    def refused(match: str) -> None:
+        with pytest.raises(DatasetError, match=match):
+            import_dataset_as_recording(handmade, out)
+        assert not out.exists()
+
+    client = handmade / "client_ol"
+    _edit_cam(handmade, "client_ol", resolution={"x": 8, "y": 4})
+    refused(r"client_ol[/\\]cam\.json: client size 8x4, a recording needs the main camera's "
+            r"4x4$")
+    _edit_cam(handmade, "client_ol", resolution={"x": 4, "y": 4})
+    shutil.rmtree(client / "color")
+    refused(r"client_ol[/\\]color: missing; a recording needs the ground truth$")
+    shutil.rmtree(client)
+    refused(r"client_ol: missing client directory$")
+    with pytest.raises(DatasetError, match=r"client_ol: missing client directory$"):
+        sr.import_dataset(handmade)  # (the layout's own check: the above is dataset_info's)
+
+
 def test_error_duplicate_idx(handmade: Path) -> None:
     # Two frames with one idx read the same colour, depth and pair files: accepted before.
     frames = json.loads((handmade / "main" / "cam.json").read_text())["frames"]
