@@ -1465,14 +1465,15 @@ def test_refused_real_time_scheduling_changes_nothing_and_says_so(scene, frames,
     assert _display_policies() == before
 
 
-@pytest.mark.skipif(not hasattr(os, "SCHED_RR"), reason="needs Linux scheduling policies")
-def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frames):
-    # Every frame takes 1.5 refreshes: late, every time.
+def _policies_over_a_run(scene, frames, cost):  # type: ignore[no-untyped-def]
+    """A second's run at the full rate only (at half rate slow frames would be on time) whose
+    n-th render takes ``cost(n)``: its report, the display threads' scheduling policies at
+    each frame, and theirs before (and, checked, after) the run. Skips where real-time
+    scheduling is not permitted."""
     clock = FakeClock()
     before = _display_policies()
     policies: list[list[int]] = []
-    # At its full rate only: at half rate these frames would be on time.
-    with loop(clock, cost=lambda n: 1.5 * PERIOD, max_divisor=1) as c:
+    with loop(clock, cost=cost, max_divisor=1) as c:
         c.submit(frames[0])
         c.wait()
         report = c.run(pose_of(scene), 1.0,
@@ -1480,6 +1481,13 @@ def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frame
     assert _display_policies() == before
     if not report.display_scheduling.startswith("realtime"):
         pytest.skip(f"real-time scheduling not permitted here: {report.display_scheduling}")
+    return report, policies, before
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_RR"), reason="needs Linux scheduling policies")
+def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frames):
+    # Every frame takes 1.5 refreshes: late, every time.
+    report, policies, before = _policies_over_a_run(scene, frames, lambda n: 1.5 * PERIOD)
     n = rt._OVERRUN_FRAMES
     assert report.deadline_misses == len(report.frames) > n
     # Raised for the first late frames, normal from the n-th late frame in a row on.
@@ -1494,17 +1502,8 @@ def test_a_display_that_cannot_keep_up_goes_back_to_normal_priority(scene, frame
 def test_late_frames_not_in_a_row_keep_the_display_at_real_time_priority(scene, frames):
     # Every other frame takes 1.5 refreshes, the ones between a fifth of one: more late frames
     # in the run than the limit, but never two in a row.
-    clock = FakeClock()
-    before = _display_policies()
-    policies: list[list[int]] = []
-    with loop(clock, cost=lambda n: (1.5 if n % 2 else 0.2) * PERIOD, max_divisor=1) as c:
-        c.submit(frames[0])
-        c.wait()
-        report = c.run(pose_of(scene), 1.0,
-                       on_frame=lambda im, rec: policies.append(_display_policies()))
-    assert _display_policies() == before
-    if not report.display_scheduling.startswith("realtime"):
-        pytest.skip(f"real-time scheduling not permitted here: {report.display_scheduling}")
+    report, policies, _ = _policies_over_a_run(
+        scene, frames, lambda n: (1.5 if n % 2 else 0.2) * PERIOD)
     late = [not f.met for f in report.frames]
     assert sum(late) > rt._OVERRUN_FRAMES and not any(a and b for a, b in zip(late, late[1:]))
     assert report.display_scheduling == "realtime"
