@@ -80,6 +80,12 @@ def test_describe() -> None:
     assert m.Machine("x", 1, "baseline").describe() == "x, 1 CPU, CPU row loops baseline"
 
 
+def test_a_result_without_its_machine_describes_none() -> None:
+    # What the text reports and the plot print: nothing for a result made by hand.
+    assert m.describe_recorded("", 0, "") is None
+    assert m.describe_recorded("Xeon", 2, "avx2") == m.Machine("Xeon", 2, "avx2").describe()
+
+
 def test_this_machine_counts_the_cpus_the_process_may_use() -> None:
     here = m.this_machine()
     assert here.processor and here.simd in m.SIMD_NAMES

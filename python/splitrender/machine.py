@@ -19,7 +19,10 @@ import platform
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["SIMD_NAMES", "Machine", "processor_name", "this_machine", "usable_cpus"]
+__all__ = [
+    "SIMD_NAMES", "Machine", "describe_recorded", "processor_name", "this_machine",
+    "usable_cpus",
+]
 
 #: The row loops' instruction sets (``_native.simd_tier``) as people write them.
 SIMD_NAMES = {"avx512": "AVX-512", "avx2": "AVX2", "baseline": "baseline"}
@@ -43,6 +46,12 @@ class Machine:
         plural = "s" * (self.cpus != 1)
         simd = SIMD_NAMES.get(self.simd, self.simd)
         return f"{self.processor}, {self.cpus} CPU{plural}, CPU row loops {simd}"
+
+
+def describe_recorded(processor: str, cpus: int, simd: str) -> str | None:
+    """:meth:`Machine.describe` of the machine a result recorded, or ``None`` where it recorded
+    none (a result made by hand, whose ``processor`` is empty)."""
+    return Machine(processor, cpus, simd).describe() if processor else None
 
 
 def processor_name(cpuinfo: str | None = None) -> str:

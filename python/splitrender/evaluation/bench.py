@@ -70,7 +70,7 @@ from typing import Any
 import numpy as np
 
 from splitrender.errors import InvalidInputError
-from splitrender.machine import Machine, this_machine, usable_cpus
+from splitrender.machine import describe_recorded, this_machine, usable_cpus
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import CameraFrame, ServerFrame, ShadowBuffers
@@ -445,8 +445,9 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
     r0 = rows[0]
     cpus = cpus if cpus is not None else (r0.cpus or usable_cpus())
     lines: list[str] = []
-    if r0.processor:  # rows made by hand without their machine say nothing of it
-        lines.append(f"machine: {Machine(r0.processor, r0.cpus, r0.simd).describe()}")
+    machine = describe_recorded(r0.processor, r0.cpus, r0.simd)
+    if machine is not None:  # rows made by hand without their machine say nothing of it
+        lines.append(f"machine: {machine}")
     lines += [
         (
             f"backend {r0.backend} ({_backend_detail(r0.backend, cpus)}), client "

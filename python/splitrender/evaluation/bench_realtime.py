@@ -45,14 +45,16 @@ from splitrender.errors import InvalidInputError, StreamError
 from splitrender.evaluation.shown import (
     Shown,
     ShownRecorder,
+    MIN_RUN,
     format_scores,
     group,
     runs,
     score_shown,
+    scorable,
 )
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
-from splitrender.machine import Machine, this_machine, usable_cpus
+from splitrender.machine import describe_recorded, this_machine, usable_cpus
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import Camera
@@ -265,14 +267,14 @@ def run_realtime_bench(
             "--score: a stream file carries no ground truth; score a built-in --scene"
         )
     n_frames = round(seconds * display_fps)
-    if score and n_frames < 2 * SKIP_FRAMES + 3:
+    if score and n_frames < 2 * SKIP_FRAMES + MIN_RUN:
         # Refused before the recording and the run: none of its refreshes would be scored (a
         # scored refresh needs one on each side, for VMAF's motion feature).
         raise InvalidInputError(
             f"--score: {seconds:g} s is {n_frames} refreshes at "
             f"{display_fps:g} FPS; the score leaves out {SKIP_FRAMES} at each end and scores "
             f"a refresh between two others, so at least "
-            f"{(2 * SKIP_FRAMES + 3) / display_fps:.3f} s is needed"
+            f"{(2 * SKIP_FRAMES + MIN_RUN) / display_fps:.3f} s is needed"
         )
     if prepare_threads is not None and backend != "cpu":
         # Said rather than ignored: no preparation pool runs on the GPU path.
@@ -418,7 +420,7 @@ def _score(
     """The runs of refreshes ``shown`` against the ground truth at their poses (``pose``, as
     the run had them) and scene times (a looped run's modulo ``cycle``)."""
     # The runs score_shown scores (a run cut to fewer than three scores nothing): the counts.
-    shown = [run for run in shown if len(run) >= 3]
+    shown = scorable(shown)
     slots = sum(len(run) for run in shown)
     stages.stage(
         f"scoring what the display showed at {slots - 2 * len(shown)} "
@@ -454,6 +456,7 @@ def _collections(s: dict[str, Any]) -> str:
 def format_realtime(b: RealtimeBench) -> str:
     """The summary as plain text."""
     s = b.summary
+    machine = describe_recorded(b.processor, b.cpus, b.simd)  # None: a bench made by hand
 
     def ms(key: str) -> str:
         v = s.get(key)
@@ -484,9 +487,7 @@ def format_realtime(b: RealtimeBench) -> str:
             + f"; worker priority {b.worker_priority}; display scheduling "
             + s["display_scheduling"],
         ]
-        # A bench made by hand without its machine says nothing of it.
-        + ([f"  machine: {Machine(b.processor, b.cpus, b.simd).describe()}"] if b.processor
-           else [])
+        + ([] if machine is None else [f"  machine: {machine}"])
         + [
             f"  frames {s['frames']}, deadline misses {s['deadline_misses']} "
             f"({s['deadline_misses_pct']:.2f} %"
@@ -601,6 +602,7 @@ def realtime_figure(b: RealtimeBench) -> Figure:
     import matplotlib.pyplot as plt
 
     s = b.summary
+    machine = describe_recorded(b.processor, b.cpus, b.simd)
     period = 1e3 / s["display_fps"]
     fig, (top, low) = plt.subplots(
         2, 1, figsize=(10, 5.6), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
@@ -646,7 +648,7 @@ def realtime_figure(b: RealtimeBench) -> Figure:
     top.set_title(
         f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
         f"{s['display_fps']:g} FPS, {b.backend}\n"
-        + (f"{Machine(b.processor, b.cpus, b.simd).describe()}\n" if b.processor else "")
+        + ("" if machine is None else f"{machine}\n")
         + f"{s['frames']} frames"
         + ("" if s["full_rate_pct"] == 100.0 else f" ({s['full_rate_pct']:.1f} % at full rate)")
         + ", "

@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence, Sized
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -31,8 +31,8 @@ import numpy.typing as npt
 from splitrender.client.realtime import DisplayFrame
 
 __all__ = [
-    "METRIC_WORDS", "SCORED", "SCORED_RUN", "Shown", "ShownRecorder", "first_slot",
-    "format_scores", "group", "runs", "score_images", "score_shown", "spread",
+    "METRIC_WORDS", "MIN_RUN", "SCORED", "SCORED_RUN", "Shown", "ShownRecorder", "first_slot",
+    "format_scores", "group", "runs", "score_images", "score_shown", "scorable", "spread",
 ]
 
 _Image = npt.NDArray[np.uint8]
@@ -49,6 +49,17 @@ SCORED = 120
 #: VMAF sees. 12: a server period at 120/10 FPS, so that a run goes through every phase of a
 #: pair.
 SCORED_RUN = 12
+
+#: The fewest frames of a run that score any: one between VMAF's two context frames.
+MIN_RUN = 3
+
+_R = TypeVar("_R", bound=Sized)
+
+
+def scorable(runs_of: Iterable[_R]) -> list[_R]:
+    """The runs of ``runs_of`` that score a frame (at least :data:`MIN_RUN` long); the others
+    score nothing."""
+    return [run for run in runs_of if len(run) >= MIN_RUN]
 
 
 #: The metrics as the text reports write them: their labels and digits.
@@ -153,7 +164,7 @@ def runs(candidates: Sequence[int], count: int, length: int = SCORED_RUN) -> lis
             stretches[-1].append(c)
         else:
             stretches.append([c])
-    stretches = [s for s in stretches if len(s) >= 3]
+    stretches = scorable(stretches)
     if count <= 0 or not stretches:
         return []
     if count >= sum(len(s) - 2 for s in stretches):
@@ -205,7 +216,7 @@ def score_images(
         psnr_of_mse,
     )
 
-    kept = [(r, t) for r, t in zip(images, truths) if len(r) >= 3]
+    kept = [(r, t) for r, t in zip(images, truths) if len(r) >= MIN_RUN]
     if not kept:
         return {"scored_frames": 0}, []
     eyes = len(kept[0][0][0])
@@ -260,7 +271,7 @@ def score_shown(
     missed or the rate divided), each with its ``refreshes`` count. PSNR's means here are of
     the frames' PSNR values (the overall one is the PSNR of the mean squared error, as
     :func:`evaluate_sequence`'s)."""
-    shown = [run for run in shown if len(run) >= 3]  # the others score nothing
+    shown = scorable(shown)
     truths = [[tuple(truth(s.time)) for s in run] for run in shown]
     out, frames = score_images([[s.image for s in run] for run in shown], truths, no_vmaf,
                                progress)
