@@ -21,7 +21,9 @@ from splitrender.files import (
     check_name,
     joined,
     read_json,
+    read_json_object,
     read_regular,
+    rename_new_folder,
     temporary_beside,
     write_atomic,
 )
@@ -243,6 +245,35 @@ def test_read_json_keeps_ordinary_numbers(tmp_path: Path) -> None:
     assert read_json(path, 1 << 20, "manifest", InvalidInputError) == {
         "a": -12, "b": 10**307, "c": 0.5
     }
+
+
+@pytest.mark.parametrize("text", ["[]", "3", "null", '"x"', "[{}]"])
+def test_read_json_object_refuses_any_other_json_value(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "m.json"
+    path.write_text(text)
+    with pytest.raises(InvalidInputError, match=f"^{path}: expected a JSON object$"):
+        read_json_object(path, 1 << 20, "manifest", InvalidInputError)
+    path.write_text('{"a": [1]}')
+    assert read_json_object(path, 1 << 20, "manifest", InvalidInputError) == {"a": [1]}
+    with pytest.raises(InvalidInputError, match="nothing here"):
+        read_json_object(tmp_path / "no.json", 99, "manifest", InvalidInputError,
+                         missing="nothing here")
+
+
+def test_rename_new_folder_lets_a_failure_with_nothing_at_the_output_through(
+    tmp_path: Path,
+) -> None:
+    # Only something at the output is "another run": a rename that fails with the output still
+    # missing (here: the finished folder is gone) keeps its own error.
+    out = tmp_path / "out"
+    with pytest.raises(FileNotFoundError):
+        rename_new_folder(tmp_path / "gone", out, InvalidInputError)
+    assert not out.exists()
+    (tmp_path / "done").mkdir()
+    (out / "theirs").mkdir(parents=True)
+    with pytest.raises(InvalidInputError, match="appeared while this one was written"):
+        rename_new_folder(tmp_path / "done", out, InvalidInputError)
+    assert (out / "theirs").is_dir() and (tmp_path / "done").is_dir()
 
 
 @pytest.mark.parametrize("name", ["", ".", "..", "../x", "a/b", "a\\b", "/abs", "x\0", None, 3])

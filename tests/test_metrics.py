@@ -145,6 +145,8 @@ def test_flip_map_mean_is_flip() -> None:
         (np.zeros((8, 8, 3), np.int16), np.zeros((8, 8, 3), np.int16), "dtype uint8"),
         (np.full((8, 8, 3), 2.0), np.zeros((8, 8, 3)), r"\[0, 1\]"),
         (np.full((8, 8, 3), np.nan), np.zeros((8, 8, 3)), "finite"),
+        (np.zeros((0, 8, 3), np.uint8), np.zeros((0, 8, 3), np.uint8), "non-empty image"),
+        (np.zeros((8, 0, 3), np.uint8), np.zeros((8, 0, 3), np.uint8), "non-empty image"),
     ],
 )
 def test_invalid_images_are_refused(a: np.ndarray, b: np.ndarray, match: str) -> None:
@@ -182,6 +184,9 @@ def test_vmaf_refuses_bad_sequences() -> None:
         M.vmaf(tiny, tiny)
     with pytest.raises(InvalidInputError, match=r"reference\[1\]"):
         M.vmaf(seq, [seq[0], np.zeros((8, 8, 3), np.uint8), seq[2]])
+    shapes = r"expected the same frame shape, got \(64, 64, 3\) and \(40, 64, 3\)"
+    with pytest.raises(InvalidInputError, match=shapes):
+        M.vmaf(seq, [f[:40] for f in seq])
 
 
 def test_evaluate_sequence_skips_the_first_and_last_frames() -> None:
@@ -336,6 +341,12 @@ def test_sequence_scorer_frame_by_frame_equals_evaluate_sequence() -> None:
         scorer.add(truth[0], truth[0])
         with pytest.raises(InvalidInputError, match="expected 5 frames, got 1"):
             scorer.finish()
+    with M.SequenceScorer(3, 1, ("psnr",)) as scorer:
+        for _ in range(3):
+            scorer.add(truth[0], truth[0])
+        with pytest.raises(InvalidInputError, match="^rendered: expected 3 frames, got more$"):
+            scorer.add(truth[0], truth[0])
+        assert scorer.finish().frames == [1]
 
 
 def test_sequence_scorer_refuses_a_frame_of_another_shape_and_ends_ffmpeg() -> None:

@@ -67,6 +67,30 @@ def test_description_errors_name_the_file(tmp_path: Path) -> None:
             sr.Scene.from_description(desc)
 
 
+@pytest.mark.parametrize(
+    ("doc", "problem"),
+    [
+        ('["courtyard"]', 'expected an object with a "scene" name'),
+        ('{"variant": "static"}', 'expected an object with a "scene" name'),
+        ('{"scene": 3}', 'expected an object with a "scene" name'),
+        ('{"scene": "courtyard", "models": [3]}',
+         r"models\[0\]: expected an object with path and position"),
+        ('{"scene": "courtyard", "models": [{"path": "quad.gltf"}]}',
+         r"models\[0\]: expected an object with path and position"),
+        ('{"scene": "courtyard", "models": [{"position": [0, 0, 0]}]}',
+         r"models\[0\]: expected an object with path and position"),
+        ('{"scene": "courtyard", "models": [{"path": "quad.gltf", "position": [0, 0, 0], '
+         '"colour": 1, "yaw": 2}]}', r"models\[0\]: unknown keys \['colour', 'yaw'\]"),
+    ],
+)
+def test_description_structure_is_checked(tmp_path: Path, doc: str, problem: str) -> None:
+    _write_quad(tmp_path)
+    desc = tmp_path / "scene.json"
+    desc.write_text(doc)
+    with pytest.raises(sr.InvalidInputError, match=rf"scene\.json: {problem}$"):
+        sr.Scene.from_description(desc)
+
+
 def test_description_must_be_a_small_regular_file(tmp_path: Path) -> None:
     # /dev/zero reports st_size 0: it was read until memory ran out.
     zero = tmp_path / "zero.json"
@@ -158,6 +182,14 @@ def test_description_models_null_is_named_as_json(tmp_path: Path) -> None:
     with pytest.raises(sr.InvalidInputError,
                        match=r"scene\.json: models: expected an array of objects, got null$"):
         sr.Scene.from_description(desc)
+
+
+def test_model_placement_keeps_an_animation_index_as_a_plain_int() -> None:
+    m = sr.ModelPlacement("m.glb", (0, 0, 0), animation=np.int64(2))
+    assert type(m.animation) is int and m.animation == 2
+    assert sr.ModelPlacement("m.glb", (0, 0, 0), animation=None).animation is None
+    with pytest.raises(sr.InvalidInputError, match=r"animation: expected an int in \[0, "):
+        sr.ModelPlacement("m.glb", (0, 0, 0), animation=-1)
 
 
 def test_model_placement_takes_a_pathlike(tmp_path: Path) -> None:

@@ -184,6 +184,16 @@ def test_trace_motion_reanchors_and_delays(tmp_path: Path, lab: Scene) -> None:
     assert PathMotion(lab).describe()["source"] == "path"
 
 
+@pytest.mark.parametrize("scale", [-0.5, float("nan"), float("inf"), "1", None, True])
+def test_trace_motion_refuses_a_translation_scale_that_is_not_a_finite_float_from_0(
+    tmp_path: Path, lab: Scene, scale: object
+) -> None:
+    trace = load_trace(_write(tmp_path, "0 0 0 0 0 0 0\n0 0 0 0 0 0 100\n"))
+    with pytest.raises(sr.InvalidInputError, match="^translation_scale: expected a"):
+        TraceMotion(lab, trace, translation_scale=scale)  # type: ignore[arg-type]
+    assert TraceMotion(lab, trace, translation_scale=0).translation_scale == 0.0
+
+
 def test_shared_traces_load() -> None:
     if not TRACES.is_dir():
         pytest.skip(f"{TRACES} not present")

@@ -210,11 +210,10 @@ def ssim(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
 def _flip(test: object, reference: object, ppd: float) -> tuple[npt.NDArray[np.float32], float]:
     import flip_evaluator  # type: ignore[import-untyped,unused-ignore]
 
-    if not (isinstance(ppd, (int, float)) and math.isfinite(ppd) and ppd > 0):
-        raise InvalidInputError(f"ppd: expected a finite float > 0, got {ppd!r}")
     t, r = _pair(test, reference, ("test", "reference"))
     # flip_evaluator takes (reference, test); it exits the process on bad arguments, so every
-    # argument is checked above. float32 is its native precision.
+    # argument is checked first (the images above, ppd by flip's and flip_map's @checked).
+    # float32 is its native precision.
     err, mean, _ = flip_evaluator.evaluate(
         np.ascontiguousarray(r, dtype=np.float32),
         np.ascontiguousarray(t, dtype=np.float32),
@@ -311,8 +310,6 @@ def vmaf(
         raise InvalidInputError(
             f"vmaf: expected frames of at least {VMAF_MIN_SIDE}x{VMAF_MIN_SIDE} pixels, got {w}x{h}"
         )
-    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
-        raise InvalidInputError(f"fps: expected a finite float > 0, got {fps!r}")
     stream = _VmafStream(w, h, fps, threads)
     try:
         for a, b in zip(d, r):

@@ -168,12 +168,10 @@ class ModelPlacement:
             v = check_float(f"{where}.{name}", getattr(self, name), positive=True)
             object.__setattr__(self, name, v)
         if self.animation is not None:
-            check_int(f"{where}.animation", self.animation, 0, _MAX_ANIMATION)
-        # The upper bound keeps the index within the native usize (10**300 raised OverflowError).
-        if self.animation is not None and not 0 <= self.animation <= _MAX_ANIMATION:
-            raise InvalidInputError(
-                f"{self.path}: animation must be in 0..{_MAX_ANIMATION} or None, got {self.animation}"
-            )
+            # The upper bound keeps the index within the native usize (10**300 raised
+            # OverflowError); kept as a plain int (a numpy integer passes the check).
+            v = check_int(f"{where}.animation", self.animation, 0, _MAX_ANIMATION)
+            object.__setattr__(self, "animation", v)
 
     def to_native(
         self,
@@ -665,12 +663,8 @@ class TraceMotion:
         translation_scale: float = 1.0,
         prediction_delay: float = PREDICTION_DELAY,
     ) -> None:
-        if not (math.isfinite(translation_scale) and translation_scale >= 0.0):
-            raise InvalidInputError(
-                f"translation_scale: expected a finite float >= 0, got {translation_scale}"
-            )
         self.trace = trace
-        self.translation_scale = float(translation_scale)
+        self.translation_scale = check_float("translation_scale", translation_scale, lo=0.0)
         self.prediction_delay = _check_delay(prediction_delay)
         self._anchor = scene.head_box(0.0)
         self._inv0 = np.linalg.inv(trace.pose(0.0))

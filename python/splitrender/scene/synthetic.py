@@ -11,10 +11,10 @@ import numpy as np
 import numpy.typing as npt
 
 import splitrender._native as _native
-from splitrender.errors import InvalidInputError
 from splitrender.types import Camera, CameraFrame, ServerFrame, ShadowBuffers
 from splitrender.types import (  # argument checks
     MAX_SIDE,
+    check_bool,
     checked,
     floats,
     instances,
@@ -37,9 +37,7 @@ class SyntheticScene:
     dynamic: bool
 
     def __init__(self, dynamic: bool = True) -> None:
-        if not isinstance(dynamic, (bool, np.bool_)):
-            raise InvalidInputError(f"dynamic: expected a bool, got {type(dynamic).__name__}")
-        self.dynamic = bool(dynamic)
+        self.dynamic = check_bool("dynamic", dynamic)
 
     def __repr__(self) -> str:
         return f"SyntheticScene(dynamic={self.dynamic})"
@@ -96,10 +94,6 @@ class SyntheticScene:
         """Every server buffer of ``camera`` at ``time``: colour, depth, forward and backward
         motion (one server interval ``1/fps``) and forward and backward shadow buffers with
         ``subframes`` subframes."""
-        if not isinstance(camera, Camera):
-            raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
-        if not fps > 0:
-            raise InvalidInputError(f"fps: expected a value > 0, got {fps}")
         b = _native.synthetic_render_server(
             self.dynamic, camera.to_native(), time, 1.0 / fps, subframes
         )
@@ -144,6 +138,4 @@ class SyntheticScene:
     @checked(camera=instances(Camera), time=floats())
     def ground_truth(self, camera: Camera, time: float) -> npt.NDArray[np.uint8]:
         """The exact image (``uint8[H, W, 3]``) at ``camera`` and ``time``."""
-        if not isinstance(camera, Camera):
-            raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
         return _native.synthetic_ground_truth(self.dynamic, camera.to_native(), time)

@@ -426,6 +426,159 @@ fn sparse_counts_and_indices_at_their_limits() {
 }
 
 #[test]
+fn sparse_views_too_short_for_their_count() {
+    // Accessor 8's one sparse index (1 byte) and value (12 bytes) moved past their views' end.
+    let mut m = base_model();
+    m.set("/accessors/8/sparse/indices/byteOffset", 1.into());
+    assert_names(
+        &load_err(&m),
+        &[
+            "accessor 8 (POSITION): 1 sparse indices of 1 bytes at byteOffset 1 do not fit in \
+           their buffer view (1 bytes)",
+        ],
+    );
+    let mut m = base_model();
+    m.set("/accessors/8/sparse/values/byteOffset", 4.into());
+    assert_names(
+        &load_err(&m),
+        &[
+            "accessor 8 (POSITION): 1 sparse values of 12 bytes at byteOffset 4 do not fit in \
+           their buffer view (12 bytes)",
+        ],
+    );
+}
+
+#[test]
+fn buffer_shorter_than_its_declared_length() {
+    let mut m = base_model();
+    let n = m.bin.len();
+    m.set("/buffers/0/byteLength", (n + 4).into());
+    let want = format!("buffer 0 holds {n} bytes, the file declares {}", n + 4);
+    assert_names(&load_err(&m), &[&want]);
+}
+
+#[test]
+fn material_checks() {
+    // 1e39 is beyond f32: the factor is read as infinity.
+    let mut m = base_model();
+    let factor = r#"[{"pbrMetallicRoughness": {"baseColorFactor": [1, 1e39, 1, 1]}}]"#;
+    m.set("/materials", serde_json_value(factor));
+    assert_names(
+        &load_err(&m),
+        &["material 0: baseColorFactor [1.0, inf, 1.0, 1.0], expected finite numbers"],
+    );
+    // A base-colour texture on a second texture-coordinate set is not implemented: refused
+    // (before its image is read) rather than drawn with the first set's coordinates.
+    let mut m = base_model();
+    let texture =
+        r#"[{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0, "texCoord": 1}}}]"#;
+    m.set("/materials", serde_json_value(texture));
+    m.set("/textures", serde_json_value(r#"[{"source": 0}]"#));
+    m.set("/images", serde_json_value(r#"[{"uri": "missing.png"}]"#));
+    let e = load(&m.glb()).unwrap_err();
+    assert!(matches!(e, SceneError::GltfUnsupported { .. }), "{e:?}");
+    assert_names(&e.to_string(), &["material 0 uses TEXCOORD_1"]);
+}
+
+#[test]
+fn node_hierarchy_must_be_a_forest() {
+    // Node 3, child of node 2 (in the scene), also a child of node 4 (not in the scene, so the
+    // walk from the scene's roots would not meet it twice).
+    let mut m = base_model();
+    m.json["nodes"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json_value(r#"{"children": [3]}"#));
+    assert_names(&load_err(&m), &["node 3 has more than one parent"]);
+    // A node that is its own child.
+    let mut m = base_model();
+    m.set("/nodes/2/children", serde_json_value("[2]"));
+    assert_names(&load_err(&m), &["node 2 has more than one parent"]);
+    // A cycle through two nodes gives each of them one parent: the walk finds it.
+    let mut m = base_model();
+    m.set("/nodes/3/children", serde_json_value("[2]"));
+    assert_names(&load_err(&m), &["node 2 is reached twice (a cycle?)"]);
+}
+
+#[test]
+fn skin_with_fewer_inverse_bind_matrices_than_joints() {
+    let mut m = base_model();
+    m.set("/accessors/7/count", 1.into());
+    assert_names(
+        &load_err(&m),
+        &["skin 0: 1 inverse bind matrices for 2 joints"],
+    );
+}
+
+#[test]
+fn animation_keys_must_match_and_increase() {
+    // Sampler 0: 2 key times (accessor 2), its 2 translations (accessor 3) cut to 1.
+    let mut m = base_model();
+    m.set("/accessors/3/count", 1.into());
+    assert_names(
+        &load_err(&m),
+        &["animation 0 channel 0: 2 key times for 1 values"],
+    );
+    let mut m = base_model();
+    let times: Vec<u8> = [1.0f32, 0.0]
+        .into_iter()
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    let view = add_view(&mut m, &times);
+    m.set("/accessors/2/bufferView", view.into());
+    assert_names(
+        &load_err(&m),
+        &["animation 0 channel 0: key times not increasing"],
+    );
+}
+
+#[test]
+fn animated_node_with_a_matrix() {
+    // Channel 1 turns node 3, given here by a matrix (glTF forbids animating one).
+    let mut m = base_model();
+    let matrix = r#"{"matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 1, 0, 0, 1]}"#;
+    m.set("/nodes/3", serde_json_value(matrix));
+    assert_names(
+        &load_err(&m),
+        &["animation 0 channel 1 targets node 3, which has a matrix"],
+    );
+}
+
+#[test]
+fn placement_scale_speed_and_time_offset_must_be_finite() {
+    let m = base_model();
+    for scale in [0.0, -1.0, f64::INFINITY, f64::NAN] {
+        let msg = place_err(
+            &m,
+            Placement {
+                scale,
+                ..Placement::default()
+            },
+        );
+        assert_names(
+            &msg,
+            &[&format!("placement scale {scale} must be positive")],
+        );
+    }
+    for (time_offset, speed) in [(f64::NAN, 1.0), (0.0, f64::INFINITY)] {
+        let msg = place_err(
+            &m,
+            Placement {
+                time_offset,
+                speed,
+                ..Placement::default()
+            },
+        );
+        assert_names(
+            &msg,
+            &[&format!(
+                "placement time offset {time_offset} and speed {speed}: expected finite numbers"
+            )],
+        );
+    }
+}
+
+#[test]
 fn animation_channel_targeting_a_missing_node() {
     let mut m = base_model();
     m.set("/animations/0/channels/1/target/node", 99.into());
@@ -605,6 +758,23 @@ fn model_without_meshes() {
     assert_names(
         &msg,
         &["no mesh node with triangles, expected at least one"],
+    );
+}
+
+#[test]
+fn scene_of_a_model_without_geometry() {
+    // load_gltf_scene sizes its camera path by the model's bounds: none to size by is refused
+    // before the placement (which would name the mesh nodes instead).
+    let mut m = base_model();
+    m.set("/scenes/0/nodes", serde_json_value("[2]"));
+    let p = super::tests::test_dir().join(format!("reproj-gltf-{}-empty.glb", std::process::id()));
+    std::fs::write(&p, m.glb()).unwrap();
+    let e = load_gltf_scene(&p).expect_err("expected an error");
+    std::fs::remove_file(&p).unwrap();
+    let msg = e.to_string();
+    assert!(
+        msg.contains("the scene has no geometry") && msg.contains("empty.glb"),
+        "{msg}"
     );
 }
 
