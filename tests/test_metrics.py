@@ -270,6 +270,8 @@ def test_evaluate_sequence_per_frame_values_and_errors() -> None:
         M.evaluate_sequence(rendered, truth, skip=2, metrics=("lpips",))
     with pytest.raises(InvalidInputError, match="same number of frames"):
         M.evaluate_sequence(rendered, truth[:-1], skip=2)
+    with pytest.raises(InvalidInputError, match=r"^rendered and truth: expected the same frame"):
+        M.evaluate_sequence(rendered, [t[:16] for t in truth], skip=2)
 
 
 def test_vmaf_reports_an_ffmpeg_failure(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -347,6 +349,13 @@ def test_sequence_scorer_frame_by_frame_equals_evaluate_sequence() -> None:
         with pytest.raises(InvalidInputError, match="^rendered: expected 3 frames, got more$"):
             scorer.add(truth[0], truth[0])
         assert scorer.finish().frames == [1]
+    with M.SequenceScorer(3, 1, ("psnr",)) as scorer:
+        with pytest.raises(InvalidInputError, match=r"^rendered\[0\] and truth\[0\]: expected"):
+            scorer.add(truth[0], truth[0][:16])
+    tiny = np.zeros((16, 64, 3), np.uint8)
+    with M.SequenceScorer(3, 1, ("vmaf",)) as scorer:
+        with pytest.raises(InvalidInputError, match="^vmaf: expected frames of at least 32x32"):
+            scorer.add(tiny, tiny)
 
 
 def test_sequence_scorer_refuses_a_frame_of_another_shape_and_ends_ffmpeg() -> None:

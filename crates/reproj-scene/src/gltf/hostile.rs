@@ -815,6 +815,63 @@ fn non_regular_files_are_refused() {
 }
 
 #[test]
+fn uris_with_a_scheme_are_refused() {
+    for uri in ["http://example.com/x.bin", "file:x.bin", "C:x.bin"] {
+        let mut m = base_model();
+        m.set("/buffers/0/uri", uri.into());
+        assert_names(
+            &load_err(&m),
+            &[&format!(
+                "URI {uri:?}: expected a relative path or a data: URI"
+            )],
+        );
+    }
+}
+
+#[test]
+fn read_file_takes_at_most_its_cap() {
+    let p = super::tests::test_dir().join(format!("reproj-gltf-{}-cap.bin", std::process::id()));
+    std::fs::write(&p, [7u8; 10]).unwrap();
+    let model = PathBuf::from("m.gltf");
+    let whole = super::source::read_file(&model, &p, "buffer 0", 10);
+    let over = super::source::read_file(&model, &p, "buffer 0", 9);
+    std::fs::remove_file(&p).unwrap();
+    assert_eq!(whole.unwrap(), vec![7u8; 10]);
+    let e = over.unwrap_err().to_string();
+    assert!(
+        e.contains("m.gltf") && e.contains("cap.bin is larger than the limit of 9 bytes"),
+        "{e}"
+    );
+}
+
+#[test]
+fn glb_of_another_version() {
+    let mut glb = base_model().glb();
+    glb[4..8].copy_from_slice(&1u32.to_le_bytes());
+    assert_names(
+        &load(&glb).unwrap_err().to_string(),
+        &["GLB version 1, expected 2"],
+    );
+}
+
+#[test]
+fn json_document_that_is_not_an_object() {
+    for text in [&b"[1, 2]"[..], b" 3", b"null"] {
+        assert_names(
+            &load(text).unwrap_err().to_string(),
+            &["malformed glTF: expected a JSON object"],
+        );
+    }
+}
+
+#[test]
+fn index_count_not_a_multiple_of_3() {
+    let mut m = base_model();
+    m.set("/accessors/1/count", 2.into());
+    assert_names(&load_err(&m), &["2 indices is not a multiple of 3"]);
+}
+
+#[test]
 fn absolute_uris_are_refused() {
     // `base.join` of an absolute URI, plain or percent-encoded, discarded the model's folder and
     // read any file on the machine: this one, which lies outside the folder, loaded.
