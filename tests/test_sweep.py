@@ -130,6 +130,8 @@ def test_ray_missing_is_one_line_with_what_to_install(
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "pip install 'splitrender[ray]'" in err
+    # Refused before the cache and the outputs are made.
+    assert not (tmp_path / "c").exists() and not (tmp_path / "o").exists()
 
 
 def test_address_without_ray_executor_is_refused(
@@ -478,6 +480,52 @@ def test_a_damaged_cached_stream_or_recording_names_the_entry(
     code, err = _eval(cache, tmp_path / "out", capsys)
     assert code == 2 and "internal error" not in err
     assert f"{frame}: SHA-256 does not match" in err and f"remove {rec} and run" in err
+
+
+def _fails_reading(task: sweep.Task, cache: sweep.Cache) -> None:
+    from splitrender.scene.recording import RecordingError
+
+    raise RecordingError(task.params["message"])
+
+
+def test_run_task_calls_only_a_file_of_the_cache_a_damaged_entry(tmp_path: Path) -> None:
+    # A task's read error names its file first: a file of the cache is a damaged entry to
+    # remove; any other file (a --dataset recording, say) or a message without a path is the
+    # error as it was.
+    from splitrender.scene.recording import RecordingError
+
+    root = tmp_path / "cache"
+    inside = root / "recordings" / "k1" / "client" / "000010.npz"
+    for message, error in [
+        (f"{tmp_path / 'dataset' / 'x.npz'}: SHA-256 does not match", RecordingError),
+        ("the recording is empty", RecordingError),
+        (f"{inside}: SHA-256 does not match", sweep.DamagedCacheError),
+    ]:
+        task = sweep.Task(key="k1", stage="score", fn="test_sweep:_fails_reading",
+                          params={"message": message})
+        with pytest.raises(error) as e:
+            sweep.run_task(str(root), task)
+        assert type(e.value) is error
+    assert f"remove {root / 'recordings' / 'k1'} and run" in str(e.value)
+
+
+def test_a_trace_changed_since_planning_fails_its_task_as_the_callers_input(
+    tmp_path: Path,
+) -> None:
+    from splitrender.errors import is_user_error
+    from splitrender.evaluation.sweep_tasks import _trace
+    from splitrender.scene.builtin import TraceError, load_trace
+
+    path = tmp_path / "trace.txt"
+    path.write_text("0 0 0 0 0 0 0\n0 0 0 0 0 0 100\n")
+    planned = load_trace(path).sha256
+    task = sweep.Task(key="k", stage="render", fn="x:y", params={"trace_sha256": planned},
+                      paths={"trace": str(path)})
+    assert _trace(task).sha256 == planned
+    path.write_text("0 0 0 0 0 0 0\n0 0 1 0 0 0 100\n")
+    with pytest.raises(TraceError, match=f"^{path}: the trace changed since the sweep was") as e:
+        _trace(task)
+    assert is_user_error(e.value)
 
 
 def test_damaged_timewarp_frames_are_refused_before_reading(tmp_path: Path) -> None:

@@ -45,14 +45,20 @@ __all__ = [
 
 
 def _trace(task: Task) -> Any:
-    from splitrender.scene.builtin import load_trace
+    """The task's head trace, which must be the one planned: it is outside the cache, and the
+    task's key holds its SHA-256, not its path. A changed trace is the caller's input (a
+    TraceError: the failure says to run again once that is fixed, which plans anew)."""
+    from splitrender.scene.builtin import TraceError, load_trace
 
     path = task.paths.get("trace")
     if path is None:
         return None
     trace = load_trace(path)
     if trace.sha256 != task.params["trace_sha256"]:
-        raise ValueError(f"{path}: the trace changed since the sweep was planned")
+        raise TraceError(
+            f"{path}: the trace changed since the sweep was planned (SHA-256 {trace.sha256}, "
+            f"planned {task.params['trace_sha256']})"
+        )
     return trace
 
 
