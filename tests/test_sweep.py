@@ -742,6 +742,38 @@ def test_a_chunk_made_after_another_run_assembled_its_recording_is_not_left(
     assert not any((cache.root / "chunks").iterdir())
 
 
+def test_a_chunk_replaces_an_empty_folder_and_keeps_another_rename_failure(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An empty folder where the chunk goes is no twin: the chunk replaces it (a check for
+    anything there left it empty, and the task done without its chunk). A rename failing for
+    another reason with nothing there fails the task and leaves no temporary folder."""
+    import errno
+    import os
+    import shutil
+
+    from splitrender.evaluation import sweep_tasks
+
+    cache, started = _stopped_before_assembly(tmp_path)
+    chunk = started[0]
+    dest = cache.chunk(chunk.key)
+    made = {p.name: p.read_bytes() for p in dest.iterdir()}
+    shutil.rmtree(dest)
+    dest.mkdir()
+    sweep_tasks.render_chunk(chunk, cache)
+    assert {p.name: p.read_bytes() for p in dest.iterdir()} == made
+    shutil.rmtree(dest)
+
+    def failing(src: Any, dst: Any) -> None:
+        raise OSError(errno.EIO, "Input/output error", str(dst))
+
+    monkeypatch.setattr(os, "rename", failing)
+    with pytest.raises(OSError, match="Input/output error"):
+        sweep_tasks.render_chunk(chunk, cache)
+    assert sorted(p.name for p in (cache.root / "chunks").iterdir()) == sorted(
+        t.key for t in started[1:-1])
+
+
 def test_a_chunk_whose_twin_lands_just_before_its_rename_leaves_the_twin(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -115,14 +115,12 @@ def render_chunk(task: Task, cache: Cache) -> None:
         write_atomic(tmp / "entries.json", json.dumps(entries) + "\n")
         try:
             # An earlier partial attempt cannot be at dest (renamed whole): a twin, whose bytes
-            # are these, is, and stays.
-            if dest.exists():
-                raise FileExistsError(dest)
+            # are these, can, and stays: never empty, it fails the rename (ENOTEMPTY), with no
+            # window between a look and the move. (An empty folder there is replaced.)
             os.rename(tmp, dest)
         except OSError:
             if not dest.is_dir():
                 raise
-            # (Also a twin renamed in between the check and the rename: ENOTEMPTY.)
             shutil.rmtree(tmp)
         else:
             # Checked again after the rename: an assembly writes the recording's manifest
