@@ -569,7 +569,7 @@ def test_damaged_timewarp_frames_are_refused_before_reading(tmp_path: Path) -> N
         _timewarp_frames(path)
 
 
-@pytest.mark.parametrize("damage", ["flipped", "grown"])
+@pytest.mark.parametrize("damage", ["flipped", "grown", "removed"])
 def test_a_damaged_chunk_is_not_assembled_into_a_recording(tmp_path: Path, damage: str) -> None:
     """A chunk's frame file changed before the recording is assembled from it is refused: the
     recording's manifest takes the SHA-256 of the bytes it is given, so the damage would pass
@@ -587,13 +587,18 @@ def test_a_damaged_chunk_is_not_assembled_into_a_recording(tmp_path: Path, damag
     if damage == "flipped":
         data[len(data) // 2] ^= 0x01
         problem = "SHA-256 does not match the chunk's entries.json"
-    else:  # twice its size: more than its arrays and any header can take
+    elif damage == "grown":  # twice its size: more than its arrays and any header can take
         data += bytes(len(data))
         problem = "chunk frame is more than "
     frame.write_bytes(bytes(data))
+    where = frame
+    if damage == "removed":
+        n = len(list(frame.parent.glob("*.npz")))
+        frame.unlink()
+        where, problem = frame.parent, f"{n - 1} frames, expected {n}"
     with pytest.raises(sweep.TaskFailedError) as e:
         run_eval(_config(out, cache))
-    assert f"{frame}: {problem}" in str(e.value)
+    assert f"{where}: {problem}" in str(e.value)
     assert f"remove {frame.parent} and run" in str(e.value)
     assert not any((cache / "recordings").iterdir())
 

@@ -795,6 +795,35 @@ fn placement_work_is_bounded() {
 }
 
 #[test]
+fn placed_objects_are_bounded() {
+    // 4095 still mesh nodes beside nodes 0 and 1, in the rest pose (no hierarchy work to
+    // bound): each would be an object posed at every instant the renderer takes.
+    let mut m = base_model();
+    let extra = 4095;
+    let nodes = m.json["nodes"].as_array_mut().unwrap();
+    nodes.extend((0..extra).map(|_| serde_json_value(r#"{"mesh": 0}"#)));
+    m.json["scenes"][0]["nodes"] = Value::from((0..4 + extra).collect::<Vec<usize>>());
+    m.json["scenes"][0]["nodes"]
+        .as_array_mut()
+        .unwrap()
+        .remove(3); // node 3: node 2's child
+    let rest = Placement {
+        animation: None,
+        ..Placement::default()
+    };
+    let msg = place_err(&m, rest);
+    assert_names(
+        &msg,
+        &["4097 mesh nodes to place beside the scene's 0 objects, expected at most 4096"],
+    );
+    // One fewer fits.
+    m.json["scenes"][0]["nodes"].as_array_mut().unwrap().pop();
+    let model = Arc::new(load(&m.glb()).unwrap());
+    let placed = place_model(&mut empty_scene(), &model, rest).unwrap();
+    assert_eq!(placed.len(), 4096);
+}
+
+#[test]
 fn negative_skin_weights() {
     let mut m = base_model();
     let at = 124; // WEIGHTS_0 view (bytes 120..168): vertex 0, weight 1
