@@ -774,14 +774,20 @@ fn scene_of_a_model_without_geometry() {
     );
 }
 
+/// The base model with `extra` more nodes (4, 5, ...), each an instance of mesh 0, in no scene.
+fn with_mesh_nodes(extra: usize) -> Model {
+    let mut m = base_model();
+    let nodes = m.json["nodes"].as_array_mut().unwrap();
+    nodes.extend((0..extra).map(|_| serde_json_value(r#"{"mesh": 0}"#)));
+    m
+}
+
 #[test]
 fn placement_work_is_bounded() {
     // 5000 mesh nodes under the animated node 0 (and the skinned node 1): each would evaluate the whole hierarchy at
     // every key time; a file of a few hundred kilobytes asks for that.
-    let mut m = base_model();
     let extra = 5000;
-    let nodes = m.json["nodes"].as_array_mut().unwrap();
-    nodes.extend((0..extra).map(|_| serde_json_value(r#"{"mesh": 0}"#)));
+    let mut m = with_mesh_nodes(extra);
     m.json["nodes"][0]["children"] = Value::from((4..4 + extra).collect::<Vec<usize>>());
     let msg = place_err(&m, Placement::default());
     assert_names(
@@ -794,10 +800,8 @@ fn placement_work_is_bounded() {
 fn placed_objects_are_bounded() {
     // 4095 still mesh nodes beside nodes 0 and 1, in the rest pose (no hierarchy work to
     // bound): each would be an object posed at every instant the renderer takes.
-    let mut m = base_model();
     let extra = 4095;
-    let nodes = m.json["nodes"].as_array_mut().unwrap();
-    nodes.extend((0..extra).map(|_| serde_json_value(r#"{"mesh": 0}"#)));
+    let mut m = with_mesh_nodes(extra);
     m.json["scenes"][0]["nodes"] = Value::from((0..4 + extra).collect::<Vec<usize>>());
     m.json["scenes"][0]["nodes"]
         .as_array_mut()
