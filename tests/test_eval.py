@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -386,6 +387,27 @@ def test_eval_refuses_before_any_work(
     assert len(err.splitlines()) == 1 and f"error: {option}" in err, err
     assert not (tmp_path / "cache").exists() and not (tmp_path / "out").exists()
     assert (tmp_path / "a-file").read_text() == "mine"
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        ({"scenes": ("a", "b")}, "--dataset: evaluates one recording, named by one scene"),
+        ({"stereo": True}, "--stereo: not with --dataset"),
+        ({"bitrates": (5.0,)}, "--bitrates: not with --dataset"),
+        ({"samples": 2}, "--samples: not with --dataset"),
+    ],
+)
+def test_a_recordings_evaluation_takes_table_1_only(
+    change: dict[str, Any], problem: str, tmp_path: Path
+) -> None:
+    # Through the API, where the command line's own check of its options is not made.
+    from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, check_config
+
+    cfg = EvalConfig(out=tmp_path / "out", scenes=("ds",), recording=tmp_path / "ds")
+    check_config(cfg)
+    with pytest.raises(EvalArgumentError, match=f"^{problem}"):
+        check_config(dataclasses.replace(cfg, **change))
 
 
 def test_table_2_calls_only_the_default_bitrate_the_papers(

@@ -468,6 +468,12 @@ def test_a_damaged_cached_stream_or_recording_names_the_entry(
     info.write_text('{"sizes": [1, -2], "mbps": 3.0}\n')
     code, err = _eval(cache, tmp_path / "out", capsys)
     assert code == 2 and f"{info}: expected " in err and f"remove {info} and run" in err
+    # Well-formed, but another stream's sizes: the stream beside it is not the one it describes.
+    other = json.loads(good)
+    other["sizes"][0] += 1
+    info.write_text(json.dumps(other) + "\n")
+    code, err = _eval(cache, tmp_path / "out", capsys)
+    assert code == 2 and f"{info}: the sizes of another stream than {info.stem}" in err, err
 
     info.write_text(good)
     for row in (cache / "rows").glob("*.json"):
@@ -544,6 +550,10 @@ def test_damaged_timewarp_frames_are_refused_before_reading(tmp_path: Path) -> N
     path = tmp_path / "tw.npz"
     np.savez(path, **good)
     assert len(_timewarp_frames(path)) == n
+    for members in ({k: v for k, v in good.items() if k != "proj"}, {**good, "extra": good["time"]}):
+        np.savez(path, **members)
+        with pytest.raises(RecordingError, match=f"^{path}: members \\[.*\\], expected "):
+            _timewarp_frames(path)
     for name, bad in (("depth", np.zeros((n, h + 1, w), np.float32)),
                       ("time", np.arange(n + 1) / 30.0),
                       ("color", np.zeros((n, h, w, 3), np.uint16))):
