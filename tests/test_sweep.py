@@ -550,7 +550,8 @@ def test_damaged_timewarp_frames_are_refused_before_reading(tmp_path: Path) -> N
     path = tmp_path / "tw.npz"
     np.savez(path, **good)
     assert len(_timewarp_frames(path)) == n
-    for members in ({k: v for k, v in good.items() if k != "proj"}, {**good, "extra": good["time"]}):
+    without_proj = {k: v for k, v in good.items() if k != "proj"}
+    for members in (without_proj, {**good, "extra": good["time"]}):
         np.savez(path, **members)
         with pytest.raises(RecordingError, match=f"^{path}: members \\[.*\\], expected "):
             _timewarp_frames(path)
