@@ -392,6 +392,43 @@ def test_eval_refuses_before_any_work(
 @pytest.mark.parametrize(
     ("change", "problem"),
     [
+        ({"scenes": ()}, "--scenes: expected at least one scene"),
+        ({"samples": 0}, "--samples: expected 1.."),
+        ({"scenes": ("lab", "nowhere")}, "--scenes: unknown scene 'nowhere'; expected some of"),
+        ({"scenes": ("lab", "lab")}, "--scenes: a scene is listed twice"),
+        ({"delays": (-1,)}, "--delays: expected distinct integers >= 0"),
+        ({"delays": (0, 0)}, "--delays: expected distinct integers >= 0"),
+        ({"delays": (1000,)}, "--delays: 1000 client frames is past the last scored frame"),
+        ({"network": "slow"}, "--latency: 10000 ms is past the last scored client frame"),
+        ({"variants": ()}, "--variants: expected static, dynamic or both, each once"),
+        ({"variants": ("static", "static")}, "--variants: expected static, dynamic or both"),
+        ({"rd_scenes": ("courtyard",)}, r"--rd-scenes: expected some of the --scenes \(lab\)"),
+        ({"rd_scenes": ("lab", "lab")}, "--rd-scenes: a scene is listed twice"),
+        ({"bitrates": (float("nan"),)}, "--bitrates: expected finite numbers > 0"),
+        ({"bitrates": (5.0, 5.0)}, "--bitrates: a bitrate is listed twice"),
+        ({"trace": "missing"}, "--trace: .*missing: no such file"),
+    ],
+)
+def test_eval_config_refusals_through_the_api(
+    change: dict[str, Any], problem: str, tmp_path: Path
+) -> None:
+    # The command line checks most of these itself first: here, the API's own checks.
+    import splitrender as sr
+    from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, check_config
+
+    if change.get("network") == "slow":
+        change = {"network": sr.NetworkModel(latency_ms=10_000.0), "delays": (0,)}
+    if change.get("trace") == "missing":
+        change = {"trace": tmp_path / "missing"}
+    cfg = EvalConfig(out=tmp_path / "out", scenes=("lab",))
+    check_config(cfg)
+    with pytest.raises(EvalArgumentError, match=f"^{problem}"):
+        check_config(dataclasses.replace(cfg, **change))
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
         ({"scenes": ("a", "b")}, "--dataset: evaluates one recording, named by one scene"),
         ({"stereo": True}, "--stereo: not with --dataset"),
         ({"bitrates": (5.0,)}, "--bitrates: not with --dataset"),
