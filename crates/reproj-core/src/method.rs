@@ -236,9 +236,8 @@ fn route<'f, 'a>(
             let older = older.ok_or_else(|| {
                 ReprojError::MissingFrame("method 'backward_bidir' needs both frames".into())
             })?;
-            if alpha > 1.0 {
-                return Err(range_err("[0, 1] (backward_bidir only interpolates)"));
-            }
+            // α > 1 is refused by the kernel itself (backward_bidir::reproject), which is
+            // also called directly.
             Route::BackwardBidir(older)
         }
     })
