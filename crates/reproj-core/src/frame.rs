@@ -318,3 +318,104 @@ impl FrameView<'_> {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Mat4;
+
+    fn camera(w: usize, h: usize) -> Camera {
+        Camera::new(
+            Mat4::look_at([0.0; 3], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
+            Mat4::perspective(60.0, w as f64 / h as f64, 0.1, 100.0),
+            w,
+            h,
+            "test",
+        )
+        .unwrap()
+    }
+
+    /// Each buffer of a camera must hold its size's elements: the first one that does not is
+    /// named, with the element counts and the shape expected.
+    #[test]
+    fn validate_names_the_first_buffer_of_the_wrong_length() {
+        let (w, h) = (4, 3);
+        let b = CameraBuffers::zeroed(w, h);
+        let good = b.view(camera(w, h), true);
+        good.validate("newer").unwrap();
+        let short_color = &b.color[1..];
+        let short_depth = &b.depth[1..];
+        let long_motion = [0.0f32; 4 * 3 * 3 + 3];
+        let short_bits = &b.shadow_fwd.bits[1..];
+        let cases: [(CameraView, &str, usize, usize); 4] = [
+            (
+                CameraView {
+                    color: short_color,
+                    ..good.clone()
+                },
+                "newer.color",
+                36,
+                35,
+            ),
+            (
+                CameraView {
+                    depth: short_depth,
+                    ..good.clone()
+                },
+                "newer.depth",
+                12,
+                11,
+            ),
+            (
+                CameraView {
+                    motion: Some(&long_motion),
+                    ..good.clone()
+                },
+                "newer.motion",
+                36,
+                39,
+            ),
+            (
+                CameraView {
+                    shadow: Some(ShadowView {
+                        bits: short_bits,
+                        ..good.shadow.unwrap()
+                    }),
+                    ..good.clone()
+                },
+                "newer.shadow.bits",
+                12,
+                11,
+            ),
+        ];
+        for (view, name, want, got) in cases {
+            match view.validate("newer") {
+                Err(ReprojError::BufferSize {
+                    what,
+                    expected,
+                    actual,
+                    ..
+                }) => assert_eq!((what.as_str(), expected, actual), (name, want, got)),
+                other => panic!("{name}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn validate_pair_needs_the_same_auxiliary_cameras() {
+        let b = CameraBuffers::zeroed(4, 3);
+        let view = b.view(camera(4, 3), true);
+        let with = |aux: usize| FrameView {
+            main: view.clone(),
+            aux: vec![view.clone(); aux],
+        };
+        FrameView::validate_pair(Some(&with(2)), &with(2)).unwrap();
+        FrameView::validate_pair(None, &with(1)).unwrap();
+        match FrameView::validate_pair(Some(&with(1)), &with(2)) {
+            Err(ReprojError::CameraMismatch(m)) => {
+                assert_eq!(m, "older frame has 1 auxiliary cameras, newer has 2")
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+}
