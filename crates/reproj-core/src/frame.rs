@@ -351,7 +351,7 @@ mod tests {
             (
                 CameraView {
                     color: short_color,
-                    ..good.clone()
+                    ..good
                 },
                 "newer.color",
                 36,
@@ -360,7 +360,7 @@ mod tests {
             (
                 CameraView {
                     depth: short_depth,
-                    ..good.clone()
+                    ..good
                 },
                 "newer.depth",
                 12,
@@ -369,7 +369,7 @@ mod tests {
             (
                 CameraView {
                     motion: Some(&long_motion),
-                    ..good.clone()
+                    ..good
                 },
                 "newer.motion",
                 36,
@@ -381,7 +381,7 @@ mod tests {
                         bits: short_bits,
                         ..good.shadow.unwrap()
                     }),
-                    ..good.clone()
+                    ..good
                 },
                 "newer.shadow.bits",
                 12,
@@ -406,8 +406,8 @@ mod tests {
         let b = CameraBuffers::zeroed(4, 3);
         let view = b.view(camera(4, 3), true);
         let with = |aux: usize| FrameView {
-            main: view.clone(),
-            aux: vec![view.clone(); aux],
+            main: view,
+            aux: vec![view; aux],
         };
         FrameView::validate_pair(Some(&with(2)), &with(2)).unwrap();
         FrameView::validate_pair(None, &with(1)).unwrap();
