@@ -95,13 +95,15 @@ impl<'a> Output<'a> {
             });
         }
         if let Some(d) = diag {
-            if d.source.len() != n || d.error.len() != n {
-                return Err(ReprojError::BufferSize {
-                    what: "diagnostics".into(),
-                    expected: n,
-                    actual: d.source.len().min(d.error.len()),
-                    detail: format!("{h}x{w}"),
-                });
+            for (what, len) in [("source", d.source.len()), ("error", d.error.len())] {
+                if len != n {
+                    return Err(ReprojError::BufferSize {
+                        what: format!("diagnostics.{what}"),
+                        expected: n,
+                        actual: len,
+                        detail: format!("{h}x{w}"),
+                    });
+                }
             }
         }
         Ok(())
@@ -161,4 +163,45 @@ fn block_rows(left: usize, threads: usize) -> usize {
         n /= 2;
     }
     n.min(left)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_sized(r: Result<()>, what: &str, expected: usize, actual: usize) {
+        match r {
+            Err(ReprojError::BufferSize {
+                what: got,
+                expected: e,
+                actual: a,
+                ..
+            }) => assert_eq!((got.as_str(), e, a), (what, expected, actual)),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// The output image must hold `w·h` RGB pixels and each diagnostics buffer `w·h` values:
+    /// a wrong one is named with both counts, before any row is written.
+    #[test]
+    fn output_check_names_a_buffer_of_the_wrong_length() {
+        let (w, h) = (4, 3);
+        let mut image = vec![0u8; w * h * 3];
+        Output::new(&mut image).check(w, h).unwrap();
+        let mut short = vec![0u8; w * h * 3 - 1];
+        let r = Output::new(&mut short).check(w, h);
+        assert_sized(r, "previous client frame", 36, 35);
+        for (source, error) in [(12, 12), (11, 12), (12, 13)] {
+            let mut diag = Diagnostics {
+                source: vec![0; source],
+                error: vec![0.0; error],
+            };
+            let r = Output::with_diagnostics(&mut image, &mut diag).check(w, h);
+            match (source, error) {
+                (12, 12) => r.unwrap(),
+                (12, _) => assert_sized(r, "diagnostics.error", 12, error),
+                _ => assert_sized(r, "diagnostics.source", 12, source),
+            }
+        }
+    }
 }

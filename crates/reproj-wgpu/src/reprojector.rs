@@ -538,13 +538,12 @@ impl Reprojector {
             check_rgb("previous client frame", p.len())?;
         }
         if let Some(d) = diag.as_deref() {
-            if d.source.len() != n || d.error.len() != n {
-                return Err(size_err(
-                    "diagnostics",
-                    n,
-                    d.source.len().min(d.error.len()),
-                    format!("{ch}x{cw}"),
-                ));
+            // Named as the CPU path names them (reproj_core's Output::check).
+            for (what, len) in [("source", d.source.len()), ("error", d.error.len())] {
+                if len != n {
+                    let what = format!("diagnostics.{what}");
+                    return Err(size_err(&what, n, len, format!("{ch}x{cw}")));
+                }
             }
         }
         if slot >= MAX_OUTPUTS {
