@@ -429,6 +429,25 @@ def test_eval_config_refusals_through_the_api(
 @pytest.mark.parametrize(
     ("change", "problem"),
     [
+        ({"executor": "dask"}, "--executor: expected local or ray, got 'dask'"),
+        ({"jobs": 0}, "--jobs: expected an integer >= 1, got 0"),
+        ({"address": "127.0.0.1:6379"}, "--address: goes with --executor ray"),
+    ],
+)
+def test_run_eval_refuses_an_executor_it_cannot_use_before_any_work(
+    change: dict[str, Any], problem: str, tmp_path: Path
+) -> None:
+    from splitrender.evaluation.experiments import EvalArgumentError, EvalConfig, run_eval
+
+    cfg = EvalConfig(out=tmp_path / "out", scenes=("lab",), cache=tmp_path / "cache", **change)
+    with pytest.raises(EvalArgumentError, match=f"^{problem}$"):
+        run_eval(cfg)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
         ({"scenes": ("a", "b")}, "--dataset: evaluates one recording, named by one scene"),
         ({"stereo": True}, "--stereo: not with --dataset"),
         ({"bitrates": (5.0,)}, "--bitrates: not with --dataset"),

@@ -120,3 +120,72 @@ impl Params {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each option at the edge of its domain passes; one step past it is refused naming the
+    /// option, its value and the domain.
+    #[test]
+    fn validate_names_the_option_outside_its_domain() {
+        Params::default().validate().unwrap();
+        type Set = fn(&mut Params, bool);
+        let cases: [(&str, Set, &str, &str); 6] = [
+            (
+                "eps_e",
+                |p, past| p.eps_e = if past { 0.0 } else { 1e-9 },
+                "0",
+                "> 0",
+            ),
+            (
+                "window",
+                |p, past| p.window = 8 + usize::from(past),
+                "9",
+                "0..=8",
+            ),
+            (
+                "fpi_iterations",
+                |p, past| p.fpi_iterations = 32 + usize::from(past),
+                "33",
+                "0..=32",
+            ),
+            (
+                "bidir_iterations",
+                |p, past| p.bidir_iterations = 32 + usize::from(past),
+                "33",
+                "0..=32",
+            ),
+            (
+                "shadow_subframes",
+                |p, past| p.shadow_subframes = 16 + usize::from(past),
+                "17",
+                "1..=16",
+            ),
+            (
+                "shadow_subframes",
+                |p, past| p.shadow_subframes = usize::from(!past),
+                "0",
+                "1..=16",
+            ),
+        ];
+        for (name, set, value, domain) in cases {
+            let mut p = Params::default();
+            set(&mut p, false);
+            p.validate()
+                .unwrap_or_else(|e| panic!("{name} at its edge: {e}"));
+            set(&mut p, true);
+            match p.validate() {
+                Err(ReprojError::BadOption {
+                    name: n,
+                    value: v,
+                    expected,
+                }) => {
+                    assert_eq!((n.as_str(), v.as_str()), (name, value));
+                    assert!(expected.contains(domain), "{expected}");
+                }
+                other => panic!("{name}: {other:?}"),
+            }
+        }
+    }
+}
