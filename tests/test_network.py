@@ -99,6 +99,16 @@ def reference_entry(n: int, latency: int) -> tuple[str, int | None, int, float]:
     return ("interpolate", i, i + 1, b / F)
 
 
+def test_a_network_made_for_another_client_rate_is_refused() -> None:
+    # The extra delay is counted in client frames: a link made for 60 FPS would delay a 120 FPS
+    # schedule by half its frames.
+    net = NetworkModel(extra_delay_frames=2, client_fps=60.0)
+    with pytest.raises(InvalidInputError, match=r"^network.client_fps: expected the schedule's "
+                       r"client_fps = 120.0, got 60.0$"):
+        Schedule.build([0.0, 0.1], network=net, client_fps=120.0)
+    assert len(Schedule.build([0.0, 0.1], network=net, client_fps=60.0).entries) > 0
+
+
 @pytest.mark.parametrize("latency", [0, 1, 2, 4, 8, 11, 12])
 def test_schedule_follows_reference_latency(latency: int) -> None:
     s = Schedule.build(11, NetworkModel(extra_delay_frames=latency))

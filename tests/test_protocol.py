@@ -605,6 +605,33 @@ def test_relay_draws_are_seeded() -> None:
     assert any(f == -1.0 for f in a)
 
 
+@pytest.mark.parametrize(
+    ("make", "problem"),
+    [
+        (lambda: Impairment(delay_ms=-1.0), "delay_ms: expected a finite number >= 0"),
+        (lambda: Impairment(jitter_ms=math.nan), "jitter_ms: expected a finite number >= 0"),
+        (lambda: Impairment(bandwidth_mbps=math.inf),
+         "bandwidth_mbps: expected a finite number >= 0"),
+        (lambda: Impairment(queue_ms=-5.0), "queue_ms: expected a finite number >= 0"),
+        (lambda: Impairment(loss=1.0), r"loss: expected a fraction in \[0, 1\)"),
+        (lambda: Impairment(schedule=((-1.0, 5.0),)),
+         "bandwidth schedule: expected SECONDS:MBPS >= 0, got -1.0:5.0"),
+        (lambda: Impairment(schedule=((1.0, math.nan),)),
+         "bandwidth schedule: expected SECONDS:MBPS >= 0, got 1.0:nan"),
+        (lambda: LeadController(max_s=-1.0), "lead: expected max_s >= 0"),
+        (lambda: LeadController(max_s=math.nan), "lead: expected max_s >= 0"),
+        (lambda: ConstantVelocity(window=0.0), "ConstantVelocity: expected window > 0"),
+        (lambda: ConstantVelocity(window=math.nan), "ConstantVelocity: expected window > 0"),
+        (lambda: ConstantVelocity(max_ahead=math.inf), "ConstantVelocity: expected window > 0"),
+    ],
+)
+def test_link_and_controller_settings_out_of_range_are_refused(
+    make: Any, problem: str
+) -> None:
+    with pytest.raises(InvalidInputError, match=f"^{problem}"):
+        make()
+
+
 def test_relay_stays_on_loopback() -> None:
     assert check_loopback("127.0.0.1", "x") == "127.0.0.1"
     with pytest.raises(InvalidInputError, match="loopback"):

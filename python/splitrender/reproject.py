@@ -332,8 +332,6 @@ def prepare_pair(
         raise InvalidInputError(
             f"history: expected a BidirHistory, got {type(history).__name__}"
         )
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)):
-        raise InvalidInputError(f"threads: expected an int or None, got {type(threads).__name__}")
     opts = _options(options)
     _call_native(
         lambda o, n: history.prepare(
@@ -488,10 +486,6 @@ def scene_flow(
     Returns ``float32[H, W, 3]`` of ``[Δx, Δy, ΔZ]`` in NDC; NaN where the pixel is invalid or
     the moved point is behind the client camera.
     """
-    if direction not in ("forward", "backward"):
-        raise InvalidInputError(
-            f"direction: expected 'forward' or 'backward', got {direction!r}"
-        )
     d = "fwd" if direction == "forward" else "bwd"
     check_camera_frame("source", source, (d,))
     if not isinstance(client, Camera):

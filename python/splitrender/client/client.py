@@ -11,8 +11,6 @@ REFERENCE.md §2.1), so :func:`~splitrender.client.playback.play` and
 
 from __future__ import annotations
 
-import math
-import numbers
 import threading
 from typing import cast
 
@@ -221,10 +219,6 @@ class Client:
             InvalidInputError: for an invalid camera or time, or while another thread renders
                 with this client.
         """
-        if not isinstance(camera, Camera):
-            raise InvalidInputError(f"camera: expected a Camera, got {type(camera).__name__}")
-        if isinstance(time, bool) or not isinstance(time, numbers.Real) or not math.isfinite(time):
-            raise InvalidInputError(f"time: expected a finite float, got {time!r}")
         if not self._rendering.acquire(blocking=False):
             raise InvalidInputError(
                 "Client.render: this client is rendering a frame in another thread; a client "
