@@ -5,6 +5,7 @@ and no foreign exception type ever crosses into Python."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -785,6 +786,41 @@ def test_play_names_the_frame_by_its_position() -> None:
     _raises_invalid(
         lambda: sr.play(frames, cams, on_frame=spoil),
         "frames[1].main.depth: expected float32 array of shape (32, 48), got int32 (32, 48)",
+    )
+
+
+def test_play_refuses_a_camera_that_is_not_one_and_frames_out_of_order() -> None:
+    frames, cams = _session(3)
+    _raises_invalid(
+        lambda: sr.play(frames, [cams[0], "left eye", *cams[2:]]),
+        "cameras[1]: expected Camera, got str",
+    )
+    frames[1], frames[2] = frames[2], frames[1]
+    _raises_invalid(
+        lambda: sr.play(frames, cams),
+        f"frames[2]: time {frames[2].time:g} s is before frames[1]'s {frames[1].time:g} s; "
+        "expected the frames in time order",
+    )
+
+
+def test_bindings_refuse_numbers_out_of_range_themselves() -> None:
+    # The Python layer checks these first; the extension module checks them again for a caller
+    # of _native itself, and must never panic or return NaN matrices.
+    for args, problem in [
+        ((0.0, 1.0, 0.1, 10.0), "fov_y_deg: expected a value in (0, 180), got 0"),
+        ((180.0, 1.0, 0.1, 10.0), "fov_y_deg: expected a value in (0, 180), got 180"),
+        ((60.0, math.nan, 0.1, 10.0), "aspect: expected a finite value > 0, got NaN"),
+        ((60.0, 0.0, 0.1, 10.0), "aspect: expected a finite value > 0, got 0"),
+        ((60.0, 1.0, 10.0, 10.0), "near, far: expected 0 < near < far (finite), got near = 10"),
+    ]:
+        _raises_invalid(lambda: _native.perspective(*args), problem)
+    frames, _ = _session(1)
+    cf = frames[0].main
+    _raises_invalid(
+        lambda: _native.scene_flow(
+            cf.camera.view, cf.camera.proj, cf.depth, None, cf.camera.to_native(), math.inf
+        ),
+        "w: expected a finite float, got inf",
     )
 
 
