@@ -801,6 +801,11 @@ def test_play_refuses_a_camera_that_is_not_one_and_frames_out_of_order() -> None
         f"frames[2]: time {frames[2].time:g} s is before frames[1]'s {frames[1].time:g} s; "
         "expected the frames in time order",
     )
+    frames, cams = _session(3)
+    _raises_invalid(
+        lambda: sr.play(frames, cams, frame_sizes=[1000, 1000]),
+        "frame_sizes: expected a size for frame 2, got 2 sizes",
+    )
 
 
 def test_bindings_refuse_numbers_out_of_range_themselves() -> None:
