@@ -110,6 +110,17 @@ def test_encode_failure_leaves_no_stream(recording: Path, tmp_path: Path) -> Non
     assert list(tmp_path.iterdir()) == []
 
 
+def test_encode_into_a_folder_is_refused_before_encoding(recording: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "streams"
+    (folder / "kept.txt").parent.mkdir()
+    (folder / "kept.txt").write_text("mine")
+    seen: list[int] = []
+    with pytest.raises(sr.InvalidInputError, match=f"^{folder}: expected a file name for the "
+                       "stream, got a folder$"):
+        encode_recording(recording, folder, progress=lambda d, n: seen.append(d))
+    assert seen == [] and [p.name for p in folder.iterdir()] == ["kept.txt"]
+
+
 def test_encode_recording_ends_its_worker_threads(recording: Path, tmp_path: Path) -> None:
     # The encoder was never closed: its worker threads outlived the call until it was collected.
     def workers() -> set[threading.Thread]:

@@ -208,9 +208,19 @@ def test_gpu_reprojector_arguments_are_checked(
     if not HAVE_GPU:
         return
     f0, f1 = pair_synthetic
+    g = gpu.GpuReprojector()
     with pytest.raises(InvalidInputError, match="diagnostics: expected a bool"):
-        gpu.GpuReprojector().reproject(f0, f1, f1.main.camera, 0.5,
-                                       diagnostics="no")  # type: ignore[arg-type]
+        g.reproject(f0, f1, f1.main.camera, 0.5, diagnostics="no")  # type: ignore[arg-type]
+    # upload takes frames from any thread (no @checked): its own checks name the argument.
+    with pytest.raises(InvalidInputError, match="^older: expected a ServerFrame or None, got str$"):
+        g.upload("f0", f1)  # type: ignore[arg-type]
+    with pytest.raises(InvalidInputError, match="^newer: expected a ServerFrame, got NoneType$"):
+        g.upload(f0, None)  # type: ignore[arg-type]
+    g.load(f0, f1)
+    with pytest.raises(InvalidInputError, match="^previous: expected an image, 'keep' or None, "
+                       "got 'last'$"):
+        g.render(f1.main.camera, 0.5, previous="last")  # type: ignore[arg-type]
+    assert g.render(f1.main.camera, 0.5, previous="keep").shape == (*f1.main.depth.shape, 3)
 
 
 @needs_gpu
