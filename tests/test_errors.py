@@ -808,7 +808,7 @@ def test_play_refuses_a_camera_that_is_not_one_and_frames_out_of_order() -> None
     )
 
 
-def test_bindings_refuse_numbers_out_of_range_themselves() -> None:
+def test_bindings_check_their_arguments_themselves() -> None:
     # The Python layer checks these first; the extension module checks them again for a caller
     # of _native itself, and must never panic or return NaN matrices.
     for args, problem in [
@@ -817,8 +817,21 @@ def test_bindings_refuse_numbers_out_of_range_themselves() -> None:
         ((60.0, math.nan, 0.1, 10.0), "aspect: expected a finite value > 0, got NaN"),
         ((60.0, 0.0, 0.1, 10.0), "aspect: expected a finite value > 0, got 0"),
         ((60.0, 1.0, 10.0, 10.0), "near, far: expected 0 < near < far (finite), got near = 10"),
+        ((60.0, 1.0, 0.1, math.inf), "near, far: expected 0 < near < far (finite), got near"),
     ]:
         _raises_invalid(lambda: _native.perspective(*args), problem)
+    for eye, target, up in [((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), None),
+                            ((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 1.0, 0.0)),
+                            ((math.nan, 0.0, 0.0), (0.0, 0.0, -1.0), None)]:
+        _raises_invalid(lambda: _native.look_at(eye, target, up),
+                        "must be finite, eye != target, and up not parallel")
+    # The shadow tile's chroma planes must agree with each other.
+    luma = np.zeros((4, 8), np.uint8)
+    _raises_invalid(
+        lambda: _native.shadow_colour(luma, np.zeros((4, 8), np.uint8), np.zeros((2, 8), np.uint8),
+                                      0, 0, np.ones((4, 8), np.uint32)),
+        "cr: expected the shape of cb [4, 8], got [2, 8]",
+    )
     frames, _ = _session(1)
     cf = frames[0].main
     _raises_invalid(
