@@ -825,6 +825,11 @@ def test_bindings_check_their_arguments_themselves() -> None:
                             ((math.nan, 0.0, 0.0), (0.0, 0.0, -1.0), None)]:
         _raises_invalid(lambda: _native.look_at(eye, target, up),
                         "must be finite, eye != target, and up not parallel")
+    # A matrix is a 4x4 float64 array (any strides), nothing else.
+    for bad in (np.eye(3), np.eye(4, dtype=np.float32), np.eye(4)[None]):
+        _raises_invalid(lambda: _native.singular_camera(bad, np.eye(4)),
+                        "view: expected float64 array of shape (4, 4), got")
+    assert _native.singular_camera(np.eye(8)[::2, ::2], np.eye(4)) is None
     # The shadow tile's chroma planes must agree with each other.
     luma = np.zeros((4, 8), np.uint8)
     _raises_invalid(
