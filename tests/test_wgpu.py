@@ -221,6 +221,12 @@ def test_gpu_reprojector_arguments_are_checked(
                        "got 'last'$"):
         g.render(f1.main.camera, 0.5, previous="last")  # type: ignore[arg-type]
     assert g.render(f1.main.camera, 0.5, previous="keep").shape == (*f1.main.depth.shape, 3)
+    # The extension's own: an image and keep=True at once (the Python layer passes one).
+    cam = f1.main.camera
+    image = np.zeros((cam.height, cam.width, 3), np.uint8)
+    with pytest.raises(InvalidInputError, match="^previous: pass either an image or keep=True$"):
+        g._native.render("ours", cam.to_native(), 0.5, sr.ReprojectOptions().to_native(), image,
+                         True, 0, False, True)
 
 
 @needs_gpu
