@@ -825,6 +825,8 @@ def test_bindings_check_their_arguments_themselves() -> None:
                             ((math.nan, 0.0, 0.0), (0.0, 0.0, -1.0), None)]:
         _raises_invalid(lambda: _native.look_at(eye, target, up),
                         "must be finite, eye != target, and up not parallel")
+    _raises_invalid(lambda: _native.ssim(np.zeros((4, 4, 3)), np.zeros((4, 5, 3))),
+                    "x and y: expected the same shape, got [4, 4, 3] and [4, 5, 3]")
     # A matrix is a 4x4 float64 array (any strides), nothing else.
     for bad in (np.eye(3), np.eye(4, dtype=np.float32), np.eye(4)[None]):
         _raises_invalid(lambda: _native.singular_camera(bad, np.eye(4)),

@@ -728,6 +728,15 @@ def test_the_packets_are_kept_for_replay_only_when_asked() -> None:
         client.replay("ours", lambda t: np.eye(4), 1.0)
     with pytest.raises(InvalidInputError, match="keep_packets: expected a bool"):
         ConnectOptions("127.0.0.1", 9, TOKEN, None, keep_packets="yes")  # type: ignore[arg-type]
+    # The hello carries the token: one that cannot be sent is refused here, not on the
+    # network thread.
+    from splitrender.net.protocol import MAX_TOKEN
+
+    for token in (None, "x" * (MAX_TOKEN + 1), "é" * (MAX_TOKEN // 2 + 1)):
+        refused = f"^token: expected a str of at most {MAX_TOKEN} bytes$"
+        with pytest.raises(InvalidInputError, match=refused):
+            ConnectOptions("127.0.0.1", 9, token, None)  # type: ignore[arg-type]
+    ConnectOptions("127.0.0.1", 9, "x" * MAX_TOKEN, None)
 
 
 @contextlib.contextmanager

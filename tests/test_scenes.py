@@ -131,8 +131,19 @@ def test_bad_arguments(lab: Scene) -> None:
         lab.server_frame(0, 1e-6)
     with pytest.raises(sr.InvalidInputError, match="k"):
         lab.server_frame(-1, SCALE)
-    with pytest.raises(sr.InvalidInputError, match="rigid"):
-        lab.server_frame(0, SCALE, pose=np.diag([2.0, 1.0, 1.0, 1.0]))
+    # A pose must be rigid: each refusal says why.
+    nan, last, mirror = np.eye(4), np.eye(4), np.diag([-1.0, 1.0, 1.0, 1.0])
+    nan[0, 3] = np.nan
+    last[3, 0] = 0.5
+    for pose, why in [
+        (np.diag([2.0, 1.0, 1.0, 1.0]), "its 3×3 rotation is not orthonormal"),
+        (nan, "got non-finite values"),
+        (last, r"last row must be \[0, 0, 0, 1\], got \[0.5, 0.0, 0.0, 1.0\]"),
+        (mirror, "its rotation is a reflection"),
+    ]:
+        with pytest.raises(sr.InvalidInputError, match=f"pose: expected a rigid camera-to-world "
+                           f"matrix, {why}"):
+            lab.server_frame(0, SCALE, pose=pose)
 
 
 def _write(tmp_path: Path, text: str) -> Path:
