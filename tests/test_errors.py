@@ -827,6 +827,12 @@ def test_bindings_check_their_arguments_themselves() -> None:
                         "must be finite, eye != target, and up not parallel")
     _raises_invalid(lambda: _native.ssim(np.zeros((4, 4, 3)), np.zeros((4, 5, 3))),
                     "x and y: expected the same shape, got [4, 4, 3] and [4, 5, 3]")
+    # A placed model's scale and speed, before its file is looked for.
+    for scale, speed, problem in [(0.0, 1.0, "models[0]: scale must be a finite value > 0, got 0"),
+                                  (math.inf, 1.0, "models[0]: scale must be a finite value > 0"),
+                                  (1.0, 0.0, "models[0]: speed must be > 0, got 0")]:
+        model = ("missing.glb", (0.0, 0.0, 0.0), 0.0, scale, None, 0.0, speed)
+        _raises_invalid(lambda: _native.Scene("courtyard", "static", [model]), problem)
     # A matrix is a 4x4 float64 array (any strides), nothing else.
     for bad in (np.eye(3), np.eye(4, dtype=np.float32), np.eye(4)[None]):
         _raises_invalid(lambda: _native.singular_camera(bad, np.eye(4)),
