@@ -42,13 +42,21 @@ pub struct FrameView<'a> {
     pub aux: Vec<CameraView<'a>>,
 }
 
-fn check_len(what: &str, actual: usize, expected: usize, detail: String) -> Result<()> {
+/// [`ReprojError::BufferSize`] when a buffer holds `actual` elements instead of `expected`:
+/// `what` names it and `detail` gives the expected shape. Both are built only for the error
+/// (this runs for every buffer of every camera of every frame).
+pub(crate) fn check_len(
+    actual: usize,
+    expected: usize,
+    what: impl FnOnce() -> String,
+    detail: impl FnOnce() -> String,
+) -> Result<()> {
     if actual != expected {
         return Err(ReprojError::BufferSize {
-            what: what.to_string(),
+            what: what(),
             expected,
             actual,
-            detail,
+            detail: detail(),
         });
     }
     Ok(())
@@ -69,43 +77,43 @@ impl CameraView<'_> {
         let (w, h) = (self.camera.width, self.camera.height);
         let n = w * h;
         check_len(
-            &format!("{what}.color"),
             self.color.len(),
             n * 3,
-            format!("{h}x{w}x3"),
+            || format!("{what}.color"),
+            || format!("{h}x{w}x3"),
         )?;
         check_len(
-            &format!("{what}.depth"),
             self.depth.len(),
             n,
-            format!("{h}x{w}"),
+            || format!("{what}.depth"),
+            || format!("{h}x{w}"),
         )?;
         if let Some(m) = self.motion {
             check_len(
-                &format!("{what}.motion"),
                 m.len(),
                 n * 3,
-                format!("{h}x{w}x3"),
+                || format!("{what}.motion"),
+                || format!("{h}x{w}x3"),
             )?;
         }
         if let Some(s) = &self.shadow {
             check_len(
-                &format!("{what}.shadow.bits"),
                 s.bits.len(),
                 n,
-                format!("{h}x{w}"),
+                || format!("{what}.shadow.bits"),
+                || format!("{h}x{w}"),
             )?;
             check_len(
-                &format!("{what}.shadow.s_min"),
                 s.s_min.len(),
                 n * 3,
-                format!("{h}x{w}x3"),
+                || format!("{what}.shadow.s_min"),
+                || format!("{h}x{w}x3"),
             )?;
             check_len(
-                &format!("{what}.shadow.s_max"),
                 s.s_max.len(),
                 n * 3,
-                format!("{h}x{w}x3"),
+                || format!("{what}.shadow.s_max"),
+                || format!("{h}x{w}x3"),
             )?;
         }
         Ok(())

@@ -6,7 +6,8 @@
 use rayon::prelude::*;
 
 use crate::camera::Camera;
-use crate::error::{ReprojError, Result};
+use crate::error::Result;
+use crate::frame::check_len;
 use crate::params::TILE;
 
 /// What the client asks for: its actual camera at display time and `α`, the display time relative
@@ -86,24 +87,20 @@ impl<'a> Output<'a> {
     pub(crate) fn check(&self, w: usize, h: usize) -> Result<()> {
         let (out, diag) = (&*self.image, self.diag.as_deref());
         let n = w * h;
-        if out.len() != n * 3 {
-            return Err(ReprojError::BufferSize {
-                what: "previous client frame".into(),
-                expected: n * 3,
-                actual: out.len(),
-                detail: format!("{h}x{w}x3"),
-            });
-        }
+        check_len(
+            out.len(),
+            n * 3,
+            || "previous client frame".into(),
+            || format!("{h}x{w}x3"),
+        )?;
         if let Some(d) = diag {
             for (what, len) in [("source", d.source.len()), ("error", d.error.len())] {
-                if len != n {
-                    return Err(ReprojError::BufferSize {
-                        what: format!("diagnostics.{what}"),
-                        expected: n,
-                        actual: len,
-                        detail: format!("{h}x{w}"),
-                    });
-                }
+                check_len(
+                    len,
+                    n,
+                    || format!("diagnostics.{what}"),
+                    || format!("{h}x{w}"),
+                )?;
             }
         }
         Ok(())
@@ -168,6 +165,7 @@ fn block_rows(left: usize, threads: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::ReprojError;
 
     fn assert_sized(r: Result<()>, what: &str, expected: usize, actual: usize) {
         match r {

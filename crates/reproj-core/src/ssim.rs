@@ -21,6 +21,7 @@
 use rayon::prelude::*;
 
 use crate::error::{ReprojError, Result};
+use crate::frame::check_len;
 
 /// Half-width of the Gaussian window (11 taps).
 pub const RADIUS: usize = 5;
@@ -71,14 +72,12 @@ pub fn ssim(
         .into_iter()
         .chain(map.as_ref().map(|m| ("map", m.len())))
     {
-        if len != n {
-            return Err(ReprojError::BufferSize {
-                what: format!("ssim {what}"),
-                expected: n,
-                actual: len,
-                detail: format!("{height}x{width}x{channels}"),
-            });
-        }
+        check_len(
+            len,
+            n,
+            || format!("ssim {what}"),
+            || format!("{height}x{width}x{channels}"),
+        )?;
     }
     let g = taps();
     let row_len = width * channels;
