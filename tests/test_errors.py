@@ -825,6 +825,15 @@ def test_bindings_check_their_arguments_themselves() -> None:
                             ((math.nan, 0.0, 0.0), (0.0, 0.0, -1.0), None)]:
         _raises_invalid(lambda: _native.look_at(eye, target, up),
                         "must be finite, eye != target, and up not parallel")
+    # The synthetic scene's interval and rig.
+    cam = _native.synthetic_rig((0.0, 1.0, 0.0), (0.0, 1.0, -1.0), 8, 4)[0]
+    for interval, shown in [(0.0, "0"), (-0.1, "-0.1"), (math.inf, "inf"), (math.nan, "NaN")]:
+        _raises_invalid(lambda: _native.synthetic_render_server(True, cam, 0.0, interval, 1),
+                        f"interval: expected a finite value > 0, got {shown}")
+    for eye, target in [((0.0, 1.0, 0.0), (0.0, 1.0, 0.0)),
+                        ((0.0, math.inf, 0.0), (0.0, 1.0, 1.0))]:
+        _raises_invalid(lambda: _native.synthetic_rig(eye, target, 8, 4),
+                        "must be finite and distinct")
     _raises_invalid(lambda: _native.ssim(np.zeros((4, 4, 3)), np.zeros((4, 5, 3))),
                     "x and y: expected the same shape, got [4, 4, 3] and [4, 5, 3]")
     # A placed model's scale and speed, before its file is looked for.

@@ -553,7 +553,9 @@ fn placement_scale_speed_and_time_offset_must_be_finite() {
         );
         assert_names(
             &msg,
-            &[&format!("placement scale {scale} must be positive")],
+            &[&format!(
+                "placement scale {scale}: expected a finite number > 0"
+            )],
         );
     }
     for (time_offset, speed) in [(f64::NAN, 1.0), (0.0, f64::INFINITY)] {

@@ -83,7 +83,10 @@ pub fn place_model(
     if !(placement.scale > 0.0 && placement.scale.is_finite()) {
         return Err(err(
             path,
-            format!("placement scale {} must be positive", placement.scale),
+            format!(
+                "placement scale {}: expected a finite number > 0",
+                placement.scale
+            ),
         ));
     }
     if !(placement.time_offset.is_finite() && placement.speed.is_finite()) {
