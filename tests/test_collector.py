@@ -170,3 +170,21 @@ def test_objects_the_application_froze_stay_frozen(process_gc):
     assert c.active and not gc.isenabled()
     c.stop()
     assert gc.isenabled() and gc.get_freeze_count() == frozen
+
+
+def test_displays_at_the_same_time_share_the_process_collector(process_gc):
+    # Two displays in one process: the first to stop must not turn automatic collection back
+    # on under the other, and the last must, in either order.
+    gc.enable()
+    for order in ((0, 1), (1, 0)):
+        first, second = FrameCollector(), FrameCollector()
+        first.start()
+        second.start()
+        assert first.active and second.active and not gc.isenabled()
+        assert gc.get_freeze_count() > 0
+        one, last = (first, second)[order[0]], (first, second)[order[1]]
+        one.stop()
+        assert not one.active and last.active
+        assert not gc.isenabled() and gc.get_freeze_count() > 0  # still frozen
+        last.stop()
+        assert gc.isenabled() and gc.get_freeze_count() == 0

@@ -17,14 +17,18 @@ frame the display asks for the collection the automatic schedule would have made
 :data:`MARGIN` times what that generation took the last time; where it does not, a younger
 generation that fits runs instead. A generation whose count reaches :data:`OVERDUE` times its
 threshold is collected even without that time, so that the memory held in garbage cycles
-stays bounded when the frames never leave it. A process whose collector
-is disabled when the display starts (``gc.disable()``: the application manages it) is left as
-it is.
+stays bounded when the frames never leave it. A process whose collector is disabled when the
+display starts (``gc.disable()``: the application manages it) is left as it is. Displays
+running at the same time in one process (two
+:class:`~splitrender.client.realtime.RealtimeClient` runs, each in a thread of its own) share
+the process's collector: the first to start turns automatic collection off, the last to stop
+turns it back on, and each collects between its own frames.
 """
 
 from __future__ import annotations
 
 import gc
+import threading
 import time
 
 __all__ = ["FIRST_GUESS_S", "MARGIN", "OVERDUE", "FrameCollector"]
@@ -42,6 +46,12 @@ MARGIN = 2.0
 #: frames even where the time to the next refresh does not hold it.
 OVERDUE = 10
 
+# The process's collector is one, whatever the number of displays: how many collectors hold it
+# (started, not stopped), and whether the first of them froze the process's objects.
+_hold_lock = threading.Lock()
+_holders = 0
+_froze = False
+
 
 class FrameCollector:
     """The process's garbage collector run between display frames (module docs):
@@ -57,32 +67,43 @@ class FrameCollector:
         self.collections = 0
         self.forced = 0
         self.longest_s = 0.0
-        self._froze = False
         self._cost = list(FIRST_GUESS_S)
 
     def start(self) -> None:
         """Collects everything (off the clock: what is garbage now is not frozen), freezes
         what is left and turns automatic collection off; nothing where the process's collector
-        is disabled."""
-        if self.active or not gc.isenabled():
-            return
-        gc.collect()
-        # Objects the application froze are its own to unfreeze: then nothing is frozen here.
-        self._froze = gc.get_freeze_count() == 0
-        if self._froze:
-            gc.freeze()
-        gc.disable()
-        self.active = True
+        is disabled. Where another collector of the process is active, this one joins it: the
+        process is already as this would leave it."""
+        global _holders, _froze
+        with _hold_lock:
+            if self.active:
+                return
+            if _holders == 0:
+                if not gc.isenabled():
+                    return
+                gc.collect()
+                # Objects the application froze are its own to unfreeze: then nothing is
+                # frozen here.
+                _froze = gc.get_freeze_count() == 0
+                if _froze:
+                    gc.freeze()
+                gc.disable()
+            _holders += 1
+            self.active = True
 
     def stop(self) -> None:
-        """Undoes :meth:`start`: the frozen objects back in the oldest generation, automatic
-        collection on."""
-        if not self.active:
-            return
-        if self._froze:
-            gc.unfreeze()
-        gc.enable()
-        self.active = False
+        """Undoes :meth:`start`: once no collector of the process is active, the frozen
+        objects back in the oldest generation, automatic collection on."""
+        global _holders
+        with _hold_lock:
+            if not self.active:
+                return
+            self.active = False
+            _holders -= 1
+            if _holders == 0:
+                if _froze:
+                    gc.unfreeze()
+                gc.enable()
 
     @staticmethod
     def due() -> int | None:
