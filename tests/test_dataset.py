@@ -10,6 +10,7 @@ import shutil
 import struct
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -457,6 +458,19 @@ def test_error_broken_png(handmade: Path) -> None:
         sr.import_dataset(handmade, aux=())
 
 
+def test_error_png_whose_first_chunk_is_not_ihdr(handmade: Path) -> None:
+    # Pillow opens a PNG with a text chunk ahead of IHDR; the bit depth is read from the IHDR
+    # at its fixed place, so such a file is refused rather than read at another chunk's bytes.
+    p = handmade / "main" / "color" / "0007.png"
+    data = p.read_bytes()
+    text = b"tEXt" + b"k\x00v"
+    chunk = struct.pack(">I", 3) + text + struct.pack(">I", zlib.crc32(text))
+    p.write_bytes(data[:8] + chunk + data[8:])
+    with pytest.raises(DatasetError, match=r"color[/\\]0007\.png: cannot read PNG: the first "
+                                           r"chunk is not IHDR$"):
+        sr.import_dataset(handmade, aux=())
+
+
 def test_error_wrong_resolution(handmade: Path) -> None:
     _write_png(handmade / "main" / "color" / "0007.png", np.zeros((4, 5, 3), np.uint8))
     with pytest.raises(DatasetError, match=r"color[/\\]0007\.png: resolution 5x4 .* 4x4"):
@@ -488,6 +502,11 @@ def test_error_bad_matrix(handmade: Path) -> None:
     del cj["frames"][1]["proj"]["e23"]
     p.write_text(json.dumps(cj))
     with pytest.raises(DatasetError, match=r"cam\.json: frames\[1\]\.proj: e23"):
+        sr.import_dataset(handmade, aux=())
+    cj["frames"][1]["proj"] = [1.0] * 16  # a flat list, not Unity's object
+    p.write_text(json.dumps(cj))
+    with pytest.raises(DatasetError, match=r"cam\.json: frames\[1\]\.proj: expected an object "
+                                           r"with keys e00\.\.e33, got list$"):
         sr.import_dataset(handmade, aux=())
 
 
@@ -530,6 +549,15 @@ def test_a_recording_needs_the_client_folder_its_ground_truth_and_the_main_size(
     refused(r"client_ol: missing client directory$")
     with pytest.raises(DatasetError, match=r"client_ol: missing client directory$"):
         sr.import_dataset(handmade)  # (the layout's own check: the above is dataset_info's)
+
+
+@pytest.mark.parametrize("resolution", [{"x": 0, "y": 4}, {"x": 4, "y": True},
+                                        {"x": 4.0, "y": 4}, {"x": 4, "y": 1 << 40}])
+def test_error_resolution_out_of_range(handmade: Path, resolution: dict) -> None:
+    _edit_cam(handmade, "main", resolution=resolution)
+    with pytest.raises(DatasetError, match=r"main[/\\]cam\.json: resolution: expected ints in "
+                                           r"1\.\.\d+, got "):
+        sr.import_dataset(handmade, aux=())
 
 
 def test_error_duplicate_idx(handmade: Path) -> None:
@@ -1179,6 +1207,8 @@ def _corrupt(data: bytes, kind: str) -> bytes:
     assert chunk == table + 8 and struct.unpack_from("<i", data, chunk) == (0,)
     if kind == "header":  # cut inside the attributes
         return data[:100]
+    if kind == "name":  # cut inside the first attribute's type name
+        return data[:20]
     if kind == "offset-table":
         return data[: table + 4]
     if kind == "chunk":  # inside the chunk's pixel data
@@ -1194,6 +1224,8 @@ def _corrupt(data: bytes, kind: str) -> bytes:
 _CORRUPTIONS = {
     "header": "truncated or corrupt header: attribute 'dataWindow' runs past the end of the "
               "file (100 bytes)",
+    "name": "truncated or corrupt header: the attribute at byte 8 runs past the end of the "
+            "file (20 bytes)",
     "offset-table": "truncated: its offset table (1 x 8 bytes) ends at byte 314, past the end "
                     "of the file (310 bytes)",
     "chunk": "truncated or corrupt chunk 0 (lines 0..3) at byte 314: 32 bytes of data, but "

@@ -1108,7 +1108,8 @@ def import_dataset(
 
 def _client_frames_kept(n_client: int, n_server: int, fs: float, fc: float) -> int:
     """How many of the first client frames lie between two of the ``n_server`` server frames
-    or on the last (at or before its time): the recording's client frames (:func:`plan`)."""
+    or on the last (at or before its time): the recording's client frames (:func:`plan`). At
+    least one of one or more: the first lies on server frame 0."""
     while n_client > 0 and plan(n_client / fc, fs, fc)[0] > n_server:
         n_client -= 1
     return n_client
@@ -1172,8 +1173,6 @@ def import_dataset_as_recording(
     if (cw, ch) != (w, h):
         raise DatasetError(f"{root / client}/cam.json: client size {cw}x{ch}, a recording "
                            f"needs the main camera's {w}x{h}")
-    if n_client == 0:
-        raise DatasetError(f"{root}: no client frame lies between two server frames")
     # The ground truth of the client frames left out is checked as import_dataset checks it
     # (one image at a time), so that the same datasets are refused.
     for n in range(n_client, len(lay.requests)):
