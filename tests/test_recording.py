@@ -294,6 +294,7 @@ def _edit_manifest(root: Path, **changes: object) -> None:
         ({"cameras": [1]}, "field 'cameras': expected an object, got an array$"),
         ({"client_frames": [{"index": None}]},
          "field 'client_frames\\[0\\].index': expected an integer, got null$"),
+        ({"client_frames": [{}]}, "missing field 'client_frames\\[0\\].index'$"),
     ],
 )
 def test_bad_manifest(copy: Path, changes: dict[str, object], problem: str) -> None:
@@ -450,6 +451,96 @@ def test_wrong_shape_is_rejected_before_reading(copy: Path) -> None:
     (copy / "manifest.json").write_text(json.dumps(m))
     with pytest.raises(RecordingError, match=r"eye0.color: uint8 \(40000, 40000, 3\), expected"):
         load_recording(copy).client_frames[4]
+
+
+def _replace_client_frame(copy: Path, index: int, arrays: list[tuple[str, Any]],
+                          version: tuple[int, int] = (1, 0)) -> None:
+    """Client frame ``index``'s file rewritten with ``arrays`` (npy ``version``), its manifest
+    entry updated to match: the frame's content is what is then checked."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+        for k, a in arrays:
+            member = io.BytesIO()
+            np.lib.format.write_array(member, a, version=version)
+            zf.writestr(f"{k}.npy", member.getvalue())
+    data = buf.getvalue()
+    (copy / "client" / f"{index:06d}.npz").write_bytes(data)
+    m = json.loads((copy / "manifest.json").read_text())
+    m["client_frames"][index].update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+    (copy / "manifest.json").write_text(json.dumps(m))
+
+
+def test_a_frame_file_with_other_members_or_npy_format_is_refused(copy: Path) -> None:
+    with np.load(copy / "client" / "000004.npz") as z:
+        arrays = [(k, z[k]) for k in z.files]
+    names = sorted(f"{k}.npy" for k, _ in arrays)
+    _replace_client_frame(copy, 4, [*arrays, ("extra", np.zeros(2))])
+    with pytest.raises(RecordingError, match=re.escape(
+            f"000004.npz: members {sorted([*names, 'extra.npy'])}, expected {names}")):
+        load_recording(copy).client_frames[4]
+    _replace_client_frame(copy, 4, arrays[1:])
+    fewer = sorted(f"{k}.npy" for k, _ in arrays[1:])
+    with pytest.raises(RecordingError, match=re.escape(f"members {fewer}, expected {names}")):
+        load_recording(copy).client_frames[4]
+    # npy format 2.0 (4-byte header length) holds the same arrays: only 1.0 is read.
+    _replace_client_frame(copy, 4, arrays, version=(2, 0))
+    with pytest.raises(RecordingError, match=r"000004\.npz: \S+: npy format \(2, 0\), "
+                                             r"expected \(1, 0\)$"):
+        load_recording(copy).client_frames[4]
+
+
+def _cameras(**changes: object) -> Callable[[dict[str, Any]], None]:
+    def edit(m: dict[str, Any]) -> None:
+        m["cameras"].update(changes)
+    return edit
+
+
+def _entry(key: str, i: int, **changes: object) -> Callable[[dict[str, Any]], None]:
+    def edit(m: dict[str, Any]) -> None:
+        m[key][i].update(changes)
+    return edit
+
+
+def _shift_time(m: dict[str, Any]) -> None:
+    m["server_frames"][1]["time"] += 0.05
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        ({"fs": 0}, "field 'fs': expected a finite number > 0, got 0$"),
+        ({"near": -0.1}, "field 'near': expected a finite number > 0, got -0.1$"),
+        (_cameras(aux=[[80, 45]]), r"cameras\.aux: expected two \[width, height\], got "
+                                   r"\[\[80, 45\]\]$"),
+        (_cameras(aux="x"), r"cameras\.aux: expected two \[width, height\], got 'x'$"),
+        (_cameras(client=[4, 4]), r"cameras\.client: expected the main camera's size$"),
+        (_cameras(eyes=2), r"cameras\.eyes: 2 does not match stereo=False$"),
+        (_entry("server_frames", 0), None),  # unchanged: the manifest as written loads
+        (lambda m: m["server_frames"].__setitem__(0, 5),
+         r"server_frames\[0\]: expected an object$"),
+        (_entry("server_frames", 1, index=2), r"server_frames\[1\]: index/time 2/0\.1 out of "
+                                              r"sequence$"),
+        (_shift_time, r"server_frames\[1\]: index/time 1/0\.15\d* out of sequence$"),
+        (_entry("client_frames", 2, file="client/000003.npz"),
+         r"client_frames\[2\]: unexpected file name 'client/000003\.npz'$"),
+        (_entry("server_frames", 0, bytes=-1), r"server_frames\[0\]: bad bytes or sha256$"),
+        (_entry("server_frames", 0, sha256="0" * 63), r"server_frames\[0\]: bad bytes or "
+                                                      r"sha256$"),
+    ],
+)
+def test_bad_manifest_cameras_and_frame_entries(
+    copy: Path, edit: dict[str, object] | Callable[[dict[str, Any]], None], problem: str | None
+) -> None:
+    p = copy / "manifest.json"
+    m = json.loads(p.read_text())
+    edit(m) if callable(edit) else m.update(edit)
+    p.write_text(json.dumps(m))
+    if problem is None:
+        load_recording(copy)
+        return
+    with pytest.raises(RecordingError, match=problem) as e:
+        load_recording(copy)
+    assert str(e.value).startswith(f"{p}: ")
 
 
 def test_cli_help(capsys: pytest.CaptureFixture[str]) -> None:
