@@ -279,3 +279,7 @@ def test_client_errors(frames: list[sr.ServerFrame], cameras: list[sr.Camera]) -
     # non-decreasing times, got -0.1 after 0.0").
     with pytest.raises(InvalidInputError, match=r"frames\[1\]: time 0 s is before frames\[0\]"):
         play([frames[1], frames[0]], cameras, NetworkModel(), fps=FC)
+    # The frames are taken lazily: each item is checked as it is taken.
+    with pytest.raises(InvalidInputError, match=r"^frames\[1\]: expected a ServerFrame, got "
+                                                r"CameraFrame$"):
+        play(iter([frames[0], frames[1].main]), cameras, NetworkModel(), fps=FC)
