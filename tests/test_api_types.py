@@ -244,7 +244,8 @@ TABLE: dict[str, Entry] = {
     ),
     "CodecConfig": (
         lambda f: sr.CodecConfig, lambda f: {},
-        dict(bitrate_mbps=[*POSITIVE, 1e300], camera_shares=[*SEQUENCE, (1.0, "x"), (BIG,)],
+        dict(bitrate_mbps=[*POSITIVE, 1e300],
+             camera_shares=[*SEQUENCE, (1.0, "x"), (BIG,), (), (0.5, 0.3), (1.0, 0.0)],
              color_share=NUMBER, depth_share=NUMBER, motion_share=NUMBER,
              shadow_color_share=NUMBER, chroma=[*STR, "x"], preset=[*STR, "x"],
              fps=POSITIVE, gop=[*COUNT, 0], vbv_buffer_s=POSITIVE, uncompressed=BOOL,
@@ -332,7 +333,7 @@ TABLE: dict[str, Entry] = {
     "StreamEncoder.set_bitrate": (lambda f: sr.StreamEncoder().set_bitrate,
                                   lambda f: dict(mbps=1.0), dict(mbps=[*POSITIVE, 1e300])),
     "StreamStats": (lambda f: sr.StreamStats, lambda f: dict(fps=10.0),
-                    dict(fps=POSITIVE, frames=COUNT, bytes_by_buffer=[None, "x", {"a": "x"}],
+                    dict(fps=POSITIVE, frames=COUNT, bytes_by_buffer=[None, "x", {"a": "x"}, {1: 5}],
                          header_bytes=COUNT)),
     "StreamStats.add": (lambda f: sr.StreamStats(10.0).add, lambda f: dict(packet=f.packets[0]),
                         dict(packet=[None, "x", 0, b""])),

@@ -73,6 +73,16 @@ def test_a_recordings_render_refuses_a_bad_length(seconds: object) -> None:
         RecordingRender("lab", settings)
 
 
+@pytest.mark.parametrize("samples", [0, 9, True, 2.0])
+def test_a_recordings_render_refuses_a_bad_sample_count(samples: object) -> None:
+    from splitrender.scene.recording import RecordingRender, RecordingSettings
+
+    with pytest.raises(RecordingError, match=f"^samples: expected an int in 1..8 or None, got "
+                                             f"{re.escape(repr(samples))}$"):
+        settings = RecordingSettings(samples=samples, scale=SCALE)  # type: ignore[arg-type]
+        RecordingRender("lab", settings)
+
+
 def test_a_recording_longer_than_its_scene_is_refused() -> None:
     from splitrender.scene.recording import RecordingRender, RecordingSettings
 
