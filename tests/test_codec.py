@@ -499,6 +499,14 @@ def _small_hevc_picture(side: int) -> bytes:
     return b"".join(bytes(p) for p in [*enc.encode(frame), *enc.encode(None)])
 
 
+def test_an_encoder_needs_a_camera_share_per_camera(frames: list[sr.ServerFrame]) -> None:
+    # Two shares for three cameras would leave a camera without a bit-rate share.
+    with StreamEncoder(CodecConfig(camera_shares=(0.5, 0.5))) as enc:
+        with pytest.raises(sr.InvalidInputError, match="^frame 0: 3 cameras but 2 camera shares "
+                                                       "in the CodecConfig$"):
+            enc.encode(frames[0])
+
+
 def test_each_check_of_a_packets_buffers_says_what_is_wrong(
     frames: list[sr.ServerFrame], coded: tuple[list[bytes], list[sr.ServerFrame]],
 ) -> None:
@@ -526,6 +534,11 @@ def test_each_check_of_a_packets_buffers_says_what_is_wrong(
     # is decoded with the bitfield's zstd form only.
     refused(replaced("main.shadow_fwd.bits", codec=Codec.RAW, payload=bytes(4 * pixels)),
             "^frame 0, main.shadow_fwd.s_min: a tile needs its bitfield as zstd$")
+    # A shadow colour tile of a packet without the shadow picture it is a tile of.
+    refused(pack_packet(dataclasses.replace(p, buffers=tuple(
+        b for b in p.buffers if b.name != "picture.shadow"))),
+        "^frame 0, main.shadow_fwd.s_min: a tile of picture.shadow, which the packet does "
+        "not hold$")
     # A mask (one byte a pixel would be its raw form) is decoded from zstd only.
     refused(replaced("main.motion_fwd.static", codec=Codec.RAW, payload=bytes(pixels)),
             "^frame 0, main.motion_fwd.static: a mask cannot be raw$")

@@ -746,6 +746,7 @@ def test_an_index_that_repeats_reorders_or_skips_records_is_refused(tmp_path: Pa
         ({"index": -1}, "frame index -1, expected an int in 0..9223372036854775807"),
         ({"index": 1 << 63}, "frame index 9223372036854775808, expected an int in"),
         ({"time": float("nan")}, "time is not finite"),
+        ({"cameras": (), "buffers": ()}, r"frame 7: 0 cameras \(1\.\.\d+ allowed\)$"),
         ({"width": 0}, "main: camera size 0x4 beyond the limits"),
         ({"width": 20000}, "main: camera size 20000x4 beyond the limits"),
         ({"view": np.full((4, 4), np.inf)}, "main: camera matrices must be finite 4x4 arrays"),
@@ -755,7 +756,7 @@ def test_an_index_that_repeats_reorders_or_skips_records_is_refused(tmp_path: Pa
 def test_pack_packet_refuses_what_a_reader_refuses(change: dict[str, object], message: str) -> None:
     # Each was packed (and then refused by every reader) or raised struct.error.
     p = _packet()
-    if "index" in change or "time" in change:
+    if "index" in change or "time" in change or "cameras" in change:
         p = dataclasses.replace(p, **change)  # type: ignore[arg-type]
     else:
         cam = dataclasses.replace(p.cameras[0], **change)  # type: ignore[arg-type]

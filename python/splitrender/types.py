@@ -498,10 +498,6 @@ class ServerFrame:
         )
         object.__setattr__(self, "span", check_int("ServerFrame.span", self.span, 1, MAX_SPAN))
         object.__setattr__(self, "time", check_float("ServerFrame.time", self.time))
-        if not isinstance(self.main, CameraFrame):
-            raise InvalidInputError(
-                f"ServerFrame.main: expected a CameraFrame, got {describe(self.main)}"
-            )
         if isinstance(self.aux, (str, bytes)) or not isinstance(self.aux, Sequence):
             raise InvalidInputError(
                 f"ServerFrame.aux: expected a sequence of CameraFrame, got {describe(self.aux)}"
@@ -509,7 +505,8 @@ class ServerFrame:
         aux = tuple(self.aux)
         object.__setattr__(self, "aux", aux)
         # The cameras checked themselves when they were made, but numpy arrays stay mutable
-        # (``a.dtype = ...``, ``a.shape = ...``): check again, naming the path in this frame.
+        # (``a.dtype = ...``, ``a.shape = ...``): check again, naming the path in this frame
+        # (and that main and each aux is a CameraFrame).
         check_server_frame("ServerFrame", self)
 
     def to_native(self, direction: str) -> tuple[Any, list[Any]]:
