@@ -8,6 +8,7 @@ import dataclasses
 import errno
 import io
 import os
+import re
 import struct
 import zlib
 from collections.abc import Iterator
@@ -21,8 +22,13 @@ from hypothesis import strategies as st
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.codec.stream import (
     KIND_CHANNELS,
+    MAX_BUFFERS,
+    MAX_CAMERAS,
     MAX_HEADER,
+    MAX_INDEX,
     MAX_PAYLOAD,
+    MAX_RATE,
+    MAX_SIDE,
     BufferEntry,
     BufferKind,
     CameraRecord,
@@ -109,6 +115,73 @@ def test_packet_round_trip() -> None:
     )
     assert q.buffers[3].name == "aux0.shadow_fwd.bits"
     assert q.buffers[4].name == "picture.geometry"
+
+
+def _counted(n_cam: int, n_buf: int, camera: int | None = None, tiles: bool = False) -> Packet:
+    """A packet of ``n_cam`` 1x1 cameras and ``n_buf`` empty buffers (on camera ``camera``, or
+    spread over them): motion, as zeros or (``tiles``) as tiles with three scale and offset
+    pairs, the most a buffer's header entry holds."""
+    eye = np.eye(4)
+    codec, pairs = (Codec.TILE, ((1.0,) * 3, (0.0,) * 3)) if tiles else (Codec.ZERO, ())
+    return Packet(
+        index=1, time=0.1, key=True, uncompressed=False,
+        cameras=tuple(CameraRecord(eye, eye, 1, 1) for _ in range(n_cam)),
+        buffers=tuple(
+            BufferEntry(i % max(n_cam, 1) if camera is None else camera, BufferKind.MOTION_FWD,
+                        codec, 3, 1, 1, b"", *pairs)
+            for i in range(n_buf)
+        ),
+    )
+
+
+def test_packets_at_the_limits_round_trip_and_one_past_is_refused(tmp_path: Path) -> None:
+    # One camera and no buffer, MAX_CAMERAS cameras and MAX_BUFFERS buffers, frame indices 0
+    # and MAX_INDEX, a camera MAX_SIDE wide or high, a stream at MAX_RATE: each limit itself
+    # is allowed; one past it is refused by pack_packet and, written by a hostile producer
+    # (consistent CRCs), by unpack_packet.
+    for n_cam, n_buf in [(1, 0), (1, 1), (MAX_CAMERAS, MAX_BUFFERS)]:
+        q = unpack_packet(pack_packet(_counted(n_cam, n_buf)))
+        assert (len(q.cameras), len(q.buffers)) == (n_cam, n_buf)
+    # The largest header block: every camera and buffer at the limits, three pairs each.
+    largest = pack_packet(_counted(MAX_CAMERAS, MAX_BUFFERS, tiles=True))
+    assert len(_split(largest)[1]) == MAX_HEADER
+    assert len(unpack_packet(largest).buffers) == MAX_BUFFERS
+    for index in (0, MAX_INDEX):
+        assert unpack_packet(pack_packet(dataclasses.replace(_counted(1, 0), index=index))).index \
+            == index
+    eye = np.eye(4)
+    for w, h in [(MAX_SIDE, 1), (1, MAX_SIDE)]:
+        cam = CameraRecord(eye, eye, w, h)
+        q = unpack_packet(pack_packet(dataclasses.replace(_counted(1, 0), cameras=(cam,))))
+        assert (q.cameras[0].width, q.cameras[0].height) == (w, h)
+    write_stream(tmp_path / "s.srs", [pack_packet(_counted(1, 0))], fps=MAX_RATE)
+    assert StreamFile(tmp_path / "s.srs").fps == MAX_RATE
+    for packet, message in [
+        (_counted(0, 0), "frame 1: 0 cameras (1..16 allowed)"),
+        (_counted(MAX_CAMERAS + 1, 1), "frame 1: 17 cameras (1..16 allowed)"),
+        (_counted(1, MAX_BUFFERS + 1), "frame 1: 513 buffers (at most 512)"),
+        (_counted(2, 1, camera=2), "frame 1, aux1.motion_fwd: camera 2 of 2"),
+    ]:
+        with pytest.raises(StreamError, match=f"^{re.escape(message)}$"):
+            pack_packet(packet)
+    head, block, payloads = _split(pack_packet(_counted(2, 1, camera=1)))
+    for n_cam, n_buf, message in [
+        (0, 1, "0 cameras in the header (1..16 allowed)"),
+        (MAX_CAMERAS + 1, 1, "17 cameras in the header (1..16 allowed)"),
+        (2, MAX_BUFFERS + 1, "513 buffers in the header (at most 512)"),
+    ]:
+        hostile = bytes(struct.pack("<BBH", n_cam, 0, n_buf) + block[4:])
+        with pytest.raises(StreamError, match=f"^frame 1: {re.escape(message)}$"):
+            unpack_packet(_join(head, hostile, payloads))
+    entry = _CAMS + 2 * 264
+    assert block[entry] == 1  # the buffer's camera
+    hostile = block[:entry] + bytes([2]) + block[entry + 1:]
+    with pytest.raises(StreamError, match=r"^frame 1, aux1\.motion_fwd: camera 2 of 2$"):
+        unpack_packet(_join(head, hostile, payloads))
+    # A header block of its 4-byte head alone, one camera announced: too short for it.
+    with pytest.raises(StreamError, match=r"^frame 1: header block of 4 bytes is too short for "
+                                          r"1 cameras$"):
+        unpack_packet(_join(head, struct.pack("<BBH", 1, 0, 0), payloads))
 
 
 @pytest.mark.parametrize(
