@@ -540,3 +540,15 @@ def test_bidir_history_prepare_checks_its_arguments(
     TypeError and OverflowError); the frames are never reached."""
     with pytest.raises(InvalidInputError, match=named):
         sr.BidirHistory().prepare(method, None, None, None, None, threads)  # type: ignore[arg-type]
+
+
+def test_a_check_of_a_parameter_the_function_lacks_is_refused_where_it_is_written() -> None:
+    # A misspelt name in @checked would otherwise check nothing, silently.
+    from splitrender.types import checked, ints
+
+    def scale(factor: int) -> int:
+        return factor
+
+    with pytest.raises(AssertionError, match=r"scale: no parameters \['factr'\]$"):
+        checked(factr=ints(1, 8))(scale)
+    assert checked(factor=ints(1, 8))(scale)(2) == 2

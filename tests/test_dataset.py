@@ -496,6 +496,34 @@ def test_error_a_file_that_is_not_an_exr(handmade: Path) -> None:
         sr.import_dataset(handmade, aux=())
 
 
+def test_flow_with_an_alpha_channel_is_read_as_rgb(handmade: Path) -> None:
+    # "R, G, B (A optional)": a flow EXR that also holds A reads the same motion.
+    before = sr.import_dataset(handmade, aux=()).server_frames[0].main.motion_fwd
+    flow = np.broadcast_to(np.array([0.5, 0.5, -0.2]), (4, 4, 3))
+    _write_exr(handmade / "main" / "forwardFlowField" / "0007.exr",
+               {**{c: flow[..., i] for i, c in enumerate("RGB")}, "A": np.ones((4, 4))})
+    after = sr.import_dataset(handmade, aux=()).server_frames[0].main.motion_fwd
+    assert before is not None and after is not None
+    np.testing.assert_array_equal(after, before)
+
+
+def test_error_singular_view_projection(handmade: Path) -> None:
+    # Each matrix invertible alone, their product not (in the kernels' own test): w2c scales z
+    # by 1e-11 and the projection's near plane lies at 100.
+    near, far = 100.0, 1000.0
+    proj = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0],
+                     [0, 0, near / (far - near), far * near / (far - near)], [0, 0, -1.0, 0]])
+    view = np.diag([1.0, 1.0, 1e-11, 1.0])
+    assert _native.singular_camera(view, np.eye(4)) is None
+    assert _native.singular_camera(np.eye(4), proj) is None
+    frames = json.loads((handmade / "main" / "cam.json").read_text())["frames"]
+    frames[1] = {**frames[1], "w2c": matrix_to_unity(view), "proj": matrix_to_unity(proj)}
+    _edit_cam(handmade, "main", frames=frames)
+    with pytest.raises(DatasetError, match=r"main[/\\]cam\.json: frames\[1\]: proj · w2c is "
+                                           r"singular, expected an invertible view-projection$"):
+        sr.import_dataset(handmade, aux=())
+
+
 def test_error_bad_matrix(handmade: Path) -> None:
     p = handmade / "main" / "cam.json"
     cj = json.loads(p.read_text())

@@ -25,7 +25,7 @@ from splitrender.scene.recording import (
     plan,
     write_recording,
 )
-from splitrender.scene.builtin import Scene, load_trace
+from splitrender.scene.builtin import MAX_SAMPLES, Scene, load_trace
 
 SCALE, SECONDS = 0.04, 0.3  # 102 x 58; 4 server and 36 client frames
 TRACES = Path(__file__).resolve().parents[2] / "shared" / "traces"
@@ -155,6 +155,10 @@ def test_a_slice_of_frames_reads_each_frame_when_it_is_asked_for(
     assert len(part[::2]) == 2 and part[::2][1].time == rec.server_frames[3].time
     with pytest.raises(IndexError):
         part[3]
+    # Negative indices count from the end, as a list's: -len is the first, one more refused.
+    assert part[-3].time == rec.server_frames[1].time
+    with pytest.raises(IndexError):
+        part[-4]
 
 
 def test_raw_rate_comes_from_the_manifest_and_equals_the_frames_bytes(
@@ -526,6 +530,13 @@ def _shift_time(m: dict[str, Any]) -> None:
         (_cameras(client=[4, 4]), r"cameras\.client: expected the main camera's size$"),
         (_cameras(eyes=2), r"cameras\.eyes: 2 does not match stereo=False$"),
         (_entry("server_frames", 0), None),  # unchanged: the manifest as written loads
+        # The ends of the ranges load.
+        ({"subframes": 1}, None),
+        ({"subframes": 16}, None),
+        ({"samples": {"main": 1, "aux": MAX_SAMPLES, "client": 1}}, None),
+        ({"subframes": 17}, "field 'subframes': expected 1..16, got 17$"),
+        ({"samples": {"main": 1, "aux": MAX_SAMPLES + 1, "client": 1}},
+         f"samples.aux: expected an int in 1..{MAX_SAMPLES}, got {MAX_SAMPLES + 1}$"),
         (lambda m: m["server_frames"].__setitem__(0, 5),
          r"server_frames\[0\]: expected an object$"),
         (_entry("server_frames", 1, index=2), r"server_frames\[1\]: index/time 2/0\.1 out of "
