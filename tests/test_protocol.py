@@ -712,3 +712,40 @@ def test_encoder_live_controls_and_seq_indexed_packets() -> None:
             small.decode(packets[0])
     finally:
         small.close()
+
+
+def test_messages_at_the_limits_of_the_protocol_round_trip() -> None:
+    # Each limit itself is a message (one past it is refused: the tests above); the ends of
+    # every range a decoder checks.
+    for hello in (
+        proto.Hello("t" * proto.MAX_TOKEN, proto.MAX_SIDE, proto.MAX_SIDE, proto.MAX_FPS),
+        proto.Hello("", 1, 1, proto.MIN_DISPLAY_FPS),
+        proto.Hello("a", 0, 0),
+    ):
+        assert proto.decode_control(hello.encode()) == hello
+    for side in (1, proto.MAX_SIDE):
+        w = proto.Welcome(10.0, 0.1, side, side, (0.0,) * 16, 1, 1.0, 1.0, "s", bytes(32))
+        assert proto.decode_control(w.encode()) == w
+    none_yet = proto.KeyRequest(-1, proto.KEY_START)
+    assert proto.decode_control(none_yet.encode()) == none_yet
+    for index, size, span in [(0, 1, 1), (2**40, proto.MAX_FRAME_PAYLOAD, proto.MAX_SPAN)]:
+        h = proto.FrameHeader(index, index, True, 0.0, 0.1, 0.0, 1e6, 1.0, 1.0, size, span)
+        assert proto.FrameHeader.decode(h.encode()) == h
+    # The longest control message, framed and read back in pieces.
+    longest = bytes(proto.MAX_CONTROL)
+    framed = proto.frame_control(longest)
+    reader = proto.ControlReader(max_buffer=len(framed))
+    assert reader.feed(framed[:100]) == [] and reader.feed(framed[100:]) == [longest]
+    with pytest.raises(ProtocolError, match=f"expected 1..{proto.MAX_CONTROL} bytes, got "
+                                            f"{proto.MAX_CONTROL + 1}$"):
+        proto.frame_control(longest + b"x")
+    # A message still arriving may fill the reader's buffer, not pass it.
+    reader = proto.ControlReader(max_buffer=10)
+    assert reader.feed(struct.pack("<H", 100) + bytes(8)) == []
+    with pytest.raises(ProtocolError, match="^control stream: more than 10 bytes pending$"):
+        reader.feed(b"x")
+    # A frame carries a packet: a header announcing none is refused.
+    empty = proto.FrameHeader(0, 0, True, 0.0, 0.1, 0.0, 1e6, 1.0, 1.0, 0)
+    with pytest.raises(ProtocolError, match=f"^frame header.size: expected "
+                                            f"1..{proto.MAX_FRAME_PAYLOAD} bytes, got 0$"):
+        proto.FrameHeader.decode(empty.encode())
