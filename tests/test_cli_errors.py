@@ -161,6 +161,13 @@ CASES: list[tuple[str, list[str], tuple[str, ...]]] = [
     # argument", though the option was given one.
     ("value starting with a dash", ["relay", "--bandwidth-at", "-1:0.5", "--seconds", "0.1"],
      ("--bandwidth-at", "is written --bandwidth-at=-1:0.5")),
+    ("bandwidth step without a colon", ["relay", "--bandwidth-at=5", "--seconds", "0.1"],
+     ("--bandwidth-at", "expected SECONDS:MBPS", "got '5'")),
+    ("bandwidth step of a negative rate", ["relay", "--bandwidth-at=1:-5", "--seconds", "0.1"],
+     ("--bandwidth-at", "expected SECONDS:MBPS", "got '1:-5'")),
+    ("bandwidth step after the longest run", ["relay", "--bandwidth-at=1e9:5", "--seconds",
+                                              "0.1"],
+     ("--bandwidth-at", "expected SECONDS:MBPS", "got '1e9:5'")),
     # One datagram went round 186,000 times in 1.5 s.
     ("relay to itself", ["relay", "--listen", "127.0.0.1:47330", "--target", "localhost:47330",
                          "--seconds", "0.1"], ("listen and target", "forward to itself")),

@@ -906,15 +906,6 @@ class RealtimeClient:
         keep_frames: int | None = KEEP_FRAMES,
         on_handover: Callable[[Handover], None] | None = None,
     ) -> None:
-        if (
-            isinstance(display_fps, bool)
-            or not isinstance(display_fps, (int, float))
-            or not math.isfinite(display_fps)
-            or display_fps <= 0
-        ):
-            raise InvalidInputError(
-                f"display_fps: expected a positive finite number, got {display_fps!r}"
-            )
         self.client = (
             client
             if client is not None
