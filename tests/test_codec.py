@@ -528,6 +528,13 @@ def test_each_check_of_a_packets_buffers_says_what_is_wrong(
     pixels = main.width * main.height
     refused(packets[0], f"^frame 0, main: {main.width}x{main.height} exceeds the decoder's "
                         f"limit of {pixels - 1} pixels$", max_pixels=pixels - 1)
+    # The limit bounds the cameras together too (the pictures hold them all): at it a packet
+    # decodes, one pixel below it is refused.
+    total = sum(c.width * c.height for c in p.cameras)
+    refused(packets[0], f"^frame 0: the cameras hold {total} pixels together, beyond the "
+                        f"decoder's limit of {total - 1}$", max_pixels=total - 1)
+    with StreamDecoder(max_pixels=total) as dec:
+        assert dec.decode(packets[0]).index == 0
     refused(pack_packet(dataclasses.replace(p, buffers=p.buffers + p.buffers[-1:])),
             "^frame 0, picture.shadow: buffer appears twice$")
     # A shadow colour tile whose bitfield is stored raw (the right size for it): the tile
