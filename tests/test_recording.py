@@ -73,12 +73,12 @@ def test_a_recordings_render_refuses_a_bad_length(seconds: object) -> None:
         RecordingRender("lab", settings)
 
 
-@pytest.mark.parametrize("samples", [0, 9, True, 2.0])
+@pytest.mark.parametrize("samples", [0, MAX_SAMPLES + 1, True, 2.0])
 def test_a_recordings_render_refuses_a_bad_sample_count(samples: object) -> None:
     from splitrender.scene.recording import RecordingRender, RecordingSettings
 
-    with pytest.raises(RecordingError, match=f"^samples: expected an int in 1..8 or None, got "
-                                             f"{re.escape(repr(samples))}$"):
+    with pytest.raises(RecordingError, match=f"^samples: expected an int in 1..{MAX_SAMPLES} or "
+                                             f"None, got {re.escape(repr(samples))}$"):
         settings = RecordingSettings(samples=samples, scale=SCALE)  # type: ignore[arg-type]
         RecordingRender("lab", settings)
 
@@ -554,7 +554,10 @@ def test_bad_manifest_cameras_and_frame_entries(
 ) -> None:
     p = copy / "manifest.json"
     m = json.loads(p.read_text())
-    edit(m) if callable(edit) else m.update(edit)
+    if callable(edit):
+        edit(m)
+    else:
+        m.update(edit)
     p.write_text(json.dumps(m))
     if problem is None:
         load_recording(copy)

@@ -1109,7 +1109,7 @@ def import_dataset(
 def _client_frames_kept(n_client: int, n_server: int, fs: float, fc: float) -> int:
     """How many of the first client frames lie between two of the ``n_server`` server frames
     or on the last (at or before its time): the recording's client frames (:func:`plan`). At
-    least one of one or more: the first lies on server frame 0."""
+    least one where ``n_client >= 1``: the first client frame lies on server frame 0."""
     while n_client > 0 and plan(n_client / fc, fs, fc)[0] > n_server:
         n_client -= 1
     return n_client
