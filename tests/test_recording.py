@@ -282,11 +282,23 @@ def copy(recorded: Path, tmp_path: Path) -> Path:
     return Path(shutil.copytree(recorded, tmp_path / "copy"))
 
 
-def _edit_manifest(root: Path, **changes: object) -> None:
+def _change_manifest(
+    root: Path, change: dict[str, object] | Callable[[dict[str, Any]], None]
+) -> Path:
+    """Rewrites ``root``'s manifest with ``change`` (fields to replace, or a function that edits
+    the parsed document in place); returns the manifest's path."""
     p = root / "manifest.json"
     m = json.loads(p.read_text())
-    m.update(changes)
+    if callable(change):
+        change(m)
+    else:
+        m.update(change)
     p.write_text(json.dumps(m))
+    return p
+
+
+def _edit_manifest(root: Path, **changes: object) -> None:
+    _change_manifest(root, changes)
 
 
 @pytest.mark.parametrize(
@@ -341,13 +353,7 @@ def _cut(key: str, n: int) -> Callable[[dict[str, Any]], None]:
 def test_the_frame_lists_are_the_ones_the_manifest_plans(
     copy: Path, change: dict[str, object] | Callable[[dict[str, Any]], None], problem: str
 ) -> None:
-    p = copy / "manifest.json"
-    m = json.loads(p.read_text())
-    if callable(change):
-        change(m)
-    else:
-        m.update(change)
-    p.write_text(json.dumps(m))
+    _change_manifest(copy, change)
     with pytest.raises(RecordingError, match=f"manifest.json: .*{problem}"):
         load_recording(copy)
 
@@ -479,9 +485,8 @@ def _replace_client_frame(copy: Path, index: int, arrays: list[tuple[str, Any]],
             zf.writestr(f"{k}.npy", member.getvalue())
     data = buf.getvalue()
     (copy / "client" / f"{index:06d}.npz").write_bytes(data)
-    m = json.loads((copy / "manifest.json").read_text())
-    m["client_frames"][index].update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
-    (copy / "manifest.json").write_text(json.dumps(m))
+    _change_manifest(copy, lambda m: m["client_frames"][index].update(
+        bytes=len(data), sha256=hashlib.sha256(data).hexdigest()))
 
 
 def test_a_frame_file_with_other_members_or_npy_format_is_refused(copy: Path) -> None:
@@ -552,13 +557,7 @@ def _shift_time(m: dict[str, Any]) -> None:
 def test_bad_manifest_cameras_and_frame_entries(
     copy: Path, edit: dict[str, object] | Callable[[dict[str, Any]], None], problem: str | None
 ) -> None:
-    p = copy / "manifest.json"
-    m = json.loads(p.read_text())
-    if callable(edit):
-        edit(m)
-    else:
-        m.update(edit)
-    p.write_text(json.dumps(m))
+    p = _change_manifest(copy, edit)
     if problem is None:
         load_recording(copy)
         return
