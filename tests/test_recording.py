@@ -297,10 +297,6 @@ def _change_manifest(
     return p
 
 
-def _edit_manifest(root: Path, **changes: object) -> None:
-    _change_manifest(root, changes)
-
-
 @pytest.mark.parametrize(
     ("changes", "problem"),
     [
@@ -324,7 +320,7 @@ def _edit_manifest(root: Path, **changes: object) -> None:
     ],
 )
 def test_bad_manifest(copy: Path, changes: dict[str, object], problem: str) -> None:
-    _edit_manifest(copy, **changes)
+    _change_manifest(copy, changes)
     with pytest.raises(RecordingError, match=problem) as e:
         load_recording(copy)
     assert "manifest.json" in str(e.value)
