@@ -173,7 +173,7 @@ def test_packets_at_the_limits_round_trip_and_one_past_is_refused(tmp_path: Path
         hostile = bytes(struct.pack("<BBH", n_cam, 0, n_buf) + block[4:])
         with pytest.raises(StreamError, match=f"^frame 1: {re.escape(message)}$"):
             unpack_packet(_join(head, hostile, payloads))
-    entry = _CAMS + 2 * 264
+    entry = _ENTRIES  # two cameras before it, as in _packet()
     assert block[entry] == 1  # the buffer's camera
     hostile = block[:entry] + bytes([2]) + block[entry + 1:]
     with pytest.raises(StreamError, match=r"^frame 1, aux1\.motion_fwd: camera 2 of 2$"):
