@@ -4,6 +4,7 @@ time is compared with."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import subprocess
 import sys
@@ -14,7 +15,7 @@ import pytest
 import splitrender as sr
 from conftest import Pair
 from splitrender.evaluation.bench import bytes_touched
-from splitrender.machine import Machine
+from splitrender.machine import CpuTimes, Machine
 from splitrender.types import ShadowBuffers
 
 FIELDS = ("color", "depth", "motion_fwd", "motion_bwd", "shadow_fwd", "shadow_bwd")
@@ -233,6 +234,15 @@ def test_bench_rows_are_the_median_and_the_copy_floor_of_the_bytes_touched(
     monkeypatch.setattr(bench, "copy_floor_s", copy_floor_s)
     machine = Machine("Test CPU (family 1, model 2)", 3, "avx2")
     monkeypatch.setattr(bench, "this_machine", lambda: machine)
+    # The machine's CPU times before each method and after its floor: the host took 10 % of
+    # the first interval, and from then on the readings are 200 ticks apart with 5 stolen.
+    readings = itertools.count()
+
+    def cpu_times() -> CpuTimes:
+        k = next(readings)
+        return CpuTimes(total=200 * k, steal=0 if k == 0 else 15 + 5 * k)
+
+    monkeypatch.setattr(bench, "cpu_times", cpu_times)
     rows = bench.run_bench("courtyard", sr.METHODS, 0.02, frames=5, repeats=1, progress=False)
     rec = bench._recording("courtyard", 0.02, lambda _: None)
     f0, f1 = rec.server_frames[0], rec.server_frames[1]
@@ -251,10 +261,15 @@ def test_bench_rows_are_the_median_and_the_copy_floor_of_the_bytes_touched(
         assert list(r.to_json()) == list(bench.BENCH_KEYS)
         assert r.to_json()["ratio_to_floor"] == r.ratio_to_floor
         assert (r.processor, r.cpus, r.simd) == ("Test CPU (family 1, model 2)", 3, "avx2")
-    # The table says where it was measured before anything else.
-    assert bench.format_rows(rows).splitlines()[0] == (
-        "machine: Test CPU (family 1, model 2), 3 CPUs, CPU row loops AVX2"
-    )
+    assert [r.host_steal_pct for r in rows] == [10.0] + [2.5] * (len(rows) - 1)
+    # The table says where it was measured before anything else, and the host's share last.
+    table = bench.format_rows(rows).splitlines()
+    assert table[0] == "machine: Test CPU (family 1, model 2), 3 CPUs, CPU row loops AVX2"
+    assert table[2].split()[-2:] == ["steal", "%"]
+    assert [line.split()[-1] for line in table[3:]] == ["10.0"] + ["2.5"] * (len(rows) - 1)
+    # Where the platform does not count it: n/a.
+    bare = dataclasses.replace(rows[0], host_steal_pct=None)
+    assert bench.format_rows([bare]).splitlines()[-1].split()[-1] == "n/a"
 
 
 def test_a_damaged_cached_recording_is_rendered_again(tmp_path, monkeypatch) -> None:

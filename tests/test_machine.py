@@ -105,3 +105,63 @@ def test_the_row_loops_tier_follows_reproj_simd(tier: str) -> None:
     uncapped = m.this_machine().simd
     order = list(m.SIMD_NAMES)[::-1]  # baseline, avx2, avx512
     assert out == min(tier, uncapped, key=order.index)
+
+
+# /proc/stat's first lines on a 2-CPU VM whose host took 300 ticks: user nice system idle
+# iowait irq softirq steal guest guest_nice.
+STAT = """cpu  1000 10 200 5000 40 0 30 300 70 5
+cpu0 500 5 100 2500 20 0 15 150 35 2
+cpu1 500 5 100 2500 20 0 15 150 35 3
+intr 12345 0 0
+"""
+
+
+def test_cpu_times_are_the_first_eight_columns_and_steal_the_eighth() -> None:
+    # The guest columns are already inside user and nice: not counted twice.
+    assert m.cpu_times(STAT) == m.CpuTimes(total=1000 + 10 + 200 + 5000 + 40 + 0 + 30 + 300,
+                                           steal=300)
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "cpu  1000 10 200 5000 40 0 30\n",  # a kernel without the steal column
+        "cpu  1000 10 200 5000 40 0 30 x 0 0\n",  # not a number
+        "cpu  1000 10 200 5000 40 0 30 -3 0 0\n",  # negative
+        "cpu0 1000 10 200 5000 40 0 30 300 0 0\n",  # one CPU's line only
+        "",
+    ],
+)
+def test_cpu_times_without_a_whole_cpu_line_are_none(text: str) -> None:
+    assert m.cpu_times(text) is None
+
+
+def test_cpu_times_without_proc_stat_are_none(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(m, "PROC_STAT", tmp_path / "absent")
+    assert m.cpu_times() is None
+
+
+@pytest.mark.skipif(not Path("/proc/stat").exists(), reason="no /proc/stat on this platform")
+def test_this_machine_counts_its_cpu_time() -> None:
+    before = m.cpu_times()
+    assert before is not None and before.total > 0 and 0 <= before.steal <= before.total
+
+
+def test_steal_share_is_the_hosts_part_of_the_interval() -> None:
+    assert m.steal_share(m.CpuTimes(1000, 100), m.CpuTimes(1400, 200)) == 0.25
+    assert m.steal_share(m.CpuTimes(1000, 100), m.CpuTimes(1400, 100)) == 0.0
+
+
+@pytest.mark.parametrize(
+    ("before", "after"),
+    [
+        (None, m.CpuTimes(1400, 200)),
+        (m.CpuTimes(1000, 100), None),
+        (m.CpuTimes(1000, 100), m.CpuTimes(1000, 100)),  # no tick between them
+        (m.CpuTimes(1000, 100), m.CpuTimes(900, 100)),  # counters went back (another boot)
+        (m.CpuTimes(1000, 100), m.CpuTimes(1100, 50)),
+        (m.CpuTimes(1000, 100), m.CpuTimes(1100, 300)),  # more stolen than passed
+    ],
+)
+def test_steal_share_without_an_interval_is_none(before, after) -> None:
+    assert m.steal_share(before, after) is None

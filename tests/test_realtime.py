@@ -959,6 +959,30 @@ def test_the_text_report_names_the_machine_second() -> None:
     assert "machine:" not in format_realtime(bare)
 
 
+def test_a_run_records_the_share_of_cpu_time_the_host_took(scene, frames, monkeypatch) -> None:
+    """The machine's CPU times are read as the clock starts and after the last frame: the
+    host's share of the interval is the summary's ``host_steal_pct`` and the text says it."""
+    from splitrender.machine import CpuTimes
+
+    readings = iter([CpuTimes(10_000, 500), CpuTimes(12_000, 1_000)])
+    monkeypatch.setattr(rt, "cpu_times", lambda: next(readings))
+    clock = FakeClock()
+    with loop(clock) as c:
+        c.submit(frames[0])
+        c.wait()
+        s = c.run(pose_of(scene), 0.02).summary()
+    assert next(readings, None) is None  # both read, no more
+    assert s["host_steal_pct"] == pytest.approx(25.0)
+    assert "; the host took 25.0 % of the machine's CPU time (steal)" in text_report(s)
+    # Where the platform does not count it: None, and the text says nothing of it.
+    monkeypatch.setattr(rt, "cpu_times", lambda: None)
+    with loop(FakeClock()) as c:
+        c.submit(frames[0])
+        c.wait()
+        s = c.run(pose_of(scene), 0.02).summary()
+    assert s["host_steal_pct"] is None and "steal" not in text_report(s)
+
+
 def test_the_api_refuses_preparation_threads_for_the_gpu_backend(monkeypatch) -> None:
     from splitrender.evaluation import bench_realtime
 
@@ -1182,6 +1206,7 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "prepare_ms_per_server_frame",
         "usable_ms_per_server_frame",
         "cpu_utilisation",
+        "host_steal_pct",
         "modes",
         "display_scheduling",
         "warm_up_ms",

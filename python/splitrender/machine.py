@@ -10,6 +10,13 @@ on, and the instruction set the CPU kernels' row loops use (``REPROJ_SIMD`` caps
 tier gives the same bytes, only the time differs). :func:`usable_cpus` is also what the
 real-time report's CPU utilisation is a share of, so the module sits below the client and
 the evaluation, which both use it.
+
+A virtual machine's processor is also shared: while the host runs another guest on the cores
+under this one's CPUs, the time is this machine's "steal" (Linux counts it in ``/proc/stat``).
+On the project's 2-core VM it reached a quarter of the CPU time for minutes at a time, and the
+real-time loop's deadline misses went with it (docs/realtime.md, "Time the host took"). So the
+benches also record the share of the machine's CPU time the host took while they timed
+(:func:`cpu_times`, :func:`steal_share`): a slow run whose host took 20 % says so itself.
 """
 
 from __future__ import annotations
@@ -20,8 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = [
-    "SIMD_NAMES", "Machine", "describe_recorded", "processor_name", "this_machine",
-    "usable_cpus",
+    "SIMD_NAMES", "CpuTimes", "Machine", "cpu_times", "describe_recorded", "processor_name",
+    "steal_share", "this_machine", "usable_cpus",
 ]
 
 #: The row loops' instruction sets (``_native.simd_tier``) as people write them.
@@ -29,6 +36,8 @@ SIMD_NAMES = {"avx512": "AVX-512", "avx2": "AVX2", "baseline": "baseline"}
 
 #: Where Linux describes the processors.
 CPUINFO = Path("/proc/cpuinfo")
+#: Where Linux counts the time its CPUs spent in each state.
+PROC_STAT = Path("/proc/stat")
 
 
 @dataclass(frozen=True)
@@ -100,3 +109,50 @@ def this_machine() -> Machine:
     from splitrender._native import simd_tier
 
     return Machine(processor=processor_name(), cpus=usable_cpus(), simd=simd_tier())
+
+
+@dataclass(frozen=True)
+class CpuTimes:
+    """The machine's CPU time since it booted, all its CPUs together, in the kernel's ticks
+    (the first line of ``/proc/stat``): ``total`` in every state (idle included), ``steal``
+    the part the hypervisor gave to something else while this machine's CPUs had work."""
+
+    total: int
+    steal: int
+
+
+def cpu_times(stat: str | None = None) -> CpuTimes | None:
+    """The machine's :class:`CpuTimes` from ``stat`` (the text of ``/proc/stat``; read here
+    when ``None``), or ``None`` where there is none to read (not Linux) or its ``cpu`` line
+    does not have the eight numbers ``user nice system idle iowait irq softirq steal``.
+
+    The two ``guest`` columns after them are not added: the kernel counts a guest's time in
+    ``user`` and ``nice`` already."""
+    if stat is None:
+        try:
+            stat = PROC_STAT.read_text(errors="replace")
+        except OSError:
+            return None
+    for line in stat.splitlines():
+        fields = line.split()
+        if not fields or fields[0] != "cpu":
+            continue
+        ticks = fields[1:9]
+        if len(ticks) < 8 or not all(t.isdigit() for t in ticks):
+            return None
+        counts = [int(t) for t in ticks]
+        return CpuTimes(total=sum(counts), steal=counts[7])
+    return None
+
+
+def steal_share(before: CpuTimes | None, after: CpuTimes | None) -> float | None:
+    """The share (0-1) of the machine's CPU time between the readings ``before`` and
+    ``after`` (:func:`cpu_times`) that its host took (steal), or ``None`` where either
+    reading is missing or they do not describe an interval (no tick between them, or
+    counters that went back)."""
+    if before is None or after is None:
+        return None
+    total, steal = after.total - before.total, after.steal - before.steal
+    if total <= 0 or not 0 <= steal <= total:
+        return None
+    return steal / total

@@ -64,7 +64,7 @@ from splitrender.client.client import Client
 from splitrender.client.collector import FrameCollector
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.gpu import BACKENDS, GpuDeviceLostError, GpuPair
-from splitrender.machine import usable_cpus
+from splitrender.machine import cpu_times, steal_share, usable_cpus
 from splitrender.net.model import MODES, TIME_EPS
 from splitrender.reproject import MAX_PREPARE_THREADS, prepare_pair
 from splitrender.tally import Tally
@@ -300,6 +300,10 @@ class RealtimeReport:
         self.wall_s = 0.0
         self.cpu_s = 0.0
         self.cpus = 1
+        #: The share (0-1) of the machine's CPU time that the virtual machine's host took
+        #: during the run (:func:`~splitrender.machine.steal_share`); ``None`` where the
+        #: platform does not count it.
+        self.host_steal: float | None = None
         #: Why the first :data:`KEEP_UNDECODABLE` packets that did not decode were refused
         #: (the StreamError's message), in order; :attr:`packets_undecodable` counts them all.
         self.undecodable: list[str] = []
@@ -419,6 +423,8 @@ class RealtimeReport:
         and ``pairs_probed`` (such pairs prepared anyway, to measure them again),
         ``server_age_ms_p50/max``, ``achieved_fps`` (frames done by their deadline per second of the
         run) and ``cpu_utilisation`` (process CPU seconds per wall second and core, 0–1),
+        ``host_steal_pct`` (the share of the machine's CPU time its host took during the run,
+        :attr:`host_steal` in per cent; ``None`` where not counted),
         ``display_scheduling`` (how the display's threads were scheduled), ``warm_up_ms`` (``None``
         without a warm-up), ``gpu_lost`` (why the GPU device was lost, after which the display
         rendered on the CPU; ``None``) and the garbage collection between frames:
@@ -460,6 +466,7 @@ class RealtimeReport:
             "achieved_fps": (n - misses) / self.wall_s if self.wall_s > 0 else 0.0,
             "wall_s": self.wall_s,
             "cpu_utilisation": self.cpu_s / (self.wall_s * self.cpus) if self.wall_s > 0 else 0.0,
+            "host_steal_pct": None if self.host_steal is None else 100.0 * self.host_steal,
             "display_scheduling": self.display_scheduling,
             "warm_up_ms": self.warm_up_ms,
             "gpu_lost": self.gpu_lost,
@@ -1472,6 +1479,7 @@ class RealtimeClient:
             collector.start()
             t0 = self.clock.now()
             cpu0 = time.process_time()
+            times0 = cpu_times()
             if not exclusive:
                 # An exclusive run waits for the worker, so no pair is ever late there.
                 with self._lock:
@@ -1501,6 +1509,7 @@ class RealtimeClient:
         # reported as 120.9 FPS achieved.
         report.wall_s = max(self.clock.now(), end) - t0
         report.cpu_s = time.process_time() - cpu0
+        report.host_steal = steal_share(times0, cpu_times())
         report.cpus = usable_cpus()  # the CPUs its threads can use, as rayon counts them
         with self._lock:
             report.gpu_lost = self.client.gpu_lost

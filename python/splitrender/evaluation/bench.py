@@ -51,7 +51,9 @@ threads").
 
 Each row also records the machine (:mod:`splitrender.machine`): ``processor``,
 ``cpus`` and ``simd``, the instruction set of the CPU kernels' row loops; the table's first line
-says them.
+says them. ``host_steal_pct`` (the table's ``steal %``) is the share of the machine's CPU time
+that a virtual machine's host took while the method and its floor were timed: a row timed while
+the host took a tenth of the cores is slower for that, not for the method.
 """
 
 from __future__ import annotations
@@ -70,7 +72,13 @@ from typing import Any
 import numpy as np
 
 from splitrender.errors import InvalidInputError
-from splitrender.machine import describe_recorded, this_machine, usable_cpus
+from splitrender.machine import (
+    cpu_times,
+    describe_recorded,
+    steal_share,
+    this_machine,
+    usable_cpus,
+)
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import CameraFrame, ServerFrame, ShadowBuffers
@@ -101,6 +109,7 @@ BENCH_KEYS: tuple[str, ...] = (
     "processor",
     "cpus",
     "simd",
+    "host_steal_pct",
 )
 
 
@@ -127,6 +136,10 @@ class BenchRow:
     processor: str = ""
     cpus: int = 0
     simd: str = ""
+    #: The share of the machine's CPU time, in per cent, that a virtual machine's host took
+    #: while the method's frames and its copy floor were timed (steal,
+    #: :func:`~splitrender.machine.steal_share`); ``None`` where the platform does not count it.
+    host_steal_pct: float | None = None
 
     @property
     def ratio_to_floor(self) -> float:
@@ -367,6 +380,7 @@ def run_bench(
     rows: list[BenchRow] = []
     for method in methods:
         stages.stage(f"timing {method} on {frames} client frames ({backend})")
+        times0 = cpu_times()
         if gpu_run is not None:
             samples = gpu_run.time(method, older, newer, requests, frames)
         else:
@@ -379,6 +393,7 @@ def run_bench(
         sec = statistics.median(samples)
         touched = bytes_touched(method, older, newer)
         floor, copy_threads = copy_floor_s(touched, threads)
+        steal = steal_share(times0, cpu_times())
         row = BenchRow(
             method=method,
             backend=backend,
@@ -395,6 +410,7 @@ def run_bench(
             processor=machine.processor,
             cpus=machine.cpus,
             simd=machine.simd,
+            host_steal_pct=None if steal is None else 100.0 * steal,
         )
         rows.append(row)
     return rows
@@ -457,6 +473,7 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
         (
             f"{'method':<18} {'ms/frame':>9} {'max ms':>8} {'FPS':>7} {'ns/pixel':>9} "
             f"{'MB touched':>11} {'GB/s':>7} {'copy floor':>11} {'threads':>7} {'x floor':>8}"
+            f" {'steal %':>7}"
         ),
     ]
     for r in rows:
@@ -465,6 +482,7 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
             f"{r.method:<18} {r.ms_per_frame:9.2f} {r.ms_per_frame_max:8.2f} {fps:7.1f} "
             f"{r.ns_per_pixel:9.2f} {r.mb_touched:11.2f} {r.gb_per_s:7.2f} "
             f"{r.copy_floor_ms:8.2f} ms {r.copy_threads:7d} {r.ratio_to_floor:8.1f}"
+            f" {'n/a' if r.host_steal_pct is None else f'{r.host_steal_pct:.1f}':>7}"
         )
     return "\n".join(lines)
 

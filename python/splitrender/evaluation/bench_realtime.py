@@ -526,6 +526,9 @@ def format_realtime(b: RealtimeBench) -> str:
             f"  newest server frame's age at display: p50 {ms('server_age_ms_p50')}, "
             f"max {ms('server_age_ms_max')}; CPU {100 * s['cpu_utilisation']:.0f} % "
             f"of {b.cpus or usable_cpus()} cores"
+            + ("" if s.get("host_steal_pct") is None
+               else f"; the host took {s['host_steal_pct']:.1f} % of the machine's CPU time "
+               "(steal)")
             + ("" if s.get("warm_up_ms") is None
                else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
             "  " + _collections(s),
