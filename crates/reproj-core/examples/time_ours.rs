@@ -15,7 +15,9 @@
 //!
 //! Besides the wall-clock time it prints the process CPU time per call (Linux only: from
 //! `/proc/self/stat`), which moves much less than wall-clock time when other jobs share the
-//! machine (run with `RAYON_NUM_THREADS=1` for a per-core figure), and a digest (FNV-1a) of the
+//! machine (run with `RAYON_NUM_THREADS=1` for a per-core figure), the share of the machine's
+//! CPU time that a virtual machine's host took meanwhile (`steal` in `/proc/stat`: other guests
+//! on the same cores; the calls are slower for that), and a digest (FNV-1a) of the
 //! output colour and diagnostics, so that a change meant to be exact can be checked to give the
 //! same bytes (`ALPHA` sets α, default 0.5, and 1.5 for `ours_extrapolate`, which only
 //! extrapolates).
@@ -157,7 +159,7 @@ fn main() {
             }
             let mut calls_ms: Vec<f64> = Vec::new();
             let mut timed = |history: &mut BidirHistory, out: &mut [u8]| {
-                let (cpu0, faults0) = (cpu_seconds(), minor_faults());
+                let (cpu0, faults0, ticks0) = (cpu_seconds(), minor_faults(), machine_ticks());
                 let t = std::time::Instant::now();
                 let mut busy = std::time::Duration::ZERO;
                 for k in 0..iters {
@@ -174,7 +176,8 @@ fn main() {
                     busy += c.elapsed();
                     calls_ms.push(c.elapsed().as_secs_f64() * 1000.0);
                 }
-                (busy, cpu_seconds() - cpu0, minor_faults() - faults0)
+                let steal = steal_share(ticks0, machine_ticks());
+                (busy, cpu_seconds() - cpu0, minor_faults() - faults0, steal)
             };
             // After a prepare the timed calls come first, so that the first of them is the
             // pair's first client frame (instruction counts: `ITERS=1` minus `ITERS=0`).
@@ -188,7 +191,7 @@ fn main() {
                     .copied()
                     .chain(diag.error.iter().flat_map(|e| e.to_bits().to_le_bytes())),
             );
-            let (elapsed, cpu, faults) = match early {
+            let (elapsed, cpu, faults, steal) = match early {
                 Some(e) => {
                     // The same request on the same buffer (unmatched pixels keep its colour):
                     // the same bytes.
@@ -230,11 +233,15 @@ fn main() {
                 }
             }
             println!(
-                "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU, {:.0} page faults per call; digest {digest:016x}; pair builds {}",
+                "{method} aux={use_aux}: {:.1} ms wall, {:.1} ms CPU, {:.0} page faults per call; digest {digest:016x}; pair builds {}{}",
                 elapsed.as_secs_f64() * 1000.0 / n,
                 cpu * 1000.0 / n,
                 faults / n,
-                history.pair_builds()
+                history.pair_builds(),
+                steal.map_or(String::new(), |s| format!(
+                    "; the host took {:.1} % of the CPU time (steal)",
+                    s * 100.0
+                ))
             );
         }
     }
@@ -294,6 +301,32 @@ fn stat_fields() -> Vec<String> {
     };
     let rest = &stat[stat.rfind(')').map_or(0, |k| k + 2)..];
     rest.split_whitespace().map(str::to_owned).collect()
+}
+
+/// The machine's CPU time in every state and the part of it its host took (`steal`), all CPUs
+/// together, in clock ticks since boot: the first eight numbers of Linux `/proc/stat`'s `cpu`
+/// line (the guest columns after them are already inside the first two). `None` elsewhere.
+fn machine_ticks() -> Option<(u64, u64)> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let line = stat
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some("cpu"))?;
+    let ticks: Vec<u64> = line
+        .split_whitespace()
+        .skip(1)
+        .take(8)
+        .map(|t| t.parse().ok())
+        .collect::<Option<_>>()?;
+    (ticks.len() == 8).then(|| (ticks.iter().sum(), ticks[7]))
+}
+
+/// The share (0–1) of the machine's CPU time between two [`machine_ticks`] readings that its
+/// host took: on a virtual machine whose host runs other guests on its cores, the calls are
+/// slower for that, not for the kernel (`None` without readings or ticks between them).
+fn steal_share(before: Option<(u64, u64)>, after: Option<(u64, u64)>) -> Option<f64> {
+    let ((t0, s0), (t1, s1)) = (before?, after?);
+    let (total, steal) = (t1.checked_sub(t0)?, s1.checked_sub(s0)?);
+    (total > 0 && steal <= total).then(|| steal as f64 / total as f64)
 }
 
 /// User + system CPU time of this process in seconds (Linux `/proc/self/stat`, clock ticks of
