@@ -16,7 +16,9 @@ under this one's CPUs, the time is this machine's "steal" (Linux counts it in ``
 On the project's 2-core VM it reached a quarter of the CPU time for minutes at a time, and the
 real-time loop's deadline misses went with it (docs/realtime.md, "Time the host took"). So the
 benches also record the share of the machine's CPU time the host took while they timed
-(:func:`cpu_times`, :func:`steal_share`): a slow run whose host took 20 % says so itself.
+(:func:`cpu_times`, :func:`steal_share`): a slow run whose host took 20 % says so itself. Over
+a whole run, not per display frame: the kernel counts it in ticks (``USER_HZ``, 10 ms here),
+longer than a frame at 120 Hz, so a frame's share would read 0 or a whole tick.
 """
 
 from __future__ import annotations
