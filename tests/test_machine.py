@@ -165,3 +165,13 @@ def test_steal_share_is_the_hosts_part_of_the_interval() -> None:
 )
 def test_steal_share_without_an_interval_is_none(before, after) -> None:
     assert m.steal_share(before, after) is None
+
+
+def test_a_note_says_when_the_host_took_5_percent_or_more() -> None:
+    assert m.steal_note([None, 4.99, 0.0], "it ran") is None
+    assert m.steal_note([], "it ran") is None
+    note = m.steal_note([None, 1.0, m.STEAL_NOTE_PCT], "it ran")
+    assert note == (
+        "note: the virtual machine's host took 5 % or more of the CPU time while it ran "
+        "(steal): the figures include its time; run again when it takes none"
+    )

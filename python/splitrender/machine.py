@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import os
 import platform
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = [
-    "SIMD_NAMES", "CpuTimes", "Machine", "cpu_times", "describe_recorded", "processor_name",
-    "steal_share", "this_machine", "usable_cpus",
+    "SIMD_NAMES", "STEAL_NOTE_PCT", "CpuTimes", "Machine", "cpu_times", "describe_recorded",
+    "processor_name", "steal_note", "steal_share", "this_machine", "usable_cpus",
 ]
 
 #: The row loops' instruction sets (``_native.simd_tier``) as people write them.
@@ -40,6 +41,11 @@ SIMD_NAMES = {"avx512": "AVX-512", "avx2": "AVX2", "baseline": "baseline"}
 CPUINFO = Path("/proc/cpuinfo")
 #: Where Linux counts the time its CPUs spent in each state.
 PROC_STAT = Path("/proc/stat")
+#: The host's share of the CPU time (per cent) from which a bench's text warns that its times
+#: include the host's: on the project's VM, real-time runs of 10 s at 640×360 whose host took
+#: 5-8 % missed 12-33 deadlines each, those whose host took none 0 or 1 (docs/realtime.md,
+#: "Time the host took").
+STEAL_NOTE_PCT = 5.0
 
 
 @dataclass(frozen=True)
@@ -145,6 +151,17 @@ def cpu_times(stat: str | None = None) -> CpuTimes | None:
         counts = [int(t) for t in ticks]
         return CpuTimes(total=sum(counts), steal=counts[7])
     return None
+
+
+def steal_note(pcts: Sequence[float | None], what: str) -> str | None:
+    """A line for a bench's text where the host took :data:`STEAL_NOTE_PCT` or more of the
+    machine's CPU time (any of ``pcts``, per cent) while ``what`` ran, else ``None``."""
+    if not any(p is not None and p >= STEAL_NOTE_PCT for p in pcts):
+        return None
+    return (
+        f"note: the virtual machine's host took {STEAL_NOTE_PCT:g} % or more of the CPU time "
+        f"while {what} (steal): the figures include its time; run again when it takes none"
+    )
 
 
 def steal_share(before: CpuTimes | None, after: CpuTimes | None) -> float | None:

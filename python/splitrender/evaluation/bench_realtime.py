@@ -54,7 +54,7 @@ from splitrender.evaluation.shown import (
 )
 from splitrender.files import write_atomic
 from splitrender.gpu import require as require_backend
-from splitrender.machine import describe_recorded, this_machine, usable_cpus
+from splitrender.machine import describe_recorded, steal_note, this_machine, usable_cpus
 from splitrender.progress import Progress
 from splitrender.reproject import METHODS
 from splitrender.types import Camera
@@ -457,6 +457,7 @@ def format_realtime(b: RealtimeBench) -> str:
     """The summary as plain text."""
     s = b.summary
     machine = describe_recorded(b.processor, b.cpus, b.simd)  # None: a bench made by hand
+    note = steal_note([s.get("host_steal_pct")], "the display ran")
 
     def ms(key: str) -> str:
         v = s.get(key)
@@ -533,6 +534,7 @@ def format_realtime(b: RealtimeBench) -> str:
                else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
             "  " + _collections(s),
         ]
+        + ([] if note is None else [f"  {note}"])
         + ([] if s.get("gpu_lost") is None else [
             f"  the GPU device was lost ({s['gpu_lost']}): the display went on on the CPU "
             "from then on (the figures mix the two backends)"])
