@@ -128,6 +128,7 @@ def test_cpu_times_are_the_first_eight_columns_and_steal_the_eighth() -> None:
         "cpu  1000 10 200 5000 40 0 30\n",  # a kernel without the steal column
         "cpu  1000 10 200 5000 40 0 30 x 0 0\n",  # not a number
         "cpu  1000 10 200 5000 40 0 30 -3 0 0\n",  # negative
+        "cpu  1000 10 200 5000 40 0 30 \u00b2 0 0\n",  # a digit to str.isdigit, not to int
         "cpu0 1000 10 200 5000 40 0 30 300 0 0\n",  # one CPU's line only
         "",
     ],

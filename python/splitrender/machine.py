@@ -146,7 +146,7 @@ def cpu_times(stat: str | None = None) -> CpuTimes | None:
         if not fields or fields[0] != "cpu":
             continue
         ticks = fields[1:9]
-        if len(ticks) < 8 or not all(t.isdigit() for t in ticks):
+        if len(ticks) < 8 or not all(t.isascii() and t.isdigit() for t in ticks):
             return None
         counts = [int(t) for t in ticks]
         return CpuTimes(total=sum(counts), steal=counts[7])
