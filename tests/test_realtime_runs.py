@@ -1,0 +1,72 @@
+"""scripts/realtime_runs.py: late frames against the host's share over `bench --realtime` runs."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "realtime_runs.py"
+
+
+@pytest.fixture(scope="module")
+def script() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("realtime_runs", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    # Registered first: its dataclass looks its module up by name.
+    sys.modules["realtime_runs"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def write(tmp: Path, name: str, **fields: object) -> Path:
+    d = {"frames": 1200, "deadline_misses": 0, "achieved_fps": 120.0, **fields}
+    path = tmp / name
+    path.write_text(json.dumps(d))
+    return path
+
+
+def test_runs_are_grouped_by_the_hosts_share_and_ranked(script, tmp_path, capsys) -> None:
+    files = [
+        write(tmp_path, "a.json", deadline_misses=0, host_steal_pct=0.0),
+        write(tmp_path, "b.json", deadline_misses=3, host_steal_pct=2.0),
+        write(tmp_path, "c.json", deadline_misses=20, host_steal_pct=7.0),
+        write(tmp_path, "d.json", deadline_misses=90, host_steal_pct=30.0, frames=600),
+        write(tmp_path, "e.json", deadline_misses=5),  # made before the share was recorded
+    ]
+    png = tmp_path / "plot.png"
+    assert script.main([*map(str, files), "--plot", str(png)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[5].split() == ["e.json", "1200", "5", "n/a", "120.0"]
+    assert out[7:] == [
+        "host took 0-5 %: 2 runs, late frames 0-3 a run, 3 in 2400 frames, 1 run without one",
+        "host took 5-15 %: 1 run, late frames 20-20 a run, 20 in 1200 frames, 0 runs without one",
+        "host took 15 % or more: 1 run, late frames 90-90 a run, 90 in 600 frames, 0 runs "
+        "without one",
+        "Spearman's rho, late frames against the host's share: 1.00 over 4 runs",
+    ]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("not json", "not a readable JSON file"),
+        ("[1, 2]", "expected the object"),
+        ('{"frames": 10, "achieved_fps": 1.0}', "a number `deadline_misses`"),
+        ('{"frames": true, "deadline_misses": 0, "achieved_fps": 1.0}', "a number `frames`"),
+        ('{"frames": 10, "deadline_misses": 0, "achieved_fps": 1.0, "host_steal_pct": 140}',
+         "is not a share in 0-100"),
+    ],
+)
+def test_a_file_that_is_not_a_runs_json_is_refused(script, tmp_path, capsys, text, says) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text(text)
+    assert script.main([str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"realtime_runs: error: {bad}: ") and says in err
