@@ -280,3 +280,15 @@ def test_demo_stereo_scores_both_eyes_and_records_the_link(work: Path) -> None:
     assert left["ssim"] != right["ssim"]
     assert row["ssim"] == pytest.approx((left["ssim"] + right["ssim"]) / 2)
     assert "jitter 0-30 ms" in (out / "summary.md").read_text()
+
+
+def test_bench_json_help_names_every_key_a_row_has() -> None:
+    """`bench --json`'s help lists the keys of the rows it writes: each of BENCH_KEYS."""
+    from splitrender.evaluation.bench import BENCH_KEYS
+
+    sub = next(
+        a for a in build_parser()._actions if a.choices and "bench" in a.choices  # type: ignore
+    ).choices["bench"]
+    text = next(a.help for a in sub._actions if "--json" in a.option_strings)
+    named = {w.strip(",()") for w in " ".join(text.split()).split()}
+    assert set(BENCH_KEYS) <= named, set(BENCH_KEYS) - named

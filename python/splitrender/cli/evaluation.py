@@ -334,9 +334,10 @@ def add_bench(sub: Any) -> None:
         "--json", type=out_file, default=None, metavar="FILE",
         help="also write a JSON list of rows with the keys method, backend, width, height, "
         "ms_per_frame, ms_per_frame_max, ns_per_pixel, decode_ms_per_server_frame, "
-        "copy_floor_ms, copy_threads, ratio_to_floor (with --realtime: one object with at "
-        "least method, source, width, height, frames, deadline_misses, frame_ms_p50, "
-        "frame_ms_p99, decode_ms_per_server_frame)",
+        "copy_floor_ms, copy_threads, ratio_to_floor, processor, cpus, simd, host_steal_pct "
+        "(with --realtime: one object with at least method, source, width, height, frames, "
+        "deadline_misses, frame_ms_p50, frame_ms_p99, decode_ms_per_server_frame, "
+        "host_steal_pct)",
     )
     be.add_argument(
         "--plot", type=out_file, default=None, metavar="FILE",
