@@ -394,7 +394,9 @@ class RealtimeReport:
           median CPU time of frames of its mode (the work itself took longer: a pair prepared
           on the display path, page faults, or a slower processor for a while);
         - ``waited``: neither; its threads were runnable but off the cores, or blocked (on
-          the GIL after the native call, say).
+          the GIL after the native call, say), or a virtual machine's host ran something else
+          on the cores meanwhile (not told apart per frame: the run's ``host_steal_pct`` says
+          how much of that there was).
 
         Frames without a refresh or a CPU time skip the tests that need them."""
         more = 0
