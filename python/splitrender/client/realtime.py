@@ -388,15 +388,15 @@ class RealtimeReport:
         by the first that applies:
 
         - ``late_start``: it started more than :data:`LATE_START_MS` after its refresh (the
-          display thread did not run at its refresh: its sleep overran, or it waited for the
-          GIL or the lock that the worker held);
+          display thread did not run at its refresh: its sleep overran, it waited for the
+          GIL or the lock that the worker held, or the host had taken its core);
         - ``more_cpu``: its display threads used more than :data:`MORE_CPU` times the run's
           median CPU time of frames of its mode (the work itself took longer: a pair prepared
           on the display path, page faults, or a slower processor for a while);
         - ``waited``: neither; its threads were runnable but off the cores, or blocked (on
           the GIL after the native call, say), or a virtual machine's host ran something else
-          on the cores meanwhile (not told apart per frame: the run's ``host_steal_pct`` says
-          how much of that there was).
+          on the cores meanwhile (the host's time is not told apart per frame, here or in a
+          late start: the run's ``host_steal_pct`` says how much of it there was).
 
         Frames without a refresh or a CPU time skip the tests that need them."""
         more = 0
