@@ -1890,8 +1890,15 @@ def test_realtime_figure_draws_every_frame_and_marks_each_miss():
     (age,) = low.get_lines()
     assert list(age.get_ydata()) == [10.0 * n for n in range(1, len(plan))]
     assert "3 deadline misses" in top.get_title()
-    # The machine on a line of its own.
+    # The machine on a line of its own, and beside it the host's share where it was counted.
     assert top.get_title().splitlines()[1] == "Test CPU, 2 CPUs, CPU row loops AVX2"
+    report.host_steal = 0.125
+    stolen = dataclasses.replace(b, summary=report.summary())
+    assert realtime_figure(stolen).axes[0].get_title().splitlines()[1] == (
+        "Test CPU, 2 CPUs, CPU row loops AVX2; the host took 12.5 % of the CPU time (steal)")
+    bare = dataclasses.replace(stolen, processor="", cpus=0, simd="")
+    assert realtime_figure(bare).axes[0].get_title().splitlines()[1] == (
+        "the host took 12.5 % of the CPU time (steal)")
 
 
 @pytest.mark.parametrize("with_refresh", [True, False])

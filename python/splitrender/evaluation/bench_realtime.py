@@ -653,7 +653,12 @@ def realtime_figure(b: RealtimeBench) -> Figure:
     top.set_title(
         f"{b.method} in real time on {b.source}: {b.width}x{b.height} + aux at "
         f"{s['display_fps']:g} FPS, {b.backend}\n"
-        + ("" if machine is None else f"{machine}\n")
+        + "; ".join(
+            ([] if machine is None else [machine])
+            + ([] if s.get("host_steal_pct") is None
+               else [f"the host took {s['host_steal_pct']:.1f} % of the CPU time (steal)"])
+        )
+        + ("" if machine is None and s.get("host_steal_pct") is None else "\n")
         + f"{s['frames']} frames"
         + ("" if s["full_rate_pct"] == 100.0 else f" ({s['full_rate_pct']:.1f} % at full rate)")
         + ", "
