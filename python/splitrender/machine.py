@@ -43,7 +43,7 @@ CPUINFO = Path("/proc/cpuinfo")
 PROC_STAT = Path("/proc/stat")
 #: The host's share of the CPU time (per cent) from which a bench's text warns that its times
 #: include the host's: on the project's VM, real-time runs of 10 s at 640×360 whose host took
-#: 5-8 % missed 12-33 deadlines each, those whose host took none 0 or 1 (docs/realtime.md,
+#: 5-8 % missed 12-33 deadlines each, those whose host took under 0.5 % 0-3 (docs/realtime.md,
 #: "Time the host took").
 STEAL_NOTE_PCT = 5.0
 
