@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from splitrender.machine import this_machine
+from splitrender.machine import STEAL_NOTE_PCT, cpu_times, this_machine
 from splitrender.net import protocol as proto
 
 TOKEN = "test-token"
@@ -183,6 +183,14 @@ def test_session(server: _Server, tmp_path: Path) -> None:
     # The machine the display ran on (the connecting process, this one's machine).
     here = this_machine()
     assert (r["processor"], r["cpus"], r["simd"]) == (here.processor, here.cpus, here.simd)
+    # And the host's share of its CPU time over the session, where the platform counts it
+    # (and then a note under the summary line from 5 %).
+    if cpu_times() is None:
+        assert r["host_steal_pct"] is None
+    else:
+        assert 0.0 <= r["host_steal_pct"] <= 100.0
+        assert ("note: the virtual machine's host took" in done.stdout) == (
+            r["host_steal_pct"] >= STEAL_NOTE_PCT)
     assert (tmp_path / "video.mp4").stat().st_size > 0
     # The video lasts the session: a frame per refresh at 120 FPS, whatever ran at half rate
     # or overran its refresh.

@@ -41,7 +41,7 @@ from splitrender.errors import SplitRenderError
 from splitrender.files import OutputFolder, write_atomic
 from splitrender.gpu import GPU_METHODS
 from splitrender.gpu import require as require_backend
-from splitrender.machine import this_machine
+from splitrender.machine import steal_note, this_machine
 from splitrender.reproject import METHODS
 from splitrender.net.protocol import (
     MAX_FPS,
@@ -469,6 +469,9 @@ def run_connect(args: argparse.Namespace) -> int:
           f"({net['frames_lost']} lost, {net['key_recoveries']} key-frame recoveries), "
           f"pose-to-display p50 {'n/a' if p50 is None else f'{p50:.0f} ms'}, "
           f"{report['mbps']:.3f} Mb/s; wrote {out}/: report.json, video.mp4")
+    note = steal_note([report.get("host_steal_pct")], "the display ran")
+    if note is not None:
+        print(note)
     if report.get("gpu_lost") is not None:
         print(f"the GPU device was lost ({report['gpu_lost']}): the display went on on the CPU "
               "from then on")
