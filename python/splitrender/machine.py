@@ -31,7 +31,7 @@ from pathlib import Path
 
 __all__ = [
     "SIMD_NAMES", "STEAL_NOTE_PCT", "CpuTimes", "Machine", "cpu_times", "describe_recorded",
-    "processor_name", "steal_note", "steal_share", "this_machine", "usable_cpus",
+    "host_busy", "processor_name", "steal_note", "steal_share", "this_machine", "usable_cpus",
 ]
 
 #: The row loops' instruction sets (``_native.simd_tier``) as people write them.
@@ -153,10 +153,16 @@ def cpu_times(stat: str | None = None) -> CpuTimes | None:
     return None
 
 
+def host_busy(pct: float | None) -> bool:
+    """Whether the host took :data:`STEAL_NOTE_PCT` or more of the machine's CPU time
+    (``pct``, per cent; ``None``: not counted, so not known to be busy)."""
+    return pct is not None and pct >= STEAL_NOTE_PCT
+
+
 def steal_note(pcts: Sequence[float | None], what: str) -> str | None:
-    """A line for a bench's text where the host took :data:`STEAL_NOTE_PCT` or more of the
-    machine's CPU time (any of ``pcts``, per cent) while ``what`` ran, else ``None``."""
-    if not any(p is not None and p >= STEAL_NOTE_PCT for p in pcts):
+    """A line for a bench's text where the host was busy (:func:`host_busy`) in any of
+    ``pcts`` (per cent) while ``what`` ran, else ``None``."""
+    if not any(host_busy(p) for p in pcts):
         return None
     return (
         f"note: the virtual machine's host took {STEAL_NOTE_PCT:g} % or more of the CPU time "

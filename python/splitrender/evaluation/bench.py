@@ -73,9 +73,9 @@ import numpy as np
 
 from splitrender.errors import InvalidInputError
 from splitrender.machine import (
-    STEAL_NOTE_PCT,
     cpu_times,
     describe_recorded,
+    host_busy,
     steal_note,
     steal_share,
     this_machine,
@@ -486,8 +486,7 @@ def format_rows(rows: Sequence[BenchRow], cpus: int | None = None) -> str:
             f"{r.copy_floor_ms:8.2f} ms {r.copy_threads:7d} {r.ratio_to_floor:8.1f}"
             f" {'n/a' if r.host_steal_pct is None else f'{r.host_steal_pct:.1f}':>7}"
         )
-    busy = [r.method for r in rows if r.host_steal_pct is not None
-            and r.host_steal_pct >= STEAL_NOTE_PCT]
+    busy = [r.method for r in rows if host_busy(r.host_steal_pct)]
     note = steal_note([r.host_steal_pct for r in rows],
                       f"{', '.join(busy)} {'was' if len(busy) == 1 else 'were'} timed")
     return "\n".join(lines if note is None else [*lines, note])
