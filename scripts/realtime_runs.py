@@ -123,7 +123,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.plot is not None:
         from splitrender.files import write_atomic
 
-        write_atomic(args.plot, plot(runs))
+        try:
+            write_atomic(args.plot, plot(runs))  # nothing half-written on failure
+        except OSError as e:
+            print(f"realtime_runs: error: --plot: {e.strerror}", file=sys.stderr)
+            return 2
     return 0
 
 

@@ -53,6 +53,14 @@ def test_runs_are_grouped_by_the_hosts_share_and_ranked(script, tmp_path, capsys
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_plot_that_cannot_be_written_is_refused(script, tmp_path, capsys) -> None:
+    run = write(tmp_path, "a.json", host_steal_pct=1.0)
+    assert script.main([str(run), "--plot", str(tmp_path / "absent" / "p.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("realtime_runs: error: --plot: cannot write the file") and "absent" in err
+    assert not (tmp_path / "absent").exists()
+
+
 @pytest.mark.parametrize(
     ("text", "says"),
     [
