@@ -1538,7 +1538,7 @@ def test_late_frames_not_in_a_row_keep_the_display_at_real_time_priority(scene, 
     assert all(set(p) == {os.SCHED_RR} for p in policies)
 
 
-def test_warm_up_receives_the_due_frames_and_renders_one_frame_off_the_record(scene, frames):
+def test_warm_up_receives_the_due_frames_and_renders_off_the_record(scene, frames):
     feed = [(k / FS - 1 / FS, frames[k]) for k in range(3)]
     clock = FakeClock()
     # Received inline: on a worker thread the display could run through the fake clock's
@@ -1554,14 +1554,85 @@ def test_warm_up_receives_the_due_frames_and_renders_one_frame_off_the_record(sc
     assert len(f) == 24 and report.deadline_misses == 0
     # Frames 0 and 1 (due at -0.1 and 0) were in before refresh 0: no frame held.
     assert {(x.mode, x.older, x.newer) for x in f[:12]} == {("interpolate", 0, 1)}
-    # One render more than the frames recorded, and it cost 2 ms of the clock before it began.
-    assert calls == len(f) + 1
-    assert report.warm_up_ms == pytest.approx(2.0)
-    assert f[0].start >= 100.0 + 0.002
+    # Before them, off the record: one render (the first touches), then the governor's seeds,
+    # MIN_FRAMES of each mode, 2 ms of the clock each.
+    warm = 1 + 2 * rt.ModeGovernor.MIN_FRAMES
+    assert calls == len(f) + warm
+    assert report.warm_up_ms == pytest.approx(2.0 * warm)
+    assert f[0].start >= 100.0 + 0.002 * warm - 1e-9
     without = loop(FakeClock(), executor=InlineExecutor())
     with without as c:
         plain = c.run(pose_of(scene), 0.2, feed=feed)
     assert plain.warm_up_ms is None and plain.summary()["warm_up_ms"] is None
+
+
+class BatchExecutor(Executor):
+    """Holds the first ``size`` jobs submitted and runs them in order when the last comes (the
+    worker finds a newer packet waiting behind each but the last: behind, as a worker thread
+    is when packets arrive together), then runs each job at once (:class:`InlineExecutor`)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.held: list[tuple[Future[Any], Any, Any, Any]] = []
+
+    def submit(self, fn: Any, /, *args: Any, **kwargs: Any) -> Future[Any]:
+        fut: Future[Any] = Future()
+        self.held.append((fut, fn, args, kwargs))
+        if len(self.held) >= self.size:
+            self.size = 0
+            todo, self.held = self.held, []
+            for f, job, a, kw in todo:
+                try:
+                    f.set_result(job(*a, **kw))
+                except Exception as e:
+                    f.set_exception(e)
+        return fut
+
+
+@pytest.mark.parametrize(("interpolate_periods", "defers"), [(1.2, True), (0.5, False)])
+def test_warm_up_lets_the_governor_decide_the_first_pairs_frames(scene, monkeypatch,
+                                                                 interpolate_periods, defers):
+    # Server frames arrive a server period before their time (as splitrender bench --realtime
+    # sends them): frames 0 and 1 are due by the start and submitted together, so the worker
+    # is behind on frame 0 and leaves out its extrapolation pair. The warm-up prepares it and
+    # seeds the governor: where an interpolated frame (1.2 refreshes) cannot be done by its
+    # deadline, the first pair's frames extrapolate from frame 0 from refresh 0 on, on time;
+    # where it can (0.5 refreshes), they interpolate.
+    clock = FakeClock()
+    order = _clocked_preparation(monkeypatch, clock, 0.0, 0.0)
+    client = ModeCostClient(clock, interpolate_periods * PERIOD, 0.4 * PERIOD)
+    server = [scene.server_frame(k, k / FS, W, H, fps=FS) for k in range(3)]
+    feed = [(f.time - 1 / FS, f) for f in server]
+    with RealtimeClient(client=client, clock=clock, display_fps=FC,
+                        executor=BatchExecutor(2)) as c:
+        report = c.run(pose_of(scene), 0.1, feed=feed, warm_up=True)
+    # The worker prepared frame 1's pairs only; frame 0's extrapolation pair came after, from
+    # the warm-up, before any render.
+    assert order == [(0, 1), (None, 1), (None, 0)]
+    seeds = rt.ModeGovernor.MIN_FRAMES
+    warm = [(info.mode, interpolate) for _, info, interpolate in client.rendered[:1 + 2 * seeds]]
+    assert warm == [("interpolate", True)] + [("extrapolate", False)] * seeds + [
+        ("interpolate", True)] * seeds
+    frames_ = list(report.frames)
+    assert len(frames_) == 12 and all(f.older in (0, None) for f in frames_)
+    assert all(f.met and f.divisor == 1 and f.prepared for f in frames_)
+    if defers:
+        assert all(f.mode == "extrapolate" and f.deferred and f.newer == 0 for f in frames_)
+    else:
+        assert all(f.mode == "interpolate" and not f.deferred for f in frames_)
+
+
+def test_warm_up_does_not_seed_a_governor_that_is_not_asked(scene, monkeypatch):
+    # Only one frame is in by the start (nothing to interpolate): the warm-up renders its one
+    # frame and no seeds.
+    clock = FakeClock()
+    client = ModeCostClient(clock, 1.2 * PERIOD, 0.4 * PERIOD)
+    frame = scene.server_frame(0, 0.0, W, H, fps=FS)
+    with RealtimeClient(client=client, clock=clock, display_fps=FC,
+                        executor=InlineExecutor()) as c:
+        report = c.run(pose_of(scene), 0.05, feed=[(-0.1, frame)], warm_up=True)
+    assert len(client.rendered) == 1 + len(report.frames)
+    assert report.warm_up_ms == pytest.approx(0.4 * PERIOD * 1e3)
 
 
 @pytest.mark.parametrize("seconds", [0.001, 0.0, -1.0, float("nan"), float("inf"), "1", True])

@@ -1429,10 +1429,14 @@ class RealtimeClient:
         server frame is late.
 
         ``warm_up``: before the clock starts, the arrivals due by ``start_time`` are received
-        (decoded and prepared) and one frame is rendered at ``pose(start_time)``, off the record
-        (its time is the report's ``warm_up_ms``), as a headset shows nothing until its first
-        frame is in. The display's buffers then exist before the first recorded frame, which
-        would otherwise pay their first-touch page faults (about 4 ms at 640×360 here).
+        (decoded and prepared, the held frames' extrapolation pairs included) and one frame is
+        rendered at ``pose(start_time)``, off the record (with what follows, the report's
+        ``warm_up_ms``), as a headset shows nothing until its first frame is in. The display's
+        buffers then exist before the first recorded frame, which would otherwise pay their
+        first-touch page faults (about 4 ms at 640×360 here). Where that frame could
+        interpolate and interpolation may be deferred, three frames of each mode follow, timed
+        for the :class:`ModeGovernor`, so that the first pair's frames extrapolate from the
+        first refresh where interpolating would not fit.
 
         ``stereo``: a headset's display frame is two images. ``pose(t)`` returns the eyes'
         cameras ``(left, right)`` (a headset runtime gives each eye's pose and field of view;
@@ -1474,9 +1478,11 @@ class RealtimeClient:
         arrivals = _arrivals(feed)
         interval = sys.getswitchinterval()
         collector = FrameCollector()
+        # Created here, not in _display: the warm-up seeds it.
+        modes = ModeGovernor()
         try:
             if warm_up:
-                arrivals = self._warm_up(report, views, arrivals, start_time)
+                arrivals = self._warm_up(report, views, arrivals, start_time, modes)
             # Off the clock: its first full collection walks every object of the process.
             collector.start()
             t0 = self.clock.now()
@@ -1493,7 +1499,7 @@ class RealtimeClient:
             sys.setswitchinterval(min(interval, 0.0005))
             end = self._display(
                 report, t0, n_frames, views, arrivals, start_time, on_frame, exclusive, saved,
-                _thread_cpu_clocks(threads), collector,
+                _thread_cpu_clocks(threads), collector, modes,
             )
         finally:
             # Whatever ended the run (the warm-up's or a frame's error included).
@@ -1524,8 +1530,18 @@ class RealtimeClient:
         views: Callable[[float], tuple[Camera, ...]],
         arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]],
         start_time: float,
+        modes: ModeGovernor,
     ) -> Iterator[tuple[float, bytes | memoryview | ServerFrame]]:
-        """The warm-up of :meth:`run` (``warm_up``); returns the arrivals not yet submitted."""
+        """The warm-up of :meth:`run` (``warm_up``); returns the arrivals not yet submitted.
+
+        The packets due by ``start_time`` are submitted together, so the worker is behind on
+        all but the last and leaves out their extrapolation pairs (:meth:`_receive`): the held
+        frames' missing ones are prepared here (:meth:`_prepare_extrapolations`). Without the
+        older frame's, :meth:`_render` never asks ``modes`` for the first pair's frames, which
+        then interpolated however long that took: on a 2-core Intel Xeon (model 207) 19 of the
+        70 misses of twelve 10 s runs at 640×360 were the first pair's frames
+        (docs/realtime.md, "The first pair's frames"). Then ``modes`` is seeded
+        (:meth:`_seed_modes`), so that it knows from refresh 0 on whether interpolating fits."""
         begin = self.clock.now()
         received = []
         nxt = next(arrivals, None)
@@ -1533,9 +1549,62 @@ class RealtimeClient:
             received.append(self._submit(nxt[1]))
             nxt = next(arrivals, None)
         futures_wait(received)  # a packet that failed is skipped here as in the run
-        self._render(views(start_time), start_time)
+        self._prepare_extrapolations()
+        cameras = views(start_time)
+        # The first frame pays the display buffers' first touches: not one to time.
+        self._render(cameras, start_time)
+        if self._defers and self._interpolates:
+            self._seed_modes(modes, cameras, start_time)
         report.warm_up_ms = (self.clock.now() - begin) * 1e3
         return arrivals if nxt is None else itertools.chain([nxt], arrivals)
+
+    def _prepare_extrapolations(self) -> None:
+        """Prepares the extrapolation pair ``(None, k)`` of each held frame ``k`` that lacks
+        one (the worker's, off the display path: on the caller's thread, outside the lock)."""
+        if self.method not in _PREPARED_METHODS:
+            return
+        with self._lock:
+            todo = [
+                frame for k in self.client.held
+                if not self.client.was_prepared(None, k)
+                and (frame := self.client.held_frame(k)) is not None
+            ]
+            spare = self.client.retired_histories()
+        for frame in todo:
+            states = self._prepare([None], frame, frame.main.camera, spare)
+            with self._lock:
+                if self.client.held_frame(frame.index) is not None:
+                    for older_index, state in states:
+                        self._adopt(older_index, frame.index, state)
+
+    def _seed_modes(
+        self, modes: ModeGovernor, cameras: tuple[Camera, ...], time: float
+    ) -> None:
+        """Renders :data:`ModeGovernor.MIN_FRAMES` frames of each mode at ``cameras`` and
+        ``time``, extrapolated first, and records their times in ``modes`` (enough of each for
+        its own estimate and the ratio of the two). Only where the frame at ``time`` could
+        interpolate and its older frame's extrapolation pair is prepared: elsewhere the
+        governor is not asked for it either (:meth:`_render`). Rendered alone, with the worker
+        idle, these are the cheapest the frames get; the run's own frames take their place as
+        they come (the governor keeps the last :data:`ModeGovernor.WINDOW`)."""
+        with self._lock:
+            could = self.client.choose(time)
+            seeds = (
+                could.mode == "interpolate"
+                and could.older is not None
+                and self.client.was_prepared(None, could.older)
+            )
+        if not seeds:
+            return
+        # Interpolated last: the eyes' previous outputs are then what the run's first frame
+        # would have had without the seeding.
+        for interpolate in (False, True):
+            for _ in range(ModeGovernor.MIN_FRAMES):
+                start = self.clock.now()
+                self._render(cameras, time, 0, interpolate)
+                info = self.client.last_info
+                assert info is not None
+                modes.record(info.mode, self.clock.now() - start)
 
     def _display(
         self,
@@ -1550,6 +1619,7 @@ class RealtimeClient:
         raised: _Saved,
         clocks: list[int] | None,
         collector: FrameCollector,
+        modes: ModeGovernor,
     ) -> float:
         """The display loop of :meth:`run` (refresh ``n`` at clock ``t0 + n / f_c``; with
         ``exclusive``, ``t0`` moves on by the time waited for the worker); returns the clock
@@ -1557,10 +1627,10 @@ class RealtimeClient:
         threads :func:`_raise_display` raised, restored (and emptied) after
         :data:`_OVERRUN_FRAMES` late frames in a row; ``clocks``: the display threads' CPU
         clocks (:func:`_thread_cpu_clocks`), read around each frame; ``collector``: asked
-        after each frame, with the time to the next frame's refresh."""
+        after each frame, with the time to the next frame's refresh; ``modes``: the
+        :class:`ModeGovernor` (seeded by the warm-up)."""
         period = 1.0 / self.display_fps
         governor = RateGovernor(self.display_fps, self.max_divisor)
-        modes = ModeGovernor()
         nxt = next(arrivals, None)
         n = 0
         late_in_a_row = 0
