@@ -1566,6 +1566,24 @@ def test_warm_up_receives_the_due_frames_and_renders_off_the_record(scene, frame
     assert plain.warm_up_ms is None and plain.summary()["warm_up_ms"] is None
 
 
+def test_warm_up_renders_after_the_collectors_full_collection(scene, frames):
+    # The collection leaves the caches cold: the warm-up's frames, not refresh 0, pay for it.
+    assert gc.isenabled()
+    feed = [(k / FS - 1 / FS, frames[k]) for k in range(2)]
+    with loop(FakeClock(), executor=InlineExecutor()) as c:
+        seen = []
+        real = c.client.render
+
+        def render(*a: Any, **kw: Any) -> Any:
+            seen.append(gc.isenabled())
+            return real(*a, **kw)
+
+        c.client.render = render  # type: ignore[method-assign]
+        report = c.run(pose_of(scene), 0.05, feed=feed, warm_up=True)
+    assert len(seen) == len(report.frames) + 1 + 2 * rt.ModeGovernor.MIN_FRAMES
+    assert not any(seen) and gc.isenabled()
+
+
 class BatchExecutor(Executor):
     """Holds the first ``size`` jobs submitted and runs them in order when the last comes (the
     worker finds a newer packet waiting behind each but the last: behind, as a worker thread

@@ -1429,8 +1429,9 @@ class RealtimeClient:
         server frame is late.
 
         ``warm_up``: before the clock starts, the arrivals due by ``start_time`` are received
-        (decoded and prepared, the held frames' extrapolation pairs included) and one frame is
-        rendered at ``pose(start_time)``, off the record (with what follows, the report's
+        (decoded and prepared, the held frames' extrapolation pairs included), the garbage
+        collector's first full collection runs (below), and one frame is rendered at
+        ``pose(start_time)``, off the record (with what follows, the report's
         ``warm_up_ms``), as a headset shows nothing until its first frame is in. The display's
         buffers then exist before the first recorded frame, which would otherwise pay their
         first-touch page faults (about 4 ms at 640×360 here). Where that frame could
@@ -1482,8 +1483,9 @@ class RealtimeClient:
         modes = ModeGovernor()
         try:
             if warm_up:
-                arrivals = self._warm_up(report, views, arrivals, start_time, modes)
-            # Off the clock: its first full collection walks every object of the process.
+                arrivals = self._warm_up(report, views, arrivals, start_time, modes, collector)
+            # Off the clock: its first full collection walks every object of the process (the
+            # warm-up has started it).
             collector.start()
             # Read before the clock starts: /proc/stat took 0.2-0.3 ms here, and refresh 0 is t0.
             cpu0 = time.process_time()
@@ -1532,6 +1534,7 @@ class RealtimeClient:
         arrivals: Iterator[tuple[float, bytes | memoryview | ServerFrame]],
         start_time: float,
         modes: ModeGovernor,
+        collector: FrameCollector,
     ) -> Iterator[tuple[float, bytes | memoryview | ServerFrame]]:
         """The warm-up of :meth:`run` (``warm_up``); returns the arrivals not yet submitted.
 
@@ -1542,7 +1545,12 @@ class RealtimeClient:
         then interpolated however long that took: on a 2-core Intel Xeon (model 207) 19 of the
         70 misses of twelve 10 s runs at 640×360 were the first pair's frames
         (docs/realtime.md, "The first pair's frames"). Then ``modes`` is seeded
-        (:meth:`_seed_modes`), so that it knows from refresh 0 on whether interpolating fits."""
+        (:meth:`_seed_modes`), so that it knows from refresh 0 on whether interpolating fits.
+
+        ``collector`` is started after the packets are in and before the frames: its first
+        full collection walks every object of the process and leaves the caches cold, which
+        cost the frame right after it 0.8 ms of 6-7 ms at 640×360 here (docs/realtime.md,
+        "The collection before the frames")."""
         begin = self.clock.now()
         received = []
         nxt = next(arrivals, None)
@@ -1551,6 +1559,7 @@ class RealtimeClient:
             nxt = next(arrivals, None)
         futures_wait(received)  # a packet that failed is skipped here as in the run
         self._prepare_extrapolations()
+        collector.start()
         cameras = views(start_time)
         # The first frame pays the display buffers' first touches: not one to time.
         self._render(cameras, start_time)
