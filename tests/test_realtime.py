@@ -1640,7 +1640,7 @@ def test_warm_up_lets_the_governor_decide_the_first_pairs_frames(scene, monkeypa
         assert all(f.mode == "interpolate" and not f.deferred for f in frames_)
 
 
-def test_warm_up_does_not_seed_a_governor_that_is_not_asked(scene, monkeypatch):
+def test_warm_up_does_not_seed_a_governor_that_is_not_asked(scene):
     # Only one frame is in by the start (nothing to interpolate): the warm-up renders its one
     # frame and no seeds.
     clock = FakeClock()

@@ -1484,8 +1484,8 @@ class RealtimeClient:
         try:
             if warm_up:
                 arrivals = self._warm_up(report, views, arrivals, start_time, modes, collector)
-            # Off the clock: its first full collection walks every object of the process (the
-            # warm-up has started it).
+            # Off the clock: its first full collection walks every object of the process (with
+            # warm_up, already started before the warm-up's frames).
             collector.start()
             # Read before the clock starts: /proc/stat took 0.2-0.3 ms here, and refresh 0 is t0.
             cpu0 = time.process_time()
@@ -1549,7 +1549,7 @@ class RealtimeClient:
 
         ``collector`` is started after the packets are in and before the frames: its first
         full collection walks every object of the process and leaves the caches cold, which
-        cost the frame right after it 0.8 ms of 6-7 ms at 640×360 here (docs/realtime.md,
+        cost the frame right after it 0.2-2.2 ms of 6-7 ms at 640×360 here (docs/realtime.md,
         "The collection before the frames")."""
         begin = self.clock.now()
         received = []
@@ -1583,7 +1583,11 @@ class RealtimeClient:
         for frame in todo:
             states = self._prepare([None], frame, frame.main.camera, spare)
             with self._lock:
-                if self.client.held_frame(frame.index) is not None:
+                # Still held, and not prepared meanwhile by the worker (a live client's network
+                # thread may submit during the warm-up): the worker's pair is kept.
+                if self.client.held_frame(frame.index) is not None and not (
+                    self.client.was_prepared(None, frame.index)
+                ):
                     for older_index, state in states:
                         self._adopt(older_index, frame.index, state)
 
