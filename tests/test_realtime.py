@@ -1213,6 +1213,7 @@ def test_summary_has_the_keys_the_bench_reports(scene, frames):
         "modes",
         "display_scheduling",
         "warm_up_ms",
+        "warm_up_seed_ms",
         "full_rate_pct",
         "frames_by_divisor",
         "repeated",
@@ -1560,10 +1561,18 @@ def test_warm_up_receives_the_due_frames_and_renders_off_the_record(scene, frame
     assert calls == len(f) + warm
     assert report.warm_up_ms == pytest.approx(2.0 * warm)
     assert f[0].start >= 100.0 + 0.002 * warm - 1e-9
+    seeds = report.summary()["warm_up_seed_ms"]
+    assert list(seeds) == ["extrapolate", "interpolate"]
+    assert all(t == pytest.approx([2.0] * rt.ModeGovernor.MIN_FRAMES) for t in seeds.values())
+    text = text_report(report.summary())
+    assert "(timed for the governor: extrapolated 2.0/2.0/2.0 ms, interpolated 2.0/2.0/2.0 ms)" \
+        in text
     without = loop(FakeClock(), executor=InlineExecutor())
     with without as c:
         plain = c.run(pose_of(scene), 0.2, feed=feed)
     assert plain.warm_up_ms is None and plain.summary()["warm_up_ms"] is None
+    assert plain.summary()["warm_up_seed_ms"] is None
+    assert "timed for the governor" not in text_report(plain.summary())
 
 
 def test_warm_up_renders_after_the_collectors_full_collection(scene, frames):
@@ -1631,6 +1640,9 @@ def test_warm_up_lets_the_governor_decide_the_first_pairs_frames(scene, monkeypa
     warm = [(info.mode, interpolate) for _, info, interpolate in client.rendered[:1 + 2 * seeds]]
     assert warm == [("interpolate", True)] + [("extrapolate", False)] * seeds + [
         ("interpolate", True)] * seeds
+    assert report.warm_up_seed_ms == {
+        "extrapolate": pytest.approx([0.4 * PERIOD * 1e3] * seeds),
+        "interpolate": pytest.approx([interpolate_periods * PERIOD * 1e3] * seeds)}
     frames_ = list(report.frames)
     assert len(frames_) == 12 and all(f.older in (0, None) for f in frames_)
     assert all(f.met and f.divisor == 1 and f.prepared for f in frames_)
@@ -1651,6 +1663,7 @@ def test_warm_up_does_not_seed_a_governor_that_is_not_asked(scene):
         report = c.run(pose_of(scene), 0.05, feed=[(-0.1, frame)], warm_up=True)
     assert len(client.rendered) == 1 + len(report.frames)
     assert report.warm_up_ms == pytest.approx(0.4 * PERIOD * 1e3)
+    assert report.summary()["warm_up_seed_ms"] is None
 
 
 @pytest.mark.parametrize("seconds", [0.001, 0.0, -1.0, float("nan"), float("inf"), "1", True])

@@ -310,6 +310,11 @@ class RealtimeReport:
         self.packets_undecodable = 0
         #: The warm-up before the clock started (``RealtimeClient.run(warm_up=True)``), ms.
         self.warm_up_ms: float | None = None
+        #: The render times (ms) of the warm-up's frames timed for the :class:`ModeGovernor`,
+        #: by the mode they were rendered in (``interpolate``, ``extrapolate``), in order;
+        #: ``None`` where the warm-up did not seed it (no warm-up, or nothing to interpolate at
+        #: its start).
+        self.warm_up_seed_ms: dict[str, list[float]] | None = None
         #: Why the GPU device was lost during the run (:attr:`Client.gpu_lost`: the display
         #: went on on the CPU), ``None`` where it was not.
         self.gpu_lost: str | None = None
@@ -428,7 +433,7 @@ class RealtimeReport:
         ``host_steal_pct`` (the share of the machine's CPU time its host took during the run,
         :attr:`host_steal` in per cent; ``None`` where not counted),
         ``display_scheduling`` (how the display's threads were scheduled), ``warm_up_ms`` (``None``
-        without a warm-up), ``gpu_lost`` (why the GPU device was lost, after which the display
+        without a warm-up), ``warm_up_seed_ms`` (:attr:`warm_up_seed_ms`), ``gpu_lost`` (why the GPU device was lost, after which the display
         rendered on the CPU; ``None``) and the garbage collection between frames:
         ``gc_between_frames``, ``gc_collections``, ``gc_forced`` and ``gc_ms_max``
         (:class:`~splitrender.client.collector.FrameCollector`). Times that have no sample are
@@ -471,6 +476,10 @@ class RealtimeReport:
             "host_steal_pct": None if self.host_steal is None else 100.0 * self.host_steal,
             "display_scheduling": self.display_scheduling,
             "warm_up_ms": self.warm_up_ms,
+            "warm_up_seed_ms": (
+                None if self.warm_up_seed_ms is None
+                else {m: list(t) for m, t in self.warm_up_seed_ms.items()}
+            ),
             "gpu_lost": self.gpu_lost,
             "gc_between_frames": self.gc_between_frames,
             "gc_collections": self.gc_collections,
@@ -1564,7 +1573,7 @@ class RealtimeClient:
         # The first frame pays the display buffers' first touches: not one to time.
         self._render(cameras, start_time)
         if self._defers and self._interpolates:
-            self._seed_modes(modes, cameras, start_time)
+            report.warm_up_seed_ms = self._seed_modes(modes, cameras, start_time)
         report.warm_up_ms = (self.clock.now() - begin) * 1e3
         return arrivals if nxt is None else itertools.chain([nxt], arrivals)
 
@@ -1593,10 +1602,11 @@ class RealtimeClient:
 
     def _seed_modes(
         self, modes: ModeGovernor, cameras: tuple[Camera, ...], time: float
-    ) -> None:
+    ) -> dict[str, list[float]] | None:
         """Renders :data:`ModeGovernor.MIN_FRAMES` frames of each mode at ``cameras`` and
         ``time``, extrapolated first, and records their times in ``modes`` (enough of each for
-        its own estimate and the ratio of the two). Only where the frame at ``time`` could
+        its own estimate and the ratio of the two); returns them (ms) by the mode they were
+        rendered in (:attr:`RealtimeReport.warm_up_seed_ms`), ``None`` where it rendered none. Only where the frame at ``time`` could
         interpolate and its older frame's extrapolation pair is prepared: elsewhere the
         governor is not asked for it either (:meth:`_render`). Rendered alone, with the worker
         idle, these are the cheapest the frames get; the run's own frames take their place as
@@ -1609,16 +1619,20 @@ class RealtimeClient:
                 and self.client.was_prepared(None, could.older)
             )
         if not seeds:
-            return
+            return None
+        timed: dict[str, list[float]] = {}
         # Interpolated last: the eyes' previous outputs are then what the run's first frame
         # would have had without the seeding.
         for interpolate in (False, True):
             for _ in range(ModeGovernor.MIN_FRAMES):
                 start = self.clock.now()
                 self._render(cameras, time, 0, interpolate)
+                took = self.clock.now() - start
                 info = self.client.last_info
                 assert info is not None
-                modes.record(info.mode, self.clock.now() - start)
+                modes.record(info.mode, took)
+                timed.setdefault(info.mode, []).append(took * 1e3)
+        return timed
 
     def _display(
         self,

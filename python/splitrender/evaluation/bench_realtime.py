@@ -531,7 +531,8 @@ def format_realtime(b: RealtimeBench) -> str:
                else f"; the host took {s['host_steal_pct']:.1f} % of the machine's CPU time "
                "(steal)")
             + ("" if s.get("warm_up_ms") is None
-               else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms"),
+               else f"; warm-up before the clock {s['warm_up_ms']:.0f} ms")
+            + _seeds(s.get("warm_up_seed_ms")),
             "  " + _collections(s),
         ]
         + ([] if note is None else [f"  {note}"])
@@ -540,6 +541,19 @@ def format_realtime(b: RealtimeBench) -> str:
             "from then on (the figures mix the two backends)"])
         + ([] if b.score is None else _score_lines(b.score))
     )
+
+
+_DONE = {"interpolate": "interpolated", "extrapolate": "extrapolated"}
+
+
+def _seeds(seeds: dict[str, list[float]] | None) -> str:
+    """The warm-up's frames timed for the interpolation governor, for the text report."""
+    if not seeds:
+        return ""
+    return " (timed for the governor: " + ", ".join(
+        f"{_DONE.get(mode, mode)} {'/'.join(f'{t:.1f}' for t in times)} ms"
+        for mode, times in seeds.items()
+    ) + ")"
 
 
 def _score_lines(score: dict[str, Any]) -> list[str]:
