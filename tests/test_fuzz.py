@@ -125,3 +125,22 @@ def test_the_harness_counts_a_named_memory_refusal_as_specific() -> None:
     refusal = splitrender.OutOfMemoryError("reproject: 16384x16384 needs 8.0 GiB")
     assert _classify_exception(refusal).outcome is Outcome.SPECIFIC
     assert _classify_exception(MemoryError()).outcome is Outcome.OOM
+
+
+@pytest.mark.parametrize(("argv", "serving"), [
+    (["serve", "--port", "0"], True),
+    (["relay", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9", "--quiet"], True),
+    (["relay", "--seconds", "0.3", "--quiet"], False),
+    (["relay", "--seconds", "65536"], True),
+    (["relay", "--seconds", "0.3", "--seconds", "86400"], True),  # argparse takes the last
+    (["relay", "--seconds", "nan"], False),  # refused by the command line: left to exit 2
+    (["relay", "--quiet", "--seconds"], False),  # no value: an argparse error
+    (["connect", "127.0.0.1:9"], False),
+])
+def test_the_harness_lets_a_server_or_relay_run_until_it_says_it_serves(
+    argv: list[str], serving: bool
+) -> None:
+    # A mutation that drops a relay's --seconds (or gives it a day) leaves a command that runs
+    # until interrupted by design, as serve does: not a hang (seed 7113, case cli:71).
+    from tests.fuzz.targets import runs_until_stopped
+    assert runs_until_stopped(argv) is serving

@@ -31,8 +31,9 @@ from tests.fuzz.pinned import PINNED
 #: Address space a case may take beyond the fork server's own (bytes): a frame of the
 #: decoder's largest camera (2^25 pixels, about 1 GB of buffers) fits, 30 GB does not.
 MEM_BUDGET = 2 << 30
-#: What ``splitrender serve`` prints once it serves (until interrupted, by design).
-_LISTENING = re.compile(r"^listening on ", re.MULTILINE)
+#: What ``splitrender serve`` prints once it serves, and ``splitrender relay`` once it relays
+#: (both until interrupted, by design; the relay for its ``--seconds`` where given).
+_LISTENING = re.compile(r"^(listening on|relaying) ", re.MULTILINE)
 #: The heading in tests/fuzz/targets.py's docstring under which the checks are listed.
 _WHY = "Why accepting is right, per kind (the check each ``run`` makes):"
 #: The CI profile: cases and seed (tests/test_fuzz.py); it also runs the hand-picked cases.

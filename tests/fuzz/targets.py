@@ -28,7 +28,8 @@ Why accepting is right, per kind (the check each ``run`` makes):
 - ``scene-description``, ``gltf``, ``glb``: another valid placement or model; the scene must
   render a small server frame that passes ``check_server_frame`` with finite camera matrices.
 - ``cli``: exit status 0 without a traceback (and for ``serve``, which serves until
-  interrupted, "listening on" printed before the time limit).
+  interrupted, "listening on" printed before the time limit; so for a ``relay`` without
+  ``--seconds`` or with more than :data:`RELAY_BOUNDED_S` of it, "relaying").
 """
 
 from __future__ import annotations
@@ -1131,7 +1132,30 @@ def _cli_case(rng: random.Random, seeds: Path, work: Path) -> tuple[str, Callabl
     shown = " ".join(a if len(a) < 40 else a[:37] + "..." for a in argv)
     text = f"{what}: splitrender {shown}".replace(str(seeds), "SEEDS").replace(str(work), "CASE")
     text = text.replace(str(shared), "SEEDS")
-    return text, cli_run(argv, work), {"cli": True, "serve": argv[0] == "serve"}
+    return text, cli_run(argv, work), {"cli": True, "serve": runs_until_stopped(argv)}
+
+
+#: The most ``relay --seconds`` a ``cli`` case waits for the relay to end by itself (its time
+#: limit is 40 s, the relay's own limit a day).
+RELAY_BOUNDED_S = 20.0
+
+
+def runs_until_stopped(argv: list[str]) -> bool:
+    """Whether the command line runs until interrupted by design: ``serve``, and a ``relay``
+    without ``--seconds`` (a mutation may drop it) or with more than :data:`RELAY_BOUNDED_S`
+    of it (the last one given, as argparse takes it). Such a run is accepted once it says it
+    serves; a ``relay`` that ends by itself is left to end, and its exit status judged."""
+    if argv[:1] == ["serve"]:
+        return True
+    if argv[:1] != ["relay"]:
+        return False
+    given = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--seconds"]
+    if "--seconds" not in argv:
+        return True
+    try:
+        return bool(given) and float(given[-1]) > RELAY_BOUNDED_S
+    except ValueError:
+        return False  # refused by the command line's own check
 
 
 def cli_run(argv: list[str], work: Path) -> Callable[[], None]:
