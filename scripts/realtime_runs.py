@@ -51,6 +51,11 @@ def load(path: Path) -> Run:
         if not isinstance(d.get(key), kind) or isinstance(d.get(key), bool):
             raise ValueError(f"{path}: expected a number `{key}`, as `bench --realtime "
                              "--json` writes")
+    if not 0 <= d["deadline_misses"] <= d["frames"]:
+        raise ValueError(f"{path}: {d['deadline_misses']} deadline misses of {d['frames']} "
+                         "frames; expected 0 to that many")
+    if not math.isfinite(d["achieved_fps"]) or d["achieved_fps"] < 0:
+        raise ValueError(f"{path}: `achieved_fps` {d['achieved_fps']!r} is not a rate >= 0")
     steal = d.get("host_steal_pct")
     if steal is not None and (not isinstance(steal, (int, float)) or isinstance(steal, bool)
                               or not 0.0 <= steal <= 100.0):

@@ -70,6 +70,16 @@ def test_a_plot_that_cannot_be_written_is_refused(script, tmp_path, capsys) -> N
         ('{"frames": true, "deadline_misses": 0, "achieved_fps": 1.0}', "a number `frames`"),
         ('{"frames": 10, "deadline_misses": 0, "achieved_fps": 1.0, "host_steal_pct": 140}',
          "is not a share in 0-100"),
+        ('{"frames": 10, "deadline_misses": 11, "achieved_fps": 1.0}',
+         "11 deadline misses of 10 frames"),
+        ('{"frames": -1, "deadline_misses": -2, "achieved_fps": 1.0}',
+         "-2 deadline misses of -1 frames"),
+        ('{"frames": 10, "deadline_misses": 0, "achieved_fps": Infinity}',
+         "`achieved_fps` inf is not a rate"),
+        ('{"frames": 10, "deadline_misses": 0, "achieved_fps": NaN}',
+         "`achieved_fps` nan is not a rate"),
+        ('{"frames": 10, "deadline_misses": 0, "achieved_fps": -3}',
+         "`achieved_fps` -3 is not a rate"),
     ],
 )
 def test_a_file_that_is_not_a_runs_json_is_refused(script, tmp_path, capsys, text, says) -> None:
