@@ -433,11 +433,11 @@ class RealtimeReport:
         ``host_steal_pct`` (the share of the machine's CPU time its host took during the run,
         :attr:`host_steal` in per cent; ``None`` where not counted),
         ``display_scheduling`` (how the display's threads were scheduled), ``warm_up_ms`` (``None``
-        without a warm-up), ``warm_up_seed_ms`` (:attr:`warm_up_seed_ms`), ``gpu_lost`` (why the GPU device was lost, after which the display
-        rendered on the CPU; ``None``) and the garbage collection between frames:
-        ``gc_between_frames``, ``gc_collections``, ``gc_forced`` and ``gc_ms_max``
-        (:class:`~splitrender.client.collector.FrameCollector`). Times that have no sample are
-        ``None``."""
+        without a warm-up), ``warm_up_seed_ms`` (:attr:`warm_up_seed_ms`), ``gpu_lost`` (why
+        the GPU device was lost, after which the display rendered on the CPU; ``None``) and the
+        garbage collection between frames: ``gc_between_frames``, ``gc_collections``,
+        ``gc_forced`` and ``gc_ms_max`` (:class:`~splitrender.client.collector.FrameCollector`).
+        Times that have no sample are ``None``."""
         n = self._count
         misses = self._misses
         return {
@@ -1154,11 +1154,8 @@ class RealtimeClient:
         with self._lock:
             if any(e is entry for e in self._received):
                 entry.states.extend(later)
-            # Adopted only while the frame is held (else the history would wait in the
-            # client until its next render retires it).
-            elif self.client.held_frame(frame.index) is not None:
-                for older_index, state in later:
-                    self._adopt(older_index, frame.index, state)
+            else:
+                self._adopt_held(frame.index, later)
             if first or later:
                 self._report.prepare_ms.add((t2 - t1 + t3 - t2) * 1e3)
         return frame.index
@@ -1311,6 +1308,32 @@ class RealtimeClient:
         else:
             self.client.adopt_uploaded(older, newer, state)
 
+    def _adopt_held(
+        self, newer: int, states: list[tuple[int | None, _native.BidirHistory | GpuPair]]
+    ) -> None:
+        """Hands the pairs ``states`` (:meth:`_prepare`) of frame ``newer``, prepared after it
+        was handed over, to the client (under the lock): only while the frame is held (else the
+        history would wait in the client until its next render retires it), and only a pair not
+        adopted meanwhile (the warm-up and the worker may prepare the same one: the first is
+        kept)."""
+        if self.client.held_frame(newer) is None:
+            return
+        for older, state in states:
+            if not self.client.was_prepared(older, newer):
+                self._adopt(older, newer, state)
+
+    def _could_defer(self, time: float) -> bool:
+        """Whether a display frame at ``time`` could interpolate and may be deferred to its
+        pair's older frame, whose extrapolation pair is prepared (under the lock): one the
+        display prepared itself would cost more than the interpolated frame (the worker leaves
+        it out when behind)."""
+        could = self.client.choose(time)
+        return (
+            could.mode == "interpolate"
+            and could.older is not None
+            and self.client.was_prepared(None, could.older)
+        )
+
     # -- display ---------------------------------------------------------------------------
 
     @checked(interpolate=BOOL)
@@ -1346,15 +1369,7 @@ class RealtimeClient:
             self._release_due(time)
             deferred = False
             if callable(interpolate):
-                could = self.client.choose(time)
-                # Only to a prepared extrapolation pair: one the display prepared itself would
-                # cost more than the interpolated frame (the worker leaves it out when behind).
-                deferred = (
-                    could.mode == "interpolate"
-                    and could.older is not None
-                    and self.client.was_prepared(None, could.older)
-                    and not interpolate()
-                )
+                deferred = self._could_defer(time) and not interpolate()
                 interpolate = not deferred
             images = [
                 self.client.render(c, time, eye=first_eye + e, interpolate=interpolate)
@@ -1592,13 +1607,8 @@ class RealtimeClient:
         for frame in todo:
             states = self._prepare([None], frame, frame.main.camera, spare)
             with self._lock:
-                # Still held, and not prepared meanwhile by the worker (a live client's network
-                # thread may submit during the warm-up): the worker's pair is kept.
-                if self.client.held_frame(frame.index) is not None and not (
-                    self.client.was_prepared(None, frame.index)
-                ):
-                    for older_index, state in states:
-                        self._adopt(older_index, frame.index, state)
+                # A live client's network thread may submit during the warm-up.
+                self._adopt_held(frame.index, states)
 
     def _seed_modes(
         self, modes: ModeGovernor, cameras: tuple[Camera, ...], time: float
@@ -1606,20 +1616,14 @@ class RealtimeClient:
         """Renders :data:`ModeGovernor.MIN_FRAMES` frames of each mode at ``cameras`` and
         ``time``, extrapolated first, and records their times in ``modes`` (enough of each for
         its own estimate and the ratio of the two); returns them (ms) by the mode they were
-        rendered in (:attr:`RealtimeReport.warm_up_seed_ms`), ``None`` where it rendered none. Only where the frame at ``time`` could
-        interpolate and its older frame's extrapolation pair is prepared: elsewhere the
-        governor is not asked for it either (:meth:`_render`). Rendered alone, with the worker
+        rendered in (:attr:`RealtimeReport.warm_up_seed_ms`), ``None`` where it rendered none.
+        Only where the frame at ``time`` could be deferred (:meth:`_could_defer`): elsewhere
+        the governor is not asked for it either (:meth:`_render`). Rendered alone, with the worker
         idle, these are the cheapest the frames get; the run's own frames take their place as
         they come (the governor keeps the last :data:`ModeGovernor.WINDOW`)."""
         with self._lock:
-            could = self.client.choose(time)
-            seeds = (
-                could.mode == "interpolate"
-                and could.older is not None
-                and self.client.was_prepared(None, could.older)
-            )
-        if not seeds:
-            return None
+            if not self._could_defer(time):
+                return None
         timed: dict[str, list[float]] = {}
         # Interpolated last: the eyes' previous outputs are then what the run's first frame
         # would have had without the seeding.
