@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 import splitrender as sr
-from splitrender.codec.coder import CodecConfig, StreamDecoder, StreamEncoder
+from splitrender.codec.coder import _PIC_COLOR, CodecConfig, StreamDecoder, StreamEncoder
 from splitrender.errors import InvalidInputError, StreamError
 from splitrender.codec.stream import (
     BufferKind,
@@ -76,6 +76,41 @@ def test_decoded_frames_keep_layout(
                 for x in ("bits", "s_min", "s_max"):
                     assert getattr(sb, x).shape == getattr(sa, x).shape, (name, x)
                     assert getattr(sb, x).dtype == getattr(sa, x).dtype, (name, x)
+
+
+def _arrays(f: sr.ServerFrame) -> list[np.ndarray]:
+    """Every array of ``f``: each camera's buffers and its shadows' arrays, in field order."""
+    out: list[np.ndarray] = []
+    for cf in _cams(f):
+        for fd in dataclasses.fields(cf):
+            v = getattr(cf, fd.name)
+            if isinstance(v, np.ndarray):
+                out.append(v)
+            elif dataclasses.is_dataclass(v):
+                out += [a for g in dataclasses.fields(v)
+                        if isinstance(a := getattr(v, g.name), np.ndarray)]
+    return out
+
+
+def test_decoded_frames_are_the_same_bytes_for_every_thread_count(
+    coded: tuple[list[bytes], list[sr.ServerFrame]]
+) -> None:
+    # The colour picture decodes on two slice threads (wavefront rows) once the decoder has two
+    # threads: FFmpeg's rows in another order must give the same pictures, key frames (0, 6)
+    # and the others alike, as every other part of the decode does.
+    packets, _ = coded
+    runs = []
+    for threads in (1, 2, 4):
+        with StreamDecoder(threads=threads) as dec:
+            runs.append([dec.decode(p) for p in packets])
+            colour = dec._decoders[_PIC_COLOR][1]
+            assert colour.thread_count == (1 if threads == 1 else 2)
+    for other in runs[1:]:
+        for a, b in zip(runs[0], other, strict=True):
+            pairs = list(zip(_arrays(a), _arrays(b), strict=True))
+            assert len(pairs) > 20
+            for x, y in pairs:
+                assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
 
 
 def test_shadow_bits_bit_exact(
