@@ -436,6 +436,11 @@ def _replace_payload(packet: bytes, name: str, payload: bytes) -> bytes:
         ),
         ("picture.geometry", b"", "picture.geometry: HEVC payload of 0 bytes"),
         (
+            "picture.shadow",
+            b"\x00\x00\x01garbage" * 10,
+            "picture.shadow: HEVC payload of 100 bytes",
+        ),
+        (
             "main.shadow_fwd.bits",
             b"not zstd at all",
             "main.shadow_fwd.bits: zstd payload",
@@ -447,19 +452,25 @@ def _replace_payload(packet: bytes, name: str, payload: bytes) -> bytes:
         ),
     ],
 )
+@pytest.mark.parametrize("threads", [1, 2])
 def test_undecodable_payloads_raise_stream_error(
     coded: tuple[list[bytes], list[sr.ServerFrame]],
     name: str,
     payload: bytes,
     message: str,
+    threads: int,
 ) -> None:
-    packets, _ = coded
+    # With two threads the geometry picture's worker waits for the lossless masks that this
+    # thread unpacks, and this thread decodes the shadow picture: an error in either must reach
+    # the caller (not leave the worker waiting), and the decoder go on at the next key frame.
+    packets, decoded = coded
     bad = _replace_payload(packets[0], name, payload)
-    with (
-        StreamDecoder() as dec,
-        pytest.raises(StreamError, match=f"frame 0, {message}"),
-    ):
-        dec.decode(bad)
+    with StreamDecoder(threads=threads) as dec:
+        with pytest.raises(StreamError, match=f"frame 0, {message}"):
+            dec.decode(bad)
+        again = dec.decode(packets[0])
+        assert all(x.tobytes() == y.tobytes()
+                   for x, y in zip(_arrays(again), _arrays(decoded[0]), strict=True))
 
 
 def _zstd_frame(raw: bytes) -> bytes:

@@ -1432,49 +1432,59 @@ class StreamDecoder(_WorkerThreads):
                     f"{where}, {b.name}: a {pw}x{ph} picture for these cameras; expected "
                     f"at most {MAX_SIDE} pixels a side"
                 )
-        # Colour and shadow pictures start at once; this thread meanwhile unpacks the lossless
-        # parts, which the geometry picture's worker then applies (static and invalid masks),
-        # and then converts the shadow colours as soon as their (quickest) picture is out, so
-        # that both run beside the other pictures' decoding rather than after it.
+        # The colour and geometry pictures start at once on the workers. This thread meanwhile
+        # unpacks the lossless parts, hands their static and invalid masks to the geometry
+        # picture's worker (which applies them once its picture is decoded), then decodes the
+        # (quickest) shadow picture itself and converts the shadow colours: all of it beside
+        # the two long pictures. Before, the geometry picture waited for the lossless parts
+        # and for a worker to finish the shadow picture, and was the last to end in the
+        # frames that are not key frames (docs/performance.md).
         parallel = len(pictures) > 1 and self._threads > 1
-        geometry = [b for b in pictures if b.kind == _PIC_GEOMETRY]
         futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
+        masks: Future[_Decoded] = Future()
         if parallel:
             pool = self._executor(min(self._threads, 3), "splitrender-dec")
             futs = [
-                pool.submit(self._picture, p.index, b, sizes, seen, {})
-                for b in sorted(pictures, key=lambda b: b.kind != _PIC_SHADOW)
-                if b.kind != _PIC_GEOMETRY
+                pool.submit(self._picture, p.index, b, sizes, seen, masks.result)
+                for b in sorted(pictures, key=lambda b: b.kind != _PIC_COLOR)
+                if b.kind != _PIC_SHADOW
             ]
         errors: list[StreamError] = []
         lossless: _Decoded = {}
-        try:
-            lossless = _lossless(p, seen, self._out)
-        except StreamError as e:
-            errors.append(e)
         parts = []
         shadow_rgb: _Decoded = {}
-        if parallel and not errors:
-            futs += [
-                pool.submit(self._picture, p.index, b, sizes, seen, lossless)
-                for b in geometry
-            ]
         try:
+            try:
+                lossless = _lossless(p, seen, self._out)
+                masks.set_result(lossless)
+            except StreamError as e:
+                errors.append(e)
+                masks.set_exception(e)  # the geometry worker stops with it
+            if parallel:
+                for b in pictures:
+                    if b.kind != _PIC_SHADOW or errors:
+                        continue
+                    try:
+                        part = self._picture(p.index, b, sizes, seen, masks.result)
+                    except StreamError as e:
+                        errors.append(e)
+                        continue
+                    parts.append(part)
+                    shadow_rgb = self._shadow_colours(p, seen, lossless, part[1])
             for f in futs:
                 try:
-                    part = f.result()
+                    parts.append(f.result())
                 except StreamError as e:
-                    errors.append(e)
-                    continue
-                parts.append(part)
-                if part[1] and not errors:  # the shadow picture's planes
-                    shadow_rgb = self._shadow_colours(p, seen, lossless, part[1])
+                    if e is not masks.exception():
+                        errors.append(e)
         finally:
+            if not masks.done():  # an exception other than a StreamError: free the workers
+                masks.set_exception(StreamError(f"frame {p.index}: decoding was interrupted"))
             wait(futs)  # none may outlive this call (thread safety)
         if errors:
             raise errors[0]
         if not parallel:
-            parts = [self._picture(p.index, b, sizes, seen, lossless) for b in pictures]
+            parts = [self._picture(p.index, b, sizes, seen, masks.result) for b in pictures]
             for _, planes in parts:
                 if planes:
                     shadow_rgb = self._shadow_colours(p, seen, lossless, planes)
@@ -1496,11 +1506,12 @@ class StreamDecoder(_WorkerThreads):
         b: BufferEntry,
         sizes: tuple[tuple[int, int], ...],
         seen: dict[tuple[int, BufferKind], BufferEntry],
-        masks: _Decoded,
+        masks: Callable[[], _Decoded],
     ) -> tuple[_Decoded, list[npt.NDArray[np.uint8]]]:
         """Decodes one picture: ``(colour and geometry buffers, shadow picture planes)``. The
         shadow colours are converted later, where their bitfields are set. Depth and motion
-        leave with the static and invalid ``masks`` (the unpacked lossless parts) applied."""
+        leave with the static and invalid masks (the unpacked lossless parts, which ``masks()``
+        returns, waiting for them if need be, once the picture is decoded) applied."""
         where = f"frame {index}, {b.name}"
         tiles, pw, ph = _layout(b.kind, sizes)
         size, ctx = self._decoders.get(b.kind, ((0, 0), None))
@@ -1552,13 +1563,14 @@ class StreamDecoder(_WorkerThreads):
         # Dequantised in the core (reproj_core::dequant): code * scale + offset in float32,
         # motion from its half-size tiles, the lossless masks applied in the same pass.
         q = _plane_rows(f.planes[0], np.uint16)
+        lossless = masks()
         for ci, (w, h) in enumerate(sizes):
             entry = seen.get((ci, _K.DEPTH))
             if entry is not None and entry.codec == Codec.TILE:
                 t = tiles[(ci, _K.DEPTH, 0)]
                 out[(ci, _K.DEPTH)] = _native.dequantise_depth(
                     q, t.x, t.y, w, h, entry.scale[0], entry.offset[0],
-                    masks.get((ci, _K.DEPTH_INVALID)),
+                    lossless.get((ci, _K.DEPTH_INVALID)),
                     self._out.take((ci, _K.DEPTH), (h, w), np.float32),
                 )
             for kind in (_K.MOTION_FWD, _K.MOTION_BWD):
@@ -1570,7 +1582,7 @@ class StreamDecoder(_WorkerThreads):
                     ct = [tiles[(ci, kind, c)] for c in range(3)]
                     out[(ci, kind)] = _native.dequantise_motion(
                         q, [(t.x, t.y) for t in ct], w, h, entry.scale, entry.offset,
-                        masks.get((ci, kstatic)), masks.get((ci, kinvalid)),
+                        lossless.get((ci, kstatic)), lossless.get((ci, kinvalid)),
                         self._out.take((ci, kind), (h, w, 3), np.float32),
                     )
         return out, []
