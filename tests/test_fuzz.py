@@ -144,3 +144,54 @@ def test_the_harness_lets_a_server_or_relay_run_until_it_says_it_serves(
     # until interrupted by design, as serve does: not a hang (seed 7113, case cli:71).
     from tests.fuzz.targets import runs_until_stopped
     assert runs_until_stopped(argv) is serving
+
+
+@pytest.mark.parametrize(("argv", "long"), [
+    (["eval", "--out", "o", "--no-vmaf", "--quiet"], True),  # seed 7202, case cli:64
+    (["eval", "--out", "o", "--dataset", "d", "--no-vmaf", "--quiet"], False),
+    (["bench", "--scene", "lab", "--frames", "2", "--quiet"], True),  # the default 1280x720
+    (["bench", "--scene", "lab", "--scale", "0.02", "--frames", "2"], False),
+    (["render", "lab", "--out", "o", "--seconds", "0.05", "--scale", "0.01"], True),
+    (["demo", "--scene", "lab", "--scale", "0.01", "--seconds", "0.21"], False),
+    (["connect", "127.0.0.1:9"], False),
+    ([], False),
+])
+def test_the_harness_knows_a_command_line_whose_defaults_make_minutes_of_work(
+    argv: list[str], long: bool
+) -> None:
+    from tests.fuzz.targets import runs_long_by_design
+    assert runs_long_by_design(argv) is long
+
+
+_LONG_CHILDREN = """
+import sys, time
+from tests.fuzz.harness import Verdict, Outcome, run_case
+
+def quiet():
+    time.sleep(30)
+    return Verdict(Outcome.ACCEPTED, "")
+
+def traceback():
+    sys.stderr.write("Traceback (most recent call last):\\n  ValueError: boom\\n")
+    sys.stderr.flush()
+    time.sleep(30)
+    return Verdict(Outcome.ACCEPTED, "")
+
+for name, work, long in (("quiet", quiet, True), ("quiet", quiet, False),
+                         ("traceback", traceback, True)):
+    v = run_case(work, time_limit=1.0, mem_budget=1 << 30, long_by_design=long)
+    print(name, long, v.outcome.value)
+"""
+
+
+def test_the_harness_accepts_a_long_run_by_design_only_while_it_has_not_failed() -> None:
+    # A command line long by design that is still running at the limit is accepted; the same
+    # child is a hang when nothing says it should run long, and a traceback before the limit
+    # is a failure either way. In a child interpreter: the harness forks, which needs a
+    # process without threads.
+    proc = subprocess.run([sys.executable, "-c", _LONG_CHILDREN], check=True, cwd=ROOT,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
+                          text=True, timeout=60)
+    assert proc.stdout.splitlines() == [
+        "quiet True accepted", "quiet False hang", "traceback True generic exception",
+    ]

@@ -119,6 +119,7 @@ def _run_made(k: targets.Kind, run: Callable[[], None], opts: dict[str, object])
         fsize_limit=fsize_limit if isinstance(fsize_limit, int) else None,
         log_check=log_check,
         running=_LISTENING if serve else None,
+        long_by_design=bool(opts.get("long")),
     )
 
 
