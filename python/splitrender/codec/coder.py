@@ -1336,8 +1336,9 @@ class StreamDecoder(_WorkerThreads):
     stream has an order), and the HEVC decoding, which is most of the time, releases the GIL.
 
     ``threads`` (0 = one per CPU) is the number of pictures decoded at once and the slice threads
-    of each picture's decoder (at least two for the colour picture where ``threads`` > 1). The worker threads start with the first packet and run until
-    :meth:`close` (or the end of a ``with`` block): close a decoder when its stream ends.
+    of each picture's decoder (at least two for the colour picture where ``threads`` > 1). The
+    worker threads start with the first packet and run until :meth:`close` (or the end of a
+    ``with`` block): close a decoder when its stream ends.
 
     # Errors
     :class:`~splitrender.errors.StreamError` naming the frame and buffer for anything wrong in a
@@ -1520,8 +1521,9 @@ class StreamDecoder(_WorkerThreads):
             if b.kind == _PIC_COLOR:
                 # A key frame's colour picture is about half of its FFmpeg time, on one worker
                 # after the other pictures are done: two slice threads let the other core help
-                # (1280x720 on 2 cores: a server frame's wall time 0.60 instead of 0.65 of its
-                # CPU time, its key frames 15 % faster; docs/performance.md). Same pictures.
+                # (1280x720 on 2 cores: a server frame's wall time 0.59 instead of 0.65 of its
+                # CPU time, a key frame's 0.68 instead of 0.77; docs/performance.md). The same
+                # pictures.
                 threads = max(threads, min(self._threads, 2))
             ctx = _hevc_decoder(pw, ph, threads)
             self._decoders[b.kind] = ((pw, ph), ctx)
