@@ -255,8 +255,8 @@ def profile(repeats: int = 7) -> None:
                 continue
             walls.append(dt / len(packets))
             cpus.append(dc / len(packets))
-            for i, (a, b) in enumerate(zip([t0, *ends], ends)):
-                each[i].append(b - a)
+            for i, (begin, end) in enumerate(zip([t0, *ends], ends)):
+                each[i].append(end - begin)
         dec.close()
         print(
             f"   {'kept decoder (a running stream)' if kept else 'new decoder per pair':32} "
