@@ -1441,6 +1441,8 @@ class StreamDecoder(_WorkerThreads):
         # and for a worker to finish the shadow picture, and was the last to end in the
         # frames that are not key frames (docs/performance.md).
         parallel = len(pictures) > 1 and self._threads > 1
+        # This thread's pictures: the shadow picture, or all of them without workers.
+        mine = [b for b in pictures if not parallel or b.kind == _PIC_SHADOW]
         futs: list[Future[tuple[_Decoded, list[npt.NDArray[np.uint8]]]]] = []
         masks: Future[_Decoded] = Future()
         if parallel:
@@ -1461,16 +1463,16 @@ class StreamDecoder(_WorkerThreads):
             except StreamError as e:
                 errors.append(e)
                 masks.set_exception(e)  # the geometry worker stops with it
-            if parallel:
-                for b in pictures:
-                    if b.kind != _PIC_SHADOW or errors:
-                        continue
-                    try:
-                        part = self._picture(p.index, b, sizes, seen, masks.result)
-                    except StreamError as e:
-                        errors.append(e)
-                        continue
-                    parts.append(part)
+            for b in mine:
+                if errors:
+                    break
+                try:
+                    part = self._picture(p.index, b, sizes, seen, masks.result)
+                except StreamError as e:
+                    errors.append(e)
+                    continue
+                parts.append(part)
+                if part[1]:  # the shadow picture's planes
                     shadow_rgb = self._shadow_colours(p, seen, lossless, part[1])
             for f in futs:
                 try:
@@ -1484,11 +1486,6 @@ class StreamDecoder(_WorkerThreads):
             wait(futs)  # none may outlive this call (thread safety)
         if errors:
             raise errors[0]
-        if not parallel:
-            parts = [self._picture(p.index, b, sizes, seen, masks.result) for b in pictures]
-            for _, planes in parts:
-                if planes:
-                    shadow_rgb = self._shadow_colours(p, seen, lossless, planes)
         results: _Decoded = dict(lossless)
         for out, _ in parts:
             results.update(out)
