@@ -151,12 +151,16 @@ def test_the_harness_lets_a_server_or_relay_run_until_it_says_it_serves(
     (["eval", "--out", "o", "--dataset", "d", "--no-vmaf", "--quiet"], False),
     (["bench", "--scene", "lab", "--frames", "2", "--quiet"], True),  # the default 1280x720
     (["bench", "--scene", "lab", "--scale", "0.02", "--frames", "2"], False),
+    (["bench", "--scene", "lab", "--scale", "0.02", "--frames", "65536"], True),  # 7205 cli:120
+    (["bench", "--scale", "0.02", "--frames", "65536", "--frames", "1"], False),  # the last
+    (["bench", "--scale", "0.02", "--frames", "nan"], False),  # refused by the command line
+    (["bench", "--scale", "0.02", "--frames"], False),  # no value: an argparse error
     (["render", "lab", "--out", "o", "--seconds", "0.05", "--scale", "0.01"], True),
     (["demo", "--scene", "lab", "--scale", "0.01", "--seconds", "0.21"], False),
     (["connect", "127.0.0.1:9"], False),
     ([], False),
 ])
-def test_the_harness_knows_a_command_line_whose_defaults_make_minutes_of_work(
+def test_the_harness_knows_a_command_line_that_asks_for_minutes_of_work(
     argv: list[str], long: bool
 ) -> None:
     from tests.fuzz.targets import runs_long_by_design

@@ -171,8 +171,8 @@ def run_case(
     process's own, and classifies how it ended. ``log_check(verdict, output)`` may reclassify
     from the child's stdout/stderr (the CLI cases). A child whose output matches ``running``
     (a server that says it is listening) is stopped there and counted as accepted: it runs
-    until interrupted by design. With ``long_by_design`` (a command line whose defaults make
-    minutes of work), a child still running at ``time_limit`` without a panic or a traceback
+    until interrupted by design. With ``long_by_design`` (a command line that asks for minutes
+    of work), a child still running at ``time_limit`` without a panic or a traceback
     is stopped and counted as accepted too."""
     check_single_threaded()
     mem_limit = virtual_size() + mem_budget
@@ -224,7 +224,7 @@ def run_case(
             return Verdict(Outcome.GENERIC, f"a traceback within {time_limit:g} s: "
                            f"{output.strip().splitlines()[-1][:200]}")
         return Verdict(Outcome.ACCEPTED, f"still running after {time_limit:g} s, as its "
-                       "defaults make it")
+                       "command line asks")
     if hung:
         return Verdict(Outcome.HANG, f"no result after {time_limit:g} s")
     verdict: Verdict

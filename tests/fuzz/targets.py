@@ -30,7 +30,8 @@ Why accepting is right, per kind (the check each ``run`` makes):
 - ``cli``: exit status 0 without a traceback (and for ``serve``, which serves until
   interrupted, "listening on" printed before the time limit; so for a ``relay`` without
   ``--seconds`` or with more than :data:`RELAY_BOUNDED_S` of it, "relaying"; a command line
-  without an option that bounds its work, :data:`BOUNDED_BY`, still running at the limit).
+  without an option that bounds its work, :data:`BOUNDED_BY`, or with more of it than its
+  seed, still running at the limit).
 """
 
 from __future__ import annotations
@@ -1162,8 +1163,9 @@ def runs_until_stopped(argv: list[str]) -> bool:
 
 
 #: The options that keep each subcommand's seed (:func:`cli_seeds`) small: without one of them
-#: its default applies, which makes minutes of work (``eval`` without ``--dataset`` evaluates
-#: the built-in scenes; seed 7202, case cli:64 dropped it).
+#: its default applies, and with a larger value than the seed's it asks for more, either of
+#: which can make minutes of work (``eval`` without ``--dataset`` evaluates the built-in
+#: scenes: seed 7202, case cli:64; ``bench --frames 65536``: seed 7205, case cli:120).
 BOUNDED_BY: dict[str, tuple[str, ...]] = {
     "render": ("--seconds", "--scale", "--samples"),
     "demo": ("--scale", "--seconds"),
@@ -1172,12 +1174,37 @@ BOUNDED_BY: dict[str, tuple[str, ...]] = {
 }
 
 
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _seed_bounds() -> dict[str, dict[str, float | None]]:
+    """Each :data:`BOUNDED_BY` option's value in its subcommand's seeds (``None``: not a
+    number, such as ``--dataset``'s folder), read from :func:`cli_seeds` itself."""
+    out: dict[str, dict[str, float | None]] = {}
+    for argv in cli_seeds(Path("SEEDS"), Path("CASE")):
+        for opt in BOUNDED_BY.get(argv[0], ()):
+            out.setdefault(argv[0], {})[opt] = _number(argv[argv.index(opt) + 1])
+    return out
+
+
 def runs_long_by_design(argv: list[str]) -> bool:
     """Whether the command line lacks one of the options that bound its subcommand's work
-    (:data:`BOUNDED_BY`), so that a run past the case's time limit is its defaults at work:
-    such a run is stopped at the limit and accepted if it has not failed by then."""
-    bounds = BOUNDED_BY.get(argv[0], ()) if argv else ()
-    return any(b not in argv for b in bounds)
+    (:data:`BOUNDED_BY`) or gives one a larger number than its seeds do (the last value
+    given, as argparse takes it), so that a run past the case's time limit is what it asked
+    for: such a run is stopped at the limit and accepted if it has not failed by then."""
+    bounds = _seed_bounds().get(argv[0], {}) if argv else {}
+    for opt, seed in bounds.items():
+        if opt not in argv:
+            return True
+        given = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == opt]
+        value = _number(given[-1]) if given else None
+        if seed is not None and value is not None and value > seed:
+            return True
+    return False
 
 
 def cli_run(argv: list[str], work: Path) -> Callable[[], None]:
