@@ -9,7 +9,11 @@
 //! pair, so the pair-level work is done once instead of per call), `PREPARE=1` (with `PAIR`: compute
 //! the pair state with `prepare_pair` before the first call, as a real-time client does off the
 //! display path, after one call without the history that warms the per-frame buffers;
-//! `PREPARE=only`: those two and nothing else, to subtract them from an instruction count).
+//! `PREPARE=only`: those two and nothing else, to subtract them from an instruction count;
+//! `PREPARE=time`: then `ITERS` more `prepare_pair` calls, each after `BidirHistory::reset`, so
+//! that each computes the pair again into the same buffers as a client's next pair does, and
+//! their median and minimum wall-clock time and CPU time per call; `RAYON_NUM_THREADS=1` for
+//! the real-time client's one preparation thread).
 //! For instruction counts that do not depend on the machine's load:
 //! `ITERS=4` and `ITERS=0` under `valgrind --tool=callgrind`, and the difference over 4.
 //!
@@ -156,6 +160,31 @@ fn main() {
                     println!("{method} aux={use_aux}: prepared only");
                     continue;
                 }
+                if prepare.as_deref() == Some("time") {
+                    let (cpu0, ticks0) = (cpu_seconds(), machine_ticks());
+                    let mut ms: Vec<f64> = (0..iters)
+                        .map(|_| {
+                            history.reset();
+                            let t = std::time::Instant::now();
+                            prepare_pair(method, o, &newer, &req.client, &p, &mut history)
+                                .unwrap_or_else(|e| fail(format!("{method}: {e}")));
+                            t.elapsed().as_secs_f64() * 1000.0
+                        })
+                        .collect();
+                    let cpu = (cpu_seconds() - cpu0) * 1000.0 / iters.max(1) as f64;
+                    let steal = steal_share(ticks0, machine_ticks());
+                    ms.sort_by(f64::total_cmp);
+                    match ms.first() {
+                        Some(min) => println!(
+                            "{method} aux={use_aux}: prepare_pair {:.2} ms median, {min:.2} ms \
+                             min, {cpu:.2} ms CPU per call ({iters} calls){}",
+                            ms[ms.len() / 2],
+                            host_share(steal)
+                        ),
+                        None => println!("{method} aux={use_aux}: ITERS=0, nothing timed"),
+                    }
+                    continue;
+                }
             }
             let mut calls_ms: Vec<f64> = Vec::new();
             let mut timed = |history: &mut BidirHistory, out: &mut [u8]| {
@@ -238,10 +267,7 @@ fn main() {
                 cpu * 1000.0 / n,
                 faults / n,
                 history.pair_builds(),
-                steal.map_or(String::new(), |s| format!(
-                    "; the host took {:.1} % of the CPU time (steal)",
-                    s * 100.0
-                ))
+                host_share(steal)
             );
         }
     }
@@ -323,6 +349,13 @@ fn machine_ticks() -> Option<(u64, u64)> {
 /// The share (0–1) of the machine's CPU time between two [`machine_ticks`] readings that its
 /// host took: on a virtual machine whose host runs other guests on its cores, the calls are
 /// slower for that, not for the kernel (`None` without readings or ticks between them).
+/// "; the host took X % of the CPU time (steal)" where the share is known, else nothing.
+fn host_share(steal: Option<f64>) -> String {
+    steal.map_or(String::new(), |s| {
+        format!("; the host took {:.1} % of the CPU time (steal)", s * 100.0)
+    })
+}
+
 fn steal_share(before: Option<(u64, u64)>, after: Option<(u64, u64)>) -> Option<f64> {
     let ((t0, s0), (t1, s1)) = (before?, after?);
     let (total, steal) = (t1.checked_sub(t0)?, s1.checked_sub(s0)?);
