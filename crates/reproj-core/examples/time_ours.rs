@@ -349,17 +349,17 @@ fn machine_ticks() -> Option<(u64, u64)> {
 /// The share (0–1) of the machine's CPU time between two [`machine_ticks`] readings that its
 /// host took: on a virtual machine whose host runs other guests on its cores, the calls are
 /// slower for that, not for the kernel (`None` without readings or ticks between them).
+fn steal_share(before: Option<(u64, u64)>, after: Option<(u64, u64)>) -> Option<f64> {
+    let ((t0, s0), (t1, s1)) = (before?, after?);
+    let (total, steal) = (t1.checked_sub(t0)?, s1.checked_sub(s0)?);
+    (total > 0 && steal <= total).then(|| steal as f64 / total as f64)
+}
+
 /// "; the host took X % of the CPU time (steal)" where the share is known, else nothing.
 fn host_share(steal: Option<f64>) -> String {
     steal.map_or(String::new(), |s| {
         format!("; the host took {:.1} % of the CPU time (steal)", s * 100.0)
     })
-}
-
-fn steal_share(before: Option<(u64, u64)>, after: Option<(u64, u64)>) -> Option<f64> {
-    let ((t0, s0), (t1, s1)) = (before?, after?);
-    let (total, steal) = (t1.checked_sub(t0)?, s1.checked_sub(s0)?);
-    (total > 0 && steal <= total).then(|| steal as f64 / total as f64)
 }
 
 /// User + system CPU time of this process in seconds (Linux `/proc/self/stat`, clock ticks of
