@@ -6,7 +6,10 @@
 //! pair (its `BidirHistory` kept, as the client does); `ours_first_of_pair` is `ours` with the
 //! pair-level work included (the first client frame of a pair). `ours_1thread` is the same `ours`
 //! call inside a one-thread rayon pool: the naive baseline the tiled parallel kernels are measured
-//! against.
+//! against. `prepare_pair_1thread` is that pair-level work alone (`prepare_pair`, each call after
+//! `BidirHistory::reset`, into the same buffers) on one thread, as the real-time client's worker
+//! does it when an interpolation pair's newer frame arrives; `prepare_extrapolation_1thread` the
+//! same for the extrapolation from the newer frame (no older frame), which a late frame needs.
 //!
 //! `copy_floor_ours` is the memory-copy floor of `ours` in the same run: a copy of as many bytes
 //! as one `ours` client frame reads and writes (as `splitrender bench` counts them: every
@@ -27,7 +30,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use rayon::prelude::*;
 use reproj_core::synthetic::{head_pose, rig, SyntheticFrame, SyntheticScene};
 use reproj_core::{
-    reproject, BidirHistory, CameraView, FrameView, Method, Output, Params, Request,
+    prepare_pair, reproject, BidirHistory, CameraView, FrameView, Method, Output, Params, Request,
 };
 
 /// Server frame interval (f_s = 10) and dynamic-shadow subframes (f_d = 40).
@@ -168,6 +171,33 @@ fn bench_size(c: &mut Criterion, w: usize, h: usize) {
     group.bench_function(BenchmarkId::new("ours_1thread", &size), |b| {
         b.iter(|| one.install(|| ours(&mut history)))
     });
+
+    // The pair-level work alone, on one thread (module doc). The pair's work goes to the pool the
+    // call runs in: the one-thread pool, as the client's worker gives it one thread.
+    let cases = [
+        ("prepare_pair_1thread", Some(&older)),
+        ("prepare_extrapolation_1thread", None),
+    ];
+    for (name, o) in cases {
+        let mut history = BidirHistory::new();
+        let prepare = |history: &mut BidirHistory| {
+            history.reset();
+            prepare_pair(
+                Method::Ours,
+                black_box(o),
+                black_box(&newer),
+                &req.client,
+                &params,
+                history,
+            )
+        };
+        // Fails loudly rather than time an error path.
+        one.install(|| prepare(&mut history))
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        group.bench_function(BenchmarkId::new(name, &size), |b| {
+            b.iter(|| one.install(|| prepare(&mut history)))
+        });
+    }
 
     // The copy floor (module doc), between two buffers touched beforehand.
     let n = ours_bytes(&older, &newer, w, h);
