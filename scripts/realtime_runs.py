@@ -2,8 +2,10 @@
 
 Reads the files that ``splitrender bench --realtime --json FILE`` wrote and prints one line per
 run (frames, late frames, the host's share of the machine's CPU time, the rate achieved), the
-runs grouped by that share, and Spearman's rank correlation between the share and the late
-frames; ``--plot FILE`` also draws each run's late frames per thousand against the share.
+runs grouped by that share with what made their frames late (``deadline_misses_by_cause``:
+started late, more CPU, threads waited; docs/realtime.md, "What makes the rare misses late"),
+and Spearman's rank correlation between the share and the late frames; ``--plot FILE`` also
+draws each run's late frames per thousand against the share.
 
     for i in $(seq 1 24); do
         splitrender bench --realtime --scale 0.25 --seconds 10 --json runs/r$i.json
@@ -28,6 +30,9 @@ from pathlib import Path
 #: The groups of the host's share (per cent): [lower, upper).
 GROUPS = ((0.0, 5.0), (5.0, 15.0), (15.0, math.inf))
 
+#: ``deadline_misses_by_cause``'s keys, in the order printed, and how they are printed.
+CAUSES = (("late_start", "started late"), ("more_cpu", "more CPU"), ("waited", "threads waited"))
+
 
 @dataclass(frozen=True)
 class Run:
@@ -36,6 +41,9 @@ class Run:
     late: int
     steal_pct: float | None
     achieved_fps: float
+    #: Late frames by cause, in the order of :data:`CAUSES` (``None`` for a run made before the
+    #: benches recorded them).
+    causes: tuple[int, ...] | None = None
 
 
 def load(path: Path) -> Run:
@@ -60,7 +68,26 @@ def load(path: Path) -> Run:
     if steal is not None and (not isinstance(steal, (int, float)) or isinstance(steal, bool)
                               or not 0.0 <= steal <= 100.0):
         raise ValueError(f"{path}: `host_steal_pct` {steal!r} is not a share in 0-100")
-    return Run(path.name, d["frames"], d["deadline_misses"], steal, float(d["achieved_fps"]))
+    return Run(path.name, d["frames"], d["deadline_misses"], steal, float(d["achieved_fps"]),
+               _causes(path, d))
+
+
+def _causes(path: Path, d: dict[str, object]) -> tuple[int, ...] | None:
+    """The run's late frames by cause (:data:`CAUSES`), checked to count each late frame once."""
+    by = d.get("deadline_misses_by_cause")
+    if by is None:
+        return None
+    keys = [k for k, _ in CAUSES]
+    if not isinstance(by, dict) or sorted(by) != sorted(keys) or not all(
+        isinstance(by[k], int) and not isinstance(by[k], bool) and by[k] >= 0 for k in keys
+    ):
+        raise ValueError(f"{path}: `deadline_misses_by_cause` {by!r} is not counts >= 0 of "
+                         f"{', '.join(keys)}")
+    counts = tuple(by[k] for k in keys)
+    if sum(counts) != d["deadline_misses"]:
+        raise ValueError(f"{path}: `deadline_misses_by_cause` counts {sum(counts)} late frames, "
+                         f"`deadline_misses` {d['deadline_misses']}")
+    return counts
 
 
 def report(runs: list[Run]) -> str:
@@ -78,9 +105,14 @@ def report(runs: list[Run]) -> str:
             lines.append(f"host took {span}: no run")
             continue
         late = sorted(r.late for r in g)
+        causes = [r.causes for r in g]
+        why = ""
+        if all(c is not None for c in causes):  # else the groups' counts would not add up
+            totals = [sum(c[i] for c in causes if c is not None) for i in range(len(CAUSES))]
+            why = " (" + ", ".join(f"{n} {say}" for n, (_, say) in zip(totals, CAUSES)) + ")"
         lines.append(
             f"host took {span}: {len(g)} run{'s' * (len(g) != 1)}, late frames "
-            f"{late[0]}-{late[-1]} a run, {sum(late)} in {sum(r.frames for r in g)} frames, "
+            f"{late[0]}-{late[-1]} a run, {sum(late)} in {sum(r.frames for r in g)} frames{why}, "
             f"{(clean := sum(r.late == 0 for r in g))} run{'s' * (clean != 1)} without one"
         )
     if len(counted) >= 3:

@@ -53,6 +53,30 @@ def test_runs_are_grouped_by_the_hosts_share_and_ranked(script, tmp_path, capsys
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_each_group_says_what_made_its_frames_late(script, tmp_path, capsys) -> None:
+    def by(late_start: int, more_cpu: int, waited: int) -> dict[str, int]:
+        return {"late_start": late_start, "more_cpu": more_cpu, "waited": waited}
+
+    files = [
+        write(tmp_path, "a.json", deadline_misses=3, host_steal_pct=1.0,
+              deadline_misses_by_cause=by(0, 1, 2)),
+        write(tmp_path, "b.json", deadline_misses=4, host_steal_pct=2.0,
+              deadline_misses_by_cause=by(3, 0, 1)),
+        write(tmp_path, "c.json", deadline_misses=9, host_steal_pct=8.0,
+              deadline_misses_by_cause=by(5, 1, 3)),
+        # Without its causes (made before they were recorded): its group says none.
+        write(tmp_path, "d.json", deadline_misses=2, host_steal_pct=9.0),
+    ]
+    assert script.main(list(map(str, files))) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[6:9] == [
+        "host took 0-5 %: 2 runs, late frames 3-4 a run, 7 in 2400 frames (3 started late, "
+        "1 more CPU, 3 threads waited), 0 runs without one",
+        "host took 5-15 %: 2 runs, late frames 2-9 a run, 11 in 2400 frames, 0 runs without one",
+        "host took 15 % or more: no run",
+    ]
+
+
 def test_a_plot_that_cannot_be_written_is_refused(script, tmp_path, capsys) -> None:
     run = write(tmp_path, "a.json", host_steal_pct=1.0)
     assert script.main([str(run), "--plot", str(tmp_path / "absent" / "p.png")]) == 2
@@ -80,6 +104,17 @@ def test_a_plot_that_cannot_be_written_is_refused(script, tmp_path, capsys) -> N
          "`achieved_fps` nan is not a rate"),
         ('{"frames": 10, "deadline_misses": 0, "achieved_fps": -3}',
          "`achieved_fps` -3 is not a rate"),
+        ('{"frames": 10, "deadline_misses": 1, "achieved_fps": 1.0, '
+         '"deadline_misses_by_cause": [1]}', "`deadline_misses_by_cause` [1] is not counts"),
+        ('{"frames": 10, "deadline_misses": 1, "achieved_fps": 1.0, '
+         '"deadline_misses_by_cause": {"late_start": 1, "more_cpu": 0}}', "is not counts >= 0"),
+        ('{"frames": 10, "deadline_misses": 1, "achieved_fps": 1.0, "deadline_misses_by_cause": '
+         '{"late_start": 2, "more_cpu": -1, "waited": 0}}', "is not counts >= 0"),
+        ('{"frames": 10, "deadline_misses": 1, "achieved_fps": 1.0, "deadline_misses_by_cause": '
+         '{"late_start": true, "more_cpu": 0, "waited": 0}}', "is not counts >= 0"),
+        ('{"frames": 10, "deadline_misses": 3, "achieved_fps": 1.0, "deadline_misses_by_cause": '
+         '{"late_start": 1, "more_cpu": 0, "waited": 1}}',
+         "counts 2 late frames, `deadline_misses` 3"),
     ],
 )
 def test_a_file_that_is_not_a_runs_json_is_refused(script, tmp_path, capsys, text, says) -> None:
