@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import base64
 import errno
+import functools
 import hashlib
 import io
 import json
@@ -1181,9 +1182,11 @@ def _number(text: str) -> float | None:
         return None
 
 
+@functools.cache
 def _seed_bounds() -> dict[str, dict[str, float | None]]:
     """Each :data:`BOUNDED_BY` option's value in its subcommand's seeds (``None``: not a
-    number, such as ``--dataset``'s folder), read from :func:`cli_seeds` itself."""
+    number, such as ``--dataset``'s folder), read from :func:`cli_seeds` itself, once: the seeds
+    do not change, and every ``cli`` case asks (the callers only read the result)."""
     out: dict[str, dict[str, float | None]] = {}
     for argv in cli_seeds(Path("SEEDS"), Path("CASE")):
         for opt in BOUNDED_BY.get(argv[0], ()):

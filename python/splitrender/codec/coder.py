@@ -1519,8 +1519,8 @@ class StreamDecoder(_WorkerThreads):
                 # A key frame's colour picture is about half of its FFmpeg time, on one worker
                 # after the other pictures are done: two slice threads let the other core help
                 # (1280x720 on 2 cores: a server frame's wall time 0.59 instead of 0.65 of its
-                # CPU time, a key frame's 0.68 instead of 0.77; docs/performance.md). The same
-                # pictures.
+                # CPU time, a key frame's 0.68 instead of 0.77; docs/performance.md). The decoded
+                # pictures are the same bytes on any number of threads (tests/test_codec.py).
                 threads = max(threads, min(self._threads, 2))
             ctx = _hevc_decoder(pw, ph, threads)
             self._decoders[b.kind] = ((pw, ph), ctx)
